@@ -1,0 +1,5 @@
+import sys
+
+from ballchain.cli import main
+
+sys.exit(main())

@@ -1,0 +1,60 @@
+"""The ``ballchain`` command: one entry point, one subcommand per job.
+
+Each subcommand lives in ``ballchain/commands/<name>.py`` with ``add_arguments(parser)`` and
+``main(args) -> int``; modules load only when their subcommand runs, so ``ballchain --help`` is
+fast. Every subcommand that computes something takes ``--json``. Bad input exits with status 2
+and a one-line message on stderr, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# subcommand -> (module under ballchain.commands, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "statics": ("statics", "equilibrium shape of a chain in a uniform field"),
+    "alignment": ("alignment", "tip-to-field alignment for 1..16 balls (paper's model figure)"),
+    "sizing": ("sizing", "clinical actuation magnet sizing (paper Section V-A)"),
+    "field-models": ("field_models", "point dipole vs exact cylinder field of the prototype magnet"),
+    "bench": ("bench", "benchmarks (statics solve against an SLSQP baseline)"),
+    "reproduce": ("reproduce", "run the paper checks and write a report (the main job)"),
+}
+
+
+class UserInputError(ValueError):
+    """Bad input from the user: reported as one line, exit status 2."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="ballchain", description=__doc__.split("\n")[0])
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name, (module, help_text) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        p.set_defaults(_module=module)
+        p.set_defaults(_parser=p)
+        # Arguments are added lazily in main() for the chosen subcommand only.
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    parser = build_parser()
+    # Parse the subcommand name first, then load only its module and re-parse.
+    known, _ = parser.parse_known_args(argv) if argv and argv[0] in COMMANDS else (None, None)
+    if known is None:
+        parser.parse_args(argv)  # prints help / errors and exits
+        return 2
+    module = importlib.import_module(f"ballchain.commands.{known._module}")
+    module.add_arguments(known._parser)
+    args = parser.parse_args(argv)
+    try:
+        return int(module.main(args) or 0)
+    except (UserInputError, ValueError) as err:
+        print(f"ballchain {args.command}: error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

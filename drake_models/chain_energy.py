@@ -1,0 +1,127 @@
+"""Potential energy of a ball chain, U = U_b + U_e + U_s + U_g, with its analytic gradient.
+
+This is the paper's energy (Section II) with its slips corrected (shared/DESIGN.md, point 4):
+
+* U_b: every pair of balls, through ``dipole.chain_interactions``.
+* U_e: each ball in the external field, ``-m_i . B(p_i)``.
+* U_s: the sleeve, one circular arc per bend between consecutive links. A bend of angle theta
+  (theta = atan2(|u_a x u_b|, u_a . u_b), the norm of the cross product) spans the contact
+  points d/2 either side of the ball, so its radius of curvature is rho = (d/2) cot(theta/2)
+  (a radius, not an arc length), its length rho theta and its energy
+  E I theta / (2 rho) = (E I / d) theta tan(theta / 2)  (-> E I theta^2 / (2 d) for small theta).
+  The first bend is between the sheath axis (``base_direction``) and the first link: the
+  sleeve is clamped in the sheath.
+* U_g: ``sum_i mass g z_i`` with gravity along -z, so the energy rises with height (the
+  paper's ``mu_i g^T p_i`` has the opposite sign if g is the downward acceleration vector).
+
+Forces and torques on the balls follow from the same function: ``F_i = -dU/dp_i`` and, for a
+ball whose dipole direction is m_hat_i, ``tau_i = m_hat_i x (-dU/dm_hat_i)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ballchain.drake_models.dipole import chain_interactions
+from ballchain.drake_models.field_sources import FieldSource
+from ballchain.drake_models.params import GRAVITY, BallChain
+
+
+@dataclass
+class EnergyTerms:
+    """The energy's parts [J]."""
+
+    balls: float = 0.0
+    external: float = 0.0
+    sleeve: float = 0.0
+    gravity: float = 0.0
+
+    @property
+    def total(self) -> float:
+        return self.balls + self.external + self.sleeve + self.gravity
+
+
+def sleeve_bending(u: np.ndarray, base_direction: np.ndarray, stiffness_over_d: float):
+    """Bending energy of the sleeve over a chain of unit link directions.
+
+    Args:
+        u: (L, 3) unit link directions, from ball 1 to the tip.
+        base_direction: (3,) unit direction of the sheath that clamps the sleeve at ball 1.
+        stiffness_over_d: E I / d [J].
+
+    Returns:
+        ``(U, dU_du)``: energy [J] and its gradient (L, 3) with respect to the (unprojected)
+        unit vectors.
+    """
+    links = np.vstack([base_direction, u])
+    a, b = links[:-1], links[1:]
+    c = np.clip(np.einsum("ij,ij->i", a, b), -1.0, 1.0)
+    s = np.linalg.norm(np.cross(a, b), axis=1)
+    theta = np.arctan2(s, c)
+    if np.any(theta > np.pi - 1e-6):
+        raise ValueError("sleeve_bending: a bend of 180 deg (chain folded onto itself)")
+    U = stiffness_over_d * float(np.sum(theta * np.tan(0.5 * theta)))
+    # d f / d cos(theta) for f = theta tan(theta/2); theta/sin(theta) = 1/sinc(theta/pi).
+    dfdc = -(1.0 + 1.0 / np.sinc(theta / np.pi)) / (1.0 + c)
+    w = stiffness_over_d * dfdc[:, None]
+    dU_dlinks = np.zeros_like(links)
+    dU_dlinks[:-1] += w * b
+    dU_dlinks[1:] += w * a
+    return U, dU_dlinks[1:]
+
+
+def chain_energy(
+    chain: BallChain,
+    p: np.ndarray,
+    m_hat: np.ndarray,
+    external: FieldSource | None = None,
+    gravity: bool = False,
+    base_direction=(1.0, 0.0, 0.0),
+):
+    """Total potential energy of a chain configuration and its gradient.
+
+    Args:
+        chain: the chain's parameters (sleeve bending is included when ``chain.sleeve``).
+        p: (n, 3) ball centres [m].
+        m_hat: (n, 3) unit dipole directions.
+        external: the external field source, or None.
+        gravity: include gravity (along -z).
+        base_direction: sheath axis, for the sleeve's first bend.
+
+    Returns:
+        ``(U, dU_dp, dU_dm_hat, terms)``: U [J], gradients (n, 3) [J/m] and [J], and the parts.
+    """
+    p = np.asarray(p, dtype=float)
+    m_hat = np.asarray(m_hat, dtype=float)
+    M = chain.dipole_moment
+    terms = EnergyTerms()
+    U_b, F, B_int = chain_interactions(p, M * m_hat)
+    terms.balls = U_b
+    dU_dp = -F
+    dU_dm = -M * B_int
+    if external is not None:
+        B, G = external.field_and_gradient(p)
+        terms.external = -M * float(np.einsum("ij,ij->", m_hat, B))
+        dU_dp = dU_dp - M * np.einsum("kab,ka->kb", G, m_hat)
+        dU_dm = dU_dm - M * B
+    if gravity:
+        weight = chain.ball_mass * GRAVITY
+        terms.gravity = weight * float(p[:, 2].sum())
+        dU_dp = dU_dp.copy()
+        dU_dp[:, 2] += weight
+    if chain.sleeve is not None and p.shape[0] > 1:
+        links = np.diff(p, axis=0)
+        lengths = np.linalg.norm(links, axis=1)
+        u = links / lengths[:, None]
+        base = np.asarray(base_direction, dtype=float)
+        base = base / np.linalg.norm(base)
+        U_s, dU_du = sleeve_bending(u, base, chain.sleeve.bending_stiffness / chain.ball_diameter)
+        terms.sleeve = U_s
+        # Through u = l / |l|: dU/dl = (I - u u^T) dU/du / |l|.
+        dU_dl = (dU_du - u * np.einsum("ij,ij->i", u, dU_du)[:, None]) / lengths[:, None]
+        dU_dp = dU_dp.copy()
+        dU_dp[1:] += dU_dl
+        dU_dp[:-1] -= dU_dl
+    return terms.total, dU_dp, dU_dm, terms

@@ -1,0 +1,177 @@
+"""External magnetic field sources and their superposition.
+
+A field source answers ``field_and_gradient(p_W) -> (B_W, G_W)`` for (k, 3) points in world:
+the flux density (k, 3) [T] and its gradient ``G[k, a, b] = dB_a/dp_b`` (k, 3, 3) [T/m].
+Sources: a uniform field, a permanent magnet (cylinder or sphere) modelled as a point dipole or,
+for the cylinder, with magpylib's exact closed-form field, and a sum of any of these.
+
+How far apart the dipole and exact models of the prototype cylinder are is measured by
+``ballchain field-models`` (see README).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal, Protocol, Sequence
+
+import numpy as np
+
+from ballchain.drake_models.dipole import dipole_field, dipole_field_gradient
+from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
+
+FieldModel = Literal["dipole", "exact"]
+
+
+class FieldSource(Protocol):
+    def field_and_gradient(self, p_W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(B_W (k, 3) [T], G_W (k, 3, 3) [T/m]) at the points p_W (k, 3) [m]."""
+
+
+def _as_points(p_W) -> np.ndarray:
+    p = np.asarray(p_W, dtype=float)
+    if p.ndim == 1:
+        p = p[None, :]
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"field points must have shape (k, 3), got {np.shape(p_W)}")
+    if not np.all(np.isfinite(p)):
+        raise ValueError("field points are not finite (NaN or inf)")
+    return p
+
+
+def rotation_with_z_along(direction) -> np.ndarray:
+    """A rotation matrix R_WM whose third column is the unit vector along ``direction``."""
+    z = np.asarray(direction, dtype=float)
+    norm = np.linalg.norm(z)
+    if not np.isfinite(norm) or norm == 0.0:
+        raise ValueError(f"direction must be a finite non-zero vector, got {direction!r}")
+    z = z / norm
+    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    return np.column_stack([x, y, z])
+
+
+@dataclass
+class UniformField:
+    """A spatially uniform flux density ``B_W`` (3,) [T] (a Helmholtz/Maxwell-coil idealisation)."""
+
+    B_W: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.B_W = np.asarray(self.B_W, dtype=float).reshape(3)
+        if not np.all(np.isfinite(self.B_W)):
+            raise ValueError(f"UniformField.B_W must be finite, got {self.B_W}")
+
+    @staticmethod
+    def in_plane(magnitude_T: float, angle_rad: float) -> "UniformField":
+        """A field in the x-y plane at ``angle_rad`` from +x towards +y."""
+        return UniformField(magnitude_T * np.array([np.cos(angle_rad), np.sin(angle_rad), 0.0]))
+
+    def field_and_gradient(self, p_W):
+        p = _as_points(p_W)
+        return np.broadcast_to(self.B_W, p.shape).copy(), np.zeros((p.shape[0], 3, 3))
+
+
+@dataclass
+class MagnetSource:
+    """A permanent magnet at pose (p_WM, R_WM); its dipole points along the magnet frame's z.
+
+    Attributes:
+        magnet: a CylinderMagnet or SphereMagnet.
+        p_WM: (3,) centre in world [m].
+        R_WM: (3, 3) orientation; column 2 is the magnetisation direction.
+        model: "dipole" (point dipole at the centre) or "exact" (magpylib's closed-form field of
+            the cylinder; for a sphere the dipole field is already exact outside it).
+    """
+
+    magnet: CylinderMagnet | SphereMagnet
+    p_WM: np.ndarray
+    R_WM: np.ndarray = field(default_factory=lambda: np.eye(3))
+    model: FieldModel = "dipole"
+    fd_step: float = 1e-5  # central-difference step for the exact model's gradient [m]
+
+    def __post_init__(self) -> None:
+        self.p_WM = np.asarray(self.p_WM, dtype=float).reshape(3)
+        self.R_WM = np.asarray(self.R_WM, dtype=float).reshape(3, 3)
+        if not np.all(np.isfinite(self.p_WM)) or not np.all(np.isfinite(self.R_WM)):
+            raise ValueError("MagnetSource pose must be finite")
+        if not np.allclose(self.R_WM.T @ self.R_WM, np.eye(3), atol=1e-6):
+            raise ValueError("MagnetSource.R_WM is not a rotation matrix")
+        if self.model not in ("dipole", "exact"):
+            raise ValueError(f"MagnetSource.model must be 'dipole' or 'exact', got {self.model!r}")
+
+    @staticmethod
+    def pointing(magnet, p_WM, m_hat_W, model: FieldModel = "dipole") -> "MagnetSource":
+        """A magnet at p_WM whose dipole points along m_hat_W."""
+        return MagnetSource(magnet, p_WM, rotation_with_z_along(m_hat_W), model)
+
+    @property
+    def m_W(self) -> np.ndarray:
+        """Dipole moment in world [A m^2]."""
+        return self.magnet.dipole_moment * self.R_WM[:, 2]
+
+    def _to_magnet_frame(self, p: np.ndarray) -> np.ndarray:
+        p_M = (p - self.p_WM) @ self.R_WM
+        inside = self.magnet.contains(p_M)
+        if np.any(inside):
+            k = int(np.argmax(inside))
+            raise ValueError(
+                f"field point {p[k]} m lies inside the {type(self.magnet).__name__} centred at "
+                f"{self.p_WM} m: a magnet cannot be placed on the chain"
+            )
+        return p_M
+
+    def _exact_B_M(self, p_M: np.ndarray) -> np.ndarray:
+        from magpylib.func import cylinder_field
+
+        B = cylinder_field(
+            "B",
+            observers=p_M,
+            dimensions=(self.magnet.diameter, self.magnet.length),
+            polarizations=(0.0, 0.0, self.magnet.remanence),
+            squeeze=False,
+        )
+        return np.asarray(B, dtype=float).reshape(p_M.shape)
+
+    def field(self, p_W) -> np.ndarray:
+        """Flux density (k, 3) [T] at the points p_W (k, 3)."""
+        p = _as_points(p_W)
+        p_M = self._to_magnet_frame(p)
+        if self.model == "exact" and isinstance(self.magnet, CylinderMagnet):
+            return self._exact_B_M(p_M) @ self.R_WM.T
+        return dipole_field(p - self.p_WM, self.m_W)
+
+    def field_and_gradient(self, p_W):
+        p = _as_points(p_W)
+        p_M = self._to_magnet_frame(p)
+        if self.model == "exact" and isinstance(self.magnet, CylinderMagnet):
+            h = self.fd_step
+            offsets = np.concatenate([np.eye(3) * h, -np.eye(3) * h])  # (6, 3)
+            stencil = (p_M[:, None, :] + offsets[None, :, :]).reshape(-1, 3)
+            B_all = self._exact_B_M(np.concatenate([p_M, stencil])).reshape(-1, 3)
+            k = p_M.shape[0]
+            B_M = B_all[:k]
+            Bs = B_all[k:].reshape(k, 6, 3)
+            G_M = ((Bs[:, :3, :] - Bs[:, 3:, :]) / (2 * h)).transpose(0, 2, 1)  # [k, a, b]
+            R = self.R_WM
+            return B_M @ R.T, np.einsum("ia,kab,jb->kij", R, G_M, R)
+        r = p - self.p_WM
+        return dipole_field(r, self.m_W), dipole_field_gradient(r, self.m_W)
+
+
+@dataclass
+class FieldSources:
+    """Superposition of any number of field sources (the field of the sum is the sum of fields)."""
+
+    sources: Sequence[FieldSource] = ()
+
+    def field_and_gradient(self, p_W):
+        p = _as_points(p_W)
+        B = np.zeros((p.shape[0], 3))
+        G = np.zeros((p.shape[0], 3, 3))
+        for source in self.sources:
+            b, g = source.field_and_gradient(p)
+            B += b
+            G += g
+        return B, G

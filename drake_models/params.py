@@ -1,0 +1,219 @@
+"""Parameter dataclasses of the physical world: the ball chain, its sleeve, the actuation magnets.
+
+SI units throughout. Every dataclass checks itself on construction and says what is wrong.
+Defaults are the paper's prototype (see shared/DESIGN.md, "Conventions").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ballchain.drake_models.dipole import MU0
+
+GRAVITY = 9.80665  # standard gravity [m/s^2]; also the grams-force conversion
+
+
+def _require_positive(owner: str, **values: float) -> None:
+    for name, value in values.items():
+        if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+            raise ValueError(f"{owner}.{name} must be a positive finite number, got {value!r}")
+
+
+@dataclass(frozen=True)
+class Sleeve:
+    """Soft silicone sleeve around the chain (Dragon Skin 10 NV by default).
+
+    Attributes:
+        youngs_modulus: E [Pa] (about 0.15 MPa for Dragon Skin 10).
+        inner_diameter: ID [m].
+        outer_diameter: OD [m].
+    """
+
+    youngs_modulus: float = 0.15e6
+    inner_diameter: float = 3.0e-3
+    outer_diameter: float = 3.5e-3
+
+    def __post_init__(self) -> None:
+        _require_positive(
+            "Sleeve",
+            youngs_modulus=self.youngs_modulus,
+            inner_diameter=self.inner_diameter,
+            outer_diameter=self.outer_diameter,
+        )
+        if self.outer_diameter <= self.inner_diameter:
+            raise ValueError(
+                f"Sleeve.outer_diameter ({self.outer_diameter}) must exceed inner_diameter "
+                f"({self.inner_diameter})"
+            )
+
+    @property
+    def second_moment_of_area(self) -> float:
+        """I = pi (OD^4 - ID^4) / 64 of the tube's cross section [m^4]."""
+        return math.pi * (self.outer_diameter**4 - self.inner_diameter**4) / 64.0
+
+    @property
+    def bending_stiffness(self) -> float:
+        """EI [N m^2]."""
+        return self.youngs_modulus * self.second_moment_of_area
+
+
+@dataclass(frozen=True)
+class BallChain:
+    """A chain of identical, uniformly magnetised spherical magnets (N52 by default).
+
+    Attributes:
+        n_balls: number of balls (>= 1).
+        ball_diameter: d [m].
+        remanence: Br [T].
+        density: [kg/m^3].
+        sleeve: the sleeve, or None for a bare chain.
+    """
+
+    n_balls: int = 16
+    ball_diameter: float = 3.175e-3
+    remanence: float = 1.44
+    density: float = 7500.0
+    sleeve: Sleeve | None = None
+
+    def __post_init__(self) -> None:
+        if isinstance(self.n_balls, bool) or not isinstance(self.n_balls, int) or self.n_balls < 1:
+            raise ValueError(f"BallChain.n_balls must be an integer >= 1, got {self.n_balls!r}")
+        _require_positive(
+            "BallChain",
+            ball_diameter=self.ball_diameter,
+            remanence=self.remanence,
+            density=self.density,
+        )
+
+    @property
+    def ball_volume(self) -> float:
+        """[m^3]"""
+        return math.pi * self.ball_diameter**3 / 6.0
+
+    @property
+    def dipole_moment(self) -> float:
+        """|m| = Br V / mu0 of one ball [A m^2] (0.0192 for the defaults)."""
+        return self.remanence * self.ball_volume / MU0
+
+    @property
+    def ball_mass(self) -> float:
+        """[kg] (0.126 g for the defaults)."""
+        return self.density * self.ball_volume
+
+    @property
+    def length(self) -> float:
+        """n d, the chain's length [m]."""
+        return self.n_balls * self.ball_diameter
+
+    def with_balls(self, n_balls: int) -> "BallChain":
+        """The same chain with another number of balls."""
+        return replace(self, n_balls=n_balls)
+
+
+@dataclass(frozen=True)
+class CylinderMagnet:
+    """Axially magnetised cylindrical permanent magnet (the prototype's N52 76.2 x 38.1 mm).
+
+    Attributes:
+        diameter: [m].
+        length: along the magnetisation axis [m].
+        remanence: Br [T].
+        density: [kg/m^3].
+    """
+
+    diameter: float = 76.2e-3
+    length: float = 38.1e-3
+    remanence: float = 1.44
+    density: float = 7500.0
+
+    def __post_init__(self) -> None:
+        _require_positive(
+            "CylinderMagnet",
+            diameter=self.diameter,
+            length=self.length,
+            remanence=self.remanence,
+            density=self.density,
+        )
+
+    @property
+    def volume(self) -> float:
+        """[m^3]"""
+        return math.pi * (self.diameter / 2.0) ** 2 * self.length
+
+    @property
+    def dipole_moment(self) -> float:
+        """|m| = Br V / mu0 [A m^2] (about 199 A m^2 for the prototype)."""
+        return self.remanence * self.volume / MU0
+
+    @property
+    def mass(self) -> float:
+        return self.density * self.volume
+
+    @property
+    def bounding_radius(self) -> float:
+        """Radius of the smallest sphere enclosing the cylinder [m]."""
+        return math.hypot(self.diameter / 2.0, self.length / 2.0)
+
+    def contains(self, p_M):
+        """Whether points given in the magnet frame (axis = z) lie inside the body."""
+        p_M = np.asarray(p_M, dtype=float)
+        radial = np.hypot(p_M[..., 0], p_M[..., 1])
+        return (radial < self.diameter / 2.0) & (np.abs(p_M[..., 2]) < self.length / 2.0)
+
+
+@dataclass(frozen=True)
+class SphereMagnet:
+    """Uniformly magnetised spherical permanent magnet (the clinical actuation magnet).
+
+    A uniformly magnetised sphere's outside field is exactly that of a point dipole at its
+    centre, so the dipole model is exact for it.
+
+    Attributes:
+        diameter: [m] (119 mm from the paper's sizing).
+        remanence: Br [T].
+        density: [kg/m^3].
+    """
+
+    diameter: float = 119e-3
+    remanence: float = 1.44
+    density: float = 7500.0
+
+    def __post_init__(self) -> None:
+        _require_positive(
+            "SphereMagnet",
+            diameter=self.diameter,
+            remanence=self.remanence,
+            density=self.density,
+        )
+
+    @property
+    def volume(self) -> float:
+        return math.pi * self.diameter**3 / 6.0
+
+    @property
+    def dipole_moment(self) -> float:
+        return self.remanence * self.volume / MU0
+
+    @property
+    def mass(self) -> float:
+        return self.density * self.volume
+
+    @property
+    def bounding_radius(self) -> float:
+        return self.diameter / 2.0
+
+    def contains(self, p_M):
+        p_M = np.asarray(p_M, dtype=float)
+        return np.linalg.norm(p_M, axis=-1) < self.diameter / 2.0
+
+
+def gram_force(newtons: float) -> float:
+    """Newtons to grams-force (the paper's force unit)."""
+    return newtons / GRAVITY * 1e3
+
+
+def newtons_from_gram_force(gf: float) -> float:
+    return gf * 1e-3 * GRAVITY
