@@ -24,8 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ballchain.drake_models.dipole import chain_interactions
-from ballchain.drake_models.field_sources import FieldSource
+from ballchain.drake_models.dipole import chain_interaction_hessian, chain_interactions
+from ballchain.drake_models.field_sources import FieldSource, field_gradient_derivative
 from ballchain.drake_models.params import GRAVITY, BallChain
 
 
@@ -43,17 +43,20 @@ class EnergyTerms:
         return self.balls + self.external + self.sleeve + self.gravity
 
 
-def sleeve_bending(u: np.ndarray, base_direction: np.ndarray, stiffness_over_d: float):
+def sleeve_bending(u: np.ndarray, base_direction: np.ndarray, stiffness_over_d: float, hessian: bool = False):
     """Bending energy of the sleeve over a chain of unit link directions.
+
+    The energy is written as a function of the cosines c = u_a . u_b of consecutive links, so
+    its gradient and Hessian are those of f(c) (unprojected on the unit sphere).
 
     Args:
         u: (L, 3) unit link directions, from ball 1 to the tip.
         base_direction: (3,) unit direction of the sheath that clamps the sleeve at ball 1.
         stiffness_over_d: E I / d [J].
+        hessian: also return the Hessian.
 
     Returns:
-        ``(U, dU_du)``: energy [J] and its gradient (L, 3) with respect to the (unprojected)
-        unit vectors.
+        ``(U, dU_du)`` or ``(U, dU_du, H)``: energy [J], gradient (L, 3), Hessian (L, 3, L, 3).
     """
     links = np.vstack([base_direction, u])
     a, b = links[:-1], links[1:]
@@ -63,13 +66,82 @@ def sleeve_bending(u: np.ndarray, base_direction: np.ndarray, stiffness_over_d: 
     if np.any(theta > np.pi - 1e-6):
         raise ValueError("sleeve_bending: a bend of 180 deg (chain folded onto itself)")
     U = stiffness_over_d * float(np.sum(theta * np.tan(0.5 * theta)))
-    # d f / d cos(theta) for f = theta tan(theta/2); theta/sin(theta) = 1/sinc(theta/pi).
-    dfdc = -(1.0 + 1.0 / np.sinc(theta / np.pi)) / (1.0 + c)
+    # f(theta) = theta tan(theta/2) as a function of c = cos(theta):
+    # df/dc = -(1 + h) / (1 + c) with h = theta / sin(theta) = 1 / sinc(theta / pi).
+    h = 1.0 / np.sinc(theta / np.pi)
+    dfdc = -(1.0 + h) / (1.0 + c)
     w = stiffness_over_d * dfdc[:, None]
     dU_dlinks = np.zeros_like(links)
     dU_dlinks[:-1] += w * b
     dU_dlinks[1:] += w * a
-    return U, dU_dlinks[1:]
+    if not hessian:
+        return U, dU_dlinks[1:]
+    # d2f/dc2 = [(sin t - t cos t) / sin^3 t (1 + c) + (1 + h)] / (1 + c)^2; the first ratio
+    # tends to 1/3 (series below 1e-3 rad).
+    small = theta < 1e-3
+    st = np.where(small, 1.0, np.sin(theta))
+    ratio = np.where(small, 1.0 / 3.0 + theta**2 / 30.0, (st - theta * np.cos(theta)) / st**3)
+    d2fdc2 = (ratio * (1.0 + c) + (1.0 + h)) / (1.0 + c) ** 2
+    nl = links.shape[0]
+    H = np.zeros((nl, 3, nl, 3))
+    idx = np.arange(nl - 1)
+    f2 = stiffness_over_d * d2fdc2[:, None, None]
+    f1 = stiffness_over_d * dfdc[:, None, None]
+    H[idx, :, idx, :] += f2 * (b[:, :, None] * b[:, None, :])
+    H[idx + 1, :, idx + 1, :] += f2 * (a[:, :, None] * a[:, None, :])
+    cross = f2 * (b[:, :, None] * a[:, None, :]) + f1 * np.eye(3)
+    H[idx, :, idx + 1, :] += cross
+    H[idx + 1, :, idx, :] += cross.transpose(0, 2, 1)
+    return U, dU_dlinks[1:], H[1:, :, 1:, :]
+
+
+def field_energy(
+    chain: BallChain,
+    p: np.ndarray,
+    m_hat: np.ndarray,
+    external: FieldSource | None = None,
+    gravity: bool = False,
+    hessian: bool = False,
+):
+    """The magnetic (ball-ball and external) and gravitational energy, without the sleeve.
+
+    Args:
+        chain, p, m_hat, external, gravity: as in ``chain_energy``.
+        hessian: also return second derivatives.
+
+    Returns:
+        ``(terms, dU_dp, dU_dm_hat)`` and, with ``hessian``, ``(H_pp, H_pm, H_mm)`` each
+        (n, 3, n, 3) with respect to positions and (unnormalised) dipole directions.
+    """
+    M = chain.dipole_moment
+    terms = EnergyTerms()
+    U_b, F, B_int = chain_interactions(p, M * m_hat)
+    terms.balls = U_b
+    dU_dp = -F
+    dU_dm = -M * B_int
+    if hessian:
+        H_pp, H_pm, H_mm = chain_interaction_hessian(p, M * m_hat)
+        H_pm *= M
+        H_mm *= M * M
+    if external is not None:
+        B, G = external.field_and_gradient(p)
+        terms.external = -M * float(np.einsum("ij,ij->", m_hat, B))
+        dU_dp = dU_dp - M * np.einsum("kab,ka->kb", G, m_hat)
+        dU_dm = dU_dm - M * B
+        if hessian:
+            n = p.shape[0]
+            idx = np.arange(n)
+            dG = field_gradient_derivative(external, p)
+            H_pp[idx, :, idx, :] -= M * np.einsum("ka,kabc->kbc", m_hat, dG)
+            H_pm[idx, :, idx, :] -= M * G.transpose(0, 2, 1)
+    if gravity:
+        weight = chain.ball_mass * GRAVITY
+        terms.gravity = weight * float(p[:, 2].sum())
+        dU_dp = dU_dp.copy()
+        dU_dp[:, 2] += weight
+    if hessian:
+        return terms, dU_dp, dU_dm, (H_pp, H_pm, H_mm)
+    return terms, dU_dp, dU_dm
 
 
 def chain_energy(
@@ -95,22 +167,7 @@ def chain_energy(
     """
     p = np.asarray(p, dtype=float)
     m_hat = np.asarray(m_hat, dtype=float)
-    M = chain.dipole_moment
-    terms = EnergyTerms()
-    U_b, F, B_int = chain_interactions(p, M * m_hat)
-    terms.balls = U_b
-    dU_dp = -F
-    dU_dm = -M * B_int
-    if external is not None:
-        B, G = external.field_and_gradient(p)
-        terms.external = -M * float(np.einsum("ij,ij->", m_hat, B))
-        dU_dp = dU_dp - M * np.einsum("kab,ka->kb", G, m_hat)
-        dU_dm = dU_dm - M * B
-    if gravity:
-        weight = chain.ball_mass * GRAVITY
-        terms.gravity = weight * float(p[:, 2].sum())
-        dU_dp = dU_dp.copy()
-        dU_dp[:, 2] += weight
+    terms, dU_dp, dU_dm = field_energy(chain, p, m_hat, external, gravity)
     if chain.sleeve is not None and p.shape[0] > 1:
         links = np.diff(p, axis=0)
         lengths = np.linalg.norm(links, axis=1)

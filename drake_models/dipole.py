@@ -141,3 +141,71 @@ def chain_interactions(p: np.ndarray, m: np.ndarray) -> tuple[float, np.ndarray,
         + np.einsum("ij,ijk->ik", c5 * (mi_mj - 5.0 * mi_r * mj_r * inv_r2), r)
     )
     return U, F, B
+
+
+def chain_interaction_hessian(p: np.ndarray, m: np.ndarray):
+    """Second derivatives of the pair energy ``U`` of ``chain_interactions``.
+
+    With phi = 1/|r| the pair energy is ``e = -k m_i . (grad grad phi)(r) m_j`` (r = p_i - p_j), so
+    every derivative is a contraction of the third and fourth derivative tensors of 1/|r|.
+
+    Args:
+        p: (n, 3) dipole positions [m].
+        m: (n, 3) dipole moments [A m^2].
+
+    Returns:
+        ``(H_pp, H_pm, H_mm)``, each (n, 3, n, 3): ``H_pp[i, :, j, :] = d2U / dp_i dp_j``,
+        ``H_pm[i, :, j, :] = d2U / dp_i dm_j``, ``H_mm[i, :, j, :] = d2U / dm_i dm_j``.
+    """
+    p = np.asarray(p, dtype=float)
+    m = np.asarray(m, dtype=float)
+    n = p.shape[0]
+    r = p[:, None, :] - p[None, :, :]
+    r2 = np.einsum("ijk,ijk->ij", r, r)
+    np.fill_diagonal(r2, 1.0)
+    if np.any(r2 <= 0.0):
+        raise ValueError("chain_interaction_hessian: two dipoles are at the same position")
+    inv_r2 = 1.0 / r2
+    np.fill_diagonal(inv_r2, 0.0)
+    inv_r5 = inv_r2 * inv_r2 * np.sqrt(inv_r2)
+    inv_r7 = inv_r5 * inv_r2
+    inv_r9 = inv_r7 * inv_r2
+    eye = np.eye(3)
+    x = np.broadcast_to(m[:, None, :], r.shape)  # m_i
+    y = np.broadcast_to(m[None, :, :], r.shape)  # m_j
+    xr = np.einsum("ijk,ijk->ij", x, r)
+    yr = np.einsum("ijk,ijk->ij", y, r)
+    xy = m @ m.T
+    rr = r[..., :, None] * r[..., None, :]
+
+    def sym_outer(a, b):
+        o = a[..., :, None] * b[..., None, :]
+        return o + np.swapaxes(o, -1, -2)
+
+    # Fourth derivative of 1/r contracted with (m_i, m_j): Q[c, d].
+    v = -15.0 * inv_r7[..., None] * (yr[..., None] * x + xr[..., None] * y)
+    Q = (
+        ((105.0 * inv_r9 * xr * yr - 15.0 * inv_r7 * xy)[..., None, None]) * rr
+        + sym_outer(v, r)
+        + ((-15.0 * inv_r7 * xr * yr + 3.0 * inv_r5 * xy)[..., None, None]) * eye
+        + (3.0 * inv_r5)[..., None, None] * sym_outer(x, y)
+    )
+    # Third derivative of 1/r contracted with m_j: T[a, c] (symmetric).
+    T = (
+        (-15.0 * yr * inv_r7)[..., None, None] * rr
+        + (3.0 * inv_r5)[..., None, None] * sym_outer(y, r)
+        + (3.0 * inv_r5 * yr)[..., None, None] * eye
+    )
+    # Second derivative of 1/r: D[a, b].
+    inv_r3 = inv_r2 * np.sqrt(inv_r2)
+    D = (3.0 * inv_r5)[..., None, None] * rr - inv_r3[..., None, None] * eye
+    k = K_DIPOLE
+    idx = np.arange(n)
+    H_pp = k * Q.transpose(0, 2, 1, 3).copy()  # [i, c, j, d], off-diagonal blocks
+    H_pp[idx, :, idx, :] = -k * Q.sum(axis=1)
+    A = -k * T  # A[i, j] = d2 e_ij / dp_i dm_i (rows: p components, cols: m components)
+    H_pm = -A.transpose(1, 2, 0, 3).copy()  # [a, c, b, :] = -A[b, a]: d2U/dp_a dm_b, a != b
+    H_pm[idx, :, idx, :] = A.sum(axis=1)
+    H_mm = (-k * D).transpose(0, 2, 1, 3).copy()
+    H_mm[idx, :, idx, :] = 0.0
+    return H_pp, H_pm, H_mm

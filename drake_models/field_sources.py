@@ -175,3 +175,24 @@ class FieldSources:
             B += b
             G += g
         return B, G
+
+
+def field_gradient_derivative(source: FieldSource, p_W, step: float = 1e-6) -> np.ndarray:
+    """Second spatial derivative ``dG[k, a, b, c] = d2 B_a / dp_b dp_c`` (k, 3, 3, 3) [T/m^2].
+
+    Zero for a uniform field; otherwise central differences of the source's analytic (or, for
+    the exact cylinder, finite-difference) gradient. Used by the Newton statics' Hessian.
+    """
+    p = _as_points(p_W)
+    if isinstance(source, UniformField):
+        return np.zeros((p.shape[0], 3, 3, 3))
+    if isinstance(source, FieldSources):
+        total = np.zeros((p.shape[0], 3, 3, 3))
+        for s in source.sources:
+            total += field_gradient_derivative(s, p, step)
+        return total
+    offsets = np.concatenate([np.eye(3) * step, -np.eye(3) * step])
+    stencil = (p[:, None, :] + offsets[None, :, :]).reshape(-1, 3)
+    _, G = source.field_and_gradient(stencil)
+    G = G.reshape(p.shape[0], 6, 3, 3)
+    return ((G[:, :3] - G[:, 3:]) / (2 * step)).transpose(0, 2, 3, 1)

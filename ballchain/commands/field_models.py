@@ -1,0 +1,132 @@
+"""Point dipole vs exact (magpylib) field of the prototype cylinder magnet.
+
+At each distance from the magnet centre and each direction (on the axis, at 45 deg, on the
+equator): |B| of both models, the dipole's relative magnitude error and angle error, and the same
+for the force on one ball aligned with the field (what the field gradient does to the chain),
+plus the relative Frobenius error of the gradient itself.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+from ballchain.commands._common import add_json_flag, print_json
+from ballchain.drake_models.field_model_comparison import (
+    DEFAULT_DISTANCES,
+    DEFAULT_POLAR_ANGLES_DEG,
+    compare_field_models,
+    on_axis_relative_error_coefficient,
+)
+from ballchain.drake_models.params import BallChain, CylinderMagnet, gram_force
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--distances-cm",
+        type=float,
+        nargs="+",
+        default=[r * 1e2 for r in DEFAULT_DISTANCES],
+        help="distances from the magnet centre [cm] (default 8 12 16.51 20)",
+    )
+    parser.add_argument(
+        "--angles-deg",
+        type=float,
+        nargs="+",
+        default=list(DEFAULT_POLAR_ANGLES_DEG),
+        help="polar angles from the magnetisation axis, 0..180 [deg] (default 0 45 90)",
+    )
+    parser.add_argument(
+        "--ball-diameter-mm",
+        type=float,
+        default=BallChain().ball_diameter * 1e3,
+        help="diameter of the aligned ball whose force is compared [mm] (default 3.175)",
+    )
+    add_json_flag(parser)
+
+
+def run(*, distances_m, angles_deg, ball: BallChain, magnet: CylinderMagnet = CylinderMagnet()) -> dict:
+    """The comparison in edge units (cm, mT, gf, %, deg)."""
+    rows = compare_field_models(magnet, distances_m, angles_deg, ball)
+    return {
+        "magnet": {
+            "diameter_mm": magnet.diameter * 1e3,
+            "length_mm": magnet.length * 1e3,
+            "remanence_T": magnet.remanence,
+            "dipole_moment_Am2": magnet.dipole_moment,
+        },
+        "ball_diameter_mm": ball.ball_diameter * 1e3,
+        "on_axis_rel_error_asymptote_cm2": on_axis_relative_error_coefficient(magnet) * 1e4,
+        "rows": [
+            {
+                "distance_cm": row.distance * 1e2,
+                "polar_angle_deg": row.polar_angle_deg,
+                "direction": row.direction,
+                "B_dipole_mT": row.B_dipole * 1e3,
+                "B_exact_mT": row.B_exact * 1e3,
+                "B_dipole_magnitude_mT": float(math.hypot(*row.B_dipole)) * 1e3,
+                "B_exact_magnitude_mT": float(math.hypot(*row.B_exact)) * 1e3,
+                "B_rel_error_percent": row.B_rel_error * 1e2,
+                "B_angle_error_deg": row.B_angle_error_deg,
+                "gradient_rel_error_percent": row.G_rel_error * 1e2,
+                "force_dipole_gf": [gram_force(f) for f in row.F_dipole],
+                "force_exact_gf": [gram_force(f) for f in row.F_exact],
+                "force_dipole_magnitude_gf": gram_force(float(math.hypot(*row.F_dipole))),
+                "force_exact_magnitude_gf": gram_force(float(math.hypot(*row.F_exact))),
+                "force_rel_error_percent": row.F_rel_error * 1e2,
+                "force_angle_error_deg": row.F_angle_error_deg,
+            }
+            for row in rows
+        ],
+        "notes": [
+            "rel error = (|dipole| - |exact|) / |exact|: positive means the dipole overestimates",
+            "force: on one ball whose dipole is aligned with each model's own field, F = G m_hat |m_ball|",
+            "exact: magpylib closed-form cylinder field; its gradient by central differences (MagnetSource)",
+        ],
+    }
+
+
+def _print_table(out: dict) -> None:
+    m = out["magnet"]
+    print(
+        f"cylinder {m['diameter_mm']:g} x {m['length_mm']:g} mm, Br {m['remanence_T']:g} T "
+        f"(|m| = {m['dipole_moment_Am2']:.1f} A m^2); force on one {out['ball_diameter_mm']:g} mm ball"
+    )
+    header = (
+        f"{'r_cm':>6} {'dir':>7} {'|B|dip_mT':>10} {'|B|ex_mT':>10} {'dB_%':>7} {'angB_deg':>8} "
+        f"{'dG_%':>7} {'|F|dip_gf':>10} {'|F|ex_gf':>10} {'dF_%':>7} {'angF_deg':>8}"
+    )
+    print(header)
+    for r in out["rows"]:
+        print(
+            f"{r['distance_cm']:6.2f} {r['direction']:>7} {r['B_dipole_magnitude_mT']:10.4g} "
+            f"{r['B_exact_magnitude_mT']:10.4g} {r['B_rel_error_percent']:7.2f} {r['B_angle_error_deg']:8.3f} "
+            f"{r['gradient_rel_error_percent']:7.2f} {r['force_dipole_magnitude_gf']:10.4g} "
+            f"{r['force_exact_magnitude_gf']:10.4g} {r['force_rel_error_percent']:7.2f} "
+            f"{r['force_angle_error_deg']:8.3f}"
+        )
+    print(
+        f"on-axis asymptote: dB/B ~ {out['on_axis_rel_error_asymptote_cm2']:.2f} cm^2 / r^2 "
+        "(rel error = (dipole - exact)/exact)"
+    )
+
+
+def main(args: argparse.Namespace) -> int:
+    for d in args.distances_cm:
+        if not (math.isfinite(d) and d > 0):
+            raise ValueError(f"--distances-cm must be positive finite numbers, got {d}")
+    for a in args.angles_deg:
+        if not (math.isfinite(a) and 0.0 <= a <= 180.0):
+            raise ValueError(f"--angles-deg must lie in [0, 180], got {a}")
+    if not (math.isfinite(args.ball_diameter_mm) and args.ball_diameter_mm > 0):
+        raise ValueError(f"--ball-diameter-mm must be a positive finite number, got {args.ball_diameter_mm}")
+    out = run(
+        distances_m=[d * 1e-2 for d in args.distances_cm],
+        angles_deg=args.angles_deg,
+        ball=BallChain(ball_diameter=args.ball_diameter_mm * 1e-3),
+    )
+    if args.json:
+        print_json(out)
+    else:
+        _print_table(out)
+    return 0

@@ -1,0 +1,153 @@
+"""Point-dipole vs exact (magpylib) field of a cylindrical magnet, as data a report can reuse.
+
+Both models come from :class:`MagnetSource` (``model="dipole"`` and ``model="exact"``), so this
+compares exactly what the simulation uses. The magnet sits at the origin magnetised along +z;
+field points lie in the x-z plane at a polar angle from the axis (0 deg: on the axis, 90 deg: on
+the equator). Besides the flux density it compares the force on a small ball whose dipole is
+aligned with each model's own field, ``F = G (|m_ball| B / |B|)``, which is what the gradient
+does to the chain.
+
+For an axially magnetised cylinder of radius R and length L the quadrupole vanishes by symmetry,
+so the dipole's relative error falls like (a/r)^2; on the axis it is
+``(1.5 R^2 - L^2 / 2) / z^2 + O(z^-4)`` (zero for L/D = sqrt(3)/2; the prototype has L/D = 1/2).
+
+SI inside (m, T, T/m, N).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from ballchain.drake_models.dipole import force_on_dipole
+from ballchain.drake_models.field_sources import MagnetSource
+from ballchain.drake_models.params import BallChain, CylinderMagnet
+
+DEFAULT_DISTANCES = (0.08, 0.12, 0.1651, 0.20)
+"""Distances from the magnet centre [m] (16.51 cm is the prototype's working distance)."""
+
+DEFAULT_POLAR_ANGLES_DEG = (0.0, 45.0, 90.0)
+"""On the axis, at 45 deg, on the equator [deg]."""
+
+DIRECTION_NAMES = {0.0: "axis", 45.0: "45deg", 90.0: "equator"}
+
+
+@dataclass(frozen=True)
+class FieldModelComparison:
+    """Dipole vs exact at one field point.
+
+    Attributes:
+        distance: from the magnet centre [m].
+        polar_angle_deg: from the magnetisation axis [deg].
+        p_M: (3,) field point in the magnet frame [m].
+        B_dipole, B_exact: (3,) flux density [T].
+        B_rel_error: (|B_dipole| - |B_exact|) / |B_exact| [-] (positive: the dipole overestimates).
+        B_angle_error_deg: angle between B_dipole and B_exact [deg].
+        G_rel_error: ||G_dipole - G_exact||_F / ||G_exact||_F of the gradient [-].
+        F_dipole, F_exact: (3,) force on a ball aligned with that model's field [N].
+        F_rel_error: (|F_dipole| - |F_exact|) / |F_exact| [-].
+        F_angle_error_deg: angle between F_dipole and F_exact [deg].
+    """
+
+    distance: float
+    polar_angle_deg: float
+    p_M: np.ndarray
+    B_dipole: np.ndarray
+    B_exact: np.ndarray
+    B_rel_error: float
+    B_angle_error_deg: float
+    G_rel_error: float
+    F_dipole: np.ndarray
+    F_exact: np.ndarray
+    F_rel_error: float
+    F_angle_error_deg: float
+
+    @property
+    def direction(self) -> str:
+        """"axis", "45deg", "equator" or the angle as text."""
+        return DIRECTION_NAMES.get(float(self.polar_angle_deg), f"{self.polar_angle_deg:g}deg")
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angle between rows of a and b (k, 3) [deg], robust near 0 (atan2 of |a x b| and a . b)."""
+    cross = np.linalg.norm(np.cross(a, b), axis=-1)
+    dot = np.einsum("...i,...i->...", a, b)
+    return np.degrees(np.arctan2(cross, dot))
+
+
+def compare_field_models(
+    magnet: CylinderMagnet = CylinderMagnet(),
+    distances: Sequence[float] = DEFAULT_DISTANCES,
+    polar_angles_deg: Sequence[float] = DEFAULT_POLAR_ANGLES_DEG,
+    ball: BallChain = BallChain(),
+) -> list[FieldModelComparison]:
+    """Compare the point-dipole and exact fields of ``magnet`` on a grid of distance x direction.
+
+    Args:
+        magnet: the cylinder (the prototype N52 76.2 x 38.1 mm by default).
+        distances: distances from the magnet centre [m], each positive.
+        polar_angles_deg: angles from the magnetisation axis [deg], each in [0, 180].
+        ball: the ball whose aligned force is compared (its dipole moment is used) [-].
+
+    Returns:
+        One comparison per (distance, angle), distances outer, angles inner.
+
+    Raises:
+        ValueError: a distance is not positive and finite, an angle out of range, or a point lies
+            inside the magnet (from :class:`MagnetSource`).
+    """
+    distances = [float(r) for r in distances]
+    angles = [float(a) for a in polar_angles_deg]
+    if not distances or not angles:
+        raise ValueError("need at least one distance and one polar angle")
+    for r in distances:
+        if not (math.isfinite(r) and r > 0):
+            raise ValueError(f"distances must be positive finite numbers of metres, got {r!r}")
+    for a in angles:
+        if not (math.isfinite(a) and 0.0 <= a <= 180.0):
+            raise ValueError(f"polar angles must lie in [0, 180] deg, got {a!r}")
+    grid = [(r, a) for r in distances for a in angles]
+    p = np.array([[r * math.sin(math.radians(a)), 0.0, r * math.cos(math.radians(a))] for r, a in grid])
+    dipole = MagnetSource(magnet, np.zeros(3), model="dipole")
+    exact = MagnetSource(magnet, np.zeros(3), model="exact")
+    B_d, G_d = dipole.field_and_gradient(p)
+    B_e, G_e = exact.field_and_gradient(p)
+    m_ball = ball.dipole_moment
+    F_d = force_on_dipole(m_ball * B_d / np.linalg.norm(B_d, axis=1, keepdims=True), G_d)
+    F_e = force_on_dipole(m_ball * B_e / np.linalg.norm(B_e, axis=1, keepdims=True), G_e)
+    nB_d, nB_e = np.linalg.norm(B_d, axis=1), np.linalg.norm(B_e, axis=1)
+    nF_d, nF_e = np.linalg.norm(F_d, axis=1), np.linalg.norm(F_e, axis=1)
+    G_err = np.linalg.norm(G_d - G_e, axis=(1, 2)) / np.linalg.norm(G_e, axis=(1, 2))
+    B_ang = _angle_deg(B_d, B_e)
+    F_ang = _angle_deg(F_d, F_e)
+    return [
+        FieldModelComparison(
+            distance=r,
+            polar_angle_deg=a,
+            p_M=p[i],
+            B_dipole=B_d[i],
+            B_exact=B_e[i],
+            B_rel_error=float((nB_d[i] - nB_e[i]) / nB_e[i]),
+            B_angle_error_deg=float(B_ang[i]),
+            G_rel_error=float(G_err[i]),
+            F_dipole=F_d[i],
+            F_exact=F_e[i],
+            F_rel_error=float((nF_d[i] - nF_e[i]) / nF_e[i]),
+            F_angle_error_deg=float(F_ang[i]),
+        )
+        for i, (r, a) in enumerate(grid)
+    ]
+
+
+def on_axis_relative_error_coefficient(magnet: CylinderMagnet = CylinderMagnet()) -> float:
+    """Leading coefficient c of the dipole's on-axis relative field error, c / z^2 [m^2].
+
+    From the exact on-axis field ``B_z = (Br/2)[(z+l)/sqrt((z+l)^2+R^2) - (z-l)/sqrt((z-l)^2+R^2)]``
+    (l = L/2) expanded in 1/z: ``c = 1.5 R^2 - 2 l^2``.
+    """
+    R = magnet.diameter / 2.0
+    half = magnet.length / 2.0
+    return 1.5 * R**2 - 2.0 * half**2

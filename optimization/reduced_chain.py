@@ -1,0 +1,176 @@
+"""The chain in reduced coordinates: energy, gradient, Hessian and rigidity constraints.
+
+Adjacent balls touch, so a configuration of the canonical problem is fully described by the
+n-1 unit link directions u_l (ball l to ball l+1, p_k = d sum_{l<k} u_l) and the n-1 free unit
+dipole directions (ball 1's dipole is held along +x). The only constraints left are the
+non-adjacent rigidity constraints |p_i - p_j| >= d (j >= i + 2), written as the dimensionless
+``c_ij = |p_j - p_i|^2 / d^2 - 1 >= 0``.
+
+Each of the K = 2(n-1) unit vectors is written in a chart centred on the warm start r0,
+
+    w(a, b) = cos b (cos a r0 + sin a t1) + sin b t2,
+
+with t2 the out-of-plane direction (z, or x near the poles) made orthogonal to r0 and
+t1 = t2 x r0. The initial guess is always q = 0, planar problems move in ``a`` only and the
+chart's singularity (w = +-t2) stays 90 degrees away. Coordinates: q = (a_1..a_K, b_1..b_K).
+
+The physics comes from ``drake_models.chain_energy`` (``field_energy``, ``sleeve_bending``):
+this module only applies the chain rule. The energy is scaled by E0, the pair energy of two
+touching coaxial balls, so that the solvers see numbers of order one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ballchain.drake_models.chain_energy import EnergyTerms, field_energy, sleeve_bending
+from ballchain.drake_models.dipole import K_DIPOLE
+from ballchain.drake_models.field_sources import FieldSource
+from ballchain.drake_models.params import BallChain
+
+X_AXIS = np.array([1.0, 0.0, 0.0])
+Z_AXIS = np.array([0.0, 0.0, 1.0])
+
+
+@dataclass
+class Evaluation:
+    """Energy (scaled by E0) and rigidity constraints at one q; derivatives when asked."""
+
+    energy: float
+    terms: EnergyTerms
+    gaps: np.ndarray  # c_ij for every non-adjacent pair
+    gradient: np.ndarray | None = None  # (nq,)
+    jacobian: np.ndarray | None = None  # (pairs, nq)
+    hessian: np.ndarray | None = None  # (nq, nq)
+
+
+class ReducedChain:
+    """The canonical chain problem in chart coordinates.
+
+    Args:
+        chain: the chain.
+        external: external field source or None.
+        gravity: gravity along -z.
+        base_direction: the sheath axis (ball 1's dipole and the sleeve's clamp).
+    """
+
+    def __init__(self, chain: BallChain, external: FieldSource | None, gravity: bool):
+        if chain.n_balls < 2:
+            raise ValueError("the reduced chain needs at least 2 balls (ball 1 is held)")
+        self.chain = chain
+        self.external = external
+        self.gravity = gravity
+        n = chain.n_balls
+        self.n_links = n - 1
+        self.n_vectors = 2 * (n - 1)
+        self.nq = 2 * self.n_vectors
+        self.d = chain.ball_diameter
+        self.energy_scale = 2.0 * K_DIPOLE * chain.dipole_moment**2 / self.d**3
+        self.sleeve_stiffness = (
+            chain.sleeve.bending_stiffness / self.d if chain.sleeve is not None else 0.0
+        )
+        i, j = np.triu_indices(n, k=2)
+        self.pair_i, self.pair_j = i, j
+        links = np.arange(self.n_links)
+        self.pair_links = ((links[None, :] >= i[:, None]) & (links[None, :] < j[:, None])).astype(float)
+        # p = d C u with C[k, l] = 1 for l < k.
+        C = (np.arange(n)[:, None] > links[None, :]).astype(float)
+        self._C3 = np.kron(C, np.eye(3))  # (3n, 3L)
+
+    # --- chart -------------------------------------------------------------------------
+    def set_chart(self, w0: np.ndarray) -> None:
+        """Centre the chart on the unit vectors w0 (K, 3)."""
+        r0 = w0 / np.linalg.norm(w0, axis=1)[:, None]
+        t2 = Z_AXIS - r0 * r0[:, 2:3]
+        norms = np.linalg.norm(t2, axis=1)
+        near_pole = norms < 0.3
+        if np.any(near_pole):
+            alt = X_AXIS - r0 * r0[:, 0:1]
+            t2[near_pole] = alt[near_pole]
+            norms = np.linalg.norm(t2, axis=1)
+        self.r0 = r0
+        self.t2 = t2 / norms[:, None]
+        self.t1 = np.cross(self.t2, r0)
+
+    def chart_from_configuration(self, positions: np.ndarray, dipoles: np.ndarray) -> None:
+        links = np.diff(positions, axis=0)
+        self.set_chart(np.vstack([links / np.linalg.norm(links, axis=1)[:, None], dipoles[1:]]))
+
+    def unit_vectors(self, q: np.ndarray):
+        K = self.n_vectors
+        a, b = q[:K, None], q[K:, None]
+        ca, sa, cb, sb = np.cos(a), np.sin(a), np.cos(b), np.sin(b)
+        in_plane = ca * self.r0 + sa * self.t1
+        w = cb * in_plane + sb * self.t2
+        dw_da = cb * (-sa * self.r0 + ca * self.t1)
+        dw_db = -sb * in_plane + cb * self.t2
+        return w, dw_da, dw_db, in_plane, (ca, sa, cb, sb)
+
+    def configuration(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(positions (n, 3) [m], unit dipoles (n, 3)) at q."""
+        w = self.unit_vectors(q)[0]
+        return self._configuration(w)
+
+    def _configuration(self, w):
+        u = w[: self.n_links]
+        p = np.zeros((self.n_links + 1, 3))
+        p[1:] = self.d * np.cumsum(u, axis=0)
+        return p, np.vstack([X_AXIS, w[self.n_links :]])
+
+    # --- evaluation ------------------------------------------------------------------------
+    def evaluate(self, q: np.ndarray, order: int = 2) -> Evaluation:
+        """Energy/E0 and constraints at q, with derivatives up to ``order`` (0, 1 or 2)."""
+        w, dw_da, dw_db, in_plane, (ca, sa, cb, sb) = self.unit_vectors(q)
+        p, m_hat = self._configuration(w)
+        L, K = self.n_links, self.n_vectors
+        out = field_energy(self.chain, p, m_hat, self.external, self.gravity, hessian=order >= 2)
+        terms, dU_dp, dU_dm = out[:3]
+        u = w[:L]
+        if self.sleeve_stiffness > 0.0:
+            s_out = sleeve_bending(u, X_AXIS, self.sleeve_stiffness, hessian=order >= 2)
+            terms.sleeve = s_out[0]
+        S = p[self.pair_j] - p[self.pair_i]
+        gaps = np.einsum("ij,ij->i", S, S) / self.d**2 - 1.0
+        E0 = self.energy_scale
+        ev = Evaluation(terms.total / E0, terms, gaps)
+        if order < 1:
+            return ev
+        dU_du = self.d * np.cumsum(dU_dp[:0:-1], axis=0)[::-1]
+        if self.sleeve_stiffness > 0.0:
+            dU_du = dU_du + s_out[1]
+        g_w = np.vstack([dU_du, dU_dm[1:]])  # (K, 3)
+        ev.gradient = np.concatenate(
+            [np.einsum("ij,ij->i", g_w, dw_da), np.einsum("ij,ij->i", g_w, dw_db)]
+        ) / E0
+        jac = np.zeros((len(gaps), self.nq))
+        jac[:, :L] = (2.0 / self.d) * self.pair_links * (S @ dw_da[:L].T)
+        jac[:, K : K + L] = (2.0 / self.d) * self.pair_links * (S @ dw_db[:L].T)
+        ev.jacobian = jac
+        if order < 2:
+            return ev
+        H_pp, H_pm, H_mm = out[3]
+        n = L + 1
+        C3 = self._C3
+        H_pp = H_pp.reshape(3 * n, 3 * n)
+        H_uu = self.d**2 * (C3.T @ H_pp @ C3)
+        if self.sleeve_stiffness > 0.0:
+            H_uu += s_out[2].reshape(3 * L, 3 * L)
+        H_um = self.d * (C3.T @ H_pm.reshape(3 * n, 3 * n)[:, 3:])
+        H_ww = np.block([[H_uu, H_um], [H_um.T, H_mm.reshape(3 * n, 3 * n)[3:, 3:]]])
+        # Chart Jacobian as a block-diagonal (3K, 2K) matrix: column s*K + i holds dw_i/dq_s.
+        Jw = np.zeros((K, 3, 2, K))
+        idx = np.arange(K)
+        Jw[idx, :, 0, idx] = dw_da
+        Jw[idx, :, 1, idx] = dw_db
+        Jw = Jw.reshape(3 * K, 2 * K)
+        H = Jw.T @ H_ww @ Jw
+        # Curvature of the chart: g_w . d2w/dq2, per vector.
+        d_ab = np.einsum("ij,ij->i", g_w, -sb * (-sa * self.r0 + ca * self.t1))
+        H[idx, idx] += np.einsum("ij,ij->i", g_w, -cb * in_plane)
+        H[idx, K + idx] += d_ab
+        H[K + idx, idx] += d_ab
+        H[K + idx, K + idx] -= np.einsum("ij,ij->i", g_w, w)
+        ev.hessian = H / E0
+        return ev

@@ -1,0 +1,410 @@
+"""Chain statics: the equilibrium shape as the minimum of the chain's energy.
+
+The canonical problem (shared/DESIGN.md): ball 1 is held by the sheath at the origin with its
+dipole along +x; balls 2..n are free (position and dipole direction, frictionless, no twist),
+each touching its predecessor, no two balls closer than d. ``optimization.reduced_chain`` writes
+it in reduced coordinates (link and dipole directions in a chart centred on the warm start), with
+the exact energy, gradient and Hessian from ``drake_models.chain_energy``.
+
+Two solvers of the same problem:
+
+* ``"newton"`` (default): a second-order SQP. Each step minimises the quadratic model of the
+  energy (exact Hessian, made positive definite) subject to the linearised rigidity constraints
+  of the pairs that are near contact; when a pair is near, the step is a QP posed as a Drake
+  MathematicalProgram and solved by Clarabel (its multipliers are the contact forces); otherwise
+  it is a Cholesky solve. An l1 merit line search globalises it; a negative-curvature step leaves
+  saddle points (the straight chain in an antiparallel field is one), and "converged" means the
+  KKT conditions hold and the reduced Hessian is positive semi-definite: a verified local minimum.
+* ``"snopt"``: the whole problem as one MathematicalProgram (energy cost with analytic gradient,
+  rigidity as a vector constraint) solved by SNOPT. A quasi-Newton reference: about 50 times
+  slower here, since it needs tens of iterations that each pass through Drake's AutoDiff
+  bindings.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Iterable, Literal
+
+import numpy as np
+from pydrake.autodiffutils import AutoDiffXd, ExtractGradient, ExtractValue, InitializeAutoDiff
+from pydrake.solvers import (
+    ClarabelSolver,
+    MathematicalProgram,
+    SnoptSolver,
+    SolverOptions,
+)
+
+from ballchain.drake_models.chain_energy import EnergyTerms, chain_energy
+from ballchain.drake_models.field_sources import FieldSource
+from ballchain.drake_models.params import BallChain
+from ballchain.optimization.reduced_chain import X_AXIS, ReducedChain
+
+Method = Literal["newton", "snopt"]
+
+_SNOPT_MESSAGES = {
+    1: "optimality conditions satisfied",
+    3: "requested accuracy could not be achieved",
+    13: "nonlinear infeasibilities minimized",
+    31: "iteration limit reached",
+    32: "major iteration limit reached",
+    41: "current point cannot be improved",
+    42: "singular basis",
+}
+
+
+class StaticsError(RuntimeError):
+    """A statics solve that did not converge, with the reason."""
+
+
+@dataclass
+class StaticsResult:
+    """An equilibrium of the chain (or the last iterate of a failed solve).
+
+    Attributes:
+        positions: (n, 3) ball centres [m], ball 1 at the origin.
+        dipoles: (n, 3) unit dipole directions, ball 1 along +x.
+        energy: total potential energy [J].
+        terms: the energy's parts.
+        converged: whether the solver certified a (local) minimum.
+        reason: the solver's message (why it stopped).
+        solver: solver name.
+        iterations: Newton iterations, or energy evaluations for SNOPT.
+        solve_time: wall time of the solve [s].
+        max_violation: largest rigidity-constraint violation, |p_i - p_j| < d, [m] (0 if none).
+    """
+
+    positions: np.ndarray
+    dipoles: np.ndarray
+    energy: float
+    terms: EnergyTerms
+    converged: bool
+    reason: str
+    solver: str
+    iterations: int
+    solve_time: float
+    max_violation: float = 0.0
+    pair_forces: dict = field(default_factory=dict)
+
+    """``pair_forces[(i, j)]``: contact force [N] between non-adjacent balls i, j (0-based) that
+    touch at the equilibrium (the rigidity constraints' multipliers)."""
+
+    @property
+    def tip_position(self) -> np.ndarray:
+        return self.positions[-1]
+
+    @property
+    def tip_dipole(self) -> np.ndarray:
+        return self.dipoles[-1]
+
+    def link_directions(self) -> np.ndarray:
+        """(n-1, 3) unit vectors from each ball to the next."""
+        links = np.diff(self.positions, axis=0)
+        return links / np.linalg.norm(links, axis=1)[:, None]
+
+
+def straight_chain(chain: BallChain, direction=X_AXIS) -> tuple[np.ndarray, np.ndarray]:
+    """The straight chain along ``direction`` from the origin, all dipoles along it."""
+    direction = np.asarray(direction, dtype=float)
+    direction = direction / np.linalg.norm(direction)
+    n = chain.n_balls
+    positions = np.arange(n)[:, None] * chain.ball_diameter * direction
+    return positions, np.tile(direction, (n, 1))
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    cross = np.linalg.norm(np.cross(a, b))
+    return float(np.degrees(np.arctan2(cross, np.dot(a, b))))
+
+
+def tip_angle_deg(result: StaticsResult, field_direction) -> float:
+    """Angle between the tip ball's dipole and a field direction [deg]."""
+    f = np.asarray(field_direction, dtype=float)
+    return _angle_deg(result.tip_dipole, f / np.linalg.norm(f))
+
+
+
+
+def _positive_definite(H: np.ndarray, floor: float = 1e-10):
+    """(H made positive definite, Cholesky-able; min eigenvalue of H or None if H was PD)."""
+    try:
+        np.linalg.cholesky(H)
+        return H, None
+    except np.linalg.LinAlgError:
+        pass
+    w, V = np.linalg.eigh(H)
+    delta = floor * max(1.0, float(np.abs(w).max()))
+    return (V * np.maximum(np.abs(w), delta)) @ V.T, float(w.min())
+
+
+class ChainStatics:
+    """Equilibria of one chain, reusable across solves (warm starts, continuation).
+
+    Args:
+        chain: the chain (with or without sleeve).
+        gravity: include gravity along -z.
+        method: "newton" (second-order SQP, default) or "snopt" (quasi-Newton reference).
+        tolerance: stationarity tolerance on the scaled energy gradient (energy in units of the
+            pair energy of two touching balls, angles in rad).
+        max_iterations: Newton iteration limit.
+    """
+
+    contact_margin = 0.3  # pairs with |p_i - p_j|^2 / d^2 - 1 below this enter the step's QP
+    max_step = 0.5  # largest change of any chart angle in one Newton step [rad]
+
+    def __init__(
+        self,
+        chain: BallChain,
+        gravity: bool = False,
+        method: Method = "newton",
+        tolerance: float = 1e-8,
+        max_iterations: int = 200,
+    ):
+        if method not in ("newton", "snopt"):
+            raise ValueError(f"method must be 'newton' or 'snopt', got {method!r}")
+        self.chain = chain
+        self.gravity = gravity
+        self.method = method
+        self.tolerance = tolerance
+        self.max_iterations = max_iterations
+        self._qp_solver = ClarabelSolver()
+        if method == "snopt":
+            self._snopt = SnoptSolver()
+            if not self._snopt.available() or not self._snopt.enabled():
+                raise RuntimeError("SNOPT is not available in this Drake build")
+            self._snopt_options = SolverOptions()
+            sid = self._snopt.solver_id()
+            self._snopt_options.SetOption(sid, "Major iterations limit", 2000)
+            self._snopt_options.SetOption(sid, "Iterations limit", 100000)
+            self._snopt_options.SetOption(sid, "Major optimality tolerance", 1e-8)
+            self._snopt_options.SetOption(sid, "Major feasibility tolerance", 1e-10)
+
+    # --- public API --------------------------------------------------------------------------
+    def solve(self, external: FieldSource | None, warm_start: StaticsResult | None = None) -> StaticsResult:
+        """The equilibrium reached from ``warm_start`` (the straight chain if None).
+
+        Args:
+            external: external field source (uniform field, magnets, or a sum), or None.
+            warm_start: a previous result of the same chain.
+
+        Returns:
+            The result; check ``converged`` (or use ``solve_or_raise``).
+        """
+        chain = self.chain
+        start = time.perf_counter()
+        if warm_start is None:
+            p0, m0 = straight_chain(chain)
+        else:
+            p0, m0 = warm_start.positions, warm_start.dipoles
+            if p0.shape != (chain.n_balls, 3):
+                raise ValueError(f"warm start has {p0.shape[0]} balls, the chain has {chain.n_balls}")
+        if chain.n_balls == 1:
+            U, _, _, terms = chain_energy(chain, p0, m0, external, self.gravity)
+            return StaticsResult(p0.copy(), m0.copy(), U, terms, True, "single ball: held by the sheath",
+                                 "none", 0, time.perf_counter() - start)
+        model = ReducedChain(chain, external, self.gravity)
+        model.chart_from_configuration(p0, m0)
+        if self.method == "newton":
+            q, converged, reason, iterations, lam_near = self._newton(model)
+        else:
+            q, converged, reason, iterations, lam_near = self._snopt_solve(model)
+        ev = model.evaluate(q, 0)
+        p, m_hat = model.configuration(q)
+        gaps = np.sqrt(np.maximum(ev.gaps + 1.0, 0.0)) * model.d - model.d
+        max_violation = float(max(0.0, -gaps.min())) if len(gaps) else 0.0
+        if not np.all(np.isfinite(p)):
+            converged, reason = False, "non-finite configuration"
+        elif converged and max_violation > 1e-7 * model.d:
+            converged, reason = False, f"rigidity violated by {max_violation:.3g} m"
+        pair_forces = {
+            (int(model.pair_i[k]), int(model.pair_j[k])): 2.0 * lam * model.energy_scale / model.d
+            for k, lam in lam_near.items()
+            if lam > 1e-12
+        }
+        return StaticsResult(
+            positions=p,
+            dipoles=m_hat,
+            energy=ev.terms.total,
+            terms=ev.terms,
+            converged=converged,
+            reason=reason,
+            solver=f"{self.method} (MathematicalProgram: {'Clarabel QP steps' if self.method == 'newton' else 'SNOPT'})",
+            iterations=iterations,
+            solve_time=time.perf_counter() - start,
+            max_violation=max_violation,
+            pair_forces=pair_forces,
+        )
+
+    def solve_or_raise(self, external: FieldSource | None, warm_start: StaticsResult | None = None) -> StaticsResult:
+        """Like ``solve`` but raises StaticsError, saying why, when the solve did not converge."""
+        result = self.solve(external, warm_start)
+        if not result.converged:
+            raise StaticsError(
+                f"statics of {self.chain.n_balls} balls did not converge: {result.reason} "
+                f"(after {result.iterations} iterations, {result.solve_time:.3f} s)"
+            )
+        return result
+
+    def continuation(
+        self,
+        fields: Iterable[FieldSource | None],
+        warm_start: StaticsResult | None = None,
+        raise_on_failure: bool = True,
+    ) -> list[StaticsResult]:
+        """Solve along a sequence of fields, each warm-started from the previous equilibrium.
+
+        This is how a rotating magnet moves the real chain: slowly, from one equilibrium to the
+        next. The first solve starts from ``warm_start`` (the straight chain if None).
+        """
+        results = []
+        current = warm_start
+        for external in fields:
+            current = (self.solve_or_raise if raise_on_failure else self.solve)(external, current)
+            results.append(current)
+        return results
+
+    # --- Newton SQP -----------------------------------------------------------------------------
+    def _qp_step(self, H: np.ndarray, g: np.ndarray, gaps: np.ndarray, J: np.ndarray):
+        prog = MathematicalProgram()
+        x = prog.NewContinuousVariables(len(g), "dq")
+        prog.AddQuadraticCost(H, g, x, is_convex=True)
+        binding = prog.AddLinearConstraint(J, -gaps, np.full(len(gaps), np.inf), x)
+        result = self._qp_solver.Solve(prog)
+        if not result.is_success():
+            return None, None
+        return result.GetSolution(x), np.maximum(result.GetDualSolution(binding), 0.0)
+
+    def _newton(self, model: ReducedChain):
+        q = np.zeros(model.nq)
+        ev = model.evaluate(q, 2)
+        rho = 10.0
+        escapes = 0
+        lam_near: dict[int, float] = {}
+        K = model.n_vectors
+        for iteration in range(1, self.max_iterations + 1):
+            g, H = ev.gradient, ev.hessian
+            near = np.flatnonzero(ev.gaps < self.contact_margin)
+            Hm, min_eig = _positive_definite(H)
+            if len(near):
+                dq, lam = self._qp_step(Hm, g, ev.gaps[near], ev.jacobian[near])
+                if dq is None:
+                    return q, False, "QP step infeasible (rigidity constraints)", iteration, {}
+            else:
+                dq, lam = -np.linalg.solve(Hm, g), np.zeros(0)
+            lam_near = dict(zip(near.tolist(), lam.tolist()))
+            violation = float(np.maximum(0.0, -ev.gaps).sum())
+            stationarity = g - (ev.jacobian[near].T @ lam if len(near) else 0.0)
+            # Stationary: the KKT residual is below tolerance, or the Newton step's predicted
+            # decrease is at round-off (flat directions, e.g. symmetry about the field axis).
+            decrease = -float(g @ dq) - 0.5 * float(dq @ Hm @ dq)
+            first_order = np.abs(stationarity).max() < self.tolerance or (
+                decrease < 1e-14 * max(1.0, abs(ev.energy)) and np.abs(stationarity).max() < 1e-6
+            )
+            if first_order and violation < 1e-12:
+                # First-order point: check curvature on the active constraints' tangent space.
+                active = near[lam > 1e-9] if len(near) else near
+                Z = _null_space(ev.jacobian[active]) if len(active) else np.eye(model.nq)
+                w, V = np.linalg.eigh(Z.T @ H @ Z)
+                if w[0] >= -1e-7:
+                    return q, True, "local minimum (KKT and second-order conditions)", iteration, lam_near
+                if escapes >= 10:
+                    return q, False, "stuck at a saddle point", iteration, lam_near
+                escapes += 1
+                dq = 0.1 * (Z @ V[:, 0])
+                if model.evaluate(q - dq, 0).energy < model.evaluate(q + dq, 0).energy:
+                    dq = -dq
+            big = np.abs(dq).max()
+            if big > self.max_step:
+                dq *= self.max_step / big
+            if len(lam):
+                rho = max(rho, 2.0 * float(lam.max()))
+            merit0 = ev.energy + rho * violation
+            slope = float(g @ dq) - rho * violation
+            t = 1.0
+            while True:
+                trial = model.evaluate(q + t * dq, 0)
+                merit = trial.energy + rho * float(np.maximum(0.0, -trial.gaps).sum())
+                if merit <= merit0 + 1e-4 * t * min(slope, 0.0) or t < 1e-10:
+                    break
+                t *= 0.5
+            if t < 1e-10:
+                if np.abs(stationarity).max() < 1e3 * self.tolerance:
+                    return q, True, "local minimum (stationary within line-search precision)", iteration, lam_near
+                return q, False, "line search failed (no descent)", iteration, lam_near
+            q = q + t * dq
+            if np.abs(q[K:]).max() > 1.2:  # close to the chart's poles: re-centre it
+                p, m_hat = model.configuration(q)
+                model.chart_from_configuration(p, m_hat)
+                q = np.zeros(model.nq)
+            ev = model.evaluate(q, 2)
+        return q, False, f"iteration limit ({self.max_iterations}) reached", self.max_iterations, lam_near
+
+    # --- SNOPT reference ------------------------------------------------------------------------
+    def _snopt_solve(self, model: ReducedChain):
+        prog = MathematicalProgram()
+        q = prog.NewContinuousVariables(model.nq, "q")
+        cache: dict = {}
+        counter = [0]
+
+        def evaluate(x):
+            value = ExtractValue(x).reshape(-1)
+            key = value.tobytes()
+            if cache.get("key") != key:
+                cache["key"], cache["ev"] = key, model.evaluate(value, 1)
+                counter[0] += 1
+            return value, cache["ev"]
+
+        def cost(x):
+            _, ev = evaluate(x)
+            if x.dtype == float:
+                return ev.energy
+            return AutoDiffXd(ev.energy, ev.gradient @ ExtractGradient(x))
+
+        def rigidity(x):
+            _, ev = evaluate(x)
+            if x.dtype == float:
+                return ev.gaps
+            return InitializeAutoDiff(ev.gaps, ev.jacobian @ ExtractGradient(x)).reshape(-1)
+
+        prog.AddCost(cost, q, description="energy")
+        n_pairs = len(model.pair_i)
+        binding = None
+        if n_pairs:
+            binding = prog.AddConstraint(rigidity, np.zeros(n_pairs), np.full(n_pairs, np.inf), q,
+                                         description="rigidity")
+        prog.AddBoundingBoxConstraint(-1.5, 1.5, q[model.n_vectors :])
+        result = self._snopt.Solve(prog, np.zeros(model.nq), self._snopt_options)
+        info = result.get_solver_details().info
+        lam = {}
+        if binding is not None:
+            duals = result.GetDualSolution(binding)
+            lam = {k: float(v) for k, v in enumerate(duals) if v > 0}
+        return (result.GetSolution(q), info == 1, _SNOPT_MESSAGES.get(info, f"SNOPT info {info}"),
+                counter[0], lam)
+
+
+def _null_space(J: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
+    """Orthonormal basis (columns) of the null space of J."""
+    _, s, Vt = np.linalg.svd(J)
+    rank = int((s > rtol * max(1.0, s.max() if len(s) else 0.0)).sum())
+    return Vt[rank:].T
+
+
+def solve_statics(
+    chain: BallChain,
+    external: FieldSource | None,
+    gravity: bool = False,
+    warm_start: StaticsResult | None = None,
+    method: Method = "newton",
+) -> StaticsResult:
+    """One equilibrium of ``chain`` in ``external`` (see ChainStatics.solve); raises if not converged."""
+    return ChainStatics(chain, gravity=gravity, method=method).solve_or_raise(external, warm_start)
+
+
+def rotation_path(start_deg: float, stop_deg: float, step_deg: float) -> np.ndarray:
+    """Field angles from start to stop (inclusive) in steps of at most ``step_deg`` [deg]."""
+    if step_deg <= 0:
+        raise ValueError(f"continuation step must be positive, got {step_deg}")
+    n = max(1, int(np.ceil(abs(stop_deg - start_deg) / step_deg - 1e-9)))
+    return np.linspace(start_deg, stop_deg, n + 1)
