@@ -20,6 +20,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "field-models": ("field_models", "point dipole vs exact cylinder field of the prototype magnet"),
     "bench": ("bench", "benchmarks (statics solve against an SLSQP baseline)"),
     "reproduce": ("reproduce", "run the paper checks and write a report (the main job)"),
+    "reconfigure": ("reconfigure", "closed-loop magnet axis reconfiguration study (Hall sensor, slip, noise)"),
+    "wheels": ("wheels", "omni-wheel kinematics: derived wheel-to-magnet map vs the paper's"),
 }
 
 
@@ -49,11 +51,16 @@ def main(argv: list[str] | None = None) -> int:
     module = importlib.import_module(f"ballchain.commands.{known._module}")
     module.add_arguments(known._parser)
     args = parser.parse_args(argv)
+    from ballchain.optimization.statics import StaticsError
+
     try:
         return int(module.main(args) or 0)
     except (UserInputError, ValueError) as err:
         print(f"ballchain {args.command}: error: {err}", file=sys.stderr)
         return 2
+    except StaticsError as err:
+        print(f"ballchain {args.command}: {err}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

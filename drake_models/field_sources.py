@@ -149,6 +149,11 @@ class MagnetSource:
             h = self.fd_step
             offsets = np.concatenate([np.eye(3) * h, -np.eye(3) * h])  # (6, 3)
             stencil = (p_M[:, None, :] + offsets[None, :, :]).reshape(-1, 3)
+            if np.any(self.magnet.contains(stencil)):
+                raise ValueError(
+                    f"a field point lies within {h} m of the magnet's surface: the exact "
+                    "model's finite-difference gradient is undefined there"
+                )
             B_all = self._exact_B_M(np.concatenate([p_M, stencil])).reshape(-1, 3)
             k = p_M.shape[0]
             B_M = B_all[:k]

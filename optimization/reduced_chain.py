@@ -174,3 +174,36 @@ class ReducedChain:
         H[K + idx, K + idx] -= np.einsum("ij,ij->i", g_w, w)
         ev.hessian = H / E0
         return ev
+
+    def constraint_hessian(self, q: np.ndarray, pairs: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """sum_k weights_k d2 c_k / dq2 over the given pair indices (nq, nq).
+
+        c = |S|^2/d^2 - 1 with S = d sum_{l in span} w_l, so
+        d2c/dq2 = (2/d^2) J_S^T J_S + (2/d^2) S . d2S/dq2, d2S/dq2 = d sum_l d2w_l/dq2.
+        """
+        H = np.zeros((self.nq, self.nq))
+        if len(pairs) == 0:
+            return H
+        w, dw_da, dw_db, in_plane, (ca, sa, cb, sb) = self.unit_vectors(q)
+        p, _ = self._configuration(w)
+        K, L = self.n_vectors, self.n_links
+        d2_aa = -cb * in_plane
+        d2_ab = -sb * (-sa * self.r0 + ca * self.t1)
+        d2_bb = -w
+        for k, weight in zip(pairs, weights):
+            span = self.pair_links[k].astype(bool)
+            links = np.flatnonzero(span)
+            S = p[self.pair_j[k]] - p[self.pair_i[k]]
+            J_S = np.zeros((3, self.nq))
+            J_S[:, links] = self.d * dw_da[links].T
+            J_S[:, K + links] = self.d * dw_db[links].T
+            Hk = (2.0 / self.d**2) * (J_S.T @ J_S)
+            s_aa = (2.0 / self.d) * (d2_aa[links] @ S)
+            s_ab = (2.0 / self.d) * (d2_ab[links] @ S)
+            s_bb = (2.0 / self.d) * (d2_bb[links] @ S)
+            Hk[links, links] += s_aa
+            Hk[links, K + links] += s_ab
+            Hk[K + links, links] += s_ab
+            Hk[K + links, K + links] += s_bb
+            H += weight * Hk
+        return H

@@ -285,6 +285,10 @@ class ChainStatics:
         for iteration in range(1, self.max_iterations + 1):
             g, H = ev.gradient, ev.hessian
             near = np.flatnonzero(ev.gaps < self.contact_margin)
+            if lam_near:
+                # SQP: the step's quadratic model is the Lagrangian's, with the last multipliers.
+                pairs = np.array(list(lam_near))
+                H = H - model.constraint_hessian(q, pairs, np.array(list(lam_near.values())))
             Hm, min_eig = _positive_definite(H)
             if len(near):
                 dq, lam = self._qp_step(Hm, g, ev.gaps[near], ev.jacobian[near])
@@ -337,6 +341,7 @@ class ChainStatics:
                 p, m_hat = model.configuration(q)
                 model.chart_from_configuration(p, m_hat)
                 q = np.zeros(model.nq)
+                lam_near = {}
             ev = model.evaluate(q, 2)
         return q, False, f"iteration limit ({self.max_iterations}) reached", self.max_iterations, lam_near
 
