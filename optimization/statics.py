@@ -309,9 +309,12 @@ class ChainStatics:
                 # First-order point: check curvature on the active constraints' tangent space.
                 active = near[lam > 1e-9] if len(near) else near
                 Z = _null_space(ev.jacobian[active]) if len(active) else np.eye(model.nq)
-                w, V = np.linalg.eigh(Z.T @ H @ Z)
-                if w[0] >= -1e-7:
+                H_tangent = Z.T @ H @ Z
+                try:  # positive semi-definite up to 1e-7: a local minimum (cheap test first)
+                    np.linalg.cholesky(H_tangent + 1e-7 * np.eye(len(H_tangent)))
                     return q, True, "local minimum (KKT and second-order conditions)", iteration, lam_near
+                except np.linalg.LinAlgError:
+                    w, V = np.linalg.eigh(H_tangent)
                 if escapes >= 10:
                     return q, False, "stuck at a saddle point", iteration, lam_near
                 escapes += 1
@@ -327,7 +330,9 @@ class ChainStatics:
             slope = float(g @ dq) - rho * violation
             t = 1.0
             while True:
-                trial = model.evaluate(q + t * dq, 0)
+                # The full step is usually taken: evaluate it with derivatives for the next
+                # iteration; shorter trials only need the energy.
+                trial = model.evaluate(q + t * dq, 2 if t == 1.0 else 0)
                 merit = trial.energy + rho * float(np.maximum(0.0, -trial.gaps).sum())
                 if merit <= merit0 + 1e-4 * t * min(slope, 0.0) or t < 1e-10:
                     break
@@ -342,7 +347,9 @@ class ChainStatics:
                 model.chart_from_configuration(p, m_hat)
                 q = np.zeros(model.nq)
                 lam_near = {}
-            ev = model.evaluate(q, 2)
+                ev = model.evaluate(q, 2)
+            else:
+                ev = trial if trial.hessian is not None else model.evaluate(q, 2)
         return q, False, f"iteration limit ({self.max_iterations}) reached", self.max_iterations, lam_near
 
     # --- SNOPT reference ------------------------------------------------------------------------

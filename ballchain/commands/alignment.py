@@ -81,12 +81,14 @@ def write_files(data: dict, out: Path) -> list[str]:
     fig, ax = plt.subplots(figsize=(6, 4))
     angles = sorted({r["field_angle_deg"] for r in data["rows"]})
     for angle in angles:
-        pts = [(r["n_balls"], r["tip_angle_deg"]) for r in data["rows"] if r["field_angle_deg"] == angle]
+        if angle == 0.0:
+            continue  # aligned with the chain: the angle is zero for every length
+        pts = [(r["n_balls"], max(r["tip_angle_deg"], 1e-3)) for r in data["rows"] if r["field_angle_deg"] == angle]
         ax.plot(*zip(*pts), marker="o", ms=3, label=f"{angle:g} deg")
     ax.axhline(PAPER_CLAIM_DEG, color="k", ls="--", lw=1, label="paper: 1.4 deg")
     ax.set_xlabel("balls in the chain")
     ax.set_ylabel("angle between field and tip dipole [deg]")
-    ax.set_yscale("symlog", linthresh=0.1)
+    ax.set_yscale("log")
     ax.legend(fontsize=7, ncol=2)
     ax.set_title("Tip alignment with a 23 mT field (model)")
     fig.tight_layout()

@@ -1,0 +1,76 @@
+"""The core subcommands print the documented JSON and fail cleanly on bad input."""
+
+import json
+
+import numpy as np
+import pytest
+
+from ballchain.cli import main
+
+
+def run_json(capsys, *argv):
+    code = main(list(argv) + ["--json"])
+    out = capsys.readouterr().out
+    assert code == 0
+    return json.loads(out)
+
+
+def test_statics_json_has_the_documented_fields(capsys):
+    data = run_json(capsys, "statics", "--balls", "5", "--field-mT", "23", "--field-angle-deg", "90")
+    for key in ("positions_mm", "dipoles", "tip_angle_deg", "energy_J", "converged", "solver", "solve_time_s"):
+        assert key in data
+    p = np.array(data["positions_mm"])
+    assert p.shape == (5, 3) and data["converged"]
+    np.testing.assert_allclose(np.linalg.norm(np.diff(p, axis=0), axis=1), 3.175, rtol=1e-9)
+    np.testing.assert_allclose(np.linalg.norm(data["dipoles"], axis=1), 1.0, rtol=1e-12)
+
+
+def test_statics_gravity_and_sleeve_flags_change_the_shape(capsys):
+    plain = run_json(capsys, "statics", "--balls", "8")
+    sagging = run_json(capsys, "statics", "--balls", "8", "--gravity")
+    sleeved = run_json(capsys, "statics", "--balls", "8", "--sleeve")
+    assert sagging["positions_mm"][-1][2] < 0.0 == plain["positions_mm"][-1][2]
+    assert sleeved["positions_mm"][-1][0] > plain["positions_mm"][-1][0]
+
+
+@pytest.mark.parametrize(
+    "argv,message",
+    [
+        (["statics", "--balls", "0"], "--balls"),
+        (["statics", "--balls", "-3"], "--balls"),
+        (["statics", "--field-mT", "nan"], "--field-mT"),
+        (["statics", "--field-mT", "-5"], "--field-mT"),
+        (["statics", "--step-deg", "0"], "--step-deg"),
+        (["alignment", "--max-balls", "0"], "--max-balls"),
+    ],
+)
+def test_bad_arguments_exit_2_with_a_message_and_no_traceback(capsys, argv, message):
+    try:
+        code = main(argv)
+    except SystemExit as exc:  # argparse's own validation
+        code = exc.code
+    err = capsys.readouterr().err
+    assert code == 2
+    assert message in err
+    assert "Traceback" not in err
+
+
+def test_alignment_writes_csv_and_figures(capsys, tmp_path):
+    data = run_json(capsys, "alignment", "--max-balls", "4", "--step-deg", "90", "--out", str(tmp_path))
+    assert {(r["n_balls"], r["field_angle_deg"]) for r in data["rows"]} == {
+        (n, a) for n in range(1, 5) for a in (0.0, 90.0, 180.0)
+    }
+    one_ball = [r for r in data["rows"] if r["n_balls"] == 1]
+    # A single ball is held by the sheath: its dipole stays along +x whatever the field.
+    np.testing.assert_allclose([r["tip_angle_deg"] for r in one_ball], [0.0, 90.0, 180.0], atol=1e-9)
+    for name in ("alignment.csv", "alignment.png", "alignment_shapes.png"):
+        assert (tmp_path / name).stat().st_size > 0
+
+
+def test_reproduce_quick_writes_the_report(capsys, tmp_path):
+    data = run_json(capsys, "reproduce", "--quick", "--out", str(tmp_path))
+    report = (tmp_path / "report.md").read_text()
+    assert "paper" in report and "119" in report
+    html = (tmp_path / "report.html").read_text()
+    assert html.count("data:image/png;base64") >= 2
+    assert set(data["experiments"]) >= {"alignment", "sizing", "field models"}
