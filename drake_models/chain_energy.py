@@ -115,14 +115,15 @@ def field_energy(
     """
     M = chain.dipole_moment
     terms = EnergyTerms()
-    U_b, F, B_int = chain_interactions(p, M * m_hat)
+    if hessian:
+        U_b, F, B_int, H_pp, H_pm, H_mm = chain_interaction_hessian(p, M * m_hat)
+        H_pm = H_pm * M
+        H_mm = H_mm * (M * M)
+    else:
+        U_b, F, B_int = chain_interactions(p, M * m_hat)
     terms.balls = U_b
     dU_dp = -F
     dU_dm = -M * B_int
-    if hessian:
-        H_pp, H_pm, H_mm = chain_interaction_hessian(p, M * m_hat)
-        H_pm *= M
-        H_mm *= M * M
     if external is not None:
         B, G = external.field_and_gradient(p)
         terms.external = -M * float(np.einsum("ij,ij->", m_hat, B))

@@ -13,6 +13,8 @@ divergence-free field). A dipole ``m'`` in a field ``B`` with gradient ``G`` has
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 MU0 = 4e-7 * np.pi  # vacuum permeability [T m / A] (the SI value differs by < 1e-9 relative)
@@ -143,69 +145,88 @@ def chain_interactions(p: np.ndarray, m: np.ndarray) -> tuple[float, np.ndarray,
     return U, F, B
 
 
+@functools.lru_cache(maxsize=64)
+def _pairs(n: int):
+    """Pair indices i < j and incidence matrices (n, pairs) that sum pair terms onto balls."""
+    iu, ju = np.triu_indices(n, k=1)
+    balls = np.arange(n)[:, None]
+    return iu, ju, (balls == iu[None, :]).astype(float), (balls == ju[None, :]).astype(float)
+
+
 def chain_interaction_hessian(p: np.ndarray, m: np.ndarray):
-    """Second derivatives of the pair energy ``U`` of ``chain_interactions``.
+    """Pair energy, forces, fields and second derivatives of ``chain_interactions``, pair by pair.
 
     With phi = 1/|r| the pair energy is ``e = -k m_i . (grad grad phi)(r) m_j`` (r = p_i - p_j), so
-    every derivative is a contraction of the third and fourth derivative tensors of 1/|r|.
+    every second derivative is a contraction of the third and fourth derivative tensors of
+    1/|r|; each unordered pair is computed once.
 
     Args:
         p: (n, 3) dipole positions [m].
         m: (n, 3) dipole moments [A m^2].
 
     Returns:
-        ``(H_pp, H_pm, H_mm)``, each (n, 3, n, 3): ``H_pp[i, :, j, :] = d2U / dp_i dp_j``,
+        ``(U, F, B, H_pp, H_pm, H_mm)``: U, F, B as in ``chain_interactions``; the Hessians are
+        each (n, 3, n, 3): ``H_pp[i, :, j, :] = d2U / dp_i dp_j``,
         ``H_pm[i, :, j, :] = d2U / dp_i dm_j``, ``H_mm[i, :, j, :] = d2U / dm_i dm_j``.
     """
     p = np.asarray(p, dtype=float)
     m = np.asarray(m, dtype=float)
     n = p.shape[0]
-    r = p[:, None, :] - p[None, :, :]
-    r2 = np.einsum("ijk,ijk->ij", r, r)
-    np.fill_diagonal(r2, 1.0)
-    if np.any(r2 <= 0.0):
-        raise ValueError("chain_interaction_hessian: two dipoles are at the same position")
+    iu, ju, inc_i, inc_j = _pairs(n)
+    r = p[iu] - p[ju]
+    r2 = np.einsum("ij,ij->i", r, r)
+    if np.any(r2 <= 0.0) or not np.all(np.isfinite(r2)):
+        raise ValueError("chain_interaction_hessian: two dipoles coincide or positions are not finite")
+    x, y = m[iu], m[ju]
     inv_r2 = 1.0 / r2
-    np.fill_diagonal(inv_r2, 0.0)
-    inv_r5 = inv_r2 * inv_r2 * np.sqrt(inv_r2)
+    inv_r3 = inv_r2 * np.sqrt(inv_r2)
+    inv_r5 = inv_r3 * inv_r2
     inv_r7 = inv_r5 * inv_r2
-    inv_r9 = inv_r7 * inv_r2
+    xr = np.einsum("ij,ij->i", x, r)
+    yr = np.einsum("ij,ij->i", y, r)
+    xy = np.einsum("ij,ij->i", x, y)
+    k = K_DIPOLE
     eye = np.eye(3)
-    x = np.broadcast_to(m[:, None, :], r.shape)  # m_i
-    y = np.broadcast_to(m[None, :, :], r.shape)  # m_j
-    xr = np.einsum("ijk,ijk->ij", x, r)
-    yr = np.einsum("ijk,ijk->ij", y, r)
-    xy = m @ m.T
-    rr = r[..., :, None] * r[..., None, :]
+    col = lambda a: a[:, None]  # noqa: E731
+    mat = lambda a: a[:, None, None]  # noqa: E731
+    # Energy, fields, forces.
+    U = float(k * np.sum(xy * inv_r3 - 3.0 * xr * yr * inv_r5))
+    B = inc_i @ (k * (3.0 * col(yr * inv_r5) * r - col(inv_r3) * y)) + inc_j @ (
+        k * (3.0 * col(xr * inv_r5) * r - col(inv_r3) * x)
+    )
+    f = 3.0 * k * col(inv_r5) * (col(xr) * y + col(yr) * x + col(xy) * r - 5.0 * col(xr * yr * inv_r2) * r)
+    F = (inc_i - inc_j) @ f
+    # Second derivatives.
+    rr = r[:, :, None] * r[:, None, :]
 
     def sym_outer(a, b):
-        o = a[..., :, None] * b[..., None, :]
-        return o + np.swapaxes(o, -1, -2)
+        o = a[:, :, None] * b[:, None, :]
+        return o + o.transpose(0, 2, 1)
 
-    # Fourth derivative of 1/r contracted with (m_i, m_j): Q[c, d].
-    v = -15.0 * inv_r7[..., None] * (yr[..., None] * x + xr[..., None] * y)
+    v = -15.0 * col(inv_r7) * (col(yr) * x + col(xr) * y)
     Q = (
-        ((105.0 * inv_r9 * xr * yr - 15.0 * inv_r7 * xy)[..., None, None]) * rr
+        mat(105.0 * inv_r7 * inv_r2 * xr * yr - 15.0 * inv_r7 * xy) * rr
         + sym_outer(v, r)
-        + ((-15.0 * inv_r7 * xr * yr + 3.0 * inv_r5 * xy)[..., None, None]) * eye
-        + (3.0 * inv_r5)[..., None, None] * sym_outer(x, y)
+        + mat(-15.0 * inv_r7 * xr * yr + 3.0 * inv_r5 * xy) * eye
+        + mat(3.0 * inv_r5) * sym_outer(x, y)
     )
-    # Third derivative of 1/r contracted with m_j: T[a, c] (symmetric).
-    T = (
-        (-15.0 * yr * inv_r7)[..., None, None] * rr
-        + (3.0 * inv_r5)[..., None, None] * sym_outer(y, r)
-        + (3.0 * inv_r5 * yr)[..., None, None] * eye
-    )
-    # Second derivative of 1/r: D[a, b].
-    inv_r3 = inv_r2 * np.sqrt(inv_r2)
-    D = (3.0 * inv_r5)[..., None, None] * rr - inv_r3[..., None, None] * eye
-    k = K_DIPOLE
+    T_y = mat(-15.0 * yr * inv_r7) * rr + mat(3.0 * inv_r5) * sym_outer(y, r) + mat(3.0 * inv_r5 * yr) * eye
+    T_x = mat(-15.0 * xr * inv_r7) * rr + mat(3.0 * inv_r5) * sym_outer(x, r) + mat(3.0 * inv_r5 * xr) * eye
+    D = mat(3.0 * inv_r5) * rr - mat(inv_r3) * eye
+    H_pp = np.zeros((n, n, 3, 3))
+    H_pm = np.zeros((n, n, 3, 3))
+    H_mm = np.zeros((n, n, 3, 3))
+    kQ = k * Q
+    H_pp[iu, ju] = kQ
+    H_pp[ju, iu] = kQ
     idx = np.arange(n)
-    H_pp = k * Q.transpose(0, 2, 1, 3).copy()  # [i, c, j, d], off-diagonal blocks
-    H_pp[idx, :, idx, :] = -k * Q.sum(axis=1)
-    A = -k * T  # A[i, j] = d2 e_ij / dp_i dm_i (rows: p components, cols: m components)
-    H_pm = -A.transpose(1, 2, 0, 3).copy()  # [a, c, b, :] = -A[b, a]: d2U/dp_a dm_b, a != b
-    H_pm[idx, :, idx, :] = A.sum(axis=1)
-    H_mm = (-k * D).transpose(0, 2, 1, 3).copy()
-    H_mm[idx, :, idx, :] = 0.0
-    return H_pp, H_pm, H_mm
+    H_pp[idx, idx] = -((inc_i + inc_j) @ kQ.reshape(-1, 9)).reshape(n, 3, 3)
+    # A_ij = d2 e / dp_i dm_i = -k T[m_j](r), A_ji = +k T[m_i](r); d2 e / dp_j dm_i = -A_ij.
+    A_ij, A_ji = -k * T_y, k * T_x
+    H_pm[idx, idx] = (inc_i @ A_ij.reshape(-1, 9) + inc_j @ A_ji.reshape(-1, 9)).reshape(n, 3, 3)
+    H_pm[ju, iu] = -A_ij
+    H_pm[iu, ju] = -A_ji
+    H_mm[iu, ju] = -k * D
+    H_mm[ju, iu] = -k * D
+    swap = lambda H: H.transpose(0, 2, 1, 3)  # noqa: E731  [i, j, a, b] -> [i, a, j, b]
+    return U, F, B, swap(H_pp), swap(H_pm), swap(H_mm)
