@@ -20,6 +20,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "field-models": ("field_models", "point dipole vs exact cylinder field of the prototype magnet"),
     "bench": ("bench", "benchmarks (statics solve against an SLSQP baseline)"),
     "reproduce": ("reproduce", "run the paper checks and write a report (the main job)"),
+    "simulate": ("simulate", "simulate the chain in the left atrium for a named scenario"),
     "reconfigure": ("reconfigure", "closed-loop magnet axis reconfiguration study (Hall sensor, slip, noise)"),
     "wheels": ("wheels", "omni-wheel kinematics: derived wheel-to-magnet map vs the paper's"),
 }
@@ -51,10 +52,15 @@ def main(argv: list[str] | None = None) -> int:
     module = importlib.import_module(f"ballchain.commands.{known._module}")
     module.add_arguments(known._parser)
     args = parser.parse_args(argv)
+    from threadpoolctl import threadpool_limits
+
     from ballchain.optimization.statics import StaticsError
 
     try:
-        return int(module.main(args) or 0)
+        # Every matrix here is small (at most a few hundred rows): threaded BLAS only adds
+        # synchronisation, and under load it makes solves several times slower.
+        with threadpool_limits(limits=1, user_api="blas"):
+            return int(module.main(args) or 0)
     except (UserInputError, ValueError) as err:
         print(f"ballchain {args.command}: error: {err}", file=sys.stderr)
         return 2

@@ -199,7 +199,9 @@ class NaiveStatics:
             The result; check ``success``.
         """
         start = time.perf_counter()
-        if positions is None or dipoles is None:
+        if (positions is None) != (dipoles is None):
+            raise ValueError("give both positions and dipoles for the initial guess, or neither")
+        if positions is None:
             positions = np.arange(self.n)[:, None] * self.d * _X_AXIS
             dipoles = np.tile(_X_AXIS, (self.n, 1))
         x0 = self.pack(np.asarray(positions, float), np.asarray(dipoles, float))

@@ -169,6 +169,7 @@ class ChainStatics:
         self.tolerance = tolerance
         self.max_iterations = max_iterations
         self._qp_solver = ClarabelSolver()
+        self._model: ReducedChain | None = None
         if method == "snopt":
             self._snopt = SnoptSolver()
             if not self._snopt.available() or not self._snopt.enabled():
@@ -203,7 +204,10 @@ class ChainStatics:
             U, _, _, terms = chain_energy(chain, p0, m0, external, self.gravity)
             return StaticsResult(p0.copy(), m0.copy(), U, terms, True, "single ball: held by the sheath",
                                  "none", 0, time.perf_counter() - start)
-        model = ReducedChain(chain, external, self.gravity)
+        if self._model is None:  # built once: pair tables and chain-rule matrices
+            self._model = ReducedChain(chain, external, self.gravity)
+        model = self._model
+        model.external = external
         model.chart_from_configuration(p0, m0)
         if self.method == "newton":
             q, converged, reason, iterations, lam_near = self._newton(model)

@@ -1,0 +1,93 @@
+"""``ballchain bench``: the statics benchmark's JSON (correctness fields only, never wall time)
+and its argument errors."""
+
+import importlib.util
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from ballchain.cli import main as cli_main
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_bench_statics_json(capsys):
+    rc = cli_main(["bench", "statics", "--balls", "5", "--repeats", "1", "--json"])
+    captured = capsys.readouterr()
+    assert rc == 0
+    out = json.loads(captured.out)
+    for key in ("cold_median_ms", "warm_median_ms", "baseline_median_ms", "speedup_cold",
+                "snopt_cold_median_ms", "snopt_warm_median_ms", "same_minimum", "iterations", "repeats"):
+        assert key in out, key
+    assert out["repeats"] == 1 and out["n_balls"] == 5
+    assert out["angle_deg"] == 90.0 and out["warm_start_angle_deg"] == 87.5
+    cases = ("newton_cold", "newton_warm", "snopt_cold", "snopt_warm", "baseline")
+    assert all(len(out["samples_ms"][c]) == 1 for c in cases)
+    assert all(out["converged"].values())
+    same = out["same_minimum"]
+    assert same["ok"]
+    for case in ("newton_warm", "snopt_cold", "snopt_warm", "baseline"):
+        assert same[case]["tip_diff_m"] < 1e-6
+        assert same[case]["energy_diff_rel"] < 1e-9
+    it = out["iterations"]
+    assert all(isinstance(it[c], int) and it[c] >= 1 for c in cases)
+    assert it["newton_warm"] <= it["newton_cold"]
+    assert it["baseline_evaluations"] >= it["baseline"]
+    # Equilibrium of 5 balls at 23 mT, 90 deg (tip in the x-y plane, bent towards +y).
+    assert out["tip_position_mm"][1] > 5.0 and out["tip_position_mm"][2] == pytest.approx(0.0, abs=1e-9)
+    # The speedup is the ratio of the medians it reports (no assertion on its size: wall time).
+    assert out["speedup_cold"] == pytest.approx(out["baseline_median_ms"] / out["cold_median_ms"], rel=1e-12)
+
+
+def test_bench_statics_text(capsys):
+    assert cli_main(["bench", "statics", "--balls", "3", "--repeats", "1", "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert "SLSQP baseline" in text and "same minimum: yes" in text
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["bench", "statics", "--balls", "0"],
+        ["bench", "statics", "--balls", "two"],
+        ["bench", "statics", "--repeats", "0"],
+        ["bench", "statics", "--field-mT", "nan"],
+        ["bench", "dynamics"],
+        ["bench"],
+    ],
+)
+def test_bad_arguments_exit_2(argv, capsys):
+    with pytest.raises(SystemExit) as exc:
+        cli_main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "error" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    "flags, message",
+    [(["--balls", "1"], "--balls must be an integer >= 2"), (["--field-mT", "-5"], "--field-mT must be a positive")],
+)
+def test_bad_values_exit_2_with_one_line(flags, message, capsys):
+    assert cli_main(["bench", "statics", *flags]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1
+
+
+def test_bad_argument_in_a_fresh_process_has_no_traceback():
+    proc = subprocess.run([sys.executable, "-m", "ballchain", "bench", "statics", "--balls", "1"],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr and "--balls must be an integer >= 2" in proc.stderr
+
+
+def test_benchmark_script_runs():
+    spec = importlib.util.spec_from_file_location("bench_statics", REPO / "benchmarks" / "bench_statics.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    assert script.__doc__ and callable(script.main)
+    out = script.run(n_balls=3, repeats=1, progress=False)
+    assert out["n_balls"] == 3 and out["same_minimum"]["ok"]
