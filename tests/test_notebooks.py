@@ -1,4 +1,8 @@
-"""Every notebook in notebooks/ runs top to bottom (quick mode: their FULL flags are off)."""
+"""Every notebook in notebooks/ runs top to bottom (quick mode: their FULL flags are off).
+
+A notebook with a dedicated test (tests/test_notebook_<name>.py, which also checks what it
+prints) is left to that test.
+"""
 
 from pathlib import Path
 
@@ -6,7 +10,12 @@ import nbformat
 import pytest
 from nbclient import NotebookClient
 
-NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.ipynb"))
+HERE = Path(__file__).resolve().parent
+NOTEBOOKS = [
+    path
+    for path in sorted((HERE.parent / "notebooks").glob("*.ipynb"))
+    if not (HERE / f"test_notebook_{path.stem}.py").exists()
+]
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)

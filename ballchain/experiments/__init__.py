@@ -1,0 +1,1 @@
+"""The paper's experiments in simulation, each a ``run(...)`` returning plain data."""

@@ -1,0 +1,206 @@
+"""The actuation station: one or two magnet units (right/left of the patient) and the feeder.
+
+Each unit is wired as a loop: the teleoperation mapper and the reconfiguration controller both
+feed the mode switch, which feeds the drive -> magnet -> Hall sensor -> estimator -> controller;
+and the diagram exports, per unit ``<u>``: inputs ``<u>.joystick`` (3), ``<u>.mode`` (1: 0
+teleoperation, 1 reconfiguration), and with ``teleop_frame="tip"`` ``<u>.p_WT`` (3) and
+``<u>.tip_direction_W`` (3); outputs ``<u>.q_WM`` (4), ``<u>.X_WM`` (RigidTransform),
+``<u>.m_W`` (3), ``<u>.omega_wheels`` (3), ``<u>.B_sensor_T`` (3), ``<u>.m_hat_W`` (3),
+``<u>.done`` (1), ``<u>.angle_error`` (1); the total field at the given points ``B_points_W`` (3 k)
+when points are given; with the feeder, input ``feeder.v_insert_cmd`` (1) and outputs
+``feeder.inserted_length`` (1), ``feeder.balls_out`` (1). No MultibodyPlant is involved: a chain
+simulation can read ``B_points_W`` (or each unit's ``X_WM``) and do its own physics.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Sequence
+
+import numpy as np
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import Adder
+
+from ballchain.drake_models.dipole_inversion import direction_from_field
+from ballchain.drake_models.params import BallChain
+from ballchain.systems.feeder import Feeder, FeederSpec
+from ballchain.systems.hall_sensor import DipoleDirectionEstimator, HallSensor, HallSensorSpec
+from ballchain.systems.omni_wheel_drive import OmniWheelDrive, StepperSpec
+from ballchain.systems.reconfiguration import ReconfigurationController
+from ballchain.systems.rotating_magnet_unit import MagnetUnitConfig, RotatingMagnetUnit
+from ballchain.systems.teleoperation import ModeSwitch, TeleoperationMapper
+
+# The paper's actuation distance: unit centre 16.51 cm from the septal puncture (origin).
+UNIT_DISTANCE = 0.1651  # [m]
+
+
+def right_unit(**overrides) -> MagnetUnitConfig:
+    """The right-side unit (patient's right is world -y here), 16.51 cm from the origin."""
+    return replace(MagnetUnitConfig(name="right_unit", p_WM=(0.0, -UNIT_DISTANCE, 0.0)), **overrides)
+
+
+def left_unit(**overrides) -> MagnetUnitConfig:
+    """The left-side unit (world +y), 16.51 cm from the origin."""
+    return replace(MagnetUnitConfig(name="left_unit", p_WM=(0.0, UNIT_DISTANCE, 0.0)), **overrides)
+
+
+def neutral_direction(p_WM: np.ndarray, p_W_target: np.ndarray, b_hat_W: np.ndarray) -> np.ndarray:
+    """Dipole direction (3,) that makes the field at p_W_target point along b_hat_W (dipole model).
+
+    The neutral configuration aligns the field at the chain with its feeding direction; the
+    dipole that does it follows from the inverse dipole law.
+    """
+    r = np.asarray(p_W_target, dtype=float) - np.asarray(p_WM, dtype=float)
+    return direction_from_field(np.asarray(b_hat_W, dtype=float), r)
+
+
+@dataclass
+class StationOptions:
+    """Everything the station builder can vary besides the units.
+
+    Attributes:
+        p_W_chain: (3,) where the chain enters (the neutral field is defined there) [m].
+        feed_direction_W: (3,) insertion direction; neutral field points along it there.
+        slip: fraction of rotation lost at the wheels, in [0, 1).
+        sensor_noise: add Hall noise.
+        seed: base noise seed (each unit adds its index).
+        sensors_see_other_units: each Hall sensor also measures the other units' fields.
+        estimator_compensates_other_units: each estimator subtracts the other units' predicted
+            fields at its sensor (their poses known); without it they bias it by up to 2.4 deg.
+        sensor_spec, stepper_spec: hardware figures.
+        controller_gain: K [1/s].
+        tolerance_deg: reconfiguration done threshold on the measured error [deg].
+        wheel_map: "derived" or "paper" wheel conversion in the controller.
+        teleop_frame: "world" (paper: stick = magnet angular velocity in world) or "tip" (stick
+            swings the field at the tip in the tip's frame; adds inputs ``<u>.p_WT`` (3) [m]
+            and ``<u>.tip_direction_W`` (3)).
+        teleop_omega_max: full-stick angular speed [rad/s] (magnet, or tip field for "tip").
+        teleop_dead_band: stick dead band fraction.
+        field_points_W: (k, 3) points where the total field is exported [m], or None.
+        with_feeder: add the feeder.
+        chain: the ball chain fed by the feeder.
+    """
+
+    p_W_chain: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    feed_direction_W: np.ndarray = field(default_factory=lambda: np.array([1.0, 0.0, 0.0]))
+    slip: float = 0.0
+    sensor_noise: bool = True
+    seed: int = 0
+    sensors_see_other_units: bool = True
+    estimator_compensates_other_units: bool = True
+    sensor_spec: HallSensorSpec = field(default_factory=HallSensorSpec)
+    stepper_spec: StepperSpec = field(default_factory=StepperSpec)
+    controller_gain: float = 4.0
+    tolerance_deg: float = 0.5
+    wheel_map: str = "derived"
+    teleop_frame: str = "world"
+    teleop_omega_max: float = 0.5
+    teleop_dead_band: float = 0.1
+    field_points_W: np.ndarray | None = None
+    with_feeder: bool = False
+    chain: BallChain = field(default_factory=BallChain)
+
+
+def make_actuation_station(
+    units: Sequence[MagnetUnitConfig] | None = None, options: StationOptions | None = None
+) -> Diagram:
+    """Build the station diagram (named ``actuation_station``).
+
+    Args:
+        units: one or two (or more) unit configs with distinct names (default: the right unit).
+        options: everything else.
+
+    Returns:
+        The diagram; see the module docstring for its exported ports. The magnets' orientations
+        are set through ``diagram.GetSubsystemByName(f"{name}.magnet").set_orientation``.
+    """
+    units = list(units) if units is not None else [right_unit()]
+    opt = options or StationOptions()
+    names = [u.name for u in units]
+    if len(set(names)) != len(names) or not names:
+        raise ValueError(f"unit names must be distinct and at least one, got {names}")
+    builder = DiagramBuilder()
+    magnets = {}
+    for k, unit in enumerate(units):
+        n = unit.name
+        others = [u for u in units if u is not unit] if opt.sensors_see_other_units else []
+        magnet = builder.AddSystem(
+            RotatingMagnetUnit(unit, slip=opt.slip, field_points_W=opt.field_points_W)
+        )
+        drive = builder.AddSystem(OmniWheelDrive(unit.geometry, opt.stepper_spec, name=n))
+        sensor = builder.AddSystem(
+            HallSensor(unit, other_units=others, spec=opt.sensor_spec, noise=opt.sensor_noise, seed=opt.seed + k)
+        )
+        estimator = builder.AddSystem(
+            DipoleDirectionEstimator(unit, compensate_units=others if opt.estimator_compensates_other_units else ())
+        )
+        m_c = neutral_direction(unit.p_WM, opt.p_W_chain, opt.feed_direction_W)
+        controller = builder.AddSystem(
+            ReconfigurationController(
+                m_c,
+                gain=opt.controller_gain,
+                max_wheel_speed=opt.stepper_spec.max_speed,
+                tolerance_deg=opt.tolerance_deg,
+                period=1.0 / opt.sensor_spec.sample_rate_hz,
+                geometry=unit.geometry,
+                wheel_map=opt.wheel_map,
+                name=n,
+            )
+        )
+        teleop = builder.AddSystem(
+            TeleoperationMapper(
+                frame=opt.teleop_frame,
+                omega_max=opt.teleop_omega_max,
+                dead_band=opt.teleop_dead_band,
+                p_WM=np.asarray(unit.p_WM),
+                name=n,
+            )
+        )
+        if opt.teleop_frame == "tip":
+            builder.Connect(magnet.GetOutputPort("m_W"), teleop.GetInputPort("m_W"))
+        switch = builder.AddSystem(ModeSwitch(name=n))
+        builder.Connect(teleop.GetOutputPort("omega_desired_W"), switch.GetInputPort("omega_teleop_W"))
+        builder.Connect(controller.GetOutputPort("omega_desired_W"), switch.GetInputPort("omega_reconfigure_W"))
+        builder.Connect(switch.GetOutputPort("omega_desired_W"), drive.GetInputPort("omega_desired_W"))
+        builder.Connect(drive.GetOutputPort("omega_wheels"), magnet.GetInputPort("omega_wheels"))
+        builder.Connect(magnet.GetOutputPort("X_WM"), sensor.GetInputPort("X_WM"))
+        builder.Connect(sensor.GetOutputPort("B_sensor_T"), estimator.GetInputPort("B_sensor_T"))
+        builder.Connect(estimator.GetOutputPort("m_hat_W"), controller.GetInputPort("m_hat_measured_W"))
+        builder.ExportInput(teleop.GetInputPort("joystick"), f"{n}.joystick")
+        builder.ExportInput(switch.GetInputPort("mode"), f"{n}.mode")
+        if opt.teleop_frame == "tip":
+            builder.ExportInput(teleop.GetInputPort("p_WT"), f"{n}.p_WT")
+            builder.ExportInput(teleop.GetInputPort("tip_direction_W"), f"{n}.tip_direction_W")
+        for port in ("q_WM", "X_WM", "m_W"):
+            builder.ExportOutput(magnet.GetOutputPort(port), f"{n}.{port}")
+        builder.ExportOutput(drive.GetOutputPort("omega_wheels"), f"{n}.omega_wheels")
+        builder.ExportOutput(sensor.GetOutputPort("B_sensor_T"), f"{n}.B_sensor_T")
+        builder.ExportOutput(estimator.GetOutputPort("m_hat_W"), f"{n}.m_hat_W")
+        builder.ExportOutput(controller.GetOutputPort("done"), f"{n}.done")
+        builder.ExportOutput(controller.GetOutputPort("angle_error"), f"{n}.angle_error")
+        magnets[n] = (magnet, sensor, estimator, others)
+    # Cross-wiring: each sensor sees the other magnets, each estimator may subtract them.
+    for n, (magnet, sensor, estimator, others) in magnets.items():
+        for o in others:
+            X_port = magnets[o.name][0].GetOutputPort("X_WM")
+            builder.Connect(X_port, sensor.GetInputPort(f"X_WM_{o.name}"))
+            if opt.estimator_compensates_other_units:
+                builder.Connect(X_port, estimator.GetInputPort(f"X_WM_{o.name}"))
+    if opt.field_points_W is not None:
+        k = len(np.asarray(opt.field_points_W).reshape(-1, 3))
+        if len(units) == 1:
+            builder.ExportOutput(magnets[names[0]][0].GetOutputPort("B_points_W"), "B_points_W")
+        else:
+            adder = builder.AddSystem(Adder(len(units), 3 * k))
+            adder.set_name("total_field")
+            for i, n in enumerate(names):
+                builder.Connect(magnets[n][0].GetOutputPort("B_points_W"), adder.get_input_port(i))
+            builder.ExportOutput(adder.get_output_port(), "B_points_W")
+    if opt.with_feeder:
+        feeder = builder.AddSystem(Feeder(opt.chain, FeederSpec()))
+        builder.ExportInput(feeder.GetInputPort("v_insert_cmd"), "feeder.v_insert_cmd")
+        builder.ExportOutput(feeder.GetOutputPort("inserted_length"), "feeder.inserted_length")
+        builder.ExportOutput(feeder.GetOutputPort("balls_out"), "feeder.balls_out")
+    diagram = builder.Build()
+    diagram.set_name("actuation_station")
+    return diagram

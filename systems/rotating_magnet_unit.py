@@ -1,0 +1,193 @@
+"""A rotating actuation magnet on three omni-wheels, as a Drake LeafSystem.
+
+The magnet (prototype cylinder or clinical sphere) sits inside a sphere that three omni-wheels
+turn in place; its centre ``p_WM`` never moves. Its orientation ``R_WM`` is continuous state (a
+unit quaternion) driven by the wheel speeds through the derived forward map
+``omega_W = (1 - slip) (rho_w/rho_a) A^-1 omega_wheels`` (``drake_models/omniwheel.py``). The
+field it makes comes from the shared ``MagnetSource`` (dipole or exact cylinder).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydrake.common.eigen_geometry import Quaternion
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.systems.framework import BasicVector, Context, LeafSystem
+
+from ballchain.drake_models.field_sources import FieldModel, MagnetSource
+from ballchain.drake_models.omniwheel import OmniWheelGeometry
+from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
+
+# Pull |q| back to 1 at this rate [1/s]: the quaternion ODE conserves the norm exactly, so
+# this only removes integrator drift and never changes the rotation.
+QUATERNION_NORM_GAIN = 10.0
+
+
+@dataclass(frozen=True)
+class MagnetUnitConfig:
+    """One actuation unit: where it is, which magnet it turns, how its field is modelled.
+
+    Attributes:
+        name: dotted-name prefix of the unit's systems (``right_unit`` gives ``right_unit.magnet``).
+        p_WM: (3,) magnet centre in world [m] (fixed: the unit only rotates the magnet).
+        magnet: the prototype CylinderMagnet (default) or a clinical SphereMagnet.
+        field_model: "dipole" or "exact" (magpylib's cylinder; the sphere is exact as a dipole).
+        geometry: omni-wheel geometry (wheel axes in world: the unit is mounted level).
+        sensor_distance: D, Hall sensor distance below the magnet centre along -z [m]. The
+            default 0.10 m keeps the prototype's field (34 mT at most) inside an MLX90393's
+            +-50 mT range; at rho_a + 6.5 mm = 50 mm it would read up to 0.30 T and saturate.
+    """
+
+    name: str = "right_unit"
+    p_WM: tuple[float, float, float] = (0.0, -0.1651, 0.0)
+    magnet: CylinderMagnet | SphereMagnet = field(default_factory=CylinderMagnet)
+    field_model: FieldModel = "dipole"
+    geometry: OmniWheelGeometry = field(default_factory=OmniWheelGeometry)
+    sensor_distance: float = 0.10
+
+    def __post_init__(self) -> None:
+        p = np.asarray(self.p_WM, dtype=float)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise ValueError(f"MagnetUnitConfig.p_WM must be 3 finite numbers, got {self.p_WM!r}")
+        object.__setattr__(self, "p_WM", tuple(float(v) for v in p))
+        if self.field_model not in ("dipole", "exact"):
+            raise ValueError(f"field_model must be 'dipole' or 'exact', got {self.field_model!r}")
+        if not np.isfinite(self.sensor_distance) or self.sensor_distance <= self.magnet.bounding_radius:
+            raise ValueError(
+                f"sensor_distance ({self.sensor_distance} m) must exceed the magnet's bounding "
+                f"radius ({self.magnet.bounding_radius:.4f} m)"
+            )
+
+    @property
+    def p_WS(self) -> np.ndarray:
+        """(3,) Hall sensor position in world [m]."""
+        return np.asarray(self.p_WM) - np.array([0.0, 0.0, self.sensor_distance])
+
+    def source(self, R_WM: np.ndarray) -> MagnetSource:
+        """The shared field model of this unit's magnet at orientation R_WM (3, 3)."""
+        return MagnetSource(self.magnet, np.asarray(self.p_WM), np.asarray(R_WM), self.field_model)
+
+
+def quaternion_from_rotation(R: np.ndarray) -> np.ndarray:
+    """(4,) unit quaternion (w, x, y, z) of a rotation matrix (3, 3)."""
+    return RotationMatrix(np.asarray(R, dtype=float)).ToQuaternion().wxyz()
+
+
+def rotation_from_quaternion(q: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation matrix of a (not necessarily unit) quaternion (w, x, y, z)."""
+    q = np.asarray(q, dtype=float)
+    return RotationMatrix(Quaternion(q / np.linalg.norm(q))).matrix()
+
+
+class RotatingMagnetUnit(LeafSystem):
+    """The magnet's orientation, turned by three omni-wheels.
+
+    Input ports:
+        omega_wheels: (3,) wheel angular velocities [rad/s].
+
+    Output ports:
+        q_WM: (4,) orientation state, quaternion (w, x, y, z), unit norm up to integration error.
+        X_WM: RigidTransform (abstract), pose of the magnet frame (z = dipole axis) [m].
+        m_W: (3,) dipole moment in world [A m^2].
+        omega_WM_W: (3,) the magnet's angular velocity in world [rad/s] (after slip).
+        B_points_W: (3 k,) flux density at the k field points given at construction, stacked
+            [T] (only when field points are given).
+
+    State: continuous, 4 (the quaternion).
+    """
+
+    def __init__(
+        self,
+        config: MagnetUnitConfig | None = None,
+        *,
+        R_WM: np.ndarray | None = None,
+        slip: float = 0.0,
+        field_points_W: np.ndarray | None = None,
+    ) -> None:
+        """
+        Args:
+            config: the unit (default: prototype cylinder, right of the patient).
+            R_WM: (3, 3) default orientation (identity: dipole along +z).
+            slip: fraction of the commanded rotation lost between wheels and sphere, in [0, 1).
+            field_points_W: (k, 3) points where ``B_points_W`` reports the field [m].
+        """
+        super().__init__()
+        self._config = config or MagnetUnitConfig()
+        if not (0.0 <= slip < 1.0):
+            raise ValueError(f"slip must be in [0, 1), got {slip!r}")
+        self._slip = float(slip)
+        g = self._config.geometry
+        # Forward map, precomputed: omega_W = (1 - slip) (rho_w/rho_a) A^-1 omega_wheels.
+        self._forward = (1.0 - self._slip) * np.linalg.inv(g.A) / g.ratio
+        self.set_name(f"{self._config.name}.magnet")
+
+        self._omega_wheels_port = self.DeclareVectorInputPort("omega_wheels", 3)
+        q0 = quaternion_from_rotation(np.eye(3) if R_WM is None else R_WM)
+        self._q_index = self.DeclareContinuousState(BasicVector(q0))
+        self._q_port = self.DeclareStateOutputPort("q_WM", self._q_index)
+        self._X_port = self.DeclareAbstractOutputPort(
+            "X_WM", lambda: AbstractValue.Make(RigidTransform()), self._calc_X_WM
+        )
+        self._m_port = self.DeclareVectorOutputPort("m_W", 3, self._calc_m_W)
+        self._omega_port = self.DeclareVectorOutputPort("omega_WM_W", 3, self._calc_omega)
+        self._points = None
+        if field_points_W is not None:
+            pts = np.asarray(field_points_W, dtype=float).reshape(-1, 3)
+            self._points = pts
+            self._B_port = self.DeclareVectorOutputPort("B_points_W", 3 * len(pts), self._calc_B_points)
+
+    @property
+    def config(self) -> MagnetUnitConfig:
+        return self._config
+
+    def get_omega_wheels_input_port(self):
+        return self._omega_wheels_port
+
+    def R_WM(self, context: Context) -> np.ndarray:
+        """(3, 3) orientation of the magnet in this context."""
+        return rotation_from_quaternion(context.get_continuous_state_vector().CopyToVector())
+
+    def set_orientation(self, context: Context, R_WM: np.ndarray) -> None:
+        """Set the orientation state from a rotation matrix (3, 3)."""
+        context.SetContinuousState(quaternion_from_rotation(R_WM))
+
+    def magnet_source(self, context: Context) -> MagnetSource:
+        """The shared MagnetSource at the current pose (use it for the field anywhere)."""
+        return self._config.source(self.R_WM(context))
+
+    def _omega_W(self, context: Context) -> np.ndarray:
+        return self._forward @ self._omega_wheels_port.Eval(context)
+
+    def DoCalcTimeDerivatives(self, context, derivatives):
+        q = context.get_continuous_state_vector().CopyToVector()
+        w = self._omega_W(context)
+        # q_dot = 1/2 (0, w_W) (x) q for an angular velocity expressed in world, plus a term
+        # that pulls |q| back to 1 (it is zero on the unit sphere).
+        wx, wy, wz = w
+        # Left quaternion-product matrix of (0, w), written out (np.cross dominates the cost).
+        Omega = np.array(
+            [
+                [0.0, -wx, -wy, -wz],
+                [wx, 0.0, -wz, wy],
+                [wy, wz, 0.0, -wx],
+                [wz, -wy, wx, 0.0],
+            ]
+        )
+        qdot = 0.5 * (Omega @ q) + QUATERNION_NORM_GAIN * (1.0 - q @ q) * q
+        derivatives.get_mutable_vector().SetFromVector(qdot)
+
+    def _calc_X_WM(self, context, output):
+        output.set_value(RigidTransform(RotationMatrix(self.R_WM(context)), np.asarray(self._config.p_WM)))
+
+    def _calc_m_W(self, context, output):
+        output.SetFromVector(self._config.magnet.dipole_moment * self.R_WM(context)[:, 2])
+
+    def _calc_omega(self, context, output):
+        output.SetFromVector(self._omega_W(context))
+
+    def _calc_B_points(self, context, output):
+        output.SetFromVector(self.magnet_source(context).field(self._points).reshape(-1))
+
