@@ -19,6 +19,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "sizing": ("sizing", "clinical actuation magnet sizing (paper Section V-A)"),
     "field-models": ("field_models", "point dipole vs exact cylinder field of the prototype magnet"),
     "bench": ("bench", "benchmarks (statics solve against an SLSQP baseline)"),
+    "workspace": ("workspace", "workspace with one rotating magnet 16.51 cm away (paper Fig. workspace)"),
+    "validation": ("validation", "model validation: uniform vs dipole vs exact field, 5..10 balls"),
     "reproduce": ("reproduce", "run the paper checks and write a report (the main job)"),
     "simulate": ("simulate", "simulate the chain in the left atrium for a named scenario"),
     "reconfigure": ("reconfigure", "closed-loop magnet axis reconfiguration study (Hall sensor, slip, noise)"),
