@@ -44,6 +44,8 @@ class Evaluation:
     gradient: np.ndarray | None = None  # (nq,)
     jacobian: np.ndarray | None = None  # (pairs, nq)
     hessian: np.ndarray | None = None  # (nq, nq)
+    tip_residual: np.ndarray | None = None  # (p_tip - target) / d, when a tip target is set
+    tip_jacobian: np.ndarray | None = None  # (3, nq)
 
 
 class ReducedChain:
@@ -78,6 +80,7 @@ class ReducedChain:
         # p = d C u with C[k, l] = 1 for l < k.
         C = (np.arange(n)[:, None] > links[None, :]).astype(float)
         self._C3 = np.kron(C, np.eye(3))  # (3n, 3L)
+        self.tip_target: np.ndarray | None = None  # pin the tip's centre here [m] (equality)
 
     # --- chart -------------------------------------------------------------------------
     def set_chart(self, w0: np.ndarray) -> None:
@@ -135,6 +138,8 @@ class ReducedChain:
         gaps = np.einsum("ij,ij->i", S, S) / self.d**2 - 1.0
         E0 = self.energy_scale
         ev = Evaluation(terms.total / E0, terms, gaps)
+        if self.tip_target is not None:
+            ev.tip_residual = (p[-1] - self.tip_target) / self.d
         if order < 1:
             return ev
         dU_du = self.d * np.cumsum(dU_dp[:0:-1], axis=0)[::-1]
@@ -148,6 +153,10 @@ class ReducedChain:
         jac[:, :L] = (2.0 / self.d) * self.pair_links * (S @ dw_da[:L].T)
         jac[:, K : K + L] = (2.0 / self.d) * self.pair_links * (S @ dw_db[:L].T)
         ev.jacobian = jac
+        if self.tip_target is not None:  # p_tip / d = sum_l u_l
+            ev.tip_jacobian = np.zeros((3, self.nq))
+            ev.tip_jacobian[:, :L] = dw_da[:L].T
+            ev.tip_jacobian[:, K : K + L] = dw_db[:L].T
         if order < 2:
             return ev
         H_pp, H_pm, H_mm = out[3]
@@ -206,4 +215,18 @@ class ReducedChain:
             Hk[K + links, links] += s_ab
             Hk[K + links, K + links] += s_bb
             H += weight * Hk
+        return H
+
+    def tip_hessian(self, q: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """sum_k weights_k d2 (p_tip,k / d) / dq2 (nq, nq): the chart's curvature along the links."""
+        w, dw_da, dw_db, in_plane, (ca, sa, cb, sb) = self.unit_vectors(q)
+        K, L = self.n_vectors, self.n_links
+        links = np.arange(L)
+        H = np.zeros((self.nq, self.nq))
+        lam = np.asarray(weights, dtype=float)
+        d_ab = (-sb[:L] * (-sa[:L] * self.r0[:L] + ca[:L] * self.t1[:L])) @ lam
+        H[links, links] = (-cb[:L] * in_plane[:L]) @ lam
+        H[links, K + links] = d_ab
+        H[K + links, links] = d_ab
+        H[K + links, K + links] = -w[:L] @ lam
         return H

@@ -73,6 +73,11 @@ class StaticsResult:
         iterations: Newton iterations, or energy evaluations for SNOPT.
         solve_time: wall time of the solve [s].
         max_violation: largest rigidity-constraint violation, |p_i - p_j| < d, [m] (0 if none).
+        pair_forces: ``{(i, j): force [N]}`` between non-adjacent balls i, j (0-based) that touch
+            at the equilibrium: the rigidity constraints' multipliers.
+        tip_reaction: (3,) force [N] that a tip target exerts on the tip ball (the tip
+            constraint's multiplier); zero without a target. The chain presses on the target
+            with minus this.
     """
 
     positions: np.ndarray
@@ -86,9 +91,7 @@ class StaticsResult:
     solve_time: float
     max_violation: float = 0.0
     pair_forces: dict = field(default_factory=dict)
-
-    """``pair_forces[(i, j)]``: contact force [N] between non-adjacent balls i, j (0-based) that
-    touch at the equilibrium (the rigidity constraints' multipliers)."""
+    tip_reaction: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     @property
     def tip_position(self) -> np.ndarray:
@@ -182,12 +185,16 @@ class ChainStatics:
             self._snopt_options.SetOption(sid, "Major feasibility tolerance", 1e-10)
 
     # --- public API --------------------------------------------------------------------------
-    def solve(self, external: FieldSource | None, warm_start: StaticsResult | None = None) -> StaticsResult:
+    def solve(self, external: FieldSource | None, warm_start: StaticsResult | None = None,
+              tip_target=None) -> StaticsResult:
         """The equilibrium reached from ``warm_start`` (the straight chain if None).
 
         Args:
             external: external field source (uniform field, magnets, or a sum), or None.
             warm_start: a previous result of the same chain.
+            tip_target: (3,) point [m] where the tip ball's centre is held (a force sensor or a
+                target touching the tip); the result's ``tip_reaction`` is the force it exerts.
+                Newton method only.
 
         Returns:
             The result; check ``converged`` (or use ``solve_or_raise``).
@@ -208,10 +215,16 @@ class ChainStatics:
             self._model = ReducedChain(chain, external, self.gravity)
         model = self._model
         model.external = external
+        model.tip_target = None if tip_target is None else np.asarray(tip_target, dtype=float).reshape(3)
+        if model.tip_target is not None and not np.all(np.isfinite(model.tip_target)):
+            raise ValueError(f"tip target must be finite, got {tip_target}")
         model.chart_from_configuration(p0, m0)
+        lam_tip = np.zeros(3)
         if self.method == "newton":
-            q, converged, reason, iterations, lam_near = self._newton(model)
+            q, converged, reason, iterations, lam_near, lam_tip = self._newton(model)
         else:
+            if model.tip_target is not None:
+                raise ValueError("tip targets are solved by the 'newton' method only")
             q, converged, reason, iterations, lam_near = self._snopt_solve(model)
         ev = model.evaluate(q, 0)
         p, m_hat = model.configuration(q)
@@ -238,11 +251,13 @@ class ChainStatics:
             solve_time=time.perf_counter() - start,
             max_violation=max_violation,
             pair_forces=pair_forces,
+            tip_reaction=model.energy_scale / model.d * np.asarray(lam_tip, dtype=float),
         )
 
-    def solve_or_raise(self, external: FieldSource | None, warm_start: StaticsResult | None = None) -> StaticsResult:
+    def solve_or_raise(self, external: FieldSource | None, warm_start: StaticsResult | None = None,
+                       tip_target=None) -> StaticsResult:
         """Like ``solve`` but raises StaticsError, saying why, when the solve did not converge."""
-        result = self.solve(external, warm_start)
+        result = self.solve(external, warm_start, tip_target)
         if not result.converged:
             raise StaticsError(
                 f"statics of {self.chain.n_balls} balls did not converge: {result.reason} "
@@ -269,58 +284,84 @@ class ChainStatics:
         return results
 
     # --- Newton SQP -----------------------------------------------------------------------------
-    def _qp_step(self, H: np.ndarray, g: np.ndarray, gaps: np.ndarray, J: np.ndarray):
+    def _qp_step(self, H, g, gaps, J, tip_residual=None, tip_jacobian=None):
+        """min 1/2 dq' H dq + g' dq s.t. gaps + J dq >= 0 and tip_residual + J_tip dq = 0."""
         prog = MathematicalProgram()
         x = prog.NewContinuousVariables(len(g), "dq")
         prog.AddQuadraticCost(H, g, x, is_convex=True)
-        binding = prog.AddLinearConstraint(J, -gaps, np.full(len(gaps), np.inf), x)
+        binding = prog.AddLinearConstraint(J, -gaps, np.full(len(gaps), np.inf), x) if len(gaps) else None
+        tip = prog.AddLinearEqualityConstraint(tip_jacobian, -tip_residual, x) if tip_residual is not None else None
         result = self._qp_solver.Solve(prog)
         if not result.is_success():
-            return None, None
-        return result.GetSolution(x), np.maximum(result.GetDualSolution(binding), 0.0)
+            return None, None, None
+        lam = np.maximum(result.GetDualSolution(binding), 0.0) if binding is not None else np.zeros(0)
+        lam_tip = result.GetDualSolution(tip) if tip is not None else np.zeros(3)
+        return result.GetSolution(x), lam, lam_tip
 
     def _newton(self, model: ReducedChain):
+        """Second-order SQP; returns (q, converged, reason, iterations, pair multipliers, tip multipliers)."""
         q = np.zeros(model.nq)
         ev = model.evaluate(q, 2)
         rho = 10.0
         escapes = 0
         lam_near: dict[int, float] = {}
+        lam_tip = np.zeros(3)
+        pinned = model.tip_target is not None
         K = model.n_vectors
+
+        def infeasibility(e) -> float:
+            tip = float(np.abs(e.tip_residual).sum()) if pinned else 0.0
+            return float(np.maximum(0.0, -e.gaps).sum()) + tip
+
         for iteration in range(1, self.max_iterations + 1):
             g, H = ev.gradient, ev.hessian
             near = np.flatnonzero(ev.gaps < self.contact_margin)
+            # SQP: the step's quadratic model is the Lagrangian's, with the last multipliers.
             if lam_near:
-                # SQP: the step's quadratic model is the Lagrangian's, with the last multipliers.
                 pairs = np.array(list(lam_near))
                 H = H - model.constraint_hessian(q, pairs, np.array(list(lam_near.values())))
-            Hm, min_eig = _positive_definite(H)
-            if len(near):
-                dq, lam = self._qp_step(Hm, g, ev.gaps[near], ev.jacobian[near])
+            if pinned and np.any(lam_tip):
+                H = H - model.tip_hessian(q, lam_tip)
+            Hm, _ = _positive_definite(H)
+            if pinned and not len(near):
+                # Equality constraints only: the KKT system of the step, solved directly.
+                J = ev.tip_jacobian
+                kkt = np.block([[Hm, J.T], [J, np.zeros((3, 3))]])
+                sol = np.linalg.solve(kkt, np.concatenate([-g, -ev.tip_residual]))
+                dq, lam, lam_tip = sol[: model.nq], np.zeros(0), -sol[model.nq :]
+            elif len(near) or pinned:
+                dq, lam, lam_tip = self._qp_step(Hm, g, ev.gaps[near], ev.jacobian[near],
+                                                 ev.tip_residual, ev.tip_jacobian)
                 if dq is None:
-                    return q, False, "QP step infeasible (rigidity constraints)", iteration, {}
+                    return q, False, "QP step infeasible (rigidity or tip constraints)", iteration, {}, lam_tip
             else:
                 dq, lam = -np.linalg.solve(Hm, g), np.zeros(0)
             lam_near = dict(zip(near.tolist(), lam.tolist()))
-            violation = float(np.maximum(0.0, -ev.gaps).sum())
+            violation = infeasibility(ev)
             stationarity = g - (ev.jacobian[near].T @ lam if len(near) else 0.0)
+            if pinned:
+                stationarity = stationarity - ev.tip_jacobian.T @ lam_tip
             # Stationary: the KKT residual is below tolerance, or the Newton step's predicted
             # decrease is at round-off (flat directions, e.g. symmetry about the field axis).
             decrease = -float(g @ dq) - 0.5 * float(dq @ Hm @ dq)
             first_order = np.abs(stationarity).max() < self.tolerance or (
-                decrease < 1e-14 * max(1.0, abs(ev.energy)) and np.abs(stationarity).max() < 1e-6
+                abs(decrease) < 1e-14 * max(1.0, abs(ev.energy)) and np.abs(stationarity).max() < 1e-6
             )
             if first_order and violation < 1e-12:
                 # First-order point: check curvature on the active constraints' tangent space.
                 active = near[lam > 1e-9] if len(near) else near
-                Z = _null_space(ev.jacobian[active]) if len(active) else np.eye(model.nq)
+                rows = [ev.jacobian[active]] + ([ev.tip_jacobian] if pinned else [])
+                J_active = np.vstack(rows)
+                Z = _null_space(J_active) if len(J_active) else np.eye(model.nq)
                 H_tangent = Z.T @ H @ Z
                 try:  # positive semi-definite up to 1e-7: a local minimum (cheap test first)
                     np.linalg.cholesky(H_tangent + 1e-7 * np.eye(len(H_tangent)))
-                    return q, True, "local minimum (KKT and second-order conditions)", iteration, lam_near
+                    return (q, True, "local minimum (KKT and second-order conditions)", iteration,
+                            lam_near, lam_tip)
                 except np.linalg.LinAlgError:
                     w, V = np.linalg.eigh(H_tangent)
                 if escapes >= 10:
-                    return q, False, "stuck at a saddle point", iteration, lam_near
+                    return q, False, "stuck at a saddle point", iteration, lam_near, lam_tip
                 escapes += 1
                 dq = 0.1 * (Z @ V[:, 0])
                 if model.evaluate(q - dq, 0).energy < model.evaluate(q + dq, 0).energy:
@@ -328,8 +369,9 @@ class ChainStatics:
             big = np.abs(dq).max()
             if big > self.max_step:
                 dq *= self.max_step / big
-            if len(lam):
-                rho = max(rho, 2.0 * float(lam.max()))
+            multipliers = np.concatenate([lam, np.abs(lam_tip)])
+            if len(multipliers):
+                rho = max(rho, 2.0 * float(multipliers.max()))
             merit0 = ev.energy + rho * violation
             slope = float(g @ dq) - rho * violation
             t = 1.0
@@ -337,24 +379,26 @@ class ChainStatics:
                 # The full step is usually taken: evaluate it with derivatives for the next
                 # iteration; shorter trials only need the energy.
                 trial = model.evaluate(q + t * dq, 2 if t == 1.0 else 0)
-                merit = trial.energy + rho * float(np.maximum(0.0, -trial.gaps).sum())
+                merit = trial.energy + rho * infeasibility(trial)
                 if merit <= merit0 + 1e-4 * t * min(slope, 0.0) or t < 1e-10:
                     break
                 t *= 0.5
             if t < 1e-10:
-                if np.abs(stationarity).max() < 1e3 * self.tolerance:
-                    return q, True, "local minimum (stationary within line-search precision)", iteration, lam_near
-                return q, False, "line search failed (no descent)", iteration, lam_near
+                if np.abs(stationarity).max() < 1e3 * self.tolerance and violation < 1e-9:
+                    return (q, True, "local minimum (stationary within line-search precision)", iteration,
+                            lam_near, lam_tip)
+                return q, False, "line search failed (no descent)", iteration, lam_near, lam_tip
             q = q + t * dq
             if np.abs(q[K:]).max() > 1.2:  # close to the chart's poles: re-centre it
                 p, m_hat = model.configuration(q)
                 model.chart_from_configuration(p, m_hat)
                 q = np.zeros(model.nq)
-                lam_near = {}
+                lam_near, lam_tip = {}, np.zeros(3)
                 ev = model.evaluate(q, 2)
             else:
                 ev = trial if trial.hessian is not None else model.evaluate(q, 2)
-        return q, False, f"iteration limit ({self.max_iterations}) reached", self.max_iterations, lam_near
+        return (q, False, f"iteration limit ({self.max_iterations}) reached", self.max_iterations,
+                lam_near, lam_tip)
 
     # --- SNOPT reference ------------------------------------------------------------------------
     def _snopt_solve(self, model: ReducedChain):

@@ -1,0 +1,340 @@
+"""The ball chain as a MultibodyPlant: free balls, a feeder ball in the sheath, the heart wall.
+
+Bodies and joints:
+
+* ``ball_1`` is the feeder ball: it sits in the transseptal sheath on a prismatic joint
+  ``feeder_slide`` along the sheath axis, driven by a PD-controlled actuator (implicit in SAP)
+  to the inserted length. Its dipole points along the sheath axis: it is the canonical
+  statics problem's clamped ball 1, and pulls the chain back on retraction.
+* ``ball_2`` .. ``ball_n`` are free bodies (quaternion floating joints ``ball_i_floating``),
+  with joint damping in the quasi-static mode (implicit in the discrete solver) and none in
+  the dynamics mode. A ball's dipole points along its body frame's +x.
+* The heart wall (a compliant-hydroelastic tetrahedral shell, ``drake_models.heart``, with a
+  hydroelastic margin against tunnelling) is anchored to the world. Balls are rigid-hydroelastic
+  spheres; ball-ball contact falls back to point contact (``hydroelastic_with_fallback``), with
+  ``sap_near_rigid_threshold = 0`` and a relaxation time near the time step so that the balls
+  do not sink into one another (shared/DESIGN.md): about 5 um of overlap at 2.2 N.
+* The transseptal sheath is a cage of rods (capsules, point contact) around its bore, from
+  behind ball 1 to ``sheath_extension`` beyond the septal puncture (see ``_add_sheath_cage``).
+* The balls start straight along the sheath axis, touching (4 um of overlap): a pair that
+  starts apart is not a contact constraint during the first step, and 2 N of attraction at
+  1e-3 s can pull a ball through its neighbour before it is.
+
+Inserted length s [m]: the length of chain beyond the sheath exit p_WE when the chain is
+straight; ball 1's centre is at p_WE + (s - (n - 1/2) d) u (u the sheath axis), so at s = 0 the
+tip ball touches the exit from inside.
+"""
+
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydrake.geometry import (
+    AddCompliantHydroelasticProperties,
+    AddContactMaterial,
+    AddRigidHydroelasticProperties,
+    Mesh,
+    ProximityProperties,
+    Sphere,
+)
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.multibody.plant import (
+    AddMultibodyPlant,
+    CoulombFriction,
+    MultibodyPlantConfig,
+)
+from pydrake.multibody.tree import (
+    FixedOffsetFrame,
+    PdControllerGains,
+    PrismaticJoint,
+    QuaternionFloatingJoint,
+    SpatialInertia,
+    UnitInertia,
+)
+
+from ballchain.drake_models.field_sources import rotation_with_z_along
+from ballchain.drake_models.heart import LeftAtrium
+from ballchain.drake_models.params import BallChain
+
+
+@dataclass
+class ContactConfig:
+    """Contact parameters (SI).
+
+    Attributes:
+        ball_point_stiffness: point-contact stiffness of a ball [N/m] (ball-ball pairs combine
+            two in series).
+        relaxation_time: SAP dissipation time scale [s]; 0 means "the time step".
+        friction: Coulomb friction coefficient (static = dynamic).
+        wall_hydroelastic_modulus: of the heart wall [Pa]. Stiffer than atrial tissue on
+            purpose: the pressure of a thin compliant shell peaks mid-wall, so a ball pressed
+            deeper than half the wall would be pushed out through it. At 1 MPa a ball pressed
+            with about 1.5 N sinks about 0.6 mm into the 2.5 mm wall (0.3 MPa: 1.2 mm).
+        hydroelastic_margin: against tunnelling at larger steps [m].
+        ball_resolution_hint: of the balls' rigid-hydroelastic sphere meshes [m].
+    """
+
+    ball_point_stiffness: float = 1e6
+    relaxation_time: float = 0.0
+    friction: float = 0.1
+    wall_hydroelastic_modulus: float = 1e6
+    hydroelastic_margin: float = 1e-4
+    ball_resolution_hint: float = 1e-3
+
+
+@dataclass
+class SheathConfig:
+    """The transseptal sheath (a tube the proximal balls sit in).
+
+    Attributes:
+        inner_diameter: bore [m] (must exceed the ball diameter).
+        wall_thickness: [m] (also the diameter of the rods of the collision cage).
+        extra_length: length behind ball 1 at zero insertion [m].
+        n_rods: rods of the collision cage (see ``_add_sheath_cage``).
+    """
+
+    inner_diameter: float = 3.6e-3
+    wall_thickness: float = 0.6e-3
+    extra_length: float = 8e-3
+    n_rods: int = 6
+
+
+@dataclass
+class ChainPlantConfig:
+    """What ``add_chain_plant`` builds.
+
+    Attributes:
+        chain: the chain's parameters.
+        time_step: discrete step [s].
+        translational_damping: on each free ball's floating joint [N s/m] (0: true dynamics).
+        angular_damping: on each free ball's floating joint [N m s].
+        gravity: gravity along -z (else none).
+        heart: the atrium, or None for free space.
+        sheath: the sheath tube, or None (then ball 1 alone is held by its slide).
+        p_WE: (3,) sheath exit [m] (taken from the heart when there is one).
+        sheath_axis_W: (3,) unit insertion direction (taken from the heart when there is one).
+        initial_inserted_length: [m].
+        contact: contact parameters.
+        feeder_gains: (kp [N/m], kd [N s/m]) of the feeder slide's PD actuator.
+    """
+
+    chain: BallChain = field(default_factory=BallChain)
+    time_step: float = 1e-3
+    translational_damping: float = 0.0
+    angular_damping: float = 0.0
+    gravity: bool = True
+    heart: LeftAtrium | None = None
+    sheath: SheathConfig | None = field(default_factory=SheathConfig)
+    p_WE: tuple = (0.0, 0.0, 0.0)
+    sheath_axis_W: tuple = (1.0, 0.0, 0.0)
+    initial_inserted_length: float = 0.0
+    contact: ContactConfig = field(default_factory=ContactConfig)
+    feeder_gains: tuple = (2e4, 20.0)
+
+
+@dataclass
+class ChainPlant:
+    """Handles to what ``add_chain_plant`` made."""
+
+    plant: object
+    scene_graph: object
+    config: ChainPlantConfig
+    ball_bodies: list
+    feeder_joint: object
+    feeder_instance: object
+    p_WE: np.ndarray
+    sheath_axis_W: np.ndarray
+    X_WF: RigidTransform  # the feeder slide's fixed frame: ball 1 is at X_WF * (q, 0, 0)
+
+    @property
+    def n_balls(self) -> int:
+        return len(self.ball_bodies)
+
+    @property
+    def ball_body_indices(self) -> list:
+        return [b.index() for b in self.ball_bodies]
+
+    def ball_positions(self, plant_context) -> np.ndarray:
+        """Ball centres (n, 3) in world [m]."""
+        poses = self.plant.get_body_poses_output_port().Eval(plant_context)
+        return np.array([poses[int(b.index())].translation() for b in self.ball_bodies])
+
+    def max_inserted_length(self) -> float:
+        """Largest inserted length that keeps ball 1 inside the sheath [m]."""
+        d = self.config.chain.ball_diameter
+        return (self.n_balls - 1.0) * d
+
+    def in_sheath(self, p_W: np.ndarray) -> np.ndarray:
+        """Whether points (k, 3) lie inside the sheath tube (within its outer radius)."""
+        sheath = self.config.sheath
+        if sheath is None:
+            return np.zeros(len(p_W), bool)
+        rel = np.asarray(p_W) - self.p_WE
+        along = rel @ self.sheath_axis_W
+        radial = np.linalg.norm(rel - along[:, None] * self.sheath_axis_W, axis=1)
+        length = self.sheath_length()
+        return (along <= 0.5 * self.config.chain.ball_diameter) & (along >= -length) & (
+            radial <= 0.5 * sheath.inner_diameter + sheath.wall_thickness)
+
+    def sheath_length(self) -> float:
+        c = self.config
+        return c.chain.n_balls * c.chain.ball_diameter + (c.sheath.extra_length if c.sheath else 0.0)
+
+
+def _ball_properties(config: ChainPlantConfig) -> ProximityProperties:
+    c = config.contact
+    props = ProximityProperties()
+    friction = CoulombFriction(c.friction, c.friction)
+    AddContactMaterial(None, c.ball_point_stiffness, friction, props)
+    props.AddProperty("material", "relaxation_time", float(c.relaxation_time or config.time_step))
+    AddRigidHydroelasticProperties(c.ball_resolution_hint, props)
+    return props
+
+
+def _wall_properties(config: ChainPlantConfig, resolution_hint: float) -> ProximityProperties:
+    c = config.contact
+    props = ProximityProperties()
+    AddContactMaterial(None, None, CoulombFriction(c.friction, c.friction), props)
+    props.AddProperty("material", "relaxation_time", float(c.relaxation_time or config.time_step))
+    AddCompliantHydroelasticProperties(resolution_hint, c.wall_hydroelastic_modulus, props)
+    props.AddProperty("hydroelastic", "margin", float(c.hydroelastic_margin))
+    return props
+
+
+def _add_sheath_cage(plant, config: ChainPlantConfig, p_WE, axis) -> None:
+    """The sheath as a cage of rods (capsules) parallel to its axis, anchored to the world.
+
+    A compliant-hydroelastic tube (measured: 14 ms a step against 1.2 ms without it, 16 balls)
+    is slow because every ball inside it lies within the hydroelastic margin of its wall; rods
+    touching the balls through point contact cost next to nothing and hold them as well (the
+    gaps between rods, about 1.3 mm, are far narrower than a ball).
+    """
+    from pydrake.geometry import Capsule, Cylinder
+
+    sheath = config.sheath
+    chain = config.chain
+    length = chain.n_balls * chain.ball_diameter + sheath.extra_length
+    r_rod = sheath.wall_thickness / 2.0
+    r_c = sheath.inner_diameter / 2.0 + r_rod  # rod centres: the rods' inner tangent is the bore
+    props = ProximityProperties()
+    c = config.contact
+    AddContactMaterial(None, c.ball_point_stiffness, CoulombFriction(c.friction, c.friction), props)
+    props.AddProperty("material", "relaxation_time", float(c.relaxation_time or config.time_step))
+    # Rod k runs from the exit back along the axis; frame: z along the axis (Capsule's axis).
+    R_WS = RotationMatrix(rotation_with_z_along(axis))
+    centre = np.asarray(p_WE) - 0.5 * length * np.asarray(axis)
+    e1, e2 = R_WS.matrix()[:, 0], R_WS.matrix()[:, 1]
+    n_rods = sheath.n_rods
+    world = plant.world_body()
+    for k in range(n_rods):
+        a = 2 * np.pi * k / n_rods
+        p = centre + r_c * (np.cos(a) * e1 + np.sin(a) * e2)
+        plant.RegisterCollisionGeometry(world, RigidTransform(R_WS, p), Capsule(r_rod, length),
+                                        f"sheath_rod_{k + 1}", props)
+    plant.RegisterVisualGeometry(world, RigidTransform(R_WS, centre),
+                                 Cylinder(r_c + r_rod, length), "sheath",
+                                 np.array([0.3, 0.5, 0.9, 0.3]))
+
+
+def add_chain_plant(builder, config: ChainPlantConfig) -> ChainPlant:
+    """Add the chain's MultibodyPlant and SceneGraph to ``builder`` (plant finalised).
+
+    Args:
+        builder: a DiagramBuilder.
+        config: what to build.
+
+    Returns:
+        a ChainPlant with the handles (plant named "plant", scene graph "scene_graph").
+    """
+    chain = config.chain
+    if chain.n_balls < 2:
+        raise ValueError("add_chain_plant: the chain needs at least 2 balls (ball 1 is the feeder ball)")
+    if config.sheath is not None and config.sheath.inner_diameter <= chain.ball_diameter:
+        raise ValueError(
+            f"sheath inner diameter {config.sheath.inner_diameter * 1e3:.2f} mm must exceed the ball "
+            f"diameter {chain.ball_diameter * 1e3:.3f} mm")
+    plant_config = MultibodyPlantConfig(
+        time_step=config.time_step,
+        discrete_contact_approximation="sap",
+        contact_model="hydroelastic_with_fallback",
+        sap_near_rigid_threshold=0.0,
+    )
+    plant, scene_graph = AddMultibodyPlant(plant_config, builder)
+    plant.set_name("plant")
+    scene_graph.set_name("scene_graph")
+    if not config.gravity:
+        plant.mutable_gravity_field().set_gravity_vector([0.0, 0.0, 0.0])
+
+    heart = config.heart
+    if heart is not None:
+        p_WE, axis = heart.p_HE.copy(), heart.sheath_axis_H.copy()
+    else:
+        p_WE = np.asarray(config.p_WE, float)
+        axis = np.asarray(config.sheath_axis_W, float)
+        axis = axis / np.linalg.norm(axis)
+
+    d = chain.ball_diameter
+    r = 0.5 * d
+    inertia = SpatialInertia(chain.ball_mass, np.zeros(3), UnitInertia.SolidSphere(r))
+    ball_props = _ball_properties(config)
+    colors = [np.array([0.75, 0.75, 0.78, 1.0]), np.array([0.45, 0.45, 0.5, 1.0])]
+    feeder_instance = plant.AddModelInstance("feeder")
+    chain_instance = plant.AddModelInstance("chain")
+    balls = []
+    for i in range(chain.n_balls):
+        instance = feeder_instance if i == 0 else chain_instance
+        body = plant.AddRigidBody(f"ball_{i + 1}", instance, inertia)
+        plant.RegisterCollisionGeometry(body, RigidTransform(), Sphere(r), f"ball_{i + 1}", ball_props)
+        plant.RegisterVisualGeometry(body, RigidTransform(), Sphere(r), f"ball_{i + 1}", colors[i % 2])
+        # A short marker along +x shows the dipole (north) direction.
+        plant.RegisterVisualGeometry(body, RigidTransform([0.6 * r, 0, 0]), Sphere(0.45 * r),
+                                     f"ball_{i + 1}_north", np.array([0.8, 0.1, 0.1, 1.0]))
+        balls.append(body)
+
+    # Ball 1 slides along the sheath axis: frame F has its x along the axis.
+    R_WF = RotationMatrix(rotation_with_z_along(axis)[:, [2, 0, 1]])  # columns: x = axis
+    L0 = (chain.n_balls - 0.5) * d
+    X_WF = RigidTransform(R_WF, p_WE - L0 * axis)
+    slide_frame = plant.AddFrame(FixedOffsetFrame("feeder_slide_frame", plant.world_frame(), X_WF))
+    feeder_joint = plant.AddJoint(PrismaticJoint(
+        "feeder_slide", slide_frame, balls[0].body_frame(), [1.0, 0.0, 0.0]))
+    actuator = plant.AddJointActuator("feeder", feeder_joint)
+    actuator.set_controller_gains(PdControllerGains(p=config.feeder_gains[0], d=config.feeder_gains[1]))
+    floating = []
+    for i, body in enumerate(balls[1:], start=2):
+        floating.append(plant.AddJoint(QuaternionFloatingJoint(
+            f"ball_{i}_floating", plant.world_frame(), body.body_frame(),
+            config.angular_damping, config.translational_damping)))
+
+    if heart is not None:
+        files = heart.write_files()
+        wall_props = _wall_properties(config, resolution_hint=1.5e-3)
+        world = plant.world_body()
+        plant.RegisterCollisionGeometry(world, RigidTransform(), Mesh(str(files["vtk"])),
+                                        "heart_wall", wall_props)
+        plant.RegisterVisualGeometry(world, RigidTransform(), Mesh(str(files["obj"])),
+                                     "heart_wall", np.array([0.85, 0.35, 0.35, 0.35]))
+        tgt = np.array([0.1, 0.6, 0.1, 1.0])
+        for side, ring in heart.rings.items():
+            for k, p in enumerate(ring.p_HT):
+                plant.RegisterVisualGeometry(world, RigidTransform(p), Sphere(0.6e-3),
+                                             f"target_{side}_{k + 1}", tgt)
+    if config.sheath is not None:
+        _add_sheath_cage(plant, config, p_WE, axis)
+    plant.Finalize()
+
+    handles = ChainPlant(plant, scene_graph, config, balls, feeder_joint, feeder_instance,
+                         p_WE, axis, X_WF)
+    s0 = config.initial_inserted_length
+    if not 0.0 <= s0 <= handles.max_inserted_length():
+        raise ValueError(
+            f"initial inserted length {s0 * 1e3:.1f} mm is outside 0..{handles.max_inserted_length() * 1e3:.1f} mm "
+            f"(ball 1 must stay in the sheath)")
+    feeder_joint.set_default_translation(s0)
+    # Start in contact (a few um of overlap, about the equilibrium penetration): a pair that
+    # starts apart is not a contact constraint yet, and 2 N of attraction closes it in one step.
+    gap = -4e-6
+    for i, joint in enumerate(floating, start=1):
+        p = X_WF.translation() + (s0 + i * (d + gap)) * axis
+        joint.SetDefaultPose(RigidTransform(R_WF, p))
+    return handles

@@ -1,0 +1,348 @@
+"""Build and run the chain-in-a-heart diagram for a scenario, with a watchdog and Meshcat.
+
+Diagram (system names):
+    ``plant``, ``scene_graph``: the chain plant (``chain_plant``).
+    ``magnetic_wrench``: MagneticWrenchSystem (body poses in, spatial forces out).
+    ``feeder_command``: the scenario's insertion ramp as the feeder slide's desired state.
+        With ``insertion.external`` it is replaced by ``feeder_interface`` and the diagram
+        exports the input port ``inserted_length`` (1, m) for a feeder system.
+    ``meshcat_visualizer``: when a Meshcat is given.
+
+``run_simulation`` stops with ``SimulationFailure`` (saying when and which ball) on a NaN, a
+ball leaving the heart or the chain breaking apart, and returns the metrics otherwise.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder, EventStatus
+from pydrake.systems.primitives import MatrixGain, TrajectorySource
+from pydrake.trajectories import PiecewisePolynomial
+
+from ballchain.drake_models.field_sources import FieldSources, MagnetSource, UniformField
+from ballchain.drake_models.heart import HeartParams, LeftAtrium
+from ballchain.drake_models.params import BallChain, CylinderMagnet, Sleeve, SphereMagnet
+from ballchain.systems.chain_plant import ChainPlant, ChainPlantConfig, SheathConfig, add_chain_plant
+from ballchain.systems.chain_scenario import ChainScenario
+from ballchain.systems.magnetic_wrench import MagneticWrenchSystem
+
+
+class SimulationFailure(RuntimeError):
+    """The simulation stopped: NaN, a ball out of the heart, or the chain broken.
+
+    Attributes:
+        metrics: the metrics up to the failure (same keys as ``run_simulation`` returns).
+    """
+
+    def __init__(self, message: str, metrics: dict | None = None):
+        super().__init__(message)
+        self.metrics = metrics or {}
+
+
+@dataclass
+class ChainDiagram:
+    """The built diagram and handles to its parts."""
+
+    diagram: object
+    chain_plant: ChainPlant
+    wrench: MagneticWrenchSystem
+    heart: LeftAtrium | None
+    scenario: ChainScenario
+    field_source: object
+    visualizer: object = None
+    build_time_s: float = 0.0
+    extras: dict = field(default_factory=dict)
+
+
+def field_source_for(scenario: ChainScenario, p_WP: np.ndarray):
+    """The scenario's fixed external field (a FieldSource or None); p_WP is the puncture [m]."""
+    sources = []
+    if np.any(np.asarray(scenario.uniform_field) != 0.0):
+        sources.append(UniformField(np.asarray(scenario.uniform_field, float)))
+    for m in scenario.magnets:
+        magnet = CylinderMagnet() if m.shape == "cylinder" else SphereMagnet()
+        if m.p_WM:
+            p_WM = np.asarray(m.p_WM, float)
+        else:
+            u = np.asarray(m.direction_W, float)
+            p_WM = p_WP + m.distance_from_puncture * u / np.linalg.norm(u)
+        sources.append(MagnetSource.pointing(magnet, p_WM, m.m_hat_W, m.model))
+    if not sources:
+        return None
+    return sources[0] if len(sources) == 1 else FieldSources(sources)
+
+
+def atrium_for(scenario: ChainScenario):
+    """The scenario's atrium: the user's surface when ``atrium_file`` is set, else procedural."""
+    if not scenario.atrium_file:
+        return LeftAtrium(HeartParams(scale=scenario.heart_scale, subdivisions=scenario.heart_subdivisions))
+    from ballchain.drake_models.atrium_mesh import UserAtrium, load_atrium_surface
+    from ballchain.drake_models.model_files import resolve_uri
+
+    path = scenario.atrium_file
+    path = resolve_uri(path) if path.startswith("package://") else Path(path)
+    surface = load_atrium_surface(path, scenario.atrium_units)
+    return UserAtrium(surface, scenario.puncture, scenario.sheath_aim or None)
+
+
+def chain_for(scenario: ChainScenario) -> BallChain:
+    return BallChain(n_balls=scenario.n_balls, sleeve=Sleeve() if scenario.sleeve else None)
+
+
+def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium | None = None) -> ChainDiagram:
+    """Build the diagram of a (validated) scenario.
+
+    Args:
+        scenario: the scenario.
+        meshcat: a pydrake Meshcat to visualise in, or None.
+        heart: a prebuilt atrium to reuse (else built from the scenario when it has one).
+
+    Returns:
+        a ChainDiagram.
+    """
+    t0 = time.perf_counter()
+    scenario.validate()
+    chain = chain_for(scenario)
+    quasi = scenario.mode == "quasi-static"
+    if scenario.heart and heart is None:
+        heart = atrium_for(scenario)
+    if not scenario.heart:
+        heart = None
+    # Free space: the sheath exit is placed so that ball 1 sits at the origin at s = 0 and the
+    # chain extends along +x (the canonical statics frame).
+    d = chain.ball_diameter
+    config = ChainPlantConfig(
+        chain=chain,
+        time_step=scenario.effective_time_step,
+        translational_damping=scenario.translational_damping if quasi else 0.0,
+        angular_damping=scenario.angular_damping if quasi else 0.0,
+        gravity=scenario.gravity,
+        heart=heart,
+        sheath=SheathConfig() if scenario.sheath else None,
+        p_WE=((chain.n_balls - 0.5) * d, 0.0, 0.0),
+        sheath_axis_W=(1.0, 0.0, 0.0),
+        initial_inserted_length=scenario.insertion.initial,
+        contact=scenario.contact,
+    )
+    builder = DiagramBuilder()
+    cp = add_chain_plant(builder, config)
+    s_max = cp.max_inserted_length()
+    for what, s in (("initial", scenario.insertion.initial), ("final", scenario.insertion.final)):
+        if not 0.0 <= s <= s_max:
+            raise ValueError(
+                f"insertion.{what} = {s * 1e3:.1f} mm is outside 0..{s_max * 1e3:.1f} mm for "
+                f"{chain.n_balls} balls (ball 1 must stay in the sheath)")
+    p_WP = heart.p_HP if heart is not None else np.zeros(3)
+    source = field_source_for(scenario, p_WP)
+    wrench = builder.AddSystem(MagneticWrenchSystem(
+        chain, cp.ball_body_indices, field_source=source, base_direction_W=cp.sheath_axis_W))
+    wrench.set_name("magnetic_wrench")
+    builder.Connect(cp.plant.get_body_poses_output_port(), wrench.get_body_poses_input_port())
+    builder.Connect(wrench.get_spatial_forces_output_port(), cp.plant.get_applied_spatial_force_input_port())
+    desired = cp.plant.get_desired_state_input_port(cp.feeder_instance)
+    ins = scenario.insertion
+    if ins.external:
+        # A feeder's inserted length s (systems/feeder.py's ``inserted_length`` uses the same
+        # definition) becomes the slide's desired state (s, 0): the implicit PD tracks it.
+        to_state = builder.AddSystem(MatrixGain(np.array([[1.0], [0.0]])))
+        to_state.set_name("feeder_interface")
+        builder.Connect(to_state.get_output_port(), desired)
+        builder.ExportInput(to_state.get_input_port(), "inserted_length")
+    else:
+        t1 = max(ins.start_time, 0.0)
+        ramp = abs(ins.final - ins.initial) / ins.speed if ins.speed > 0 else 0.0
+        if ramp > 0:
+            times = [0.0, t1 + 1e-9, t1 + ramp, t1 + ramp + 1.0]
+            values = [ins.initial, ins.initial, ins.final, ins.final]
+        else:
+            times, values = [0.0, 1.0], [ins.initial, ins.initial]
+        traj = PiecewisePolynomial.FirstOrderHold(times, np.array(values)[None, :])
+        feeder = builder.AddSystem(TrajectorySource(traj, output_derivative_order=1))
+        feeder.set_name("feeder_command")
+        builder.Connect(feeder.get_output_port(), desired)
+    visualizer = None
+    if meshcat is not None:
+        from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams
+
+        params = MeshcatVisualizerParams(publish_period=scenario.publish_period)
+        visualizer = MeshcatVisualizer.AddToBuilder(builder, cp.scene_graph, meshcat, params)
+        visualizer.set_name("meshcat_visualizer")
+        _draw_magnets(meshcat, source)
+    diagram = builder.Build()
+    diagram.set_name("chain_in_heart")
+    return ChainDiagram(diagram, cp, wrench, heart, scenario, source, visualizer,
+                        time.perf_counter() - t0)
+
+
+def _draw_magnets(meshcat, source) -> None:
+    """Draw the fixed magnets in Meshcat (illustration only)."""
+    from pydrake.geometry import Cylinder, Rgba, Sphere
+    from pydrake.math import RigidTransform, RotationMatrix
+
+    sources = getattr(source, "sources", [source]) if source is not None else []
+    for k, s in enumerate(sources):
+        if not isinstance(s, MagnetSource):
+            continue
+        path = f"magnets/magnet_{k + 1}"
+        if isinstance(s.magnet, CylinderMagnet):
+            meshcat.SetObject(path, Cylinder(s.magnet.diameter / 2, s.magnet.length), Rgba(0.6, 0.6, 0.65, 0.8))
+        else:
+            meshcat.SetObject(path, Sphere(s.magnet.diameter / 2), Rgba(0.6, 0.6, 0.65, 0.8))
+        meshcat.SetTransform(path, RigidTransform(RotationMatrix(s.R_WM), s.p_WM))
+
+
+class ChainMonitor:
+    """Per-step watchdog and metrics of a ChainDiagram (install with ``simulator.set_monitor``)."""
+
+    def __init__(self, cd: ChainDiagram):
+        self._cd = cd
+        self._plant = cd.chain_plant.plant
+        self._d = cd.chain_plant.config.chain.ball_diameter
+        self._period = cd.scenario.check_period
+        self._next_check = 0.0
+        self.failure: str | None = None
+        self.min_clearance = np.inf
+        self.max_gap = -np.inf
+        self.max_penetration = 0.0
+        self.max_ball_overlap = 0.0
+        self.max_wall_penetration = 0.0
+        self.checks = 0
+        self._iu = np.triu_indices(cd.chain_plant.n_balls, k=1)
+
+    def check(self, plant_context) -> str | None:
+        """Check a state now; returns a failure message or None, and updates the metrics."""
+        t = plant_context.get_time()
+        q = self._plant.GetPositions(plant_context)
+        if not np.all(np.isfinite(q)) or not np.all(np.isfinite(self._plant.GetVelocities(plant_context))):
+            return f"NaN or inf in the state at t = {t:.4f} s"
+        cp = self._cd.chain_plant
+        p = cp.ball_positions(plant_context)
+        self.checks += 1
+        gaps = np.linalg.norm(np.diff(p, axis=0), axis=1) - self._d
+        self.max_gap = max(self.max_gap, float(gaps.max()))
+        dist = np.linalg.norm(p[self._iu[0]] - p[self._iu[1]], axis=1)
+        self.max_ball_overlap = max(self.max_ball_overlap, float(self._d - dist.min()))
+        self.max_penetration = max(self.max_penetration, self.max_ball_overlap)
+        heart = self._cd.heart
+        in_sheath = cp.in_sheath(p)
+        if heart is not None:
+            outside = ~heart.contains(p) & ~in_sheath
+            if np.any(outside):
+                i = int(np.argmax(outside))
+                return (f"ball {i + 1} escaped the heart at t = {t:.4f} s: centre at "
+                        f"{np.round(p[i] * 1e3, 2).tolist()} mm")
+            free = ~in_sheath
+            if np.any(free):
+                clearance = heart.wall_distance(p[free]) - 0.5 * self._d
+                self.min_clearance = min(self.min_clearance, float(clearance.min()))
+                self.max_wall_penetration = max(self.max_wall_penetration, float(-clearance.min()))
+                self.max_penetration = max(self.max_penetration, self.max_wall_penetration)
+                half_wall = 0.5 * heart.params.wall_thickness
+                if -clearance.min() > half_wall:
+                    i = int(np.flatnonzero(free)[np.argmin(clearance)])
+                    return (f"ball {i + 1} sank {-clearance.min() * 1e3:.2f} mm into the wall at "
+                            f"t = {t:.4f} s, past its middle ({half_wall * 1e3:.2f} mm), where the "
+                            "compliant wall would push it out: raise contact.wall_hydroelastic_modulus")
+        elif np.any(np.linalg.norm(p, axis=1) > 10 * cp.config.chain.length + 0.1):
+            i = int(np.argmax(np.linalg.norm(p, axis=1)))
+            return f"ball {i + 1} flew away at t = {t:.4f} s: centre at {np.round(p[i] * 1e3, 1).tolist()} mm"
+        if gaps.max() > self._cd.scenario.break_gap:
+            i = int(np.argmax(gaps))
+            return (f"the chain broke between balls {i + 1} and {i + 2} at t = {t:.4f} s "
+                    f"(gap {gaps[i] * 1e3:.2f} mm > {self._cd.scenario.break_gap * 1e3:.2f} mm)")
+        return None
+
+    def __call__(self, root_context):
+        plant_context = self._plant.GetMyContextFromRoot(root_context)
+        t = root_context.get_time()
+        if t + 1e-12 < self._next_check:
+            q = self._plant.GetPositions(plant_context)
+            if np.all(np.isfinite(q)):
+                return EventStatus.Succeeded()
+        self._next_check = t + self._period
+        self.failure = self.check(plant_context)
+        if self.failure:
+            return EventStatus.Failed(self._cd.diagram, self.failure)
+        return EventStatus.Succeeded()
+
+    def metrics(self, plant_context) -> dict:
+        p = self._cd.chain_plant.ball_positions(plant_context)
+        return {
+            "tip_position_mm": (p[-1] * 1e3).round(3).tolist() if np.all(np.isfinite(p)) else None,
+            "min_wall_clearance_mm": None if not np.isfinite(self.min_clearance) else round(self.min_clearance * 1e3, 4),
+            "max_neighbor_gap_um": round(self.max_gap * 1e6, 3) if np.isfinite(self.max_gap) else None,
+            "max_penetration_um": round(self.max_penetration * 1e6, 3),
+            "max_ball_overlap_um": round(self.max_ball_overlap * 1e6, 3),
+            "max_wall_penetration_um": round(self.max_wall_penetration * 1e6, 3),
+            "monitor_checks": self.checks,
+        }
+
+
+def run_simulation(*, scenario: ChainScenario, duration: float | None = None, html: Path | None = None,
+                   meshcat=None, heart: LeftAtrium | None = None) -> dict:
+    """Simulate a scenario and return its metrics.
+
+    Args:
+        scenario: the (validated) scenario.
+        duration: simulated time [s] (default: the scenario's).
+        html: write a self-contained Meshcat recording to this file.
+        meshcat: a Meshcat to use (a localhost one is started when ``html`` is given).
+        heart: a prebuilt atrium to reuse.
+
+    Returns:
+        {"realtime_factor", "sim_time_s", "tip_position_mm", "min_wall_clearance_mm",
+        "max_neighbor_gap_um", "max_penetration_um", "wall_time_s", "build_time_s",
+        "time_step_s", "mode", "n_steps", "p_W_mm" (n, 3)}.
+
+    Raises:
+        SimulationFailure: NaN, escape or break (message says when and which ball).
+    """
+    duration = scenario.duration if duration is None else duration
+    if duration < 0:
+        raise ValueError(f"duration must be >= 0, got {duration}")
+    if html is not None and meshcat is None:
+        from pydrake.geometry import Meshcat, MeshcatParams
+
+        meshcat = Meshcat(MeshcatParams(host="localhost"))
+    cd = build_chain_diagram(scenario, meshcat=meshcat, heart=heart)
+    simulator = Simulator(cd.diagram)
+    monitor = ChainMonitor(cd)
+    simulator.set_monitor(monitor)
+    root = simulator.get_mutable_context()
+    plant_context = cd.chain_plant.plant.GetMyContextFromRoot(root)
+    if cd.visualizer is not None and html is not None:
+        cd.visualizer.StartRecording()
+    start = time.perf_counter()
+    error = None
+    try:
+        simulator.Initialize()
+        simulator.AdvanceTo(duration)
+    except (RuntimeError, ValueError) as err:  # the monitor's failure, or a solver/physics error
+        error = monitor.failure or f"at t = {root.get_time():.4f} s: {err}"
+    wall = time.perf_counter() - start
+    sim_time = root.get_time()
+    metrics = {
+        "realtime_factor": round(sim_time / wall, 4) if wall > 0 else None,
+        "sim_time_s": round(sim_time, 6),
+        **monitor.metrics(plant_context),
+        "wall_time_s": round(wall, 3),
+        "build_time_s": round(cd.build_time_s, 3),
+        "time_step_s": scenario.effective_time_step,
+        "mode": scenario.mode,
+        "n_steps": int(round(sim_time / scenario.effective_time_step)),
+    }
+    if cd.visualizer is not None and html is not None:
+        cd.visualizer.StopRecording()
+        cd.visualizer.PublishRecording()
+        Path(html).write_text(meshcat.StaticHtml())
+        metrics["html"] = str(html)
+    if error is not None:
+        raise SimulationFailure(f"simulation stopped: {error}", metrics)
+    p = cd.chain_plant.ball_positions(plant_context)
+    metrics["p_W_mm"] = (p * 1e3).round(4).tolist()
+    return metrics

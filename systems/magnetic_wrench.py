@@ -1,0 +1,135 @@
+"""MagneticWrenchSystem: the magnetic (and sleeve) wrenches on every ball of a chain, for a plant.
+
+Every number comes from ``drake_models.chain_energy.chain_energy`` (ball-ball dipole
+interactions, the external field, the sleeve's bending): the force on ball i is -dU/dp_i and
+its torque m_hat_i x (-dU/dm_hat_i). Gravity is left to the plant. Ball i's dipole points along
+its body frame's +x axis.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform
+from pydrake.multibody.math import SpatialForce
+from pydrake.multibody.plant import ExternallyAppliedSpatialForce
+from pydrake.systems.framework import LeafSystem
+
+from ballchain.drake_models.chain_energy import chain_energy
+from ballchain.drake_models.field_sources import FieldSource, FieldSources, MagnetSource
+from ballchain.drake_models.params import BallChain, CylinderMagnet, SphereMagnet
+
+
+class MagneticWrenchSystem(LeafSystem):
+    """Applied spatial forces on the balls of a chain from the chain's own dipoles and outside.
+
+    Input ports:
+        body_poses: abstract list[RigidTransform] indexed by BodyIndex (connect the plant's
+            ``body_poses`` output).
+        magnet_states: (only when ``port_magnets`` is not empty) vector of size 6 k: for each
+            magnet its centre p_WM (3) [m] then its dipole direction m_hat_W (3) (unit, or any
+            non-zero vector that is normalised).
+
+    Output ports:
+        spatial_forces: abstract list[ExternallyAppliedSpatialForce], one per ball, applied at
+            the ball's centre, force [N] and torque [N m] in world (connect to the plant's
+            ``applied_spatial_force`` input).
+
+    Args:
+        chain: the chain's parameters (the sleeve is included when ``chain.sleeve``).
+        ball_body_indices: the plant's BodyIndex of balls 1..n, in chain order.
+        field_source: a fixed external FieldSource (e.g. MagnetSource, UniformField), or None.
+        port_magnets: magnets whose poses come from the ``magnet_states`` port.
+        base_direction_W: (3,) sheath axis clamping the sleeve's first bend.
+        model: "dipole" or "exact" field model of the port magnets.
+    """
+
+    def __init__(
+        self,
+        chain: BallChain,
+        ball_body_indices: Sequence,
+        field_source: FieldSource | None = None,
+        port_magnets: Sequence[CylinderMagnet | SphereMagnet] = (),
+        base_direction_W=(1.0, 0.0, 0.0),
+        model: str = "dipole",
+    ):
+        super().__init__()
+        if len(ball_body_indices) != chain.n_balls:
+            raise ValueError(
+                f"MagneticWrenchSystem: {len(ball_body_indices)} body indices for a chain of "
+                f"{chain.n_balls} balls"
+            )
+        self._chain = chain
+        self._indices = [int(i) for i in ball_body_indices]
+        self._field_source = field_source
+        self._port_magnets = list(port_magnets)
+        self._model = model
+        base = np.asarray(base_direction_W, float)
+        self._base = base / np.linalg.norm(base)
+        self._body_poses_port = self.DeclareAbstractInputPort(
+            "body_poses", AbstractValue.Make([RigidTransform()]))
+        self._magnet_port = None
+        if self._port_magnets:
+            self._magnet_port = self.DeclareVectorInputPort(
+                "magnet_states", 6 * len(self._port_magnets))
+        # The output's elements are allocated once and updated in place every step.
+        self._forces = []
+        for index in self._indices:
+            f = ExternallyAppliedSpatialForce()
+            f.body_index = self._body_index_type(index)
+            f.p_BoBq_B = np.zeros(3)
+            f.F_Bq_W = SpatialForce(np.zeros(3), np.zeros(3))
+            self._forces.append(f)
+        self._spatial_forces_port = self.DeclareAbstractOutputPort(
+            "spatial_forces",
+            lambda: AbstractValue.Make(list(self._forces)),
+            self._calc_spatial_forces,
+        )
+
+    @staticmethod
+    def _body_index_type(index: int):
+        from pydrake.multibody.tree import BodyIndex
+
+        return BodyIndex(index)
+
+    def get_body_poses_input_port(self):
+        return self._body_poses_port
+
+    def get_magnet_states_input_port(self):
+        return self._magnet_port
+
+    def get_spatial_forces_output_port(self):
+        return self._spatial_forces_port
+
+    def external_field(self, context) -> FieldSource | None:
+        """The field source in effect for this context (the fixed one plus the port magnets)."""
+        sources = [] if self._field_source is None else [self._field_source]
+        if self._magnet_port is not None:
+            x = self._magnet_port.Eval(context).reshape(-1, 6)
+            for magnet, row in zip(self._port_magnets, x):
+                sources.append(MagnetSource.pointing(magnet, row[:3], row[3:], self._model))
+        if not sources:
+            return None
+        return sources[0] if len(sources) == 1 else FieldSources(sources)
+
+    def ball_states(self, context) -> tuple[np.ndarray, np.ndarray]:
+        """Ball centres p_W (n, 3) [m] and dipole directions m_hat_W (n, 3) from the poses."""
+        poses = self._body_poses_port.Eval(context)
+        X = np.array([poses[i].GetAsMatrix34() for i in self._indices])  # (n, 3, 4)
+        return X[:, :, 3], X[:, :, 0]
+
+    def calc_wrenches(self, context) -> tuple[np.ndarray, np.ndarray]:
+        """Forces (n, 3) [N] and torques (n, 3) [N m] on the balls, in world."""
+        p, m_hat = self.ball_states(context)
+        _, dU_dp, dU_dm, _ = chain_energy(
+            self._chain, p, m_hat, self.external_field(context), gravity=False,
+            base_direction=self._base)
+        return -dU_dp, np.cross(m_hat, -dU_dm)
+
+    def _calc_spatial_forces(self, context, output) -> None:
+        forces, torques = self.calc_wrenches(context)
+        for f, force, torque in zip(self._forces, forces, torques):
+            f.F_Bq_W = SpatialForce(torque, force)
+        output.set_value(self._forces)
