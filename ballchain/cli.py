@@ -19,6 +19,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "sizing": ("sizing", "clinical actuation magnet sizing (paper Section V-A)"),
     "field-models": ("field_models", "point dipole vs exact cylinder field of the prototype magnet"),
     "bench": ("bench", "benchmarks (statics solve against an SLSQP baseline)"),
+    "forces": ("forces", "tip forces on the pulmonary veins, both configurations (paper Table I)"),
     "workspace": ("workspace", "workspace with one rotating magnet 16.51 cm away (paper Fig. workspace)"),
     "validation": ("validation", "model validation: uniform vs dipole vs exact field, 5..10 balls"),
     "reproduce": ("reproduce", "run the paper checks and write a report (the main job)"),
@@ -32,27 +33,25 @@ class UserInputError(ValueError):
     """Bad input from the user: reported as one line, exit status 2."""
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser() -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentParser]]:
+    """The top-level parser and one (argument-less) subparser per subcommand."""
     parser = argparse.ArgumentParser(prog="ballchain", description=__doc__.split("\n")[0])
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    subparsers = {}
     for name, (module, help_text) in COMMANDS.items():
-        p = sub.add_parser(name, help=help_text, description=help_text)
-        p.set_defaults(_module=module)
-        p.set_defaults(_parser=p)
-        # Arguments are added lazily in main() for the chosen subcommand only.
-    return parser
+        subparsers[name] = sub.add_parser(name, help=help_text, description=help_text)
+    return parser, subparsers
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    parser = build_parser()
-    # Parse the subcommand name first, then load only its module and re-parse.
-    known, _ = parser.parse_known_args(argv) if argv and argv[0] in COMMANDS else (None, None)
-    if known is None:
-        parser.parse_args(argv)  # prints help / errors and exits
+    parser, subparsers = build_parser()
+    if not argv or argv[0] not in COMMANDS:
+        parser.parse_args(argv)  # prints help or the error, and exits
         return 2
-    module = importlib.import_module(f"ballchain.commands.{known._module}")
-    module.add_arguments(known._parser)
+    # Load only the chosen subcommand's module, give its parser the arguments, then parse.
+    module = importlib.import_module(f"ballchain.commands.{COMMANDS[argv[0]][0]}")
+    module.add_arguments(subparsers[argv[0]])
     args = parser.parse_args(argv)
     from threadpoolctl import threadpool_limits
 

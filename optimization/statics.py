@@ -302,7 +302,7 @@ class ChainStatics:
         """Second-order SQP; returns (q, converged, reason, iterations, pair multipliers, tip multipliers)."""
         q = np.zeros(model.nq)
         ev = model.evaluate(q, 2)
-        rho = 10.0
+        rho = 1.0
         escapes = 0
         lam_near: dict[int, float] = {}
         lam_tip = np.zeros(3)
@@ -322,13 +322,20 @@ class ChainStatics:
                 H = H - model.constraint_hessian(q, pairs, np.array(list(lam_near.values())))
             if pinned and np.any(lam_tip):
                 H = H - model.tip_hessian(q, lam_tip)
-            Hm, _ = _positive_definite(H)
             if pinned and not len(near):
-                # Equality constraints only: the KKT system of the step, solved directly.
+                # Equality constraints only: a null-space step. Only the curvature along the
+                # constraints' tangent space matters, so only that part is made positive definite.
                 J = ev.tip_jacobian
-                kkt = np.block([[Hm, J.T], [J, np.zeros((3, 3))]])
-                sol = np.linalg.solve(kkt, np.concatenate([-g, -ev.tip_residual]))
-                dq, lam, lam_tip = sol[: model.nq], np.zeros(0), -sol[model.nq :]
+                Z = _null_space(J)
+                dq_n = -np.linalg.pinv(J) @ ev.tip_residual
+                Hz, _ = _positive_definite(Z.T @ H @ Z)
+                dq = dq_n - Z @ np.linalg.solve(Hz, Z.T @ (g + H @ dq_n))
+                Hm = Z @ Hz @ Z.T  # the model's curvature, for the predicted decrease below
+                lam, lam_tip = np.zeros(0), np.linalg.lstsq(J.T, g + H @ dq, rcond=None)[0]
+            else:
+                Hm, _ = _positive_definite(H)
+            if pinned and not len(near):
+                pass
             elif len(near) or pinned:
                 dq, lam, lam_tip = self._qp_step(Hm, g, ev.gaps[near], ev.jacobian[near],
                                                  ev.tip_residual, ev.tip_jacobian)
@@ -382,6 +389,14 @@ class ChainStatics:
                 merit = trial.energy + rho * infeasibility(trial)
                 if merit <= merit0 + 1e-4 * t * min(slope, 0.0) or t < 1e-10:
                     break
+                if t == 1.0 and pinned:
+                    # Second-order correction: the full step leaves the tip off target by the
+                    # constraint's curvature (Maratos effect); project it back before shortening.
+                    correction = -np.linalg.pinv(ev.tip_jacobian) @ trial.tip_residual
+                    corrected = model.evaluate(q + dq + correction, 2)
+                    if corrected.energy + rho * infeasibility(corrected) <= merit0 + 1e-4 * min(slope, 0.0):
+                        dq, trial = dq + correction, corrected
+                        break
                 t *= 0.5
             if t < 1e-10:
                 if np.abs(stationarity).max() < 1e3 * self.tolerance and violation < 1e-9:

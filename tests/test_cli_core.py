@@ -74,3 +74,11 @@ def test_reproduce_quick_writes_the_report(capsys, tmp_path):
     html = (tmp_path / "report.html").read_text()
     assert html.count("data:image/png;base64") >= 2
     assert set(data["experiments"]) >= {"alignment", "sizing", "field models"}
+
+
+@pytest.mark.parametrize("command,flag", [("statics", "--balls"), ("simulate", "--scenario"), ("forces", "--veins")])
+def test_subcommand_help_lists_its_arguments(capsys, command, flag):
+    with pytest.raises(SystemExit) as exc:
+        main([command, "--help"])
+    assert exc.value.code == 0
+    assert flag in capsys.readouterr().out

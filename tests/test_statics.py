@@ -168,6 +168,31 @@ def test_folded_chain_contact_force_balances_the_tip():
     np.testing.assert_allclose(tau[1:], 0.0, atol=1e-6 * torque_scale)
 
 
+@pytest.mark.parametrize("offset_mm", [(1.0, 0.0, 0.0), (-3.0, 2.0, 0.0), (0.0, -2.0, 1.5)])
+def test_tip_held_on_a_target_reaction_balances_the_chain(offset_mm):
+    """The tip multiplier is the target's push: with it added to the tip's forces, the field
+    forces and torques on every sub-chain have zero moment about the ball before it."""
+    chain = BallChain(n_balls=10)
+    ext = field(90.0)
+    solver = ChainStatics(chain)
+    free = rotate_to(chain, 90.0)
+    pinned_in_place = solver.solve(ext, free, tip_target=free.tip_position)
+    assert pinned_in_place.converged
+    np.testing.assert_allclose(pinned_in_place.tip_reaction, 0.0, atol=1e-9)
+    target = free.tip_position + 1e-3 * np.array(offset_mm)
+    result = solver.solve(ext, free, tip_target=target)
+    assert result.converged
+    np.testing.assert_allclose(result.tip_position, target, atol=1e-12)
+    assert np.linalg.norm(result.tip_reaction) > 1e-3  # a real push, N
+    F, tau = _ball_forces_and_torques(chain, result, ext)
+    F[-1] += result.tip_reaction
+    p = result.positions
+    scale = np.abs(F).max() * chain.ball_diameter
+    for k in range(chain.n_balls - 1):
+        moment = np.sum(np.cross(p[k + 1 :] - p[k], F[k + 1 :]) + tau[k + 1 :], axis=0)
+        np.testing.assert_allclose(moment, 0.0, atol=1e-9 * scale)
+
+
 def test_failure_is_reported_not_hidden():
     chain = BallChain(n_balls=10)
     solver = ChainStatics(chain, max_iterations=1)
