@@ -109,7 +109,7 @@ def max_normal_force(chain: BallChain, stand: Stand, vein: str, configs=("1",), 
         return {"force_N": None, "reason": "target out of reach of the inserted chain"}
     # A pinned equilibrium a small turn of the magnets away takes a few Newton steps; one that
     # needs many is on another branch (or none): give up on it and try the next orientation.
-    solver = ChainStatics(chain, max_iterations=60)
+    solver = ChainStatics(chain, max_iterations=25)
     best = {"force_N": -np.inf, "result": None, "angles": None}
     cache: dict = {}
     evaluations = [0]
@@ -121,8 +121,8 @@ def max_normal_force(chain: BallChain, stand: Stand, vein: str, configs=("1",), 
             result = _pinned(solver, external, target, None)
         else:  # already on the pin: only the magnets turned
             result = solver.solve(external, start, tip_target=target)
-            if not result.converged:
-                result = _pinned(solver, external, target, None)
+            if not result.converged:  # no held equilibrium near this one: skip the orientation
+                result = None
         if result is None:
             return None, -np.inf
         force = float(-result.tip_reaction @ axis)  # the chain pushes the pin into the vein
