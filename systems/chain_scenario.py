@@ -58,6 +58,10 @@ class InsertionScenario:
         speed: ramp speed [m/s].
         external: when true, the diagram exports the input port ``inserted_length`` (1) [m]
             for a feeder system (e.g. systems/feeder.py) instead of playing this ramp.
+        feeder: when true, the stepper Feeder (systems/feeder.py, named ``feeder``) plays the
+            ramp as a speed command (its acceleration limit turns it into a trapezoid that
+            covers the same distance, about speed / 0.1 m/s^2 later) and its quantised
+            ``inserted_length`` drives the slide. ``speed`` must not exceed the feeder's limit.
     """
 
     initial: float = 0.02
@@ -65,6 +69,65 @@ class InsertionScenario:
     start_time: float = 0.0
     speed: float = 0.01
     external: bool = False
+    feeder: bool = False
+
+
+@dataclass
+class JoystickKey:
+    """One key of a scripted joystick: from ``time`` on (zero-order hold) the stick reads ``axes``.
+
+    Attributes:
+        time: [s].
+        axes: (3,) stick axes in [-1, 1]; with the world mapping (the paper's), full stick turns
+            the magnet at the unit's ``teleop_omega_max`` about world x, y, z.
+        mode: 0 teleoperation (the stick drives the magnet), 1 reconfiguration (the Hall-sensor
+            loop turns the magnet back to its neutral direction; the stick is ignored).
+    """
+
+    time: float = 0.0
+    axes: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    mode: int = 0
+
+
+ANCHORS = ("puncture", "centre", "carina_left", "carina_right")
+
+
+@dataclass
+class UnitScenario:
+    """A rotating actuation unit (magnet on omni-wheels, drive, Hall sensor, controller, joystick).
+
+    Its systems are named ``<name>.magnet``, ``<name>.drive``, ``<name>.hall_sensor``,
+    ``<name>.estimator``, ``<name>.controller``, ``<name>.teleoperation``, ``<name>.mode_switch``,
+    ``<name>.joystick`` and ``<name>.mode_command``.
+
+    Attributes:
+        name: "right_unit", "left_unit", ... (distinct).
+        shape: "cylinder" (the prototype's N52 76.2 x 38.1 mm) or "sphere" (119 mm clinical).
+        p_WM: magnet centre [m]; when empty, ``distance`` along ``direction_W`` from ``anchor``.
+        anchor: "puncture" (the septal puncture; the origin in free space), "centre" (the LA
+            centre, the world origin), "carina_left" or "carina_right" (heart only).
+        distance: [m].
+        direction_W: from the anchor towards the magnet centre.
+        m_hat_W: initial dipole direction; empty: the neutral direction (the field at the sheath
+            exit, or at ball 1 in free space, along the insertion direction), which is also
+            the reconfiguration controller's target.
+        model: "dipole" or "exact" (the same for every unit).
+        teleop_omega_max: magnet angular speed at full stick [rad/s].
+        sensor_noise: Gaussian noise on the Hall sensor.
+        joystick: the scripted stick (zero-order hold; zeros before the first key).
+    """
+
+    name: str = "right_unit"
+    shape: str = "cylinder"
+    p_WM: list[float] = field(default_factory=list)
+    anchor: str = "puncture"
+    distance: float = 0.1651
+    direction_W: list[float] = field(default_factory=lambda: [-1.0, 0.0, 0.0])
+    m_hat_W: list[float] = field(default_factory=list)
+    model: str = "dipole"
+    teleop_omega_max: float = 0.5
+    sensor_noise: bool = True
+    joystick: list[JoystickKey] = field(default_factory=list)
 
 
 @dataclass
@@ -92,6 +155,7 @@ class ChainScenario:
         gravity: gravity along -z.
         uniform_field: a uniform external field B_W [T] (zeros: none).
         magnets: fixed external magnets.
+        units: rotating actuation units driven by scripted joysticks (systems/station_units.py).
         insertion: the feeder's motion.
         contact: contact parameters.
         duration: default simulated time [s].
@@ -118,6 +182,7 @@ class ChainScenario:
     gravity: bool = True
     uniform_field: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     magnets: list[MagnetScenario] = field(default_factory=list)
+    units: list[UnitScenario] = field(default_factory=list)
     insertion: InsertionScenario = field(default_factory=InsertionScenario)
     contact: ContactConfig = field(default_factory=ContactConfig)
     duration: float = 0.1
@@ -151,11 +216,45 @@ class ChainScenario:
                 raise ValueError(f"magnet {k + 1}: model must be 'dipole' or 'exact', got {m.model!r}")
             if m.p_WM and len(m.p_WM) != 3:
                 raise ValueError(f"magnet {k + 1}: p_WM must have 3 components [m], got {m.p_WM}")
+        self._validate_units()
         if self.mode == "dynamics" and self.effective_time_step > 5e-4:
             raise ValueError(
                 f"time step {self.effective_time_step} s is too large for the dynamics mode: the "
                 "magnetic forces are explicit and need about 1e-4 s (use quasi-static for larger steps)")
         return self
+
+
+    def _validate_units(self) -> None:
+        names = [u.name for u in self.units]
+        if len(set(names)) != len(names):
+            raise ValueError(f"scenario units must have distinct names, got {names}")
+        for u in self.units:
+            where = f"unit {u.name!r}"
+            if not u.name or "." in u.name:
+                raise ValueError(f"{where}: name must be non-empty and without dots")
+            if u.shape not in ("cylinder", "sphere"):
+                raise ValueError(f"{where}: shape must be 'cylinder' or 'sphere', got {u.shape!r}")
+            if u.model not in ("dipole", "exact") or u.model != self.units[0].model:
+                raise ValueError(f"{where}: model must be 'dipole' or 'exact', the same for every unit")
+            if u.p_WM and len(u.p_WM) != 3:
+                raise ValueError(f"{where}: p_WM must have 3 components [m], got {u.p_WM}")
+            if u.m_hat_W and (len(u.m_hat_W) != 3 or not any(u.m_hat_W)):
+                raise ValueError(f"{where}: m_hat_W must be 3 components, not all zero, got {u.m_hat_W}")
+            if not u.p_WM:
+                if u.anchor not in ANCHORS:
+                    raise ValueError(f"{where}: anchor must be one of {ANCHORS}, got {u.anchor!r}")
+                if u.anchor.startswith("carina") and not self.heart:
+                    raise ValueError(f"{where}: anchor {u.anchor!r} needs the heart (heart: true)")
+                if len(u.direction_W) != 3 or not any(u.direction_W) or u.distance <= 0:
+                    raise ValueError(f"{where}: needs direction_W (3, non-zero) and distance > 0 [m]")
+            if u.teleop_omega_max <= 0:
+                raise ValueError(f"{where}: teleop_omega_max must be > 0 [rad/s]")
+            times = [k.time for k in u.joystick]
+            if any(t < 0 for t in times) or any(b < a for a, b in zip(times, times[1:])):
+                raise ValueError(f"{where}: joystick key times must be >= 0 and non-decreasing, got {times}")
+            for k in u.joystick:
+                if len(k.axes) != 3 or k.mode not in (0, 1):
+                    raise ValueError(f"{where}: joystick key at t = {k.time} s needs 3 axes and mode 0 or 1")
 
 
 def scenario_names(filename: Path = SCENARIOS_FILE) -> list[str]:

@@ -6,7 +6,12 @@ Diagram (system names):
     ``feeder_command``: the scenario's insertion ramp as the feeder slide's desired state.
         With ``insertion.external`` it is replaced by ``feeder_interface`` and the diagram
         exports the input port ``inserted_length`` (1, m) for a feeder system.
-    ``meshcat_visualizer``: when a Meshcat is given.
+    ``meshcat_visualizer``: when a Meshcat is given (and ``unit_markers`` for the units).
+    With ``units``: per unit ``<u>.magnet``, ``<u>.drive``, ``<u>.hall_sensor``, ``<u>.estimator``,
+        ``<u>.controller``, ``<u>.teleoperation``, ``<u>.mode_switch``, ``<u>.joystick``,
+        ``<u>.mode_command``, ``<u>.p_WM``, and ``magnet_states`` into the wrench's magnet input
+        (``station_units``). With ``insertion.feeder``: ``feeder_command`` -> ``feeder`` ->
+        ``feeder_interface``.
 
 ``run_simulation`` stops with ``SimulationFailure`` (saying when and which ball) on a NaN, a
 ball leaving the heart or the chain breaking apart, and returns the metrics otherwise.
@@ -30,6 +35,7 @@ from ballchain.drake_models.params import BallChain, CylinderMagnet, Sleeve, Sph
 from ballchain.systems.chain_plant import ChainPlant, ChainPlantConfig, SheathConfig, add_chain_plant
 from ballchain.systems.chain_scenario import ChainScenario
 from ballchain.systems.magnetic_wrench import MagneticWrenchSystem
+from ballchain.systems.station_units import UnitMeshcatMarkers, add_feeder, add_units, unit_configs
 
 
 class SimulationFailure(RuntimeError):
@@ -139,14 +145,31 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
                 f"{chain.n_balls} balls (ball 1 must stay in the sheath)")
     p_WP = heart.p_HP if heart is not None else np.zeros(3)
     source = field_source_for(scenario, p_WP)
+    anchors = {"puncture": p_WP, "centre": np.zeros(3)}
+    if getattr(heart, "carinas", None):  # the procedural atrium (a user's surface has none)
+        anchors.update({f"carina_{k}": v for k, v in heart.carinas.items()})
+    configs = unit_configs(scenario, anchors)
     wrench = builder.AddSystem(MagneticWrenchSystem(
-        chain, cp.ball_body_indices, field_source=source, base_direction_W=cp.sheath_axis_W))
+        chain, cp.ball_body_indices, field_source=source, base_direction_W=cp.sheath_axis_W,
+        port_magnets=[c.magnet for c in configs], model=configs[0].field_model if configs else "dipole"))
     wrench.set_name("magnetic_wrench")
     builder.Connect(cp.plant.get_body_poses_output_port(), wrench.get_body_poses_input_port())
     builder.Connect(wrench.get_spatial_forces_output_port(), cp.plant.get_applied_spatial_force_input_port())
+    extras = {}
+    if configs:
+        # The neutral field is defined where the free chain starts: the sheath exit in the
+        # heart, ball 1's initial centre in free space (the canonical statics origin).
+        p_W_chain = heart.p_HE if heart is not None else cp.X_WF.multiply(
+            np.array([scenario.insertion.initial, 0.0, 0.0]))
+        extras["units"] = add_units(builder, scenario, configs, wrench.get_magnet_states_input_port(),
+                                    p_W_chain, cp.sheath_axis_W)
     desired = cp.plant.get_desired_state_input_port(cp.feeder_instance)
     ins = scenario.insertion
-    if ins.external:
+    if ins.external and ins.feeder:
+        raise ValueError("insertion: choose external (exported port) or feeder (the Feeder system), not both")
+    if ins.feeder:
+        extras["feeder"] = add_feeder(builder, chain, ins, desired)
+    elif ins.external:
         # A feeder's inserted length s (systems/feeder.py's ``inserted_length`` uses the same
         # definition) becomes the slide's desired state (s, 0): the implicit PD tracks it.
         to_state = builder.AddSystem(MatrixGain(np.array([[1.0], [0.0]])))
@@ -173,10 +196,15 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
         visualizer = MeshcatVisualizer.AddToBuilder(builder, cp.scene_graph, meshcat, params)
         visualizer.set_name("meshcat_visualizer")
         _draw_magnets(meshcat, source)
+        if configs:
+            markers = builder.AddSystem(UnitMeshcatMarkers(meshcat, configs, scenario.publish_period))
+            for c in configs:
+                builder.Connect(extras["units"][c.name].magnet.GetOutputPort("X_WM"),
+                                markers.GetInputPort(f"X_WM_{c.name}"))
     diagram = builder.Build()
     diagram.set_name("chain_in_heart")
     return ChainDiagram(diagram, cp, wrench, heart, scenario, source, visualizer,
-                        time.perf_counter() - t0)
+                        time.perf_counter() - t0, extras)
 
 
 def _draw_magnets(meshcat, source) -> None:

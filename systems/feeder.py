@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from pydrake.systems.framework import LeafSystem
+from pydrake.systems.framework import BasicVector, LeafSystem
 
 from ballchain.drake_models.params import BallChain
 
@@ -63,15 +63,27 @@ class Feeder(LeafSystem):
     (1) [m], ``microsteps`` (1) [count].
     """
 
-    def __init__(self, chain: BallChain | None = None, spec: FeederSpec | None = None, name: str = "feeder") -> None:
+    def __init__(self, chain: BallChain | None = None, spec: FeederSpec | None = None, name: str = "feeder",
+                 initial_length: float = 0.0) -> None:
+        """
+        Args:
+            chain: the chain being fed (its length is the end stop).
+            spec: feeder figures.
+            name: system name.
+            initial_length: inserted length in the default state [m], in 0..chain length
+                (rounded to whole microsteps).
+        """
         super().__init__()
         self._chain = chain or BallChain()
         self._spec = spec or FeederSpec()
+        if not 0.0 <= initial_length <= self._chain.length:
+            raise ValueError(f"Feeder initial_length {initial_length} m is outside 0..{self._chain.length} m")
         self.set_name(name)
         self._v_port = self.DeclareVectorInputPort("v_insert_cmd", 1)
         self._speed_index = self.DeclareDiscreteState(1)
-        self._length_index = self.DeclareDiscreteState(1)
-        self._steps_index = self.DeclareDiscreteState(1)
+        self._length_index = self.DeclareDiscreteState(BasicVector([float(initial_length)]))
+        self._steps_index = self.DeclareDiscreteState(
+            BasicVector([float(np.round(initial_length / self._spec.step_length))]))
         self._length_port = self.DeclareVectorOutputPort("inserted_length", 1, self._calc_length)
         self._balls_port = self.DeclareVectorOutputPort("balls_out", 1, self._calc_balls)
         self.DeclarePeriodicDiscreteUpdateEvent(self._spec.update_period, 0.0, self._update)

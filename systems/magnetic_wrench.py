@@ -18,8 +18,38 @@ from pydrake.multibody.plant import ExternallyAppliedSpatialForce
 from pydrake.systems.framework import LeafSystem
 
 from ballchain.drake_models.chain_energy import chain_energy
+from ballchain.drake_models.dipole import dipole_field, dipole_field_gradient
 from ballchain.drake_models.field_sources import FieldSource, FieldSources, MagnetSource
 from ballchain.drake_models.params import BallChain, CylinderMagnet, SphereMagnet
+
+
+class PortDipoles:
+    """The point-dipole field of the port magnets, all at once (a FieldSource).
+
+    The same law as ``MagnetSource(model="dipole")`` (``dipole.dipole_field`` and
+    ``dipole_field_gradient``), without building a MagnetSource per magnet per step: the
+    wrench system rebuilds its external field every step while the units turn.
+
+    Args:
+        p_WM: (k, 3) magnet centres [m].
+        m_W: (k, 3) dipole moments [A m^2].
+        bounding_radii: (k,) no field point may be closer than this to a centre [m].
+    """
+
+    def __init__(self, p_WM: np.ndarray, m_W: np.ndarray, bounding_radii: np.ndarray):
+        self.p_WM = p_WM
+        self.m_W = m_W
+        self._r2_min = np.asarray(bounding_radii) ** 2
+
+    def field_and_gradient(self, p_W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(B_W (n, 3) [T], G_W (n, 3, 3) [T/m]) summed over the magnets at the points p_W (n, 3)."""
+        r = np.asarray(p_W, dtype=float).reshape(-1, 3)[:, None, :] - self.p_WM[None, :, :]  # (n, k, 3)
+        r2 = np.einsum("nki,nki->nk", r, r)
+        if np.any(r2 <= self._r2_min):
+            i, k = np.argwhere(r2 <= self._r2_min)[0]
+            raise ValueError(f"field point {r[i, k] + self.p_WM[k]} m lies within port magnet {k + 1}'s "
+                             f"bounding sphere (centre {self.p_WM[k]} m): a magnet cannot be placed on the chain")
+        return dipole_field(r, self.m_W).sum(axis=1), dipole_field_gradient(r, self.m_W).sum(axis=1)
 
 
 class MagneticWrenchSystem(LeafSystem):
@@ -71,6 +101,8 @@ class MagneticWrenchSystem(LeafSystem):
         self._body_poses_port = self.DeclareAbstractInputPort(
             "body_poses", AbstractValue.Make([RigidTransform()]))
         self._magnet_port = None
+        self._port_moments = np.array([m.dipole_moment for m in self._port_magnets])
+        self._port_radii = np.array([m.bounding_radius for m in self._port_magnets])
         if self._port_magnets:
             self._magnet_port = self.DeclareVectorInputPort(
                 "magnet_states", 6 * len(self._port_magnets))
@@ -108,8 +140,12 @@ class MagneticWrenchSystem(LeafSystem):
         sources = [] if self._field_source is None else [self._field_source]
         if self._magnet_port is not None:
             x = self._magnet_port.Eval(context).reshape(-1, 6)
-            for magnet, row in zip(self._port_magnets, x):
-                sources.append(MagnetSource.pointing(magnet, row[:3], row[3:], self._model))
+            if self._model == "dipole":
+                m_hat = x[:, 3:] / np.linalg.norm(x[:, 3:], axis=1, keepdims=True)
+                sources.append(PortDipoles(x[:, :3], self._port_moments[:, None] * m_hat, self._port_radii))
+            else:
+                for magnet, row in zip(self._port_magnets, x):
+                    sources.append(MagnetSource.pointing(magnet, row[:3], row[3:], self._model))
         if not sources:
             return None
         return sources[0] if len(sources) == 1 else FieldSources(sources)

@@ -124,6 +124,31 @@ def test_magnet_states_port_matches_a_fixed_magnet():
     np.testing.assert_allclose(tau_p, tau_f, rtol=1e-12, atol=1e-15)
 
 
+
+def test_two_port_magnets_match_their_magnet_sources_and_refuse_overlap():
+    """PortDipoles (all port magnets at once) against a sum of MagnetSources, a cylinder and a
+    sphere, one dipole direction given unnormalised; a magnet on the chain is refused."""
+    from ballchain.drake_models.field_sources import FieldSources
+    from ballchain.drake_models.params import SphereMagnet
+
+    chain = BallChain(n_balls=6)
+    magnets = [CylinderMagnet(), SphereMagnet()]
+    p_WM = np.array([[0.02, -0.15, 0.03], [-0.1, 0.12, -0.02]])
+    m_W = np.array([[0.0, 2.0, 0.0], [0.3, -0.2, 0.9]])
+    fixed = FieldSources([MagnetSource.pointing(m, p, d) for m, p, d in zip(magnets, p_WM, m_W)])
+    sys_f, ctx_f, _, _ = _wrench_context(chain, field_source=fixed)
+    sys_p = MagneticWrenchSystem(chain, list(range(1, 7)), port_magnets=magnets)
+    ctx_p = sys_p.CreateDefaultContext()
+    sys_p.get_body_poses_input_port().FixValue(ctx_p, sys_f.get_body_poses_input_port().Eval(ctx_f))
+    sys_p.get_magnet_states_input_port().FixValue(ctx_p, np.hstack([p_WM, m_W]).reshape(-1))
+    _, F_f, tau_f = _output_wrenches(sys_f, ctx_f)
+    _, F_p, tau_p = _output_wrenches(sys_p, ctx_p)
+    np.testing.assert_allclose(F_p, F_f, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(tau_p, tau_f, rtol=1e-12, atol=1e-15)
+    sys_p.get_magnet_states_input_port().FixValue(ctx_p, np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0] * 2))
+    with pytest.raises(ValueError, match="bounding sphere"):
+        sys_p.get_spatial_forces_output_port().Eval(ctx_p)
+
 @pytest.fixture(scope="module")
 def coarse_heart():
     return LeftAtrium(HeartParams(subdivisions=3))

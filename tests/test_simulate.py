@@ -173,3 +173,154 @@ def test_a_user_atrium_surface_runs_and_a_bad_one_is_refused(tmp_path, capsys):
     assert "not closed: 3 boundary edges" in capsys.readouterr().err
     with pytest.raises(ValueError, match="needs puncture"):
         load_scenario("heart_no_field", f"{{atrium_file: '{obj}'}}")
+
+
+# ------------------------------------------------------------------ actuation units in the station
+UNIT_8_BALLS = ("{n_balls: 8, uniform_field: [0.0, 0.0, 0.0], units: [{name: right_unit, p_WM: [0.03, -0.08, 0.0], "
+                "sensor_noise: false, joystick: [{time: 0.0, axes: [0.0, 0.0, 1.0]}, {time: 0.3, axes: [0.0, 0.0, 0.0]}]}]}")
+
+
+def test_station_with_units_has_named_systems_and_wiring(heart):
+    cd = build_chain_diagram(load_scenario("teleop_two_units"), heart=heart)
+    names = {s.get_name() for s in cd.diagram.GetSystems()}
+    for unit in ("right_unit", "left_unit"):
+        assert {f"{unit}.{part}" for part in ("magnet", "drive", "hall_sensor", "estimator", "controller",
+                                              "teleoperation", "mode_switch", "joystick", "mode_command")} <= names
+    assert {"feeder", "feeder_command", "feeder_interface", "magnet_states", "magnetic_wrench"} <= names
+    assert cd.wrench.get_magnet_states_input_port().size() == 12  # (p_WM, m_hat_W) per unit
+    # Fixed inputs at t = 0: the wrench sees each unit at its centre with its neutral dipole, and the
+    # neutral dipole makes the field at the sheath exit point along the sheath (to 1e-9).
+    context = cd.diagram.CreateDefaultContext()
+    x = cd.wrench.get_magnet_states_input_port().Eval(cd.wrench.GetMyContextFromRoot(context)).reshape(2, 6)
+    field = cd.wrench.external_field(cd.wrench.GetMyContextFromRoot(context))
+    for row, unit in zip(x, cd.extras["units"].values()):
+        np.testing.assert_allclose(row[:3], unit.config.p_WM, atol=1e-12)
+        np.testing.assert_allclose(row[3:] / np.linalg.norm(row[3:]), unit.m_hat_neutral_W, atol=1e-12)
+    B = field.field_and_gradient(heart.p_HE[None])[0][0]
+    np.testing.assert_allclose(B / np.linalg.norm(B), heart.sheath_axis_H, atol=1e-9)
+    # The paper's placement: 10 cm from the right carina.
+    right = cd.extras["units"]["right_unit"].config
+    assert np.linalg.norm(np.asarray(right.p_WM) - heart.carinas["right"]) == pytest.approx(0.10)
+
+
+def test_bad_unit_scenarios_fail_clearly(heart):
+    with pytest.raises(ValueError, match="distinct names"):
+        load_scenario("teleop_two_units", "{units: [{name: a}, {name: a}]}")
+    with pytest.raises(ValueError, match="needs the heart"):
+        load_scenario("free_space_uniform_90deg", "{units: [{name: a, anchor: carina_left}]}")
+    with pytest.raises(ValueError, match="joystick key times"):
+        load_scenario("teleop_right_unit", "{units: [{name: a, joystick: [{time: 0.5}, {time: 0.1}]}]}")
+    with pytest.raises(ValueError, match="exceeds the feeder's limit"):
+        build_chain_diagram(load_scenario("free_space_uniform_90deg", "{insertion: {final: 0.01, speed: 0.5, feeder: true}}"))
+    with pytest.raises(ValueError, match="external .* or feeder"):
+        build_chain_diagram(load_scenario("free_space_uniform_90deg", "{insertion: {external: true, feeder: true}}"))
+    with pytest.raises(ValueError, match="has no carinas"):
+        build_chain_diagram(load_scenario("teleop_right_unit", "{units: [{name: a, anchor: carina_right}]}"),
+                            heart=_without_carinas(heart))
+
+
+def _without_carinas(heart):
+    """A copy of the atrium without carinas, as a user's surface (UserAtrium) has none."""
+    import copy
+
+    stub = copy.copy(heart)
+    stub.carinas = {}
+    return stub
+
+
+def test_meshcat_draws_the_units():
+    from pydrake.geometry import Meshcat, MeshcatParams
+
+    meshcat = Meshcat(MeshcatParams(host="localhost"))
+    scenario = load_scenario("free_space_uniform_90deg", "{n_balls: 3, units: [{name: right_unit, p_WM: [0.0, -0.1, 0.0]}]}")
+    cd = build_chain_diagram(scenario, meshcat=meshcat)
+    assert "unit_markers" in {s.get_name() for s in cd.diagram.GetSystems()}
+    assert meshcat.HasPath("units/right_unit/body") and meshcat.HasPath("units/right_unit/dipole")
+
+
+def test_rotating_unit_steers_the_chain_to_the_statics_equilibrium():
+    """Full stick about +z for 0.3 s turns the magnet 0.15 rad; the chain swings the way the field
+    at the chain turned and settles within 0.1 mm of ChainStatics for the final magnet pose.
+
+    Free space, no gravity, 8 balls, ball 1 clamped at the origin along +x (the statics frame); the
+    unit (prototype cylinder, point dipole) 8.5 cm away starts at its neutral direction (field along
+    +x at ball 1: the straight chain is in equilibrium). Measured: tip (22.2, 0) -> (17.64, -13.19)
+    mm, statics (17.65, -13.22) mm, 0.03 mm apart; magnet turned 0.1500 rad.
+    """
+    from pydrake.systems.analysis import Simulator
+
+    from ballchain.drake_models.field_sources import MagnetSource
+    from ballchain.optimization.statics import ChainStatics
+
+    cd = build_chain_diagram(load_scenario("free_space_uniform_90deg", UNIT_8_BALLS))
+    unit = cd.extras["units"]["right_unit"]
+    simulator = Simulator(cd.diagram)
+    root = simulator.get_mutable_context()
+    plant_context = cd.chain_plant.plant.GetMyContextFromRoot(root)
+    magnet_context = unit.magnet.GetMyContextFromRoot(root)
+    simulator.Initialize()
+    p0 = cd.chain_plant.ball_positions(plant_context)
+    simulator.AdvanceTo(0.8)
+    p = cd.chain_plant.ball_positions(plant_context)
+    R_WM = unit.magnet.R_WM(magnet_context)
+    m0, m1 = unit.m_hat_initial_W, R_WM[:, 2]
+    turned = np.arctan2(np.cross(m0, m1)[2], m0 @ m1)
+    assert turned == pytest.approx(0.5 * 0.3, abs=2e-3)  # omega_max x time, to a few microsteps
+    np.testing.assert_allclose(R_WM[2, 2], 0.0, atol=1e-9)  # a rotation about z keeps m horizontal
+    # Direction: the field at the chain's middle turned towards -y, and so did the tip.
+    source = MagnetSource(unit.config.magnet, np.asarray(unit.config.p_WM), R_WM, "dipole")
+    B_mid = source.field(p0[len(p0) // 2][None])[0]
+    assert B_mid[1] < 0 and p[-1, 1] < -5e-3 and p0[-1, 1] == pytest.approx(0.0, abs=1e-6)
+    # Statics: the same magnet, the equilibrium reached from the straight chain.
+    statics = ChainStatics(cd.chain_plant.config.chain).solve_or_raise(source)
+    tip_error = np.linalg.norm(p[-1] - statics.positions[-1])
+    print(f"tip {p[-1] * 1e3} mm, statics {statics.positions[-1] * 1e3} mm, error {tip_error * 1e3:.3f} mm")
+    assert tip_error < 0.1e-3
+    assert np.abs(p - statics.positions).max() < 0.1e-3
+
+
+def test_reconfiguration_mode_returns_the_magnet_to_neutral():
+    """Mode 1 from t = 0: the Hall-sensor loop turns a magnet started 30 deg off neutral back
+    (K = 4 1/s: 30 deg e^(-4 t), 0.5 deg latch near 1.0 s), with the chain attached. The unit is
+    on the -y side, so its neutral dipole (field along +x at ball 1) is -x."""
+    from pydrake.systems.analysis import Simulator
+
+    off = np.deg2rad(30.0)
+    scenario = load_scenario("free_space_uniform_90deg", (
+        "{n_balls: 3, uniform_field: [0.0, 0.0, 0.0], units: [{name: right_unit, p_WM: [0.0, -0.1651, 0.0], "
+        f"m_hat_W: [{-np.cos(off)}, {np.sin(off)}, 0.0], joystick: [{{time: 0.0, mode: 1}}]}}]}}"))
+    cd = build_chain_diagram(scenario)
+    unit = cd.extras["units"]["right_unit"]
+    simulator = Simulator(cd.diagram)
+    np.testing.assert_allclose(unit.m_hat_neutral_W, [-1.0, 0.0, 0.0], atol=1e-12)
+    simulator.AdvanceTo(1.3)
+    context = unit.magnet.GetMyContextFromRoot(simulator.get_context())
+    m = unit.magnet.R_WM(context)[:, 2]
+    error_deg = np.degrees(np.arccos(np.clip(m @ unit.m_hat_neutral_W, -1, 1)))
+    controller_context = unit.controller.GetMyContextFromRoot(simulator.get_context())
+    assert unit.controller.GetOutputPort("done").Eval(controller_context)[0] == 1.0
+    assert error_deg < 1.0  # latched at 0.5 deg measured (Hall noise and quantisation on top)
+
+
+def test_feeder_plays_the_insertion_ramp():
+    """insertion.feeder: the stepper feeder starts at the initial length and, despite its
+    acceleration limit, ends at the final one (whole microsteps of 10.8 um); ball 1 follows."""
+    from pydrake.systems.analysis import Simulator
+
+    scenario = load_scenario("free_space_uniform_90deg", (
+        "{n_balls: 3, uniform_field: [0.0, 0.0, 0.0], "
+        "insertion: {initial: 0.002, final: 0.006, start_time: 0.05, speed: 0.02, feeder: true}}"))
+    cd = build_chain_diagram(scenario)
+    feeder = cd.extras["feeder"]
+    simulator = Simulator(cd.diagram)
+    root = simulator.get_mutable_context()
+    plant_context = cd.chain_plant.plant.GetMyContextFromRoot(root)
+    feeder_context = feeder.GetMyContextFromRoot(root)
+    s0 = feeder.GetOutputPort("inserted_length").Eval(feeder_context)[0]
+    p0 = cd.chain_plant.ball_positions(plant_context)
+    simulator.AdvanceTo(0.6)  # ramp 0.2 s, plus 0.2 s for the feeder's acceleration limit
+    s1 = feeder.GetOutputPort("inserted_length").Eval(feeder_context)[0]
+    p1 = cd.chain_plant.ball_positions(plant_context)
+    step = feeder.spec.step_length
+    assert s0 == pytest.approx(0.002, abs=step) and s1 == pytest.approx(0.006, abs=step)
+    np.testing.assert_allclose(p1[0] - p0[0], [s1 - s0, 0.0, 0.0], atol=5e-6)

@@ -177,8 +177,8 @@ def forces_section(out: Path, quick: bool) -> tuple[Section, dict]:
     from ballchain.commands import forces
 
     veins = ("RSPV",) if quick else ("LSPV", "LIPV", "RSPV", "RIPV")
-    data = forces.run(veins=veins, sleeve="no", grid=4 if quick else 6, refine=8 if quick else 24,
-                      out=out / "forces")
+    data = forces.run(veins=veins, sleeve="no" if quick else "both", grid=4 if quick else 6,
+                      refine=8 if quick else 24, out=out / "forces")
     section = Section("Tip force on the pulmonary veins (paper Table I)")
     section.text(
         "Statics with the tip ball held on the vein's sensor pin; the pin's reaction is the "
@@ -186,12 +186,11 @@ def forces_section(out: Path, quick: bool) -> tuple[Section, dict]:
         "vein's axis is found by optimisation (a grid of dipole directions, then Nelder-Mead). "
         "Configuration 1: the prototype magnet 16.51 cm to the patient's right of the septal "
         "puncture; 2: to the left; both: the two magnets together, both orientations optimised "
-        "(the paper adds the single-magnet forces). Bare chain of 16 balls; the sleeve cases: "
-        "`ballchain forces --sleeve yes`."
+        "(the paper adds the single-magnet forces). A chain of 16 balls, bare and in the sleeve."
     )
-    section.table(["vein", "config", "paper [gf]", "model statics [gf]", "model: sum of singles [gf]"],
-                  [[r["vein"], r["config"], r["paper_gf"], r["statics_gf"], r.get("superposition_gf")]
-                   for r in data["rows"]])
+    section.table(["vein", "config", "sleeve", "paper [gf]", "model statics [gf]", "model: sum of singles [gf]"],
+                  [[r["vein"], r["config"], "yes" if r["sleeve"] else "no", r["paper_gf"], r["statics_gf"],
+                    r.get("superposition_gf")] for r in data["rows"]])
     section.text(
         "The model's forces are an order of magnitude below the measured ones. The dipole force "
         "on one ball from the prototype magnet 16.5 cm away is 0.3 gf on axis; 16 balls cannot "

@@ -1,0 +1,282 @@
+"""The actuation side of the chain-in-a-heart station: rotating magnet units and the feeder.
+
+``build_chain_diagram`` (``chain_simulation``) calls these when a scenario has ``units`` or
+``insertion.feeder``. Per unit ``<u>`` (systems named as in ``actuation_station``):
+
+    ``<u>.joystick`` (scripted stick, zero-order hold) -> ``<u>.teleoperation`` ->
+    ``<u>.mode_switch`` (``<u>.mode_command``) -> ``<u>.drive`` -> ``<u>.magnet`` ->
+    ``<u>.hall_sensor`` -> ``<u>.estimator`` -> ``<u>.controller`` -> ``<u>.mode_switch``;
+
+and every unit's dipole ``m_W`` with its fixed centre ``<u>.p_WM`` goes through
+``magnet_states`` (a Multiplexer) into the MagneticWrenchSystem's ``magnet_states`` input,
+so the chain feels the magnets as the wheels turn them. Each Hall sensor also sees the other
+units, and each estimator subtracts them (their poses known), as in ``actuation_station``.
+
+The feeder: ``feeder_command`` (the insertion ramp as a speed profile) -> ``feeder`` (stepper,
+quantised) -> ``feeder_interface`` (s -> desired slide state (s, 0)) -> the plant.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import LeafSystem
+from pydrake.systems.primitives import ConstantVectorSource, MatrixGain, Multiplexer, TrajectorySource
+from pydrake.trajectories import PiecewisePolynomial
+
+from ballchain.drake_models.field_sources import rotation_with_z_along
+from ballchain.drake_models.params import BallChain, CylinderMagnet, SphereMagnet
+from ballchain.systems.actuation_station import neutral_direction
+from ballchain.systems.chain_scenario import ChainScenario, InsertionScenario, JoystickKey
+from ballchain.systems.feeder import Feeder, FeederSpec
+from ballchain.systems.hall_sensor import DipoleDirectionEstimator, HallSensor
+from ballchain.systems.omni_wheel_drive import OmniWheelDrive
+from ballchain.systems.reconfiguration import ReconfigurationController
+from ballchain.systems.rotating_magnet_unit import MagnetUnitConfig, RotatingMagnetUnit
+from ballchain.systems.teleoperation import ModeSwitch, TeleoperationMapper
+
+
+@dataclass
+class UnitHandles:
+    """The systems of one unit in the station diagram."""
+
+    config: MagnetUnitConfig
+    magnet: RotatingMagnetUnit
+    drive: OmniWheelDrive
+    sensor: HallSensor
+    estimator: DipoleDirectionEstimator
+    controller: ReconfigurationController
+    teleoperation: TeleoperationMapper
+    joystick: TrajectorySource
+    m_hat_neutral_W: np.ndarray
+    m_hat_initial_W: np.ndarray
+
+    def set_joystick(self, keys: list[JoystickKey]) -> None:
+        """Replace the scripted stick axes (also mid-run: a live operator re-planning from now on).
+
+        Only the axes: the mode script (``<u>.mode_command``) is the scenario's.
+        """
+        times = [k.time for k in keys] or [0.0]
+        axes = np.array([k.axes for k in keys], float).reshape(-1, 3).T if keys else np.zeros((3, 1))
+        self.joystick.UpdateTrajectory(_zoh(times, axes))
+
+
+def unit_configs(scenario: ChainScenario, anchors: dict[str, np.ndarray]) -> list[MagnetUnitConfig]:
+    """The MagnetUnitConfig of each scenario unit.
+
+    Args:
+        scenario: a validated scenario.
+        anchors: {"puncture", "centre", ...}: (3,) anchor points in world [m].
+    """
+    configs = []
+    for u in scenario.units:
+        if u.p_WM:
+            p_WM = np.asarray(u.p_WM, float)
+        else:
+            if u.anchor not in anchors:
+                raise ValueError(f"unit {u.name!r}: anchor {u.anchor!r} is not available here (a user's atrium "
+                                 "has no carinas): give p_WM")
+            direction = np.asarray(u.direction_W, float)
+            p_WM = anchors[u.anchor] + u.distance * direction / np.linalg.norm(direction)
+        magnet = CylinderMagnet() if u.shape == "cylinder" else SphereMagnet()
+        configs.append(MagnetUnitConfig(name=u.name, p_WM=tuple(p_WM), magnet=magnet, field_model=u.model))
+    return configs
+
+
+def _zoh_source(times: list[float], values: np.ndarray, name: str, builder):
+    """A zero-order-hold TrajectorySource of (size, k) values at k times (zeros before the first)."""
+    source = builder.AddSystem(TrajectorySource(_zoh(times, values)))
+    source.set_name(name)
+    return source
+
+
+def _zoh(times: list[float], values: np.ndarray) -> PiecewisePolynomial:
+    """Zero-order hold of (size, k) values at k times, zeros before the first, held after the last."""
+    times = list(times)
+    values = np.asarray(values, float)
+    if not times or times[0] > 0.0:
+        times = [0.0] + times
+        values = np.hstack([np.zeros((values.shape[0], 1)), values]) if values.size else np.zeros((values.shape[0], 1))
+    # Strictly increasing breaks (a later key at the same time wins) and one after the last.
+    t_out, v_out = [], []
+    for t, v in zip(times, values.T):
+        if t_out and t <= t_out[-1]:
+            v_out[-1] = v
+            continue
+        t_out.append(t)
+        v_out.append(v)
+    t_out.append(t_out[-1] + 1.0)
+    v_out.append(v_out[-1])
+    return PiecewisePolynomial.ZeroOrderHold(t_out, np.array(v_out).T)
+
+
+def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig], magnet_states_port,
+              p_W_chain: np.ndarray, feed_direction_W: np.ndarray) -> dict[str, UnitHandles]:
+    """Add the units' systems to ``builder`` and connect them to the wrench's ``magnet_states``.
+
+    Args:
+        builder: the station's DiagramBuilder.
+        scenario: the scenario (its ``units``, in the same order as ``configs``).
+        configs: from ``unit_configs``.
+        magnet_states_port: the MagneticWrenchSystem's ``magnet_states`` input (6 per unit).
+        p_W_chain: (3,) where the neutral field is defined [m] (sheath exit / ball 1).
+        feed_direction_W: (3,) the insertion direction (the neutral field's direction there).
+
+    Returns:
+        {unit name: UnitHandles}.
+    """
+    handles: dict[str, UnitHandles] = {}
+    for k, (u, config) in enumerate(zip(scenario.units, configs)):
+        n = u.name
+        others = [c for c in configs if c is not config]
+        m_neutral = neutral_direction(np.asarray(config.p_WM), p_W_chain, feed_direction_W)
+        m_neutral = m_neutral / np.linalg.norm(m_neutral)
+        m0 = np.asarray(u.m_hat_W, float) if u.m_hat_W else m_neutral
+        m0 = m0 / np.linalg.norm(m0)
+        magnet = builder.AddSystem(RotatingMagnetUnit(config, R_WM=rotation_with_z_along(m0)))
+        drive = builder.AddSystem(OmniWheelDrive(config.geometry, name=n))
+        sensor = builder.AddSystem(HallSensor(config, other_units=others, noise=u.sensor_noise, seed=k))
+        estimator = builder.AddSystem(DipoleDirectionEstimator(config, compensate_units=others))
+        controller = builder.AddSystem(ReconfigurationController(m_neutral, geometry=config.geometry, name=n))
+        teleop = builder.AddSystem(TeleoperationMapper(frame="world", omega_max=u.teleop_omega_max,
+                                                       p_WM=np.asarray(config.p_WM), name=n))
+        switch = builder.AddSystem(ModeSwitch(name=n))
+        keys: list[JoystickKey] = u.joystick
+        stick = _zoh_source([q.time for q in keys], np.array([q.axes for q in keys], float).reshape(-1, 3).T,
+                            f"{n}.joystick", builder)
+        mode = _zoh_source([q.time for q in keys], np.array([[float(q.mode) for q in keys]]).reshape(1, -1),
+                           f"{n}.mode_command", builder)
+        builder.Connect(stick.get_output_port(), teleop.GetInputPort("joystick"))
+        builder.Connect(mode.get_output_port(), switch.GetInputPort("mode"))
+        builder.Connect(teleop.GetOutputPort("omega_desired_W"), switch.GetInputPort("omega_teleop_W"))
+        builder.Connect(controller.GetOutputPort("omega_desired_W"), switch.GetInputPort("omega_reconfigure_W"))
+        builder.Connect(switch.GetOutputPort("omega_desired_W"), drive.GetInputPort("omega_desired_W"))
+        builder.Connect(drive.GetOutputPort("omega_wheels"), magnet.GetInputPort("omega_wheels"))
+        builder.Connect(magnet.GetOutputPort("X_WM"), sensor.GetInputPort("X_WM"))
+        builder.Connect(sensor.GetOutputPort("B_sensor_T"), estimator.GetInputPort("B_sensor_T"))
+        builder.Connect(estimator.GetOutputPort("m_hat_W"), controller.GetInputPort("m_hat_measured_W"))
+        handles[n] = UnitHandles(config, magnet, drive, sensor, estimator, controller, teleop, stick, m_neutral, m0)
+    for n, h in handles.items():
+        for o in handles.values():
+            if o is h:
+                continue
+            X_port = o.magnet.GetOutputPort("X_WM")
+            builder.Connect(X_port, h.sensor.GetInputPort(f"X_WM_{o.config.name}"))
+            builder.Connect(X_port, h.estimator.GetInputPort(f"X_WM_{o.config.name}"))
+    mux = builder.AddSystem(Multiplexer([3] * (2 * len(handles))))
+    mux.set_name("magnet_states")
+    for k, (n, h) in enumerate(handles.items()):
+        centre = builder.AddSystem(ConstantVectorSource(np.asarray(h.config.p_WM)))
+        centre.set_name(f"{n}.p_WM")
+        builder.Connect(centre.get_output_port(), mux.get_input_port(2 * k))
+        # The wrench normalises the dipole: its size is the magnet's, fixed in port_magnets.
+        builder.Connect(h.magnet.GetOutputPort("m_W"), mux.get_input_port(2 * k + 1))
+    builder.Connect(mux.get_output_port(), magnet_states_port)
+    return handles
+
+
+def add_feeder(builder, chain: BallChain, insertion: InsertionScenario, desired_state_port) -> Feeder:
+    """The stepper feeder playing the insertion ramp, driving the slide's desired state.
+
+    Raises:
+        ValueError: the ramp's speed exceeds the feeder's limit.
+    """
+    spec = FeederSpec()
+    ins = insertion
+    if ins.speed > spec.max_speed and ins.final != ins.initial:
+        raise ValueError(f"insertion.speed {ins.speed} m/s exceeds the feeder's limit {spec.max_speed} m/s")
+    feeder = builder.AddSystem(Feeder(chain, spec, initial_length=ins.initial))
+    ramp = abs(ins.final - ins.initial) / ins.speed if ins.speed > 0 else 0.0
+    t1 = max(ins.start_time, 0.0)
+    v = np.sign(ins.final - ins.initial) * ins.speed
+    if ramp > 0:
+        command = _zoh_source([t1, t1 + ramp], np.array([[v, 0.0]]), "feeder_command", builder)
+    else:
+        command = builder.AddSystem(ConstantVectorSource([0.0]))
+        command.set_name("feeder_command")
+    builder.Connect(command.get_output_port(), feeder.GetInputPort("v_insert_cmd"))
+    to_state = builder.AddSystem(MatrixGain(np.array([[1.0], [0.0]])))
+    to_state.set_name("feeder_interface")
+    builder.Connect(feeder.GetOutputPort("inserted_length"), to_state.get_input_port())
+    builder.Connect(to_state.get_output_port(), desired_state_port)
+    return feeder
+
+
+class UnitMeshcatMarkers(LeafSystem):
+    """Draws the units' magnets (body and dipole arrow) in Meshcat and moves them as they turn.
+
+    Input ports:
+        X_WM_<name>: RigidTransform (abstract), one per unit (its magnet's pose; z = dipole).
+
+    Publishes every ``period`` seconds (and at initialisation); while Meshcat is recording, each
+    pose is also stored in the animation at the current time, so the HTML replay shows it.
+    """
+
+    def __init__(self, meshcat, configs: list[MagnetUnitConfig], period: float) -> None:
+        super().__init__()
+        from pydrake.geometry import Cylinder, Rgba, Sphere
+        from pydrake.math import RigidTransform
+
+        self.set_name("unit_markers")
+        self._meshcat = meshcat
+        self._paths = [f"units/{c.name}" for c in configs]
+        self._ports = [self.DeclareAbstractInputPort(f"X_WM_{c.name}", AbstractValue.Make(RigidTransform()))
+                       for c in configs]
+        for c, path in zip(configs, self._paths):
+            m = c.magnet
+            if isinstance(m, CylinderMagnet):
+                meshcat.SetObject(f"{path}/body", Cylinder(m.diameter / 2, m.length), Rgba(0.6, 0.6, 0.65, 0.8))
+                half = m.length / 2
+            else:
+                meshcat.SetObject(f"{path}/body", Sphere(m.diameter / 2), Rgba(0.6, 0.6, 0.65, 0.8))
+                half = m.diameter / 2
+            arrow = 0.06  # [m]
+            meshcat.SetObject(f"{path}/dipole", Cylinder(0.004, arrow), Rgba(0.85, 0.1, 0.1, 1.0))
+            meshcat.SetTransform(f"{path}/dipole", RigidTransform([0.0, 0.0, half + arrow / 2]))
+            meshcat.SetObject(f"{path}/north", Sphere(0.008), Rgba(0.85, 0.1, 0.1, 1.0))
+            meshcat.SetTransform(f"{path}/north", RigidTransform([0.0, 0.0, half + arrow]))
+        self.DeclarePeriodicPublishEvent(period, 0.0, self._publish)
+        self.DeclareInitializationPublishEvent(self._publish)
+
+    def _publish(self, context):
+        t = context.get_time()
+        for path, port in zip(self._paths, self._ports):
+            self._meshcat.SetTransform(path, port.Eval(context), t)
+
+
+def joystick_keys_for_rotation(m_from_W, m_to_W, omega_max: float, start_time: float = 0.0,
+                               dead_band: float = 0.1) -> list[JoystickKey]:
+    """A scripted stick that turns a magnet's dipole from ``m_from_W`` to ``m_to_W`` (world mapping).
+
+    The shortest rotation, about ``m_from x m_to``, with the largest stick axis at full travel; the
+    stick values are pre-compensated for the mapper's dead band so that the magnet turns about
+    exactly that axis. The drive's acceleration ramps are symmetric, so the angle is kept (to
+    the steppers' microsteps) as long as no wheel saturates.
+
+    Args:
+        m_from_W, m_to_W: (3,) dipole directions (any length).
+        omega_max: the unit's ``teleop_omega_max`` [rad/s].
+        start_time: when the stick moves [s].
+        dead_band: the mapper's dead band (``TeleoperationMapper``'s default).
+
+    Returns:
+        two keys: the stick at ``start_time``, released after the rotation's duration.
+    """
+    a = np.asarray(m_from_W, float) / np.linalg.norm(m_from_W)
+    b = np.asarray(m_to_W, float) / np.linalg.norm(m_to_W)
+    cross = np.cross(a, b)
+    angle = float(np.arctan2(np.linalg.norm(cross), a @ b))
+    if angle < 1e-9:
+        return [JoystickKey(time=start_time, axes=[0.0, 0.0, 0.0])]
+    if np.linalg.norm(cross) < 1e-9:  # antiparallel: any axis perpendicular to a
+        from ballchain.systems.reconfiguration import perpendicular_axis
+
+        cross = perpendicular_axis(a)
+    axis = cross / np.linalg.norm(cross)
+    scaled = axis / np.abs(axis).max()  # largest component at full stick
+    stick = np.where(np.abs(scaled) > 1e-12, np.sign(scaled) * (dead_band + (1 - dead_band) * np.abs(scaled)), 0.0)
+    duration = angle / (omega_max * np.linalg.norm(scaled))
+    return [JoystickKey(time=start_time, axes=stick.tolist()),
+            JoystickKey(time=start_time + duration, axes=[0.0, 0.0, 0.0])]
