@@ -178,7 +178,7 @@ def forces_section(out: Path, quick: bool) -> tuple[Section, dict]:
 
     veins = ("RSPV",) if quick else ("LSPV", "LIPV", "RSPV", "RIPV")
     # The grid must be fine enough to start Nelder-Mead in the best basin: with 6 x 5 directions
-    # and 24 evaluations one case (LIPV, right magnet) stopped at 5.9 gf instead of 9.6 gf.
+    # and 24 evaluations one case (LIPV, magnet on the left) stopped at 5.9 gf instead of 9.6 gf.
     data = forces.run(veins=veins, sleeve="no" if quick else "both", grid=4 if quick else 8,
                       refine=8 if quick else 40, out=out / "forces")
     section = Section("Tip force on the pulmonary veins (paper Table I)")
