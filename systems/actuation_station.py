@@ -101,6 +101,88 @@ class StationOptions:
     chain: BallChain = field(default_factory=BallChain)
 
 
+@dataclass
+class UnitSystems:
+    """The systems of one actuation unit, added by ``add_unit``."""
+
+    magnet: RotatingMagnetUnit
+    drive: OmniWheelDrive
+    sensor: HallSensor
+    estimator: DipoleDirectionEstimator
+    controller: ReconfigurationController
+    teleop: TeleoperationMapper
+    switch: ModeSwitch
+
+
+def add_unit(
+    builder: DiagramBuilder,
+    unit: MagnetUnitConfig,
+    opt: StationOptions,
+    *,
+    m_neutral_W: np.ndarray,
+    others: Sequence[MagnetUnitConfig] = (),
+    seed: int = 0,
+    R_WM: np.ndarray | None = None,
+) -> UnitSystems:
+    """Add one unit's systems to ``builder`` and close its loops.
+
+    mode switch -> omni-wheel drive -> magnet -> Hall sensor -> estimator -> reconfiguration
+    controller -> mode switch (and teleoperation -> mode switch). Left to the caller: the
+    joystick and mode inputs, the other units' poses into the sensor and estimator
+    (``X_WM_<name>`` ports for each of ``others``), and what is exported.
+
+    Args:
+        builder: the diagram builder.
+        unit: the unit's configuration.
+        opt: hardware figures and controller settings.
+        m_neutral_W: (3,) the reconfiguration target direction.
+        others: units whose fields this unit's sensor sees (and its estimator may subtract).
+        seed: Hall noise seed.
+        R_WM: initial magnet orientation (default: the unit's own default).
+    """
+    n = unit.name
+    magnet = builder.AddSystem(RotatingMagnetUnit(unit, R_WM=R_WM, slip=opt.slip, field_points_W=opt.field_points_W))
+    drive = builder.AddSystem(OmniWheelDrive(unit.geometry, opt.stepper_spec, name=n))
+    sensor = builder.AddSystem(
+        HallSensor(unit, other_units=others, spec=opt.sensor_spec, noise=opt.sensor_noise, seed=seed)
+    )
+    estimator = builder.AddSystem(
+        DipoleDirectionEstimator(unit, compensate_units=others if opt.estimator_compensates_other_units else ())
+    )
+    controller = builder.AddSystem(
+        ReconfigurationController(
+            m_neutral_W,
+            gain=opt.controller_gain,
+            max_wheel_speed=opt.stepper_spec.max_speed,
+            tolerance_deg=opt.tolerance_deg,
+            period=1.0 / opt.sensor_spec.sample_rate_hz,
+            geometry=unit.geometry,
+            wheel_map=opt.wheel_map,
+            name=n,
+        )
+    )
+    teleop = builder.AddSystem(
+        TeleoperationMapper(
+            frame=opt.teleop_frame,
+            omega_max=opt.teleop_omega_max,
+            dead_band=opt.teleop_dead_band,
+            p_WM=np.asarray(unit.p_WM),
+            name=n,
+        )
+    )
+    if opt.teleop_frame == "tip":
+        builder.Connect(magnet.GetOutputPort("m_W"), teleop.GetInputPort("m_W"))
+    switch = builder.AddSystem(ModeSwitch(name=n))
+    builder.Connect(teleop.GetOutputPort("omega_desired_W"), switch.GetInputPort("omega_teleop_W"))
+    builder.Connect(controller.GetOutputPort("omega_desired_W"), switch.GetInputPort("omega_reconfigure_W"))
+    builder.Connect(switch.GetOutputPort("omega_desired_W"), drive.GetInputPort("omega_desired_W"))
+    builder.Connect(drive.GetOutputPort("omega_wheels"), magnet.GetInputPort("omega_wheels"))
+    builder.Connect(magnet.GetOutputPort("X_WM"), sensor.GetInputPort("X_WM"))
+    builder.Connect(sensor.GetOutputPort("B_sensor_T"), estimator.GetInputPort("B_sensor_T"))
+    builder.Connect(estimator.GetOutputPort("m_hat_W"), controller.GetInputPort("m_hat_measured_W"))
+    return UnitSystems(magnet, drive, sensor, estimator, controller, teleop, switch)
+
+
 def make_actuation_station(
     units: Sequence[MagnetUnitConfig] | None = None, options: StationOptions | None = None
 ) -> Diagram:
@@ -124,48 +206,10 @@ def make_actuation_station(
     for k, unit in enumerate(units):
         n = unit.name
         others = [u for u in units if u is not unit] if opt.sensors_see_other_units else []
-        magnet = builder.AddSystem(
-            RotatingMagnetUnit(unit, slip=opt.slip, field_points_W=opt.field_points_W)
-        )
-        drive = builder.AddSystem(OmniWheelDrive(unit.geometry, opt.stepper_spec, name=n))
-        sensor = builder.AddSystem(
-            HallSensor(unit, other_units=others, spec=opt.sensor_spec, noise=opt.sensor_noise, seed=opt.seed + k)
-        )
-        estimator = builder.AddSystem(
-            DipoleDirectionEstimator(unit, compensate_units=others if opt.estimator_compensates_other_units else ())
-        )
         m_c = neutral_direction(unit.p_WM, opt.p_W_chain, opt.feed_direction_W)
-        controller = builder.AddSystem(
-            ReconfigurationController(
-                m_c,
-                gain=opt.controller_gain,
-                max_wheel_speed=opt.stepper_spec.max_speed,
-                tolerance_deg=opt.tolerance_deg,
-                period=1.0 / opt.sensor_spec.sample_rate_hz,
-                geometry=unit.geometry,
-                wheel_map=opt.wheel_map,
-                name=n,
-            )
-        )
-        teleop = builder.AddSystem(
-            TeleoperationMapper(
-                frame=opt.teleop_frame,
-                omega_max=opt.teleop_omega_max,
-                dead_band=opt.teleop_dead_band,
-                p_WM=np.asarray(unit.p_WM),
-                name=n,
-            )
-        )
-        if opt.teleop_frame == "tip":
-            builder.Connect(magnet.GetOutputPort("m_W"), teleop.GetInputPort("m_W"))
-        switch = builder.AddSystem(ModeSwitch(name=n))
-        builder.Connect(teleop.GetOutputPort("omega_desired_W"), switch.GetInputPort("omega_teleop_W"))
-        builder.Connect(controller.GetOutputPort("omega_desired_W"), switch.GetInputPort("omega_reconfigure_W"))
-        builder.Connect(switch.GetOutputPort("omega_desired_W"), drive.GetInputPort("omega_desired_W"))
-        builder.Connect(drive.GetOutputPort("omega_wheels"), magnet.GetInputPort("omega_wheels"))
-        builder.Connect(magnet.GetOutputPort("X_WM"), sensor.GetInputPort("X_WM"))
-        builder.Connect(sensor.GetOutputPort("B_sensor_T"), estimator.GetInputPort("B_sensor_T"))
-        builder.Connect(estimator.GetOutputPort("m_hat_W"), controller.GetInputPort("m_hat_measured_W"))
+        systems = add_unit(builder, unit, opt, m_neutral_W=m_c, others=others, seed=opt.seed + k)
+        magnet, drive, sensor, estimator = systems.magnet, systems.drive, systems.sensor, systems.estimator
+        controller, teleop, switch = systems.controller, systems.teleop, systems.switch
         builder.ExportInput(teleop.GetInputPort("joystick"), f"{n}.joystick")
         builder.ExportInput(switch.GetInputPort("mode"), f"{n}.mode")
         if opt.teleop_frame == "tip":

@@ -28,14 +28,14 @@ from pydrake.trajectories import PiecewisePolynomial
 
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import BallChain, CylinderMagnet, SphereMagnet
-from ballchain.systems.actuation_station import neutral_direction
+from ballchain.systems.actuation_station import StationOptions, add_unit, neutral_direction
 from ballchain.systems.chain_scenario import ChainScenario, InsertionScenario, JoystickKey
 from ballchain.systems.feeder import Feeder, FeederSpec
 from ballchain.systems.hall_sensor import DipoleDirectionEstimator, HallSensor
 from ballchain.systems.omni_wheel_drive import OmniWheelDrive
 from ballchain.systems.reconfiguration import ReconfigurationController
 from ballchain.systems.rotating_magnet_unit import MagnetUnitConfig, RotatingMagnetUnit
-from ballchain.systems.teleoperation import ModeSwitch, TeleoperationMapper
+from ballchain.systems.teleoperation import TeleoperationMapper
 
 
 @dataclass
@@ -135,14 +135,11 @@ def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig],
         m_neutral = m_neutral / np.linalg.norm(m_neutral)
         m0 = np.asarray(u.m_hat_W, float) if u.m_hat_W else m_neutral
         m0 = m0 / np.linalg.norm(m0)
-        magnet = builder.AddSystem(RotatingMagnetUnit(config, R_WM=rotation_with_z_along(m0)))
-        drive = builder.AddSystem(OmniWheelDrive(config.geometry, name=n))
-        sensor = builder.AddSystem(HallSensor(config, other_units=others, noise=u.sensor_noise, seed=k))
-        estimator = builder.AddSystem(DipoleDirectionEstimator(config, compensate_units=others))
-        controller = builder.AddSystem(ReconfigurationController(m_neutral, geometry=config.geometry, name=n))
-        teleop = builder.AddSystem(TeleoperationMapper(frame="world", omega_max=u.teleop_omega_max,
-                                                       p_WM=np.asarray(config.p_WM), name=n))
-        switch = builder.AddSystem(ModeSwitch(name=n))
+        options = StationOptions(sensor_noise=u.sensor_noise, teleop_omega_max=u.teleop_omega_max)
+        systems = add_unit(builder, config, options, m_neutral_W=m_neutral, others=others, seed=k,
+                           R_WM=rotation_with_z_along(m0))
+        magnet, drive, sensor, estimator = systems.magnet, systems.drive, systems.sensor, systems.estimator
+        controller, teleop, switch = systems.controller, systems.teleop, systems.switch
         keys: list[JoystickKey] = u.joystick
         stick = _zoh_source([q.time for q in keys], np.array([q.axes for q in keys], float).reshape(-1, 3).T,
                             f"{n}.joystick", builder)
@@ -150,13 +147,6 @@ def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig],
                            f"{n}.mode_command", builder)
         builder.Connect(stick.get_output_port(), teleop.GetInputPort("joystick"))
         builder.Connect(mode.get_output_port(), switch.GetInputPort("mode"))
-        builder.Connect(teleop.GetOutputPort("omega_desired_W"), switch.GetInputPort("omega_teleop_W"))
-        builder.Connect(controller.GetOutputPort("omega_desired_W"), switch.GetInputPort("omega_reconfigure_W"))
-        builder.Connect(switch.GetOutputPort("omega_desired_W"), drive.GetInputPort("omega_desired_W"))
-        builder.Connect(drive.GetOutputPort("omega_wheels"), magnet.GetInputPort("omega_wheels"))
-        builder.Connect(magnet.GetOutputPort("X_WM"), sensor.GetInputPort("X_WM"))
-        builder.Connect(sensor.GetOutputPort("B_sensor_T"), estimator.GetInputPort("B_sensor_T"))
-        builder.Connect(estimator.GetOutputPort("m_hat_W"), controller.GetInputPort("m_hat_measured_W"))
         handles[n] = UnitHandles(config, magnet, drive, sensor, estimator, controller, teleop, stick, m_neutral, m0)
     for n, h in handles.items():
         for o in handles.values():
