@@ -113,8 +113,26 @@ class BallChain:
         return replace(self, n_balls=n_balls)
 
 
+class _UniformMagnet:
+    """Moment and mass of a uniformly magnetised body from its ``volume``, ``remanence``, ``density``."""
+
+    @property
+    def dipole_moment(self) -> float:
+        """|m| = Br V / mu0 [A m^2] (about 199 A m^2 for the prototype cylinder)."""
+        return self.remanence * self.volume / MU0
+
+    @property
+    def mass(self) -> float:
+        """[kg]"""
+        return self.density * self.volume
+
+    def __post_init__(self) -> None:
+        names = [f for f in self.__dataclass_fields__]
+        _require_positive(type(self).__name__, **{name: getattr(self, name) for name in names})
+
+
 @dataclass(frozen=True)
-class CylinderMagnet:
+class CylinderMagnet(_UniformMagnet):
     """Axially magnetised cylindrical permanent magnet (the prototype's N52 76.2 x 38.1 mm).
 
     Attributes:
@@ -129,28 +147,10 @@ class CylinderMagnet:
     remanence: float = 1.44
     density: float = 7500.0
 
-    def __post_init__(self) -> None:
-        _require_positive(
-            "CylinderMagnet",
-            diameter=self.diameter,
-            length=self.length,
-            remanence=self.remanence,
-            density=self.density,
-        )
-
     @property
     def volume(self) -> float:
         """[m^3]"""
         return math.pi * (self.diameter / 2.0) ** 2 * self.length
-
-    @property
-    def dipole_moment(self) -> float:
-        """|m| = Br V / mu0 [A m^2] (about 199 A m^2 for the prototype)."""
-        return self.remanence * self.volume / MU0
-
-    @property
-    def mass(self) -> float:
-        return self.density * self.volume
 
     @property
     def bounding_radius(self) -> float:
@@ -165,7 +165,7 @@ class CylinderMagnet:
 
 
 @dataclass(frozen=True)
-class SphereMagnet:
+class SphereMagnet(_UniformMagnet):
     """Uniformly magnetised spherical permanent magnet (the clinical actuation magnet).
 
     A uniformly magnetised sphere's outside field is exactly that of a point dipole at its
@@ -181,25 +181,10 @@ class SphereMagnet:
     remanence: float = 1.44
     density: float = 7500.0
 
-    def __post_init__(self) -> None:
-        _require_positive(
-            "SphereMagnet",
-            diameter=self.diameter,
-            remanence=self.remanence,
-            density=self.density,
-        )
-
     @property
     def volume(self) -> float:
+        """[m^3]"""
         return math.pi * self.diameter**3 / 6.0
-
-    @property
-    def dipole_moment(self) -> float:
-        return self.remanence * self.volume / MU0
-
-    @property
-    def mass(self) -> float:
-        return self.density * self.volume
 
     @property
     def bounding_radius(self) -> float:
