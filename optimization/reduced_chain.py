@@ -81,6 +81,8 @@ class ReducedChain:
         C = (np.arange(n)[:, None] > links[None, :]).astype(float)
         self._C3 = np.kron(C, np.eye(3))  # (3n, 3L)
         self.tip_target: np.ndarray | None = None  # pin the tip's centre here [m] (equality)
+        self.n_pairs = len(i)
+        self.wall: tuple[np.ndarray, np.ndarray] | None = None  # (point, unit normal) of a plane
 
     # --- chart -------------------------------------------------------------------------
     def set_chart(self, w0: np.ndarray) -> None:
@@ -136,6 +138,9 @@ class ReducedChain:
             terms.sleeve = s_out[0]
         S = p[self.pair_j] - p[self.pair_i]
         gaps = np.einsum("ij,ij->i", S, S) / self.d**2 - 1.0
+        if self.wall is not None:  # every free ball on the open side: n . (p - p0) / d >= 1/2
+            p0, normal = self.wall
+            gaps = np.concatenate([gaps, (p[1:] - p0) @ normal / self.d - 0.5])
         E0 = self.energy_scale
         ev = Evaluation(terms.total / E0, terms, gaps)
         if self.tip_target is not None:
@@ -150,8 +155,13 @@ class ReducedChain:
             [np.einsum("ij,ij->i", g_w, dw_da), np.einsum("ij,ij->i", g_w, dw_db)]
         ) / E0
         jac = np.zeros((len(gaps), self.nq))
-        jac[:, :L] = (2.0 / self.d) * self.pair_links * (S @ dw_da[:L].T)
-        jac[:, K : K + L] = (2.0 / self.d) * self.pair_links * (S @ dw_db[:L].T)
+        P = self.n_pairs
+        jac[:P, :L] = (2.0 / self.d) * self.pair_links * (S @ dw_da[:L].T)
+        jac[:P, K : K + L] = (2.0 / self.d) * self.pair_links * (S @ dw_db[:L].T)
+        if self.wall is not None:  # p_i / d = sum_{l < i} w_l: cumulative sums over the links
+            normal = self.wall[1]
+            jac[P:, :L] = np.tril(np.ones((L, L))) * (dw_da[:L] @ normal)
+            jac[P:, K : K + L] = np.tril(np.ones((L, L))) * (dw_db[:L] @ normal)
         ev.jacobian = jac
         if self.tip_target is not None:  # p_tip / d = sum_l u_l
             ev.tip_jacobian = np.zeros((3, self.nq))
@@ -193,6 +203,18 @@ class ReducedChain:
         H = np.zeros((self.nq, self.nq))
         if len(pairs) == 0:
             return H
+        pairs, weights = np.asarray(pairs), np.asarray(weights, dtype=float)
+        wall_rows = pairs >= self.n_pairs
+        if np.any(wall_rows):
+            # Wall row for ball i (= row - n_pairs + 1) is linear in the w_l, l < i: its
+            # curvature is the chart's, weighted by normal x (sum of the rows' weights beyond l).
+            per_ball = np.zeros(self.n_links)
+            per_ball[pairs[wall_rows] - self.n_pairs] = weights[wall_rows]
+            per_link = np.cumsum(per_ball[::-1])[::-1]
+            H += self.links_hessian(q, per_link[:, None] * self.wall[1])
+            pairs, weights = pairs[~wall_rows], weights[~wall_rows]
+            if len(pairs) == 0:
+                return H
         w, dw_da, dw_db, in_plane, (ca, sa, cb, sb) = self.unit_vectors(q)
         p, _ = self._configuration(w)
         K, L = self.n_vectors, self.n_links
@@ -219,14 +241,17 @@ class ReducedChain:
 
     def tip_hessian(self, q: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """sum_k weights_k d2 (p_tip,k / d) / dq2 (nq, nq): the chart's curvature along the links."""
+        return self.links_hessian(q, np.tile(np.asarray(weights, dtype=float), (self.n_links, 1)))
+
+    def links_hessian(self, q: np.ndarray, W: np.ndarray) -> np.ndarray:
+        """sum_l W_l . d2 w_l / dq2 (nq, nq) for per-link weight vectors W (L, 3)."""
         w, dw_da, dw_db, in_plane, (ca, sa, cb, sb) = self.unit_vectors(q)
         K, L = self.n_vectors, self.n_links
         links = np.arange(L)
         H = np.zeros((self.nq, self.nq))
-        lam = np.asarray(weights, dtype=float)
-        d_ab = (-sb[:L] * (-sa[:L] * self.r0[:L] + ca[:L] * self.t1[:L])) @ lam
-        H[links, links] = (-cb[:L] * in_plane[:L]) @ lam
+        d_ab = np.einsum("ij,ij->i", -sb[:L] * (-sa[:L] * self.r0[:L] + ca[:L] * self.t1[:L]), W)
+        H[links, links] = np.einsum("ij,ij->i", -cb[:L] * in_plane[:L], W)
         H[links, K + links] = d_ab
         H[K + links, links] = d_ab
-        H[K + links, K + links] = -w[:L] @ lam
+        H[K + links, K + links] = -np.einsum("ij,ij->i", w[:L], W)
         return H

@@ -78,6 +78,7 @@ class StaticsResult:
         tip_reaction: (3,) force [N] that a tip target exerts on the tip ball (the tip
             constraint's multiplier); zero without a target. The chain presses on the target
             with minus this.
+        wall_forces: ``{i: force [N]}`` the wall pushes on ball i (0-based) along its normal.
     """
 
     positions: np.ndarray
@@ -92,6 +93,7 @@ class StaticsResult:
     max_violation: float = 0.0
     pair_forces: dict = field(default_factory=dict)
     tip_reaction: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    wall_forces: dict = field(default_factory=dict)
 
     @property
     def tip_position(self) -> np.ndarray:
@@ -186,7 +188,7 @@ class ChainStatics:
 
     # --- public API --------------------------------------------------------------------------
     def solve(self, external: FieldSource | None, warm_start: StaticsResult | None = None,
-              tip_target=None) -> StaticsResult:
+              tip_target=None, wall=None) -> StaticsResult:
         """The equilibrium reached from ``warm_start`` (the straight chain if None).
 
         Args:
@@ -195,6 +197,8 @@ class ChainStatics:
             tip_target: (3,) point [m] where the tip ball's centre is held (a force sensor or a
                 target touching the tip); the result's ``tip_reaction`` is the force it exerts.
                 Newton method only.
+            wall: ``(point (3,), normal (3,))`` of a rigid frictionless plane the balls stay on
+                the normal's side of; ``wall_forces`` are its pushes. Newton method only.
 
         Returns:
             The result; check ``converged`` (or use ``solve_or_raise``).
@@ -218,27 +222,40 @@ class ChainStatics:
         model.tip_target = None if tip_target is None else np.asarray(tip_target, dtype=float).reshape(3)
         if model.tip_target is not None and not np.all(np.isfinite(model.tip_target)):
             raise ValueError(f"tip target must be finite, got {tip_target}")
+        if wall is None:
+            model.wall = None
+        else:
+            point, normal = (np.asarray(v, dtype=float).reshape(3) for v in wall)
+            if not (np.all(np.isfinite(point)) and np.all(np.isfinite(normal)) and np.linalg.norm(normal) > 0):
+                raise ValueError(f"wall must be a finite point and a non-zero normal, got {wall}")
+            model.wall = (point, normal / np.linalg.norm(normal))
+            if point @ model.wall[1] > -0.5 * model.d:
+                raise ValueError("the wall cuts ball 1 (held at the origin): move it beyond half a ball")
         model.chart_from_configuration(p0, m0)
         lam_tip = np.zeros(3)
         if self.method == "newton":
             q, converged, reason, iterations, lam_near, lam_tip = self._newton(model)
         else:
-            if model.tip_target is not None:
-                raise ValueError("tip targets are solved by the 'newton' method only")
+            if model.tip_target is not None or model.wall is not None:
+                raise ValueError("tip targets and walls are solved by the 'newton' method only")
             q, converged, reason, iterations, lam_near = self._snopt_solve(model)
         ev = model.evaluate(q, 0)
         p, m_hat = model.configuration(q)
-        gaps = np.sqrt(np.maximum(ev.gaps + 1.0, 0.0)) * model.d - model.d
+        P = model.n_pairs
+        gaps = np.sqrt(np.maximum(ev.gaps[:P] + 1.0, 0.0)) * model.d - model.d  # [m]
+        gaps = np.concatenate([gaps, ev.gaps[P:] * model.d])  # wall rows: n . (p - p0) - d/2
         max_violation = float(max(0.0, -gaps.min())) if len(gaps) else 0.0
         if not np.all(np.isfinite(p)):
             converged, reason = False, "non-finite configuration"
         elif converged and max_violation > 1e-7 * model.d:
-            converged, reason = False, f"rigidity violated by {max_violation:.3g} m"
+            converged, reason = False, f"rigidity or wall violated by {max_violation:.3g} m"
         pair_forces = {
             (int(model.pair_i[k]), int(model.pair_j[k])): 2.0 * lam * model.energy_scale / model.d
             for k, lam in lam_near.items()
-            if lam > 1e-12
+            if lam > 1e-12 and k < P
         }
+        wall_forces = {k - P + 1: lam * model.energy_scale / model.d for k, lam in lam_near.items()
+                       if lam > 1e-12 and k >= P}
         return StaticsResult(
             positions=p,
             dipoles=m_hat,
@@ -252,12 +269,13 @@ class ChainStatics:
             max_violation=max_violation,
             pair_forces=pair_forces,
             tip_reaction=model.energy_scale / model.d * np.asarray(lam_tip, dtype=float),
+            wall_forces=wall_forces,
         )
 
     def solve_or_raise(self, external: FieldSource | None, warm_start: StaticsResult | None = None,
-                       tip_target=None) -> StaticsResult:
+                       tip_target=None, wall=None) -> StaticsResult:
         """Like ``solve`` but raises StaticsError, saying why, when the solve did not converge."""
-        result = self.solve(external, warm_start, tip_target)
+        result = self.solve(external, warm_start, tip_target, wall)
         if not result.converged:
             raise StaticsError(
                 f"statics of {self.chain.n_balls} balls did not converge: {result.reason} "

@@ -31,8 +31,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydrake.geometry import (
     AddCompliantHydroelasticProperties,
+    AddCompliantHydroelasticPropertiesForHalfSpace,
     AddContactMaterial,
     AddRigidHydroelasticProperties,
+    Box,
+    HalfSpace,
     Mesh,
     ProximityProperties,
     Sphere,
@@ -116,6 +119,9 @@ class ChainPlantConfig:
         initial_inserted_length: [m].
         contact: contact parameters.
         feeder_gains: (kp [N/m], kd [N s/m]) of the feeder slide's PD actuator.
+        wall_plane: () or (x, y, z, nx, ny, nz): a compliant-hydroelastic half-space whose
+            surface passes through the point and whose outward normal is n (free space only;
+            the statics counterpart is ``ChainStatics.solve(..., wall=...)``).
     """
 
     chain: BallChain = field(default_factory=BallChain)
@@ -130,6 +136,7 @@ class ChainPlantConfig:
     initial_inserted_length: float = 0.0
     contact: ContactConfig = field(default_factory=ContactConfig)
     feeder_gains: tuple = (2e4, 20.0)
+    wall_plane: tuple = ()
 
 
 @dataclass
@@ -199,6 +206,26 @@ def _wall_properties(config: ChainPlantConfig, resolution_hint: float) -> Proxim
     AddCompliantHydroelasticProperties(resolution_hint, c.wall_hydroelastic_modulus, props)
     props.AddProperty("hydroelastic", "margin", float(c.hydroelastic_margin))
     return props
+
+
+def _add_wall_plane(plant, config: ChainPlantConfig) -> None:
+    """A compliant-hydroelastic half-space (a flat wall) anchored to the world."""
+    values = np.asarray(config.wall_plane, dtype=float)
+    if values.shape != (6,) or not np.all(np.isfinite(values)) or np.linalg.norm(values[3:]) == 0:
+        raise ValueError(f"wall_plane must be 6 finite numbers (point, non-zero normal), got {config.wall_plane}")
+    if config.heart is not None:
+        raise ValueError("wall_plane is for free space: the heart has its own wall")
+    c = config.contact
+    props = ProximityProperties()
+    AddContactMaterial(None, None, CoulombFriction(c.friction, c.friction), props)
+    props.AddProperty("material", "relaxation_time", float(c.relaxation_time or config.time_step))
+    AddCompliantHydroelasticPropertiesForHalfSpace(5e-3, c.wall_hydroelastic_modulus, props)
+    props.AddProperty("hydroelastic", "margin", float(c.hydroelastic_margin))
+    X_WH = RigidTransform(RotationMatrix(rotation_with_z_along(values[3:])), values[:3])
+    world = plant.world_body()
+    plant.RegisterCollisionGeometry(world, X_WH, HalfSpace(), "wall_plane", props)
+    X_WV = X_WH.multiply(RigidTransform([0.0, 0.0, -0.5e-3]))
+    plant.RegisterVisualGeometry(world, X_WV, Box(0.08, 0.08, 1e-3), "wall_plane", np.array([0.85, 0.35, 0.35, 0.35]))
 
 
 def _add_sheath_cage(plant, config: ChainPlantConfig, p_WE, axis) -> None:
@@ -319,6 +346,8 @@ def add_chain_plant(builder, config: ChainPlantConfig) -> ChainPlant:
             for k, p in enumerate(ring.p_HT):
                 plant.RegisterVisualGeometry(world, RigidTransform(p), Sphere(0.6e-3),
                                              f"target_{side}_{k + 1}", tgt)
+    if config.wall_plane:
+        _add_wall_plane(plant, config)
     if config.sheath is not None:
         _add_sheath_cage(plant, config, p_WE, axis)
     plant.Finalize()

@@ -158,6 +158,8 @@ class ChainScenario:
         units: rotating actuation units driven by scripted joysticks (systems/station_units.py).
         insertion: the feeder's motion.
         contact: contact parameters.
+        wall_plane: () or (x, y, z, nx, ny, nz): a flat compliant wall in free space (point on
+            its surface, outward normal) [m].
         duration: default simulated time [s].
         break_gap: a gap between neighbours larger than this means the chain broke [m].
         check_period: how often the monitor checks escape, breaks and clearance [s].
@@ -185,6 +187,7 @@ class ChainScenario:
     units: list[UnitScenario] = field(default_factory=list)
     insertion: InsertionScenario = field(default_factory=InsertionScenario)
     contact: ContactConfig = field(default_factory=ContactConfig)
+    wall_plane: list[float] = field(default_factory=list)
     duration: float = 0.1
     break_gap: float = 1e-3
     check_period: float = 5e-3

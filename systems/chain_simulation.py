@@ -6,7 +6,10 @@ Diagram (system names):
     ``feeder_command``: the scenario's insertion ramp as the feeder slide's desired state.
         With ``insertion.external`` it is replaced by ``feeder_interface`` and the diagram
         exports the input port ``inserted_length`` (1, m) for a feeder system.
-    ``meshcat_visualizer``: when a Meshcat is given (and ``unit_markers`` for the units).
+    ``target_touches``: TargetTouchTracker (``meshcat_overlays``), when the atrium has target
+        rings: the ablation targets the tip ball has touched so far.
+    ``meshcat_visualizer``, ``meshcat_overlays`` (targets, field at the tip, the wall's force on
+        the tip): when a Meshcat is given (and ``unit_markers`` for the units).
     With ``units``: per unit ``<u>.magnet``, ``<u>.drive``, ``<u>.hall_sensor``, ``<u>.estimator``,
         ``<u>.controller``, ``<u>.teleoperation``, ``<u>.mode_switch``, ``<u>.joystick``,
         ``<u>.mode_command``, ``<u>.p_WM``, and ``magnet_states`` into the wrench's magnet input
@@ -19,6 +22,7 @@ ball leaving the heart or the chain breaking apart, and returns the metrics othe
 
 from __future__ import annotations
 
+import resource
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,6 +39,7 @@ from ballchain.drake_models.params import BallChain, CylinderMagnet, Sleeve, Sph
 from ballchain.systems.chain_plant import ChainPlant, ChainPlantConfig, SheathConfig, add_chain_plant
 from ballchain.systems.chain_scenario import ChainScenario
 from ballchain.systems.magnetic_wrench import MagneticWrenchSystem
+from ballchain.systems.meshcat_overlays import MeshcatOverlays, TargetTouchTracker, heart_targets
 from ballchain.systems.station_units import UnitMeshcatMarkers, add_feeder, add_units, unit_configs
 
 
@@ -134,6 +139,7 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
         sheath_axis_W=(1.0, 0.0, 0.0),
         initial_inserted_length=scenario.insertion.initial,
         contact=scenario.contact,
+        wall_plane=tuple(scenario.wall_plane),
     )
     builder = DiagramBuilder()
     cp = add_chain_plant(builder, config)
@@ -188,6 +194,13 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
         feeder = builder.AddSystem(TrajectorySource(traj, output_derivative_order=1))
         feeder.set_name("feeder_command")
         builder.Connect(feeder.get_output_port(), desired)
+    targets = heart_targets(heart) if heart is not None else None
+    tip_index = cp.ball_body_indices[-1]
+    if targets is not None and targets[0]:
+        tracker = builder.AddSystem(TargetTouchTracker(
+            tip_index, *targets[:3], target_radius=targets[3], ball_radius=0.5 * d, period=scenario.check_period))
+        builder.Connect(cp.plant.get_body_poses_output_port(), tracker.get_body_poses_input_port())
+        extras["target_touches"] = tracker
     visualizer = None
     if meshcat is not None:
         from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams
@@ -201,6 +214,18 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
             for c in configs:
                 builder.Connect(extras["units"][c.name].magnet.GetOutputPort("X_WM"),
                                 markers.GetInputPort(f"X_WM_{c.name}"))
+        overlays = builder.AddSystem(MeshcatOverlays(
+            meshcat, cp.plant, cp.scene_graph.model_inspector(), tip_index, scenario.publish_period,
+            targets=targets if "target_touches" in extras else None, field_source=source,
+            port_magnets=[c.magnet for c in configs], model=configs[0].field_model if configs else "dipole"))
+        builder.Connect(cp.plant.get_body_poses_output_port(), overlays.get_body_poses_input_port())
+        builder.Connect(cp.plant.get_contact_results_output_port(), overlays.get_contact_results_input_port())
+        if "target_touches" in extras:
+            builder.Connect(extras["target_touches"].get_touched_output_port(), overlays.get_touched_input_port())
+        if configs:
+            builder.Connect(builder.GetSubsystemByName("magnet_states").get_output_port(),
+                            overlays.get_magnet_states_input_port())
+        extras["meshcat_overlays"] = overlays
     diagram = builder.Build()
     diagram.set_name("chain_in_heart")
     return ChainDiagram(diagram, cp, wrench, heart, scenario, source, visualizer,
@@ -311,6 +336,11 @@ class ChainMonitor:
         }
 
 
+def _targets_touched(cd: ChainDiagram, root_context) -> list[str]:
+    tracker = cd.extras.get("target_touches")
+    return [] if tracker is None else tracker.touched_names(tracker.GetMyContextFromRoot(root_context))
+
+
 def run_simulation(*, scenario: ChainScenario, duration: float | None = None, html: Path | None = None,
                    meshcat=None, heart: LeftAtrium | None = None) -> dict:
     """Simulate a scenario and return its metrics.
@@ -325,7 +355,10 @@ def run_simulation(*, scenario: ChainScenario, duration: float | None = None, ht
     Returns:
         {"realtime_factor", "sim_time_s", "tip_position_mm", "min_wall_clearance_mm",
         "max_neighbor_gap_um", "max_penetration_um", "wall_time_s", "build_time_s",
-        "time_step_s", "mode", "n_steps", "p_W_mm" (n, 3)}.
+        "time_step_s", "mode", "n_steps", "targets_touched" (names such as "left_3" of the
+        ablation targets the tip ball touched, see ``meshcat_overlays``; empty without any),
+        "peak_memory_MB" (the process's peak resident set size, ``ru_maxrss``, in MiB),
+        "p_W_mm" (n, 3)}.
 
     Raises:
         SimulationFailure: NaN, escape or break (message says when and which ball).
@@ -363,6 +396,10 @@ def run_simulation(*, scenario: ChainScenario, duration: float | None = None, ht
         "time_step_s": scenario.effective_time_step,
         "mode": scenario.mode,
         "n_steps": int(round(sim_time / scenario.effective_time_step)),
+        "targets_touched": _targets_touched(cd, root),
+        # ru_maxrss is in KiB on Linux: the process's peak resident set size so far (the whole
+        # process, not this run alone).
+        "peak_memory_MB": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
     }
     if cd.visualizer is not None and html is not None:
         cd.visualizer.StopRecording()

@@ -238,3 +238,27 @@ def test_compliant_wall_holds_the_chain_from_inside():
     assert -half_wall < monitor.min_clearance < 0.0
     assert monitor.max_gap < 20e-6
     assert np.all(heart.contains(p) | cd.chain_plant.in_sheath(p))
+
+
+def test_chain_pressed_against_a_wall_settles_on_the_statics_solution():
+    """8 balls, 23 mT at 90 deg, a flat wall at y = 12 mm: the simulated chain (stiff compliant
+    half-space) settles within 0.5 mm of the statics with a rigid frictionless wall; what is left
+    is the tip's indentation into the compliant wall, along its normal."""
+    from ballchain.optimization.statics import ChainStatics, rotation_path
+
+    scenario = load_scenario("free_space_wall")
+    point, normal = np.array(scenario.wall_plane[:3]), np.array(scenario.wall_plane[3:])
+    solver = ChainStatics(BallChain(n_balls=scenario.n_balls))
+    statics = None
+    for angle in rotation_path(0.0, 90.0, 22.5):
+        statics = solver.solve_or_raise(UniformField.in_plane(0.023, np.radians(angle)), statics,
+                                        wall=(point, normal))
+    assert set(statics.wall_forces) == {scenario.n_balls - 1}  # only the tip touches
+    result = run_simulation(scenario=scenario, duration=2.5)
+    p = np.array(result["p_W_mm"]) * 1e-3
+    error = p - statics.positions
+    print(f"tip: simulation {p[-1] * 1e3} mm, statics {statics.positions[-1] * 1e3} mm, "
+          f"wall force (statics) {statics.wall_forces[scenario.n_balls - 1]:.3f} N")
+    assert np.abs(error).max() < 0.5e-3
+    indentation = -(error[-1] @ normal)
+    assert 0.0 < indentation < 0.3e-3  # into the wall, a fraction of a millimetre

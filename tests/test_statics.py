@@ -222,3 +222,24 @@ def test_long_chains_align_their_tip_with_the_field():
     for n in (12, 16):
         result = rotate_to(BallChain(n_balls=n), 90.0)
         assert tip_angle_deg(result, [0, 1, 0]) < 1.4
+
+
+def test_wall_forces_balance_the_chain_and_keep_it_out():
+    chain = BallChain(n_balls=8)
+    wall = (np.array([0.0, 0.012, 0.0]), np.array([0.0, -1.0, 0.0]))
+    solver = ChainStatics(chain)
+    result = None
+    for angle in rotation_path(0.0, 90.0, 22.5):
+        result = solver.solve_or_raise(field(angle), result, wall=wall)
+    p = result.positions
+    assert np.all((p[1:] - wall[0]) @ wall[1] >= 0.5 * chain.ball_diameter - 1e-12)
+    assert list(result.wall_forces) == [7] and result.wall_forces[7] > 0.05  # the tip pushes, N
+    F, tau = _ball_forces_and_torques(chain, result, field(90.0))
+    F[7] += result.wall_forces[7] * wall[1]
+    scale = np.abs(F).max() * chain.ball_diameter
+    for k in range(chain.n_balls - 1):
+        moment = np.sum(np.cross(p[k + 1 :] - p[k], F[k + 1 :]) + tau[k + 1 :], axis=0)
+        # 1e-7: the solver stops at a scaled KKT residual of 1e-8 (6e-9 relative seen here).
+        np.testing.assert_allclose(moment, 0.0, atol=1e-7 * scale)
+    with pytest.raises(ValueError, match="cuts ball 1"):
+        solver.solve(field(0.0), wall=(np.array([0.001, 0, 0]), np.array([1.0, 0, 0])))
