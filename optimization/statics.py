@@ -37,7 +37,7 @@ from pydrake.solvers import (
 )
 
 from ballchain.drake_models.chain_energy import EnergyTerms, chain_energy
-from ballchain.drake_models.field_sources import FieldSource
+from ballchain.drake_models.field_sources import FieldSource, UniformField
 from ballchain.drake_models.params import BallChain
 from ballchain.optimization.reduced_chain import X_AXIS, ReducedChain
 
@@ -501,3 +501,35 @@ def rotation_path(start_deg: float, stop_deg: float, step_deg: float) -> np.ndar
         raise ValueError(f"continuation step must be positive, got {step_deg}")
     n = max(1, int(np.ceil(abs(stop_deg - start_deg) / step_deg - 1e-9)))
     return np.linspace(start_deg, stop_deg, n + 1)
+
+
+def uniform_field_equilibrium(
+    chain: BallChain,
+    B_W,
+    gravity: bool = False,
+    wall=None,
+    step_deg: float = 22.5,
+) -> StaticsResult:
+    """The equilibrium reached by turning a uniform field of magnitude |B_W| from +x to B_W.
+
+    The field turns about +x cross B_W in steps of at most ``step_deg`` (continuation from the
+    straight chain, as a rotating magnet would move it); raises StaticsError if a step fails.
+    """
+    B = np.asarray(B_W, dtype=float).reshape(3)
+    if not np.all(np.isfinite(B)):
+        raise ValueError(f"B_W must be finite, got {B_W}")
+    solver = ChainStatics(chain, gravity=gravity)
+    magnitude = float(np.linalg.norm(B))
+    if magnitude == 0.0:
+        return solver.solve_or_raise(None, wall=wall)
+    b_hat = B / magnitude
+    axis = np.cross(X_AXIS, b_hat)
+    sin_angle, cos_angle = float(np.linalg.norm(axis)), float(X_AXIS @ b_hat)
+    axis = axis / sin_angle if sin_angle > 1e-12 else np.array([0.0, 0.0, 1.0])
+    result = None
+    for angle in np.radians(rotation_path(0.0, np.degrees(np.arctan2(sin_angle, cos_angle)), step_deg)):
+        # Rodrigues: +x turned by ``angle`` about ``axis``.
+        direction = (np.cos(angle) * X_AXIS + np.sin(angle) * np.cross(axis, X_AXIS)
+                     + (1.0 - np.cos(angle)) * (axis @ X_AXIS) * axis)
+        result = solver.solve_or_raise(UniformField(magnitude * direction), result, wall=wall)
+    return result

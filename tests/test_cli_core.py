@@ -82,3 +82,10 @@ def test_subcommand_help_lists_its_arguments(capsys, command, flag):
         main([command, "--help"])
     assert exc.value.code == 0
     assert flag in capsys.readouterr().out
+
+
+def test_simulate_reports_the_statics_tip_error_where_the_chain_settles(capsys):
+    data = run_json(capsys, "simulate", "--scenario", "free_space_wall")
+    assert 0.0 < data["statics_tip_error_mm"] < 0.5  # the tip's indentation into the wall
+    data = run_json(capsys, "simulate", "--scenario", "heart_no_field", "--duration", "0.005")
+    assert data["statics_tip_error_mm"] is None

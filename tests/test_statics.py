@@ -243,3 +243,15 @@ def test_wall_forces_balance_the_chain_and_keep_it_out():
         np.testing.assert_allclose(moment, 0.0, atol=1e-7 * scale)
     with pytest.raises(ValueError, match="cuts ball 1"):
         solver.solve(field(0.0), wall=(np.array([0.001, 0, 0]), np.array([1.0, 0, 0])))
+
+
+def test_uniform_field_equilibrium_turns_the_field_from_x():
+    from ballchain.optimization.statics import uniform_field_equilibrium
+
+    chain = BallChain(n_balls=6)
+    planar = uniform_field_equilibrium(chain, [0.0, 0.023, 0.0])
+    np.testing.assert_allclose(planar.positions, rotate_to(chain, 90.0).positions, atol=1e-9)
+    # Out of plane: the same shape turned about x into the x-z plane.
+    tilted = uniform_field_equilibrium(chain, [0.0, 0.0, 0.023])
+    np.testing.assert_allclose(tilted.positions[:, [0, 2]], planar.positions[:, [0, 1]], atol=1e-9)
+    np.testing.assert_allclose(tilted.positions[:, 1], 0.0, atol=1e-12)

@@ -40,7 +40,30 @@ def run(*, scenario: str, duration: float | None = None, mode: str | None = None
         chosen.validate()
     if duration is not None and duration < 0:
         raise ValueError(f"--duration must be >= 0, got {duration}")
-    return run_simulation(scenario=chosen, duration=duration, html=html)
+    result = run_simulation(scenario=chosen, duration=duration, html=html)
+    result["statics_tip_error_mm"] = statics_tip_error_mm(chosen, result)
+    return result
+
+
+def statics_tip_error_mm(scenario, result: dict) -> float | None:
+    """Distance [mm] from the simulated tip to the statics equilibrium, for scenarios that settle
+    on the canonical problem (free space, no sheath, ball 1 fixed at the origin, a uniform field,
+    optionally a flat wall); None for the others (heart, magnets, units, moving feeder)."""
+    import numpy as np
+
+    from ballchain.drake_models.params import BallChain, Sleeve
+    from ballchain.optimization.statics import uniform_field_equilibrium
+
+    canonical = (not scenario.heart and not scenario.sheath and not scenario.magnets and not scenario.units
+                 and scenario.insertion.initial == 0.0 and scenario.insertion.final == 0.0)
+    if not canonical:
+        return None
+    chain = BallChain(n_balls=scenario.n_balls, sleeve=Sleeve() if scenario.sleeve else None)
+    wall = None
+    if scenario.wall_plane:
+        wall = (np.array(scenario.wall_plane[:3]), np.array(scenario.wall_plane[3:]))
+    statics = uniform_field_equilibrium(chain, scenario.uniform_field, scenario.gravity, wall)
+    return float(np.linalg.norm(np.array(result["p_W_mm"][-1]) - statics.tip_position * 1e3))
 
 
 def main(args: argparse.Namespace) -> int:
