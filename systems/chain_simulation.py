@@ -194,11 +194,13 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
         feeder = builder.AddSystem(TrajectorySource(traj, output_derivative_order=1))
         feeder.set_name("feeder_command")
         builder.Connect(feeder.get_output_port(), desired)
+    # Which ablation targets the tip touches: tracked with or without Meshcat (for the metrics).
     targets = heart_targets(heart) if heart is not None else None
     tip_index = cp.ball_body_indices[-1]
     if targets is not None and targets[0]:
+        names, p_WT, n_W, target_radius = targets
         tracker = builder.AddSystem(TargetTouchTracker(
-            tip_index, *targets[:3], target_radius=targets[3], ball_radius=0.5 * d, period=scenario.check_period))
+            tip_index, names, p_WT, n_W, target_radius, ball_radius=0.5 * d, period=scenario.check_period))
         builder.Connect(cp.plant.get_body_poses_output_port(), tracker.get_body_poses_input_port())
         extras["target_touches"] = tracker
     visualizer = None

@@ -11,7 +11,7 @@ from ballchain.systems.chain_scenario import ChainScenario, load_scenario, scena
 from ballchain.systems.chain_simulation import SimulationFailure, build_chain_diagram, run_simulation
 
 KEYS = {"realtime_factor", "sim_time_s", "tip_position_mm", "min_wall_clearance_mm",
-        "max_neighbor_gap_um", "max_penetration_um"}
+        "max_neighbor_gap_um", "max_penetration_um", "targets_touched", "peak_memory_MB"}
 
 
 @pytest.fixture(scope="module")

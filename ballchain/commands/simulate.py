@@ -1,8 +1,9 @@
 """Simulate the ball chain in the left atrium (or free space) for a named scenario.
 
-Prints realtime_factor, sim_time_s, tip_position_mm, min_wall_clearance_mm, max_neighbor_gap_um
-and max_penetration_um; stops with a clear message (exit status 1) on a NaN, a ball escaping
-the heart or the chain breaking apart.
+Prints realtime_factor, sim_time_s, tip_position_mm, min_wall_clearance_mm, max_neighbor_gap_um,
+max_penetration_um, targets_touched (the ablation targets the tip ball touched, e.g. "left_3") and
+peak_memory_MB (the process's peak resident set size); stops with a clear message (exit status 1)
+on a NaN, a ball escaping the heart or the chain breaking apart.
 """
 
 from __future__ import annotations

@@ -1,0 +1,337 @@
+"""Ablation-target touches and Meshcat overlays of a chain simulation.
+
+Two systems, wired by ``build_chain_diagram`` (``chain_simulation``):
+
+* ``target_touches`` (TargetTouchTracker): which of the heart's ablation targets the tip ball
+  has touched so far (state; added whenever the atrium has target rings, with or without
+  Meshcat, so that ``run_simulation`` can report ``targets_touched``).
+* ``meshcat_overlays`` (MeshcatOverlays, only with a Meshcat): the 5 mm targets as discs on the
+  wall (yellow, green once touched), the total external field at the tip ball as a blue arrow
+  and the wall's contact force on the tip ball as an orange arrow. Everything is also stored
+  in the Meshcat recording, so the HTML replay shows it.
+
+When the tip ball touches a target (``targets_touched``): with p the tip ball's centre, p_T a
+target's centre on the endocardium and n_T the wall's unit normal there (into the chamber),
+h = (p - p_T) . n_T is the height of the ball's centre above the wall's tangent plane at the
+target and l = |(p - p_T) - h n_T| its lateral distance from the target's centre. The ball
+touches the target when |h| <= r_ball + 0.5 mm (its surface within 0.5 mm of the wall, or in
+it) and l <= the target's radius (2.5 mm for 5 mm targets). The wall's curvature is ignored
+over the target: on the 19 mm semi-axis it bends 0.16 mm away from the tangent plane 2.5 mm
+from the centre.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import Cylinder, MeshcatCone, Rgba
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.multibody.plant import ContactResults
+from pydrake.multibody.tree import BodyIndex
+from pydrake.systems.framework import EventStatus, LeafSystem
+
+from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
+from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
+from ballchain.systems.magnetic_wrench import PortDipoles
+
+TOUCH_TOLERANCE = 0.5e-3  # [m] the ball's surface this close to the wall counts as touching
+FIELD_ARROW_SCALE = 1.0  # [m/T]: 1 mm per mT
+FORCE_ARROW_SCALE = 0.1  # [m/N]: 10 mm per 0.1 N
+FIELD_ARROW_RGBA = Rgba(0.1, 0.35, 0.95, 1.0)  # blue
+FORCE_ARROW_RGBA = Rgba(1.0, 0.55, 0.0, 1.0)  # orange
+TARGET_RGBA = Rgba(0.95, 0.85, 0.1, 0.6)  # yellow: not touched yet
+TOUCHED_RGBA = Rgba(0.1, 0.8, 0.2, 0.95)  # green: touched
+WALL_GEOMETRY_NAMES = ("heart_wall", "wall_plane")  # chain_plant's collision walls
+
+
+def heart_targets(heart) -> tuple[list[str], np.ndarray, np.ndarray, float]:
+    """The atrium's ablation targets.
+
+    Args:
+        heart: a LeftAtrium (or a UserAtrium, which has no rings).
+
+    Returns:
+        (names ["left_1", ..., "right_18"] (1-based, as chain_plant's ``target_<ring>_<k>``
+        visual geometries), p_WT (n, 3) centres [m], n_W (n, 3) unit wall normals into the
+        chamber, target radius [m]).
+    """
+    names, points = [], []
+    for side, ring in getattr(heart, "rings", {}).items():
+        names += [f"{side}_{k + 1}" for k in range(len(ring.p_HT))]
+        points.append(np.asarray(ring.p_HT, float))
+    if not names:
+        return [], np.zeros((0, 3)), np.zeros((0, 3)), 0.0
+    p_WT = np.concatenate(points)
+    # The targets lie on the endocardial ellipsoid (heart.py): its outward normal is
+    # grad((x/a)^2) ~ p / a^2; the chamber is on the other side.
+    outward = p_WT / np.asarray(heart.semi_axes, float) ** 2
+    n_W = -outward / np.linalg.norm(outward, axis=1, keepdims=True)
+    return names, p_WT, n_W, 0.5 * float(heart.params.target_diameter)
+
+
+def targets_touched(p_W_tip, p_WT: np.ndarray, n_W: np.ndarray, ball_radius: float, target_radius: float,
+                    tolerance: float = TOUCH_TOLERANCE) -> np.ndarray:
+    """Which targets a ball centred at ``p_W_tip`` touches (see the module docstring).
+
+    Args:
+        p_W_tip: (3,) the tip ball's centre [m].
+        p_WT: (n, 3) target centres on the wall [m].
+        n_W: (n, 3) unit wall normals at the targets, into the chamber.
+        ball_radius: [m].
+        target_radius: [m] (half the target's diameter).
+        tolerance: how far the ball's surface may be from the wall [m].
+
+    Returns:
+        (n,) bool.
+    """
+    rel = np.asarray(p_W_tip, float) - p_WT
+    h = (rel * n_W).sum(axis=1)
+    lateral2 = (rel * rel).sum(axis=1) - h * h  # |rel|^2 = h^2 + lateral^2
+    return (np.abs(h) <= ball_radius + tolerance) & (lateral2 <= target_radius**2)
+
+
+class TargetTouchTracker(LeafSystem):
+    """Remembers which ablation targets the tip ball has touched (``targets_touched``).
+
+    Input ports:
+        body_poses: abstract list[RigidTransform] indexed by BodyIndex (the plant's ``body_poses``).
+
+    Output ports:
+        touched: (n_targets,) 1.0 for each target touched at any update so far, else 0.0 (the
+            discrete state; targets in ``names`` order).
+
+    Updates every ``period`` seconds and at initialisation.
+
+    Args:
+        tip_body_index: the plant's BodyIndex of the tip ball.
+        names, p_WT, n_W, target_radius: from ``heart_targets``.
+        ball_radius: [m].
+        period: [s].
+    """
+
+    def __init__(self, tip_body_index, names: Sequence[str], p_WT: np.ndarray, n_W: np.ndarray,
+                 target_radius: float, ball_radius: float, period: float) -> None:
+        super().__init__()
+        self.set_name("target_touches")
+        self.names = list(names)
+        self._tip = int(tip_body_index)
+        self._p_WT = np.asarray(p_WT, float).reshape(-1, 3)
+        self._n_W = np.asarray(n_W, float).reshape(-1, 3)
+        self._target_radius = float(target_radius)
+        self._ball_radius = float(ball_radius)
+        self._body_poses_port = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
+        self._state_index = self.DeclareDiscreteState(len(self.names))
+        self._touched_port = self.DeclareStateOutputPort("touched", self._state_index)
+        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
+        self.DeclareInitializationDiscreteUpdateEvent(self._update)
+
+    def get_body_poses_input_port(self):
+        return self._body_poses_port
+
+    def get_touched_output_port(self):
+        return self._touched_port
+
+    def _update(self, context, discrete_state):
+        p_tip = self._body_poses_port.Eval(context)[self._tip].translation()
+        now = targets_touched(p_tip, self._p_WT, self._n_W, self._ball_radius, self._target_radius)
+        old = context.get_discrete_state(self._state_index).get_value()
+        discrete_state.get_mutable_vector(self._state_index).SetFromVector(np.maximum(old, now))
+        return EventStatus.Succeeded()
+
+    def touched_names(self, context) -> list[str]:
+        """The names of the targets touched so far in this (system's) context."""
+        x = self._touched_port.Eval(context)
+        return [n for n, v in zip(self.names, x) if v > 0.5]
+
+
+def _arrow_pose(p_W: np.ndarray, v_W: np.ndarray) -> RigidTransform:
+    """An arrow frame at p_W with its z axis along v_W (any non-zero length)."""
+    return RigidTransform(RotationMatrix(rotation_with_z_along(v_W)), p_W)
+
+
+class MeshcatOverlays(LeafSystem):
+    """Draws the ablation targets, the field at the tip and the wall's push on the tip in Meshcat.
+
+    Meshcat paths (all under ``overlays/``):
+        ``targets/<name>/open`` and ``targets/<name>/touched``: a 5 mm disc (the target's
+            diameter, 0.3 mm thick) on the wall at each target, yellow until the tip touches it
+            (``touched`` input), then green for the rest of the run.
+        ``tip_field``: the total external field B_W at the tip ball's centre (fixed sources and
+            port magnets, not the chain's own dipoles), blue, 1 mm per mT.
+        ``tip_contact_force``: the wall's contact force on the tip ball (the sum over its
+            hydroelastic and point contacts with ``heart_wall`` / ``wall_plane``), orange, 10 mm
+            per 0.1 N, from the contact centroid; hidden when the tip does not touch the wall.
+
+    Input ports:
+        body_poses: abstract list[RigidTransform] indexed by BodyIndex (the plant's ``body_poses``).
+        contact_results: abstract ContactResults (the plant's ``contact_results``).
+        touched: (n_targets,) only when there are targets (TargetTouchTracker's ``touched``).
+        magnet_states: (6 k,) only with port magnets: as MagneticWrenchSystem's ``magnet_states``
+            (per magnet p_WM [m] then its dipole direction).
+
+    Publishes every ``period`` seconds and at initialisation; each drawing carries the context's
+    time, so that it is stored in the Meshcat recording when one is running.
+
+    Args:
+        meshcat: the Meshcat.
+        plant: the finalised MultibodyPlant (for the tip's and the walls' geometry ids).
+        inspector: the SceneGraph's ``model_inspector()`` (for the walls' geometry names).
+        tip_body_index: the tip ball's BodyIndex.
+        period: publishing period [s].
+        targets: ``heart_targets(heart)``, or None for no targets.
+        field_source: the fixed external FieldSource, or None.
+        port_magnets: the magnets whose states come from ``magnet_states``.
+        model: "dipole" or "exact", the port magnets' field model (as the wrench system's).
+    """
+
+    def __init__(self, meshcat, plant, inspector, tip_body_index, period: float, targets=None, field_source=None,
+                 port_magnets: Sequence[CylinderMagnet | SphereMagnet] = (), model: str = "dipole") -> None:
+        super().__init__()
+        self.set_name("meshcat_overlays")
+        self._meshcat = meshcat
+        self._tip = int(tip_body_index)
+        self._field_source = field_source
+        self._port_magnets = list(port_magnets)
+        self._model = model
+        self._port_moments = np.array([m.dipole_moment for m in self._port_magnets])
+        self._port_radii = np.array([m.bounding_radius for m in self._port_magnets])
+        names, p_WT, n_W, radius = targets if targets is not None else ([], np.zeros((0, 3)), None, 0.0)
+        self.target_names = list(names)
+        self._body_poses_port = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
+        self._contact_port = self.DeclareAbstractInputPort("contact_results", AbstractValue.Make(ContactResults()))
+        self._touched_port = self.DeclareVectorInputPort("touched", len(names)) if names else None
+        self._magnet_port = (self.DeclareVectorInputPort("magnet_states", 6 * len(self._port_magnets))
+                             if self._port_magnets else None)
+        tip_body = plant.get_body(BodyIndex(self._tip))
+        self._tip_geometries = set(plant.GetCollisionGeometriesForBody(tip_body))
+        self._wall_geometries = {g for g in plant.GetCollisionGeometriesForBody(plant.world_body())
+                                 if inspector.GetName(g).split("::")[-1] in WALL_GEOMETRY_NAMES}
+        # Targets: the discs sit 0.1 mm off the wall so that the semi-transparent wall does not hide them.
+        self._target_paths = [f"overlays/targets/{n}" for n in names]
+        for path, p, n in zip(self._target_paths, p_WT, n_W if names else []):
+            meshcat.SetTransform(path, _arrow_pose(p + 1e-4 * n, n))
+            meshcat.SetObject(f"{path}/open", Cylinder(radius, 0.3e-3), TARGET_RGBA)
+            meshcat.SetObject(f"{path}/touched", Cylinder(radius, 0.3e-3), TOUCHED_RGBA)
+            meshcat.SetProperty(f"{path}/touched", "visible", False)
+        for path, rgba in (("overlays/tip_field", FIELD_ARROW_RGBA), ("overlays/tip_contact_force", FORCE_ARROW_RGBA)):
+            # A unit-length shaft along z (scaled to the arrow's length) and a 2 mm head at its end.
+            meshcat.SetObject(f"{path}/shaft", Cylinder(0.25e-3, 1.0), rgba)
+            meshcat.SetObject(f"{path}/head", MeshcatCone(2e-3, 0.7e-3, 0.7e-3), rgba)
+            meshcat.SetProperty(path, "visible", False)
+        self._drawn_touched = np.zeros(len(names), bool)
+        self.DeclarePeriodicPublishEvent(period, 0.0, self._publish)
+        self.DeclareInitializationPublishEvent(self._publish_all)
+
+    def get_body_poses_input_port(self):
+        return self._body_poses_port
+
+    def get_contact_results_input_port(self):
+        return self._contact_port
+
+    def get_touched_input_port(self):
+        return self._touched_port
+
+    def get_magnet_states_input_port(self):
+        return self._magnet_port
+
+    # ------------------------------------------------------------------------ quantities drawn
+    def tip_field(self, context) -> np.ndarray:
+        """B_W (3,) [T]: the total external field at the tip ball's centre (no chain dipoles)."""
+        p = self._body_poses_port.Eval(context)[self._tip].translation()
+        sources = [] if self._field_source is None else [self._field_source]
+        if self._magnet_port is not None:
+            # The same sources as MagneticWrenchSystem.external_field (the test compares them).
+            x = self._magnet_port.Eval(context).reshape(-1, 6)
+            if self._model == "dipole":
+                m_hat = x[:, 3:] / np.linalg.norm(x[:, 3:], axis=1, keepdims=True)
+                sources.append(PortDipoles(x[:, :3], self._port_moments[:, None] * m_hat, self._port_radii))
+            else:
+                sources += [MagnetSource.pointing(m, row[:3], row[3:], self._model)
+                            for m, row in zip(self._port_magnets, x)]
+        if not sources:
+            return np.zeros(3)
+        return FieldSources(sources).field_and_gradient(p[None])[0][0]
+
+    def tip_contact_force(self, context) -> tuple[np.ndarray, np.ndarray | None]:
+        """(f_W (3,) [N], p_WC (3,) [m] or None): the walls' contact force on the tip ball, and
+        where it acts (the contact centroids, weighted by force; None without contact)."""
+        results = self._contact_port.Eval(context)
+        f = np.zeros(3)
+        points, weights = [], []
+        tip, walls = self._tip_geometries, self._wall_geometries
+        for i in range(results.num_hydroelastic_contacts()):
+            info = results.hydroelastic_contact_info(i)
+            surface = info.contact_surface()
+            M, N = surface.id_M(), surface.id_N()
+            if M in tip and N in walls:
+                f_tip = info.F_Ac_W().translational()  # body A is geometry M's
+            elif N in tip and M in walls:
+                f_tip = -info.F_Ac_W().translational()
+            else:
+                continue
+            f += f_tip
+            points.append(surface.centroid())
+            weights.append(np.linalg.norm(f_tip))
+        for i in range(results.num_point_pair_contacts()):
+            info = results.point_pair_contact_info(i)
+            pair = info.point_pair()
+            if pair.id_A in walls and pair.id_B in tip:
+                f_tip = info.contact_force()  # on body B
+            elif pair.id_B in walls and pair.id_A in tip:
+                f_tip = -info.contact_force()
+            else:
+                continue
+            f += f_tip
+            points.append(info.contact_point())
+            weights.append(np.linalg.norm(f_tip))
+        if not points:
+            return f, None
+        w = np.asarray(weights)
+        w = w / w.sum() if w.sum() > 0 else np.full(len(points), 1.0 / len(points))
+        return f, (np.asarray(points) * w[:, None]).sum(axis=0)
+
+    # ------------------------------------------------------------------------------- drawing
+    def _set_arrow(self, path: str, p_W: np.ndarray | None, v_W: np.ndarray, t: float) -> None:
+        length = float(np.linalg.norm(v_W))
+        if p_W is None or length < 1e-5:
+            self._meshcat.SetProperty(path, "visible", False, t)
+            return
+        self._meshcat.SetProperty(path, "visible", True, t)
+        self._meshcat.SetTransform(path, _arrow_pose(p_W, v_W), t)
+        self._meshcat.SetTransform(f"{path}/shaft", RigidTransform([0.0, 0.0, 0.5 * length]), t)
+        self._meshcat.SetProperty(f"{path}/shaft", "scale", [1.0, 1.0, length], t)
+        # The cone's apex is at its origin, opening along +z: turned over, it points along the arrow.
+        self._meshcat.SetTransform(f"{path}/head", RigidTransform(RotationMatrix.MakeXRotation(np.pi),
+                                                                   [0.0, 0.0, length]), t)
+
+    def _draw_targets(self, context, changed_only: bool) -> None:
+        if self._touched_port is None:
+            return
+        touched = self._touched_port.Eval(context) > 0.5
+        t = context.get_time()
+        for k in np.flatnonzero(touched != self._drawn_touched) if changed_only else range(len(touched)):
+            self._meshcat.SetProperty(f"{self._target_paths[k]}/touched", "visible", bool(touched[k]), t)
+            self._meshcat.SetProperty(f"{self._target_paths[k]}/open", "visible", not touched[k], t)
+        # A visualisation cache (as MeshcatVisualizer keeps one): only changes are sent.
+        self._drawn_touched = touched.copy()
+
+    def _draw_arrows(self, context) -> None:
+        t = context.get_time()
+        p_tip = self._body_poses_port.Eval(context)[self._tip].translation()
+        self._set_arrow("overlays/tip_field", p_tip, FIELD_ARROW_SCALE * self.tip_field(context), t)
+        f, p_WC = self.tip_contact_force(context)
+        self._set_arrow("overlays/tip_contact_force", p_WC, FORCE_ARROW_SCALE * f, t)
+
+    def _publish(self, context):
+        self._draw_targets(context, changed_only=True)
+        self._draw_arrows(context)
+        return EventStatus.Succeeded()
+
+    def _publish_all(self, context):
+        # Every target's state at the start (also a recording's first keyframe: before its first
+        # keyframe, a replay holds that keyframe's value).
+        self._draw_targets(context, changed_only=False)
+        self._draw_arrows(context)
+        return EventStatus.Succeeded()
