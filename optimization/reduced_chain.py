@@ -83,6 +83,7 @@ class ReducedChain:
         self.tip_target: np.ndarray | None = None  # pin the tip's centre here [m] (equality)
         self.n_pairs = len(i)
         self.wall: tuple[np.ndarray, np.ndarray] | None = None  # (point, unit normal) of a plane
+        self._last = None  # (q bytes, order, Evaluation) of the last evaluation
 
     # --- chart -------------------------------------------------------------------------
     def set_chart(self, w0: np.ndarray) -> None:
@@ -98,6 +99,7 @@ class ReducedChain:
         self.r0 = r0
         self.t2 = t2 / norms[:, None]
         self.t1 = np.cross(self.t2, r0)
+        self._last = None  # a new chart (and possibly a new field, target or wall): forget
 
     def chart_from_configuration(self, positions: np.ndarray, dipoles: np.ndarray) -> None:
         links = np.diff(positions, axis=0)
@@ -126,7 +128,18 @@ class ReducedChain:
 
     # --- evaluation ------------------------------------------------------------------------
     def evaluate(self, q: np.ndarray, order: int = 2) -> Evaluation:
-        """Energy/E0 and constraints at q, with derivatives up to ``order`` (0, 1 or 2)."""
+        """Energy/E0 and constraints at q, with derivatives up to ``order`` (0, 1 or 2).
+
+        The last evaluation is remembered: asking again at the same q (same chart) is free.
+        """
+        key = q.tobytes()
+        if self._last is not None and self._last[0] == key and self._last[1] >= order:
+            return self._last[2]
+        ev = self._evaluate(q, order)
+        self._last = (key, order, ev)
+        return ev
+
+    def _evaluate(self, q: np.ndarray, order: int) -> Evaluation:
         w, dw_da, dw_db, in_plane, (ca, sa, cb, sb) = self.unit_vectors(q)
         p, m_hat = self._configuration(w)
         L, K = self.n_links, self.n_vectors
@@ -177,7 +190,11 @@ class ReducedChain:
         if self.sleeve_stiffness > 0.0:
             H_uu += s_out[2].reshape(3 * L, 3 * L)
         H_um = self.d * (C3.T @ H_pm.reshape(3 * n, 3 * n)[:, 3:])
-        H_ww = np.block([[H_uu, H_um], [H_um.T, H_mm.reshape(3 * n, 3 * n)[3:, 3:]]])
+        H_ww = np.empty((6 * L, 6 * L))
+        H_ww[: 3 * L, : 3 * L] = H_uu
+        H_ww[: 3 * L, 3 * L :] = H_um
+        H_ww[3 * L :, : 3 * L] = H_um.T
+        H_ww[3 * L :, 3 * L :] = H_mm.reshape(3 * n, 3 * n)[3:, 3:]
         # Chart Jacobian as a block-diagonal (3K, 2K) matrix: column s*K + i holds dw_i/dq_s.
         Jw = np.zeros((K, 3, 2, K))
         idx = np.arange(K)
