@@ -20,6 +20,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "field-models": ("field_models", "point dipole vs exact cylinder field of the prototype magnet"),
     "bench": ("bench", "benchmarks (statics solve against an SLSQP baseline)"),
     "forces": ("forces", "tip forces on the pulmonary veins, both configurations (paper Table I)"),
+    "plan": ("plan", "inverse statics for every ablation target and a visiting plan (beyond the paper)"),
     "workspace": ("workspace", "workspace with one rotating magnet 16.51 cm away (paper Fig. workspace)"),
     "validation": ("validation", "model validation: uniform vs dipole vs exact field, 5..10 balls"),
     "reproduce": ("reproduce", "run the paper checks and write a report (the main job)"),

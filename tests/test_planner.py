@@ -1,0 +1,31 @@
+"""Model-based steering: the teleoperation stand and a short plan."""
+
+import numpy as np
+
+from ballchain.drake_models.heart import LeftAtrium
+from ballchain.drake_models.params import BallChain
+from ballchain.experiments import planner
+
+
+def test_teleop_stand_targets_lie_a_ball_radius_inside_the_wall():
+    atrium = LeftAtrium()
+    d = BallChain().ball_diameter
+    stand = planner.teleop_stand(atrium, "right", d)
+    assert len(stand.targets) == 18
+    for name, (p_S, axis_S) in stand.targets.items():
+        p_H = stand.p_HE + stand.R_HS @ p_S
+        assert atrium.contains(p_H[None, :])[0], name
+        # Pressing along the axis by a ball radius reaches the endocardial ellipsoid.
+        q = p_H + 0.5 * d * (stand.R_HS @ axis_S)
+        np.testing.assert_allclose(np.sum((q / atrium.semi_axes) ** 2), 1.0, atol=1e-9)
+    p_HM = stand.p_HE + stand.R_HS @ stand.magnets["1"]
+    np.testing.assert_allclose(np.linalg.norm(p_HM - atrium.carinas["right"]), 0.10, rtol=1e-12)
+
+
+def test_short_plan_reaches_targets_and_times_the_moves():
+    data = planner.run(task="left", targets=2, balls=(16,), grid=3, refine=4, progress=False)
+    assert [r["reached"] for r in data["rows"]] == [True, True]
+    assert all(0.0 < r["force_gf"] < 30.0 for r in data["rows"])
+    a, b = (np.array(r["dipole"]) for r in data["rows"])
+    np.testing.assert_allclose(data["summary"]["magnet_turn_time_s"], np.arccos(np.clip(a @ b, -1, 1)) / 0.5)
+    assert data["summary"]["insertion_time_s"] == 0.0  # same length for both targets
