@@ -230,9 +230,9 @@ def plan_section(out: Path, quick: bool) -> tuple[Section, dict]:
     left, right = data["left"]["summary"], data["right"]["summary"]
     section.text(
         f"With the one magnet beside the right veins, {right['with_at_least_10_gf']} of "
-        f"{right['targets']} right-ring targets get at least 10 gf (the magnet is 10 cm away) but "
-        f"{left['with_at_least_10_gf']} of {left['targets']} left-ring targets do (they are 5 cm "
-        "further): a second magnet on the left, as the paper proposes, is what the left ring needs. "
+        f"{right['targets']} right-ring targets get at least 10 gf, but only "
+        f"{left['with_at_least_10_gf']} of {left['targets']} left-ring targets do: a second magnet "
+        "on the left, as the paper proposes, is what the left ring needs. "
         "The plan's time is the hardware's motion time only (no perception or hesitation)."
     )
     return section, data
