@@ -39,7 +39,13 @@ from ballchain.drake_models.params import BallChain, CylinderMagnet, Sleeve, Sph
 from ballchain.systems.chain_plant import ChainPlant, ChainPlantConfig, SheathConfig, add_chain_plant
 from ballchain.systems.chain_scenario import ChainScenario
 from ballchain.systems.magnetic_wrench import MagneticWrenchSystem
-from ballchain.systems.meshcat_overlays import MeshcatOverlays, TargetTouchTracker, heart_targets
+from ballchain.systems.meshcat_overlays import (
+    MeshcatOverlays,
+    TargetTouchTracker,
+    heart_targets,
+    wall_force_on,
+    wall_geometries,
+)
 from ballchain.systems.station_units import UnitMeshcatMarkers, add_feeder, add_units, unit_configs
 
 
@@ -343,6 +349,15 @@ def _targets_touched(cd: ChainDiagram, root_context) -> list[str]:
     return [] if tracker is None else tracker.touched_names(tracker.GetMyContextFromRoot(root_context))
 
 
+def _tip_wall_force(cd: ChainDiagram, plant_context) -> list[float]:
+    """The walls' contact force on the tip ball at the end of the run [N] (world frame)."""
+    plant = cd.chain_plant.plant
+    tip = set(plant.GetCollisionGeometriesForBody(cd.chain_plant.ball_bodies[-1]))
+    walls = wall_geometries(plant, cd.chain_plant.scene_graph.model_inspector())
+    f, _ = wall_force_on(plant.get_contact_results_output_port().Eval(plant_context), tip, walls)
+    return [round(float(v), 6) for v in f]
+
+
 def run_simulation(*, scenario: ChainScenario, duration: float | None = None, html: Path | None = None,
                    meshcat=None, heart: LeftAtrium | None = None) -> dict:
     """Simulate a scenario and return its metrics.
@@ -399,6 +414,7 @@ def run_simulation(*, scenario: ChainScenario, duration: float | None = None, ht
         "mode": scenario.mode,
         "n_steps": int(round(sim_time / scenario.effective_time_step)),
         "targets_touched": _targets_touched(cd, root),
+        "tip_wall_force_N": _tip_wall_force(cd, plant_context),
         # ru_maxrss is in KiB on Linux: the process's peak resident set size so far (the whole
         # process, not this run alone).
         "peak_memory_MB": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),

@@ -46,6 +46,58 @@ TOUCHED_RGBA = Rgba(0.1, 0.8, 0.2, 0.95)  # green: touched
 WALL_GEOMETRY_NAMES = ("heart_wall", "wall_plane")  # chain_plant's collision walls
 
 
+def wall_geometries(plant, inspector) -> set:
+    """The collision geometries of chain_plant's walls (the heart's, or a flat wall)."""
+    return {g for g in plant.GetCollisionGeometriesForBody(plant.world_body())
+            if inspector.GetName(g).split("::")[-1] in WALL_GEOMETRY_NAMES}
+
+
+def wall_force_on(results: ContactResults, body_geometries: set, walls: set) -> tuple[np.ndarray, np.ndarray | None]:
+    """The walls' total contact force on a body, from the plant's contact results.
+
+    Args:
+        results: the plant's ContactResults (hydroelastic and point contacts).
+        body_geometries: the body's collision geometry ids.
+        walls: the walls' collision geometry ids.
+
+    Returns:
+        (f_W (3,) [N], p_WC (3,) [m] or None): the force and where it acts (the contact centroids,
+        weighted by force; None without contact).
+    """
+    f = np.zeros(3)
+    points, weights = [], []
+    for i in range(results.num_hydroelastic_contacts()):
+        info = results.hydroelastic_contact_info(i)
+        surface = info.contact_surface()
+        M, N = surface.id_M(), surface.id_N()
+        if M in body_geometries and N in walls:
+            f_body = info.F_Ac_W().translational()  # body A is geometry M's
+        elif N in body_geometries and M in walls:
+            f_body = -info.F_Ac_W().translational()
+        else:
+            continue
+        f += f_body
+        points.append(surface.centroid())
+        weights.append(np.linalg.norm(f_body))
+    for i in range(results.num_point_pair_contacts()):
+        info = results.point_pair_contact_info(i)
+        pair = info.point_pair()
+        if pair.id_A in walls and pair.id_B in body_geometries:
+            f_body = info.contact_force()  # on body B
+        elif pair.id_B in walls and pair.id_A in body_geometries:
+            f_body = -info.contact_force()
+        else:
+            continue
+        f += f_body
+        points.append(info.contact_point())
+        weights.append(np.linalg.norm(f_body))
+    if not points:
+        return f, None
+    w = np.asarray(weights)
+    w = w / w.sum() if w.sum() > 0 else np.full(len(points), 1.0 / len(points))
+    return f, (np.asarray(points) * w[:, None]).sum(axis=0)
+
+
 def heart_targets(heart) -> tuple[list[str], np.ndarray, np.ndarray, float]:
     """The atrium's ablation targets.
 
@@ -204,10 +256,8 @@ class MeshcatOverlays(LeafSystem):
         self._touched_port = self.DeclareVectorInputPort("touched", len(names)) if names else None
         self._magnet_port = (self.DeclareVectorInputPort("magnet_states", 6 * len(self._port_magnets))
                              if self._port_magnets else None)
-        tip_body = plant.get_body(BodyIndex(self._tip))
-        self._tip_geometries = set(plant.GetCollisionGeometriesForBody(tip_body))
-        self._wall_geometries = {g for g in plant.GetCollisionGeometriesForBody(plant.world_body())
-                                 if inspector.GetName(g).split("::")[-1] in WALL_GEOMETRY_NAMES}
+        self._tip_geometries = set(plant.GetCollisionGeometriesForBody(plant.get_body(BodyIndex(self._tip))))
+        self._wall_geometries = wall_geometries(plant, inspector)
         # Targets: the discs sit 0.1 mm off the wall so that the semi-transparent wall does not hide them.
         self._target_paths = [f"overlays/targets/{n}" for n in names]
         for path, p, n in zip(self._target_paths, p_WT, n_W if names else []):
@@ -257,40 +307,7 @@ class MeshcatOverlays(LeafSystem):
     def tip_contact_force(self, context) -> tuple[np.ndarray, np.ndarray | None]:
         """(f_W (3,) [N], p_WC (3,) [m] or None): the walls' contact force on the tip ball, and
         where it acts (the contact centroids, weighted by force; None without contact)."""
-        results = self._contact_port.Eval(context)
-        f = np.zeros(3)
-        points, weights = [], []
-        tip, walls = self._tip_geometries, self._wall_geometries
-        for i in range(results.num_hydroelastic_contacts()):
-            info = results.hydroelastic_contact_info(i)
-            surface = info.contact_surface()
-            M, N = surface.id_M(), surface.id_N()
-            if M in tip and N in walls:
-                f_tip = info.F_Ac_W().translational()  # body A is geometry M's
-            elif N in tip and M in walls:
-                f_tip = -info.F_Ac_W().translational()
-            else:
-                continue
-            f += f_tip
-            points.append(surface.centroid())
-            weights.append(np.linalg.norm(f_tip))
-        for i in range(results.num_point_pair_contacts()):
-            info = results.point_pair_contact_info(i)
-            pair = info.point_pair()
-            if pair.id_A in walls and pair.id_B in tip:
-                f_tip = info.contact_force()  # on body B
-            elif pair.id_B in walls and pair.id_A in tip:
-                f_tip = -info.contact_force()
-            else:
-                continue
-            f += f_tip
-            points.append(info.contact_point())
-            weights.append(np.linalg.norm(f_tip))
-        if not points:
-            return f, None
-        w = np.asarray(weights)
-        w = w / w.sum() if w.sum() > 0 else np.full(len(points), 1.0 / len(points))
-        return f, (np.asarray(points) * w[:, None]).sum(axis=0)
+        return wall_force_on(self._contact_port.Eval(context), self._tip_geometries, self._wall_geometries)
 
     # ------------------------------------------------------------------------------- drawing
     def _set_arrow(self, path: str, p_W: np.ndarray | None, v_W: np.ndarray, t: float) -> None:
