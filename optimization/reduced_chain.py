@@ -234,7 +234,7 @@ class ReducedChain:
                 return H
         w, dw_da, dw_db, in_plane, (ca, sa, cb, sb) = self.unit_vectors(q)
         p, _ = self._configuration(w)
-        K, L = self.n_vectors, self.n_links
+        K = self.n_vectors
         d2_aa = -cb * in_plane
         d2_ab = -sb * (-sa * self.r0 + ca * self.t1)
         d2_bb = -w

@@ -131,16 +131,17 @@ def tip_angle_deg(result: StaticsResult, field_direction) -> float:
 
 
 
-def _positive_definite(H: np.ndarray, floor: float = 1e-10):
-    """(H made positive definite, Cholesky-able; min eigenvalue of H or None if H was PD)."""
+def _positive_definite(H: np.ndarray, floor: float = 1e-10) -> np.ndarray:
+    """H itself when it is positive definite, else H with its eigenvalues replaced by
+    max(|lambda|, floor * max|lambda|) (negative curvature flipped, flat directions lifted)."""
     try:
         np.linalg.cholesky(H)
-        return H, None
+        return H
     except np.linalg.LinAlgError:
         pass
     w, V = np.linalg.eigh(H)
     delta = floor * max(1.0, float(np.abs(w).max()))
-    return (V * np.maximum(np.abs(w), delta)) @ V.T, float(w.min())
+    return (V * np.maximum(np.abs(w), delta)) @ V.T
 
 
 class ChainStatics:
@@ -346,20 +347,18 @@ class ChainStatics:
                 J = ev.tip_jacobian
                 Z = _null_space(J)
                 dq_n = -np.linalg.pinv(J) @ ev.tip_residual
-                Hz, _ = _positive_definite(Z.T @ H @ Z)
+                Hz = _positive_definite(Z.T @ H @ Z)
                 dq = dq_n - Z @ np.linalg.solve(Hz, Z.T @ (g + H @ dq_n))
                 Hm = Z @ Hz @ Z.T  # the model's curvature, for the predicted decrease below
                 lam, lam_tip = np.zeros(0), np.linalg.lstsq(J.T, g + H @ dq, rcond=None)[0]
-            else:
-                Hm, _ = _positive_definite(H)
-            if pinned and not len(near):
-                pass
             elif len(near) or pinned:
+                Hm = _positive_definite(H)
                 dq, lam, lam_tip = self._qp_step(Hm, g, ev.gaps[near], ev.jacobian[near],
                                                  ev.tip_residual, ev.tip_jacobian)
                 if dq is None:
                     return q, False, "QP step infeasible (rigidity or tip constraints)", iteration, {}, lam_tip
             else:
+                Hm = _positive_definite(H)
                 dq, lam = -np.linalg.solve(Hm, g), np.zeros(0)
             lam_near = dict(zip(near.tolist(), lam.tolist()))
             violation = infeasibility(ev)

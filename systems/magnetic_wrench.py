@@ -52,6 +52,32 @@ class PortDipoles:
         return dipole_field(r, self.m_W).sum(axis=1), dipole_field_gradient(r, self.m_W).sum(axis=1)
 
 
+def external_field_source(field_source, port_magnets, port_moments, port_radii, magnet_states, model: str):
+    """The external field: a fixed source plus the magnets on a ``magnet_states`` port.
+
+    Args:
+        field_source: the fixed FieldSource, or None.
+        port_magnets: the port magnets' CylinderMagnet / SphereMagnet, in port order.
+        port_moments, port_radii: (k,) their dipole moments [A m^2] and bounding radii [m].
+        magnet_states: (6 k,) centre p_WM and dipole direction per magnet, or None.
+        model: "dipole" (all port magnets at once, ``PortDipoles``) or "exact".
+
+    Returns:
+        A FieldSource, or None when there is no field.
+    """
+    sources = [] if field_source is None else [field_source]
+    if magnet_states is not None and len(port_magnets):
+        x = np.asarray(magnet_states).reshape(-1, 6)
+        if model == "dipole":
+            m_hat = x[:, 3:] / np.linalg.norm(x[:, 3:], axis=1, keepdims=True)
+            sources.append(PortDipoles(x[:, :3], port_moments[:, None] * m_hat, port_radii))
+        else:
+            sources += [MagnetSource.pointing(m, row[:3], row[3:], model) for m, row in zip(port_magnets, x)]
+    if not sources:
+        return None
+    return sources[0] if len(sources) == 1 else FieldSources(sources)
+
+
 class MagneticWrenchSystem(LeafSystem):
     """Applied spatial forces on the balls of a chain from the chain's own dipoles and outside.
 
@@ -137,18 +163,9 @@ class MagneticWrenchSystem(LeafSystem):
 
     def external_field(self, context) -> FieldSource | None:
         """The field source in effect for this context (the fixed one plus the port magnets)."""
-        sources = [] if self._field_source is None else [self._field_source]
-        if self._magnet_port is not None:
-            x = self._magnet_port.Eval(context).reshape(-1, 6)
-            if self._model == "dipole":
-                m_hat = x[:, 3:] / np.linalg.norm(x[:, 3:], axis=1, keepdims=True)
-                sources.append(PortDipoles(x[:, :3], self._port_moments[:, None] * m_hat, self._port_radii))
-            else:
-                for magnet, row in zip(self._port_magnets, x):
-                    sources.append(MagnetSource.pointing(magnet, row[:3], row[3:], self._model))
-        if not sources:
-            return None
-        return sources[0] if len(sources) == 1 else FieldSources(sources)
+        states = None if self._magnet_port is None else self._magnet_port.Eval(context)
+        return external_field_source(self._field_source, self._port_magnets, self._port_moments,
+                                     self._port_radii, states, self._model)
 
     def ball_states(self, context) -> tuple[np.ndarray, np.ndarray]:
         """Ball centres p_W (n, 3) [m] and dipole directions m_hat_W (n, 3) from the poses."""

@@ -32,9 +32,9 @@ from pydrake.multibody.plant import ContactResults
 from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import EventStatus, LeafSystem
 
-from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
+from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
-from ballchain.systems.magnetic_wrench import PortDipoles
+from ballchain.systems.magnetic_wrench import external_field_source
 
 TOUCH_TOLERANCE = 0.5e-3  # [m] the ball's surface this close to the wall counts as touching
 FIELD_ARROW_SCALE = 1.0  # [m/T]: 1 mm per mT
@@ -290,19 +290,10 @@ class MeshcatOverlays(LeafSystem):
     def tip_field(self, context) -> np.ndarray:
         """B_W (3,) [T]: the total external field at the tip ball's centre (no chain dipoles)."""
         p = self._body_poses_port.Eval(context)[self._tip].translation()
-        sources = [] if self._field_source is None else [self._field_source]
-        if self._magnet_port is not None:
-            # The same sources as MagneticWrenchSystem.external_field (the test compares them).
-            x = self._magnet_port.Eval(context).reshape(-1, 6)
-            if self._model == "dipole":
-                m_hat = x[:, 3:] / np.linalg.norm(x[:, 3:], axis=1, keepdims=True)
-                sources.append(PortDipoles(x[:, :3], self._port_moments[:, None] * m_hat, self._port_radii))
-            else:
-                sources += [MagnetSource.pointing(m, row[:3], row[3:], self._model)
-                            for m, row in zip(self._port_magnets, x)]
-        if not sources:
-            return np.zeros(3)
-        return FieldSources(sources).field_and_gradient(p[None])[0][0]
+        states = None if self._magnet_port is None else self._magnet_port.Eval(context)
+        source = external_field_source(self._field_source, self._port_magnets, self._port_moments,
+                                       self._port_radii, states, self._model)
+        return np.zeros(3) if source is None else source.field_and_gradient(p[None])[0][0]
 
     def tip_contact_force(self, context) -> tuple[np.ndarray, np.ndarray | None]:
         """(f_W (3,) [N], p_WC (3,) [m] or None): the walls' contact force on the tip ball, and

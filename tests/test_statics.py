@@ -5,7 +5,7 @@ import pytest
 from scipy.optimize import brentq
 
 from ballchain.drake_models.chain_energy import chain_energy
-from ballchain.drake_models.dipole import K_DIPOLE, chain_interactions
+from ballchain.drake_models.dipole import K_DIPOLE
 from ballchain.drake_models.field_sources import MagnetSource, UniformField
 from ballchain.drake_models.params import GRAVITY, BallChain, CylinderMagnet, Sleeve
 from ballchain.optimization.reduced_chain import ReducedChain

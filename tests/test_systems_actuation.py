@@ -6,9 +6,9 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.analysis import Simulator
 
 from ballchain.drake_models.dipole import K_DIPOLE, dipole_field
-from ballchain.drake_models.field_sources import MagnetSource, rotation_with_z_along
+from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.omniwheel import OmniWheelGeometry
-from ballchain.drake_models.params import BallChain, CylinderMagnet, SphereMagnet
+from ballchain.drake_models.params import BallChain, CylinderMagnet
 from ballchain.systems.actuation_station import (
     StationOptions,
     left_unit,
