@@ -1,9 +1,13 @@
-"""Model-based steering (beyond the paper): the magnet orientation and inserted length that hold
-the tip on each ablation target hardest, and the time of a plan that visits them in order.
+"""Model-based steering (beyond the paper): a plan that visits every ablation target of a task
+through contact equilibria pressing at least 10 gf, and its time.
 
-Task "left" is the paper's Task I (20 targets around the left veins), "right" Task II (18 around
-the right veins); one prototype magnet 10 cm beyond the right carina, as in the paper. Prints
-per-target forces beside the 10 gf an ablation needs, and the plan's time beside the operator's.
+At each target a MathematicalProgram (SNOPT) finds the smallest magnet turn from the previous
+orientation, and the inserted length, whose equilibrium presses the tip on the wall within the
+target's circle with at least ``--min-force`` gf, held by friction (``--friction``, by default
+the simulation's contact coefficient). Task "left" is the paper's Task I (20 targets around the
+left veins), "right" Task II (18 around the right veins); one prototype magnet 10 cm beyond the
+right carina, as in the paper. Prints per-target forces and turns, and the plan's time beside
+the operator's.
 """
 
 from __future__ import annotations
@@ -19,23 +23,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--targets", type=positive_int, default=None, help="only the first N targets")
     parser.add_argument("--balls", type=positive_int, nargs="+", default=[12, 16],
                         help="inserted chain lengths to try (balls beyond the sheath, ball 1 included)")
-    parser.add_argument("--grid", type=positive_int, default=4, help="azimuth samples of the orientation grid")
-    parser.add_argument("--refine", type=positive_int, default=15, help="Nelder-Mead evaluations")
+    parser.add_argument("--min-force", type=float, default=planner.MIN_FORCE_GF,
+                        help="force each equilibrium must press [gf]")
+    parser.add_argument("--friction", type=float, default=None,
+                        help="tip-wall friction coefficient (default: the simulation's contact model)")
+    parser.add_argument("--grid", type=positive_int, default=4,
+                        help="azimuth samples of the fallback search for the hardest-pressing orientation")
+    parser.add_argument("--refine", type=positive_int, default=15, help="Nelder-Mead evaluations of that search")
     add_json_flag(parser)
 
 
 def main(args: argparse.Namespace) -> int:
     if any(n < 2 for n in args.balls):
         raise ValueError(f"--balls must be >= 2 each, got {args.balls}")
+    extra = {} if args.friction is None else {"friction": args.friction}
     data = planner.run(task=args.task, targets=args.targets, balls=tuple(args.balls), grid=args.grid,
-                       refine=args.refine)
+                       refine=args.refine, min_force_gf=args.min_force, **extra)
     if args.json:
         print_json(data)
         return 0
     for r in data["rows"]:
-        force = "unreached" if not r["reached"] else f"{r['force_gf']:6.2f} gf with {r['n_balls']} balls"
+        force = (f"no plan: {r['reason']}" if not r["reached"] else
+                 f"{r['force_gf']:6.2f} gf with {r['n_balls']} balls, turn {r['turn_deg']:6.1f} deg, "
+                 f"friction needed {r['friction_needed']:.3f}, {r['offset_mm']:.2f} mm off centre")
         print(f"{r['target']:9s} {force}")
     s = data["summary"]
-    print(f"{s['reached']}/{s['targets']} reached, {s['with_at_least_10_gf']} with >= 10 gf; plan "
+    print(f"{s['reached']}/{s['targets']} planned, {s['with_at_least_10_gf']} with >= {data['min_force_gf']:g} gf; plan "
           f"{s['plan_time_s']:.1f} s (operator in the paper: {data['paper']['human_time_s']:.0f} s)")
     return 0

@@ -188,11 +188,20 @@ def forces_section(out: Path, quick: bool) -> tuple[Section, dict]:
         "vein's axis is found by optimisation (a grid of dipole directions, then Nelder-Mead). "
         "Configuration 1: the prototype magnet 16.51 cm to the patient's right of the septal "
         "puncture; 2: to the left; both: the two magnets together, both orientations optimised "
-        "(the paper adds the single-magnet forces). A chain of 16 balls, bare and in the sleeve."
+        "(the paper adds the single-magnet forces). A chain of 16 balls, bare and in the sleeve. "
+        "The simulation column is the same case in the MultibodyPlant (magnetic wrenches, ball "
+        "contacts, quasi-static damped dynamics from the statics shape) with the pin a 500 N/m "
+        "force sensor spring on the tip (`systems/force_sensor_pin.py`), read at steady state."
     )
-    section.table(["vein", "config", "sleeve", "paper [gf]", "model statics [gf]", "model: sum of singles [gf]"],
+    section.table(["vein", "config", "sleeve", "paper [gf]", "model statics [gf]", "model simulation [gf]",
+                   "statics vs simulation [%]", "model: sum of singles [gf]"],
                   [[r["vein"], r["config"], "yes" if r["sleeve"] else "no", r["paper_gf"], r["statics_gf"],
-                    r.get("superposition_gf")] for r in data["rows"]])
+                    r.get("dynamics_gf"), r.get("statics_dynamics_diff_pct"), r.get("superposition_gf")]
+                   for r in data["rows"]])
+    diffs = [abs(r["statics_dynamics_diff_pct"]) for r in data["rows"] if r.get("statics_dynamics_diff_pct") is not None]
+    if diffs:
+        section.text(f"Statics and simulation agree within {max(diffs):.2f} % on every row "
+                     f"({len(diffs)} of {len(data['rows'])} rows settled; the issue asks for 10 %).")
     section.text(
         "The model's forces are an order of magnitude below the measured ones. The dipole force "
         "on one ball from the prototype magnet 16.5 cm away is 0.3 gf on axis; 16 balls cannot "
@@ -208,32 +217,37 @@ def forces_section(out: Path, quick: bool) -> tuple[Section, dict]:
 def plan_section(out: Path, quick: bool) -> tuple[Section, dict]:
     from ballchain.experiments import planner
 
-    section = Section("Model-based steering: every ablation target by inverse statics (beyond the paper)")
+    n_targets = 2 if quick else 6
+    section = Section("Model-based steering: ablation targets by inverse statics (beyond the paper)")
     section.text(
-        "For each target the tip ball is held touching the wall there, and the teleoperation "
-        "magnet's orientation (one prototype unit 10 cm beyond the right carina) and the inserted "
-        "length (12 or 16 balls) that press it hardest are optimised. An ablation needs 10-20 gf. "
-        "The plan's time counts the magnet's turns at 0.5 rad/s and the feeder's moves at 20 mm/s "
-        "between consecutive equilibria."
+        "One prototype magnet 10 cm beyond the right carina (the paper's teleoperation set-up). "
+        "At each target in turn a MathematicalProgram (SNOPT over the magnet's dipole direction "
+        "and the touch point within the target's 5 mm circle; each evaluation a held-tip "
+        "equilibrium) finds the smallest magnet turn from the previous orientation whose "
+        "equilibrium presses the wall with at least 10 gf, with the wall's tangential push inside "
+        "the friction cone of the simulation's contact model (mu = 0.1). The plan's time counts "
+        "the magnet's turns at 0.5 rad/s and the feeder's moves at 20 mm/s. "
+        f"This report plans the first {n_targets} targets of each ring with 16 balls (a whole ring "
+        "with 12 and 16 balls takes several minutes: `ballchain plan --task left|right`)."
     )
     rows, data = [], {}
     for task in ("left", "right"):
-        result = planner.run(task=task, targets=3 if quick else None, balls=(12, 16), grid=3 if quick else 4,
+        result = planner.run(task=task, targets=n_targets, balls=(16,), grid=3 if quick else 4,
                              refine=5 if quick else 15)
         data[task] = result
-        s, p = result["summary"], result["paper"]
-        rows.append([task, f"{s['reached']}/{s['targets']}", s["with_at_least_10_gf"], s["force_gf_min"],
-                     s["force_gf_max"], s["plan_time_s"], p["human_time_s"], s["ring_path_mm"], p["path_mm"]])
+        s = result["summary"]
+        rows.append([task, f"{s['reached']}/{s['targets']}", s["force_gf_min"], s["force_gf_max"],
+                     s["plan_time_s"], s["compute_time_s"]])
         (out / f"plan_{task}.json").write_text(json.dumps(to_jsonable(result), indent=1))
-    section.table(["task", "reached", ">= 10 gf", "min force [gf]", "max force [gf]", "plan time [s]",
-                   "operator in the paper [s]", "ring path [mm]", "paper path [mm]"], rows)
-    left, right = data["left"]["summary"], data["right"]["summary"]
+    section.table(["ring (first targets)", "planned", "min force [gf]", "max force [gf]", "plan motion time [s]",
+                   "compute time [s]"], rows)
+    per_target = [[r["target"], "yes" if r["reached"] else "no", r["force_gf"], r["turn_deg"], r["friction_needed"],
+                   r["offset_mm"], r["reason"] or "-"] for task in ("left", "right") for r in data[task]["rows"]]
+    section.table(["target", "planned", "force [gf]", "magnet turn [deg]", "|F_t| / F_n", "off centre [mm]",
+                   "lengths without a plan"], per_target)
     section.text(
-        f"With the one magnet beside the right veins, {right['with_at_least_10_gf']} of "
-        f"{right['targets']} right-ring targets get at least 10 gf, but only "
-        f"{left['with_at_least_10_gf']} of {left['targets']} left-ring targets do: a second magnet "
-        "on the left, as the paper proposes, is what the left ring needs. "
-        "The plan's time is the hardware's motion time only (no perception or hesitation)."
+        "The plan's time is the hardware's motion time only (no perception or hesitation); the "
+        "paper's operator took 40 s for the 20 left targets and 26 s for the 18 right ones."
     )
     return section, data
 

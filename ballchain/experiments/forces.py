@@ -12,6 +12,10 @@ last. "both" places the two magnets together and optimises both orientations.
 
 The statics frame S is the canonical one: ball 1 (in the sheath's mouth) at the origin, the
 sheath axis along +x; everything in the heart frame H is mapped into it.
+
+Each optimum is then checked by simulation (``forces_dynamics``, ``run(dynamics=True)``): the
+chain in the same field as a damped MultibodyPlant, the tip held by a force-sensor pin (a stiff
+spring), run to steady state; the pin's reading along the axis is the row's ``dynamics_gf``.
 """
 
 from __future__ import annotations
@@ -25,7 +29,8 @@ from scipy.optimize import minimize
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import BallChain, CylinderMagnet, Sleeve, gram_force
-from ballchain.optimization.statics import ChainStatics, StaticsResult
+from ballchain.optimization.inverse_statics import pin_tip
+from ballchain.optimization.statics import ChainStatics
 
 PAPER_GF = {  # (vein, config, sleeve) -> grams-force, Table I
     ("LSPV", "1", False): 20.4, ("LSPV", "2", False): 91.8, ("LSPV", "both", False): 112.2,
@@ -66,24 +71,12 @@ def _direction(angles) -> np.ndarray:
     return np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
 
 
-def _sources(stand: Stand, configs, angles, magnet=CylinderMagnet()):
+def stand_field(stand: Stand, configs, angles, magnet=CylinderMagnet()) -> FieldSources:
+    """The stand's magnets ``configs`` ("1", "2") with dipoles at (azimuth, elevation) ``angles``."""
     return FieldSources([
         MagnetSource(magnet, stand.magnets[c], rotation_with_z_along(_direction(angles[2 * k: 2 * k + 2])))
         for k, c in enumerate(configs)
     ])
-
-
-def _pinned(solver: ChainStatics, external, target, start: StaticsResult | None, steps: int = 8):
-    """The tip moved from where it is onto ``target`` in steps (homotopy), each step warm-started."""
-    current = start if start is not None else solver.solve(external)
-    if not current.converged:
-        return None
-    origin = current.tip_position.copy()
-    for s in np.linspace(0.0, 1.0, steps + 1)[1:]:
-        current = solver.solve(external, current, tip_target=origin + s * (target - origin))
-        if not current.converged:
-            return None
-    return current
 
 
 def max_normal_force(chain: BallChain, stand: Stand, vein: str, configs=("1",), grid: int = 8,
@@ -116,9 +109,9 @@ def max_normal_force(chain: BallChain, stand: Stand, vein: str, configs=("1",), 
 
     def evaluate(angles, start):
         evaluations[0] += 1
-        external = _sources(stand, configs, angles)
+        external = stand_field(stand, configs, angles)
         if start is None:  # bring the tip onto the pin from the free equilibrium
-            result = _pinned(solver, external, target, None)
+            result = pin_tip(solver, external, target, None)
         else:  # already on the pin: only the magnets turned
             result = solver.solve(external, start, tip_target=target)
             if not result.converged:  # no held equilibrium near this one: skip the orientation
@@ -166,9 +159,48 @@ def max_normal_force(chain: BallChain, stand: Stand, vein: str, configs=("1",), 
     }
 
 
+def _lateral_gf(force_W: np.ndarray, axis: np.ndarray) -> float:
+    """The magnitude of a force across the (unit) axis [gf]."""
+    return gram_force(float(np.linalg.norm(force_W - (force_W @ axis) * axis)))
+
+
+def dynamics_columns(chain: BallChain, stand: Stand, vein: str, configs, best: dict | None, config=None) -> dict:
+    """The row's simulation columns: the steady reading of a force-sensor pin holding the tip of the
+    damped chain, for the statics optimum ``best`` (``forces_dynamics.simulate_pin_force``)."""
+    from ballchain.experiments.forces_dynamics import PinSimulationConfig, pin_force_from_statics
+
+    if best is None:
+        return {"dynamics_gf": None, "dynamics_lateral_gf": None, "statics_dynamics_diff_pct": None,
+                "dynamics_note": "no statics optimum to simulate"}
+    target, axis = stand.targets[vein]
+    sim = pin_force_from_statics(chain, stand_field(stand, configs, best["angles_rad"]), target, axis, best["result"],
+                                 config or PinSimulationConfig())
+    columns = {
+        "dynamics_gf": sim["force_gf"],
+        "dynamics_lateral_gf": sim["lateral_gf"],
+        "statics_dynamics_diff_pct": None,
+        "dynamics_note": sim["reason"],
+        "dynamics_sim_time_s": round(sim["sim_time_s"], 6),
+        "dynamics_wall_time_s": round(sim["wall_time_s"], 3),
+    }
+    if sim["force_gf"] is not None and best["force_gf"] != 0.0:
+        columns["statics_dynamics_diff_pct"] = 100.0 * (sim["force_gf"] - best["force_gf"]) / abs(best["force_gf"])
+        columns["dynamics_deflection_um"] = float(np.linalg.norm(sim["deflection_m"]) * 1e6)
+    if sim["statics_loaded_N"] is not None:  # the statics with the tip where the loaded pin holds it
+        columns["statics_at_deflection_gf"] = gram_force(sim["statics_loaded_N"])
+    return columns
+
+
 def run(*, veins=("LSPV", "LIPV", "RSPV", "RIPV"), sleeves=(False, True), n_balls=(16,), grid: int = 8,
-        refine_evaluations: int = 60, progress: bool = True) -> dict:
-    """Table I from statics: every vein x configuration x sleeve, with the paper's number beside it."""
+        refine_evaluations: int = 60, progress: bool = True, dynamics: bool = True) -> dict:
+    """Table I: every vein x configuration x sleeve, with the paper's number beside it.
+
+    ``statics_gf`` is the statics optimum; with ``dynamics`` each optimum is also simulated
+    (``forces_dynamics``): the chain in the same field, its tip held by a force-sensor pin,
+    run to steady state; ``dynamics_gf`` is the pin's reading along the vein's axis,
+    ``dynamics_lateral_gf`` its size across it, ``statics_dynamics_diff_pct`` the simulation
+    against the statics, and ``dynamics_note`` says why a row has no simulated force.
+    """
     from tqdm import tqdm
 
     stand = build_stand()
@@ -187,13 +219,23 @@ def run(*, veins=("LSPV", "LIPV", "RSPV", "RIPV"), sleeves=(False, True), n_ball
                 if out.get("force_N") is not None and (best is None or out["force_N"] > best["force_N"]):
                     best = dict(out, n_balls=n)
             per_config[label] = best
-            rows.append({
+            row = {
                 "vein": vein, "config": label, "sleeve": sleeve,
                 "statics_gf": None if best is None else best["force_gf"],
+                "statics_lateral_gf": None if best is None else _lateral_gf(-best["result"].tip_reaction,
+                                                                             stand.targets[vein][1]),
                 "n_balls": None if best is None else best["n_balls"],
                 "magnet_dipoles": None if best is None else [list(map(float, d)) for d in best["dipoles"]],
                 "paper_gf": PAPER_GF[(vein, label, sleeve)],
-            })
+            }
+            if dynamics:
+                chain = None if best is None else BallChain(n_balls=best["n_balls"],
+                                                            sleeve=Sleeve() if sleeve else None)
+                row.update(dynamics_columns(chain, stand, vein, configs, best))
+            else:
+                row.update(dynamics_gf=None, dynamics_lateral_gf=None, statics_dynamics_diff_pct=None,
+                           dynamics_note="not simulated")
+            rows.append(row)
         singles = [per_config[c]["force_gf"] for c in ("1", "2") if per_config[c] is not None]
         rows[-1]["superposition_gf"] = sum(singles) if len(singles) == 2 else None
     return {"rows": rows, "paper": {f"{k[0]} {k[1]} {'sleeve' if k[2] else 'bare'}": v for k, v in PAPER_GF.items()},

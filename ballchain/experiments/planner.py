@@ -2,25 +2,31 @@
 
 For each target of a ring (Task I: the 20 around the left veins; Task II: the 18 around the
 right veins) the tip ball is held touching the wall at the target (its centre a ball radius off
-the wall along the wall's normal) and the magnet orientation and inserted length that press it
-hardest are found by optimisation over equilibria (the same machinery as the Table I forces,
-``experiments.forces``). The plan visits the targets in order; its time is what the hardware
-needs between consecutive equilibria: the magnet's turn at the teleoperation speed and the
-feeder's insertion change at its speed. The magnet is the paper's teleoperation set-up: one
+the wall along the wall's normal). The plan visits the targets in order; at each, a
+MathematicalProgram (``optimization.inverse_statics.min_turn_orientation``, SNOPT) finds the
+smallest magnet turn from the previous orientation whose held equilibrium presses the wall with
+at least 10 gf, for each inserted length; the length that costs least time is taken. The plan's
+time is what the hardware needs between consecutive equilibria: the magnet's turn at the
+teleoperation speed and the feeder's insertion change at its speed. The magnet is the paper's teleoperation set-up: one
 prototype unit 10 cm beyond the right carina, on the line from the atrium's centre.
 """
 
 from __future__ import annotations
 
-import math
+import time
+from typing import Callable
 
 import numpy as np
 from tqdm import tqdm
 
-from ballchain.drake_models.field_sources import rotation_with_z_along
+from ballchain.drake_models.dipole_inversion import moment_from_field
+from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
-from ballchain.drake_models.params import BallChain
+from ballchain.drake_models.params import BallChain, CylinderMagnet, gram_force, newtons_from_gram_force
 from ballchain.experiments.forces import Stand, max_normal_force
+from ballchain.optimization.inverse_statics import HeldTip, min_turn_orientation, pin_tip
+from ballchain.optimization.statics import ChainStatics, StaticsResult
+from ballchain.systems.chain_plant import ContactConfig
 
 TASKS = {"left": "left", "right": "right"}
 PAPER = {"left": {"targets": 20, "path_mm": 115.0, "human_time_s": 40.0},
@@ -45,48 +51,139 @@ def teleop_stand(atrium: LeftAtrium, task: str, ball_diameter: float, carina_dis
     return Stand(targets, {"1": to_S(p_HM)}, R_HS, atrium.p_HE)
 
 
+def neutral_dipole(stand: Stand) -> np.ndarray:
+    """The magnet's neutral direction: its field at the sheath exit (the origin) along the sheath."""
+    p_M = stand.magnets["1"]
+    m = moment_from_field(np.array([1.0, 0.0, 0.0]), -p_M)
+    return m / np.linalg.norm(m)
+
+
+def _field_for(stand: Stand) -> Callable[[np.ndarray], FieldSources]:
+    magnet, p_M = CylinderMagnet(), stand.magnets["1"]
+    return lambda m: FieldSources([MagnetSource(magnet, p_M, rotation_with_z_along(m.reshape(-1, 3)[0]))])
+
+
+def plan_target(chain: BallChain, stand: Stand, name: str, m_previous: np.ndarray,
+                previous: StaticsResult | None, min_force_N: float, target_radius: float, friction: float,
+                grid: int, refine: int) -> dict:
+    """The smallest magnet turn from ``m_previous`` that presses target ``name`` with at least
+    ``min_force_N`` in a contact equilibrium (``inverse_statics.min_turn_orientation``).
+
+    The program starts from the magnet where it is, with the tip slid onto the target from the
+    previous held equilibrium (``previous``, same chain) or from the free chain; when that
+    start has no held equilibrium or the program finds no feasible answer, it restarts from the
+    orientation that presses hardest with the tip held on the centre (grid + Nelder-Mead,
+    ``forces.max_normal_force``).
+    """
+    centre, axis = stand.targets[name]
+    solver = ChainStatics(chain, max_iterations=25)
+    field_for = _field_for(stand)
+    m_previous = np.asarray(m_previous, float).reshape(1, 3)
+    attempts = []
+    home = pin_tip(solver, field_for(m_previous), centre, previous)
+    if home is not None:
+        attempts.append((m_previous, home, "from the current orientation"))
+    plan, max_force, how = None, None, ""
+    for k in range(2):
+        for m_start, home_k, how in attempts:  # noqa: B007 (how is returned)
+            held = HeldTip(solver, field_for, centre, axis, home_k)
+            plan = min_turn_orientation(held, m_start, m_previous, min_force_N, target_radius, friction)
+            if plan.feasible:
+                break
+        if (plan is not None and plan.feasible) or k == 1:
+            break
+        best = max_normal_force(chain, stand, name, ("1",), grid, refine)
+        if best.get("force_N") is None:
+            return {"reached": False, "feasible": False, "reason": best.get("reason", "no held equilibrium")}
+        max_force = best["force_N"]
+        if max_force < min_force_N:
+            return {"reached": True, "feasible": False, "max_force_N": max_force,
+                    "reason": f"at most {gram_force(max_force):.2f} gf even with the tip held on the centre"}
+        attempts = [(np.asarray(best["dipoles"]).reshape(1, 3), best["result"],
+                     "from the hardest-pressing orientation")]
+    return {"reached": plan.result is not None, "feasible": plan.feasible, "plan": plan, "how": how,
+            "max_force_N": max_force, "reason": "" if plan.feasible else f"no feasible answer ({plan.solver_status})"}
+
+
 def run(*, task: str = "left", targets: int | None = None, balls=(16,), grid: int = 4, refine: int = 15,
-        omega_max: float = 0.5, feeder_speed: float = 0.02, progress: bool = True) -> dict:
-    """Inverse statics for every target of a task, then the visiting plan and its time.
+        min_force_gf: float = MIN_FORCE_GF, friction: float = ContactConfig().friction, omega_max: float = 0.5,
+        feeder_speed: float = 0.02, progress: bool = True) -> dict:
+    """A plan that visits every target of a task through held equilibria pressing >= min_force_gf.
+
+    For each target in order and each inserted length, the smallest magnet turn from the
+    previous orientation that holds the tip on the target with at least ``min_force_gf``
+    (``plan_target``); the length whose turn and feeder move take least time is taken. The
+    plan's time is the hardware's motion time between consecutive equilibria: the magnet's turn
+    at ``omega_max`` and the feeder's length change at ``feeder_speed``.
 
     Args:
         task: "left" (Task I) or "right" (Task II).
         targets: only the first ``targets`` targets (None: all).
         balls: inserted chain lengths to try for each target.
-        grid, refine: orientation search effort (see ``forces.max_normal_force``).
+        grid, refine: effort of the fallback search for the hardest-pressing orientation
+            (see ``forces.max_normal_force``).
+        min_force_gf: the force each equilibrium must press [gf] (10: an ablation).
+        friction: the tip's Coulomb friction coefficient on the wall, by default the one the
+            simulation's contact model uses (``chain_plant.ContactConfig``), so that the plan's
+            equilibria are contact equilibria of the simulated station (0: frictionless).
         omega_max: magnet angular speed [rad/s] (the teleoperation mapper's full stick).
         feeder_speed: insertion speed [m/s].
     """
     if task not in TASKS:
         raise ValueError(f"task must be 'left' or 'right', got {task!r}")
+    if targets is not None and targets < 1:
+        raise ValueError(f"targets must be >= 1, got {targets}")
+    if not min_force_gf > 0:
+        raise ValueError(f"min_force_gf must be > 0, got {min_force_gf}")
+    if not balls or any(n < 2 for n in balls):
+        raise ValueError(f"balls must be chain lengths >= 2, got {balls}")
     atrium = LeftAtrium()
     d = BallChain().ball_diameter
     stand = teleop_stand(atrium, task, d)
     names = list(stand.targets)[: targets or None]
-    rows = []
+    min_force_N = newtons_from_gram_force(min_force_gf)
+    target_radius = 0.5 * atrium.params.target_diameter
+    if friction < 0:
+        raise ValueError(f"friction must be >= 0, got {friction}")
+    m_now, n_now = neutral_dipole(stand), None
+    held = {n: None for n in balls}  # the last held equilibrium of each length
+    rows, turn_time, feed_time = [], 0.0, 0.0
+    t0 = time.perf_counter()
     for name in tqdm(names, desc=f"plan {task}", unit="target", disable=not progress):
-        best = None
+        options, reasons = [], []
         for n in balls:
-            out = max_normal_force(BallChain(n_balls=n), stand, name, ("1",), grid, refine)
-            if out.get("force_N") is not None and (best is None or out["force_N"] > best["force_N"]):
-                best = dict(out, n_balls=n)
-        rows.append({"target": name, "reached": best is not None,
-                     "force_gf": None if best is None else best["force_gf"],
-                     "n_balls": None if best is None else best["n_balls"],
-                     "dipole": None if best is None else best["dipoles"][0]})
+            out = plan_target(BallChain(n_balls=n), stand, name, m_now, held[n], min_force_N, target_radius,
+                              friction, grid, refine)
+            if out.get("feasible"):
+                plan = out["plan"]
+                cost = float(plan.turn_rad[0]) / omega_max + (abs(n - n_now) * d / feeder_speed if n_now else 0.0)
+                options.append((cost, n, plan, out["how"]))
+            else:
+                reasons.append(f"{n} balls: {out.get('reason', '')}")
+        row = {"target": name, "reached": bool(options), "force_gf": None, "n_balls": None, "dipole": None,
+               "turn_deg": None, "friction_needed": None, "offset_mm": None, "how": None,
+               "reason": "; ".join(reasons)}
+        if options:
+            cost, n, plan, how = min(options, key=lambda o: o[0])
+            turn_time += float(plan.turn_rad[0]) / omega_max
+            feed_time += abs(n - n_now) * d / feeder_speed if n_now else 0.0
+            for _, n_k, plan_k, _ in options:
+                held[n_k] = plan_k.result
+            m_now, n_now = plan.dipoles[0], n
+            row.update(friction_needed=plan.friction_needed, offset_mm=float(1e3 * np.linalg.norm(plan.offset)))
+            row.update(force_gf=gram_force(plan.force_N), n_balls=n, dipole=plan.dipoles[0].tolist(),
+                       turn_deg=float(np.degrees(plan.turn_rad[0])), how=how)
+        rows.append(row)
     reached = [r for r in rows if r["reached"]]
-    turn, feed = 0.0, 0.0
-    for a, b in zip(reached, reached[1:]):
-        angle = math.acos(float(np.clip(np.dot(a["dipole"], b["dipole"]), -1.0, 1.0)))
-        turn += angle / omega_max
-        feed += abs(a["n_balls"] - b["n_balls"]) * d / feeder_speed
     forces_gf = [r["force_gf"] for r in reached]
     summary = {
         "targets": len(rows), "reached": len(reached),
-        "with_at_least_10_gf": sum(f >= MIN_FORCE_GF for f in forces_gf),
+        "with_at_least_10_gf": sum(f >= min_force_gf * (1 - 1e-4) for f in forces_gf),
         "force_gf_min": min(forces_gf) if forces_gf else None,
         "force_gf_max": max(forces_gf) if forces_gf else None,
-        "plan_time_s": turn + feed, "magnet_turn_time_s": turn, "insertion_time_s": feed,
+        "plan_time_s": turn_time + feed_time, "magnet_turn_time_s": turn_time, "insertion_time_s": feed_time,
         "ring_path_mm": 1e3 * atrium.rings[task].curve_length,
+        "compute_time_s": time.perf_counter() - t0,
     }
-    return {"task": task, "rows": rows, "summary": summary, "paper": PAPER[task]}
+    return {"task": task, "rows": rows, "summary": summary, "paper": PAPER[task], "min_force_gf": min_force_gf,
+            "friction": friction, "target_radius_mm": 1e3 * target_radius}

@@ -1,0 +1,329 @@
+"""Table I from the simulation: the steady contact force of the damped chain on a force-sensor pin.
+
+The statics (``experiments.forces``) finds, for each vein and configuration, the magnet
+orientations that maximise the force the tip presses along the vein's axis, with the tip ball's
+centre held on the pin point by a bilateral constraint. Here the same chain in the same field is
+simulated as a Drake MultibodyPlant in the statics frame S (ball 1 on its feeder slide at the
+origin, sheath axis +x, no heart, no sheath cage, no gravity, frictionless ball contacts), the
+magnetic wrenches from ``MagneticWrenchSystem`` (the same energy, the same field source), the
+free balls' floating joints damped (the chain plant's quasi-static mode, damping implicit in the
+discrete solver): the steady state of this damped motion is an equilibrium of the same energy.
+The pin is a force sensor (``systems.force_sensor_pin.ForceSensorPin``): a stiff linear spring
+from the pin point to the tip ball's centre, whose reading is the force the chain presses on it.
+
+Design (``PinSimulationConfig``):
+
+* Step h = 1 ms and translational damping c = 1 N s/m on each free ball: the chain plant's
+  quasi-static mode (its damping is implicit in the discrete solver, the magnetic forces and the
+  pin's spring explicit).
+* The spring: on a ball of mass m = 0.126 g an explicit stiffness K is stable for
+  K < 2 (2 m + c h) / h^2 = 2.5e3 N/m (``force_sensor_pin.stability_bound``), and K is the pin's
+  k plus the magnetic stiffness the tip already has, of the order of 1.6e3 N/m (the largest
+  eigenvalue of the statics energy's Hessian at the optima over d^2). Measured on the Table I optima: k =
+  1.2e3 N/m makes the sleeved LSPV/1 chain chatter, 1.5e3 N/m blows the sleeved RSPV/2 chain
+  apart within 10 ms. k = 500 N/m (a factor 2.4 below the first failure) settles the tip on
+  the spring in a few steps (the iteration's eigenvalues have modulus 0.33) and gives the
+  sensor a deflection of 2 mm per N: 20 um per gram-force, up to 0.31 mm in Table I (whose
+  largest readings, across the axis included, are 16 gf). The force hardly depends on it: the
+  statics with the tip held at the deflection differs from the rigid pin's by -0.3 to +0.3 %
+  (``statics_loaded_N``, the rows' ``statics_at_deflection_gf``).
+* Angular damping 1e-4 N m s (the quasi-static default is 1e-5): with 1e-5 the magnetic
+  torques (explicit, up to 8e-3 N m/rad) and the pin couple into a step-to-step chatter of the
+  sleeved chains at k = 1e3 N/m. Damping does not move an equilibrium.
+* Ball contacts frictionless (the statics is), the chain plant's point-contact stiffness:
+  neighbours settle at about 5 um of overlap, which shortens the chain by 70 um and moves the
+  steady force by a few tenths of a percent (RSPV/1: +0.3 % after 6 s; with ten times stiffer
+  contacts that simulation ends on the statics to 0.005 %).
+* The start: the statics equilibrium with the tip where the loaded pin holds it
+  (``pin_force_from_statics``), the links shortened by 4 um (about their equilibrium overlap,
+  so that every touching pair is a contact from the first step). Starting out of balance is
+  fine up to about 0.1 N (tested: the tip 0.2 mm off, k = 500 N/m); much more moves a ball a
+  tenth of a millimetre in a step, over its neighbour and out of contact, and the explicit
+  2 N attraction then pulls it through.
+* Steady state: the reading moved by less than ``rel_tol`` (0.1 %) of its size over the last
+  ``window`` (0.1 s), no ball faster than 1 mm/s or 0.1 rad/s (a chattering chain can hold a
+  steady mean reading), at least ``min_time`` (0.2 s) in; after ``max_time`` (3 s) without it
+  the row reports no force and why. The chain's slowest mode relaxes in about a second, so the
+  test stops with up to about 0.5 % of slow creep left (measured from starts on both sides).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource
+
+from ballchain.drake_models.field_sources import rotation_with_z_along
+from ballchain.drake_models.params import BallChain, gram_force
+from ballchain.optimization.statics import ChainStatics, StaticsResult, straight_chain
+from ballchain.systems.chain_plant import ChainPlant, ChainPlantConfig, ContactConfig, add_chain_plant
+from ballchain.systems.force_sensor_pin import ForceSensorPin, stability_bound
+from ballchain.systems.magnetic_wrench import MagneticWrenchSystem
+
+
+@dataclass
+class PinSimulationConfig:
+    """How the pinned chain is simulated and when it is steady.
+
+    Attributes:
+        time_step: the plant's discrete step [s] (the chain plant's quasi-static default).
+        translational_damping: on each free ball's floating joint [N s/m] (quasi-static default).
+        angular_damping: on each free ball's floating joint [N m s] (10 times the quasi-static
+            default, against the chatter of the magnetic torques and the pin; see above).
+        stiffness: the sensor pin's spring [N/m]; with the tip's magnetic stiffness it must stay
+            below ``stability_bound`` (see above).
+        feeder_gains: (kp [N/m], kd [N s/m]) of ball 1's slide, held at the origin; stiff, since
+            the statics clamps ball 1 (the PD is implicit in the discrete solver).
+        contact_stiffness: point-contact stiffness of a ball [N/m] (the chain plant's default;
+            two balls in series: about 5 um of overlap under the 2 N of a touching pair).
+        overlap: initial overlap of neighbouring balls [m] (about their equilibrium overlap).
+        check_period: how often the reading is sampled [s].
+        window: the steady-state window [s].
+        rel_tol: steady when the reading moved by less than this fraction of its size over the
+            window.
+        abs_tol: ... or by less than this [N] (a reading near zero).
+        max_speed, max_angular_speed: and no ball moves faster than these [m/s], [rad/s] (a chain
+            chattering step to step about a fixed shape can hold a steady mean reading).
+        min_time: earliest steady state [s].
+        max_time: give up after [s].
+        max_deflection: the tip may leave the pin by at most this [m] (else it slipped off).
+        max_gap: neighbouring balls may be at most this far from touching (gap or overlap) [m]
+            (else the chain broke apart or a ball passed through its neighbour).
+    """
+
+    time_step: float = 1e-3
+    translational_damping: float = 1.0
+    angular_damping: float = 1e-4
+    stiffness: float = 500.0
+    feeder_gains: tuple = (1e6, 1e3)
+    contact_stiffness: float = 1e6
+    overlap: float = 4e-6
+    check_period: float = 0.01
+    window: float = 0.1
+    rel_tol: float = 1e-3
+    abs_tol: float = 1e-6
+    max_speed: float = 1e-3
+    max_angular_speed: float = 0.1
+    min_time: float = 0.2
+    max_time: float = 3.0
+    max_deflection: float = 2e-3
+    max_gap: float = 0.1e-3
+
+
+@dataclass
+class PinDiagram:
+    diagram: object
+    chain_plant: ChainPlant
+    wrench: MagneticWrenchSystem
+    pin: ForceSensorPin
+
+
+def build_pin_diagram(chain: BallChain, external, pin_point,
+                      config: PinSimulationConfig = PinSimulationConfig()) -> PinDiagram:
+    """The chain in free space in the statics frame, in ``external``, its tip held by a sensor pin.
+
+    Args:
+        chain: the chain (ball 1 at the origin on its slide, the sheath axis +x).
+        external: the external FieldSource (or None).
+        pin_point: (3,) the pin point in S [m].
+        config: the simulation's parameters.
+    """
+    bound = stability_bound(config.time_step, config.translational_damping, chain.ball_mass)
+    if config.stiffness >= bound:
+        raise ValueError(f"pin stiffness {config.stiffness:g} N/m is above the explicit spring's stability "
+                         f"bound {bound:g} N/m at a {config.time_step:g} s step: lower it or the step")
+    d = chain.ball_diameter
+    plant_config = ChainPlantConfig(
+        chain=chain,
+        time_step=config.time_step,
+        translational_damping=config.translational_damping,
+        angular_damping=config.angular_damping,
+        gravity=False,
+        heart=None,
+        sheath=None,
+        p_WE=((chain.n_balls - 0.5) * d, 0.0, 0.0),  # ball 1 at the origin at s = 0: world = S
+        sheath_axis_W=(1.0, 0.0, 0.0),
+        initial_inserted_length=0.0,
+        contact=ContactConfig(ball_point_stiffness=config.contact_stiffness, friction=0.0),  # frictionless statics
+        feeder_gains=tuple(config.feeder_gains),
+    )
+    builder = DiagramBuilder()
+    cp = add_chain_plant(builder, plant_config)
+    plant = cp.plant
+    wrench = builder.AddSystem(MagneticWrenchSystem(chain, cp.ball_body_indices, field_source=external,
+                                                    base_direction_W=cp.sheath_axis_W))
+    wrench.set_name("magnetic_wrench")
+    builder.Connect(plant.get_body_poses_output_port(), wrench.get_body_poses_input_port())
+    builder.Connect(wrench.get_spatial_forces_output_port(), plant.get_applied_spatial_force_input_port())
+    pin = builder.AddSystem(ForceSensorPin(plant, cp.ball_bodies[-1], pin_point, config.stiffness))
+    pin.set_name("force_sensor_pin")
+    builder.Connect(plant.get_body_poses_output_port(), pin.get_body_poses_input_port())
+    builder.Connect(pin.get_generalized_force_output_port(), plant.get_applied_generalized_force_input_port())
+    hold = builder.AddSystem(ConstantVectorSource(np.zeros(2)))  # ball 1 held at s = 0
+    hold.set_name("feeder_hold")
+    builder.Connect(hold.get_output_port(), plant.get_desired_state_input_port(cp.feeder_instance))
+    builder.ExportOutput(pin.get_reading_output_port(), "pin_reading")
+    diagram = builder.Build()
+    diagram.set_name("chain_on_force_sensor_pin")
+    return PinDiagram(diagram, cp, wrench, pin)
+
+
+def set_chain_state(pd: PinDiagram, plant_context, positions: np.ndarray, dipoles: np.ndarray, overlap: float) -> None:
+    """Ball poses from a statics configuration (ball 1 stays on its slide at the origin).
+
+    The links keep their directions and are shortened by ``overlap``; each ball's body x (its
+    dipole) along the configuration's dipole. Velocities zero.
+    """
+    cp = pd.chain_plant
+    plant = cp.plant
+    positions = np.asarray(positions, float)
+    dipoles = np.asarray(dipoles, float)
+    if not np.allclose(positions[0], 0.0, atol=1e-12) or not np.allclose(dipoles[0], [1.0, 0.0, 0.0], atol=1e-9):
+        raise ValueError("the statics configuration must have ball 1 at the origin with its dipole along +x")
+    links = np.diff(positions, axis=0)
+    d = cp.config.chain.ball_diameter
+    p = np.vstack([np.zeros(3), np.cumsum(links * (1.0 - overlap / d), axis=0)])
+    cp.feeder_joint.set_translation(plant_context, 0.0)
+    for i in range(1, cp.n_balls):
+        m = dipoles[i] / np.linalg.norm(dipoles[i])
+        R = RotationMatrix(rotation_with_z_along(m)[:, [2, 0, 1]])  # body x along the dipole
+        plant.GetJointByName(f"ball_{i + 1}_floating").SetPose(plant_context, RigidTransform(R, p[i]))
+    plant.SetVelocities(plant_context, np.zeros(plant.num_velocities()))
+
+
+def simulate_pin_force(chain: BallChain, external, pin_point, axis, start=None,
+                       config: PinSimulationConfig = PinSimulationConfig()) -> dict:
+    """The steady reading of the sensor pin holding the tip of the damped chain.
+
+    Args:
+        chain: the chain.
+        external: the external FieldSource.
+        pin_point: (3,) the pin point in S [m].
+        axis: (3,) the vein's axis (the pin pressed into the vein reads positive along it).
+        start: where to start: a StaticsResult (the statics equilibrium), a (positions (n, 3),
+            dipoles (n, 3)) pair of any chain configuration with touching neighbours and ball 1
+            at the origin along +x, or None (the straight chain).
+        config: the simulation's parameters.
+
+    Returns:
+        {"force_N", "force_gf" (the reading along the axis), "lateral_N", "lateral_gf" (its
+        magnitude across the axis), "reading_N" (3,), "deflection_m" (3,), "positions" (n, 3)
+        [m], "settled", "sim_time_s", "wall_time_s", "steps", "drift_rel" (the reading's change
+        over the last window over its size), "max_speed" (the fastest ball's speed [m/s] and
+        angular speed [rad/s] at the last test), "reason" ("steady state" or why not)}; force_N
+        None (with the reason) when the run failed or did not settle.
+    """
+    t0 = time.perf_counter()
+    pin_point = np.asarray(pin_point, float).reshape(3)
+    axis = np.asarray(axis, float).reshape(3)
+    axis = axis / np.linalg.norm(axis)
+    pd = build_pin_diagram(chain, external, pin_point, config)
+    simulator = Simulator(pd.diagram)
+    root = simulator.get_mutable_context()
+    plant = pd.chain_plant.plant
+    plant_context = plant.GetMyContextFromRoot(root)
+    if start is None:
+        positions, dipoles = straight_chain(chain)
+    elif isinstance(start, StaticsResult):
+        positions, dipoles = start.positions, start.dipoles
+    else:
+        positions, dipoles = start
+    set_chain_state(pd, plant_context, positions, dipoles, config.overlap)
+    reading_port = pd.diagram.GetOutputPort("pin_reading")
+    pin_context = pd.pin.GetMyContextFromRoot(root)
+
+    readings = []
+    out = {"force_N": None, "force_gf": None, "lateral_N": None, "lateral_gf": None, "reading_N": None,
+           "deflection_m": None, "positions": None, "settled": False, "drift_rel": None, "max_speed": None,
+           "stiffness_N_per_m": config.stiffness, "time_step_s": config.time_step}
+    n_window = int(round(config.window / config.check_period))
+    reason = None
+    simulator.Initialize()
+    t = 0.0
+    while True:
+        reading = reading_port.Eval(root).copy()
+        deflection = pd.pin.deflection(pin_context)
+        if not np.all(np.isfinite(reading)):
+            reason = f"NaN in the state at t = {t:.3f} s"
+            break
+        p = pd.chain_plant.ball_positions(plant_context)
+        gaps = np.linalg.norm(np.diff(p, axis=0), axis=1) - chain.ball_diameter
+        if np.abs(gaps).max() > config.max_gap:
+            i = int(np.argmax(np.abs(gaps)))
+            reason = (f"the chain broke apart at t = {t:.3f} s: balls {i + 1} and {i + 2} are "
+                      f"{gaps[i] * 1e3:+.3f} mm from touching")
+            break
+        if np.linalg.norm(deflection) > config.max_deflection:
+            reason = (f"the tip left the pin: {np.linalg.norm(deflection) * 1e3:.2f} mm from it at t = {t:.3f} s "
+                      f"(> {config.max_deflection * 1e3:.1f} mm)")
+            break
+        readings.append(reading)
+        if len(readings) > n_window and t >= config.min_time - 1e-12:
+            recent = np.array(readings[-n_window - 1:])
+            drift = float(np.linalg.norm(recent - reading, axis=1).max())
+            size = float(np.linalg.norm(reading))
+            out["drift_rel"] = drift / size if size > 0 else None
+            v = plant.GetVelocities(plant_context)[1:].reshape(-1, 6)  # [w, v] of balls 2..n
+            out["max_speed"] = (float(np.linalg.norm(v[:, 3:], axis=1).max()),
+                                float(np.linalg.norm(v[:, :3], axis=1).max()))
+            at_rest = out["max_speed"][0] < config.max_speed and out["max_speed"][1] < config.max_angular_speed
+            if drift < max(config.rel_tol * size, config.abs_tol) and at_rest:
+                out["settled"] = True
+                break
+        if t >= config.max_time - 1e-12:
+            if out["drift_rel"] is None:
+                why = "too short for the steady-state test"
+            else:
+                why = (f"the reading still moved by {100 * out['drift_rel']:.2g} % over the last {config.window:g} s, "
+                       f"the balls at up to {out['max_speed'][0] * 1e3:.2g} mm/s and {out['max_speed'][1]:.2g} rad/s")
+            reason = f"did not settle in {config.max_time:g} s: {why}"
+            break
+        t = round(t + config.check_period, 12)
+        try:
+            simulator.AdvanceTo(t)
+        except RuntimeError as err:
+            reason = f"the simulation failed at t = {root.get_time():.3f} s: {err}"
+            break
+    out.update(sim_time_s=root.get_time(), wall_time_s=time.perf_counter() - t0,
+               steps=int(round(root.get_time() / config.time_step)), reason=reason)
+    if not out["settled"]:
+        return out
+    reading = readings[-1]
+    along = float(reading @ axis)
+    lateral = float(np.linalg.norm(reading - along * axis))
+    out.update(force_N=along, force_gf=gram_force(along), lateral_N=lateral, lateral_gf=gram_force(lateral),
+               reading_N=reading, deflection_m=pd.pin.deflection(pin_context),
+               positions=pd.chain_plant.ball_positions(plant_context), reason="steady state")
+    return out
+
+
+def pin_force_from_statics(chain: BallChain, external, pin_point, axis, result: StaticsResult,
+                           config: PinSimulationConfig = PinSimulationConfig()) -> dict:
+    """Simulate a statics optimum on the sensor pin, starting from the equilibrium with the pin loaded.
+
+    The start is the statics equilibrium with the tip held where the loaded spring puts it,
+    ``pin_point - result.tip_reaction / k`` (one warm-started solve), so that the spring starts
+    balanced against the chain: an unbalanced start moves the tip a tenth of a millimetre per
+    step, and a ball sliding that far over its neighbour in one step leaves the contact (the
+    ball contacts hold about 5 um of overlap) and is pulled through it by the explicit magnetic
+    attraction at the next. Falls back on ``result`` itself if that solve fails.
+
+    Returns:
+        ``simulate_pin_force``'s dict plus "statics_loaded_N" (the statics force along the axis
+        with the tip at the loaded pin's deflection, None if that solve failed): its difference
+        from the rigid pin's is the sensor's compliance effect.
+    """
+    t0 = time.perf_counter()
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    loaded_target = np.asarray(pin_point, float) - result.tip_reaction / config.stiffness
+    loaded = ChainStatics(chain, max_iterations=50).solve(external, result, tip_target=loaded_target)
+    start = loaded if loaded.converged else result
+    out = simulate_pin_force(chain, external, pin_point, axis, start, config)
+    out["statics_loaded_N"] = float(-loaded.tip_reaction @ axis) if loaded.converged else None
+    out["wall_time_s"] = time.perf_counter() - t0  # with the loaded statics solve
+    return out

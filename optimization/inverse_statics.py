@@ -1,0 +1,272 @@
+"""Inverse statics: magnet orientations that press the chain's tip on a wall target.
+
+The forward problem (``statics``) gives the equilibrium for given magnets. Here the tip ball's
+centre is held at a point on the target (a ball radius off the wall, within the target's
+circle) and the unknowns are the magnets' dipole directions and where in the circle the tip
+touches. ``HeldTip`` gives the force the tip presses on the wall at that held equilibrium,
+split into the normal part and the tangential part: an implicit function of the unknowns
+(each evaluation a warm-started ``ChainStatics`` solve, so it follows the branch the real chain
+follows when the magnets turn slowly).
+
+A held equilibrium is a real contact equilibrium only if the wall can supply the tangential
+part: friction. ``min_turn_orientation`` is the MathematicalProgram of one planning step:
+
+    minimise    sum_j |m_j - m_j^prev|^2              (the magnets' turn from where they are)
+    subject to  |m_j|^2 = 1                            (dipole directions)
+                |o|^2 <= r^2                           (touch point o within the target circle)
+                F_n(m, o) >= F_min                     (the tip presses at least F_min)
+                |F_t| <= mu F_n                        (Coulomb friction holds the tip)
+
+solved by SNOPT. The constraint gradients are forward differences of warm-started equilibria
+(converged to 1e-8 in scaled stationarity, far below the difference step's effect). The answer
+is re-checked by turning the magnets from the start to it in small steps (the branch the chain
+follows); "feasible" means that re-checked equilibrium meets every constraint.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff
+from pydrake.solvers import MathematicalProgram, SnoptSolver, SolverOptions
+
+from ballchain.drake_models.field_sources import FieldSource
+from ballchain.optimization.statics import ChainStatics, StaticsResult
+
+FieldFor = Callable[[np.ndarray], FieldSource]  # (k, 3) unit dipole directions -> external field
+
+
+def pin_tip(solver: ChainStatics, external: FieldSource, target: np.ndarray, start: StaticsResult | None,
+            steps: int = 8) -> StaticsResult | None:
+    """The equilibrium with the tip moved from where it is onto ``target`` in ``steps`` (homotopy).
+
+    Each step is warm-started from the last, as a hand would move the tip. Returns None when a
+    step does not converge (no held equilibrium on this branch).
+    """
+    current = start if start is not None else solver.solve(external)
+    if not current.converged:
+        return None
+    origin = current.tip_position.copy()
+    for s in np.linspace(0.0, 1.0, steps + 1)[1:]:
+        current = solver.solve(external, current, tip_target=origin + s * (np.asarray(target) - origin))
+        if not current.converged:
+            return None
+    return current
+
+
+def _unit_rows(m: np.ndarray) -> np.ndarray:
+    m = np.asarray(m, dtype=float).reshape(-1, 3)
+    norms = np.linalg.norm(m, axis=1, keepdims=True)
+    if np.any(norms == 0) or not np.all(np.isfinite(m)):
+        raise ValueError(f"dipole directions must be finite and non-zero, got {m.tolist()}")
+    return m / norms
+
+
+class HeldTip:
+    """The tip held on a wall target, as a function of x = (stacked dipole directions, o).
+
+    Args:
+        solver: statics of the chain (its ``max_iterations`` bounds the effort per evaluation).
+        field_for: (k, 3) dipole directions -> the external field.
+        centre: (3,) the tip ball's centre when it touches the target's centre [m] (a ball
+            radius off the wall).
+        axis: (3,) unit wall normal pointing into the wall (the direction the tip presses).
+        home: the held equilibrium at the starting unknowns (the warm start of the first
+            evaluation, the fallback when a warm start from the last fails).
+        n_magnets: k.
+
+    The touch point's offset o (2,) [m] is along ``basis[:, 1:]``, two unit vectors in the wall.
+    """
+
+    def __init__(self, solver: ChainStatics, field_for: FieldFor, centre, axis, home: StaticsResult,
+                 n_magnets: int = 1):
+        self.solver = solver
+        self.field_for = field_for
+        self.centre = np.asarray(centre, dtype=float).reshape(3)
+        n = np.asarray(axis, dtype=float).reshape(3)
+        n = n / np.linalg.norm(n)
+        u = np.cross(n, [0.0, 0.0, 1.0] if abs(n[2]) < 0.9 else [1.0, 0.0, 0.0])
+        u /= np.linalg.norm(u)
+        self.basis = np.column_stack([n, u, np.cross(n, u)])
+        self.k = n_magnets
+        self.home = home
+        self._last = home
+        self.evaluations = 0
+
+    @property
+    def axis(self) -> np.ndarray:
+        return self.basis[:, 0]
+
+    def split(self, x) -> tuple[np.ndarray, np.ndarray]:
+        x = np.asarray(x, dtype=float).reshape(-1)
+        return _unit_rows(x[: 3 * self.k]), x[3 * self.k:]
+
+    def tip_point(self, offset) -> np.ndarray:
+        return self.centre + self.basis[:, 1:] @ np.asarray(offset, dtype=float)
+
+    def restart(self) -> None:
+        """Warm-start the next evaluation from ``home`` (not from the last one)."""
+        self._last = self.home
+
+    def equilibrium(self, x) -> StaticsResult | None:
+        """The held equilibrium at x, or None when none converges near the last or home."""
+        m, offset = self.split(x)
+        external = self.field_for(m)
+        target = self.tip_point(offset)
+        self.evaluations += 1
+        for start in (self._last, self.home):
+            result = self.solver.solve(external, start, tip_target=target)
+            if result.converged:
+                self._last = result
+                return result
+        return None
+
+    def pressing(self, x) -> tuple[np.ndarray | None, StaticsResult | None]:
+        """(F_n, F_u, F_v) [N], the force the tip presses on the wall in ``basis``, and the
+        equilibrium; (None, None) without a held equilibrium."""
+        result = self.equilibrium(x)
+        if result is None:
+            return None, None
+        return self.basis.T @ (-result.tip_reaction), result
+
+    def value_and_jacobian(self, x, step: float = 1e-5) -> tuple[np.ndarray | None, np.ndarray]:
+        """``pressing`` and its forward-difference Jacobian (3, len(x)) (step in m for o)."""
+        x = np.asarray(x, dtype=float).reshape(-1)
+        f0, base = self.pressing(x)
+        J = np.zeros((3, x.size))
+        if base is None:
+            return None, J
+        for i in range(x.size):
+            dx = x.copy()
+            dx[i] += step * (1.0 if i < 3 * self.k else 1e-3)  # o in m: 1e-8 m steps
+            self._last = base
+            fi, _ = self.pressing(dx)
+            if fi is not None:
+                J[:, i] = (fi - f0) / (dx[i] - x[i])
+        self._last = base
+        return f0, J
+
+
+@dataclass
+class OrientationPlan:
+    """One planning step's answer.
+
+    Attributes:
+        feasible: the re-checked equilibrium meets every constraint.
+        dipoles: (k, 3) unit dipole directions.
+        offset: (2,) touch point's offset from the target centre [m].
+        force_N: the normal force at the re-checked equilibrium [N] (None if none).
+        friction_needed: |F_t| / F_n there (None if none).
+        turn_rad: (k,) each magnet's turn from its previous direction [rad].
+        result: the re-checked held equilibrium (None if none).
+        solver_status: SNOPT's result code and info, or what the re-check found.
+        evaluations: equilibrium solves the program used.
+    """
+
+    feasible: bool
+    dipoles: np.ndarray
+    offset: np.ndarray
+    force_N: float | None
+    friction_needed: float | None
+    turn_rad: np.ndarray
+    result: StaticsResult | None
+    solver_status: str
+    evaluations: int
+
+
+def min_turn_orientation(held: HeldTip, m_start, m_previous, min_force: float, target_radius: float,
+                         friction: float = 0.0, major_iterations: int = 60) -> OrientationPlan:
+    """The smallest turn of the magnets from ``m_previous`` that presses the target hard enough.
+
+    Args:
+        held: the held tip of this target; ``held.home`` is the equilibrium at ``m_start``
+            with the tip on the target's centre.
+        m_start: (k, 3) initial guess of the dipole directions.
+        m_previous: (k, 3) where the magnets point now.
+        min_force: F_min [N], > 0.
+        target_radius: r [m], >= 0: the touch point may be this far from the target's centre.
+        friction: mu >= 0 of the tip on the wall (0: frictionless, |F_t| = 0).
+        major_iterations: SNOPT's major iteration limit. The optimum is flat along the target
+            circle and SNOPT creeps along it with the friction cone active; on the right ring's
+            first target 16 balls were feasible after 25 iterations (94.3 deg turn, 33
+            evaluations; 93.6 deg converged after 211) but 12 balls needed 60 (96.7 deg).
+
+    Returns:
+        an OrientationPlan (``feasible`` False: no orientation met the constraints; ``dipoles``
+        is then SNOPT's last iterate).
+    """
+    if not min_force > 0 or target_radius < 0 or friction < 0:
+        raise ValueError(f"need min_force > 0 N, target_radius >= 0 m, friction >= 0; got "
+                         f"{min_force}, {target_radius}, {friction}")
+    m_prev = _unit_rows(m_previous)
+    m0 = _unit_rows(m_start)
+    k = m_prev.shape[0]
+    if m0.shape != m_prev.shape or k != held.k:
+        raise ValueError(f"m_start {m0.shape} and m_previous {m_prev.shape} must both be ({held.k}, 3)")
+    prog = MathematicalProgram()
+    m = prog.NewContinuousVariables(3 * k, "m")
+    w = prog.NewContinuousVariables(2, "w")  # the touch point's offset in target radii: o = r w
+    x = np.concatenate([m, w])
+    for j in range(k):
+        mj = m[3 * j: 3 * j + 3]
+        unit = mj[0] * mj[0] + mj[1] * mj[1] + mj[2] * mj[2] == 1.0
+        prog.AddConstraint(unit).evaluator().set_description(f"unit dipole {j + 1}")
+    prog.AddConstraint(w[0] * w[0] + w[1] * w[1] <= 1.0).evaluator().set_description("touch within the circle")
+    prog.AddBoundingBoxConstraint(-1.0, 1.0, m)
+    prog.AddBoundingBoxConstraint(-1.0, 1.0, w)  # SNOPT keeps bounds at every iterate
+    prog.AddQuadraticErrorCost(np.eye(3 * k), m_prev.reshape(-1), m)
+    scale = 1.0 / min_force  # constraints in units of the asked force
+
+    def constraint_values(F):  # [F_n, (mu F_n)^2 - |F_t|^2] in units of the asked force
+        return np.array([scale * F[0], scale**2 * ((friction * F[0]) ** 2 - F[1] ** 2 - F[2] ** 2)])
+
+    def constraint_jacobian(F, J):
+        return np.vstack([scale * J[0], scale**2 * 2 * (friction**2 * F[0] * J[0] - F[1] * J[1] - F[2] * J[2])])
+
+    n_rows = 2
+    failed = np.array([-1e3, -1e3])
+
+    to_held = np.concatenate([np.ones(3 * k), np.full(2, target_radius)])  # (m, w) -> (m, o)
+
+    def contact(xv):
+        if xv.dtype == float:
+            F, _ = held.pressing(to_held * xv)
+            return failed if F is None else constraint_values(F)
+        value = ExtractValue(xv).reshape(-1)
+        F, J = held.value_and_jacobian(to_held * value)
+        J = J * to_held
+        if F is None:
+            return InitializeAutoDiff(failed, np.zeros((n_rows, xv.size)) @ ExtractGradient(xv)).reshape(-1)
+        return InitializeAutoDiff(constraint_values(F), constraint_jacobian(F, J) @ ExtractGradient(xv)).reshape(-1)
+
+    prog.AddConstraint(contact, np.array([1.0, 0.0]), np.full(2, np.inf), x,
+                       description="tip presses >= F_min, inside the friction cone")
+    snopt = SnoptSolver()
+    options = SolverOptions()
+    options.SetOption(snopt.solver_id(), "Major iterations limit", major_iterations)
+    options.SetOption(snopt.solver_id(), "Major optimality tolerance", 1e-4)
+    options.SetOption(snopt.solver_id(), "Major feasibility tolerance", 1e-5)
+    evaluations_before = held.evaluations
+    out = snopt.Solve(prog, np.concatenate([m0.reshape(-1), np.zeros(2)]), options)
+    dipoles = _unit_rows(out.GetSolution(m))
+    w_value = out.GetSolution(w)
+    offset = target_radius * w_value / max(1.0, float(np.linalg.norm(w_value)))  # onto the circle (SNOPT: 1e-5)
+    status = f"{out.get_solution_result().name} (info {out.get_solver_details().info})"
+    # Re-check by turning the magnets and sliding the touch point from the start in small steps:
+    # the branch the chain follows.
+    held.restart()
+    F, result = None, None
+    for s in np.linspace(0.0, 1.0, 6)[1:]:
+        F, result = held.pressing(np.concatenate([((1.0 - s) * m0 + s * dipoles).reshape(-1), s * offset]))
+        if result is None:
+            break
+    turn = np.arccos(np.clip(np.sum(dipoles * m_prev, axis=1), -1.0, 1.0))
+    feasible, friction_needed = False, None
+    if result is not None:
+        friction_needed = float(np.hypot(F[1], F[2]) / F[0]) if F[0] > 0 else np.inf
+        feasible = (F[0] >= min_force * (1.0 - 1e-4) and np.linalg.norm(offset) <= target_radius * (1.0 + 1e-6)
+                    and np.hypot(F[1], F[2]) <= friction * F[0] + 1e-3 * min_force)
+    return OrientationPlan(feasible, dipoles, offset, None if result is None else float(F[0]), friction_needed,
+                           turn, result, status, held.evaluations - evaluations_before)
