@@ -27,6 +27,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("simulate", "simulate the chain in the left atrium for a named scenario"),
     "reconfigure": ("reconfigure", "closed-loop magnet axis reconfiguration study (Hall sensor, slip, noise)"),
     "wheels": ("wheels", "omni-wheel kinematics: derived wheel-to-magnet map vs the paper's"),
+    "teleop": ("teleop", "simulated operator touches the ablation targets (paper Tasks I/II), two joystick mappings"),
 }
 
 

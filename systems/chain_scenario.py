@@ -62,6 +62,10 @@ class InsertionScenario:
             ramp as a speed command (its acceleration limit turns it into a trapezoid that
             covers the same distance, about speed / 0.1 m/s^2 later) and its quantised
             ``inserted_length`` drives the slide. ``speed`` must not exceed the feeder's limit.
+        feeder_command: with ``feeder``, who commands its speed: "ramp" (the ramp above, the
+            system ``feeder_command``) or "external" (another system, e.g. a simulated operator:
+            the feeder's ``v_insert_cmd`` input (1) [m/s] is left to ``build_chain_diagram``'s
+            ``add_systems`` hook, or exported as the diagram input ``feeder.v_insert_cmd``).
     """
 
     initial: float = 0.02
@@ -70,6 +74,7 @@ class InsertionScenario:
     speed: float = 0.01
     external: bool = False
     feeder: bool = False
+    feeder_command: str = "ramp"
 
 
 @dataclass
@@ -90,6 +95,9 @@ class JoystickKey:
 
 
 ANCHORS = ("puncture", "centre", "carina_left", "carina_right")
+JOYSTICK_SOURCES = ("script", "external")
+TELEOP_FRAMES = ("world", "tip")
+FEEDER_COMMANDS = ("ramp", "external")
 
 
 @dataclass
@@ -114,7 +122,16 @@ class UnitScenario:
         model: "dipole" or "exact" (the same for every unit).
         teleop_omega_max: magnet angular speed at full stick [rad/s].
         sensor_noise: Gaussian noise on the Hall sensor.
-        joystick: the scripted stick (zero-order hold; zeros before the first key).
+        joystick: the scripted stick (zero-order hold; zeros before the first key); with
+            ``joystick_source: external`` only its modes are played (``<name>.mode_command``).
+        joystick_source: "script" (``joystick``, the system ``<name>.joystick``) or "external"
+            (another system moves the stick, e.g. a simulated operator: the mapper's
+            ``joystick`` input (3) is left to ``build_chain_diagram``'s ``add_systems`` hook, or
+            exported as the diagram input ``<name>.joystick``).
+        teleop_frame: the joystick mapping (``teleoperation.TeleoperationMapper``): "world" (the
+            paper's: stick axes = magnet angular velocity about world x, y, z) or "tip" (the
+            catheter-frame mapping: axes 0/1 swing the field at the tip about the tip frame's z
+            and -y, at ``teleop_omega_max``; the tip ball's position and direction are fed to it).
     """
 
     name: str = "right_unit"
@@ -128,6 +145,8 @@ class UnitScenario:
     teleop_omega_max: float = 0.5
     sensor_noise: bool = True
     joystick: list[JoystickKey] = field(default_factory=list)
+    joystick_source: str = "script"
+    teleop_frame: str = "world"
 
 
 @dataclass
@@ -220,6 +239,11 @@ class ChainScenario:
             if m.p_WM and len(m.p_WM) != 3:
                 raise ValueError(f"magnet {k + 1}: p_WM must have 3 components [m], got {m.p_WM}")
         self._validate_units()
+        ins = self.insertion
+        if ins.feeder_command not in FEEDER_COMMANDS:
+            raise ValueError(f"insertion.feeder_command must be one of {FEEDER_COMMANDS}, got {ins.feeder_command!r}")
+        if ins.feeder_command == "external" and not ins.feeder:
+            raise ValueError("insertion.feeder_command: external needs the feeder (insertion.feeder: true)")
         if self.mode == "dynamics" and self.effective_time_step > 5e-4:
             raise ValueError(
                 f"time step {self.effective_time_step} s is too large for the dynamics mode: the "
@@ -250,6 +274,10 @@ class ChainScenario:
                     raise ValueError(f"{where}: anchor {u.anchor!r} needs the heart (heart: true)")
                 if len(u.direction_W) != 3 or not any(u.direction_W) or u.distance <= 0:
                     raise ValueError(f"{where}: needs direction_W (3, non-zero) and distance > 0 [m]")
+            if u.joystick_source not in JOYSTICK_SOURCES:
+                raise ValueError(f"{where}: joystick_source must be one of {JOYSTICK_SOURCES}, got {u.joystick_source!r}")
+            if u.teleop_frame not in TELEOP_FRAMES:
+                raise ValueError(f"{where}: teleop_frame must be one of {TELEOP_FRAMES}, got {u.teleop_frame!r}")
             if u.teleop_omega_max <= 0:
                 raise ValueError(f"{where}: teleop_omega_max must be > 0 [rad/s]")
             times = [k.time for k in u.joystick]

@@ -7,13 +7,20 @@
     ``<u>.mode_switch`` (``<u>.mode_command``) -> ``<u>.drive`` -> ``<u>.magnet`` ->
     ``<u>.hall_sensor`` -> ``<u>.estimator`` -> ``<u>.controller`` -> ``<u>.mode_switch``;
 
+with ``joystick_source: external`` there is no ``<u>.joystick``: the mapper's ``joystick`` input
+is returned (``UnitHandles.joystick_input``) for another system (a simulated operator) to drive.
+With ``teleop_frame: tip`` (the catheter-frame mapping) ``tip_observer`` (TipObserver: the tip
+ball's centre and direction from the plant's body poses) feeds the mapper's ``p_WT`` and
+``tip_direction_W``, and the magnet's ``m_W`` feeds its ``m_W``.
+
 and every unit's dipole ``m_W`` with its fixed centre ``<u>.p_WM`` goes through
 ``magnet_states`` (a Multiplexer) into the MagneticWrenchSystem's ``magnet_states`` input,
 so the chain feels the magnets as the wheels turn them. Each Hall sensor also sees the other
 units, and each estimator subtracts them (their poses known), as in ``actuation_station``.
 
-The feeder: ``feeder_command`` (the insertion ramp as a speed profile) -> ``feeder`` (stepper,
-quantised) -> ``feeder_interface`` (s -> desired slide state (s, 0)) -> the plant.
+The feeder: ``feeder_command`` (the insertion ramp as a speed profile; absent with
+``insertion.feeder_command: external``) -> ``feeder`` (stepper, quantised) -> ``feeder_interface``
+(s -> desired slide state (s, 0)) -> the plant.
 """
 
 from __future__ import annotations
@@ -49,15 +56,18 @@ class UnitHandles:
     estimator: DipoleDirectionEstimator
     controller: ReconfigurationController
     teleoperation: TeleoperationMapper
-    joystick: TrajectorySource
+    joystick: TrajectorySource | None
     m_hat_neutral_W: np.ndarray
     m_hat_initial_W: np.ndarray
+    joystick_input: object = None  # the mapper's ``joystick`` input port (3)
 
     def set_joystick(self, keys: list[JoystickKey]) -> None:
         """Replace the scripted stick axes (also mid-run: a live operator re-planning from now on).
 
         Only the axes: the mode script (``<u>.mode_command``) is the scenario's.
         """
+        if self.joystick is None:
+            raise ValueError(f"unit {self.config.name!r}: its joystick is external (joystick_source: external)")
         times = [k.time for k in keys] or [0.0]
         axes = np.array([k.axes for k in keys], float).reshape(-1, 3).T if keys else np.zeros((3, 1))
         self.joystick.UpdateTrajectory(_zoh(times, axes))
@@ -112,8 +122,43 @@ def _zoh(times: list[float], values: np.ndarray) -> PiecewisePolynomial:
     return PiecewisePolynomial.ZeroOrderHold(t_out, np.array(v_out).T)
 
 
+class TipObserver(LeafSystem):
+    """The tip ball's centre and direction (from the ball before it) out of the plant's body poses.
+
+    Input ports:
+        body_poses: abstract list[RigidTransform] indexed by BodyIndex (the plant's ``body_poses``).
+
+    Output ports:
+        p_WT: (3,) the tip ball's centre [m].
+        tip_direction_W: (3,) unit vector from the previous ball's centre to the tip ball's.
+    """
+
+    def __init__(self, tip_body_index, previous_body_index, name: str = "tip_observer") -> None:
+        super().__init__()
+        from pydrake.math import RigidTransform
+
+        self.set_name(name)
+        self._tip, self._previous = int(tip_body_index), int(previous_body_index)
+        self._poses = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
+        self.DeclareVectorOutputPort("p_WT", 3, self._calc_p)
+        self.DeclareVectorOutputPort("tip_direction_W", 3, self._calc_direction)
+
+    def get_body_poses_input_port(self):
+        return self._poses
+
+    def _calc_p(self, context, output):
+        output.SetFromVector(self._poses.Eval(context)[self._tip].translation())
+
+    def _calc_direction(self, context, output):
+        poses = self._poses.Eval(context)
+        d = poses[self._tip].translation() - poses[self._previous].translation()
+        n = np.linalg.norm(d)
+        output.SetFromVector(d / n if n > 0 else np.array([1.0, 0.0, 0.0]))
+
+
 def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig], magnet_states_port,
-              p_W_chain: np.ndarray, feed_direction_W: np.ndarray) -> dict[str, UnitHandles]:
+              p_W_chain: np.ndarray, feed_direction_W: np.ndarray, tip_observer: TipObserver | None = None
+              ) -> dict[str, UnitHandles]:
     """Add the units' systems to ``builder`` and connect them to the wrench's ``magnet_states``.
 
     Args:
@@ -123,9 +168,11 @@ def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig],
         magnet_states_port: the MagneticWrenchSystem's ``magnet_states`` input (6 per unit).
         p_W_chain: (3,) where the neutral field is defined [m] (sheath exit / ball 1).
         feed_direction_W: (3,) the insertion direction (the neutral field's direction there).
+        tip_observer: the tip's position and direction, needed by units with ``teleop_frame: tip``.
 
     Returns:
-        {unit name: UnitHandles}.
+        {unit name: UnitHandles}. With ``joystick_source: external`` a unit's ``joystick`` is None
+        and its ``joystick_input`` (the mapper's input port) is left unconnected for the caller.
     """
     handles: dict[str, UnitHandles] = {}
     for k, (u, config) in enumerate(zip(scenario.units, configs)):
@@ -135,19 +182,28 @@ def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig],
         m_neutral = m_neutral / np.linalg.norm(m_neutral)
         m0 = np.asarray(u.m_hat_W, float) if u.m_hat_W else m_neutral
         m0 = m0 / np.linalg.norm(m0)
-        options = StationOptions(sensor_noise=u.sensor_noise, teleop_omega_max=u.teleop_omega_max)
+        options = StationOptions(sensor_noise=u.sensor_noise, teleop_omega_max=u.teleop_omega_max,
+                                 teleop_frame=u.teleop_frame)
         systems = add_unit(builder, config, options, m_neutral_W=m_neutral, others=others, seed=k,
                            R_WM=rotation_with_z_along(m0))
         magnet, drive, sensor, estimator = systems.magnet, systems.drive, systems.sensor, systems.estimator
         controller, teleop, switch = systems.controller, systems.teleop, systems.switch
+        if u.teleop_frame == "tip":
+            if tip_observer is None:
+                raise ValueError(f"unit {n!r}: teleop_frame 'tip' needs the tip's pose (a tip observer)")
+            builder.Connect(tip_observer.GetOutputPort("p_WT"), teleop.GetInputPort("p_WT"))
+            builder.Connect(tip_observer.GetOutputPort("tip_direction_W"), teleop.GetInputPort("tip_direction_W"))
         keys: list[JoystickKey] = u.joystick
-        stick = _zoh_source([q.time for q in keys], np.array([q.axes for q in keys], float).reshape(-1, 3).T,
-                            f"{n}.joystick", builder)
+        stick = None
+        if u.joystick_source == "script":
+            stick = _zoh_source([q.time for q in keys], np.array([q.axes for q in keys], float).reshape(-1, 3).T,
+                                f"{n}.joystick", builder)
+            builder.Connect(stick.get_output_port(), teleop.GetInputPort("joystick"))
         mode = _zoh_source([q.time for q in keys], np.array([[float(q.mode) for q in keys]]).reshape(1, -1),
                            f"{n}.mode_command", builder)
-        builder.Connect(stick.get_output_port(), teleop.GetInputPort("joystick"))
         builder.Connect(mode.get_output_port(), switch.GetInputPort("mode"))
-        handles[n] = UnitHandles(config, magnet, drive, sensor, estimator, controller, teleop, stick, m_neutral, m0)
+        handles[n] = UnitHandles(config, magnet, drive, sensor, estimator, controller, teleop, stick, m_neutral, m0,
+                                 teleop.GetInputPort("joystick"))
     for n, h in handles.items():
         for o in handles.values():
             if o is h:
@@ -170,23 +226,30 @@ def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig],
 def add_feeder(builder, chain: BallChain, insertion: InsertionScenario, desired_state_port) -> Feeder:
     """The stepper feeder playing the insertion ramp, driving the slide's desired state.
 
+    With ``insertion.feeder_command: external`` no ramp is added: the feeder's ``v_insert_cmd``
+    input is left unconnected for the caller.
+
     Raises:
         ValueError: the ramp's speed exceeds the feeder's limit.
     """
     spec = FeederSpec()
     ins = insertion
-    if ins.speed > spec.max_speed and ins.final != ins.initial:
+    external = getattr(ins, "feeder_command", "ramp") == "external"
+    if ins.speed > spec.max_speed and ins.final != ins.initial and not external:
         raise ValueError(f"insertion.speed {ins.speed} m/s exceeds the feeder's limit {spec.max_speed} m/s")
     feeder = builder.AddSystem(Feeder(chain, spec, initial_length=ins.initial))
     ramp = abs(ins.final - ins.initial) / ins.speed if ins.speed > 0 else 0.0
     t1 = max(ins.start_time, 0.0)
     v = np.sign(ins.final - ins.initial) * ins.speed
-    if ramp > 0:
+    if external:
+        command = None
+    elif ramp > 0:
         command = _zoh_source([t1, t1 + ramp], np.array([[v, 0.0]]), "feeder_command", builder)
     else:
         command = builder.AddSystem(ConstantVectorSource([0.0]))
         command.set_name("feeder_command")
-    builder.Connect(command.get_output_port(), feeder.GetInputPort("v_insert_cmd"))
+    if command is not None:
+        builder.Connect(command.get_output_port(), feeder.GetInputPort("v_insert_cmd"))
     to_state = builder.AddSystem(MatrixGain(np.array([[1.0], [0.0]])))
     to_state.set_name("feeder_interface")
     builder.Connect(feeder.GetOutputPort("inserted_length"), to_state.get_input_port())

@@ -1,0 +1,242 @@
+"""Teleoperation tasks (paper Sec. VI-B): a simulated operator touches the ablation targets in order.
+
+Task "left" is the paper's Task I (the 20 targets around the left veins), "right" Task II (the 18
+around the right veins). The station is the paper's teleoperation set-up (scenario
+``teleop_right_unit``: the 16-ball chain in the procedural atrium, one rotating unit 10 cm beyond
+the right carina, the stepper feeder), with the joystick and the feeder moved by
+``systems.simulated_operator.SimulatedOperator`` instead of a script. Two joystick mappings:
+"world" (the paper's: stick axes = magnet angular velocity about world x, y, z; the operator uses
+all three axes) and "catheter" (the catheter-frame mapping, ``TeleoperationMapper(frame="tip")``:
+axes 0/1 swing the field at the tip about the tip frame's z and -y; the operator uses those two).
+Both at the unit's ``teleop_omega_max`` (0.5 rad/s), with the feeder.
+
+A target counts as touched when the tip ball touches it within its 5 mm circle
+(``meshcat_overlays.targets_touched``); per target the operator records the time it spent on it
+and the accuracy: the distance from the tip ball's wall-side point to the target's centre.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+TASKS = ("left", "right")
+MAPPINGS = {"world": "world", "catheter": "tip"}  # user-facing name -> TeleoperationMapper frame
+PAPER = {"left": {"targets": 20, "human_time_s": 40.0, "path_mm": 115.0},
+         "right": {"targets": 18, "human_time_s": 26.0, "path_mm": 95.0}}
+SCENARIO = "teleop_right_unit"
+REPLAY_PERIOD = 0.1  # [s] Meshcat replay frames (unless the overrides set publish_period)
+# A 4 ms quasi-static step (same damping): replaying 15 s of an operator's recorded commands (68 mm
+# of tip travel, sliding and pressing on the wall), the tip path stayed within 0.28 mm of the
+# default 1 ms step's (0.09 mm at 2 ms), 3.2 times faster (real-time factor 0.23 -> 0.73); 8 ms
+# breaks the chain apart. Closed-loop runs are chaotic: the operator's per-target times differ
+# between steps as between any two runs, not systematically.
+FAST = "{time_step: 0.004}"
+
+
+def check_inputs(task: str, mapping: str, targets: int | None, n_balls: int | None, time_limit: float | None) -> None:
+    """Raises ValueError with a clear message on bad input."""
+    if task not in TASKS:
+        raise ValueError(f"task must be one of {TASKS} ('left': Task I, 'right': Task II), got {task!r}")
+    if mapping not in MAPPINGS:
+        raise ValueError(f"mapping must be one of {tuple(MAPPINGS)}, got {mapping!r}")
+    if targets is not None and (isinstance(targets, bool) or not isinstance(targets, (int, np.integer))
+                                or targets < 1):
+        raise ValueError(f"targets must be a positive number of targets (the first N), got {targets!r}")
+    if n_balls is not None and n_balls < 3:
+        raise ValueError(f"balls must be >= 3 (ball 1 stays in the sheath), got {n_balls}")
+    if time_limit is not None and not time_limit > 0:
+        raise ValueError(f"time_limit must be > 0 s, got {time_limit}")
+
+
+def scenario_for(mapping: str, n_balls: int | None = None, overrides: str | None = None):
+    """The paper's teleoperation station with the stick and the feeder left to an operator."""
+    from ballchain.systems.chain_scenario import load_scenario
+
+    scenario = load_scenario(SCENARIO, overrides)
+    if n_balls is not None:
+        scenario.n_balls = n_balls
+    unit = scenario.units[0]
+    unit.joystick = []
+    unit.joystick_source = "external"
+    unit.teleop_frame = MAPPINGS[mapping]
+    ins = scenario.insertion
+    ins.feeder, ins.feeder_command = True, "external"
+    ins.final = ins.initial
+    return scenario.validate()
+
+
+def run(task: str = "left", mapping: str = "world", targets: int | None = None, html: Path | None = None,
+        progress: bool = True, time_limit: float | None = None, n_balls: int | None = None,
+        overrides: str | None = None, operator=None, heart=None) -> dict:
+    """Simulate the operator doing a task with a mapping.
+
+    Args:
+        task: "left" (Task I) or "right" (Task II).
+        mapping: "world" (the paper's) or "catheter".
+        targets: only the first N targets (None: all).
+        html: write a Meshcat replay (self-contained HTML) here.
+        progress: a tqdm progress bar on simulated time.
+        time_limit: simulated-time limit [s]; default: every target's timeout plus 5 s (the
+            operator gives up on a target after its timeout, so the run ends before).
+        n_balls: chain length (default: the scenario's 16).
+        overrides: inline YAML overrides of the scenario (e.g. "{time_step: 0.002}").
+        operator: OperatorParams (default: OperatorParams() with the mapping's axes).
+        heart: a prebuilt LeftAtrium to reuse.
+
+    Returns:
+        {"task", "mapping", "rows": [{"target", "touched", "time_s" (spent on it), "t_touch_s",
+        "accuracy_mm" (tip contact point to target centre), "relearns" (re-probing wiggles),
+        "bursts" (feeding / retraction bursts)}], "summary": {"touched", "targets",
+        "total_time_s", "median_time_s", "median_accuracy_mm", "max_accuracy_mm", "missed",
+        "struggled" (missed, or more than twice the median time), "sim_time_s",
+        "realtime_factor", "wall_time_s", "failure", "rim_sinkings", "rim_sinking_max_mm"},
+        "paper": {"human_time_s", ...}, "settings": {...}} (and "html" when written).
+    """
+    from dataclasses import replace
+
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.framework import EventStatus
+    from tqdm import tqdm
+
+    from ballchain.systems.chain_simulation import ChainMonitor, atrium_for, build_chain_diagram
+    from ballchain.systems.simulated_operator import OperatorParams, SimulatedOperator
+
+    check_inputs(task, mapping, targets, n_balls, time_limit)
+    scenario = scenario_for(mapping, n_balls, overrides)
+    if "publish_period" not in (overrides or ""):
+        scenario.publish_period = REPLAY_PERIOD  # a task lasts minutes: keep the replay small
+    heart = heart or atrium_for(scenario)
+    ring = heart.rings[task]
+    n_targets = len(ring.p_HT) if targets is None else min(int(targets), len(ring.p_HT))
+    params = operator or OperatorParams(axes=(0, 1, 2) if mapping == "world" else (0, 1))
+    handles = {}
+
+    def add_operator(builder, ports):
+        names, p_WT, n_W, radius = ports.targets
+        chosen = [i for i, n in enumerate(names) if n.startswith(f"{task}_")][:n_targets]
+        cp = ports.chain_plant
+        indices = cp.ball_body_indices
+        # What the console shows besides the camera: the sheath exit, the feeder's readout.
+        seen = replace(params, ball_radius=0.5 * cp.config.chain.ball_diameter, target_radius=radius,
+                       p_WE=tuple(cp.p_WE), initial_length=scenario.insertion.initial,
+                       max_length=cp.max_inserted_length(),
+                       keep_out=vein_openings(heart))
+        op = builder.AddSystem(SimulatedOperator(
+            indices[-1], indices[-2], [names[i] for i in chosen], p_WT[chosen], n_W[chosen], seen))
+        builder.Connect(ports.body_poses, op.get_body_poses_input_port())
+        (joystick,) = ports.joystick_inputs.values()
+        builder.Connect(op.GetOutputPort("joystick"), joystick)
+        builder.Connect(op.GetOutputPort("v_insert_cmd"), ports.feeder_command_input)
+        handles["operator"] = op
+        return {"operator": op}
+
+    limit = time_limit if time_limit is not None else n_targets * params.timeout + params.start_time + 5.0
+    meshcat = None
+    if html is not None:
+        from pydrake.geometry import Meshcat, MeshcatParams
+
+        meshcat = Meshcat(MeshcatParams(host="localhost"))
+    cd = build_chain_diagram(scenario, meshcat=meshcat, heart=heart, add_systems=add_operator)
+    op = handles["operator"]
+    simulator = Simulator(cd.diagram)
+    chain_monitor = ChainMonitor(cd, tolerate_sinking=lambda p: near_ostium_rim(heart, p))
+    root = simulator.get_mutable_context()
+    op_context = op.GetMyContextFromRoot(root)
+    bar = tqdm(total=round(limit, 2), desc=f"teleop {task}/{mapping}", unit="sim s", disable=not progress,
+               bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} sim s [{elapsed}<{remaining}]")
+    shown = [0.0]
+
+    def monitor(context):
+        status = chain_monitor(context)
+        if status.severity() == EventStatus.Severity.kFailed:
+            return status
+        t = context.get_time()
+        if t - shown[0] >= 0.1:
+            bar.update(t - shown[0])
+            shown[0] = t
+        if op.is_done(op.GetMyContextFromRoot(context)):
+            return EventStatus.ReachedTermination(op, "every target touched or given up")
+        return EventStatus.Succeeded()
+
+    simulator.set_monitor(monitor)
+    if cd.visualizer is not None:
+        cd.visualizer.StartRecording()
+    failure = None
+    start = time.perf_counter()
+    try:
+        simulator.Initialize()
+        simulator.AdvanceTo(limit)
+    except (RuntimeError, ValueError) as err:
+        failure = chain_monitor.failure or f"at t = {root.get_time():.4f} s: {err}"
+    wall = time.perf_counter() - start
+    bar.close()
+    sim_time = root.get_time()
+    rows = op.rows(op_context)
+    summary = summarize(rows, sim_time, wall, failure)
+    sinkings = chain_monitor.tolerated_sinkings
+    summary["rim_sinkings"] = len(sinkings)
+    summary["rim_sinking_max_mm"] = round(max(e[2] for e in sinkings) * 1e3, 3) if sinkings else None
+    result = {"task": task, "mapping": mapping, "rows": rows, "summary": summary,
+              "paper": PAPER[task],
+              "settings": {"n_balls": scenario.n_balls, "time_step_s": scenario.effective_time_step,
+                           "teleop_omega_max_rad_s": scenario.units[0].teleop_omega_max,
+                           "operator_period_s": params.period, "reaction_s": params.period * params.reaction_steps,
+                           "timeout_s": params.timeout, "axes": list(params.axes), "time_limit_s": limit}}
+    if cd.visualizer is not None:
+        cd.visualizer.StopRecording()
+        cd.visualizer.PublishRecording()
+        Path(html).write_text(meshcat.StaticHtml())
+        result["html"] = str(html)
+    return result
+
+
+RIM_BAND = 3e-3  # [m]
+
+
+def vein_openings(heart) -> tuple:
+    """The ipsilateral vein pairs' openings as the operator sees them (``OperatorParams.keep_out``)."""
+    ostia = list(getattr(heart, "ostia", ()))
+    pairs = [(ostia[0], ostia[1]), (ostia[2], ostia[3])] if len(ostia) == 4 else [(o, o) for o in ostia]
+    return tuple((a.p_HO, b.p_HO, 0.5 * a.diameter, 0.5 * b.diameter, a.axis_H, b.axis_H) for a, b in pairs)
+
+
+def near_ostium_rim(heart, p_W: np.ndarray) -> bool:
+    """Whether a ball centre is within RIM_BAND of a vein ostium's rim (radially, and along the vein
+    axis within a vein radius of the ostium's centre). There the atrium's compliant wall mesh has
+    next to no stiffness (the pressure field of the tetrahedral shell vanishes on the cut faces of
+    the opening, and the vein tube's shell overlaps it): measured with a rigid ball pressed 0.3 to
+    1.2 mm into the wall 0.5 to 1.5 mm from the LIPV rim, the wall pushes back with 0.03 to 0.09 N
+    that does not grow with depth, against 0.05 to 0.69 N on the plain wall. A ball sinking past
+    the wall's middle there is recorded instead of stopping the run (``ChainMonitor``)."""
+    for o in getattr(heart, "ostia", ()):
+        rel = np.asarray(p_W) - o.p_HO
+        along = float(rel @ o.axis_H)
+        rho = float(np.linalg.norm(rel - along * o.axis_H))
+        if abs(along) < 0.5 * o.diameter and abs(rho - 0.5 * o.diameter) < RIM_BAND:
+            return True
+    return False
+
+
+def summarize(rows: list[dict], sim_time: float, wall: float, failure: str | None = None) -> dict:
+    """Totals over the targets: touched count, total and median times, accuracies."""
+    touched = [r for r in rows if r["touched"]]
+    times = [r["time_s"] for r in touched]
+    accuracy = [r["accuracy_mm"] for r in touched]
+    spent = [r["time_s"] for r in rows if r["time_s"] is not None]
+    return {
+        "touched": len(touched), "targets": len(rows),
+        "total_time_s": round(float(sum(spent)), 3),
+        "median_time_s": round(float(np.median(times)), 3) if times else None,
+        "median_accuracy_mm": round(float(np.median(accuracy)), 3) if accuracy else None,
+        "max_accuracy_mm": round(float(np.max(accuracy)), 3) if accuracy else None,
+        "missed": [r["target"] for r in rows if not r["touched"]],
+        "struggled": [r["target"] for r in rows if r["time_s"] is not None and (
+            not r["touched"] or (times and r["time_s"] > 2.0 * float(np.median(times))))],
+        "sim_time_s": round(sim_time, 3),
+        "realtime_factor": round(sim_time / wall, 4) if wall > 0 else None,
+        "wall_time_s": round(wall, 1),
+        "failure": failure,
+    }

@@ -1,0 +1,491 @@
+"""A simulated operator: touches ablation targets in order through the joystick and the feeder.
+
+``SimulatedOperator`` is a LeafSystem that closes the teleoperation loop the way a person at the
+console does, watching a camera: every ``period`` seconds (20 Hz by default) it looks at the tip
+ball (its centre, and the tip's direction from the ball before it), decides a stick deflection and
+a feeder command, and these take effect ``reaction_steps`` periods later (0.1 s by default). It
+does not read the physics model, the magnet or its field: it only knows what a camera shows
+(the tip, the target discs on the wall and which way they face), what it did with its hands, and
+that the stick has a dead band.
+
+The policy, an honest model of a person learning an unfamiliar mapping by watching:
+
+* What it knows beforehand: feeding pushes the tip forward along its direction (that is what a
+  feeder does), and the stick swings it somehow. What it learns: an estimate ``J`` (3 x n) of the
+  tip velocity per unit of each stick axis it uses (three for the paper's world-frame mapping, two
+  for the catheter-frame mapping), by recursive least squares with forgetting on what it sees:
+  after each look, the tip's displacement over the period (less the feeder's expected share)
+  against the stick deflections that were in effect. It starts by probing: it wiggles each axis
+  back and forth once (the estimate starts at zero). Its hand is not perfectly steady: a small
+  random tremor (``tremor``) on the stick, which also keeps the estimate informed.
+* Steering: first to a point ``hover`` above the target (off the wall: no dragging the tip along
+  the tissue), then, once over it, down onto its centre, aimed slightly inside the wall (``press``)
+  so that the tip presses on it; desired tip velocity ``gain * error`` (capped at ``max_speed``);
+  the part along the tip's direction by the feeder, the rest by the stick through ``J`` (damped
+  least squares), no axis beyond full deflection.
+* It keeps the tip out of the vein openings it sees (``keep_out``, the ipsilateral pairs with the
+  carina between them): within ``keep_out_margin`` of their outline it adds a velocity away.
+* Feeding has limits a person at the console sees: never forward while the tip is at the wall near
+  the target pointing into it (its centre within ``contact_margin`` of a ball radius above the
+  target's wall plane, its direction within 45 degrees of the wall's inward normal: pushing more
+  chain then only drives the tip into the tissue); not more chain than
+  ``reach_factor`` times the sheath exit's distance to the target (enough for a half-turn bend);
+  and when it pushes but the tip does not go forward (the chain jams), it pulls back.
+* Confusion: when the tip keeps moving against what its estimate predicts (the mean cosine
+  between predicted and seen stick-driven motion over about ``confusion_window`` below zero),
+  it stops and probes again (a re-learning wiggle; counted per target).
+* No progress: if the distance to the target has not shrunk by ``stall_progress`` in
+  ``stall_window`` seconds, it feeds more chain for ``burst`` seconds when the target lies ahead
+  of the tip (within 60 degrees of its direction: out of reach) and feeding is allowed, and
+  retracts otherwise (stuck against the wall), steering meanwhile; then it resumes.
+* Touch: the target counts as touched when ``targets_touched`` (``meshcat_overlays``: the tip
+  ball within 0.5 mm of the wall inside the target's 5 mm circle) says so at one of its looks;
+  it records the time and the accuracy (distance from the ball's wall-side point, its centre
+  moved a ball radius against the target's normal, to the target's centre) and moves on. After
+  ``timeout`` seconds on a target it gives up (recorded as missed), so a run always ends.
+
+None of its constants was tuned to match the paper's operator times.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform
+from pydrake.systems.framework import EventStatus, LeafSystem
+
+from ballchain.systems.meshcat_overlays import targets_touched
+
+
+@dataclass
+class OperatorParams:
+    """The simulated operator's settings (SI).
+
+    Attributes:
+        period: how often it looks and decides [s] (20 Hz).
+        reaction_steps: a decision takes effect this many periods after the look (0.1 s).
+        axes: the stick axes it uses (the mapping's meaningful ones).
+        dead_band: the stick's dead band (felt, and compensated: it pushes the stick past it).
+        feeder_speed: the feeder's speed at full command [m/s] (the stepper feeder's limit).
+        gain: desired tip velocity per unit of error [1/s].
+        max_speed: cap on the desired tip speed [m/s].
+        press: it aims the ball's wall-side point this far inside the wall [m].
+        hover: it first brings the ball's wall-side point this far above the target [m] ...
+        descend_lateral: ... and presses down once the tip is within this of the target's
+            centre laterally (along the wall) [m].
+        contact_margin: the tip counts as at the wall (no feeding forward) when its centre is
+            within a ball radius plus this of the target's wall plane [m].
+        forgetting: recursive-least-squares forgetting factor per look.
+        initial_covariance: of the estimate's rows [(mm/s)^-2 per unit deflection: trust in data].
+        max_covariance: cap on the covariance's trace (against wind-up without excitation).
+        damping: damped least squares: damping as a fraction of J's largest singular value.
+        tremor: amplitude of the hand's random tremor on each stick axis (uniform).
+        seed: of the tremor.
+        probe_amplitude: stick deflection of the probing wiggle.
+        probe_time: duration of each half of a wiggle [s].
+        confusion_window: [s] averaging time of the prediction check.
+        stall_window: [s] without ``stall_progress`` towards the target means no progress.
+        stall_progress: [m].
+        burst: duration of a feeding or retraction burst [s].
+        burst_command: feeder command of a burst (fraction of full).
+        jam_window, jam_feed, jam_ratio: jammed chain: in the last ``jam_window`` seconds or so it
+            fed more than ``jam_feed`` [m] and the tip went forward less than ``jam_ratio`` of it.
+        p_WE: (3,) the sheath exit [m] (seen in the camera), or None: no cap on the feeding.
+        initial_length, max_length: chain fed out at the start, and all of it [m] (the feeder's
+            readout: it keeps its own count from its commands).
+        reach_factor: it feeds at most this times the sheath exit's distance to the target.
+        keep_out: the vein openings it sees, by neighbouring pairs: ((c1, c2, r1, r2, a1, a2), ...)
+            (centres (3,) and radii [m], outward axes (3,)).
+        keep_out_margin: it steers away from the openings when the tip is this close to them [m].
+        timeout: seconds on one target before giving up.
+        start_time: when it starts [s].
+        ball_radius: the tip ball's radius [m] (for the touch test and the aim).
+        target_radius: [m] (half the target's diameter).
+    """
+
+    period: float = 0.05
+    reaction_steps: int = 2
+    axes: tuple = (0, 1, 2)
+    dead_band: float = 0.1
+    feeder_speed: float = 0.02
+    gain: float = 2.0
+    max_speed: float = 0.015
+    press: float = 1.0e-3
+    hover: float = 4.0e-3
+    descend_lateral: float = 2.0e-3
+    contact_margin: float = 1.0e-3
+    forgetting: float = 0.95
+    initial_covariance: float = 10.0
+    max_covariance: float = 1.0e3
+    damping: float = 0.1
+    tremor: float = 0.1
+    seed: int = 0
+    probe_amplitude: float = 0.6
+    probe_time: float = 0.25
+    confusion_window: float = 0.5
+    stall_window: float = 1.5
+    stall_progress: float = 0.5e-3
+    burst: float = 0.5
+    burst_command: float = 0.5
+    jam_window: float = 0.5
+    jam_feed: float = 2e-3
+    jam_ratio: float = 0.3
+    p_WE: tuple | None = None
+    initial_length: float = 0.0
+    max_length: float = np.inf
+    reach_factor: float = 1.6
+    keep_out: tuple = ()
+    keep_out_margin: float = 2e-3
+    timeout: float = 20.0
+    start_time: float = 0.0
+    ball_radius: float = 0.5 * 3.175e-3
+    target_radius: float = 2.5e-3
+
+    def validate(self) -> "OperatorParams":
+        if not self.period > 0 or self.reaction_steps < 0:
+            raise ValueError("OperatorParams: period must be > 0 and reaction_steps >= 0")
+        if not self.axes or any(a not in (0, 1, 2) for a in self.axes) or len(set(self.axes)) != len(self.axes):
+            raise ValueError(f"OperatorParams.axes must be distinct stick axes among 0, 1, 2, got {self.axes}")
+        if not 0.0 <= self.dead_band < 1.0 or not 0.0 < self.forgetting <= 1.0:
+            raise ValueError("OperatorParams: dead_band in [0, 1) and forgetting in (0, 1]")
+        if not self.timeout > 0 or not self.feeder_speed > 0 or not self.max_speed > 0:
+            raise ValueError("OperatorParams: timeout, feeder_speed and max_speed must be > 0")
+        return self
+
+
+@dataclass
+class TargetRecord:
+    """One target's outcome: ``t_start`` when the operator turned to it, ``t_touch`` (None: missed)."""
+
+    target: str
+    t_start: float
+    t_touch: float | None = None
+    accuracy: float | None = None  # [m]
+    t_end: float | None = None  # when it moved on (touched or gave up)
+    relearns: int = 0  # probing wiggles after the first (confusion)
+    bursts: int = 0  # feeding / retraction bursts (no progress, jams)
+
+    def row(self, t_now: float | None = None) -> dict:
+        touched = self.t_touch is not None
+        end = self.t_end if self.t_end is not None else t_now
+        return {"target": self.target, "touched": touched,
+                "time_s": None if end is None else round(end - self.t_start, 3),
+                "t_touch_s": None if not touched else round(self.t_touch, 3),
+                "accuracy_mm": None if not touched else round(self.accuracy * 1e3, 3),
+                "relearns": self.relearns, "bursts": self.bursts}
+
+
+@dataclass
+class _Memory:
+    """The operator's state (an abstract state value, replaced at every look)."""
+
+    J: np.ndarray  # (3, n) tip velocity [mm/s] per unit of each stick axis (after the dead band)
+    P: np.ndarray  # (n, n)
+    queue: list  # decided controls (n + 1: stick axes, feeder) waiting for the reaction delay
+    applied: np.ndarray  # (n + 1,) controls in effect since the last look
+    rng: np.random.Generator
+    p_last: np.ndarray | None = None
+    d_last: np.ndarray | None = None
+    k: int = 0  # current target
+    records: list = field(default_factory=list)
+    phase: str = "wait"  # wait, probe, pursue, burst, done
+    phase_start: float = 0.0
+    phase_end: float = 0.0
+    burst_sign: float = 0.0
+    best: float = np.inf  # closest distance to the current aim [m]
+    t_best: float = 0.0
+    done: bool = False
+    length: float = 0.0  # chain fed out, by its own count [m]
+    fed_recent: float = 0.0  # forward feed in the last jam_window or so [m]
+    advanced_recent: float = 0.0  # forward tip motion meanwhile [m]
+    agreement: float = 1.0  # running mean cosine between predicted and seen stick-driven motion
+    descending: bool = False  # pressing down on the target (else hovering towards it)
+
+
+class SimulatedOperator(LeafSystem):
+    """A person at the joystick and the feeder, touching targets in order (module docstring).
+
+    Input ports:
+        body_poses: abstract list[RigidTransform] indexed by BodyIndex (the plant's ``body_poses``):
+            it looks at the tip ball and the ball before it.
+
+    Output ports:
+        joystick: (3,) stick axes in [-1, 1] (into a unit's TeleoperationMapper).
+        v_insert_cmd: (1,) feeder speed command [m/s] (into the Feeder).
+        done: (1,) 1 once every target is touched or given up.
+
+    Args:
+        tip_body_index, previous_body_index: BodyIndex of the tip ball and of the ball before it.
+        names: the targets' names, in the order to touch them.
+        p_WT: (n, 3) target centres on the wall [m].
+        n_W: (n, 3) unit wall normals at the targets, into the chamber.
+        params: OperatorParams.
+    """
+
+    def __init__(self, tip_body_index, previous_body_index, names, p_WT, n_W,
+                 params: OperatorParams | None = None, name: str = "operator") -> None:
+        super().__init__()
+        self.params = p = (params or OperatorParams()).validate()
+        self.set_name(name)
+        self.names = list(names)
+        self._p_WT = np.asarray(p_WT, float).reshape(-1, 3)
+        self._n_W = np.asarray(n_W, float).reshape(-1, 3)
+        if len(self.names) != len(self._p_WT) or len(self._p_WT) != len(self._n_W) or not self.names:
+            raise ValueError("SimulatedOperator needs at least one target, with as many names, centres and normals")
+        self._tip, self._previous = int(tip_body_index), int(previous_body_index)
+        self._n = n = len(p.axes)
+        memory = _Memory(J=np.zeros((3, n)), P=p.initial_covariance * np.eye(n),
+                         queue=[np.zeros(n + 1)] * p.reaction_steps, applied=np.zeros(n + 1),
+                         rng=np.random.default_rng(p.seed), length=p.initial_length)
+        self._poses = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
+        self._memory_index = self.DeclareAbstractState(AbstractValue.Make(memory))
+        ticket = {self.abstract_state_ticket(self._memory_index)}
+        self.DeclareVectorOutputPort("joystick", 3, self._calc_joystick, prerequisites_of_calc=ticket)
+        self.DeclareVectorOutputPort("v_insert_cmd", 1, self._calc_feeder, prerequisites_of_calc=ticket)
+        self.DeclareVectorOutputPort("done", 1, self._calc_done, prerequisites_of_calc=ticket)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(p.period, 0.0, self._update)
+
+    # ---------------------------------------------------------------------------- ports
+    def get_body_poses_input_port(self):
+        return self._poses
+
+    def _memory(self, context) -> _Memory:
+        return context.get_abstract_state(self._memory_index).get_value()
+
+    def _stick(self, u: np.ndarray) -> np.ndarray:
+        """Stick deflections that the mapper's dead band turns into the effective controls u."""
+        db = self.params.dead_band
+        s = np.where(np.abs(u) > 1e-6, np.sign(u) * (db + (1.0 - db) * np.abs(u)), 0.0)
+        return np.clip(s, -1.0, 1.0)
+
+    def _calc_joystick(self, context, output):
+        u = self._memory(context).applied
+        axes = np.zeros(3)
+        axes[list(self.params.axes)] = self._stick(u[:-1])
+        output.SetFromVector(axes)
+
+    def _calc_feeder(self, context, output):
+        output.SetAtIndex(0, float(np.clip(self._memory(context).applied[-1], -1.0, 1.0)) * self.params.feeder_speed)
+
+    def _calc_done(self, context, output):
+        output.SetAtIndex(0, 1.0 if self._memory(context).done else 0.0)
+
+    # -------------------------------------------------------------------------- results
+    def records(self, context) -> list[TargetRecord]:
+        """The targets turned to so far (the last one may still be open)."""
+        return list(self._memory(context).records)
+
+    def rows(self, context) -> list[dict]:
+        """Per target: target, touched, time_s (spent on it; up to now for an open one), t_touch_s,
+        accuracy_mm, relearns, bursts; targets not turned to yet are untouched with no time."""
+        t = context.get_time()
+        records = {r.target: r for r in self._memory(context).records}
+        rows = []
+        for name in self.names:
+            r = records.get(name)
+            rows.append(r.row(t) if r is not None else
+                        {"target": name, "touched": False, "time_s": None, "t_touch_s": None, "accuracy_mm": None,
+                         "relearns": None, "bursts": None})
+        return rows
+
+    def is_done(self, context) -> bool:
+        return self._memory(context).done
+
+    def jacobian_estimate(self, context) -> np.ndarray:
+        """(3, n) the current estimate: tip velocity [m/s] per unit of each stick axis it uses
+        (after the dead band)."""
+        return self._memory(context).J * 1e-3
+
+    # --------------------------------------------------------------------------- policy
+    def _update(self, context, state):
+        p = self.params
+        t = context.get_time()
+        mem = copy.deepcopy(self._memory(context))
+        poses = self._poses.Eval(context)
+        tip = poses[self._tip].translation().copy()
+        d = tip - poses[self._previous].translation()
+        d = d / max(np.linalg.norm(d), 1e-12)
+        if mem.phase == "wait" and t + 1e-9 >= p.start_time:
+            mem.records.append(TargetRecord(self.names[0], t))
+            self._start_probe(mem, t)
+        if mem.p_last is not None and mem.phase != "wait":
+            self._watch(mem, tip, d)
+        mem.p_last, mem.d_last = tip, d
+        if mem.phase not in ("wait", "done"):
+            self._check_target(mem, t, tip)
+        u = np.zeros(self._n + 1) if mem.phase in ("wait", "done") else self._decide(mem, t, tip, d)
+        mem.queue.append(u)
+        mem.applied = mem.queue.pop(0)
+        state.get_mutable_abstract_state(self._memory_index).set_value(mem)
+        return EventStatus.Succeeded()
+
+    def _start_probe(self, mem: _Memory, t: float) -> None:
+        mem.phase, mem.phase_start = "probe", t
+        mem.agreement = 1.0
+
+    def _watch(self, mem: _Memory, tip: np.ndarray, d: np.ndarray) -> None:
+        """What it learns from the last period: the stick's effect, the chain fed, jams, surprises."""
+        p = self.params
+        stick, feed = mem.applied[:-1], mem.applied[-1]
+        v = (tip - mem.p_last) / p.period * 1e3  # mm/s
+        fed = feed * p.feeder_speed * p.period
+        # The feeder's expected share: forward along the tip's direction at the fed speed.
+        v_stick = v - feed * p.feeder_speed * 1e3 * mem.d_last
+        if np.linalg.norm(stick) > 0.05:  # excitation: learn (and no wind-up without it)
+            predicted = mem.J @ stick
+            norms = np.linalg.norm(predicted) * np.linalg.norm(v_stick)
+            if mem.phase == "pursue" and norms > 1.0:  # both above about 1 mm/s
+                w = p.period / p.confusion_window
+                mem.agreement = (1.0 - w) * mem.agreement + w * float(predicted @ v_stick) / norms
+            Px = mem.P @ stick
+            k = Px / (p.forgetting + stick @ Px)
+            mem.J = mem.J + np.outer(v_stick - predicted, k)
+            P = (mem.P - np.outer(k, Px)) / p.forgetting
+            P = 0.5 * (P + P.T)
+            tr = np.trace(P)
+            if tr > p.max_covariance:
+                P *= p.max_covariance / tr
+            mem.P = P
+        # The feeder's readout, and whether the tip went forward as far as the chain was fed.
+        mem.length = float(np.clip(mem.length + fed, 0.0, p.max_length))
+        decay = np.exp(-p.period / p.jam_window)
+        mem.fed_recent = decay * mem.fed_recent + max(fed, 0.0)
+        mem.advanced_recent = decay * mem.advanced_recent + max(float((tip - mem.p_last) @ mem.d_last), 0.0)
+
+    def _aim(self, k: int, descending: bool = True) -> np.ndarray:
+        """Where it steers the tip ball's centre: its wall-side point ``press`` inside the wall at
+        the target's centre, or (not descending yet) ``hover`` above it."""
+        p = self.params
+        height = p.ball_radius - p.press if descending else p.ball_radius + p.hover
+        return self._p_WT[k] + height * self._n_W[k]
+
+    def _update_approach(self, mem: _Memory, tip: np.ndarray, t: float) -> None:
+        """Hover over the target until the tip is over it (laterally within ``descend_lateral``),
+        then press down; back to hovering when it slides ``2 * descend_lateral`` off."""
+        p = self.params
+        rel = tip - self._p_WT[mem.k]
+        n = self._n_W[mem.k]
+        lateral = float(np.linalg.norm(rel - (rel @ n) * n))
+        descending = lateral < p.descend_lateral or (mem.descending and lateral < 2.0 * p.descend_lateral)
+        if descending != mem.descending:
+            mem.descending, mem.best, mem.t_best = descending, np.inf, t
+
+    def _check_target(self, mem: _Memory, t: float, tip: np.ndarray) -> None:
+        p = self.params
+        k = mem.k
+        record = mem.records[-1]
+        touched = targets_touched(tip, self._p_WT[k:k + 1], self._n_W[k:k + 1], p.ball_radius, p.target_radius)[0]
+        if touched:
+            record.t_touch = t
+            record.accuracy = float(np.linalg.norm(tip - p.ball_radius * self._n_W[k] - self._p_WT[k]))
+        elif t - record.t_start < p.timeout - 1e-9:
+            return
+        record.t_end = t
+        mem.k += 1
+        if mem.k == len(self.names):
+            mem.phase, mem.done = "done", True
+            return
+        mem.records.append(TargetRecord(self.names[mem.k], t))
+        mem.best, mem.t_best = np.inf, t
+        if mem.phase == "burst":
+            mem.phase = "pursue"
+
+    def _decide(self, mem: _Memory, t: float, tip: np.ndarray, d: np.ndarray) -> np.ndarray:
+        p = self.params
+        n = self._n
+        if mem.phase == "probe":
+            # Each stick axis back and forth once: +a for probe_time, then -a.
+            half = int(np.floor((t - mem.phase_start) / p.probe_time + 1e-9))
+            if half < 2 * n:
+                u = np.zeros(n + 1)
+                u[half // 2] = p.probe_amplitude * (1.0 if half % 2 == 0 else -1.0)
+                return u
+            mem.phase, mem.t_best, mem.best = "pursue", t, np.inf
+        k = mem.k
+        self._update_approach(mem, tip, t)
+        e = self._aim(k, mem.descending) - tip
+        dist = float(np.linalg.norm(e))
+        if dist < mem.best - p.stall_progress:
+            mem.best, mem.t_best = dist, t
+        if mem.phase == "burst" and t >= mem.phase_end - 1e-9:
+            mem.phase, mem.t_best, mem.best = "pursue", t, dist
+        if mem.phase == "pursue" and mem.agreement < 0.0:
+            # The tip keeps going the wrong way: stop and find out again.
+            mem.records[-1].relearns += 1
+            self._start_probe(mem, t)
+            return self._decide(mem, t, tip, d)
+        # At the wall near the target with the tip pointing into it: pushing only presses it in.
+        at_wall = ((tip - self._p_WT[k]) @ self._n_W[k] < p.ball_radius + p.contact_margin
+                   and -(d @ self._n_W[k]) > np.cos(np.radians(45.0)))
+        jammed = mem.fed_recent > p.jam_feed and mem.advanced_recent < p.jam_ratio * mem.fed_recent
+        may_feed = not at_wall and not jammed and mem.length < self._length_cap(k)
+        if mem.phase == "pursue" and (t - mem.t_best > p.stall_window or jammed):
+            # No progress: feed when the target is ahead of the tip (out of reach), else pull back.
+            mem.records[-1].bursts += 1
+            mem.burst_sign = 1.0 if e @ d > 0.5 * dist and may_feed else -1.0
+            mem.phase, mem.phase_end = "burst", t + p.burst
+            mem.fed_recent = mem.advanced_recent = 0.0
+        v = p.gain * e
+        speed = np.linalg.norm(v)
+        if speed > p.max_speed:
+            v *= p.max_speed / speed
+        v = v + self._keep_out(tip)
+        # The feeder takes the part along the tip's direction, the stick the rest.
+        if mem.phase == "burst":
+            u_f = mem.burst_sign * p.burst_command
+        else:
+            u_f = float(np.clip(v @ d / p.feeder_speed, -1.0, 1.0 if may_feed else 0.0))
+        v_stick = (v - u_f * p.feeder_speed * d) * 1e3  # mm/s, as J
+        u_s = _saturate(_damped_solve(mem.J, v_stick, p.damping))
+        u_s = np.clip(u_s + p.tremor * mem.rng.uniform(-1.0, 1.0, n), -1.0, 1.0)
+        return np.append(u_s, u_f)
+
+    def _keep_out(self, tip: np.ndarray) -> np.ndarray:
+        """Velocity [m/s] away from the vein openings it sees, when the tip is within
+        ``keep_out_margin`` of their outline: each entry of ``keep_out`` is a pair of neighbouring
+        openings (or one, twice) seen as one region, the hull of two discs (centres c1, c2, radii
+        r1, r2, axes a1, a2), so that the carina between them is avoided too."""
+        p = self.params
+        v = np.zeros(3)
+        for c1, c2, r1, r2, a1, a2 in p.keep_out:
+            c1, c2 = np.asarray(c1, float), np.asarray(c2, float)
+            axis = np.asarray(a1, float) + np.asarray(a2, float)
+            axis /= np.linalg.norm(axis)
+            seg = c2 - c1
+            s_ = float(np.clip((tip - c1) @ seg / max(seg @ seg, 1e-18), 0.0, 1.0))
+            nearest = c1 + s_ * seg
+            radius = r1 + s_ * (r2 - r1)
+            rel = tip - nearest
+            along = float(rel @ axis)
+            radial = rel - along * axis
+            rho = float(np.linalg.norm(radial))
+            gap = rho - radius
+            if abs(along) < radius and gap < p.keep_out_margin and rho > 1e-9:
+                v += p.gain * (p.keep_out_margin - gap) * radial / rho
+        return v
+
+    def _length_cap(self, k: int) -> float:
+        """The most chain it feeds for target k: ``reach_factor`` times the sheath exit's distance
+        to the target (a bend of up to half a turn), at most the chain's length."""
+        p = self.params
+        if p.p_WE is None:
+            return np.inf
+        return min(p.max_length, p.reach_factor * float(np.linalg.norm(self._p_WT[k] - np.asarray(p.p_WE))))
+
+
+def _saturate(u: np.ndarray) -> np.ndarray:
+    """Scaled so that no control exceeds full deflection (the direction is kept)."""
+    big = np.abs(u).max() if u.size else 0.0
+    return u / big if big > 1.0 else u
+
+
+def _damped_solve(J: np.ndarray, v: np.ndarray, damping: float) -> np.ndarray:
+    """argmin_u |J u - v|^2 + mu |u|^2, mu = (damping * largest singular value of J)^2."""
+    s_max = np.linalg.norm(J, 2) if J.size else 0.0
+    if s_max < 1e-9:
+        return np.zeros(J.shape[1])
+    mu = (damping * s_max) ** 2
+    return np.linalg.solve(J.T @ J + mu * np.eye(J.shape[1]), J.T @ v)
