@@ -262,7 +262,7 @@ def plan_section(out: Path, quick: bool) -> tuple[Section, dict]:
 def teleop_section(out: Path, quick: bool) -> tuple[Section, dict]:
     from ballchain.experiments import teleop
 
-    n_targets = 1 if quick else 3
+    n_targets = 1 if quick else 2
     tasks = ("right",) if quick else ("left", "right")
     replays = out / "replays"
     replays.mkdir(parents=True, exist_ok=True)
@@ -322,6 +322,10 @@ def run(*, out: Path, quick: bool = False) -> dict:
         section, _ = experiment(out, quick)
         sections.append(section)
         summary[name] = {"seconds": time.perf_counter() - t0}
+    timing = Section("Run time")
+    timing.table(["experiment", "seconds"], [[name, v["seconds"]] for name, v in summary.items()]
+                 + [["total", time.perf_counter() - start]])
+    sections.append(timing)
     md, page = write_report("Magnetic ball chain: the paper's numbers in simulation", sections, out)
     return {"report_md": md, "report_html": page, "experiments": summary,
             "total_seconds": time.perf_counter() - start, "quick": quick}
