@@ -12,6 +12,8 @@ import argparse
 import importlib
 import sys
 
+from ballchain.drake_models.errors import UserInputError
+
 # subcommand -> (module under ballchain.commands, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     "statics": ("statics", "equilibrium shape of a chain in a uniform field"),
@@ -29,10 +31,6 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "wheels": ("wheels", "omni-wheel kinematics: derived wheel-to-magnet map vs the paper's"),
     "teleop": ("teleop", "simulated operator touches the ablation targets (paper Tasks I/II), two joystick mappings"),
 }
-
-
-class UserInputError(ValueError):
-    """Bad input from the user: reported as one line, exit status 2."""
 
 
 def build_parser() -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentParser]]:
