@@ -9,7 +9,7 @@ The wall of a hollow chamber is made by extruding its surface along the vertex n
 diagonal of each side quad runs from the lower-index bottom vertex to the higher-index top
 vertex), so neighbouring prisms share conforming faces. Drake's compliant-hydroelastic pressure
 field is zero on the boundary of a volume mesh, so at least two layers are needed for any
-vertex (the middle layer) to carry pressure (see shared/DESIGN.md).
+vertex (the middle layer) to carry pressure (see docs/design.md, 5).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Omni-wheel kinematics of the actuation unit: three wheels rolling a sphere (the magnet housing).
 
-Derivation (shared/DESIGN.md point 2). The sphere (radius ``rho_a``) is centred at the origin
+Derivation (docs/design.md, 4.2). The sphere (radius ``rho_a``) is centred at the origin
 of the unit frame and sits on three omni-wheels (radius ``rho_w``). Wheel ``i`` touches the
 sphere at ``c_i = rho_a n_i`` (``n_i`` the unit outward normal of the sphere at the contact, so
 the wheel centre is ``(rho_a + rho_w) n_i``) and spins about its unit axis ``a_i`` (``a_i . n_i =

@@ -1,7 +1,7 @@
 """Parameter dataclasses of the physical world: the ball chain, its sleeve, the actuation magnets.
 
 SI units throughout. Every dataclass checks itself on construction and says what is wrong.
-Defaults are the paper's prototype (see shared/DESIGN.md, "Conventions").
+Defaults are the paper's prototype (see docs/design.md, 2.4).
 """
 
 from __future__ import annotations

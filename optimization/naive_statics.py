@@ -2,7 +2,7 @@
 
 This is what a competent user would write first, and what ``ChainStatics`` is measured against
 (``ballchain bench statics``). It solves the canonical problem of ``optimization.statics``
-(shared/DESIGN.md): ball 1 held at the origin with its dipole along +x, balls 2..n free.
+(docs/design.md, 2.3): ball 1 held at the origin with its dipole along +x, balls 2..n free.
 
 Formulation, in full (maximal) coordinates:
 

@@ -10,7 +10,7 @@ moment ``m_m``, magnet volume ``V_m``, distance ``d_m``) to the clinic (chain mo
 The geometric prefactor of the force law (3, 6, ... times ``mu0 |m_i||m_a| / (4 pi d^4)``) and
 the remanence cancel in this ratio when the chain sits in the same relative direction from the
 magnet in the prototype and in the clinic. The paper prints ``(d_d / 2)^4`` in place of the sphere
-volume's cube (shared/DESIGN.md, point 3): that equation is dimensionally inconsistent, so its root
+volume's cube (docs/design.md, 4.3): that equation is dimensionally inconsistent, so its root
 depends on the unit it is evaluated in; :func:`solve_typo_equation` reports it for comparison.
 
 The physics equation ``g(r) = alpha f_m d_m^4 (4/3) pi r^3 - f_d V_m (d_c + r)^4 = 0`` has either

@@ -1,6 +1,6 @@
 """Chain statics: the equilibrium shape as the minimum of the chain's energy.
 
-The canonical problem (shared/DESIGN.md): ball 1 is held by the sheath at the origin with its
+The canonical problem (docs/design.md, 2.3): ball 1 is held by the sheath at the origin with its
 dipole along +x; balls 2..n are free (position and dipole direction, frictionless, no twist),
 each touching its predecessor, no two balls closer than d. ``optimization.reduced_chain`` writes
 it in reduced coordinates (link and dipole directions in a chart centred on the warm start), with

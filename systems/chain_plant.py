@@ -13,7 +13,7 @@ Bodies and joints:
   hydroelastic margin against tunnelling) is anchored to the world. Balls are rigid-hydroelastic
   spheres; ball-ball contact falls back to point contact (``hydroelastic_with_fallback``), with
   ``sap_near_rigid_threshold = 0`` and a relaxation time near the time step so that the balls
-  do not sink into one another (shared/DESIGN.md): about 5 um of overlap at 2.2 N.
+  do not sink into one another (docs/design.md, 5): about 5 um of overlap at 2.2 N.
 * The transseptal sheath is a cage of rods (capsules, point contact) around its bore, from
   behind ball 1 to ``sheath_extension`` beyond the septal puncture (see ``_add_sheath_cage``).
 * The balls start straight along the sheath axis, touching (4 um of overlap): a pair that

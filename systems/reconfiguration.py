@@ -11,7 +11,7 @@ the mistake; open loop (teleoperation) the magnet would turn about an axis 26.6 
 
 What the paper leaves open and this controller decides:
 
-* Antiparallel start (DESIGN point 5): ``m x m_c`` vanishes at 180 deg, so the law stalls. Within
+* Antiparallel start (docs/design.md, 4.5): ``m x m_c`` vanishes at 180 deg, so the law stalls. Within
   ``antiparallel_deg`` of antiparallel the controller turns at the law's speed at the edge of
   that cone, ``K sin(antiparallel_deg)``, about the cross product's direction if it is resolvable
   and otherwise about a fixed axis perpendicular to ``m_c``.

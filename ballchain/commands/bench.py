@@ -11,7 +11,7 @@ Wall times are measured around each ``solve`` call (``time.perf_counter``), afte
 round, with the cases interleaved so that a burst of load from another process hits them all.
 The problems are tiny (at most a few hundred unknowns), so multithreaded BLAS only adds
 synchronisation: by default the loaded OpenBLAS libraries are limited to one thread for the run
-(``--blas-threads``; 0 leaves them alone). Benchmarks are scripts, not tests (STYLE.md, 11): the
+(``--blas-threads``; 0 leaves them alone). Benchmarks are scripts, not tests: the
 tests check the fields' correctness, never the times.
 """
 

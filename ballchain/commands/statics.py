@@ -1,6 +1,6 @@
 """Equilibrium shape of a chain in a uniform field, reached by rotating the field from +x.
 
-The canonical problem of shared/DESIGN.md: ball 1 held at the origin with its dipole along +x,
+The canonical problem of docs/design.md (2.3): ball 1 held at the origin with its dipole along +x,
 the field in the x-y plane at ``--field-angle-deg`` from +x, reached by continuation from the
 straight chain in steps of at most ``--step-deg`` (as a rotating magnet moves the chain).
 """
