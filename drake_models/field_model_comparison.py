@@ -22,11 +22,12 @@ from typing import Sequence
 
 import numpy as np
 
+from ballchain.drake_models import paper
 from ballchain.drake_models.dipole import force_on_dipole
 from ballchain.drake_models.field_sources import MagnetSource
 from ballchain.drake_models.params import BallChain, CylinderMagnet
 
-DEFAULT_DISTANCES = (0.08, 0.12, 0.1651, 0.20)
+DEFAULT_DISTANCES = (0.08, 0.12, paper.WORKING_DISTANCE, 0.20)
 """Distances from the magnet centre [m] (16.51 cm is the prototype's working distance)."""
 
 DEFAULT_POLAR_ANGLES_DEG = (0.0, 45.0, 90.0)

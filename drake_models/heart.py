@@ -53,6 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from ballchain.drake_models import mesh_tools as mt
+from ballchain.drake_models import paper
 
 PV_NAMES = ("LSPV", "LIPV", "RSPV", "RIPV")
 
@@ -438,5 +439,5 @@ class LeftAtrium:
                 k: [round(r.spacing.min() * 1e3, 2), round(r.spacing.max() * 1e3, 2)]
                 for k, r in self.rings.items()
             },
-            "paper_ring_path_mm": {"left": 115.0, "right": 95.0},
+            "paper_ring_path_mm": {k: v["path_mm"] for k, v in paper.TELEOP_TASKS.items()},
         }

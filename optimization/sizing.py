@@ -28,6 +28,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy.optimize import brentq
 
+from ballchain.drake_models import paper
 from ballchain.drake_models.dipole import K_DIPOLE, dipole_field, dipole_field_gradient, force_on_dipole
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet, newtons_from_gram_force
 
@@ -55,11 +56,11 @@ class SizingInputs:
         density: of the clinical magnet, for its mass [kg/m^3].
     """
 
-    alpha: float = 0.32
-    measured_force: float = newtons_from_gram_force(132.6)
-    desired_force: float = newtons_from_gram_force(10.0)
-    measured_distance: float = 0.1651
-    heart_to_surface: float = 0.2965
+    alpha: float = paper.SIZING["alpha"]
+    measured_force: float = newtons_from_gram_force(paper.SIZING["measured_force_gf"])
+    desired_force: float = newtons_from_gram_force(paper.SIZING["desired_force_gf"])
+    measured_distance: float = paper.WORKING_DISTANCE
+    heart_to_surface: float = paper.CLINICAL_DISTANCE
     prototype_volume: float = CylinderMagnet().volume
     remanence: float = 1.44
     density: float = 7500.0

@@ -21,6 +21,7 @@ import numpy as np
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import Adder
 
+from ballchain.drake_models import paper
 from ballchain.drake_models.dipole_inversion import direction_from_field
 from ballchain.drake_models.params import BallChain
 from ballchain.systems.feeder import Feeder, FeederSpec
@@ -31,7 +32,7 @@ from ballchain.systems.rotating_magnet_unit import MagnetUnitConfig, RotatingMag
 from ballchain.systems.teleoperation import ModeSwitch, TeleoperationMapper
 
 # The paper's actuation distance: unit centre 16.51 cm from the septal puncture (origin).
-UNIT_DISTANCE = 0.1651  # [m]
+UNIT_DISTANCE = paper.WORKING_DISTANCE  # [m]
 
 
 def right_unit(**overrides) -> MagnetUnitConfig:

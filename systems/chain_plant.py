@@ -57,7 +57,7 @@ from pydrake.multibody.tree import (
 
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
-from ballchain.drake_models.params import BallChain
+from ballchain.drake_models.params import GRAVITY, BallChain
 
 
 @dataclass
@@ -289,8 +289,8 @@ def add_chain_plant(builder, config: ChainPlantConfig) -> ChainPlant:
     plant, scene_graph = AddMultibodyPlant(plant_config, builder)
     plant.set_name("plant")
     scene_graph.set_name("scene_graph")
-    if not config.gravity:
-        plant.mutable_gravity_field().set_gravity_vector([0.0, 0.0, 0.0])
+    # One gravity for statics and the plant (Drake's default is 9.81).
+    plant.mutable_gravity_field().set_gravity_vector([0.0, 0.0, -GRAVITY if config.gravity else 0.0])
 
     heart = config.heart
     if heart is not None:

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from ballchain.drake_models import mesh_tools as mt
+from ballchain.drake_models import paper
 from ballchain.drake_models.atrium_mesh import (
     AtriumMeshError,
     load_atrium_surface,
@@ -13,7 +14,7 @@ from ballchain.drake_models.atrium_mesh import (
 )
 from ballchain.drake_models.heart import PV_NAMES, HeartParams, LeftAtrium
 
-PAPER_RING_MM = {"left": 115.0, "right": 95.0}
+PAPER_RING_MM = {k: v["path_mm"] for k, v in paper.TELEOP_TASKS.items()}
 
 
 @pytest.fixture(scope="module")

@@ -44,6 +44,7 @@ def test_diagram_has_named_systems(heart):
 
 
 @pytest.mark.parametrize("name", scenario_names())
+@pytest.mark.slow
 def test_every_named_scenario_runs_briefly(name, heart):
     scenario = load_scenario(name)
     duration = 10 * scenario.effective_time_step
@@ -105,6 +106,7 @@ def test_html_recording(tmp_path):
     assert len(text) > 10_000
 
 
+@pytest.mark.slow
 def test_monitor_names_the_escaped_ball_and_nan(heart):
     """The watchdog on hand-made states: a ball moved outside the heart, then a NaN."""
     from pydrake.math import RigidTransform
@@ -154,6 +156,7 @@ def test_the_feeder_system_drives_the_chain():
     np.testing.assert_allclose((p1 - p0)[:, 0], s, atol=0.05e-3)  # the whole chain, straight
 
 
+@pytest.mark.slow
 def test_a_user_atrium_surface_runs_and_a_bad_one_is_refused(tmp_path, capsys):
     from ballchain.drake_models import mesh_tools as mt
 
@@ -180,6 +183,7 @@ UNIT_8_BALLS = ("{n_balls: 8, uniform_field: [0.0, 0.0, 0.0], units: [{name: rig
                 "sensor_noise: false, joystick: [{time: 0.0, axes: [0.0, 0.0, 1.0]}, {time: 0.3, axes: [0.0, 0.0, 0.0]}]}]}")
 
 
+@pytest.mark.slow
 def test_station_with_units_has_named_systems_and_wiring(heart):
     cd = build_chain_diagram(load_scenario("teleop_two_units"), heart=heart)
     names = {s.get_name() for s in cd.diagram.GetSystems()}

@@ -16,6 +16,7 @@ from tqdm import tqdm
 
 from ballchain.commands._common import add_json_flag, print_json, to_jsonable
 from ballchain.drake_models.dipole import K_DIPOLE
+from ballchain.drake_models.field_model_comparison import DEFAULT_DISTANCES
 from ballchain.drake_models.params import BallChain
 from ballchain.report import Section, write_report
 
@@ -90,7 +91,7 @@ def sizing_section(out: Path, quick: bool) -> tuple[Section, dict]:
 def field_models_section(out: Path, quick: bool) -> tuple[Section, dict]:
     from ballchain.commands import field_models
 
-    data = field_models.run(distances_m=[0.08, 0.12, 0.1651, 0.20], angles_deg=[0.0, 45.0, 90.0],
+    data = field_models.run(distances_m=list(DEFAULT_DISTANCES), angles_deg=[0.0, 45.0, 90.0],
                             ball=BallChain())
     section = Section("Point dipole vs exact field of the prototype cylinder")
     section.text(

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import math
 
+from ballchain.drake_models import paper
 from ballchain.commands._common import add_json_flag, print_json
 from ballchain.drake_models.dipole import K_DIPOLE
 from ballchain.drake_models.params import CylinderMagnet, gram_force, newtons_from_gram_force
@@ -24,11 +25,11 @@ from ballchain.optimization.sizing import (
 
 # flag (without --) -> (default in the flag's unit, help)
 _FLAGS: dict[str, tuple[float, str]] = {
-    "alpha": (0.32, "chain dipole scale, prototype to clinical chain (8 Fr: 0.32) [-]"),
-    "measured-force-gf": (132.6, "worst-case measured tip force f_m [gram-force]"),
-    "desired-force-gf": (10.0, "desired clinical tip force f_d [gram-force]"),
-    "measured-distance-cm": (16.51, "magnet-to-target distance of the measurement d_m [cm]"),
-    "heart-to-surface-distance-cm": (29.65, "heart to outside of the arm d_c; d = d_c + d_d/2 [cm]"),
+    "alpha": (paper.SIZING["alpha"], "chain dipole scale, prototype to clinical chain (8 Fr: 0.32) [-]"),
+    "measured-force-gf": (paper.SIZING["measured_force_gf"], "worst-case measured tip force f_m [gram-force]"),
+    "desired-force-gf": (paper.SIZING["desired_force_gf"], "desired clinical tip force f_d [gram-force]"),
+    "measured-distance-cm": (paper.WORKING_DISTANCE * 100, "magnet-to-target distance of the measurement d_m [cm]"),
+    "heart-to-surface-distance-cm": (paper.CLINICAL_DISTANCE * 100, "heart to outside of the arm d_c; d = d_c + d_d/2 [cm]"),
     "prototype-diameter-mm": (CylinderMagnet().diameter * 1e3, "prototype cylinder diameter (V_m) [mm]"),
     "prototype-length-mm": (CylinderMagnet().length * 1e3, "prototype cylinder length (V_m) [mm]"),
     "remanence-T": (1.44, "clinical magnet remanence Br (cancels in the sizing) [T]"),

@@ -17,7 +17,7 @@ from ballchain.experiments import workspace
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--step-deg", type=finite_float, default=5.0, help="magnet rotation step [deg]")
-    parser.add_argument("--distance-cm", type=finite_float, default=16.51, help="magnet to insertion point [cm]")
+    parser.add_argument("--distance-cm", type=finite_float, default=workspace.DISTANCE * 100, help="magnet to insertion point [cm]")
     parser.add_argument("--out", type=Path, default=Path("results/workspace"), help="folder for the files")
     parser.add_argument("--no-files", action="store_true", help="write no files")
     add_json_flag(parser)
@@ -59,7 +59,7 @@ def write_files(data: dict, out: Path) -> list[str]:
     return [str(csv_path), str(png)]
 
 
-def run(*, step_deg: float = 5.0, distance_cm: float = 16.51, out: Path | None = None, progress: bool = True) -> dict:
+def run(*, step_deg: float = 5.0, distance_cm: float = workspace.DISTANCE * 100, out: Path | None = None, progress: bool = True) -> dict:
     if not 0 < step_deg <= 45:
         raise ValueError(f"--step-deg must be in (0, 45], got {step_deg}")
     if distance_cm <= 10:

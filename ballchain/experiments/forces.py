@@ -26,23 +26,15 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize
 
+from ballchain.drake_models import paper
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import BallChain, CylinderMagnet, Sleeve, gram_force
 from ballchain.optimization.inverse_statics import pin_tip
 from ballchain.optimization.statics import ChainStatics
 
-PAPER_GF = {  # (vein, config, sleeve) -> grams-force, Table I
-    ("LSPV", "1", False): 20.4, ("LSPV", "2", False): 91.8, ("LSPV", "both", False): 112.2,
-    ("LIPV", "1", False): 20.4, ("LIPV", "2", False): 86.7, ("LIPV", "both", False): 107.1,
-    ("RSPV", "1", False): 81.6, ("RSPV", "2", False): 40.8, ("RSPV", "both", False): 122.4,
-    ("RIPV", "1", False): 81.6, ("RIPV", "2", False): 40.8, ("RIPV", "both", False): 122.4,
-    ("LSPV", "1", True): 30.6, ("LSPV", "2", True): 107.1, ("LSPV", "both", True): 137.7,
-    ("LIPV", "1", True): 30.6, ("LIPV", "2", True): 102.0, ("LIPV", "both", True): 132.6,
-    ("RSPV", "1", True): 81.6, ("RSPV", "2", True): 51.0, ("RSPV", "both", True): 132.6,
-    ("RIPV", "1", True): 81.6, ("RIPV", "2", True): 51.0, ("RIPV", "both", True): 132.6,
-}
-DISTANCE = 0.1651
+PAPER_GF = paper.TABLE_I_GF
+DISTANCE = paper.WORKING_DISTANCE
 
 
 @dataclass

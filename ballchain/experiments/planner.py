@@ -19,6 +19,7 @@ from typing import Callable
 import numpy as np
 from tqdm import tqdm
 
+from ballchain.drake_models import paper
 from ballchain.drake_models.dipole_inversion import moment_from_field
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
@@ -29,8 +30,7 @@ from ballchain.optimization.statics import ChainStatics, StaticsResult
 from ballchain.systems.chain_plant import ContactConfig
 
 TASKS = {"left": "left", "right": "right"}
-PAPER = {"left": {"targets": 20, "path_mm": 115.0, "human_time_s": 40.0},
-         "right": {"targets": 18, "path_mm": 95.0, "human_time_s": 26.0}}
+PAPER = paper.TELEOP_TASKS
 MIN_FORCE_GF = 10.0
 
 

@@ -22,10 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ballchain.drake_models import paper
+
 TASKS = ("left", "right")
 MAPPINGS = {"world": "world", "catheter": "tip"}  # user-facing name -> TeleoperationMapper frame
-PAPER = {"left": {"targets": 20, "human_time_s": 40.0, "path_mm": 115.0},
-         "right": {"targets": 18, "human_time_s": 26.0, "path_mm": 95.0}}
+PAPER = paper.TELEOP_TASKS
 SCENARIO = "teleop_right_unit"
 REPLAY_PERIOD = 0.1  # [s] Meshcat replay frames (unless the overrides set publish_period)
 # A 4 ms quasi-static step (same damping): replaying 15 s of an operator's recorded commands (68 mm

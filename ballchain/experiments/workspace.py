@@ -17,13 +17,13 @@ from __future__ import annotations
 import numpy as np
 from tqdm import tqdm
 
+from ballchain.drake_models import paper
 from ballchain.drake_models.params import BallChain, Sleeve
 from ballchain.experiments.magnet_poses import field_angle_for_magnet_angle, side_magnet
 from ballchain.optimization.statics import ChainStatics
 
-PAPER = {"half_area_bare_mm2": 3345.0, "half_area_sleeve_mm2": 2939.0, "reduction_pct": 12.0,
-         "tip_to_tip_mm": 8.0}
-DISTANCE = 0.1651
+PAPER = paper.WORKSPACE
+DISTANCE = paper.WORKING_DISTANCE
 
 
 def polygon_area(points_xy: np.ndarray) -> float:
