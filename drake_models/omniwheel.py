@@ -36,6 +36,7 @@ horizontally along its circle of latitude. With orthogonal axes ``A`` is orthogo
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -47,6 +48,7 @@ PAPER_A = np.array(
         [-0.41, -0.71, -0.58],
     ]
 )
+_PAPER_A_INV = np.linalg.inv(PAPER_A)
 PAPER_WHEEL_RADIUS = 48e-3  # rho_w [m]
 PAPER_SPHERE_RADIUS = 43.5e-3  # rho_a, effective radius of the magnet housing [m]
 
@@ -118,8 +120,11 @@ class OmniWheelGeometry:
 
     def sphere_angular_velocity(self, omega_w: np.ndarray) -> np.ndarray:
         """Forward map: sphere angular velocity (..., 3) [rad/s] from wheel speeds (..., 3) [rad/s]."""
-        A_inv = np.linalg.inv(self.A)
-        return np.einsum("ij,...j->...i", A_inv, np.asarray(omega_w, dtype=float)) / self.ratio
+        return np.einsum("ij,...j->...i", self._A_inv, np.asarray(omega_w, dtype=float)) / self.ratio
+
+    @cached_property
+    def _A_inv(self) -> np.ndarray:
+        return np.linalg.inv(self.A)
 
     def rolling_residual(self, omega_a: np.ndarray, omega_w: np.ndarray) -> np.ndarray:
         """Slip velocity along each wheel's driving direction (..., 3) [m/s].
@@ -157,6 +162,15 @@ def paper_forward_map(omega_w: np.ndarray, geometry: OmniWheelGeometry | None = 
     """The paper's printed forward map ``omega_a = (rho_a/rho_w) A_paper omega_w`` (for comparison only)."""
     g = geometry or OmniWheelGeometry()
     return g.ratio * np.einsum("ij,...j->...i", PAPER_A, np.asarray(omega_w, dtype=float))
+
+
+def paper_wheel_speeds(omega_a: np.ndarray, geometry: OmniWheelGeometry | None = None) -> np.ndarray:
+    """Wheel speeds (..., 3) [rad/s] that the paper's printed map would command for omega_a (..., 3).
+
+    The inverse of ``paper_forward_map``: what a controller built on the printed map sends.
+    """
+    g = geometry or OmniWheelGeometry()
+    return np.einsum("ij,...j->...i", _PAPER_A_INV, np.asarray(omega_a, dtype=float)) / g.ratio
 
 
 def wheel_map_report(n_samples: int = 1000, seed: int = 0) -> dict:

@@ -84,7 +84,6 @@ class OmniWheelDrive(LeafSystem):
         super().__init__()
         self._geometry = geometry or OmniWheelGeometry()
         self._spec = spec or StepperSpec()
-        self._inverse = self._geometry.ratio * self._geometry.A
         self.set_name(f"{name}.drive")
 
         self._omega_port = self.DeclareVectorInputPort("omega_desired_W", 3)
@@ -103,7 +102,7 @@ class OmniWheelDrive(LeafSystem):
 
     def wheel_command(self, omega_desired_W: np.ndarray) -> np.ndarray:
         """(3,) wheel speeds [rad/s] for a desired magnet angular velocity, speed-limited."""
-        return saturate_uniformly(self._inverse @ np.asarray(omega_desired_W, dtype=float), self._spec.max_speed)
+        return saturate_uniformly(self._geometry.wheel_speeds(omega_desired_W), self._spec.max_speed)
 
     def _update(self, context, discrete_state):
         s = self._spec

@@ -26,7 +26,7 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from ballchain.drake_models.dipole_inversion import angle_between
-from ballchain.drake_models.omniwheel import PAPER_A, OmniWheelGeometry
+from ballchain.drake_models.omniwheel import OmniWheelGeometry, paper_wheel_speeds
 from ballchain.systems.omni_wheel_drive import saturate_uniformly
 
 
@@ -92,12 +92,11 @@ class ReconfigurationController(LeafSystem):
         self._cone = np.deg2rad(antiparallel_deg)
         self._g = geometry or OmniWheelGeometry()
         if wheel_map == "derived":
-            self._to_wheels = self._g.ratio * self._g.A
+            self._to_wheels = self._g.wheel_speeds
         elif wheel_map == "paper":
-            self._to_wheels = np.linalg.inv(PAPER_A) / self._g.ratio
+            self._to_wheels = lambda omega: paper_wheel_speeds(omega, self._g)
         else:
             raise ValueError(f"wheel_map must be 'derived' or 'paper', got {wheel_map!r}")
-        self._to_magnet = np.linalg.inv(self._g.A) / self._g.ratio  # the true forward map
         self._fallback_axis = perpendicular_axis(self._m_c)
         self.set_name(f"{name}.controller")
 
@@ -134,7 +133,7 @@ class ReconfigurationController(LeafSystem):
 
     def wheel_command(self, m_hat: np.ndarray) -> np.ndarray:
         """(3,) saturated wheel speeds [rad/s] for a measured direction."""
-        return saturate_uniformly(self._to_wheels @ self.desired_angular_velocity(m_hat), self._max_speed)
+        return saturate_uniformly(self._to_wheels(self.desired_angular_velocity(m_hat)), self._max_speed)
 
     def _is_done(self, context) -> bool:
         return bool(context.get_discrete_state(self._done_index).GetAtIndex(0) > 0.5)
@@ -155,7 +154,7 @@ class ReconfigurationController(LeafSystem):
         output.SetFromVector(self._wheels(context))
 
     def _calc_omega(self, context, output):
-        output.SetFromVector(self._to_magnet @ self._wheels(context))
+        output.SetFromVector(self._g.sphere_angular_velocity(self._wheels(context)))  # the true forward map
 
     def _calc_angle(self, context, output):
         m = self._m_port.Eval(context)

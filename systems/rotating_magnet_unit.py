@@ -119,9 +119,6 @@ class RotatingMagnetUnit(LeafSystem):
         if not (0.0 <= slip < 1.0):
             raise ValueError(f"slip must be in [0, 1), got {slip!r}")
         self._slip = float(slip)
-        g = self._config.geometry
-        # Forward map, precomputed: omega_W = (1 - slip) (rho_w/rho_a) A^-1 omega_wheels.
-        self._forward = (1.0 - self._slip) * np.linalg.inv(g.A) / g.ratio
         self.set_name(f"{self._config.name}.magnet")
 
         self._omega_wheels_port = self.DeclareVectorInputPort("omega_wheels", 3)
@@ -159,7 +156,8 @@ class RotatingMagnetUnit(LeafSystem):
         return self._config.source(self.R_WM(context))
 
     def _omega_W(self, context: Context) -> np.ndarray:
-        return self._forward @ self._omega_wheels_port.Eval(context)
+        # omega_W = (1 - slip) (rho_w/rho_a) A^-1 omega_wheels (docs/design.md, 4.2).
+        return (1.0 - self._slip) * self._config.geometry.sphere_angular_velocity(self._omega_wheels_port.Eval(context))
 
     def DoCalcTimeDerivatives(self, context, derivatives):
         q = context.get_continuous_state_vector().CopyToVector()
