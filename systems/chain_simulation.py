@@ -6,7 +6,7 @@ Diagram (system names):
     ``feeder_command``: the scenario's insertion ramp as the feeder slide's desired state.
         With ``insertion.external`` it is replaced by ``feeder_interface`` and the diagram
         exports the input port ``inserted_length`` (1, m) for a feeder system.
-    ``target_touches``: TargetTouchTracker (``meshcat_overlays``), when the atrium has target
+    ``target_touches``: TargetTouchTracker (``target_contact``), when the atrium has target
         rings: the ablation targets the tip ball has touched so far.
     ``meshcat_visualizer``, ``meshcat_overlays`` (targets, field at the tip, the wall's force on
         the tip): when a Meshcat is given (and ``unit_markers`` for the units).
@@ -44,13 +44,8 @@ from ballchain.drake_models.params import BallChain, CylinderMagnet, Sleeve, Sph
 from ballchain.systems.chain_plant import ChainPlant, ChainPlantConfig, SheathConfig, add_chain_plant
 from ballchain.systems.chain_scenario import ChainScenario
 from ballchain.systems.magnetic_wrench import MagneticWrenchSystem
-from ballchain.systems.meshcat_overlays import (
-    MeshcatOverlays,
-    TargetTouchTracker,
-    heart_targets,
-    wall_force_on,
-    wall_geometries,
-)
+from ballchain.systems.meshcat_overlays import MeshcatOverlays
+from ballchain.systems.target_contact import TargetTouchTracker, heart_targets, wall_force_on, wall_geometries
 from ballchain.systems.station_units import TipObserver, UnitMeshcatMarkers, add_feeder, add_units, unit_configs
 
 

@@ -38,7 +38,7 @@ The policy, an honest model of a person learning an unfamiliar mapping by watchi
   ``stall_window`` seconds, it feeds more chain for ``burst`` seconds when the target lies ahead
   of the tip (within 60 degrees of its direction: out of reach) and feeding is allowed, and
   retracts otherwise (stuck against the wall), steering meanwhile; then it resumes.
-* Touch: the target counts as touched when ``targets_touched`` (``meshcat_overlays``: the tip
+* Touch: the target counts as touched when ``targets_touched`` (``target_contact``: the tip
   ball within 0.5 mm of the wall inside the target's 5 mm circle) says so at one of its looks;
   it records the time and the accuracy (distance from the ball's wall-side point, its centre
   moved a ball radius against the target's normal, to the target's centre) and moves on. After
@@ -57,7 +57,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import EventStatus, LeafSystem
 
-from ballchain.systems.meshcat_overlays import targets_touched
+from ballchain.systems.target_contact import targets_touched
 
 
 @dataclass

@@ -11,7 +11,7 @@ axes 0/1 swing the field at the tip about the tip frame's z and -y; the operator
 Both at the unit's ``teleop_omega_max`` (0.5 rad/s), with the feeder.
 
 A target counts as touched when the tip ball touches it within its 5 mm circle
-(``meshcat_overlays.targets_touched``); per target the operator records the time it spent on it
+(``target_contact.targets_touched``); per target the operator records the time it spent on it
 and the accuracy: the distance from the tip ball's wall-side point to the target's centre.
 """
 
