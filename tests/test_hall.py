@@ -8,12 +8,12 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import VectorLogSink
 
 from ballchain.drake_models.dipole import K_DIPOLE, dipole_field
+from ballchain.experiments.hall_inversion import inversion_comparison
 from ballchain.drake_models.dipole_inversion import (
     angle_between,
     dipole_matrix,
     dipole_matrix_inverse,
     direction_from_field,
-    inversion_comparison,
     moment_from_field,
     paper_direction_formula,
     paper_formula_angle_error,

@@ -12,7 +12,7 @@ import argparse
 import math
 
 from ballchain.commands._common import add_json_flag, print_json
-from ballchain.drake_models.field_model_comparison import (
+from ballchain.experiments.field_models import (
     DEFAULT_DISTANCES,
     DEFAULT_POLAR_ANGLES_DEG,
     compare_field_models,

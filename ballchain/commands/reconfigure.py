@@ -71,7 +71,7 @@ def run(
     """Run the study; returns the full result of ``run_reconfiguration_study``."""
     from tqdm import tqdm
 
-    from ballchain.systems.reconfiguration_study import run_reconfiguration_study
+    from ballchain.experiments.reconfiguration import run_reconfiguration_study
 
     with tqdm(total=runs, desc="reconfigure", unit="run", file=sys.stderr, disable=not progress) as bar:
         return run_reconfiguration_study(

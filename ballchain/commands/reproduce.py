@@ -16,7 +16,7 @@ from tqdm import tqdm
 
 from ballchain.commands._common import add_json_flag, print_json, to_jsonable
 from ballchain.drake_models.dipole import K_DIPOLE
-from ballchain.drake_models.field_model_comparison import DEFAULT_DISTANCES
+from ballchain.experiments.field_models import DEFAULT_DISTANCES
 from ballchain.drake_models.params import BallChain
 from ballchain.report import Section, write_report
 

@@ -13,7 +13,7 @@ import argparse
 import numpy as np
 
 from ballchain.commands._common import add_json_flag, positive_int, print_json
-from ballchain.drake_models.omniwheel import wheel_map_report
+from ballchain.experiments.wheels import wheel_map_report
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -25,7 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(*, samples: int = 1000, seed: int = 0) -> dict:
-    """The report as a JSON-ready dict (see ``drake_models.omniwheel.wheel_map_report``)."""
+    """The report as a JSON-ready dict (see ``ballchain.experiments.wheels.wheel_map_report``)."""
     return wheel_map_report(n_samples=samples, seed=seed)
 
 
