@@ -8,7 +8,7 @@ import pytest
 from ballchain.cli import main as cli_main
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.systems.chain_scenario import ChainScenario, load_scenario, scenario_names
-from ballchain.systems.chain_simulation import SimulationFailure, build_chain_diagram, run_simulation
+from ballchain.systems.chain_simulation import build_chain_diagram, run_simulation
 
 KEYS = {"realtime_factor", "sim_time_s", "tip_position_mm", "min_wall_clearance_mm",
         "max_neighbor_gap_um", "max_penetration_um", "targets_touched", "peak_memory_MB"}
@@ -88,12 +88,10 @@ def test_a_breaking_chain_stops_with_when_and_which_ball(capsys):
     assert cli_main(argv) == 1
     captured = capsys.readouterr()
     assert "simulation stopped:" in captured.err
-    assert "between balls" in captured.err or "flew away" in captured.err or "NaN" in captured.err
+    # Deterministic: the first check after the blow-up (5 ms) finds the chain broken.
+    assert "the chain broke between balls 13 and 14 at t = 0.0050 s" in captured.err
     data = json.loads(captured.out)
     assert "failure" in data and data["sim_time_s"] < 0.05
-    with pytest.raises(SimulationFailure, match=r"at t = 0\.0"):
-        run_simulation(scenario=load_scenario("free_space_uniform_90deg", "{translational_damping: 0.1}"),
-                       duration=0.05)
 
 
 def test_html_recording(tmp_path):
