@@ -51,6 +51,7 @@ from ballchain.systems.meshcat_overlays import (
     wall_force_on,
     wall_geometries,
 )
+from ballchain.systems.meshcat_view import frame_scene
 from ballchain.systems.station_units import TipObserver, UnitMeshcatMarkers, add_feeder, add_units, unit_configs
 
 
@@ -275,6 +276,8 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
         visualizer = MeshcatVisualizer.AddToBuilder(builder, cp.scene_graph, meshcat, params)
         visualizer.set_name("meshcat_visualizer")
         _draw_magnets(meshcat, source)
+        # The camera starts on the atrium (or the free chain's reach), also in the replays.
+        frame_scene(meshcat, heart, chain.length, cp.p_WE)
         if configs:
             markers = builder.AddSystem(UnitMeshcatMarkers(meshcat, configs, scenario.publish_period))
             for c in configs:
