@@ -71,14 +71,25 @@ def camera_pose_for_box(lower, upper, direction_W=VIEW_DIRECTION_W, fov_deg: flo
     return centre + distance * u, centre
 
 
-def frame_box(meshcat, lower, upper, direction_W=VIEW_DIRECTION_W) -> tuple[np.ndarray, np.ndarray]:
+def frame_box(meshcat, lower, upper, direction_W=VIEW_DIRECTION_W, hide_grid: bool = True
+              ) -> tuple[np.ndarray, np.ndarray]:
     """Point Meshcat's camera at a box's centre from where the whole box is in view.
+
+    Args:
+        meshcat: the Meshcat.
+        lower, upper, direction_W: as ``camera_pose_for_box``.
+        hide_grid: hide Meshcat's ground grid and world axes: both are sized for metres (grid
+            lines 0.5 m apart), so at the scale of a heart the only parts in view are lines
+            through the origin that cross the scene like stray force arrows.
 
     Returns:
         (p_WC, p_WT) as ``camera_pose_for_box``.
     """
     p_WC, p_WT = camera_pose_for_box(lower, upper, direction_W)
     meshcat.SetCameraPose(p_WC, p_WT)
+    if hide_grid:
+        meshcat.SetProperty("/Grid", "visible", False)
+        meshcat.SetProperty("/Axes", "visible", False)
     return p_WC, p_WT
 
 
