@@ -206,6 +206,8 @@ def test_bad_live_input_fails_before_any_work(capsys):
     assert "--realtime-rate must be >= 0" in capsys.readouterr().err
     assert cli_main(["teleop", "--live", "--set", "{no_such_field: 1}", "--duration", "0.1"]) == 2
     assert "no_such_field" in capsys.readouterr().err
+    assert cli_main(["teleop", "--live", "--html", "x.html"]) == 2
+    assert "--html does not apply to --live" in capsys.readouterr().err
 
 
 # ---------------------------------------------------------------------------- live station

@@ -91,8 +91,12 @@ def main(args: argparse.Namespace) -> int:
 def _main_live(args: argparse.Namespace) -> int:
     import sys
 
+    from ballchain.drake_models.errors import UserInputError
     from ballchain.experiments import teleop
 
+    for flag, value in (("--html", args.html), ("--targets", args.targets), ("--time-limit", args.time_limit)):
+        if value is not None:
+            raise UserInputError(f"{flag} does not apply to --live (got {value}); use --duration to bound a live run")
     teleop.check_live_inputs(args.mapping, args.units, args.balls, args.duration, args.realtime_rate)
     # With --json the console lines go to stderr, so that stdout is the JSON alone.
     echo = (lambda line: print(line, file=sys.stderr, flush=True)) if args.json else (lambda line: print(line, flush=True))
