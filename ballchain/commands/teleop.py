@@ -99,7 +99,8 @@ def _main_live(args: argparse.Namespace) -> int:
             raise UserInputError(f"{flag} does not apply to --live (got {value}); use --duration to bound a live run")
     teleop.check_live_inputs(args.mapping, args.units, args.balls, args.duration, args.realtime_rate)
     # With --json the console lines go to stderr, so that stdout is the JSON alone.
-    echo = (lambda line: print(line, file=sys.stderr, flush=True)) if args.json else (lambda line: print(line, flush=True))
+    stream = sys.stderr if args.json else sys.stdout
+    echo = lambda line: print(line, file=stream, flush=True)  # noqa: E731
     data = teleop.run_live(mapping=args.mapping, units=args.units, n_balls=args.balls, overrides=args.overrides,
                            duration=args.duration, realtime_rate=args.realtime_rate, echo=echo)
     if args.json:

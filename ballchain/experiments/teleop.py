@@ -466,9 +466,9 @@ def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None 
             if now - last_wall >= status_period:
                 t = session.root.get_time()
                 unit, stick, v = session.joystick_state()
-                f = session.tip_force_N()
+                f_gf = gram_force(float(np.linalg.norm(session.tip_force_N())))
                 echo(f"t = {t:7.2f} s  real-time rate {(t - last_sim) / (now - last_wall):5.2f}  "
-                     f"targets {len(session.touched())}/{n_targets}  tip force {gram_force(np.linalg.norm(f)):5.1f} gf  "
+                     f"targets {len(session.touched())}/{n_targets}  tip force {f_gf:5.1f} gf  "
                      f"{unit} stick {np.round(stick, 2).tolist()}  feeder {v * 1e3:+.1f} mm/s")
                 last_wall, last_sim = now, t
     except KeyboardInterrupt:
