@@ -9,7 +9,8 @@ Diagram (system names):
     ``target_touches``: TargetTouchTracker (``meshcat_overlays``), when the atrium has target
         rings: the ablation targets the tip ball has touched so far.
     ``meshcat_visualizer``, ``meshcat_overlays`` (targets, field at the tip, the wall's force on
-        the tip): when a Meshcat is given (and ``unit_markers`` for the units).
+        the tip): when a Meshcat is given (and ``unit_markers`` for the units); the Meshcat's
+        camera is then framed on the atrium (``meshcat_view.frame_scene``).
     With ``units``: per unit ``<u>.magnet``, ``<u>.drive``, ``<u>.hall_sensor``, ``<u>.estimator``,
         ``<u>.controller``, ``<u>.teleoperation``, ``<u>.mode_switch``, ``<u>.joystick``,
         ``<u>.mode_command``, ``<u>.p_WM``, and ``magnet_states`` into the wrench's magnet input
