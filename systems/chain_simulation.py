@@ -9,7 +9,8 @@ Diagram (system names):
     ``target_touches``: TargetTouchTracker (``target_contact``), when the atrium has target
         rings: the ablation targets the tip ball has touched so far.
     ``meshcat_visualizer``, ``meshcat_overlays`` (targets, field at the tip, the wall's force on
-        the tip): when a Meshcat is given (and ``unit_markers`` for the units).
+        the tip): when a Meshcat is given (and ``unit_markers`` for the units); the Meshcat's
+        camera is then framed on the atrium (``meshcat_view.frame_scene``).
     With ``units``: per unit ``<u>.magnet``, ``<u>.drive``, ``<u>.hall_sensor``, ``<u>.estimator``,
         ``<u>.controller``, ``<u>.teleoperation``, ``<u>.mode_switch``, ``<u>.joystick``,
         ``<u>.mode_command``, ``<u>.p_WM``, and ``magnet_states`` into the wrench's magnet input
@@ -46,6 +47,7 @@ from ballchain.systems.chain_scenario import ChainScenario
 from ballchain.systems.magnetic_wrench import MagneticWrenchSystem
 from ballchain.systems.meshcat_overlays import MeshcatOverlays
 from ballchain.systems.target_contact import TargetTouchTracker, heart_targets, wall_force_on, wall_geometries
+from ballchain.systems.meshcat_view import frame_scene
 from ballchain.systems.station_units import TipObserver, UnitMeshcatMarkers, add_feeder, add_units, unit_configs
 
 
@@ -270,6 +272,8 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
         visualizer = MeshcatVisualizer.AddToBuilder(builder, cp.scene_graph, meshcat, params)
         visualizer.set_name("meshcat_visualizer")
         _draw_magnets(meshcat, source)
+        # The camera starts on the atrium (or the free chain's reach), also in the replays.
+        frame_scene(meshcat, heart, chain.length, cp.p_WE)
         if configs:
             markers = builder.AddSystem(UnitMeshcatMarkers(meshcat, configs, scenario.publish_period))
             for c in configs:

@@ -28,8 +28,12 @@ FIELD_ARROW_SCALE = 1.0  # [m/T]: 1 mm per mT
 FORCE_ARROW_SCALE = 0.1  # [m/N]: 10 mm per 0.1 N
 FIELD_ARROW_RGBA = Rgba(0.1, 0.35, 0.95, 1.0)  # blue
 FORCE_ARROW_RGBA = Rgba(1.0, 0.55, 0.0, 1.0)  # orange
-TARGET_RGBA = Rgba(0.95, 0.85, 0.1, 0.6)  # yellow: not touched yet
-TOUCHED_RGBA = Rgba(0.1, 0.8, 0.2, 0.95)  # green: touched
+# The target discs are opaque: three.js draws opaque objects first, then blends the
+# semi-transparent heart over them; a semi-transparent disc is drawn after the heart and its
+# depth test fails wherever the heart's near wall is in front of it (every disc on the near side
+# of the chamber vanished in the replays).
+TARGET_RGBA = Rgba(0.95, 0.85, 0.1, 1.0)  # yellow: not touched yet
+TOUCHED_RGBA = Rgba(0.1, 0.8, 0.2, 1.0)  # green: touched
 
 
 def _arrow_pose(p_W: np.ndarray, v_W: np.ndarray) -> RigidTransform:
