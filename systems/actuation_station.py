@@ -22,6 +22,7 @@ from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import Adder
 
 from ballchain.drake_models.dipole_inversion import direction_from_field
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.params import BallChain
 from ballchain.systems.feeder import Feeder, FeederSpec
 from ballchain.systems.hall_sensor import DipoleDirectionEstimator, HallSensor, HallSensorSpec
@@ -200,7 +201,7 @@ def make_actuation_station(
     opt = options or StationOptions()
     names = [u.name for u in units]
     if len(set(names)) != len(names) or not names:
-        raise ValueError(f"unit names must be distinct and at least one, got {names}")
+        raise UserInputError(f"unit names must be distinct and at least one, got {names}")
     builder = DiagramBuilder()
     magnets = {}
     for k, unit in enumerate(units):

@@ -16,6 +16,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ballchain.commands._common import add_json_flag, finite_float, positive_int, print_json
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import UniformField
 from ballchain.drake_models.params import BallChain, Sleeve
 from ballchain.optimization.statics import ChainStatics, rotation_path, tip_angle_deg
@@ -38,7 +39,7 @@ def run(*, max_balls: int = 16, field_mT: float = 23.0, step_deg: float = 22.5, 
         out: Path | None = None, progress: bool = True) -> dict:
     """Run the study; returns {"rows": [...], "shapes": {angle: positions_mm}, "summary": {...}}."""
     if field_mT <= 0:
-        raise ValueError(f"--field-mT must be positive, got {field_mT}")
+        raise UserInputError(f"--field-mT must be positive, got {field_mT}")
     angles = rotation_path(0.0, 180.0, step_deg)
     rows, shapes = [], {}
     for n in tqdm(range(1, max_balls + 1), desc="alignment", unit="chain", disable=not progress):

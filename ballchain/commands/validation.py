@@ -11,6 +11,7 @@ import csv
 from pathlib import Path
 
 from ballchain.commands._common import add_json_flag, finite_float, print_json
+from ballchain.drake_models.errors import UserInputError
 from ballchain.experiments import model_validation
 
 
@@ -23,7 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(*, field_mT: float = 23.0, out: Path | None = None, progress: bool = True, balls=range(5, 11)) -> dict:
     if field_mT <= 0:
-        raise ValueError(f"--field-mT must be positive, got {field_mT}")
+        raise UserInputError(f"--field-mT must be positive, got {field_mT}")
     data = model_validation.run(field_T=field_mT * 1e-3, progress=progress, balls=balls)
     if out is not None:
         out = Path(out)

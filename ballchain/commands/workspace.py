@@ -12,6 +12,7 @@ import csv
 from pathlib import Path
 
 from ballchain.commands._common import add_json_flag, finite_float, print_json
+from ballchain.drake_models.errors import UserInputError
 from ballchain.experiments import workspace
 
 
@@ -61,9 +62,9 @@ def write_files(data: dict, out: Path) -> list[str]:
 
 def run(*, step_deg: float = 5.0, distance_cm: float = 16.51, out: Path | None = None, progress: bool = True) -> dict:
     if not 0 < step_deg <= 45:
-        raise ValueError(f"--step-deg must be in (0, 45], got {step_deg}")
+        raise UserInputError(f"--step-deg must be in (0, 45], got {step_deg}")
     if distance_cm <= 10:
-        raise ValueError(f"--distance-cm must exceed 10 cm (the magnet would touch the chain), got {distance_cm}")
+        raise UserInputError(f"--distance-cm must exceed 10 cm (the magnet would touch the chain), got {distance_cm}")
     data = workspace.run(step_deg=step_deg, distance=distance_cm / 100.0, progress=progress)
     if out is not None:
         data["files"] = write_files(data, Path(out))

@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from ballchain.drake_models.errors import UserInputError
 
 TASKS = ("left", "right")
 MAPPINGS = {"world": "world", "catheter": "tip"}  # user-facing name -> TeleoperationMapper frame
@@ -39,16 +40,16 @@ FAST = "{time_step: 0.004}"
 def check_inputs(task: str, mapping: str, targets: int | None, n_balls: int | None, time_limit: float | None) -> None:
     """Raises ValueError with a clear message on bad input."""
     if task not in TASKS:
-        raise ValueError(f"task must be one of {TASKS} ('left': Task I, 'right': Task II), got {task!r}")
+        raise UserInputError(f"task must be one of {TASKS} ('left': Task I, 'right': Task II), got {task!r}")
     if mapping not in MAPPINGS:
-        raise ValueError(f"mapping must be one of {tuple(MAPPINGS)}, got {mapping!r}")
+        raise UserInputError(f"mapping must be one of {tuple(MAPPINGS)}, got {mapping!r}")
     if targets is not None and (isinstance(targets, bool) or not isinstance(targets, (int, np.integer))
                                 or targets < 1):
-        raise ValueError(f"targets must be a positive number of targets (the first N), got {targets!r}")
+        raise UserInputError(f"targets must be a positive number of targets (the first N), got {targets!r}")
     if n_balls is not None and n_balls < 3:
-        raise ValueError(f"balls must be >= 3 (ball 1 stays in the sheath), got {n_balls}")
+        raise UserInputError(f"balls must be >= 3 (ball 1 stays in the sheath), got {n_balls}")
     if time_limit is not None and not time_limit > 0:
-        raise ValueError(f"time_limit must be > 0 s, got {time_limit}")
+        raise UserInputError(f"time_limit must be > 0 s, got {time_limit}")
 
 
 def scenario_for(mapping: str, n_balls: int | None = None, overrides: str | None = None):
