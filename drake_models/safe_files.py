@@ -18,6 +18,8 @@ from pathlib import Path
 from ballchain.drake_models.errors import UserInputError
 
 TEMP_SUFFIX = ".partial"
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)  # read once: mkstemp makes 0600 files, results get the usual 0666 & ~umask
 
 
 @contextlib.contextmanager
@@ -38,6 +40,7 @@ def atomic_path(path):
     tmp = Path(tmp)
     try:
         yield tmp
+        os.chmod(tmp, 0o666 & ~_UMASK)
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -25,7 +26,11 @@ def to_jsonable(value):
         return to_jsonable(value.item())
     if isinstance(value, Path):
         return str(value)
-    return value
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return to_jsonable({f.name: getattr(value, f.name) for f in dataclasses.fields(value)})
+    if value is None or isinstance(value, (bool, int, str)):
+        return value
+    return str(value)  # anything else (a Drake object, ...): its text, so the JSON is always valid
 
 
 def json_text(data) -> str:
@@ -122,3 +127,28 @@ def check_in(name: str, value, lo, hi, *, lo_open: bool = False, unit: str = "")
 
 def add_json_flag(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
+
+
+def write_csv(path, rows: list[dict], fieldnames=None) -> Path:
+    """Write dict rows as CSV to ``path`` atomically (extra keys ignored); returns the path."""
+    import csv
+    import io
+
+    from ballchain.drake_models.safe_files import atomic_write_text
+
+    buffer = io.StringIO(newline="")
+    writer = csv.DictWriter(buffer, fieldnames=list(fieldnames or (rows[0] if rows else [])),
+                            extrasaction="ignore")
+    writer.writeheader()
+    writer.writerows(rows)
+    return atomic_write_text(path, buffer.getvalue())
+
+
+def save_figure(fig, path, **kwargs) -> Path:
+    """``fig.savefig`` to ``path`` atomically (the format from the path's suffix); returns the path."""
+    from ballchain.drake_models.safe_files import atomic_path
+
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format=path.suffix.lstrip(".") or "png", **kwargs)
+    return path
