@@ -457,6 +457,9 @@ def run(*, out: Path, quick: bool = False, resume: bool = False, sections=None) 
     replaced = sorted(p.name + ("/" if p.is_dir() else "") for p in out.iterdir()
                       if p.name != CACHE) if out.is_dir() else []
     out.mkdir(parents=True, exist_ok=True)
+    for stale in out.rglob(f"*{TEMP_SUFFIX}"):  # temporary files of a killed run: never results
+        stale.unlink(missing_ok=True)
+    replaced = [name for name in replaced if not name.endswith(TEMP_SUFFIX)]
     if replaced and not resume:
         shown = ", ".join(replaced[:12]) + (f" and {len(replaced) - 12} more" if len(replaced) > 12 else "")
         _say(f"{out} is not empty: files of the same names will be replaced ({shown})")
