@@ -24,13 +24,15 @@ from typing import Literal
 import numpy as np
 
 from ballchain.drake_models import mesh_tools as mt
+from ballchain.drake_models.errors import UserInputError
 
 Units = Literal["auto", "m", "mm"]
 SENSIBLE_EXTENT_MM = (30.0, 80.0)  # typical LA size; outside ACCEPTED_EXTENT_MM is refused
 ACCEPTED_EXTENT_MM = (20.0, 120.0)
+MAX_PUNCTURE_DISTANCE = 5e-3  # [m] a user's puncture may lie this far from the surface
 
 
-class AtriumMeshError(ValueError):
+class AtriumMeshError(UserInputError):
     """A user atrium surface that cannot be used; the message lists every problem found."""
 
 
@@ -286,14 +288,27 @@ class UserAtrium:
         self.surface = surface
         self.params = params or UserAtriumParams()
         if self.params.wall_layers < 2:
-            raise ValueError("UserAtriumParams.wall_layers must be >= 2")
+            raise UserInputError("UserAtriumParams.wall_layers must be >= 2")
         V, F = surface.V, surface.F
-        k = int(np.argmin(np.linalg.norm(V - np.asarray(p_HP, float), axis=1)))
+        p_HP = np.asarray(p_HP, float)
+        if p_HP.shape != (3,) or not np.all(np.isfinite(p_HP)):
+            raise UserInputError(f"puncture must be 3 finite coordinates [m], got {np.asarray(p_HP).tolist()}")
+        # The puncture is snapped onto the surface: only a small correction is accepted, so a
+        # mistyped point (or one in millimetres) is refused instead of silently moved far away.
+        gap = float(mt.SurfaceDistance(V, F)(p_HP)[0])
+        if gap > MAX_PUNCTURE_DISTANCE:
+            raise UserInputError(
+                f"puncture {np.round(p_HP, 6).tolist()} m is {gap * 1e3:.1f} mm from the atrium surface; it "
+                f"must lie within {MAX_PUNCTURE_DISTANCE * 1e3:.0f} mm of it (coordinates in metres, in the "
+                "surface's frame after its units are applied)")
+        k = int(np.argmin(np.linalg.norm(V - p_HP, axis=1)))
         self.p_HP = V[k].copy()
+        if sheath_aim is not None and (np.shape(sheath_aim) != (3,) or not np.all(np.isfinite(sheath_aim))):
+            raise UserInputError(f"sheath_aim must be 3 finite coordinates [m], got {sheath_aim}")
         aim = V.mean(axis=0) if sheath_aim is None else np.asarray(sheath_aim, float)
         axis = aim - self.p_HP
         if np.linalg.norm(axis) == 0:
-            raise ValueError("UserAtrium: the sheath aim coincides with the puncture")
+            raise UserInputError("UserAtrium: the sheath aim coincides with the puncture")
         self.sheath_axis_H = axis / np.linalg.norm(axis)
         self.p_HE = self.p_HP + self.params.sheath_extension * self.sheath_axis_H
         self.rings: dict = {}

@@ -13,3 +13,30 @@ class UserInputError(ValueError):
 
     The message names the field (flag, scenario key or parameter), the value and what is allowed.
     """
+
+
+class NonFiniteSignal(RuntimeError):
+    """A system received (or computed) NaN or inf: the message names the system, the port (or
+    the quantity), the element and the simulated time. Raised inside a Drake system's
+    calculation so that the simulator stops at once (an error-controlled integrator would
+    otherwise shrink its step forever on a NaN derivative)."""
+
+
+def check_finite_input(system, port, context, value=None):
+    """``port.Eval(context)`` (or ``value``) as a numpy array, or NonFiniteSignal naming it.
+
+    Args:
+        system: the LeafSystem (its name is used).
+        port: the input port (its name is used).
+        context: the system's context (its time is used).
+        value: the already evaluated value, to avoid a second Eval.
+    """
+    import numpy as np
+
+    x = np.asarray(port.Eval(context) if value is None else value, dtype=float)
+    if not np.all(np.isfinite(x)):
+        bad = np.flatnonzero(~np.isfinite(x.reshape(-1)))
+        raise NonFiniteSignal(
+            f"{system.get_name()}: input port '{port.get_name()}' is not finite at t = {context.get_time():.6g} s "
+            f"(element {int(bad[0])} of {x.size}: {x.reshape(-1)[bad[0]]}; value {np.round(x, 6).tolist()})")
+    return x

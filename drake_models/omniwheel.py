@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
+from ballchain.drake_models.errors import UserInputError
 
 # Printed in the paper (Section III), 2 decimals.
 PAPER_A = np.array(
@@ -60,7 +61,7 @@ def _unit_rows(v: np.ndarray, what: str) -> np.ndarray:
     v = np.asarray(v, dtype=float).reshape(3, 3)
     norms = np.linalg.norm(v, axis=1)
     if not np.all(np.isfinite(v)) or np.any(norms == 0.0):
-        raise ValueError(f"{what} must be three finite non-zero vectors, got {v.tolist()}")
+        raise UserInputError(f"{what} must be three finite non-zero vectors, got {v.tolist()}")
     return v / norms[:, None]
 
 
@@ -88,11 +89,11 @@ class OmniWheelGeometry:
         for name in ("wheel_radius", "sphere_radius"):
             value = getattr(self, name)
             if not np.isfinite(value) or value <= 0:
-                raise ValueError(f"OmniWheelGeometry.{name} must be positive, got {value!r}")
+                raise UserInputError(f"OmniWheelGeometry.{name} must be positive, got {value!r}")
         if np.any(np.abs(np.einsum("ij,ij->i", a, n)) > 1e-9):
-            raise ValueError("OmniWheelGeometry: each wheel axis must be tangent to the sphere (a_i . n_i = 0)")
+            raise UserInputError("OmniWheelGeometry: each wheel axis must be tangent to the sphere (a_i . n_i = 0)")
         if abs(np.linalg.det(a)) < 1e-6:
-            raise ValueError("OmniWheelGeometry: wheel axes are coplanar; the sphere is not fully actuated")
+            raise UserInputError("OmniWheelGeometry: wheel axes are coplanar; the sphere is not fully actuated")
 
     @property
     def A(self) -> np.ndarray:
@@ -154,7 +155,7 @@ def contacts_below(wheel_axes: np.ndarray) -> np.ndarray:
     n = -np.array([0.0, 0.0, 1.0])[None, :] + a[:, 2:3] * a
     norms = np.linalg.norm(n, axis=1)
     if np.any(norms < 1e-9):
-        raise ValueError("a vertical wheel axis has no contact below the sphere")
+        raise UserInputError("a vertical wheel axis has no contact below the sphere")
     return n / norms[:, None]
 
 

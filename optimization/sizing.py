@@ -30,6 +30,7 @@ from scipy.optimize import brentq
 
 from ballchain.drake_models import paper
 from ballchain.drake_models.dipole import K_DIPOLE, dipole_field, dipole_field_gradient, force_on_dipole
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet, newtons_from_gram_force
 
 PAPER = {
@@ -73,7 +74,7 @@ class SizingInputs:
                 or not math.isfinite(value)
                 or value <= 0
             ):
-                raise ValueError(f"SizingInputs.{name} must be a positive finite number, got {value!r}")
+                raise UserInputError(f"SizingInputs.{name} must be a positive finite number, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -122,7 +123,7 @@ def size_clinical_magnet(inputs: SizingInputs = SizingInputs()) -> SizingResult:
     r_peak = 3.0 * inputs.heart_to_surface
     g_peak = _residual(inputs, r_peak)
     if not g_peak > 0.0:
-        raise ValueError(
+        raise UserInputError(
             "no spherical magnet of any diameter reaches the desired force: the force ratio "
             f"r^3/(d_c + r)^4 peaks at a diameter of {2 * r_peak * 1e3:.0f} mm and is still too small "
             "(lower the desired force or the distance, or raise alpha or the measured force)"
@@ -160,7 +161,7 @@ def solve_typo_equation(inputs: SizingInputs = SizingInputs(), length_unit: floa
         The diameter [m] (converted back to SI), or None if the equation has no positive root.
     """
     if not (math.isfinite(length_unit) and length_unit > 0):
-        raise ValueError(f"length_unit must be a positive finite number of metres, got {length_unit!r}")
+        raise UserInputError(f"length_unit must be a positive finite number of metres, got {length_unit!r}")
     d_m = inputs.measured_distance / length_unit
     d_c = inputs.heart_to_surface / length_unit
     v_m = inputs.prototype_volume / length_unit**3
@@ -203,7 +204,7 @@ def force_between_magnets(moment: float, separation: float) -> dict[str, dict[st
         units of ``mu0 m^2 / (4 pi s^4)``).
     """
     if not (math.isfinite(moment) and moment > 0 and math.isfinite(separation) and separation > 0):
-        raise ValueError(f"moment and separation must be positive finite, got {moment!r}, {separation!r}")
+        raise UserInputError(f"moment and separation must be positive finite, got {moment!r}, {separation!r}")
     r_AB = np.array([separation, 0.0, 0.0])
     out = {}
     for name, (u_a, u_b) in ORIENTATIONS.items():

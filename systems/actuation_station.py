@@ -23,6 +23,7 @@ from pydrake.systems.primitives import Adder
 
 from ballchain.drake_models import paper
 from ballchain.drake_models.dipole_inversion import direction_from_field
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.params import BallChain
 from ballchain.systems.feeder import Feeder, FeederSpec
 from ballchain.systems.hall_sensor import DipoleDirectionEstimator, HallSensor, HallSensorSpec
@@ -201,7 +202,7 @@ def make_actuation_station(
     opt = options or StationOptions()
     names = [u.name for u in units]
     if len(set(names)) != len(names) or not names:
-        raise ValueError(f"unit names must be distinct and at least one, got {names}")
+        raise UserInputError(f"unit names must be distinct and at least one, got {names}")
     builder = DiagramBuilder()
     magnets = {}
     for k, unit in enumerate(units):

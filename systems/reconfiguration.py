@@ -26,6 +26,7 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from ballchain.drake_models.dipole_inversion import angle_between
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.omniwheel import OmniWheelGeometry, paper_wheel_speeds
 from ballchain.systems.omni_wheel_drive import saturate_uniformly
 
@@ -82,9 +83,9 @@ class ReconfigurationController(LeafSystem):
         super().__init__()
         m_c = np.asarray(m_c_W, dtype=float).reshape(3)
         if not np.all(np.isfinite(m_c)) or np.linalg.norm(m_c) == 0:
-            raise ValueError(f"neutral direction must be finite and non-zero, got {m_c_W!r}")
+            raise UserInputError(f"neutral direction must be finite and non-zero, got {m_c_W!r}")
         if gain <= 0 or max_wheel_speed <= 0 or tolerance_deg <= 0 or not (0 < antiparallel_deg < 90):
-            raise ValueError("gain, max_wheel_speed, tolerance_deg must be > 0 and antiparallel_deg in (0, 90)")
+            raise UserInputError("gain, max_wheel_speed, tolerance_deg must be > 0 and antiparallel_deg in (0, 90)")
         self._m_c = m_c / np.linalg.norm(m_c)
         self._K = float(gain)
         self._max_speed = float(max_wheel_speed)
@@ -96,7 +97,7 @@ class ReconfigurationController(LeafSystem):
         elif wheel_map == "paper":
             self._to_wheels = lambda omega: paper_wheel_speeds(omega, self._g)
         else:
-            raise ValueError(f"wheel_map must be 'derived' or 'paper', got {wheel_map!r}")
+            raise UserInputError(f"wheel_map must be 'derived' or 'paper', got {wheel_map!r}")
         self._fallback_axis = perpendicular_axis(self._m_c)
         self.set_name(f"{name}.controller")
 

@@ -57,6 +57,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import EventStatus, LeafSystem
 
+from ballchain.drake_models.errors import UserInputError
 from ballchain.systems.target_contact import targets_touched
 
 
@@ -146,13 +147,13 @@ class OperatorParams:
 
     def validate(self) -> "OperatorParams":
         if not self.period > 0 or self.reaction_steps < 0:
-            raise ValueError("OperatorParams: period must be > 0 and reaction_steps >= 0")
+            raise UserInputError("OperatorParams: period must be > 0 and reaction_steps >= 0")
         if not self.axes or any(a not in (0, 1, 2) for a in self.axes) or len(set(self.axes)) != len(self.axes):
-            raise ValueError(f"OperatorParams.axes must be distinct stick axes among 0, 1, 2, got {self.axes}")
+            raise UserInputError(f"OperatorParams.axes must be distinct stick axes among 0, 1, 2, got {self.axes}")
         if not 0.0 <= self.dead_band < 1.0 or not 0.0 < self.forgetting <= 1.0:
-            raise ValueError("OperatorParams: dead_band in [0, 1) and forgetting in (0, 1]")
+            raise UserInputError("OperatorParams: dead_band in [0, 1) and forgetting in (0, 1]")
         if not self.timeout > 0 or not self.feeder_speed > 0 or not self.max_speed > 0:
-            raise ValueError("OperatorParams: timeout, feeder_speed and max_speed must be > 0")
+            raise UserInputError("OperatorParams: timeout, feeder_speed and max_speed must be > 0")
         return self
 
 
@@ -234,7 +235,7 @@ class SimulatedOperator(LeafSystem):
         self._p_WT = np.asarray(p_WT, float).reshape(-1, 3)
         self._n_W = np.asarray(n_W, float).reshape(-1, 3)
         if len(self.names) != len(self._p_WT) or len(self._p_WT) != len(self._n_W) or not self.names:
-            raise ValueError("SimulatedOperator needs at least one target, with as many names, centres and normals")
+            raise UserInputError("SimulatedOperator needs at least one target, with as many names, centres and normals")
         self._tip, self._previous = int(tip_body_index), int(previous_body_index)
         self._n = n = len(p.axes)
         memory = _Memory(J=np.zeros((3, n)), P=p.initial_covariance * np.eye(n),

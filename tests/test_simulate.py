@@ -75,7 +75,7 @@ def test_bad_scenarios_fail_with_clear_messages(capsys):
         load_scenario("heart_no_field", "{mode: sideways}")
     with pytest.raises(ValueError, match="too large for the dynamics mode"):
         load_scenario("heart_no_field", "{mode: dynamics, time_step: 0.001}")
-    with pytest.raises(ValueError, match="scenario 'heart_no_field'"):
+    with pytest.raises(ValueError, match="unknown field 'no_such_field'"):
         load_scenario("heart_no_field", "{no_such_field: 1}")
     with pytest.raises(ValueError, match="ball 1 must stay in the sheath"):
         build_chain_diagram(load_scenario("free_space_uniform_90deg", "{insertion: {initial: 0.2}}"))

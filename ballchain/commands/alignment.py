@@ -9,24 +9,26 @@ than 1.4 deg for chains longer than 10 balls. Writes ``alignment.csv`` and ``ali
 from __future__ import annotations
 
 import argparse
-import csv
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
-from ballchain.commands._common import add_json_flag, finite_float, positive_int, print_json
+from ballchain.commands._common import add_json_flag, check_in, float_in, int_in, print_json, save_figure, write_csv
+from ballchain.drake_models.safe_files import check_output_dir
 from ballchain.drake_models.field_sources import UniformField
 from ballchain.drake_models.params import BallChain, Sleeve
 from ballchain.optimization.statics import ChainStatics, rotation_path, tip_angle_deg
 
 PAPER_CLAIM_DEG = 1.4
+MAX_BALLS = 64  # every length 1..max is solved at every angle
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--max-balls", type=positive_int, default=16, help="longest chain")
-    parser.add_argument("--field-mT", type=finite_float, default=23.0, help="field magnitude [mT]")
-    parser.add_argument("--step-deg", type=finite_float, default=22.5, help="field angle step [deg]")
+    parser.add_argument("--max-balls", type=int_in(1, MAX_BALLS), default=16, help=f"longest chain (1..{MAX_BALLS})")
+    parser.add_argument("--field-mT", type=float_in(0.0, 1000.0, lo_open=True), default=23.0,
+                        help="field magnitude [mT] (0..1000]")
+    parser.add_argument("--step-deg", type=float_in(0.5, 90.0), default=22.5, help="field angle step [deg] (0.5..90)")
     parser.add_argument("--sleeve", action="store_true", help="with the Dragon Skin sleeve")
     parser.add_argument("--out", type=Path, default=Path("results/alignment"),
                         help="folder for the CSV and PNG files")
@@ -37,8 +39,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(*, max_balls: int = 16, field_mT: float = 23.0, step_deg: float = 22.5, sleeve: bool = False,
         out: Path | None = None, progress: bool = True) -> dict:
     """Run the study; returns {"rows": [...], "shapes": {angle: positions_mm}, "summary": {...}}."""
-    if field_mT <= 0:
-        raise ValueError(f"--field-mT must be positive, got {field_mT}")
+    check_in("--max-balls", max_balls, 1, MAX_BALLS)
+    check_in("--field-mT", field_mT, 0.0, 1000.0, lo_open=True, unit="mT")
+    check_in("--step-deg", step_deg, 0.5, 90.0, unit="deg")
+    if out is not None:  # before the work: an unwritable folder must not cost the results
+        check_output_dir(out, "--out")
     angles = rotation_path(0.0, 180.0, step_deg)
     rows, shapes = [], {}
     for n in tqdm(range(1, max_balls + 1), desc="alignment", unit="chain", disable=not progress):
@@ -73,11 +78,7 @@ def write_files(data: dict, out: Path) -> list[str]:
     import matplotlib.pyplot as plt
 
     out.mkdir(parents=True, exist_ok=True)
-    csv_path = out / "alignment.csv"
-    with csv_path.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(data["rows"][0]))
-        writer.writeheader()
-        writer.writerows(data["rows"])
+    csv_path = write_csv(out / "alignment.csv", data["rows"])
     fig, ax = plt.subplots(figsize=(6, 4))
     angles = sorted({r["field_angle_deg"] for r in data["rows"]})
     for angle in angles:
@@ -93,7 +94,7 @@ def write_files(data: dict, out: Path) -> list[str]:
     ax.set_title("Tip alignment with a 23 mT field (model)")
     fig.tight_layout()
     png = out / "alignment.png"
-    fig.savefig(png, dpi=120)
+    save_figure(fig, png, dpi=120)
     plt.close(fig)
     fig, ax = plt.subplots(figsize=(5, 5))
     for angle, p in data["shapes"].items():
@@ -105,7 +106,7 @@ def write_files(data: dict, out: Path) -> list[str]:
     ax.set_title("10-ball chain, field rotated 0..180 deg")
     fig.tight_layout()
     shapes_png = out / "alignment_shapes.png"
-    fig.savefig(shapes_png, dpi=120)
+    save_figure(fig, shapes_png, dpi=120)
     plt.close(fig)
     return [str(csv_path), str(png), str(shapes_png)]
 

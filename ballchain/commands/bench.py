@@ -27,6 +27,7 @@ import time
 import numpy as np
 
 from ballchain.commands._common import add_json_flag, finite_float, non_negative_int, positive_int, print_json
+from ballchain.drake_models.errors import UserInputError
 
 TARGETS = ("statics",)
 
@@ -124,15 +125,15 @@ def run_statics(
         ValueError: bad arguments.
     """
     if isinstance(n_balls, bool) or not isinstance(n_balls, int) or n_balls < 2:
-        raise ValueError(f"--balls must be an integer >= 2 (ball 1 is held), got {n_balls!r}")
+        raise UserInputError(f"--balls must be an integer >= 2 (ball 1 is held), got {n_balls!r}")
     if not (math.isfinite(field_mT) and field_mT > 0):
-        raise ValueError(f"--field-mT must be a positive finite number, got {field_mT}")
+        raise UserInputError(f"--field-mT must be a positive finite number, got {field_mT}")
     if not (math.isfinite(angle_deg) and math.isfinite(warm_offset_deg)):
-        raise ValueError("--angle-deg and --warm-offset-deg must be finite")
+        raise UserInputError("--angle-deg and --warm-offset-deg must be finite")
     if not isinstance(repeats, int) or repeats < 1:
-        raise ValueError(f"--repeats must be an integer >= 1, got {repeats!r}")
+        raise UserInputError(f"--repeats must be an integer >= 1, got {repeats!r}")
     if not (math.isfinite(baseline_ftol) and baseline_ftol > 0):
-        raise ValueError(f"--baseline-ftol must be a positive finite number, got {baseline_ftol}")
+        raise UserInputError(f"--baseline-ftol must be a positive finite number, got {baseline_ftol}")
 
     from tqdm import tqdm
 

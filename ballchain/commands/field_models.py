@@ -12,6 +12,7 @@ import argparse
 import math
 
 from ballchain.commands._common import add_json_flag, print_json
+from ballchain.drake_models.errors import UserInputError
 from ballchain.experiments.field_models import (
     DEFAULT_DISTANCES,
     DEFAULT_POLAR_ANGLES_DEG,
@@ -114,12 +115,12 @@ def _print_table(out: dict) -> None:
 def main(args: argparse.Namespace) -> int:
     for d in args.distances_cm:
         if not (math.isfinite(d) and d > 0):
-            raise ValueError(f"--distances-cm must be positive finite numbers, got {d}")
+            raise UserInputError(f"--distances-cm must be positive finite numbers, got {d}")
     for a in args.angles_deg:
         if not (math.isfinite(a) and 0.0 <= a <= 180.0):
-            raise ValueError(f"--angles-deg must lie in [0, 180], got {a}")
+            raise UserInputError(f"--angles-deg must lie in [0, 180], got {a}")
     if not (math.isfinite(args.ball_diameter_mm) and args.ball_diameter_mm > 0):
-        raise ValueError(f"--ball-diameter-mm must be a positive finite number, got {args.ball_diameter_mm}")
+        raise UserInputError(f"--ball-diameter-mm must be a positive finite number, got {args.ball_diameter_mm}")
     out = run(
         distances_m=[d * 1e-2 for d in args.distances_cm],
         angles_deg=args.angles_deg,

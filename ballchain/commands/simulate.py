@@ -12,36 +12,52 @@ import argparse
 import sys
 from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, finite_float, print_json
+from ballchain.commands._common import add_json_flag, float_in, print_json
+from ballchain.drake_models.errors import UserInputError
+
+
+MAX_DURATION = 3600.0  # [s] simulated (the scenario's cap, systems/chain_scenario.py)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scenario", required=True,
                         help="scenario name in drake_models/station.scenarios.yaml (or 'list')")
-    parser.add_argument("--duration", type=finite_float, default=None,
-                        help="simulated time in seconds (default: the scenario's)")
+    parser.add_argument("--duration", type=float_in(0.0, MAX_DURATION, lo_open=True), default=None,
+                        help=f"simulated time in seconds, (0, {MAX_DURATION:g}] (default: the scenario's)")
     parser.add_argument("--mode", choices=("quasi-static", "dynamics"), default=None,
                         help="quasi-static (damped, 1e-3 s steps) or true dynamics (1e-4 s steps)")
     parser.add_argument("--set", dest="overrides", default=None, metavar="YAML",
                         help="inline YAML overriding scenario fields, e.g. '{n_balls: 10}'")
     parser.add_argument("--html", type=Path, default=None,
                         help="write a self-contained Meshcat recording (HTML) to this file")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     add_json_flag(parser)
 
 
 def run(*, scenario: str, duration: float | None = None, mode: str | None = None,
-        overrides: str | None = None, html: Path | None = None) -> dict:
-    """Load the scenario, apply the overrides and the mode, simulate; returns the metrics."""
+        overrides: str | None = None, html: Path | None = None, progress: bool = False) -> dict:
+    """Load the scenario, apply the overrides and the mode, simulate; returns the metrics.
+
+    Raises:
+        UserInputError: a bad scenario, override, mode, duration or output path (before any work).
+    """
     from ballchain.systems.chain_scenario import load_scenario
     from ballchain.systems.chain_simulation import run_simulation
 
+    from ballchain.drake_models.safe_files import check_output_file
+    from ballchain.systems.chain_scenario import check_duration
+
+    if html is not None:  # before the run: an unwritable path must not cost the results
+        check_output_file(html, "--html")
     chosen = load_scenario(scenario, overrides)
     if mode is not None:
+        if mode not in ("quasi-static", "dynamics"):
+            raise UserInputError(f"--mode must be 'quasi-static' or 'dynamics', got {mode!r}")
         chosen.mode = mode
         chosen.validate()
-    if duration is not None and duration < 0:
-        raise ValueError(f"--duration must be >= 0, got {duration}")
-    result = run_simulation(scenario=chosen, duration=duration, html=html)
+    if duration is not None:
+        check_duration(duration, chosen.effective_time_step, "--duration")
+    result = run_simulation(scenario=chosen, duration=duration, html=html, progress=progress)
     result["statics_tip_error_mm"] = statics_tip_error_mm(chosen, result)
     return result
 
@@ -72,11 +88,14 @@ def main(args: argparse.Namespace) -> int:
     from ballchain.systems.chain_simulation import SimulationFailure
 
     if args.scenario == "list":
-        print("\n".join(scenario_names()))
+        if args.json:
+            print_json({"scenarios": scenario_names()})
+        else:
+            print("\n".join(scenario_names()))
         return 0
     try:
         result = run(scenario=args.scenario, duration=args.duration, mode=args.mode,
-                     overrides=args.overrides, html=args.html)
+                     overrides=args.overrides, html=args.html, progress=not args.no_progress)
     except SimulationFailure as failure:
         print(f"ballchain simulate: {failure}", file=sys.stderr)
         if args.json:

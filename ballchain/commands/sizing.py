@@ -13,6 +13,7 @@ import math
 from ballchain.drake_models import paper
 from ballchain.commands._common import add_json_flag, print_json
 from ballchain.drake_models.dipole import K_DIPOLE
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.params import CylinderMagnet, gram_force, newtons_from_gram_force
 from ballchain.optimization.sizing import (
     PAPER,
@@ -50,7 +51,7 @@ def _checked(args: argparse.Namespace) -> dict[str, float]:
     for flag in _FLAGS:
         value = getattr(args, flag.replace("-", "_"))
         if not math.isfinite(value) or value <= 0:
-            raise ValueError(f"--{flag} must be a positive finite number, got {value}")
+            raise UserInputError(f"--{flag} must be a positive finite number, got {value}")
         values[flag] = value
     return values
 

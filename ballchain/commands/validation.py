@@ -7,10 +7,11 @@ field; prints how far the models' tips are apart beside the paper's measured err
 from __future__ import annotations
 
 import argparse
-import csv
 from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, finite_float, print_json
+from ballchain.commands._common import add_json_flag, finite_float, print_json, write_csv
+from ballchain.drake_models.safe_files import check_output_dir
+from ballchain.drake_models.errors import UserInputError
 from ballchain.experiments import model_validation
 
 
@@ -22,17 +23,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(*, field_mT: float = 23.0, out: Path | None = None, progress: bool = True, balls=range(5, 11)) -> dict:
-    if field_mT <= 0:
-        raise ValueError(f"--field-mT must be positive, got {field_mT}")
+    if not (isinstance(field_mT, (int, float)) and 0 < field_mT <= 1000):
+        raise UserInputError(f"--field-mT must be in (0, 1000] mT, got {field_mT}")
+    if out is not None:  # before the work
+        check_output_dir(out, "--out")
     data = model_validation.run(field_T=field_mT * 1e-3, progress=progress, balls=balls)
     if out is not None:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
-        path = out / "validation.csv"
-        with path.open("w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(data["differences"][0]))
-            writer.writeheader()
-            writer.writerows(data["differences"])
+        path = write_csv(out / "validation.csv", data["differences"])
         data["files"] = [str(path)]
     return data
 

@@ -9,9 +9,12 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
 from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, finite_float, print_json
+from ballchain.commands._common import add_json_flag, finite_float, print_json, save_figure
+from ballchain.drake_models.safe_files import atomic_write_text, check_output_dir
+from ballchain.drake_models.errors import UserInputError
 from ballchain.experiments import workspace
 
 
@@ -31,12 +34,13 @@ def write_files(data: dict, out: Path) -> list[str]:
 
     out.mkdir(parents=True, exist_ok=True)
     csv_path = out / "workspace_tips.csv"
-    with csv_path.open("w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(["n_balls", "sleeve", "side", "tip_x_mm", "tip_y_mm", "tip_z_mm"])
-        for (n, sleeve, side), tips in data["curves"].items():
-            for tip in tips:
-                writer.writerow([n, sleeve, side, *tip])
+    f = io.StringIO(newline="")
+    writer = csv.writer(f)
+    writer.writerow(["n_balls", "sleeve", "side", "tip_x_mm", "tip_y_mm", "tip_z_mm"])
+    for (n, sleeve, side), tips in data["curves"].items():
+        for tip in tips:
+            writer.writerow([n, sleeve, side, *tip])
+    atomic_write_text(csv_path, f.getvalue())
     fig, axes = plt.subplots(1, 3, figsize=(12, 4.5), sharex=True, sharey=True)
     balls = sorted({k[0] for k in data["curves"]})
     for ax, n in zip(axes, balls):
@@ -54,16 +58,19 @@ def write_files(data: dict, out: Path) -> list[str]:
     fig.suptitle("Tip positions as the magnet turns (16.51 cm away)")
     fig.tight_layout()
     png = out / "workspace.png"
-    fig.savefig(png, dpi=110)
+    save_figure(fig, png, dpi=110)
     plt.close(fig)
     return [str(csv_path), str(png)]
 
 
 def run(*, step_deg: float = 5.0, distance_cm: float = workspace.DISTANCE * 100, out: Path | None = None, progress: bool = True) -> dict:
-    if not 0 < step_deg <= 45:
-        raise ValueError(f"--step-deg must be in (0, 45], got {step_deg}")
-    if distance_cm <= 10:
-        raise ValueError(f"--distance-cm must exceed 10 cm (the magnet would touch the chain), got {distance_cm}")
+    if not (isinstance(step_deg, (int, float)) and 0.5 <= step_deg <= 45):
+        raise UserInputError(f"--step-deg must be in [0.5, 45], got {step_deg}")
+    if not (isinstance(distance_cm, (int, float)) and 10 < distance_cm <= 100):
+        raise UserInputError(f"--distance-cm must be in (10, 100] cm (closer, the magnet would touch the "
+                             f"chain), got {distance_cm}")
+    if out is not None:  # before the work
+        check_output_dir(out, "--out")
     data = workspace.run(step_deg=step_deg, distance=distance_cm / 100.0, progress=progress)
     if out is not None:
         data["files"] = write_files(data, Path(out))

@@ -24,6 +24,7 @@ import numpy as np
 
 from ballchain.drake_models import paper
 from ballchain.drake_models.dipole import force_on_dipole
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import MagnetSource
 from ballchain.drake_models.params import BallChain, CylinderMagnet
 
@@ -103,13 +104,13 @@ def compare_field_models(
     distances = [float(r) for r in distances]
     angles = [float(a) for a in polar_angles_deg]
     if not distances or not angles:
-        raise ValueError("need at least one distance and one polar angle")
+        raise UserInputError("need at least one distance and one polar angle")
     for r in distances:
         if not (math.isfinite(r) and r > 0):
-            raise ValueError(f"distances must be positive finite numbers of metres, got {r!r}")
+            raise UserInputError(f"distances must be positive finite numbers of metres, got {r!r}")
     for a in angles:
         if not (math.isfinite(a) and 0.0 <= a <= 180.0):
-            raise ValueError(f"polar angles must lie in [0, 180] deg, got {a!r}")
+            raise UserInputError(f"polar angles must lie in [0, 180] deg, got {a!r}")
     grid = [(r, a) for r in distances for a in angles]
     p = np.array([[r * math.sin(math.radians(a)), 0.0, r * math.cos(math.radians(a))] for r, a in grid])
     dipole = MagnetSource(magnet, np.zeros(3), model="dipole")

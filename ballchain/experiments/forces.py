@@ -140,6 +140,9 @@ def max_normal_force(chain: BallChain, stand: Stand, vein: str, configs=("1",), 
 
     minimize(objective, best["angles"], method="Nelder-Mead",
              options={"maxfev": refine_evaluations, "xatol": 1e-3, "fatol": 1e-9})
+    if best["force_N"] <= 0.0:  # the best held equilibrium pulls the tip off the pin: no press found
+        return {"force_N": None, "reason": f"no orientation found that presses the pin (the best pulls with "
+                f"{gram_force(-best['force_N']):.3g} gf): search a finer grid", "evaluations": evaluations[0]}
     angles = best["angles"]
     return {
         "force_N": best["force_N"],

@@ -17,6 +17,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import EventStatus
 
 from ballchain.drake_models.dipole_inversion import angle_between
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.systems.actuation_station import StationOptions, make_actuation_station, right_unit
 from ballchain.systems.rotating_magnet_unit import MagnetUnitConfig, rotation_from_quaternion
@@ -122,7 +123,7 @@ def run_reconfiguration_study(
         ``antiparallel_time_s`` and the per-run lists ``final_error_deg`` and ``time_s``.
     """
     if runs < 1:
-        raise ValueError(f"runs must be >= 1, got {runs}")
+        raise UserInputError(f"runs must be >= 1, got {runs}")
     unit = right_unit(field_model=field_model)
     base = StationOptions(slip=slip, sensor_noise=noise, wheel_map=wheel_map)
     # The neutral direction the controller is built with (same computation as in the station).

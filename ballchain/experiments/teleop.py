@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from ballchain.drake_models.errors import UserInputError
 
 from ballchain.drake_models import paper
 
@@ -38,18 +39,19 @@ FAST = "{time_step: 0.004}"
 
 
 def check_inputs(task: str, mapping: str, targets: int | None, n_balls: int | None, time_limit: float | None) -> None:
-    """Raises ValueError with a clear message on bad input."""
+    """Raises UserInputError with a clear message on bad input."""
     if task not in TASKS:
-        raise ValueError(f"task must be one of {TASKS} ('left': Task I, 'right': Task II), got {task!r}")
+        raise UserInputError(f"task must be one of {TASKS} ('left': Task I, 'right': Task II), got {task!r}")
     if mapping not in MAPPINGS:
-        raise ValueError(f"mapping must be one of {tuple(MAPPINGS)}, got {mapping!r}")
+        raise UserInputError(f"mapping must be one of {tuple(MAPPINGS)}, got {mapping!r}")
     if targets is not None and (isinstance(targets, bool) or not isinstance(targets, (int, np.integer))
                                 or targets < 1):
-        raise ValueError(f"targets must be a positive number of targets (the first N), got {targets!r}")
-    if n_balls is not None and n_balls < 3:
-        raise ValueError(f"balls must be >= 3 (ball 1 stays in the sheath), got {n_balls}")
-    if time_limit is not None and not time_limit > 0:
-        raise ValueError(f"time_limit must be > 0 s, got {time_limit}")
+        raise UserInputError(f"targets must be a positive number of targets (the first N), got {targets!r}")
+    if n_balls is not None and (isinstance(n_balls, bool) or not isinstance(n_balls, (int, np.integer))
+                                or not 3 <= n_balls <= 64):
+        raise UserInputError(f"balls must be an integer in 3..64 (ball 1 stays in the sheath), got {n_balls!r}")
+    if time_limit is not None and not 0 < time_limit <= 3600:  # NaN fails too
+        raise UserInputError(f"time_limit must be in (0, 3600] s of simulated time, got {time_limit}")
 
 
 def scenario_for(mapping: str, n_balls: int | None = None, overrides: str | None = None):
@@ -106,6 +108,10 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     from ballchain.systems.simulated_operator import OperatorParams, SimulatedOperator
 
     check_inputs(task, mapping, targets, n_balls, time_limit)
+    if html is not None:  # before the run: an unwritable replay path must not cost the results
+        from ballchain.drake_models.safe_files import check_output_file
+
+        check_output_file(html, "--html")
     scenario = scenario_for(mapping, n_balls, overrides)
     if "publish_period" not in (overrides or ""):
         scenario.publish_period = REPLAY_PERIOD  # a task lasts minutes: keep the replay small
@@ -189,7 +195,9 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     if cd.visualizer is not None:
         cd.visualizer.StopRecording()
         cd.visualizer.PublishRecording()
-        Path(html).write_text(meshcat.StaticHtml())
+        from ballchain.drake_models.safe_files import atomic_write_text
+
+        atomic_write_text(html, meshcat.StaticHtml())
         result["html"] = str(html)
     return result
 
