@@ -40,3 +40,19 @@ def check_finite_input(system, port, context, value=None):
             f"{system.get_name()}: input port '{port.get_name()}' is not finite at t = {context.get_time():.6g} s "
             f"(element {int(bad[0])} of {x.size}: {x.reshape(-1)[bad[0]]}; value {np.round(x, 6).tolist()})")
     return x
+
+
+def check_in(name: str, value, lo, hi, *, lo_open: bool = False, unit: str = "") -> None:
+    """Raise UserInputError unless ``value`` is a finite number in [lo, hi] ((lo, hi] with lo_open).
+
+    For the Python API of the experiments (``run(...)``), which skips argparse's checks.
+    """
+    import math
+
+    import numpy as np
+
+    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+    ok = ok and math.isfinite(value) and lo <= value <= hi and not (lo_open and value == lo)
+    if not ok:
+        interval = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]"
+        raise UserInputError(f"{name} must be a number in {interval}{' ' + unit if unit else ''}, got {value!r}")

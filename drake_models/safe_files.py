@@ -116,3 +116,24 @@ def check_output_file(path, what: str) -> Path:
                                  "be created") from None
         raise
     return path
+
+
+def write_csv(path, rows: list[dict], fieldnames=None) -> Path:
+    """Write dict rows as CSV to ``path`` atomically (extra keys ignored); returns the path."""
+    import csv
+    import io
+
+    buffer = io.StringIO(newline="")
+    writer = csv.DictWriter(buffer, fieldnames=list(fieldnames or (rows[0] if rows else [])),
+                            extrasaction="ignore")
+    writer.writeheader()
+    writer.writerows(rows)
+    return atomic_write_text(path, buffer.getvalue())
+
+
+def save_figure(fig, path, **kwargs) -> Path:
+    """``fig.savefig`` to ``path`` atomically (the format from the path's suffix); returns the path."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format=path.suffix.lstrip(".") or "png", **kwargs)
+    return path

@@ -10,6 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
+# Re-exported for the commands: they live below the CLI layer so that experiments can use them.
+from ballchain.drake_models.errors import check_in  # noqa: F401
+from ballchain.drake_models.safe_files import save_figure, write_csv  # noqa: F401
+
 
 def to_jsonable(value):
     """numpy arrays and scalars to plain Python, recursively; NaN and inf become None (null), so
@@ -111,44 +115,5 @@ def float_in(lo: float, hi: float, *, lo_open: bool = False):
     return parse
 
 
-def check_in(name: str, value, lo, hi, *, lo_open: bool = False, unit: str = "") -> None:
-    """Raise UserInputError unless ``value`` is a finite number in [lo, hi] ((lo, hi] with lo_open).
-
-    For the Python API of the commands (``run(...)``), which skips argparse's checks.
-    """
-    from ballchain.drake_models.errors import UserInputError
-
-    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
-    ok = ok and math.isfinite(value) and lo <= value <= hi and not (lo_open and value == lo)
-    if not ok:
-        interval = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]"
-        raise UserInputError(f"{name} must be a number in {interval}{' ' + unit if unit else ''}, got {value!r}")
-
-
 def add_json_flag(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
-
-
-def write_csv(path, rows: list[dict], fieldnames=None) -> Path:
-    """Write dict rows as CSV to ``path`` atomically (extra keys ignored); returns the path."""
-    import csv
-    import io
-
-    from ballchain.drake_models.safe_files import atomic_write_text
-
-    buffer = io.StringIO(newline="")
-    writer = csv.DictWriter(buffer, fieldnames=list(fieldnames or (rows[0] if rows else [])),
-                            extrasaction="ignore")
-    writer.writeheader()
-    writer.writerows(rows)
-    return atomic_write_text(path, buffer.getvalue())
-
-
-def save_figure(fig, path, **kwargs) -> Path:
-    """``fig.savefig`` to ``path`` atomically (the format from the path's suffix); returns the path."""
-    from ballchain.drake_models.safe_files import atomic_path
-
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format=path.suffix.lstrip(".") or "png", **kwargs)
-    return path
