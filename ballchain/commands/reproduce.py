@@ -49,7 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def alignment_section(out: Path, quick: bool) -> tuple[Section, dict]:
-    from ballchain.commands import alignment
+    from ballchain.experiments import alignment
 
     data = alignment.run(max_balls=12 if quick else 16, step_deg=45.0 if quick else 22.5,
                          out=out / "alignment")
@@ -77,10 +77,10 @@ def alignment_section(out: Path, quick: bool) -> tuple[Section, dict]:
 
 
 def sizing_section(out: Path, quick: bool) -> tuple[Section, dict]:
-    from ballchain.commands import sizing
+    from ballchain.experiments import sizing_check
     from ballchain.optimization.sizing import SizingInputs
 
-    data = sizing.run(inputs=SizingInputs())
+    data = sizing_check.run(inputs=SizingInputs())
     forces = data["force_between_magnets_by_orientation"]
     section = Section("Clinical magnet sizing (paper Section V-A)")
     section.text(
@@ -110,7 +110,7 @@ def sizing_section(out: Path, quick: bool) -> tuple[Section, dict]:
 
 
 def field_models_section(out: Path, quick: bool) -> tuple[Section, dict]:
-    from ballchain.commands import field_models
+    from ballchain.experiments import field_models
 
     data = field_models.run(distances_m=list(DEFAULT_DISTANCES), angles_deg=[0.0, 45.0, 90.0],
                             ball=BallChain())

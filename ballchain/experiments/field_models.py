@@ -26,7 +26,7 @@ from ballchain.drake_models import paper
 from ballchain.drake_models.dipole import force_on_dipole
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import MagnetSource
-from ballchain.drake_models.params import BallChain, CylinderMagnet
+from ballchain.drake_models.params import BallChain, CylinderMagnet, gram_force
 
 DEFAULT_DISTANCES = (0.08, 0.12, paper.WORKING_DISTANCE, 0.20)
 """Distances from the magnet centre [m] (16.51 cm is the prototype's working distance)."""
@@ -153,3 +153,55 @@ def on_axis_relative_error_coefficient(magnet: CylinderMagnet = CylinderMagnet()
     R = magnet.diameter / 2.0
     half = magnet.length / 2.0
     return 1.5 * R**2 - 2.0 * half**2
+
+
+def run(*, distances_m, angles_deg, ball: BallChain, magnet: CylinderMagnet = CylinderMagnet()) -> dict:
+    """The comparison of ``compare_field_models`` in edge units (cm, mT, gf, %, deg).
+
+    Args:
+        distances_m: distances from the magnet centre [m].
+        angles_deg: polar angles from the magnetisation axis [deg], in [0, 180].
+        ball: the ball whose aligned force is compared.
+        magnet: the cylinder.
+
+    Returns:
+        JSON-ready dict: ``magnet``, ``ball_diameter_mm``, ``on_axis_rel_error_asymptote_cm2``, one
+        row per (distance, angle) and ``notes``.
+    """
+    rows = compare_field_models(magnet, distances_m, angles_deg, ball)
+    return {
+        "magnet": {
+            "diameter_mm": magnet.diameter * 1e3,
+            "length_mm": magnet.length * 1e3,
+            "remanence_T": magnet.remanence,
+            "dipole_moment_Am2": magnet.dipole_moment,
+        },
+        "ball_diameter_mm": ball.ball_diameter * 1e3,
+        "on_axis_rel_error_asymptote_cm2": on_axis_relative_error_coefficient(magnet) * 1e4,
+        "rows": [
+            {
+                "distance_cm": row.distance * 1e2,
+                "polar_angle_deg": row.polar_angle_deg,
+                "direction": row.direction,
+                "B_dipole_mT": row.B_dipole * 1e3,
+                "B_exact_mT": row.B_exact * 1e3,
+                "B_dipole_magnitude_mT": float(math.hypot(*row.B_dipole)) * 1e3,
+                "B_exact_magnitude_mT": float(math.hypot(*row.B_exact)) * 1e3,
+                "B_rel_error_percent": row.B_rel_error * 1e2,
+                "B_angle_error_deg": row.B_angle_error_deg,
+                "gradient_rel_error_percent": row.G_rel_error * 1e2,
+                "force_dipole_gf": [gram_force(f) for f in row.F_dipole],
+                "force_exact_gf": [gram_force(f) for f in row.F_exact],
+                "force_dipole_magnitude_gf": gram_force(float(math.hypot(*row.F_dipole))),
+                "force_exact_magnitude_gf": gram_force(float(math.hypot(*row.F_exact))),
+                "force_rel_error_percent": row.F_rel_error * 1e2,
+                "force_angle_error_deg": row.F_angle_error_deg,
+            }
+            for row in rows
+        ],
+        "notes": [
+            "rel error = (|dipole| - |exact|) / |exact|: positive means the dipole overestimates",
+            "force: on one ball whose dipole is aligned with each model's own field, F = G m_hat |m_ball|",
+            "exact: magpylib closed-form cylinder field; its gradient by central differences (MagnetSource)",
+        ],
+    }
