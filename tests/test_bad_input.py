@@ -165,10 +165,9 @@ def test_the_table_has_at_least_40_cases_over_every_subcommand():
 
 # The Python API: the same checks raise UserInputError naming the field (before any long work).
 def _api_cases():
-    from ballchain.commands import forces, statics, workspace
     from ballchain.drake_models.field_sources import MagnetSource, UniformField
     from ballchain.drake_models.params import BallChain, CylinderMagnet, Sleeve
-    from ballchain.experiments import planner, teleop
+    from ballchain.experiments import forces, planner, statics_shape, teleop, workspace
     from ballchain.optimization.statics import rotation_path
     from ballchain.systems.chain_scenario import load_scenario
 
@@ -182,7 +181,7 @@ def _api_cases():
          "direction"),
         ("uniform-field-nan", lambda: UniformField(np.array([np.nan, 0, 0])), "B_W"),
         ("rotation-path-1e-12", lambda: rotation_path(0.0, 180.0, 1e-12), "continuation step"),
-        ("statics-run-step", lambda: statics.run(balls=4, field_mT=23, field_angle_deg=90, step_deg=1e-6),
+        ("statics-run-step", lambda: statics_shape.run(balls=4, field_mT=23, field_angle_deg=90, step_deg=1e-6),
          "--step-deg"),
         ("forces-run-grid", lambda: forces.run(veins=("RSPV",), grid=1), "--grid"),
         ("workspace-run-nan", lambda: workspace.run(step_deg=float("nan")), "--step-deg"),

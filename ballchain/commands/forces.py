@@ -5,6 +5,7 @@ magnet orientations that maximise the force the tip presses along the vein's axi
 optimisation (grid + Nelder-Mead over equilibria); each optimum is then simulated (the damped
 chain in the same field, its tip held by a force-sensor pin, run to steady state), unless
 ``--no-dynamics``. Prints the model beside the paper's numbers and writes a CSV and a bar chart.
+The experiment is ``ballchain.experiments.forces``.
 """
 
 from __future__ import annotations
@@ -12,16 +13,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, check_in, int_in, print_json, save_figure, write_csv
-from ballchain.drake_models.errors import UserInputError
-from ballchain.drake_models.safe_files import check_output_dir
+from ballchain.commands._common import add_json_flag, int_in, print_json
 from ballchain.experiments import forces
-
-VEINS = ("LSPV", "LIPV", "RSPV", "RIPV")
-# One azimuth is no search (--grid 1 once reported a negative "optimum"; an optimum that does not
-# press is now reported as none); the caps bound the work (each evaluation is a statics solve).
-GRID = (2, 64)
-REFINE = (1, 2000)
+from ballchain.experiments.forces import GRID, REFINE, VEINS
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -38,68 +32,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_json_flag(parser)
 
 
-def write_files(data: dict, out: Path) -> list[str]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / "forces.csv"
-    keys = ["vein", "config", "sleeve", "statics_gf", "dynamics_gf", "statics_dynamics_diff_pct", "paper_gf",
-            "statics_lateral_gf", "dynamics_lateral_gf", "n_balls", "superposition_gf", "dynamics_note"]
-    write_csv(path, data["rows"], keys)
-    rows = data["rows"]
-    labels = [f"{r['vein']} {r['config']}{' S' if r['sleeve'] else ''}" for r in rows]
-    x = np.arange(len(rows))
-    fig, ax = plt.subplots(figsize=(max(6, 0.45 * len(rows)), 4))
-    simulated = any(r.get("dynamics_gf") is not None for r in rows)
-    width = 0.27 if simulated else 0.4
-    shift = width if simulated else 0.5 * width
-    ax.bar(x - shift, [r["paper_gf"] for r in rows], width, label="paper (measured)")
-    ax.bar(x + (0.0 if simulated else shift), [r["statics_gf"] or 0.0 for r in rows], width, label="model (statics)")
-    if simulated:  # the statics optima simulated on the force-sensor pin (a missing one: no bar)
-        ax.bar(x + width, [r.get("dynamics_gf") or 0.0 for r in rows], width, label="simulation")
-    ax.set_xticks(x, labels, rotation=70, fontsize=7)
-    ax.set_ylabel("tip force [gf]")
-    ax.set_yscale("log")
-    ax.legend()
-    ax.set_title("Tip force on the veins: paper vs model (S = sleeve)")
-    fig.tight_layout()
-    png = out / "forces.png"
-    save_figure(fig, png, dpi=110)
-    plt.close(fig)
-    return [str(path), str(png)]
-
-
-def run(*, veins=VEINS, sleeve: str = "both", grid: int = 8, refine: int = 40, out: Path | None = None,
-        progress: bool = True, dynamics: bool = True) -> dict:
-    """Run the Table I study (see the module docstring); writes the files into ``out``.
-
-    Raises:
-        UserInputError: an unknown vein or sleeve option, a grid or refine out of range, or an
-            unwritable ``out`` (checked before any work).
-    """
-    if not veins or any(v not in VEINS for v in veins):
-        raise UserInputError(f"--veins must be among {', '.join(VEINS)}, got {list(veins)}")
-    if sleeve not in ("no", "yes", "both"):
-        raise UserInputError(f"--sleeve must be 'no', 'yes' or 'both', got {sleeve!r}")
-    check_in("--grid", grid, *GRID)
-    check_in("--refine", refine, *REFINE)
-    if out is not None:
-        check_output_dir(out, "--out")
-    sleeves = {"no": (False,), "yes": (True,), "both": (False, True)}[sleeve]
-    data = forces.run(veins=tuple(veins), sleeves=sleeves, grid=grid, refine_evaluations=refine, progress=progress,
-                      dynamics=dynamics)
-    if out is not None:
-        data["files"] = write_files(data, Path(out))
-    return data
-
-
 def main(args: argparse.Namespace) -> int:
-    data = run(veins=args.veins, sleeve=args.sleeve, grid=args.grid, refine=args.refine,
-               out=None if args.no_files else args.out, dynamics=not args.no_dynamics)
+    sleeves = {"no": (False,), "yes": (True,), "both": (False, True)}[args.sleeve]
+    data = forces.run(veins=tuple(args.veins), sleeves=sleeves, grid=args.grid, refine_evaluations=args.refine,
+                      out=None if args.no_files else args.out, dynamics=not args.no_dynamics)
     if args.json:
         print_json(data)
         return 0

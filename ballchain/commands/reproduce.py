@@ -131,7 +131,7 @@ def field_models_section(out: Path, quick: bool) -> tuple[Section, dict]:
 
 
 def workspace_section(out: Path, quick: bool) -> tuple[Section, dict]:
-    from ballchain.commands import workspace
+    from ballchain.experiments import workspace
 
     data = workspace.run(step_deg=15.0 if quick else 5.0, out=out / "workspace")
     s, p = data["summary"], data["paper"]
@@ -162,9 +162,9 @@ def workspace_section(out: Path, quick: bool) -> tuple[Section, dict]:
 
 
 def validation_section(out: Path, quick: bool) -> tuple[Section, dict]:
-    from ballchain.commands import validation
+    from ballchain.experiments import model_validation
 
-    data = validation.run(out=out / "validation", balls=(5, 6, 10) if quick else range(5, 11))
+    data = model_validation.run(out=out / "validation", balls=(5, 6, 10) if quick else range(5, 11))
     s, p = data["summary"], data["paper"]
     section = Section("Model validation: which field model (paper Fig. model_results)")
     section.text(
@@ -196,13 +196,13 @@ def validation_section(out: Path, quick: bool) -> tuple[Section, dict]:
 
 
 def forces_section(out: Path, quick: bool) -> tuple[Section, dict]:
-    from ballchain.commands import forces
+    from ballchain.experiments import forces
 
     veins = ("RSPV",) if quick else ("LSPV", "LIPV", "RSPV", "RIPV")
     # The grid must be fine enough to start Nelder-Mead in the best basin: with 6 x 5 directions
     # and 24 evaluations one case (LIPV, magnet on the left) stopped at 5.9 gf instead of 9.6 gf.
-    data = forces.run(veins=veins, sleeve="no" if quick else "both", grid=4 if quick else 8,
-                      refine=8 if quick else 40, out=out / "forces")
+    data = forces.run(veins=veins, sleeves=(False,) if quick else (False, True), grid=4 if quick else 8,
+                      refine_evaluations=8 if quick else 40, out=out / "forces")
     section = Section("Tip force on the pulmonary veins (paper Table I)")
     section.text(
         "Statics with the tip ball held on the vein's sensor pin; the pin's reaction is the "
