@@ -210,7 +210,7 @@ def test_numpy_scalars_are_accepted_by_the_parameters():
 
 def test_a_bug_is_a_traceback_with_exit_1_not_bad_input(monkeypatch):
     """Only UserInputError (and argparse) are the user's: a plain ValueError from a bug escapes."""
-    from ballchain.commands import wheels
+    from ballchain.experiments import wheels
 
     def broken(**kwargs):
         raise ValueError("a bug, not the user's input")
@@ -219,7 +219,7 @@ def test_a_bug_is_a_traceback_with_exit_1_not_bad_input(monkeypatch):
     with pytest.raises(ValueError, match="a bug"):
         main(["wheels"])
     # Through the shell: a traceback and exit status 1.
-    code = ("import sys; from ballchain.commands import wheels; from ballchain import cli\n"
+    code = ("import sys; from ballchain.experiments import wheels; from ballchain import cli\n"
             "wheels.run = lambda **k: (_ for _ in ()).throw(ValueError('a bug'))\n"
             "sys.exit(cli.main(['wheels']))")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)

@@ -3,13 +3,13 @@
 Seeded random initial magnet orientations (the first exactly antiparallel to the neutral
 direction, where the paper's law stalls), Hall-sensor noise on, wheel slip, the prototype
 cylinder's exact field at the sensor and the correct dipole inverse in the estimator. Every run
-must end within the tolerance of the neutral direction (true angle, not the estimate).
+must end within the tolerance of the neutral direction (true angle, not the estimate). The
+experiment is ``ballchain.experiments.reconfiguration``.
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 
 from ballchain.commands._common import add_json_flag, finite_float, positive_int, print_json
 
@@ -56,39 +56,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_json_flag(parser)
 
 
-def run(
-    *,
-    runs: int = 100,
-    seed: int = 0,
-    slip: float = 0.05,
-    noise: bool = True,
-    field_model: str = "exact",
-    wheel_map: str = "derived",
-    tolerance_deg: float = 1.0,
-    t_max: float = 15.0,
-    progress: bool = False,
-) -> dict:
-    """Run the study; returns the full result of ``run_reconfiguration_study``."""
-    from tqdm import tqdm
-
-    from ballchain.experiments.reconfiguration import run_reconfiguration_study
-
-    with tqdm(total=runs, desc="reconfigure", unit="run", file=sys.stderr, disable=not progress) as bar:
-        return run_reconfiguration_study(
-            runs=runs,
-            seed=seed,
-            slip=slip,
-            noise=noise,
-            field_model=field_model,
-            wheel_map=wheel_map,
-            tolerance_deg=tolerance_deg,
-            t_max=t_max,
-            progress=bar.update,
-        )
-
-
 def main(args: argparse.Namespace) -> int:
-    result = run(
+    from ballchain.experiments import reconfiguration
+
+    result = reconfiguration.run(
         runs=args.runs,
         seed=args.seed,
         slip=args.slip,

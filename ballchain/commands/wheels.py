@@ -3,7 +3,8 @@
 Derives ``omega_wheels = (rho_a/rho_w) A omega_magnet`` (rows of A = -a_i^T) from rolling without
 slip at each wheel contact, shows the wheel geometry that reproduces the paper's printed A, and
 measures the rolling-contact residual of the derived map and of the paper's printed
-``omega_a = (rho_a/rho_w) A omega_w`` (plus the two half-fixes).
+``omega_a = (rho_a/rho_w) A omega_w`` (plus the two half-fixes). The experiment is
+``ballchain.experiments.wheels``.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import argparse
 import numpy as np
 
 from ballchain.commands._common import add_json_flag, positive_int, print_json
-from ballchain.experiments.wheels import wheel_map_report
+from ballchain.experiments import wheels
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -24,13 +25,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_json_flag(parser)
 
 
-def run(*, samples: int = 1000, seed: int = 0) -> dict:
-    """The report as a JSON-ready dict (see ``ballchain.experiments.wheels.wheel_map_report``)."""
-    return wheel_map_report(n_samples=samples, seed=seed)
-
-
 def main(args: argparse.Namespace) -> int:
-    report = run(samples=args.samples, seed=args.seed)
+    report = wheels.run(samples=args.samples, seed=args.seed)
     if args.json:
         print_json(report)
         return 0

@@ -9,12 +9,14 @@ dipole and the neutral direction (not the sensor's estimate).
 
 from __future__ import annotations
 
+import sys
 from dataclasses import replace
 from typing import Callable
 
 import numpy as np
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import EventStatus
+from tqdm import tqdm
 
 from ballchain.drake_models.dipole_inversion import angle_between
 from ballchain.drake_models.errors import UserInputError
@@ -102,7 +104,7 @@ def run_reconfiguration_study(
     wheel_map: str = "derived",
     tolerance_deg: float = 1.0,
     t_max: float = 15.0,
-    progress: Callable[[int], None] | None = None,
+    progress: bool | Callable[[int], None] | None = None,
 ) -> dict:
     """The closed-loop study: seeded random starts, run 0 exactly antiparallel to neutral.
 
@@ -116,7 +118,8 @@ def run_reconfiguration_study(
         wheel_map: controller conversion, "derived" or "paper".
         tolerance_deg: a run has converged if its true final error is below this [deg].
         t_max: time limit of a run [s].
-        progress: called with 1 after each run (e.g. a tqdm bar's ``update``).
+        progress: True for a progress bar on stderr, or a function called with 1 after each run
+            (e.g. a tqdm bar's ``update``); None or False: none.
 
     Returns:
         ``{"runs", "converged", "max_final_error_deg", "median_time_s", "max_time_s"}`` plus
@@ -131,14 +134,17 @@ def run_reconfiguration_study(
     starts = list(random_rotations(runs, seed))
     starts[0] = rotation_with_z_along(-m_c)  # exactly antiparallel: the law's stall point
     finals, times, converged = [], [], 0
+    bar = tqdm(total=runs, desc="reconfigure", unit="run", file=sys.stderr, disable=progress is not True)
     for k, R0 in enumerate(starts):
         result = run_reconfiguration(R0, unit=unit, options=replace(base, seed=seed + k), t_max=t_max)
         ok = result["done"] and result["final_error_deg"] < tolerance_deg
         converged += int(ok)
         finals.append(result["final_error_deg"])
         times.append(result["time_s"])
-        if progress is not None:
+        bar.update(1)
+        if callable(progress):
             progress(1)
+    bar.close()
     return {
         "runs": runs,
         "converged": converged,
@@ -153,3 +159,7 @@ def run_reconfiguration_study(
         "final_error_deg": finals,
         "time_s": times,
     }
+
+
+run = run_reconfiguration_study
+"""The experiment's entry point (``ballchain reconfigure``), as in every experiment module."""
