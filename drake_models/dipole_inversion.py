@@ -29,6 +29,7 @@ import numpy as np
 from ballchain.drake_models.dipole import K_DIPOLE
 from ballchain.drake_models.field_sources import MagnetSource
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
+from ballchain.drake_models.vectors import perpendicular_basis
 
 E3 = np.array([0.0, 0.0, 1.0])
 
@@ -75,6 +76,16 @@ def direction_from_field(B: np.ndarray, r: np.ndarray) -> np.ndarray:
     return _unit(moment_from_field(B, r), "estimated moment")
 
 
+def neutral_direction(p_WM: np.ndarray, p_W_target: np.ndarray, b_hat_W: np.ndarray) -> np.ndarray:
+    """Dipole direction (3,) that makes the field at p_W_target point along b_hat_W (dipole model).
+
+    The neutral configuration aligns the field at the chain with its feeding direction; the
+    dipole that does it follows from the inverse dipole law.
+    """
+    r = np.asarray(p_W_target, dtype=float) - np.asarray(p_WM, dtype=float)
+    return direction_from_field(np.asarray(b_hat_W, dtype=float), r)
+
+
 def paper_direction_formula(B: np.ndarray, D: float, moment: float) -> np.ndarray:
     """The paper's printed ``(4 pi D^3 / (mu0 |m|)) (3 e3 e3^T - I) B`` (..., 3), not normalised.
 
@@ -91,13 +102,6 @@ def paper_formula_angle_error(theta: np.ndarray) -> np.ndarray:
     """
     theta = np.asarray(theta, dtype=float)
     return np.abs(theta - np.arctan2(np.sin(theta), 4.0 * np.cos(theta)))
-
-
-def angle_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Angle [rad] between vectors (..., 3), robust near 0 and pi."""
-    u = np.asarray(u, dtype=float)
-    v = np.asarray(v, dtype=float)
-    return np.arctan2(np.linalg.norm(np.cross(u, v), axis=-1), np.einsum("...i,...i->...", u, v))
 
 
 def refine_direction(
@@ -128,10 +132,8 @@ def refine_direction(
     """
     m = _unit(m_hat0, "m_hat0")
     for _ in range(max_iterations):
-        helper = np.array([1.0, 0.0, 0.0]) if abs(m[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-        t1 = np.cross(m, helper)
-        t1 /= np.linalg.norm(t1)
-        t2 = np.cross(m, t1)
+        x, y = perpendicular_basis(m)
+        t1, t2 = -x, -y  # the tangent directions (and so the forward differences) as always
         B0 = field_of_direction(m)
         J = np.column_stack(
             [(field_of_direction(_unit(m + h * t, "m")) - B0) / h for t in (t1, t2)]

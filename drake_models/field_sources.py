@@ -19,6 +19,7 @@ import numpy as np
 from ballchain.drake_models.dipole import dipole_field, dipole_field_gradient
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
+from ballchain.drake_models.vectors import perpendicular_basis
 
 FieldModel = Literal["dipole", "exact"]
 
@@ -46,11 +47,7 @@ def rotation_with_z_along(direction) -> np.ndarray:
     if not np.isfinite(norm) or norm == 0.0:
         raise UserInputError(f"direction must be a finite non-zero vector, got {direction!r}")
     z = z / norm
-    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    x = np.cross(helper, z)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    return np.column_stack([x, y, z])
+    return np.column_stack([*perpendicular_basis(z), z])
 
 
 @dataclass

@@ -40,6 +40,7 @@ from ballchain.drake_models.chain_energy import EnergyTerms, chain_energy
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import FieldSource, UniformField
 from ballchain.drake_models.params import BallChain
+from ballchain.drake_models.vectors import angle_between
 from ballchain.optimization.reduced_chain import X_AXIS, ReducedChain
 
 Method = Literal["newton", "snopt"]
@@ -119,15 +120,10 @@ def straight_chain(chain: BallChain, direction=X_AXIS) -> tuple[np.ndarray, np.n
     return positions, np.tile(direction, (n, 1))
 
 
-def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
-    cross = np.linalg.norm(np.cross(a, b))
-    return float(np.degrees(np.arctan2(cross, np.dot(a, b))))
-
-
 def tip_angle_deg(result: StaticsResult, field_direction) -> float:
     """Angle between the tip ball's dipole and a field direction [deg]."""
     f = np.asarray(field_direction, dtype=float)
-    return _angle_deg(result.tip_dipole, f / np.linalg.norm(f))
+    return float(np.degrees(angle_between(result.tip_dipole, f / np.linalg.norm(f))))
 
 
 

@@ -25,18 +25,10 @@ from __future__ import annotations
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from ballchain.drake_models.dipole_inversion import angle_between
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.omniwheel import OmniWheelGeometry, paper_wheel_speeds
+from ballchain.drake_models.vectors import angle_between, perpendicular_axis
 from ballchain.systems.omni_wheel_drive import saturate_uniformly
-
-
-def perpendicular_axis(v: np.ndarray) -> np.ndarray:
-    """A fixed unit vector perpendicular to v (3,): v crossed with the world axis least aligned."""
-    v = np.asarray(v, dtype=float)
-    e = np.eye(3)[int(np.argmin(np.abs(v)))]
-    w = np.cross(v, e)
-    return w / np.linalg.norm(w)
 
 
 class ReconfigurationController(LeafSystem):

@@ -36,7 +36,8 @@ from pydrake.trajectories import PiecewisePolynomial
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import BallChain, CylinderMagnet, SphereMagnet
-from ballchain.systems.actuation_station import StationOptions, add_unit, neutral_direction
+from ballchain.drake_models.dipole_inversion import neutral_direction
+from ballchain.systems.actuation_station import StationOptions, add_unit
 from ballchain.systems.chain_scenario import ChainScenario, InsertionScenario, JoystickKey
 from ballchain.systems.feeder import Feeder, FeederSpec
 from ballchain.systems.hall_sensor import DipoleDirectionEstimator, HallSensor
@@ -325,7 +326,7 @@ def joystick_keys_for_rotation(m_from_W, m_to_W, omega_max: float, start_time: f
     if angle < 1e-9:
         return [JoystickKey(time=start_time, axes=[0.0, 0.0, 0.0])]
     if np.linalg.norm(cross) < 1e-9:  # antiparallel: any axis perpendicular to a
-        from ballchain.systems.reconfiguration import perpendicular_axis
+        from ballchain.drake_models.vectors import perpendicular_axis
 
         cross = perpendicular_axis(a)
     axis = cross / np.linalg.norm(cross)

@@ -27,6 +27,7 @@ from ballchain.drake_models.dipole import force_on_dipole
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import MagnetSource
 from ballchain.drake_models.params import BallChain, CylinderMagnet, gram_force
+from ballchain.drake_models.vectors import angle_between
 
 DEFAULT_DISTANCES = (0.08, 0.12, paper.WORKING_DISTANCE, 0.20)
 """Distances from the magnet centre [m] (16.51 cm is the prototype's working distance)."""
@@ -73,13 +74,6 @@ class FieldModelComparison:
         return DIRECTION_NAMES.get(float(self.polar_angle_deg), f"{self.polar_angle_deg:g}deg")
 
 
-def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Angle between rows of a and b (k, 3) [deg], robust near 0 (atan2 of |a x b| and a . b)."""
-    cross = np.linalg.norm(np.cross(a, b), axis=-1)
-    dot = np.einsum("...i,...i->...", a, b)
-    return np.degrees(np.arctan2(cross, dot))
-
-
 def compare_field_models(
     magnet: CylinderMagnet = CylinderMagnet(),
     distances: Sequence[float] = DEFAULT_DISTANCES,
@@ -123,8 +117,8 @@ def compare_field_models(
     nB_d, nB_e = np.linalg.norm(B_d, axis=1), np.linalg.norm(B_e, axis=1)
     nF_d, nF_e = np.linalg.norm(F_d, axis=1), np.linalg.norm(F_e, axis=1)
     G_err = np.linalg.norm(G_d - G_e, axis=(1, 2)) / np.linalg.norm(G_e, axis=(1, 2))
-    B_ang = _angle_deg(B_d, B_e)
-    F_ang = _angle_deg(F_d, F_e)
+    B_ang = np.degrees(angle_between(B_d, B_e))
+    F_ang = np.degrees(angle_between(F_d, F_e))
     return [
         FieldModelComparison(
             distance=r,

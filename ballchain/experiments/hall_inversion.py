@@ -8,7 +8,6 @@ import numpy as np
 
 from ballchain.drake_models.dipole import dipole_field
 from ballchain.drake_models.dipole_inversion import (
-    angle_between,
     direction_from_field,
     paper_direction_formula,
     paper_formula_angle_error,
@@ -16,6 +15,7 @@ from ballchain.drake_models.dipole_inversion import (
     sensor_field,
 )
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
+from ballchain.drake_models.vectors import angle_between
 
 
 def inversion_comparison(

@@ -20,6 +20,7 @@ from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import UniformField
 from ballchain.drake_models.params import BallChain
 from ballchain.drake_models.safe_files import check_output_dir, write_csv
+from ballchain.drake_models.vectors import angle_between
 from ballchain.experiments.magnet_poses import side_magnet_for_field
 from ballchain.optimization.statics import ChainStatics, rotation_path, tip_angle_deg
 
@@ -73,9 +74,8 @@ def run(*, balls=range(5, 11), angles_deg=(0.0, 45.0, 90.0, 135.0, 180.0), field
     for n, model in tqdm(jobs, desc="model validation", unit="chain", disable=not progress):
         solver = ChainStatics(BallChain(n_balls=n))
         for theta in angles_deg:
-            result = None
-            for angle in rotation_path(0.0, theta, step_deg):
-                result = solver.solve_or_raise(_field(model, angle, field_T), result)
+            result = solver.continuation(_field(model, angle, field_T)
+                                         for angle in rotation_path(0.0, theta, step_deg))[-1]
             direction = [np.cos(np.radians(theta)), np.sin(np.radians(theta)), 0.0]
             rows.append({"n_balls": n, "field_angle_deg": float(theta), "model": model,
                          "tip_angle_deg": tip_angle_deg(result, direction),
@@ -87,7 +87,7 @@ def run(*, balls=range(5, 11), angles_deg=(0.0, 45.0, 90.0, 135.0, 180.0), field
             ex, dp, un = (index[(n, float(theta), m)] for m in ("exact", "dipole", "uniform"))
 
             def angle(a, b):
-                return float(np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b)), np.dot(a, b))))
+                return float(np.degrees(angle_between(a, b)))
 
             differences.append({
                 "n_balls": n, "field_angle_deg": float(theta),

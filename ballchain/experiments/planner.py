@@ -22,7 +22,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ballchain.drake_models import paper
-from ballchain.drake_models.dipole_inversion import moment_from_field
+from ballchain.drake_models.dipole_inversion import neutral_direction
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
@@ -56,9 +56,7 @@ def teleop_stand(atrium: LeftAtrium, task: str, ball_diameter: float, carina_dis
 
 def neutral_dipole(stand: Stand) -> np.ndarray:
     """The magnet's neutral direction: its field at the sheath exit (the origin) along the sheath."""
-    p_M = stand.magnets["1"]
-    m = moment_from_field(np.array([1.0, 0.0, 0.0]), -p_M)
-    return m / np.linalg.norm(m)
+    return neutral_direction(stand.magnets["1"], np.zeros(3), np.array([1.0, 0.0, 0.0]))
 
 
 def _field_for(stand: Stand) -> Callable[[np.ndarray], FieldSources]:

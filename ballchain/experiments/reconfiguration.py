@@ -18,9 +18,9 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import EventStatus
 from tqdm import tqdm
 
-from ballchain.drake_models.dipole_inversion import angle_between
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
+from ballchain.drake_models.vectors import angle_between
 from ballchain.systems.actuation_station import StationOptions, make_actuation_station, right_unit
 from ballchain.systems.rotating_magnet_unit import MagnetUnitConfig, rotation_from_quaternion
 

@@ -40,13 +40,10 @@ def polygon_area(points_xy: np.ndarray) -> float:
 
 def sweep(chain: BallChain, side: int, step_deg: float, distance: float = DISTANCE):
     """Tip positions [m] as the magnet turns from field +x to field -x on one side (+1: +y)."""
-    solver = ChainStatics(chain)
     phis = np.radians(180.0 - side * np.arange(0.0, 180.0 + 1e-9, step_deg))
-    tips, field_angles, result = [], [], None
-    for phi in phis:
-        result = solver.solve_or_raise(side_magnet(phi, distance), result)
-        tips.append(result.positions[-1].copy())
-        field_angles.append(np.degrees(field_angle_for_magnet_angle(phi)))
+    results = ChainStatics(chain).continuation(side_magnet(phi, distance) for phi in phis)
+    tips = [result.positions[-1].copy() for result in results]
+    field_angles = [np.degrees(field_angle_for_magnet_angle(phi)) for phi in phis]
     return np.array(tips), np.array(field_angles)
 
 
