@@ -131,9 +131,25 @@ def write_csv(path, rows: list[dict], fieldnames=None) -> Path:
     return atomic_write_text(path, buffer.getvalue())
 
 
+def agg_pyplot():
+    """``matplotlib.pyplot`` on the Agg backend: figures for files, no display needed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
 def save_figure(fig, path, **kwargs) -> Path:
-    """``fig.savefig`` to ``path`` atomically (the format from the path's suffix); returns the path."""
+    """``fig.savefig`` to ``path`` atomically (the format from the path's suffix), then close the
+    figure (a results writer has no further use for it); returns the path."""
+    import matplotlib.pyplot as plt
+
     path = Path(path)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format=path.suffix.lstrip(".") or "png", **kwargs)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, format=path.suffix.lstrip(".") or "png", **kwargs)
+    finally:
+        plt.close(fig)
     return path

@@ -16,11 +16,45 @@ from tqdm import tqdm
 from ballchain.drake_models.errors import check_in
 from ballchain.drake_models.field_sources import UniformField
 from ballchain.drake_models.params import BallChain, Sleeve
-from ballchain.drake_models.safe_files import check_output_dir, save_figure, write_csv
+from ballchain.drake_models.safe_files import agg_pyplot, check_output_dir, save_figure, write_csv
 from ballchain.optimization.statics import ChainStatics, rotation_path, tip_angle_deg
 
 PAPER_CLAIM_DEG = 1.4
 MAX_BALLS = 64  # every length 1..max is solved at every angle
+
+def write_files(data: dict, out: Path) -> list[str]:
+    """Write the CSV and the two figures into ``out``; returns their paths."""
+    plt = agg_pyplot()
+    out.mkdir(parents=True, exist_ok=True)
+    csv_path = write_csv(out / "alignment.csv", data["rows"])
+    fig, ax = plt.subplots(figsize=(6, 4))
+    angles = sorted({r["field_angle_deg"] for r in data["rows"]})
+    for angle in angles:
+        if angle == 0.0:
+            continue  # aligned with the chain: the angle is zero for every length
+        pts = [(r["n_balls"], max(r["tip_angle_deg"], 1e-3)) for r in data["rows"] if r["field_angle_deg"] == angle]
+        ax.plot(*zip(*pts), marker="o", ms=3, label=f"{angle:g} deg")
+    ax.axhline(PAPER_CLAIM_DEG, color="k", ls="--", lw=1, label="paper: 1.4 deg")
+    ax.set_xlabel("balls in the chain")
+    ax.set_ylabel("angle between field and tip dipole [deg]")
+    ax.set_yscale("log")
+    ax.legend(fontsize=7, ncol=2)
+    ax.set_title("Tip alignment with a 23 mT field (model)")
+    fig.tight_layout()
+    png = out / "alignment.png"
+    save_figure(fig, png, dpi=120)
+    fig, ax = plt.subplots(figsize=(5, 5))
+    for angle, p in data["shapes"].items():
+        ax.plot(p[:, 0], p[:, 1], "-o", ms=4, label=f"{angle:g} deg")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [mm]")
+    ax.set_ylabel("y [mm]")
+    ax.legend(fontsize=7)
+    ax.set_title("10-ball chain, field rotated 0..180 deg")
+    fig.tight_layout()
+    shapes_png = out / "alignment_shapes.png"
+    save_figure(fig, shapes_png, dpi=120)
+    return [str(csv_path), str(png), str(shapes_png)]
 
 
 def run(*, max_balls: int = 16, field_mT: float = 23.0, step_deg: float = 22.5, sleeve: bool = False,
@@ -73,44 +107,3 @@ def run(*, max_balls: int = 16, field_mT: float = 23.0, step_deg: float = 22.5, 
     if out is not None:
         data["files"] = write_files(data, Path(out))
     return data
-
-
-def write_files(data: dict, out: Path) -> list[str]:
-    """Write the CSV and the two figures into ``out``; returns their paths."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    out.mkdir(parents=True, exist_ok=True)
-    csv_path = write_csv(out / "alignment.csv", data["rows"])
-    fig, ax = plt.subplots(figsize=(6, 4))
-    angles = sorted({r["field_angle_deg"] for r in data["rows"]})
-    for angle in angles:
-        if angle == 0.0:
-            continue  # aligned with the chain: the angle is zero for every length
-        pts = [(r["n_balls"], max(r["tip_angle_deg"], 1e-3)) for r in data["rows"] if r["field_angle_deg"] == angle]
-        ax.plot(*zip(*pts), marker="o", ms=3, label=f"{angle:g} deg")
-    ax.axhline(PAPER_CLAIM_DEG, color="k", ls="--", lw=1, label="paper: 1.4 deg")
-    ax.set_xlabel("balls in the chain")
-    ax.set_ylabel("angle between field and tip dipole [deg]")
-    ax.set_yscale("log")
-    ax.legend(fontsize=7, ncol=2)
-    ax.set_title("Tip alignment with a 23 mT field (model)")
-    fig.tight_layout()
-    png = out / "alignment.png"
-    save_figure(fig, png, dpi=120)
-    plt.close(fig)
-    fig, ax = plt.subplots(figsize=(5, 5))
-    for angle, p in data["shapes"].items():
-        ax.plot(p[:, 0], p[:, 1], "-o", ms=4, label=f"{angle:g} deg")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [mm]")
-    ax.set_ylabel("y [mm]")
-    ax.legend(fontsize=7)
-    ax.set_title("10-ball chain, field rotated 0..180 deg")
-    fig.tight_layout()
-    shapes_png = out / "alignment_shapes.png"
-    save_figure(fig, shapes_png, dpi=120)
-    plt.close(fig)
-    return [str(csv_path), str(png), str(shapes_png)]

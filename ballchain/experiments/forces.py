@@ -32,7 +32,7 @@ from ballchain.drake_models.errors import UserInputError, check_in
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import BallChain, CylinderMagnet, Sleeve, gram_force
-from ballchain.drake_models.safe_files import check_output_dir, save_figure, write_csv
+from ballchain.drake_models.safe_files import agg_pyplot, check_output_dir, save_figure, write_csv
 from ballchain.optimization.inverse_statics import pin_tip
 from ballchain.optimization.statics import ChainStatics
 
@@ -193,6 +193,35 @@ def dynamics_columns(chain: BallChain, stand: Stand, vein: str, configs, best: d
         columns["statics_at_deflection_gf"] = gram_force(sim["statics_loaded_N"])
     return columns
 
+def write_files(data: dict, out: Path) -> list[str]:
+    """Write ``forces.csv`` and the bar chart ``forces.png`` into ``out``; returns their paths."""
+    plt = agg_pyplot()
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "forces.csv"
+    keys = ["vein", "config", "sleeve", "statics_gf", "dynamics_gf", "statics_dynamics_diff_pct", "paper_gf",
+            "statics_lateral_gf", "dynamics_lateral_gf", "n_balls", "superposition_gf", "dynamics_note"]
+    write_csv(path, data["rows"], keys)
+    rows = data["rows"]
+    labels = [f"{r['vein']} {r['config']}{' S' if r['sleeve'] else ''}" for r in rows]
+    x = np.arange(len(rows))
+    fig, ax = plt.subplots(figsize=(max(6, 0.45 * len(rows)), 4))
+    simulated = any(r.get("dynamics_gf") is not None for r in rows)
+    width = 0.27 if simulated else 0.4
+    shift = width if simulated else 0.5 * width
+    ax.bar(x - shift, [r["paper_gf"] for r in rows], width, label="paper (measured)")
+    ax.bar(x + (0.0 if simulated else shift), [r["statics_gf"] or 0.0 for r in rows], width, label="model (statics)")
+    if simulated:  # the statics optima simulated on the force-sensor pin (a missing one: no bar)
+        ax.bar(x + width, [r.get("dynamics_gf") or 0.0 for r in rows], width, label="simulation")
+    ax.set_xticks(x, labels, rotation=70, fontsize=7)
+    ax.set_ylabel("tip force [gf]")
+    ax.set_yscale("log")
+    ax.legend()
+    ax.set_title("Tip force on the veins: paper vs model (S = sleeve)")
+    fig.tight_layout()
+    png = out / "forces.png"
+    save_figure(fig, png, dpi=110)
+    return [str(path), str(png)]
+
 
 def run(*, veins=("LSPV", "LIPV", "RSPV", "RIPV"), sleeves=(False, True), n_balls=(16,), grid: int = 8,
         refine_evaluations: int = 60, progress: bool = True, dynamics: bool = True,
@@ -263,38 +292,3 @@ def run(*, veins=("LSPV", "LIPV", "RSPV", "RIPV"), sleeves=(False, True), n_ball
     if out is not None:
         data["files"] = write_files(data, Path(out))
     return data
-
-
-def write_files(data: dict, out: Path) -> list[str]:
-    """Write ``forces.csv`` and the bar chart ``forces.png`` into ``out``; returns their paths."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / "forces.csv"
-    keys = ["vein", "config", "sleeve", "statics_gf", "dynamics_gf", "statics_dynamics_diff_pct", "paper_gf",
-            "statics_lateral_gf", "dynamics_lateral_gf", "n_balls", "superposition_gf", "dynamics_note"]
-    write_csv(path, data["rows"], keys)
-    rows = data["rows"]
-    labels = [f"{r['vein']} {r['config']}{' S' if r['sleeve'] else ''}" for r in rows]
-    x = np.arange(len(rows))
-    fig, ax = plt.subplots(figsize=(max(6, 0.45 * len(rows)), 4))
-    simulated = any(r.get("dynamics_gf") is not None for r in rows)
-    width = 0.27 if simulated else 0.4
-    shift = width if simulated else 0.5 * width
-    ax.bar(x - shift, [r["paper_gf"] for r in rows], width, label="paper (measured)")
-    ax.bar(x + (0.0 if simulated else shift), [r["statics_gf"] or 0.0 for r in rows], width, label="model (statics)")
-    if simulated:  # the statics optima simulated on the force-sensor pin (a missing one: no bar)
-        ax.bar(x + width, [r.get("dynamics_gf") or 0.0 for r in rows], width, label="simulation")
-    ax.set_xticks(x, labels, rotation=70, fontsize=7)
-    ax.set_ylabel("tip force [gf]")
-    ax.set_yscale("log")
-    ax.legend()
-    ax.set_title("Tip force on the veins: paper vs model (S = sleeve)")
-    fig.tight_layout()
-    png = out / "forces.png"
-    save_figure(fig, png, dpi=110)
-    plt.close(fig)
-    return [str(path), str(png)]

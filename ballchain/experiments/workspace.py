@@ -24,7 +24,7 @@ from tqdm import tqdm
 from ballchain.drake_models import paper
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.params import BallChain, Sleeve
-from ballchain.drake_models.safe_files import atomic_write_text, check_output_dir, save_figure
+from ballchain.drake_models.safe_files import agg_pyplot, atomic_write_text, check_output_dir, save_figure
 from ballchain.experiments.magnet_poses import field_angle_for_magnet_angle, side_magnet
 from ballchain.optimization.statics import ChainStatics
 
@@ -45,6 +45,38 @@ def sweep(chain: BallChain, side: int, step_deg: float, distance: float = DISTAN
     tips = [result.positions[-1].copy() for result in results]
     field_angles = [np.degrees(field_angle_for_magnet_angle(phi)) for phi in phis]
     return np.array(tips), np.array(field_angles)
+
+def write_files(data: dict, out: Path) -> list[str]:
+    """Write ``workspace_tips.csv`` and ``workspace.png`` into ``out``; returns their paths."""
+    plt = agg_pyplot()
+    out.mkdir(parents=True, exist_ok=True)
+    csv_path = out / "workspace_tips.csv"
+    f = io.StringIO(newline="")
+    writer = csv.writer(f)
+    writer.writerow(["n_balls", "sleeve", "side", "tip_x_mm", "tip_y_mm", "tip_z_mm"])
+    for (n, sleeve, side), tips in data["curves"].items():
+        for tip in tips:
+            writer.writerow([n, sleeve, side, *tip])
+    atomic_write_text(csv_path, f.getvalue())
+    fig, axes = plt.subplots(1, 3, figsize=(12, 4.5), sharex=True, sharey=True)
+    balls = sorted({k[0] for k in data["curves"]})
+    for ax, n in zip(axes, balls):
+        for sleeve, style in ((False, "-"), (True, "--")):
+            for side in (1, -1):
+                tips = data["curves"][(n, sleeve, side)]
+                ax.plot(tips[:, 0], tips[:, 1], style, color="C0" if side > 0 else "C1",
+                        label=f"{'sleeve' if sleeve else 'bare'}, {'+y' if side > 0 else '-y'} side")
+        ax.plot([0], [0], "ks")
+        ax.set_title(f"{n} balls")
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [mm]")
+    axes[0].set_ylabel("y [mm] (magnet towards -y)")
+    axes[-1].legend(fontsize=7)
+    fig.suptitle("Tip positions as the magnet turns (16.51 cm away)")
+    fig.tight_layout()
+    png = out / "workspace.png"
+    save_figure(fig, png, dpi=110)
+    return [str(csv_path), str(png)]
 
 
 def run(*, balls=(4, 9, 16), step_deg: float = 5.0, distance: float = DISTANCE, progress: bool = True,
@@ -111,41 +143,3 @@ def run(*, balls=(4, 9, 16), step_deg: float = 5.0, distance: float = DISTANCE, 
     if out is not None:
         data["files"] = write_files(data, Path(out))
     return data
-
-
-def write_files(data: dict, out: Path) -> list[str]:
-    """Write ``workspace_tips.csv`` and ``workspace.png`` into ``out``; returns their paths."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    out.mkdir(parents=True, exist_ok=True)
-    csv_path = out / "workspace_tips.csv"
-    f = io.StringIO(newline="")
-    writer = csv.writer(f)
-    writer.writerow(["n_balls", "sleeve", "side", "tip_x_mm", "tip_y_mm", "tip_z_mm"])
-    for (n, sleeve, side), tips in data["curves"].items():
-        for tip in tips:
-            writer.writerow([n, sleeve, side, *tip])
-    atomic_write_text(csv_path, f.getvalue())
-    fig, axes = plt.subplots(1, 3, figsize=(12, 4.5), sharex=True, sharey=True)
-    balls = sorted({k[0] for k in data["curves"]})
-    for ax, n in zip(axes, balls):
-        for sleeve, style in ((False, "-"), (True, "--")):
-            for side in (1, -1):
-                tips = data["curves"][(n, sleeve, side)]
-                ax.plot(tips[:, 0], tips[:, 1], style, color="C0" if side > 0 else "C1",
-                        label=f"{'sleeve' if sleeve else 'bare'}, {'+y' if side > 0 else '-y'} side")
-        ax.plot([0], [0], "ks")
-        ax.set_title(f"{n} balls")
-        ax.set_aspect("equal")
-        ax.set_xlabel("x [mm]")
-    axes[0].set_ylabel("y [mm] (magnet towards -y)")
-    axes[-1].legend(fontsize=7)
-    fig.suptitle("Tip positions as the magnet turns (16.51 cm away)")
-    fig.tight_layout()
-    png = out / "workspace.png"
-    save_figure(fig, png, dpi=110)
-    plt.close(fig)
-    return [str(csv_path), str(png)]
