@@ -11,8 +11,11 @@ from pathlib import Path
 import numpy as np
 
 # Re-exported for the commands: they live below the CLI layer so that experiments can use them.
-from ballchain.drake_models.errors import check_in  # noqa: F401
-from ballchain.drake_models.safe_files import save_figure, write_csv  # noqa: F401
+from ballchain.drake_models.errors import check_in
+from ballchain.drake_models.safe_files import save_figure, write_csv
+
+__all__ = ["add_json_flag", "check_in", "finite_float", "float_in", "int_in", "json_text", "non_negative_int",
+           "positive_int", "print_json", "save_figure", "to_jsonable", "write_csv", "write_json"]
 
 
 def to_jsonable(value):
