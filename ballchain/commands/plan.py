@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 
 from ballchain.commands._common import add_json_flag, float_in, int_in, positive_int, print_json
-from ballchain.drake_models.errors import UserInputError
 from ballchain.experiments import planner
 
 
@@ -36,8 +35,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    if any(n < 2 for n in args.balls):
-        raise UserInputError(f"--balls must be >= 2 each, got {args.balls}")
     extra = {} if args.friction is None else {"friction": args.friction}
     data = planner.run(task=args.task, targets=args.targets, balls=tuple(args.balls), grid=args.grid,
                        refine=args.refine, min_force_gf=args.min_force, **extra)
