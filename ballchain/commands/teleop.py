@@ -59,16 +59,7 @@ def main(args: argparse.Namespace) -> int:
 
     if args.live:
         return _main_live(args)
-    # Check everything before the (slow) build, so bad input fails at once.
-    teleop.check_inputs(args.task, args.mapping, args.targets, args.balls, args.time_limit)
-    if args.html is not None:
-        from ballchain.drake_models.safe_files import check_output_file
-
-        check_output_file(args.html, "--html")
-    if args.overrides is not None:  # the --set YAML's shape, before the atrium is built
-        from ballchain.systems.chain_scenario import parse_overrides
-
-        parse_overrides(args.overrides)
+    # teleop.run checks every input, the --html path and the --set YAML before the (slow) build.
     data = teleop.run(task=args.task, mapping=args.mapping, targets=args.targets, html=args.html,
                       progress=not args.no_progress, time_limit=args.time_limit, n_balls=args.balls,
                       overrides=args.overrides)
