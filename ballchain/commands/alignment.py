@@ -1,10 +1,7 @@
-"""Tip-to-field alignment, the paper's model figure (Fig. model_simulation).
+"""``ballchain alignment``: tip-to-field alignment against chain length (paper Fig. model_simulation).
 
-Chains of 1..16 balls; a 23 mT field rotated from 0 to 180 deg in 22.5 deg steps with
-continuation; the angle between the field and the tip ball's dipole. The paper claims less
-than 1.4 deg for chains longer than 10 balls. Writes ``alignment.csv`` and ``alignment.png``
-(tip angle against chain length) and ``alignment_shapes.png`` (the 10-ball chain's shapes).
-The experiment is ``ballchain.experiments.alignment``.
+Prints the tip angle of every chain length at every field angle, or ``--json``; the study, its
+CSV and its figures are ``ballchain.experiments.alignment``.
 """
 
 from __future__ import annotations
