@@ -37,8 +37,14 @@ def paths(tmp_path_factory):
     atrium = write_stl_ascii(root / "atrium.stl", 0.025 * V, F)  # a 50 mm sphere, in metres
     garbage = root / "garbage.stl"
     garbage.write_bytes(b"\x00\x01 not a mesh at all")
+    # Closed and consistently oriented, but one triangle has zero area (its corner sits on the
+    # opposite edge): the wall grown from it has a flat tetrahedron that Drake cannot use.
+    a, b, c = F[0]
+    m = len(V)
+    sliver = mt.write_obj(root / "sliver.obj", 0.025 * np.vstack([V, 0.5 * (V[a] + V[b])]),
+                          np.vstack([F[1:], [[a, m, c], [m, b, c], [a, b, m]]]))
     return {"file": str(a_file), "folder": str(a_folder), "atrium": str(atrium), "garbage": str(garbage),
-            "under_file": str(a_file / "x.html")}
+            "sliver": str(sliver), "under_file": str(a_file / "x.html")}
 
 
 SIM = ["simulate", "--scenario", "free_space_uniform_90deg"]
@@ -78,6 +84,9 @@ CASES = [
     ("bench-balls-1", ["bench", "statics", "--balls", "1"], "--balls"),
     ("wheels-samples-0", ["wheels", "--samples", "0"], "--samples"),
     ("reconfigure-slip-1", ["reconfigure", "--slip", "1"], "--slip"),
+    ("reconfigure-t-max", ["reconfigure", "--t-max", "1e9"], "--t-max"),
+    ("wheels-samples-1e12", ["wheels", "--samples", "1000000000000"], "--samples"),
+    ("bench-repeats", ["bench", "statics", "--repeats", "100000"], "--repeats"),
     # simulate: flags
     ("simulate-unknown-scenario", ["simulate", "--scenario", "no_such"], "scenario"),
     ("simulate-duration-0", SIM + ["--duration", "0"], "--duration"),
@@ -112,6 +121,9 @@ CASES = [
                         "{atrium_file: '{garbage}', puncture: [0.025, 0, 0]}"], "garbage.stl"),
     ("atrium-puncture-in-mm", ["simulate", "--scenario", "heart_no_field", "--set",
                                "{atrium_file: '{atrium}', atrium_units: m, puncture: [27.0, 0, 0]}"], "puncture"),
+    ("atrium-flat-wall-tetrahedron", ["simulate", "--scenario", "heart_no_field", "--set",
+                                      "{atrium_file: '{sliver}', atrium_units: m, puncture: [0.025, 0, 0]}"],
+     "atrium_file"),
     ("atrium-puncture-nan", ["simulate", "--scenario", "heart_no_field", "--set",
                              "{atrium_file: '{atrium}', puncture: [.nan, 0, 0]}"], "puncture"),
     # teleop
