@@ -40,3 +40,24 @@ def check_finite_input(system, port, context, value=None):
             f"{system.get_name()}: input port '{port.get_name()}' is not finite at t = {context.get_time():.6g} s "
             f"(element {int(bad[0])} of {x.size}: {x.reshape(-1)[bad[0]]}; value {np.round(x, 6).tolist()})")
     return x
+
+
+def require_finite_fields(obj, allow_inf=()) -> None:
+    """Every number of a parameter dataclass (also inside tuples/lists) is finite, else a
+    UserInputError naming ``Class.field`` and the value. Bools and strings are skipped; the
+    fields named in ``allow_inf`` may be +-inf ("no limit") but not NaN."""
+    import dataclasses
+    import math
+    import numbers
+
+    def bad(value) -> bool:
+        if isinstance(value, bool) or not isinstance(value, numbers.Real):
+            if isinstance(value, (tuple, list)):
+                return any(bad(v) for v in value)
+            return False
+        return not math.isfinite(value)
+
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if bad(value) and not (f.name in allow_inf and not math.isnan(value)):
+            raise UserInputError(f"{type(obj).__name__}.{f.name} must be finite, got {value!r}")

@@ -53,7 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from ballchain.drake_models import mesh_tools as mt
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.errors import UserInputError, require_finite_fields
 
 PV_NAMES = ("LSPV", "LIPV", "RSPV", "RIPV")
 
@@ -106,6 +106,7 @@ class HeartParams:
     scale: float = 1.0
 
     def __post_init__(self) -> None:
+        require_finite_fields(self)
         if len(self.semi_axes) != 3 or min(self.semi_axes) <= 0:
             raise UserInputError(f"HeartParams.semi_axes must be 3 positive lengths, got {self.semi_axes}")
         if self.wall_layers < 2:

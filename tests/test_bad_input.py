@@ -179,9 +179,11 @@ def test_the_table_has_at_least_40_cases_over_every_subcommand():
 def _api_cases():
     from ballchain.commands import forces, statics, workspace
     from ballchain.drake_models.field_sources import MagnetSource, UniformField
+    from ballchain.drake_models.heart import HeartParams
     from ballchain.drake_models.params import BallChain, CylinderMagnet, Sleeve
     from ballchain.experiments import planner, teleop
     from ballchain.optimization.statics import rotation_path
+    from ballchain.systems.simulated_operator import OperatorParams
     from ballchain.systems.chain_scenario import load_scenario
 
     return [
@@ -200,12 +202,14 @@ def _api_cases():
         ("workspace-run-nan", lambda: workspace.run(step_deg=float("nan")), "--step-deg"),
         ("planner-friction-nan", lambda: planner.run(task="right", targets=1, friction=float("nan")), "friction"),
         ("teleop-balls", lambda: teleop.check_inputs("left", "world", None, 1000, None), "balls"),
+        ("heart-nan-scale", lambda: HeartParams(scale=float("nan")), "HeartParams.scale"),
+        ("operator-nan-timeout", lambda: OperatorParams(timeout=float("nan")).validate(), "OperatorParams.timeout"),
         ("scenario-override", lambda: load_scenario("heart_no_field", "{magnets: [{distance_from_puncture: 165.1}]}"),
          "distance_from_puncture"),
     ]
 
 
-@pytest.mark.parametrize("index", range(13))
+@pytest.mark.parametrize("index", range(15))
 def test_bad_api_input_raises_user_input_error_naming_the_field(index):
     name, call, field = _api_cases()[index]
     start = time.monotonic()
@@ -239,6 +243,7 @@ def test_a_bug_is_a_traceback_with_exit_1_not_bad_input(monkeypatch):
     assert proc.returncode == 1 and "Traceback" in proc.stderr and "ValueError: a bug" in proc.stderr
 
 
+@pytest.mark.slow  # a fresh interpreter per case
 @pytest.mark.parametrize("argv,field", [
     (["statics", "--balls", "1000"], "--balls"),
     (["simulate", "--scenario", "teleop_right_unit", "--set",
