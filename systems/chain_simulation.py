@@ -111,7 +111,10 @@ def atrium_for(scenario: ChainScenario):
 
     path = scenario.atrium_file
     path = resolve_uri(path) if path.startswith("package://") else Path(path)
-    surface = load_atrium_surface(path, scenario.atrium_units)
+    try:
+        surface = load_atrium_surface(path, scenario.atrium_units)
+    except UserInputError as err:  # name the scenario field the user typed
+        raise UserInputError(f"scenario atrium_file: {err}") from None
     return UserAtrium(surface, scenario.puncture, scenario.sheath_aim or None)
 
 
