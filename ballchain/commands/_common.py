@@ -152,3 +152,15 @@ def save_figure(fig, path, **kwargs) -> Path:
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format=path.suffix.lstrip(".") or "png", **kwargs)
     return path
+
+
+def note_replacements(out, names, command: str) -> list[str]:
+    """Say on stderr which of the files ``names`` in folder ``out`` already exist and are about
+    to be replaced (one line); returns them."""
+    import sys
+
+    out = Path(out)
+    existing = [n for n in names if (out / n).exists()]
+    if existing:
+        print(f"ballchain {command}: replacing {', '.join(existing)} in {out}", file=sys.stderr)
+    return existing

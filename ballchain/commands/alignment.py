@@ -14,10 +14,12 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from ballchain.commands._common import add_json_flag, check_in, float_in, int_in, print_json, save_figure, write_csv
-from ballchain.drake_models.safe_files import check_output_dir
+from ballchain.commands._common import (
+    add_json_flag, check_in, float_in, int_in, note_replacements, print_json, save_figure, write_csv,
+)
 from ballchain.drake_models.field_sources import UniformField
 from ballchain.drake_models.params import BallChain, Sleeve
+from ballchain.drake_models.safe_files import check_output_dir
 from ballchain.optimization.statics import ChainStatics, rotation_path, tip_angle_deg
 
 PAPER_CLAIM_DEG = 1.4
@@ -77,6 +79,7 @@ def write_files(data: dict, out: Path) -> list[str]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    note_replacements(out, ["alignment.csv", "alignment.png", "alignment_shapes.png"], "alignment")
     out.mkdir(parents=True, exist_ok=True)
     csv_path = write_csv(out / "alignment.csv", data["rows"])
     fig, ax = plt.subplots(figsize=(6, 4))

@@ -12,7 +12,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, check_in, int_in, print_json, save_figure, write_csv
+from ballchain.commands._common import (
+    add_json_flag, check_in, int_in, note_replacements, print_json, save_figure, write_csv,
+)
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.safe_files import check_output_dir
 from ballchain.experiments import forces
@@ -45,6 +47,7 @@ def write_files(data: dict, out: Path) -> list[str]:
     import matplotlib.pyplot as plt
     import numpy as np
 
+    note_replacements(out, ["forces.csv", "forces.png"], "forces")
     out.mkdir(parents=True, exist_ok=True)
     path = out / "forces.csv"
     keys = ["vein", "config", "sleeve", "statics_gf", "dynamics_gf", "statics_dynamics_diff_pct", "paper_gf",

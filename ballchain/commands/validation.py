@@ -9,9 +9,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, finite_float, print_json, write_csv
-from ballchain.drake_models.safe_files import check_output_dir
+from ballchain.commands._common import add_json_flag, finite_float, note_replacements, print_json, write_csv
 from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.safe_files import check_output_dir
 from ballchain.experiments import model_validation
 
 
@@ -30,6 +30,7 @@ def run(*, field_mT: float = 23.0, out: Path | None = None, progress: bool = Tru
     data = model_validation.run(field_T=field_mT * 1e-3, progress=progress, balls=balls)
     if out is not None:
         out = Path(out)
+        note_replacements(out, ["validation.csv"], "validation")
         out.mkdir(parents=True, exist_ok=True)
         path = write_csv(out / "validation.csv", data["differences"])
         data["files"] = [str(path)]

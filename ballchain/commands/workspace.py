@@ -12,9 +12,9 @@ import csv
 import io
 from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, finite_float, print_json, save_figure
-from ballchain.drake_models.safe_files import atomic_write_text, check_output_dir
+from ballchain.commands._common import add_json_flag, finite_float, note_replacements, print_json, save_figure
 from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.safe_files import atomic_write_text, check_output_dir
 from ballchain.experiments import workspace
 
 
@@ -32,6 +32,7 @@ def write_files(data: dict, out: Path) -> list[str]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    note_replacements(out, ["workspace_tips.csv", "workspace.png"], "workspace")
     out.mkdir(parents=True, exist_ok=True)
     csv_path = out / "workspace_tips.csv"
     f = io.StringIO(newline="")
