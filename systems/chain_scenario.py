@@ -9,6 +9,7 @@ All quantities are SI: m, s, T, N, kg.
 
 import dataclasses
 import math
+import numbers
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -456,7 +457,8 @@ def check_fields(s: "ChainScenario") -> None:
     """
     for path, value in _finite_fields(s):
         raise UserInputError(f"scenario {path} must be a finite number, got {value}")
-    _require(isinstance(s.n_balls, int) and 2 <= s.n_balls <= MAX_BALLS,
+    whole = isinstance(s.n_balls, numbers.Integral) and not isinstance(s.n_balls, bool)
+    _require(whole and 2 <= s.n_balls <= MAX_BALLS,
              f"scenario n_balls must be an integer in 2..{MAX_BALLS} (ball 1 is the feeder ball), got {s.n_balls!r}")
     _require(s.time_step == 0.0 or MIN_TIME_STEP <= s.time_step <= MAX_TIME_STEP,
              f"scenario time_step must be 0 (the mode's default) or in {MIN_TIME_STEP:g}..{MAX_TIME_STEP:g} s, "
