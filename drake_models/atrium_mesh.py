@@ -352,8 +352,12 @@ class UserAtrium:
 
         from ballchain.drake_models.model_files import cache_dir
 
-        key = hashlib.sha1(self.surface.V.tobytes() + self.inner_faces.tobytes()
-                           + repr(self.params).encode()).hexdigest()[:12]
+        import sys
+
+        from ballchain.drake_models.model_files import source_hash
+
+        key = hashlib.sha1(self.surface.V.tobytes() + self.inner_faces.tobytes() + repr(self.params).encode()
+                           + source_hash(sys.modules[__name__], mt).encode()).hexdigest()[:12]
         directory = Path(directory) if directory else cache_dir() / f"user_atrium_{key}"
         directory.mkdir(parents=True, exist_ok=True)
         paths = {"vtk": directory / "atrium_wall.vtk", "obj": directory / "atrium_wall.obj"}

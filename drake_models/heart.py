@@ -125,8 +125,14 @@ class HeartParams:
             raise UserInputError(f"HeartParams.scale must be positive, got {self.scale}")
 
     def key(self) -> str:
-        """A short hash of the parameters, naming the generated files."""
-        return hashlib.sha1(repr(sorted(asdict(self).items())).encode()).hexdigest()[:12]
+        """A short hash of the parameters and of the code that makes the meshes, naming the
+        generated files."""
+        import sys
+
+        from ballchain.drake_models.model_files import source_hash
+
+        code = source_hash(sys.modules[__name__], mt)
+        return hashlib.sha1((repr(sorted(asdict(self).items())) + code).encode()).hexdigest()[:12]
 
 
 @dataclass
