@@ -31,9 +31,16 @@ def check_finite_input(system, port, context, value=None):
         context: the system's context (its time is used).
         value: the already evaluated value, to avoid a second Eval.
     """
+    import math
+
     import numpy as np
 
-    x = np.asarray(port.Eval(context) if value is None else value, dtype=float)
+    x = port.Eval(context) if value is None else value
+    # The fast path runs in every derivative evaluation: on a few numbers, plain floats are
+    # about 20 times cheaper than a numpy ufunc.
+    if isinstance(x, np.ndarray) and all(map(math.isfinite, x.tolist())):
+        return x
+    x = np.asarray(x, dtype=float)
     if not np.all(np.isfinite(x)):
         bad = np.flatnonzero(~np.isfinite(x.reshape(-1)))
         raise NonFiniteSignal(
