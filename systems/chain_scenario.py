@@ -380,7 +380,7 @@ def _type_name(tp, plural: bool = False) -> str:
     return names[tp][plural] if tp in names else str(tp)
 
 
-def _check_value(value, tp, where: str) -> None:
+def _check_value(value, tp, path: str, where: str) -> None:
     origin = typing.get_origin(tp)
     ok = True
     if tp is bool:
@@ -389,6 +389,12 @@ def _check_value(value, tp, where: str) -> None:
         ok = isinstance(value, int) and not isinstance(value, bool)
     elif tp is float:
         ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if isinstance(value, str):  # YAML 1.1 (PyYAML) reads 1e-3 as a string; Drake's parser reads a number
+            try:
+                float(value)
+                ok = True
+            except ValueError:
+                ok = False
     elif tp is str:
         ok = isinstance(value, str)
     elif origin in (list, tuple):
@@ -397,24 +403,25 @@ def _check_value(value, tp, where: str) -> None:
             args = typing.get_args(tp)
             for i, item in enumerate(value):
                 if args:
-                    _check_value(item, args[0], f"{where}[{i}]")
+                    _check_value(item, args[0], f"{path}[{i}]", where)
     elif dataclasses.is_dataclass(tp):
         if not isinstance(value, dict):
-            raise UserInputError(f"scenario field {where} must be {_type_name(tp)} "
+            raise UserInputError(f"scenario field {path} must be {_type_name(tp)} "
                                  f"({', '.join(f.name for f in dataclasses.fields(tp))}), got {value!r}")
-        check_yaml_schema(value, tp, where)
+        check_yaml_schema(value, tp, where, path)
         return
     if not ok:
-        raise UserInputError(f"scenario field {where} must be {_type_name(tp)}, got {value!r}")
+        raise UserInputError(f"scenario field {path} must be {_type_name(tp)}, got {value!r}")
 
 
-def check_yaml_schema(data, schema, where: str) -> None:
+def check_yaml_schema(data, schema, where: str, path: str = "") -> None:
     """Check parsed YAML against a dataclass schema: known fields, value shapes and types.
 
     Args:
         data: the parsed YAML (a dict).
         schema: the dataclass (ChainScenario or one of its parts).
-        where: the path named in messages ("--set", "units[0]", ...).
+        where: what the YAML came from, for messages ("--set", "scenario 'heart_left'").
+        path: the field path of ``data`` inside the scenario ("" at the top, "units[0]", ...).
 
     Raises:
         UserInputError: naming the field path, what it must be and what it got.
@@ -424,10 +431,9 @@ def check_yaml_schema(data, schema, where: str) -> None:
     hints = typing.get_type_hints(schema)
     for key, value in data.items():
         if key not in hints:
-            raise UserInputError(f"{where}: unknown field {key!r}; {schema.__name__} fields are "
-                                 f"{', '.join(hints)}")
-        _check_value(value, hints[key], key if where in ("--set",) or where.startswith("scenario ")
-                     else f"{where}.{key}")
+            raise UserInputError(f"{where}: unknown field {key!r}{f' in {path}' if path else ''}; "
+                                 f"{schema.__name__} fields are {', '.join(hints)}")
+        _check_value(value, hints[key], f"{path}.{key}" if path else str(key), where)
 
 
 def _finite_fields(obj, where: str = ""):

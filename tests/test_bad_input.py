@@ -276,3 +276,15 @@ def test_every_json_is_valid_json(capsys):
     assert "free_space_uniform_90deg" in data["scenarios"]
     text = json_text({"a": float("nan"), "b": [np.float64("inf"), 1.0], "c": np.array([np.nan, 2.0])})
     assert json.loads(text) == {"a": None, "b": [None, 1.0], "c": [None, 2.0]}
+
+
+def test_good_scenario_yaml_is_not_refused():
+    """The checks refuse only what is wrong: exponent floats (PyYAML reads 1e-3 as text), ints
+    where floats belong, an empty --set, nested partial mappings."""
+    from ballchain.systems.chain_scenario import load_scenario
+
+    s = load_scenario("free_space_uniform_90deg", "{time_step: 1e-3, duration: 2, insertion: {speed: 0.02}}")
+    assert (s.time_step, s.duration, s.insertion.speed) == (1e-3, 2.0, 0.02)
+    assert load_scenario("free_space_uniform_90deg", "").n_balls == load_scenario("free_space_uniform_90deg").n_balls
+    s = load_scenario("teleop_right_unit", "{units: [{name: right_unit, joystick: [{time: 0.5, axes: [1, 0, -1]}]}]}")
+    assert s.units[0].joystick[0].axes == [1.0, 0.0, -1.0]
