@@ -284,3 +284,25 @@ def test_teleoperation_runs_are_deterministic_across_processes():
         assert proc.returncode == 0, proc.stderr
         rows.append(json.loads(proc.stdout.splitlines()[-1]))
     assert rows[0] == rows[1] and rows[0][0]["touched"]
+
+
+@pytest.mark.slow
+def test_ctrl_c_in_simulate_keeps_the_replay_recorded_so_far(tmp_path):
+    """Ctrl-C during ``simulate --html``: exit 130, one note, and a whole replay up to then."""
+    html, log = tmp_path / "replay.html", tmp_path / "stderr.txt"
+    argv = [sys.executable, "-m", "ballchain", "simulate", "--scenario", "free_space_uniform_90deg",
+            "--duration", "600", "--html", str(html)]
+    with log.open("w") as err:
+        proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=err, text=True)
+        end = time.monotonic() + 300
+        while "sim s" not in log.read_text():  # the progress bar: the simulation is running
+            assert proc.poll() is None and time.monotonic() < end, log.read_text()
+            time.sleep(0.1)
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=120)
+    assert proc.returncode == 130
+    text = log.read_text()
+    assert "interrupted at t = " in text and "ballchain simulate: interrupted" in text
+    assert html.read_bytes().rstrip().endswith(b"</html>")
+    assert not list(tmp_path.glob("*.partial"))
