@@ -30,6 +30,7 @@ Units = Literal["auto", "m", "mm"]
 SENSIBLE_EXTENT_MM = (30.0, 80.0)  # typical LA size; outside ACCEPTED_EXTENT_MM is refused
 ACCEPTED_EXTENT_MM = (20.0, 120.0)
 MAX_PUNCTURE_DISTANCE = 5e-3  # [m] a user's puncture may lie this far from the surface
+DEGENERATE_VOLUME_FRACTION = 1e-6  # a wall tetrahedron this much smaller than the median is flat
 
 
 class AtriumMeshError(UserInputError):
@@ -320,6 +321,20 @@ class UserAtrium:
         self.inner_faces = F[~((radial < 0.5 * self.params.puncture_diameter) & (np.abs(along) < 10e-3))]
         self._outer = V + self._normals * self.params.wall_thickness
         self.wall_distance = mt.SurfaceDistance(V, self.inner_faces)
+        self._check_wall()
+
+    def _check_wall(self) -> None:
+        """Refuse a surface whose grown wall has flat tetrahedra (Drake cannot give them a
+        pressure field: "A mesh field element was degenerate"), saying where they are."""
+        Vt, T = self.wall_tetrahedra
+        vol = mt.signed_volumes(Vt, T)
+        bad = np.flatnonzero(vol <= DEGENERATE_VOLUME_FRACTION * np.median(np.abs(vol)))
+        if len(bad):
+            where = np.round(Vt[T[bad[0]]].mean(axis=0) * 1e3, 2).tolist()
+            raise AtriumMeshError(
+                f"atrium_file: the wall grown from this surface has {len(bad)} flat (zero-volume) tetrahedra, the "
+                f"first near {where} mm: the surface has a zero-area triangle or a fold there; remesh it (e.g. "
+                "remove degenerate faces) and try again")
 
     @property
     def wall_tetrahedra(self) -> tuple[np.ndarray, np.ndarray]:
@@ -337,8 +352,12 @@ class UserAtrium:
 
         from ballchain.drake_models.model_files import cache_dir
 
-        key = hashlib.sha1(self.surface.V.tobytes() + self.inner_faces.tobytes()
-                           + repr(self.params).encode()).hexdigest()[:12]
+        import sys
+
+        from ballchain.drake_models.model_files import source_hash
+
+        key = hashlib.sha1(self.surface.V.tobytes() + self.inner_faces.tobytes() + repr(self.params).encode()
+                           + source_hash(sys.modules[__name__], mt).encode()).hexdigest()[:12]
         directory = Path(directory) if directory else cache_dir() / f"user_atrium_{key}"
         directory.mkdir(parents=True, exist_ok=True)
         paths = {"vtk": directory / "atrium_wall.vtk", "obj": directory / "atrium_wall.obj"}

@@ -31,9 +31,16 @@ def check_finite_input(system, port, context, value=None):
         context: the system's context (its time is used).
         value: the already evaluated value, to avoid a second Eval.
     """
+    import math
+
     import numpy as np
 
-    x = np.asarray(port.Eval(context) if value is None else value, dtype=float)
+    x = port.Eval(context) if value is None else value
+    # The fast path runs in every derivative evaluation: on a few numbers, plain floats are
+    # about 20 times cheaper than a numpy ufunc.
+    if isinstance(x, np.ndarray) and all(map(math.isfinite, x.tolist())):
+        return x
+    x = np.asarray(x, dtype=float)
     if not np.all(np.isfinite(x)):
         bad = np.flatnonzero(~np.isfinite(x.reshape(-1)))
         raise NonFiniteSignal(
@@ -56,3 +63,24 @@ def check_in(name: str, value, lo, hi, *, lo_open: bool = False, unit: str = "")
     if not ok:
         interval = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]"
         raise UserInputError(f"{name} must be a number in {interval}{' ' + unit if unit else ''}, got {value!r}")
+
+
+def require_finite_fields(obj, allow_inf=()) -> None:
+    """Every number of a parameter dataclass (also inside tuples/lists) is finite, else a
+    UserInputError naming ``Class.field`` and the value. Bools and strings are skipped; the
+    fields named in ``allow_inf`` may be +-inf ("no limit") but not NaN."""
+    import dataclasses
+    import math
+    import numbers
+
+    def bad(value) -> bool:
+        if isinstance(value, bool) or not isinstance(value, numbers.Real):
+            if isinstance(value, (tuple, list)):
+                return any(bad(v) for v in value)
+            return False
+        return not math.isfinite(value)
+
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if bad(value) and not (f.name in allow_inf and not math.isnan(value)):
+            raise UserInputError(f"{type(obj).__name__}.{f.name} must be finite, got {value!r}")

@@ -54,7 +54,7 @@ import numpy as np
 
 from ballchain.drake_models import mesh_tools as mt
 from ballchain.drake_models import paper
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.errors import UserInputError, require_finite_fields
 
 PV_NAMES = ("LSPV", "LIPV", "RSPV", "RIPV")
 
@@ -107,6 +107,7 @@ class HeartParams:
     scale: float = 1.0
 
     def __post_init__(self) -> None:
+        require_finite_fields(self)
         if len(self.semi_axes) != 3 or min(self.semi_axes) <= 0:
             raise UserInputError(f"HeartParams.semi_axes must be 3 positive lengths, got {self.semi_axes}")
         if self.wall_layers < 2:
@@ -125,8 +126,14 @@ class HeartParams:
             raise UserInputError(f"HeartParams.scale must be positive, got {self.scale}")
 
     def key(self) -> str:
-        """A short hash of the parameters, naming the generated files."""
-        return hashlib.sha1(repr(sorted(asdict(self).items())).encode()).hexdigest()[:12]
+        """A short hash of the parameters and of the code that makes the meshes, naming the
+        generated files."""
+        import sys
+
+        from ballchain.drake_models.model_files import source_hash
+
+        code = source_hash(sys.modules[__name__], mt)
+        return hashlib.sha1((repr(sorted(asdict(self).items())) + code).encode()).hexdigest()[:12]
 
 
 @dataclass

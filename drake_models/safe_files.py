@@ -109,7 +109,7 @@ def check_output_file(path, what: str) -> Path:
         raise UserInputError(f"{what} {str(path)!r} exists and is not writable")
     try:
         check_output_dir(path.parent, what)
-    except UserInputError as err:
+    except UserInputError:
         base = _first_existing_parent(path.absolute().parent)
         if base.exists() and not base.is_dir():
             raise UserInputError(f"{what} {str(path)!r}: {str(base)!r} is a file, so the folder cannot "
@@ -153,3 +153,15 @@ def save_figure(fig, path, **kwargs) -> Path:
     finally:
         plt.close(fig)
     return path
+
+
+def note_replacements(out, names, command: str) -> list[str]:
+    """Say on stderr which of the files ``names`` in folder ``out`` already exist and are about
+    to be replaced (one line); returns them."""
+    import sys
+
+    out = Path(out)
+    existing = [n for n in names if (out / n).exists()]
+    if existing:
+        print(f"ballchain {command}: replacing {', '.join(existing)} in {out}", file=sys.stderr)
+    return existing

@@ -9,6 +9,7 @@ All quantities are SI: m, s, T, N, kg.
 
 import dataclasses
 import math
+import numbers
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,7 +18,6 @@ import numpy as np
 import yaml
 from pydrake.common.yaml import yaml_load_typed
 
-from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.errors import UserInputError
 from ballchain.systems.chain_plant import ContactConfig
 
@@ -379,7 +379,7 @@ def _type_name(tp, plural: bool = False) -> str:
     return names[tp][plural] if tp in names else str(tp)
 
 
-def _check_value(value, tp, where: str) -> None:
+def _check_value(value, tp, path: str, where: str) -> None:
     origin = typing.get_origin(tp)
     ok = True
     if tp is bool:
@@ -388,6 +388,12 @@ def _check_value(value, tp, where: str) -> None:
         ok = isinstance(value, int) and not isinstance(value, bool)
     elif tp is float:
         ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if isinstance(value, str):  # YAML 1.1 (PyYAML) reads 1e-3 as a string; Drake's parser reads a number
+            try:
+                float(value)
+                ok = True
+            except ValueError:
+                ok = False
     elif tp is str:
         ok = isinstance(value, str)
     elif origin in (list, tuple):
@@ -396,24 +402,25 @@ def _check_value(value, tp, where: str) -> None:
             args = typing.get_args(tp)
             for i, item in enumerate(value):
                 if args:
-                    _check_value(item, args[0], f"{where}[{i}]")
+                    _check_value(item, args[0], f"{path}[{i}]", where)
     elif dataclasses.is_dataclass(tp):
         if not isinstance(value, dict):
-            raise UserInputError(f"scenario field {where} must be {_type_name(tp)} "
+            raise UserInputError(f"scenario field {path} must be {_type_name(tp)} "
                                  f"({', '.join(f.name for f in dataclasses.fields(tp))}), got {value!r}")
-        check_yaml_schema(value, tp, where)
+        check_yaml_schema(value, tp, where, path)
         return
     if not ok:
-        raise UserInputError(f"scenario field {where} must be {_type_name(tp)}, got {value!r}")
+        raise UserInputError(f"scenario field {path} must be {_type_name(tp)}, got {value!r}")
 
 
-def check_yaml_schema(data, schema, where: str) -> None:
+def check_yaml_schema(data, schema, where: str, path: str = "") -> None:
     """Check parsed YAML against a dataclass schema: known fields, value shapes and types.
 
     Args:
         data: the parsed YAML (a dict).
         schema: the dataclass (ChainScenario or one of its parts).
-        where: the path named in messages ("--set", "units[0]", ...).
+        where: what the YAML came from, for messages ("--set", "scenario 'heart_left'").
+        path: the field path of ``data`` inside the scenario ("" at the top, "units[0]", ...).
 
     Raises:
         UserInputError: naming the field path, what it must be and what it got.
@@ -423,10 +430,9 @@ def check_yaml_schema(data, schema, where: str) -> None:
     hints = typing.get_type_hints(schema)
     for key, value in data.items():
         if key not in hints:
-            raise UserInputError(f"{where}: unknown field {key!r}; {schema.__name__} fields are "
-                                 f"{', '.join(hints)}")
-        _check_value(value, hints[key], key if where in ("--set",) or where.startswith("scenario ")
-                     else f"{where}.{key}")
+            raise UserInputError(f"{where}: unknown field {key!r}{f' in {path}' if path else ''}; "
+                                 f"{schema.__name__} fields are {', '.join(hints)}")
+        _check_value(value, hints[key], f"{path}.{key}" if path else str(key), where)
 
 
 def _finite_fields(obj, where: str = ""):
@@ -456,7 +462,8 @@ def check_fields(s: "ChainScenario") -> None:
     """
     for path, value in _finite_fields(s):
         raise UserInputError(f"scenario {path} must be a finite number, got {value}")
-    _require(isinstance(s.n_balls, int) and 2 <= s.n_balls <= MAX_BALLS,
+    whole = isinstance(s.n_balls, numbers.Integral) and not isinstance(s.n_balls, bool)
+    _require(whole and 2 <= s.n_balls <= MAX_BALLS,
              f"scenario n_balls must be an integer in 2..{MAX_BALLS} (ball 1 is the feeder ball), got {s.n_balls!r}")
     _require(s.time_step == 0.0 or MIN_TIME_STEP <= s.time_step <= MAX_TIME_STEP,
              f"scenario time_step must be 0 (the mode's default) or in {MIN_TIME_STEP:g}..{MAX_TIME_STEP:g} s, "

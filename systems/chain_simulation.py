@@ -108,7 +108,10 @@ def atrium_for(scenario: ChainScenario):
 
     path = scenario.atrium_file
     path = resolve_uri(path) if path.startswith("package://") else Path(path)
-    surface = load_atrium_surface(path, scenario.atrium_units)
+    try:
+        surface = load_atrium_surface(path, scenario.atrium_units)
+    except UserInputError as err:  # name the scenario field the user typed
+        raise UserInputError(f"scenario atrium_file: {err}") from None
     return UserAtrium(surface, scenario.puncture, scenario.sheath_aim or None)
 
 
@@ -510,6 +513,14 @@ def run_simulation(*, scenario: ChainScenario, duration: float | None = None, ht
         simulator.AdvanceTo(duration)
     except (RuntimeError, ValueError) as err:  # the monitor's failure, or a solver/physics error
         error = monitor.failure or f"at t = {root.get_time():.4f} s: {' '.join(str(err).split())}"
+    except KeyboardInterrupt:  # Ctrl-C: keep the replay recorded so far, then stop
+        if cd.visualizer is not None and html is not None:
+            cd.visualizer.StopRecording()
+            cd.visualizer.PublishRecording()
+            atomic_write_text(html, meshcat.StaticHtml())
+            print(f"simulate: interrupted at t = {root.get_time():.4f} s; replay so far written to {html}",
+                  file=sys.stderr)
+        raise
     finally:
         if bar is not None:
             bar.close()

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from pydrake.systems.framework import BasicVector, LeafSystem
 
-from ballchain.drake_models.errors import UserInputError, check_finite_input
+from ballchain.drake_models.errors import UserInputError, check_finite_input, require_finite_fields
 from ballchain.drake_models.params import BallChain
 
 
@@ -38,6 +38,7 @@ class FeederSpec:
     update_period: float = 2e-3
 
     def __post_init__(self) -> None:
+        require_finite_fields(self)
         for name in ("gear_diameter", "max_speed", "max_acceleration", "update_period"):
             if not getattr(self, name) > 0:
                 raise UserInputError(f"FeederSpec.{name} must be positive, got {getattr(self, name)!r}")

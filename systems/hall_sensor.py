@@ -19,7 +19,7 @@ from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 
 from ballchain.drake_models.dipole_inversion import direction_from_field, refine_direction
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.errors import UserInputError, require_finite_fields
 from ballchain.drake_models.field_sources import FieldSource, FieldSources, MagnetSource
 from ballchain.systems.rotating_magnet_unit import MagnetUnitConfig
 
@@ -42,6 +42,7 @@ class HallSensorSpec:
     sample_rate_hz: float = 100.0
 
     def __post_init__(self) -> None:
+        require_finite_fields(self)
         if not (self.range_T > 0 and self.sample_rate_hz > 0 and self.noise_std_T >= 0):
             raise UserInputError(f"HallSensorSpec: range and sample rate must be > 0, noise >= 0: {self}")
         if len(self.lsb_T) != 3 or min(self.lsb_T) < 0:

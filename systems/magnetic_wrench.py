@@ -165,8 +165,8 @@ class MagneticWrenchSystem(LeafSystem):
     def external_field(self, context) -> FieldSource | None:
         """The field source in effect for this context (the fixed one plus the port magnets)."""
         states = None if self._magnet_port is None else self._magnet_port.Eval(context)
-        if states is not None:
-            x = np.asarray(states).reshape(-1, 6)
+        x = None if states is None else np.asarray(states).reshape(-1, 6)
+        if x is not None and not (np.isfinite(x).all() and x[:, 3:].any(axis=1).all()):
             for k, row in enumerate(x):  # name the magnet, the part and the time, not just "not finite"
                 what = None
                 if not np.all(np.isfinite(row[:3])):

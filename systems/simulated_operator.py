@@ -57,7 +57,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import EventStatus, LeafSystem
 
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.errors import UserInputError, require_finite_fields
 from ballchain.systems.target_contact import targets_touched
 
 
@@ -146,6 +146,7 @@ class OperatorParams:
     target_radius: float = 2.5e-3
 
     def validate(self) -> "OperatorParams":
+        require_finite_fields(self, allow_inf=("max_length",))  # inf: no end stop known
         if not self.period > 0 or self.reaction_steps < 0:
             raise UserInputError("OperatorParams: period must be > 0 and reaction_steps >= 0")
         if not self.axes or any(a not in (0, 1, 2) for a in self.axes) or len(set(self.axes)) != len(self.axes):

@@ -37,8 +37,14 @@ def paths(tmp_path_factory):
     atrium = write_stl_ascii(root / "atrium.stl", 0.025 * V, F)  # a 50 mm sphere, in metres
     garbage = root / "garbage.stl"
     garbage.write_bytes(b"\x00\x01 not a mesh at all")
+    # Closed and consistently oriented, but one triangle has zero area (its corner sits on the
+    # opposite edge): the wall grown from it has a flat tetrahedron that Drake cannot use.
+    a, b, c = F[0]
+    m = len(V)
+    sliver = mt.write_obj(root / "sliver.obj", 0.025 * np.vstack([V, 0.5 * (V[a] + V[b])]),
+                          np.vstack([F[1:], [[a, m, c], [m, b, c], [a, b, m]]]))
     return {"file": str(a_file), "folder": str(a_folder), "atrium": str(atrium), "garbage": str(garbage),
-            "under_file": str(a_file / "x.html")}
+            "sliver": str(sliver), "under_file": str(a_file / "x.html")}
 
 
 SIM = ["simulate", "--scenario", "free_space_uniform_90deg"]
@@ -75,9 +81,15 @@ CASES = [
     ("validation-out-under-file", ["validation", "--out", "{under_file}"], "--out"),
     ("field-models-angle", ["field-models", "--angles-deg", "200"], "--angles-deg"),
     ("sizing-alpha-nan", ["sizing", "--alpha", "nan"], "--alpha"),
+    ("sizing-alpha-overflows", ["sizing", "--alpha", "1e300"], "--alpha"),
+    ("field-models-ball-1-km", ["field-models", "--ball-diameter-mm", "1e9"], "--ball-diameter-mm"),
+    ("wheels-seed-negative", ["wheels", "--seed", "-1"], "--seed"),
     ("bench-balls-1", ["bench", "statics", "--balls", "1"], "--balls"),
     ("wheels-samples-0", ["wheels", "--samples", "0"], "--samples"),
     ("reconfigure-slip-1", ["reconfigure", "--slip", "1"], "--slip"),
+    ("reconfigure-t-max", ["reconfigure", "--t-max", "1e9"], "--t-max"),
+    ("wheels-samples-1e12", ["wheels", "--samples", "1000000000000"], "--samples"),
+    ("bench-repeats", ["bench", "statics", "--repeats", "100000"], "--repeats"),
     # simulate: flags
     ("simulate-unknown-scenario", ["simulate", "--scenario", "no_such"], "scenario"),
     ("simulate-duration-0", SIM + ["--duration", "0"], "--duration"),
@@ -109,9 +121,15 @@ CASES = [
                                 "{atrium_file: 'package://no_such_pkg/la.stl', puncture: [0.025, 0, 0]}"],
      "atrium_file"),
     ("atrium-garbage", ["simulate", "--scenario", "heart_no_field", "--set",
-                        "{atrium_file: '{garbage}', puncture: [0.025, 0, 0]}"], "garbage.stl"),
+                        "{atrium_file: '{garbage}', puncture: [0.025, 0, 0]}"], "atrium_file"),
     ("atrium-puncture-in-mm", ["simulate", "--scenario", "heart_no_field", "--set",
                                "{atrium_file: '{atrium}', atrium_units: m, puncture: [27.0, 0, 0]}"], "puncture"),
+    ("atrium-flat-wall-tetrahedron", ["simulate", "--scenario", "heart_no_field", "--set",
+                                      "{atrium_file: '{sliver}', atrium_units: m, puncture: [0.025, 0, 0]}"],
+     "atrium_file"),
+    ("atrium-puncture-off-surface", ["simulate", "--scenario", "heart_no_field", "--set",
+                                     "{atrium_file: '{atrium}', atrium_units: m, puncture: [0.04, 0, 0]}"],
+     "mm from the atrium surface"),
     ("atrium-puncture-nan", ["simulate", "--scenario", "heart_no_field", "--set",
                              "{atrium_file: '{atrium}', puncture: [.nan, 0, 0]}"], "puncture"),
     # teleop
@@ -166,9 +184,11 @@ def test_the_table_has_at_least_40_cases_over_every_subcommand():
 # The Python API: the same checks raise UserInputError naming the field (before any long work).
 def _api_cases():
     from ballchain.drake_models.field_sources import MagnetSource, UniformField
+    from ballchain.drake_models.heart import HeartParams
     from ballchain.drake_models.params import BallChain, CylinderMagnet, Sleeve
     from ballchain.experiments import forces, planner, statics_shape, teleop, workspace
     from ballchain.optimization.statics import rotation_path
+    from ballchain.systems.simulated_operator import OperatorParams
     from ballchain.systems.chain_scenario import load_scenario
 
     return [
@@ -187,12 +207,14 @@ def _api_cases():
         ("workspace-run-nan", lambda: workspace.run(step_deg=float("nan")), "--step-deg"),
         ("planner-friction-nan", lambda: planner.run(task="right", targets=1, friction=float("nan")), "friction"),
         ("teleop-balls", lambda: teleop.check_inputs("left", "world", None, 1000, None), "balls"),
+        ("heart-nan-scale", lambda: HeartParams(scale=float("nan")), "HeartParams.scale"),
+        ("operator-nan-timeout", lambda: OperatorParams(timeout=float("nan")).validate(), "OperatorParams.timeout"),
         ("scenario-override", lambda: load_scenario("heart_no_field", "{magnets: [{distance_from_puncture: 165.1}]}"),
          "distance_from_puncture"),
     ]
 
 
-@pytest.mark.parametrize("index", range(13))
+@pytest.mark.parametrize("index", range(15))
 def test_bad_api_input_raises_user_input_error_naming_the_field(index):
     name, call, field = _api_cases()[index]
     start = time.monotonic()
@@ -226,6 +248,7 @@ def test_a_bug_is_a_traceback_with_exit_1_not_bad_input(monkeypatch):
     assert proc.returncode == 1 and "Traceback" in proc.stderr and "ValueError: a bug" in proc.stderr
 
 
+@pytest.mark.slow  # a fresh interpreter per case
 @pytest.mark.parametrize("argv,field", [
     (["statics", "--balls", "1000"], "--balls"),
     (["simulate", "--scenario", "teleop_right_unit", "--set",
@@ -252,3 +275,15 @@ def test_every_json_is_valid_json(capsys):
     assert "free_space_uniform_90deg" in data["scenarios"]
     text = json_text({"a": float("nan"), "b": [np.float64("inf"), 1.0], "c": np.array([np.nan, 2.0])})
     assert json.loads(text) == {"a": None, "b": [None, 1.0], "c": [None, 2.0]}
+
+
+def test_good_scenario_yaml_is_not_refused():
+    """The checks refuse only what is wrong: exponent floats (PyYAML reads 1e-3 as text), ints
+    where floats belong, an empty --set, nested partial mappings."""
+    from ballchain.systems.chain_scenario import load_scenario
+
+    s = load_scenario("free_space_uniform_90deg", "{time_step: 1e-3, duration: 2, insertion: {speed: 0.02}}")
+    assert (s.time_step, s.duration, s.insertion.speed) == (1e-3, 2.0, 0.02)
+    assert load_scenario("free_space_uniform_90deg", "").n_balls == load_scenario("free_space_uniform_90deg").n_balls
+    s = load_scenario("teleop_right_unit", "{units: [{name: right_unit, joystick: [{time: 0.5, axes: [1, 0, -1]}]}]}")
+    assert s.units[0].joystick[0].axes == [1.0, 0.0, -1.0]

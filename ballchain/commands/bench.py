@@ -122,16 +122,17 @@ def run_statics(
         against the Newton cold solve), and the run's conditions.
 
     Raises:
-        ValueError: bad arguments.
+        UserInputError: bad arguments.
     """
-    if isinstance(n_balls, bool) or not isinstance(n_balls, int) or n_balls < 2:
-        raise UserInputError(f"--balls must be an integer >= 2 (ball 1 is held), got {n_balls!r}")
+    if isinstance(n_balls, bool) or not isinstance(n_balls, int) or not 2 <= n_balls <= 64:
+        # the SLSQP baseline's pairwise constraints grow as n^2: 64 balls already take minutes
+        raise UserInputError(f"--balls must be an integer >= 2 and <= 64 (ball 1 is held), got {n_balls!r}")
     if not (math.isfinite(field_mT) and field_mT > 0):
         raise UserInputError(f"--field-mT must be a positive finite number, got {field_mT}")
     if not (math.isfinite(angle_deg) and math.isfinite(warm_offset_deg)):
         raise UserInputError("--angle-deg and --warm-offset-deg must be finite")
-    if not isinstance(repeats, int) or repeats < 1:
-        raise UserInputError(f"--repeats must be an integer >= 1, got {repeats!r}")
+    if not isinstance(repeats, int) or not 1 <= repeats <= 1000:
+        raise UserInputError(f"--repeats must be an integer in 1..1000, got {repeats!r}")
     if not (math.isfinite(baseline_ftol) and baseline_ftol > 0):
         raise UserInputError(f"--baseline-ftol must be a positive finite number, got {baseline_ftol}")
 

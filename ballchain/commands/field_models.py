@@ -74,8 +74,11 @@ def main(args: argparse.Namespace) -> int:
     for a in args.angles_deg:
         if not (math.isfinite(a) and 0.0 <= a <= 180.0):
             raise UserInputError(f"--angles-deg must lie in [0, 180], got {a}")
-    if not (math.isfinite(args.ball_diameter_mm) and args.ball_diameter_mm > 0):
-        raise UserInputError(f"--ball-diameter-mm must be a positive finite number, got {args.ball_diameter_mm}")
+    if not (math.isfinite(args.ball_diameter_mm) and 0 < args.ball_diameter_mm <= 50):
+        raise UserInputError(f"--ball-diameter-mm must be in (0, 50] mm, got {args.ball_diameter_mm}")
+    for d in args.distances_cm:
+        if d > 1000:
+            raise UserInputError(f"--distances-cm must be at most 1000 cm, got {d}")
     out = run(
         distances_m=[d * 1e-2 for d in args.distances_cm],
         angles_deg=args.angles_deg,

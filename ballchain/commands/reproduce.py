@@ -464,7 +464,8 @@ def run(*, out: Path, quick: bool = False, resume: bool = False, sections=None) 
     replaced = [name for name in replaced if not name.endswith(TEMP_SUFFIX)]
     if replaced and not resume:
         shown = ", ".join(replaced[:12]) + (f" and {len(replaced) - 12} more" if len(replaced) > 12 else "")
-        _say(f"{out} is not empty: files of the same names will be replaced ({shown})")
+        _say(f"{out} is not empty ({shown}): the report, the data and the figures this run writes replace "
+             "those of the same names; other files are left alone")
     if not resume:  # a fresh run: only its own sections may be resumed later
         for name, _ in chosen:
             (out / CACHE / f"{_slug(name)}.json").unlink(missing_ok=True)

@@ -18,6 +18,7 @@ from ballchain.drake_models.params import CylinderMagnet, newtons_from_gram_forc
 from ballchain.experiments.sizing_check import run
 from ballchain.optimization.sizing import SizingInputs
 
+MAX_VALUE = 1e6
 # flag (without --) -> (default in the flag's unit, help)
 _FLAGS: dict[str, tuple[float, str]] = {
     "alpha": (paper.SIZING["alpha"], "chain dipole scale, prototype to clinical chain (8 Fr: 0.32) [-]"),
@@ -46,6 +47,8 @@ def _checked(args: argparse.Namespace) -> dict[str, float]:
         value = getattr(args, flag.replace("-", "_"))
         if not math.isfinite(value) or value <= 0:
             raise UserInputError(f"--{flag} must be a positive finite number, got {value}")
+        if value > MAX_VALUE:  # in the flag's unit; beyond it the sizing's powers overflow
+            raise UserInputError(f"--{flag} must be at most {MAX_VALUE:g} (in its unit), got {value}")
         values[flag] = value
     return values
 

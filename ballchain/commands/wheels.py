@@ -13,15 +13,16 @@ import argparse
 
 import numpy as np
 
-from ballchain.commands._common import add_json_flag, positive_int, print_json
+from ballchain.commands._common import add_json_flag, int_in, non_negative_int, print_json
 from ballchain.experiments import wheels
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--samples", type=positive_int, default=1000, help="random wheel-speed vectors for the residual (default 1000)"
+        "--samples", type=int_in(1, 1_000_000), default=1000,
+        help="random wheel-speed vectors for the residual, 1..1e6 (default 1000)"
     )
-    parser.add_argument("--seed", type=int, default=0, help="random seed of the samples (default 0)")
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="random seed of the samples, >= 0 (default 0)")
     add_json_flag(parser)
 
 

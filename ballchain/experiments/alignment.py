@@ -16,7 +16,7 @@ from tqdm import tqdm
 from ballchain.drake_models.errors import check_in
 from ballchain.drake_models.field_sources import UniformField
 from ballchain.drake_models.params import BallChain, Sleeve
-from ballchain.drake_models.safe_files import agg_pyplot, check_output_dir, save_figure, write_csv
+from ballchain.drake_models.safe_files import agg_pyplot, check_output_dir, note_replacements, save_figure, write_csv
 from ballchain.optimization.statics import ChainStatics, rotation_path, tip_angle_deg
 
 PAPER_CLAIM_DEG = 1.4
@@ -25,6 +25,7 @@ MAX_BALLS = 64  # every length 1..max is solved at every angle
 def write_files(data: dict, out: Path) -> list[str]:
     """Write the CSV and the two figures into ``out``; returns their paths."""
     plt = agg_pyplot()
+    note_replacements(out, ["alignment.csv", "alignment.png", "alignment_shapes.png"], "alignment")
     out.mkdir(parents=True, exist_ok=True)
     csv_path = write_csv(out / "alignment.csv", data["rows"])
     fig, ax = plt.subplots(figsize=(6, 4))

@@ -32,7 +32,7 @@ from ballchain.drake_models.errors import UserInputError, check_in
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import BallChain, CylinderMagnet, Sleeve, gram_force
-from ballchain.drake_models.safe_files import agg_pyplot, check_output_dir, save_figure, write_csv
+from ballchain.drake_models.safe_files import agg_pyplot, check_output_dir, note_replacements, save_figure, write_csv
 from ballchain.optimization.inverse_statics import pin_tip
 from ballchain.optimization.statics import ChainStatics
 
@@ -196,6 +196,7 @@ def dynamics_columns(chain: BallChain, stand: Stand, vein: str, configs, best: d
 def write_files(data: dict, out: Path) -> list[str]:
     """Write ``forces.csv`` and the bar chart ``forces.png`` into ``out``; returns their paths."""
     plt = agg_pyplot()
+    note_replacements(out, ["forces.csv", "forces.png"], "forces")
     out.mkdir(parents=True, exist_ok=True)
     path = out / "forces.csv"
     keys = ["vein", "config", "sleeve", "statics_gf", "dynamics_gf", "statics_dynamics_diff_pct", "paper_gf",

@@ -19,7 +19,7 @@ from tqdm import tqdm
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import UniformField
 from ballchain.drake_models.params import BallChain
-from ballchain.drake_models.safe_files import check_output_dir, write_csv
+from ballchain.drake_models.safe_files import check_output_dir, note_replacements, write_csv
 from ballchain.drake_models.vectors import angle_between
 from ballchain.experiments.magnet_poses import side_magnet_for_field
 from ballchain.optimization.statics import ChainStatics, rotation_path, tip_angle_deg
@@ -113,5 +113,6 @@ def run(*, balls=range(5, 11), angles_deg=(0.0, 45.0, 90.0, 135.0, 180.0), field
     data = {"rows": rows, "differences": differences, "summary": summary, "paper": PAPER,
             "setup": "magnet beside the base at (0, -r, 0), r chosen for a 23 mT point-dipole field at the base"}
     if out is not None:
+        note_replacements(out, ["validation.csv"], "validation")
         data["files"] = [str(write_csv(Path(out) / "validation.csv", differences))]
     return data

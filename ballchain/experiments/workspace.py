@@ -24,7 +24,7 @@ from tqdm import tqdm
 from ballchain.drake_models import paper
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.params import BallChain, Sleeve
-from ballchain.drake_models.safe_files import agg_pyplot, atomic_write_text, check_output_dir, save_figure
+from ballchain.drake_models.safe_files import agg_pyplot, atomic_write_text, check_output_dir, note_replacements, save_figure
 from ballchain.experiments.magnet_poses import field_angle_for_magnet_angle, side_magnet
 from ballchain.optimization.statics import ChainStatics
 
@@ -49,6 +49,7 @@ def sweep(chain: BallChain, side: int, step_deg: float, distance: float = DISTAN
 def write_files(data: dict, out: Path) -> list[str]:
     """Write ``workspace_tips.csv`` and ``workspace.png`` into ``out``; returns their paths."""
     plt = agg_pyplot()
+    note_replacements(out, ["workspace_tips.csv", "workspace.png"], "workspace")
     out.mkdir(parents=True, exist_ok=True)
     csv_path = out / "workspace_tips.csv"
     f = io.StringIO(newline="")
