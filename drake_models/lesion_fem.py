@@ -39,6 +39,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.spatial import Delaunay, cKDTree
 from skfem import BilinearForm, CellBasis, ElementTriP1, LinearForm, MeshTri, asm
@@ -283,7 +284,8 @@ def build_mesh(electrode: Electrode, h: float = 0.1e-3, outer_radius: float = 30
     tri = Delaunay(points)
     t = tri.simplices
     p = points
-    area = 0.5 * np.abs(np.cross(p[t[:, 1]] - p[t[:, 0]], p[t[:, 2]] - p[t[:, 0]]))
+    e1, e2 = p[t[:, 1]] - p[t[:, 0]], p[t[:, 2]] - p[t[:, 0]]
+    area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
     t = t[area > 1e-8 * size(p[t].mean(axis=1)) ** 2]
     centroid = p[t].mean(axis=1)
     domain = np.where(centroid[:, 1] < 0.0, TISSUE, SALINE)
@@ -336,7 +338,9 @@ class ElectroThermalModel:
         rho_c = np.zeros_like(self._dom, dtype=float)
         for d, mat in self.materials.items():
             rho_c[self._dom == d] = mat.volumetric_heat_capacity
-        self.mass = asm(_mass, self.basis, coef=rho_c)
+        # Lumped (row-sum) heat capacity: with the consistent matrix, implicit Euler at small
+        # steps undershoots the initial temperature and leaks heat to the far boundary at once.
+        self.mass = sp.diags(np.asarray(asm(_mass, self.basis, coef=rho_c).sum(axis=1)).ravel()).tocsr()
         # Nodes touched by no conducting triangle carry no equation: fix them (at 0).
         live = [d for d in (TISSUE, SALINE) if self.materials[d].electrical_conductivity > 0]
         conducting = np.unique(mesh.mesh.t[:, np.isin(mesh.domain, live)])
@@ -401,7 +405,9 @@ class LesionSimulation:
         damage: (n_nodes,) Omega at the end.
         peak_temperature: (n_nodes,) highest temperature each node reached [C].
         growth: rows {t_s, width_mm, depth_mm, ...} at the output times.
-        energy_delivered_J, energy_stored_J: electric energy in, heat stored at the end.
+        energy_delivered_J, energy_stored_J: electric energy in, heat stored at the end [J].
+        energy_boundary_J: heat into the far boundary (conduction and the Joule heat of the
+            elements at the dispersive electrode) [J].
     """
 
     mesh: AblationMesh
@@ -419,6 +425,7 @@ class LesionSimulation:
     growth: list
     energy_delivered_J: float
     energy_stored_J: float
+    energy_boundary_J: float
     vaporisation_time_s: float | None
     info: dict = field(default_factory=dict)
 
@@ -518,6 +525,7 @@ def simulate(electrode: Electrode, *, power_W: float, duration_s: float, tissue_
     hist = {k: [] for k in ("power", "voltage", "impedance", "max_tissue", "max_electrode", "limited")}
     snapshots, growth = {}, []
     energy = 0.0
+    outflow = 0.0
     vaporised_at = None
     t_prev = 0.0
     for i, t in enumerate(all_times):
@@ -544,6 +552,12 @@ def simulate(electrode: Electrode, *, power_W: float, duration_s: float, tissue_
             T_next = T_next + v2 * rise
             # The load's integral (the shape functions sum to one): the Joule power delivered.
             delivered = 2.0 * math.pi * v2 * float(unit_load.sum())
+            load = v2 * unit_load
+        else:
+            load = np.zeros(n)
+        # Heat into the far boundary's fixed nodes (their equations are replaced by T = T0):
+        # conduction across the arc plus the Joule heat at the dispersive electrode.
+        outflow += 2.0 * math.pi * dt * float(np.sum((load + base - A @ T_next)[fixed]))
         T = T_next
         energy += delivered * dt
         rate = arrhenius.rate(T)
@@ -574,7 +588,7 @@ def simulate(electrode: Electrode, *, power_W: float, duration_s: float, tissue_
         impedance=np.array(hist["impedance"]), limited=np.array(hist["limited"]), max_tissue_C=np.array(hist["max_tissue"]),
         max_electrode_C=np.array(hist["max_electrode"]), snapshots=snapshots, damage=damage,
         peak_temperature=peak, final_temperature=T, growth=growth, energy_delivered_J=energy,
-        energy_stored_J=stored, vaporisation_time_s=vaporised_at,
+        energy_stored_J=stored, energy_boundary_J=outflow, vaporisation_time_s=vaporised_at,
         info={"nodes": n, "elements": am.mesh.t.shape[1], "steps": len(all_times), "tissue": tissue_name,
               "initial_temperature_C": initial_temperature_C, "h_mm": am.h * 1e3})
 

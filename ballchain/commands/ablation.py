@@ -33,6 +33,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="initial tissue and saline temperature [C] (not in the paper)")
     parser.add_argument("--mesh-mm", type=finite_float, default=0.1, help="mesh spacing near the electrode [mm]")
     parser.add_argument("--map", action="store_true", help="also run the ball chain's power-duration map")
+    parser.add_argument("--sensitivity", action="store_true",
+                        help="also vary the choices the paper leaves open (bath temperature, saline mixing, "
+                             "indentation, cut-off) at the paper's settings")
     parser.add_argument("--out", type=Path, default=Path("results/ablation"), help="folder for the files")
     parser.add_argument("--no-files", action="store_true", help="write no files")
     add_json_flag(parser)
@@ -142,6 +145,8 @@ def main(args: argparse.Namespace) -> int:
     data = result.public()
     if sweep is not None:
         data["power_duration_map"] = sweep
+    if args.sensitivity:
+        data["sensitivity"] = ablation.sensitivity(progress=not args.json)
     if not args.no_files:
         data["files"] = write_files(result, args.out, sweep)
     if args.json:
@@ -154,4 +159,7 @@ def main(args: argparse.Namespace) -> int:
         print(note)
     if sweep is not None:
         print(sweep["headline"])
+    for r in data.get("sensitivity", []):
+        print(f"{r['case']:>44} | {r['device']:>10} | {r['width_mm']:.2f} x {r['depth_mm']:.2f} mm (Omega = 1), "
+              f"electrode {r['peak_electrode_C']:.0f} C, {r['energy_J']:.0f} J")
     return 0

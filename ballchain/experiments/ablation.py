@@ -106,13 +106,13 @@ class AblationResult:
 def run_device(device: str, *, power_W: float, duration_s: float = 90.0, indentation_mm: float = 1.0,
                tissue: str = "myocardium", initial_temperature_C: float = 22.0, h_mm: float = 0.1,
                dt_max_s: float = 1.0, output_every_s: float = 5.0, saline_mixing: float = 1.0,
-               progress: bool = True) -> DeviceResult:
+               cutoff_C: float | None = laws.VAPORISATION_ONSET_C, progress: bool = True) -> DeviceResult:
     """Simulate one device's application and read its lesion.
 
     ``saline_mixing`` multiplies the saline's thermal conductivity: 1 is still saline (pure
     conduction, the model's default); a natural-convection Nusselt number of about 5-10 around
     the hot electrode makes an effective conductivity several times larger (a sensitivity, not
-    a fitted constant).
+    a fitted constant). ``cutoff_C = None`` runs the pure constant-power law (no cut-off).
     """
     electrode = electrode_for(device, indentation_mm)
     saline = replace(laws.SALINE, thermal_conductivity=laws.SALINE.thermal_conductivity * saline_mixing)
@@ -125,7 +125,7 @@ def run_device(device: str, *, power_W: float, duration_s: float = 90.0, indenta
 
     sim = fem.simulate(electrode, power_W=power_W, duration_s=duration_s, tissue_name=tissue,
                        initial_temperature_C=initial_temperature_C, h=h_mm * 1e-3, dt_max=dt_max_s,
-                       output_every_s=output_every_s, saline=saline, progress=tick)
+                       output_every_s=output_every_s, saline=saline, limit_C=cutoff_C, progress=tick)
     bar.close()
     end = sim.growth[-1]
     rf = sim.power > 0
@@ -210,6 +210,55 @@ def disagreement_notes(devices: list) -> list:
             f"{d.power_W * d.duration_s:.0f} J set (cut-off at 100 C from {d.cutoff_from_s} s)."
         )
     return notes
+
+
+def mesh_convergence(device: str, *, h_mm=(0.14, 0.1, 0.07), duration_s: float = 90.0,
+                     dt_max_s: float = 1.0, progress: bool = True) -> list:
+    """The paper's application of ``device`` on successively refined meshes.
+
+    Returns:
+        rows {h_mm, nodes, width_mm, depth_mm, iso50_width_mm, iso50_depth_mm, impedance_initial_ohm,
+        peak_electrode_C, energy_J}.
+    """
+    rows = []
+    for h in tqdm(h_mm, desc=f"mesh convergence ({device})", unit="mesh", disable=not progress):
+        d = run_device(device, power_W=PAPER[device]["power_W"], duration_s=duration_s, h_mm=h,
+                       dt_max_s=dt_max_s, output_every_s=duration_s, progress=False)
+        rows.append({"h_mm": h, "nodes": d.simulation.info["nodes"], "width_mm": d.omega_width_mm,
+                     "depth_mm": d.omega_depth_mm, "iso50_width_mm": d.iso50_width_mm,
+                     "iso50_depth_mm": d.iso50_depth_mm, "impedance_initial_ohm": d.impedance_initial_ohm,
+                     "peak_electrode_C": d.peak_electrode_C, "energy_J": d.energy_J})
+    return rows
+
+
+SENSITIVITIES = {
+    "baseline": {},
+    "bath and tissue at 37 C": {"initial_temperature_C": 37.0},
+    "saline mixing: k x 5 (natural convection)": {"saline_mixing": 5.0},
+    "indentation 0.5 mm": {"indentation_mm": 0.5},
+    "no cut-off (pure constant power)": {"cutoff_C": None},
+}
+"""The model choices the paper leaves open, each varied alone (no tissue constant is varied)."""
+
+
+def sensitivity(*, cases: dict = SENSITIVITIES, h_mm: float = 0.15, dt_max_s: float = 2.0,
+                progress: bool = True) -> list:
+    """Both devices at the paper's settings under each case of ``cases``.
+
+    Returns:
+        rows {case, device, width_mm, depth_mm, iso50_width_mm, iso50_depth_mm, peak_tissue_C,
+        peak_electrode_C, energy_J}.
+    """
+    rows = []
+    jobs = [(case, device) for case in cases for device in DEVICES]
+    for case, device in tqdm(jobs, desc="ablation sensitivity", unit="run", disable=not progress):
+        kw = dict(cases[case])
+        d = run_device(device, power_W=PAPER[device]["power_W"], duration_s=PAPER[device]["duration_s"],
+                       h_mm=h_mm, dt_max_s=dt_max_s, output_every_s=PAPER[device]["duration_s"], progress=False, **kw)
+        rows.append({"case": case, "device": device, "width_mm": d.omega_width_mm, "depth_mm": d.omega_depth_mm,
+                     "iso50_width_mm": d.iso50_width_mm, "iso50_depth_mm": d.iso50_depth_mm,
+                     "peak_tissue_C": d.peak_tissue_C, "peak_electrode_C": d.peak_electrode_C, "energy_J": d.energy_J})
+    return rows
 
 
 def power_duration_map(*, device: str = "ball_chain", powers_W=(5.0, 7.5, 10.0, 15.0, 20.0, 30.0),
