@@ -350,7 +350,7 @@ class ElectroThermalModel:
         self.electric_boundary[mesh.active_nodes] = 1.0
 
     def _field(self, law, temperature_C):
-        t_q = self.basis.interpolate(temperature_C).value
+        t_q = np.asarray(self.basis.interpolate(temperature_C))
         out = np.zeros_like(t_q)
         for d, mat in self.materials.items():
             sel = self._dom == d

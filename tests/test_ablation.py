@@ -128,7 +128,7 @@ def test_energy_balance():
     the arc (30 mm) in 10 s.
     """
     electrode = fem.catheter_8fr()
-    sim = fem.simulate(electrode, power_W=30.0, duration_s=10.0, h=0.15e-3, output_every_s=5.0)
+    sim = fem.simulate(electrode, power_W=30.0, duration_s=10.0, h=0.2e-3, output_every_s=5.0)
     assert sim.energy_delivered_J > 10.0
     assert sim.energy_stored_J + sim.energy_boundary_J == pytest.approx(sim.energy_delivered_J, rel=1e-9)
     a, b = electrode.radius, sim.mesh.outer_radius
@@ -215,3 +215,17 @@ def test_power_duration_map_reads_every_duration_from_one_run():
     assert [r["duration_s"] for r in rows] == [20.0, 40.0]
     assert rows[1]["depth_mm"] >= rows[0]["depth_mm"] and rows[1]["energy_J"] > rows[0]["energy_J"]
     assert "transmural" in data["headline"]
+
+
+@pytest.mark.slow
+def test_reproduce_section_quick(tmp_path):
+    from ballchain.commands import reproduce
+
+    section, data = reproduce.ablation_section(tmp_path, quick=True)
+    assert [d["device"] for d in data["devices"]] == ["ball_chain", "catheter"]
+    for name in ("ablation.json", "ablation_growth.csv", "ablation_map.csv", "ablation_fields.png",
+                 "ablation_growth.png", "ablation_map.png"):
+        assert (tmp_path / "ablation" / name).stat().st_size > 0
+    saved = json.loads((tmp_path / "ablation" / "ablation.json").read_text())
+    assert saved["devices"][0]["paper"] == {"power_W": 15.0, "duration_s": 90.0, "width_mm": 5.7, "depth_mm": 3.1}
+    assert len(saved["power_duration_map"]["rows"]) == 4

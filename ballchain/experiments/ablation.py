@@ -207,7 +207,8 @@ def disagreement_notes(devices: list) -> list:
         notes.append(
             f"{d.label}: model {d.omega_width_mm:.1f} x {d.omega_depth_mm:.1f} mm (width x depth, Omega = 1) vs "
             f"paper {p['width_mm']} x {p['depth_mm']} mm; the generator delivered {d.energy_J:.0f} J of the "
-            f"{d.power_W * d.duration_s:.0f} J set (cut-off at 100 C from {d.cutoff_from_s} s)."
+            f"{d.power_W * d.duration_s:.0f} J set (" + (f"cut-off at 100 C from {d.cutoff_from_s:.2f} s)."
+                                                          if d.cutoff_from_s is not None else "no cut-off).")
         )
     return notes
 
@@ -236,6 +237,7 @@ SENSITIVITIES = {
     "bath and tissue at 37 C": {"initial_temperature_C": 37.0},
     "saline mixing: k x 5 (natural convection)": {"saline_mixing": 5.0},
     "indentation 0.5 mm": {"indentation_mm": 0.5},
+    "indentation 1.3 mm": {"indentation_mm": 1.3},
     "no cut-off (pure constant power)": {"cutoff_C": None},
 }
 """The model choices the paper leaves open, each varied alone (no tissue constant is varied)."""
@@ -261,9 +263,13 @@ def sensitivity(*, cases: dict = SENSITIVITIES, h_mm: float = 0.15, dt_max_s: fl
     return rows
 
 
-def power_duration_map(*, device: str = "ball_chain", powers_W=(5.0, 7.5, 10.0, 15.0, 20.0, 30.0),
-                       durations_s=(15.0, 30.0, 45.0, 60.0, 90.0, 120.0), indentation_mm: float = 1.0,
-                       tissue: str = "myocardium", initial_temperature_C: float = 22.0, h_mm: float = 0.15,
+MAP_POWERS_W = (2.0, 3.0, 5.0, 10.0, 15.0)
+MAP_DURATIONS_S = (30.0, 60.0, 90.0, 120.0, 180.0)
+
+
+def power_duration_map(*, device: str = "ball_chain", powers_W=MAP_POWERS_W, durations_s=MAP_DURATIONS_S,
+                       indentation_mm: float = 1.0, tissue: str = "myocardium",
+                       initial_temperature_C: float = 22.0, h_mm: float = 0.2,
                        dt_max_s: float = 2.0, progress: bool = True) -> dict:
     """Lesion size over a power x duration grid (one run per power, read at each duration).
 
