@@ -85,6 +85,8 @@ def table_rows(result: ablation.AblationResult) -> list[list]:
             [d.label, "depth [mm], Omega = 1", d.paper["depth_mm"], d.omega_depth_mm],
             [d.label, "width [mm], 50 C isotherm", d.paper["width_mm"], d.iso50_width_mm],
             [d.label, "depth [mm], 50 C isotherm", d.paper["depth_mm"], d.iso50_depth_mm],
+            [d.label, "width [mm], Omega = 4.6 (99 % denatured)", d.paper["width_mm"], d.omega99_width_mm],
+            [d.label, "depth [mm], Omega = 4.6 (99 % denatured)", d.paper["depth_mm"], d.omega99_depth_mm],
             [d.label, "surface diameter [mm], Omega = 1", "-", d.omega_surface_diameter_mm],
             [d.label, "meets criterion (> 2.9 mm deep, 5.2-6 mm wide)",
              ablation.meets_criterion(d.paper["width_mm"], d.paper["depth_mm"]), d.meets_criterion],

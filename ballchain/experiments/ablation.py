@@ -34,6 +34,7 @@ PAPER = {
 }
 CRITERION = {"min_depth_mm": 2.9, "width_range_mm": (5.2, 6.0)}
 DEVICES = ("ball_chain", "catheter")
+FULL_DAMAGE_OMEGA = 4.6  # 99 % of the protein denatured (1 - exp(-4.6)): closer to "full denaturation"
 
 
 def meets_criterion(width_mm: float, depth_mm: float) -> bool:
@@ -69,6 +70,8 @@ class DeviceResult:
     omega_surface_diameter_mm: float
     iso50_width_mm: float
     iso50_depth_mm: float
+    omega99_width_mm: float
+    omega99_depth_mm: float
     peak_tissue_C: float
     peak_electrode_C: float
     impedance_initial_ohm: float
@@ -131,11 +134,13 @@ def run_device(device: str, *, power_W: float, duration_s: float = 90.0, indenta
     rf = sim.power > 0
     dts = np.diff(np.concatenate([[0.0], sim.times]))
     cut = np.flatnonzero(sim.limited)
+    full_damage = fem.lesion_extent(sim.mesh, sim.damage, FULL_DAMAGE_OMEGA)
     return DeviceResult(
         device=device, label=electrode.label, power_W=power_W, duration_s=duration_s,
         indentation_mm=indentation_mm, omega_width_mm=end["omega_width_mm"], omega_depth_mm=end["omega_depth_mm"],
         omega_surface_diameter_mm=end["omega_surface_diameter_mm"], iso50_width_mm=end["iso50_width_mm"],
-        iso50_depth_mm=end["iso50_depth_mm"], peak_tissue_C=float(sim.max_tissue_C.max()),
+        iso50_depth_mm=end["iso50_depth_mm"], omega99_width_mm=full_damage["width_mm"],
+        omega99_depth_mm=full_damage["depth_mm"], peak_tissue_C=float(sim.max_tissue_C.max()),
         peak_electrode_C=float(sim.max_electrode_C.max()),
         impedance_initial_ohm=float(sim.impedance[0]), impedance_final_ohm=float(sim.impedance[rf][-1]) if rf.any() else math.nan,
         energy_J=sim.energy_delivered_J, mean_power_W=sim.energy_delivered_J / duration_s,
@@ -263,7 +268,7 @@ def sensitivity(*, cases: dict = SENSITIVITIES, h_mm: float = 0.15, dt_max_s: fl
     return rows
 
 
-MAP_POWERS_W = (2.0, 3.0, 5.0, 10.0, 15.0)
+MAP_POWERS_W = (1.0, 1.5, 2.0, 3.0, 5.0, 15.0)
 MAP_DURATIONS_S = (30.0, 60.0, 90.0, 120.0, 180.0)
 
 
@@ -305,15 +310,26 @@ def power_duration_map(*, device: str = "ball_chain", powers_W=MAP_POWERS_W, dur
                          "magnet_above_80C": hot > laws.N52_IRREVERSIBLE_LOSS_C})
     good = [r for r in rows if r["meets_criterion"]]
     safe = [r for r in good if not r["magnet_above_80C"]]
-    first_hot = [r for r in rows if r["magnet_above_80C"]]
 
     def fmt(rs):
         return ", ".join(f"{r['power_W']:g} W {r['duration_s']:g} s" for r in rs) or "none"
 
+    # The lowest power above which the lesion no longer depends on the set power (within 0.1 mm):
+    # the cut-off at 100 C then sets the delivered power.
+    top = max(powers_W)
+    by = {(r["power_W"], r["duration_s"]): r for r in rows}
+    saturated = [p for p in sorted(powers_W)
+                 if all(abs(by[(q, d)][k] - by[(top, d)][k]) < 0.1 for q in powers_W if q >= p
+                        for d in durations for k in ("width_mm", "depth_mm"))]
+    saturation = saturated[0] if saturated else None
+    cool = [r for r in rows if not r["magnet_above_80C"]]
     headline = (f"{device}: transmural and 5.2-6 mm wide at {fmt(good)}; of these the magnet stays below 80 C at "
-                f"{fmt(safe)}. The ball passes 80 C from {fmt(first_hot[:1]) if first_hot else 'no setting'} "
-                f"(lowest power, shortest time listed first).")
-    return {"device": device, "rows": rows, "headline": headline, "powers_W": list(map(float, powers_W)),
+                f"{fmt(safe)}. The magnet stays below 80 C only at {fmt(cool)}. From {saturation:g} W up the lesion "
+                "no longer depends on the set power (within 0.1 mm): the cut-off at 100 C sets the delivered power."
+                if saturation is not None else "")
+    headline = headline or (f"{device}: transmural and 5.2-6 mm wide at {fmt(good)}; magnet below 80 C at {fmt(cool)}.")
+    return {"device": device, "rows": rows, "headline": headline, "saturation_power_W": saturation,
+            "powers_W": list(map(float, powers_W)),
             "durations_s": durations, "h_mm": h_mm, "dt_max_s": dt_max_s,
             "initial_temperature_C": initial_temperature_C, "tissue": tissue}
 
