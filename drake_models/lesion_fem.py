@@ -400,6 +400,7 @@ class LesionSimulation:
         voltage: (n,) electrode voltage [V rms].
         impedance: (n,) load impedance [Ohm].
         max_tissue_C, max_electrode_C: (n,) peak temperatures [C].
+        mean_electrode_C: (n,) the electrode's volume-mean temperature (the magnet's bulk) [C].
         limited: (n,) whether the cut-off at vaporisation reduced the power that step.
         snapshots: {time: temperature (n_nodes,)} at the requested output times.
         damage: (n_nodes,) Omega at the end.
@@ -417,6 +418,7 @@ class LesionSimulation:
     impedance: np.ndarray
     max_tissue_C: np.ndarray
     max_electrode_C: np.ndarray
+    mean_electrode_C: np.ndarray
     limited: np.ndarray
     snapshots: dict
     damage: np.ndarray
@@ -514,6 +516,12 @@ def simulate(electrode: Electrode, *, power_W: float, duration_s: float, tissue_
     tissue_nodes = am.nodes_of(TISSUE)
     electrode_nodes = am.nodes_of(ELECTRODE)
     water_nodes = am.nodes_of(TISSUE, SALINE)
+    # Volume weights (r x area) of the electrode's triangles: its bulk (mean) temperature.
+    el_t = am.mesh.t[:, am.domain == ELECTRODE]
+    el_p = am.mesh.p[:, el_t]
+    el_w = el_p[0].mean(axis=0) * 0.5 * np.abs((el_p[0, 1] - el_p[0, 0]) * (el_p[1, 2] - el_p[1, 0])
+                                               - (el_p[0, 2] - el_p[0, 0]) * (el_p[1, 1] - el_p[1, 0]))
+    el_w = el_w / el_w.sum()
     output_times = np.arange(output_every_s, duration_s + 1e-9, output_every_s)
     rf_times = time_steps(duration_s, dt_max, breakpoints=output_times)
     cool_times = duration_s + time_steps(cooldown_s, dt_max, dt_first=dt_max) if cooldown_s > 0 else np.array([])
@@ -522,7 +530,8 @@ def simulate(electrode: Electrode, *, power_W: float, duration_s: float, tissue_
     damage = np.zeros(n)
     rate_prev = arrhenius.rate(T)
     peak = T.copy()
-    hist = {k: [] for k in ("power", "voltage", "impedance", "max_tissue", "max_electrode", "limited")}
+    hist = {k: [] for k in ("power", "voltage", "impedance", "max_tissue", "max_electrode", "mean_electrode",
+                            "limited")}
     snapshots, growth = {}, []
     energy = 0.0
     outflow = 0.0
@@ -570,6 +579,7 @@ def simulate(electrode: Electrode, *, power_W: float, duration_s: float, tissue_
         hist["max_tissue"].append(float(T[tissue_nodes].max()))
         hist["max_electrode"].append(float(T[electrode_nodes].max()))
         hist["limited"].append(limited)
+        hist["mean_electrode"].append(float(el_w @ T[el_t].mean(axis=0)))
         if vaporised_at is None and hist["max_tissue"][-1] >= laws.VAPORISATION_ONSET_C:
             vaporised_at = float(t)
         if round(float(t), 9) in outputs:
@@ -586,11 +596,22 @@ def simulate(electrode: Electrode, *, power_W: float, duration_s: float, tissue_
     return LesionSimulation(
         mesh=am, times=all_times, power=np.array(hist["power"]), voltage=np.array(hist["voltage"]),
         impedance=np.array(hist["impedance"]), limited=np.array(hist["limited"]), max_tissue_C=np.array(hist["max_tissue"]),
-        max_electrode_C=np.array(hist["max_electrode"]), snapshots=snapshots, damage=damage,
+        max_electrode_C=np.array(hist["max_electrode"]), mean_electrode_C=np.array(hist["mean_electrode"]), snapshots=snapshots, damage=damage,
         peak_temperature=peak, final_temperature=T, growth=growth, energy_delivered_J=energy,
         energy_stored_J=stored, energy_boundary_J=outflow, vaporisation_time_s=vaporised_at,
         info={"nodes": n, "elements": am.mesh.t.shape[1], "steps": len(all_times), "tissue": tissue_name,
               "initial_temperature_C": initial_temperature_C, "h_mm": am.h * 1e3})
+
+
+def joule_share(am: AblationMesh, temperature_C=None, tissue_material: laws.Material = laws.MYOCARDIUM) -> dict:
+    """Fractions of the Joule power dissipated in the tissue and in the saline (at uniform 22 C by default)."""
+    model = ElectroThermalModel(am, tissue_material)
+    temperature = np.full(am.n_nodes, 22.0) if temperature_C is None else temperature_C
+    _, _, density = model.unit_potential(temperature)
+    weights = np.asarray(model.basis.dx) * np.asarray(model.basis.interpolate(am.mesh.p[0]))
+    per_element = (density * weights).sum(axis=1)
+    total = per_element.sum()
+    return {DOMAIN_NAMES[d]: float(per_element[am.domain == d].sum() / total) for d in (TISSUE, SALINE)}
 
 
 def electrode_resistance(am: AblationMesh, sigma: float, saline_sigma: float | None = None) -> float:

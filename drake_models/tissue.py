@@ -133,7 +133,10 @@ NDFEB = Material(
     source=(
         "sintered NdFeB datasheet values: resistivity 1.5 uOhm m, k about 9 W/(m K), c about "
         "440 J/(kg K); density as drake_models.params.BallChain. The Ni-Cu-Ni plating (10-20 um, "
-        "Ni 1.4e7 S/m) carries the current along the chain's surface; too thin to matter thermally"
+        "Ni 1.4e7 S/m) carries the current along the chain's surface; too thin to matter thermally. "
+        "The chain's series resistance is negligible: a 2.2 N ball-ball contact has a Hertz radius of "
+        "about 25 um, a Holm constriction resistance rho_Ni / (2 a) of about 1.4 mOhm, 16 of them "
+        "about 0.02 Ohm against the tissue's 100 Ohm"
     ),
 )
 """The balls. Their conductivity (6.7e5 S/m, 1e6 times tissue) makes the ball an equipotential."""

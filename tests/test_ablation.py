@@ -229,3 +229,12 @@ def test_reproduce_section_quick(tmp_path):
     saved = json.loads((tmp_path / "ablation" / "ablation.json").read_text())
     assert saved["devices"][0]["paper"] == {"power_W": 15.0, "duration_s": 90.0, "width_mm": 5.7, "depth_mm": 3.1}
     assert len(saved["power_duration_map"]["rows"]) == 4
+
+
+def test_joule_share_catheter_heats_mostly_saline():
+    """The catheter's bare electrode puts most of its power into the saline; the ball about half."""
+    cath = fem.joule_share(fem.build_mesh(fem.catheter_8fr(), h=0.2e-3))
+    ball = fem.joule_share(fem.build_mesh(fem.ball_chain_tip(), h=0.2e-3))
+    for share in (cath, ball):
+        assert share["tissue"] + share["saline"] == pytest.approx(1.0, abs=1e-12)
+    assert cath["saline"] > 0.75 and 0.3 < ball["saline"] < 0.7

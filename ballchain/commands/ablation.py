@@ -92,6 +92,8 @@ def table_rows(result: ablation.AblationResult) -> list[list]:
              ablation.meets_criterion(d.paper["width_mm"], d.paper["depth_mm"]), d.meets_criterion],
             [d.label, "peak tissue temperature [C]", "-", d.peak_tissue_C],
             [d.label, "peak electrode temperature [C]", "-", d.peak_electrode_C],
+            [d.label, "electrode volume-mean temperature, highest [C]", "-", d.peak_electrode_mean_C],
+            [d.label, "time with the electrode above 80 C [s]", "-", d.electrode_above_80C_s],
             [d.label, "impedance at start / end [Ohm]", "-",
              f"{d.impedance_initial_ohm:.0f} / {d.impedance_final_ohm:.0f}"],
             [d.label, "energy delivered [J] (set: P x t)", d.power_W * d.duration_s, d.energy_J],

@@ -74,6 +74,7 @@ class DeviceResult:
     omega99_depth_mm: float
     peak_tissue_C: float
     peak_electrode_C: float
+    peak_electrode_mean_C: float
     impedance_initial_ohm: float
     impedance_final_ohm: float
     energy_J: float
@@ -141,7 +142,7 @@ def run_device(device: str, *, power_W: float, duration_s: float = 90.0, indenta
         omega_surface_diameter_mm=end["omega_surface_diameter_mm"], iso50_width_mm=end["iso50_width_mm"],
         iso50_depth_mm=end["iso50_depth_mm"], omega99_width_mm=full_damage["width_mm"],
         omega99_depth_mm=full_damage["depth_mm"], peak_tissue_C=float(sim.max_tissue_C.max()),
-        peak_electrode_C=float(sim.max_electrode_C.max()),
+        peak_electrode_C=float(sim.max_electrode_C.max()), peak_electrode_mean_C=float(sim.mean_electrode_C.max()),
         impedance_initial_ohm=float(sim.impedance[0]), impedance_final_ohm=float(sim.impedance[rf][-1]) if rf.any() else math.nan,
         energy_J=sim.energy_delivered_J, mean_power_W=sim.energy_delivered_J / duration_s,
         cutoff_from_s=float(sim.times[cut[0]]) if len(cut) else None,
