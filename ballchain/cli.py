@@ -33,6 +33,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "reconfigure": ("reconfigure", "closed-loop magnet axis reconfiguration study (Hall sensor, slip, noise)"),
     "wheels": ("wheels", "omni-wheel kinematics: derived wheel-to-magnet map vs the paper's"),
     "teleop": ("teleop", "simulated operator touches the ablation targets (paper Tasks I/II), two joystick mappings"),
+    "ablation": ("ablation", "RF lesions of the ball chain and a standard catheter: electro-thermal FEM (paper Sec. V-D)"),
 }
 
 
