@@ -11,9 +11,14 @@ refused at once instead of after the run.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import json
+import math
 import os
 import tempfile
 from pathlib import Path
+
+import numpy as np
 
 from ballchain.drake_models.errors import UserInputError
 
@@ -165,3 +170,35 @@ def note_replacements(out, names, command: str) -> list[str]:
     if existing:
         print(f"ballchain {command}: replacing {', '.join(existing)} in {out}", file=sys.stderr)
     return existing
+
+
+def to_jsonable(value):
+    """numpy arrays and scalars to plain Python, recursively; NaN and inf become None (null), so
+    the JSON is valid (the JSON standard has no NaN)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {str(k): to_jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [to_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return to_jsonable(value.tolist())
+    if isinstance(value, np.generic):
+        return to_jsonable(value.item())
+    if isinstance(value, Path):
+        return str(value)
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return to_jsonable({f.name: getattr(value, f.name) for f in dataclasses.fields(value)})
+    if value is None or isinstance(value, (bool, int, str)):
+        return value
+    return str(value)  # anything else (a Drake object, ...): its text, so the JSON is always valid
+
+
+def json_text(data) -> str:
+    """The JSON text of ``data`` (``to_jsonable``: numpy to Python, non-finite numbers to null)."""
+    return json.dumps(to_jsonable(data), indent=1, allow_nan=False)
+
+
+def write_json(path, data) -> Path:
+    """Write ``data`` as JSON to ``path`` atomically (see ``json_text``); returns the path."""
+    return atomic_write_text(path, json_text(data) + "\n")

@@ -59,6 +59,13 @@ CASES = [
     ("statics-step-1e-4", ["statics", "--step-deg", "1e-4"], "--step-deg"),
     ("statics-field-nan", ["statics", "--field-mT", "nan"], "--field-mT"),
     ("statics-method", ["statics", "--method", "lbfgs"], "--method"),
+    # ablation
+    ("ablation-power-negative", ["ablation", "--ball-power-W", "-5"], "--ball-power-W"),
+    ("ablation-duration-nan", ["ablation", "--duration-s", "nan"], "--duration-s"),
+    ("ablation-indentation-5mm", ["ablation", "--indentation-mm", "5"], "--indentation-mm"),
+    ("ablation-tissue", ["ablation", "--tissue", "bone"], "--tissue"),
+    ("ablation-mesh-0", ["ablation", "--mesh-mm", "0"], "--mesh-mm"),
+    ("ablation-out-is-file", ["ablation", "--out", "{file}"], "--out"),
     # alignment
     ("alignment-out-under-file", ["alignment", "--out", "{under_file}"], "--out"),
     ("alignment-out-is-file", ["alignment", "--out", "{file}"], "--out"),

@@ -11,13 +11,9 @@ map of the ball chain.
 from __future__ import annotations
 
 import argparse
-import csv
-import json
-import os
-import tempfile
 from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, finite_float, print_json, to_jsonable
+from ballchain.commands._common import add_json_flag, finite_float, print_json
 from ballchain.drake_models.errors import UserInputError
 from ballchain.experiments import ablation
 
@@ -63,80 +59,6 @@ def _check(args: argparse.Namespace) -> None:
         raise UserInputError(f"--out {args.out} exists and is not a folder")
 
 
-def _atomic_write(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    with os.fdopen(fd, "w", newline="") as f:
-        f.write(text)
-    os.replace(tmp, path)
-
-
-def _atomic_figure(draw, path: Path, *args) -> None:
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    draw(*args, tmp)
-    os.replace(tmp, path)
-
-
-def table_rows(result: ablation.AblationResult) -> list[list]:
-    """Model vs paper, one row per quantity and device."""
-    rows = []
-    for d in result.devices:
-        rows += [
-            [d.label, "width [mm], Omega = 1", d.paper["width_mm"], d.omega_width_mm],
-            [d.label, "depth [mm], Omega = 1", d.paper["depth_mm"], d.omega_depth_mm],
-            [d.label, "width [mm], 50 C isotherm", d.paper["width_mm"], d.iso50_width_mm],
-            [d.label, "depth [mm], 50 C isotherm", d.paper["depth_mm"], d.iso50_depth_mm],
-            [d.label, "width [mm], Omega = 4.6 (99 % denatured)", d.paper["width_mm"], d.omega99_width_mm],
-            [d.label, "depth [mm], Omega = 4.6 (99 % denatured)", d.paper["depth_mm"], d.omega99_depth_mm],
-            [d.label, "surface diameter [mm], Omega = 1", "-", d.omega_surface_diameter_mm],
-            [d.label, "meets criterion (> 2.9 mm deep, 5.2-6 mm wide)",
-             ablation.meets_criterion(d.paper["width_mm"], d.paper["depth_mm"]), d.meets_criterion],
-            [d.label, "peak tissue temperature [C]", "-", d.peak_tissue_C],
-            [d.label, "peak electrode temperature [C]", "-", d.peak_electrode_C],
-            [d.label, "electrode volume-mean temperature, highest [C]", "-", d.peak_electrode_mean_C],
-            [d.label, "time with the electrode above 80 C [s]", "-", d.electrode_above_80C_s],
-            [d.label, "impedance at start / end [Ohm]", "-",
-             f"{d.impedance_initial_ohm:.0f} / {d.impedance_final_ohm:.0f}"],
-            [d.label, "energy delivered [J] (set: P x t)", d.power_W * d.duration_s, d.energy_J],
-            [d.label, "cut-off at 100 C from [s]", "-", d.cutoff_from_s],
-        ]
-    return rows
-
-
-def write_files(result: ablation.AblationResult, out: Path, sweep: dict | None = None) -> list[str]:
-    """JSON, CSV (growth, map) and the figures, each written atomically."""
-    out.mkdir(parents=True, exist_ok=True)
-    files = []
-    data = result.public()
-    if sweep is not None:
-        data["power_duration_map"] = sweep
-    path = out / "ablation.json"
-    _atomic_write(path, json.dumps(to_jsonable(data), indent=1, allow_nan=False, default=str))
-    files.append(path)
-    lines = ["device,t_s,omega_width_mm,omega_depth_mm,iso50_width_mm,iso50_depth_mm"]
-    for d in result.devices:
-        for g in d.growth:
-            lines.append(f"{d.device},{g['t_s']:.3f},{g['omega_width_mm']:.4f},{g['omega_depth_mm']:.4f},"
-                         f"{g['iso50_width_mm']:.4f},{g['iso50_depth_mm']:.4f}")
-    path = out / "ablation_growth.csv"
-    _atomic_write(path, "\n".join(lines) + "\n")
-    files.append(path)
-    for name, draw in (("ablation_fields.png", ablation.figure_fields), ("ablation_growth.png", ablation.figure_growth)):
-        _atomic_figure(draw, out / name, result)
-        files.append(out / name)
-    if sweep is not None:
-        path = out / "ablation_map.csv"
-        keys = list(sweep["rows"][0])
-        with tempfile.NamedTemporaryFile("w", dir=out, delete=False, newline="", suffix=".tmp") as f:
-            writer = csv.DictWriter(f, fieldnames=keys)
-            writer.writeheader()
-            writer.writerows(sweep["rows"])
-        os.replace(f.name, path)
-        files.append(path)
-        _atomic_figure(ablation.figure_map, out / "ablation_map.png", sweep)
-        files.append(out / "ablation_map.png")
-    return [str(f) for f in files]
-
-
 def main(args: argparse.Namespace) -> int:
     _check(args)
     result = ablation.run(ball_power_W=args.ball_power_W, catheter_power_W=args.catheter_power_W,
@@ -152,11 +74,11 @@ def main(args: argparse.Namespace) -> int:
     if args.sensitivity:
         data["sensitivity"] = ablation.sensitivity(progress=not args.json)
     if not args.no_files:
-        data["files"] = write_files(result, args.out, sweep)
+        data["files"] = ablation.write_files(result, args.out, sweep)
     if args.json:
         print_json(data)
         return 0
-    for row in table_rows(result):
+    for row in ablation.table_rows(result):
         print(f"{row[0]:>24} | {row[1]:<48} | paper {row[2]!s:>6} | model {row[3]:.2f}"
               if isinstance(row[3], float) else f"{row[0]:>24} | {row[1]:<48} | paper {row[2]!s:>6} | model {row[3]}")
     for note in result.notes:

@@ -363,7 +363,7 @@ def ablation_section(out: Path, quick: bool) -> tuple[Section, dict]:
                        "peak electrode [C]", "energy [J]"],
                       [[r["case"], r["device"], r["width_mm"], r["depth_mm"], r["iso50_width_mm"],
                         r["iso50_depth_mm"], r["peak_electrode_C"], r["energy_J"]] for r in rows])
-        (out / "ablation" / "ablation_sensitivity.json").write_text(json.dumps(to_jsonable(rows), indent=1))
+        write_json(out / "ablation" / "ablation_sensitivity.json", rows)
         by = {(r["case"], r["device"]): r for r in rows}
         base, warm = by[("baseline", "ball_chain")], by[("bath and tissue at 37 C", "ball_chain")]
         deep = by[("indentation 1.3 mm", "ball_chain")]

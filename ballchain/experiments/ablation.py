@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
@@ -27,6 +28,7 @@ from tqdm import tqdm
 from ballchain.drake_models import lesion_fem as fem
 from ballchain.drake_models import tissue as laws
 from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.safe_files import atomic_write_text, json_text, save_figure, write_csv
 
 PAPER = {
     "ball_chain": {"power_W": 15.0, "duration_s": 90.0, "width_mm": 5.7, "depth_mm": 3.1},
@@ -387,7 +389,7 @@ def figure_fields(result: AblationResult, path) -> None:
     axes[0].set_ylabel("z [mm] (tissue below 0)")
     fig.colorbar(cs, ax=axes, label="temperature at switch-off [C]", shrink=0.85)
     fig.suptitle("Lesion: Omega = 1 (cyan), 50 C reached (green dashed), 2.9 mm depth (dotted)", fontsize=10)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -419,7 +421,7 @@ def figure_growth(result: AblationResult, path) -> None:
     axes[0].legend(fontsize=7)
     fig.suptitle("Lesion growth (grey band: 5.2-6 mm; dotted: 2.9 mm transmural)", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -450,5 +452,61 @@ def figure_map(data: dict, path) -> None:
     ax.set_title(f"{data['device']}: width x depth [mm] (Omega = 1), peak ball temperature\n"
                  "green: transmural and 5.2-6 mm wide; red text: magnet above 80 C", fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
+
+
+def table_rows(result: AblationResult) -> list[list]:
+    """Model vs paper, one row per quantity and device."""
+    rows = []
+    for d in result.devices:
+        rows += [
+            [d.label, "width [mm], Omega = 1", d.paper["width_mm"], d.omega_width_mm],
+            [d.label, "depth [mm], Omega = 1", d.paper["depth_mm"], d.omega_depth_mm],
+            [d.label, "width [mm], 50 C isotherm", d.paper["width_mm"], d.iso50_width_mm],
+            [d.label, "depth [mm], 50 C isotherm", d.paper["depth_mm"], d.iso50_depth_mm],
+            [d.label, "width [mm], Omega = 4.6 (99 % denatured)", d.paper["width_mm"], d.omega99_width_mm],
+            [d.label, "depth [mm], Omega = 4.6 (99 % denatured)", d.paper["depth_mm"], d.omega99_depth_mm],
+            [d.label, "surface diameter [mm], Omega = 1", "-", d.omega_surface_diameter_mm],
+            [d.label, "meets criterion (> 2.9 mm deep, 5.2-6 mm wide)",
+             meets_criterion(d.paper["width_mm"], d.paper["depth_mm"]), d.meets_criterion],
+            [d.label, "peak tissue temperature [C]", "-", d.peak_tissue_C],
+            [d.label, "peak electrode temperature [C]", "-", d.peak_electrode_C],
+            [d.label, "electrode volume-mean temperature, highest [C]", "-", d.peak_electrode_mean_C],
+            [d.label, "time with the electrode above 80 C [s]", "-", d.electrode_above_80C_s],
+            [d.label, "impedance at start / end [Ohm]", "-",
+             f"{d.impedance_initial_ohm:.0f} / {d.impedance_final_ohm:.0f}"],
+            [d.label, "energy delivered [J] (set: P x t)", d.power_W * d.duration_s, d.energy_J],
+            [d.label, "cut-off at 100 C from [s]", "-", d.cutoff_from_s],
+        ]
+    return rows
+
+
+def write_files(result: AblationResult, out: Path, sweep: dict | None = None) -> list[str]:
+    """JSON, CSV (growth, map) and the figures, each written atomically."""
+    out.mkdir(parents=True, exist_ok=True)
+    files = []
+    data = result.public()
+    if sweep is not None:
+        data["power_duration_map"] = sweep
+    path = out / "ablation.json"
+    atomic_write_text(path, json_text(data))
+    files.append(path)
+    lines = ["device,t_s,omega_width_mm,omega_depth_mm,iso50_width_mm,iso50_depth_mm"]
+    for d in result.devices:
+        for g in d.growth:
+            lines.append(f"{d.device},{g['t_s']:.3f},{g['omega_width_mm']:.4f},{g['omega_depth_mm']:.4f},"
+                         f"{g['iso50_width_mm']:.4f},{g['iso50_depth_mm']:.4f}")
+    path = out / "ablation_growth.csv"
+    atomic_write_text(path, "\n".join(lines) + "\n")
+    files.append(path)
+    for name, draw in (("ablation_fields.png", figure_fields), ("ablation_growth.png", figure_growth)):
+        draw(result, out / name)
+        files.append(out / name)
+    if sweep is not None:
+        path = out / "ablation_map.csv"
+        write_csv(path, sweep["rows"])
+        files.append(path)
+        figure_map(sweep, out / "ablation_map.png")
+        files.append(out / "ablation_map.png")
+    return [str(f) for f in files]
