@@ -795,3 +795,23 @@ def chain_wrenches(chain, p, m_hat, external=None, base_direction=(1.0, 0.0, 0.0
     sleeve energy (gravity excluded): ``F_i = -dU/dp_i``, ``tau_i = m_hat_i x (-dU/dm_hat_i)``."""
     _, dU_dp, dU_dm, _ = chain_energy(chain, p, m_hat, external, False, base_direction)
     return -dU_dp, np.cross(m_hat, -dU_dm)
+
+
+def warm_up() -> None:
+    """Compile (or load from the cache) every kernel the stack runs, on a 4-ball chain."""
+    from ballchain.drake_models.params import BallChain, Sleeve
+    from ballchain.optimization.reduced_chain import ReducedChain
+
+    chain = BallChain(n_balls=4, sleeve=Sleeve())
+    d = chain.ball_diameter
+    p = d * np.array([[0.0, 0, 0], [1, 0, 0], [1.8, 0.6, 0], [2.2, 1.5, 0.1]])
+    m = np.tile([1.0, 0.0, 0.0], (4, 1))
+    chain_energy(chain, p, m, UniformField([0.0, 0.02, 0.0]), gravity=True)
+    pair_hessian(p, m, chain.dipole_moment)
+    model = ReducedChain(chain, UniformField([0.0, 0.02, 0.0]), gravity=True)
+    model.chart_from_configuration(p, m)
+    q = np.zeros(model.nq)
+    ev = model.evaluate(q, 2)
+    ev.jacobian[np.arange(len(ev.gaps))]
+    model.constraint_hessian(q, np.array([0]), np.array([1.0]))
+    model.tip_hessian(q, np.ones(3))

@@ -1,8 +1,9 @@
 """MagneticWrenchSystem: the magnetic (and sleeve) wrenches on every ball of a chain, for a plant.
 
-Every number comes from ``drake_models.chain_energy.chain_energy`` (ball-ball dipole
-interactions, the external field, the sleeve's bending): the force on ball i is -dU/dp_i and
-its torque m_hat_i x (-dU/dm_hat_i). Gravity is left to the plant. Ball i's dipole points along
+Every number comes from the chain's energy as the compiled kernel
+``drake_models.chain_kernels.chain_wrenches`` (ball-ball dipole interactions, the external
+field, the sleeve's bending; the numpy ``chain_energy`` is its tests' reference): the force on
+ball i is -dU/dp_i and its torque m_hat_i x (-dU/dm_hat_i). Gravity is left to the plant. Ball i's dipole points along
 its body frame's +x axis.
 """
 
@@ -17,7 +18,7 @@ from pydrake.multibody.math import SpatialForce
 from pydrake.multibody.plant import ExternallyAppliedSpatialForce
 from pydrake.systems.framework import LeafSystem
 
-from ballchain.drake_models.chain_energy import chain_energy
+from ballchain.drake_models.chain_kernels import chain_wrenches
 from ballchain.drake_models.dipole import dipole_field, dipole_field_gradient
 from ballchain.drake_models.field_sources import FieldSource, FieldSources, MagnetSource
 from ballchain.drake_models.params import BallChain, CylinderMagnet, SphereMagnet
@@ -176,10 +177,7 @@ class MagneticWrenchSystem(LeafSystem):
     def calc_wrenches(self, context) -> tuple[np.ndarray, np.ndarray]:
         """Forces (n, 3) [N] and torques (n, 3) [N m] on the balls, in world."""
         p, m_hat = self.ball_states(context)
-        _, dU_dp, dU_dm, _ = chain_energy(
-            self._chain, p, m_hat, self.external_field(context), gravity=False,
-            base_direction=self._base)
-        return -dU_dp, np.cross(m_hat, -dU_dm)
+        return chain_wrenches(self._chain, p, m_hat, self.external_field(context), self._base)
 
     def _calc_spatial_forces(self, context, output) -> None:
         forces, torques = self.calc_wrenches(context)
