@@ -30,7 +30,6 @@ import numpy as np
 from numba import njit
 
 from ballchain.drake_models.dipole import K_DIPOLE
-from ballchain.drake_models.field_sources import UniformField, field_gradient_derivative
 
 # Energy parts, in the order of the kernels' ``terms`` arrays (EnergyTerms' fields).
 TERM_BALLS, TERM_EXTERNAL, TERM_SLEEVE, TERM_GRAVITY = 0, 1, 2, 3
@@ -177,6 +176,54 @@ def pair_hessian(p, m_hat, M):
 
 
 # --- external field, gravity ---------------------------------------------------------------------
+@njit(cache=True)
+def dipole_field_and_gradient(points, centres, moments, r2_min):
+    """Flux density and gradient of point dipoles at points, summed over the dipoles.
+
+    The law of ``dipole.dipole_field`` and ``dipole.dipole_field_gradient``:
+    ``B = k (3 r (m . r) / r^5 - m / r^3)``,
+    ``G[a, b] = 3 k / r^5 (m_a r_b + r_a m_b + (m . r) delta_ab - 5 (m . r) r_a r_b / r^2)``,
+    r from the dipole to the point.
+
+    Args:
+        points: (n, 3) field points [m].
+        centres: (k, 3) dipole positions [m]; moments: (k, 3) dipole moments [A m^2].
+        r2_min: (k,) no point may be at a squared distance <= this from a centre [m^2].
+
+    Returns:
+        ``(violation, B (n, 3) [T], G (n, 3, 3) [T/m])``; ``violation`` is -1, or
+        ``point * k + dipole`` of the first point too close to a dipole (B, G then incomplete).
+    """
+    n = points.shape[0]
+    k = centres.shape[0]
+    B = np.zeros((n, 3))
+    G = np.zeros((n, 3, 3))
+    r = np.empty(3)
+    for i in range(n):
+        for j in range(k):
+            r2 = 0.0
+            mr = 0.0
+            for c in range(3):
+                r[c] = points[i, c] - centres[j, c]
+                r2 += r[c] * r[c]
+                mr += moments[j, c] * r[c]
+            if r2 <= r2_min[j] or r2 <= 0.0:
+                return i * k + j, B, G
+            inv_r2 = 1.0 / r2
+            inv_r = math.sqrt(inv_r2)
+            inv_r3 = inv_r2 * inv_r
+            inv_r5 = inv_r3 * inv_r2
+            for a in range(3):
+                B[i, a] += K_DIPOLE * (3.0 * r[a] * mr * inv_r5 - moments[j, a] * inv_r3)
+                for b in range(3):
+                    g = moments[j, a] * r[b] + r[a] * moments[j, b] - 5.0 * mr * inv_r2 * r[a] * r[b]
+                    if a == b:
+                        g += mr
+                    G[i, a, b] += 3.0 * K_DIPOLE * inv_r5 * g
+    return -1, B, G
+
+
+
 @njit(cache=True)
 def _add_external(p, m_hat, M, B, G, dU_dp, dU_dm):
     """Add ``U_e = -M sum_k m_hat_k . B_k`` to the gradients; returns U_e [J]."""
@@ -743,6 +790,8 @@ def external_arrays(external, p: np.ndarray, hessian: bool = False):
 
     dG (from ``field_sources.field_gradient_derivative``) only when ``hessian``; zeros otherwise.
     """
+    from ballchain.drake_models.field_sources import UniformField, field_gradient_derivative
+
     n = p.shape[0]
     if external is None:
         return False, _zeros((n, 3)), _zeros((n, 3, 3)), _zeros((n, 3, 3, 3))
@@ -799,6 +848,7 @@ def chain_wrenches(chain, p, m_hat, external=None, base_direction=(1.0, 0.0, 0.0
 
 def warm_up() -> None:
     """Compile (or load from the cache) every kernel the stack runs, on a 4-ball chain."""
+    from ballchain.drake_models.field_sources import UniformField
     from ballchain.drake_models.params import BallChain, Sleeve
     from ballchain.optimization.reduced_chain import ReducedChain
 
@@ -808,6 +858,7 @@ def warm_up() -> None:
     m = np.tile([1.0, 0.0, 0.0], (4, 1))
     chain_energy(chain, p, m, UniformField([0.0, 0.02, 0.0]), gravity=True)
     pair_hessian(p, m, chain.dipole_moment)
+    dipole_field_and_gradient(p, np.array([[0.0, 0.2, 0.0]]), np.array([[0.0, 1.0, 0.0]]), np.zeros(1))
     model = ReducedChain(chain, UniformField([0.0, 0.02, 0.0]), gravity=True)
     model.chart_from_configuration(p, m)
     q = np.zeros(model.nq)

@@ -219,3 +219,27 @@ def test_large_chain_evaluates_with_quadratic_memory():
     assert ev.jacobian.shape == (model.n_pairs, model.nq)
     assert ev.jacobian[np.array([0, model.n_pairs - 1])].shape == (2, model.nq)
     np.testing.assert_allclose(ev.hessian, ev.hessian.T, atol=1e-9 * np.abs(ev.hessian).max())
+
+
+def test_dipole_field_kernel_matches_the_numpy_law():
+    """dipole_field_and_gradient (the wrench system's and MagnetSource's dipole field) vs
+    dipole.dipole_field / dipole_field_gradient summed over three dipoles, and its refusal."""
+    from ballchain.drake_models.dipole import dipole_field, dipole_field_gradient
+
+    rng = np.random.default_rng(5)
+    points = rng.normal(size=(16, 3)) * 0.02
+    centres = rng.normal(size=(3, 3)) * 0.05 + np.array([0.0, 0.15, 0.0])
+    moments = rng.normal(size=(3, 3)) * 100.0
+    violation, B, G = ck.dipole_field_and_gradient(points, centres, moments, np.full(3, 0.01**2))
+    assert violation == -1
+    r = points[:, None, :] - centres[None, :, :]
+    assert_close(B, dipole_field(r, moments).sum(axis=1))
+    assert_close(G, dipole_field_gradient(r, moments).sum(axis=1))
+    magnet = MagnetSource.pointing(CylinderMagnet(), centres[0], moments[0])
+    B1, G1 = magnet.field_and_gradient(points)
+    assert_close(B1, dipole_field(points - centres[0], magnet.m_W))
+    assert_close(G1, dipole_field_gradient(points - centres[0], magnet.m_W))
+    too_close = points.copy()
+    too_close[4] = centres[2] + 0.005
+    violation, _, _ = ck.dipole_field_and_gradient(too_close, centres, moments, np.full(3, 0.01**2))
+    assert divmod(int(violation), 3) == (4, 2)
