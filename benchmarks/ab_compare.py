@@ -9,9 +9,13 @@ so that the load of the machine hits both alike. Two measurements:
   after an untimed two-step run in the same process: real-time factor (median over rounds) and
   the final ball positions, whose largest difference between the two sides says whether the
   results are the same.
+* ``profile``: ``benchmarks/station_profile.py`` of each side (its own copy) on the scenario:
+  exclusive microseconds per step per group of systems (wrench, actuation, monitor, C++ plant).
 * ``statics``: ``ballchain bench statics`` (16 balls by default): Newton cold and warm medians.
 
-Prints JSON.
+Times are the children's CPU time by default (``--clock cpu``: ``time.perf_counter`` is
+replaced by ``time.process_time`` in them, so a real-time factor is simulated time over CPU
+time): on a machine shared with other jobs, wall time mostly measures the others. Prints JSON.
 """
 
 from __future__ import annotations
@@ -66,6 +70,22 @@ print(json.dumps({"file": ballchain.__file__, "realtime_factor": r["realtime_fac
                   "tip_wall_force_N": r["tip_wall_force_N"]}))
 """
 
+_PROFILE = r"""
+import importlib.util, json, os, sys
+from threadpoolctl import threadpool_limits
+import ballchain
+root = os.environ.get("AB_ROOT") or sys.argv[3]
+spec = importlib.util.spec_from_file_location("station_profile", os.path.join(root, "benchmarks", "station_profile.py"))
+profile = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(profile)
+with threadpool_limits(limits=1, user_api="blas"):
+    profile.run(scenario=sys.argv[1], duration=0.01, top=1)  # first-call costs
+    r = profile.run(scenario=sys.argv[1], duration=float(sys.argv[2]), top=1)
+print(json.dumps({"file": ballchain.__file__, "realtime_factor": r["realtime_factor"],
+                  "us_per_step": r["us_per_step"], "derivative_evaluations": r["derivative_evaluations"],
+                  "n_steps": r["n_steps"]}))
+"""
+
 _STATICS = r"""
 import json, sys
 from threadpoolctl import threadpool_limits
@@ -79,8 +99,16 @@ print(json.dumps({"file": ballchain.__file__, "cold_median_ms": r["cold_median_m
 """
 
 
-def _child(root: Path | None, code: str, args: list[str]) -> dict:
+_CPU_CLOCK = r"""
+import time
+time.perf_counter = time.process_time  # every timer in the child counts this process's CPU time
+"""
+
+
+def _child(root: Path | None, code: str, args: list[str], clock: str = "cpu") -> dict:
     env = dict(os.environ)
+    if clock == "cpu":
+        code = _CPU_CLOCK + code
     if root is not None:
         env["AB_ROOT"] = str(root)
         code = _BOOTSTRAP + code
@@ -92,22 +120,36 @@ def _child(root: Path | None, code: str, args: list[str]) -> dict:
 
 
 def run(*, base: str, what: str = "station", scenario: str = "heart_left_quasi_static", duration: float = 0.1,
-        overrides: str | None = None, rounds: int = 3, n_balls: int = 16, repeats: int = 7) -> dict:
-    """Alternate ``rounds`` runs of the base commit and of this checkout; returns medians and diffs."""
+        overrides: str | None = None, rounds: int = 3, n_balls: int = 16, repeats: int = 7,
+        clock: str = "cpu") -> dict:
+    """Alternate ``rounds`` runs of the base commit and of this checkout; returns medians and diffs.
+
+    ``clock="cpu"`` makes every timer of the children (``time.perf_counter``) count the process's
+    CPU time: on a machine shared with other jobs, wall time mostly measures the others.
+    """
     with tempfile.TemporaryDirectory(prefix="ballchain-ab-") as tmp:
         archive = subprocess.run(["git", "-C", str(REPO), "archive", base], capture_output=True, check=True).stdout
         subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
         if what == "station":
             code, args = _STATION, [scenario, str(duration)] + ([overrides] if overrides else [])
+        elif what == "profile":
+            code, args = _PROFILE, [scenario, str(duration), str(REPO)]
         else:
             code, args = _STATICS, [str(n_balls), str(repeats)]
         sides = {"base": [], "head": []}
         for _ in range(rounds):
-            sides["base"].append(_child(Path(tmp), code, args))
-            sides["head"].append(_child(None, code, args))
-    out = {"base": base, "what": what, "rounds": rounds,
+            sides["base"].append(_child(Path(tmp), code, args, clock))
+            sides["head"].append(_child(None, code, args, clock))
+    out = {"base": base, "what": what, "rounds": rounds, "clock": clock,
            "files": {k: v[0]["file"] for k, v in sides.items()}}
-    if what == "station":
+    if what == "profile":
+        out.update(scenario=scenario, duration_s=duration,
+                   realtime_factor={k: [r["realtime_factor"] for r in v] for k, v in sides.items()},
+                   derivative_evaluations={k: v[0]["derivative_evaluations"] for k, v in sides.items()},
+                   n_steps={k: v[0]["n_steps"] for k, v in sides.items()},
+                   us_per_step={k: {g: float(np.median([r["us_per_step"][g] for r in v]))
+                                    for g in v[0]["us_per_step"]} for k, v in sides.items()})
+    elif what == "station":
         rtf = {k: [r["realtime_factor"] for r in v] for k, v in sides.items()}
         out.update(scenario=scenario, overrides=overrides, duration_s=duration, realtime_factor=rtf,
                    median_rtf={k: float(np.median(v)) for k, v in rtf.items()})
@@ -133,17 +175,19 @@ def run(*, base: str, what: str = "station", scenario: str = "heart_left_quasi_s
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--base", required=True, help="the earlier commit (any git revision)")
-    parser.add_argument("--what", choices=("station", "statics"), default="station", help="what to compare")
+    parser.add_argument("--what", choices=("station", "profile", "statics"), default="station", help="what to compare")
     parser.add_argument("--scenario", default="heart_left_quasi_static", help="station: scenario name")
     parser.add_argument("--set", dest="overrides", default=None, help="station: inline YAML overrides")
     parser.add_argument("--duration", type=float, default=0.1, help="station: simulated time [s]")
     parser.add_argument("--rounds", type=int, default=3, help="runs of each side, alternating")
     parser.add_argument("--balls", type=int, default=16, help="statics: number of balls")
     parser.add_argument("--repeats", type=int, default=7, help="statics: timed solves per case")
+    parser.add_argument("--clock", choices=("cpu", "wall"), default="cpu",
+                        help="what the children's timers count (default cpu: the process's CPU time)")
     args = parser.parse_args()
     print(json.dumps(run(base=args.base, what=args.what, scenario=args.scenario, duration=args.duration,
                          overrides=args.overrides, rounds=args.rounds, n_balls=args.balls,
-                         repeats=args.repeats), indent=1))
+                         repeats=args.repeats, clock=args.clock), indent=1))
 
 
 if __name__ == "__main__":

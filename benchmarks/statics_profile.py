@@ -21,9 +21,10 @@ import numpy as np
 
 
 class _PieceTimer:
-    """Exclusive wall time per named piece, through wrappers installed on functions."""
+    """Exclusive time per named piece, through wrappers installed on functions."""
 
-    def __init__(self):
+    def __init__(self, clock=time.perf_counter):
+        self.clock = clock
         self.totals: dict[str, float] = {}
         self.calls: dict[str, int] = {}
         self._stack: list[float] = []  # time of wrapped children of each open piece
@@ -31,11 +32,11 @@ class _PieceTimer:
     def wrap(self, name, fn, name_of=None):
         def wrapper(*args, **kwargs):
             self._stack.append(0.0)
-            t0 = time.perf_counter()
+            t0 = self.clock()
             try:
                 return fn(*args, **kwargs)
             finally:
-                elapsed = time.perf_counter() - t0
+                elapsed = self.clock() - t0
                 children = self._stack.pop()
                 if self._stack:
                     self._stack[-1] += elapsed
@@ -88,8 +89,11 @@ def _instrumented(timer: _PieceTimer):
 
 
 def run(*, n_balls: int = 16, solves: int = 200, field_mT: float = 23.0, angle_deg: float = 90.0,
-        warm_offset_deg: float = 2.5) -> dict:
+        warm_offset_deg: float = 2.5, clock: str = "wall") -> dict:
     """Profile ``solves`` warm solves per backend ("kernel", "numpy").
+
+    ``clock``: "wall" (``time.perf_counter``) or "cpu" (``time.process_time``: this process's
+    CPU time, steadier on a machine shared with other jobs).
 
     Returns:
         ``{backend: {"median_ms" (unwrapped), "instrumented_ms" (mean, wrapped), "iterations",
@@ -102,6 +106,7 @@ def run(*, n_balls: int = 16, solves: int = 200, field_mT: float = 23.0, angle_d
     from ballchain.optimization.reduced_chain import ReducedChain
     from ballchain.optimization.statics import ChainStatics
 
+    now = time.process_time if clock == "cpu" else time.perf_counter
     chain = BallChain(n_balls=n_balls)
     B = field_mT * 1e-3
     external = UniformField.in_plane(B, math.radians(angle_deg))
@@ -114,16 +119,16 @@ def run(*, n_balls: int = 16, solves: int = 200, field_mT: float = 23.0, angle_d
         plain = {name: [] for name in solvers}
         for _ in range(solves):  # unwrapped, interleaved
             for name, solver in solvers.items():
-                t0 = time.perf_counter()
+                t0 = now()
                 result = solver.solve(external, warm)
-                plain[name].append(time.perf_counter() - t0)
+                plain[name].append(now() - t0)
         for name, solver in solvers.items():
-            timer = _PieceTimer()
+            timer = _PieceTimer(now)
             with _instrumented(timer):
-                t0 = time.perf_counter()
+                t0 = now()
                 for _ in range(solves):
                     result = solver.solve(external, warm)
-                wrapped = (time.perf_counter() - t0) / solves
+                wrapped = (now() - t0) / solves
             pieces = {k: 1e3 * v / solves for k, v in sorted(timer.totals.items(), key=lambda kv: -kv[1])}
             pieces["Newton loop, rest (ChainStatics.solve and _newton)"] = 1e3 * wrapped - sum(pieces.values())
             out[name] = {
@@ -142,14 +147,16 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--balls", type=int, default=16, help="number of balls (default 16)")
     parser.add_argument("--solves", type=int, default=200, help="warm solves per backend (default 200)")
+    parser.add_argument("--clock", choices=("wall", "cpu"), default="wall",
+                        help="wall time or this process's CPU time (steadier under load)")
     parser.add_argument("--json", action="store_true", help="print JSON")
     args = parser.parse_args()
-    out = run(n_balls=args.balls, solves=args.solves)
+    out = run(n_balls=args.balls, solves=args.solves, clock=args.clock)
     if args.json:
         print(json.dumps(out, indent=1))
         return
     for name, r in out.items():
-        print(f"{name}: median {r['median_ms']:.3f} ms per warm solve unwrapped, {r['instrumented_ms']:.3f} ms "
+        print(f"{name}: median {r['median_ms']:.3f} ms ({args.clock}) per warm solve unwrapped, {r['instrumented_ms']:.3f} ms "
               f"instrumented, {r['iterations']} iterations")
         for piece, ms in r["pieces_ms"].items():
             calls = r["calls"].get(piece)

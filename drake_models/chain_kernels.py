@@ -389,6 +389,54 @@ def cartesian_energy(p, m_hat, M, B, G, has_external, weight, k_s, base):
 
 # --- reduced (chart) coordinates -----------------------------------------------------------------
 @njit(cache=True)
+def chart_frames(w0):
+    """Charts centred on the K vectors w0 (K, 3): (r0, t1, t2) each (K, 3).
+
+    r0 = w0 / |w0|; t2 the z axis made orthogonal to r0 (the x axis where r0 is within about
+    17 deg of z: |z - (r0 . z) r0| < 0.3); t1 = t2 x r0.
+    """
+    K = w0.shape[0]
+    r0 = np.empty((K, 3))
+    t1 = np.empty((K, 3))
+    t2 = np.empty((K, 3))
+    t = np.empty(3)
+    for i in range(K):
+        norm = math.sqrt(w0[i, 0] ** 2 + w0[i, 1] ** 2 + w0[i, 2] ** 2)
+        for c in range(3):
+            r0[i, c] = w0[i, c] / norm
+        for c in range(3):
+            t[c] = (1.0 if c == 2 else 0.0) - r0[i, c] * r0[i, 2]
+        nt = math.sqrt(t[0] ** 2 + t[1] ** 2 + t[2] ** 2)
+        if nt < 0.3:
+            for c in range(3):
+                t[c] = (1.0 if c == 0 else 0.0) - r0[i, c] * r0[i, 0]
+            nt = math.sqrt(t[0] ** 2 + t[1] ** 2 + t[2] ** 2)
+        for c in range(3):
+            t2[i, c] = t[c] / nt
+        t1[i, 0] = t2[i, 1] * r0[i, 2] - t2[i, 2] * r0[i, 1]
+        t1[i, 1] = t2[i, 2] * r0[i, 0] - t2[i, 0] * r0[i, 2]
+        t1[i, 2] = t2[i, 0] * r0[i, 1] - t2[i, 1] * r0[i, 0]
+    return r0, t1, t2
+
+
+@njit(cache=True)
+def configuration_vectors(p, m_hat):
+    """The K = 2(n-1) chart vectors of a configuration: unit links, then the free dipoles."""
+    L = p.shape[0] - 1
+    w = np.empty((2 * L, 3))
+    for l in range(L):
+        norm = 0.0
+        for c in range(3):
+            w[l, c] = p[l + 1, c] - p[l, c]
+            norm += w[l, c] * w[l, c]
+        norm = math.sqrt(norm)
+        for c in range(3):
+            w[l, c] /= norm
+            w[L + l, c] = m_hat[l + 1, c]
+    return w
+
+
+@njit(cache=True)
 def chart_vectors(q, r0, t1, t2):
     """The K unit vectors at chart coordinates q = (a_1..a_K, b_1..b_K) and their derivatives.
 

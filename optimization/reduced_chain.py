@@ -148,6 +148,10 @@ class ReducedChain:
     # --- chart -------------------------------------------------------------------------
     def set_chart(self, w0: np.ndarray) -> None:
         """Centre the chart on the unit vectors w0 (K, 3)."""
+        if self.backend == "kernel":
+            self.r0, self.t1, self.t2 = ck.chart_frames(np.ascontiguousarray(w0, dtype=float))
+            self._last = None
+            return
         r0 = w0 / np.linalg.norm(w0, axis=1)[:, None]
         t2 = Z_AXIS - r0 * r0[:, 2:3]
         norms = np.linalg.norm(t2, axis=1)
@@ -164,6 +168,11 @@ class ReducedChain:
         self._last = None  # a new chart (and possibly a new field, target or wall): forget
 
     def chart_from_configuration(self, positions: np.ndarray, dipoles: np.ndarray) -> None:
+        """Centre the chart on a configuration's link and free dipole directions."""
+        if self.backend == "kernel":
+            self.set_chart(ck.configuration_vectors(np.ascontiguousarray(positions, dtype=float),
+                                                    np.ascontiguousarray(dipoles, dtype=float)))
+            return
         links = np.diff(positions, axis=0)
         self.set_chart(np.vstack([links / np.linalg.norm(links, axis=1)[:, None], dipoles[1:]]))
 

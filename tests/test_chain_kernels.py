@@ -243,3 +243,18 @@ def test_dipole_field_kernel_matches_the_numpy_law():
     too_close[4] = centres[2] + 0.005
     violation, _, _ = ck.dipole_field_and_gradient(too_close, centres, moments, np.full(3, 0.01**2))
     assert divmod(int(violation), 3) == (4, 2)
+
+
+def test_chart_frames_match_numpy():
+    """The kernel's charts (both branches: near the z pole and away) vs the numpy reference's."""
+    rng = np.random.default_rng(9)
+    chain = BallChain(n_balls=12)
+    kernel, numpy_ = ReducedChain(chain, None, False), ReducedChain(chain, None, False, backend="numpy")
+    p, m = random_chain_state(12, rng)
+    m[3] = [0.05, 0.0, 1.0]
+    m[3] /= np.linalg.norm(m[3])
+    for model in (kernel, numpy_):
+        model.chart_from_configuration(p, m)
+    for name in ("r0", "t1", "t2"):
+        assert_close(getattr(kernel, name), getattr(numpy_, name))
+    assert abs(kernel.t2[kernel.n_links + 2, 0]) > 0.5  # the pole branch was taken
