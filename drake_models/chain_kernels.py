@@ -387,6 +387,27 @@ def cartesian_energy(p, m_hat, M, B, G, has_external, weight, k_s, base):
     return OK, terms, dU_dp, dU_dm
 
 
+@njit(cache=True)
+def cartesian_wrenches(p, m_hat, M, B, G, has_external, k_s, base):
+    """Forces (n, 3) [N] and torques (n, 3) [N m] on the balls from ``cartesian_energy``
+    (gravity excluded): ``F_i = -dU/dp_i``, ``tau_i = m_hat_i x (-dU/dm_hat_i)``.
+
+    Returns:
+        ``(status, F, tau)``.
+    """
+    status, _, dU_dp, dU_dm = cartesian_energy(p, m_hat, M, B, G, has_external, 0.0, k_s, base)
+    n = p.shape[0]
+    F = np.empty((n, 3))
+    tau = np.empty((n, 3))
+    for i in range(n):
+        for c in range(3):
+            F[i, c] = -dU_dp[i, c]
+        tau[i, 0] = -(m_hat[i, 1] * dU_dm[i, 2] - m_hat[i, 2] * dU_dm[i, 1])
+        tau[i, 1] = -(m_hat[i, 2] * dU_dm[i, 0] - m_hat[i, 0] * dU_dm[i, 2])
+        tau[i, 2] = -(m_hat[i, 0] * dU_dm[i, 1] - m_hat[i, 1] * dU_dm[i, 0])
+    return status, F, tau
+
+
 # --- reduced (chart) coordinates -----------------------------------------------------------------
 @njit(cache=True)
 def chart_frames(w0):
@@ -889,9 +910,25 @@ def chain_energy(chain, p, m_hat, external=None, gravity: bool = False, base_dir
 
 def chain_wrenches(chain, p, m_hat, external=None, base_direction=(1.0, 0.0, 0.0)):
     """Forces (n, 3) [N] and torques (n, 3) [N m] on the balls from the chain's magnetic and
-    sleeve energy (gravity excluded): ``F_i = -dU/dp_i``, ``tau_i = m_hat_i x (-dU/dm_hat_i)``."""
-    _, dU_dp, dU_dm, _ = chain_energy(chain, p, m_hat, external, False, base_direction)
-    return -dU_dp, np.cross(m_hat, -dU_dm)
+    sleeve energy (gravity excluded): ``F_i = -dU/dp_i``, ``tau_i = m_hat_i x (-dU/dm_hat_i)``.
+
+    Args:
+        chain: the chain's parameters (sleeve included when ``chain.sleeve``).
+        p: (n, 3) ball centres [m]; m_hat: (n, 3) unit dipoles.
+        external: the external FieldSource, or None.
+        base_direction: (3,) sheath axis for the sleeve's first bend.
+    """
+    p = np.ascontiguousarray(p, dtype=float)
+    m_hat = np.ascontiguousarray(m_hat, dtype=float)
+    if not (np.isfinite(p).all() and np.isfinite(m_hat).all()):
+        raise ValueError("chain_wrenches: positions or dipoles are not finite (NaN or inf)")
+    has_ext, B, G, _ = external_arrays(external, p)
+    base = np.asarray(base_direction, dtype=float).reshape(3)
+    base = base / np.linalg.norm(base)
+    k_s = chain.sleeve.bending_stiffness / chain.ball_diameter if chain.sleeve is not None else 0.0
+    status, F, tau = cartesian_wrenches(p, m_hat, chain.dipole_moment, B, G, has_ext, k_s, base)
+    check_status(status, "chain_wrenches")
+    return F, tau
 
 
 def warm_up() -> None:
@@ -905,6 +942,7 @@ def warm_up() -> None:
     p = d * np.array([[0.0, 0, 0], [1, 0, 0], [1.8, 0.6, 0], [2.2, 1.5, 0.1]])
     m = np.tile([1.0, 0.0, 0.0], (4, 1))
     chain_energy(chain, p, m, UniformField([0.0, 0.02, 0.0]), gravity=True)
+    chain_wrenches(chain, p, m, UniformField([0.0, 0.02, 0.0]))
     pair_hessian(p, m, chain.dipole_moment)
     dipole_field_and_gradient(p, np.array([[0.0, 0.2, 0.0]]), np.array([[0.0, 1.0, 0.0]]), np.zeros(1))
     model = ReducedChain(chain, UniformField([0.0, 0.02, 0.0]), gravity=True)

@@ -258,3 +258,17 @@ def test_chart_frames_match_numpy():
     for name in ("r0", "t1", "t2"):
         assert_close(getattr(kernel, name), getattr(numpy_, name))
     assert abs(kernel.t2[kernel.n_links + 2, 0]) > 0.5  # the pole branch was taken
+
+
+@pytest.mark.parametrize("sleeve", [False, True])
+def test_chain_wrenches_match_the_numpy_energy_gradient(sleeve):
+    """The wrench system's forces and torques: -dU/dp and m_hat x -dU/dm_hat of the numpy energy."""
+    rng = np.random.default_rng(21)
+    chain = BallChain(n_balls=16, sleeve=Sleeve() if sleeve else None)
+    p, m = random_chain_state(16, rng)
+    external = FIELDS["two magnets"]()
+    base = np.array([1.0, 0.1, 0.0])
+    F, tau = ck.chain_wrenches(chain, p, m, external, base)
+    _, dU_dp, dU_dm, _ = chain_energy_numpy(chain, p, m, external, False, base)
+    assert_close(F, -dU_dp)
+    assert_close(tau, np.cross(m, -dU_dm))
