@@ -18,7 +18,8 @@ Wall times are measured around each ``solve`` call (``time.perf_counter``), afte
 round, with the cases interleaved so that a burst of load from another process hits them all.
 The problems are tiny (at most a few hundred unknowns), so multithreaded BLAS only adds
 synchronisation: by default the loaded OpenBLAS libraries are limited to one thread for the run
-(``--blas-threads``; 0 leaves them alone). Benchmarks are scripts, not tests (STYLE.md, 11): the
+(``--blas-threads``; 0 leaves them alone). ``--clock cpu`` times the process's CPU time instead
+of wall time: steadier on a machine shared with other jobs. Benchmarks are scripts, not tests (STYLE.md, 11): the
 tests check the fields' correctness, never the times.
 """
 
@@ -65,6 +66,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="comma-separated baselines to time besides the Newton solve on the kernels: "
                              f"any of {', '.join(_OPTIONAL)} (default all; leave out snopt and baseline "
                              "for long chains)")
+    parser.add_argument("--clock", choices=("wall", "cpu"), default="wall",
+                        help="time the solves by wall time (default) or by this process's CPU time "
+                             "(steadier on a machine shared with other jobs)")
     parser.add_argument("--compile-cost", action="store_true",
                         help="also time the kernels' first run in a fresh process, with an empty numba "
                              "cache and with the cache (a few tens of seconds)")
@@ -122,22 +126,24 @@ def compile_cost(timeout_s: float = 600.0) -> dict:
     import tempfile
 
     code = (
-        "import time; t0 = time.perf_counter(); "
+        "import time; t0, c0 = time.perf_counter(), time.process_time(); "
         "from ballchain.drake_models import chain_kernels; chain_kernels.warm_up(); "
-        "print(time.perf_counter() - t0)"
+        "print(time.perf_counter() - t0, time.process_time() - c0)"
     )
 
-    def first_run(env) -> float:
+    def first_run(env) -> tuple[float, float]:
         proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                               timeout=timeout_s, check=True)
-        return float(proc.stdout.strip().splitlines()[-1])
+        wall, cpu = proc.stdout.strip().splitlines()[-1].split()
+        return float(wall), float(cpu)
 
     with tempfile.TemporaryDirectory(prefix="ballchain-numba-cache-") as empty:
-        empty_s = first_run({**os.environ, "NUMBA_CACHE_DIR": empty})
-    cached_s = first_run(dict(os.environ))
-    cached_s = min(cached_s, first_run(dict(os.environ)))
+        empty_s, empty_cpu = first_run({**os.environ, "NUMBA_CACHE_DIR": empty})
+    cached_s, cached_cpu = min(first_run(dict(os.environ)), first_run(dict(os.environ)))
     return {"empty_cache_s": empty_s, "cached_s": cached_s, "compile_s": empty_s - cached_s,
-            "note": "import + one call of every kernel in a fresh process (NUMBA_CACHE_DIR empty vs as configured)"}
+            "empty_cache_cpu_s": empty_cpu, "cached_cpu_s": cached_cpu, "compile_cpu_s": empty_cpu - cached_cpu,
+            "note": "import + one call of every kernel in a fresh process (NUMBA_CACHE_DIR empty vs as "
+                    "configured); *_s wall time, *_cpu_s the process's CPU time"}
 
 
 def _spread(samples_ms: list[float]) -> float:
@@ -157,6 +163,7 @@ def run_statics(
     progress: bool = True,
     cases: str | tuple[str, ...] = _OPTIONAL,
     measure_compile_cost: bool = False,
+    clock: str = "wall",
 ) -> dict:
     """Time ``ChainStatics`` (newton on the kernels and on the numpy reference, snopt; cold, warm)
     against the SLSQP baseline.
@@ -174,6 +181,7 @@ def run_statics(
         cases: the baselines to time besides the Newton solves on the kernels (any of "numpy",
             "snopt", "baseline"; a comma-separated string or a tuple).
         measure_compile_cost: also run ``compile_cost`` (fresh processes).
+        clock: "wall" (``time.perf_counter``) or "cpu" (``time.process_time``).
 
     Returns:
         A JSON-able dict: medians [ms] (``cold_median_ms``, ``warm_median_ms`` for Newton,
@@ -195,6 +203,9 @@ def run_statics(
         raise ValueError(f"--repeats must be an integer >= 1, got {repeats!r}")
     if not (math.isfinite(baseline_ftol) and baseline_ftol > 0):
         raise ValueError(f"--baseline-ftol must be a positive finite number, got {baseline_ftol}")
+    if clock not in ("wall", "cpu"):
+        raise ValueError(f"--clock must be 'wall' or 'cpu', got {clock!r}")
+    now = time.process_time if clock == "cpu" else time.perf_counter
     chosen = _parse_cases(cases) if isinstance(cases, str) else _parse_cases(",".join(cases))
     active = tuple(c for c in _CASES if c.startswith("newton") or c.split("_")[0] in chosen)
 
@@ -239,9 +250,9 @@ def run_statics(
             # Rotate the order so that no case always runs first (or right after SLSQP).
             order = active[round_ % len(active):] + active[: round_ % len(active)]
             for case in order:
-                t0 = time.perf_counter()
+                t0 = now()
                 result = solves[case]()
-                elapsed = time.perf_counter() - t0
+                elapsed = now() - t0
                 if round_ > 0:
                     samples[case].append(1e3 * elapsed)
                 last[case] = result
@@ -271,6 +282,7 @@ def run_statics(
         "angle_deg": angle_deg,
         "warm_start_angle_deg": warm_angle,
         "repeats": repeats,
+        "clock": clock,
         "cold_median_ms": medians["newton_cold"],
         "warm_median_ms": medians["newton_warm"],
         "numpy_cold_median_ms": medians["numpy_cold"],
@@ -314,7 +326,8 @@ def run_statics(
 
 def _print_statics(out: dict) -> None:
     print(f"statics of {out['n_balls']} balls, {out['field_mT']:g} mT at {out['angle_deg']:g} deg "
-          f"(warm start from {out['warm_start_angle_deg']:g} deg), {out['repeats']} repeats, median wall time:")
+          f"(warm start from {out['warm_start_angle_deg']:g} deg), {out['repeats']} repeats, "
+          f"median {'CPU' if out['clock'] == 'cpu' else 'wall'} time:")
     it = out["iterations"]
     rows = (
         ("newton, cold", out["cold_median_ms"], it["newton_cold"]),
@@ -336,7 +349,8 @@ def _print_statics(out: dict) -> None:
     if "compile_cost" in out:
         c = out["compile_cost"]
         print(f"  kernels' first run in a fresh process: {c['empty_cache_s']:.1f} s with an empty numba cache, "
-              f"{c['cached_s']:.2f} s cached (compilation {c['compile_s']:.1f} s, once per machine)")
+              f"{c['cached_s']:.2f} s cached (compilation {c['compile_s']:.1f} s wall, {c['compile_cpu_s']:.1f} s "
+              "CPU, once per machine)")
     same = out["same_minimum"]
     worst_tip = max(v["tip_diff_m"] for k, v in same.items() if isinstance(v, dict) and "tip_diff_m" in v)
     worst_e = max(v["energy_diff_rel"] for k, v in same.items() if isinstance(v, dict) and "energy_diff_rel" in v)
@@ -361,6 +375,7 @@ def main(args: argparse.Namespace) -> int:
             progress=not args.no_progress,
             cases=args.cases,
             measure_compile_cost=args.compile_cost,
+            clock=args.clock,
         )
         if args.json:
             print_json(out)
