@@ -69,6 +69,8 @@ class ConstraintJacobian:
         return self.shape[0]
 
     def __getitem__(self, rows) -> np.ndarray:
+        if isinstance(rows, tuple):  # J[rows, columns]: build the rows, then index the columns
+            return self[rows[0]][(slice(None),) * (np.ndim(np.arange(self.shape[0])[rows[0]])) + rows[1:]]
         index = np.arange(self.shape[0])[rows]
         if index.ndim == 0:
             return ck.constraint_rows(index.reshape(1).astype(np.int64), *self._args)[0]
