@@ -858,6 +858,7 @@ def external_arrays(external, p: np.ndarray, hessian: bool = False):
     """(has_external, B (n, 3), G (n, 3, 3), dG (n, 3, 3, 3)) of a FieldSource (or None) at p.
 
     dG (from ``field_sources.field_gradient_derivative``) only when ``hessian``; zeros otherwise.
+    The zero arrays are shared between calls (the kernels only read them): do not write to them.
     """
     from ballchain.drake_models.field_sources import UniformField, field_gradient_derivative
 
