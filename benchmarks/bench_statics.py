@@ -21,7 +21,7 @@ def run(*, n_balls: int = 16, repeats: int = 5, progress: bool = True, **options
 def main() -> None:
     from ballchain.cli import main as cli_main
 
-    sys.exit(cli_main(["bench", "statics", "--json", *sys.argv[1:]]))
+    sys.exit(cli_main(["bench", "statics", "--json", "--compile-cost", *sys.argv[1:]]))
 
 
 if __name__ == "__main__":

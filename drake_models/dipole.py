@@ -147,10 +147,15 @@ def chain_interactions(p: np.ndarray, m: np.ndarray) -> tuple[float, np.ndarray,
 
 @functools.lru_cache(maxsize=64)
 def _pairs(n: int):
-    """Pair indices i < j and incidence matrices (n, pairs) that sum pair terms onto balls."""
-    iu, ju = np.triu_indices(n, k=1)
-    balls = np.arange(n)[:, None]
-    return iu, ju, (balls == iu[None, :]).astype(float), (balls == ju[None, :]).astype(float)
+    """Pair indices i < j (each (pairs,))."""
+    return np.triu_indices(n, k=1)
+
+
+def _sum_onto_balls(n: int, index: np.ndarray, terms: np.ndarray) -> np.ndarray:
+    """sum_k terms[k] onto ball index[k]: (n, ...) (O(n^2) memory, unlike an incidence matrix)."""
+    out = np.zeros((n,) + terms.shape[1:])
+    np.add.at(out, index, terms)
+    return out
 
 
 def chain_interaction_hessian(p: np.ndarray, m: np.ndarray):
@@ -172,7 +177,7 @@ def chain_interaction_hessian(p: np.ndarray, m: np.ndarray):
     p = np.asarray(p, dtype=float)
     m = np.asarray(m, dtype=float)
     n = p.shape[0]
-    iu, ju, inc_i, inc_j = _pairs(n)
+    iu, ju = _pairs(n)
     r = p[iu] - p[ju]
     r2 = np.einsum("ij,ij->i", r, r)
     if np.any(r2 <= 0.0) or not np.all(np.isfinite(r2)):
@@ -191,11 +196,11 @@ def chain_interaction_hessian(p: np.ndarray, m: np.ndarray):
     mat = lambda a: a[:, None, None]  # noqa: E731
     # Energy, fields, forces.
     U = float(k * np.sum(xy * inv_r3 - 3.0 * xr * yr * inv_r5))
-    B = inc_i @ (k * (3.0 * col(yr * inv_r5) * r - col(inv_r3) * y)) + inc_j @ (
-        k * (3.0 * col(xr * inv_r5) * r - col(inv_r3) * x)
+    B = _sum_onto_balls(n, iu, k * (3.0 * col(yr * inv_r5) * r - col(inv_r3) * y)) + _sum_onto_balls(
+        n, ju, k * (3.0 * col(xr * inv_r5) * r - col(inv_r3) * x)
     )
     f = 3.0 * k * col(inv_r5) * (col(xr) * y + col(yr) * x + col(xy) * r - 5.0 * col(xr * yr * inv_r2) * r)
-    F = (inc_i - inc_j) @ f
+    F = _sum_onto_balls(n, iu, f) - _sum_onto_balls(n, ju, f)
     # Second derivatives.
     rr = r[:, :, None] * r[:, None, :]
 
@@ -220,10 +225,10 @@ def chain_interaction_hessian(p: np.ndarray, m: np.ndarray):
     H_pp[iu, ju] = kQ
     H_pp[ju, iu] = kQ
     idx = np.arange(n)
-    H_pp[idx, idx] = -((inc_i + inc_j) @ kQ.reshape(-1, 9)).reshape(n, 3, 3)
+    H_pp[idx, idx] = -(_sum_onto_balls(n, iu, kQ) + _sum_onto_balls(n, ju, kQ))
     # A_ij = d2 e / dp_i dm_i = -k T[m_j](r), A_ji = +k T[m_i](r); d2 e / dp_j dm_i = -A_ij.
     A_ij, A_ji = -k * T_y, k * T_x
-    H_pm[idx, idx] = (inc_i @ A_ij.reshape(-1, 9) + inc_j @ A_ji.reshape(-1, 9)).reshape(n, 3, 3)
+    H_pm[idx, idx] = _sum_onto_balls(n, iu, A_ij) + _sum_onto_balls(n, ju, A_ji)
     H_pm[ju, iu] = -A_ij
     H_pm[iu, ju] = -A_ji
     H_mm[iu, ju] = -k * D

@@ -16,7 +16,8 @@ from typing import Literal, Protocol, Sequence
 
 import numpy as np
 
-from ballchain.drake_models.dipole import dipole_field, dipole_field_gradient
+from ballchain.drake_models.chain_kernels import dipole_field_and_gradient
+from ballchain.drake_models.dipole import dipole_field
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
 from ballchain.drake_models.vectors import perpendicular_basis
@@ -159,8 +160,10 @@ class MagnetSource:
             G_M = ((Bs[:, :3, :] - Bs[:, 3:, :]) / (2 * h)).transpose(0, 2, 1)  # [k, a, b]
             R = self.R_WM
             return B_M @ R.T, np.einsum("ia,kab,jb->kij", R, G_M, R)
-        r = p - self.p_WM
-        return dipole_field(r, self.m_W), dipole_field_gradient(r, self.m_W)
+        # The point-dipole law of dipole.py as a compiled kernel (the numpy functions are its
+        # tests' reference); _to_magnet_frame above has refused points inside the magnet.
+        _, B, G = dipole_field_and_gradient(p, self.p_WM[None, :], self.m_W[None, :], np.zeros(1))
+        return B, G
 
 
 @dataclass

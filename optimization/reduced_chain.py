@@ -14,9 +14,13 @@ with t2 the out-of-plane direction (z, or x near the poles) made orthogonal to r
 t1 = t2 x r0. The initial guess is always q = 0, planar problems move in ``a`` only and the
 chart's singularity (w = +-t2) stays 90 degrees away. Coordinates: q = (a_1..a_K, b_1..b_K).
 
-The physics comes from ``drake_models.chain_energy`` (``field_energy``, ``sleeve_bending``):
-this module only applies the chain rule. The energy is scaled by E0, the pair energy of two
-touching coaxial balls, so that the solvers see numbers of order one.
+The physics and the chain rule run as the compiled kernels of ``drake_models.chain_kernels``
+(``backend="kernel"``, the default): O(n^2) memory, the rigidity Jacobian built only for the rows
+asked for (``ConstraintJacobian``). ``backend="numpy"`` is the reference the tests hold the kernels
+to: ``drake_models.chain_energy`` (``field_energy``, ``sleeve_bending``) and the chain rule as
+dense matrix products (incidence matrices of O(n^3) memory: small chains only). The energy is
+scaled by E0, the pair energy of two touching coaxial balls, so that the solvers see numbers of
+order one.
 """
 
 from __future__ import annotations
@@ -25,10 +29,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ballchain.drake_models import chain_kernels as ck
 from ballchain.drake_models.chain_energy import EnergyTerms, field_energy, sleeve_bending
 from ballchain.drake_models.dipole import K_DIPOLE
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import FieldSource
-from ballchain.drake_models.params import BallChain
+from ballchain.drake_models.params import GRAVITY, BallChain
 
 X_AXIS = np.array([1.0, 0.0, 0.0])
 Z_AXIS = np.array([0.0, 0.0, 1.0])
@@ -42,10 +48,45 @@ class Evaluation:
     terms: EnergyTerms
     gaps: np.ndarray  # c_ij for every non-adjacent pair
     gradient: np.ndarray | None = None  # (nq,)
-    jacobian: np.ndarray | None = None  # (pairs, nq)
+    jacobian: "np.ndarray | ConstraintJacobian | None" = None  # (pairs, nq): index rows, J[rows]
     hessian: np.ndarray | None = None  # (nq, nq)
     tip_residual: np.ndarray | None = None  # (p_tip - target) / d, when a tip target is set
     tip_jacobian: np.ndarray | None = None  # (3, nq)
+
+
+class ConstraintJacobian:
+    """The constraints' Jacobian (rows, nq), built row by row on demand by a kernel.
+
+    ``J[rows]`` (an index array, a slice or a boolean mask) returns those rows as a dense array;
+    ``np.asarray(J)``, ``J @ X`` and ``J.T`` build every row (O(n^3) memory for n balls: the
+    solvers only ask for the rows near contact).
+    """
+
+    def __init__(self, n_rows: int, nq: int, p, V, d: float, normal):
+        self.shape = (n_rows, nq)
+        self._args = (p, V, d, normal)
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, rows) -> np.ndarray:
+        if isinstance(rows, tuple):  # J[rows, columns]: build the rows, then index the columns
+            return self[rows[0]][(slice(None),) * (np.ndim(np.arange(self.shape[0])[rows[0]])) + rows[1:]]
+        index = np.arange(self.shape[0])[rows]
+        if index.ndim == 0:
+            return ck.constraint_rows(index.reshape(1).astype(np.int64), *self._args)[0]
+        return ck.constraint_rows(np.ascontiguousarray(index, dtype=np.int64), *self._args)
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        dense = self[:]
+        return dense if dtype is None else dense.astype(dtype)
+
+    def __matmul__(self, other):
+        return self[:] @ other
+
+    @property
+    def T(self) -> np.ndarray:
+        return self[:].T
 
 
 class ReducedChain:
@@ -55,12 +96,16 @@ class ReducedChain:
         chain: the chain.
         external: external field source or None.
         gravity: gravity along -z.
-        base_direction: the sheath axis (ball 1's dipole and the sleeve's clamp).
+        backend: "kernel" (compiled, the default) or "numpy" (the tests' reference).
     """
 
-    def __init__(self, chain: BallChain, external: FieldSource | None, gravity: bool):
+    def __init__(self, chain: BallChain, external: FieldSource | None, gravity: bool,
+                 backend: str = "kernel"):
         if chain.n_balls < 2:
             raise ValueError("the reduced chain needs at least 2 balls (ball 1 is held)")
+        if backend not in ("kernel", "numpy"):
+            raise UserInputError(f"backend must be 'kernel' or 'numpy', got {backend!r}")
+        self.backend = backend
         self.chain = chain
         self.external = external
         self.gravity = gravity
@@ -73,21 +118,43 @@ class ReducedChain:
         self.sleeve_stiffness = (
             chain.sleeve.bending_stiffness / self.d if chain.sleeve is not None else 0.0
         )
+        self.weight = chain.ball_mass * GRAVITY if gravity else 0.0
+        self._params = ck.reduced_params(self.d, chain.dipole_moment, self.weight, self.sleeve_stiffness,
+                                         self.energy_scale, X_AXIS)
         i, j = np.triu_indices(n, k=2)
         self.pair_i, self.pair_j = i, j
-        links = np.arange(self.n_links)
-        self.pair_links = ((links[None, :] >= i[:, None]) & (links[None, :] < j[:, None])).astype(float)
-        # p = d C u with C[k, l] = 1 for l < k.
-        C = (np.arange(n)[:, None] > links[None, :]).astype(float)
-        self._C3 = np.kron(C, np.eye(3))  # (3n, 3L)
+        self._pair_links = None  # the numpy reference's incidence matrices, built on first use
+        self._C3_matrix = None
         self.tip_target: np.ndarray | None = None  # pin the tip's centre here [m] (equality)
         self.n_pairs = len(i)
         self.wall: tuple[np.ndarray, np.ndarray] | None = None  # (point, unit normal) of a plane
         self._last = None  # (q bytes, order, Evaluation) of the last evaluation
 
+    @property
+    def pair_links(self) -> np.ndarray:
+        """(pairs, L) incidence: pair (i, j) spans links i..j-1 (numpy reference only: O(n^3))."""
+        if self._pair_links is None:
+            links = np.arange(self.n_links)
+            i, j = self.pair_i, self.pair_j
+            self._pair_links = ((links[None, :] >= i[:, None]) & (links[None, :] < j[:, None])).astype(float)
+        return self._pair_links
+
+    @property
+    def _C3(self) -> np.ndarray:
+        """(3n, 3L): p = d C u with C[k, l] = 1 for l < k (numpy reference only)."""
+        if self._C3_matrix is None:
+            n = self.n_links + 1
+            C = (np.arange(n)[:, None] > np.arange(self.n_links)[None, :]).astype(float)
+            self._C3_matrix = np.kron(C, np.eye(3))
+        return self._C3_matrix
+
     # --- chart -------------------------------------------------------------------------
     def set_chart(self, w0: np.ndarray) -> None:
         """Centre the chart on the unit vectors w0 (K, 3)."""
+        if self.backend == "kernel":
+            self.r0, self.t1, self.t2 = ck.chart_frames(np.ascontiguousarray(w0, dtype=float))
+            self._last = None
+            return
         r0 = w0 / np.linalg.norm(w0, axis=1)[:, None]
         t2 = Z_AXIS - r0 * r0[:, 2:3]
         norms = np.linalg.norm(t2, axis=1)
@@ -98,10 +165,17 @@ class ReducedChain:
             norms = np.linalg.norm(t2, axis=1)
         self.r0 = r0
         self.t2 = t2 / norms[:, None]
-        self.t1 = np.cross(self.t2, r0)
+        self.t1 = np.ascontiguousarray(np.cross(self.t2, r0))
+        self.r0 = np.ascontiguousarray(self.r0)
+        self.t2 = np.ascontiguousarray(self.t2)
         self._last = None  # a new chart (and possibly a new field, target or wall): forget
 
     def chart_from_configuration(self, positions: np.ndarray, dipoles: np.ndarray) -> None:
+        """Centre the chart on a configuration's link and free dipole directions."""
+        if self.backend == "kernel":
+            self.set_chart(ck.configuration_vectors(np.ascontiguousarray(positions, dtype=float),
+                                                    np.ascontiguousarray(dipoles, dtype=float)))
+            return
         links = np.diff(positions, axis=0)
         self.set_chart(np.vstack([links / np.linalg.norm(links, axis=1)[:, None], dipoles[1:]]))
 
@@ -117,6 +191,9 @@ class ReducedChain:
 
     def configuration(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(positions (n, 3) [m], unit dipoles (n, 3)) at q."""
+        if self.backend == "kernel":
+            V = ck.chart_vectors(np.ascontiguousarray(q, dtype=float), self.r0, self.t1, self.t2)
+            return ck.chain_configuration(V[0], self.n_links, self.d)
         w = self.unit_vectors(q)[0]
         return self._configuration(w)
 
@@ -135,11 +212,42 @@ class ReducedChain:
         key = q.tobytes()
         if self._last is not None and self._last[0] == key and self._last[1] >= order:
             return self._last[2]
-        ev = self._evaluate(q, order)
+        if self.backend == "kernel":
+            ev = self._evaluate_kernel(q, order)
+        else:
+            ev = self._evaluate_numpy(q, order)
         self._last = (key, order, ev)
         return ev
 
-    def _evaluate(self, q: np.ndarray, order: int) -> Evaluation:
+    def _evaluate_kernel(self, q: np.ndarray, order: int) -> Evaluation:
+        V = ck.chart_vectors(np.ascontiguousarray(q, dtype=float), self.r0, self.t1, self.t2)
+        L, K = self.n_links, self.n_vectors
+        p, m_hat = ck.chain_configuration(V[0], L, self.d)
+        has_ext, B, G, dG = ck.external_arrays(self.external, p, hessian=order >= 2)
+        status, t, grad, hess = ck.reduced_energy(V, p, m_hat, B, G, dG, self._params, has_ext, order)
+        ck.check_status(status, "ReducedChain.evaluate")
+        terms = EnergyTerms(float(t[0]), float(t[1]), float(t[2]), float(t[3]))
+        gaps = ck.rigidity_gaps(p, self.d)
+        if self.wall is not None:  # every free ball on the open side: n . (p - p0) / d >= 1/2
+            p0, normal = self.wall
+            gaps = np.concatenate([gaps, (p[1:] - p0) @ normal / self.d - 0.5])
+        ev = Evaluation(terms.total / self.energy_scale, terms, gaps)
+        if self.tip_target is not None:
+            ev.tip_residual = (p[-1] - self.tip_target) / self.d
+        if order < 1:
+            return ev
+        ev.gradient = grad
+        normal = np.zeros(3) if self.wall is None else np.ascontiguousarray(self.wall[1], dtype=float)
+        ev.jacobian = ConstraintJacobian(len(gaps), self.nq, p, V, self.d, normal)
+        if self.tip_target is not None:  # p_tip / d = sum_l u_l
+            ev.tip_jacobian = np.zeros((3, self.nq))
+            ev.tip_jacobian[:, :L] = V[1, :L].T
+            ev.tip_jacobian[:, K : K + L] = V[2, :L].T
+        if order >= 2:
+            ev.hessian = hess
+        return ev
+
+    def _evaluate_numpy(self, q: np.ndarray, order: int) -> Evaluation:
         w, dw_da, dw_db, in_plane, (ca, sa, cb, sb) = self.unit_vectors(q)
         p, m_hat = self._configuration(w)
         L, K = self.n_links, self.n_vectors
@@ -221,6 +329,8 @@ class ReducedChain:
         if len(pairs) == 0:
             return H
         pairs, weights = np.asarray(pairs), np.asarray(weights, dtype=float)
+        if self.backend == "kernel":
+            return self._constraint_hessian_kernel(q, pairs, weights)
         wall_rows = pairs >= self.n_pairs
         if np.any(wall_rows):
             # Wall row for ball i (= row - n_pairs + 1) is linear in the w_l, l < i: its
@@ -256,12 +366,33 @@ class ReducedChain:
             H += weight * Hk
         return H
 
+    def _constraint_hessian_kernel(self, q, pairs, weights) -> np.ndarray:
+        V = ck.chart_vectors(np.ascontiguousarray(q, dtype=float), self.r0, self.t1, self.t2)
+        wall_rows = pairs >= self.n_pairs
+        H = np.zeros((self.nq, self.nq))
+        if np.any(wall_rows):
+            # Wall row for ball i (= row - n_pairs + 1) is linear in the w_l, l < i: its
+            # curvature is the chart's, weighted by normal x (sum of the rows' weights beyond l).
+            per_ball = np.zeros(self.n_links)
+            per_ball[pairs[wall_rows] - self.n_pairs] = weights[wall_rows]
+            per_link = np.cumsum(per_ball[::-1])[::-1]
+            H += ck.links_hessian(np.ascontiguousarray(per_link[:, None] * self.wall[1]), V)
+        rigid = ~wall_rows
+        if np.any(rigid):
+            p, _ = ck.chain_configuration(V[0], self.n_links, self.d)
+            H += ck.rigidity_hessian(np.ascontiguousarray(pairs[rigid], dtype=np.int64),
+                                     np.ascontiguousarray(weights[rigid]), p, V, self.d)
+        return H
+
     def tip_hessian(self, q: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """sum_k weights_k d2 (p_tip,k / d) / dq2 (nq, nq): the chart's curvature along the links."""
         return self.links_hessian(q, np.tile(np.asarray(weights, dtype=float), (self.n_links, 1)))
 
     def links_hessian(self, q: np.ndarray, W: np.ndarray) -> np.ndarray:
         """sum_l W_l . d2 w_l / dq2 (nq, nq) for per-link weight vectors W (L, 3)."""
+        if self.backend == "kernel":
+            V = ck.chart_vectors(np.ascontiguousarray(q, dtype=float), self.r0, self.t1, self.t2)
+            return ck.links_hessian(np.ascontiguousarray(W, dtype=float), V)
         w, dw_da, dw_db, in_plane, (ca, sa, cb, sb) = self.unit_vectors(q)
         K, L = self.n_vectors, self.n_links
         links = np.arange(L)

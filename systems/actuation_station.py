@@ -133,7 +133,10 @@ def add_unit(
         R_WM: initial magnet orientation (default: the unit's own default).
     """
     n = unit.name
-    magnet = builder.AddSystem(RotatingMagnetUnit(unit, R_WM=R_WM, slip=opt.slip, field_points_W=opt.field_points_W))
+    # The drive holds its wheel speeds over its update period: at that period the magnet's
+    # orientation is exact as discrete state (no continuous state, no integrator sub-steps).
+    magnet = builder.AddSystem(RotatingMagnetUnit(unit, R_WM=R_WM, slip=opt.slip, field_points_W=opt.field_points_W,
+                                                  update_period=opt.stepper_spec.update_period))
     drive = builder.AddSystem(OmniWheelDrive(unit.geometry, opt.stepper_spec, name=n))
     sensor = builder.AddSystem(
         HallSensor(unit, other_units=others, spec=opt.sensor_spec, noise=opt.sensor_noise, seed=seed)

@@ -1,8 +1,9 @@
 """MagneticWrenchSystem: the magnetic (and sleeve) wrenches on every ball of a chain, for a plant.
 
-Every number comes from ``drake_models.chain_energy.chain_energy`` (ball-ball dipole
-interactions, the external field, the sleeve's bending): the force on ball i is -dU/dp_i and
-its torque m_hat_i x (-dU/dm_hat_i). Gravity is left to the plant. Ball i's dipole points along
+Every number comes from the chain's energy as the compiled kernel
+``drake_models.chain_kernels.chain_wrenches`` (ball-ball dipole interactions, the external
+field, the sleeve's bending; the numpy ``chain_energy`` is its tests' reference): the force on
+ball i is -dU/dp_i and its torque m_hat_i x (-dU/dm_hat_i). Gravity is left to the plant. Ball i's dipole points along
 its body frame's +x axis.
 """
 
@@ -17,8 +18,7 @@ from pydrake.multibody.math import SpatialForce
 from pydrake.multibody.plant import ExternallyAppliedSpatialForce
 from pydrake.systems.framework import LeafSystem
 
-from ballchain.drake_models.chain_energy import chain_energy
-from ballchain.drake_models.dipole import dipole_field, dipole_field_gradient
+from ballchain.drake_models.chain_kernels import chain_wrenches, dipole_field_and_gradient
 from ballchain.drake_models.errors import NonFiniteSignal, UserInputError
 from ballchain.drake_models.field_sources import FieldSource, FieldSources, MagnetSource
 from ballchain.drake_models.params import BallChain, CylinderMagnet, SphereMagnet
@@ -28,8 +28,9 @@ class PortDipoles:
     """The point-dipole field of the port magnets, all at once (a FieldSource).
 
     The same law as ``MagnetSource(model="dipole")`` (``dipole.dipole_field`` and
-    ``dipole_field_gradient``), without building a MagnetSource per magnet per step: the
-    wrench system rebuilds its external field every step while the units turn.
+    ``dipole_field_gradient``, as the compiled ``chain_kernels.dipole_field_and_gradient``),
+    without building a MagnetSource per magnet per step: the wrench system rebuilds its external
+    field every step while the units turn.
 
     Args:
         p_WM: (k, 3) magnet centres [m].
@@ -38,19 +39,21 @@ class PortDipoles:
     """
 
     def __init__(self, p_WM: np.ndarray, m_W: np.ndarray, bounding_radii: np.ndarray):
-        self.p_WM = p_WM
-        self.m_W = m_W
-        self._r2_min = np.asarray(bounding_radii) ** 2
+        self.p_WM = np.ascontiguousarray(p_WM, dtype=float)
+        self.m_W = np.ascontiguousarray(m_W, dtype=float)
+        self._r2_min = np.ascontiguousarray(np.asarray(bounding_radii, dtype=float) ** 2)
 
     def field_and_gradient(self, p_W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(B_W (n, 3) [T], G_W (n, 3, 3) [T/m]) summed over the magnets at the points p_W (n, 3)."""
-        r = np.asarray(p_W, dtype=float).reshape(-1, 3)[:, None, :] - self.p_WM[None, :, :]  # (n, k, 3)
-        r2 = np.einsum("nki,nki->nk", r, r)
-        if np.any(r2 <= self._r2_min):
-            i, k = np.argwhere(r2 <= self._r2_min)[0]
-            raise UserInputError(f"field point {r[i, k] + self.p_WM[k]} m lies within port magnet {k + 1}'s "
+        p = np.ascontiguousarray(p_W, dtype=float).reshape(-1, 3)
+        if not np.all(np.isfinite(p)):
+            raise NonFiniteSignal("magnetic field points are not finite (NaN or inf)")
+        violation, B, G = dipole_field_and_gradient(p, self.p_WM, self.m_W, self._r2_min)
+        if violation >= 0:
+            i, k = divmod(int(violation), len(self.p_WM))
+            raise UserInputError(f"field point {p[i]} m lies within port magnet {k + 1}'s "
                              f"bounding sphere (centre {self.p_WM[k]} m): a magnet cannot be placed on the chain")
-        return dipole_field(r, self.m_W).sum(axis=1), dipole_field_gradient(r, self.m_W).sum(axis=1)
+        return B, G
 
 
 def external_field_source(field_source, port_magnets, port_moments, port_radii, magnet_states, model: str):
@@ -194,10 +197,7 @@ class MagneticWrenchSystem(LeafSystem):
     def calc_wrenches(self, context) -> tuple[np.ndarray, np.ndarray]:
         """Forces (n, 3) [N] and torques (n, 3) [N m] on the balls, in world."""
         p, m_hat = self.ball_states(context)
-        _, dU_dp, dU_dm, _ = chain_energy(
-            self._chain, p, m_hat, self.external_field(context), gravity=False,
-            base_direction=self._base)
-        return -dU_dp, np.cross(m_hat, -dU_dm)
+        return chain_wrenches(self._chain, p, m_hat, self.external_field(context), self._base)
 
     def _calc_spatial_forces(self, context, output) -> None:
         forces, torques = self.calc_wrenches(context)

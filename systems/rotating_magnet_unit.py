@@ -1,10 +1,18 @@
 """A rotating actuation magnet on three omni-wheels, as a Drake LeafSystem.
 
 The magnet (prototype cylinder or clinical sphere) sits inside a sphere that three omni-wheels
-turn in place; its centre ``p_WM`` never moves. Its orientation ``R_WM`` is continuous state (a
-unit quaternion) driven by the wheel speeds through the derived forward map
+turn in place; its centre ``p_WM`` never moves. Its orientation ``R_WM`` is a unit quaternion
+driven by the wheel speeds through the derived forward map
 ``omega_W = (1 - slip) (rho_w/rho_a) A^-1 omega_wheels`` (``drake_models/omniwheel.py``). The
 field it makes comes from the shared ``MagnetSource`` (dipole or exact cylinder).
+
+The quaternion is continuous state (integrated by the simulator) by default. With an
+``update_period`` it is discrete state instead, exact for wheel speeds that are constant over
+each period (the omni-wheel drive holds its applied speeds over its own update period: pass that
+period): at each update the quaternion turns by the rotation ``exp(omega_W dt)`` the last
+period's speed made, and the outputs in between are the same rotation carried to the context's
+time. A diagram without continuous state takes no integrator sub-steps and evaluates no
+derivatives.
 """
 
 from __future__ import annotations
@@ -83,6 +91,25 @@ def rotation_from_quaternion(q: np.ndarray) -> np.ndarray:
     return RotationMatrix(Quaternion(q / np.linalg.norm(q))).matrix()
 
 
+def _turned(q: np.ndarray, omega_W: np.ndarray, dt: float) -> np.ndarray:
+    """The quaternion q (w, x, y, z) turned for dt [s] at the constant world angular velocity
+    omega_W (3,) [rad/s]: ``(cos(phi/2), sin(phi/2) axis) (x) q``, phi = |omega| dt."""
+    wx, wy, wz = omega_W
+    speed = float(np.sqrt(wx * wx + wy * wy + wz * wz))
+    if speed * dt == 0.0:
+        return q
+    half = 0.5 * speed * dt
+    c, k = np.cos(half), np.sin(half) / speed
+    ax, ay, az = k * wx, k * wy, k * wz
+    w, x, y, z = q
+    return np.array([
+        c * w - ax * x - ay * y - az * z,
+        c * x + ax * w + ay * z - az * y,
+        c * y - ax * z + ay * w + az * x,
+        c * z + ax * y - ay * x + az * w,
+    ])
+
+
 class RotatingMagnetUnit(LeafSystem):
     """The magnet's orientation, turned by three omni-wheels.
 
@@ -97,7 +124,8 @@ class RotatingMagnetUnit(LeafSystem):
         B_points_W: (3 k,) flux density at the k field points given at construction, stacked
             [T] (only when field points are given).
 
-    State: continuous, 4 (the quaternion).
+    State: continuous, 4 (the quaternion); or, with ``update_period``, discrete, 5 (the
+    quaternion at the last update and that update's time [s]).
     """
 
     def __init__(
@@ -107,6 +135,7 @@ class RotatingMagnetUnit(LeafSystem):
         R_WM: np.ndarray | None = None,
         slip: float = 0.0,
         field_points_W: np.ndarray | None = None,
+        update_period: float | None = None,
     ) -> None:
         """
         Args:
@@ -114,6 +143,8 @@ class RotatingMagnetUnit(LeafSystem):
             R_WM: (3, 3) default orientation (identity: dipole along +z).
             slip: fraction of the commanded rotation lost between wheels and sphere, in [0, 1).
             field_points_W: (k, 3) points where ``B_points_W`` reports the field [m].
+            update_period: None (continuous state), or the period [s] of a discrete state that
+                is exact when ``omega_wheels`` only changes at multiples of it.
         """
         super().__init__()
         self._config = config or MagnetUnitConfig()
@@ -124,8 +155,16 @@ class RotatingMagnetUnit(LeafSystem):
 
         self._omega_wheels_port = self.DeclareVectorInputPort("omega_wheels", 3)
         q0 = quaternion_from_rotation(np.eye(3) if R_WM is None else R_WM)
-        self._q_index = self.DeclareContinuousState(BasicVector(q0))
-        self._q_port = self.DeclareStateOutputPort("q_WM", self._q_index)
+        if update_period is not None and not (np.isfinite(update_period) and update_period > 0):
+            raise ValueError(f"update_period must be None or a positive number of seconds, got {update_period!r}")
+        self._period = update_period
+        if update_period is None:
+            self._q_index = self.DeclareContinuousState(BasicVector(q0))
+            self._q_port = self.DeclareStateOutputPort("q_WM", self._q_index)
+        else:
+            self._q_index = self.DeclareDiscreteState(np.concatenate([q0, [0.0]]))
+            self._q_port = self.DeclareVectorOutputPort("q_WM", 4, self._calc_q)
+            self.DeclarePeriodicDiscreteUpdateEvent(update_period, 0.0, self._update)
         self._X_port = self.DeclareAbstractOutputPort(
             "X_WM", lambda: AbstractValue.Make(RigidTransform()), self._calc_X_WM
         )
@@ -144,13 +183,29 @@ class RotatingMagnetUnit(LeafSystem):
     def get_omega_wheels_input_port(self):
         return self._omega_wheels_port
 
+    @property
+    def update_period(self) -> float | None:
+        """The discrete state's period [s], or None for continuous state."""
+        return self._period
+
+    def quaternion(self, context: Context) -> np.ndarray:
+        """(4,) orientation quaternion (w, x, y, z) at the context's time."""
+        if self._period is None:
+            return context.get_continuous_state_vector().CopyToVector()
+        x = context.get_discrete_state(self._q_index).get_value()
+        return _turned(x[:4], self._omega_W(context), context.get_time() - x[4])
+
     def R_WM(self, context: Context) -> np.ndarray:
         """(3, 3) orientation of the magnet in this context."""
-        return rotation_from_quaternion(context.get_continuous_state_vector().CopyToVector())
+        return rotation_from_quaternion(self.quaternion(context))
 
     def set_orientation(self, context: Context, R_WM: np.ndarray) -> None:
         """Set the orientation state from a rotation matrix (3, 3)."""
-        context.SetContinuousState(quaternion_from_rotation(R_WM))
+        if self._period is None:
+            context.SetContinuousState(quaternion_from_rotation(R_WM))
+        else:
+            context.SetDiscreteState(self._q_index, np.concatenate([quaternion_from_rotation(R_WM),
+                                                                    [context.get_time()]]))
 
     def magnet_source(self, context: Context) -> MagnetSource:
         """The shared MagnetSource at the current pose (use it for the field anywhere)."""
@@ -162,6 +217,17 @@ class RotatingMagnetUnit(LeafSystem):
         # omega_W = (1 - slip) (rho_w/rho_a) A^-1 omega_wheels (docs/design.md, 4.2).
         omega_wheels = check_finite_input(self, self._omega_wheels_port, context)
         return (1.0 - self._slip) * self._config.geometry.sphere_angular_velocity(omega_wheels)
+
+    def _update(self, context, discrete_state):
+        # The speed on the input now is the one applied since the last update (the drive's
+        # simultaneous update has not changed it yet): turn by it, exactly.
+        x = context.get_discrete_state(self._q_index).get_value()
+        t = context.get_time()
+        q = _turned(x[:4], self._omega_W(context), t - x[4])
+        discrete_state.get_mutable_vector(self._q_index).SetFromVector(np.concatenate([q / np.linalg.norm(q), [t]]))
+
+    def _calc_q(self, context, output):
+        output.SetFromVector(self.quaternion(context))
 
     def DoCalcTimeDerivatives(self, context, derivatives):
         q = context.get_continuous_state_vector().CopyToVector()

@@ -4,14 +4,22 @@
 ``ChainStatics`` (Newton SQP in reduced coordinates, and its SNOPT reference) cold (from the
 straight chain, no continuation) and warm (from the equilibrium at the field angle minus
 ``--warm-offset-deg``), against the naive SLSQP formulation of
-``optimization.naive_statics`` from the straight chain. Every solver must reach the same minimum
-(energy and tip position against the Newton cold solve); the differences are printed.
+``optimization.naive_statics`` from the straight chain, and against the same Newton solver on
+the numpy reference implementation of the chain's physics (``ReducedChain(backend="numpy")``,
+cold and warm): the compiled kernels of ``drake_models.chain_kernels`` are what the stack runs,
+the numpy rows say what they bought. Every solver must reach the same minimum (energy and tip
+position against the Newton cold solve); the differences are printed.
+
+``--compile-cost`` also times, in fresh processes, importing the kernels and running each once
+with an empty numba cache (``NUMBA_CACHE_DIR`` pointed at a new temporary folder: what the first
+run on a machine pays) and with the cache this run used.
 
 Wall times are measured around each ``solve`` call (``time.perf_counter``), after one untimed
 round, with the cases interleaved so that a burst of load from another process hits them all.
 The problems are tiny (at most a few hundred unknowns), so multithreaded BLAS only adds
 synchronisation: by default the loaded OpenBLAS libraries are limited to one thread for the run
-(``--blas-threads``; 0 leaves them alone). Benchmarks are scripts, not tests: the
+(``--blas-threads``; 0 leaves them alone). ``--clock cpu`` times the process's CPU time instead
+of wall time: steadier on a machine shared with other jobs. Benchmarks are scripts, not tests: the
 tests check the fields' correctness, never the times.
 """
 
@@ -35,7 +43,10 @@ TARGETS = ("statics",)
 ENERGY_RTOL = 1e-9
 TIP_ATOL_M = 1e-6
 
-_CASES = ("newton_cold", "newton_warm", "snopt_cold", "snopt_warm", "baseline")
+_CASES = ("newton_cold", "newton_warm", "numpy_cold", "numpy_warm", "snopt_cold", "snopt_warm", "baseline")
+# Cases that --cases may leave out (the Newton solves on the kernels are always timed: the
+# reference of every comparison). The naive SLSQP and SNOPT rows cannot run 1000 balls.
+_OPTIONAL = ("numpy", "snopt", "baseline")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -52,6 +63,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "the same minimum)")
     parser.add_argument("--blas-threads", type=non_negative_int, default=1,
                         help="limit OpenBLAS to this many threads during the run; 0 leaves it alone (default 1)")
+    parser.add_argument("--cases", default=",".join(_OPTIONAL),
+                        help="comma-separated baselines to time besides the Newton solve on the kernels: "
+                             f"any of {', '.join(_OPTIONAL)} (default all; leave out snopt and baseline "
+                             "for long chains)")
+    parser.add_argument("--clock", choices=("wall", "cpu"), default="wall",
+                        help="time the solves by wall time (default) or by this process's CPU time "
+                             "(steadier on a machine shared with other jobs)")
+    parser.add_argument("--compile-cost", action="store_true",
+                        help="also time the kernels' first run in a fresh process, with an empty numba "
+                             "cache and with the cache (a few tens of seconds)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     add_json_flag(parser)
 
@@ -86,6 +107,46 @@ def _same_minimum(reference, other) -> dict:
     }
 
 
+def _parse_cases(text: str) -> tuple[str, ...]:
+    chosen = tuple(c.strip() for c in text.split(",") if c.strip())
+    bad = [c for c in chosen if c not in _OPTIONAL]
+    if bad:
+        raise UserInputError(f"--cases: unknown case(s) {', '.join(bad)}; allowed: {', '.join(_OPTIONAL)}")
+    return chosen
+
+
+def compile_cost(timeout_s: float = 600.0) -> dict:
+    """Wall time of importing the chain kernels and running each once, in fresh processes.
+
+    Returns:
+        ``{"empty_cache_s", "cached_s", "compile_s"}``: with ``NUMBA_CACHE_DIR`` on a new empty
+        temporary folder (everything compiled), with the cache as configured for this run (loaded
+        from disk), and their difference (what a machine's first run pays once).
+    """
+    import subprocess
+    import tempfile
+
+    code = (
+        "import time; t0, c0 = time.perf_counter(), time.process_time(); "
+        "from ballchain.drake_models import chain_kernels; chain_kernels.warm_up(); "
+        "print(time.perf_counter() - t0, time.process_time() - c0)"
+    )
+
+    def first_run(env) -> tuple[float, float]:
+        proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                              timeout=timeout_s, check=True)
+        wall, cpu = proc.stdout.strip().splitlines()[-1].split()
+        return float(wall), float(cpu)
+
+    with tempfile.TemporaryDirectory(prefix="ballchain-numba-cache-") as empty:
+        empty_s, empty_cpu = first_run({**os.environ, "NUMBA_CACHE_DIR": empty})
+    cached_s, cached_cpu = min(first_run(dict(os.environ)), first_run(dict(os.environ)))
+    return {"empty_cache_s": empty_s, "cached_s": cached_s, "compile_s": empty_s - cached_s,
+            "empty_cache_cpu_s": empty_cpu, "cached_cpu_s": cached_cpu, "compile_cpu_s": empty_cpu - cached_cpu,
+            "note": "import + one call of every kernel in a fresh process (NUMBA_CACHE_DIR empty vs as "
+                    "configured); *_s wall time, *_cpu_s the process's CPU time"}
+
+
 def _spread(samples_ms: list[float]) -> float:
     """(max - min) / median of a series: a rough noise figure."""
     return float((max(samples_ms) - min(samples_ms)) / np.median(samples_ms))
@@ -101,8 +162,12 @@ def run_statics(
     baseline_ftol: float = 1e-12,
     blas_threads_limit: int = 1,
     progress: bool = True,
+    cases: str | tuple[str, ...] = _OPTIONAL,
+    measure_compile_cost: bool = False,
+    clock: str = "wall",
 ) -> dict:
-    """Time ``ChainStatics`` (newton, snopt; cold, warm) against the SLSQP baseline.
+    """Time ``ChainStatics`` (newton on the kernels and on the numpy reference, snopt; cold, warm)
+    against the SLSQP baseline.
 
     Args:
         n_balls: chain length (>= 2).
@@ -114,11 +179,16 @@ def run_statics(
         baseline_ftol: SLSQP's tolerance on the scaled energy.
         blas_threads_limit: OpenBLAS threads during the run (0: unchanged).
         progress: show a tqdm bar on stderr.
+        cases: the baselines to time besides the Newton solves on the kernels (any of "numpy",
+            "snopt", "baseline"; a comma-separated string or a tuple).
+        measure_compile_cost: also run ``compile_cost`` (fresh processes).
+        clock: "wall" (``time.perf_counter``) or "cpu" (``time.process_time``).
 
     Returns:
         A JSON-able dict: medians [ms] (``cold_median_ms``, ``warm_median_ms`` for Newton,
-        ``snopt_*``, ``baseline_median_ms``), ``speedup_cold`` (baseline / Newton cold), every
-        sample, ``iterations`` per case, ``converged`` per case, ``same_minimum`` (each solver
+        ``numpy_*`` for Newton on the numpy reference, ``snopt_*``, ``baseline_median_ms``; None
+        for a case left out), ``speedup_cold`` (baseline / Newton cold), ``kernel_speedup_*``
+        (numpy reference / kernels), ``compile_cost`` when asked, every sample, ``iterations`` per case, ``converged`` per case, ``same_minimum`` (each solver
         against the Newton cold solve), and the run's conditions.
 
     Raises:
@@ -135,12 +205,18 @@ def run_statics(
         raise UserInputError(f"--repeats must be an integer in 1..1000, got {repeats!r}")
     if not (math.isfinite(baseline_ftol) and baseline_ftol > 0):
         raise UserInputError(f"--baseline-ftol must be a positive finite number, got {baseline_ftol}")
+    if clock not in ("wall", "cpu"):
+        raise UserInputError(f"--clock must be 'wall' or 'cpu', got {clock!r}")
+    now = time.process_time if clock == "cpu" else time.perf_counter
+    chosen = _parse_cases(cases) if isinstance(cases, str) else _parse_cases(",".join(cases))
+    active = tuple(c for c in _CASES if c.startswith("newton") or c.split("_")[0] in chosen)
 
     from tqdm import tqdm
 
     from ballchain.drake_models.field_sources import UniformField
     from ballchain.drake_models.params import BallChain
     from ballchain.optimization.naive_statics import NaiveStatics
+    from ballchain.optimization.reduced_chain import ReducedChain
     from ballchain.optimization.statics import ChainStatics
 
     chain = BallChain(n_balls=n_balls)
@@ -149,10 +225,14 @@ def run_statics(
     warm_angle = angle_deg - warm_offset_deg
     external_warm = UniformField.in_plane(B, math.radians(warm_angle))
     newton = ChainStatics(chain, method="newton")
-    snopt = ChainStatics(chain, method="snopt")
+    reference = ChainStatics(chain, method="newton")
+    # The same solver on the numpy reference of the physics: ChainStatics builds its
+    # ReducedChain on the first solve, unless one is there.
+    reference._model = ReducedChain(chain, None, False, backend="numpy")
+    snopt = ChainStatics(chain, method="snopt") if "snopt" in chosen else None
 
     load_before = os.getloadavg()
-    bar = tqdm(total=1 + (repeats + 1) * len(_CASES), desc=f"bench statics ({n_balls} balls)", unit="solve",
+    bar = tqdm(total=1 + (repeats + 1) * len(active), desc=f"bench statics ({n_balls} balls)", unit="solve",
                file=sys.stderr, disable=not progress, leave=False)
     with blas_threads(blas_threads_limit) as threads_in_use:
         warm_start = newton.solve(external_warm)
@@ -160,19 +240,21 @@ def run_statics(
         solves = {
             "newton_cold": lambda: newton.solve(external),
             "newton_warm": lambda: newton.solve(external, warm_start),
+            "numpy_cold": lambda: reference.solve(external),
+            "numpy_warm": lambda: reference.solve(external, warm_start),
             "snopt_cold": lambda: snopt.solve(external),
             "snopt_warm": lambda: snopt.solve(external, warm_start),
             "baseline": lambda: NaiveStatics(chain, external, ftol=baseline_ftol).solve(),
         }
-        samples: dict[str, list[float]] = {case: [] for case in _CASES}
+        samples: dict[str, list[float]] = {case: [] for case in active}
         last = {}
         for round_ in range(repeats + 1):  # round 0 is untimed (first-call costs)
             # Rotate the order so that no case always runs first (or right after SLSQP).
-            order = _CASES[round_ % len(_CASES):] + _CASES[: round_ % len(_CASES)]
+            order = active[round_ % len(active):] + active[: round_ % len(active)]
             for case in order:
-                t0 = time.perf_counter()
+                t0 = now()
                 result = solves[case]()
-                elapsed = time.perf_counter() - t0
+                elapsed = now() - t0
                 if round_ > 0:
                     samples[case].append(1e3 * elapsed)
                 last[case] = result
@@ -181,27 +263,41 @@ def run_statics(
     load_after = os.getloadavg()
 
     reference = last["newton_cold"]
-    medians = {case: float(np.median(samples[case])) for case in _CASES}
-    same = {case: _same_minimum(reference, last[case]) for case in _CASES if case != "newton_cold"}
-    converged = {case: bool(last[case].converged) for case in _CASES if case != "baseline"}
-    converged["baseline"] = bool(last["baseline"].success)
+    medians = {case: float(np.median(samples[case])) if case in active else None for case in _CASES}
+    same = {case: _same_minimum(reference, last[case]) for case in active if case != "newton_cold"}
+    converged = {case: bool(last[case].converged) for case in active if case != "baseline"}
+    if "baseline" in active:
+        converged["baseline"] = bool(last["baseline"].success)
     converged["warm_start"] = bool(warm_start.converged)
-    baseline = last["baseline"]
-    return {
+    baseline = last.get("baseline")
+
+    def ratio(a, b):
+        return None if medians[a] is None or medians[b] is None else medians[a] / medians[b]
+
+    def iterations(case):
+        return last[case].iterations if case in last else None
+
+    out = {
         "benchmark": "statics",
         "n_balls": n_balls,
         "field_mT": field_mT,
         "angle_deg": angle_deg,
         "warm_start_angle_deg": warm_angle,
         "repeats": repeats,
+        "clock": clock,
         "cold_median_ms": medians["newton_cold"],
         "warm_median_ms": medians["newton_warm"],
+        "numpy_cold_median_ms": medians["numpy_cold"],
+        "numpy_warm_median_ms": medians["numpy_warm"],
         "snopt_cold_median_ms": medians["snopt_cold"],
         "snopt_warm_median_ms": medians["snopt_warm"],
         "baseline_median_ms": medians["baseline"],
-        "speedup_cold": medians["baseline"] / medians["newton_cold"],
-        "speedup_warm": medians["baseline"] / medians["newton_warm"],
-        "speedup_cold_vs_snopt": medians["snopt_cold"] / medians["newton_cold"],
+        "speedup_cold": ratio("baseline", "newton_cold"),
+        "speedup_warm": ratio("baseline", "newton_warm"),
+        "speedup_cold_vs_snopt": ratio("snopt_cold", "newton_cold"),
+        "kernel_speedup_cold": ratio("numpy_cold", "newton_cold"),
+        "kernel_speedup_warm": ratio("numpy_warm", "newton_warm"),
+        "kernel_note": "numpy_*: the same Newton solver on the numpy reference of the chain's physics",
         "same_minimum": {
             "reference": "newton_cold",
             "tolerance": {"energy_rel": ENERGY_RTOL, "tip_m": TIP_ATOL_M},
@@ -210,41 +306,53 @@ def run_statics(
         },
         "converged": converged,
         "iterations": {
-            "newton_cold": last["newton_cold"].iterations,
-            "newton_warm": last["newton_warm"].iterations,
-            "snopt_cold": last["snopt_cold"].iterations,
-            "snopt_warm": last["snopt_warm"].iterations,
-            "baseline": baseline.iterations,
-            "baseline_evaluations": baseline.evaluations,
+            **{case: iterations(case) for case in _CASES},
+            "baseline_evaluations": None if baseline is None else baseline.evaluations,
         },
         "iterations_note": "Newton: SQP iterations; SNOPT: energy evaluations; baseline: SLSQP iterations",
         "energy_J": reference.energy,
         "tip_position_mm": 1e3 * reference.tip_position,
-        "baseline": {"ftol": baseline_ftol, "message": baseline.message,
-                     "max_violation": baseline.max_violation},
+        "baseline": None if baseline is None else {"ftol": baseline_ftol, "message": baseline.message,
+                                                   "max_violation": baseline.max_violation},
         "samples_ms": samples,
-        "spread": {case: _spread(samples[case]) for case in _CASES},
+        "spread": {case: _spread(samples[case]) for case in active},
         "spread_note": "(max - min) / median of each case's samples",
         "blas_threads": threads_in_use,
         "load_average_1min": {"before": load_before[0], "after": load_after[0]},
         "cpu_count": os.cpu_count(),
     }
+    if measure_compile_cost:
+        out["compile_cost"] = compile_cost()
+    return out
 
 
 def _print_statics(out: dict) -> None:
     print(f"statics of {out['n_balls']} balls, {out['field_mT']:g} mT at {out['angle_deg']:g} deg "
-          f"(warm start from {out['warm_start_angle_deg']:g} deg), {out['repeats']} repeats, median wall time:")
+          f"(warm start from {out['warm_start_angle_deg']:g} deg), {out['repeats']} repeats, "
+          f"median {'CPU' if out['clock'] == 'cpu' else 'wall'} time:")
     it = out["iterations"]
     rows = (
         ("newton, cold", out["cold_median_ms"], it["newton_cold"]),
         ("newton, warm", out["warm_median_ms"], it["newton_warm"]),
+        ("newton (numpy), cold", out["numpy_cold_median_ms"], it["numpy_cold"]),
+        ("newton (numpy), warm", out["numpy_warm_median_ms"], it["numpy_warm"]),
         ("snopt, cold", out["snopt_cold_median_ms"], it["snopt_cold"]),
         ("snopt, warm", out["snopt_warm_median_ms"], it["snopt_warm"]),
         ("SLSQP baseline, cold", out["baseline_median_ms"], it["baseline"]),
     )
     for name, ms, iters in rows:
-        print(f"  {name:<22s} {ms:10.2f} ms   {iters:5d} iterations")
-    print(f"  speedup (baseline / newton cold): {out['speedup_cold']:.1f}x, warm: {out['speedup_warm']:.1f}x")
+        if ms is not None:
+            print(f"  {name:<22s} {ms:10.2f} ms   {iters:5d} iterations")
+    if out["speedup_cold"] is not None:
+        print(f"  speedup (baseline / newton cold): {out['speedup_cold']:.1f}x, warm: {out['speedup_warm']:.1f}x")
+    if out["kernel_speedup_cold"] is not None:
+        print(f"  kernels vs numpy reference (same solver): cold {out['kernel_speedup_cold']:.1f}x, "
+              f"warm {out['kernel_speedup_warm']:.1f}x")
+    if "compile_cost" in out:
+        c = out["compile_cost"]
+        print(f"  kernels' first run in a fresh process: {c['empty_cache_s']:.1f} s with an empty numba cache, "
+              f"{c['cached_s']:.2f} s cached (compilation {c['compile_s']:.1f} s wall, {c['compile_cpu_s']:.1f} s "
+              "CPU, once per machine)")
     same = out["same_minimum"]
     worst_tip = max(v["tip_diff_m"] for k, v in same.items() if isinstance(v, dict) and "tip_diff_m" in v)
     worst_e = max(v["energy_diff_rel"] for k, v in same.items() if isinstance(v, dict) and "energy_diff_rel" in v)
@@ -267,6 +375,9 @@ def main(args: argparse.Namespace) -> int:
             baseline_ftol=args.baseline_ftol,
             blas_threads_limit=args.blas_threads,
             progress=not args.no_progress,
+            cases=args.cases,
+            measure_compile_cost=args.compile_cost,
+            clock=args.clock,
         )
         if args.json:
             print_json(out)

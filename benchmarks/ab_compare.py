@@ -1,0 +1,194 @@
+"""Before/after in one run: this checkout against an earlier commit, in alternating processes.
+
+The earlier commit (``--base``, e.g. the branch point) is exported with ``git archive`` into a
+temporary folder and imported as ``ballchain`` in its own processes (a meta-path finder maps the
+sub-packages as ``pyproject.toml`` does); the two sides run in turns, ``--rounds`` times each,
+so that the load of the machine hits both alike. Two measurements:
+
+* ``station``: ``run_simulation`` of a named scenario for ``--duration`` simulated seconds,
+  after an untimed two-step run in the same process: real-time factor (median over rounds) and
+  the final ball positions, whose largest difference between the two sides says whether the
+  results are the same.
+* ``profile``: ``benchmarks/station_profile.py`` of each side (its own copy) on the scenario:
+  exclusive microseconds per step per group of systems (wrench, actuation, monitor, C++ plant).
+* ``statics``: ``ballchain bench statics`` (16 balls by default): Newton cold and warm medians.
+
+Times are the children's CPU time by default (``--clock cpu``: ``time.perf_counter`` is
+replaced by ``time.process_time`` in them, so a real-time factor is simulated time over CPU
+time): on a machine shared with other jobs, wall time mostly measures the others. Prints JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+
+# The package layout of pyproject.toml's [tool.setuptools] package-dir.
+_BOOTSTRAP = r"""
+import importlib.machinery, importlib.util, os, sys
+ROOT = os.environ["AB_ROOT"]
+DIRS = {"ballchain": "ballchain", "ballchain.commands": "ballchain/commands",
+        "ballchain.experiments": "ballchain/experiments", "ballchain.drake_models": "drake_models",
+        "ballchain.optimization": "optimization", "ballchain.systems": "systems"}
+class _Finder:
+    @classmethod
+    def find_spec(cls, name, path=None, target=None):
+        if name in DIRS:
+            folder = os.path.join(ROOT, DIRS[name])
+            return importlib.util.spec_from_file_location(
+                name, os.path.join(folder, "__init__.py"), submodule_search_locations=[folder])
+        parent, _, leaf = name.rpartition(".")
+        if parent in DIRS:
+            return importlib.machinery.PathFinder.find_spec(name, [os.path.join(ROOT, DIRS[parent])])
+        return None
+sys.meta_path.insert(0, _Finder)
+"""
+
+_STATION = r"""
+import json, sys
+from threadpoolctl import threadpool_limits
+from ballchain.systems.chain_scenario import load_scenario
+from ballchain.systems.chain_simulation import run_simulation
+import ballchain
+scenario = load_scenario(sys.argv[1], sys.argv[3] if len(sys.argv) > 3 else None)
+with threadpool_limits(limits=1, user_api="blas"):
+    # A short untimed run first: first-call costs (imports, loading compiled kernels) are not
+    # the plant's speed.
+    run_simulation(scenario=scenario, duration=2 * scenario.effective_time_step)
+    r = run_simulation(scenario=scenario, duration=float(sys.argv[2]))
+print(json.dumps({"file": ballchain.__file__, "realtime_factor": r["realtime_factor"], "p_W_mm": r["p_W_mm"],
+                  "min_wall_clearance_mm": r["min_wall_clearance_mm"], "max_penetration_um": r["max_penetration_um"],
+                  "tip_wall_force_N": r["tip_wall_force_N"]}))
+"""
+
+_PROFILE = r"""
+import importlib.util, json, os, sys
+from threadpoolctl import threadpool_limits
+import ballchain
+root = os.environ.get("AB_ROOT") or sys.argv[3]
+spec = importlib.util.spec_from_file_location("station_profile", os.path.join(root, "benchmarks", "station_profile.py"))
+profile = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(profile)
+with threadpool_limits(limits=1, user_api="blas"):
+    profile.run(scenario=sys.argv[1], duration=0.01, top=1)  # first-call costs
+    r = profile.run(scenario=sys.argv[1], duration=float(sys.argv[2]), top=1)
+print(json.dumps({"file": ballchain.__file__, "realtime_factor": r["realtime_factor"],
+                  "us_per_step": r["us_per_step"], "derivative_evaluations": r["derivative_evaluations"],
+                  "n_steps": r["n_steps"]}))
+"""
+
+_STATICS = r"""
+import json, sys
+from threadpoolctl import threadpool_limits
+from ballchain.commands.bench import run_statics
+import ballchain
+with threadpool_limits(limits=1, user_api="blas"):
+    r = run_statics(n_balls=int(sys.argv[1]), repeats=int(sys.argv[2]), progress=False)
+print(json.dumps({"file": ballchain.__file__, "cold_median_ms": r["cold_median_ms"],
+                  "warm_median_ms": r["warm_median_ms"], "baseline_median_ms": r["baseline_median_ms"],
+                  "energy_J": r["energy_J"], "tip_position_mm": list(r["tip_position_mm"])}))
+"""
+
+
+_CPU_CLOCK = r"""
+import time
+time.perf_counter = time.process_time  # every timer in the child counts this process's CPU time
+"""
+
+
+def _child(root: Path | None, code: str, args: list[str], clock: str = "cpu") -> dict:
+    env = dict(os.environ)
+    if clock == "cpu":
+        code = _CPU_CLOCK + code
+    if root is not None:
+        env["AB_ROOT"] = str(root)
+        code = _BOOTSTRAP + code
+    proc = subprocess.run([sys.executable, "-c", code, *args], env=env, capture_output=True, text=True,
+                          timeout=1800)
+    if proc.returncode != 0:
+        raise RuntimeError(f"child failed ({'base' if root else 'head'}):\n{proc.stderr[-3000:]}")
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def run(*, base: str, what: str = "station", scenario: str = "heart_left_quasi_static", duration: float = 0.1,
+        overrides: str | None = None, rounds: int = 3, n_balls: int = 16, repeats: int = 7,
+        clock: str = "cpu") -> dict:
+    """Alternate ``rounds`` runs of the base commit and of this checkout; returns medians and diffs.
+
+    ``clock="cpu"`` makes every timer of the children (``time.perf_counter``) count the process's
+    CPU time: on a machine shared with other jobs, wall time mostly measures the others.
+    """
+    with tempfile.TemporaryDirectory(prefix="ballchain-ab-") as tmp:
+        archive = subprocess.run(["git", "-C", str(REPO), "archive", base], capture_output=True, check=True).stdout
+        subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
+        if what == "station":
+            code, args = _STATION, [scenario, str(duration)] + ([overrides] if overrides else [])
+        elif what == "profile":
+            code, args = _PROFILE, [scenario, str(duration), str(REPO)]
+        else:
+            code, args = _STATICS, [str(n_balls), str(repeats)]
+        sides = {"base": [], "head": []}
+        for _ in range(rounds):
+            sides["base"].append(_child(Path(tmp), code, args, clock))
+            sides["head"].append(_child(None, code, args, clock))
+    out = {"base": base, "what": what, "rounds": rounds, "clock": clock,
+           "files": {k: v[0]["file"] for k, v in sides.items()}}
+    if what == "profile":
+        out.update(scenario=scenario, duration_s=duration,
+                   realtime_factor={k: [r["realtime_factor"] for r in v] for k, v in sides.items()},
+                   derivative_evaluations={k: v[0]["derivative_evaluations"] for k, v in sides.items()},
+                   n_steps={k: v[0]["n_steps"] for k, v in sides.items()},
+                   us_per_step={k: {g: float(np.median([r["us_per_step"][g] for r in v]))
+                                    for g in v[0]["us_per_step"]} for k, v in sides.items()})
+    elif what == "station":
+        rtf = {k: [r["realtime_factor"] for r in v] for k, v in sides.items()}
+        out.update(scenario=scenario, overrides=overrides, duration_s=duration, realtime_factor=rtf,
+                   median_rtf={k: float(np.median(v)) for k, v in rtf.items()})
+        out["speedup"] = out["median_rtf"]["head"] / out["median_rtf"]["base"]
+        p_base = np.array(sides["base"][0]["p_W_mm"])
+        p_head = np.array(sides["head"][0]["p_W_mm"])
+        out["max_position_diff_mm"] = float(np.abs(p_base - p_head).max())
+        out["repeatable"] = {k: float(max(np.abs(np.array(r["p_W_mm"]) - np.array(v[0]["p_W_mm"])).max()
+                                          for r in v)) for k, v in sides.items()}
+        for key in ("min_wall_clearance_mm", "max_penetration_um", "tip_wall_force_N"):
+            out[key] = {k: v[0][key] for k, v in sides.items()}
+    else:
+        for key in ("cold_median_ms", "warm_median_ms", "baseline_median_ms"):
+            out[key] = {k: float(np.median([r[key] for r in v])) for k, v in sides.items()}
+        out["speedup_cold"] = out["cold_median_ms"]["base"] / out["cold_median_ms"]["head"]
+        out["speedup_warm"] = out["warm_median_ms"]["base"] / out["warm_median_ms"]["head"]
+        out["energy_J"] = {k: v[0]["energy_J"] for k, v in sides.items()}
+        out["tip_diff_mm"] = float(np.linalg.norm(np.subtract(sides["base"][0]["tip_position_mm"],
+                                                              sides["head"][0]["tip_position_mm"])))
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--base", required=True, help="the earlier commit (any git revision)")
+    parser.add_argument("--what", choices=("station", "profile", "statics"), default="station", help="what to compare")
+    parser.add_argument("--scenario", default="heart_left_quasi_static", help="station: scenario name")
+    parser.add_argument("--set", dest="overrides", default=None, help="station: inline YAML overrides")
+    parser.add_argument("--duration", type=float, default=0.1, help="station: simulated time [s]")
+    parser.add_argument("--rounds", type=int, default=3, help="runs of each side, alternating")
+    parser.add_argument("--balls", type=int, default=16, help="statics: number of balls")
+    parser.add_argument("--repeats", type=int, default=7, help="statics: timed solves per case")
+    parser.add_argument("--clock", choices=("cpu", "wall"), default="cpu",
+                        help="what the children's timers count (default cpu: the process's CPU time)")
+    args = parser.parse_args()
+    print(json.dumps(run(base=args.base, what=args.what, scenario=args.scenario, duration=args.duration,
+                         overrides=args.overrides, rounds=args.rounds, n_balls=args.balls,
+                         repeats=args.repeats, clock=args.clock), indent=1))
+
+
+if __name__ == "__main__":
+    main()
