@@ -3,7 +3,7 @@
 The statics engine keeps every free ball's centre at least a ball radius inside the lumen
 (``optimization.wall_constraints``): it needs the distance to the blood-side surface and its
 gradient at 16 points, hundreds of times a second. An exact point-to-mesh query costs about a
-millisecond; a grid of the signed distance, built once per mesh and trilinearly interpolated,
+millisecond; a grid of the signed distance, built once per mesh and interpolated,
 costs a few microseconds.
 
 * Distance: the exact unsigned distance to the blood-side triangles (``mesh_tools``, the same
@@ -18,8 +18,9 @@ costs a few microseconds.
   with its polygonal vein tubes: the sign changes exactly on the triangles the distance is
   measured to (the smooth ellipsoid would give the 0.05-0.1 mm between chord and arc the wrong
   sign).
-* Gradient: central differences of the node values, trilinearly interpolated (continuous, so the
-  Newton steps of the statics see a continuous wall normal); its derivative is the Hessian.
+* Interpolation: a quadratic B-spline of the node values (C1: the value, gradient and Hessian are
+  derivatives of one function and the wall normal is continuous, as the statics' Newton steps
+  need; trilinear interpolation's gradient jumps at every cell face).
 * Cache: ``atrium_sdf_<hash>.npz`` next to the heart's generated files, the hash of the
   triangles, the inside test and the grid parameters, written atomically.
 """
@@ -175,47 +176,55 @@ class AtriumSDF:
 
     def __post_init__(self) -> None:
         self.values = np.ascontiguousarray(self.values, dtype=float)
-        self._grad = np.stack(np.gradient(self.values, self.spacing), axis=-1)  # (nx, ny, nz, 3)
+        # One node of padding (edge values) so that every 3x3x3 stencil lies in the array.
+        self._padded = np.pad(self.values, 1, mode="edge")
         self._shape = np.array(self.values.shape)
 
-    def _cell(self, p: np.ndarray):
-        x = (np.atleast_2d(p) - self.origin) / self.spacing
-        x = np.clip(x, 0.0, self._shape - 1.0 - 1e-9)  # outside the grid: the nearest boundary
-        i = np.minimum(x.astype(int), self._shape - 2)
-        return i, x - i
-
     def __call__(self, p: np.ndarray, gradient: bool = True, hessian: bool = False):
-        """Signed distance at points p (k, 3) [m].
+        """Signed distance at points p (k, 3) [m], quadratic B-spline of the node values.
+
+        The quadratic B-spline (27 nodes around each point) is C1: value, gradient and Hessian
+        are exact derivatives of one function, and the gradient is continuous, which is what
+        the statics' Newton steps and line search need (trilinear interpolation has a gradient
+        that jumps at every cell face). It reproduces linear fields exactly and smooths curved
+        ones by O(h^2 curvature). Points outside the grid see the boundary nodes' values.
 
         Returns:
-            ``sdf`` (k,) [m], with ``gradient``: ``(sdf, grad (k, 3))``, with ``hessian`` too:
-            ``(sdf, grad, hess (k, 3, 3) [1/m])`` (the derivative of the interpolated gradient,
-            symmetrised).
+            ``sdf`` (k,) [m]; with ``gradient``: ``(sdf, grad (k, 3))``; with ``hessian`` too:
+            ``(sdf, grad, hess (k, 3, 3) [1/m])``.
         """
-        i, f = self._cell(p)
-        ix, iy, iz = i[:, 0], i[:, 1], i[:, 2]
-        fx, fy, fz = f[:, 0], f[:, 1], f[:, 2]
-        wx = np.stack([1 - fx, fx], axis=1)
-        wy = np.stack([1 - fy, fy], axis=1)
-        wz = np.stack([1 - fz, fz], axis=1)
-        o = np.array([0, 1])
-        X, Y, Z = (ix[:, None] + o), (iy[:, None] + o), (iz[:, None] + o)
-        idx = (X[:, :, None, None], Y[:, None, :, None], Z[:, None, None, :])
-        W = wx[:, :, None, None] * wy[:, None, :, None] * wz[:, None, None, :]  # (k, 2, 2, 2)
-        v = self.values[idx]
-        sdf = np.einsum("kabc,kabc->k", W, v)
+        x = (np.atleast_2d(np.asarray(p, float)) - self.origin) / self.spacing
+        x = np.clip(x, 0.0, self._shape - 1.0)
+        i0 = np.rint(x).astype(int)
+        u = x - i0  # in [-1/2, 1/2]
+        w = np.stack([0.5 * (0.5 - u) ** 2, 0.75 - u**2, 0.5 * (0.5 + u) ** 2], axis=-1)  # (k, 3 axes, 3)
+        o = np.arange(3)  # padded index of node i0 - 1 + o
+        idx = ((i0[:, 0, None] + o)[:, :, None, None], (i0[:, 1, None] + o)[:, None, :, None],
+               (i0[:, 2, None] + o)[:, None, None, :])
+        v = self._padded[idx]  # (k, 3, 3, 3)
+        wx, wy, wz = w[:, 0], w[:, 1], w[:, 2]
+        sdf = np.einsum("ka,kb,kc,kabc->k", wx, wy, wz, v)
         if not gradient and not hessian:
             return sdf
-        G = self._grad[idx]  # (k, 2, 2, 2, 3)
-        grad = np.einsum("kabc,kabcd->kd", W, G)
+        h = self.spacing
+        dw = np.stack([u - 0.5, -2.0 * u, u + 0.5], axis=-1) / h  # (k, 3 axes, 3)
+        dx, dy, dz = dw[:, 0], dw[:, 1], dw[:, 2]
+        grad = np.stack([np.einsum("ka,kb,kc,kabc->k", dx, wy, wz, v),
+                         np.einsum("ka,kb,kc,kabc->k", wx, dy, wz, v),
+                         np.einsum("ka,kb,kc,kabc->k", wx, wy, dz, v)], axis=1)
         if not hessian:
             return sdf, grad
-        s = np.array([-1.0, 1.0]) / self.spacing
-        dWx = s[None, :, None, None] * wy[:, None, :, None] * wz[:, None, None, :]
-        dWy = wx[:, :, None, None] * s[None, None, :, None] * wz[:, None, None, :]
-        dWz = wx[:, :, None, None] * wy[:, None, :, None] * s[None, None, None, :]
-        H = np.stack([np.einsum("kabc,kabcd->kd", dW, G) for dW in (dWx, dWy, dWz)], axis=1)  # d grad_d / dx_e
-        return sdf, grad, 0.5 * (H + H.transpose(0, 2, 1))
+        d2 = np.array([1.0, -2.0, 1.0]) / h**2
+        k = len(sdf)
+        d2x = np.broadcast_to(d2, (k, 3))
+        H = np.empty((k, 3, 3))
+        H[:, 0, 0] = np.einsum("ka,kb,kc,kabc->k", d2x, wy, wz, v)
+        H[:, 1, 1] = np.einsum("ka,kb,kc,kabc->k", wx, d2x, wz, v)
+        H[:, 2, 2] = np.einsum("ka,kb,kc,kabc->k", wx, wy, d2x, v)
+        H[:, 0, 1] = H[:, 1, 0] = np.einsum("ka,kb,kc,kabc->k", dx, dy, wz, v)
+        H[:, 0, 2] = H[:, 2, 0] = np.einsum("ka,kb,kc,kabc->k", dx, wy, dz, v)
+        H[:, 1, 2] = H[:, 2, 1] = np.einsum("ka,kb,kc,kabc->k", wx, dy, dz, v)
+        return sdf, grad, H
 
 
 def _surface_for(heart) -> tuple[np.ndarray, np.ndarray, str]:
