@@ -521,6 +521,16 @@ class ChainStatics:
                     if corrected.energy + rho * infeasibility(corrected) <= merit0 + 1e-4 * min(slope, 0.0):
                         dq, trial = dq + correction, corrected
                         break
+                if t == 1.0 and not pinned and len(near):
+                    # The same for the inequality rows the full step violates (a ball pressed
+                    # on a curved wall): the linearised row is met, the curved one is not.
+                    rows = near[trial.gaps[near] < 0.0]
+                    if len(rows):
+                        correction = -np.linalg.pinv(ev.jacobian[rows]) @ trial.gaps[rows]
+                        corrected = model.evaluate(q + dq + correction, 2)
+                        if corrected.energy + rho * infeasibility(corrected) <= merit0 + 1e-4 * min(slope, 0.0):
+                            dq, trial = dq + correction, corrected
+                            break
                 t *= 0.5
             if t < 1e-10:
                 if np.abs(stationarity).max() < 1e3 * self.tolerance and violation < 1e-9:

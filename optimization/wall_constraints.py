@@ -10,7 +10,7 @@ Everything that is not in the canonical problem enters here:
   s). The balls whose centres are past the exit plane are free; the last ball before it is
   held (its position is the fractional part of the insertion); those behind it are a straight
   chain of dipoles inside the sheath whose field acts on the free balls
-  (``SheathDipoles``).
+  (``PointDipoles``).
 * The external field and gravity are turned into frame B (``FieldInFrame``; gravity along
   R_WB^T (-z_W) is added to the energy by ``ConstrainedChain``).
 * Wall rows, one per free ball: ``c = (sdf(p_k) - r) / d >= 0``, the ball's centre at least a
@@ -93,17 +93,47 @@ class FieldInFrame:
         return B_W @ R, np.einsum("ia,kij,jb->kab", R, G_W, R)
 
 
-class SheathDipoles:
-    """The field (frame B) of the balls behind the held ball, straight along -x in the sheath."""
+class PointDipoles:
+    """Point dipoles (centres p (k, 3) [m], moments m (k, 3) [A m^2]) plus a uniform field B0
+    (3,) [T]: a FieldSource. In frame B it holds the balls behind the held ball (straight along
+    -x in the sheath) and the point-dipole magnets and uniform fields of the scenario, turned
+    into B, all in one evaluation."""
 
-    def __init__(self, n_behind: int, d: float, dipole_moment: float):
-        self.p = -d * np.arange(1, n_behind + 1)[:, None] * np.array([1.0, 0.0, 0.0])
-        self.m = dipole_moment * np.array([1.0, 0.0, 0.0])
+    def __init__(self, p: np.ndarray, m: np.ndarray, B0=None):
+        self.p = np.asarray(p, float).reshape(-1, 3)
+        self.m = np.asarray(m, float).reshape(-1, 3)
+        self.B0 = np.zeros(3) if B0 is None else np.asarray(B0, float)
 
     def field_and_gradient(self, p_B):
-        r = np.asarray(p_B, float).reshape(-1, 3)[:, None, :] - self.p[None]
+        p_B = np.asarray(p_B, float).reshape(-1, 3)
+        r = p_B[:, None, :] - self.p[None]
         m = np.broadcast_to(self.m, r.shape)
-        return dipole_field(r, m).sum(axis=1), dipole_field_gradient(r, m).sum(axis=1)
+        return self.B0 + dipole_field(r, m).sum(axis=1), dipole_field_gradient(r, m).sum(axis=1)
+
+
+def _point_dipoles_W(source) -> tuple[list, list, np.ndarray] | None:
+    """(centres, moments, uniform B) [SI, world] of a source made only of point dipoles and
+    uniform fields (MagnetSource with model "dipole", any object with ``p_WM`` and ``m_W`` arrays
+    such as the wrench's PortDipoles, UniformField, sums of them), else None."""
+    from ballchain.drake_models.field_sources import MagnetSource, UniformField
+
+    if isinstance(source, FieldSources):
+        p, m, B = [], [], np.zeros(3)
+        for s in source.sources:
+            part = _point_dipoles_W(s)
+            if part is None:
+                return None
+            p += part[0]
+            m += part[1]
+            B = B + part[2]
+        return p, m, B
+    if isinstance(source, UniformField):
+        return [], [], np.asarray(source.B_W, float)
+    if isinstance(source, MagnetSource):
+        return ([source.p_WM], [source.m_W], np.zeros(3)) if source.model == "dipole" else None
+    if hasattr(source, "p_WM") and hasattr(source, "m_W"):  # PortDipoles: all point dipoles
+        return list(np.atleast_2d(source.p_WM)), list(np.atleast_2d(source.m_W)), np.zeros(3)
+    return None
 
 
 @dataclass
@@ -140,11 +170,21 @@ class HeartConstraints:
         return (positions_W - self.p_WB) @ self.R_WB, dipoles_W @ self.R_WB
 
     def external_in_base(self, external_W: FieldSource | None, chain: BallChain) -> FieldSource | None:
-        sources = [] if external_W is None else [FieldInFrame(external_W, self.p_WB, self.R_WB)]
+        """The field on the sub-chain in frame B: the external source and the balls behind."""
+        d = chain.ball_diameter
+        p_behind = -d * np.arange(1, self.n_behind + 1)[:, None] * np.array([1.0, 0.0, 0.0])
+        m_behind = np.tile([chain.dipole_moment, 0.0, 0.0], (self.n_behind, 1))
+        parts = ([], [], np.zeros(3)) if external_W is None else _point_dipoles_W(external_W)
+        if parts is not None:  # one evaluation for everything
+            p_W, m_W, B_W = parts
+            p = np.vstack([p_behind] + [((np.asarray(x) - self.p_WB) @ self.R_WB)[None] for x in p_W])
+            m = np.vstack([m_behind] + [(np.asarray(x) @ self.R_WB)[None] for x in m_W])
+            if len(p) == 0 and not np.any(B_W):
+                return None
+            return PointDipoles(p, m, B_W @ self.R_WB)
+        sources = [FieldInFrame(external_W, self.p_WB, self.R_WB)]
         if self.n_behind:
-            sources.append(SheathDipoles(self.n_behind, chain.ball_diameter, chain.dipole_moment))
-        if not sources:
-            return None
+            sources.append(PointDipoles(p_behind, m_behind))
         return sources[0] if len(sources) == 1 else FieldSources(sources)
 
 
@@ -303,3 +343,22 @@ class ConstrainedChain(ReducedChain):
             f_W = R @ (lam * E0 * v[row] / d)
             (wall if row < L else sheath)[row % L + 1] = f_W
         return wall, sheath
+
+
+class PlaneSDF:
+    """A flat wall as a signed distance: ``n . (p - p0)`` (> 0 on the free side), for the statics'
+    wall rows in free space (``chain_plant``'s ``wall_plane``: a point on the surface and the
+    outward normal, pointing to where the chain is)."""
+
+    def __init__(self, point, normal):
+        self.point = np.asarray(point, float).reshape(3)
+        n = np.asarray(normal, float).reshape(3)
+        self.normal = n / np.linalg.norm(n)
+
+    def __call__(self, p, gradient: bool = True, hessian: bool = False):
+        p = np.atleast_2d(np.asarray(p, float))
+        s = (p - self.point) @ self.normal
+        if not gradient and not hessian:
+            return s
+        g = np.tile(self.normal, (len(p), 1))
+        return (s, g, np.zeros((len(p), 3, 3))) if hessian else (s, g)

@@ -22,6 +22,7 @@ if not SCENARIOS_FILE.exists():  # installed (non-editable) layout
     SCENARIOS_FILE = Path(_dm.__file__).with_name("station.scenarios.yaml")
 
 MODES = ("quasi-static", "dynamics")
+ENGINES = ("plant", "statics")
 DEFAULT_TIME_STEP = {"quasi-static": 1e-3, "dynamics": 1e-4}
 
 
@@ -183,6 +184,10 @@ class ChainScenario:
         break_gap: a gap between neighbours larger than this means the chain broke [m].
         check_period: how often the monitor checks escape, breaks and clearance [s].
         publish_period: Meshcat publishing period when recording [s].
+        engine: "plant" (the MultibodyPlant: the reference, and the only one for dynamics) or
+            "statics" (``systems/quasi_static_engine.py``: the equilibrium solved every
+            ``statics_period``, quasi-static mode only).
+        statics_period: the statics engine's update period [s].
     """
 
     description: str = ""
@@ -211,6 +216,8 @@ class ChainScenario:
     break_gap: float = 1e-3
     check_period: float = 5e-3
     publish_period: float = 1.0 / 32.0
+    engine: str = "plant"
+    statics_period: float = 0.02
 
     @property
     def effective_time_step(self) -> float:
@@ -220,6 +227,11 @@ class ChainScenario:
         """Check the values; raises ValueError saying what is wrong. Returns self."""
         if self.mode not in MODES:
             raise ValueError(f"scenario mode must be one of {MODES}, got {self.mode!r}")
+        if self.engine not in ENGINES:
+            raise ValueError(f"scenario engine must be one of {ENGINES}, got {self.engine!r}")
+        if self.engine == "statics" and (self.mode != "quasi-static" or not 0 < self.statics_period <= 1.0):
+            raise ValueError(f"engine: statics needs mode: quasi-static and 0 < statics_period <= 1 s, got "
+                             f"mode {self.mode!r}, statics_period {self.statics_period}")
         if self.n_balls < 2:
             raise ValueError(f"scenario n_balls must be >= 2 (ball 1 is the feeder ball), got {self.n_balls}")
         if self.time_step < 0 or self.duration < 0 or self.check_period <= 0:
