@@ -7,10 +7,12 @@ Everything that is not in the canonical problem enters here:
 
 * Insertion (``sheath_split``): the feeder pushes ball 1 along the axis (``chain_plant``: ball i,
   0-based, sits ``s - (n - 1/2 - i) d`` along the axis from the sheath exit at inserted length
-  s). The balls whose centres are past the exit plane are free; the last ball before it is
-  held (its position is the fractional part of the insertion); those behind it are a straight
-  chain of dipoles inside the sheath whose field acts on the free balls
-  (``PointDipoles``).
+  s). The balls whose centres are past the exit plane are free; so are the last ``free_in_bore``
+  balls before it (default 1, ``base_ball``): in the plant they can turn their dipoles and move
+  within the bore's clearance, and the sheath rows hold them there. The ball behind them is the
+  canonical problem's ball 1 (held, its position the fractional part of the insertion); the
+  balls behind it are a straight chain of dipoles inside the sheath whose field acts on the
+  others (``PointDipoles``).
 * The external field and gravity are turned into frame B (``FieldInFrame``; gravity along
   R_WB^T (-z_W) is added to the energy by ``ConstrainedChain``).
 * Wall rows, one per free ball: ``c = (sdf(p_k) - r) / d >= 0``, the ball's centre at least a
@@ -70,6 +72,18 @@ def sheath_split(n_balls: int, inserted_length: float, d: float) -> tuple[int, f
     inside = np.flatnonzero(along <= 1e-12)
     k = int(inside[-1]) if len(inside) else 0
     return k, float(along[k])
+
+
+def base_ball(n_balls: int, inserted_length: float, d: float, free_in_bore: int = 1) -> tuple[int, float]:
+    """The sub-chain's held ball for an inserted length s: ``free_in_bore`` balls behind the last
+    ball in the bore (``sheath_split``), or ball 1.
+
+    Returns:
+        ``(b, a)``: its 0-based index and its centre's position past the exit plane [m].
+    """
+    k, a = sheath_split(n_balls, inserted_length, d)
+    b = max(k - free_in_bore, 0)
+    return b, a - (k - b) * d
 
 
 def base_rotation(axis_W) -> np.ndarray:
@@ -235,10 +249,15 @@ class ConstrainedChain(ReducedChain):
             p_W = c.p_WB + p_B @ c.R_WB.T
             out = c.sdf(p_W, gradient=True, hessian=hessian)
             s, grad_W = out[0], out[1]
-            values[:L] = (s - r) / d
-            v[:L] = grad_W @ c.R_WB  # c = (s - r)/d, dc/dp = grad/d, dp/dq = d sum dw
+            wall = np.ones(L, bool)
+            if c.sheath is not None:
+                # Balls still in the bore have no wall row: the sheath holds them, and the SDF's
+                # inside test sees the septal puncture as closed wall.
+                wall = p_B[:, 0] > float((c.sheath.p_WE - c.p_WB) @ c.R_WB[:, 0])
+            values[:L] = np.where(wall, (s - r) / d, 10.0)
+            v[:L] = np.where(wall[:, None], grad_W @ c.R_WB, 0.0)  # c = (s - r)/d, dc/dp = grad/d
             if hessian:
-                M[:L] = d * np.einsum("ia,kij,jb->kab", c.R_WB, out[2], c.R_WB)
+                M[:L] = wall[:, None, None] * d * np.einsum("ia,kij,jb->kab", c.R_WB, out[2], c.R_WB)
         if c.sheath is not None:
             sh = c.sheath
             a_E = float((sh.p_WE - c.p_WB) @ c.R_WB[:, 0])  # exit plane along x_B

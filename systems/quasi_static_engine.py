@@ -3,7 +3,7 @@
 Where the MultibodyPlant integrates heavily damped dynamics at 1 ms steps until the chain
 settles, ``QuasiStaticEngine`` solves for the settled shape directly (``optimization.statics``
 with the atrium's wall and the sheath as constraints, ``optimization.wall_constraints``): a
-discrete update every ``period`` (default 20 ms) finds the equilibrium for the current magnet
+discrete update every ``period`` (the scenario's ``statics_period``, 50 ms by default) finds the equilibrium for the current magnet
 states and insertion, warm-started from the last one. When the inputs moved far since the last
 update (a magnet turned more than ``max_angle_step`` or the feeder moved more than
 ``max_insertion_step``) the update walks there in smaller steps (continuation), as the real chain
@@ -43,7 +43,7 @@ from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import BallChain
 from ballchain.optimization.statics import ChainStatics, StaticsResult
-from ballchain.optimization.wall_constraints import HeartConstraints, SheathGeometry, base_rotation, sheath_split
+from ballchain.optimization.wall_constraints import HeartConstraints, SheathGeometry, base_ball, base_rotation
 from ballchain.systems.magnetic_wrench import external_field_source
 from ballchain.systems.meshcat_overlays import MeshcatOverlays
 
@@ -51,6 +51,17 @@ from ballchain.systems.meshcat_overlays import MeshcatOverlays
 def rotation_with_x_along(direction) -> np.ndarray:
     """R_WB whose first column is the unit vector along ``direction`` (a ball's dipole is +x)."""
     return rotation_with_z_along(direction)[:, [2, 0, 1]]
+
+
+def rotations_with_x_along(directions: np.ndarray) -> np.ndarray:
+    """(k, 3, 3) rotations whose first columns are the unit vectors along ``directions`` (k, 3)
+    (``rotation_with_x_along`` for all balls at once: the engine publishes 16 poses per update)."""
+    x = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    helper = np.where(np.abs(x[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+    y = np.cross(helper, x)
+    y /= np.linalg.norm(y, axis=1, keepdims=True)
+    z = np.cross(x, y)
+    return np.stack([x, y, z], axis=2)
 
 
 @dataclass
@@ -136,6 +147,9 @@ class QuasiStaticEngine(LeafSystem):
         # Stationarity tolerance on the scaled energy gradient: 1e-6 instead of the statics'
         # 1e-8 saves one Newton iteration of ~3 per warm solve; the shape moves by ~1e-6 rad.
         self.tolerance = 1e-6
+        # The last ball in the bore is free (its dipole turns, as in the plant); the one behind
+        # it is held (wall_constraints.base_ball).
+        self.free_in_bore = 1
         self.events: list[EngineEvent] = []
         self.failure: str | None = None  # the first failed update (the monitor stops the run)
         self.solve_times: list[float] = []  # wall time of every statics solve [s]
@@ -192,7 +206,7 @@ class QuasiStaticEngine(LeafSystem):
 
     def _constraints(self, s: float) -> tuple[int, HeartConstraints]:
         if self._sheath is not None:
-            k, a = sheath_split(self._n, s, self._d)
+            k, a = base_ball(self._n, s, self._d, self.free_in_bore)
             p_WB = self._p_WE + a * self._axis
         else:  # only ball 1 is held, by its slide
             k, p_WB = 0, self.straight(s)[0][0]
@@ -347,9 +361,9 @@ class QuasiStaticEngine(LeafSystem):
     def _calc_body_poses(self, context, output):
         x = self.state_vector(context)
         p = x[self._slices["p"]].reshape(-1, 3)
-        m = x[self._slices["m"]].reshape(-1, 3)
+        R = rotations_with_x_along(x[self._slices["m"]].reshape(-1, 3))
         for i, index in enumerate(self._indices):
-            self._poses[index] = RigidTransform(RotationMatrix(rotation_with_x_along(m[i])), p[i])
+            self._poses[index] = RigidTransform(RotationMatrix(R[i]), p[i])
         output.set_value(list(self._poses))
 
     def _calc_tip_force(self, context, output):

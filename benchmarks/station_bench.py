@@ -1,0 +1,162 @@
+"""Real-time factor of the station per engine and mode, and the per-piece profile of one
+equilibrium in contact.
+
+For every named heart scenario (or ``--scenarios``) the same simulated stretch is run with the
+plant (the scenario's mode: quasi-static at 1 ms or dynamics at 0.1 ms) and with the
+quasi-static engine (``engine: statics``), in one process, alternating, each ``--repeats``
+times after an untimed warm-up of each (imports, the SDF's cache, the plant's first build).
+Printed: median RTF on wall time and on process CPU time (the machine is shared, and wall time
+counts the waits), and the engine's speed-up over the plant in the same run.
+
+The profile: one warm equilibrium of 16 balls pressed on the atrium's roof (heart_wall_contact at
+30 mm inserted, the field turned by 1 deg), timed piece by piece over ``--profile-repeats``
+solves: the Newton iterations, the order-2 evaluations (the chain's energy, gradient, Hessian),
+the wall and sheath rows, the constraint Hessians, the QP steps, the rest.
+
+    python benchmarks/station_bench.py --repeats 3 --json out.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+
+HEART_SCENARIOS = ("heart_left_quasi_static", "heart_sleeve_quasi_static", "heart_no_field", "heart_wall_contact",
+                   "teleop_right_unit", "teleop_two_units", "heart_right_dynamics")
+
+
+def _run_once(name: str, engine: str, duration: float | None) -> dict:
+    from pydrake.systems.analysis import Simulator
+
+    from ballchain.systems.chain_scenario import load_scenario
+    from ballchain.systems.chain_simulation import ChainMonitor, build_chain_diagram
+
+    overrides = "{engine: statics, mode: quasi-static}" if engine == "statics" else "{}"
+    sc = load_scenario(name, overrides)
+    cd = build_chain_diagram(sc)
+    sim = Simulator(cd.diagram)
+    monitor = ChainMonitor(cd)
+    sim.set_monitor(monitor)
+    T = sc.duration if duration is None else duration
+    wall, cpu = time.perf_counter(), time.process_time()
+    sim.Initialize()
+    sim.AdvanceTo(T)
+    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    out = {"rtf_wall": T / wall, "rtf_cpu": T / cpu, "sim_s": T, "mode": sc.mode}
+    if cd.engine is not None:
+        out["median_solve_ms"] = 1e3 * float(np.median(cd.engine.solve_times)) if cd.engine.solve_times else None
+        out["solves"] = len(cd.engine.solve_times)
+    return out
+
+
+def run(*, scenarios=HEART_SCENARIOS, repeats: int = 3, duration: float | None = None,
+        profile_repeats: int = 20) -> dict:
+    """RTF per scenario and engine (medians) and the profile of one equilibrium in contact."""
+    results = {}
+    for name in scenarios:
+        _run_once(name, "plant", min(duration or 0.02, 0.02))  # warm-up (untimed)
+        _run_once(name, "statics", duration)
+        samples = {"plant": [], "statics": []}
+        for _ in range(repeats):
+            for engine in ("plant", "statics"):
+                samples[engine].append(_run_once(name, engine, duration))
+        row = {}
+        for engine, runs in samples.items():
+            row[engine] = {
+                "mode": runs[0]["mode"],
+                "rtf_wall": round(float(np.median([r["rtf_wall"] for r in runs])), 3),
+                "rtf_cpu": round(float(np.median([r["rtf_cpu"] for r in runs])), 3),
+            }
+            if engine == "statics":
+                row[engine]["median_solve_ms"] = round(float(np.median([r["median_solve_ms"] for r in runs])), 2)
+                row[engine]["solves"] = runs[0]["solves"]
+        row["speedup_wall"] = round(row["statics"]["rtf_wall"] / row["plant"]["rtf_wall"], 2)
+        row["speedup_cpu"] = round(row["statics"]["rtf_cpu"] / row["plant"]["rtf_cpu"], 2)
+        results[name] = row
+        print(name, json.dumps(row), flush=True)
+    return {"scenarios": results, "profile": profile_equilibrium(profile_repeats)}
+
+
+def profile_equilibrium(repeats: int = 20) -> dict:
+    """Median time of each piece of one warm equilibrium in contact [ms]."""
+    from ballchain.optimization import statics as st
+    from ballchain.optimization.reduced_chain import ReducedChain
+    from ballchain.optimization.wall_constraints import ConstrainedChain
+    from ballchain.systems.chain_scenario import load_scenario
+    from ballchain.systems.chain_simulation import build_chain_diagram
+
+    sc = load_scenario("heart_wall_contact", "{engine: statics, insertion: {initial: 0.03, final: 0.03}}")
+    cd = build_chain_diagram(sc)
+    engine = cd.engine
+    s = 0.03
+    p, m, result, k = engine.equilibrium(s, None)
+    B = np.array(cd.field_source.B_W, float)
+    pieces = {"evaluate": ReducedChain.evaluate, "rows": ConstrainedChain._rows,
+              "constraint_hessian": ConstrainedChain.constraint_hessian, "qp": st.dense_qp,
+              "positive_definite": st._positive_definite}
+    clock = {key: 0.0 for key in pieces}
+
+    def timed(key, fn):
+        def wrapper(*a, **kw):
+            t = time.perf_counter()
+            try:
+                return fn(*a, **kw)
+            finally:
+                clock[key] += time.perf_counter() - t
+        return wrapper
+
+    originals = {"evaluate": (ReducedChain, "evaluate"), "rows": (ConstrainedChain, "_rows"),
+                 "constraint_hessian": (ConstrainedChain, "constraint_hessian"), "qp": (st, "dense_qp"),
+                 "positive_definite": (st, "_positive_definite")}
+    totals, per_piece, iterations = [], {key: [] for key in pieces}, []
+    from ballchain.drake_models.field_sources import UniformField
+
+    for j in range(repeats):
+        angle = np.radians(1.0) * (1 if j % 2 == 0 else -1)
+        c, s_ = np.cos(angle), np.sin(angle)
+        field = UniformField(np.array([c * B[0] - s_ * B[1], s_ * B[0] + c * B[1], B[2]]))
+        engine._field_source = field
+        for key, (owner, attr) in originals.items():
+            setattr(owner, attr, timed(key, pieces[key]))
+        for key in clock:
+            clock[key] = 0.0
+        t = time.perf_counter()
+        try:
+            _, _, res, _ = engine.equilibrium(s, None, p, m)
+        finally:
+            for key, (owner, attr) in originals.items():
+                setattr(owner, attr, pieces[key])
+        totals.append(time.perf_counter() - t)
+        iterations.append(res.iterations)
+        for key in clock:
+            per_piece[key].append(clock[key])
+    out = {"equilibrium_ms": round(1e3 * float(np.median(totals)), 3),
+           "newton_iterations": float(np.median(iterations)),
+           "wall_contacts": len(res.wall_forces_W)}
+    for key, values in per_piece.items():
+        out[f"{key}_ms"] = round(1e3 * float(np.median(values)), 3)
+    out["rest_ms"] = round(out["equilibrium_ms"] - sum(out[f"{k}_ms"] for k in pieces if k != "rows"), 3)
+    print("profile", json.dumps(out), flush=True)
+    return out
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--scenarios", nargs="*", default=list(HEART_SCENARIOS), help="named scenarios")
+    parser.add_argument("--repeats", type=int, default=3, help="timed runs per scenario and engine")
+    parser.add_argument("--duration", type=float, default=None, help="simulated time per run [s] (default: the scenario's)")
+    parser.add_argument("--profile-repeats", type=int, default=20, help="warm equilibria in the profile")
+    parser.add_argument("--json", default=None, help="write the results to this file")
+    args = parser.parse_args()
+    out = run(scenarios=args.scenarios, repeats=args.repeats, duration=args.duration,
+              profile_repeats=args.profile_repeats)
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(out, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
