@@ -119,10 +119,55 @@ class PointDipoles:
         self.B0 = np.zeros(3) if B0 is None else np.asarray(B0, float)
 
     def field_and_gradient(self, p_B):
-        p_B = np.asarray(p_B, float).reshape(-1, 3)
+        p_B = np.ascontiguousarray(np.asarray(p_B, float).reshape(-1, 3))
+        if _dipole_kernel is not None and len(self.p):
+            # The same law as dipole.dipole_field(_gradient), compiled (drake_models.chain_kernels).
+            status, B, G = _dipole_kernel(p_B, np.ascontiguousarray(self.p), np.ascontiguousarray(self.m),
+                                          np.zeros(len(self.p)))
+            if status < 0:
+                return self.B0 + B, G
         r = p_B[:, None, :] - self.p[None]
         m = np.broadcast_to(self.m, r.shape)
         return self.B0 + dipole_field(r, m).sum(axis=1), dipole_field_gradient(r, m).sum(axis=1)
+
+
+try:  # the compiled point-dipole law when the kernels are there; numpy (dipole.py) otherwise
+    from ballchain.drake_models.chain_kernels import dipole_field_and_gradient as _dipole_kernel
+except ImportError:  # pragma: no cover - depends on the branch
+    _dipole_kernel = None
+
+
+class StackedJacobian:
+    """The rigidity rows' Jacobian (an array, or a row-on-demand object such as the kernels'
+    ``ConstraintJacobian``) with the wall and sheath rows below it: indexing with an array of
+    row numbers builds only those rows, as the statics asks for the rows near contact."""
+
+    def __init__(self, base, rows: np.ndarray):
+        self.base, self.rows, self.n_base = base, rows, len(base)
+
+    def __len__(self) -> int:
+        return self.n_base + len(self.rows)
+
+    def __getitem__(self, index):
+        if isinstance(index, tuple):
+            return np.asarray(self)[index]
+        idx = np.arange(len(self))[index] if not isinstance(index, np.ndarray) or index.dtype == bool \
+            else np.asarray(index, int)
+        idx = np.atleast_1d(idx)
+        out = np.empty((len(idx), self.rows.shape[1]))
+        mine = idx >= self.n_base
+        if np.any(~mine):
+            out[~mine] = np.asarray(self.base[idx[~mine]])
+        out[mine] = self.rows[idx[mine] - self.n_base]
+        return out
+
+    def __array__(self, dtype=None, copy=None):
+        full = np.vstack([np.asarray(self.base), self.rows])
+        return full if dtype is None else full.astype(dtype)
+
+    @property
+    def T(self) -> np.ndarray:
+        return np.asarray(self).T
 
 
 def _point_dipoles_W(source) -> tuple[list, list, np.ndarray] | None:
@@ -314,7 +359,7 @@ class ConstrainedChain(ReducedChain):
             for part in (slice(0, L), slice(L, 2 * L)):
                 rows[part, :L] = tri * (v[part] @ dw_da[:L].T)
                 rows[part, K:K + L] = tri * (v[part] @ dw_db[:L].T)
-            ev.jacobian = np.vstack([base.jacobian, rows])
+            ev.jacobian = StackedJacobian(base.jacobian, rows)
         self._cache = (key, order, ev)
         return ev
 
