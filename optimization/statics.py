@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 from typing import Iterable, Literal
 
 import numpy as np
+from scipy.linalg import cho_factor, cho_solve, solve_triangular
 from pydrake.autodiffutils import AutoDiffXd, ExtractGradient, ExtractValue, InitializeAutoDiff
 from pydrake.solvers import (
     ClarabelSolver,
@@ -161,11 +162,11 @@ def dense_qp(H: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarray, E: np.n
     n_eq = 0 if E is None else len(e)
     N = A if n_eq == 0 else np.vstack([A, E])
     c = b if n_eq == 0 else np.concatenate([b, e])
-    Lc = np.linalg.cholesky(H)
-    Hinv_g = np.linalg.solve(Lc.T, np.linalg.solve(Lc, g))
+    factor = cho_factor(H, lower=True, check_finite=False)
+    Hinv_g = cho_solve(factor, g, check_finite=False)
     if len(c) == 0:
         return -Hinv_g, np.zeros(0), np.zeros(0)
-    Y = np.linalg.solve(Lc, N.T)  # L^-1 N'
+    Y = solve_triangular(factor[0], N.T, lower=True, check_finite=False)  # L^-1 N'
     M = Y.T @ Y
     M += 1e-13 * max(1.0, float(np.trace(M))) * np.eye(len(M))  # dependent rows: a unique dual
     r = c - N @ Hinv_g
@@ -197,7 +198,7 @@ def dense_qp(H: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarray, E: np.n
         if w[j] <= 1e-12 * max(1.0, np.abs(r).max()):
             if not np.all(np.isfinite(y)) or np.abs(y).max() > 1e12:
                 return None, None, None
-            x = np.linalg.solve(Lc.T, np.linalg.solve(Lc, N.T @ y - g))
+            x = cho_solve(factor, N.T @ y - g, check_finite=False)
             if n_in and (A @ x + b).min() < -1e-8 * max(1.0, np.abs(b).max()):
                 return None, None, None  # infeasible: the regularised dual stops at a violation
             return x, y[:n_in], y[n_in:]
@@ -231,6 +232,7 @@ class ChainStatics:
     """
 
     contact_margin = 0.3  # pairs with |p_i - p_j|^2 / d^2 - 1 below this enter the step's QP
+    feasibility_tolerance = 1e-12  # largest summed row violation (dimensionless) of a solution
     max_step = 0.5  # largest change of any chart angle in one Newton step [rad]
 
     def __init__(
@@ -478,7 +480,7 @@ class ChainStatics:
             first_order = np.abs(stationarity).max() < self.tolerance or (
                 abs(decrease) < 1e-14 * max(1.0, abs(ev.energy)) and np.abs(stationarity).max() < 1e-6
             )
-            if first_order and violation < 1e-12:
+            if first_order and violation < self.feasibility_tolerance:
                 # First-order point: check curvature on the active constraints' tangent space.
                 active = near[lam > 1e-9] if len(near) else near
                 rows = [ev.jacobian[active]] + ([ev.tip_jacobian] if pinned else [])

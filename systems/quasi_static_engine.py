@@ -245,6 +245,9 @@ class QuasiStaticEngine(LeafSystem):
         if solver is None:
             solver = self._solvers[n_sub] = ChainStatics(self.chain.with_balls(n_sub), gravity=self._gravity,
                                                          tolerance=self.tolerance)
+            # Rows met to 1e-9 of a ball diameter (3 pm) rather than 1e-12: one Newton
+            # iteration less (the last one only certifies round-off).
+            solver.feasibility_tolerance = 1e-9
         warm = None
         if p_W is not None:
             pB, mB = c.to_base(p_W[k:], m_W[k:])
