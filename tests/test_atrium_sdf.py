@@ -138,3 +138,13 @@ def test_user_surface_ray_parity_and_cache(tmp_path):
     np.testing.assert_allclose(sdf(P, gradient=False), exact, atol=0.08e-3)
     # A coarse rebuild without the cache gives the same grid.
     np.testing.assert_allclose(build_atrium_sdf(heart, spacing=1e-3, band=3e-3).values, sdf.values)
+
+
+@pytest.mark.slow
+def test_compiled_spline_matches_the_numpy_reference(sdf):
+    rng = np.random.default_rng(5)
+    lo, hi = sdf.origin, sdf.origin + sdf.spacing * (np.array(sdf.values.shape) - 1)
+    P = rng.uniform(lo - 1e-3, hi + 1e-3, (500, 3))  # some outside the grid: clamped alike
+    for got, ref in zip(sdf(P, hessian=True), sdf.reference(P, hessian=True)):
+        np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(sdf(P, gradient=False), sdf.reference(P, gradient=False), rtol=1e-12, atol=1e-15)
