@@ -88,6 +88,8 @@ class StaticsResult:
             pushes on ball i of the sub-chain (frictionless: along the wall's normal).
         sheath_forces_W: likewise the sheath's lip and bore.
         positions_W, dipoles_W: with ``HeartConstraints``: the configuration in world.
+        multipliers: ``{row: multiplier}`` of the rows near contact at the solution (scaled
+            units); a warm start carrying them starts the next solve's model with them.
     """
 
     positions: np.ndarray
@@ -107,6 +109,7 @@ class StaticsResult:
     sheath_forces_W: dict = field(default_factory=dict)
     positions_W: np.ndarray | None = None
     dipoles_W: np.ndarray | None = None
+    multipliers: dict = field(default_factory=dict)
 
     @property
     def tip_position(self) -> np.ndarray:
@@ -332,7 +335,8 @@ class ChainStatics:
         model.chart_from_configuration(p0, m0)
         lam_tip = np.zeros(3)
         if self.method == "newton":
-            q, converged, reason, iterations, lam_near, lam_tip = self._newton(model)
+            lam0 = getattr(warm_start, "multipliers", None) if constraints is not None else None
+            q, converged, reason, iterations, lam_near, lam_tip = self._newton(model, lam0)
         else:
             if model.tip_target is not None or model.wall is not None:
                 raise ValueError("tip targets and walls are solved by the 'newton' method only")
@@ -373,6 +377,7 @@ class ChainStatics:
             solve_time=time.perf_counter() - start,
             max_violation=max_violation,
             pair_forces=pair_forces,
+            multipliers=dict(lam_near),
             tip_reaction=model.energy_scale / model.d * np.asarray(lam_tip, dtype=float),
             wall_forces=wall_forces,
             **extra,
@@ -427,13 +432,15 @@ class ChainStatics:
         lam_tip = result.GetDualSolution(tip) if tip is not None else np.zeros(3)
         return result.GetSolution(x), lam, lam_tip
 
-    def _newton(self, model: ReducedChain):
+    def _newton(self, model: ReducedChain, lam0: dict | None = None):
         """Second-order SQP; returns (q, converged, reason, iterations, pair multipliers, tip multipliers)."""
         q = np.zeros(model.nq)
         ev = model.evaluate(q, 2)
         rho = 1.0
         escapes = 0
-        lam_near: dict[int, float] = {}
+        # The warm start's multipliers (same rows: the same sub-chain in the heart) put the
+        # constraints' curvature in the first step's model: about one iteration less.
+        lam_near: dict[int, float] = {} if not lam0 else {k: v for k, v in lam0.items() if k < len(ev.gaps)}
         lam_tip = np.zeros(3)
         pinned = model.tip_target is not None
         K = model.n_vectors

@@ -144,6 +144,9 @@ class QuasiStaticEngine(LeafSystem):
         self.max_insertion_step = max_insertion_step
         self.snap_distance = snap_distance
         self._solvers: dict[int, ChainStatics] = {}
+        # The last solution's multipliers per sub-chain size: a warm start for the next solve's
+        # quadratic model only (the solution does not depend on them).
+        self._multipliers: dict[int, dict] = {}
         # Stationarity tolerance on the scaled energy gradient: 1e-6 instead of the statics'
         # 1e-8 saves one Newton iteration of ~3 per warm solve; the shape moves by ~1e-6 rad.
         self.tolerance = 1e-6
@@ -262,13 +265,16 @@ class QuasiStaticEngine(LeafSystem):
         warm = None
         if p_W is not None:
             pB, mB = c.to_base(p_W[k:], m_W[k:])
-            warm = StaticsResult(pB, mB, 0.0, None, True, "warm start", "", 0, 0.0)
+            warm = StaticsResult(pB, mB, 0.0, None, True, "warm start", "", 0, 0.0,
+                                 multipliers=self._multipliers.get(n_sub, {}))
         field = self._field(magnets)
         start = time.perf_counter()
         result = solver.solve(field, warm, constraints=c)
         if not result.converged and warm is not None:  # one restart, from the straight chain
             result = solver.solve(field, None, constraints=c)
         self.solve_times.append(time.perf_counter() - start)
+        if result.converged:
+            self._multipliers[n_sub] = result.multipliers
         self.iterations.append(result.iterations)
         if not result.converged:
             raise StaticsError(f"statics in the heart did not converge at s = {s * 1e3:.2f} mm: {result.reason}")
