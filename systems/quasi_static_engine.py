@@ -92,7 +92,8 @@ class QuasiStaticEngine(LeafSystem):
 
     State (discrete, updated every ``period``): ball centres (3 n), dipoles (3 n), the tip's
     wall force and contact point (6), the insertion and magnet states of the last solve, the
-    snap-through and failure counts.
+    snap-through and failure counts, the last step's change of the equilibrium (6 n) and its
+    size (1) for the next step's predictor.
 
     Args:
         chain: the chain (sleeve included when ``chain.sleeve``).
@@ -161,7 +162,7 @@ class QuasiStaticEngine(LeafSystem):
         self._slices = {}
         offset = 0
         for name, size in (("p", 3 * n), ("m", 3 * n), ("tip", 6), ("s", 1), ("magnets", km), ("snaps", 1),
-                           ("failures", 1)):
+                           ("failures", 1), ("dp", 3 * n), ("dm", 3 * n), ("u", 1)):
             self._slices[name] = slice(offset, offset + size)
             offset += size
         x0 = np.zeros(offset)
@@ -240,9 +241,10 @@ class QuasiStaticEngine(LeafSystem):
                                      magnets, self._model)
 
     def equilibrium(self, s: float, magnets: np.ndarray | None, p_W: np.ndarray | None = None,
-                    m_W: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, StaticsResult | None, int]:
+                    m_W: np.ndarray | None = None, predicted=None) -> tuple[np.ndarray, np.ndarray, StaticsResult | None, int]:
         """The equilibrium at inserted length s and magnet states, warm-started from the world
-        configuration (p_W, m_W) (None: the straight chain), with one cold restart on failure.
+        configuration (p_W, m_W) (None: the straight chain), or first from ``predicted``
+        ((p, m), the continuation's extrapolation) when given; one cold restart on failure.
 
         Returns:
             ``(p_W (n, 3), m_W (n, 3), result or None (no free ball), k)``; raises StaticsError
@@ -262,16 +264,20 @@ class QuasiStaticEngine(LeafSystem):
             # Rows met to 1e-9 of a ball diameter (3 pm) rather than 1e-12: one Newton
             # iteration less (the last one only certifies round-off).
             solver.feasibility_tolerance = 1e-9
-        warm = None
-        if p_W is not None:
-            pB, mB = c.to_base(p_W[k:], m_W[k:])
-            warm = StaticsResult(pB, mB, 0.0, None, True, "warm start", "", 0, 0.0,
-                                 multipliers=self._multipliers.get(n_sub, {}))
+        def warm_from(p, m):
+            if p is None:
+                return None
+            pB, mB = c.to_base(p[k:], m[k:])
+            return StaticsResult(pB, mB / np.linalg.norm(mB, axis=1, keepdims=True), 0.0, None, True,
+                                 "warm start", "", 0, 0.0, multipliers=self._multipliers.get(n_sub, {}))
+
         field = self._field(magnets)
         start = time.perf_counter()
-        result = solver.solve(field, warm, constraints=c)
-        if not result.converged and warm is not None:  # one restart, from the straight chain
-            result = solver.solve(field, None, constraints=c)
+        starts = ([] if predicted is None else [predicted]) + [(p_W, m_W)] + ([(None, None)] if p_W is not None else [])
+        for p0, m0 in starts:  # the prediction, the last equilibrium, then one cold restart
+            result = solver.solve(field, warm_from(p0, m0), constraints=c)
+            if result.converged:
+                break
         self.solve_times.append(time.perf_counter() - start)
         if result.converged:
             self._multipliers[n_sub] = result.multipliers
@@ -291,8 +297,26 @@ class QuasiStaticEngine(LeafSystem):
                 out[3:] = p[-1] - 0.5 * self._d * f / np.linalg.norm(f)
         return out
 
-    def _walk(self, t, s0, s1, mag0, mag1, p, m, depth=0):
-        """Continuation from (s0, mag0) with equilibrium (p, m) to (s1, mag1)."""
+    def _step_size(self, s0, s1, mag0, mag1) -> float:
+        """How far the inputs move, in continuation steps (the largest of the feeder's travel,
+        the magnets' turn and their travel over their per-step limits)."""
+        u = abs(s1 - s0) / self.max_insertion_step
+        if mag0 is not None and len(mag0):
+            a, b = mag0.reshape(-1, 6), mag1.reshape(-1, 6)
+            cos = np.einsum("ij,ij->i", a[:, 3:], b[:, 3:]) / (
+                np.linalg.norm(a[:, 3:], axis=1) * np.linalg.norm(b[:, 3:], axis=1))
+            u = max(u, float(np.arccos(np.clip(cos, -1.0, 1.0)).max()) / self.max_angle_step,
+                    float(np.linalg.norm(a[:, :3] - b[:, :3], axis=1).max()) / 5e-3)
+        return u
+
+    def _walk(self, t, s0, s1, mag0, mag1, p, m, depth=0, motion=None):
+        """Continuation from (s0, mag0) with equilibrium (p, m) to (s1, mag1).
+
+        ``motion``: (dp, dm, u) the last step's change of the equilibrium and its size
+        (``_step_size``); each step starts from the linear extrapolation (a secant predictor),
+        which saves Newton iterations while the magnets turn or the feeder moves steadily.
+        Returns (p, m, result, motion).
+        """
         steps = 1
         if mag0 is not None and len(mag0):
             a = mag0.reshape(-1, 6)[:, 3:]
@@ -303,6 +327,7 @@ class QuasiStaticEngine(LeafSystem):
             steps = max(steps, int(np.ceil(angle / self.max_angle_step)), int(np.ceil(moved / 5e-3)))
         steps = max(steps, int(np.ceil(abs(s1 - s0) / self.max_insertion_step)))
         result = None
+        u_step = self._step_size(s0, s1, mag0, mag1) / steps
         for j in range(1, steps + 1):
             f = j / steps
             s = s0 + f * (s1 - s0)
@@ -310,16 +335,23 @@ class QuasiStaticEngine(LeafSystem):
             fp = (j - 1) / steps
             s_prev = s0 + fp * (s1 - s0)
             mag_prev = None if mag0 is None else self._interpolate(mag0, mag1, fp)
-            p_new, m_new, result, _ = self.equilibrium(s, mag, p, m)
+            predicted = None
+            if motion is not None and motion[2] > 0 and u_step > 0:
+                ratio = min(u_step / motion[2], 2.0)
+                predicted = (p + ratio * motion[0], m + ratio * motion[1])
+            p_new, m_new, result, _ = self.equilibrium(s, mag, p, m, predicted)
             jump = float(np.linalg.norm(p_new - p, axis=1).max() - abs(s - s_prev))
             if jump > self.snap_distance:
                 if depth < 4:  # refine: a smooth path moves less over a shorter step
-                    p_new, m_new, result = self._walk(t, s_prev, s, mag_prev, mag, p, m, depth + 1)
+                    p_new, m_new, result, _ = self._walk(t, s_prev, s, mag_prev, mag, p, m, depth + 1)
                 elif steps == 1:
                     self.events.append(EngineEvent(t, "snap-through", jump + abs(s - s_prev),
                                                    f"inserted length {s * 1e3:.2f} mm"))
+                motion = None  # no extrapolation across a jump
+            else:
+                motion = (p_new - p, m_new - m, u_step)
             p, m = p_new, m_new
-        return p, m, result
+        return p, m, result, motion
 
     @staticmethod
     def _interpolate(a: np.ndarray, b: np.ndarray, f: float) -> np.ndarray:
@@ -350,10 +382,18 @@ class QuasiStaticEngine(LeafSystem):
         mags_last = None if mags is None else x[self._slices["magnets"]].copy()
         t = context.get_time()
         if s == s_last and (mags is None or np.array_equal(mags, mags_last)):
-            return EventStatus.Succeeded()  # nothing moved: the chain stays where it is
+            # Nothing moved: the chain stays where it is (and the next move starts afresh).
+            x = x.copy()
+            x[self._slices["u"]] = 0.0
+            discrete_state.get_mutable_vector(self._state_index).SetFromVector(x)
+            return EventStatus.Succeeded()
         snaps_before = sum(e.kind == "snap-through" for e in self.events)
+        motion = None
+        if x[self._slices["u"]][0] > 0:
+            motion = (x[self._slices["dp"]].reshape(-1, 3), x[self._slices["dm"]].reshape(-1, 3),
+                      float(x[self._slices["u"]][0]))
         try:
-            p, m, result = self._walk(t, s_last, s, mags_last, mags, p, m)
+            p, m, result, motion = self._walk(t, s_last, s, mags_last, mags, p, m, motion=motion)
             failures = 0
         except StaticsError as err:  # keep the last equilibrium, report it (the watchdog stops)
             # Not EventStatus.Failed(self, ...): formatting a Python system's failure message
@@ -362,11 +402,17 @@ class QuasiStaticEngine(LeafSystem):
             self.failure = f"quasi-static engine at t = {t:.4f} s: {err}"
             return EventStatus.Succeeded()
         snaps = sum(e.kind == "snap-through" for e in self.events) - snaps_before
-        self._store(discrete_state, context, p, m, result, s, mags, snaps, failures)
+        self._store(discrete_state, context, p, m, result, s, mags, snaps, failures, motion)
         return EventStatus.Succeeded()
 
-    def _store(self, discrete_state, context, p, m, result, s, mags, new_snaps, new_failures):
+    def _store(self, discrete_state, context, p, m, result, s, mags, new_snaps, new_failures, motion=None):
         x = self.state_vector(context).copy()
+        if motion is None:
+            x[self._slices["u"]] = 0.0
+        else:
+            x[self._slices["dp"]] = motion[0].ravel()
+            x[self._slices["dm"]] = motion[1].ravel()
+            x[self._slices["u"]] = motion[2]
         x[self._slices["p"]] = p.ravel()
         x[self._slices["m"]] = m.ravel()
         x[self._slices["tip"]] = self._tip_force(p, result)
