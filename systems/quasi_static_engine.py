@@ -48,6 +48,22 @@ from ballchain.systems.magnetic_wrench import external_field_source
 from ballchain.systems.meshcat_overlays import MeshcatOverlays
 
 
+_BLAS = None
+
+
+def _one_blas_thread():
+    """A context in which BLAS/LAPACK run on one thread (threadpoolctl). The statics' matrices
+    are 60 x 60: threads only add overhead, and on a shared machine they wait for each other
+    (measured here: numpy's eigh of 56 x 56 took 44 ms with OpenBLAS's threads, 0.3 ms on one;
+    its Cholesky 0.26 ms against 0.05 ms)."""
+    global _BLAS
+    if _BLAS is None:
+        from threadpoolctl import ThreadpoolController
+
+        _BLAS = ThreadpoolController()
+    return _BLAS.limit(limits=1, user_api="blas")
+
+
 def rotation_with_x_along(direction) -> np.ndarray:
     """R_WB whose first column is the unit vector along ``direction`` (a ball's dipole is +x)."""
     return rotation_with_z_along(direction)[:, [2, 0, 1]]
@@ -192,7 +208,8 @@ class QuasiStaticEngine(LeafSystem):
         kernels' caches and the solvers before a timed run. Leaves no trace in the reports."""
         n_solves, events = len(self.solve_times), list(self.events)
         try:
-            self.equilibrium(self._s0, None)
+            with _one_blas_thread():
+                self.equilibrium(self._s0, None)
         except Exception:  # noqa: BLE001 - a warm-up only; the run reports real failures
             pass
         del self.solve_times[n_solves:], self.iterations[n_solves:]
@@ -367,7 +384,8 @@ class QuasiStaticEngine(LeafSystem):
 
     def _initialize(self, context, discrete_state):
         s, mags = self._inputs(context)
-        p, m, result, _ = self.equilibrium(s, mags)
+        with _one_blas_thread():
+            p, m, result, _ = self.equilibrium(s, mags)
         self._store(discrete_state, context, p, m, result, s, mags, new_snaps=0, new_failures=0)
         return EventStatus.Succeeded()
 
@@ -393,7 +411,8 @@ class QuasiStaticEngine(LeafSystem):
             motion = (x[self._slices["dp"]].reshape(-1, 3), x[self._slices["dm"]].reshape(-1, 3),
                       float(x[self._slices["u"]][0]))
         try:
-            p, m, result, motion = self._walk(t, s_last, s, mags_last, mags, p, m, motion=motion)
+            with _one_blas_thread():
+                p, m, result, motion = self._walk(t, s_last, s, mags_last, mags, p, m, motion=motion)
             failures = 0
         except StaticsError as err:  # keep the last equilibrium, report it (the watchdog stops)
             # Not EventStatus.Failed(self, ...): formatting a Python system's failure message
