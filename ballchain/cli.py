@@ -2,8 +2,11 @@
 
 Each subcommand lives in ``ballchain/commands/<name>.py`` with ``add_arguments(parser)`` and
 ``main(args) -> int``; modules load only when their subcommand runs, so ``ballchain --help`` is
-fast. Every subcommand that computes something takes ``--json``. Bad input exits with status 2
-and a one-line message on stderr, never a traceback.
+fast. Every subcommand that computes something takes ``--json``. Bad input (argparse's errors
+and ``UserInputError``) exits with status 2 and a one-line message on stderr, never a traceback;
+any other exception is a bug and stays a traceback (exit status 1), so that it gets reported.
+Ctrl-C stops with status 130 and a one-line note (result files are written atomically, so what
+was finished stays intact).
 """
 
 from __future__ import annotations
@@ -33,9 +36,17 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """An ArgumentParser whose errors are one line (no usage block): exit status 2."""
+
+    def error(self, message):
+        message = " ".join(str(message).split())
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentParser]]:
     """The top-level parser and one (argument-less) subparser per subcommand."""
-    parser = argparse.ArgumentParser(prog="ballchain", description=__doc__.split("\n")[0])
+    parser = _OneLineParser(prog="ballchain", description=__doc__.split("\n")[0])
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     subparsers = {}
     for name, (module, help_text) in COMMANDS.items():
@@ -62,11 +73,15 @@ def main(argv: list[str] | None = None) -> int:
         # synchronisation, and under load it makes solves several times slower.
         with threadpool_limits(limits=1, user_api="blas"):
             return int(module.main(args) or 0)
-    except (UserInputError, ValueError) as err:
-        print(f"ballchain {args.command}: error: {err}", file=sys.stderr)
+    except UserInputError as err:
+        message = " ".join(str(err).split())  # one line, whatever the message holds
+        print(f"ballchain {args.command}: error: {message}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"ballchain {args.command}: interrupted (files already written are complete)", file=sys.stderr)
+        return 130
     except StaticsError as err:
-        print(f"ballchain {args.command}: {err}", file=sys.stderr)
+        print(f"ballchain {args.command}: {' '.join(str(err).split())}", file=sys.stderr)
         return 1
 
 

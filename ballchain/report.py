@@ -1,7 +1,10 @@
 """A small report document rendered both as Markdown and as self-contained HTML.
 
 A report is a title and a list of sections; a section holds paragraphs, tables (header +
-rows) and figures (PNG files, embedded in the HTML as base64 so the file travels alone).
+rows) and figures (PNG files, embedded in the HTML as base64 so the file travels alone). Both
+files are written atomically (a killed run leaves the previous report or the new one, never half
+of one). A section round-trips through JSON (``section_to_dict`` / ``section_from_dict``), so a
+finished section can be stored and reused by ``ballchain reproduce --resume``.
 """
 
 from __future__ import annotations
@@ -10,6 +13,8 @@ import base64
 import html
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from ballchain.drake_models.safe_files import atomic_write_text
 
 
 @dataclass
@@ -97,6 +102,9 @@ def to_html(title: str, sections: list[Section]) -> str:
                     parts.append("<tr>" + "".join(f"<td>{esc(_cell(v))}</td>" for v in row) + "</tr>")
                 parts.append("</table>")
             elif isinstance(block, Figure):
+                if not block.path.exists():  # say so instead of failing the whole report
+                    parts.append(f"<p><em>figure missing: {esc(str(block.path))}</em></p>")
+                    continue
                 data = base64.b64encode(block.path.read_bytes()).decode()
                 parts.append(f"<figure><img src='data:image/png;base64,{data}'>"
                              f"<figcaption>{esc(block.caption)}</figcaption></figure>")
@@ -105,10 +113,55 @@ def to_html(title: str, sections: list[Section]) -> str:
 
 
 def write_report(title: str, sections: list[Section], out_dir: Path) -> tuple[Path, Path]:
-    """Write ``report.md`` and ``report.html`` into out_dir; returns their paths."""
+    """Write ``report.md`` and ``report.html`` into out_dir atomically; returns their paths."""
+    out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    md = out_dir / "report.md"
-    md.write_text(to_markdown(title, sections, out_dir))
-    page = out_dir / "report.html"
-    page.write_text(to_html(title, sections))
+    md = atomic_write_text(out_dir / "report.md", to_markdown(title, sections, out_dir))
+    page = atomic_write_text(out_dir / "report.html", to_html(title, sections))
     return md, page
+
+
+def _plain(value):
+    """A table cell as plain JSON (numpy scalars to Python; NaN and inf to None)."""
+    import math
+
+    if hasattr(value, "item") and not isinstance(value, (list, tuple, dict)):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    return value if value is None or isinstance(value, (bool, int, float, str)) else str(value)
+
+
+def section_to_dict(section: Section, out_dir: Path) -> dict:
+    """A JSON-ready form of a section; figure paths are stored relative to ``out_dir``."""
+    blocks = []
+    for block in section.blocks:
+        if isinstance(block, str):
+            blocks.append({"text": block})
+        elif isinstance(block, Table):
+            blocks.append({"table": {"header": [str(h) for h in block.header],
+                                     "rows": [[_plain(v) for v in row] for row in block.rows],
+                                     "caption": block.caption}})
+        elif isinstance(block, Figure):
+            path = block.path
+            rel = path.relative_to(out_dir) if path.is_relative_to(out_dir) else path
+            blocks.append({"figure": {"path": rel.as_posix(), "caption": block.caption}})
+    return {"title": section.title, "blocks": blocks}
+
+
+def section_from_dict(data: dict, out_dir: Path) -> Section:
+    """The inverse of ``section_to_dict`` (relative figure paths resolved against ``out_dir``)."""
+    section = Section(data["title"])
+    for block in data["blocks"]:
+        if "text" in block:
+            section.text(block["text"])
+        elif "table" in block:
+            t = block["table"]
+            section.table(t["header"], t["rows"], t.get("caption", ""))
+        elif "figure" in block:
+            f = block["figure"]
+            path = Path(f["path"])
+            section.figure(path if path.is_absolute() else Path(out_dir) / path, f.get("caption", ""))
+    return section

@@ -24,13 +24,16 @@ from typing import Literal
 import numpy as np
 
 from ballchain.drake_models import mesh_tools as mt
+from ballchain.drake_models.errors import UserInputError
 
 Units = Literal["auto", "m", "mm"]
 SENSIBLE_EXTENT_MM = (30.0, 80.0)  # typical LA size; outside ACCEPTED_EXTENT_MM is refused
 ACCEPTED_EXTENT_MM = (20.0, 120.0)
+MAX_PUNCTURE_DISTANCE = 5e-3  # [m] a user's puncture may lie this far from the surface
+DEGENERATE_VOLUME_FRACTION = 1e-6  # a wall tetrahedron this much smaller than the median is flat
 
 
-class AtriumMeshError(ValueError):
+class AtriumMeshError(UserInputError):
     """A user atrium surface that cannot be used; the message lists every problem found."""
 
 
@@ -286,14 +289,27 @@ class UserAtrium:
         self.surface = surface
         self.params = params or UserAtriumParams()
         if self.params.wall_layers < 2:
-            raise ValueError("UserAtriumParams.wall_layers must be >= 2")
+            raise UserInputError("UserAtriumParams.wall_layers must be >= 2")
         V, F = surface.V, surface.F
-        k = int(np.argmin(np.linalg.norm(V - np.asarray(p_HP, float), axis=1)))
+        p_HP = np.asarray(p_HP, float)
+        if p_HP.shape != (3,) or not np.all(np.isfinite(p_HP)):
+            raise UserInputError(f"puncture must be 3 finite coordinates [m], got {np.asarray(p_HP).tolist()}")
+        # The puncture is snapped onto the surface: only a small correction is accepted, so a
+        # mistyped point (or one in millimetres) is refused instead of silently moved far away.
+        gap = float(mt.SurfaceDistance(V, F)(p_HP)[0])
+        if gap > MAX_PUNCTURE_DISTANCE:
+            raise UserInputError(
+                f"puncture {np.round(p_HP, 6).tolist()} m is {gap * 1e3:.1f} mm from the atrium surface; it "
+                f"must lie within {MAX_PUNCTURE_DISTANCE * 1e3:.0f} mm of it (coordinates in metres, in the "
+                "surface's frame after its units are applied)")
+        k = int(np.argmin(np.linalg.norm(V - p_HP, axis=1)))
         self.p_HP = V[k].copy()
+        if sheath_aim is not None and (np.shape(sheath_aim) != (3,) or not np.all(np.isfinite(sheath_aim))):
+            raise UserInputError(f"sheath_aim must be 3 finite coordinates [m], got {sheath_aim}")
         aim = V.mean(axis=0) if sheath_aim is None else np.asarray(sheath_aim, float)
         axis = aim - self.p_HP
         if np.linalg.norm(axis) == 0:
-            raise ValueError("UserAtrium: the sheath aim coincides with the puncture")
+            raise UserInputError("UserAtrium: the sheath aim coincides with the puncture")
         self.sheath_axis_H = axis / np.linalg.norm(axis)
         self.p_HE = self.p_HP + self.params.sheath_extension * self.sheath_axis_H
         self.rings: dict = {}
@@ -305,6 +321,20 @@ class UserAtrium:
         self.inner_faces = F[~((radial < 0.5 * self.params.puncture_diameter) & (np.abs(along) < 10e-3))]
         self._outer = V + self._normals * self.params.wall_thickness
         self.wall_distance = mt.SurfaceDistance(V, self.inner_faces)
+        self._check_wall()
+
+    def _check_wall(self) -> None:
+        """Refuse a surface whose grown wall has flat tetrahedra (Drake cannot give them a
+        pressure field: "A mesh field element was degenerate"), saying where they are."""
+        Vt, T = self.wall_tetrahedra
+        vol = mt.signed_volumes(Vt, T)
+        bad = np.flatnonzero(vol <= DEGENERATE_VOLUME_FRACTION * np.median(np.abs(vol)))
+        if len(bad):
+            where = np.round(Vt[T[bad[0]]].mean(axis=0) * 1e3, 2).tolist()
+            raise AtriumMeshError(
+                f"atrium_file: the wall grown from this surface has {len(bad)} flat (zero-volume) tetrahedra, the "
+                f"first near {where} mm: the surface has a zero-area triangle or a fold there; remesh it (e.g. "
+                "remove degenerate faces) and try again")
 
     @property
     def wall_tetrahedra(self) -> tuple[np.ndarray, np.ndarray]:
@@ -322,8 +352,12 @@ class UserAtrium:
 
         from ballchain.drake_models.model_files import cache_dir
 
-        key = hashlib.sha1(self.surface.V.tobytes() + self.inner_faces.tobytes()
-                           + repr(self.params).encode()).hexdigest()[:12]
+        import sys
+
+        from ballchain.drake_models.model_files import source_hash
+
+        key = hashlib.sha1(self.surface.V.tobytes() + self.inner_faces.tobytes() + repr(self.params).encode()
+                           + source_hash(sys.modules[__name__], mt).encode()).hexdigest()[:12]
         directory = Path(directory) if directory else cache_dir() / f"user_atrium_{key}"
         directory.mkdir(parents=True, exist_ok=True)
         paths = {"vtk": directory / "atrium_wall.vtk", "obj": directory / "atrium_wall.obj"}

@@ -1,6 +1,6 @@
 """Potential energy of a ball chain, U = U_b + U_e + U_s + U_g, with its analytic gradient.
 
-This is the paper's energy (Section II) with its slips corrected (shared/DESIGN.md, point 4):
+This is the paper's energy (Section II) with its slips corrected (docs/design.md, 4.4):
 
 * U_b: every pair of balls, through ``dipole.chain_interactions``.
 * U_e: each ball in the external field, ``-m_i . B(p_i)``.

@@ -17,7 +17,7 @@ applies ``M`` instead of ``M^-1``. That returns ``M^2 m_hat`` (eigenvalues 4 alo
 across): with ``theta`` the angle between ``m_hat`` and the sensor axis, the printed formula
 yields ``atan(tan(theta)/4)`` instead of ``theta``, exact only on the axis (0, 180 deg) and across
 it (90 deg), worst at ``tan(theta) = 2`` (63.43 deg) where it is 36.87 deg off, and its norm is
-not 1 (between 1 and 4). See ``paper_formula_angle_error`` and ``inversion_comparison``.
+not 1 (between 1 and 4). See ``paper_formula_angle_error`` (and ``ballchain.experiments.hall_inversion``).
 """
 
 from __future__ import annotations
@@ -26,9 +26,10 @@ from typing import Callable
 
 import numpy as np
 
-from ballchain.drake_models.dipole import K_DIPOLE, dipole_field
+from ballchain.drake_models.dipole import K_DIPOLE
 from ballchain.drake_models.field_sources import MagnetSource
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
+from ballchain.drake_models.vectors import perpendicular_basis
 
 E3 = np.array([0.0, 0.0, 1.0])
 
@@ -75,6 +76,16 @@ def direction_from_field(B: np.ndarray, r: np.ndarray) -> np.ndarray:
     return _unit(moment_from_field(B, r), "estimated moment")
 
 
+def neutral_direction(p_WM: np.ndarray, p_W_target: np.ndarray, b_hat_W: np.ndarray) -> np.ndarray:
+    """Dipole direction (3,) that makes the field at p_W_target point along b_hat_W (dipole model).
+
+    The neutral configuration aligns the field at the chain with its feeding direction; the
+    dipole that does it follows from the inverse dipole law.
+    """
+    r = np.asarray(p_W_target, dtype=float) - np.asarray(p_WM, dtype=float)
+    return direction_from_field(np.asarray(b_hat_W, dtype=float), r)
+
+
 def paper_direction_formula(B: np.ndarray, D: float, moment: float) -> np.ndarray:
     """The paper's printed ``(4 pi D^3 / (mu0 |m|)) (3 e3 e3^T - I) B`` (..., 3), not normalised.
 
@@ -91,13 +102,6 @@ def paper_formula_angle_error(theta: np.ndarray) -> np.ndarray:
     """
     theta = np.asarray(theta, dtype=float)
     return np.abs(theta - np.arctan2(np.sin(theta), 4.0 * np.cos(theta)))
-
-
-def angle_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Angle [rad] between vectors (..., 3), robust near 0 and pi."""
-    u = np.asarray(u, dtype=float)
-    v = np.asarray(v, dtype=float)
-    return np.arctan2(np.linalg.norm(np.cross(u, v), axis=-1), np.einsum("...i,...i->...", u, v))
 
 
 def refine_direction(
@@ -128,10 +132,8 @@ def refine_direction(
     """
     m = _unit(m_hat0, "m_hat0")
     for _ in range(max_iterations):
-        helper = np.array([1.0, 0.0, 0.0]) if abs(m[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-        t1 = np.cross(m, helper)
-        t1 /= np.linalg.norm(t1)
-        t2 = np.cross(m, t1)
+        x, y = perpendicular_basis(m)
+        t1, t2 = -x, -y  # the tangent directions (and so the forward differences) as always
         B0 = field_of_direction(m)
         J = np.column_stack(
             [(field_of_direction(_unit(m + h * t, "m")) - B0) / h for t in (t1, t2)]
@@ -149,61 +151,3 @@ def sensor_field(
     """Field (3,) [T] at the sensor ``D`` below a magnet at the origin pointing along m_hat."""
     source = MagnetSource.pointing(magnet, np.zeros(3), m_hat, model)
     return source.field(np.array([[0.0, 0.0, -D]]))[0]
-
-
-def inversion_comparison(
-    D: float,
-    theta_deg: np.ndarray,
-    magnet: CylinderMagnet | SphereMagnet | None = None,
-    azimuth_deg: float = 30.0,
-    refine: bool = True,
-) -> dict:
-    """Direction error of three estimators against the true dipole direction, per off-axis angle.
-
-    Args:
-        D: sensor distance below the magnet centre along -z [m].
-        theta_deg: (k,) angles between the dipole and the world z axis [deg].
-        magnet: the actuation magnet (prototype cylinder by default).
-        azimuth_deg: azimuth of the dipole about z [deg] (the cylinder is axisymmetric, so the
-            errors do not depend on it; kept to show that).
-        refine: also run the Gauss-Newton refinement (about 10 exact evaluations per angle).
-
-    Returns:
-        A dict of (k,) arrays [deg]: ``paper_formula_dipole`` (printed formula, dipole forward
-        field), ``paper_formula_closed_form``, ``correct_inverse_dipole`` (correct inverse, dipole
-        forward field: zero up to round-off), ``correct_inverse_exact`` (correct dipole inverse,
-        exact cylinder forward field: what the dipole assumption costs), ``refined_exact``
-        (Gauss-Newton on the exact model; NaN without ``refine``), and ``B_max_mT`` (largest
-        |B| over the angles).
-    """
-    magnet = magnet or CylinderMagnet()
-    theta = np.deg2rad(np.asarray(theta_deg, dtype=float))
-    phi = np.deg2rad(azimuth_deg)
-    m_hat = np.column_stack(
-        [np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)]
-    )
-    r = np.array([0.0, 0.0, -D])
-    moment = magnet.dipole_moment
-    B_dip = dipole_field(r, moment * m_hat)
-    B_exact = np.array([sensor_field(magnet, D, m, "exact") for m in m_hat])
-    est_exact = direction_from_field(B_exact, r)
-
-    def model(m):
-        return sensor_field(magnet, D, m, "exact")
-
-    if refine:
-        refined = np.array([refine_direction(B, model, m0) for B, m0 in zip(B_exact, est_exact)])
-    else:
-        refined = np.full_like(m_hat, np.nan)
-    deg = np.rad2deg
-    return {
-        "D_m": D,
-        "theta_deg": np.rad2deg(theta),
-        "paper_formula_dipole": deg(angle_between(paper_direction_formula(B_dip, D, moment), m_hat)),
-        "paper_formula_closed_form": deg(paper_formula_angle_error(theta)),
-        "correct_inverse_dipole": deg(angle_between(direction_from_field(B_dip, r), m_hat)),
-        "correct_inverse_exact": deg(angle_between(est_exact, m_hat)),
-        "paper_formula_exact": deg(angle_between(paper_direction_formula(B_exact, D, moment), m_hat)),
-        "refined_exact": deg(angle_between(refined, m_hat)),
-        "B_max_mT": float(np.linalg.norm(B_exact, axis=1).max() * 1e3),
-    }

@@ -17,7 +17,9 @@ from typing import Literal, Protocol, Sequence
 import numpy as np
 
 from ballchain.drake_models.dipole import dipole_field, dipole_field_gradient
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
+from ballchain.drake_models.vectors import perpendicular_basis
 
 FieldModel = Literal["dipole", "exact"]
 
@@ -43,13 +45,9 @@ def rotation_with_z_along(direction) -> np.ndarray:
     z = np.asarray(direction, dtype=float)
     norm = np.linalg.norm(z)
     if not np.isfinite(norm) or norm == 0.0:
-        raise ValueError(f"direction must be a finite non-zero vector, got {direction!r}")
+        raise UserInputError(f"direction must be a finite non-zero vector, got {direction!r}")
     z = z / norm
-    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    x = np.cross(helper, z)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    return np.column_stack([x, y, z])
+    return np.column_stack([*perpendicular_basis(z), z])
 
 
 @dataclass
@@ -61,7 +59,7 @@ class UniformField:
     def __post_init__(self) -> None:
         self.B_W = np.asarray(self.B_W, dtype=float).reshape(3)
         if not np.all(np.isfinite(self.B_W)):
-            raise ValueError(f"UniformField.B_W must be finite, got {self.B_W}")
+            raise UserInputError(f"UniformField.B_W must be finite, got {self.B_W}")
 
     @staticmethod
     def in_plane(magnitude_T: float, angle_rad: float) -> "UniformField":
@@ -95,11 +93,11 @@ class MagnetSource:
         self.p_WM = np.asarray(self.p_WM, dtype=float).reshape(3)
         self.R_WM = np.asarray(self.R_WM, dtype=float).reshape(3, 3)
         if not np.all(np.isfinite(self.p_WM)) or not np.all(np.isfinite(self.R_WM)):
-            raise ValueError("MagnetSource pose must be finite")
+            raise UserInputError("MagnetSource pose must be finite")
         if not np.allclose(self.R_WM.T @ self.R_WM, np.eye(3), atol=1e-6):
-            raise ValueError("MagnetSource.R_WM is not a rotation matrix")
+            raise UserInputError("MagnetSource.R_WM is not a rotation matrix")
         if self.model not in ("dipole", "exact"):
-            raise ValueError(f"MagnetSource.model must be 'dipole' or 'exact', got {self.model!r}")
+            raise UserInputError(f"MagnetSource.model must be 'dipole' or 'exact', got {self.model!r}")
 
     @staticmethod
     def pointing(magnet, p_WM, m_hat_W, model: FieldModel = "dipole") -> "MagnetSource":
@@ -116,7 +114,7 @@ class MagnetSource:
         inside = self.magnet.contains(p_M)
         if np.any(inside):
             k = int(np.argmax(inside))
-            raise ValueError(
+            raise UserInputError(
                 f"field point {p[k]} m lies inside the {type(self.magnet).__name__} centred at "
                 f"{self.p_WM} m: a magnet cannot be placed on the chain"
             )
@@ -150,7 +148,7 @@ class MagnetSource:
             offsets = np.concatenate([np.eye(3) * h, -np.eye(3) * h])  # (6, 3)
             stencil = (p_M[:, None, :] + offsets[None, :, :]).reshape(-1, 3)
             if np.any(self.magnet.contains(stencil)):
-                raise ValueError(
+                raise UserInputError(
                     f"a field point lies within {h} m of the magnet's surface: the exact "
                     "model's finite-difference gradient is undefined there"
                 )

@@ -53,6 +53,8 @@ from pathlib import Path
 import numpy as np
 
 from ballchain.drake_models import mesh_tools as mt
+from ballchain.drake_models import paper
+from ballchain.drake_models.errors import UserInputError, require_finite_fields
 
 PV_NAMES = ("LSPV", "LIPV", "RSPV", "RIPV")
 
@@ -105,26 +107,33 @@ class HeartParams:
     scale: float = 1.0
 
     def __post_init__(self) -> None:
+        require_finite_fields(self)
         if len(self.semi_axes) != 3 or min(self.semi_axes) <= 0:
-            raise ValueError(f"HeartParams.semi_axes must be 3 positive lengths, got {self.semi_axes}")
+            raise UserInputError(f"HeartParams.semi_axes must be 3 positive lengths, got {self.semi_axes}")
         if self.wall_layers < 2:
-            raise ValueError(
+            raise UserInputError(
                 f"HeartParams.wall_layers must be >= 2 (a one-layer shell has no pressure inside), "
                 f"got {self.wall_layers}"
             )
         if not 0 < self.wall_thickness < 0.5 * min(self.semi_axes):
-            raise ValueError(f"HeartParams.wall_thickness {self.wall_thickness} m is not plausible")
+            raise UserInputError(f"HeartParams.wall_thickness {self.wall_thickness} m is not plausible")
         if len(self.pv_directions) != 4 or len(self.pv_diameters) != 4:
-            raise ValueError("HeartParams needs 4 PV directions and diameters (LSPV, LIPV, RSPV, RIPV)")
+            raise UserInputError("HeartParams needs 4 PV directions and diameters (LSPV, LIPV, RSPV, RIPV)")
         for name in ("subdivisions", "visual_subdivisions"):
             if not 1 <= getattr(self, name) <= 6:
-                raise ValueError(f"HeartParams.{name} must be in 1..6, got {getattr(self, name)}")
+                raise UserInputError(f"HeartParams.{name} must be in 1..6, got {getattr(self, name)}")
         if self.scale <= 0:
-            raise ValueError(f"HeartParams.scale must be positive, got {self.scale}")
+            raise UserInputError(f"HeartParams.scale must be positive, got {self.scale}")
 
     def key(self) -> str:
-        """A short hash of the parameters, naming the generated files."""
-        return hashlib.sha1(repr(sorted(asdict(self).items())).encode()).hexdigest()[:12]
+        """A short hash of the parameters and of the code that makes the meshes, naming the
+        generated files."""
+        import sys
+
+        from ballchain.drake_models.model_files import source_hash
+
+        code = source_hash(sys.modules[__name__], mt)
+        return hashlib.sha1((repr(sorted(asdict(self).items())) + code).encode()).hexdigest()[:12]
 
 
 @dataclass
@@ -212,7 +221,7 @@ class LeftAtrium:
                 a, b = self.ostia[i], self.ostia[j]
                 gap = np.linalg.norm(a.p_HO - b.p_HO) - 0.5 * (a.diameter + b.diameter)
                 if gap < 2e-3:
-                    raise ValueError(
+                    raise UserInputError(
                         f"ostia {a.name} and {b.name} overlap or nearly touch (gap {gap * 1e3:.1f} mm): "
                         "change pv_directions or pv_diameters"
                     )
@@ -272,7 +281,7 @@ class LeftAtrium:
         hi = np.full(len(phi), 2.0 * ax.max())
         on_surface = lambda s: _ellipsoid_radial_hit(mid + s[:, None] * d, ax)  # noqa: E731
         if np.any(inside_hull(on_surface(hi)) < 0):
-            raise ValueError(f"the {name} ring does not close on the wall: reduce ring_margin or the ostia")
+            raise UserInputError(f"the {name} ring does not close on the wall: reduce ring_margin or the ostia")
         for _ in range(50):  # bisection to well below a micrometre
             s_mid = 0.5 * (lo + hi)
             inside = inside_hull(on_surface(s_mid)) < 0
@@ -438,5 +447,5 @@ class LeftAtrium:
                 k: [round(r.spacing.min() * 1e3, 2), round(r.spacing.max() * 1e3, 2)]
                 for k, r in self.rings.items()
             },
-            "paper_ring_path_mm": {"left": 115.0, "right": 95.0},
+            "paper_ring_path_mm": {k: v["path_mm"] for k, v in paper.TELEOP_TASKS.items()},
         }

@@ -9,7 +9,7 @@ The wall of a hollow chamber is made by extruding its surface along the vertex n
 diagonal of each side quad runs from the lower-index bottom vertex to the higher-index top
 vertex), so neighbouring prisms share conforming faces. Drake's compliant-hydroelastic pressure
 field is zero on the boundary of a volume mesh, so at least two layers are needed for any
-vertex (the middle layer) to carry pressure (see shared/DESIGN.md).
+vertex (the middle layer) to carry pressure (see docs/design.md, 5).
 """
 
 from __future__ import annotations
@@ -17,6 +17,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+
+from ballchain.drake_models.vectors import perpendicular_basis
 
 
 def icosphere(subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
@@ -272,10 +274,8 @@ def cylinder_surface(
         (V, F, N): vertices (nv, 3), triangles (nf, 3) facing outward, unit radial normals (nv, 3).
     """
     axis = np.asarray(axis, float) / np.linalg.norm(axis)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = np.cross(axis, helper)
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(axis, e1)
+    x, y = perpendicular_basis(axis)
+    e1, e2 = -x, -y  # the rim starts on -x: the vertex order the meshes have always had
     n_along = max(2, int(np.ceil(length / max_edge)) + 1)
     angles = np.linspace(0.0, 2 * np.pi, n_around, endpoint=False)
     radial = np.cos(angles)[:, None] * e1 + np.sin(angles)[:, None] * e2  # (n_around, 3)

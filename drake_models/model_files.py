@@ -36,6 +36,18 @@ def cache_dir() -> Path:
     return root
 
 
+def source_hash(*modules) -> str:
+    """A short hash of the source files of ``modules``: part of the key of a generated file, so
+    that the cache (shared by every checkout on the machine) never hands a run a mesh made by
+    other code."""
+    import hashlib
+
+    digest = hashlib.sha1()
+    for module in modules:
+        digest.update(Path(module.__file__).read_bytes())
+    return digest.hexdigest()[:8]
+
+
 def generated_uri(path: Path) -> str:
     """The package:// URI of a file inside ``cache_dir()``."""
     rel = Path(path).resolve().relative_to(cache_dir().resolve())

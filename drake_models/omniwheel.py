@@ -1,6 +1,6 @@
 """Omni-wheel kinematics of the actuation unit: three wheels rolling a sphere (the magnet housing).
 
-Derivation (shared/DESIGN.md point 2). The sphere (radius ``rho_a``) is centred at the origin
+Derivation (docs/design.md, 4.2). The sphere (radius ``rho_a``) is centred at the origin
 of the unit frame and sits on three omni-wheels (radius ``rho_w``). Wheel ``i`` touches the
 sphere at ``c_i = rho_a n_i`` (``n_i`` the unit outward normal of the sphere at the contact, so
 the wheel centre is ``(rho_a + rho_w) n_i``) and spins about its unit axis ``a_i`` (``a_i . n_i =
@@ -36,8 +36,10 @@ horizontally along its circle of latitude. With orthogonal axes ``A`` is orthogo
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
+from ballchain.drake_models.errors import UserInputError
 
 # Printed in the paper (Section III), 2 decimals.
 PAPER_A = np.array(
@@ -47,6 +49,7 @@ PAPER_A = np.array(
         [-0.41, -0.71, -0.58],
     ]
 )
+_PAPER_A_INV = np.linalg.inv(PAPER_A)
 PAPER_WHEEL_RADIUS = 48e-3  # rho_w [m]
 PAPER_SPHERE_RADIUS = 43.5e-3  # rho_a, effective radius of the magnet housing [m]
 
@@ -58,7 +61,7 @@ def _unit_rows(v: np.ndarray, what: str) -> np.ndarray:
     v = np.asarray(v, dtype=float).reshape(3, 3)
     norms = np.linalg.norm(v, axis=1)
     if not np.all(np.isfinite(v)) or np.any(norms == 0.0):
-        raise ValueError(f"{what} must be three finite non-zero vectors, got {v.tolist()}")
+        raise UserInputError(f"{what} must be three finite non-zero vectors, got {v.tolist()}")
     return v / norms[:, None]
 
 
@@ -86,11 +89,11 @@ class OmniWheelGeometry:
         for name in ("wheel_radius", "sphere_radius"):
             value = getattr(self, name)
             if not np.isfinite(value) or value <= 0:
-                raise ValueError(f"OmniWheelGeometry.{name} must be positive, got {value!r}")
+                raise UserInputError(f"OmniWheelGeometry.{name} must be positive, got {value!r}")
         if np.any(np.abs(np.einsum("ij,ij->i", a, n)) > 1e-9):
-            raise ValueError("OmniWheelGeometry: each wheel axis must be tangent to the sphere (a_i . n_i = 0)")
+            raise UserInputError("OmniWheelGeometry: each wheel axis must be tangent to the sphere (a_i . n_i = 0)")
         if abs(np.linalg.det(a)) < 1e-6:
-            raise ValueError("OmniWheelGeometry: wheel axes are coplanar; the sphere is not fully actuated")
+            raise UserInputError("OmniWheelGeometry: wheel axes are coplanar; the sphere is not fully actuated")
 
     @property
     def A(self) -> np.ndarray:
@@ -118,8 +121,11 @@ class OmniWheelGeometry:
 
     def sphere_angular_velocity(self, omega_w: np.ndarray) -> np.ndarray:
         """Forward map: sphere angular velocity (..., 3) [rad/s] from wheel speeds (..., 3) [rad/s]."""
-        A_inv = np.linalg.inv(self.A)
-        return np.einsum("ij,...j->...i", A_inv, np.asarray(omega_w, dtype=float)) / self.ratio
+        return np.einsum("ij,...j->...i", self._A_inv, np.asarray(omega_w, dtype=float)) / self.ratio
+
+    @cached_property
+    def _A_inv(self) -> np.ndarray:
+        return np.linalg.inv(self.A)
 
     def rolling_residual(self, omega_a: np.ndarray, omega_w: np.ndarray) -> np.ndarray:
         """Slip velocity along each wheel's driving direction (..., 3) [m/s].
@@ -149,7 +155,7 @@ def contacts_below(wheel_axes: np.ndarray) -> np.ndarray:
     n = -np.array([0.0, 0.0, 1.0])[None, :] + a[:, 2:3] * a
     norms = np.linalg.norm(n, axis=1)
     if np.any(norms < 1e-9):
-        raise ValueError("a vertical wheel axis has no contact below the sphere")
+        raise UserInputError("a vertical wheel axis has no contact below the sphere")
     return n / norms[:, None]
 
 
@@ -159,64 +165,10 @@ def paper_forward_map(omega_w: np.ndarray, geometry: OmniWheelGeometry | None = 
     return g.ratio * np.einsum("ij,...j->...i", PAPER_A, np.asarray(omega_w, dtype=float))
 
 
-def wheel_map_report(n_samples: int = 1000, seed: int = 0) -> dict:
-    """Derived map against the paper's, with the rolling-contact residual of each convention.
+def paper_wheel_speeds(omega_a: np.ndarray, geometry: OmniWheelGeometry | None = None) -> np.ndarray:
+    """Wheel speeds (..., 3) [rad/s] that the paper's printed map would command for omega_a (..., 3).
 
-    Args:
-        n_samples: number of random wheel-speed vectors (standard normal, rad/s).
-        seed: random seed.
-
-    Returns:
-        A JSON-ready dict: the geometry (contact azimuths/polar angles in deg), the derived ``A``,
-        the forward matrix ``(rho_w/rho_a) A^-1``, the paper's ``A`` and its printed forward
-        matrix, orthogonality/transposition checks, and the relative rolling residual
-        ``max |residual| / (rho_w max|omega_w|)`` of each convention (derived, paper as printed,
-        and the two single fixes: ratio only, A^T only).
+    The inverse of ``paper_forward_map``: what a controller built on the printed map sends.
     """
-    g = OmniWheelGeometry()
-    rng = np.random.default_rng(seed)
-    omega_w = rng.normal(size=(n_samples, 3))
-    scale = g.wheel_radius * np.abs(omega_w).max(axis=1)
-
-    def rel_residual(omega_a: np.ndarray) -> float:
-        return float((np.abs(g.rolling_residual(omega_a, omega_w)).max(axis=1) / scale).max())
-
-    conventions = {
-        "derived: omega_a = (rho_w/rho_a) A^-1 omega_w": g.sphere_angular_velocity(omega_w),
-        "paper: omega_a = (rho_a/rho_w) A omega_w": paper_forward_map(omega_w, g),
-        "paper ratio fixed only: (rho_w/rho_a) A omega_w": omega_w @ PAPER_A.T / g.ratio,
-        "paper A^T only: (rho_a/rho_w) A^T omega_w": g.ratio * omega_w @ PAPER_A,
-        "printed A with corrected convention: (rho_w/rho_a) A_paper^-1 omega_w": omega_w
-        @ np.linalg.inv(PAPER_A).T
-        / g.ratio,
-    }
-    # What the printed map does to a commanded rotation: a controller that inverts the paper's
-    # forward map sends omega_w = (rho_w/rho_a) A_paper^-1 omega_des, and the real wheels then turn
-    # the sphere at C omega_des with C = (rho_w/rho_a)^2 A^-1 A_paper^-1 (about a rotation).
-    C = np.linalg.inv(g.A) @ np.linalg.inv(PAPER_A) / g.ratio**2
-    U, S, Vt = np.linalg.svd(C)
-    R_polar = U @ Vt
-    n = g.contact_normals
-    return {
-        "wheel_radius_m": g.wheel_radius,
-        "sphere_radius_m": g.sphere_radius,
-        "ratio_rho_a_over_rho_w": g.ratio,
-        "contact_azimuth_deg": np.rad2deg(np.arctan2(n[:, 1], n[:, 0])) % 360.0,
-        "contact_polar_angle_from_nadir_deg": np.rad2deg(np.arccos(-n[:, 2])),
-        "wheel_axes": g.wheel_axes,
-        "A_derived_rows_minus_a": g.A,
-        "A_paper": PAPER_A,
-        "max_abs_A_derived_minus_paper": float(np.abs(g.A - PAPER_A).max()),
-        "A_derived_is_orthogonal_max_error": float(np.abs(g.A @ g.A.T - np.eye(3)).max()),
-        "det_A_derived": float(np.linalg.det(g.A)),
-        "max_abs_A_minus_A_transpose": float(np.abs(g.A - g.A.T).max()),
-        "inverse_map_wheels_from_sphere": g.ratio * g.A,
-        "forward_map_sphere_from_wheels": np.linalg.inv(g.A) / g.ratio,
-        "paper_forward_map": g.ratio * PAPER_A,
-        "rolling_residual_relative": {k: rel_residual(v) for k, v in conventions.items()},
-        "paper_map_commanded_axis_error_deg": float(
-            np.rad2deg(np.arccos(np.clip((np.trace(R_polar) - 1.0) / 2.0, -1.0, 1.0)))
-        ),
-        "paper_map_speed_gain": [float(S.min()), float(S.max())],
-        "n_samples": n_samples,
-    }
+    g = geometry or OmniWheelGeometry()
+    return np.einsum("ij,...j->...i", _PAPER_A_INV, np.asarray(omega_a, dtype=float)) / g.ratio

@@ -1,25 +1,28 @@
 """Parameter dataclasses of the physical world: the ball chain, its sleeve, the actuation magnets.
 
 SI units throughout. Every dataclass checks itself on construction and says what is wrong.
-Defaults are the paper's prototype (see shared/DESIGN.md, "Conventions").
+Defaults are the paper's prototype (see docs/design.md, 2.4).
 """
 
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ballchain.drake_models.dipole import MU0
+from ballchain.drake_models.errors import UserInputError
 
 GRAVITY = 9.80665  # standard gravity [m/s^2]; also the grams-force conversion
 
 
 def _require_positive(owner: str, **values: float) -> None:
+    # numbers.Real takes numpy scalars too (np.float32, np.int64); bool is refused.
     for name, value in values.items():
-        if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-            raise ValueError(f"{owner}.{name} must be a positive finite number, got {value!r}")
+        if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) or value <= 0:
+            raise UserInputError(f"{owner}.{name} must be a positive finite number, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -44,7 +47,7 @@ class Sleeve:
             outer_diameter=self.outer_diameter,
         )
         if self.outer_diameter <= self.inner_diameter:
-            raise ValueError(
+            raise UserInputError(
                 f"Sleeve.outer_diameter ({self.outer_diameter}) must exceed inner_diameter "
                 f"({self.inner_diameter})"
             )
@@ -79,14 +82,23 @@ class BallChain:
     sleeve: Sleeve | None = None
 
     def __post_init__(self) -> None:
-        if isinstance(self.n_balls, bool) or not isinstance(self.n_balls, int) or self.n_balls < 1:
-            raise ValueError(f"BallChain.n_balls must be an integer >= 1, got {self.n_balls!r}")
+        if isinstance(self.n_balls, bool) or not isinstance(self.n_balls, numbers.Integral) or self.n_balls < 1:
+            raise UserInputError(f"BallChain.n_balls must be an integer >= 1, got {self.n_balls!r}")
+        object.__setattr__(self, "n_balls", int(self.n_balls))  # a numpy integer becomes an int
         _require_positive(
             "BallChain",
             ball_diameter=self.ball_diameter,
             remanence=self.remanence,
             density=self.density,
         )
+        if self.sleeve is not None and not isinstance(self.sleeve, Sleeve):
+            raise UserInputError(f"BallChain.sleeve must be a Sleeve or None, got {self.sleeve!r}")
+        # The sleeve's inside may be a little smaller than the balls (the silicone stretches over
+        # them: the paper's ID 3.0 mm on 3.175 mm balls), but its outside must contain them.
+        if self.sleeve is not None and self.sleeve.outer_diameter <= self.ball_diameter:
+            raise UserInputError(
+                f"BallChain.sleeve.outer_diameter {self.sleeve.outer_diameter * 1e3:.3f} mm must exceed the "
+                f"ball_diameter {self.ball_diameter * 1e3:.3f} mm (the sleeve covers the balls)")
 
     @property
     def ball_volume(self) -> float:

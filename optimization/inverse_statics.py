@@ -32,6 +32,7 @@ import numpy as np
 from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff
 from pydrake.solvers import MathematicalProgram, SnoptSolver, SolverOptions
 
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import FieldSource
 from ballchain.optimization.statics import ChainStatics, StaticsResult
 
@@ -60,7 +61,7 @@ def _unit_rows(m: np.ndarray) -> np.ndarray:
     m = np.asarray(m, dtype=float).reshape(-1, 3)
     norms = np.linalg.norm(m, axis=1, keepdims=True)
     if np.any(norms == 0) or not np.all(np.isfinite(m)):
-        raise ValueError(f"dipole directions must be finite and non-zero, got {m.tolist()}")
+        raise UserInputError(f"dipole directions must be finite and non-zero, got {m.tolist()}")
     return m / norms
 
 
@@ -198,13 +199,13 @@ def min_turn_orientation(held: HeldTip, m_start, m_previous, min_force: float, t
         is then SNOPT's last iterate).
     """
     if not min_force > 0 or target_radius < 0 or friction < 0:
-        raise ValueError(f"need min_force > 0 N, target_radius >= 0 m, friction >= 0; got "
+        raise UserInputError(f"need min_force > 0 N, target_radius >= 0 m, friction >= 0; got "
                          f"{min_force}, {target_radius}, {friction}")
     m_prev = _unit_rows(m_previous)
     m0 = _unit_rows(m_start)
     k = m_prev.shape[0]
     if m0.shape != m_prev.shape or k != held.k:
-        raise ValueError(f"m_start {m0.shape} and m_previous {m_prev.shape} must both be ({held.k}, 3)")
+        raise UserInputError(f"m_start {m0.shape} and m_previous {m_prev.shape} must both be ({held.k}, 3)")
     prog = MathematicalProgram()
     m = prog.NewContinuousVariables(3 * k, "m")
     w = prog.NewContinuousVariables(2, "w")  # the touch point's offset in target radii: o = r w

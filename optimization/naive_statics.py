@@ -2,7 +2,7 @@
 
 This is what a competent user would write first, and what ``ChainStatics`` is measured against
 (``ballchain bench statics``). It solves the canonical problem of ``optimization.statics``
-(shared/DESIGN.md): ball 1 held at the origin with its dipole along +x, balls 2..n free.
+(docs/design.md, 2.3): ball 1 held at the origin with its dipole along +x, balls 2..n free.
 
 Formulation, in full (maximal) coordinates:
 
@@ -37,6 +37,7 @@ from scipy.optimize import minimize
 
 from ballchain.drake_models.chain_energy import chain_energy
 from ballchain.drake_models.dipole import K_DIPOLE
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import FieldSource
 from ballchain.drake_models.params import BallChain
 
@@ -98,7 +99,7 @@ class NaiveStatics:
         max_iterations: int = 1000,
     ):
         if chain.n_balls < 2:
-            raise ValueError("the naive statics needs at least 2 balls (ball 1 is held)")
+            raise UserInputError("the naive statics needs at least 2 balls (ball 1 is held)")
         self.chain = chain
         self.external = external
         self.gravity = gravity
@@ -200,7 +201,7 @@ class NaiveStatics:
         """
         start = time.perf_counter()
         if (positions is None) != (dipoles is None):
-            raise ValueError("give both positions and dipoles for the initial guess, or neither")
+            raise UserInputError("give both positions and dipoles for the initial guess, or neither")
         if positions is None:
             positions = np.arange(self.n)[:, None] * self.d * _X_AXIS
             dipoles = np.tile(_X_AXIS, (self.n, 1))

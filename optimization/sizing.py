@@ -10,7 +10,7 @@ moment ``m_m``, magnet volume ``V_m``, distance ``d_m``) to the clinic (chain mo
 The geometric prefactor of the force law (3, 6, ... times ``mu0 |m_i||m_a| / (4 pi d^4)``) and
 the remanence cancel in this ratio when the chain sits in the same relative direction from the
 magnet in the prototype and in the clinic. The paper prints ``(d_d / 2)^4`` in place of the sphere
-volume's cube (shared/DESIGN.md, point 3): that equation is dimensionally inconsistent, so its root
+volume's cube (docs/design.md, 4.3): that equation is dimensionally inconsistent, so its root
 depends on the unit it is evaluated in; :func:`solve_typo_equation` reports it for comparison.
 
 The physics equation ``g(r) = alpha f_m d_m^4 (4/3) pi r^3 - f_d V_m (d_c + r)^4 = 0`` has either
@@ -28,7 +28,9 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy.optimize import brentq
 
+from ballchain.drake_models import paper
 from ballchain.drake_models.dipole import K_DIPOLE, dipole_field, dipole_field_gradient, force_on_dipole
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet, newtons_from_gram_force
 
 PAPER = {
@@ -55,11 +57,11 @@ class SizingInputs:
         density: of the clinical magnet, for its mass [kg/m^3].
     """
 
-    alpha: float = 0.32
-    measured_force: float = newtons_from_gram_force(132.6)
-    desired_force: float = newtons_from_gram_force(10.0)
-    measured_distance: float = 0.1651
-    heart_to_surface: float = 0.2965
+    alpha: float = paper.SIZING["alpha"]
+    measured_force: float = newtons_from_gram_force(paper.SIZING["measured_force_gf"])
+    desired_force: float = newtons_from_gram_force(paper.SIZING["desired_force_gf"])
+    measured_distance: float = paper.WORKING_DISTANCE
+    heart_to_surface: float = paper.CLINICAL_DISTANCE
     prototype_volume: float = CylinderMagnet().volume
     remanence: float = 1.44
     density: float = 7500.0
@@ -72,7 +74,7 @@ class SizingInputs:
                 or not math.isfinite(value)
                 or value <= 0
             ):
-                raise ValueError(f"SizingInputs.{name} must be a positive finite number, got {value!r}")
+                raise UserInputError(f"SizingInputs.{name} must be a positive finite number, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -121,7 +123,7 @@ def size_clinical_magnet(inputs: SizingInputs = SizingInputs()) -> SizingResult:
     r_peak = 3.0 * inputs.heart_to_surface
     g_peak = _residual(inputs, r_peak)
     if not g_peak > 0.0:
-        raise ValueError(
+        raise UserInputError(
             "no spherical magnet of any diameter reaches the desired force: the force ratio "
             f"r^3/(d_c + r)^4 peaks at a diameter of {2 * r_peak * 1e3:.0f} mm and is still too small "
             "(lower the desired force or the distance, or raise alpha or the measured force)"
@@ -159,7 +161,7 @@ def solve_typo_equation(inputs: SizingInputs = SizingInputs(), length_unit: floa
         The diameter [m] (converted back to SI), or None if the equation has no positive root.
     """
     if not (math.isfinite(length_unit) and length_unit > 0):
-        raise ValueError(f"length_unit must be a positive finite number of metres, got {length_unit!r}")
+        raise UserInputError(f"length_unit must be a positive finite number of metres, got {length_unit!r}")
     d_m = inputs.measured_distance / length_unit
     d_c = inputs.heart_to_surface / length_unit
     v_m = inputs.prototype_volume / length_unit**3
@@ -202,7 +204,7 @@ def force_between_magnets(moment: float, separation: float) -> dict[str, dict[st
         units of ``mu0 m^2 / (4 pi s^4)``).
     """
     if not (math.isfinite(moment) and moment > 0 and math.isfinite(separation) and separation > 0):
-        raise ValueError(f"moment and separation must be positive finite, got {moment!r}, {separation!r}")
+        raise UserInputError(f"moment and separation must be positive finite, got {moment!r}, {separation!r}")
     r_AB = np.array([separation, 0.0, 0.0])
     out = {}
     for name, (u_a, u_b) in ORIENTATIONS.items():

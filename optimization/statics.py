@@ -1,6 +1,6 @@
 """Chain statics: the equilibrium shape as the minimum of the chain's energy.
 
-The canonical problem (shared/DESIGN.md): ball 1 is held by the sheath at the origin with its
+The canonical problem (docs/design.md, 2.3): ball 1 is held by the sheath at the origin with its
 dipole along +x; balls 2..n are free (position and dipole direction, frictionless, no twist),
 each touching its predecessor, no two balls closer than d. ``optimization.reduced_chain`` writes
 it in reduced coordinates (link and dipole directions in a chart centred on the warm start), with
@@ -41,8 +41,10 @@ from pydrake.solvers import (
 )
 
 from ballchain.drake_models.chain_energy import EnergyTerms, chain_energy
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import FieldSource, UniformField
 from ballchain.drake_models.params import BallChain
+from ballchain.drake_models.vectors import angle_between
 from ballchain.optimization.reduced_chain import X_AXIS, ReducedChain
 from ballchain.optimization.wall_constraints import ConstrainedChain, HeartConstraints
 
@@ -134,15 +136,10 @@ def straight_chain(chain: BallChain, direction=X_AXIS) -> tuple[np.ndarray, np.n
     return positions, np.tile(direction, (n, 1))
 
 
-def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
-    cross = np.linalg.norm(np.cross(a, b))
-    return float(np.degrees(np.arctan2(cross, np.dot(a, b))))
-
-
 def tip_angle_deg(result: StaticsResult, field_direction) -> float:
     """Angle between the tip ball's dipole and a field direction [deg]."""
     f = np.asarray(field_direction, dtype=float)
-    return _angle_deg(result.tip_dipole, f / np.linalg.norm(f))
+    return float(np.degrees(angle_between(result.tip_dipole, f / np.linalg.norm(f))))
 
 
 
@@ -249,9 +246,9 @@ class ChainStatics:
         qp: str = "dense",
     ):
         if method not in ("newton", "snopt"):
-            raise ValueError(f"method must be 'newton' or 'snopt', got {method!r}")
+            raise UserInputError(f"method must be 'newton' or 'snopt', got {method!r}")
         if qp not in ("dense", "clarabel"):
-            raise ValueError(f"qp must be 'dense' or 'clarabel', got {qp!r}")
+            raise UserInputError(f"qp must be 'dense' or 'clarabel', got {qp!r}")
         self.qp = qp
         self._constrained: ConstrainedChain | None = None
         self.chain = chain
@@ -302,7 +299,12 @@ class ChainStatics:
         else:
             p0, m0 = warm_start.positions, warm_start.dipoles
             if p0.shape != (chain.n_balls, 3):
-                raise ValueError(f"warm start has {p0.shape[0]} balls, the chain has {chain.n_balls}")
+                raise UserInputError(f"warm start has {p0.shape[0]} balls, the chain has {chain.n_balls}")
+        bad_field = _non_finite_field(external, p0)
+        if bad_field is not None:  # never solve on a NaN field: it used to "converge" to NaN energy
+            U, _, _, terms = chain_energy(chain, p0, m0, None, self.gravity)
+            return StaticsResult(p0.copy(), m0.copy(), float("nan"), terms, False, bad_field,
+                                 self.method, 0, time.perf_counter() - start)
         if chain.n_balls == 1:
             U, _, _, terms = chain_energy(chain, p0, m0, external, self.gravity)
             return StaticsResult(p0.copy(), m0.copy(), U, terms, True, "single ball: held by the sheath",
@@ -322,16 +324,16 @@ class ChainStatics:
         model.external = external
         model.tip_target = None if tip_target is None else np.asarray(tip_target, dtype=float).reshape(3)
         if model.tip_target is not None and not np.all(np.isfinite(model.tip_target)):
-            raise ValueError(f"tip target must be finite, got {tip_target}")
+            raise UserInputError(f"tip target must be finite, got {tip_target}")
         if wall is None:
             model.wall = None
         else:
             point, normal = (np.asarray(v, dtype=float).reshape(3) for v in wall)
             if not (np.all(np.isfinite(point)) and np.all(np.isfinite(normal)) and np.linalg.norm(normal) > 0):
-                raise ValueError(f"wall must be a finite point and a non-zero normal, got {wall}")
+                raise UserInputError(f"wall must be a finite point and a non-zero normal, got {wall}")
             model.wall = (point, normal / np.linalg.norm(normal))
             if point @ model.wall[1] > -0.5 * model.d:
-                raise ValueError("the wall cuts ball 1 (held at the origin): move it beyond half a ball")
+                raise UserInputError("the wall cuts ball 1 (held at the origin): move it beyond half a ball")
         model.chart_from_configuration(p0, m0)
         lam_tip = np.zeros(3)
         if self.method == "newton":
@@ -339,7 +341,7 @@ class ChainStatics:
             q, converged, reason, iterations, lam_near, lam_tip = self._newton(model, lam0)
         else:
             if model.tip_target is not None or model.wall is not None:
-                raise ValueError("tip targets and walls are solved by the 'newton' method only")
+                raise UserInputError("tip targets and walls are solved by the 'newton' method only")
             q, converged, reason, iterations, lam_near = self._snopt_solve(model)
         ev = model.evaluate(q, 0)
         p, m_hat = model.configuration(q)
@@ -347,8 +349,10 @@ class ChainStatics:
         gaps = np.sqrt(np.maximum(ev.gaps[:P] + 1.0, 0.0)) * model.d - model.d  # [m]
         gaps = np.concatenate([gaps, ev.gaps[P:] * model.d])  # wall rows: n . (p - p0) - d/2
         max_violation = float(max(0.0, -gaps.min())) if len(gaps) else 0.0
-        if not np.all(np.isfinite(p)):
+        if not np.all(np.isfinite(p)) or not np.all(np.isfinite(m_hat)):
             converged, reason = False, "non-finite configuration"
+        elif not np.isfinite(ev.terms.total):
+            converged, reason = False, f"non-finite energy ({ev.terms.total}) at the solver's answer"
         elif converged and max_violation > 1e-7 * model.d:
             converged, reason = False, f"rigidity or wall violated by {max_violation:.3g} m"
         pair_forces = {
@@ -621,11 +625,31 @@ def solve_statics(
     return ChainStatics(chain, gravity=gravity, method=method).solve_or_raise(external, warm_start)
 
 
+MAX_CONTINUATION_STEPS = 10_000
+
+
+def _non_finite_field(external, p: np.ndarray) -> str | None:
+    """Why the external field is unusable at the balls p (n, 3) (a reason string), or None."""
+    if external is None:
+        return None
+    B, G = external.field_and_gradient(p)  # a source that refuses the points says why (raises)
+    bad = ~(np.all(np.isfinite(np.reshape(B, (len(p), -1))), axis=1)
+            & np.all(np.isfinite(np.reshape(G, (len(p), -1))), axis=1))
+    if np.any(bad):
+        return f"the external field is not finite (NaN or inf) at ball {int(np.argmax(bad)) + 1}"
+    return None
+
+
 def rotation_path(start_deg: float, stop_deg: float, step_deg: float) -> np.ndarray:
     """Field angles from start to stop (inclusive) in steps of at most ``step_deg`` [deg]."""
-    if step_deg <= 0:
-        raise ValueError(f"continuation step must be positive, got {step_deg}")
-    n = max(1, int(np.ceil(abs(stop_deg - start_deg) / step_deg - 1e-9)))
+    if not (np.isfinite(step_deg) and step_deg > 0) or not (np.isfinite(start_deg) and np.isfinite(stop_deg)):
+        raise UserInputError(f"continuation angles must be finite and the step positive, got {start_deg}, "
+                             f"{stop_deg}, step {step_deg}")
+    steps = abs(stop_deg - start_deg) / step_deg
+    if steps > MAX_CONTINUATION_STEPS:  # bounded work (a 1e-12 deg step once asked for 655 TiB)
+        raise UserInputError(f"continuation step {step_deg:g} deg gives {steps:.3g} steps from {start_deg:g} to "
+                             f"{stop_deg:g} deg, more than {MAX_CONTINUATION_STEPS}: use a larger step")
+    n = max(1, int(np.ceil(steps - 1e-9)))
     return np.linspace(start_deg, stop_deg, n + 1)
 
 
@@ -643,7 +667,7 @@ def uniform_field_equilibrium(
     """
     B = np.asarray(B_W, dtype=float).reshape(3)
     if not np.all(np.isfinite(B)):
-        raise ValueError(f"B_W must be finite, got {B_W}")
+        raise UserInputError(f"B_W must be finite, got {B_W}")
     solver = ChainStatics(chain, gravity=gravity)
     magnitude = float(np.linalg.norm(B))
     if magnitude == 0.0:

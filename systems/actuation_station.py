@@ -21,7 +21,9 @@ import numpy as np
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import Adder
 
-from ballchain.drake_models.dipole_inversion import direction_from_field
+from ballchain.drake_models import paper
+from ballchain.drake_models.dipole_inversion import neutral_direction
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.params import BallChain
 from ballchain.systems.feeder import Feeder, FeederSpec
 from ballchain.systems.hall_sensor import DipoleDirectionEstimator, HallSensor, HallSensorSpec
@@ -31,7 +33,7 @@ from ballchain.systems.rotating_magnet_unit import MagnetUnitConfig, RotatingMag
 from ballchain.systems.teleoperation import ModeSwitch, TeleoperationMapper
 
 # The paper's actuation distance: unit centre 16.51 cm from the septal puncture (origin).
-UNIT_DISTANCE = 0.1651  # [m]
+UNIT_DISTANCE = paper.WORKING_DISTANCE  # [m]
 
 
 def right_unit(**overrides) -> MagnetUnitConfig:
@@ -42,16 +44,6 @@ def right_unit(**overrides) -> MagnetUnitConfig:
 def left_unit(**overrides) -> MagnetUnitConfig:
     """The left-side unit (world +y), 16.51 cm from the origin."""
     return replace(MagnetUnitConfig(name="left_unit", p_WM=(0.0, UNIT_DISTANCE, 0.0)), **overrides)
-
-
-def neutral_direction(p_WM: np.ndarray, p_W_target: np.ndarray, b_hat_W: np.ndarray) -> np.ndarray:
-    """Dipole direction (3,) that makes the field at p_W_target point along b_hat_W (dipole model).
-
-    The neutral configuration aligns the field at the chain with its feeding direction; the
-    dipole that does it follows from the inverse dipole law.
-    """
-    r = np.asarray(p_W_target, dtype=float) - np.asarray(p_WM, dtype=float)
-    return direction_from_field(np.asarray(b_hat_W, dtype=float), r)
 
 
 @dataclass
@@ -200,7 +192,7 @@ def make_actuation_station(
     opt = options or StationOptions()
     names = [u.name for u in units]
     if len(set(names)) != len(names) or not names:
-        raise ValueError(f"unit names must be distinct and at least one, got {names}")
+        raise UserInputError(f"unit names must be distinct and at least one, got {names}")
     builder = DiagramBuilder()
     magnets = {}
     for k, unit in enumerate(units):

@@ -13,7 +13,7 @@ Bodies and joints:
   hydroelastic margin against tunnelling) is anchored to the world. Balls are rigid-hydroelastic
   spheres; ball-ball contact falls back to point contact (``hydroelastic_with_fallback``), with
   ``sap_near_rigid_threshold = 0`` and a relaxation time near the time step so that the balls
-  do not sink into one another (shared/DESIGN.md): about 5 um of overlap at 2.2 N.
+  do not sink into one another (docs/design.md, 5): about 5 um of overlap at 2.2 N.
 * The transseptal sheath is a cage of rods (capsules, point contact) around its bore, from
   behind ball 1 to ``sheath_extension`` beyond the septal puncture (see ``_add_sheath_cage``).
 * The balls start straight along the sheath axis, touching (4 um of overlap): a pair that
@@ -55,9 +55,10 @@ from pydrake.multibody.tree import (
     UnitInertia,
 )
 
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
-from ballchain.drake_models.params import BallChain
+from ballchain.drake_models.params import GRAVITY, BallChain
 
 
 @dataclass
@@ -212,9 +213,9 @@ def _add_wall_plane(plant, config: ChainPlantConfig) -> None:
     """A compliant-hydroelastic half-space (a flat wall) anchored to the world."""
     values = np.asarray(config.wall_plane, dtype=float)
     if values.shape != (6,) or not np.all(np.isfinite(values)) or np.linalg.norm(values[3:]) == 0:
-        raise ValueError(f"wall_plane must be 6 finite numbers (point, non-zero normal), got {config.wall_plane}")
+        raise UserInputError(f"wall_plane must be 6 finite numbers (point, non-zero normal), got {config.wall_plane}")
     if config.heart is not None:
-        raise ValueError("wall_plane is for free space: the heart has its own wall")
+        raise UserInputError("wall_plane is for free space: the heart has its own wall")
     c = config.contact
     props = ProximityProperties()
     AddContactMaterial(None, None, CoulombFriction(c.friction, c.friction), props)
@@ -275,9 +276,9 @@ def add_chain_plant(builder, config: ChainPlantConfig) -> ChainPlant:
     """
     chain = config.chain
     if chain.n_balls < 2:
-        raise ValueError("add_chain_plant: the chain needs at least 2 balls (ball 1 is the feeder ball)")
+        raise UserInputError("add_chain_plant: the chain needs at least 2 balls (ball 1 is the feeder ball)")
     if config.sheath is not None and config.sheath.inner_diameter <= chain.ball_diameter:
-        raise ValueError(
+        raise UserInputError(
             f"sheath inner diameter {config.sheath.inner_diameter * 1e3:.2f} mm must exceed the ball "
             f"diameter {chain.ball_diameter * 1e3:.3f} mm")
     plant_config = MultibodyPlantConfig(
@@ -289,8 +290,8 @@ def add_chain_plant(builder, config: ChainPlantConfig) -> ChainPlant:
     plant, scene_graph = AddMultibodyPlant(plant_config, builder)
     plant.set_name("plant")
     scene_graph.set_name("scene_graph")
-    if not config.gravity:
-        plant.mutable_gravity_field().set_gravity_vector([0.0, 0.0, 0.0])
+    # One gravity for statics and the plant (Drake's default is 9.81).
+    plant.mutable_gravity_field().set_gravity_vector([0.0, 0.0, -GRAVITY if config.gravity else 0.0])
 
     heart = config.heart
     if heart is not None:
@@ -356,7 +357,7 @@ def add_chain_plant(builder, config: ChainPlantConfig) -> ChainPlant:
                          p_WE, axis, X_WF)
     s0 = config.initial_inserted_length
     if not 0.0 <= s0 <= handles.max_inserted_length():
-        raise ValueError(
+        raise UserInputError(
             f"initial inserted length {s0 * 1e3:.1f} mm is outside 0..{handles.max_inserted_length() * 1e3:.1f} mm "
             f"(ball 1 must stay in the sheath)")
     feeder_joint.set_default_translation(s0)

@@ -7,12 +7,18 @@ All quantities are SI: m, s, T, N, kg.
 """
 
 
+import dataclasses
+import math
+import numbers
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 import yaml
 from pydrake.common.yaml import yaml_load_typed
 
+from ballchain.drake_models.errors import UserInputError
 from ballchain.systems.chain_plant import ContactConfig
 
 SCENARIOS_FILE = Path(__file__).resolve().parents[1] / "drake_models" / "station.scenarios.yaml"
@@ -226,40 +232,41 @@ class ChainScenario:
         return self.time_step if self.time_step > 0 else DEFAULT_TIME_STEP[self.mode]
 
     def validate(self) -> "ChainScenario":
-        """Check the values; raises ValueError saying what is wrong. Returns self."""
+        """Check the values; raises UserInputError saying what is wrong. Returns self."""
+        check_fields(self)
         if self.mode not in MODES:
-            raise ValueError(f"scenario mode must be one of {MODES}, got {self.mode!r}")
+            raise UserInputError(f"scenario mode must be one of {MODES}, got {self.mode!r}")
         if self.engine not in ENGINES:
-            raise ValueError(f"scenario engine must be one of {ENGINES}, got {self.engine!r}")
+            raise UserInputError(f"scenario engine must be one of {ENGINES}, got {self.engine!r}")
         if self.engine == "statics" and (self.mode != "quasi-static" or not 0 < self.statics_period <= 1.0):
-            raise ValueError(f"engine: statics needs mode: quasi-static and 0 < statics_period <= 1 s, got "
-                             f"mode {self.mode!r}, statics_period {self.statics_period}")
+            raise UserInputError(f"engine: statics needs mode: quasi-static and 0 < statics_period <= 1 s, got "
+                                 f"mode {self.mode!r}, statics_period {self.statics_period}")
         if self.n_balls < 2:
-            raise ValueError(f"scenario n_balls must be >= 2 (ball 1 is the feeder ball), got {self.n_balls}")
+            raise UserInputError(f"scenario n_balls must be >= 2 (ball 1 is the feeder ball), got {self.n_balls}")
         if self.time_step < 0 or self.duration < 0 or self.check_period <= 0:
-            raise ValueError("scenario time_step, duration must be >= 0 and check_period > 0")
+            raise UserInputError("scenario time_step, duration must be >= 0 and check_period > 0")
         if self.atrium_file and len(self.puncture) != 3:
-            raise ValueError("a scenario with atrium_file needs puncture: [x, y, z] (m), the septal "
+            raise UserInputError("a scenario with atrium_file needs puncture: [x, y, z] (m), the septal "
                              "puncture on that surface")
         if self.sheath_aim and len(self.sheath_aim) != 3:
-            raise ValueError(f"scenario sheath_aim must have 3 components [m], got {self.sheath_aim}")
+            raise UserInputError(f"scenario sheath_aim must have 3 components [m], got {self.sheath_aim}")
         if len(self.uniform_field) != 3:
-            raise ValueError(f"scenario uniform_field must have 3 components [T], got {self.uniform_field}")
+            raise UserInputError(f"scenario uniform_field must have 3 components [T], got {self.uniform_field}")
         for k, m in enumerate(self.magnets):
             if m.shape not in ("cylinder", "sphere"):
-                raise ValueError(f"magnet {k + 1}: shape must be 'cylinder' or 'sphere', got {m.shape!r}")
+                raise UserInputError(f"magnet {k + 1}: shape must be 'cylinder' or 'sphere', got {m.shape!r}")
             if m.model not in ("dipole", "exact"):
-                raise ValueError(f"magnet {k + 1}: model must be 'dipole' or 'exact', got {m.model!r}")
+                raise UserInputError(f"magnet {k + 1}: model must be 'dipole' or 'exact', got {m.model!r}")
             if m.p_WM and len(m.p_WM) != 3:
-                raise ValueError(f"magnet {k + 1}: p_WM must have 3 components [m], got {m.p_WM}")
+                raise UserInputError(f"magnet {k + 1}: p_WM must have 3 components [m], got {m.p_WM}")
         self._validate_units()
         ins = self.insertion
         if ins.feeder_command not in FEEDER_COMMANDS:
-            raise ValueError(f"insertion.feeder_command must be one of {FEEDER_COMMANDS}, got {ins.feeder_command!r}")
+            raise UserInputError(f"insertion.feeder_command must be one of {FEEDER_COMMANDS}, got {ins.feeder_command!r}")
         if ins.feeder_command == "external" and not ins.feeder:
-            raise ValueError("insertion.feeder_command: external needs the feeder (insertion.feeder: true)")
+            raise UserInputError("insertion.feeder_command: external needs the feeder (insertion.feeder: true)")
         if self.mode == "dynamics" and self.effective_time_step > 5e-4:
-            raise ValueError(
+            raise UserInputError(
                 f"time step {self.effective_time_step} s is too large for the dynamics mode: the "
                 "magnetic forces are explicit and need about 1e-4 s (use quasi-static for larger steps)")
         return self
@@ -268,38 +275,38 @@ class ChainScenario:
     def _validate_units(self) -> None:
         names = [u.name for u in self.units]
         if len(set(names)) != len(names):
-            raise ValueError(f"scenario units must have distinct names, got {names}")
+            raise UserInputError(f"scenario units must have distinct names, got {names}")
         for u in self.units:
             where = f"unit {u.name!r}"
             if not u.name or "." in u.name:
-                raise ValueError(f"{where}: name must be non-empty and without dots")
+                raise UserInputError(f"{where}: name must be non-empty and without dots")
             if u.shape not in ("cylinder", "sphere"):
-                raise ValueError(f"{where}: shape must be 'cylinder' or 'sphere', got {u.shape!r}")
+                raise UserInputError(f"{where}: shape must be 'cylinder' or 'sphere', got {u.shape!r}")
             if u.model not in ("dipole", "exact") or u.model != self.units[0].model:
-                raise ValueError(f"{where}: model must be 'dipole' or 'exact', the same for every unit")
+                raise UserInputError(f"{where}: model must be 'dipole' or 'exact', the same for every unit")
             if u.p_WM and len(u.p_WM) != 3:
-                raise ValueError(f"{where}: p_WM must have 3 components [m], got {u.p_WM}")
+                raise UserInputError(f"{where}: p_WM must have 3 components [m], got {u.p_WM}")
             if u.m_hat_W and (len(u.m_hat_W) != 3 or not any(u.m_hat_W)):
-                raise ValueError(f"{where}: m_hat_W must be 3 components, not all zero, got {u.m_hat_W}")
+                raise UserInputError(f"{where}: m_hat_W must be 3 components, not all zero, got {u.m_hat_W}")
             if not u.p_WM:
                 if u.anchor not in ANCHORS:
-                    raise ValueError(f"{where}: anchor must be one of {ANCHORS}, got {u.anchor!r}")
+                    raise UserInputError(f"{where}: anchor must be one of {ANCHORS}, got {u.anchor!r}")
                 if u.anchor.startswith("carina") and not self.heart:
-                    raise ValueError(f"{where}: anchor {u.anchor!r} needs the heart (heart: true)")
+                    raise UserInputError(f"{where}: anchor {u.anchor!r} needs the heart (heart: true)")
                 if len(u.direction_W) != 3 or not any(u.direction_W) or u.distance <= 0:
-                    raise ValueError(f"{where}: needs direction_W (3, non-zero) and distance > 0 [m]")
+                    raise UserInputError(f"{where}: needs direction_W (3, non-zero) and distance > 0 [m]")
             if u.joystick_source not in JOYSTICK_SOURCES:
-                raise ValueError(f"{where}: joystick_source must be one of {JOYSTICK_SOURCES}, got {u.joystick_source!r}")
+                raise UserInputError(f"{where}: joystick_source must be one of {JOYSTICK_SOURCES}, got {u.joystick_source!r}")
             if u.teleop_frame not in TELEOP_FRAMES:
-                raise ValueError(f"{where}: teleop_frame must be one of {TELEOP_FRAMES}, got {u.teleop_frame!r}")
+                raise UserInputError(f"{where}: teleop_frame must be one of {TELEOP_FRAMES}, got {u.teleop_frame!r}")
             if u.teleop_omega_max <= 0:
-                raise ValueError(f"{where}: teleop_omega_max must be > 0 [rad/s]")
+                raise UserInputError(f"{where}: teleop_omega_max must be > 0 [rad/s]")
             times = [k.time for k in u.joystick]
             if any(t < 0 for t in times) or any(b < a for a, b in zip(times, times[1:])):
-                raise ValueError(f"{where}: joystick key times must be >= 0 and non-decreasing, got {times}")
+                raise UserInputError(f"{where}: joystick key times must be >= 0 and non-decreasing, got {times}")
             for k in u.joystick:
                 if len(k.axes) != 3 or k.mode not in (0, 1):
-                    raise ValueError(f"{where}: joystick key at t = {k.time} s needs 3 axes and mode 0 or 1")
+                    raise UserInputError(f"{where}: joystick key at t = {k.time} s needs 3 axes and mode 0 or 1")
 
 
 def scenario_names(filename: Path = SCENARIOS_FILE) -> list[str]:
@@ -317,17 +324,257 @@ def load_scenario(name: str, overrides: str | None = None, filename: Path = SCEN
         filename: the scenarios file.
 
     Raises:
-        ValueError: unknown name, a field that does not exist, or a bad value (the message
-            says which).
+        UserInputError: unknown name, YAML that does not parse, a field that does not exist, a
+            value of the wrong type, or a bad value (the message names the field).
     """
     names = scenario_names(filename)
     if name not in names:
-        raise ValueError(f"unknown scenario {name!r}; known scenarios: {', '.join(names)}")
+        raise UserInputError(f"unknown scenario {name!r}; known scenarios: {', '.join(names)}")
+    check_yaml_schema(yaml.safe_load(Path(filename).read_text())[name], ChainScenario, f"scenario {name!r}")
+    data = parse_overrides(overrides)
     try:
         scenario = yaml_load_typed(schema=ChainScenario, filename=str(filename), child_name=name,
                                    defaults=ChainScenario())
-        if overrides:
+        if data:
             scenario = yaml_load_typed(schema=ChainScenario, data=overrides, defaults=scenario)
     except RuntimeError as err:  # yaml_load_typed reports unknown keys and bad types this way
-        raise ValueError(f"scenario {name!r}: {err}") from None
+        raise UserInputError(f"scenario {name!r}: {err}") from None
     return scenario.validate()
+
+
+# ------------------------------------------------------------------------------------------------
+# Validation at the edge (issue 12): the YAML's shape against the schema before pydrake reads it,
+# and every field's value (finite, in range, plausible units) before anything is built.
+
+MAX_BALLS = 100  # the paper's chain has 16; the procedural atrium is about 50 mm across
+MIN_TIME_STEP = 1e-6  # [s]
+MAX_TIME_STEP = 1e-2  # [s]: the quasi-static contact model needs about 1e-3
+MAX_DURATION = 3600.0  # [s] of simulated time
+MAX_STEPS = 5_000_000  # duration / time_step: hours of wall time at a few ms per step
+MAX_UNIFORM_FIELD = 0.5  # [T]: clinical fields are tens of mT; 23 here means 23 T (mT typed)
+MAX_DISTANCE = 1.0  # [m]: magnets and points farther away are a unit mistake (mm typed as m)
+
+
+def parse_overrides(overrides: str | None) -> dict:
+    """The ``--set`` inline YAML as a mapping checked against the schema ({} for None/empty).
+
+    Raises:
+        UserInputError: it does not parse, is not a mapping, names an unknown field or gives a
+            value of the wrong shape (a number where a list or mapping belongs, ...).
+    """
+    if overrides is None or not str(overrides).strip():
+        return {}
+    try:
+        data = yaml.safe_load(overrides)
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f" at column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(err, "problem", None) or str(err).splitlines()[0]
+        raise UserInputError(f"--set {overrides!r} is not valid YAML: {problem}{where} "
+                             "(give a mapping such as '{n_balls: 10, duration: 0.5}')") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise UserInputError(f"--set must be a YAML mapping of scenario fields such as "
+                             f"'{{n_balls: 10}}', got {overrides!r}")
+    check_yaml_schema(data, ChainScenario, "--set")
+    return data
+
+
+def _type_name(tp, plural: bool = False) -> str:
+    origin = typing.get_origin(tp)
+    if origin in (list, tuple):
+        args = typing.get_args(tp)
+        return "a list" + (f" of {_type_name(args[0], plural=True)}" if args else "")
+    if dataclasses.is_dataclass(tp):
+        return f"{tp.__name__} mappings" if plural else f"a mapping of {tp.__name__} fields"
+    names = {bool: ("true or false", "true/false values"), int: ("an integer", "integers"),
+             float: ("a number", "numbers"), str: ("a string", "strings")}
+    return names[tp][plural] if tp in names else str(tp)
+
+
+def _check_value(value, tp, path: str, where: str) -> None:
+    origin = typing.get_origin(tp)
+    ok = True
+    if tp is bool:
+        ok = isinstance(value, bool)
+    elif tp is int:
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif tp is float:
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if isinstance(value, str):  # YAML 1.1 (PyYAML) reads 1e-3 as a string; Drake's parser reads a number
+            try:
+                float(value)
+                ok = True
+            except ValueError:
+                ok = False
+    elif tp is str:
+        ok = isinstance(value, str)
+    elif origin in (list, tuple):
+        ok = isinstance(value, list)
+        if ok:
+            args = typing.get_args(tp)
+            for i, item in enumerate(value):
+                if args:
+                    _check_value(item, args[0], f"{path}[{i}]", where)
+    elif dataclasses.is_dataclass(tp):
+        if not isinstance(value, dict):
+            raise UserInputError(f"scenario field {path} must be {_type_name(tp)} "
+                                 f"({', '.join(f.name for f in dataclasses.fields(tp))}), got {value!r}")
+        check_yaml_schema(value, tp, where, path)
+        return
+    if not ok:
+        raise UserInputError(f"scenario field {path} must be {_type_name(tp)}, got {value!r}")
+
+
+def check_yaml_schema(data, schema, where: str, path: str = "") -> None:
+    """Check parsed YAML against a dataclass schema: known fields, value shapes and types.
+
+    Args:
+        data: the parsed YAML (a dict).
+        schema: the dataclass (ChainScenario or one of its parts).
+        where: what the YAML came from, for messages ("--set", "scenario 'heart_left'").
+        path: the field path of ``data`` inside the scenario ("" at the top, "units[0]", ...).
+
+    Raises:
+        UserInputError: naming the field path, what it must be and what it got.
+    """
+    if not isinstance(data, dict):
+        raise UserInputError(f"{where} must be {_type_name(schema)}, got {data!r}")
+    hints = typing.get_type_hints(schema)
+    for key, value in data.items():
+        if key not in hints:
+            raise UserInputError(f"{where}: unknown field {key!r}{f' in {path}' if path else ''}; "
+                                 f"{schema.__name__} fields are {', '.join(hints)}")
+        _check_value(value, hints[key], f"{path}.{key}" if path else str(key), where)
+
+
+def _finite_fields(obj, where: str = ""):
+    """Yield (path, value) of every non-finite number in a dataclass tree."""
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        path = f"{where}{f.name}"
+        items = value if isinstance(value, list) else [value]
+        for i, item in enumerate(items):
+            p = f"{path}[{i}]" if isinstance(value, list) else path
+            if dataclasses.is_dataclass(item):
+                yield from _finite_fields(item, f"{p}.")
+            elif isinstance(item, float) and not math.isfinite(item):
+                yield p, item
+
+
+def _require(condition: bool, message: str) -> None:
+    if not condition:
+        raise UserInputError(message)
+
+
+def check_fields(s: "ChainScenario") -> None:
+    """Every field of a scenario: finite, in range, in plausible units (SI). Called by validate().
+
+    Raises:
+        UserInputError: naming the field, the value and what is allowed.
+    """
+    for path, value in _finite_fields(s):
+        raise UserInputError(f"scenario {path} must be a finite number, got {value}")
+    whole = isinstance(s.n_balls, numbers.Integral) and not isinstance(s.n_balls, bool)
+    _require(whole and 2 <= s.n_balls <= MAX_BALLS,
+             f"scenario n_balls must be an integer in 2..{MAX_BALLS} (ball 1 is the feeder ball), got {s.n_balls!r}")
+    _require(s.time_step == 0.0 or MIN_TIME_STEP <= s.time_step <= MAX_TIME_STEP,
+             f"scenario time_step must be 0 (the mode's default) or in {MIN_TIME_STEP:g}..{MAX_TIME_STEP:g} s, "
+             f"got {s.time_step:g}")
+    _require(0.0 < s.duration <= MAX_DURATION,
+             f"scenario duration must be in (0, {MAX_DURATION:g}] s, got {s.duration:g}")
+    if s.mode in MODES:
+        check_duration(s.duration, s.effective_time_step, "scenario duration")
+    for name in ("translational_damping", "angular_damping"):
+        _require(getattr(s, name) >= 0.0, f"scenario {name} must be >= 0, got {getattr(s, name):g}")
+    _require(0.1 <= s.heart_scale <= 5.0, f"scenario heart_scale must be in 0.1..5, got {s.heart_scale:g}")
+    _require(1 <= s.heart_subdivisions <= 6,
+             f"scenario heart_subdivisions must be in 1..6, got {s.heart_subdivisions}")
+    _require(s.atrium_units in ("auto", "m", "mm"),
+             f"scenario atrium_units must be 'auto', 'm' or 'mm', got {s.atrium_units!r}")
+    if s.atrium_file:
+        check_atrium_file(s.atrium_file)
+    for name in ("puncture", "sheath_aim"):
+        v = getattr(s, name)
+        _require(not v or (len(v) == 3 and np.linalg.norm(v) <= MAX_DISTANCE),
+                 f"scenario {name} must be 3 coordinates in metres (within {MAX_DISTANCE:g} m), got {v}")
+    _require(len(s.uniform_field) == 3,
+             f"scenario uniform_field must have 3 components [T], got {s.uniform_field}")
+    B = float(np.linalg.norm(s.uniform_field))
+    _require(B <= MAX_UNIFORM_FIELD,
+             f"scenario uniform_field |B| = {B:g} T exceeds {MAX_UNIFORM_FIELD:g} T: it is in tesla "
+             "(23 mT is 0.023)")
+    _require(len(s.wall_plane) in (0, 6),
+             f"scenario wall_plane must be [] or 6 numbers (point, normal) [m], got {s.wall_plane}")
+    for name in ("break_gap", "check_period", "publish_period"):
+        _require(getattr(s, name) > 0.0, f"scenario {name} must be > 0, got {getattr(s, name):g}")
+    for k, m in enumerate(s.magnets):
+        where = f"magnets[{k}]"
+        _require(0.0 < m.distance_from_puncture <= MAX_DISTANCE,
+                 f"scenario {where}.distance_from_puncture must be in (0, {MAX_DISTANCE:g}] m, "
+                 f"got {m.distance_from_puncture:g}")
+        for name in ("direction_W", "m_hat_W"):
+            v = getattr(m, name)
+            _require(len(v) == 3 and any(v), f"scenario {where}.{name} must be 3 components, not all zero, got {v}")
+        _require(not m.p_WM or (len(m.p_WM) == 3 and np.linalg.norm(m.p_WM) <= MAX_DISTANCE),
+                 f"scenario {where}.p_WM must be 3 coordinates in metres (within {MAX_DISTANCE:g} m), got {m.p_WM}")
+    for k, u in enumerate(s.units):
+        where = f"units[{k}]"
+        _require(0.0 < u.distance <= MAX_DISTANCE,
+                 f"scenario {where}.distance must be in (0, {MAX_DISTANCE:g}] m, got {u.distance:g}")
+        _require(not u.p_WM or (len(u.p_WM) == 3 and np.linalg.norm(u.p_WM) <= MAX_DISTANCE),
+                 f"scenario {where}.p_WM must be 3 coordinates in metres (within {MAX_DISTANCE:g} m), got {u.p_WM}")
+        _require(u.teleop_omega_max > 0.0,
+                 f"scenario {where}.teleop_omega_max must be > 0 rad/s, got {u.teleop_omega_max:g}")
+        for j, key in enumerate(u.joystick):
+            _require(len(key.axes) == 3 and all(abs(a) <= 1.0 for a in key.axes),
+                     f"scenario {where}.joystick[{j}].axes must be 3 numbers in [-1, 1], got {key.axes}")
+    ins = s.insertion
+    _require(ins.initial >= 0.0 and ins.final >= 0.0,
+             f"scenario insertion.initial and insertion.final must be >= 0 m, got {ins.initial:g}, {ins.final:g}")
+    _require(ins.start_time >= 0.0, f"scenario insertion.start_time must be >= 0 s, got {ins.start_time:g}")
+    _require(ins.speed > 0.0 or (ins.final == ins.initial and ins.speed == 0.0),
+             f"scenario insertion.speed must be > 0 m/s (the ramp's direction comes from initial -> final), "
+             f"got {ins.speed:g}")
+    c = s.contact
+    for name in ("ball_point_stiffness", "wall_hydroelastic_modulus", "hydroelastic_margin", "ball_resolution_hint"):
+        _require(getattr(c, name) > 0.0, f"scenario contact.{name} must be > 0, got {getattr(c, name):g}")
+    _require(c.relaxation_time >= 0.0, f"scenario contact.relaxation_time must be >= 0 s, got {c.relaxation_time:g}")
+    _require(c.friction >= 0.0, f"scenario contact.friction must be >= 0, got {c.friction:g}")
+
+
+def check_duration(duration: float, time_step: float, what: str = "--duration") -> None:
+    """A simulated time that is positive, at most MAX_DURATION, and at most MAX_STEPS steps.
+
+    Raises:
+        UserInputError: naming ``what``.
+    """
+    if not (math.isfinite(duration) and 0.0 < duration <= MAX_DURATION):
+        raise UserInputError(f"{what} must be in (0, {MAX_DURATION:g}] s, got {duration:g}")
+    steps = duration / time_step
+    if steps > MAX_STEPS:
+        raise UserInputError(f"{what} {duration:g} s at a {time_step:g} s step is {steps:.3g} steps, more than "
+                             f"{MAX_STEPS:.0e}: shorten it or use a larger time_step")
+
+
+def check_atrium_file(path: str) -> None:
+    """An atrium file that exists and is a file (a package:// URI must resolve).
+
+    Raises:
+        UserInputError: naming atrium_file.
+    """
+    if str(path).startswith("package://"):
+        from ballchain.drake_models.model_files import resolve_uri
+
+        try:
+            resolved = resolve_uri(path)
+        except Exception as err:  # pydrake's PackageMap raises RuntimeError on an unknown package
+            first = " ".join(str(err).split())[:200]
+            raise UserInputError(f"scenario atrium_file {path!r} does not resolve: {first}") from None
+    else:
+        resolved = Path(path)
+    if not resolved.exists():
+        raise UserInputError(f"scenario atrium_file {path!r}: no such file")
+    if not resolved.is_file():
+        raise UserInputError(f"scenario atrium_file {path!r} is not a file (a folder?); give an .obj or .stl file")

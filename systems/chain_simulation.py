@@ -6,10 +6,11 @@ Diagram (system names):
     ``feeder_command``: the scenario's insertion ramp as the feeder slide's desired state.
         With ``insertion.external`` it is replaced by ``feeder_interface`` and the diagram
         exports the input port ``inserted_length`` (1, m) for a feeder system.
-    ``target_touches``: TargetTouchTracker (``meshcat_overlays``), when the atrium has target
+    ``target_touches``: TargetTouchTracker (``target_contact``), when the atrium has target
         rings: the ablation targets the tip ball has touched so far.
     ``meshcat_visualizer``, ``meshcat_overlays`` (targets, field at the tip, the wall's force on
-        the tip): when a Meshcat is given (and ``unit_markers`` for the units).
+        the tip): when a Meshcat is given (and ``unit_markers`` for the units); the Meshcat's
+        camera is then framed on the atrium (``meshcat_view.frame_scene``).
     With ``units``: per unit ``<u>.magnet``, ``<u>.drive``, ``<u>.hall_sensor``, ``<u>.estimator``,
         ``<u>.controller``, ``<u>.teleoperation``, ``<u>.mode_switch``, ``<u>.joystick``,
         ``<u>.mode_command``, ``<u>.p_WM``, and ``magnet_states`` into the wrench's magnet input
@@ -28,6 +29,7 @@ ball leaving the heart or the chain breaking apart, and returns the metrics othe
 from __future__ import annotations
 
 import resource
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,19 +40,17 @@ from pydrake.systems.framework import DiagramBuilder, EventStatus
 from pydrake.systems.primitives import MatrixGain, TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
 
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, UniformField
 from ballchain.drake_models.heart import HeartParams, LeftAtrium
 from ballchain.drake_models.params import BallChain, CylinderMagnet, Sleeve, SphereMagnet
+from ballchain.drake_models.safe_files import atomic_write_text, check_output_file
 from ballchain.systems.chain_plant import ChainPlant, ChainPlantConfig, SheathConfig, add_chain_plant
-from ballchain.systems.chain_scenario import ChainScenario
+from ballchain.systems.chain_scenario import ChainScenario, check_duration
 from ballchain.systems.magnetic_wrench import MagneticWrenchSystem
-from ballchain.systems.meshcat_overlays import (
-    MeshcatOverlays,
-    TargetTouchTracker,
-    heart_targets,
-    wall_force_on,
-    wall_geometries,
-)
+from ballchain.systems.meshcat_overlays import MeshcatOverlays
+from ballchain.systems.target_contact import TargetTouchTracker, heart_targets, wall_force_on, wall_geometries
+from ballchain.systems.meshcat_view import frame_scene
 from ballchain.systems.station_units import TipObserver, UnitMeshcatMarkers, add_feeder, add_units, unit_configs
 
 
@@ -188,7 +188,10 @@ def atrium_for(scenario: ChainScenario):
 
     path = scenario.atrium_file
     path = resolve_uri(path) if path.startswith("package://") else Path(path)
-    surface = load_atrium_surface(path, scenario.atrium_units)
+    try:
+        surface = load_atrium_surface(path, scenario.atrium_units)
+    except UserInputError as err:  # name the scenario field the user typed
+        raise UserInputError(f"scenario atrium_file: {err}") from None
     return UserAtrium(surface, scenario.puncture, scenario.sheath_aim or None)
 
 
@@ -270,7 +273,7 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
     s_max = cp.max_inserted_length()
     for what, s in (("initial", scenario.insertion.initial), ("final", scenario.insertion.final)):
         if not 0.0 <= s <= s_max:
-            raise ValueError(
+            raise UserInputError(
                 f"insertion.{what} = {s * 1e3:.1f} mm is outside 0..{s_max * 1e3:.1f} mm for "
                 f"{chain.n_balls} balls (ball 1 must stay in the sheath)")
     p_WP = heart.p_HP if heart is not None else np.zeros(3)
@@ -310,7 +313,7 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
                                     p_W_chain, cp.sheath_axis_W, tip_observer)
     ins = scenario.insertion
     if ins.external and ins.feeder:
-        raise ValueError("insertion: choose external (exported port) or feeder (the Feeder system), not both")
+        raise UserInputError("insertion: choose external (exported port) or feeder (the Feeder system), not both")
     if ins.feeder:
         extras["feeder"] = add_feeder(builder, chain, ins, desired)
     elif ins.external:
@@ -379,6 +382,8 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
         visualizer = MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, params)
         visualizer.set_name("meshcat_visualizer")
         _draw_magnets(meshcat, source)
+        # The camera starts on the atrium (or the free chain's reach), also in the replays.
+        frame_scene(meshcat, heart, chain.length, cp.p_WE)
         if configs:
             markers = builder.AddSystem(UnitMeshcatMarkers(meshcat, configs, scenario.publish_period))
             for c in configs:
@@ -468,7 +473,7 @@ class ChainMonitor:
         quasi-static engine's); returns a failure message or None, and updates the metrics."""
         t = plant_context.get_time()
         if not self._finite(plant_context):
-            return f"NaN or inf in the state at t = {t:.4f} s"
+            return f"NaN or inf in the state at t = {t:.4f} s: {self._non_finite_ball(plant_context)}"
         if self._cd.engine is not None and self._cd.engine.failure:
             return self._cd.engine.failure
         cp = self._cd.chain_plant
@@ -508,6 +513,21 @@ class ChainMonitor:
             i = int(np.argmax(np.linalg.norm(p, axis=1)))
             return f"ball {i + 1} flew away at t = {t:.4f} s: centre at {np.round(p[i] * 1e3, 1).tolist()} mm"
         return self._check_gaps(gaps, t)
+
+    def _non_finite_ball(self, plant_context) -> str:
+        """Which ball's position or velocity is not finite (for the failure message)."""
+        if self._cd.engine is not None:
+            p = self._cd.engine.ball_positions(plant_context)
+            bad = np.flatnonzero(~np.all(np.isfinite(p), axis=1))
+            return f"ball {bad[0] + 1} (position)" if len(bad) else "the engine's state"
+        plant = self._system
+        for i, body in enumerate(self._cd.chain_plant.ball_bodies):
+            X = plant.EvalBodyPoseInWorld(plant_context, body).GetAsMatrix34()
+            V = plant.EvalBodySpatialVelocityInWorld(plant_context, body).get_coeffs()
+            if not (np.all(np.isfinite(X)) and np.all(np.isfinite(V))):
+                part = "position" if not np.all(np.isfinite(X)) else "velocity"
+                return f"ball {i + 1} ({part})"
+        return "the feeder slide"
 
     def _check_gaps(self, gaps: np.ndarray, t: float) -> str | None:
         if gaps.max() > self._cd.scenario.break_gap:
@@ -558,7 +578,7 @@ def _tip_wall_force(cd: ChainDiagram, plant_context) -> list[float]:
 
 
 def run_simulation(*, scenario: ChainScenario, duration: float | None = None, html: Path | None = None,
-                   meshcat=None, heart: LeftAtrium | None = None) -> dict:
+                   meshcat=None, heart: LeftAtrium | None = None, progress: bool = False) -> dict:
     """Simulate a scenario and return its metrics.
 
     Args:
@@ -567,6 +587,7 @@ def run_simulation(*, scenario: ChainScenario, duration: float | None = None, ht
         html: write a self-contained Meshcat recording to this file.
         meshcat: a Meshcat to use (a localhost one is started when ``html`` is given).
         heart: a prebuilt atrium to reuse.
+        progress: show a progress bar of the simulated time on stderr.
 
     Returns:
         {"realtime_factor", "sim_time_s", "tip_position_mm", "min_wall_clearance_mm",
@@ -580,8 +601,9 @@ def run_simulation(*, scenario: ChainScenario, duration: float | None = None, ht
         SimulationFailure: NaN, escape or break (message says when and which ball).
     """
     duration = scenario.duration if duration is None else duration
-    if duration < 0:
-        raise ValueError(f"duration must be >= 0, got {duration}")
+    check_duration(duration, scenario.effective_time_step, "duration")
+    if html is not None:
+        check_output_file(html, "html")
     if html is not None and meshcat is None:
         from pydrake.geometry import Meshcat, MeshcatParams
 
@@ -589,7 +611,24 @@ def run_simulation(*, scenario: ChainScenario, duration: float | None = None, ht
     cd = build_chain_diagram(scenario, meshcat=meshcat, heart=heart)
     simulator = Simulator(cd.diagram)
     monitor = ChainMonitor(cd)
-    simulator.set_monitor(monitor)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=duration, desc="simulate", unit="sim s", file=sys.stderr,
+                   bar_format="{l_bar}{bar}| {n:.3g}/{total:.3g} sim s [{elapsed}<{remaining}]")
+        shown = [0.0]
+
+        def watch(root_context):  # the watchdog, plus the bar every 1/200 of the run
+            t = root_context.get_time()
+            if t - shown[0] >= duration / 200:
+                bar.update(t - shown[0])
+                shown[0] = t
+            return monitor(root_context)
+
+        simulator.set_monitor(watch)
+    else:
+        simulator.set_monitor(monitor)
     root = simulator.get_mutable_context()
     plant_context = cd.chain_system.GetMyContextFromRoot(root)
     if cd.visualizer is not None and html is not None:
@@ -600,7 +639,18 @@ def run_simulation(*, scenario: ChainScenario, duration: float | None = None, ht
         simulator.Initialize()
         simulator.AdvanceTo(duration)
     except (RuntimeError, ValueError) as err:  # the monitor's failure, or a solver/physics error
-        error = monitor.failure or f"at t = {root.get_time():.4f} s: {err}"
+        error = monitor.failure or f"at t = {root.get_time():.4f} s: {' '.join(str(err).split())}"
+    except KeyboardInterrupt:  # Ctrl-C: keep the replay recorded so far, then stop
+        if cd.visualizer is not None and html is not None:
+            cd.visualizer.StopRecording()
+            cd.visualizer.PublishRecording()
+            atomic_write_text(html, meshcat.StaticHtml())
+            print(f"simulate: interrupted at t = {root.get_time():.4f} s; replay so far written to {html}",
+                  file=sys.stderr)
+        raise
+    finally:
+        if bar is not None:
+            bar.close()
     wall = time.perf_counter() - start
     sim_time = root.get_time()
     metrics = {
@@ -634,7 +684,7 @@ def run_simulation(*, scenario: ChainScenario, duration: float | None = None, ht
     if cd.visualizer is not None and html is not None:
         cd.visualizer.StopRecording()
         cd.visualizer.PublishRecording()
-        Path(html).write_text(meshcat.StaticHtml())
+        atomic_write_text(html, meshcat.StaticHtml())
         metrics["html"] = str(html)
     if error is not None:
         raise SimulationFailure(f"simulation stopped: {error}", metrics)

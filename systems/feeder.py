@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from pydrake.systems.framework import BasicVector, LeafSystem
 
+from ballchain.drake_models.errors import UserInputError, check_finite_input, require_finite_fields
 from ballchain.drake_models.params import BallChain
 
 
@@ -37,11 +38,12 @@ class FeederSpec:
     update_period: float = 2e-3
 
     def __post_init__(self) -> None:
+        require_finite_fields(self)
         for name in ("gear_diameter", "max_speed", "max_acceleration", "update_period"):
             if not getattr(self, name) > 0:
-                raise ValueError(f"FeederSpec.{name} must be positive, got {getattr(self, name)!r}")
+                raise UserInputError(f"FeederSpec.{name} must be positive, got {getattr(self, name)!r}")
         if self.steps_per_rev < 1 or self.microsteps < 1:
-            raise ValueError("FeederSpec.steps_per_rev and microsteps must be >= 1")
+            raise UserInputError("FeederSpec.steps_per_rev and microsteps must be >= 1")
 
     @property
     def step_length(self) -> float:
@@ -77,7 +79,7 @@ class Feeder(LeafSystem):
         self._chain = chain or BallChain()
         self._spec = spec or FeederSpec()
         if not 0.0 <= initial_length <= self._chain.length:
-            raise ValueError(f"Feeder initial_length {initial_length} m is outside 0..{self._chain.length} m")
+            raise UserInputError(f"Feeder initial_length {initial_length} m is outside 0..{self._chain.length} m")
         self.set_name(name)
         self._v_port = self.DeclareVectorInputPort("v_insert_cmd", 1)
         self._speed_index = self.DeclareDiscreteState(1)
@@ -95,7 +97,9 @@ class Feeder(LeafSystem):
     def _update(self, context, discrete_state):
         s = self._spec
         dt = s.update_period
-        target = float(np.clip(self._v_port.Eval(context)[0], -s.max_speed, s.max_speed))
+        # np.clip keeps a NaN: refuse it here, naming the feeder, the port and the time.
+        command = check_finite_input(self, self._v_port, context)[0]
+        target = float(np.clip(command, -s.max_speed, s.max_speed))
         v = context.get_discrete_state(self._speed_index).GetAtIndex(0)
         v += float(np.clip(target - v, -s.max_acceleration * dt, s.max_acceleration * dt))
         x = context.get_discrete_state(self._length_index).GetAtIndex(0) + v * dt

@@ -28,6 +28,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import BasicVector, LeafSystem
+from ballchain.drake_models.errors import UserInputError
 
 
 def stability_bound(time_step: float, damping: float, mass: float) -> float:
@@ -38,7 +39,7 @@ def stability_bound(time_step: float, damping: float, mass: float) -> float:
     k < 2 (2 m + c h) / h^2.
     """
     if time_step <= 0 or damping < 0 or mass <= 0:
-        raise ValueError("stability_bound: time step and mass must be positive, damping non-negative")
+        raise UserInputError("stability_bound: time step and mass must be positive, damping non-negative")
     return 2.0 * (2.0 * mass + damping * time_step) / time_step**2
 
 
@@ -47,13 +48,13 @@ def _floating_translation_indices(plant, body) -> np.ndarray:
     joints = [plant.get_joint(j) for j in plant.GetJointIndices()
               if plant.get_joint(j).child_body().index() == body.index()]
     if len(joints) != 1 or joints[0].type_name() != "quaternion_floating":
-        raise ValueError(f"ForceSensorPin: body {body.name()!r} must hang on a QuaternionFloatingJoint")
+        raise UserInputError(f"ForceSensorPin: body {body.name()!r} must hang on a QuaternionFloatingJoint")
     joint = joints[0]
     identity = RigidTransform()
     if (joint.parent_body().index() != plant.world_body().index()
             or not joint.frame_on_parent().GetFixedPoseInBodyFrame().IsExactlyEqualTo(identity)
             or not joint.frame_on_child().GetFixedPoseInBodyFrame().IsExactlyEqualTo(identity)):
-        raise ValueError(f"ForceSensorPin: the floating joint of {body.name()!r} must go from the world "
+        raise UserInputError(f"ForceSensorPin: the floating joint of {body.name()!r} must go from the world "
                          "frame to the body frame (its velocities are then [w_WB, v_WB] in world)")
     start = joint.velocity_start()
     return np.arange(start + 3, start + 6)
@@ -82,12 +83,12 @@ class ForceSensorPin(LeafSystem):
     def __init__(self, plant, body, p_WP, stiffness: float):
         super().__init__()
         if not plant.is_finalized():
-            raise ValueError("ForceSensorPin: finalise the plant first")
+            raise UserInputError("ForceSensorPin: finalise the plant first")
         self._p_WP = np.asarray(p_WP, dtype=float).reshape(3)
         if not np.all(np.isfinite(self._p_WP)):
-            raise ValueError(f"ForceSensorPin: the pin point must be finite, got {p_WP}")
+            raise UserInputError(f"ForceSensorPin: the pin point must be finite, got {p_WP}")
         if not (np.isfinite(stiffness) and stiffness > 0):
-            raise ValueError(f"ForceSensorPin: the stiffness must be positive, got {stiffness}")
+            raise UserInputError(f"ForceSensorPin: the stiffness must be positive, got {stiffness}")
         self._k = float(stiffness)
         self._body_index = int(body.index())
         self._v_indices = _floating_translation_indices(plant, body)

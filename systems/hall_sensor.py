@@ -19,6 +19,7 @@ from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 
 from ballchain.drake_models.dipole_inversion import direction_from_field, refine_direction
+from ballchain.drake_models.errors import UserInputError, require_finite_fields
 from ballchain.drake_models.field_sources import FieldSource, FieldSources, MagnetSource
 from ballchain.systems.rotating_magnet_unit import MagnetUnitConfig
 
@@ -41,10 +42,11 @@ class HallSensorSpec:
     sample_rate_hz: float = 100.0
 
     def __post_init__(self) -> None:
+        require_finite_fields(self)
         if not (self.range_T > 0 and self.sample_rate_hz > 0 and self.noise_std_T >= 0):
-            raise ValueError(f"HallSensorSpec: range and sample rate must be > 0, noise >= 0: {self}")
+            raise UserInputError(f"HallSensorSpec: range and sample rate must be > 0, noise >= 0: {self}")
         if len(self.lsb_T) != 3 or min(self.lsb_T) < 0:
-            raise ValueError(f"HallSensorSpec.lsb_T must be 3 values >= 0, got {self.lsb_T!r}")
+            raise UserInputError(f"HallSensorSpec.lsb_T must be 3 values >= 0, got {self.lsb_T!r}")
 
 
 def quantise_reading(B: np.ndarray, spec: HallSensorSpec) -> np.ndarray:
@@ -175,7 +177,7 @@ class DipoleDirectionEstimator(LeafSystem):
         """
         super().__init__()
         if model not in ("dipole", "exact"):
-            raise ValueError(f"estimator model must be 'dipole' or 'exact', got {model!r}")
+            raise UserInputError(f"estimator model must be 'dipole' or 'exact', got {model!r}")
         self._unit = unit
         self._model = model
         # The other magnets are a third of a metre away, where their dipole field is within

@@ -19,6 +19,7 @@ from pydrake.systems.framework import LeafSystem
 
 from ballchain.drake_models.chain_energy import chain_energy
 from ballchain.drake_models.dipole import dipole_field, dipole_field_gradient
+from ballchain.drake_models.errors import NonFiniteSignal, UserInputError
 from ballchain.drake_models.field_sources import FieldSource, FieldSources, MagnetSource
 from ballchain.drake_models.params import BallChain, CylinderMagnet, SphereMagnet
 
@@ -47,7 +48,7 @@ class PortDipoles:
         r2 = np.einsum("nki,nki->nk", r, r)
         if np.any(r2 <= self._r2_min):
             i, k = np.argwhere(r2 <= self._r2_min)[0]
-            raise ValueError(f"field point {r[i, k] + self.p_WM[k]} m lies within port magnet {k + 1}'s "
+            raise UserInputError(f"field point {r[i, k] + self.p_WM[k]} m lies within port magnet {k + 1}'s "
                              f"bounding sphere (centre {self.p_WM[k]} m): a magnet cannot be placed on the chain")
         return dipole_field(r, self.m_W).sum(axis=1), dipole_field_gradient(r, self.m_W).sum(axis=1)
 
@@ -113,7 +114,7 @@ class MagneticWrenchSystem(LeafSystem):
     ):
         super().__init__()
         if len(ball_body_indices) != chain.n_balls:
-            raise ValueError(
+            raise UserInputError(
                 f"MagneticWrenchSystem: {len(ball_body_indices)} body indices for a chain of "
                 f"{chain.n_balls} balls"
             )
@@ -164,6 +165,19 @@ class MagneticWrenchSystem(LeafSystem):
     def external_field(self, context) -> FieldSource | None:
         """The field source in effect for this context (the fixed one plus the port magnets)."""
         states = None if self._magnet_port is None else self._magnet_port.Eval(context)
+        x = None if states is None else np.asarray(states).reshape(-1, 6)
+        if x is not None and not (np.isfinite(x).all() and x[:, 3:].any(axis=1).all()):
+            for k, row in enumerate(x):  # name the magnet, the part and the time, not just "not finite"
+                what = None
+                if not np.all(np.isfinite(row[:3])):
+                    what = f"centre p_WM {row[:3].tolist()} is not finite"
+                elif not np.all(np.isfinite(row[3:])):
+                    what = f"dipole direction {row[3:].tolist()} is not finite"
+                elif not np.any(row[3:]):
+                    what = "dipole direction is zero (it cannot be normalised)"
+                if what:
+                    raise NonFiniteSignal(f"{self.get_name()}: input port 'magnet_states', magnet {k + 1} "
+                                          f"of {len(x)}: {what} at t = {context.get_time():.6g} s")
         return external_field_source(self._field_source, self._port_magnets, self._port_moments,
                                      self._port_radii, states, self._model)
 
@@ -171,6 +185,10 @@ class MagneticWrenchSystem(LeafSystem):
         """Ball centres p_W (n, 3) [m] and dipole directions m_hat_W (n, 3) from the poses."""
         poses = self._body_poses_port.Eval(context)
         X = np.array([poses[i].GetAsMatrix34() for i in self._indices])  # (n, 3, 4)
+        if not np.all(np.isfinite(X)):
+            ball = int(np.argmax(~np.all(np.isfinite(X.reshape(len(X), -1)), axis=1)))
+            raise NonFiniteSignal(f"{self.get_name()}: input port 'body_poses': the pose of ball {ball + 1} "
+                                  f"is not finite at t = {context.get_time():.6g} s")
         return X[:, :, 3], X[:, :, 0]
 
     def calc_wrenches(self, context) -> tuple[np.ndarray, np.ndarray]:

@@ -1,23 +1,10 @@
-"""Ablation-target touches and Meshcat overlays of a chain simulation.
+"""Meshcat overlays of a chain simulation.
 
-Two systems, wired by ``build_chain_diagram`` (``chain_simulation``):
-
-* ``target_touches`` (TargetTouchTracker): which of the heart's ablation targets the tip ball
-  has touched so far (state; added whenever the atrium has target rings, with or without
-  Meshcat, so that ``run_simulation`` can report ``targets_touched``).
-* ``meshcat_overlays`` (MeshcatOverlays, only with a Meshcat): the 5 mm targets as discs on the
-  wall (yellow, green once touched), the total external field at the tip ball as a blue arrow
-  and the wall's contact force on the tip ball as an orange arrow. Everything is also stored
-  in the Meshcat recording, so the HTML replay shows it.
-
-When the tip ball touches a target (``targets_touched``): with p the tip ball's centre, p_T a
-target's centre on the endocardium and n_T the wall's unit normal there (into the chamber),
-h = (p - p_T) . n_T is the height of the ball's centre above the wall's tangent plane at the
-target and l = |(p - p_T) - h n_T| its lateral distance from the target's centre. The ball
-touches the target when |h| <= r_ball + 0.5 mm (its surface within 0.5 mm of the wall, or in
-it) and l <= the target's radius (2.5 mm for 5 mm targets). The wall's curvature is ignored
-over the target: on the 19 mm semi-axis it bends 0.16 mm away from the tangent plane 2.5 mm
-from the centre.
+``meshcat_overlays`` (MeshcatOverlays, only with a Meshcat): the 5 mm targets as discs on the
+wall (yellow, green once touched), the total external field at the tip ball as a blue arrow and
+the wall's contact force on the tip ball as an orange arrow. Everything is also stored in the
+Meshcat recording, so the HTML replay shows it. Which targets are touched, and the wall force,
+come from ``systems/target_contact.py``.
 """
 
 from __future__ import annotations
@@ -35,167 +22,18 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
 from ballchain.systems.magnetic_wrench import external_field_source
+from ballchain.systems.target_contact import wall_force_on, wall_geometries
 
-TOUCH_TOLERANCE = 0.5e-3  # [m] the ball's surface this close to the wall counts as touching
 FIELD_ARROW_SCALE = 1.0  # [m/T]: 1 mm per mT
 FORCE_ARROW_SCALE = 0.1  # [m/N]: 10 mm per 0.1 N
 FIELD_ARROW_RGBA = Rgba(0.1, 0.35, 0.95, 1.0)  # blue
 FORCE_ARROW_RGBA = Rgba(1.0, 0.55, 0.0, 1.0)  # orange
-TARGET_RGBA = Rgba(0.95, 0.85, 0.1, 0.6)  # yellow: not touched yet
-TOUCHED_RGBA = Rgba(0.1, 0.8, 0.2, 0.95)  # green: touched
-WALL_GEOMETRY_NAMES = ("heart_wall", "wall_plane")  # chain_plant's collision walls
-
-
-def wall_geometries(plant, inspector) -> set:
-    """The collision geometries of chain_plant's walls (the heart's, or a flat wall)."""
-    return {g for g in plant.GetCollisionGeometriesForBody(plant.world_body())
-            if inspector.GetName(g).split("::")[-1] in WALL_GEOMETRY_NAMES}
-
-
-def wall_force_on(results: ContactResults, body_geometries: set, walls: set) -> tuple[np.ndarray, np.ndarray | None]:
-    """The walls' total contact force on a body, from the plant's contact results.
-
-    Args:
-        results: the plant's ContactResults (hydroelastic and point contacts).
-        body_geometries: the body's collision geometry ids.
-        walls: the walls' collision geometry ids.
-
-    Returns:
-        (f_W (3,) [N], p_WC (3,) [m] or None): the force and where it acts (the contact centroids,
-        weighted by force; None without contact).
-    """
-    f = np.zeros(3)
-    points, weights = [], []
-    for i in range(results.num_hydroelastic_contacts()):
-        info = results.hydroelastic_contact_info(i)
-        surface = info.contact_surface()
-        M, N = surface.id_M(), surface.id_N()
-        if M in body_geometries and N in walls:
-            f_body = info.F_Ac_W().translational()  # body A is geometry M's
-        elif N in body_geometries and M in walls:
-            f_body = -info.F_Ac_W().translational()
-        else:
-            continue
-        f += f_body
-        points.append(surface.centroid())
-        weights.append(np.linalg.norm(f_body))
-    for i in range(results.num_point_pair_contacts()):
-        info = results.point_pair_contact_info(i)
-        pair = info.point_pair()
-        if pair.id_A in walls and pair.id_B in body_geometries:
-            f_body = info.contact_force()  # on body B
-        elif pair.id_B in walls and pair.id_A in body_geometries:
-            f_body = -info.contact_force()
-        else:
-            continue
-        f += f_body
-        points.append(info.contact_point())
-        weights.append(np.linalg.norm(f_body))
-    if not points:
-        return f, None
-    w = np.asarray(weights)
-    w = w / w.sum() if w.sum() > 0 else np.full(len(points), 1.0 / len(points))
-    return f, (np.asarray(points) * w[:, None]).sum(axis=0)
-
-
-def heart_targets(heart) -> tuple[list[str], np.ndarray, np.ndarray, float]:
-    """The atrium's ablation targets.
-
-    Args:
-        heart: a LeftAtrium (or a UserAtrium, which has no rings).
-
-    Returns:
-        (names ["left_1", ..., "right_18"] (1-based, as chain_plant's ``target_<ring>_<k>``
-        visual geometries), p_WT (n, 3) centres [m], n_W (n, 3) unit wall normals into the
-        chamber, target radius [m]).
-    """
-    names, points = [], []
-    for side, ring in getattr(heart, "rings", {}).items():
-        names += [f"{side}_{k + 1}" for k in range(len(ring.p_HT))]
-        points.append(np.asarray(ring.p_HT, float))
-    if not names:
-        return [], np.zeros((0, 3)), np.zeros((0, 3)), 0.0
-    p_WT = np.concatenate(points)
-    # The targets lie on the endocardial ellipsoid (heart.py): its outward normal is
-    # grad((x/a)^2) ~ p / a^2; the chamber is on the other side.
-    outward = p_WT / np.asarray(heart.semi_axes, float) ** 2
-    n_W = -outward / np.linalg.norm(outward, axis=1, keepdims=True)
-    return names, p_WT, n_W, 0.5 * float(heart.params.target_diameter)
-
-
-def targets_touched(p_W_tip, p_WT: np.ndarray, n_W: np.ndarray, ball_radius: float, target_radius: float,
-                    tolerance: float = TOUCH_TOLERANCE) -> np.ndarray:
-    """Which targets a ball centred at ``p_W_tip`` touches (see the module docstring).
-
-    Args:
-        p_W_tip: (3,) the tip ball's centre [m].
-        p_WT: (n, 3) target centres on the wall [m].
-        n_W: (n, 3) unit wall normals at the targets, into the chamber.
-        ball_radius: [m].
-        target_radius: [m] (half the target's diameter).
-        tolerance: how far the ball's surface may be from the wall [m].
-
-    Returns:
-        (n,) bool.
-    """
-    rel = np.asarray(p_W_tip, float) - p_WT
-    h = (rel * n_W).sum(axis=1)
-    lateral2 = (rel * rel).sum(axis=1) - h * h  # |rel|^2 = h^2 + lateral^2
-    return (np.abs(h) <= ball_radius + tolerance) & (lateral2 <= target_radius**2)
-
-
-class TargetTouchTracker(LeafSystem):
-    """Remembers which ablation targets the tip ball has touched (``targets_touched``).
-
-    Input ports:
-        body_poses: abstract list[RigidTransform] indexed by BodyIndex (the plant's ``body_poses``).
-
-    Output ports:
-        touched: (n_targets,) 1.0 for each target touched at any update so far, else 0.0 (the
-            discrete state; targets in ``names`` order).
-
-    Updates every ``period`` seconds and at initialisation.
-
-    Args:
-        tip_body_index: the plant's BodyIndex of the tip ball.
-        names, p_WT, n_W, target_radius: from ``heart_targets``.
-        ball_radius: [m].
-        period: [s].
-    """
-
-    def __init__(self, tip_body_index, names: Sequence[str], p_WT: np.ndarray, n_W: np.ndarray,
-                 target_radius: float, ball_radius: float, period: float) -> None:
-        super().__init__()
-        self.set_name("target_touches")
-        self.names = list(names)
-        self._tip = int(tip_body_index)
-        self._p_WT = np.asarray(p_WT, float).reshape(-1, 3)
-        self._n_W = np.asarray(n_W, float).reshape(-1, 3)
-        self._target_radius = float(target_radius)
-        self._ball_radius = float(ball_radius)
-        self._body_poses_port = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
-        self._state_index = self.DeclareDiscreteState(len(self.names))
-        self._touched_port = self.DeclareStateOutputPort("touched", self._state_index)
-        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
-        self.DeclareInitializationDiscreteUpdateEvent(self._update)
-
-    def get_body_poses_input_port(self):
-        return self._body_poses_port
-
-    def get_touched_output_port(self):
-        return self._touched_port
-
-    def _update(self, context, discrete_state):
-        p_tip = self._body_poses_port.Eval(context)[self._tip].translation()
-        now = targets_touched(p_tip, self._p_WT, self._n_W, self._ball_radius, self._target_radius)
-        old = context.get_discrete_state(self._state_index).get_value()
-        discrete_state.get_mutable_vector(self._state_index).SetFromVector(np.maximum(old, now))
-        return EventStatus.Succeeded()
-
-    def touched_names(self, context) -> list[str]:
-        """The names of the targets touched so far in this (system's) context."""
-        x = self._touched_port.Eval(context)
-        return [n for n, v in zip(self.names, x) if v > 0.5]
+# The target discs are opaque: three.js draws opaque objects first, then blends the
+# semi-transparent heart over them; a semi-transparent disc is drawn after the heart and its
+# depth test fails wherever the heart's near wall is in front of it (every disc on the near side
+# of the chamber vanished in the replays).
+TARGET_RGBA = Rgba(0.95, 0.85, 0.1, 1.0)  # yellow: not touched yet
+TOUCHED_RGBA = Rgba(0.1, 0.8, 0.2, 1.0)  # green: touched
 
 
 def _arrow_pose(p_W: np.ndarray, v_W: np.ndarray) -> RigidTransform:

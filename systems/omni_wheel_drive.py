@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
+from ballchain.drake_models.errors import UserInputError, check_finite_input
 from ballchain.drake_models.omniwheel import OmniWheelGeometry
 
 
@@ -43,9 +44,9 @@ class StepperSpec:
         for name in ("step_angle_deg", "max_speed", "max_acceleration", "update_period"):
             value = getattr(self, name)
             if not np.isfinite(value) or value <= 0:
-                raise ValueError(f"StepperSpec.{name} must be positive, got {value!r}")
+                raise UserInputError(f"StepperSpec.{name} must be positive, got {value!r}")
         if int(self.microsteps) != self.microsteps or self.microsteps < 1:
-            raise ValueError(f"StepperSpec.microsteps must be an integer >= 1, got {self.microsteps!r}")
+            raise UserInputError(f"StepperSpec.microsteps must be an integer >= 1, got {self.microsteps!r}")
 
     @property
     def microstep_angle(self) -> float:
@@ -84,7 +85,6 @@ class OmniWheelDrive(LeafSystem):
         super().__init__()
         self._geometry = geometry or OmniWheelGeometry()
         self._spec = spec or StepperSpec()
-        self._inverse = self._geometry.ratio * self._geometry.A
         self.set_name(f"{name}.drive")
 
         self._omega_port = self.DeclareVectorInputPort("omega_desired_W", 3)
@@ -103,12 +103,13 @@ class OmniWheelDrive(LeafSystem):
 
     def wheel_command(self, omega_desired_W: np.ndarray) -> np.ndarray:
         """(3,) wheel speeds [rad/s] for a desired magnet angular velocity, speed-limited."""
-        return saturate_uniformly(self._inverse @ np.asarray(omega_desired_W, dtype=float), self._spec.max_speed)
+        return saturate_uniformly(self._geometry.wheel_speeds(omega_desired_W), self._spec.max_speed)
 
     def _update(self, context, discrete_state):
         s = self._spec
         dt = s.update_period
-        target = self.wheel_command(self._omega_port.Eval(context))
+        # A NaN command would pass the speed limit (max |NaN| is NaN) and reach the magnet.
+        target = self.wheel_command(check_finite_input(self, self._omega_port, context))
         speed = context.get_discrete_state(self._speed_index).CopyToVector()
         dv = s.max_acceleration * dt
         speed = speed + np.clip(target - speed, -dv, dv)

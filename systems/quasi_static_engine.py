@@ -40,6 +40,7 @@ from pydrake.geometry import (
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import BallChain
 from ballchain.optimization.statics import ChainStatics, StaticsResult
@@ -136,8 +137,8 @@ class QuasiStaticEngine(LeafSystem):
                  max_angle_step: float = np.radians(1.0), max_insertion_step: float = 1e-3,
                  snap_distance: float = 1.5e-3):
         super().__init__()
-        if period <= 0:
-            raise ValueError(f"QuasiStaticEngine: period must be > 0, got {period}")
+        if not period > 0:
+            raise UserInputError(f"QuasiStaticEngine: period must be > 0 s, got {period}")
         self.chain = chain
         n = chain.n_balls
         self._n = n

@@ -11,7 +11,7 @@ the mistake; open loop (teleoperation) the magnet would turn about an axis 26.6 
 
 What the paper leaves open and this controller decides:
 
-* Antiparallel start (DESIGN point 5): ``m x m_c`` vanishes at 180 deg, so the law stalls. Within
+* Antiparallel start (docs/design.md, 4.5): ``m x m_c`` vanishes at 180 deg, so the law stalls. Within
   ``antiparallel_deg`` of antiparallel the controller turns at the law's speed at the edge of
   that cone, ``K sin(antiparallel_deg)``, about the cross product's direction if it is resolvable
   and otherwise about a fixed axis perpendicular to ``m_c``.
@@ -25,17 +25,10 @@ from __future__ import annotations
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from ballchain.drake_models.dipole_inversion import angle_between
-from ballchain.drake_models.omniwheel import PAPER_A, OmniWheelGeometry
+from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.omniwheel import OmniWheelGeometry, paper_wheel_speeds
+from ballchain.drake_models.vectors import angle_between, perpendicular_axis
 from ballchain.systems.omni_wheel_drive import saturate_uniformly
-
-
-def perpendicular_axis(v: np.ndarray) -> np.ndarray:
-    """A fixed unit vector perpendicular to v (3,): v crossed with the world axis least aligned."""
-    v = np.asarray(v, dtype=float)
-    e = np.eye(3)[int(np.argmin(np.abs(v)))]
-    w = np.cross(v, e)
-    return w / np.linalg.norm(w)
 
 
 class ReconfigurationController(LeafSystem):
@@ -82,9 +75,9 @@ class ReconfigurationController(LeafSystem):
         super().__init__()
         m_c = np.asarray(m_c_W, dtype=float).reshape(3)
         if not np.all(np.isfinite(m_c)) or np.linalg.norm(m_c) == 0:
-            raise ValueError(f"neutral direction must be finite and non-zero, got {m_c_W!r}")
+            raise UserInputError(f"neutral direction must be finite and non-zero, got {m_c_W!r}")
         if gain <= 0 or max_wheel_speed <= 0 or tolerance_deg <= 0 or not (0 < antiparallel_deg < 90):
-            raise ValueError("gain, max_wheel_speed, tolerance_deg must be > 0 and antiparallel_deg in (0, 90)")
+            raise UserInputError("gain, max_wheel_speed, tolerance_deg must be > 0 and antiparallel_deg in (0, 90)")
         self._m_c = m_c / np.linalg.norm(m_c)
         self._K = float(gain)
         self._max_speed = float(max_wheel_speed)
@@ -92,12 +85,11 @@ class ReconfigurationController(LeafSystem):
         self._cone = np.deg2rad(antiparallel_deg)
         self._g = geometry or OmniWheelGeometry()
         if wheel_map == "derived":
-            self._to_wheels = self._g.ratio * self._g.A
+            self._to_wheels = self._g.wheel_speeds
         elif wheel_map == "paper":
-            self._to_wheels = np.linalg.inv(PAPER_A) / self._g.ratio
+            self._to_wheels = lambda omega: paper_wheel_speeds(omega, self._g)
         else:
-            raise ValueError(f"wheel_map must be 'derived' or 'paper', got {wheel_map!r}")
-        self._to_magnet = np.linalg.inv(self._g.A) / self._g.ratio  # the true forward map
+            raise UserInputError(f"wheel_map must be 'derived' or 'paper', got {wheel_map!r}")
         self._fallback_axis = perpendicular_axis(self._m_c)
         self.set_name(f"{name}.controller")
 
@@ -134,7 +126,7 @@ class ReconfigurationController(LeafSystem):
 
     def wheel_command(self, m_hat: np.ndarray) -> np.ndarray:
         """(3,) saturated wheel speeds [rad/s] for a measured direction."""
-        return saturate_uniformly(self._to_wheels @ self.desired_angular_velocity(m_hat), self._max_speed)
+        return saturate_uniformly(self._to_wheels(self.desired_angular_velocity(m_hat)), self._max_speed)
 
     def _is_done(self, context) -> bool:
         return bool(context.get_discrete_state(self._done_index).GetAtIndex(0) > 0.5)
@@ -155,7 +147,7 @@ class ReconfigurationController(LeafSystem):
         output.SetFromVector(self._wheels(context))
 
     def _calc_omega(self, context, output):
-        output.SetFromVector(self._to_magnet @ self._wheels(context))
+        output.SetFromVector(self._g.sphere_angular_velocity(self._wheels(context)))  # the true forward map
 
     def _calc_angle(self, context, output):
         m = self._m_port.Eval(context)

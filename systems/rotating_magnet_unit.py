@@ -17,6 +17,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, Context, LeafSystem
 
+from ballchain.drake_models.errors import UserInputError, check_finite_input
 from ballchain.drake_models.field_sources import FieldModel, MagnetSource
 from ballchain.drake_models.omniwheel import OmniWheelGeometry
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
@@ -51,12 +52,12 @@ class MagnetUnitConfig:
     def __post_init__(self) -> None:
         p = np.asarray(self.p_WM, dtype=float)
         if p.shape != (3,) or not np.all(np.isfinite(p)):
-            raise ValueError(f"MagnetUnitConfig.p_WM must be 3 finite numbers, got {self.p_WM!r}")
+            raise UserInputError(f"MagnetUnitConfig.p_WM must be 3 finite numbers, got {self.p_WM!r}")
         object.__setattr__(self, "p_WM", tuple(float(v) for v in p))
         if self.field_model not in ("dipole", "exact"):
-            raise ValueError(f"field_model must be 'dipole' or 'exact', got {self.field_model!r}")
+            raise UserInputError(f"field_model must be 'dipole' or 'exact', got {self.field_model!r}")
         if not np.isfinite(self.sensor_distance) or self.sensor_distance <= self.magnet.bounding_radius:
-            raise ValueError(
+            raise UserInputError(
                 f"sensor_distance ({self.sensor_distance} m) must exceed the magnet's bounding "
                 f"radius ({self.magnet.bounding_radius:.4f} m)"
             )
@@ -117,11 +118,8 @@ class RotatingMagnetUnit(LeafSystem):
         super().__init__()
         self._config = config or MagnetUnitConfig()
         if not (0.0 <= slip < 1.0):
-            raise ValueError(f"slip must be in [0, 1), got {slip!r}")
+            raise UserInputError(f"slip must be in [0, 1), got {slip!r}")
         self._slip = float(slip)
-        g = self._config.geometry
-        # Forward map, precomputed: omega_W = (1 - slip) (rho_w/rho_a) A^-1 omega_wheels.
-        self._forward = (1.0 - self._slip) * np.linalg.inv(g.A) / g.ratio
         self.set_name(f"{self._config.name}.magnet")
 
         self._omega_wheels_port = self.DeclareVectorInputPort("omega_wheels", 3)
@@ -159,7 +157,11 @@ class RotatingMagnetUnit(LeafSystem):
         return self._config.source(self.R_WM(context))
 
     def _omega_W(self, context: Context) -> np.ndarray:
-        return self._forward @ self._omega_wheels_port.Eval(context)
+        # A NaN wheel speed must stop the simulation at once, naming this unit, the port and the
+        # time: on a NaN derivative the error-controlled integrator would retry forever.
+        # omega_W = (1 - slip) (rho_w/rho_a) A^-1 omega_wheels (docs/design.md, 4.2).
+        omega_wheels = check_finite_input(self, self._omega_wheels_port, context)
+        return (1.0 - self._slip) * self._config.geometry.sphere_angular_velocity(omega_wheels)
 
     def DoCalcTimeDerivatives(self, context, derivatives):
         q = context.get_continuous_state_vector().CopyToVector()

@@ -38,7 +38,7 @@ The policy, an honest model of a person learning an unfamiliar mapping by watchi
   ``stall_window`` seconds, it feeds more chain for ``burst`` seconds when the target lies ahead
   of the tip (within 60 degrees of its direction: out of reach) and feeding is allowed, and
   retracts otherwise (stuck against the wall), steering meanwhile; then it resumes.
-* Touch: the target counts as touched when ``targets_touched`` (``meshcat_overlays``: the tip
+* Touch: the target counts as touched when ``targets_touched`` (``target_contact``: the tip
   ball within 0.5 mm of the wall inside the target's 5 mm circle) says so at one of its looks;
   it records the time and the accuracy (distance from the ball's wall-side point, its centre
   moved a ball radius against the target's normal, to the target's centre) and moves on. After
@@ -57,7 +57,8 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import EventStatus, LeafSystem
 
-from ballchain.systems.meshcat_overlays import targets_touched
+from ballchain.drake_models.errors import UserInputError, require_finite_fields
+from ballchain.systems.target_contact import targets_touched
 
 
 @dataclass
@@ -145,14 +146,15 @@ class OperatorParams:
     target_radius: float = 2.5e-3
 
     def validate(self) -> "OperatorParams":
+        require_finite_fields(self, allow_inf=("max_length",))  # inf: no end stop known
         if not self.period > 0 or self.reaction_steps < 0:
-            raise ValueError("OperatorParams: period must be > 0 and reaction_steps >= 0")
+            raise UserInputError("OperatorParams: period must be > 0 and reaction_steps >= 0")
         if not self.axes or any(a not in (0, 1, 2) for a in self.axes) or len(set(self.axes)) != len(self.axes):
-            raise ValueError(f"OperatorParams.axes must be distinct stick axes among 0, 1, 2, got {self.axes}")
+            raise UserInputError(f"OperatorParams.axes must be distinct stick axes among 0, 1, 2, got {self.axes}")
         if not 0.0 <= self.dead_band < 1.0 or not 0.0 < self.forgetting <= 1.0:
-            raise ValueError("OperatorParams: dead_band in [0, 1) and forgetting in (0, 1]")
+            raise UserInputError("OperatorParams: dead_band in [0, 1) and forgetting in (0, 1]")
         if not self.timeout > 0 or not self.feeder_speed > 0 or not self.max_speed > 0:
-            raise ValueError("OperatorParams: timeout, feeder_speed and max_speed must be > 0")
+            raise UserInputError("OperatorParams: timeout, feeder_speed and max_speed must be > 0")
         return self
 
 
@@ -234,7 +236,7 @@ class SimulatedOperator(LeafSystem):
         self._p_WT = np.asarray(p_WT, float).reshape(-1, 3)
         self._n_W = np.asarray(n_W, float).reshape(-1, 3)
         if len(self.names) != len(self._p_WT) or len(self._p_WT) != len(self._n_W) or not self.names:
-            raise ValueError("SimulatedOperator needs at least one target, with as many names, centres and normals")
+            raise UserInputError("SimulatedOperator needs at least one target, with as many names, centres and normals")
         self._tip, self._previous = int(tip_body_index), int(previous_body_index)
         self._n = n = len(p.axes)
         memory = _Memory(J=np.zeros((3, n)), P=p.initial_covariance * np.eye(n),

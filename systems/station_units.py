@@ -33,9 +33,11 @@ from pydrake.systems.framework import LeafSystem
 from pydrake.systems.primitives import ConstantVectorSource, MatrixGain, Multiplexer, TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
 
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import BallChain, CylinderMagnet, SphereMagnet
-from ballchain.systems.actuation_station import StationOptions, add_unit, neutral_direction
+from ballchain.drake_models.dipole_inversion import neutral_direction
+from ballchain.systems.actuation_station import StationOptions, add_unit
 from ballchain.systems.chain_scenario import ChainScenario, InsertionScenario, JoystickKey
 from ballchain.systems.feeder import Feeder, FeederSpec
 from ballchain.systems.hall_sensor import DipoleDirectionEstimator, HallSensor
@@ -67,7 +69,7 @@ class UnitHandles:
         Only the axes: the mode script (``<u>.mode_command``) is the scenario's.
         """
         if self.joystick is None:
-            raise ValueError(f"unit {self.config.name!r}: its joystick is external (joystick_source: external)")
+            raise UserInputError(f"unit {self.config.name!r}: its joystick is external (joystick_source: external)")
         times = [k.time for k in keys] or [0.0]
         axes = np.array([k.axes for k in keys], float).reshape(-1, 3).T if keys else np.zeros((3, 1))
         self.joystick.UpdateTrajectory(_zoh(times, axes))
@@ -86,7 +88,7 @@ def unit_configs(scenario: ChainScenario, anchors: dict[str, np.ndarray]) -> lis
             p_WM = np.asarray(u.p_WM, float)
         else:
             if u.anchor not in anchors:
-                raise ValueError(f"unit {u.name!r}: anchor {u.anchor!r} is not available here (a user's atrium "
+                raise UserInputError(f"unit {u.name!r}: anchor {u.anchor!r} is not available here (a user's atrium "
                                  "has no carinas): give p_WM")
             direction = np.asarray(u.direction_W, float)
             p_WM = anchors[u.anchor] + u.distance * direction / np.linalg.norm(direction)
@@ -190,7 +192,7 @@ def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig],
         controller, teleop, switch = systems.controller, systems.teleop, systems.switch
         if u.teleop_frame == "tip":
             if tip_observer is None:
-                raise ValueError(f"unit {n!r}: teleop_frame 'tip' needs the tip's pose (a tip observer)")
+                raise UserInputError(f"unit {n!r}: teleop_frame 'tip' needs the tip's pose (a tip observer)")
             builder.Connect(tip_observer.GetOutputPort("p_WT"), teleop.GetInputPort("p_WT"))
             builder.Connect(tip_observer.GetOutputPort("tip_direction_W"), teleop.GetInputPort("tip_direction_W"))
         keys: list[JoystickKey] = u.joystick
@@ -236,7 +238,7 @@ def add_feeder(builder, chain: BallChain, insertion: InsertionScenario, desired_
     ins = insertion
     external = getattr(ins, "feeder_command", "ramp") == "external"
     if ins.speed > spec.max_speed and ins.final != ins.initial and not external:
-        raise ValueError(f"insertion.speed {ins.speed} m/s exceeds the feeder's limit {spec.max_speed} m/s")
+        raise UserInputError(f"insertion.speed {ins.speed} m/s exceeds the feeder's limit {spec.max_speed} m/s")
     feeder = builder.AddSystem(Feeder(chain, spec, initial_length=ins.initial))
     ramp = abs(ins.final - ins.initial) / ins.speed if ins.speed > 0 else 0.0
     t1 = max(ins.start_time, 0.0)
@@ -324,7 +326,7 @@ def joystick_keys_for_rotation(m_from_W, m_to_W, omega_max: float, start_time: f
     if angle < 1e-9:
         return [JoystickKey(time=start_time, axes=[0.0, 0.0, 0.0])]
     if np.linalg.norm(cross) < 1e-9:  # antiparallel: any axis perpendicular to a
-        from ballchain.systems.reconfiguration import perpendicular_axis
+        from ballchain.drake_models.vectors import perpendicular_axis
 
         cross = perpendicular_axis(a)
     axis = cross / np.linalg.norm(cross)

@@ -21,6 +21,7 @@ from pydrake.systems.framework import LeafSystem
 
 from ballchain.drake_models.dipole import dipole_field
 from ballchain.drake_models.dipole_inversion import moment_from_field
+from ballchain.drake_models.errors import UserInputError
 
 E3 = np.array([0.0, 0.0, 1.0])
 
@@ -94,11 +95,11 @@ class TeleoperationMapper(LeafSystem):
         """
         super().__init__()
         if frame not in ("world", "tip"):
-            raise ValueError(f"frame must be 'world' or 'tip', got {frame!r}")
+            raise UserInputError(f"frame must be 'world' or 'tip', got {frame!r}")
         if not (0.0 <= dead_band < 1.0) or not omega_max > 0:
-            raise ValueError("dead_band must be in [0, 1) and omega_max > 0")
+            raise UserInputError("dead_band must be in [0, 1) and omega_max > 0")
         if frame == "tip" and p_WM is None:
-            raise ValueError("frame='tip' needs the magnet centre p_WM")
+            raise UserInputError("frame='tip' needs the magnet centre p_WM")
         self._frame = frame
         self._omega_max = float(omega_max)
         self._dead_band = float(dead_band)

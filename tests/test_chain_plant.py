@@ -216,6 +216,7 @@ def test_free_space_quasi_static_settles_on_the_statics_solution():
     assert np.abs(p - statics.positions).max() < 0.5e-3
 
 
+@pytest.mark.slow
 def test_compliant_wall_holds_the_chain_from_inside():
     """Bent up against the roof by 30 mT: hydroelastic contact holds the tip inside the chamber,
     sunk less than half the wall (0 < sinking < 1.25 mm), the chain intact."""
@@ -240,6 +241,7 @@ def test_compliant_wall_holds_the_chain_from_inside():
     assert np.all(heart.contains(p) | cd.chain_plant.in_sheath(p))
 
 
+@pytest.mark.slow
 def test_chain_pressed_against_a_wall_settles_on_the_statics_solution():
     """8 balls, 23 mT at 90 deg, a flat wall at y = 12 mm: the simulated chain (stiff compliant
     half-space) settles within 0.5 mm of the statics with a rigid frictionless wall; what is left

@@ -67,6 +67,7 @@ def test_alignment_writes_csv_and_figures(capsys, tmp_path):
         assert (tmp_path / name).stat().st_size > 0
 
 
+@pytest.mark.slow
 def test_reproduce_quick_writes_the_report(capsys, tmp_path):
     data = run_json(capsys, "reproduce", "--quick", "--out", str(tmp_path))
     report = (tmp_path / "report.md").read_text()
@@ -88,6 +89,7 @@ def test_subcommand_help_lists_its_arguments(capsys, command, flag):
     assert flag in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_simulate_reports_the_statics_tip_error_where_the_chain_settles(capsys):
     data = run_json(capsys, "simulate", "--scenario", "free_space_wall")
     assert 0.0 < data["statics_tip_error_mm"] < 0.5  # the tip's indentation into the wall

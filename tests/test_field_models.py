@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from ballchain.cli import main as cli_main
 from ballchain.drake_models.dipole import K_DIPOLE
-from ballchain.drake_models.field_model_comparison import (
+from ballchain.experiments.field_models import (
     compare_field_models,
     on_axis_relative_error_coefficient,
 )

@@ -183,6 +183,7 @@ def test_a_pin_simulation_that_cannot_settle_says_why(rspv_optimum):
         simulate_pin_force(chain, None, target, axis, None, PinSimulationConfig(stiffness=5e3))
 
 
+@pytest.mark.slow
 def test_forces_command_prints_the_simulated_column(capsys, tmp_path, monkeypatch):
     """``ballchain forces --json``: rows with the statics, the simulation and the paper side by side;
     ``--no-dynamics`` leaves the simulation out and says so."""

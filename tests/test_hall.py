@@ -8,18 +8,18 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import VectorLogSink
 
 from ballchain.drake_models.dipole import K_DIPOLE, dipole_field
+from ballchain.experiments.hall_inversion import inversion_comparison
 from ballchain.drake_models.dipole_inversion import (
-    angle_between,
     dipole_matrix,
     dipole_matrix_inverse,
     direction_from_field,
-    inversion_comparison,
     moment_from_field,
     paper_direction_formula,
     paper_formula_angle_error,
 )
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
+from ballchain.drake_models.vectors import angle_between
 from ballchain.systems.hall_sensor import DipoleDirectionEstimator, HallSensor, HallSensorSpec, quantise_reading
 from ballchain.systems.rotating_magnet_unit import MagnetUnitConfig
 

@@ -41,6 +41,7 @@ def test_held_tip_jacobian_matches_central_differences(setup):
         np.testing.assert_allclose(J[:, i], (Fp - Fm) / (2 * h), rtol=2e-3, atol=1e-4 * np.abs(J).max())
 
 
+@pytest.mark.slow
 def test_min_turn_meets_every_constraint_and_one_is_active(setup):
     chain, _, solver, field_for, m0, centre, axis, home = setup
     f_min = newtons_from_gram_force(10.0)

@@ -21,7 +21,7 @@ from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import BallChain
 from ballchain.systems.chain_scenario import load_scenario
 from ballchain.systems.chain_simulation import build_chain_diagram, run_simulation
-from ballchain.systems.meshcat_overlays import TOUCH_TOLERANCE, TargetTouchTracker, heart_targets, targets_touched
+from ballchain.systems.target_contact import TOUCH_TOLERANCE, TargetTouchTracker, heart_targets, targets_touched
 
 R_BALL = 0.5 * BallChain().ball_diameter  # 1.5875 mm
 

@@ -1,3 +1,4 @@
+import pytest
 """Executes notebooks/actuation.ipynb (short settings) with nbclient in a temporary directory."""
 
 import shutil
@@ -16,6 +17,7 @@ def test_notebook_is_committed_without_outputs():
             assert cell.outputs == [] and cell.execution_count is None
 
 
+@pytest.mark.slow
 def test_actuation_notebook_runs(tmp_path, monkeypatch):
     monkeypatch.setenv("BALLCHAIN_NOTEBOOK_LONG", "0")
     monkeypatch.setenv("MPLBACKEND", "Agg")

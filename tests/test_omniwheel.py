@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
+from ballchain.experiments.wheels import wheel_map_report
 from ballchain.drake_models.omniwheel import (
     PAPER_A,
     OmniWheelGeometry,
     contacts_below,
     paper_forward_map,
     prototype_wheel_axes,
-    wheel_map_report,
 )
 
 RNG = np.random.default_rng(11)

@@ -1,6 +1,7 @@
 """Model-based steering: the teleoperation stand and a short plan."""
 
 import numpy as np
+import pytest
 
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import BallChain
@@ -22,6 +23,7 @@ def test_teleop_stand_targets_lie_a_ball_radius_inside_the_wall():
     np.testing.assert_allclose(np.linalg.norm(p_HM - atrium.carinas["right"]), 0.10, rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_short_plan_presses_every_target_and_times_the_turns():
     data = planner.run(task="right", targets=2, balls=(16,), grid=3, refine=4, progress=False)
     assert [r["reached"] for r in data["rows"]] == [True, True], [r["reason"] for r in data["rows"]]

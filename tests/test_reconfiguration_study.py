@@ -3,10 +3,10 @@
 import numpy as np
 
 from ballchain.drake_models.field_sources import rotation_with_z_along
-from ballchain.drake_models.omniwheel import wheel_map_report
+from ballchain.experiments.wheels import wheel_map_report
 from ballchain.systems.actuation_station import StationOptions, right_unit
 from ballchain.systems.reconfiguration import ReconfigurationController
-from ballchain.systems.reconfiguration_study import run_reconfiguration, run_reconfiguration_study
+from ballchain.experiments.reconfiguration import run_reconfiguration, run_reconfiguration_study
 
 
 def test_small_study_converges_every_run_including_antiparallel():

@@ -8,7 +8,7 @@ import pytest
 from ballchain.cli import main as cli_main
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.systems.chain_scenario import ChainScenario, load_scenario, scenario_names
-from ballchain.systems.chain_simulation import SimulationFailure, build_chain_diagram, run_simulation
+from ballchain.systems.chain_simulation import build_chain_diagram, run_simulation
 
 KEYS = {"realtime_factor", "sim_time_s", "tip_position_mm", "min_wall_clearance_mm",
         "max_neighbor_gap_um", "max_penetration_um", "targets_touched", "peak_memory_MB"}
@@ -44,6 +44,7 @@ def test_diagram_has_named_systems(heart):
 
 
 @pytest.mark.parametrize("name", scenario_names())
+@pytest.mark.slow
 def test_every_named_scenario_runs_briefly(name, heart):
     scenario = load_scenario(name)
     duration = 10 * scenario.effective_time_step
@@ -74,7 +75,7 @@ def test_bad_scenarios_fail_with_clear_messages(capsys):
         load_scenario("heart_no_field", "{mode: sideways}")
     with pytest.raises(ValueError, match="too large for the dynamics mode"):
         load_scenario("heart_no_field", "{mode: dynamics, time_step: 0.001}")
-    with pytest.raises(ValueError, match="scenario 'heart_no_field'"):
+    with pytest.raises(ValueError, match="unknown field 'no_such_field'"):
         load_scenario("heart_no_field", "{no_such_field: 1}")
     with pytest.raises(ValueError, match="ball 1 must stay in the sheath"):
         build_chain_diagram(load_scenario("free_space_uniform_90deg", "{insertion: {initial: 0.2}}"))
@@ -87,12 +88,10 @@ def test_a_breaking_chain_stops_with_when_and_which_ball(capsys):
     assert cli_main(argv) == 1
     captured = capsys.readouterr()
     assert "simulation stopped:" in captured.err
-    assert "between balls" in captured.err or "flew away" in captured.err or "NaN" in captured.err
+    # Deterministic: the first check after the blow-up (5 ms) finds the chain broken.
+    assert "the chain broke between balls 13 and 14 at t = 0.0050 s" in captured.err
     data = json.loads(captured.out)
     assert "failure" in data and data["sim_time_s"] < 0.05
-    with pytest.raises(SimulationFailure, match=r"at t = 0\.0"):
-        run_simulation(scenario=load_scenario("free_space_uniform_90deg", "{translational_damping: 0.1}"),
-                       duration=0.05)
 
 
 def test_html_recording(tmp_path):
@@ -105,6 +104,7 @@ def test_html_recording(tmp_path):
     assert len(text) > 10_000
 
 
+@pytest.mark.slow
 def test_monitor_names_the_escaped_ball_and_nan(heart):
     """The watchdog on hand-made states: a ball moved outside the heart, then a NaN."""
     from pydrake.math import RigidTransform
@@ -154,6 +154,7 @@ def test_the_feeder_system_drives_the_chain():
     np.testing.assert_allclose((p1 - p0)[:, 0], s, atol=0.05e-3)  # the whole chain, straight
 
 
+@pytest.mark.slow
 def test_a_user_atrium_surface_runs_and_a_bad_one_is_refused(tmp_path, capsys):
     from ballchain.drake_models import mesh_tools as mt
 
@@ -180,6 +181,7 @@ UNIT_8_BALLS = ("{n_balls: 8, uniform_field: [0.0, 0.0, 0.0], units: [{name: rig
                 "sensor_noise: false, joystick: [{time: 0.0, axes: [0.0, 0.0, 1.0]}, {time: 0.3, axes: [0.0, 0.0, 0.0]}]}]}")
 
 
+@pytest.mark.slow
 def test_station_with_units_has_named_systems_and_wiring(heart):
     cd = build_chain_diagram(load_scenario("teleop_two_units"), heart=heart)
     names = {s.get_name() for s in cd.diagram.GetSystems()}

@@ -399,6 +399,7 @@ def test_estimator_subtracts_the_other_units_field():
     assert err > 0.3  # cross-talk of the other magnet, 0.33 m away
 
 
+@pytest.mark.slow
 def test_two_unit_station_reconfigures_both_units():
     opt = StationOptions(slip=0.05, sensor_noise=True)
     # Dipole models keep it quick; the exact field is exercised by the single-unit study.

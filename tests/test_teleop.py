@@ -106,6 +106,7 @@ def test_bad_input_is_rejected_with_clear_messages(capsys):
     assert "targets must be a positive number" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_station_wiring_for_both_mappings():
     """External stick and feeder: the scenario hooks route the mapping to the mapper's frame and
     leave the inputs to the operator (exported when nothing drives them)."""
@@ -136,6 +137,7 @@ def test_station_wiring_for_both_mappings():
 FAST = "{time_step: 0.004}"
 
 
+@pytest.mark.slow
 def test_operator_touches_the_first_target_with_the_world_mapping(capsys):
     """Task II's first target through the CLI (--json), the paper's world-frame mapping: touched
     within 10 s of simulated time (probing wiggle included), inside the 5 mm circle."""
@@ -151,6 +153,7 @@ def test_operator_touches_the_first_target_with_the_world_mapping(capsys):
     assert data["summary"]["touched"] == 1 and data["summary"]["failure"] is None
 
 
+@pytest.mark.slow
 def test_operator_touches_the_first_target_with_the_catheter_mapping(tmp_path):
     """The same target with the catheter-frame mapping (two stick axes), with a Meshcat replay."""
     html = tmp_path / "teleop.html"

@@ -1,113 +1,28 @@
-"""Tip-to-field alignment, the paper's model figure (Fig. model_simulation).
+"""``ballchain alignment``: tip-to-field alignment against chain length (paper Fig. model_simulation).
 
-Chains of 1..16 balls; a 23 mT field rotated from 0 to 180 deg in 22.5 deg steps with
-continuation; the angle between the field and the tip ball's dipole. The paper claims less
-than 1.4 deg for chains longer than 10 balls. Writes ``alignment.csv`` and ``alignment.png``
-(tip angle against chain length) and ``alignment_shapes.png`` (the 10-ball chain's shapes).
+Prints the tip angle of every chain length at every field angle, or ``--json``; the study, its
+CSV and its figures are ``ballchain.experiments.alignment``.
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
 from pathlib import Path
 
-import numpy as np
-from tqdm import tqdm
-
-from ballchain.commands._common import add_json_flag, finite_float, positive_int, print_json
-from ballchain.drake_models.field_sources import UniformField
-from ballchain.drake_models.params import BallChain, Sleeve
-from ballchain.optimization.statics import ChainStatics, rotation_path, tip_angle_deg
-
-PAPER_CLAIM_DEG = 1.4
+from ballchain.commands._common import add_json_flag, float_in, int_in, print_json
+from ballchain.experiments.alignment import MAX_BALLS, run
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--max-balls", type=positive_int, default=16, help="longest chain")
-    parser.add_argument("--field-mT", type=finite_float, default=23.0, help="field magnitude [mT]")
-    parser.add_argument("--step-deg", type=finite_float, default=22.5, help="field angle step [deg]")
+    parser.add_argument("--max-balls", type=int_in(1, MAX_BALLS), default=16, help=f"longest chain (1..{MAX_BALLS})")
+    parser.add_argument("--field-mT", type=float_in(0.0, 1000.0, lo_open=True), default=23.0,
+                        help="field magnitude [mT] (0..1000]")
+    parser.add_argument("--step-deg", type=float_in(0.5, 90.0), default=22.5, help="field angle step [deg] (0.5..90)")
     parser.add_argument("--sleeve", action="store_true", help="with the Dragon Skin sleeve")
     parser.add_argument("--out", type=Path, default=Path("results/alignment"),
                         help="folder for the CSV and PNG files")
     parser.add_argument("--no-files", action="store_true", help="write no files")
     add_json_flag(parser)
-
-
-def run(*, max_balls: int = 16, field_mT: float = 23.0, step_deg: float = 22.5, sleeve: bool = False,
-        out: Path | None = None, progress: bool = True) -> dict:
-    """Run the study; returns {"rows": [...], "shapes": {angle: positions_mm}, "summary": {...}}."""
-    if field_mT <= 0:
-        raise ValueError(f"--field-mT must be positive, got {field_mT}")
-    angles = rotation_path(0.0, 180.0, step_deg)
-    rows, shapes = [], {}
-    for n in tqdm(range(1, max_balls + 1), desc="alignment", unit="chain", disable=not progress):
-        chain = BallChain(n_balls=n, sleeve=Sleeve() if sleeve else None)
-        solver = ChainStatics(chain)
-        result = None
-        for angle in angles:
-            direction = np.array([np.cos(np.radians(angle)), np.sin(np.radians(angle)), 0.0])
-            result = solver.solve_or_raise(UniformField(field_mT * 1e-3 * direction), result)
-            rows.append({"n_balls": n, "field_angle_deg": float(angle),
-                         "tip_angle_deg": tip_angle_deg(result, direction),
-                         "tip_x_mm": result.positions[-1, 0] * 1e3, "tip_y_mm": result.positions[-1, 1] * 1e3})
-            if n == min(10, max_balls):
-                shapes[float(angle)] = result.positions * 1e3
-    beyond = [r["tip_angle_deg"] for r in rows if r["n_balls"] > 10]
-    summary = {
-        "max_tip_angle_deg_beyond_10_balls": max(beyond) if beyond else None,
-        "max_tip_angle_deg_beyond_10_balls_at_180deg": max(
-            (r["tip_angle_deg"] for r in rows if r["n_balls"] > 10 and r["field_angle_deg"] == 180.0), default=None),
-        "paper_claim_deg": PAPER_CLAIM_DEG,
-    }
-    data = {"rows": rows, "shapes": shapes, "summary": summary}
-    if out is not None:
-        data["files"] = write_files(data, Path(out))
-    return data
-
-
-def write_files(data: dict, out: Path) -> list[str]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    out.mkdir(parents=True, exist_ok=True)
-    csv_path = out / "alignment.csv"
-    with csv_path.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(data["rows"][0]))
-        writer.writeheader()
-        writer.writerows(data["rows"])
-    fig, ax = plt.subplots(figsize=(6, 4))
-    angles = sorted({r["field_angle_deg"] for r in data["rows"]})
-    for angle in angles:
-        if angle == 0.0:
-            continue  # aligned with the chain: the angle is zero for every length
-        pts = [(r["n_balls"], max(r["tip_angle_deg"], 1e-3)) for r in data["rows"] if r["field_angle_deg"] == angle]
-        ax.plot(*zip(*pts), marker="o", ms=3, label=f"{angle:g} deg")
-    ax.axhline(PAPER_CLAIM_DEG, color="k", ls="--", lw=1, label="paper: 1.4 deg")
-    ax.set_xlabel("balls in the chain")
-    ax.set_ylabel("angle between field and tip dipole [deg]")
-    ax.set_yscale("log")
-    ax.legend(fontsize=7, ncol=2)
-    ax.set_title("Tip alignment with a 23 mT field (model)")
-    fig.tight_layout()
-    png = out / "alignment.png"
-    fig.savefig(png, dpi=120)
-    plt.close(fig)
-    fig, ax = plt.subplots(figsize=(5, 5))
-    for angle, p in data["shapes"].items():
-        ax.plot(p[:, 0], p[:, 1], "-o", ms=4, label=f"{angle:g} deg")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [mm]")
-    ax.set_ylabel("y [mm]")
-    ax.legend(fontsize=7)
-    ax.set_title("10-ball chain, field rotated 0..180 deg")
-    fig.tight_layout()
-    shapes_png = out / "alignment_shapes.png"
-    fig.savefig(shapes_png, dpi=120)
-    plt.close(fig)
-    return [str(csv_path), str(png), str(shapes_png)]
 
 
 def main(args: argparse.Namespace) -> int:

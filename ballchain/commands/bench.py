@@ -11,7 +11,7 @@ Wall times are measured around each ``solve`` call (``time.perf_counter``), afte
 round, with the cases interleaved so that a burst of load from another process hits them all.
 The problems are tiny (at most a few hundred unknowns), so multithreaded BLAS only adds
 synchronisation: by default the loaded OpenBLAS libraries are limited to one thread for the run
-(``--blas-threads``; 0 leaves them alone). Benchmarks are scripts, not tests (STYLE.md, 11): the
+(``--blas-threads``; 0 leaves them alone). Benchmarks are scripts, not tests: the
 tests check the fields' correctness, never the times.
 """
 
@@ -27,6 +27,7 @@ import time
 import numpy as np
 
 from ballchain.commands._common import add_json_flag, finite_float, non_negative_int, positive_int, print_json
+from ballchain.drake_models.errors import UserInputError
 
 TARGETS = ("statics",)
 
@@ -121,18 +122,19 @@ def run_statics(
         against the Newton cold solve), and the run's conditions.
 
     Raises:
-        ValueError: bad arguments.
+        UserInputError: bad arguments.
     """
-    if isinstance(n_balls, bool) or not isinstance(n_balls, int) or n_balls < 2:
-        raise ValueError(f"--balls must be an integer >= 2 (ball 1 is held), got {n_balls!r}")
+    if isinstance(n_balls, bool) or not isinstance(n_balls, int) or not 2 <= n_balls <= 64:
+        # the SLSQP baseline's pairwise constraints grow as n^2: 64 balls already take minutes
+        raise UserInputError(f"--balls must be an integer >= 2 and <= 64 (ball 1 is held), got {n_balls!r}")
     if not (math.isfinite(field_mT) and field_mT > 0):
-        raise ValueError(f"--field-mT must be a positive finite number, got {field_mT}")
+        raise UserInputError(f"--field-mT must be a positive finite number, got {field_mT}")
     if not (math.isfinite(angle_deg) and math.isfinite(warm_offset_deg)):
-        raise ValueError("--angle-deg and --warm-offset-deg must be finite")
-    if not isinstance(repeats, int) or repeats < 1:
-        raise ValueError(f"--repeats must be an integer >= 1, got {repeats!r}")
+        raise UserInputError("--angle-deg and --warm-offset-deg must be finite")
+    if not isinstance(repeats, int) or not 1 <= repeats <= 1000:
+        raise UserInputError(f"--repeats must be an integer in 1..1000, got {repeats!r}")
     if not (math.isfinite(baseline_ftol) and baseline_ftol > 0):
-        raise ValueError(f"--baseline-ftol must be a positive finite number, got {baseline_ftol}")
+        raise UserInputError(f"--baseline-ftol must be a positive finite number, got {baseline_ftol}")
 
     from tqdm import tqdm
 

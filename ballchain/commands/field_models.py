@@ -3,7 +3,8 @@
 At each distance from the magnet centre and each direction (on the axis, at 45 deg, on the
 equator): |B| of both models, the dipole's relative magnitude error and angle error, and the same
 for the force on one ball aligned with the field (what the field gradient does to the chain),
-plus the relative Frobenius error of the gradient itself.
+plus the relative Frobenius error of the gradient itself. The experiment is
+``ballchain.experiments.field_models``.
 """
 
 from __future__ import annotations
@@ -12,13 +13,9 @@ import argparse
 import math
 
 from ballchain.commands._common import add_json_flag, print_json
-from ballchain.drake_models.field_model_comparison import (
-    DEFAULT_DISTANCES,
-    DEFAULT_POLAR_ANGLES_DEG,
-    compare_field_models,
-    on_axis_relative_error_coefficient,
-)
-from ballchain.drake_models.params import BallChain, CylinderMagnet, gram_force
+from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.params import BallChain
+from ballchain.experiments.field_models import DEFAULT_DISTANCES, DEFAULT_POLAR_ANGLES_DEG, run
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -43,47 +40,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="diameter of the aligned ball whose force is compared [mm] (default 3.175)",
     )
     add_json_flag(parser)
-
-
-def run(*, distances_m, angles_deg, ball: BallChain, magnet: CylinderMagnet = CylinderMagnet()) -> dict:
-    """The comparison in edge units (cm, mT, gf, %, deg)."""
-    rows = compare_field_models(magnet, distances_m, angles_deg, ball)
-    return {
-        "magnet": {
-            "diameter_mm": magnet.diameter * 1e3,
-            "length_mm": magnet.length * 1e3,
-            "remanence_T": magnet.remanence,
-            "dipole_moment_Am2": magnet.dipole_moment,
-        },
-        "ball_diameter_mm": ball.ball_diameter * 1e3,
-        "on_axis_rel_error_asymptote_cm2": on_axis_relative_error_coefficient(magnet) * 1e4,
-        "rows": [
-            {
-                "distance_cm": row.distance * 1e2,
-                "polar_angle_deg": row.polar_angle_deg,
-                "direction": row.direction,
-                "B_dipole_mT": row.B_dipole * 1e3,
-                "B_exact_mT": row.B_exact * 1e3,
-                "B_dipole_magnitude_mT": float(math.hypot(*row.B_dipole)) * 1e3,
-                "B_exact_magnitude_mT": float(math.hypot(*row.B_exact)) * 1e3,
-                "B_rel_error_percent": row.B_rel_error * 1e2,
-                "B_angle_error_deg": row.B_angle_error_deg,
-                "gradient_rel_error_percent": row.G_rel_error * 1e2,
-                "force_dipole_gf": [gram_force(f) for f in row.F_dipole],
-                "force_exact_gf": [gram_force(f) for f in row.F_exact],
-                "force_dipole_magnitude_gf": gram_force(float(math.hypot(*row.F_dipole))),
-                "force_exact_magnitude_gf": gram_force(float(math.hypot(*row.F_exact))),
-                "force_rel_error_percent": row.F_rel_error * 1e2,
-                "force_angle_error_deg": row.F_angle_error_deg,
-            }
-            for row in rows
-        ],
-        "notes": [
-            "rel error = (|dipole| - |exact|) / |exact|: positive means the dipole overestimates",
-            "force: on one ball whose dipole is aligned with each model's own field, F = G m_hat |m_ball|",
-            "exact: magpylib closed-form cylinder field; its gradient by central differences (MagnetSource)",
-        ],
-    }
 
 
 def _print_table(out: dict) -> None:
@@ -114,12 +70,15 @@ def _print_table(out: dict) -> None:
 def main(args: argparse.Namespace) -> int:
     for d in args.distances_cm:
         if not (math.isfinite(d) and d > 0):
-            raise ValueError(f"--distances-cm must be positive finite numbers, got {d}")
+            raise UserInputError(f"--distances-cm must be positive finite numbers, got {d}")
     for a in args.angles_deg:
         if not (math.isfinite(a) and 0.0 <= a <= 180.0):
-            raise ValueError(f"--angles-deg must lie in [0, 180], got {a}")
-    if not (math.isfinite(args.ball_diameter_mm) and args.ball_diameter_mm > 0):
-        raise ValueError(f"--ball-diameter-mm must be a positive finite number, got {args.ball_diameter_mm}")
+            raise UserInputError(f"--angles-deg must lie in [0, 180], got {a}")
+    if not (math.isfinite(args.ball_diameter_mm) and 0 < args.ball_diameter_mm <= 50):
+        raise UserInputError(f"--ball-diameter-mm must be in (0, 50] mm, got {args.ball_diameter_mm}")
+    for d in args.distances_cm:
+        if d > 1000:
+            raise UserInputError(f"--distances-cm must be at most 1000 cm, got {d}")
     out = run(
         distances_m=[d * 1e-2 for d in args.distances_cm],
         angles_deg=args.angles_deg,

@@ -5,25 +5,26 @@ magnet orientations that maximise the force the tip presses along the vein's axi
 optimisation (grid + Nelder-Mead over equilibria); each optimum is then simulated (the damped
 chain in the same field, its tip held by a force-sensor pin, run to steady state), unless
 ``--no-dynamics``. Prints the model beside the paper's numbers and writes a CSV and a bar chart.
+The experiment is ``ballchain.experiments.forces``.
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
 from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, positive_int, print_json
+from ballchain.commands._common import add_json_flag, int_in, print_json
 from ballchain.experiments import forces
-
-VEINS = ("LSPV", "LIPV", "RSPV", "RIPV")
+from ballchain.experiments.forces import GRID, REFINE, VEINS
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--veins", nargs="+", choices=VEINS, default=list(VEINS), help="which veins")
     parser.add_argument("--sleeve", choices=["no", "yes", "both"], default="both", help="sleeve cases")
-    parser.add_argument("--grid", type=positive_int, default=8, help="azimuth samples of the orientation grid")
-    parser.add_argument("--refine", type=positive_int, default=40, help="Nelder-Mead evaluations after the grid")
+    parser.add_argument("--grid", type=int_in(*GRID), default=8,
+                        help=f"azimuth samples of the orientation grid ({GRID[0]}..{GRID[1]})")
+    parser.add_argument("--refine", type=int_in(*REFINE), default=40,
+                        help=f"Nelder-Mead evaluations after the grid ({REFINE[0]}..{REFINE[1]})")
     parser.add_argument("--no-dynamics", action="store_true",
                         help="statics only: skip the simulation of each optimum on the force-sensor pin")
     parser.add_argument("--out", type=Path, default=Path("results/forces"), help="folder for the CSV and PNG")
@@ -31,57 +32,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_json_flag(parser)
 
 
-def write_files(data: dict, out: Path) -> list[str]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / "forces.csv"
-    keys = ["vein", "config", "sleeve", "statics_gf", "dynamics_gf", "statics_dynamics_diff_pct", "paper_gf",
-            "statics_lateral_gf", "dynamics_lateral_gf", "n_balls", "superposition_gf", "dynamics_note"]
-    with path.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=keys, extrasaction="ignore")
-        writer.writeheader()
-        writer.writerows(data["rows"])
-    rows = data["rows"]
-    labels = [f"{r['vein']} {r['config']}{' S' if r['sleeve'] else ''}" for r in rows]
-    x = np.arange(len(rows))
-    fig, ax = plt.subplots(figsize=(max(6, 0.45 * len(rows)), 4))
-    simulated = any(r.get("dynamics_gf") is not None for r in rows)
-    width = 0.27 if simulated else 0.4
-    shift = width if simulated else 0.5 * width
-    ax.bar(x - shift, [r["paper_gf"] for r in rows], width, label="paper (measured)")
-    ax.bar(x + (0.0 if simulated else shift), [r["statics_gf"] or 0.0 for r in rows], width, label="model (statics)")
-    if simulated:  # the statics optima simulated on the force-sensor pin (a missing one: no bar)
-        ax.bar(x + width, [r.get("dynamics_gf") or 0.0 for r in rows], width, label="simulation")
-    ax.set_xticks(x, labels, rotation=70, fontsize=7)
-    ax.set_ylabel("tip force [gf]")
-    ax.set_yscale("log")
-    ax.legend()
-    ax.set_title("Tip force on the veins: paper vs model (S = sleeve)")
-    fig.tight_layout()
-    png = out / "forces.png"
-    fig.savefig(png, dpi=110)
-    plt.close(fig)
-    return [str(path), str(png)]
-
-
-def run(*, veins=VEINS, sleeve: str = "both", grid: int = 8, refine: int = 40, out: Path | None = None,
-        progress: bool = True, dynamics: bool = True) -> dict:
-    sleeves = {"no": (False,), "yes": (True,), "both": (False, True)}[sleeve]
-    data = forces.run(veins=tuple(veins), sleeves=sleeves, grid=grid, refine_evaluations=refine, progress=progress,
-                      dynamics=dynamics)
-    if out is not None:
-        data["files"] = write_files(data, Path(out))
-    return data
-
-
 def main(args: argparse.Namespace) -> int:
-    data = run(veins=args.veins, sleeve=args.sleeve, grid=args.grid, refine=args.refine,
-               out=None if args.no_files else args.out, dynamics=not args.no_dynamics)
+    sleeves = {"no": (False,), "yes": (True,), "both": (False, True)}[args.sleeve]
+    data = forces.run(veins=tuple(args.veins), sleeves=sleeves, grid=args.grid, refine_evaluations=args.refine,
+                      out=None if args.no_files else args.out, dynamics=not args.no_dynamics)
     if args.json:
         print_json(data)
         return 0

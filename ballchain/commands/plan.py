@@ -14,28 +14,27 @@ from __future__ import annotations
 
 import argparse
 
-from ballchain.commands._common import add_json_flag, positive_int, print_json
+from ballchain.commands._common import add_json_flag, float_in, int_in, positive_int, print_json
 from ballchain.experiments import planner
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--task", choices=["left", "right"], default="left", help="which ring of targets")
     parser.add_argument("--targets", type=positive_int, default=None, help="only the first N targets")
-    parser.add_argument("--balls", type=positive_int, nargs="+", default=[12, 16],
+    parser.add_argument("--balls", type=int_in(2, 64), nargs="+", default=[12, 16],
                         help="inserted chain lengths to try (balls beyond the sheath, ball 1 included)")
-    parser.add_argument("--min-force", type=float, default=planner.MIN_FORCE_GF,
-                        help="force each equilibrium must press [gf]")
-    parser.add_argument("--friction", type=float, default=None,
-                        help="tip-wall friction coefficient (default: the simulation's contact model)")
-    parser.add_argument("--grid", type=positive_int, default=4,
-                        help="azimuth samples of the fallback search for the hardest-pressing orientation")
-    parser.add_argument("--refine", type=positive_int, default=15, help="Nelder-Mead evaluations of that search")
+    parser.add_argument("--min-force", type=float_in(0.0, 1000.0, lo_open=True), default=planner.MIN_FORCE_GF,
+                        help="force each equilibrium must press [gf] (0..1000]")
+    parser.add_argument("--friction", type=float_in(0.0, 10.0), default=None,
+                        help="tip-wall friction coefficient, 0..10 (default: the simulation's contact model)")
+    parser.add_argument("--grid", type=int_in(2, 64), default=4,
+                        help="azimuth samples of the fallback search for the hardest-pressing orientation (2..64)")
+    parser.add_argument("--refine", type=int_in(1, 2000), default=15,
+                        help="Nelder-Mead evaluations of that search (1..2000)")
     add_json_flag(parser)
 
 
 def main(args: argparse.Namespace) -> int:
-    if any(n < 2 for n in args.balls):
-        raise ValueError(f"--balls must be >= 2 each, got {args.balls}")
     extra = {} if args.friction is None else {"friction": args.friction}
     data = planner.run(task=args.task, targets=args.targets, balls=tuple(args.balls), grid=args.grid,
                        refine=args.refine, min_force_gf=args.min_force, **extra)

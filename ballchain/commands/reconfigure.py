@@ -3,15 +3,15 @@
 Seeded random initial magnet orientations (the first exactly antiparallel to the neutral
 direction, where the paper's law stalls), Hall-sensor noise on, wheel slip, the prototype
 cylinder's exact field at the sensor and the correct dipole inverse in the estimator. Every run
-must end within the tolerance of the neutral direction (true angle, not the estimate).
+must end within the tolerance of the neutral direction (true angle, not the estimate). The
+experiment is ``ballchain.experiments.reconfiguration``.
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 
-from ballchain.commands._common import add_json_flag, finite_float, positive_int, print_json
+from ballchain.commands._common import add_json_flag, finite_float, float_in, int_in, non_negative_int, print_json
 
 # The five figures the study reports (the per-run lists stay out of the JSON).
 SUMMARY_KEYS = ("runs", "converged", "max_final_error_deg", "median_time_s", "max_time_s")
@@ -32,8 +32,9 @@ def _positive(text: str) -> float:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--runs", type=positive_int, default=100, help="number of runs (default 100)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of initial orientations and noise (default 0)")
+    parser.add_argument("--runs", type=int_in(1, 10_000), default=100, help="number of runs, 1..10000 (default 100)")
+    parser.add_argument("--seed", type=non_negative_int, default=0,
+                        help="seed of initial orientations and noise, >= 0 (default 0)")
     parser.add_argument("--slip", type=_slip, default=0.05, help="wheel slip fraction in [0, 1) (default 0.05)")
     parser.add_argument("--no-noise", action="store_true", help="switch the Hall sensor noise off")
     parser.add_argument(
@@ -51,44 +52,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--tolerance-deg", type=_positive, default=1.0, help="convergence tolerance on the true error [deg] (default 1)"
     )
-    parser.add_argument("--t-max", type=_positive, default=15.0, help="time limit of one run [s] (default 15)")
+    parser.add_argument("--t-max", type=float_in(0.0, 600.0, lo_open=True), default=15.0,
+                        help="time limit of one run [s], (0, 600] (default 15)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     add_json_flag(parser)
 
 
-def run(
-    *,
-    runs: int = 100,
-    seed: int = 0,
-    slip: float = 0.05,
-    noise: bool = True,
-    field_model: str = "exact",
-    wheel_map: str = "derived",
-    tolerance_deg: float = 1.0,
-    t_max: float = 15.0,
-    progress: bool = False,
-) -> dict:
-    """Run the study; returns the full result of ``run_reconfiguration_study``."""
-    from tqdm import tqdm
-
-    from ballchain.systems.reconfiguration_study import run_reconfiguration_study
-
-    with tqdm(total=runs, desc="reconfigure", unit="run", file=sys.stderr, disable=not progress) as bar:
-        return run_reconfiguration_study(
-            runs=runs,
-            seed=seed,
-            slip=slip,
-            noise=noise,
-            field_model=field_model,
-            wheel_map=wheel_map,
-            tolerance_deg=tolerance_deg,
-            t_max=t_max,
-            progress=bar.update,
-        )
-
-
 def main(args: argparse.Namespace) -> int:
-    result = run(
+    from ballchain.experiments import reconfiguration
+
+    result = reconfiguration.run(
         runs=args.runs,
         seed=args.seed,
         slip=args.slip,

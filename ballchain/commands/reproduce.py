@@ -3,31 +3,53 @@
 Runs every experiment available in this version, with progress bars, and writes
 ``OUT/report.md``, ``OUT/report.html`` (self-contained), the figures and the CSV/JSON data.
 ``--quick`` shortens every experiment (for tests and smoke runs).
+
+Nothing is lost on an interruption: every file is written atomically; as each section finishes
+its data go to ``OUT/sections/<name>.json``, its report part and the hashes of the files it
+wrote to ``OUT/.reproduce/<name>.json``, and the report is rewritten with the sections done so
+far. ``--resume`` reuses a finished section when its key (a hash of its name, ``--quick`` and
+the code: every source file of the package) matches and its files are unchanged, and runs the
+rest. ``--sections`` runs some sections only.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
+import sys
 import time
 from pathlib import Path
 
 from tqdm import tqdm
 
-from ballchain.commands._common import add_json_flag, print_json, to_jsonable
+from ballchain.commands._common import add_json_flag, print_json, to_jsonable, write_json
 from ballchain.drake_models.dipole import K_DIPOLE
+from ballchain.drake_models.errors import UserInputError
+from ballchain.experiments.field_models import DEFAULT_DISTANCES
 from ballchain.drake_models.params import BallChain
-from ballchain.report import Section, write_report
+from ballchain.drake_models.safe_files import TEMP_SUFFIX, atomic_write_text, check_output_dir
+from ballchain.report import Section, section_from_dict, section_to_dict, write_report
+
+TITLE = "Magnetic ball chain: the paper's numbers in simulation"
+CACHE = ".reproduce"  # OUT/.reproduce/<section>.json: finished sections, for --resume
+SECTION_DATA = "sections"  # OUT/sections/<section>.json: each section's data
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("results"), help="output folder")
     parser.add_argument("--quick", action="store_true", help="short versions of every experiment")
+    parser.add_argument("--resume", action="store_true",
+                        help="reuse the sections an interrupted run of the same code finished (checked by "
+                             "a hash of the section's inputs and the code, and of its files)")
+    parser.add_argument("--sections", nargs="+", default=None, metavar="NAME",
+                        help="run only these sections (names as in the report's run-time table, e.g. "
+                             "alignment sizing)")
     add_json_flag(parser)
 
 
 def alignment_section(out: Path, quick: bool) -> tuple[Section, dict]:
-    from ballchain.commands import alignment
+    from ballchain.experiments import alignment
 
     data = alignment.run(max_balls=12 if quick else 16, step_deg=45.0 if quick else 22.5,
                          out=out / "alignment")
@@ -55,10 +77,10 @@ def alignment_section(out: Path, quick: bool) -> tuple[Section, dict]:
 
 
 def sizing_section(out: Path, quick: bool) -> tuple[Section, dict]:
-    from ballchain.commands import sizing
+    from ballchain.experiments import sizing_check
     from ballchain.optimization.sizing import SizingInputs
 
-    data = sizing.run(inputs=SizingInputs())
+    data = sizing_check.run(inputs=SizingInputs())
     forces = data["force_between_magnets_by_orientation"]
     section = Section("Clinical magnet sizing (paper Section V-A)")
     section.text(
@@ -83,14 +105,14 @@ def sizing_section(out: Path, quick: bool) -> tuple[Section, dict]:
         f"2 d_c = {check['separation_2_d_c_cm']:.1f} cm: the paper probably left out the + d_d/2 "
         "(a hypothesis consistent with the numbers). Either way the force is small."
     )
-    (out / "sizing.json").write_text(json.dumps(to_jsonable(data), indent=1))
+    write_json(out / "sizing.json", data)
     return section, data
 
 
 def field_models_section(out: Path, quick: bool) -> tuple[Section, dict]:
-    from ballchain.commands import field_models
+    from ballchain.experiments import field_models
 
-    data = field_models.run(distances_m=[0.08, 0.12, 0.1651, 0.20], angles_deg=[0.0, 45.0, 90.0],
+    data = field_models.run(distances_m=list(DEFAULT_DISTANCES), angles_deg=[0.0, 45.0, 90.0],
                             ball=BallChain())
     section = Section("Point dipole vs exact field of the prototype cylinder")
     section.text(
@@ -104,12 +126,12 @@ def field_models_section(out: Path, quick: bool) -> tuple[Section, dict]:
                      r["B_angle_error_deg"], r["force_rel_error_percent"]])
     section.table(["distance [cm]", "polar angle [deg]", "B exact [mT]", "B magnitude error [%]",
                    "B angle error [deg]", "force error [%]"], rows)
-    (out / "field_models.json").write_text(json.dumps(to_jsonable(data), indent=1))
+    write_json(out / "field_models.json", data)
     return section, data
 
 
 def workspace_section(out: Path, quick: bool) -> tuple[Section, dict]:
-    from ballchain.commands import workspace
+    from ballchain.experiments import workspace
 
     data = workspace.run(step_deg=15.0 if quick else 5.0, out=out / "workspace")
     s, p = data["summary"], data["paper"]
@@ -140,9 +162,9 @@ def workspace_section(out: Path, quick: bool) -> tuple[Section, dict]:
 
 
 def validation_section(out: Path, quick: bool) -> tuple[Section, dict]:
-    from ballchain.commands import validation
+    from ballchain.experiments import model_validation
 
-    data = validation.run(out=out / "validation", balls=(5, 6, 10) if quick else range(5, 11))
+    data = model_validation.run(out=out / "validation", balls=(5, 6, 10) if quick else range(5, 11))
     s, p = data["summary"], data["paper"]
     section = Section("Model validation: which field model (paper Fig. model_results)")
     section.text(
@@ -174,13 +196,13 @@ def validation_section(out: Path, quick: bool) -> tuple[Section, dict]:
 
 
 def forces_section(out: Path, quick: bool) -> tuple[Section, dict]:
-    from ballchain.commands import forces
+    from ballchain.experiments import forces
 
     veins = ("RSPV",) if quick else ("LSPV", "LIPV", "RSPV", "RIPV")
     # The grid must be fine enough to start Nelder-Mead in the best basin: with 6 x 5 directions
     # and 24 evaluations one case (LIPV, magnet on the left) stopped at 5.9 gf instead of 9.6 gf.
-    data = forces.run(veins=veins, sleeve="no" if quick else "both", grid=4 if quick else 8,
-                      refine=8 if quick else 40, out=out / "forces")
+    data = forces.run(veins=veins, sleeves=(False,) if quick else (False, True), grid=4 if quick else 8,
+                      refine_evaluations=8 if quick else 40, out=out / "forces")
     section = Section("Tip force on the pulmonary veins (paper Table I)")
     section.text(
         "Statics with the tip ball held on the vein's sensor pin; the pin's reaction is the "
@@ -201,7 +223,8 @@ def forces_section(out: Path, quick: bool) -> tuple[Section, dict]:
     diffs = [abs(r["statics_dynamics_diff_pct"]) for r in data["rows"] if r.get("statics_dynamics_diff_pct") is not None]
     if diffs:
         section.text(f"Statics and simulation agree within {max(diffs):.2f} % on every row "
-                     f"({len(diffs)} of {len(data['rows'])} rows settled; the issue asks for 10 %).")
+                     f"({len(diffs)} of {len(data['rows'])} rows reached a steady state): two independent computations of the same force, "
+                     "one an optimisation, one a time-stepped contact simulation with a spring sensor.")
     section.text(
         "The model's forces are an order of magnitude below the measured ones. The dipole force "
         "on one ball from the prototype magnet 16.5 cm away is 0.3 gf on axis; 16 balls cannot "
@@ -239,7 +262,7 @@ def plan_section(out: Path, quick: bool) -> tuple[Section, dict]:
         s = result["summary"]
         rows.append([task, f"{s['reached']}/{s['targets']}", s["force_gf_min"], s["force_gf_max"],
                      s["plan_time_s"], s["compute_time_s"]])
-        (out / f"plan_{task}.json").write_text(json.dumps(to_jsonable(result), indent=1))
+        write_json(out / f"plan_{task}.json", result)
     section.table(["ring", "planned", "min force [gf]", "max force [gf]", "plan motion time [s]",
                    "compute time [s]"], rows)
     per_target = [[r["target"], "yes" if r["reached"] else "no", r["force_gf"], r["turn_deg"], r["friction_needed"],
@@ -288,7 +311,7 @@ def teleop_section(out: Path, quick: bool) -> tuple[Section, dict]:
             rows.append([task, mapping, f"{s['touched']}/{s['targets']}", s["total_time_s"], s["median_time_s"],
                          s["median_accuracy_mm"], s["realtime_factor"], s["failure"] or "-",
                          f"replays/{html.name}"])
-            (out / f"teleop_{task}_{mapping}.json").write_text(json.dumps(to_jsonable(result), indent=1))
+            write_json(out / f"teleop_{task}_{mapping}.json", result)
     section.table(["task", "mapping", "touched", "time [s]", "median per target [s]", "median accuracy [mm]",
                    "real-time factor", "failure", "Meshcat replay"], rows)
     per_target = [[k, r["target"], "yes" if r["touched"] else "no", r["time_s"], r["accuracy_mm"]]
@@ -311,30 +334,174 @@ EXPERIMENTS = [
 ]
 
 
-def run(*, out: Path, quick: bool = False) -> dict:
-    """Run every experiment, write the report; returns a summary."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    sections, summary = [], {}
-    start = time.perf_counter()
-    for name, experiment in tqdm(EXPERIMENTS, desc="reproduce", unit="experiment"):
-        t0 = time.perf_counter()
-        section, _ = experiment(out, quick)
-        sections.append(section)
-        summary[name] = {"seconds": time.perf_counter() - t0}
+def code_version() -> str:
+    """A hash of every source file of the package (and its scenario YAML): the code's version.
+
+    A content hash, not a commit id, so that uncommitted edits count as another version.
+    """
+    import ballchain
+    from ballchain import commands as commands_pkg
+    from ballchain import drake_models, experiments, optimization, systems
+
+    digest = hashlib.sha256()
+    roots = [Path(m.__file__).parent for m in (ballchain, commands_pkg, experiments, drake_models,
+                                                optimization, systems)]
+    for root in roots:
+        for path in sorted(root.glob("*.py")) + sorted(root.glob("*.yaml")):
+            digest.update(path.name.encode())
+            digest.update(path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def section_key(name: str, quick: bool, code: str) -> str:
+    """The cache key of a section: its name, its inputs (``quick``) and the code version."""
+    return hashlib.sha256(json.dumps({"section": name, "quick": quick, "code": code}).encode()).hexdigest()[:16]
+
+
+def _slug(name: str) -> str:
+    return "".join(c if c.isalnum() else "_" for c in name)
+
+
+def _file_hash(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _snapshot(out: Path) -> dict[str, tuple[int, int]]:
+    """{relative path: (mtime_ns, size)} of the files under ``out`` (cache folder excluded)."""
+    files = {}
+    for path in out.rglob("*"):
+        if path.is_file() and CACHE not in path.relative_to(out).parts and not path.name.endswith(TEMP_SUFFIX):
+            st = path.stat()
+            files[path.relative_to(out).as_posix()] = (st.st_mtime_ns, st.st_size)
+    return files
+
+
+def _cached(out: Path, name: str, key: str) -> dict | None:
+    """The stored record of a finished section when its key and files still match, else None."""
+    path = out / CACHE / f"{_slug(name)}.json"
+    try:
+        record = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    if record.get("key") != key:
+        return None
+    for rel, digest in record.get("files", {}).items():
+        f = out / rel
+        if not f.is_file() or _file_hash(f) != digest:
+            return None
+    return record
+
+
+def run_section(out: Path, name: str, experiment, quick: bool, key: str, resume: bool) -> tuple[Section, dict]:
+    """One section with its cache step: reuse it (``resume`` and a matching record) or run it and
+    store its data, its report part and the hashes of the files it wrote.
+
+    Returns:
+        (the section, its record: {"key", "seconds", "files", "reused"}).
+    """
+    if resume:
+        record = _cached(out, name, key)
+        if record is not None:
+            return section_from_dict(record["section"], out), {**record, "reused": True}
+    before = _snapshot(out)
+    t0 = time.perf_counter()
+    section, data = experiment(out, quick)
+    seconds = time.perf_counter() - t0
+    write_json(out / SECTION_DATA / f"{_slug(name)}.json", data)
+    after = _snapshot(out)
+    changed = sorted(rel for rel, stamp in after.items() if before.get(rel) != stamp)
+    record = {"key": key, "name": name, "seconds": seconds,
+              "files": {rel: _file_hash(out / rel) for rel in changed},
+              "section": section_to_dict(section, out)}
+    atomic_write_text(out / CACHE / f"{_slug(name)}.json", json.dumps(to_jsonable(record), indent=1))
+    return section, {**record, "reused": False}
+
+
+def _timing_section(summary: dict, total: float, pending: list[str]) -> Section:
     timing = Section("Run time")
-    timing.table(["experiment", "seconds"], [[name, v["seconds"]] for name, v in summary.items()]
-                 + [["total", time.perf_counter() - start]])
-    sections.append(timing)
-    md, page = write_report("Magnetic ball chain: the paper's numbers in simulation", sections, out)
+    timing.table(["experiment", "seconds", "reused from an earlier run"],
+                 [[name, v["seconds"], "yes" if v["reused"] else "no"] for name, v in summary.items()]
+                 + [["total (this run)", total, "-"]])
+    if pending:
+        timing.text(f"Not finished (the run was interrupted): {', '.join(pending)}. "
+                    "`ballchain reproduce --resume` with the same --out finishes them.")
+    return timing
+
+
+def _say(message: str) -> None:
+    tqdm.write(f"reproduce: {message}", file=sys.stderr)
+
+
+def run(*, out: Path, quick: bool = False, resume: bool = False, sections=None) -> dict:
+    """Run every experiment (or ``sections``), write the report; returns a summary.
+
+    Each section is a ``(name, function(out, quick) -> (Section, data))`` of ``EXPERIMENTS``;
+    the loop runs them one after the other through ``run_section`` (its cache step), and after
+    each rewrites the report with the sections finished so far.
+
+    Args:
+        out: the results folder (checked writable before any work).
+        quick: short versions of every experiment.
+        resume: reuse the finished sections of an earlier (interrupted) run in ``out``.
+        sections: names of the sections to run (default: all).
+
+    Raises:
+        UserInputError: an unwritable ``out`` or an unknown section name.
+    """
+    out = Path(out)
+    check_output_dir(out, "--out")
+    names = [name for name, _ in EXPERIMENTS]
+    if sections is not None:
+        unknown = [s for s in sections if s not in names]
+        if unknown:
+            raise UserInputError(f"--sections: unknown section(s) {unknown}; the sections are {', '.join(names)}")
+    chosen = [(n, f) for n, f in EXPERIMENTS if sections is None or n in sections]
+    replaced = sorted(p.name + ("/" if p.is_dir() else "") for p in out.iterdir()
+                      if p.name != CACHE) if out.is_dir() else []
+    out.mkdir(parents=True, exist_ok=True)
+    for stale in out.rglob(f"*{TEMP_SUFFIX}"):  # temporary files of a killed run: never results
+        stale.unlink(missing_ok=True)
+    replaced = [name for name in replaced if not name.endswith(TEMP_SUFFIX)]
+    if replaced and not resume:
+        shown = ", ".join(replaced[:12]) + (f" and {len(replaced) - 12} more" if len(replaced) > 12 else "")
+        _say(f"{out} is not empty ({shown}): the report, the data and the figures this run writes replace "
+             "those of the same names; other files are left alone")
+    if not resume:  # a fresh run: only its own sections may be resumed later
+        for name, _ in chosen:
+            (out / CACHE / f"{_slug(name)}.json").unlink(missing_ok=True)
+    code = code_version()
+    done, summary = [], {}
+    start = time.perf_counter()
+    current = None
+    try:
+        for name, experiment in tqdm(chosen, desc="reproduce", unit="experiment", file=sys.stderr):
+            current = name
+            section, record = run_section(out, name, experiment, quick, section_key(name, quick, code), resume)
+            if record["reused"]:
+                _say(f"reused the finished section {name!r} ({record['seconds']:.1f} s in the earlier run)")
+            done.append(section)
+            summary[name] = {"seconds": record["seconds"], "reused": record["reused"]}
+            pending = [n for n, _ in chosen if n not in summary]
+            write_report(TITLE, done + [_timing_section(summary, time.perf_counter() - start, pending)], out)
+        current = None
+    except KeyboardInterrupt:
+        pending = [n for n, _ in chosen if n not in summary]
+        write_report(TITLE, done + [_timing_section(summary, time.perf_counter() - start, pending)], out)
+        _say(f"interrupted in {current!r}; {len(summary)} of {len(chosen)} sections finished and kept; "
+             f"`ballchain reproduce --out {out}{' --quick' if quick else ''} --resume` finishes the rest")
+        raise
+    md, page = out / "report.md", out / "report.html"
     return {"report_md": md, "report_html": page, "experiments": summary,
-            "total_seconds": time.perf_counter() - start, "quick": quick}
+            "total_seconds": time.perf_counter() - start, "quick": quick, "code_version": code,
+            "replaced": replaced if not resume else [],
+            "reused": [n for n, v in summary.items() if v["reused"]]}
 
 
 def main(args: argparse.Namespace) -> int:
-    data = run(out=args.out, quick=args.quick)
+    data = run(out=args.out, quick=args.quick, resume=args.resume, sections=args.sections)
     if args.json:
         print_json(data)
     else:
-        print(f"wrote {data['report_md']} and {data['report_html']} in {data['total_seconds']:.1f} s")
+        reused = f" (reused {len(data['reused'])} finished sections)" if data["reused"] else ""
+        print(f"wrote {data['report_md']} and {data['report_html']} in {data['total_seconds']:.1f} s{reused}")
     return 0

@@ -6,6 +6,10 @@ beyond the right carina and the stepper feeder, the 16-ball chain in the procedu
 per-target times and accuracies (distance from the tip's contact point to the target's centre),
 the totals beside the paper's operator times (40 s Task I, 26 s Task II), and writes a Meshcat
 replay with ``--html``.
+
+``--live`` instead opens Meshcat on localhost and lets a person steer the chain in real time with a
+gamepad or the keyboard (``systems/meshcat_joystick.py``; the key map is printed on start), until
+Escape, the gamepad's Start, Ctrl-C or ``--duration`` simulated seconds.
 """
 
 from __future__ import annotations
@@ -38,14 +42,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "'{time_step: 0.004}' (3 times faster; tip path within 0.3 mm of the default 1 ms step)")
     parser.add_argument("--html", type=Path, default=None, help="write a Meshcat replay (HTML) to this file")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--live", action="store_true",
+                        help="steer the chain yourself in Meshcat (localhost) with a gamepad or the keyboard, "
+                             "in real time; prints the URL and the key map (--task, --targets and --html do not apply)")
+    parser.add_argument("--units", default="one",
+                        help="with --live: one (the right unit) or two (both sides; N or the gamepad's RB switches)")
+    parser.add_argument("--duration", type=finite_float, default=None,
+                        help="with --live: stop after this many simulated seconds (default: until you quit)")
+    parser.add_argument("--realtime-rate", type=finite_float, default=1.0,
+                        help="with --live: target real-time rate (default 1; 0 runs as fast as possible)")
     add_json_flag(parser)
 
 
 def main(args: argparse.Namespace) -> int:
     from ballchain.experiments import teleop
 
-    # Check everything before the (slow) build, so bad input fails at once.
-    teleop.check_inputs(args.task, args.mapping, args.targets, args.balls, args.time_limit)
+    if args.live:
+        return _main_live(args)
+    # teleop.run checks every input, the --html path and the --set YAML before the (slow) build.
     data = teleop.run(task=args.task, mapping=args.mapping, targets=args.targets, html=args.html,
                       progress=not args.no_progress, time_limit=args.time_limit, n_balls=args.balls,
                       overrides=args.overrides)
@@ -70,4 +84,24 @@ def main(args: argparse.Namespace) -> int:
         print(f"simulation stopped: {s['failure']}")
     if "html" in data:
         print(f"replay: {data['html']}")
+    return 0
+
+
+def _main_live(args: argparse.Namespace) -> int:
+    import sys
+
+    from ballchain.drake_models.errors import UserInputError
+    from ballchain.experiments import teleop
+
+    for flag, value in (("--html", args.html), ("--targets", args.targets), ("--time-limit", args.time_limit)):
+        if value is not None:
+            raise UserInputError(f"{flag} does not apply to --live (got {value}); use --duration to bound a live run")
+    teleop.check_live_inputs(args.mapping, args.units, args.balls, args.duration, args.realtime_rate)
+    # With --json the console lines go to stderr, so that stdout is the JSON alone.
+    stream = sys.stderr if args.json else sys.stdout
+    echo = lambda line: print(line, file=stream, flush=True)  # noqa: E731
+    data = teleop.run_live(mapping=args.mapping, units=args.units, n_balls=args.balls, overrides=args.overrides,
+                           duration=args.duration, realtime_rate=args.realtime_rate, echo=echo)
+    if args.json:
+        print_json(data)
     return 0

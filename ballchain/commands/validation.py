@@ -1,13 +1,13 @@
 """Model validation (paper Fig. model_results): 5..10 balls, 23 mT at 0..180 deg, three field models.
 
 Uniform field (the paper's model), the prototype cylinder as a point dipole and with its exact
-field; prints how far the models' tips are apart beside the paper's measured errors.
+field; prints how far the models' tips are apart beside the paper's measured errors. The
+experiment is ``ballchain.experiments.model_validation``.
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
 from pathlib import Path
 
 from ballchain.commands._common import add_json_flag, finite_float, print_json
@@ -21,24 +21,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_json_flag(parser)
 
 
-def run(*, field_mT: float = 23.0, out: Path | None = None, progress: bool = True, balls=range(5, 11)) -> dict:
-    if field_mT <= 0:
-        raise ValueError(f"--field-mT must be positive, got {field_mT}")
-    data = model_validation.run(field_T=field_mT * 1e-3, progress=progress, balls=balls)
-    if out is not None:
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        path = out / "validation.csv"
-        with path.open("w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(data["differences"][0]))
-            writer.writeheader()
-            writer.writerows(data["differences"])
-        data["files"] = [str(path)]
-    return data
-
-
 def main(args: argparse.Namespace) -> int:
-    data = run(field_mT=args.field_mT, out=None if args.no_files else args.out)
+    data = model_validation.run(field_T=args.field_mT * 1e-3, out=None if args.no_files else args.out)
     if args.json:
         print_json(data)
         return 0

@@ -3,7 +3,8 @@
 Derives ``omega_wheels = (rho_a/rho_w) A omega_magnet`` (rows of A = -a_i^T) from rolling without
 slip at each wheel contact, shows the wheel geometry that reproduces the paper's printed A, and
 measures the rolling-contact residual of the derived map and of the paper's printed
-``omega_a = (rho_a/rho_w) A omega_w`` (plus the two half-fixes).
+``omega_a = (rho_a/rho_w) A omega_w`` (plus the two half-fixes). The experiment is
+``ballchain.experiments.wheels``.
 """
 
 from __future__ import annotations
@@ -12,25 +13,21 @@ import argparse
 
 import numpy as np
 
-from ballchain.commands._common import add_json_flag, positive_int, print_json
-from ballchain.drake_models.omniwheel import wheel_map_report
+from ballchain.commands._common import add_json_flag, int_in, non_negative_int, print_json
+from ballchain.experiments import wheels
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--samples", type=positive_int, default=1000, help="random wheel-speed vectors for the residual (default 1000)"
+        "--samples", type=int_in(1, 1_000_000), default=1000,
+        help="random wheel-speed vectors for the residual, 1..1e6 (default 1000)"
     )
-    parser.add_argument("--seed", type=int, default=0, help="random seed of the samples (default 0)")
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="random seed of the samples, >= 0 (default 0)")
     add_json_flag(parser)
 
 
-def run(*, samples: int = 1000, seed: int = 0) -> dict:
-    """The report as a JSON-ready dict (see ``drake_models.omniwheel.wheel_map_report``)."""
-    return wheel_map_report(n_samples=samples, seed=seed)
-
-
 def main(args: argparse.Namespace) -> int:
-    report = run(samples=args.samples, seed=args.seed)
+    report = wheels.run(samples=args.samples, seed=args.seed)
     if args.json:
         print_json(report)
         return 0

@@ -22,27 +22,27 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy.optimize import minimize
 
+from ballchain.drake_models import paper
+from ballchain.drake_models.errors import UserInputError, check_in
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import BallChain, CylinderMagnet, Sleeve, gram_force
+from ballchain.drake_models.safe_files import agg_pyplot, check_output_dir, note_replacements, save_figure, write_csv
 from ballchain.optimization.inverse_statics import pin_tip
 from ballchain.optimization.statics import ChainStatics
 
-PAPER_GF = {  # (vein, config, sleeve) -> grams-force, Table I
-    ("LSPV", "1", False): 20.4, ("LSPV", "2", False): 91.8, ("LSPV", "both", False): 112.2,
-    ("LIPV", "1", False): 20.4, ("LIPV", "2", False): 86.7, ("LIPV", "both", False): 107.1,
-    ("RSPV", "1", False): 81.6, ("RSPV", "2", False): 40.8, ("RSPV", "both", False): 122.4,
-    ("RIPV", "1", False): 81.6, ("RIPV", "2", False): 40.8, ("RIPV", "both", False): 122.4,
-    ("LSPV", "1", True): 30.6, ("LSPV", "2", True): 107.1, ("LSPV", "both", True): 137.7,
-    ("LIPV", "1", True): 30.6, ("LIPV", "2", True): 102.0, ("LIPV", "both", True): 132.6,
-    ("RSPV", "1", True): 81.6, ("RSPV", "2", True): 51.0, ("RSPV", "both", True): 132.6,
-    ("RIPV", "1", True): 81.6, ("RIPV", "2", True): 51.0, ("RIPV", "both", True): 132.6,
-}
-DISTANCE = 0.1651
+PAPER_GF = paper.TABLE_I_GF
+DISTANCE = paper.WORKING_DISTANCE
+VEINS = ("LSPV", "LIPV", "RSPV", "RIPV")
+# One azimuth is no search (--grid 1 once reported a negative "optimum"; an optimum that does not
+# press is now reported as none); the caps bound the work (each evaluation is a statics solve).
+GRID = (2, 64)
+REFINE = (1, 2000)
 
 
 @dataclass
@@ -148,6 +148,9 @@ def max_normal_force(chain: BallChain, stand: Stand, vein: str, configs=("1",), 
 
     minimize(objective, best["angles"], method="Nelder-Mead",
              options={"maxfev": refine_evaluations, "xatol": 1e-3, "fatol": 1e-9})
+    if best["force_N"] <= 0.0:  # the best held equilibrium pulls the tip off the pin: no press found
+        return {"force_N": None, "reason": f"no orientation found that presses the pin (the best pulls with "
+                f"{gram_force(-best['force_N']):.3g} gf): search a finer grid", "evaluations": evaluations[0]}
     angles = best["angles"]
     return {
         "force_N": best["force_N"],
@@ -190,18 +193,64 @@ def dynamics_columns(chain: BallChain, stand: Stand, vein: str, configs, best: d
         columns["statics_at_deflection_gf"] = gram_force(sim["statics_loaded_N"])
     return columns
 
+def write_files(data: dict, out: Path) -> list[str]:
+    """Write ``forces.csv`` and the bar chart ``forces.png`` into ``out``; returns their paths."""
+    plt = agg_pyplot()
+    note_replacements(out, ["forces.csv", "forces.png"], "forces")
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "forces.csv"
+    keys = ["vein", "config", "sleeve", "statics_gf", "dynamics_gf", "statics_dynamics_diff_pct", "paper_gf",
+            "statics_lateral_gf", "dynamics_lateral_gf", "n_balls", "superposition_gf", "dynamics_note"]
+    write_csv(path, data["rows"], keys)
+    rows = data["rows"]
+    labels = [f"{r['vein']} {r['config']}{' S' if r['sleeve'] else ''}" for r in rows]
+    x = np.arange(len(rows))
+    fig, ax = plt.subplots(figsize=(max(6, 0.45 * len(rows)), 4))
+    simulated = any(r.get("dynamics_gf") is not None for r in rows)
+    width = 0.27 if simulated else 0.4
+    shift = width if simulated else 0.5 * width
+    ax.bar(x - shift, [r["paper_gf"] for r in rows], width, label="paper (measured)")
+    ax.bar(x + (0.0 if simulated else shift), [r["statics_gf"] or 0.0 for r in rows], width, label="model (statics)")
+    if simulated:  # the statics optima simulated on the force-sensor pin (a missing one: no bar)
+        ax.bar(x + width, [r.get("dynamics_gf") or 0.0 for r in rows], width, label="simulation")
+    ax.set_xticks(x, labels, rotation=70, fontsize=7)
+    ax.set_ylabel("tip force [gf]")
+    ax.set_yscale("log")
+    ax.legend()
+    ax.set_title("Tip force on the veins: paper vs model (S = sleeve)")
+    fig.tight_layout()
+    png = out / "forces.png"
+    save_figure(fig, png, dpi=110)
+    return [str(path), str(png)]
+
 
 def run(*, veins=("LSPV", "LIPV", "RSPV", "RIPV"), sleeves=(False, True), n_balls=(16,), grid: int = 8,
-        refine_evaluations: int = 60, progress: bool = True, dynamics: bool = True) -> dict:
+        refine_evaluations: int = 60, progress: bool = True, dynamics: bool = True,
+        out: Path | None = None) -> dict:
     """Table I: every vein x configuration x sleeve, with the paper's number beside it.
 
     ``statics_gf`` is the statics optimum; with ``dynamics`` each optimum is also simulated
     (``forces_dynamics``): the chain in the same field, its tip held by a force-sensor pin,
     run to steady state; ``dynamics_gf`` is the pin's reading along the vein's axis,
     ``dynamics_lateral_gf`` its size across it, ``statics_dynamics_diff_pct`` the simulation
-    against the statics, and ``dynamics_note`` says why a row has no simulated force.
+    against the statics, and ``dynamics_note`` says why a row has no simulated force. With
+    ``out`` (a folder, checked writable before any work) it writes ``forces.csv`` and
+    ``forces.png`` there and lists them under ``files``.
+
+    Raises:
+        UserInputError: an unknown vein or sleeve option, a grid or refine out of range, or an
+            unwritable ``out`` (checked before any work; named by the command's flags).
     """
     from tqdm import tqdm
+
+    if not veins or any(v not in VEINS for v in veins):
+        raise UserInputError(f"--veins must be among {', '.join(VEINS)}, got {list(veins)}")
+    if not sleeves or any(s not in (False, True) for s in sleeves):
+        raise UserInputError(f"--sleeve: the sleeve cases must be False (bare) and/or True, got {list(sleeves)}")
+    check_in("--grid", grid, *GRID)
+    check_in("--refine", refine_evaluations, *REFINE)
+    if out is not None:
+        check_output_dir(out, "--out")
 
     stand = build_stand()
     jobs = [(v, s) for v in veins for s in sleeves]
@@ -215,9 +264,9 @@ def run(*, veins=("LSPV", "LIPV", "RSPV", "RIPV"), sleeves=(False, True), n_ball
                 seeds = ()
                 if label == "both" and per_config.get("1") and per_config.get("2"):
                     seeds = (np.concatenate([per_config["1"]["angles_rad"], per_config["2"]["angles_rad"]]),)
-                out = max_normal_force(chain, stand, vein, configs, grid, refine_evaluations, seeds)
-                if out.get("force_N") is not None and (best is None or out["force_N"] > best["force_N"]):
-                    best = dict(out, n_balls=n)
+                found = max_normal_force(chain, stand, vein, configs, grid, refine_evaluations, seeds)
+                if found.get("force_N") is not None and (best is None or found["force_N"] > best["force_N"]):
+                    best = dict(found, n_balls=n)
             per_config[label] = best
             row = {
                 "vein": vein, "config": label, "sleeve": sleeve,
@@ -238,6 +287,9 @@ def run(*, veins=("LSPV", "LIPV", "RSPV", "RIPV"), sleeves=(False, True), n_ball
             rows.append(row)
         singles = [per_config[c]["force_gf"] for c in ("1", "2") if per_config[c] is not None]
         rows[-1]["superposition_gf"] = sum(singles) if len(singles) == 2 else None
-    return {"rows": rows, "paper": {f"{k[0]} {k[1]} {'sleeve' if k[2] else 'bare'}": v for k, v in PAPER_GF.items()},
+    data = {"rows": rows, "paper": {f"{k[0]} {k[1]} {'sleeve' if k[2] else 'bare'}": v for k, v in PAPER_GF.items()},
             "stand": {"targets_mm": {k: v[0] * 1e3 for k, v in stand.targets.items()},
                       "magnets_mm": {k: v * 1e3 for k, v in stand.magnets.items()}}}
+    if out is not None:
+        data["files"] = write_files(data, Path(out))
+    return data

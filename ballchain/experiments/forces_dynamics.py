@@ -58,6 +58,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import BallChain, gram_force
 from ballchain.optimization.statics import ChainStatics, StaticsResult, straight_chain
@@ -135,7 +136,7 @@ def build_pin_diagram(chain: BallChain, external, pin_point,
     """
     bound = stability_bound(config.time_step, config.translational_damping, chain.ball_mass)
     if config.stiffness >= bound:
-        raise ValueError(f"pin stiffness {config.stiffness:g} N/m is above the explicit spring's stability "
+        raise UserInputError(f"pin stiffness {config.stiffness:g} N/m is above the explicit spring's stability "
                          f"bound {bound:g} N/m at a {config.time_step:g} s step: lower it or the step")
     d = chain.ball_diameter
     plant_config = ChainPlantConfig(

@@ -11,11 +11,16 @@ measured error the field approximations can explain.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 from tqdm import tqdm
 
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import UniformField
 from ballchain.drake_models.params import BallChain
+from ballchain.drake_models.safe_files import check_output_dir, note_replacements, write_csv
+from ballchain.drake_models.vectors import angle_between
 from ballchain.experiments.magnet_poses import side_magnet_for_field
 from ballchain.optimization.statics import ChainStatics, rotation_path, tip_angle_deg
 
@@ -38,22 +43,39 @@ def _field(model: str, theta_deg: float, field_T: float):
 
 
 def run(*, balls=range(5, 11), angles_deg=(0.0, 45.0, 90.0, 135.0, 180.0), field_T: float = 0.023,
-        step_deg: float = 22.5, progress: bool = True) -> dict:
+        step_deg: float = 22.5, progress: bool = True, out: Path | None = None) -> dict:
     """Tip angle and position for every chain length, field angle and field model.
+
+    Args:
+        balls: chain lengths.
+        angles_deg: field angles [deg].
+        field_T: field at the chain's base [T], in (0, 1].
+        step_deg: largest continuation step [deg].
+        progress: a progress bar.
+        out: folder for ``validation.csv`` (the differences; None: no file), checked writable
+            before the work.
 
     Returns:
         {"rows": [{n_balls, field_angle_deg, model, tip_angle_deg, tip_mm}], "differences":
         [{n_balls, field_angle_deg, dipole_vs_exact_angle_deg, dipole_vs_exact_tip_mm,
-        uniform_vs_exact_angle_deg, uniform_vs_exact_tip_mm}], "summary": {...}, "paper": ...}
+        uniform_vs_exact_angle_deg, uniform_vs_exact_tip_mm}], "summary": {...}, "paper": ...,
+        "files": [...] (with ``out``)}
+
+    Raises:
+        UserInputError: a field out of range (named by its flag, --field-mT) or an unwritable ``out``.
     """
+    if not (isinstance(field_T, (int, float)) and 0 < field_T <= 1.0):
+        shown = field_T * 1e3 if isinstance(field_T, (int, float)) else field_T
+        raise UserInputError(f"--field-mT must be in (0, 1000] mT, got {shown}")
+    if out is not None:  # before the work
+        check_output_dir(out, "--out")
     rows = []
     jobs = [(n, model) for n in balls for model in MODELS]
     for n, model in tqdm(jobs, desc="model validation", unit="chain", disable=not progress):
         solver = ChainStatics(BallChain(n_balls=n))
         for theta in angles_deg:
-            result = None
-            for angle in rotation_path(0.0, theta, step_deg):
-                result = solver.solve_or_raise(_field(model, angle, field_T), result)
+            result = solver.continuation(_field(model, angle, field_T)
+                                         for angle in rotation_path(0.0, theta, step_deg))[-1]
             direction = [np.cos(np.radians(theta)), np.sin(np.radians(theta)), 0.0]
             rows.append({"n_balls": n, "field_angle_deg": float(theta), "model": model,
                          "tip_angle_deg": tip_angle_deg(result, direction),
@@ -65,7 +87,7 @@ def run(*, balls=range(5, 11), angles_deg=(0.0, 45.0, 90.0, 135.0, 180.0), field
             ex, dp, un = (index[(n, float(theta), m)] for m in ("exact", "dipole", "uniform"))
 
             def angle(a, b):
-                return float(np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b)), np.dot(a, b))))
+                return float(np.degrees(angle_between(a, b)))
 
             differences.append({
                 "n_balls": n, "field_angle_deg": float(theta),
@@ -88,5 +110,9 @@ def run(*, balls=range(5, 11), angles_deg=(0.0, 45.0, 90.0, 135.0, 180.0), field
     }
     for r in rows:
         r.pop("tip_dipole")
-    return {"rows": rows, "differences": differences, "summary": summary, "paper": PAPER,
+    data = {"rows": rows, "differences": differences, "summary": summary, "paper": PAPER,
             "setup": "magnet beside the base at (0, -r, 0), r chosen for a 23 mT point-dipole field at the base"}
+    if out is not None:
+        note_replacements(out, ["validation.csv"], "validation")
+        data["files"] = [str(write_csv(Path(out) / "validation.csv", differences))]
+    return data

@@ -13,13 +13,17 @@ prototype unit 10 cm beyond the right carina, on the line from the atrium's cent
 
 from __future__ import annotations
 
+import math
+
 import time
 from typing import Callable
 
 import numpy as np
 from tqdm import tqdm
 
-from ballchain.drake_models.dipole_inversion import moment_from_field
+from ballchain.drake_models import paper
+from ballchain.drake_models.dipole_inversion import neutral_direction
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import BallChain, CylinderMagnet, gram_force, newtons_from_gram_force
@@ -29,8 +33,7 @@ from ballchain.optimization.statics import ChainStatics, StaticsResult
 from ballchain.systems.chain_plant import ContactConfig
 
 TASKS = {"left": "left", "right": "right"}
-PAPER = {"left": {"targets": 20, "path_mm": 115.0, "human_time_s": 40.0},
-         "right": {"targets": 18, "path_mm": 95.0, "human_time_s": 26.0}}
+PAPER = paper.TELEOP_TASKS
 MIN_FORCE_GF = 10.0
 
 
@@ -53,9 +56,7 @@ def teleop_stand(atrium: LeftAtrium, task: str, ball_diameter: float, carina_dis
 
 def neutral_dipole(stand: Stand) -> np.ndarray:
     """The magnet's neutral direction: its field at the sheath exit (the origin) along the sheath."""
-    p_M = stand.magnets["1"]
-    m = moment_from_field(np.array([1.0, 0.0, 0.0]), -p_M)
-    return m / np.linalg.norm(m)
+    return neutral_direction(stand.magnets["1"], np.zeros(3), np.array([1.0, 0.0, 0.0]))
 
 
 def _field_for(stand: Stand) -> Callable[[np.ndarray], FieldSources]:
@@ -130,21 +131,21 @@ def run(*, task: str = "left", targets: int | None = None, balls=(16,), grid: in
         feeder_speed: insertion speed [m/s].
     """
     if task not in TASKS:
-        raise ValueError(f"task must be 'left' or 'right', got {task!r}")
+        raise UserInputError(f"task must be 'left' or 'right', got {task!r}")
     if targets is not None and targets < 1:
-        raise ValueError(f"targets must be >= 1, got {targets}")
-    if not min_force_gf > 0:
-        raise ValueError(f"min_force_gf must be > 0, got {min_force_gf}")
+        raise UserInputError(f"targets must be >= 1, got {targets}")
+    if not (math.isfinite(min_force_gf) and min_force_gf > 0):
+        raise UserInputError(f"min_force_gf must be a finite number > 0, got {min_force_gf}")
+    if not (math.isfinite(friction) and friction >= 0):  # a NaN once ran and reported "no feasible answer"
+        raise UserInputError(f"friction must be a finite number >= 0, got {friction}")
     if not balls or any(n < 2 for n in balls):
-        raise ValueError(f"balls must be chain lengths >= 2, got {balls}")
+        raise UserInputError(f"balls must be chain lengths >= 2, got {balls}")
     atrium = LeftAtrium()
     d = BallChain().ball_diameter
     stand = teleop_stand(atrium, task, d)
     names = list(stand.targets)[: targets or None]
     min_force_N = newtons_from_gram_force(min_force_gf)
     target_radius = 0.5 * atrium.params.target_diameter
-    if friction < 0:
-        raise ValueError(f"friction must be >= 0, got {friction}")
     m_now, n_now = neutral_dipole(stand), None
     held = {n: None for n in balls}  # the last held equilibrium of each length
     rows, turn_time, feed_time = [], 0.0, 0.0

@@ -11,7 +11,7 @@ axes 0/1 swing the field at the tip about the tip frame's z and -y; the operator
 Both at the unit's ``teleop_omega_max`` (0.5 rad/s), with the feeder.
 
 A target counts as touched when the tip ball touches it within its 5 mm circle
-(``meshcat_overlays.targets_touched``); per target the operator records the time it spent on it
+(``target_contact.targets_touched``); per target the operator records the time it spent on it
 and the accuracy: the distance from the tip ball's wall-side point to the target's centre.
 """
 
@@ -21,11 +21,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+from ballchain.drake_models.errors import UserInputError
+
+from ballchain.drake_models import paper
 
 TASKS = ("left", "right")
 MAPPINGS = {"world": "world", "catheter": "tip"}  # user-facing name -> TeleoperationMapper frame
-PAPER = {"left": {"targets": 20, "human_time_s": 40.0, "path_mm": 115.0},
-         "right": {"targets": 18, "human_time_s": 26.0, "path_mm": 95.0}}
+PAPER = paper.TELEOP_TASKS
 SCENARIO = "teleop_right_unit"
 REPLAY_PERIOD = 0.1  # [s] Meshcat replay frames (unless the overrides set publish_period)
 # A 4 ms quasi-static step (same damping): replaying 15 s of an operator's recorded commands (68 mm
@@ -37,18 +39,19 @@ FAST = "{time_step: 0.004}"
 
 
 def check_inputs(task: str, mapping: str, targets: int | None, n_balls: int | None, time_limit: float | None) -> None:
-    """Raises ValueError with a clear message on bad input."""
+    """Raises UserInputError with a clear message on bad input."""
     if task not in TASKS:
-        raise ValueError(f"task must be one of {TASKS} ('left': Task I, 'right': Task II), got {task!r}")
+        raise UserInputError(f"task must be one of {TASKS} ('left': Task I, 'right': Task II), got {task!r}")
     if mapping not in MAPPINGS:
-        raise ValueError(f"mapping must be one of {tuple(MAPPINGS)}, got {mapping!r}")
+        raise UserInputError(f"mapping must be one of {tuple(MAPPINGS)}, got {mapping!r}")
     if targets is not None and (isinstance(targets, bool) or not isinstance(targets, (int, np.integer))
                                 or targets < 1):
-        raise ValueError(f"targets must be a positive number of targets (the first N), got {targets!r}")
-    if n_balls is not None and n_balls < 3:
-        raise ValueError(f"balls must be >= 3 (ball 1 stays in the sheath), got {n_balls}")
-    if time_limit is not None and not time_limit > 0:
-        raise ValueError(f"time_limit must be > 0 s, got {time_limit}")
+        raise UserInputError(f"targets must be a positive number of targets (the first N), got {targets!r}")
+    if n_balls is not None and (isinstance(n_balls, bool) or not isinstance(n_balls, (int, np.integer))
+                                or not 3 <= n_balls <= 64):
+        raise UserInputError(f"balls must be an integer in 3..64 (ball 1 stays in the sheath), got {n_balls!r}")
+    if time_limit is not None and not 0 < time_limit <= 3600:  # NaN fails too
+        raise UserInputError(f"time_limit must be in (0, 3600] s of simulated time, got {time_limit}")
 
 
 def scenario_for(mapping: str, n_balls: int | None = None, overrides: str | None = None):
@@ -105,6 +108,10 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     from ballchain.systems.simulated_operator import OperatorParams, SimulatedOperator
 
     check_inputs(task, mapping, targets, n_balls, time_limit)
+    if html is not None:  # before the run: an unwritable replay path must not cost the results
+        from ballchain.drake_models.safe_files import check_output_file
+
+        check_output_file(html, "--html")
     scenario = scenario_for(mapping, n_balls, overrides)
     if "publish_period" not in (overrides or ""):
         scenario.publish_period = REPLAY_PERIOD  # a task lasts minutes: keep the replay small
@@ -188,7 +195,9 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     if cd.visualizer is not None:
         cd.visualizer.StopRecording()
         cd.visualizer.PublishRecording()
-        Path(html).write_text(meshcat.StaticHtml())
+        from ballchain.drake_models.safe_files import atomic_write_text
+
+        atomic_write_text(html, meshcat.StaticHtml())
         result["html"] = str(html)
     return result
 
@@ -240,3 +249,250 @@ def summarize(rows: list[dict], sim_time: float, wall: float, failure: str | Non
         "wall_time_s": round(wall, 1),
         "failure": failure,
     }
+
+
+# ----------------------------------------------------------------------------------- live steering
+LIVE_SCENARIOS = {"one": SCENARIO, "two": "teleop_two_units"}  # --units: the right unit, or both
+LIVE_CHUNK = 0.05  # [s] simulated time per AdvanceTo: quit, Ctrl-C and the status line between chunks
+LIVE_STATUS_PERIOD = 2.0  # [s] wall time between status lines
+
+
+def check_live_inputs(mapping: str, units: str, n_balls: int | None, duration: float | None,
+                      realtime_rate: float) -> None:
+    """Raises UserInputError naming the flag on bad input for ``run_live``."""
+    from ballchain.drake_models.errors import UserInputError
+
+    if mapping not in MAPPINGS:
+        raise UserInputError(f"--mapping must be one of {tuple(MAPPINGS)}, got {mapping!r}")
+    if units not in LIVE_SCENARIOS:
+        raise UserInputError(f"--units must be one of {tuple(LIVE_SCENARIOS)} (the right unit, or both), "
+                             f"got {units!r}")
+    if n_balls is not None and n_balls < 3:
+        raise UserInputError(f"--balls must be >= 3 (ball 1 stays in the sheath), got {n_balls}")
+    if duration is not None and not (np.isfinite(duration) and duration > 0):
+        raise UserInputError(f"--duration must be a positive number of simulated seconds, got {duration}")
+    if not (np.isfinite(realtime_rate) and realtime_rate >= 0):
+        raise UserInputError(f"--realtime-rate must be >= 0 (0: as fast as possible), got {realtime_rate}")
+
+
+def live_scenario_for(mapping: str, units: str = "one", n_balls: int | None = None, overrides: str | None = None):
+    """The teleoperation station with every unit's stick and the feeder left to a person.
+
+    Args:
+        mapping: "world" or "catheter" (every unit).
+        units: "one" (``teleop_right_unit``) or "two" (``teleop_two_units``: both sides).
+        n_balls: chain length (default: the scenario's 16).
+        overrides: inline YAML overrides of the scenario (``--set``), applied first: e.g.
+            ``{engine: statics}`` once the scenario has that field.
+    """
+    from ballchain.drake_models.errors import UserInputError
+    from ballchain.systems.chain_scenario import load_scenario
+
+    try:
+        scenario = load_scenario(LIVE_SCENARIOS[units], overrides)
+    except UserInputError:
+        raise
+    except ValueError as err:
+        raise UserInputError(f"--set: {err}") from None
+    if n_balls is not None:
+        scenario.n_balls = n_balls
+    for unit in scenario.units:
+        unit.joystick = []
+        unit.joystick_source = "external"
+        unit.teleop_frame = MAPPINGS[mapping]
+    ins = scenario.insertion
+    ins.feeder, ins.feeder_command = True, "external"
+    ins.final = ins.initial
+    return scenario.validate()
+
+
+class LiveSession:
+    """A station driven by ``MeshcatJoystick``, ready to be advanced (``build_live``).
+
+    Attributes:
+        cd: the ChainDiagram; ``cd.extras["meshcat_joystick"]`` is the joystick system.
+        simulator: its Simulator (target real-time rate set).
+        meshcat: the Meshcat (localhost).
+        joystick: the MeshcatJoystick.
+        chain_monitor: the ChainMonitor (watchdog) installed with the quit check.
+    """
+
+    def __init__(self, cd, simulator, meshcat, joystick, chain_monitor):
+        self.cd, self.simulator, self.meshcat = cd, simulator, meshcat
+        self.joystick, self.chain_monitor = joystick, chain_monitor
+        self.root = simulator.get_mutable_context()
+        self._initialized = False
+
+    def advance_to(self, t: float) -> str | None:
+        """Advance the simulation to time t [s].
+
+        Returns:
+            None (reached t), "quit" (the person asked to quit) or the watchdog's failure message.
+        """
+        from pydrake.systems.analysis import SimulatorStatus
+
+        if not self._initialized:
+            self.simulator.Initialize()
+            self._initialized = True
+        try:
+            status = self.simulator.AdvanceTo(t)
+        except (RuntimeError, ValueError) as err:
+            return self.chain_monitor.failure or f"at t = {self.root.get_time():.4f} s: {err}"
+        if status.reason() == SimulatorStatus.ReturnReason.kReachedTerminationCondition:
+            return "quit"
+        return None
+
+    def touched(self) -> list[str]:
+        tracker = self.cd.extras.get("target_touches")
+        return [] if tracker is None else tracker.touched_names(tracker.GetMyContextFromRoot(self.root))
+
+    def tip_force_N(self) -> np.ndarray:
+        """The wall's force on the tip ball now [N] (as the overlay's orange arrow)."""
+        overlays = self.cd.extras.get("meshcat_overlays")
+        if overlays is None:
+            return np.zeros(3)
+        return overlays.tip_contact_force(overlays.GetMyContextFromRoot(self.root))[0]
+
+    def joystick_state(self) -> tuple[str, np.ndarray, float]:
+        """(selected unit, stick axes (3,), feeder command [m/s]) as sent now."""
+        j = self.joystick
+        ctx = j.GetMyContextFromRoot(self.root)
+        unit = j.selected_unit(ctx)
+        return unit, j.get_joystick_output_port(unit).Eval(ctx), float(j.GetOutputPort("v_insert_cmd").Eval(ctx)[0])
+
+
+def build_live(*, mapping: str = "world", units: str = "one", n_balls: int | None = None,
+               overrides: str | None = None, meshcat=None, heart=None, realtime_rate: float = 1.0,
+               joystick_period: float = 0.02) -> LiveSession:
+    """Build the station with ``MeshcatJoystick`` driving every unit's stick and the feeder.
+
+    Args:
+        mapping, units, n_balls, overrides: as ``live_scenario_for``.
+        meshcat: a Meshcat to use (default: a new one on localhost).
+        heart: a prebuilt atrium to reuse.
+        realtime_rate: the simulator's target real-time rate (0: as fast as possible).
+        joystick_period: how often the joystick reads Meshcat [s] (simulated time).
+    """
+    from pydrake.geometry import Meshcat, MeshcatParams
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.framework import EventStatus
+
+    from ballchain.systems.chain_simulation import ChainMonitor, atrium_for, build_chain_diagram
+    from ballchain.systems.meshcat_joystick import MeshcatJoystick
+
+    check_live_inputs(mapping, units, n_balls, None, realtime_rate)
+    scenario = live_scenario_for(mapping, units, n_balls, overrides)
+    meshcat = meshcat if meshcat is not None else Meshcat(MeshcatParams(host="localhost"))
+    heart = heart or atrium_for(scenario)
+
+    def add_joystick(builder, ports):
+        j = builder.AddSystem(MeshcatJoystick(meshcat, list(ports.joystick_inputs), period=joystick_period))
+        for name, port in ports.joystick_inputs.items():
+            builder.Connect(j.get_joystick_output_port(name), port)
+        builder.Connect(j.GetOutputPort("v_insert_cmd"), ports.feeder_command_input)
+        return {"meshcat_joystick": j}
+
+    cd = build_chain_diagram(scenario, meshcat=meshcat, heart=heart, add_systems=add_joystick)
+    joystick = cd.extras["meshcat_joystick"]
+    simulator = Simulator(cd.diagram)
+    simulator.set_target_realtime_rate(realtime_rate)
+    chain_monitor = ChainMonitor(cd, tolerate_sinking=lambda p: near_ostium_rim(heart, p))
+
+    def monitor(context):
+        status = chain_monitor(context)
+        if status.severity() == EventStatus.Severity.kFailed:
+            return status
+        if joystick.quit_requested(joystick.GetMyContextFromRoot(context)):
+            return EventStatus.ReachedTermination(joystick, "the person quit")
+        return EventStatus.Succeeded()
+
+    simulator.set_monitor(monitor)
+    return LiveSession(cd, simulator, meshcat, joystick, chain_monitor)
+
+
+def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None = None,
+             overrides: str | None = None, duration: float | None = None, realtime_rate: float = 1.0,
+             meshcat=None, heart=None, echo=print, status_period: float = LIVE_STATUS_PERIOD) -> dict:
+    """Let a person steer the chain live in Meshcat with a gamepad or the keyboard.
+
+    Opens Meshcat on localhost (or uses ``meshcat``), prints its URL and the key map, and runs
+    the station in real time (``realtime_rate``) until the person quits (Escape, Start), Ctrl-C,
+    the watchdog stops it, or ``duration`` simulated seconds have passed. When the station is
+    slower than real time it runs as fast as it can: the status lines report the rate achieved.
+
+    Args:
+        mapping: "world" or "catheter".
+        units: "one" (the right unit) or "two" (both; N or RB switches the stick between them).
+        n_balls: chain length (default 16).
+        overrides: inline YAML overrides of the scenario (``--set``), e.g. the engine.
+        duration: simulated-time limit [s] (None: until the person quits).
+        realtime_rate: target real-time rate (1: real time; 0: as fast as possible).
+        meshcat: a Meshcat to use (default: a new one on localhost).
+        heart: a prebuilt atrium to reuse.
+        echo: where the URL, the key map and the status lines go (``print``).
+        status_period: wall time between status lines [s].
+
+    Returns:
+        {"url", "ended" ("quit", "duration", "interrupted" or "failure"), "failure",
+        "sim_time_s", "wall_time_s", "realtime_factor" (achieved), "target_realtime_rate",
+        "targets_touched", "n_targets", "tip_wall_force_N", "settings": {...}}.
+    """
+    from ballchain.drake_models.params import gram_force
+    from ballchain.systems.meshcat_joystick import key_map_text
+
+    check_live_inputs(mapping, units, n_balls, duration, realtime_rate)
+    session = build_live(mapping=mapping, units=units, n_balls=n_balls, overrides=overrides, meshcat=meshcat,
+                         heart=heart, realtime_rate=realtime_rate)
+    scenario = session.cd.scenario
+    tracker = session.cd.extras.get("target_touches")
+    n_targets = 0 if tracker is None else len(tracker.names)
+    unit_names = session.joystick.unit_names
+    echo(f"Meshcat: {session.meshcat.web_url()}  (open it in a browser on this machine)")
+    echo(f"steering {', '.join(unit_names)} with the {mapping} mapping, {scenario.n_balls} balls, "
+         f"time step {scenario.effective_time_step * 1e3:g} ms, target real-time rate {realtime_rate:g}"
+         + (f", for {duration:g} s" if duration is not None else ", until you quit (Escape, Start or Ctrl-C)"))
+    omega = scenario.units[0].teleop_omega_max
+    echo(f"world mapping: stick axes 0, 1, 2 turn the selected magnet about world x, y, z (up to {omega:g} rad/s)"
+         if mapping == "world" else
+         f"catheter mapping: stick axes 0 and 1 swing the field at the tip about the tip's z and -y axes "
+         f"(up to {omega:g} rad/s); axis 2 does nothing")
+    echo(key_map_text(session.joystick.keys))
+    echo("the targets turn green when the tip touches them; the orange arrow is the wall's force on the tip")
+    ended, failure = "duration", None
+    start = time.perf_counter()
+    last_wall, last_sim = start, 0.0
+    limit = np.inf if duration is None else float(duration)
+    try:
+        while session.root.get_time() < limit - 1e-12:
+            reason = session.advance_to(min(session.root.get_time() + LIVE_CHUNK, limit))
+            if reason == "quit":
+                ended = "quit"
+                break
+            if reason is not None:
+                ended, failure = "failure", reason
+                break
+            now = time.perf_counter()
+            if now - last_wall >= status_period:
+                t = session.root.get_time()
+                unit, stick, v = session.joystick_state()
+                f_gf = gram_force(float(np.linalg.norm(session.tip_force_N())))
+                echo(f"t = {t:7.2f} s  real-time rate {(t - last_sim) / (now - last_wall):5.2f}  "
+                     f"targets {len(session.touched())}/{n_targets}  tip force {f_gf:5.1f} gf  "
+                     f"{unit} stick {np.round(stick, 2).tolist()}  feeder {v * 1e3:+.1f} mm/s")
+                last_wall, last_sim = now, t
+    except KeyboardInterrupt:
+        ended = "interrupted"
+    wall = time.perf_counter() - start
+    sim_time = session.root.get_time()
+    session.joystick.remove_buttons()
+    touched = session.touched()
+    rate = round(sim_time / wall, 4) if wall > 0 else None
+    echo(f"ended ({ended}{': ' + failure if failure else ''}) at t = {sim_time:.2f} s after {wall:.1f} s: "
+         f"real-time rate {rate}, {len(touched)}/{n_targets} targets touched"
+         + (f" ({', '.join(touched)})" if touched else ""))
+    return {"url": session.meshcat.web_url(), "ended": ended, "failure": failure,
+            "sim_time_s": round(sim_time, 4), "wall_time_s": round(wall, 3), "realtime_factor": rate,
+            "target_realtime_rate": realtime_rate, "targets_touched": touched, "n_targets": n_targets,
+            "tip_wall_force_N": [round(float(v), 6) for v in session.tip_force_N()],
+            "settings": {"mapping": mapping, "units": unit_names, "n_balls": scenario.n_balls,
+                         "time_step_s": scenario.effective_time_step, "overrides": overrides}}

@@ -14,16 +14,22 @@ sleeve, 2939 mm^2 with (12 % less), tip-to-tip about 8 mm.
 
 from __future__ import annotations
 
+import csv
+import io
+from pathlib import Path
+
 import numpy as np
 from tqdm import tqdm
 
+from ballchain.drake_models import paper
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.params import BallChain, Sleeve
+from ballchain.drake_models.safe_files import agg_pyplot, atomic_write_text, check_output_dir, note_replacements, save_figure
 from ballchain.experiments.magnet_poses import field_angle_for_magnet_angle, side_magnet
 from ballchain.optimization.statics import ChainStatics
 
-PAPER = {"half_area_bare_mm2": 3345.0, "half_area_sleeve_mm2": 2939.0, "reduction_pct": 12.0,
-         "tip_to_tip_mm": 8.0}
-DISTANCE = 0.1651
+PAPER = paper.WORKSPACE
+DISTANCE = paper.WORKING_DISTANCE
 
 
 def polygon_area(points_xy: np.ndarray) -> float:
@@ -34,23 +40,73 @@ def polygon_area(points_xy: np.ndarray) -> float:
 
 def sweep(chain: BallChain, side: int, step_deg: float, distance: float = DISTANCE):
     """Tip positions [m] as the magnet turns from field +x to field -x on one side (+1: +y)."""
-    solver = ChainStatics(chain)
     phis = np.radians(180.0 - side * np.arange(0.0, 180.0 + 1e-9, step_deg))
-    tips, field_angles, result = [], [], None
-    for phi in phis:
-        result = solver.solve_or_raise(side_magnet(phi, distance), result)
-        tips.append(result.positions[-1].copy())
-        field_angles.append(np.degrees(field_angle_for_magnet_angle(phi)))
+    results = ChainStatics(chain).continuation(side_magnet(phi, distance) for phi in phis)
+    tips = [result.positions[-1].copy() for result in results]
+    field_angles = [np.degrees(field_angle_for_magnet_angle(phi)) for phi in phis]
     return np.array(tips), np.array(field_angles)
 
+def write_files(data: dict, out: Path) -> list[str]:
+    """Write ``workspace_tips.csv`` and ``workspace.png`` into ``out``; returns their paths."""
+    plt = agg_pyplot()
+    note_replacements(out, ["workspace_tips.csv", "workspace.png"], "workspace")
+    out.mkdir(parents=True, exist_ok=True)
+    csv_path = out / "workspace_tips.csv"
+    f = io.StringIO(newline="")
+    writer = csv.writer(f)
+    writer.writerow(["n_balls", "sleeve", "side", "tip_x_mm", "tip_y_mm", "tip_z_mm"])
+    for (n, sleeve, side), tips in data["curves"].items():
+        for tip in tips:
+            writer.writerow([n, sleeve, side, *tip])
+    atomic_write_text(csv_path, f.getvalue())
+    fig, axes = plt.subplots(1, 3, figsize=(12, 4.5), sharex=True, sharey=True)
+    balls = sorted({k[0] for k in data["curves"]})
+    for ax, n in zip(axes, balls):
+        for sleeve, style in ((False, "-"), (True, "--")):
+            for side in (1, -1):
+                tips = data["curves"][(n, sleeve, side)]
+                ax.plot(tips[:, 0], tips[:, 1], style, color="C0" if side > 0 else "C1",
+                        label=f"{'sleeve' if sleeve else 'bare'}, {'+y' if side > 0 else '-y'} side")
+        ax.plot([0], [0], "ks")
+        ax.set_title(f"{n} balls")
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [mm]")
+    axes[0].set_ylabel("y [mm] (magnet towards -y)")
+    axes[-1].legend(fontsize=7)
+    fig.suptitle("Tip positions as the magnet turns (16.51 cm away)")
+    fig.tight_layout()
+    png = out / "workspace.png"
+    save_figure(fig, png, dpi=110)
+    return [str(csv_path), str(png)]
 
-def run(*, balls=(4, 9, 16), step_deg: float = 5.0, distance: float = DISTANCE, progress: bool = True) -> dict:
+
+def run(*, balls=(4, 9, 16), step_deg: float = 5.0, distance: float = DISTANCE, progress: bool = True,
+        out: Path | None = None) -> dict:
     """Tip curves, half-workspace areas and the sleeve's effect.
+
+    Args:
+        balls: chain lengths.
+        step_deg: magnet rotation step [deg], in [0.5, 45].
+        distance: magnet to insertion point [m], in (0.1, 1] (closer, it would touch the chain).
+        progress: a progress bar.
+        out: folder for ``workspace_tips.csv`` and ``workspace.png`` (None: no files), checked
+            writable before the work.
 
     Returns:
         {"curves": {(n, sleeve, side): tips_mm (k, 3)}, "rows": [{n_balls, sleeve,
-        workspace_area_mm2, half_area_mm2, snap angles}], "summary": {...}, "paper": ...}
+        workspace_area_mm2, half_area_mm2, snap angles}], "summary": {...}, "paper": ...,
+        "files": [...] (with ``out``)}
+
+    Raises:
+        UserInputError: a step or distance out of range (named by its flag), an unwritable ``out``.
     """
+    if not (isinstance(step_deg, (int, float)) and 0.5 <= step_deg <= 45):
+        raise UserInputError(f"--step-deg must be in [0.5, 45], got {step_deg}")
+    if not (isinstance(distance, (int, float)) and 0.1 < distance <= 1.0):
+        raise UserInputError(f"--distance-cm must be in (10, 100] cm (closer, the magnet would touch the "
+                             f"chain), got {distance * 100:g}")
+    if out is not None:  # before the work
+        check_output_dir(out, "--out")
     curves, rows, snaps = {}, [], {}
     jobs = [(n, sleeve) for n in balls for sleeve in (False, True)]
     d_mm = BallChain().ball_diameter * 1e3
@@ -83,5 +139,8 @@ def run(*, balls=(4, 9, 16), step_deg: float = 5.0, distance: float = DISTANCE, 
         "field_at_base_mT_range": [1e3 * side_magnet(np.pi, distance).field([[0, 0, 0]])[0, 0],
                                    1e3 * np.linalg.norm(side_magnet(np.pi / 2, distance).field([[0, 0, 0]]))],
     }
-    return {"curves": curves, "rows": rows, "summary": summary, "paper": PAPER,
+    data = {"curves": curves, "rows": rows, "summary": summary, "paper": PAPER,
             "setup": f"magnet at (0, -{distance * 100:.2f} cm, 0) turning about z; half area = half the loop of both tip curves"}
+    if out is not None:
+        data["files"] = write_files(data, Path(out))
+    return data

@@ -9,15 +9,18 @@ dipole and the neutral direction (not the sensor's estimate).
 
 from __future__ import annotations
 
+import sys
 from dataclasses import replace
 from typing import Callable
 
 import numpy as np
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import EventStatus
+from tqdm import tqdm
 
-from ballchain.drake_models.dipole_inversion import angle_between
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
+from ballchain.drake_models.vectors import angle_between
 from ballchain.systems.actuation_station import StationOptions, make_actuation_station, right_unit
 from ballchain.systems.rotating_magnet_unit import MagnetUnitConfig, rotation_from_quaternion
 
@@ -101,7 +104,7 @@ def run_reconfiguration_study(
     wheel_map: str = "derived",
     tolerance_deg: float = 1.0,
     t_max: float = 15.0,
-    progress: Callable[[int], None] | None = None,
+    progress: bool | Callable[[int], None] | None = None,
 ) -> dict:
     """The closed-loop study: seeded random starts, run 0 exactly antiparallel to neutral.
 
@@ -115,14 +118,15 @@ def run_reconfiguration_study(
         wheel_map: controller conversion, "derived" or "paper".
         tolerance_deg: a run has converged if its true final error is below this [deg].
         t_max: time limit of a run [s].
-        progress: called with 1 after each run (e.g. a tqdm bar's ``update``).
+        progress: True for a progress bar on stderr, or a function called with 1 after each run
+            (e.g. a tqdm bar's ``update``); None or False: none.
 
     Returns:
         ``{"runs", "converged", "max_final_error_deg", "median_time_s", "max_time_s"}`` plus
         ``antiparallel_time_s`` and the per-run lists ``final_error_deg`` and ``time_s``.
     """
     if runs < 1:
-        raise ValueError(f"runs must be >= 1, got {runs}")
+        raise UserInputError(f"runs must be >= 1, got {runs}")
     unit = right_unit(field_model=field_model)
     base = StationOptions(slip=slip, sensor_noise=noise, wheel_map=wheel_map)
     # The neutral direction the controller is built with (same computation as in the station).
@@ -130,14 +134,17 @@ def run_reconfiguration_study(
     starts = list(random_rotations(runs, seed))
     starts[0] = rotation_with_z_along(-m_c)  # exactly antiparallel: the law's stall point
     finals, times, converged = [], [], 0
+    bar = tqdm(total=runs, desc="reconfigure", unit="run", file=sys.stderr, disable=progress is not True)
     for k, R0 in enumerate(starts):
         result = run_reconfiguration(R0, unit=unit, options=replace(base, seed=seed + k), t_max=t_max)
         ok = result["done"] and result["final_error_deg"] < tolerance_deg
         converged += int(ok)
         finals.append(result["final_error_deg"])
         times.append(result["time_s"])
-        if progress is not None:
+        bar.update(1)
+        if callable(progress):
             progress(1)
+    bar.close()
     return {
         "runs": runs,
         "converged": converged,
@@ -152,3 +159,7 @@ def run_reconfiguration_study(
         "final_error_deg": finals,
         "time_s": times,
     }
+
+
+run = run_reconfiguration_study
+"""The experiment's entry point (``ballchain reconfigure``), as in every experiment module."""

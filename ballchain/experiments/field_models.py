@@ -22,11 +22,14 @@ from typing import Sequence
 
 import numpy as np
 
+from ballchain.drake_models import paper
 from ballchain.drake_models.dipole import force_on_dipole
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import MagnetSource
-from ballchain.drake_models.params import BallChain, CylinderMagnet
+from ballchain.drake_models.params import BallChain, CylinderMagnet, gram_force
+from ballchain.drake_models.vectors import angle_between
 
-DEFAULT_DISTANCES = (0.08, 0.12, 0.1651, 0.20)
+DEFAULT_DISTANCES = (0.08, 0.12, paper.WORKING_DISTANCE, 0.20)
 """Distances from the magnet centre [m] (16.51 cm is the prototype's working distance)."""
 
 DEFAULT_POLAR_ANGLES_DEG = (0.0, 45.0, 90.0)
@@ -71,13 +74,6 @@ class FieldModelComparison:
         return DIRECTION_NAMES.get(float(self.polar_angle_deg), f"{self.polar_angle_deg:g}deg")
 
 
-def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Angle between rows of a and b (k, 3) [deg], robust near 0 (atan2 of |a x b| and a . b)."""
-    cross = np.linalg.norm(np.cross(a, b), axis=-1)
-    dot = np.einsum("...i,...i->...", a, b)
-    return np.degrees(np.arctan2(cross, dot))
-
-
 def compare_field_models(
     magnet: CylinderMagnet = CylinderMagnet(),
     distances: Sequence[float] = DEFAULT_DISTANCES,
@@ -102,13 +98,13 @@ def compare_field_models(
     distances = [float(r) for r in distances]
     angles = [float(a) for a in polar_angles_deg]
     if not distances or not angles:
-        raise ValueError("need at least one distance and one polar angle")
+        raise UserInputError("need at least one distance and one polar angle")
     for r in distances:
         if not (math.isfinite(r) and r > 0):
-            raise ValueError(f"distances must be positive finite numbers of metres, got {r!r}")
+            raise UserInputError(f"distances must be positive finite numbers of metres, got {r!r}")
     for a in angles:
         if not (math.isfinite(a) and 0.0 <= a <= 180.0):
-            raise ValueError(f"polar angles must lie in [0, 180] deg, got {a!r}")
+            raise UserInputError(f"polar angles must lie in [0, 180] deg, got {a!r}")
     grid = [(r, a) for r in distances for a in angles]
     p = np.array([[r * math.sin(math.radians(a)), 0.0, r * math.cos(math.radians(a))] for r, a in grid])
     dipole = MagnetSource(magnet, np.zeros(3), model="dipole")
@@ -121,8 +117,8 @@ def compare_field_models(
     nB_d, nB_e = np.linalg.norm(B_d, axis=1), np.linalg.norm(B_e, axis=1)
     nF_d, nF_e = np.linalg.norm(F_d, axis=1), np.linalg.norm(F_e, axis=1)
     G_err = np.linalg.norm(G_d - G_e, axis=(1, 2)) / np.linalg.norm(G_e, axis=(1, 2))
-    B_ang = _angle_deg(B_d, B_e)
-    F_ang = _angle_deg(F_d, F_e)
+    B_ang = np.degrees(angle_between(B_d, B_e))
+    F_ang = np.degrees(angle_between(F_d, F_e))
     return [
         FieldModelComparison(
             distance=r,
@@ -151,3 +147,55 @@ def on_axis_relative_error_coefficient(magnet: CylinderMagnet = CylinderMagnet()
     R = magnet.diameter / 2.0
     half = magnet.length / 2.0
     return 1.5 * R**2 - 2.0 * half**2
+
+
+def run(*, distances_m, angles_deg, ball: BallChain, magnet: CylinderMagnet = CylinderMagnet()) -> dict:
+    """The comparison of ``compare_field_models`` in edge units (cm, mT, gf, %, deg).
+
+    Args:
+        distances_m: distances from the magnet centre [m].
+        angles_deg: polar angles from the magnetisation axis [deg], in [0, 180].
+        ball: the ball whose aligned force is compared.
+        magnet: the cylinder.
+
+    Returns:
+        JSON-ready dict: ``magnet``, ``ball_diameter_mm``, ``on_axis_rel_error_asymptote_cm2``, one
+        row per (distance, angle) and ``notes``.
+    """
+    rows = compare_field_models(magnet, distances_m, angles_deg, ball)
+    return {
+        "magnet": {
+            "diameter_mm": magnet.diameter * 1e3,
+            "length_mm": magnet.length * 1e3,
+            "remanence_T": magnet.remanence,
+            "dipole_moment_Am2": magnet.dipole_moment,
+        },
+        "ball_diameter_mm": ball.ball_diameter * 1e3,
+        "on_axis_rel_error_asymptote_cm2": on_axis_relative_error_coefficient(magnet) * 1e4,
+        "rows": [
+            {
+                "distance_cm": row.distance * 1e2,
+                "polar_angle_deg": row.polar_angle_deg,
+                "direction": row.direction,
+                "B_dipole_mT": row.B_dipole * 1e3,
+                "B_exact_mT": row.B_exact * 1e3,
+                "B_dipole_magnitude_mT": float(math.hypot(*row.B_dipole)) * 1e3,
+                "B_exact_magnitude_mT": float(math.hypot(*row.B_exact)) * 1e3,
+                "B_rel_error_percent": row.B_rel_error * 1e2,
+                "B_angle_error_deg": row.B_angle_error_deg,
+                "gradient_rel_error_percent": row.G_rel_error * 1e2,
+                "force_dipole_gf": [gram_force(f) for f in row.F_dipole],
+                "force_exact_gf": [gram_force(f) for f in row.F_exact],
+                "force_dipole_magnitude_gf": gram_force(float(math.hypot(*row.F_dipole))),
+                "force_exact_magnitude_gf": gram_force(float(math.hypot(*row.F_exact))),
+                "force_rel_error_percent": row.F_rel_error * 1e2,
+                "force_angle_error_deg": row.F_angle_error_deg,
+            }
+            for row in rows
+        ],
+        "notes": [
+            "rel error = (|dipole| - |exact|) / |exact|: positive means the dipole overestimates",
+            "force: on one ball whose dipole is aligned with each model's own field, F = G m_hat |m_ball|",
+            "exact: magpylib closed-form cylinder field; its gradient by central differences (MagnetSource)",
+        ],
+    }

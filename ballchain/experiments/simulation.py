@@ -1,0 +1,71 @@
+"""A named scenario simulated (``ballchain simulate``): the chain in the left atrium or free space.
+
+Loads the scenario of ``drake_models/station.scenarios.yaml``, applies the ``--set`` overrides
+and the mode, runs ``systems/chain_simulation.run_simulation`` and adds, for the scenarios that
+settle on the canonical statics problem, how far the simulated tip is from the statics
+equilibrium (two independent computations of the same shape).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.params import BallChain, Sleeve
+from ballchain.drake_models.safe_files import check_output_file
+from ballchain.optimization.statics import uniform_field_equilibrium
+
+
+def run(*, scenario: str, duration: float | None = None, mode: str | None = None,
+        overrides: str | None = None, html: Path | None = None, progress: bool = False) -> dict:
+    """Load the scenario, apply the overrides and the mode, simulate; returns the metrics.
+
+    Args:
+        scenario: a name in ``drake_models/station.scenarios.yaml``.
+        duration: simulated time [s] (None: the scenario's).
+        mode: "quasi-static" or "dynamics" (None: the scenario's).
+        overrides: inline YAML overriding scenario fields.
+        html: write a Meshcat recording (HTML) to this file.
+        progress: a progress bar on stderr.
+
+    Returns:
+        The metrics of ``chain_simulation.run_simulation`` plus ``statics_tip_error_mm``.
+
+    Raises:
+        UserInputError: a bad scenario, override, mode, duration or output path (before any work).
+        SimulationFailure: the run stopped (NaN, escape, chain broken apart); it carries the metrics.
+    """
+    from ballchain.systems.chain_scenario import check_duration, load_scenario
+    from ballchain.systems.chain_simulation import run_simulation
+
+    if html is not None:  # before the run: an unwritable path must not cost the results
+        check_output_file(html, "--html")
+    chosen = load_scenario(scenario, overrides)
+    if mode is not None:
+        if mode not in ("quasi-static", "dynamics"):
+            raise UserInputError(f"--mode must be 'quasi-static' or 'dynamics', got {mode!r}")
+        chosen.mode = mode
+        chosen.validate()
+    if duration is not None:
+        check_duration(duration, chosen.effective_time_step, "--duration")
+    result = run_simulation(scenario=chosen, duration=duration, html=html, progress=progress)
+    result["statics_tip_error_mm"] = statics_tip_error_mm(chosen, result)
+    return result
+
+
+def statics_tip_error_mm(scenario, result: dict) -> float | None:
+    """Distance [mm] from the simulated tip to the statics equilibrium, for scenarios that settle
+    on the canonical problem (free space, no sheath, ball 1 fixed at the origin, a uniform field,
+    optionally a flat wall); None for the others (heart, magnets, units, moving feeder)."""
+    canonical = (not scenario.heart and not scenario.sheath and not scenario.magnets and not scenario.units
+                 and scenario.insertion.initial == 0.0 and scenario.insertion.final == 0.0)
+    if not canonical:
+        return None
+    chain = BallChain(n_balls=scenario.n_balls, sleeve=Sleeve() if scenario.sleeve else None)
+    wall = None
+    if scenario.wall_plane:
+        wall = (np.array(scenario.wall_plane[:3]), np.array(scenario.wall_plane[3:]))
+    statics = uniform_field_equilibrium(chain, scenario.uniform_field, scenario.gravity, wall)
+    return float(np.linalg.norm(np.array(result["p_W_mm"][-1]) - statics.tip_position * 1e3))
