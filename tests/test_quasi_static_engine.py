@@ -240,3 +240,35 @@ def test_engines_agree_after_settling(name, overrides, contact, from_engine, dur
         assert abs(np.linalg.norm(f_engine) - np.linalg.norm(f_plant)) < 0.15 * np.linalg.norm(f_plant)
     else:
         assert not np.any(f_engine) and np.linalg.norm(f_plant) < 1e-3
+
+
+def test_engine_field_is_checked():
+    from ballchain.drake_models.errors import UserInputError
+    from ballchain.systems.chain_scenario import load_scenario
+
+    assert load_scenario("heart_left_quasi_static").engine == "plant"  # nothing changes by default
+    with pytest.raises(UserInputError, match="engine must be one of"):
+        load_scenario("heart_left_quasi_static", "{engine: magic}")
+    with pytest.raises(UserInputError, match="needs mode: quasi-static"):
+        load_scenario("heart_right_dynamics", "{engine: statics}")
+    with pytest.raises(UserInputError, match="statics_period"):
+        load_scenario("heart_left_quasi_static", "{engine: statics, statics_period: 0.0}")
+
+
+HEART_SCENARIOS = ["heart_left_quasi_static", "heart_sleeve_quasi_static", "heart_no_field", "heart_wall_contact",
+                   "teleop_right_unit", "teleop_two_units"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", HEART_SCENARIOS + ["free_space_wall", "free_space_uniform_90deg"])
+def test_every_named_scenario_runs_on_the_statics_engine(name):
+    """A short run of each named quasi-static scenario with ``engine: statics``: the watchdog
+    (escape, breaks) passes, the chain stays a radius inside the wall, no solve fails."""
+    from ballchain.systems.chain_scenario import load_scenario
+    from ballchain.systems.chain_simulation import run_simulation
+
+    m = run_simulation(scenario=load_scenario(name, "{engine: statics, duration: 0.2}"))
+    assert m["engine"] == "statics" and m["realtime_factor"] > 0
+    assert m["statics"]["failures"] == [] and m["statics"]["solves"] >= 1
+    if m["min_wall_clearance_mm"] is not None:
+        assert m["min_wall_clearance_mm"] > -1e-3  # the SDF grid's error, not a penetration
