@@ -11,6 +11,10 @@ follows a slowly turning magnet. A step whose equilibrium jumps by more than ``s
 is refined; a jump that survives a 16 times finer step is a snap-through (the equilibrium
 branch ended), counted on the ``snap_throughs`` output and listed in ``events``.
 
+Each solve starts from the linear extrapolation of the last step (a secant predictor), with the
+last solution's multipliers in its quadratic model; if it fails, from the last equilibrium, then
+once from the straight chain. The solves run with BLAS on one thread (``_one_blas_thread``).
+
 The engine assumes what the statics assume: frictionless contacts (ball-ball, wall, sheath) and
 no dynamics. The plant stays the reference and the dynamics engine (``engine: plant``).
 
@@ -282,6 +286,7 @@ class QuasiStaticEngine(LeafSystem):
             # Rows met to 1e-9 of a ball diameter (3 pm) rather than 1e-12: one Newton
             # iteration less (the last one only certifies round-off).
             solver.feasibility_tolerance = 1e-9
+
         def warm_from(p, m):
             if p is None:
                 return None
