@@ -115,6 +115,10 @@ def profile_equilibrium(repeats: int = 20) -> dict:
     totals, per_piece, iterations = [], {key: [] for key in pieces}, []
     from ballchain.drake_models.field_sources import UniformField
 
+    from ballchain.systems.quasi_static_engine import _one_blas_thread
+
+    blas = _one_blas_thread()  # as the engine solves
+    blas.__enter__()
     for j in range(repeats):
         angle = np.radians(1.0) * (1 if j % 2 == 0 else -1)
         c, s_ = np.cos(angle), np.sin(angle)
@@ -143,7 +147,42 @@ def profile_equilibrium(repeats: int = 20) -> dict:
     # and sheath rows, gravity and bookkeeping (ConstrainedChain).
     out["rows_gravity_ms"] = round(out["evaluation_ms"] - out["chain_energy_ms"], 3)
     out["rest_ms"] = round(out["equilibrium_ms"] - sum(out[f"{k}_ms"] for k in pieces if k != "chain_energy"), 3)
+    out.update(qp_comparison(engine, s, p, m))
+    blas.__exit__(None, None, None)
     print("profile", json.dumps(out), flush=True)
+    return out
+
+
+def qp_comparison(engine, s, p, m, repeats: int = 30) -> dict:
+    """One QP step of the equilibrium in contact, solved by the dense active set and by Clarabel
+    through a MathematicalProgram built for it (the statics' previous way): median ms, and the
+    largest difference of the steps."""
+    from ballchain.optimization.statics import ChainStatics
+
+    captured = []
+    original = ChainStatics._qp_step
+
+    def capture(self, *args):
+        captured.append(args)
+        return original(self, *args)
+
+    ChainStatics._qp_step = capture
+    try:
+        engine.equilibrium(s + 0.5e-3, None, p, m)
+    finally:
+        ChainStatics._qp_step = original
+    args = captured[0]
+    out = {"qp_rows": int(len(args[2]))}
+    steps = {}
+    for qp in ("dense", "clarabel"):
+        solver = ChainStatics(engine.chain, qp=qp)
+        times = []
+        for _ in range(repeats):
+            t = time.perf_counter()
+            steps[qp] = solver._qp_step(*args)[0]
+            times.append(time.perf_counter() - t)
+        out[f"qp_{qp}_ms"] = round(1e3 * float(np.median(times)), 3)
+    out["qp_step_difference"] = float(np.abs(steps["dense"] - steps["clarabel"]).max())
     return out
 
 
