@@ -10,11 +10,15 @@ Two solvers of the same problem:
 
 * ``"newton"`` (default): a second-order SQP. Each step minimises the quadratic model of the
   energy (exact Hessian, made positive definite) subject to the linearised rigidity constraints
-  of the pairs that are near contact; when a pair is near, the step is a QP posed as a Drake
-  MathematicalProgram and solved by Clarabel (its multipliers are the contact forces); otherwise
-  it is a Cholesky solve. An l1 merit line search globalises it; a negative-curvature step leaves
+  of the pairs that are near contact; when a pair is near, the step is a QP, solved by a dense
+  dual active-set method (``dense_qp``, default) or posed as a Drake MathematicalProgram and
+  solved by Clarabel (``qp="clarabel"``; about 10 times slower here, the program being rebuilt
+  every step): its multipliers are the contact forces. Otherwise it is a Cholesky solve. An l1 merit line search globalises it; a negative-curvature step leaves
   saddle points (the straight chain in an antiparallel field is one), and "converged" means the
   KKT conditions hold and the reduced Hessian is positive semi-definite: a verified local minimum.
+  With ``wall_constraints.HeartConstraints`` the same solver holds the chain in the heart: the
+  atrium's wall and the sheath are rows of the QP (frictionless: their multipliers are the
+  normal pushes on every ball).
 * ``"snopt"``: the whole problem as one MathematicalProgram (energy cost with analytic gradient,
   rigidity as a vector constraint) solved by SNOPT. A quasi-Newton reference: about 50 times
   slower here, since it needs tens of iterations that each pass through Drake's AutoDiff
@@ -43,6 +47,7 @@ from ballchain.drake_models.field_sources import FieldSource, UniformField
 from ballchain.drake_models.params import BallChain
 from ballchain.drake_models.vectors import angle_between
 from ballchain.optimization.reduced_chain import X_AXIS, ReducedChain
+from ballchain.optimization.wall_constraints import ConstrainedChain, HeartConstraints
 
 Method = Literal["newton", "snopt"]
 
@@ -82,6 +87,12 @@ class StaticsResult:
             constraint's multiplier); zero without a target. The chain presses on the target
             with minus this.
         wall_forces: ``{i: force [N]}`` the wall pushes on ball i (0-based) along its normal.
+        wall_forces_W: with ``HeartConstraints``: ``{i: f_W (3,) [N]}`` the atrium's wall
+            pushes on ball i of the sub-chain (frictionless: along the wall's normal).
+        sheath_forces_W: likewise the sheath's lip and bore.
+        positions_W, dipoles_W: with ``HeartConstraints``: the configuration in world.
+        multipliers: ``{row: multiplier}`` of the rows near contact at the solution (scaled
+            units); a warm start carrying them starts the next solve's model with them.
     """
 
     positions: np.ndarray
@@ -97,6 +108,11 @@ class StaticsResult:
     pair_forces: dict = field(default_factory=dict)
     tip_reaction: np.ndarray = field(default_factory=lambda: np.zeros(3))
     wall_forces: dict = field(default_factory=dict)
+    wall_forces_W: dict = field(default_factory=dict)
+    sheath_forces_W: dict = field(default_factory=dict)
+    positions_W: np.ndarray | None = None
+    dipoles_W: np.ndarray | None = None
+    multipliers: dict = field(default_factory=dict)
 
     @property
     def tip_position(self) -> np.ndarray:
@@ -129,6 +145,69 @@ def tip_angle_deg(result: StaticsResult, field_direction) -> float:
 
 
 
+def dense_qp(H: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarray, E: np.ndarray | None = None,
+             e: np.ndarray | None = None, max_iterations: int = 200):
+    """min 1/2 x' H x + g' x  s.t.  A x + b >= 0  and  E x + e = 0, for a positive definite H.
+
+    Solved in the dual: with x = H^-1 (A' lam + E' mu - g) the multipliers minimise
+    1/2 y' M y + y' (c - N H^-1 g) over y = (lam >= 0, mu free), N = [A; E], M = N H^-1 N',
+    c = (b, e): a small bound-constrained QP (as many unknowns as rows near contact) solved by
+    a Lawson-Hanson active set (exact, finite). One Cholesky factorisation of H.
+
+    Returns:
+        ``(x, lam, mu)``, or ``(None, None, None)`` when the constraints are infeasible (the
+        dual is unbounded) or the active set cycles.
+    """
+    n_in = len(b)
+    n_eq = 0 if E is None else len(e)
+    N = A if n_eq == 0 else np.vstack([A, E])
+    c = b if n_eq == 0 else np.concatenate([b, e])
+    # numpy's Cholesky and solves: scipy's cho_factor/solve_triangular measured 25 times slower
+    # on these 60 x 60 matrices here.
+    Lc = np.linalg.cholesky(H)
+    Hinv_g = np.linalg.solve(Lc.T, np.linalg.solve(Lc, g))
+    if len(c) == 0:
+        return -Hinv_g, np.zeros(0), np.zeros(0)
+    Y = np.linalg.solve(Lc, N.T)  # L^-1 N'
+    M = Y.T @ Y
+    M += 1e-13 * max(1.0, float(np.trace(M))) * np.eye(len(M))  # dependent rows: a unique dual
+    r = c - N @ Hinv_g
+    m = len(c)
+    y = np.zeros(m)
+    free = np.zeros(m, bool)
+    free[n_in:] = True  # equality multipliers are never bounded
+    for _ in range(max_iterations):
+        # Minimise over the free set with the bound ones at zero.
+        while True:
+            z = np.zeros(m)
+            F = np.flatnonzero(free)
+            if len(F):
+                z[F] = np.linalg.solve(M[np.ix_(F, F)], -r[F])
+            bad = free[:n_in] & (z[:n_in] < 0.0)
+            if not np.any(bad):
+                y = z
+                break
+            # Step from y towards z until the first inequality multiplier reaches zero.
+            idx = np.flatnonzero(bad)
+            alpha = np.min(y[idx] / (y[idx] - z[idx]))
+            y = y + alpha * (z - y)
+            free[:n_in] &= ~(y[:n_in] <= 1e-14 * max(1.0, np.abs(y).max()))
+            y[:n_in][~free[:n_in]] = 0.0
+        w = -(M @ y + r)  # the dual's negative gradient: positive where a bound should be freed
+        w[free] = 0.0
+        w[n_in:] = 0.0
+        j = int(np.argmax(w))
+        if w[j] <= 1e-12 * max(1.0, np.abs(r).max()):
+            if not np.all(np.isfinite(y)) or np.abs(y).max() > 1e12:
+                return None, None, None
+            x = np.linalg.solve(Lc.T, np.linalg.solve(Lc, N.T @ y - g))
+            if n_in and (A @ x + b).min() < -1e-8 * max(1.0, np.abs(b).max()):
+                return None, None, None  # infeasible: the regularised dual stops at a violation
+            return x, y[:n_in], y[n_in:]
+        free[j] = True
+    return None, None, None
+
+
 def _positive_definite(H: np.ndarray, floor: float = 1e-10) -> np.ndarray:
     """H itself when it is positive definite, else H with its eigenvalues replaced by
     max(|lambda|, floor * max|lambda|) (negative curvature flipped, flat directions lifted)."""
@@ -155,6 +234,7 @@ class ChainStatics:
     """
 
     contact_margin = 0.3  # pairs with |p_i - p_j|^2 / d^2 - 1 below this enter the step's QP
+    feasibility_tolerance = 1e-12  # largest summed row violation (dimensionless) of a solution
     max_step = 0.5  # largest change of any chart angle in one Newton step [rad]
 
     def __init__(
@@ -164,9 +244,14 @@ class ChainStatics:
         method: Method = "newton",
         tolerance: float = 1e-8,
         max_iterations: int = 200,
+        qp: str = "dense",
     ):
         if method not in ("newton", "snopt"):
             raise UserInputError(f"method must be 'newton' or 'snopt', got {method!r}")
+        if qp not in ("dense", "clarabel"):
+            raise UserInputError(f"qp must be 'dense' or 'clarabel', got {qp!r}")
+        self.qp = qp
+        self._constrained: ConstrainedChain | None = None
         self.chain = chain
         self.gravity = gravity
         self.method = method
@@ -187,7 +272,7 @@ class ChainStatics:
 
     # --- public API --------------------------------------------------------------------------
     def solve(self, external: FieldSource | None, warm_start: StaticsResult | None = None,
-              tip_target=None, wall=None) -> StaticsResult:
+              tip_target=None, wall=None, constraints: HeartConstraints | None = None) -> StaticsResult:
         """The equilibrium reached from ``warm_start`` (the straight chain if None).
 
         Args:
@@ -198,6 +283,12 @@ class ChainStatics:
                 Newton method only.
             wall: ``(point (3,), normal (3,))`` of a rigid frictionless plane the balls stay on
                 the normal's side of; ``wall_forces`` are its pushes. Newton method only.
+            constraints: the chain in the heart (``wall_constraints.HeartConstraints``): the
+                canonical problem placed at the held ball in the sheath, the external field
+                given in world, gravity along -z_W, the atrium's wall and the sheath as rows;
+                ``wall_forces_W``/``sheath_forces_W`` are their pushes and ``positions_W`` the
+                configuration in world (``positions`` stay in the base frame, for warm starts).
+                Newton method only; not with ``wall`` or ``tip_target``.
 
         Returns:
             The result; check ``converged`` (or use ``solve_or_raise``).
@@ -219,9 +310,18 @@ class ChainStatics:
             U, _, _, terms = chain_energy(chain, p0, m0, external, self.gravity)
             return StaticsResult(p0.copy(), m0.copy(), U, terms, True, "single ball: held by the sheath",
                                  "none", 0, time.perf_counter() - start)
-        if self._model is None:  # built once: pair tables and chain-rule matrices
-            self._model = ReducedChain(chain, external, self.gravity)
-        model = self._model
+        if constraints is not None:
+            if self.method != "newton" or wall is not None or tip_target is not None:
+                raise ValueError("constraints (the heart) are solved by the 'newton' method, without wall or tip_target")
+            if self._constrained is None:
+                self._constrained = ConstrainedChain(chain)
+            model = self._constrained
+            model.set_constraints(constraints)
+            external = constraints.external_in_base(external, chain)
+        else:
+            if self._model is None:  # built once: pair tables and chain-rule matrices
+                self._model = ReducedChain(chain, external, self.gravity)
+            model = self._model
         model.external = external
         model.tip_target = None if tip_target is None else np.asarray(tip_target, dtype=float).reshape(3)
         if model.tip_target is not None and not np.all(np.isfinite(model.tip_target)):
@@ -238,7 +338,8 @@ class ChainStatics:
         model.chart_from_configuration(p0, m0)
         lam_tip = np.zeros(3)
         if self.method == "newton":
-            q, converged, reason, iterations, lam_near, lam_tip = self._newton(model)
+            lam0 = getattr(warm_start, "multipliers", None) if constraints is not None else None
+            q, converged, reason, iterations, lam_near, lam_tip = self._newton(model, lam0)
         else:
             if model.tip_target is not None or model.wall is not None:
                 raise UserInputError("tip targets and walls are solved by the 'newton' method only")
@@ -262,6 +363,13 @@ class ChainStatics:
         }
         wall_forces = {k - P + 1: lam * model.energy_scale / model.d for k, lam in lam_near.items()
                        if lam > 1e-12 and k >= P}
+        extra = {}
+        if constraints is not None:
+            wall_W, sheath_W = model.forces_at(q, lam_near)
+            wall_forces = {k: float(np.linalg.norm(f)) for k, f in wall_W.items()}
+            p_W, m_W = constraints.to_world(p, m_hat)
+            extra = dict(wall_forces_W=wall_W, sheath_forces_W=sheath_W, positions_W=p_W, dipoles_W=m_W)
+        qp_name = "dense active-set QP steps" if self.qp == "dense" else "Clarabel QP steps"
         return StaticsResult(
             positions=p,
             dipoles=m_hat,
@@ -269,19 +377,21 @@ class ChainStatics:
             terms=ev.terms,
             converged=converged,
             reason=reason,
-            solver=f"{self.method} (MathematicalProgram: {'Clarabel QP steps' if self.method == 'newton' else 'SNOPT'})",
+            solver=f"{self.method} ({qp_name if self.method == 'newton' else 'MathematicalProgram: SNOPT'})",
             iterations=iterations,
             solve_time=time.perf_counter() - start,
             max_violation=max_violation,
             pair_forces=pair_forces,
+            multipliers=dict(lam_near),
             tip_reaction=model.energy_scale / model.d * np.asarray(lam_tip, dtype=float),
             wall_forces=wall_forces,
+            **extra,
         )
 
     def solve_or_raise(self, external: FieldSource | None, warm_start: StaticsResult | None = None,
-                       tip_target=None, wall=None) -> StaticsResult:
+                       tip_target=None, wall=None, constraints: HeartConstraints | None = None) -> StaticsResult:
         """Like ``solve`` but raises StaticsError, saying why, when the solve did not converge."""
-        result = self.solve(external, warm_start, tip_target, wall)
+        result = self.solve(external, warm_start, tip_target, wall, constraints)
         if not result.converged:
             raise StaticsError(
                 f"statics of {self.chain.n_balls} balls did not converge: {result.reason} "
@@ -310,6 +420,11 @@ class ChainStatics:
     # --- Newton SQP -----------------------------------------------------------------------------
     def _qp_step(self, H, g, gaps, J, tip_residual=None, tip_jacobian=None):
         """min 1/2 dq' H dq + g' dq s.t. gaps + J dq >= 0 and tip_residual + J_tip dq = 0."""
+        if self.qp == "dense":
+            dq, lam, lam_tip = dense_qp(H, g, J, gaps, tip_jacobian, tip_residual)
+            if dq is None:
+                return None, None, None
+            return dq, lam, (lam_tip if tip_residual is not None else np.zeros(3))
         prog = MathematicalProgram()
         x = prog.NewContinuousVariables(len(g), "dq")
         prog.AddQuadraticCost(H, g, x, is_convex=True)
@@ -322,13 +437,15 @@ class ChainStatics:
         lam_tip = result.GetDualSolution(tip) if tip is not None else np.zeros(3)
         return result.GetSolution(x), lam, lam_tip
 
-    def _newton(self, model: ReducedChain):
+    def _newton(self, model: ReducedChain, lam0: dict | None = None):
         """Second-order SQP; returns (q, converged, reason, iterations, pair multipliers, tip multipliers)."""
         q = np.zeros(model.nq)
         ev = model.evaluate(q, 2)
         rho = 1.0
         escapes = 0
-        lam_near: dict[int, float] = {}
+        # The warm start's multipliers (same rows: the same sub-chain in the heart) put the
+        # constraints' curvature in the first step's model: about one iteration less.
+        lam_near: dict[int, float] = {} if not lam0 else {k: v for k, v in lam0.items() if k < len(ev.gaps)}
         lam_tip = np.zeros(3)
         pinned = model.tip_target is not None
         K = model.n_vectors
@@ -376,7 +493,7 @@ class ChainStatics:
             first_order = np.abs(stationarity).max() < self.tolerance or (
                 abs(decrease) < 1e-14 * max(1.0, abs(ev.energy)) and np.abs(stationarity).max() < 1e-6
             )
-            if first_order and violation < 1e-12:
+            if first_order and violation < self.feasibility_tolerance:
                 # First-order point: check curvature on the active constraints' tangent space.
                 active = near[lam > 1e-9] if len(near) else near
                 rows = [ev.jacobian[active]] + ([ev.tip_jacobian] if pinned else [])
@@ -419,6 +536,16 @@ class ChainStatics:
                     if corrected.energy + rho * infeasibility(corrected) <= merit0 + 1e-4 * min(slope, 0.0):
                         dq, trial = dq + correction, corrected
                         break
+                if t == 1.0 and not pinned and len(near):
+                    # The same for the inequality rows the full step violates (a ball pressed
+                    # on a curved wall): the linearised row is met, the curved one is not.
+                    rows = near[trial.gaps[near] < 0.0]
+                    if len(rows):
+                        correction = -np.linalg.pinv(ev.jacobian[rows]) @ trial.gaps[rows]
+                        corrected = model.evaluate(q + dq + correction, 2)
+                        if corrected.energy + rho * infeasibility(corrected) <= merit0 + 1e-4 * min(slope, 0.0):
+                            dq, trial = dq + correction, corrected
+                            break
                 t *= 0.5
             if t < 1e-10:
                 if np.abs(stationarity).max() < 1e3 * self.tolerance and violation < 1e-9:

@@ -28,6 +28,7 @@ if not SCENARIOS_FILE.exists():  # installed (non-editable) layout
     SCENARIOS_FILE = Path(_dm.__file__).with_name("station.scenarios.yaml")
 
 MODES = ("quasi-static", "dynamics")
+ENGINES = ("plant", "statics")
 DEFAULT_TIME_STEP = {"quasi-static": 1e-3, "dynamics": 1e-4}
 
 
@@ -189,6 +190,12 @@ class ChainScenario:
         break_gap: a gap between neighbours larger than this means the chain broke [m].
         check_period: how often the monitor checks escape, breaks and clearance [s].
         publish_period: Meshcat publishing period when recording [s].
+        engine: "plant" (the MultibodyPlant: the reference, and the only one for dynamics) or
+            "statics" (``systems/quasi_static_engine.py``: the equilibrium solved every
+            ``statics_period``, quasi-static mode only).
+        statics_period: the statics engine's update period [s] (50 ms: the teleoperated magnet
+            turns at most 1.5 deg and the feeder moves 1 mm in one period; larger moves are
+            split by the engine's continuation).
     """
 
     description: str = ""
@@ -217,6 +224,8 @@ class ChainScenario:
     break_gap: float = 1e-3
     check_period: float = 5e-3
     publish_period: float = 1.0 / 32.0
+    engine: str = "plant"
+    statics_period: float = 0.05
 
     @property
     def effective_time_step(self) -> float:
@@ -227,6 +236,11 @@ class ChainScenario:
         check_fields(self)
         if self.mode not in MODES:
             raise UserInputError(f"scenario mode must be one of {MODES}, got {self.mode!r}")
+        if self.engine not in ENGINES:
+            raise UserInputError(f"scenario engine must be one of {ENGINES}, got {self.engine!r}")
+        if self.engine == "statics" and (self.mode != "quasi-static" or not 0 < self.statics_period <= 1.0):
+            raise UserInputError(f"engine: statics needs mode: quasi-static and 0 < statics_period <= 1 s, got "
+                                 f"mode {self.mode!r}, statics_period {self.statics_period}")
         if self.n_balls < 2:
             raise UserInputError(f"scenario n_balls must be >= 2 (ball 1 is the feeder ball), got {self.n_balls}")
         if self.time_step < 0 or self.duration < 0 or self.check_period <= 0:

@@ -68,17 +68,97 @@ class SimulationFailure(RuntimeError):
 
 @dataclass
 class ChainDiagram:
-    """The built diagram and handles to its parts."""
+    """The built diagram and handles to its parts.
+
+    With ``engine: statics`` there is no MultibodyPlant: ``chain_plant`` holds the geometry
+    handles only (``plant`` is None; the ball BodyIndex values are the plant's), ``wrench`` is
+    None and ``engine`` is the QuasiStaticEngine.
+    """
 
     diagram: object
     chain_plant: ChainPlant
-    wrench: MagneticWrenchSystem
+    wrench: MagneticWrenchSystem | None
     heart: LeftAtrium | None
     scenario: ChainScenario
     field_source: object
     visualizer: object = None
     build_time_s: float = 0.0
     extras: dict = field(default_factory=dict)
+    engine: object = None
+
+    @property
+    def chain_system(self):
+        """The system whose state is the chain: the plant, or the quasi-static engine."""
+        return self.engine if self.engine is not None else self.chain_plant.plant
+
+    @property
+    def body_poses_port(self):
+        """The ``body_poses`` output (list[RigidTransform] by BodyIndex) of the chain system."""
+        return self.chain_system.get_body_poses_output_port()
+
+    def ball_positions(self, context) -> np.ndarray:
+        """Ball centres (n, 3) [m] from the chain system's context."""
+        if self.engine is not None:
+            return self.engine.ball_positions(context)
+        return self.chain_plant.ball_positions(context)
+
+
+class _EngineBody:
+    """A ball of the statics engine where code expects a plant body: its BodyIndex only."""
+
+    def __init__(self, index: int):
+        from pydrake.multibody.tree import BodyIndex
+
+        self._index = BodyIndex(index)
+
+    def index(self):
+        return self._index
+
+
+def _engine_chain_handles(config: ChainPlantConfig) -> ChainPlant:
+    """ChainPlant handles without a plant (the statics engine's geometry: the same sheath exit,
+    axis, feeder frame and ball BodyIndex values 1..n as ``add_chain_plant`` makes)."""
+    from pydrake.math import RigidTransform, RotationMatrix
+
+    from ballchain.drake_models.field_sources import rotation_with_z_along
+
+    heart = config.heart
+    if heart is not None:
+        p_WE, axis = heart.p_HE.copy(), heart.sheath_axis_H.copy()
+    else:
+        p_WE = np.asarray(config.p_WE, float)
+        axis = np.asarray(config.sheath_axis_W, float) / np.linalg.norm(config.sheath_axis_W)
+    n, d = config.chain.n_balls, config.chain.ball_diameter
+    R_WF = RotationMatrix(rotation_with_z_along(axis)[:, [2, 0, 1]])
+    X_WF = RigidTransform(R_WF, p_WE - (n - 0.5) * d * axis)
+    return ChainPlant(None, None, config, [_EngineBody(i + 1) for i in range(n)], None, None, p_WE, axis, X_WF)
+
+
+def _add_statics_engine(builder, scenario: ChainScenario, config: ChainPlantConfig, cp: ChainPlant, source, configs):
+    """The QuasiStaticEngine of a scenario (wall: the atrium's SDF, or a flat ``wall_plane``)."""
+    from ballchain.optimization.wall_constraints import PlaneSDF, SheathGeometry
+    from ballchain.systems.quasi_static_engine import QuasiStaticEngine
+
+    sdf = None
+    if config.heart is not None:
+        from ballchain.drake_models.atrium_sdf import atrium_sdf
+
+        sdf = atrium_sdf(config.heart)
+    elif scenario.wall_plane:
+        w = np.asarray(scenario.wall_plane, float)
+        sdf = PlaneSDF(w[:3], w[3:])
+    sheath = None
+    if config.sheath is not None:
+        sheath = SheathGeometry(cp.p_WE, cp.sheath_axis_W, 0.5 * config.sheath.inner_diameter,
+                                0.5 * config.sheath.wall_thickness)
+    engine = builder.AddSystem(QuasiStaticEngine(
+        config.chain, cp.ball_body_indices, cp.p_WE, cp.sheath_axis_W, sdf=sdf, sheath=sheath, field_source=source,
+        port_magnets=[c.magnet for c in configs], model=configs[0].field_model if configs else "dipole",
+        gravity=scenario.gravity, period=scenario.statics_period,
+        initial_inserted_length=scenario.insertion.initial))
+    engine.set_name("quasi_static_engine")
+    engine.warm_up()  # compiled kernels and solvers loaded at build time, not in the timed run
+    return engine
 
 
 def field_source_for(scenario: ChainScenario, p_WP: np.ndarray):
@@ -188,7 +268,8 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
         wall_plane=tuple(scenario.wall_plane),
     )
     builder = DiagramBuilder()
-    cp = add_chain_plant(builder, config)
+    statics = scenario.engine == "statics"
+    cp = _engine_chain_handles(config) if statics else add_chain_plant(builder, config)
     s_max = cp.max_inserted_length()
     for what, s in (("initial", scenario.insertion.initial), ("final", scenario.insertion.final)):
         if not 0.0 <= s <= s_max:
@@ -201,12 +282,22 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
     if getattr(heart, "carinas", None):  # the procedural atrium (a user's surface has none)
         anchors.update({f"carina_{k}": v for k, v in heart.carinas.items()})
     configs = unit_configs(scenario, anchors)
-    wrench = builder.AddSystem(MagneticWrenchSystem(
-        chain, cp.ball_body_indices, field_source=source, base_direction_W=cp.sheath_axis_W,
-        port_magnets=[c.magnet for c in configs], model=configs[0].field_model if configs else "dipole"))
-    wrench.set_name("magnetic_wrench")
-    builder.Connect(cp.plant.get_body_poses_output_port(), wrench.get_body_poses_input_port())
-    builder.Connect(wrench.get_spatial_forces_output_port(), cp.plant.get_applied_spatial_force_input_port())
+    engine = wrench = None
+    if statics:
+        engine = _add_statics_engine(builder, scenario, config, cp, source, configs)
+        body_poses = engine.get_body_poses_output_port()
+        magnet_input = engine.get_magnet_states_input_port()
+        desired = engine.get_feeder_state_input_port()
+    else:
+        wrench = builder.AddSystem(MagneticWrenchSystem(
+            chain, cp.ball_body_indices, field_source=source, base_direction_W=cp.sheath_axis_W,
+            port_magnets=[c.magnet for c in configs], model=configs[0].field_model if configs else "dipole"))
+        wrench.set_name("magnetic_wrench")
+        builder.Connect(cp.plant.get_body_poses_output_port(), wrench.get_body_poses_input_port())
+        builder.Connect(wrench.get_spatial_forces_output_port(), cp.plant.get_applied_spatial_force_input_port())
+        body_poses = cp.plant.get_body_poses_output_port()
+        magnet_input = wrench.get_magnet_states_input_port()
+        desired = cp.plant.get_desired_state_input_port(cp.feeder_instance)
     extras = {}
     if configs:
         # The neutral field is defined where the free chain starts: the sheath exit in the
@@ -216,11 +307,10 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
         tip_observer = None
         if any(u.teleop_frame == "tip" for u in scenario.units):
             tip_observer = builder.AddSystem(TipObserver(cp.ball_body_indices[-1], cp.ball_body_indices[-2]))
-            builder.Connect(cp.plant.get_body_poses_output_port(), tip_observer.get_body_poses_input_port())
+            builder.Connect(body_poses, tip_observer.get_body_poses_input_port())
             extras["tip_observer"] = tip_observer
-        extras["units"] = add_units(builder, scenario, configs, wrench.get_magnet_states_input_port(),
+        extras["units"] = add_units(builder, scenario, configs, magnet_input,
                                     p_W_chain, cp.sheath_axis_W, tip_observer)
-    desired = cp.plant.get_desired_state_input_port(cp.feeder_instance)
     ins = scenario.insertion
     if ins.external and ins.feeder:
         raise UserInputError("insertion: choose external (exported port) or feeder (the Feeder system), not both")
@@ -252,7 +342,7 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
         names, p_WT, n_W, target_radius = targets
         tracker = builder.AddSystem(TargetTouchTracker(
             tip_index, names, p_WT, n_W, target_radius, ball_radius=0.5 * d, period=scenario.check_period))
-        builder.Connect(cp.plant.get_body_poses_output_port(), tracker.get_body_poses_input_port())
+        builder.Connect(body_poses, tracker.get_body_poses_input_port())
         extras["target_touches"] = tracker
     # External commands: the hook's systems drive them; what is left over is exported.
     joystick_inputs = {u.name: extras["units"][u.name].joystick_input for u in scenario.units
@@ -261,7 +351,7 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
     if ins.feeder and ins.feeder_command == "external":
         feeder_input = extras["feeder"].GetInputPort("v_insert_cmd")
     if add_systems is not None:
-        ports = StationPorts(cp, cp.plant.get_body_poses_output_port(), joystick_inputs, feeder_input, heart,
+        ports = StationPorts(cp, body_poses, joystick_inputs, feeder_input, heart,
                              targets if "target_touches" in extras else None, extras.get("target_touches"),
                              extras.get("units", {}))
         extras.update(add_systems(builder, ports) or {})
@@ -275,7 +365,21 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
         from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams
 
         params = MeshcatVisualizerParams(publish_period=scenario.publish_period)
-        visualizer = MeshcatVisualizer.AddToBuilder(builder, cp.scene_graph, meshcat, params)
+        scene_graph = cp.scene_graph
+        if statics:  # the balls drawn from the engine's poses through a SceneGraph of their own
+            from pydrake.geometry import SceneGraph
+
+            from ballchain.systems.quasi_static_engine import EngineGeometry
+
+            scene_graph = builder.AddSystem(SceneGraph())
+            scene_graph.set_name("scene_graph")
+            geometry = builder.AddSystem(EngineGeometry(
+                scene_graph, cp.ball_body_indices, 0.5 * d, heart, engine._sheath,
+                cp.sheath_length() if config.sheath is not None else 0.0))
+            geometry.set_name("engine_geometry")
+            builder.Connect(body_poses, geometry.get_body_poses_input_port())
+            builder.Connect(geometry.get_geometry_pose_output_port(), scene_graph.get_source_pose_port(geometry.source_id))
+        visualizer = MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, params)
         visualizer.set_name("meshcat_visualizer")
         _draw_magnets(meshcat, source)
         # The camera starts on the atrium (or the free chain's reach), also in the replays.
@@ -285,12 +389,20 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
             for c in configs:
                 builder.Connect(extras["units"][c.name].magnet.GetOutputPort("X_WM"),
                                 markers.GetInputPort(f"X_WM_{c.name}"))
-        overlays = builder.AddSystem(MeshcatOverlays(
-            meshcat, cp.plant, cp.scene_graph.model_inspector(), tip_index, scenario.publish_period,
-            targets=targets if "target_touches" in extras else None, field_source=source,
-            port_magnets=[c.magnet for c in configs], model=configs[0].field_model if configs else "dipole"))
-        builder.Connect(cp.plant.get_body_poses_output_port(), overlays.get_body_poses_input_port())
-        builder.Connect(cp.plant.get_contact_results_output_port(), overlays.get_contact_results_input_port())
+        overlay_args = dict(targets=targets if "target_touches" in extras else None, field_source=source,
+                            port_magnets=[c.magnet for c in configs],
+                            model=configs[0].field_model if configs else "dipole")
+        if statics:
+            from ballchain.systems.quasi_static_engine import EngineOverlays
+
+            overlays = builder.AddSystem(EngineOverlays(meshcat, tip_index, scenario.publish_period, **overlay_args))
+            builder.Connect(engine.get_tip_wall_force_output_port(), overlays.get_tip_wall_force_input_port())
+        else:
+            overlays = builder.AddSystem(MeshcatOverlays(
+                meshcat, cp.plant, cp.scene_graph.model_inspector(), tip_index, scenario.publish_period,
+                **overlay_args))
+            builder.Connect(cp.plant.get_contact_results_output_port(), overlays.get_contact_results_input_port())
+        builder.Connect(body_poses, overlays.get_body_poses_input_port())
         if "target_touches" in extras:
             builder.Connect(extras["target_touches"].get_touched_output_port(), overlays.get_touched_input_port())
         if configs:
@@ -300,7 +412,7 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
     diagram = builder.Build()
     diagram.set_name("chain_in_heart")
     return ChainDiagram(diagram, cp, wrench, heart, scenario, source, visualizer,
-                        time.perf_counter() - t0, extras)
+                        time.perf_counter() - t0, extras, engine)
 
 
 def _draw_magnets(meshcat, source) -> None:
@@ -344,9 +456,11 @@ class ChainMonitor:
         if int(wall_check_every) != wall_check_every or wall_check_every < 1:
             raise ValueError(f"wall_check_every must be an integer >= 1, got {wall_check_every!r}")
         self._cd = cd
-        self._plant = cd.chain_plant.plant
+        self._system = cd.chain_system  # the plant, or the quasi-static engine
         self._d = cd.chain_plant.config.chain.ball_diameter
         self._period = cd.scenario.check_period
+        if cd.engine is not None:  # the engine's chain only moves at its updates
+            self._period = max(self._period, cd.engine.period)
         self._next_check = 0.0
         self._wall_every = int(wall_check_every)
         self._since_wall = self._wall_every - 1  # the first periodic check includes the wall
@@ -362,19 +476,26 @@ class ChainMonitor:
         self._tolerate_sinking = tolerate_sinking
         self.tolerated_sinkings: list[tuple[float, int, float]] = []
 
+    def _finite(self, context) -> bool:
+        if self._cd.engine is not None:
+            return bool(np.all(np.isfinite(self._cd.engine.state_vector(context))))
+        plant = self._system
+        return bool(np.all(np.isfinite(plant.GetPositions(context))) and np.all(np.isfinite(plant.GetVelocities(context))))
+
     def check(self, plant_context, wall: bool = True) -> str | None:
         """Check a state now; returns a failure message or None, and updates the metrics.
 
         Args:
-            plant_context: the plant's context.
+            plant_context: the chain system's context (the plant's or the quasi-static engine's).
             wall: also check escapes from the heart and the wall clearance.
         """
         t = plant_context.get_time()
-        q = self._plant.GetPositions(plant_context)
-        if not np.all(np.isfinite(q)) or not np.all(np.isfinite(self._plant.GetVelocities(plant_context))):
+        if not self._finite(plant_context):
             return f"NaN or inf in the state at t = {t:.4f} s: {self._non_finite_ball(plant_context)}"
+        if self._cd.engine is not None and self._cd.engine.failure:
+            return self._cd.engine.failure
         cp = self._cd.chain_plant
-        p = cp.ball_positions(plant_context)
+        p = self._cd.ball_positions(plant_context)
         self.checks += 1
         gaps = np.linalg.norm(np.diff(p, axis=0), axis=1) - self._d
         self.max_gap = max(self.max_gap, float(gaps.max()))
@@ -416,7 +537,11 @@ class ChainMonitor:
 
     def _non_finite_ball(self, plant_context) -> str:
         """Which ball's position or velocity is not finite (for the failure message)."""
-        plant = self._plant
+        if self._cd.engine is not None:
+            p = self._cd.engine.ball_positions(plant_context)
+            bad = np.flatnonzero(~np.all(np.isfinite(p), axis=1))
+            return f"ball {bad[0] + 1} (position)" if len(bad) else "the engine's state"
+        plant = self._system
         for i, body in enumerate(self._cd.chain_plant.ball_bodies):
             X = plant.EvalBodyPoseInWorld(plant_context, body).GetAsMatrix34()
             V = plant.EvalBodySpatialVelocityInWorld(plant_context, body).get_coeffs()
@@ -433,11 +558,10 @@ class ChainMonitor:
         return None
 
     def __call__(self, root_context):
-        plant_context = self._plant.GetMyContextFromRoot(root_context)
+        plant_context = self._system.GetMyContextFromRoot(root_context)
         t = root_context.get_time()
-        if t + 1e-12 < self._next_check:
-            q = self._plant.GetPositions(plant_context)
-            if np.all(np.isfinite(q)):
+        if t + 1e-12 < self._next_check and not (self._cd.engine is not None and self._cd.engine.failure):
+            if self._finite(plant_context):
                 return EventStatus.Succeeded()
         self._next_check = t + self._period
         self._since_wall += 1
@@ -450,7 +574,7 @@ class ChainMonitor:
         return EventStatus.Succeeded()
 
     def metrics(self, plant_context) -> dict:
-        p = self._cd.chain_plant.ball_positions(plant_context)
+        p = self._cd.ball_positions(plant_context)
         if (self._cd.heart is not None and plant_context.get_time() > self._last_wall_time
                 and np.all(np.isfinite(p)) and self.failure is None):
             # The clearance at the end of the run too (the wall check runs at a coarser period).
@@ -475,6 +599,8 @@ def _targets_touched(cd: ChainDiagram, root_context) -> list[str]:
 
 def _tip_wall_force(cd: ChainDiagram, plant_context) -> list[float]:
     """The walls' contact force on the tip ball at the end of the run [N] (world frame)."""
+    if cd.engine is not None:
+        return [round(float(v), 6) for v in cd.engine.get_tip_wall_force_output_port().Eval(plant_context)[:3]]
     plant = cd.chain_plant.plant
     tip = set(plant.GetCollisionGeometriesForBody(cd.chain_plant.ball_bodies[-1]))
     walls = wall_geometries(plant, cd.chain_plant.scene_graph.model_inspector())
@@ -535,7 +661,7 @@ def run_simulation(*, scenario: ChainScenario, duration: float | None = None, ht
     else:
         simulator.set_monitor(monitor)
     root = simulator.get_mutable_context()
-    plant_context = cd.chain_plant.plant.GetMyContextFromRoot(root)
+    plant_context = cd.chain_system.GetMyContextFromRoot(root)
     if cd.visualizer is not None and html is not None:
         cd.visualizer.StartRecording()
     start = time.perf_counter()
@@ -564,15 +690,28 @@ def run_simulation(*, scenario: ChainScenario, duration: float | None = None, ht
         **monitor.metrics(plant_context),
         "wall_time_s": round(wall, 3),
         "build_time_s": round(cd.build_time_s, 3),
-        "time_step_s": scenario.effective_time_step,
+        "time_step_s": scenario.statics_period if cd.engine is not None else scenario.effective_time_step,
         "mode": scenario.mode,
-        "n_steps": int(round(sim_time / scenario.effective_time_step)),
+        "engine": scenario.engine,
+        "n_steps": int(round(sim_time / (scenario.statics_period if cd.engine is not None
+                                         else scenario.effective_time_step))),
         "targets_touched": _targets_touched(cd, root),
         "tip_wall_force_N": _tip_wall_force(cd, plant_context),
         # ru_maxrss is in KiB on Linux: the process's peak resident set size so far (the whole
         # process, not this run alone).
         "peak_memory_MB": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
     }
+    if cd.engine is not None:
+        solves = np.array(cd.engine.solve_times)
+        metrics["statics"] = {
+            "solves": int(len(solves)),
+            "median_solve_ms": round(float(np.median(solves)) * 1e3, 3) if len(solves) else None,
+            "max_solve_ms": round(float(solves.max()) * 1e3, 3) if len(solves) else None,
+            "median_iterations": float(np.median(cd.engine.iterations)) if cd.engine.iterations else None,
+            "snap_throughs": [{"t_s": round(e.time, 4), "jump_mm": round(e.jump * 1e3, 3), "detail": e.detail}
+                              for e in cd.engine.events if e.kind == "snap-through"],
+            "failures": [e.detail for e in cd.engine.events if e.kind == "solve failed"],
+        }
     if cd.visualizer is not None and html is not None:
         cd.visualizer.StopRecording()
         cd.visualizer.PublishRecording()
@@ -580,6 +719,6 @@ def run_simulation(*, scenario: ChainScenario, duration: float | None = None, ht
         metrics["html"] = str(html)
     if error is not None:
         raise SimulationFailure(f"simulation stopped: {error}", metrics)
-    p = cd.chain_plant.ball_positions(plant_context)
+    p = cd.ball_positions(plant_context)
     metrics["p_W_mm"] = (p * 1e3).round(4).tolist()
     return metrics

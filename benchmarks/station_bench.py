@@ -1,0 +1,207 @@
+"""Real-time factor of the station per engine and mode, and the per-piece profile of one
+equilibrium in contact.
+
+For every named heart scenario (or ``--scenarios``) the same simulated stretch is run with the
+plant (the scenario's mode: quasi-static at 1 ms or dynamics at 0.1 ms) and with the
+quasi-static engine (``engine: statics``), in one process, alternating, each ``--repeats``
+times after an untimed warm-up of each (imports, the SDF's cache, the plant's first build).
+Printed: median RTF on wall time and on process CPU time (the machine is shared, and wall time
+counts the waits), and the engine's speed-up over the plant in the same run.
+
+The profile: one warm equilibrium of 16 balls pressed on the atrium's roof (heart_wall_contact at
+30 mm inserted, the field turned by 1 deg about x), timed piece by piece: the evaluations (the
+chain's energy, gradient and Hessian in ReducedChain, plus the wall and sheath rows and gravity),
+the constraint Hessians, the QP steps, the positive-definite checks, the rest (line search,
+convergence tests, chart).
+
+    python benchmarks/station_bench.py --repeats 3 --json out.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+
+HEART_SCENARIOS = ("heart_left_quasi_static", "heart_sleeve_quasi_static", "heart_no_field", "heart_wall_contact",
+                   "teleop_right_unit", "teleop_two_units", "heart_right_dynamics")
+
+
+def _run_once(name: str, engine: str, duration: float | None, max_duration: float = np.inf) -> dict:
+    from pydrake.systems.analysis import Simulator
+
+    from ballchain.systems.chain_scenario import load_scenario
+    from ballchain.systems.chain_simulation import ChainMonitor, build_chain_diagram
+
+    overrides = "{engine: statics, mode: quasi-static}" if engine == "statics" else "{}"
+    sc = load_scenario(name, overrides)
+    cd = build_chain_diagram(sc)
+    sim = Simulator(cd.diagram)
+    monitor = ChainMonitor(cd)
+    sim.set_monitor(monitor)
+    T = min(sc.duration, max_duration) if duration is None else duration
+    wall, cpu = time.perf_counter(), time.process_time()
+    sim.Initialize()
+    sim.AdvanceTo(T)
+    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    out = {"rtf_wall": T / wall, "rtf_cpu": T / cpu, "sim_s": T, "mode": sc.mode}
+    if cd.engine is not None:
+        out["median_solve_ms"] = 1e3 * float(np.median(cd.engine.solve_times)) if cd.engine.solve_times else None
+        out["solves"] = len(cd.engine.solve_times)
+    return out
+
+
+def run(*, scenarios=HEART_SCENARIOS, repeats: int = 3, duration: float | None = None,
+        max_duration: float = np.inf, profile_repeats: int = 20) -> dict:
+    """RTF per scenario and engine (medians) and the profile of one equilibrium in contact."""
+    results = {}
+    for name in scenarios:
+        _run_once(name, "plant", min(duration or 0.02, 0.02))  # warm-up (untimed)
+        _run_once(name, "statics", duration, max_duration)
+        samples = {"plant": [], "statics": []}
+        for _ in range(repeats):
+            for engine in ("plant", "statics"):
+                samples[engine].append(_run_once(name, engine, duration, max_duration))
+        row = {}
+        for engine, runs in samples.items():
+            row[engine] = {
+                "mode": runs[0]["mode"],
+                "rtf_wall": round(float(np.median([r["rtf_wall"] for r in runs])), 3),
+                "rtf_cpu": round(float(np.median([r["rtf_cpu"] for r in runs])), 3),
+            }
+            if engine == "statics":
+                row[engine]["median_solve_ms"] = round(float(np.median([r["median_solve_ms"] for r in runs])), 2)
+                row[engine]["solves"] = runs[0]["solves"]
+        row["speedup_wall"] = round(row["statics"]["rtf_wall"] / row["plant"]["rtf_wall"], 2)
+        row["speedup_cpu"] = round(row["statics"]["rtf_cpu"] / row["plant"]["rtf_cpu"], 2)
+        results[name] = row
+        print(name, json.dumps(row), flush=True)
+    return {"scenarios": results, "profile": profile_equilibrium(profile_repeats)}
+
+
+def profile_equilibrium(repeats: int = 20) -> dict:
+    """Median time of each piece of one warm equilibrium in contact [ms]."""
+    from ballchain.optimization import statics as st
+    from ballchain.optimization.reduced_chain import ReducedChain
+    from ballchain.optimization.wall_constraints import ConstrainedChain
+    from ballchain.systems.chain_scenario import load_scenario
+    from ballchain.systems.chain_simulation import build_chain_diagram
+
+    sc = load_scenario("heart_wall_contact", "{engine: statics, insertion: {initial: 0.03, final: 0.03}}")
+    cd = build_chain_diagram(sc)
+    engine = cd.engine
+    s = 0.03
+    p, m, result, k = engine.equilibrium(s, None)
+    B = np.array(cd.field_source.B_W, float)
+    pieces = {"evaluation": ConstrainedChain.evaluate, "chain_energy": ReducedChain.evaluate,
+              "constraint_hessian": ConstrainedChain.constraint_hessian, "qp": st.dense_qp,
+              "positive_definite": st._positive_definite}
+    clock = {key: 0.0 for key in pieces}
+
+    def timed(key, fn):
+        def wrapper(*a, **kw):
+            t = time.perf_counter()
+            try:
+                return fn(*a, **kw)
+            finally:
+                clock[key] += time.perf_counter() - t
+        return wrapper
+
+    originals = {"evaluation": (ConstrainedChain, "evaluate"), "chain_energy": (ReducedChain, "evaluate"),
+                 "constraint_hessian": (ConstrainedChain, "constraint_hessian"), "qp": (st, "dense_qp"),
+                 "positive_definite": (st, "_positive_definite")}
+    totals, per_piece, iterations = [], {key: [] for key in pieces}, []
+    from ballchain.drake_models.field_sources import UniformField
+
+    from ballchain.systems.quasi_static_engine import _one_blas_thread
+
+    blas = _one_blas_thread()  # as the engine solves
+    blas.__enter__()
+    for j in range(repeats):
+        angle = np.radians(1.0) * (1 if j % 2 == 0 else -1)
+        c, s_ = np.cos(angle), np.sin(angle)
+        field = UniformField(np.array([B[0], c * B[1] - s_ * B[2], s_ * B[1] + c * B[2]]))  # about x
+        engine._field_source = field
+        for key, (owner, attr) in originals.items():
+            setattr(owner, attr, timed(key, pieces[key]))
+        for key in clock:
+            clock[key] = 0.0
+        t = time.perf_counter()
+        try:
+            _, _, res, _ = engine.equilibrium(s, None, p, m)
+        finally:
+            for key, (owner, attr) in originals.items():
+                setattr(owner, attr, pieces[key])
+        totals.append(time.perf_counter() - t)
+        iterations.append(res.iterations)
+        for key in clock:
+            per_piece[key].append(clock[key])
+    out = {"equilibrium_ms": round(1e3 * float(np.median(totals)), 3),
+           "newton_iterations": float(np.median(iterations)),
+           "wall_contacts": len(res.wall_forces_W)}
+    for key, values in per_piece.items():
+        out[f"{key}_ms"] = round(1e3 * float(np.median(values)), 3)
+    # evaluation = chain_energy (the chain's energy, gradient, Hessian: ReducedChain) + the wall
+    # and sheath rows, gravity and bookkeeping (ConstrainedChain).
+    out["rows_gravity_ms"] = round(out["evaluation_ms"] - out["chain_energy_ms"], 3)
+    out["rest_ms"] = round(out["equilibrium_ms"] - sum(out[f"{k}_ms"] for k in pieces if k != "chain_energy"), 3)
+    out.update(qp_comparison(engine, s, p, m))
+    blas.__exit__(None, None, None)
+    print("profile", json.dumps(out), flush=True)
+    return out
+
+
+def qp_comparison(engine, s, p, m, repeats: int = 30) -> dict:
+    """One QP step of the equilibrium in contact, solved by the dense active set and by Clarabel
+    through a MathematicalProgram built for it (the statics' previous way): median ms, and the
+    largest difference of the steps."""
+    from ballchain.optimization.statics import ChainStatics
+
+    captured = []
+    original = ChainStatics._qp_step
+
+    def capture(self, *args):
+        captured.append(args)
+        return original(self, *args)
+
+    ChainStatics._qp_step = capture
+    try:
+        engine.equilibrium(s + 0.5e-3, None, p, m)
+    finally:
+        ChainStatics._qp_step = original
+    args = captured[0]
+    out = {"qp_rows": int(len(args[2]))}
+    steps = {}
+    for qp in ("dense", "clarabel"):
+        solver = ChainStatics(engine.chain, qp=qp)
+        times = []
+        for _ in range(repeats):
+            t = time.perf_counter()
+            steps[qp] = solver._qp_step(*args)[0]
+            times.append(time.perf_counter() - t)
+        out[f"qp_{qp}_ms"] = round(1e3 * float(np.median(times)), 3)
+    out["qp_step_difference"] = float(np.abs(steps["dense"] - steps["clarabel"]).max())
+    return out
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--scenarios", nargs="*", default=list(HEART_SCENARIOS), help="named scenarios")
+    parser.add_argument("--repeats", type=int, default=3, help="timed runs per scenario and engine")
+    parser.add_argument("--duration", type=float, default=None, help="simulated time per run [s] (default: the scenario's)")
+    parser.add_argument("--max-duration", type=float, default=np.inf,
+                        help="cap on the scenario's duration when --duration is not given [s]")
+    parser.add_argument("--profile-repeats", type=int, default=20, help="warm equilibria in the profile")
+    parser.add_argument("--json", default=None, help="write the results to this file")
+    args = parser.parse_args()
+    out = run(scenarios=args.scenarios, repeats=args.repeats, duration=args.duration,
+              max_duration=args.max_duration, profile_repeats=args.profile_repeats)
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(out, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()

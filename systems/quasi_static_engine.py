@@ -1,0 +1,565 @@
+"""The quasi-static engine: the chain held at its equilibrium, one warm-started solve per period.
+
+Where the MultibodyPlant integrates heavily damped dynamics at 1 ms steps until the chain
+settles, ``QuasiStaticEngine`` solves for the settled shape directly (``optimization.statics``
+with the atrium's wall and the sheath as constraints, ``optimization.wall_constraints``): a
+discrete update every ``period`` (the scenario's ``statics_period``, 50 ms by default) finds the equilibrium for the current magnet
+states and insertion, warm-started from the last one. When the inputs moved far since the last
+update (a magnet turned more than ``max_angle_step`` or the feeder moved more than
+``max_insertion_step``) the update walks there in smaller steps (continuation), as the real chain
+follows a slowly turning magnet. A step whose equilibrium jumps by more than ``snap_distance``
+is refined; a jump that survives a 16 times finer step is a snap-through (the equilibrium
+branch ended), counted on the ``snap_throughs`` output and listed in ``events``.
+
+Each solve starts from the linear extrapolation of the last step (a secant predictor), with the
+last solution's multipliers in its quadratic model; if it fails, from the last equilibrium, then
+once from the straight chain. The solves run with BLAS on one thread (``_one_blas_thread``).
+
+The engine assumes what the statics assume: frictionless contacts (ball-ball, wall, sheath) and
+no dynamics. The plant stays the reference and the dynamics engine (``engine: plant``).
+
+Outputs match the plant's where the station reads them: ``body_poses`` (indexed by the same
+BodyIndex values as the plant's balls) for the watchdog, target tracker, tip observer,
+simulated operator and overlays; ``tip_wall_force`` for the overlay's arrow and the metrics.
+``EngineGeometry`` draws the balls in Meshcat through a SceneGraph, and ``EngineOverlays`` is the
+overlays system reading the engine's wall force instead of the plant's contact results.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import (
+    FramePoseVector,
+    GeometryFrame,
+    GeometryInstance,
+    IllustrationProperties,
+    Mesh,
+    Rgba,
+    Sphere,
+)
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
+
+from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.field_sources import rotation_with_z_along
+from ballchain.drake_models.params import BallChain
+from ballchain.optimization.statics import ChainStatics, StaticsResult
+from ballchain.optimization.wall_constraints import HeartConstraints, SheathGeometry, base_ball, base_rotation
+from ballchain.systems.magnetic_wrench import external_field_source
+from ballchain.systems.meshcat_overlays import MeshcatOverlays
+
+
+_BLAS = None
+
+
+def _one_blas_thread():
+    """A context in which BLAS/LAPACK run on one thread (threadpoolctl). The statics' matrices
+    are 60 x 60: threads only add overhead, and on a shared machine they wait for each other
+    (measured here: numpy's eigh of 56 x 56 took 44 ms with OpenBLAS's threads, 0.3 ms on one;
+    its Cholesky 0.26 ms against 0.05 ms)."""
+    global _BLAS
+    if _BLAS is None:
+        from threadpoolctl import ThreadpoolController
+
+        _BLAS = ThreadpoolController()
+    return _BLAS.limit(limits=1, user_api="blas")
+
+
+def rotation_with_x_along(direction) -> np.ndarray:
+    """R_WB whose first column is the unit vector along ``direction`` (a ball's dipole is +x)."""
+    return rotation_with_z_along(direction)[:, [2, 0, 1]]
+
+
+def rotations_with_x_along(directions: np.ndarray) -> np.ndarray:
+    """(k, 3, 3) rotations whose first columns are the unit vectors along ``directions`` (k, 3)
+    (``rotation_with_x_along`` for all balls at once: the engine publishes 16 poses per update)."""
+    x = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    helper = np.where(np.abs(x[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+    y = np.cross(helper, x)
+    y /= np.linalg.norm(y, axis=1, keepdims=True)
+    z = np.cross(x, y)
+    return np.stack([x, y, z], axis=2)
+
+
+@dataclass
+class EngineEvent:
+    """Something the engine reports: a snap-through or a failed solve."""
+
+    time: float
+    kind: str  # "snap-through" or "solve failed"
+    jump: float  # largest ball displacement over the step [m]
+    detail: str = ""
+
+
+class QuasiStaticEngine(LeafSystem):
+    """The chain at its equilibrium for the current magnet dipoles and insertion.
+
+    Input ports:
+        feeder_desired_state: (2) the feeder slide's desired state (s [m], ds/dt [m/s]), as the
+            plant's feeder input (only s is used: the chain follows the feeder quasi-statically).
+        magnet_states: (6 k, only with port magnets) centre p_WM [m] and dipole direction per
+            magnet, as ``MagneticWrenchSystem``'s.
+
+    Output ports:
+        body_poses: abstract list[RigidTransform] indexed by BodyIndex (``ball_body_indices``;
+            the others identity): each ball's centre, x along its dipole.
+        tip_wall_force: (6) the wall's push on the tip ball f_W [N] and its contact point [m]
+            (the tip's centre minus a radius along the push; the centre when there is none).
+        snap_throughs: (1) snap-throughs so far.
+
+    State (discrete, updated every ``period``): ball centres (3 n), dipoles (3 n), the tip's
+    wall force and contact point (6), the insertion and magnet states of the last solve, the
+    snap-through and failure counts, the last step's change of the equilibrium (6 n) and its
+    size (1) for the next step's predictor.
+
+    Args:
+        chain: the chain (sleeve included when ``chain.sleeve``).
+        ball_body_indices: the BodyIndex values the balls' poses are published at.
+        p_WE: (3,) sheath exit (free space: where ball 1's slide puts it at s = 0 plus
+            (n - 1/2) d, see ``chain_plant``) [m].
+        axis_W: (3,) insertion direction.
+        sdf: the wall (``atrium_sdf.AtriumSDF`` or ``wall_constraints.PlaneSDF``), or None.
+        sheath: SheathGeometry, or None (then only ball 1 is held, at its slide's position).
+        field_source: the fixed external FieldSource, or None.
+        port_magnets: the magnets on ``magnet_states``.
+        model: "dipole" or "exact" (port magnets).
+        gravity: gravity along -z.
+        period: [s].
+        initial_inserted_length: s at t = 0 [m].
+        max_angle_step: largest magnet turn per continuation step [rad].
+        max_insertion_step: largest feeder move per continuation step [m].
+        snap_distance: a ball moving further in one step marks a possible snap-through [m].
+    """
+
+    def __init__(self, chain: BallChain, ball_body_indices, p_WE, axis_W, sdf=None,
+                 sheath: SheathGeometry | None = None, field_source=None, port_magnets=(), model: str = "dipole",
+                 gravity: bool = True, period: float = 0.02, initial_inserted_length: float = 0.0,
+                 max_angle_step: float = np.radians(1.0), max_insertion_step: float = 1e-3,
+                 snap_distance: float = 1.5e-3):
+        super().__init__()
+        if not period > 0:
+            raise UserInputError(f"QuasiStaticEngine: period must be > 0 s, got {period}")
+        self.chain = chain
+        n = chain.n_balls
+        self._n = n
+        self._d = chain.ball_diameter
+        self._indices = [int(i) for i in ball_body_indices]
+        self._p_WE = np.asarray(p_WE, float)
+        axis = np.asarray(axis_W, float)
+        self._axis = axis / np.linalg.norm(axis)
+        self._R_WB = base_rotation(self._axis)
+        self._sdf = sdf
+        self._sheath = sheath
+        self._field_source = field_source
+        self._port_magnets = list(port_magnets)
+        self._port_moments = np.array([m.dipole_moment for m in self._port_magnets])
+        self._port_radii = np.array([m.bounding_radius for m in self._port_magnets])
+        self._model = model
+        self._gravity = gravity
+        self.period = period
+        self._s0 = float(initial_inserted_length)
+        self.max_angle_step = max_angle_step
+        self.max_insertion_step = max_insertion_step
+        self.snap_distance = snap_distance
+        self._solvers: dict[int, ChainStatics] = {}
+        # The last solution's multipliers per sub-chain size: a warm start for the next solve's
+        # quadratic model only (the solution does not depend on them).
+        self._multipliers: dict[int, dict] = {}
+        # Stationarity tolerance on the scaled energy gradient: 1e-6 instead of the statics'
+        # 1e-8 saves one Newton iteration of ~3 per warm solve; the shape moves by ~1e-6 rad.
+        self.tolerance = 1e-6
+        # The last ball in the bore is free (its dipole turns, as in the plant); the one behind
+        # it is held (wall_constraints.base_ball).
+        self.free_in_bore = 1
+        self.events: list[EngineEvent] = []
+        self.failure: str | None = None  # the first failed update (the monitor stops the run)
+        self.solve_times: list[float] = []  # wall time of every statics solve [s]
+        self.iterations: list[int] = []
+        km = 6 * len(self._port_magnets)
+        self._slices = {}
+        offset = 0
+        for name, size in (("p", 3 * n), ("m", 3 * n), ("tip", 6), ("s", 1), ("magnets", km), ("snaps", 1),
+                           ("failures", 1), ("dp", 3 * n), ("dm", 3 * n), ("u", 1)):
+            self._slices[name] = slice(offset, offset + size)
+            offset += size
+        x0 = np.zeros(offset)
+        p0, m0 = self.straight(self._s0)
+        x0[self._slices["p"]] = p0.ravel()
+        x0[self._slices["m"]] = m0.ravel()
+        x0[self._slices["tip"]][3:] = p0[-1]
+        x0[self._slices["s"]] = self._s0
+        self._state_index = self.DeclareDiscreteState(BasicVector(x0))
+        self._feeder_port = self.DeclareVectorInputPort("feeder_desired_state", 2)
+        self._magnet_port = self.DeclareVectorInputPort("magnet_states", km) if km else None
+        size = max(self._indices) + 1
+        self._poses = [RigidTransform() for _ in range(size)]
+        self._body_poses_port = self.DeclareAbstractOutputPort(
+            "body_poses", lambda: AbstractValue.Make(list(self._poses)), self._calc_body_poses,
+            prerequisites_of_calc={self.xd_ticket()})
+        self._tip_force_port = self.DeclareVectorOutputPort(
+            "tip_wall_force", 6, self._calc_tip_force, prerequisites_of_calc={self.xd_ticket()})
+        self._snaps_port = self.DeclareVectorOutputPort(
+            "snap_throughs", 1, self._calc_snaps, prerequisites_of_calc={self.xd_ticket()})
+        self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
+        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
+
+    # --- ports ----------------------------------------------------------------------------------
+    def warm_up(self) -> None:
+        """One untimed solve (the initial insertion, the fixed field only): loads the compiled
+        kernels' caches and the solvers before a timed run. Leaves no trace in the reports."""
+        n_solves, events = len(self.solve_times), list(self.events)
+        try:
+            with _one_blas_thread():
+                self.equilibrium(self._s0, None)
+        except Exception:  # noqa: BLE001 - a warm-up only; the run reports real failures
+            pass
+        del self.solve_times[n_solves:], self.iterations[n_solves:]
+        self.events = events
+
+    def get_feeder_state_input_port(self):
+        return self._feeder_port
+
+    def get_magnet_states_input_port(self):
+        return self._magnet_port
+
+    def get_body_poses_output_port(self):
+        return self._body_poses_port
+
+    def get_tip_wall_force_output_port(self):
+        return self._tip_force_port
+
+    def get_snap_throughs_output_port(self):
+        return self._snaps_port
+
+    # --- geometry of the insertion ------------------------------------------------------------
+    def straight(self, s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Every ball on the sheath axis at inserted length s (the feeder's positions) [m]."""
+        along = s - (self._n - 0.5 - np.arange(self._n)) * self._d
+        return self._p_WE + along[:, None] * self._axis, np.tile(self._axis, (self._n, 1))
+
+    def _constraints(self, s: float) -> tuple[int, HeartConstraints]:
+        if self._sheath is not None:
+            k, a = base_ball(self._n, s, self._d, self.free_in_bore)
+            p_WB = self._p_WE + a * self._axis
+        else:  # only ball 1 is held, by its slide
+            k, p_WB = 0, self.straight(s)[0][0]
+        return k, HeartConstraints(p_WB, self._R_WB, self._sdf, self._sheath, n_behind=k, gravity=self._gravity)
+
+    def ball_positions(self, context) -> np.ndarray:
+        """Ball centres (n, 3) [m] in this engine's context."""
+        x = context.get_discrete_state(self._state_index).get_value()
+        return x[self._slices["p"]].reshape(-1, 3)
+
+    def state_vector(self, context) -> np.ndarray:
+        return context.get_discrete_state(self._state_index).get_value()
+
+    # --- solving --------------------------------------------------------------------------------
+    def _field(self, magnets: np.ndarray | None):
+        return external_field_source(self._field_source, self._port_magnets, self._port_moments, self._port_radii,
+                                     magnets, self._model)
+
+    def equilibrium(self, s: float, magnets: np.ndarray | None, p_W: np.ndarray | None = None,
+                    m_W: np.ndarray | None = None, predicted=None) -> tuple[np.ndarray, np.ndarray, StaticsResult | None, int]:
+        """The equilibrium at inserted length s and magnet states, warm-started from the world
+        configuration (p_W, m_W) (None: the straight chain), or first from ``predicted``
+        ((p, m), the continuation's extrapolation) when given; one cold restart on failure.
+
+        Returns:
+            ``(p_W (n, 3), m_W (n, 3), result or None (no free ball), k)``; raises StaticsError
+            when the restart fails too.
+        """
+        from ballchain.optimization.statics import StaticsError
+
+        k, c = self._constraints(s)
+        if k >= self._n - 1:
+            p, m = self.straight(s)
+            return p, m, None, k
+        n_sub = self._n - k
+        solver = self._solvers.get(n_sub)
+        if solver is None:
+            solver = self._solvers[n_sub] = ChainStatics(self.chain.with_balls(n_sub), gravity=self._gravity,
+                                                         tolerance=self.tolerance)
+            # Rows met to 1e-9 of a ball diameter (3 pm) rather than 1e-12: one Newton
+            # iteration less (the last one only certifies round-off).
+            solver.feasibility_tolerance = 1e-9
+
+        def warm_from(p, m):
+            if p is None:
+                return None
+            pB, mB = c.to_base(p[k:], m[k:])
+            return StaticsResult(pB, mB / np.linalg.norm(mB, axis=1, keepdims=True), 0.0, None, True,
+                                 "warm start", "", 0, 0.0, multipliers=self._multipliers.get(n_sub, {}))
+
+        field = self._field(magnets)
+        start = time.perf_counter()
+        starts = ([] if predicted is None else [predicted]) + [(p_W, m_W)] + ([(None, None)] if p_W is not None else [])
+        for p0, m0 in starts:  # the prediction, the last equilibrium, then one cold restart
+            result = solver.solve(field, warm_from(p0, m0), constraints=c)
+            if result.converged:
+                break
+        self.solve_times.append(time.perf_counter() - start)
+        if result.converged:
+            self._multipliers[n_sub] = result.multipliers
+        self.iterations.append(result.iterations)
+        if not result.converged:
+            raise StaticsError(f"statics in the heart did not converge at s = {s * 1e3:.2f} mm: {result.reason}")
+        p, m = c.full_configuration(result.positions, result.dipoles, self._d)
+        return p, m, result, k
+
+    def _tip_force(self, p: np.ndarray, result: StaticsResult | None) -> np.ndarray:
+        out = np.zeros(6)
+        out[3:] = p[-1]
+        if result is not None:
+            f = result.wall_forces_W.get(result.positions.shape[0] - 1)
+            if f is not None and np.linalg.norm(f) > 0:
+                out[:3] = f
+                out[3:] = p[-1] - 0.5 * self._d * f / np.linalg.norm(f)
+        return out
+
+    def _step_size(self, s0, s1, mag0, mag1) -> float:
+        """How far the inputs move, in continuation steps (the largest of the feeder's travel,
+        the magnets' turn and their travel over their per-step limits)."""
+        u = abs(s1 - s0) / self.max_insertion_step
+        if mag0 is not None and len(mag0):
+            a, b = mag0.reshape(-1, 6), mag1.reshape(-1, 6)
+            cos = np.einsum("ij,ij->i", a[:, 3:], b[:, 3:]) / (
+                np.linalg.norm(a[:, 3:], axis=1) * np.linalg.norm(b[:, 3:], axis=1))
+            u = max(u, float(np.arccos(np.clip(cos, -1.0, 1.0)).max()) / self.max_angle_step,
+                    float(np.linalg.norm(a[:, :3] - b[:, :3], axis=1).max()) / 5e-3)
+        return u
+
+    def _walk(self, t, s0, s1, mag0, mag1, p, m, depth=0, motion=None):
+        """Continuation from (s0, mag0) with equilibrium (p, m) to (s1, mag1).
+
+        ``motion``: (dp, dm, u) the last step's change of the equilibrium and its size
+        (``_step_size``); each step starts from the linear extrapolation (a secant predictor),
+        which saves Newton iterations while the magnets turn or the feeder moves steadily.
+        Returns (p, m, result, motion).
+        """
+        steps = 1
+        if mag0 is not None and len(mag0):
+            a = mag0.reshape(-1, 6)[:, 3:]
+            b = mag1.reshape(-1, 6)[:, 3:]
+            cos = np.einsum("ij,ij->i", a, b) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
+            angle = float(np.arccos(np.clip(cos, -1.0, 1.0)).max())
+            moved = float(np.linalg.norm(mag0.reshape(-1, 6)[:, :3] - mag1.reshape(-1, 6)[:, :3], axis=1).max())
+            steps = max(steps, int(np.ceil(angle / self.max_angle_step)), int(np.ceil(moved / 5e-3)))
+        steps = max(steps, int(np.ceil(abs(s1 - s0) / self.max_insertion_step)))
+        result = None
+        u_step = self._step_size(s0, s1, mag0, mag1) / steps
+        for j in range(1, steps + 1):
+            f = j / steps
+            s = s0 + f * (s1 - s0)
+            mag = None if mag0 is None else self._interpolate(mag0, mag1, f)
+            fp = (j - 1) / steps
+            s_prev = s0 + fp * (s1 - s0)
+            mag_prev = None if mag0 is None else self._interpolate(mag0, mag1, fp)
+            predicted = None
+            if motion is not None and motion[2] > 0 and u_step > 0:
+                ratio = min(u_step / motion[2], 2.0)
+                predicted = (p + ratio * motion[0], m + ratio * motion[1])
+            p_new, m_new, result, _ = self.equilibrium(s, mag, p, m, predicted)
+            jump = float(np.linalg.norm(p_new - p, axis=1).max() - abs(s - s_prev))
+            if jump > self.snap_distance:
+                if depth < 4:  # refine: a smooth path moves less over a shorter step
+                    p_new, m_new, result, _ = self._walk(t, s_prev, s, mag_prev, mag, p, m, depth + 1)
+                elif steps == 1:
+                    self.events.append(EngineEvent(t, "snap-through", jump + abs(s - s_prev),
+                                                   f"inserted length {s * 1e3:.2f} mm"))
+                motion = None  # no extrapolation across a jump
+            else:
+                motion = (p_new - p, m_new - m, u_step)
+            p, m = p_new, m_new
+        return p, m, result, motion
+
+    @staticmethod
+    def _interpolate(a: np.ndarray, b: np.ndarray, f: float) -> np.ndarray:
+        a, b = a.reshape(-1, 6), b.reshape(-1, 6)
+        out = (1 - f) * a + f * b  # centres: linear; directions: normalised (a short arc)
+        out[:, 3:] /= np.linalg.norm(out[:, 3:], axis=1, keepdims=True)
+        return out.ravel()
+
+    def _inputs(self, context):
+        s = float(self._feeder_port.Eval(context)[0])
+        mags = None if self._magnet_port is None else np.array(self._magnet_port.Eval(context))
+        return s, mags
+
+    def _initialize(self, context, discrete_state):
+        s, mags = self._inputs(context)
+        with _one_blas_thread():
+            p, m, result, _ = self.equilibrium(s, mags)
+        self._store(discrete_state, context, p, m, result, s, mags, new_snaps=0, new_failures=0)
+        return EventStatus.Succeeded()
+
+    def _update(self, context, discrete_state):
+        from ballchain.optimization.statics import StaticsError
+
+        x = self.state_vector(context)
+        s, mags = self._inputs(context)
+        p = x[self._slices["p"]].reshape(-1, 3)
+        m = x[self._slices["m"]].reshape(-1, 3)
+        s_last = float(x[self._slices["s"]][0])
+        mags_last = None if mags is None else x[self._slices["magnets"]].copy()
+        t = context.get_time()
+        if s == s_last and (mags is None or np.array_equal(mags, mags_last)):
+            # Nothing moved: the chain stays where it is (and the next move starts afresh).
+            x = x.copy()
+            x[self._slices["u"]] = 0.0
+            discrete_state.get_mutable_vector(self._state_index).SetFromVector(x)
+            return EventStatus.Succeeded()
+        snaps_before = sum(e.kind == "snap-through" for e in self.events)
+        motion = None
+        if x[self._slices["u"]][0] > 0:
+            motion = (x[self._slices["dp"]].reshape(-1, 3), x[self._slices["dm"]].reshape(-1, 3),
+                      float(x[self._slices["u"]][0]))
+        try:
+            with _one_blas_thread():
+                p, m, result, motion = self._walk(t, s_last, s, mags_last, mags, p, m, motion=motion)
+            failures = 0
+        except StaticsError as err:  # keep the last equilibrium, report it (the watchdog stops)
+            # Not EventStatus.Failed(self, ...): formatting a Python system's failure message
+            # crashes pydrake 1.51 (NiceTypeName without the GIL); the monitor fails instead.
+            self.events.append(EngineEvent(t, "solve failed", 0.0, str(err)))
+            self.failure = f"quasi-static engine at t = {t:.4f} s: {err}"
+            return EventStatus.Succeeded()
+        snaps = sum(e.kind == "snap-through" for e in self.events) - snaps_before
+        self._store(discrete_state, context, p, m, result, s, mags, snaps, failures, motion)
+        return EventStatus.Succeeded()
+
+    def _store(self, discrete_state, context, p, m, result, s, mags, new_snaps, new_failures, motion=None):
+        x = self.state_vector(context).copy()
+        if motion is None:
+            x[self._slices["u"]] = 0.0
+        else:
+            x[self._slices["dp"]] = motion[0].ravel()
+            x[self._slices["dm"]] = motion[1].ravel()
+            x[self._slices["u"]] = motion[2]
+        x[self._slices["p"]] = p.ravel()
+        x[self._slices["m"]] = m.ravel()
+        x[self._slices["tip"]] = self._tip_force(p, result)
+        x[self._slices["s"]] = s
+        if mags is not None:
+            x[self._slices["magnets"]] = mags
+        x[self._slices["snaps"]] += new_snaps
+        x[self._slices["failures"]] += new_failures
+        discrete_state.get_mutable_vector(self._state_index).SetFromVector(x)
+
+    # --- outputs ---------------------------------------------------------------------------------
+    def _calc_body_poses(self, context, output):
+        x = self.state_vector(context)
+        p = x[self._slices["p"]].reshape(-1, 3)
+        R = rotations_with_x_along(x[self._slices["m"]].reshape(-1, 3))
+        for i, index in enumerate(self._indices):
+            self._poses[index] = RigidTransform(RotationMatrix(R[i]), p[i])
+        output.set_value(list(self._poses))
+
+    def _calc_tip_force(self, context, output):
+        output.SetFromVector(self.state_vector(context)[self._slices["tip"]])
+
+    def _calc_snaps(self, context, output):
+        output.SetFromVector(self.state_vector(context)[self._slices["snaps"]])
+
+
+class EngineGeometry(LeafSystem):
+    """Draws the engine's chain (and the heart's wall, targets and the sheath) through a SceneGraph.
+
+    Registers itself as a geometry source with illustration geometry only: the balls (grey,
+    with a red marker along the dipole) on frames posed from ``body_poses``, and anchored
+    geometry for the wall mesh (OBJ), the ablation targets and the sheath. A MeshcatVisualizer
+    on the same SceneGraph draws and records them, as it does the plant's.
+
+    Input ports:
+        body_poses: abstract list[RigidTransform] (the engine's).
+
+    Output ports:
+        geometry_pose: FramePoseVector (connect to the SceneGraph's source pose port).
+    """
+
+    def __init__(self, scene_graph, ball_body_indices, ball_radius: float, heart=None, sheath: SheathGeometry | None = None,
+                 sheath_length: float = 0.0):
+        super().__init__()
+        self._indices = [int(i) for i in ball_body_indices]
+        self.source_id = scene_graph.RegisterSource("quasi_static_engine")
+        self._frames = []
+        colors = [Rgba(0.75, 0.75, 0.78, 1.0), Rgba(0.45, 0.45, 0.5, 1.0)]
+
+        def add(frame_id, X, shape, name, rgba):
+            g = scene_graph.RegisterGeometry(self.source_id, frame_id, GeometryInstance(X, shape, name))
+            props = IllustrationProperties()
+            props.AddProperty("phong", "diffuse", rgba)
+            scene_graph.AssignRole(self.source_id, g, props)
+
+        for i in range(len(self._indices)):
+            f = scene_graph.RegisterFrame(self.source_id, GeometryFrame(f"ball_{i + 1}"))
+            self._frames.append(f)
+            add(f, RigidTransform(), Sphere(ball_radius), f"ball_{i + 1}", colors[i % 2])
+            add(f, RigidTransform([0.6 * ball_radius, 0, 0]), Sphere(0.45 * ball_radius), f"ball_{i + 1}_north",
+                Rgba(0.8, 0.1, 0.1, 1.0))
+        world = scene_graph.world_frame_id()
+        if heart is not None:
+            files = heart.write_files()
+            add(world, RigidTransform(), Mesh(str(files["obj"])), "heart_wall", Rgba(0.85, 0.35, 0.35, 0.35))
+            for side, ring in getattr(heart, "rings", {}).items():
+                for k, p in enumerate(ring.p_HT):
+                    add(world, RigidTransform(p), Sphere(0.6e-3), f"target_{side}_{k + 1}", Rgba(0.1, 0.6, 0.1, 1.0))
+        if sheath is not None and sheath_length > 0:
+            from pydrake.geometry import Cylinder
+
+            R = RotationMatrix(rotation_with_z_along(sheath.axis_W))
+            centre = sheath.p_WE - 0.5 * sheath_length * sheath.axis_W
+            add(world, RigidTransform(R, centre), Cylinder(sheath.bore_radius + 2 * sheath.lip_radius, sheath_length),
+                "sheath", Rgba(0.3, 0.5, 0.9, 0.3))
+        self._poses_port = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
+        self._pose_output = self.DeclareAbstractOutputPort(
+            "geometry_pose", lambda: AbstractValue.Make(FramePoseVector()), self._calc_geometry_pose)
+
+    def get_body_poses_input_port(self):
+        return self._poses_port
+
+    def get_geometry_pose_output_port(self):
+        return self._pose_output
+
+    def _calc_geometry_pose(self, context, output):
+        poses = self._poses_port.Eval(context)
+        value = output.get_mutable_value()
+        value.clear()
+        for frame, index in zip(self._frames, self._indices):
+            value.set_value(frame, poses[index])
+
+
+class _NoContactGeometry:
+    """Stands in for the plant in ``MeshcatOverlays.__init__``: the engine has no contact geometry."""
+
+    def GetCollisionGeometriesForBody(self, body):
+        return []
+
+    def get_body(self, index):
+        return None
+
+    def world_body(self):
+        return None
+
+
+class EngineOverlays(MeshcatOverlays):
+    """``MeshcatOverlays`` with the wall's force on the tip from the engine (``tip_wall_force``)
+    instead of the plant's contact results (its ``contact_results`` input stays unconnected).
+
+    Extra input port:
+        tip_wall_force: (6) f_W [N] and the contact point [m] (the engine's output).
+    """
+
+    def __init__(self, meshcat, tip_body_index, period: float, **kwargs) -> None:
+        super().__init__(meshcat, _NoContactGeometry(), None, tip_body_index, period, **kwargs)
+        self._tip_force_port = self.DeclareVectorInputPort("tip_wall_force", 6)
+
+    def get_tip_wall_force_input_port(self):
+        return self._tip_force_port
+
+    def tip_contact_force(self, context):
+        v = self._tip_force_port.Eval(context)
+        f = np.array(v[:3])
+        return f, (np.array(v[3:]) if np.linalg.norm(f) > 0 else None)
