@@ -118,9 +118,6 @@ class ReducedChain:
         self.sleeve_stiffness = (
             chain.sleeve.bending_stiffness / self.d if chain.sleeve is not None else 0.0
         )
-        self.weight = chain.ball_mass * GRAVITY if gravity else 0.0
-        self._params = ck.reduced_params(self.d, chain.dipole_moment, self.weight, self.sleeve_stiffness,
-                                         self.energy_scale, X_AXIS)
         i, j = np.triu_indices(n, k=2)
         self.pair_i, self.pair_j = i, j
         self._pair_links = None  # the numpy reference's incidence matrices, built on first use
@@ -129,6 +126,21 @@ class ReducedChain:
         self.n_pairs = len(i)
         self.wall: tuple[np.ndarray, np.ndarray] | None = None  # (point, unit normal) of a plane
         self._last = None  # (q bytes, order, Evaluation) of the last evaluation
+
+    @property
+    def weight(self) -> float:
+        """A ball's weight [N] when gravity is on, else 0."""
+        return self.chain.ball_mass * GRAVITY if self.gravity else 0.0
+
+    @property
+    def _params(self) -> np.ndarray:
+        """The kernels' parameters, for the chain and gravity as they are now."""
+        key = (self.gravity, self.sleeve_stiffness, self.energy_scale)
+        if getattr(self, "_params_key", None) != key:
+            self._params_key = key
+            self._params_array = ck.reduced_params(self.d, self.chain.dipole_moment, self.weight,
+                                                   self.sleeve_stiffness, self.energy_scale, X_AXIS)
+        return self._params_array
 
     @property
     def pair_links(self) -> np.ndarray:
