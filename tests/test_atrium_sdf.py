@@ -106,6 +106,7 @@ def test_gradient_and_hessian_against_finite_differences(heart, sdf):
     np.testing.assert_allclose(hess, hess.transpose(0, 2, 1))
 
 
+@pytest.mark.slow
 def test_user_surface_ray_parity_and_cache(tmp_path):
     """A user's closed surface (an ellipsoid from an icosphere): ray-parity sign, exact distance
     at the nodes, the interpolated distance against the exact one, and the cache is reused."""

@@ -73,6 +73,7 @@ def test_dense_qp_matches_the_kkt_conditions():
     assert dense_qp(H, g, A2, np.array([-1.0, -1.0]))[0] is None
 
 
+@pytest.mark.slow  # the atrium's SDF: about 30 s to build when it is not cached yet
 def test_row_derivatives_match_finite_differences(heart, sdf):
     chain = BallChain(n_balls=16)
     k, c = _constraints(heart, sdf, 0.024)
