@@ -323,7 +323,6 @@ def teleop_section(out: Path, quick: bool) -> tuple[Section, dict]:
 
 
 def ablation_section(out: Path, quick: bool) -> tuple[Section, dict]:
-    from ballchain.commands import ablation as ablation_cmd
     from ballchain.experiments import ablation
 
     h_mm, dt = (0.2, 2.0) if quick else (0.1, 1.0)
@@ -331,7 +330,7 @@ def ablation_section(out: Path, quick: bool) -> tuple[Section, dict]:
     sweep = ablation.power_duration_map(powers_W=(3.0, 15.0) if quick else ablation.MAP_POWERS_W,
                                         durations_s=(60.0, 90.0) if quick else ablation.MAP_DURATIONS_S,
                                         h_mm=0.2, dt_max_s=2.0)
-    files = ablation_cmd.write_files(result, out / "ablation", sweep)
+    files = ablation.write_files(result, out / "ablation", sweep)
     section = Section("RF ablation: ball chain vs standard catheter (paper Sec. V-D; electro-thermal FEM)")
     s = result.settings
     section.text(
@@ -344,7 +343,7 @@ def ablation_section(out: Path, quick: bool) -> tuple[Section, dict]:
         f"tuned; bath and tissue at {s['initial_temperature_C']:g} C (the paper does not say). Mesh "
         f"{s['h_mm']:g} mm at the electrode" + (" (quick run: coarse)." if quick else ".")
     )
-    section.table(["device", "quantity", "paper", "model"], ablation_cmd.table_rows(result))
+    section.table(["device", "quantity", "paper", "model"], ablation.table_rows(result))
     for note in result.notes:
         section.text(note)
     ball = result.device("ball_chain")
