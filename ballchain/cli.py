@@ -30,6 +30,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "reconfigure": ("reconfigure", "closed-loop magnet axis reconfiguration study (Hall sensor, slip, noise)"),
     "wheels": ("wheels", "omni-wheel kinematics: derived wheel-to-magnet map vs the paper's"),
     "teleop": ("teleop", "simulated operator touches the ablation targets (paper Tasks I/II), two joystick mappings"),
+    "sweep": ("sweep", "run a sweep spec or a shipped study on Dask (local cores, a scheduler or a job queue)"),
 }
 
 
