@@ -583,12 +583,12 @@ def _run_on_client(ex: Executor, experiment: str, todo, rows: dict, bar, save, o
     try:
         while futures:
             # Futures cancelled by a restart make ``wait`` raise: take them first, and if one is
-            # cancelled while waiting, look again.
+            # cancelled while waiting, look again. The timeout keeps Ctrl-C responsive.
             done = [f for f in futures if f.status in ("cancelled", "lost")]
             if not done:
                 try:
                     done, _ = wait(list(futures), timeout=1.0, return_when="FIRST_COMPLETED")
-                except CancelledError:
+                except (CancelledError, TimeoutError):  # distributed's wait raises on its timeout
                     continue
             for future in done:
                 k = futures.pop(future, None)
