@@ -428,13 +428,18 @@ class Executor:
             self.description = f"{self.jobqueue} job queue, {self.workers or 1} job(s)"
         else:
             import logging
+            import warnings
 
             from distributed import LocalCluster
 
             n = self.workers or default_workers()
-            # Processes with one thread each: the points are GIL-bound Python and numpy.
-            self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                        dashboard_address=None, silence_logs=logging.ERROR)
+            # Processes with one thread each: the points are GIL-bound Python and numpy. The
+            # scheduler's HTTP server (health routes) moves to a free port when another cluster on
+            # the machine holds 8787: not worth a warning.
+            with warnings.catch_warnings():
+                warnings.filterwarnings("ignore", message=r"Port \d+ is already in use")
+                self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                            dashboard_address=None, silence_logs=logging.ERROR)
             self.client = Client(self.cluster)
             self.description = f"LocalCluster, {n} worker process(es)"
         return self
@@ -525,6 +530,8 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
     interrupted, resubmitted = False, 0
     bar = tqdm(total=len(tasks), initial=len(tasks) - len(todo), desc=f"sweep {spec.experiment}", unit="point",
                disable=not progress)
+    if not todo:  # everything done before: no cluster to start (the table and figure are redrawn)
+        scheduler, workers, jobqueue, client = None, 0, None, None
     with Executor(scheduler=scheduler, workers=workers, jobqueue=jobqueue, client=client) as ex:
         try:
             if ex.client is None:

@@ -274,7 +274,8 @@ def design_figure(rows, out: Path) -> Path:
 
     summary = design_summary(rows)["designs"]
     balls = sorted({d["ball_diameter_mm"] for d in summary}, reverse=True)
-    fig, axes = plt.subplots(1, len(balls), figsize=(5.5 * len(balls), 4.2), sharey=True, squeeze=False)
+    fig, axes = plt.subplots(1, len(balls), figsize=(5.5 * len(balls), 4.2), sharex=True, sharey=True,
+                             squeeze=False)
     for ax, ball in zip(axes[0], balls):
         mine = [d for d in summary if d["ball_diameter_mm"] == ball and d["min_force_gf"] is not None]
         for magnet in sorted({d["magnet"] for d in mine}, key=lambda m: (m != "cylinder", len(m), m)):
@@ -286,7 +287,7 @@ def design_figure(rows, out: Path) -> Path:
         if ball < 3:  # the paper's claim: two 119 mm spheres, centres d_c + d_d/2 away, 10 gf
             ax.plot([35.6], [TARGET_GF], "*", color="C2", ms=14, mec="k", label="paper's claim (119 mm, 35.6 cm)")
         ax.set_yscale("log")
-        ax.set_xlabel("each magnet's centre to the septal puncture [cm] (dotted: 29.65)")
+        ax.set_xlabel("magnet centre to septal puncture [cm] (dotted: 29.65)")
         ax.set_title(f"balls {ball} mm ({'prototype' if ball > 3 else '8 Fr'}), two magnets")
         ax.grid(True, which="both", alpha=0.3)
     axes[0][0].set_ylabel("tip force on the weakest of the four veins [gf]")
