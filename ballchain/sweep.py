@@ -573,17 +573,21 @@ def _run_on_client(ex: Executor, experiment: str, todo, rows: dict, bar, save, o
 
     from distributed import wait
 
+    import uuid
+
     client = ex.client
     attempts: dict[str, int] = {}
+    run_id = uuid.uuid4().hex[:8]
     specs = {k: (p, s) for k, p, s in todo}
 
     def submit(k):
         attempts[k] = attempts.get(k, 0) + 1
         p, s = specs[k]
-        # The key names the point and the attempt: a resubmission must not meet a cancelled
-        # future of the same key still being forgotten by the scheduler.
+        # The key names the point, this run and the attempt: a key the scheduler still holds
+        # from an earlier run on the same cluster would hand back that run's result without
+        # computing (a stale row), and a resubmission must not meet its cancelled predecessor.
         return client.submit(run_point, experiment, dataclasses.asdict(p), s,
-                             key=f"{experiment}-{k}-{attempts[k]}", pure=False)
+                             key=f"{experiment}-{k}-{run_id}-{attempts[k]}", pure=False)
 
     futures = {submit(k): k for k, _, _ in todo}
     finished, resubmitted = 0, 0
@@ -686,7 +690,10 @@ def run_sections(sections: Sequence[tuple[str, Callable]], out: str | Path, quic
     with Executor(workers=workers, client=client) as ex:
         # Longest first would balance better, but the caller knows the order; the scheduler
         # starts them in submission order as workers free up.
-        futures = [ex.client.submit(_run_section, fn, str(out), quick, key=f"section-{k}-{name}", pure=False)
+        import uuid
+
+        run_id = uuid.uuid4().hex[:8]  # fresh keys: never an earlier run's result (see _run_on_client)
+        futures = [ex.client.submit(_run_section, fn, str(out), quick, key=f"section-{k}-{run_id}", pure=False)
                    for k, (name, fn) in enumerate(sections)]
         from distributed import wait
 

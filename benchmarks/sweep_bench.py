@@ -3,8 +3,9 @@
 The points are solve-bound (statics of the chain held on a vein's pin, the magnets' orientation
 optimised: a few seconds each). The three executors run the same points in the same run,
 interleaved (serial, 1 worker, 2 workers, serial, ...) so that load from other jobs on the
-machine falls on all of them; each executor's LocalCluster is started and warmed (its workers
-have imported the experiment) before the clock starts, so the times are the sweep's own. Prints
+machine falls on all of them; each LocalCluster is started and warmed (its workers have imported
+the experiment) before the clock starts and closed after, so the times are the sweep's own and
+no idle scheduler shares the serial run's process. Prints
 medians, the speed-ups against the serial run, the machine's load average, and checks that the
 three tables hold the same numbers. ``--reproduce`` also times ``reproduce --quick``'s sections
 serially and through ``run_sections`` on 2 workers.
@@ -64,26 +65,28 @@ def main() -> None:
 
     full = load_spec("<bench>", text=SPEC)
     spec = SweepSpec(full.experiment, "benchmark", full.points[: args.points], [0])
-    clusters = {}
-    for n in (1, 2):
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                               dashboard_address=None, silence_logs=logging.ERROR)
-        clusters[n] = (cluster, Client(cluster))
-        _warm(clusters[n][1])
     times = {"serial": [], "1 worker": [], "2 workers": []}
-    loads, tables = [], {}
+    loads, tables, point_seconds = [], {}, {}
+
+    def timed(name, client):
+        with tempfile.TemporaryDirectory() as out:
+            loads.append(os.getloadavg()[0])
+            start = time.perf_counter()
+            run_sweep(spec, out, workers=0 if client is None else None, client=client, progress=False, figure=False)
+            times[name].append(time.perf_counter() - start)
+            rows = read_table(Path(out))
+            tables.setdefault(name, []).append(_numbers(rows))
+            point_seconds.setdefault(name, []).append(sum(r["wall_time_s"] for r in rows))
+
     for _ in range(args.repeats):
-        for name, client in (("serial", None), ("1 worker", clusters[1][1]), ("2 workers", clusters[2][1])):
-            with tempfile.TemporaryDirectory() as out:
-                loads.append(os.getloadavg()[0])
-                start = time.perf_counter()
-                run_sweep(spec, out, workers=0 if client is None else None, client=client, progress=False,
-                          figure=False)
-                times[name].append(time.perf_counter() - start)
-                tables.setdefault(name, _numbers(read_table(Path(out))))
-    for cluster, client in clusters.values():
-        client.close()
-        cluster.close()
+        timed("serial", None)  # no cluster alive meanwhile: its scheduler would share this process
+        for n in (1, 2):
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                   dashboard_address=None, silence_logs=logging.ERROR)
+            with Client(cluster) as client:
+                _warm(client)
+                timed(f"{n} worker{'s' if n > 1 else ''}", client)
+            cluster.close()
     medians = {k: statistics.median(v) for k, v in times.items()}
     result = {
         "points": len(spec.points),
@@ -93,7 +96,8 @@ def main() -> None:
         "two_vs_one_worker": medians["1 worker"] / medians["2 workers"],
         "load_average_1min": {"min": min(loads), "median": statistics.median(loads), "max": max(loads)},
         "cores": len(os.sched_getaffinity(0)),
-        "same_numbers": tables["serial"] == tables["1 worker"] == tables["2 workers"],
+        "point_seconds_median": {k: statistics.median(v) for k, v in point_seconds.items()},
+        "same_numbers": all(t == tables["serial"][0] for runs in tables.values() for t in runs),
     }
     if args.reproduce:
         result["reproduce"] = _bench_reproduce()
@@ -104,7 +108,8 @@ def main() -> None:
           f"load average {result['load_average_1min']['median']:.1f} (median; "
           f"{result['load_average_1min']['min']:.1f}-{result['load_average_1min']['max']:.1f})")
     for name, m in medians.items():
-        print(f"  {name:10s} median {m:6.1f} s  (runs: {', '.join(f'{t:.1f}' for t in times[name])})")
+        print(f"  {name:10s} median {m:6.1f} s  (runs: {', '.join(f'{t:.1f}' for t in times[name])}; "
+              f"sum of the points' own times {result['point_seconds_median'][name]:.1f} s)")
     print(f"  speed-up: 1 worker {result['speedup_1_worker']:.2f}x, 2 workers {result['speedup_2_workers']:.2f}x "
           f"(2 vs 1 worker {result['two_vs_one_worker']:.2f}x); same numbers: {result['same_numbers']}")
     if args.reproduce:

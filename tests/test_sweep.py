@@ -154,6 +154,12 @@ def test_cluster_table_equals_serial_loop(client, tmp_path):
     assert result["failed"] == 1 and len(rows) == 7
     assert _without_timing(rows) == _without_timing(_serial_rows(spec))
     assert {r["worker"] for r in rows} <= set(client.scheduler_info()["workers"])
+    # The same spec again on the same cluster (another folder) is computed again, not handed
+    # back from the scheduler's memory of the first run's task keys.
+    run_sweep(spec, tmp_path / "again", client=client, progress=False)
+    again = read_table(tmp_path / "again")
+    assert _without_timing(again) == _without_timing(rows)
+    assert all(a["wall_time_s"] != b["wall_time_s"] for a, b in zip(again, rows))
 
 
 def _worker_pids(client):
