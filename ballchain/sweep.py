@@ -25,7 +25,7 @@ processes (one thread each) sized to the machine's cores, on an existing cluster
 dependency), or serially in this process (``workers=0``). Rows stream into ``DIR/table.parquet``
 and ``DIR/table.csv`` (each write atomic: a temporary file and ``os.replace``), one row per point:
 its key (a hash of the experiment, parameters and seed), the parameters, the seed, the outputs,
-the wall time, the worker and the error if it failed (a failed point is a row with the reason).
+the wall and CPU time, the worker and the error if it failed (a failed point is a row with the reason).
 Tasks lost with a worker (killed, restarted) are resubmitted; Ctrl-C keeps what finished; a rerun
 with the same ``DIR`` skips the points that already have a row without error.
 
@@ -54,7 +54,7 @@ from ballchain.drake_models.errors import UserInputError
 TABLE_PARQUET = "table.parquet"
 TABLE_CSV = "table.csv"
 META_COLUMNS = ("key", "experiment")
-TAIL_COLUMNS = ("wall_time_s", "worker", "error")
+TAIL_COLUMNS = ("wall_time_s", "cpu_time_s", "worker", "error")
 MAX_ATTEMPTS = 3  # submissions of one point whose worker died before it gives up (an error row)
 WRITE_PERIOD = 2.0  # [s] between table writes while results stream in
 SPEC_KEYS = ("experiment", "description", "grid", "points", "seeds")
@@ -262,7 +262,7 @@ def run_point(experiment: str, params: dict, seed: int) -> dict:
     exp = EXPERIMENTS[experiment]
     p = exp.params(**params)
     row = {"key": point_key(experiment, p, seed), "experiment": experiment, **dataclasses.asdict(p), "seed": seed}
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     error = None
     outputs: dict = {}
     try:
@@ -275,7 +275,9 @@ def run_point(experiment: str, params: dict, seed: int) -> dict:
         error = f"experiment {experiment!r} returned outputs named like parameters: {sorted(clash)}"
         outputs = {}
     row.update({k: _scalar(v) for k, v in outputs.items()})
-    row.update(wall_time_s=time.perf_counter() - start, worker=_worker_name(), error=error)
+    # CPU time besides wall time: on a shared machine the wall time also counts other jobs.
+    row.update(wall_time_s=time.perf_counter() - start, cpu_time_s=time.process_time() - cpu_start,
+               worker=_worker_name(), error=error)
     return row
 
 
@@ -467,7 +469,7 @@ def _infrastructure_error(exc) -> bool:
 def _lost_row(experiment: str, params, seed: int, reason: str) -> dict:
     row = {"key": point_key(experiment, params, seed), "experiment": experiment, **dataclasses.asdict(params),
            "seed": seed}
-    row.update(wall_time_s=None, worker=None, error=reason)
+    row.update(wall_time_s=None, cpu_time_s=None, worker=None, error=reason)
     return row
 
 

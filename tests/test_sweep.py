@@ -18,7 +18,7 @@ from ballchain.drake_models.errors import UserInputError
 from ballchain.experiments.studies import EXPERIMENTS
 from ballchain.sweep import load_spec, point_key, read_table, run_point, run_sections, run_sweep
 
-TIMING = ("wall_time_s", "worker")
+TIMING = ("wall_time_s", "cpu_time_s", "worker")
 
 SPEC = """
 experiment: statics
