@@ -514,7 +514,9 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
     done = {r["key"]: r for r in previous if r.get("error") is None}
     tasks = spec.tasks()
     keys = [point_key(spec.experiment, p, s) for p, s in tasks]
-    rows: dict[str, dict] = {k: done[k] for k in keys if k in done}
+    # Earlier rows of these points (a failed one stays until its rerun replaces it).
+    earlier = {r["key"]: r for r in previous}
+    rows: dict[str, dict] = {k: earlier[k] for k in keys if k in earlier}
     todo = [(k, p, s) for k, (p, s) in zip(keys, tasks) if k not in done]
     extra = [r for r in previous if r["key"] not in set(keys)]  # points of an earlier spec: kept
 
@@ -529,7 +531,7 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
             last_write[0] = time.perf_counter()
 
     start = time.perf_counter()
-    interrupted, resubmitted = False, 0
+    interrupted, resubmitted, ran = False, 0, [0]
     bar = tqdm(total=len(tasks), initial=len(tasks) - len(todo), desc=f"sweep {spec.experiment}", unit="point",
                disable=not progress)
     if not todo:  # everything done before: no cluster to start (the table and figure are redrawn)
@@ -539,12 +541,13 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
             if ex.client is None:
                 for n, (k, p, s) in enumerate(todo, 1):
                     rows[k] = run_point(spec.experiment, dataclasses.asdict(p), s)
+                    ran[0] += 1
                     bar.update(1)
                     save()
                     if on_result:
                         on_result(n, ex)
             else:
-                resubmitted = _run_on_client(ex, spec.experiment, todo, rows, bar, save, on_result)
+                resubmitted = _run_on_client(ex, spec.experiment, todo, rows, bar, save, on_result, ran)
         except KeyboardInterrupt:
             interrupted = True
     bar.close()
@@ -557,7 +560,7 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
     result = {
         "experiment": spec.experiment, "description": spec.description, "spec": spec.source, "out": out,
         "table_parquet": out / TABLE_PARQUET, "table_csv": out / TABLE_CSV, "points": len(tasks),
-        "ran": sum(1 for k, _, _ in todo if k in rows), "skipped": len(tasks) - len(todo),
+        "ran": ran[0], "skipped": len(tasks) - len(todo),
         "failed": sum(1 for k in keys if k in rows and rows[k].get("error") is not None),
         "resubmitted": resubmitted, "interrupted": interrupted, "wall_time_s": time.perf_counter() - start,
         "executor": ex.description, "figure": figure_path, "summary": summary,
@@ -569,8 +572,9 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
     return result
 
 
-def _run_on_client(ex: Executor, experiment: str, todo, rows: dict, bar, save, on_result) -> int:
-    """Submit every point, collect rows as they finish, resubmit the ones lost with a worker."""
+def _run_on_client(ex: Executor, experiment: str, todo, rows: dict, bar, save, on_result, ran: list) -> int:
+    """Submit every point, collect rows as they finish (counted in ``ran[0]``), resubmit the ones
+    lost with a worker; returns the number of resubmissions."""
     from concurrent.futures import CancelledError
 
     from distributed import wait
@@ -630,6 +634,7 @@ def _run_on_client(ex: Executor, experiment: str, todo, rows: dict, bar, save, o
                     row = _lost_row(experiment, p, s, f"{type(exc).__name__}: {exc}")
                 rows[k] = row
                 finished += 1
+                ran[0] += 1
                 bar.update(1)
                 save()
                 if on_result:

@@ -105,6 +105,25 @@ def test_bad_spec_fails_before_any_cluster(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
+def test_bad_executor_flags(tmp_path):
+    spec = load_spec("<test>", text=SPEC)
+    with pytest.raises(UserInputError, match="--workers"):
+        run_sweep(spec, tmp_path, workers=-1)
+    with pytest.raises(UserInputError, match="--scheduler and --jobqueue"):
+        run_sweep(spec, tmp_path, scheduler="tcp://127.0.0.1:8786", jobqueue="slurm")
+    with pytest.raises(UserInputError, match="--jobqueue must be one of"):
+        run_sweep(spec, tmp_path, jobqueue="kubernetes")
+    try:
+        import dask_jobqueue  # noqa: F401
+    except ImportError:  # the optional dependency, absent: a clear message, not an ImportError
+        with pytest.raises(UserInputError, match="pip install dask-jobqueue"):
+            run_sweep(spec, tmp_path, jobqueue="slurm")
+    (tmp_path / "file").write_text("")
+    with pytest.raises(UserInputError, match="not a folder"):
+        run_sweep(spec, tmp_path / "file", workers=0)
+    assert not (tmp_path / "table.parquet").exists()
+
+
 def test_spec_grid_points_and_seeds():
     spec = load_spec("<test>", text=SPEC + "seeds: [3, 4]\n")
     assert len(spec.points) == 2 * 3 + 1 and spec.seeds == [3, 4]
