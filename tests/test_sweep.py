@@ -275,3 +275,36 @@ def test_every_experiment_has_checked_defaults():
     for exp in EXPERIMENTS.values():
         if exp.check:
             exp.check(exp.params())  # the defaults are valid
+
+
+# --- the studies' points against the experiments they call ---------------------------------------
+
+@pytest.mark.slow
+def test_design_point_passes_the_magnet_through():
+    """A sphere with the prototype cylinder's volume (moment) makes the same point-dipole field, so
+    the same optimum as the cylinder; the cylinder point is forces.max_normal_force itself."""
+    from ballchain.drake_models.params import BallChain
+    from ballchain.experiments import forces
+    from ballchain.experiments.studies import DesignPoint, design_point
+
+    settings = dict(vein="RSPV", config="1", grid=4, refine_evaluations=5)
+    cylinder = design_point(DesignPoint(magnet="cylinder", **settings), 0)
+    reference = forces.max_normal_force(BallChain(n_balls=16), forces.build_stand(), "RSPV", ("1",), grid=4,
+                                        refine_evaluations=5)
+    assert cylinder["force_gf"] == pytest.approx(reference["force_gf"], rel=1e-12)
+    same_moment = design_point(DesignPoint(magnet="sphere69.2323", **settings), 0)  # (6 r^2 L)^(1/3)
+    assert same_moment["magnet_moment_Am2"] == pytest.approx(cylinder["magnet_moment_Am2"], rel=1e-5)
+    assert same_moment["force_gf"] == pytest.approx(cylinder["force_gf"], rel=1e-4)
+    bigger = design_point(DesignPoint(magnet="sphere119", **settings), 0)
+    assert bigger["force_gf"] > 2.0 * cylinder["force_gf"]  # 5 times the moment
+
+
+@pytest.mark.slow
+def test_sleeve_point_equals_the_workspace_experiment():
+    from ballchain.experiments import workspace
+    from ballchain.experiments.studies import SleevePoint, sleeve_point
+
+    point = sleeve_point(SleevePoint(n_balls=9, step_deg=15.0), 0)  # the default sleeve: Dragon Skin
+    summary = workspace.run(balls=(9,), step_deg=15.0, progress=False)["summary"]
+    for key in ("half_area_bare_mm2", "half_area_sleeve_mm2", "reduction_pct", "tip_to_tip_max_mm"):
+        assert point[key] == pytest.approx(summary[key], rel=1e-12), key
