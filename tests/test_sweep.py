@@ -308,3 +308,21 @@ def test_sleeve_point_equals_the_workspace_experiment():
     summary = workspace.run(balls=(9,), step_deg=15.0, progress=False)["summary"]
     for key in ("half_area_bare_mm2", "half_area_sleeve_mm2", "reduction_pct", "tip_to_tip_max_mm"):
         assert point[key] == pytest.approx(summary[key], rel=1e-12), key
+
+
+@pytest.mark.slow
+def test_workers_pin_blas_to_one_thread(client, tmp_path):
+    from threadpoolctl import threadpool_info
+
+    def blas_threads(out, quick):  # pickled by value: runs on a worker inside _run_section
+        import numpy  # noqa: F401  (loads the BLAS)
+        from threadpoolctl import threadpool_info as info
+
+        return [p["num_threads"] for p in info() if p["user_api"] == "blas"]
+
+    (run,) = run_sections([("blas", blas_threads)], tmp_path, quick=True, client=client)
+    assert run.worker in client.scheduler_info()["workers"]
+    assert run.value and set(run.value) == {1}
+    # ...and here, outside the pin, numpy's BLAS may use more (the check above is not vacuous
+    # when this machine has several cores).
+    assert [p for p in threadpool_info() if p["user_api"] == "blas"]
