@@ -292,12 +292,20 @@ def _worker_name() -> str:
 
 # --- the table ------------------------------------------------------------------------------------
 
+def _umask_mode() -> int:
+    """The mode a plainly created file gets (0o666 less the umask)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
 def _atomic_write(path: Path, write: Callable[[str], None]) -> None:
     """``write(temporary path)`` in the target's folder, then ``os.replace`` onto ``path``."""
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
     try:
         write(tmp)
+        os.chmod(tmp, _umask_mode())  # mkstemp makes it private (0600); the result is not
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

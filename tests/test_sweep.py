@@ -161,6 +161,9 @@ def test_serial_sweep_error_row_and_rerun(tmp_path):
     assert [r["key"] for r in again] == [r["key"] for r in rows]
     assert [r["wall_time_s"] for r in again][:6] == [r["wall_time_s"] for r in rows][:6]
     assert not list(tmp_path.glob(".*tmp"))  # no temporary file left by the atomic writes
+    mask = os.umask(0)
+    os.umask(mask)
+    assert (tmp_path / "table.parquet").stat().st_mode & 0o777 == 0o666 & ~mask  # not mkstemp's 0600
 
 
 # --- on a 2-worker LocalCluster -------------------------------------------------------------------

@@ -68,20 +68,15 @@ def _ok(rows):
 
 
 def _savefig(fig, path: Path) -> Path:
-    import os
-    import tempfile
-
+    """Save a figure atomically (a temporary file in the folder, then ``os.replace``)."""
     import matplotlib.pyplot as plt
 
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".png", dir=path.parent)
-    os.close(fd)
+    from ballchain.sweep import _atomic_write
+
     try:
-        fig.savefig(tmp, dpi=120, bbox_inches="tight")
-        os.replace(tmp, path)
+        _atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=120, bbox_inches="tight"))
     finally:
         plt.close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)
     return path
 
 
