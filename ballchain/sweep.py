@@ -526,7 +526,8 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
     earlier = {r["key"]: r for r in previous}
     rows: dict[str, dict] = {k: earlier[k] for k in keys if k in earlier}
     todo = [(k, p, s) for k, (p, s) in zip(keys, tasks) if k not in done]
-    extra = [r for r in previous if r["key"] not in set(keys)]  # points of an earlier spec: kept
+    key_set = set(keys)
+    extra = [r for r in previous if r["key"] not in key_set]  # points of an earlier spec: kept
 
     def ordered() -> list[dict]:
         return [rows[k] for k in keys if k in rows] + extra
