@@ -693,7 +693,8 @@ def run_sections(sections: Sequence[tuple[str, Callable]], out: str | Path, quic
         one SectionRun per section, in the order of ``sections``.
 
     Raises:
-        the first (in section order) exception a section raised, after the others finished.
+        the first (in section order) exception a section raised: serially at once (as the
+        serial loop), on workers after the other sections finished.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
