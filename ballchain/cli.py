@@ -34,6 +34,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "wheels": ("wheels", "omni-wheel kinematics: derived wheel-to-magnet map vs the paper's"),
     "teleop": ("teleop", "simulated operator touches the ablation targets (paper Tasks I/II), two joystick mappings"),
     "ablation": ("ablation", "RF lesions of the ball chain and a standard catheter: electro-thermal FEM (paper Sec. V-D)"),
+    "sweep": ("sweep", "run a sweep spec or a shipped study on Dask (local cores, a scheduler or a job queue)"),
 }
 
 

@@ -148,6 +148,10 @@ CASES = [
     ("teleop-time-limit-nan", ["teleop", "--time-limit", "nan"], "--time-limit"),
     # reproduce
     ("reproduce-out-is-file", ["reproduce", "--quick", "--out", "{file}"], "--out"),
+    # sweep (refused before any cluster starts)
+    ("sweep-unknown-study", ["sweep", "nosuchstudy", "--out", "{folder}"], "nosuchstudy"),
+    ("sweep-workers-negative", ["sweep", "design", "--workers", "-3", "--out", "{folder}"], "--workers"),
+    ("sweep-out-is-file", ["sweep", "design", "--out", "{file}"], "--out"),
     ("reproduce-unknown-section", ["reproduce", "--quick", "--out", "{folder}", "--sections", "nope"], "--sections"),
 ]
 

@@ -80,7 +80,7 @@ def stand_field(stand: Stand, configs, angles, magnet=CylinderMagnet()) -> Field
 
 
 def max_normal_force(chain: BallChain, stand: Stand, vein: str, configs=("1",), grid: int = 8,
-                     refine_evaluations: int = 60, seeds=()) -> dict:
+                     refine_evaluations: int = 60, seeds=(), magnet=CylinderMagnet()) -> dict:
     """The largest force the tip presses along the vein's axis, over the magnets' orientations.
 
     Args:
@@ -92,6 +92,8 @@ def max_normal_force(chain: BallChain, stand: Stand, vein: str, configs=("1",), 
         refine_evaluations: Nelder-Mead evaluations from the best grid point.
         seeds: extra orientation vectors (2 angles per magnet) tried first, e.g. the best
             single-magnet orientations when both magnets are present.
+        magnet: the magnet at each configuration's place (CylinderMagnet or SphereMagnet;
+            default the prototype cylinder).
 
     Returns:
         {"force_N", "force_gf", "angles_rad", "dipoles", "result" (StaticsResult), "evaluations"}
@@ -109,7 +111,7 @@ def max_normal_force(chain: BallChain, stand: Stand, vein: str, configs=("1",), 
 
     def evaluate(angles, start):
         evaluations[0] += 1
-        external = stand_field(stand, configs, angles)
+        external = stand_field(stand, configs, angles, magnet)
         if start is None:  # bring the tip onto the pin from the free equilibrium
             result = pin_tip(solver, external, target, None)
         else:  # already on the pin: only the magnets turned

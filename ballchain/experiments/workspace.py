@@ -79,6 +79,18 @@ def write_files(data: dict, out: Path) -> list[str]:
     save_figure(fig, png, dpi=110)
     return [str(csv_path), str(png)]
 
+def workspace_area(tips_plus: np.ndarray, tips_minus: np.ndarray) -> float:
+    """Area enclosed by the tip curves of the two rotation directions (each (k, 3), same unit,
+    from the straight chain to the field-along--x equilibrium), in that unit squared; the
+    paper's half workspace is half of it."""
+    return polygon_area(np.vstack([tips_plus[:, :2], tips_minus[::-1, :2]]))
+
+
+def tip_to_tip_distance(curves_a: dict, curves_b: dict) -> float:
+    """Largest distance between the tips of two chains at the same magnet angle, over both
+    rotation directions (``curves[side]`` (k, 3) from ``sweep``, same unit)."""
+    return max(float(np.max(np.linalg.norm(curves_a[s] - curves_b[s], axis=1))) for s in (1, -1))
+
 
 def run(*, balls=(4, 9, 16), step_deg: float = 5.0, distance: float = DISTANCE, progress: bool = True,
         out: Path | None = None) -> dict:
@@ -121,15 +133,15 @@ def run(*, balls=(4, 9, 16), step_deg: float = 5.0, distance: float = DISTANCE, 
             threshold = max(0.25 * n * d_mm, 1.5 * n * d_mm * np.radians(2 * step_deg))
             if np.any(jumps > threshold):
                 snaps[(n, sleeve, side)] = float(abs(angles[int(np.argmax(jumps > threshold)) + 1]))
-        loop = np.vstack([curves[(n, sleeve, 1)][:, :2], curves[(n, sleeve, -1)][::-1, :2]])
-        rows.append({"n_balls": n, "sleeve": sleeve, "workspace_area_mm2": polygon_area(loop),
-                     "half_area_mm2": 0.5 * polygon_area(loop),
+        area = workspace_area(curves[(n, sleeve, 1)], curves[(n, sleeve, -1)])
+        rows.append({"n_balls": n, "sleeve": sleeve, "workspace_area_mm2": area,
+                     "half_area_mm2": 0.5 * area,
                      "far_side_snap_field_angle_deg": snaps.get((n, sleeve, 1)),
                      "near_side_snap_field_angle_deg": snaps.get((n, sleeve, -1))})
     longest = max(balls)
     half = {r["sleeve"]: r["half_area_mm2"] for r in rows if r["n_balls"] == longest}
-    tip_to_tip = max(float(np.max(np.linalg.norm(curves[(longest, True, s)] - curves[(longest, False, s)], axis=1)))
-                     for s in (1, -1))
+    tip_to_tip = tip_to_tip_distance({s: curves[(longest, True, s)] for s in (1, -1)},
+                                     {s: curves[(longest, False, s)] for s in (1, -1)})
     summary = {
         "half_area_bare_mm2": half[False],
         "half_area_sleeve_mm2": half[True],

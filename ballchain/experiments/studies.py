@@ -1,0 +1,578 @@
+"""Point functions of the sweep studies (``ballchain sweep``, ``ballchain/studies/*.yaml``).
+
+Each experiment here is one point of a sweep: a parameter dataclass (its fields are what a spec's
+grid or points may set, with their types and defaults), a function ``point(params, seed) ->
+dict`` of scalar outputs that calls an existing experiment (never a re-typed law), a check of the
+values (``UserInputError`` naming the field, run before any cluster starts), and optionally a
+figure and a headline summary drawn from the finished table.
+
+- ``design``: tip force on a vein from statics (``forces.max_normal_force``) for a ball diameter,
+  an actuation magnet (the prototype cylinder or a sphere of any diameter, both placed like the
+  Table I stand, one each side) and its distance from the septal puncture.
+- ``operators``: a simulated operator doing (the first targets of) a teleoperation task
+  (``teleop.run``) with a mapping, an engine and a seed for its hand tremor.
+- ``sleeve``: the workspace with one rotating magnet (``workspace.sweep``) of the chain bare and
+  in a sleeve of a Young's modulus and wall thickness.
+- ``statics``: one equilibrium in a uniform field (cheap: the executor's tests and examples).
+"""
+
+# No ``from __future__ import annotations``: pydrake's yaml_load_typed reads the parameter
+# dataclasses' field types as objects, not strings (as in systems/chain_scenario.py).
+import json
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ballchain.drake_models.errors import UserInputError
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """A sweepable experiment.
+
+    Attributes:
+        name: the spec's ``experiment``.
+        params: a dataclass of scalar fields (bool, int, float, str) with defaults.
+        point: ``point(params, seed) -> {output name: scalar}``; lists/dicts are stored as JSON.
+        check: ``check(params)`` raises UserInputError naming the field (before the sweep).
+        figure: ``figure(rows, out_dir) -> Path`` from the table's rows (dicts), or None.
+        summary: ``summary(rows) -> dict`` of headline numbers, or None.
+        description: one line.
+    """
+
+    name: str
+    params: type
+    point: Callable
+    check: Callable | None = None
+    figure: Callable | None = None
+    summary: Callable | None = None
+    description: str = ""
+
+
+def _one_of(name: str, value, allowed) -> None:
+    if value not in allowed:
+        raise UserInputError(f"{name} must be one of {tuple(allowed)}, got {value!r}")
+
+
+def _positive(name: str, value, *, zero_ok: bool = False) -> None:
+    if not (value >= 0 if zero_ok else value > 0):
+        raise UserInputError(f"{name} must be {'>= 0' if zero_ok else '> 0'}, got {value!r}")
+
+
+def _ok(rows):
+    return [r for r in rows if r.get("error") is None]
+
+
+def _savefig(fig, path: Path) -> Path:
+    """Save a figure atomically (a temporary file in the folder, then ``os.replace``)."""
+    import matplotlib.pyplot as plt
+
+    from ballchain.sweep import _atomic_write
+
+    try:
+        _atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=120, bbox_inches="tight"))
+    finally:
+        plt.close(fig)
+    return path
+
+
+# --- statics: one equilibrium in a uniform field ---------------------------------------------------
+
+@dataclass
+class StaticsPoint:
+    """The canonical chain in a uniform field reached by rotating it from +x.
+
+    Attributes:
+        n_balls: chain length.
+        field_mT: field magnitude [mT].
+        field_angle_deg: final field angle from +x towards +y [deg].
+        step_deg: continuation step of the field angle [deg].
+        sleeve: the Dragon Skin sleeve.
+        max_iterations: Newton iteration limit per solve (a low limit makes the point fail).
+    """
+
+    n_balls: int = 8
+    field_mT: float = 23.0
+    field_angle_deg: float = 90.0
+    step_deg: float = 22.5
+    sleeve: bool = False
+    max_iterations: int = 200
+
+
+def statics_check(p: StaticsPoint) -> None:
+    if p.n_balls < 2:
+        raise UserInputError(f"n_balls must be >= 2, got {p.n_balls}")
+    _positive("field_mT", p.field_mT)
+    _positive("step_deg", p.step_deg)
+    if p.max_iterations < 1:
+        raise UserInputError(f"max_iterations must be >= 1, got {p.max_iterations}")
+
+
+def statics_point(p: StaticsPoint, seed: int) -> dict:
+    from ballchain.drake_models.field_sources import UniformField
+    from ballchain.drake_models.params import BallChain, Sleeve
+    from ballchain.optimization.statics import ChainStatics, rotation_path, tip_angle_deg
+
+    solver = ChainStatics(BallChain(n_balls=p.n_balls, sleeve=Sleeve() if p.sleeve else None),
+                          max_iterations=p.max_iterations)
+    result, iterations = None, 0
+    for angle in rotation_path(0.0, p.field_angle_deg, p.step_deg):
+        result = solver.solve_or_raise(UniformField.in_plane(p.field_mT * 1e-3, math.radians(angle)), result)
+        iterations += result.iterations
+    a = math.radians(p.field_angle_deg)
+    tip = result.positions[-1]
+    return {"tip_x_mm": float(tip[0] * 1e3), "tip_y_mm": float(tip[1] * 1e3),
+            "tip_angle_deg": tip_angle_deg(result, [math.cos(a), math.sin(a), 0.0]),
+            "energy_J": float(result.energy), "iterations": iterations}
+
+
+# --- design: ball size x magnet x distance -> tip force on the veins -------------------------------
+
+VEINS = ("LSPV", "LIPV", "RSPV", "RIPV")
+CONFIGS = {"1": ("1",), "2": ("2",), "both": ("1", "2")}
+PROTOTYPE_BALLS = 16  # the paper's chain (16 x 3.175 mm)
+TARGET_GF = 10.0  # the clinically relevant tip force the paper's sizing aims at [gf]
+_SPHERE = re.compile(r"^sphere(\d+(?:\.\d+)?)$")
+
+
+@dataclass
+class DesignPoint:
+    """One design: the chain, the actuation magnets and their distance, one vein.
+
+    Attributes:
+        ball_diameter_mm: 3.175 (the prototype's balls) or 2.17 (an 8 Fr chain in a 0.25 mm sleeve).
+        n_balls: chain length; 0: the prototype chain's length (16 x 3.175 mm) in balls of this
+            diameter (23 balls of 2.17 mm), so that every vein stays in reach.
+        magnet: "cylinder" (the prototype's N52 76.2 x 38.1 mm) or "sphereD" (an N52 sphere of
+            diameter D mm, e.g. "sphere119", the paper's clinical magnet).
+        distance_cm: each magnet's centre from the septal puncture, to the patient's right ("1")
+            and left ("2"), level with it (Table I's stand: 16.51 cm).
+        vein: "LSPV", "LIPV", "RSPV" or "RIPV".
+        config: "1" (magnet on the right), "2" (left) or "both" (both orientations optimised).
+        sleeve: the Dragon Skin sleeve (ID 3.0, OD 3.5 mm: the prototype's).
+        grid: azimuth samples of the orientation grid (forces.max_normal_force).
+        refine_evaluations: Nelder-Mead evaluations from the best grid point.
+    """
+
+    ball_diameter_mm: float = 3.175
+    n_balls: int = 0
+    magnet: str = "cylinder"
+    distance_cm: float = 16.51
+    vein: str = "LSPV"
+    config: str = "both"
+    sleeve: bool = False
+    grid: int = 8
+    refine_evaluations: int = 60
+
+
+def design_magnet(name: str):
+    """The magnet named ``cylinder`` or ``sphereD`` (D in mm)."""
+    from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
+
+    if name == "cylinder":
+        return CylinderMagnet()
+    match = _SPHERE.match(name)
+    if match is None or float(match.group(1)) <= 0:
+        raise UserInputError(f"magnet must be 'cylinder' (the 76.2 mm prototype) or 'sphereD' with D the "
+                             f"sphere's diameter in mm (e.g. sphere119), got {name!r}")
+    return SphereMagnet(diameter=float(match.group(1)) * 1e-3)
+
+
+def design_balls(p: DesignPoint) -> int:
+    from ballchain.drake_models.params import BallChain
+
+    if p.n_balls:
+        return p.n_balls
+    return round(PROTOTYPE_BALLS * BallChain().ball_diameter / (p.ball_diameter_mm * 1e-3))
+
+
+def design_check(p: DesignPoint) -> None:
+    _positive("ball_diameter_mm", p.ball_diameter_mm)
+    if p.n_balls != 0 and p.n_balls < 3:
+        raise UserInputError(f"n_balls must be 0 (the prototype's length) or >= 3, got {p.n_balls}")
+    design_magnet(p.magnet)
+    _positive("distance_cm", p.distance_cm)
+    _one_of("vein", p.vein, VEINS)
+    _one_of("config", p.config, CONFIGS)
+    if p.grid < 2 or p.refine_evaluations < 0:
+        raise UserInputError(f"grid must be >= 2 and refine_evaluations >= 0, got {p.grid}, {p.refine_evaluations}")
+
+
+def design_point(p: DesignPoint, seed: int) -> dict:
+    """The largest force the tip presses along the vein's axis (statics, optimised magnet turn)."""
+    from ballchain.drake_models.params import BallChain, Sleeve
+    from ballchain.experiments.forces import build_stand, max_normal_force
+
+    magnet = design_magnet(p.magnet)
+    d = p.ball_diameter_mm * 1e-3
+    chain = BallChain(n_balls=design_balls(p), ball_diameter=d, sleeve=Sleeve() if p.sleeve else None)
+    stand = build_stand(ball_diameter=d, distance=p.distance_cm * 1e-2)
+    configs = CONFIGS[p.config]
+    # The magnet's surface must stay beyond the chain's reach from the sheath exit: closer, the
+    # chain could touch (or be inside) it, and no stand would place a magnet there.
+    clearance = min(float(np.linalg.norm(stand.magnets[c])) for c in configs) - magnet.bounding_radius - chain.length
+    base = {"n_balls_used": chain.n_balls, "magnet_mass_kg": magnet.mass, "magnet_moment_Am2": magnet.dipole_moment,
+            "chain_moment_Am2": chain.n_balls * chain.dipole_moment, "clearance_mm": clearance * 1e3}
+    if clearance <= 0:
+        return {**base, "force_gf": None, "lateral_gf": None, "reaches_target": None, "evaluations": 0,
+                "note": "magnet within the chain's reach of the sheath exit"}
+    out = max_normal_force(chain, stand, p.vein, configs, p.grid, p.refine_evaluations, magnet=magnet)
+    if out.get("force_N") is None:
+        return {**base, "force_gf": None, "lateral_gf": None, "reaches_target": False,
+                "evaluations": out.get("evaluations", 0), "note": out.get("reason")}
+    from ballchain.experiments.forces import _lateral_gf
+
+    lateral = _lateral_gf(-out["result"].tip_reaction, stand.targets[p.vein][1])
+    return {**base, "force_gf": out["force_gf"], "lateral_gf": lateral,
+            "reaches_target": bool(out["force_gf"] >= TARGET_GF), "evaluations": out["evaluations"], "note": None}
+
+
+def _design_table(rows) -> dict:
+    """(ball, magnet, distance) -> {vein: force_gf} for the configuration rows."""
+    table: dict = {}
+    for r in _ok(rows):
+        table.setdefault((r["ball_diameter_mm"], r["magnet"], r["distance_cm"], r["config"], r["sleeve"]), {})[
+            r["vein"]] = r["force_gf"]
+    return table
+
+
+def design_summary(rows) -> dict:
+    """Per design the weakest vein's force; which designs give 10 gf on every vein; the paper's
+    clinical claim (two 119 mm spheres, 8 Fr chain, 29.65 cm / 35.6 cm) checked."""
+    designs = []
+    for (ball, magnet, distance, config, sleeve), forces in sorted(_design_table(rows).items(),
+                                                                   key=lambda kv: tuple(map(str, kv[0]))):
+        values = [forces.get(v) for v in VEINS]
+        complete = all(v is not None for v in values)
+        designs.append({"ball_diameter_mm": ball, "magnet": magnet, "distance_cm": distance, "config": config,
+                        "sleeve": sleeve, "min_force_gf": min(values) if complete else None,
+                        "forces_gf": dict(zip(VEINS, values)), "every_vein_10gf": complete and min(values) >= TARGET_GF})
+    clinical = [d for d in designs if d["ball_diameter_mm"] == 2.17 and d["magnet"] == "sphere119"
+                and d["config"] == "both"]
+    return {"target_gf": TARGET_GF, "designs": designs,
+            "designs_with_10gf_on_every_vein": [d for d in designs if d["every_vein_10gf"]],
+            "paper_claim": "two 119 mm spheres, one each side, 8 Fr chain (2.17 mm balls), magnet centre "
+                           "d_c + d_d/2 = 35.6 cm from the heart (d_c = 29.65 cm): 10 gf",
+            "clinical_119mm": clinical}
+
+
+def design_figure(rows, out: Path) -> Path:
+    """Weakest-vein force against distance, one line per magnet, a panel per ball size."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    summary = design_summary(rows)["designs"]
+    balls = sorted({d["ball_diameter_mm"] for d in summary}, reverse=True)
+    fig, axes = plt.subplots(1, len(balls), figsize=(5.5 * len(balls), 4.2), sharex=True, sharey=True,
+                             squeeze=False)
+    for ax, ball in zip(axes[0], balls):
+        mine = [d for d in summary if d["ball_diameter_mm"] == ball and d["min_force_gf"] is not None]
+        for magnet in sorted({d["magnet"] for d in mine}, key=lambda m: (m != "cylinder", len(m), m)):
+            pts = sorted((d["distance_cm"], d["min_force_gf"]) for d in mine if d["magnet"] == magnet)
+            label = "76.2 mm cylinder (prototype)" if magnet == "cylinder" else f"{magnet[6:]} mm sphere"
+            ax.plot(*zip(*pts), "o-", label=label)
+        ax.axhline(TARGET_GF, color="k", ls="--", lw=1, label="10 gf")
+        ax.axvline(29.65, color="grey", ls=":", lw=1)
+        if ball < 3:  # the paper's claim: two 119 mm spheres, centres d_c + d_d/2 away, 10 gf
+            ax.plot([35.6], [TARGET_GF], "*", color="C2", ms=14, mec="k", label="paper's claim (119 mm, 35.6 cm)")
+        ax.set_yscale("log")
+        ax.set_xlabel("magnet centre to septal puncture [cm] (dotted: 29.65)")
+        ax.set_title(f"balls {ball} mm ({'prototype' if ball > 3 else '8 Fr'}), two magnets")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0][0].set_ylabel("tip force on the weakest of the four veins [gf]")
+    axes[0][-1].legend(fontsize=8)
+    return _savefig(fig, Path(out) / "design.png")
+
+
+# --- operators: teleoperation tasks x mappings x operator seeds ------------------------------------
+
+ENGINES = ("plant", "statics")
+
+
+@dataclass
+class OperatorsPoint:
+    """One operator (a tremor seed) doing a teleoperation task with a mapping.
+
+    Attributes:
+        task: "left" (Task I, 20 targets) or "right" (Task II, 18 targets).
+        mapping: "world" (the paper's) or "catheter".
+        targets: only the first N targets; 0: all of them.
+        engine: "plant" (the MultibodyPlant station) or "statics" (the quasi-static engine,
+            passed as the scenario override ``{engine: statics}``; while the scenario has no
+            ``engine`` field the point runs the plant and says so in ``engine_used``).
+        time_step: quasi-static step [s]; 0: the scenario's (1 ms); 0.004 is ``teleop.FAST``.
+        tremor: amplitude of the operator's hand tremor on each stick axis (its seed is the
+            point's seed).
+        n_balls: chain length (the paper's 16).
+    """
+
+    task: str = "right"
+    mapping: str = "world"
+    targets: int = 0
+    engine: str = "plant"
+    time_step: float = 0.0
+    tremor: float = 0.1
+    n_balls: int = 16
+
+
+def operators_check(p: OperatorsPoint) -> None:
+    from ballchain.experiments.teleop import MAPPINGS, TASKS
+
+    _one_of("task", p.task, TASKS)
+    _one_of("mapping", p.mapping, MAPPINGS)
+    _one_of("engine", p.engine, ENGINES)
+    if p.targets < 0:
+        raise UserInputError(f"targets must be >= 0 (0: all), got {p.targets}")
+    _positive("time_step", p.time_step, zero_ok=True)
+    _positive("tremor", p.tremor, zero_ok=True)
+    if p.n_balls < 3:
+        raise UserInputError(f"n_balls must be >= 3, got {p.n_balls}")
+
+
+def scenario_knows_engine() -> bool:
+    """Whether the station scenario has an ``engine`` field (the quasi-static engine landed)."""
+    import dataclasses
+
+    from ballchain.systems.chain_scenario import ChainScenario
+
+    return "engine" in {f.name for f in dataclasses.fields(ChainScenario)}
+
+
+def operators_point(p: OperatorsPoint, seed: int) -> dict:
+    from ballchain.experiments import teleop
+    from ballchain.systems.simulated_operator import OperatorParams
+
+    overrides, engine_used, note = {}, "plant", None
+    if p.time_step > 0:
+        overrides["time_step"] = p.time_step
+    if p.engine != "plant":
+        if scenario_knows_engine():
+            overrides["engine"] = p.engine
+            engine_used = p.engine
+        else:
+            note = f"engine {p.engine!r} asked for; the scenario has no engine field yet: ran the plant"
+    operator = OperatorParams(axes=(0, 1, 2) if p.mapping == "world" else (0, 1), tremor=p.tremor, seed=seed)
+    result = teleop.run(task=p.task, mapping=p.mapping, targets=p.targets or None, progress=False,
+                        n_balls=p.n_balls, overrides=json.dumps(overrides) if overrides else None,
+                        operator=operator)
+    s = result["summary"]
+    rows = result["rows"]
+    return {
+        "engine_used": engine_used, "note": note,
+        "touched": s["touched"], "n_targets": s["targets"], "total_time_s": s["total_time_s"],
+        "median_time_s": s["median_time_s"], "median_accuracy_mm": s["median_accuracy_mm"],
+        "max_accuracy_mm": s["max_accuracy_mm"], "failure": s["failure"], "sim_time_s": s["sim_time_s"],
+        "realtime_factor": s["realtime_factor"],
+        "target_names": [r["target"] for r in rows],
+        "target_times_s": [r["time_s"] for r in rows],
+        "target_accuracy_mm": [r["accuracy_mm"] for r in rows],
+        "target_touched": [bool(r["touched"]) for r in rows],
+        "paper_time_per_target_s": result["paper"]["human_time_s"] / result["paper"]["targets"],
+    }
+
+
+def _per_target(rows) -> dict:
+    """(task, mapping) -> target -> {"times": [...], "accuracy": [...], "missed": n}."""
+    out: dict = {}
+    for r in _ok(rows):
+        names = json.loads(r["target_names"])
+        times, acc, touched = (json.loads(r[k]) for k in ("target_times_s", "target_accuracy_mm", "target_touched"))
+        for name, t, a, ok in zip(names, times, acc, touched):
+            cell = out.setdefault((r["task"], r["mapping"]), {}).setdefault(name, {"times": [], "accuracy": [],
+                                                                                  "missed": 0})
+            if ok:
+                cell["times"].append(t)
+                cell["accuracy"].append(a)
+            else:
+                cell["missed"] += 1
+    return out
+
+
+def operators_summary(rows) -> dict:
+    """Per task, mapping and target: median, quartiles of time and accuracy over the seeds."""
+    from ballchain.experiments.teleop import PAPER
+
+    table = []
+    for (task, mapping), targets in sorted(_per_target(rows).items()):
+        for name, c in targets.items():
+            t, a = np.array(c["times"]), np.array(c["accuracy"])
+            table.append({"task": task, "mapping": mapping, "target": name, "runs": len(t) + c["missed"],
+                          "missed": c["missed"],
+                          "time_median_s": float(np.median(t)) if len(t) else None,
+                          "time_q25_s": float(np.percentile(t, 25)) if len(t) else None,
+                          "time_q75_s": float(np.percentile(t, 75)) if len(t) else None,
+                          "time_mean_s": float(np.mean(t)) if len(t) else None,
+                          "accuracy_median_mm": float(np.median(a)) if len(a) else None,
+                          "paper_mean_time_per_target_s": PAPER[task]["human_time_s"] / PAPER[task]["targets"]})
+    engines = sorted({r.get("engine_used") for r in _ok(rows)})
+    return {"per_target": table, "engines_used": engines,
+            "paper": "the paper's operator, 5 trials after learning, world mapping: Task I 40 s for 20 targets "
+                     "(2.0 s a target), Task II 26 s for 18 (1.44 s a target; manual catheter 33 s)"}
+
+
+def operators_figure(rows, out: Path) -> Path:
+    """Per-target time (box over seeds) for each task and mapping, the paper's mean per target."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ballchain.experiments.teleop import PAPER
+
+    per = _per_target(rows)
+    tasks = sorted({k[0] for k in per})
+    fig, axes = plt.subplots(2, len(tasks), figsize=(6 * len(tasks), 7), squeeze=False)
+    for col, task in enumerate(tasks):
+        for row, (what, unit) in enumerate((("times", "time on target [s]"), ("accuracy", "accuracy [mm]"))):
+            ax = axes[row][col]
+            mappings = sorted(m for t, m in per if t == task)
+            names = list(per[(task, mappings[0])])
+            width = 0.8 / len(mappings)
+            for j, mapping in enumerate(mappings):
+                data = [per[(task, mapping)].get(n, {what: []})[what] or [np.nan] for n in names]
+                pos = np.arange(len(names)) + (j - (len(mappings) - 1) / 2) * width
+                bp = ax.boxplot(data, positions=pos, widths=width * 0.9, patch_artist=True, manage_ticks=False)
+                for box in bp["boxes"]:
+                    box.set_facecolor(f"C{j}")
+                    box.set_alpha(0.6)
+                ax.plot([], [], "s", color=f"C{j}", label=mapping)
+            if what == "times":
+                ax.axhline(PAPER[task]["human_time_s"] / PAPER[task]["targets"], color="k", ls="--", lw=1,
+                           label="paper: mean per target (total / targets)")
+            ax.set_xticks(range(len(names)), names, rotation=45, fontsize=8)
+            ax.set_ylabel(unit)
+            ax.set_title(f"task {task} ({'I' if task == 'left' else 'II'})")
+            ax.legend(fontsize=8)
+    fig.tight_layout()
+    return _savefig(fig, Path(out) / "operators.png")
+
+
+# --- sleeve: workspace against the sleeve's stiffness ----------------------------------------------
+
+@dataclass
+class SleevePoint:
+    """The workspace of a chain in a sleeve, beside the bare chain's.
+
+    Attributes:
+        youngs_modulus_MPa: the sleeve's E [MPa] (Dragon Skin 10 NV: about 0.15).
+        wall_thickness_mm: (OD - ID) / 2 [mm] (the prototype's 0.25).
+        inner_diameter_mm: ID [mm] (3.0).
+        n_balls: chain length.
+        step_deg: magnet turn step of the workspace sweep [deg].
+        distance_cm: the magnet's distance beside the insertion point [cm] (16.51).
+    """
+
+    youngs_modulus_MPa: float = 0.15
+    wall_thickness_mm: float = 0.25
+    inner_diameter_mm: float = 3.0
+    n_balls: int = 16
+    step_deg: float = 5.0
+    distance_cm: float = 16.51
+
+
+def sleeve_check(p: SleevePoint) -> None:
+    _positive("youngs_modulus_MPa", p.youngs_modulus_MPa)
+    _positive("wall_thickness_mm", p.wall_thickness_mm)
+    _positive("inner_diameter_mm", p.inner_diameter_mm)
+    if p.n_balls < 2:
+        raise UserInputError(f"n_balls must be >= 2, got {p.n_balls}")
+    if not 0 < p.step_deg <= 45:
+        raise UserInputError(f"step_deg must be in (0, 45], got {p.step_deg}")
+    _positive("distance_cm", p.distance_cm)
+
+
+def sleeve_point(p: SleevePoint, seed: int) -> dict:
+    from ballchain.drake_models.params import BallChain, Sleeve
+    from ballchain.experiments.workspace import sweep, tip_to_tip_distance, workspace_area
+
+    sleeve = Sleeve(youngs_modulus=p.youngs_modulus_MPa * 1e6, inner_diameter=p.inner_diameter_mm * 1e-3,
+                    outer_diameter=(p.inner_diameter_mm + 2 * p.wall_thickness_mm) * 1e-3)
+    curves = {}
+    for label, s in (("bare", None), ("sleeve", sleeve)):
+        chain = BallChain(n_balls=p.n_balls, sleeve=s)
+        curves[label] = {side: sweep(chain, side, p.step_deg, p.distance_cm * 1e-2)[0] * 1e3 for side in (1, -1)}
+    bare = 0.5 * workspace_area(curves["bare"][1], curves["bare"][-1])
+    sleeved = 0.5 * workspace_area(curves["sleeve"][1], curves["sleeve"][-1])
+    return {"bending_stiffness_Nm2": sleeve.bending_stiffness, "half_area_bare_mm2": bare,
+            "half_area_sleeve_mm2": sleeved, "reduction_pct": 100.0 * (1.0 - sleeved / bare),
+            "tip_to_tip_max_mm": tip_to_tip_distance(curves["sleeve"], curves["bare"])}
+
+
+def sleeve_summary(rows) -> dict:
+    from ballchain.experiments.workspace import PAPER
+
+    ok = sorted(_ok(rows), key=lambda r: (r["wall_thickness_mm"], r["youngs_modulus_MPa"]))
+    paper_like = [r for r in ok if r["reduction_pct"] >= PAPER["reduction_pct"]]
+    # The reduction is (nearly) a function of EI alone: interpolate where it crosses the paper's,
+    # in log EI, between the neighbouring points of the whole table.
+    by_ei = sorted((r["bending_stiffness_Nm2"], r["reduction_pct"]) for r in ok)
+    crossing = None
+    for (e0, r0), (e1, r1) in zip(by_ei, by_ei[1:]):
+        if r0 < PAPER["reduction_pct"] <= r1:
+            w = (PAPER["reduction_pct"] - r0) / (r1 - r0)
+            crossing = float(np.exp(np.log(e0) + w * (np.log(e1) - np.log(e0))))
+            break
+    from ballchain.drake_models.params import Sleeve
+
+    return {"paper": PAPER, "ei_for_paper_reduction_Nm2": crossing,
+            "dragon_skin_ei_Nm2": Sleeve().bending_stiffness, "rows": [{k: r[k] for k in ("youngs_modulus_MPa", "wall_thickness_mm",
+                                                        "bending_stiffness_Nm2", "half_area_sleeve_mm2",
+                                                        "reduction_pct", "tip_to_tip_max_mm")} for r in ok],
+            "softest_with_paper_reduction": min(paper_like, key=lambda r: r["bending_stiffness_Nm2"],
+                                                default=None)}
+
+
+def sleeve_figure(rows, out: Path) -> Path:
+    """Workspace reduction and tip-to-tip distance against the sleeve's bending stiffness EI
+    (E times the tube's second moment of area), one line per wall thickness."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ballchain.drake_models.params import Sleeve
+    from ballchain.experiments.workspace import PAPER
+
+    ok = _ok(rows)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for t in sorted({r["wall_thickness_mm"] for r in ok}):
+        pts = sorted((r["bending_stiffness_Nm2"], r["reduction_pct"], r["tip_to_tip_max_mm"], r["youngs_modulus_MPa"])
+                     for r in ok if r["wall_thickness_mm"] == t)
+        ei, red, ttt, e = zip(*pts)
+        axes[0].plot(ei, red, "o-", label=f"wall {t} mm (E {min(e):g}-{max(e):g} MPa)")
+        axes[1].plot(ei, ttt, "o-", label=f"wall {t} mm")
+    axes[0].axhline(PAPER["reduction_pct"], color="k", ls="--", lw=1, label="paper (measured): 12 %")
+    axes[1].axhline(PAPER["tip_to_tip_mm"], color="k", ls="--", lw=1, label="paper: about 8 mm")
+    for ax in axes:
+        ax.axvline(Sleeve().bending_stiffness, color="grey", ls=":", lw=1)
+        ax.set_xscale("log")
+        ax.set_xlabel("sleeve bending stiffness EI [N m^2] (dotted: Dragon Skin 10, 0.15 MPa, 0.25 mm wall)")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
+    axes[0].set_ylabel("half-workspace reduction by the sleeve [%]")
+    axes[1].set_ylabel("largest tip-to-tip distance, sleeve vs bare [mm]")
+    n = ok[0]["n_balls"] if ok else 16
+    fig.suptitle(f"{n} balls, one magnet {ok[0]['distance_cm'] if ok else 16.51} cm away, sleeve ID 3.0 mm "
+                 "(tip-to-tip jumps where one chain snaps through and the other does not)")
+    fig.tight_layout()
+    return _savefig(fig, Path(out) / "sleeve.png")
+
+
+EXPERIMENTS: dict[str, Experiment] = {
+    e.name: e for e in (
+        Experiment("statics", StaticsPoint, statics_point, statics_check,
+                   description="one equilibrium of the canonical chain in a uniform field"),
+        Experiment("design", DesignPoint, design_point, design_check, design_figure, design_summary,
+                   "ball size x actuation magnet x distance -> tip force on a vein (statics)"),
+        Experiment("operators", OperatorsPoint, operators_point, operators_check, operators_figure,
+                   operators_summary, "simulated operators on the teleoperation tasks"),
+        Experiment("sleeve", SleevePoint, sleeve_point, sleeve_check, sleeve_figure, sleeve_summary,
+                   "workspace against the sleeve's Young's modulus and wall thickness"),
+    )
+}

@@ -1,0 +1,728 @@
+"""Sweeps and studies on Dask distributed: one task per point, one table of results.
+
+A sweep spec (YAML, typed like the scenarios: a dataclass schema loaded with pydrake's
+``yaml_load_typed``) names an experiment of ``ballchain.experiments.studies.EXPERIMENTS`` and
+its points, a grid (the cartesian product of per-field lists) and/or a list of explicit
+parameter sets, times a list of seeds::
+
+    experiment: design
+    description: which ball and magnet give 10 gf on every vein
+    grid:
+      ball_diameter_mm: [3.175, 2.17]
+      magnet: [cylinder, sphere119]
+      distance_cm: [16.51, 29.65]
+    points:
+      - {ball_diameter_mm: 2.17, magnet: sphere119, distance_cm: 35.6}
+    seeds: [0]
+
+Fields a point does not set take the experiment's defaults. The spec is checked (unknown
+experiment, unknown field, wrong type, empty grid, values the experiment rejects) before any
+cluster starts: ``UserInputError`` names the field.
+
+``run_sweep`` runs each point as a Dask task: by default on a ``LocalCluster`` of worker
+processes (one thread each) sized to the machine's cores, on an existing cluster
+(``scheduler="tcp://host:8786"``), on a dask-jobqueue cluster (``jobqueue="slurm"``, optional
+dependency), or serially in this process (``workers=0``). Rows stream into ``DIR/table.parquet``
+and ``DIR/table.csv`` (each write atomic: a temporary file and ``os.replace``), one row per point:
+its key (a hash of the experiment, parameters and seed), the parameters, the seed, the outputs,
+the wall and CPU time, the worker and the error if it failed (a failed point is a row with the reason).
+Tasks lost with a worker (killed, restarted) are resubmitted; Ctrl-C keeps what finished; a rerun
+with the same ``DIR`` skips the points that already have a row without error.
+
+``run_sections`` maps independent report sections over the same executor (``reproduce``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import itertools
+import json
+import math
+import os
+import tempfile
+import time
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, NamedTuple, Sequence
+
+import yaml
+
+from ballchain.drake_models.errors import UserInputError
+
+TABLE_PARQUET = "table.parquet"
+TABLE_CSV = "table.csv"
+META_COLUMNS = ("key", "experiment")
+TAIL_COLUMNS = ("wall_time_s", "cpu_time_s", "worker", "error")
+MAX_ATTEMPTS = 3  # submissions of one point whose worker died before it gives up (an error row)
+WRITE_PERIOD = 2.0  # [s] between table writes while results stream in
+SPEC_KEYS = ("experiment", "description", "grid", "points", "seeds")
+
+
+# --- the spec ------------------------------------------------------------------------------------
+
+@dataclass
+class SweepSpec:
+    """A loaded, checked sweep spec.
+
+    Attributes:
+        experiment: a name in ``ballchain.experiments.studies.EXPERIMENTS``.
+        description: one line.
+        points: the parameter sets (each a dataclass instance of the experiment's ``params``),
+            the grid's product first, then the explicit ones.
+        seeds: every point runs once per seed.
+        source: the file it came from (or "<inline>").
+    """
+
+    experiment: str
+    description: str
+    points: list
+    seeds: list[int]
+    source: str = "<inline>"
+
+    def tasks(self) -> list[tuple[Any, int]]:
+        """(params, seed) of every run, in the table's order (points outer, seeds inner)."""
+        return [(p, s) for p in self.points for s in self.seeds]
+
+
+def _type_name(t) -> str:
+    return getattr(t, "__name__", str(t))
+
+
+def _check_value(where: str, value, t) -> None:
+    """A YAML scalar against a field type (bool, int, float, str), with a message naming it."""
+    ok = {
+        bool: isinstance(value, bool),
+        int: isinstance(value, int) and not isinstance(value, bool),
+        float: isinstance(value, (int, float)) and not isinstance(value, bool)
+        and math.isfinite(float(value)),
+        str: isinstance(value, str),
+    }.get(t)
+    if ok is None:
+        raise TypeError(f"sweep field type {t!r} of {where} is not a scalar")  # a programming error
+    if not ok:
+        raise UserInputError(f"{where} must be a {_type_name(t)}{' (finite)' if t is float else ''}, "
+                             f"got {value!r}")
+
+
+def _schema(experiment) -> type:
+    """The typed spec schema of one experiment (for ``yaml_load_typed``)."""
+    hints = typing.get_type_hints(experiment.params)
+    Grid = dataclasses.make_dataclass(
+        f"{experiment.params.__name__}Grid",
+        [(f.name, list[hints[f.name]], field(default_factory=list)) for f in dataclasses.fields(experiment.params)])
+    return dataclasses.make_dataclass(f"{experiment.params.__name__}Sweep", [
+        ("experiment", str, ""), ("description", str, ""),
+        ("grid", Grid, field(default_factory=Grid)),
+        ("points", list[experiment.params], field(default_factory=list)),
+        ("seeds", list[int], field(default_factory=lambda: [0])),
+    ])
+
+
+def load_spec(source: str | Path, *, text: str | None = None) -> SweepSpec:
+    """Load and check a sweep spec (a YAML file, or ``text``).
+
+    Args:
+        source: the spec file (or a label for ``text``).
+        text: inline YAML instead of reading ``source``.
+
+    Raises:
+        UserInputError: unreadable file, unknown experiment, unknown field, a value of the wrong
+            type, an empty grid or field list, or a value the experiment rejects; the message
+            names the field.
+    """
+    from pydrake.common.yaml import yaml_load_typed
+
+    from ballchain.experiments.studies import EXPERIMENTS
+
+    label = str(source)
+    if text is None:
+        path = Path(source)
+        if not path.is_file():
+            raise UserInputError(f"sweep spec {label!r} is not a file")
+        text = path.read_text()
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise UserInputError(f"sweep spec {label}: not valid YAML: {err}") from None
+    if not isinstance(raw, dict):
+        raise UserInputError(f"sweep spec {label}: must be a mapping with keys {SPEC_KEYS}")
+    unknown = [k for k in raw if k not in SPEC_KEYS]
+    if unknown:
+        raise UserInputError(f"sweep spec {label}: unknown field(s) {unknown}; allowed: {SPEC_KEYS}")
+    name = raw.get("experiment")
+    if name not in EXPERIMENTS:
+        raise UserInputError(f"sweep spec {label}: experiment must be one of {sorted(EXPERIMENTS)}, got {name!r}")
+    experiment = EXPERIMENTS[name]
+    hints = typing.get_type_hints(experiment.params)
+    fields = list(hints)
+
+    grid = raw.get("grid") or {}
+    if not isinstance(grid, dict):
+        raise UserInputError(f"sweep spec {label}: grid must be a mapping of field -> list of values")
+    for key, values in grid.items():
+        if key not in hints:
+            raise UserInputError(f"sweep spec {label}: grid.{key} is not a field of experiment {name!r}; "
+                                 f"fields: {fields}")
+        if not isinstance(values, list):
+            raise UserInputError(f"sweep spec {label}: grid.{key} must be a list of values, got {values!r}")
+        if not values:
+            raise UserInputError(f"sweep spec {label}: grid.{key} is empty (give at least one value)")
+        for k, v in enumerate(values):
+            _check_value(f"sweep spec {label}: grid.{key}[{k}]", v, hints[key])
+    points = raw.get("points") or []
+    if not isinstance(points, list):
+        raise UserInputError(f"sweep spec {label}: points must be a list of parameter sets")
+    for k, point in enumerate(points):
+        if not isinstance(point, dict):
+            raise UserInputError(f"sweep spec {label}: points[{k}] must be a mapping of field -> value")
+        for key, v in point.items():
+            if key not in hints:
+                raise UserInputError(f"sweep spec {label}: points[{k}].{key} is not a field of experiment "
+                                     f"{name!r}; fields: {fields}")
+            _check_value(f"sweep spec {label}: points[{k}].{key}", v, hints[key])
+    seeds = raw.get("seeds", [0])
+    if not isinstance(seeds, list) or not seeds:
+        raise UserInputError(f"sweep spec {label}: seeds must be a non-empty list of integers, got {seeds!r}")
+    for k, s in enumerate(seeds):
+        _check_value(f"sweep spec {label}: seeds[{k}]", s, int)
+    if len(set(seeds)) != len(seeds):
+        raise UserInputError(f"sweep spec {label}: seeds has duplicates: {seeds}")
+    if not grid and not points:
+        raise UserInputError(f"sweep spec {label}: the grid is empty and there are no points "
+                             f"(give grid: {{field: [values]}} or points: [{{field: value}}])")
+    for key in ("experiment", "description"):
+        if key in raw and not isinstance(raw[key], str):
+            raise UserInputError(f"sweep spec {label}: {key} must be a string, got {raw[key]!r}")
+
+    # Every value is checked above, so the typed load below only builds the dataclasses (and
+    # keeps the project's one way of reading typed YAML).
+    try:
+        typed = yaml_load_typed(schema=_schema(experiment), data=text)
+    except (RuntimeError, ValueError, TypeError) as err:
+        raise UserInputError(f"sweep spec {label}: {err}") from None
+    axes = [f.name for f in dataclasses.fields(experiment.params) if f.name in grid]
+    product = []
+    if axes:
+        for combo in itertools.product(*(getattr(typed.grid, a) for a in axes)):
+            product.append(experiment.params(**dict(zip(axes, combo))))
+    all_points = product + list(typed.points)
+    for k, p in enumerate(all_points):
+        if experiment.check is not None:
+            try:
+                experiment.check(p)
+            except UserInputError as err:
+                raise UserInputError(f"sweep spec {label}: point {k + 1} ({_describe(p)}): {err}") from None
+    keys = [point_key(name, p, s) for p in all_points for s in seeds]
+    if len(set(keys)) != len(keys):
+        raise UserInputError(f"sweep spec {label}: the same point appears twice (grid and points overlap)")
+    return SweepSpec(name, typed.description, all_points, list(seeds), label)
+
+
+def _describe(params) -> str:
+    return ", ".join(f"{k}={v}" for k, v in dataclasses.asdict(params).items())
+
+
+def point_key(experiment: str, params, seed: int) -> str:
+    """A stable 16-hex-digit key of one run: the experiment, its parameters and its seed."""
+    payload = json.dumps({"experiment": experiment, "params": dataclasses.asdict(params), "seed": seed},
+                         sort_keys=True)
+    return hashlib.sha256(payload.encode()).hexdigest()[:16]
+
+
+# --- one point ------------------------------------------------------------------------------------
+
+def _scalar(value):
+    """A table cell: None, bool, int, float or str; anything else as JSON text."""
+    import numpy as np
+
+    if isinstance(value, np.generic):
+        value = value.item()
+    if value is None or isinstance(value, (bool, int, str)):
+        return value
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    from ballchain.commands._common import to_jsonable
+
+    return json.dumps(to_jsonable(value), allow_nan=False, default=str)
+
+
+def run_point(experiment: str, params: dict, seed: int) -> dict:
+    """Run one point (on a worker or in-process) and return its table row.
+
+    BLAS is pinned to one thread, as the ``ballchain`` command does: every matrix here is small,
+    and threaded BLAS in each of several worker processes only oversubscribes the cores. An
+    exception in the experiment becomes the row's ``error`` (type and message).
+    """
+    from threadpoolctl import threadpool_limits
+
+    from ballchain.experiments.studies import EXPERIMENTS
+
+    exp = EXPERIMENTS[experiment]
+    p = exp.params(**params)
+    row = {"key": point_key(experiment, p, seed), "experiment": experiment, **dataclasses.asdict(p), "seed": seed}
+    start, cpu_start = time.perf_counter(), time.process_time()
+    error = None
+    outputs: dict = {}
+    try:
+        with threadpool_limits(limits=1, user_api="blas"):
+            outputs = exp.point(p, seed)
+    except Exception as err:  # noqa: BLE001: a failed point is a row with the reason
+        error = f"{type(err).__name__}: {err}"
+    clash = set(outputs) & set(row)
+    if clash:
+        error = f"experiment {experiment!r} returned outputs named like parameters: {sorted(clash)}"
+        outputs = {}
+    row.update({k: _scalar(v) for k, v in outputs.items()})
+    # CPU time besides wall time: on a shared machine the wall time also counts other jobs.
+    row.update(wall_time_s=time.perf_counter() - start, cpu_time_s=time.process_time() - cpu_start,
+               worker=_worker_name(), error=error)
+    return row
+
+
+def _worker_name() -> str:
+    try:
+        from distributed import get_worker
+
+        return get_worker().address
+    except (ImportError, ValueError):
+        return "serial"
+
+
+# --- the table ------------------------------------------------------------------------------------
+
+def _umask_mode() -> int:
+    """The mode a plainly created file gets (0o666 less the umask)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+def _atomic_write(path: Path, write: Callable[[str], None]) -> None:
+    """``write(temporary path)`` in the target's folder, then ``os.replace`` onto ``path``."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        write(tmp)
+        os.chmod(tmp, _umask_mode())  # mkstemp makes it private (0600); the result is not
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _columns(rows: list[dict], first: Sequence[str]) -> list[str]:
+    columns = list(first)
+    for row in rows:
+        columns += [k for k in row if k not in columns and k not in TAIL_COLUMNS]
+    return columns + list(TAIL_COLUMNS)
+
+
+def rows_to_table(rows: list[dict], first: Sequence[str] = ()):
+    """A pyarrow Table of the rows (columns: ``first``, then in order of appearance, then the
+    wall time, worker and error). A column whose values do not share a type is stored as text."""
+    import pyarrow as pa
+
+    columns = _columns(rows, list(META_COLUMNS) + list(first))
+    arrays = {}
+    for c in columns:
+        values = [r.get(c) for r in rows]
+        try:
+            arrays[c] = pa.array(values)
+        except (pa.ArrowInvalid, pa.ArrowTypeError):
+            arrays[c] = pa.array([None if v is None else str(v) for v in values], pa.string())
+    return pa.table(arrays)
+
+
+def write_table(out: Path, rows: list[dict], first: Sequence[str] = ()) -> None:
+    """Write ``out/table.parquet`` and ``out/table.csv`` atomically."""
+    import pyarrow.csv as pacsv
+    import pyarrow.parquet as pq
+
+    table = rows_to_table(rows, first)
+    _atomic_write(out / TABLE_PARQUET, lambda tmp: pq.write_table(table, tmp))
+    _atomic_write(out / TABLE_CSV, lambda tmp: pacsv.write_csv(table, tmp))
+
+
+def read_table(out: Path) -> list[dict]:
+    """The rows of ``out/table.parquet`` (empty if there is none)."""
+    import pyarrow.parquet as pq
+
+    path = Path(out) / TABLE_PARQUET
+    if not path.exists():
+        return []
+    return pq.read_table(path).to_pylist()
+
+
+# --- the executor ---------------------------------------------------------------------------------
+
+def _check_out(out: Path) -> Path:
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise UserInputError(f"--out {out} exists and is not a folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise UserInputError(f"--out {out}: cannot create the folder: {err}") from None
+    if not os.access(out, os.W_OK):
+        raise UserInputError(f"--out {out} is not writable")
+    return out
+
+
+def default_workers() -> int:
+    """One worker process per core this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def _check_executor(scheduler: str | None, workers: int | None, jobqueue: str | None) -> None:
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 0):
+        raise UserInputError(f"--workers must be an integer >= 0 (0: serial, in this process), got {workers!r}")
+    if scheduler is not None and jobqueue is not None:
+        raise UserInputError("--scheduler and --jobqueue exclude each other: give one")
+    if scheduler is not None and workers == 0:
+        raise UserInputError("--workers 0 (serial) and --scheduler exclude each other")
+    if scheduler is not None and "://" not in scheduler and ":" not in scheduler:
+        raise UserInputError(f"--scheduler must be an address like tcp://host:8786, got {scheduler!r}")
+    if jobqueue is not None:
+        if jobqueue not in JOBQUEUE_CLUSTERS:
+            raise UserInputError(f"--jobqueue must be one of {sorted(JOBQUEUE_CLUSTERS)}, got {jobqueue!r}")
+        try:
+            import dask_jobqueue  # noqa: F401
+        except ImportError:
+            raise UserInputError("--jobqueue needs dask-jobqueue (pip install dask-jobqueue); it is an "
+                                 "optional dependency") from None
+
+
+JOBQUEUE_CLUSTERS = {"slurm": "SLURMCluster", "pbs": "PBSCluster", "sge": "SGECluster", "lsf": "LSFCluster",
+                     "htcondor": "HTCondorCluster", "moab": "MoabCluster", "oar": "OARCluster"}
+
+
+class Executor:
+    """A Dask client on a new LocalCluster, a job-queue cluster or an existing scheduler.
+
+    Use as a context manager; ``client`` is None for the serial (in-process) executor.
+    """
+
+    def __init__(self, *, scheduler: str | None = None, workers: int | None = None, jobqueue: str | None = None,
+                 client=None):
+        _check_executor(scheduler, workers, jobqueue)
+        self.scheduler, self.workers, self.jobqueue = scheduler, workers, jobqueue
+        self.client, self._own_client, self.cluster = client, client is None, None
+        self.description = "client given by the caller" if client is not None else ""
+
+    def __enter__(self) -> "Executor":
+        if self.client is not None or self.workers == 0:
+            self.description = self.description or "serial (this process)"
+            return self
+        from distributed import Client
+
+        if self.scheduler is not None:
+            try:
+                self.client = Client(self.scheduler, timeout="15s")
+            except (OSError, TimeoutError) as err:
+                raise UserInputError(f"--scheduler {self.scheduler}: cannot connect: {err}") from None
+            self.description = f"scheduler {self.scheduler}"
+        elif self.jobqueue is not None:
+            import dask_jobqueue
+
+            # Queue, cores, memory, walltime... come from the dask-jobqueue configuration
+            # (~/.config/dask/jobqueue.yaml); --workers sets how many jobs to start.
+            self.cluster = getattr(dask_jobqueue, JOBQUEUE_CLUSTERS[self.jobqueue])()
+            self.cluster.scale(jobs=self.workers or 1)
+            self.client = Client(self.cluster)
+            self.description = f"{self.jobqueue} job queue, {self.workers or 1} job(s)"
+        else:
+            import logging
+            import warnings
+
+            from distributed import LocalCluster
+
+            n = self.workers or default_workers()
+            # Processes with one thread each: the points are GIL-bound Python and numpy. The
+            # scheduler's HTTP server (health routes) moves to a free port when another cluster on
+            # the machine holds 8787: not worth a warning.
+            with warnings.catch_warnings():
+                warnings.filterwarnings("ignore", message=r"Port \d+ is already in use")
+                self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                            dashboard_address=None, silence_logs=logging.ERROR)
+            self.client = Client(self.cluster)
+            self.description = f"LocalCluster, {n} worker process(es)"
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._own_client and self.client is not None:
+            self.client.close()
+            self.client = None
+        if self.cluster is not None:
+            self.cluster.close()
+            self.cluster = None
+
+
+def _infrastructure_error(exc) -> bool:
+    """Whether a task's failure is the cluster's (its worker died), not the point's."""
+    from distributed.scheduler import KilledWorker
+
+    try:
+        from distributed.comm.core import CommClosedError
+    except ImportError:  # pragma: no cover
+        CommClosedError = OSError  # noqa: N806
+    return isinstance(exc, (KilledWorker, CommClosedError, OSError, TimeoutError))
+
+
+def _lost_row(experiment: str, params, seed: int, reason: str) -> dict:
+    row = {"key": point_key(experiment, params, seed), "experiment": experiment, **dataclasses.asdict(params),
+           "seed": seed}
+    row.update(wall_time_s=None, cpu_time_s=None, worker=None, error=reason)
+    return row
+
+
+def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None, workers: int | None = None,
+              jobqueue: str | None = None, client=None, progress: bool = True, figure: bool = True,
+              on_result: Callable[[int, "Executor"], None] | None = None) -> dict:
+    """Run every point of ``spec`` not already done in ``out``; write the table (and the figure).
+
+    Args:
+        spec: from ``load_spec``.
+        out: the results folder (created); a rerun with the same folder skips the points that
+            already have a row without error and reruns the failed ones.
+        scheduler: address of an existing Dask scheduler (tcp://host:8786).
+        workers: worker processes of the LocalCluster (default: one per core), jobs of the job
+            queue; 0 runs the points serially in this process.
+        jobqueue: a dask-jobqueue cluster kind ("slurm", "pbs", ...) configured by dask-jobqueue's
+            own configuration file.
+        client: an existing ``distributed.Client`` to use (tests, notebooks).
+        progress: a tqdm bar over points.
+        figure: draw the experiment's figure from the table at the end.
+        on_result: called as ``on_result(points_finished, executor)`` after each finished point
+            (tests use it to kill a worker mid-sweep).
+
+    Returns:
+        {"experiment", "out", "table_parquet", "table_csv", "points", "ran", "skipped", "failed",
+        "resubmitted", "interrupted", "wall_time_s", "executor", "figure", "summary"}
+    """
+    from tqdm import tqdm
+
+    from ballchain.experiments.studies import EXPERIMENTS
+
+    _check_executor(scheduler, workers, jobqueue)
+    out = _check_out(out)
+    exp = EXPERIMENTS[spec.experiment]
+    param_names = [f.name for f in dataclasses.fields(exp.params)]
+    first = param_names + ["seed"]
+    previous = read_table(out)
+    others = sorted({r.get("experiment") for r in previous} - {spec.experiment})
+    if others:
+        raise UserInputError(f"--out {out} holds a sweep of experiment {others[0]!r}, not {spec.experiment!r}: "
+                             "use another folder")
+    done = {r["key"]: r for r in previous if r.get("error") is None}
+    tasks = spec.tasks()
+    keys = [point_key(spec.experiment, p, s) for p, s in tasks]
+    # Earlier rows of these points (a failed one stays until its rerun replaces it).
+    earlier = {r["key"]: r for r in previous}
+    rows: dict[str, dict] = {k: earlier[k] for k in keys if k in earlier}
+    todo = [(k, p, s) for k, (p, s) in zip(keys, tasks) if k not in done]
+    key_set = set(keys)
+    extra = [r for r in previous if r["key"] not in key_set]  # points of an earlier spec: kept
+
+    def ordered() -> list[dict]:
+        return [rows[k] for k in keys if k in rows] + extra
+
+    last_write = [0.0]
+
+    def save(force: bool = False) -> None:
+        if force or time.perf_counter() - last_write[0] > WRITE_PERIOD:
+            write_table(out, ordered(), first)
+            last_write[0] = time.perf_counter()
+
+    start = time.perf_counter()
+    interrupted, resubmitted, ran = False, 0, [0]
+    bar = tqdm(total=len(tasks), initial=len(tasks) - len(todo), desc=f"sweep {spec.experiment}", unit="point",
+               disable=not progress)
+    if not todo:  # everything done before: no cluster to start (the table and figure are redrawn)
+        scheduler, workers, jobqueue, client = None, 0, None, None
+    with Executor(scheduler=scheduler, workers=workers, jobqueue=jobqueue, client=client) as ex:
+        try:
+            if ex.client is None:
+                for n, (k, p, s) in enumerate(todo, 1):
+                    rows[k] = run_point(spec.experiment, dataclasses.asdict(p), s)
+                    ran[0] += 1
+                    bar.update(1)
+                    save()
+                    if on_result:
+                        on_result(n, ex)
+            else:
+                resubmitted = _run_on_client(ex, spec.experiment, todo, rows, bar, save, on_result, ran)
+        except KeyboardInterrupt:
+            interrupted = True
+    bar.close()
+    save(force=True)
+    table_rows = ordered()
+    summary = exp.summary(table_rows) if exp.summary and not interrupted else None
+    figure_path = None
+    if figure and exp.figure and not interrupted and any(r.get("error") is None for r in table_rows):
+        figure_path = exp.figure(table_rows, out)
+    result = {
+        "experiment": spec.experiment, "description": spec.description, "spec": spec.source, "out": out,
+        "table_parquet": out / TABLE_PARQUET, "table_csv": out / TABLE_CSV, "points": len(tasks),
+        "ran": ran[0], "skipped": len(tasks) - len(todo),
+        "failed": sum(1 for k in keys if k in rows and rows[k].get("error") is not None),
+        "resubmitted": resubmitted, "interrupted": interrupted, "wall_time_s": time.perf_counter() - start,
+        "executor": ex.description, "figure": figure_path, "summary": summary,
+    }
+    from ballchain.commands._common import to_jsonable
+
+    _atomic_write(out / "sweep.json", lambda tmp: Path(tmp).write_text(
+        json.dumps(to_jsonable(result), indent=1, allow_nan=False, default=str)))
+    return result
+
+
+def _run_on_client(ex: Executor, experiment: str, todo, rows: dict, bar, save, on_result, ran: list) -> int:
+    """Submit every point, collect rows as they finish (counted in ``ran[0]``), resubmit the ones
+    lost with a worker; returns the number of resubmissions."""
+    from concurrent.futures import CancelledError
+
+    from distributed import wait
+
+    import uuid
+
+    client = ex.client
+    attempts: dict[str, int] = {}
+    run_id = uuid.uuid4().hex[:8]
+    specs = {k: (p, s) for k, p, s in todo}
+
+    def submit(k):
+        attempts[k] = attempts.get(k, 0) + 1
+        p, s = specs[k]
+        # The key names the point, this run and the attempt: a key the scheduler still holds
+        # from an earlier run on the same cluster would hand back that run's result without
+        # computing (a stale row), and a resubmission must not meet its cancelled predecessor.
+        return client.submit(run_point, experiment, dataclasses.asdict(p), s,
+                             key=f"{experiment}-{k}-{run_id}-{attempts[k]}", pure=False)
+
+    futures = {submit(k): k for k, _, _ in todo}
+    finished, resubmitted = 0, 0
+    try:
+        while futures:
+            # Futures cancelled by a restart make ``wait`` raise: take them first, and if one is
+            # cancelled while waiting, look again. The timeout keeps Ctrl-C responsive.
+            done = [f for f in futures if f.status in ("cancelled", "lost")]
+            if not done:
+                try:
+                    done, _ = wait(list(futures), timeout=1.0, return_when="FIRST_COMPLETED")
+                except (CancelledError, TimeoutError):  # distributed's wait raises on its timeout
+                    continue
+            for future in done:
+                k = futures.pop(future, None)
+                if k is None:
+                    continue
+                status, row = future.status, None
+                if status == "finished":
+                    try:
+                        row = future.result(timeout=30)
+                    except Exception as err:  # noqa: BLE001: the result was lost in transit
+                        status, exc = "lost", err
+                elif status == "error":
+                    exc = future.exception()
+                    status = "lost" if _infrastructure_error(exc) else "error"
+                else:
+                    exc = None
+                if row is None and status in ("cancelled", "lost"):
+                    if attempts[k] < MAX_ATTEMPTS:
+                        futures[submit(k)] = k
+                        resubmitted += 1
+                        continue
+                    p, s = specs[k]
+                    row = _lost_row(experiment, p, s, f"lost with its worker {attempts[k]} times: {exc!r}")
+                elif row is None:  # the task itself failed outside the point (e.g. unpickling)
+                    p, s = specs[k]
+                    row = _lost_row(experiment, p, s, f"{type(exc).__name__}: {exc}")
+                rows[k] = row
+                finished += 1
+                ran[0] += 1
+                bar.update(1)
+                save()
+                if on_result:
+                    on_result(finished, ex)
+    except KeyboardInterrupt:
+        client.cancel(list(futures))
+        raise
+    return resubmitted
+
+
+# --- parallel report sections ---------------------------------------------------------------------
+
+class SectionRun(NamedTuple):
+    """One report section's outcome: its name, what its function returned, seconds, where it ran."""
+
+    name: str
+    value: Any
+    seconds: float
+    worker: str
+
+
+def _run_section(fn: Callable, out: str, quick: bool):
+    from threadpoolctl import threadpool_limits
+
+    start = time.perf_counter()
+    with threadpool_limits(limits=1, user_api="blas"):
+        value = fn(Path(out), quick)
+    return value, time.perf_counter() - start, _worker_name()
+
+
+def run_sections(sections: Sequence[tuple[str, Callable]], out: str | Path, quick: bool,
+                 workers: int | None = None, client=None) -> list[SectionRun]:
+    """Run independent report sections ``fn(out, quick)`` in parallel; results in the given order.
+
+    Args:
+        sections: (name, fn) pairs; each fn(out: Path, quick: bool) returns what the serial loop
+            would keep (for ``reproduce``: a (Section, data) pair). They must not depend on each
+            other's files. fn must be importable by name (a module-level function).
+        out: the report folder (shared: the workers are processes on this machine, or on
+            machines that see the same folder).
+        quick: passed to every fn.
+        workers: LocalCluster worker processes (default: one per core); 0 or 1 runs them
+            serially in this process (the reference).
+        client: an existing ``distributed.Client`` instead of a new LocalCluster.
+
+    Returns:
+        one SectionRun per section, in the order of ``sections``.
+
+    Raises:
+        the first (in section order) exception a section raised: serially at once (as the
+        serial loop), on workers after the other sections finished.
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    if client is None and workers in (0, 1):
+        runs = []
+        for name, fn in sections:
+            value, seconds, worker = _run_section(fn, str(out), quick)
+            runs.append(SectionRun(name, value, seconds, worker))
+        return runs
+    with Executor(workers=workers, client=client) as ex:
+        # Longest first would balance better, but the caller knows the order; the scheduler
+        # starts them in submission order as workers free up.
+        import uuid
+
+        run_id = uuid.uuid4().hex[:8]  # fresh keys: never an earlier run's result (see _run_on_client)
+        futures = [ex.client.submit(_run_section, fn, str(out), quick, key=f"section-{k}-{run_id}", pure=False)
+                   for k, (name, fn) in enumerate(sections)]
+        from distributed import wait
+
+        wait(futures)
+        runs, first_error = [], None
+        for (name, _), future in zip(sections, futures):
+            if future.status == "error":
+                first_error = first_error or future.exception()
+                runs.append(SectionRun(name, None, math.nan, ""))
+                continue
+            value, seconds, worker = future.result()
+            runs.append(SectionRun(name, value, seconds, worker))
+    if first_error is not None:
+        raise first_error
+    return runs
