@@ -152,6 +152,7 @@ CASES = [
     ("sweep-unknown-study", ["sweep", "nosuchstudy", "--out", "{folder}"], "nosuchstudy"),
     ("sweep-workers-negative", ["sweep", "design", "--workers", "-3", "--out", "{folder}"], "--workers"),
     ("sweep-out-is-file", ["sweep", "design", "--out", "{file}"], "--out"),
+    ("reproduce-workers-0", ["reproduce", "--quick", "--out", "{folder}", "--workers", "0"], "--workers"),
     ("reproduce-unknown-section", ["reproduce", "--quick", "--out", "{folder}", "--sections", "nope"], "--sections"),
 ]
 

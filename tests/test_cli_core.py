@@ -95,3 +95,23 @@ def test_simulate_reports_the_statics_tip_error_where_the_chain_settles(capsys):
     assert 0.0 < data["statics_tip_error_mm"] < 0.5  # the tip's indentation into the wall
     data = run_json(capsys, "simulate", "--scenario", "heart_no_field", "--duration", "0.005")
     assert data["statics_tip_error_mm"] is None
+
+
+@pytest.mark.slow
+def test_reproduce_on_two_workers_gives_the_serial_sections(tmp_path):
+    """``--workers 2`` runs the sections on a Dask LocalCluster: the same data, the same report order."""
+    import json
+
+    from ballchain.commands import reproduce
+
+    names = ["sizing", "field models"]
+    serial = reproduce.run(out=tmp_path / "serial", quick=True, sections=names)
+    parallel = reproduce.run(out=tmp_path / "parallel", quick=True, sections=names, workers=2)
+    assert list(parallel["experiments"]) == list(serial["experiments"]) == names
+    for slug in ("sizing", "field_models"):
+        a = json.loads((tmp_path / "serial" / "sections" / f"{slug}.json").read_text())
+        b = json.loads((tmp_path / "parallel" / "sections" / f"{slug}.json").read_text())
+        assert a == b
+    md_s = (tmp_path / "serial" / "report.md").read_text().split("## Run time")[0]
+    md_p = (tmp_path / "parallel" / "report.md").read_text().split("## Run time")[0]
+    assert md_s == md_p

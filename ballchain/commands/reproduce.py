@@ -15,6 +15,7 @@ rest. ``--sections`` runs some sections only.
 from __future__ import annotations
 
 import argparse
+import functools
 import hashlib
 import json
 import sys
@@ -23,7 +24,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from ballchain.commands._common import add_json_flag, print_json, to_jsonable, write_json
+from ballchain.commands._common import add_json_flag, int_in, print_json, to_jsonable, write_json
 from ballchain.drake_models.dipole import K_DIPOLE
 from ballchain.drake_models.errors import UserInputError
 from ballchain.experiments.field_models import DEFAULT_DISTANCES
@@ -45,6 +46,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sections", nargs="+", default=None, metavar="NAME",
                         help="run only these sections (names as in the report's run-time table, e.g. "
                              "alignment sizing)")
+    parser.add_argument("--workers", type=int_in(1, 64), default=1,
+                        help="run the sections in parallel on this many worker processes (a Dask "
+                             "LocalCluster on this machine; default 1: one after the other, in this process)")
     add_json_flag(parser)
 
 
@@ -489,6 +493,35 @@ def run_section(out: Path, name: str, experiment, quick: bool, key: str, resume:
     return section, {**record, "reused": False}
 
 
+def _section_job(name: str, key: str, out: Path, quick: bool) -> tuple[Section, dict]:
+    """One section with its cache step, as a task for a worker process (see ``run``)."""
+    return run_section(Path(out), name, dict(EXPERIMENTS)[name], quick, key, resume=False)
+
+
+def _run_parallel(out: Path, chosen, quick: bool, code: str, resume: bool, workers: int) -> dict:
+    """The sections on ``workers`` processes (``ballchain.sweep.run_sections``); {name: (section, record)}.
+
+    Each worker runs ``run_section`` (the cache step) for its section, so an interrupted parallel
+    run resumes like a serial one. The files a section wrote are found by comparing the folder
+    before and after it, so while sections run side by side a record may also list another
+    section's files: that can only cause a needless rerun on ``--resume``, never a wrong reuse.
+    """
+    from ballchain.sweep import run_sections
+
+    results, todo = {}, []
+    for name, _ in chosen:
+        key = section_key(name, quick, code)
+        record = _cached(out, name, key) if resume else None
+        if record is not None:
+            results[name] = (section_from_dict(record["section"], out), {**record, "reused": True})
+        else:
+            todo.append((name, functools.partial(_section_job, name, key)))
+    _say(f"running {len(todo)} section(s) on {workers} worker processes: {', '.join(n for n, _ in todo)}")
+    for run in run_sections(todo, out, quick, workers=workers):
+        results[run.name] = run.value
+    return results
+
+
 def _timing_section(summary: dict, total: float, pending: list[str]) -> Section:
     timing = Section("Run time")
     timing.table(["experiment", "seconds", "reused from an earlier run"],
@@ -504,7 +537,7 @@ def _say(message: str) -> None:
     tqdm.write(f"reproduce: {message}", file=sys.stderr)
 
 
-def run(*, out: Path, quick: bool = False, resume: bool = False, sections=None) -> dict:
+def run(*, out: Path, quick: bool = False, resume: bool = False, sections=None, workers: int = 1) -> dict:
     """Run every experiment (or ``sections``), write the report; returns a summary.
 
     Each section is a ``(name, function(out, quick) -> (Section, data))`` of ``EXPERIMENTS``;
@@ -516,12 +549,17 @@ def run(*, out: Path, quick: bool = False, resume: bool = False, sections=None) 
         quick: short versions of every experiment.
         resume: reuse the finished sections of an earlier (interrupted) run in ``out``.
         sections: names of the sections to run (default: all).
+        workers: 1 runs the sections one after the other in this process; more runs them side by
+            side on a Dask LocalCluster of that many processes (same results; the report is written
+            once all are done, in the same order).
 
     Raises:
         UserInputError: an unwritable ``out`` or an unknown section name.
     """
     out = Path(out)
     check_output_dir(out, "--out")
+    if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= 64:
+        raise UserInputError(f"--workers must be an integer in 1..64, got {workers!r}")
     names = [name for name, _ in EXPERIMENTS]
     if sections is not None:
         unknown = [s for s in sections if s not in names]
@@ -546,7 +584,17 @@ def run(*, out: Path, quick: bool = False, resume: bool = False, sections=None) 
     start = time.perf_counter()
     current = None
     try:
-        for name, experiment in tqdm(chosen, desc="reproduce", unit="experiment", file=sys.stderr):
+        if workers > 1:
+            results = _run_parallel(out, chosen, quick, code, resume, workers)
+            for name, _ in chosen:
+                section, record = results[name]
+                done.append(section)
+                summary[name] = {"seconds": record["seconds"], "reused": record["reused"]}
+            write_report(TITLE, done + [_timing_section(summary, time.perf_counter() - start, [])], out)
+            chosen_serial = []
+        else:
+            chosen_serial = chosen
+        for name, experiment in tqdm(chosen_serial, desc="reproduce", unit="experiment", file=sys.stderr):
             current = name
             section, record = run_section(out, name, experiment, quick, section_key(name, quick, code), resume)
             if record["reused"]:
@@ -570,7 +618,7 @@ def run(*, out: Path, quick: bool = False, resume: bool = False, sections=None) 
 
 
 def main(args: argparse.Namespace) -> int:
-    data = run(out=args.out, quick=args.quick, resume=args.resume, sections=args.sections)
+    data = run(out=args.out, quick=args.quick, resume=args.resume, sections=args.sections, workers=args.workers)
     if args.json:
         print_json(data)
     else:
