@@ -62,13 +62,17 @@ def main(argv: list[str] | None = None) -> int:
     if not argv or argv[0] not in COMMANDS:
         parser.parse_args(argv)  # prints help or the error, and exits
         return 2
-    # Load only the chosen subcommand's module, give its parser the arguments, then parse.
-    module = importlib.import_module(f"ballchain.commands.{COMMANDS[argv[0]][0]}")
-    module.add_arguments(subparsers[argv[0]])
-    args = parser.parse_args(argv)
-    from threadpoolctl import threadpool_limits
+    try:
+        # Load only the chosen subcommand's module, give its parser the arguments, then parse.
+        module = importlib.import_module(f"ballchain.commands.{COMMANDS[argv[0]][0]}")
+        module.add_arguments(subparsers[argv[0]])
+        args = parser.parse_args(argv)
+        from threadpoolctl import threadpool_limits
 
-    from ballchain.optimization.statics import StaticsError
+        from ballchain.optimization.statics import StaticsError
+    except KeyboardInterrupt:  # Ctrl-C while the libraries load: nothing was started
+        print(f"ballchain {argv[0]}: interrupted", file=sys.stderr)
+        return 130
 
     try:
         # Every matrix here is small (at most a few hundred rows): threaded BLAS only adds
