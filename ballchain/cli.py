@@ -86,6 +86,11 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"ballchain {args.command}: interrupted (files already written are complete)", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # the reader of stdout went away (``ballchain ... | head``): not an error
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except StaticsError as err:
         print(f"ballchain {args.command}: {' '.join(str(err).split())}", file=sys.stderr)
         return 1
