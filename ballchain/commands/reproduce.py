@@ -325,12 +325,13 @@ def teleop_section(out: Path, quick: bool) -> tuple[Section, dict]:
                   for k, v in data.items() for r in v["rows"]]
     section.table(["run", "target", "touched", "time on it [s]", "accuracy [mm]", "missed because",
                    "closest [mm]"], per_target)
-    spread = teleop.run_seeds(seeds=seeds, targets=n_targets, out=out / "teleop_seeds", heart=heart)
+    spread_targets = 1 if quick else None
+    spread = teleop.run_seeds(seeds=seeds, targets=spread_targets, out=out / "teleop_seeds", heart=heart)
     data["seeds"] = spread
     section.text(
         f"The spread over operator seeds {', '.join(str(v) for v in spread['settings']['seeds'])} (the "
         "hand's tremor: each seed is another operator run) per task and mapping"
-        + (f", first {n_targets} targets" if quick else ", whole tasks")
+        + (f", first {spread_targets} target" if quick else ", whole tasks")
         + "; total time counts every target's time, touched or given up "
         "(`ballchain.experiments.teleop.run_seeds`, `teleop_seeds/teleop_seeds.csv`)."
     )
