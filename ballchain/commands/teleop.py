@@ -4,8 +4,10 @@ Task I ("left": the 20 targets around the left veins) or Task II ("right": the 1
 veins), with the paper's world-frame joystick mapping or the catheter-frame mapping; one unit 10 cm
 beyond the right carina and the stepper feeder, the 16-ball chain in the procedural atrium. Prints
 per-target times and accuracies (distance from the tip's contact point to the target's centre),
-the totals beside the paper's operator times (40 s Task I, 26 s Task II), and writes a Meshcat
-replay with ``--html``.
+the totals beside the paper's operator times (40 s Task I, 26 s Task II), the reason for each
+missed target, and writes a Meshcat replay with ``--html``. The chain is the quasi-static engine's
+(a whole task in seconds) unless ``--set '{engine: plant}'``; ``--seed`` picks the operator's
+tremor. The real-time factor is simulated time over the wall time of the simulation loop.
 
 ``--live`` instead opens Meshcat on localhost and lets a person steer the chain in real time with a
 gamepad or the keyboard (``systems/meshcat_joystick.py``; the key map is printed on start), until

@@ -12,7 +12,13 @@ Both at the unit's ``teleop_omega_max`` (0.5 rad/s), with the feeder.
 
 A target counts as touched when the tip ball touches it within its 5 mm circle
 (``target_contact.targets_touched``); per target the operator records the time it spent on it
-and the accuracy: the distance from the tip ball's wall-side point to the target's centre.
+and the accuracy: the distance from the tip ball's wall-side point to the target's centre, and for
+a missed one the reason (``TargetRecord.reason``: jammed chain, out of reach, confused, timeout).
+
+The chain is the quasi-static engine's (``engine: statics``, ``DEFAULT_ENGINE``: the equilibrium
+with the atrium's wall every 50 ms; a whole task in seconds) unless the overrides name the engine
+(``{engine: plant}``: the MultibodyPlant, minutes per task). ``run_seeds`` runs the tasks over
+several operator seeds (the hand's tremor) and tabulates the spread.
 """
 
 from __future__ import annotations
