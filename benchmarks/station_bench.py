@@ -215,7 +215,8 @@ def teleop_task(plant_targets: int | None = 2, repeats: int = 1) -> dict:
                        "sim_s": runs[0]["sim_time_s"],
                        "wall_s": round(float(np.median([r["wall_time_s"] for r in runs])), 2),
                        "rtf_wall": round(float(np.median([r["realtime_factor"] for r in runs])), 3),
-                       "rtf_cpu": round(float(np.median([r["realtime_factor_cpu"] for r in runs])), 3)}
+                       "rtf_cpu": round(float(np.median([r["realtime_factor_cpu"] for r in runs])), 3),
+                       "failure": runs[0]["failure"], "missed_reasons": runs[0]["missed_reasons"]}
     out["speedup_wall"] = round(out["statics"]["rtf_wall"] / out["plant"]["rtf_wall"], 2)
     out["speedup_cpu"] = round(out["statics"]["rtf_cpu"] / out["plant"]["rtf_cpu"], 2)
     print("teleop_right_world", json.dumps(out), flush=True)
