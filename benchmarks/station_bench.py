@@ -14,7 +14,14 @@ chain's energy, gradient and Hessian in ReducedChain, plus the wall and sheath r
 the constraint Hessians, the QP steps, the positive-definite checks, the rest (line search,
 convergence tests, chart).
 
+The teleoperation task (``--teleop``): the simulated operator doing Task II (the 18 right-ring
+targets, world mapping, seed 0) on each engine in the same run: the whole task on the quasi-static
+engine, and the plant (4 ms quasi-static steps, ``teleop.FAST``) on the first ``--plant-targets``
+targets (the plant's whole task takes minutes: ``--plant-targets 0`` runs it whole). RTF on the
+wall and CPU time of the simulation loop; the engine's speed-up is the ratio of the RTFs.
+
     python benchmarks/station_bench.py --repeats 3 --json out.json
+    python benchmarks/station_bench.py --scenarios --teleop --plant-targets 2
 """
 
 from __future__ import annotations
@@ -54,7 +61,7 @@ def _run_once(name: str, engine: str, duration: float | None, max_duration: floa
 
 
 def run(*, scenarios=HEART_SCENARIOS, repeats: int = 3, duration: float | None = None,
-        max_duration: float = np.inf, profile_repeats: int = 20) -> dict:
+        max_duration: float = np.inf, profile_repeats: int = 20, profile: bool = True) -> dict:
     """RTF per scenario and engine (medians) and the profile of one equilibrium in contact."""
     results = {}
     for name in scenarios:
@@ -78,7 +85,7 @@ def run(*, scenarios=HEART_SCENARIOS, repeats: int = 3, duration: float | None =
         row["speedup_cpu"] = round(row["statics"]["rtf_cpu"] / row["plant"]["rtf_cpu"], 2)
         results[name] = row
         print(name, json.dumps(row), flush=True)
-    return {"scenarios": results, "profile": profile_equilibrium(profile_repeats)}
+    return {"scenarios": results, "profile": profile_equilibrium(profile_repeats) if profile else None}
 
 
 def profile_equilibrium(repeats: int = 20) -> dict:
@@ -186,6 +193,36 @@ def qp_comparison(engine, s, p, m, repeats: int = 30) -> dict:
     return out
 
 
+def teleop_task(plant_targets: int | None = 2, repeats: int = 1) -> dict:
+    """Task II (right ring, world mapping, seed 0) per engine: the engine whole, the plant on the
+    first ``plant_targets`` (None: whole). Medians over ``repeats`` alternating runs after an
+    untimed warm-up of each (one target)."""
+    from ballchain.experiments import teleop
+    from ballchain.systems.chain_simulation import atrium_for
+
+    heart = atrium_for(teleop.scenario_for("world"))
+    engines = {"statics": (None, None), "plant": (teleop.FAST, plant_targets)}
+    for overrides, _ in engines.values():  # warm-up: numba kernels, the SDF, the plant's first build
+        teleop.run(task="right", mapping="world", targets=1, progress=False, heart=heart, overrides=overrides)
+    samples = {k: [] for k in engines}
+    for _ in range(repeats):
+        for engine, (overrides, targets) in engines.items():
+            samples[engine].append(teleop.run(task="right", mapping="world", targets=targets, progress=False,
+                                              heart=heart, overrides=overrides)["summary"])
+    out = {}
+    for engine, runs in samples.items():
+        out[engine] = {"targets": runs[0]["targets"], "touched": runs[0]["touched"],
+                       "sim_s": runs[0]["sim_time_s"],
+                       "wall_s": round(float(np.median([r["wall_time_s"] for r in runs])), 2),
+                       "rtf_wall": round(float(np.median([r["realtime_factor"] for r in runs])), 3),
+                       "rtf_cpu": round(float(np.median([r["realtime_factor_cpu"] for r in runs])), 3),
+                       "failure": runs[0]["failure"], "missed_reasons": runs[0]["missed_reasons"]}
+    out["speedup_wall"] = round(out["statics"]["rtf_wall"] / out["plant"]["rtf_wall"], 2)
+    out["speedup_cpu"] = round(out["statics"]["rtf_cpu"] / out["plant"]["rtf_cpu"], 2)
+    print("teleop_right_world", json.dumps(out), flush=True)
+    return out
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--scenarios", nargs="*", default=list(HEART_SCENARIOS), help="named scenarios")
@@ -194,10 +231,23 @@ def main():
     parser.add_argument("--max-duration", type=float, default=np.inf,
                         help="cap on the scenario's duration when --duration is not given [s]")
     parser.add_argument("--profile-repeats", type=int, default=20, help="warm equilibria in the profile")
+    parser.add_argument("--no-profile", action="store_true", help="skip the equilibrium's profile")
+    parser.add_argument("--teleop", action="store_true",
+                        help="also the teleoperation task (Task II, world mapping) per engine")
+    parser.add_argument("--plant-targets", type=int, default=2,
+                        help="with --teleop: the plant's run covers the first N targets (0: the whole task, minutes)")
+    parser.add_argument("--teleop-repeats", type=int, default=1, help="with --teleop: timed runs per engine")
     parser.add_argument("--json", default=None, help="write the results to this file")
     args = parser.parse_args()
-    out = run(scenarios=args.scenarios, repeats=args.repeats, duration=args.duration,
-              max_duration=args.max_duration, profile_repeats=args.profile_repeats)
+    if args.plant_targets < 0 or args.teleop_repeats < 1:
+        parser.error("--plant-targets must be >= 0 and --teleop-repeats >= 1")
+    out = {}
+    if args.scenarios:
+        out = run(scenarios=args.scenarios, repeats=args.repeats, duration=args.duration,
+                  max_duration=args.max_duration, profile_repeats=args.profile_repeats,
+                  profile=not args.no_profile)
+    if args.teleop:
+        out["teleop_right_world"] = teleop_task(args.plant_targets or None, args.teleop_repeats)
     if args.json:
         with open(args.json, "w") as f:
             json.dump(out, f, indent=1)

@@ -341,7 +341,9 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
     if targets is not None and targets[0]:
         names, p_WT, n_W, target_radius = targets
         tracker = builder.AddSystem(TargetTouchTracker(
-            tip_index, names, p_WT, n_W, target_radius, ball_radius=0.5 * d, period=scenario.check_period))
+            tip_index, names, p_WT, n_W, target_radius, ball_radius=0.5 * d,
+            # The engine's chain moves only at its updates: checking in between finds nothing new.
+            period=max(scenario.check_period, scenario.statics_period) if statics else scenario.check_period))
         builder.Connect(body_poses, tracker.get_body_poses_input_port())
         extras["target_touches"] = tracker
     # External commands: the hook's systems drive them; what is left over is exported.

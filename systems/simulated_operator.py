@@ -169,6 +169,29 @@ class TargetRecord:
     t_end: float | None = None  # when it moved on (touched or gave up)
     relearns: int = 0  # probing wiggles after the first (confusion)
     bursts: int = 0  # feeding / retraction bursts (no progress, jams)
+    looks: int = 0  # looks while pursuing it (after the probing wiggle)
+    jammed_looks: int = 0  # ... with the chain jammed (fed, the tip did not go forward)
+    capped_looks: int = 0  # ... with the target ahead but the feeder at its length cap
+    closest: float = np.inf  # closest the ball's wall-side point came to the target's centre [m]
+
+    def reason(self) -> str | None:
+        """Why it was missed, from what the operator recorded (None: touched, or still open).
+
+        "chain jammed": the chain jammed in more than a quarter of its looks; "out of reach": the
+        target lay ahead but the feeder was at its length cap in more than half of them;
+        "confused": three or more re-learning wiggles; otherwise "timeout" (steering, sliding or
+        pressing beside it until the timeout). The closest approach is in the row.
+        """
+        if self.t_touch is not None or self.t_end is None:
+            return None
+        looks = max(self.looks, 1)
+        if self.jammed_looks > 0.25 * looks:
+            return "chain jammed"
+        if self.capped_looks > 0.5 * looks:
+            return "out of reach"
+        if self.relearns >= 3:
+            return "confused"
+        return "timeout"
 
     def row(self, t_now: float | None = None) -> dict:
         touched = self.t_touch is not None
@@ -177,7 +200,8 @@ class TargetRecord:
                 "time_s": None if end is None else round(end - self.t_start, 3),
                 "t_touch_s": None if not touched else round(self.t_touch, 3),
                 "accuracy_mm": None if not touched else round(self.accuracy * 1e3, 3),
-                "relearns": self.relearns, "bursts": self.bursts}
+                "relearns": self.relearns, "bursts": self.bursts, "reason": self.reason(),
+                "closest_mm": None if not np.isfinite(self.closest) else round(self.closest * 1e3, 3)}
 
 
 @dataclass
@@ -205,6 +229,22 @@ class _Memory:
     advanced_recent: float = 0.0  # forward tip motion meanwhile [m]
     agreement: float = 1.0  # running mean cosine between predicted and seen stick-driven motion
     descending: bool = False  # pressing down on the target (else hovering towards it)
+
+    def __deepcopy__(self, memo) -> "_Memory":
+        """An independent copy, field by field: the arrays and the open records copied, the
+        generator by its state. Drake clones the abstract state (Value[object] deep-copies) for
+        every update, and the generic deepcopy of this memory took about a tenth of a whole
+        task's wall time on the quasi-static engine."""
+        new = copy.copy(self)
+        for name in ("J", "P", "applied", "p_last", "d_last"):
+            value = getattr(self, name)
+            if value is not None:
+                setattr(new, name, value.copy())
+        new.queue = [u.copy() for u in self.queue]
+        new.records = [copy.copy(r) for r in self.records]
+        new.rng = np.random.Generator(type(self.rng.bit_generator)())
+        new.rng.bit_generator.state = self.rng.bit_generator.state
+        return new
 
 
 class SimulatedOperator(LeafSystem):
@@ -282,7 +322,9 @@ class SimulatedOperator(LeafSystem):
 
     def rows(self, context) -> list[dict]:
         """Per target: target, touched, time_s (spent on it; up to now for an open one), t_touch_s,
-        accuracy_mm, relearns, bursts; targets not turned to yet are untouched with no time."""
+        accuracy_mm, relearns, bursts, reason (a missed target's: ``TargetRecord.reason``; an open
+        one's None; "not reached" for a target not turned to yet, untouched with no time) and
+        closest_mm (its wall-side point's closest approach to the target's centre)."""
         t = context.get_time()
         records = {r.target: r for r in self._memory(context).records}
         rows = []
@@ -290,7 +332,7 @@ class SimulatedOperator(LeafSystem):
             r = records.get(name)
             rows.append(r.row(t) if r is not None else
                         {"target": name, "touched": False, "time_s": None, "t_touch_s": None, "accuracy_mm": None,
-                         "relearns": None, "bursts": None})
+                         "relearns": None, "bursts": None, "reason": "not reached", "closest_mm": None})
         return rows
 
     def is_done(self, context) -> bool:
@@ -379,6 +421,7 @@ class SimulatedOperator(LeafSystem):
         p = self.params
         k = mem.k
         record = mem.records[-1]
+        record.closest = min(record.closest, float(np.linalg.norm(tip - p.ball_radius * self._n_W[k] - self._p_WT[k])))
         touched = targets_touched(tip, self._p_WT[k:k + 1], self._n_W[k:k + 1], p.ball_radius, p.target_radius)[0]
         if touched:
             record.t_touch = t
@@ -423,7 +466,12 @@ class SimulatedOperator(LeafSystem):
         at_wall = ((tip - self._p_WT[k]) @ self._n_W[k] < p.ball_radius + p.contact_margin
                    and -(d @ self._n_W[k]) > np.cos(np.radians(45.0)))
         jammed = mem.fed_recent > p.jam_feed and mem.advanced_recent < p.jam_ratio * mem.fed_recent
-        may_feed = not at_wall and not jammed and mem.length < self._length_cap(k)
+        capped = mem.length >= self._length_cap(k)
+        may_feed = not at_wall and not jammed and not capped
+        record = mem.records[-1]  # what it notes for the reason of a miss
+        record.looks += 1
+        record.jammed_looks += int(jammed)
+        record.capped_looks += int(capped and e @ d > 0.5 * dist)
         if mem.phase == "pursue" and (t - mem.t_best > p.stall_window or jammed):
             # No progress: feed when the target is ahead of the tip (out of reach), else pull back.
             mem.records[-1].bursts += 1

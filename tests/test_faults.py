@@ -276,10 +276,11 @@ def test_killed_reproduce_leaves_whole_files_and_resume_finishes_it(tmp_path, ho
 
 @pytest.mark.slow
 def test_teleoperation_runs_are_deterministic_across_processes():
-    """The notebook's teleoperation runs give the same rows whatever the process's hash seed and
-    BLAS thread count (its one failure in a full run was time, not chaos: tests/test_notebooks.py)."""
+    """The notebook's teleoperation runs (the quasi-static engine) give the same rows whatever the
+    process's hash seed and BLAS thread count (its one failure in a full run was time, not chaos:
+    tests/test_notebooks.py)."""
     code = ("import json; from ballchain.experiments import teleop\n"
-            "r = teleop.run(task='right', mapping='world', targets=1, overrides=teleop.FAST, progress=False)\n"
+            "r = teleop.run(task='right', mapping='world', targets=1, progress=False)\n"
             "print(json.dumps(r['rows']))")
     rows = []
     for seed, threads in (("1", "1"), ("2", "2")):

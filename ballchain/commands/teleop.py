@@ -4,8 +4,10 @@ Task I ("left": the 20 targets around the left veins) or Task II ("right": the 1
 veins), with the paper's world-frame joystick mapping or the catheter-frame mapping; one unit 10 cm
 beyond the right carina and the stepper feeder, the 16-ball chain in the procedural atrium. Prints
 per-target times and accuracies (distance from the tip's contact point to the target's centre),
-the totals beside the paper's operator times (40 s Task I, 26 s Task II), and writes a Meshcat
-replay with ``--html``.
+the totals beside the paper's operator times (40 s Task I, 26 s Task II), the reason for each
+missed target, and writes a Meshcat replay with ``--html``. The chain is the quasi-static engine's
+(a whole task in seconds) unless ``--set '{engine: plant}'``; ``--seed`` picks the operator's
+tremor. The real-time factor is simulated time over the wall time of the simulation loop.
 
 ``--live`` instead opens Meshcat on localhost and lets a person steer the chain in real time with a
 gamepad or the keyboard (``systems/meshcat_joystick.py``; the key map is printed on start), until
@@ -37,9 +39,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="chain length (default 16, the paper's; fewer is faster but not the paper's task)")
     parser.add_argument("--time-limit", type=finite_float, default=None,
                         help="simulated-time limit in seconds (default: every target's timeout plus 5 s)")
+    parser.add_argument("--seed", type=_int, default=0,
+                        help="the simulated operator's seed (its hand's tremor), an integer in 0..2**32-1 (default 0)")
     parser.add_argument("--set", dest="overrides", default=None, metavar="YAML",
-                        help="inline YAML overriding the station scenario (teleop_right_unit), e.g. "
-                             "'{time_step: 0.004}' (3 times faster; tip path within 0.3 mm of the default 1 ms step)")
+                        help="inline YAML overriding the station scenario (teleop_right_unit); the engine is the "
+                             "quasi-static one (whole tasks in seconds) unless it says e.g. '{engine: plant}' "
+                             "(the MultibodyPlant, minutes per task; '{engine: plant, time_step: 0.004}' is 3 "
+                             "times faster, tip path within 0.3 mm of the default 1 ms step)")
     parser.add_argument("--html", type=Path, default=None, help="write a Meshcat replay (HTML) to this file")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--live", action="store_true",
@@ -62,7 +68,7 @@ def main(args: argparse.Namespace) -> int:
     # teleop.run checks every input, the --html path and the --set YAML before the (slow) build.
     data = teleop.run(task=args.task, mapping=args.mapping, targets=args.targets, html=args.html,
                       progress=not args.no_progress, time_limit=args.time_limit, n_balls=args.balls,
-                      overrides=args.overrides)
+                      overrides=args.overrides, seed=args.seed)
     if args.json:
         print_json(data)
         return 0
@@ -72,14 +78,18 @@ def main(args: argparse.Namespace) -> int:
                   f"{r['accuracy_mm']:.2f} mm from the centre")
         else:
             spent = "not reached" if r["time_s"] is None else f"missed after {r['time_s']:.2f} s"
-            print(f"{r['target']:9s} {spent}")
+            why = data["summary"]["missed_reasons"].get(r["target"])
+            closest = "" if r["closest_mm"] is None else f", closest {r['closest_mm']:.1f} mm"
+            print(f"{r['target']:9s} {spent} ({why}{closest})")
     s = data["summary"]
     median = "-" if s["median_time_s"] is None else f"{s['median_time_s']:.2f} s"
     accuracy = "-" if s["median_accuracy_mm"] is None else f"{s['median_accuracy_mm']:.2f} mm"
     print(f"{data['task']} task, {data['mapping']} mapping: {s['touched']}/{s['targets']} touched in "
           f"{s['total_time_s']:.1f} s (median {median} per target, median accuracy {accuracy}); "
           f"operator in the paper: {data['paper']['human_time_s']:.0f} s for the whole task")
-    print(f"simulated {s['sim_time_s']:.1f} s in {s['wall_time_s']:.0f} s (real-time factor {s['realtime_factor']})")
+    print(f"simulated {s['sim_time_s']:.1f} s in {s['wall_time_s']:.1f} s of wall time in the simulation loop "
+          f"(real-time factor {s['realtime_factor']}; {data['settings']['engine']} engine, operator seed "
+          f"{data['settings']['seed']})")
     if s["failure"]:
         print(f"simulation stopped: {s['failure']}")
     if "html" in data:
@@ -93,7 +103,8 @@ def _main_live(args: argparse.Namespace) -> int:
     from ballchain.drake_models.errors import UserInputError
     from ballchain.experiments import teleop
 
-    for flag, value in (("--html", args.html), ("--targets", args.targets), ("--time-limit", args.time_limit)):
+    for flag, value in (("--html", args.html), ("--targets", args.targets), ("--time-limit", args.time_limit),
+                        ("--seed", args.seed or None)):
         if value is not None:
             raise UserInputError(f"{flag} does not apply to --live (got {value}); use --duration to bound a live run")
     teleop.check_live_inputs(args.mapping, args.units, args.balls, args.duration, args.realtime_rate)

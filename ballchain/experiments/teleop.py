@@ -12,7 +12,13 @@ Both at the unit's ``teleop_omega_max`` (0.5 rad/s), with the feeder.
 
 A target counts as touched when the tip ball touches it within its 5 mm circle
 (``target_contact.targets_touched``); per target the operator records the time it spent on it
-and the accuracy: the distance from the tip ball's wall-side point to the target's centre.
+and the accuracy: the distance from the tip ball's wall-side point to the target's centre, and for
+a missed one the reason (``TargetRecord.reason``: jammed chain, out of reach, confused, timeout).
+
+The chain is the quasi-static engine's (``engine: statics``, ``DEFAULT_ENGINE``: the equilibrium
+with the atrium's wall every 50 ms; a whole task in seconds) unless the overrides name the engine
+(``{engine: plant}``: the MultibodyPlant, minutes per task). ``run_seeds`` runs the tasks over
+several operator seeds (the hand's tremor) and tabulates the spread.
 """
 
 from __future__ import annotations
@@ -30,16 +36,32 @@ MAPPINGS = {"world": "world", "catheter": "tip"}  # user-facing name -> Teleoper
 PAPER = paper.TELEOP_TASKS
 SCENARIO = "teleop_right_unit"
 REPLAY_PERIOD = 0.1  # [s] Meshcat replay frames (unless the overrides set publish_period)
-# A 4 ms quasi-static step (same damping): replaying 15 s of an operator's recorded commands (68 mm
-# of tip travel, sliding and pressing on the wall), the tip path stayed within 0.28 mm of the
-# default 1 ms step's (0.09 mm at 2 ms), 3.2 times faster (real-time factor 0.23 -> 0.73); 8 ms
-# breaks the chain apart. Closed-loop runs are chaotic: the operator's per-target times differ
-# between steps as between any two runs, not systematically.
-FAST = "{time_step: 0.004}"
+# The station's engine unless the overrides say otherwise: the quasi-static engine
+# (``systems/quasi_static_engine.py``: the chain's equilibrium with the atrium's wall every 50 ms),
+# whole tasks in seconds. ``--set '{engine: plant}'`` runs the MultibodyPlant (minutes per task).
+DEFAULT_ENGINE = "statics"
+# The plant at a 4 ms quasi-static step (same damping): replaying 15 s of an operator's recorded
+# commands (68 mm of tip travel, sliding and pressing on the wall), the tip path stayed within
+# 0.28 mm of the default 1 ms step's (0.09 mm at 2 ms), 3.2 times faster (real-time factor 0.23 ->
+# 0.73); 8 ms breaks the chain apart. Closed-loop runs are chaotic: the operator's per-target times
+# differ between steps as between any two runs, not systematically.
+FAST = "{engine: plant, time_step: 0.004}"
+MAX_SEED = 2**32 - 1
+REPRODUCE_SEEDS = 5  # operator seeds of reproduce's seed spread besides seed 0 (a whole task takes seconds)
 
 
-def check_inputs(task: str, mapping: str, targets: int | None, n_balls: int | None, time_limit: float | None) -> None:
+def check_seed(seed, what: str = "seed") -> int:
+    """The operator's seed (its hand's tremor) as an int; raises UserInputError unless it is an
+    integer in 0..2**32-1."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= MAX_SEED:
+        raise UserInputError(f"{what} must be an integer in 0..{MAX_SEED} (the operator's tremor), got {seed!r}")
+    return int(seed)
+
+
+def check_inputs(task: str, mapping: str, targets: int | None, n_balls: int | None, time_limit: float | None,
+                 seed: int = 0) -> None:
     """Raises UserInputError with a clear message on bad input."""
+    check_seed(seed)
     if task not in TASKS:
         raise UserInputError(f"task must be one of {TASKS} ('left': Task I, 'right': Task II), got {task!r}")
     if mapping not in MAPPINGS:
@@ -55,10 +77,17 @@ def check_inputs(task: str, mapping: str, targets: int | None, n_balls: int | No
 
 
 def scenario_for(mapping: str, n_balls: int | None = None, overrides: str | None = None):
-    """The paper's teleoperation station with the stick and the feeder left to an operator."""
-    from ballchain.systems.chain_scenario import load_scenario
+    """The paper's teleoperation station with the stick and the feeder left to an operator.
+
+    The engine is ``DEFAULT_ENGINE`` (the quasi-static engine) unless ``overrides`` name the
+    engine, or a mode other than quasi-static (then the plant: the only one for dynamics); the
+    overrides' other fields apply either way.
+    """
+    from ballchain.systems.chain_scenario import load_scenario, parse_overrides
 
     scenario = load_scenario(SCENARIO, overrides)
+    if "engine" not in parse_overrides(overrides) and scenario.mode == "quasi-static":
+        scenario.engine = DEFAULT_ENGINE
     if n_balls is not None:
         scenario.n_balls = n_balls
     unit = scenario.units[0]
@@ -73,7 +102,7 @@ def scenario_for(mapping: str, n_balls: int | None = None, overrides: str | None
 
 def run(task: str = "left", mapping: str = "world", targets: int | None = None, html: Path | None = None,
         progress: bool = True, time_limit: float | None = None, n_balls: int | None = None,
-        overrides: str | None = None, operator=None, heart=None) -> dict:
+        overrides: str | None = None, operator=None, heart=None, seed: int = 0) -> dict:
     """Simulate the operator doing a task with a mapping.
 
     Args:
@@ -85,18 +114,26 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
         time_limit: simulated-time limit [s]; default: every target's timeout plus 5 s (the
             operator gives up on a target after its timeout, so the run ends before).
         n_balls: chain length (default: the scenario's 16).
-        overrides: inline YAML overrides of the scenario (e.g. "{time_step: 0.002}").
-        operator: OperatorParams (default: OperatorParams() with the mapping's axes).
+        overrides: inline YAML overrides of the scenario (e.g. "{engine: plant}"); the engine is
+            the quasi-static one unless they name another (``scenario_for``).
+        operator: OperatorParams (default: OperatorParams() with the mapping's axes and ``seed``).
         heart: a prebuilt LeftAtrium to reuse.
+        seed: the operator's seed (its hand's tremor), 0..2**32-1; ignored when ``operator`` is given.
 
     Returns:
         {"task", "mapping", "rows": [{"target", "touched", "time_s" (spent on it), "t_touch_s",
         "accuracy_mm" (tip contact point to target centre), "relearns" (re-probing wiggles),
-        "bursts" (feeding / retraction bursts)}], "summary": {"touched", "targets",
-        "total_time_s", "median_time_s", "median_accuracy_mm", "max_accuracy_mm", "missed",
+        "bursts" (feeding / retraction bursts), "reason" (a missed target's: "chain jammed", "out
+        of reach", "confused", "timeout", "not reached" (the run ended first), else None),
+        "closest_mm"}], "summary": {"touched", "targets", "total_time_s", "median_time_s",
+        "median_accuracy_mm", "max_accuracy_mm", "missed", "missed_reasons" ({target: reason}),
         "struggled" (missed, or more than twice the median time), "sim_time_s",
-        "realtime_factor", "wall_time_s", "failure", "rim_sinkings", "rim_sinking_max_mm"},
-        "paper": {"human_time_s", ...}, "settings": {...}} (and "html" when written).
+        "realtime_factor" (simulated time over ``wall_time_s``), "wall_time_s" (wall time of the
+        simulation loop, Simulator Initialize + AdvanceTo: the build is not counted),
+        "build_time_s", "realtime_factor_cpu" (on the loop's process CPU time), "failure",
+        "rim_sinkings", "rim_sinking_max_mm"},
+        "paper": {"human_time_s", ...}, "settings": {..., "engine", "seed"}} (and "html" when
+        written).
     """
     from dataclasses import replace
 
@@ -107,7 +144,7 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     from ballchain.systems.chain_simulation import ChainMonitor, atrium_for, build_chain_diagram
     from ballchain.systems.simulated_operator import OperatorParams, SimulatedOperator
 
-    check_inputs(task, mapping, targets, n_balls, time_limit)
+    check_inputs(task, mapping, targets, n_balls, time_limit, seed)
     if html is not None:  # before the run: an unwritable replay path must not cost the results
         from ballchain.drake_models.safe_files import check_output_file
 
@@ -118,7 +155,7 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     heart = heart or atrium_for(scenario)
     ring = heart.rings[task]
     n_targets = len(ring.p_HT) if targets is None else min(int(targets), len(ring.p_HT))
-    params = operator or OperatorParams(axes=(0, 1, 2) if mapping == "world" else (0, 1))
+    params = operator or OperatorParams(axes=(0, 1, 2) if mapping == "world" else (0, 1), seed=int(seed))
     handles = {}
 
     def add_operator(builder, ports):
@@ -146,9 +183,11 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
         from pydrake.geometry import Meshcat, MeshcatParams
 
         meshcat = Meshcat(MeshcatParams(host="localhost"))
+    built = time.perf_counter()
     cd = build_chain_diagram(scenario, meshcat=meshcat, heart=heart, add_systems=add_operator)
     op = handles["operator"]
     simulator = Simulator(cd.diagram)
+    built = time.perf_counter() - built
     chain_monitor = ChainMonitor(cd, tolerate_sinking=lambda p: near_ostium_rim(heart, p))
     root = simulator.get_mutable_context()
     op_context = op.GetMyContextFromRoot(root)
@@ -172,23 +211,28 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     if cd.visualizer is not None:
         cd.visualizer.StartRecording()
     failure = None
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     try:
         simulator.Initialize()
         simulator.AdvanceTo(limit)
     except (RuntimeError, ValueError) as err:
         failure = chain_monitor.failure or f"at t = {root.get_time():.4f} s: {err}"
-    wall = time.perf_counter() - start
+    wall, cpu = time.perf_counter() - start, time.process_time() - cpu
     bar.close()
     sim_time = root.get_time()
     rows = op.rows(op_context)
     summary = summarize(rows, sim_time, wall, failure)
+    summary["build_time_s"] = round(built, 2)
+    # On a shared machine wall time counts the waits for a core: the loop's process CPU time too.
+    summary["realtime_factor_cpu"] = round(sim_time / cpu, 4) if cpu > 0 else None
     sinkings = chain_monitor.tolerated_sinkings
     summary["rim_sinkings"] = len(sinkings)
     summary["rim_sinking_max_mm"] = round(max(e[2] for e in sinkings) * 1e3, 3) if sinkings else None
     result = {"task": task, "mapping": mapping, "rows": rows, "summary": summary,
               "paper": PAPER[task],
-              "settings": {"n_balls": scenario.n_balls, "time_step_s": scenario.effective_time_step,
+              "settings": {"engine": scenario.engine, "seed": int(params.seed), "overrides": overrides,
+                           "statics_period_s": scenario.statics_period if scenario.engine == "statics" else None,
+                           "n_balls": scenario.n_balls, "time_step_s": scenario.effective_time_step,
                            "teleop_omega_max_rad_s": scenario.units[0].teleop_omega_max,
                            "operator_period_s": params.period, "reaction_s": params.period * params.reaction_steps,
                            "timeout_s": params.timeout, "axes": list(params.axes), "time_limit_s": limit}}
@@ -229,8 +273,27 @@ def near_ostium_rim(heart, p_W: np.ndarray) -> bool:
     return False
 
 
+def missed_reason(row: dict, failure: str | None = None) -> str:
+    """A missed target's reason: the operator's (``TargetRecord.reason``), "simulation stopped"
+    when the watchdog ended the run on it or before it, "time limit" when the run's time limit
+    came first."""
+    if failure is not None and row["reason"] in (None, "not reached"):
+        return "simulation stopped"
+    if row["reason"] is None:  # open when the run ended: the time limit
+        return "time limit"
+    return row["reason"]
+
+
 def summarize(rows: list[dict], sim_time: float, wall: float, failure: str | None = None) -> dict:
-    """Totals over the targets: touched count, total and median times, accuracies."""
+    """Totals over the targets: touched count, total and median times, accuracies, and why each
+    missed target was missed.
+
+    Args:
+        rows: the operator's rows (``SimulatedOperator.rows``).
+        sim_time: simulated time [s].
+        wall: wall time of the simulation loop [s] (the real-time factor is sim_time / wall).
+        failure: the watchdog's message, if it stopped the run.
+    """
     touched = [r for r in rows if r["touched"]]
     times = [r["time_s"] for r in touched]
     accuracy = [r["accuracy_mm"] for r in touched]
@@ -242,13 +305,135 @@ def summarize(rows: list[dict], sim_time: float, wall: float, failure: str | Non
         "median_accuracy_mm": round(float(np.median(accuracy)), 3) if accuracy else None,
         "max_accuracy_mm": round(float(np.max(accuracy)), 3) if accuracy else None,
         "missed": [r["target"] for r in rows if not r["touched"]],
+        "missed_reasons": {r["target"]: missed_reason(r, failure) for r in rows if not r["touched"]},
         "struggled": [r["target"] for r in rows if r["time_s"] is not None and (
             not r["touched"] or (times and r["time_s"] > 2.0 * float(np.median(times))))],
         "sim_time_s": round(sim_time, 3),
         "realtime_factor": round(sim_time / wall, 4) if wall > 0 else None,
-        "wall_time_s": round(wall, 1),
+        "wall_time_s": round(wall, 2),
         "failure": failure,
     }
+
+
+# ---------------------------------------------------------------------------- spread over seeds
+SEED_FIELDS = ("task", "mapping", "runs", "seeds", "touched_min", "touched_median", "touched_max", "targets",
+               "total_time_median_s", "total_time_min_s", "total_time_max_s", "per_target_time_median_s",
+               "accuracy_median_mm", "realtime_factor_median", "paper_time_s", "missed_reasons")
+
+
+def check_seeds(seeds) -> list[int]:
+    """The seeds as a list of distinct ints (``check_seed`` each); raises UserInputError."""
+    if isinstance(seeds, (int, np.integer)) and not isinstance(seeds, bool):
+        raise UserInputError(f"seeds must be a list of seeds, got the number {seeds!r} (e.g. range({seeds}))")
+    try:
+        seeds = list(seeds)
+    except TypeError:
+        raise UserInputError(f"seeds must be a list of integers, got {seeds!r}") from None
+    if not seeds:
+        raise UserInputError("seeds must name at least one seed")
+    seeds = [check_seed(v, "each seed") for v in seeds]
+    if len(set(seeds)) != len(seeds):
+        raise UserInputError(f"seeds must be distinct, got {seeds}")
+    return seeds
+
+
+def aggregate_seeds(task: str, mapping: str, results: list[dict]) -> dict:
+    """One row of the seed table from the runs of a (task, mapping) (``run`` results).
+
+    Touched: min / median / max over the runs; total time (every target's time, touched or
+    not): median, min, max; per-target time: the median over the runs of each run's median over
+    its touched targets; accuracy likewise; the missed targets' reasons counted over the runs.
+    """
+    s = [r["summary"] for r in results]
+    touched = [x["touched"] for x in s]
+    total = [x["total_time_s"] for x in s]
+    per_target = [x["median_time_s"] for x in s if x["median_time_s"] is not None]
+    accuracy = [x["median_accuracy_mm"] for x in s if x["median_accuracy_mm"] is not None]
+    rtf = [x["realtime_factor"] for x in s if x["realtime_factor"] is not None]
+    reasons: dict[str, int] = {}
+    for x in s:
+        for why in x["missed_reasons"].values():
+            reasons[why] = reasons.get(why, 0) + 1
+
+    def med(values):
+        return round(float(np.median(values)), 3) if values else None
+
+    return {"task": task, "mapping": mapping, "runs": len(results),
+            "seeds": [r["settings"]["seed"] for r in results],
+            "touched_min": int(min(touched)), "touched_median": med(touched), "touched_max": int(max(touched)),
+            "targets": s[0]["targets"],
+            "total_time_median_s": med(total), "total_time_min_s": round(float(min(total)), 3),
+            "total_time_max_s": round(float(max(total)), 3),
+            "per_target_time_median_s": med(per_target), "accuracy_median_mm": med(accuracy),
+            "realtime_factor_median": med(rtf), "paper_time_s": PAPER[task]["human_time_s"],
+            "missed_reasons": "; ".join(f"{k}: {v}" for k, v in sorted(reasons.items())) or "-"}
+
+
+def run_seeds(tasks=TASKS, mappings=tuple(MAPPINGS), seeds=range(5), *, targets: int | None = None,
+              out: Path | None = None, progress: bool = True, overrides: str | None = None,
+              n_balls: int | None = None, heart=None) -> dict:
+    """The spread over operator seeds: every (task, mapping) run once per seed, serially.
+
+    (``ballchain sweep`` runs the same study in parallel on Dask; this is the plain serial
+    version that ``reproduce`` uses.)
+
+    Args:
+        tasks: among "left", "right".
+        mappings: among "world", "catheter".
+        seeds: the operator seeds (distinct integers, 0..2**32-1).
+        targets: only the first N targets of each task (None: whole tasks).
+        out: a folder: writes ``teleop_seeds.csv`` and ``teleop_seeds.json`` there (atomically).
+        progress: a progress bar over the runs.
+        overrides, n_balls: as ``run`` (the engine is the quasi-static one unless overridden).
+        heart: a prebuilt atrium (default: built once for all runs).
+
+    Returns:
+        {"table": [one ``aggregate_seeds`` row per (task, mapping)], "runs": [{"task", "mapping",
+        "seed", "summary", "rows"} per run], "settings": {...}} (and "files" when written).
+    """
+    from tqdm import tqdm
+
+    from ballchain.systems.chain_simulation import atrium_for
+
+    tasks, mappings = tuple(tasks), tuple(mappings)
+    for task in tasks:
+        for mapping in mappings:
+            check_inputs(task, mapping, targets, n_balls, None)
+    if not tasks or not mappings:
+        raise UserInputError("run_seeds needs at least one task and one mapping")
+    seeds = check_seeds(seeds)
+    files = None
+    if out is not None:  # before the runs
+        from ballchain.drake_models.safe_files import check_output_dir
+
+        out = check_output_dir(out, "out")
+        files = {"csv": out / "teleop_seeds.csv", "json": out / "teleop_seeds.json"}
+    heart = heart or atrium_for(scenario_for(mappings[0], n_balls, overrides))
+    table, runs = [], []
+    bar = tqdm(total=len(tasks) * len(mappings) * len(seeds), desc="teleop seeds", unit="run", disable=not progress)
+    for task in tasks:
+        for mapping in mappings:
+            results = []
+            for seed in seeds:
+                bar.set_postfix_str(f"{task}/{mapping} seed {seed}")
+                r = run(task=task, mapping=mapping, targets=targets, progress=False, n_balls=n_balls,
+                        overrides=overrides, heart=heart, seed=seed)
+                results.append(r)
+                runs.append({"task": task, "mapping": mapping, "seed": seed, "summary": r["summary"],
+                             "rows": r["rows"]})
+                bar.update(1)
+            table.append(aggregate_seeds(task, mapping, results))
+    bar.close()
+    result = {"table": table, "runs": runs,
+              "settings": {"seeds": seeds, "targets": targets, "overrides": overrides,
+                           "engine": results[0]["settings"]["engine"]}}
+    if files is not None:
+        from ballchain.drake_models.safe_files import write_csv, write_json
+
+        write_csv(files["csv"], table, SEED_FIELDS)
+        write_json(files["json"], result)
+        result["files"] = {k: str(v) for k, v in files.items()}
+    return result
 
 
 # ----------------------------------------------------------------------------------- live steering
