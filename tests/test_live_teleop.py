@@ -227,7 +227,7 @@ def test_gamepad_turns_the_magnet_keys_move_the_feeder_and_quit_ends_the_run():
     feed 10 mm/s x 0.5 s less the 0.1 s acceleration ramp's 0.5 mm = 4.5 mm (feeder within 0.1 mm),
     and ball 1 in the plant follows the feeder within 0.1 mm; Escape ends the run at once.
     Measured: 0.2514 rad, feeder 4.49 mm, ball 1 4.47 mm."""
-    session = teleop.build_live(n_balls=8, realtime_rate=0.0)
+    session = teleop.build_live(n_balls=8, realtime_rate=0.0, overrides="{engine: plant}")
     meshcat, root = session.meshcat, session.root
     cp = session.cd.chain_plant
     plant_context = cp.plant.GetMyContextFromRoot(root)
@@ -298,6 +298,9 @@ def test_live_run_headless_with_a_bounded_duration(capsys):
     out = capsys.readouterr()
     data = json.loads(out.out)
     assert data["ended"] == "duration" and data["failure"] is None
+    assert "engine" not in (data["settings"]["overrides"] or "")  # the default: the quasi-static engine
+    assert teleop.live_scenario_for("world").engine == teleop.DEFAULT_ENGINE == "statics"
+    assert teleop.live_scenario_for("world", overrides="{engine: plant}").engine == "plant"
     assert data["sim_time_s"] == pytest.approx(0.2, abs=1e-9)
     assert data["url"].startswith("http://localhost:")
     assert data["realtime_factor"] > 0 and data["target_realtime_rate"] == 1.0

@@ -303,9 +303,8 @@ class OperatorsPoint:
         task: "left" (Task I, 20 targets) or "right" (Task II, 18 targets).
         mapping: "world" (the paper's) or "catheter".
         targets: only the first N targets; 0: all of them.
-        engine: "plant" (the MultibodyPlant station) or "statics" (the quasi-static engine,
-            passed as the scenario override ``{engine: statics}``; while the scenario has no
-            ``engine`` field the point runs the plant and says so in ``engine_used``).
+        engine: "statics" (the quasi-static engine: a whole task in seconds) or "plant" (the
+            MultibodyPlant station: minutes per task), passed as the scenario override.
         time_step: quasi-static step [s]; 0: the scenario's (1 ms); 0.004 is ``teleop.FAST``.
         tremor: amplitude of the operator's hand tremor on each stick axis (its seed is the
             point's seed).
@@ -315,7 +314,7 @@ class OperatorsPoint:
     task: str = "right"
     mapping: str = "world"
     targets: int = 0
-    engine: str = "plant"
+    engine: str = "statics"
     time_step: float = 0.0
     tremor: float = 0.1
     n_balls: int = 16
@@ -335,28 +334,14 @@ def operators_check(p: OperatorsPoint) -> None:
         raise UserInputError(f"n_balls must be >= 3, got {p.n_balls}")
 
 
-def scenario_knows_engine() -> bool:
-    """Whether the station scenario has an ``engine`` field (the quasi-static engine landed)."""
-    import dataclasses
-
-    from ballchain.systems.chain_scenario import ChainScenario
-
-    return "engine" in {f.name for f in dataclasses.fields(ChainScenario)}
-
-
 def operators_point(p: OperatorsPoint, seed: int) -> dict:
     from ballchain.experiments import teleop
     from ballchain.systems.simulated_operator import OperatorParams
 
-    overrides, engine_used, note = {}, "plant", None
+    # The engine is always named: the teleop experiment's own default is the quasi-static engine.
+    overrides, engine_used, note = {"engine": p.engine}, p.engine, None
     if p.time_step > 0:
         overrides["time_step"] = p.time_step
-    if p.engine != "plant":
-        if scenario_knows_engine():
-            overrides["engine"] = p.engine
-            engine_used = p.engine
-        else:
-            note = f"engine {p.engine!r} asked for; the scenario has no engine field yet: ran the plant"
     operator = OperatorParams(axes=(0, 1, 2) if p.mapping == "world" else (0, 1), tremor=p.tremor, seed=seed)
     result = teleop.run(task=p.task, mapping=p.mapping, targets=p.targets or None, progress=False,
                         n_balls=p.n_balls, overrides=json.dumps(overrides) if overrides else None,

@@ -467,11 +467,12 @@ def live_scenario_for(mapping: str, units: str = "one", n_balls: int | None = No
         mapping: "world" or "catheter" (every unit).
         units: "one" (``teleop_right_unit``) or "two" (``teleop_two_units``: both sides).
         n_balls: chain length (default: the scenario's 16).
-        overrides: inline YAML overrides of the scenario (``--set``), applied first: e.g.
-            ``{engine: statics}`` once the scenario has that field.
+        overrides: inline YAML overrides of the scenario (``--set``), applied first. The engine is
+            ``DEFAULT_ENGINE`` (the quasi-static engine: real time for 16 balls; the plant runs at
+            about a fifth of it) unless they name one, e.g. ``{engine: plant}``.
     """
     from ballchain.drake_models.errors import UserInputError
-    from ballchain.systems.chain_scenario import load_scenario
+    from ballchain.systems.chain_scenario import load_scenario, parse_overrides
 
     try:
         scenario = load_scenario(LIVE_SCENARIOS[units], overrides)
@@ -479,6 +480,8 @@ def live_scenario_for(mapping: str, units: str = "one", n_balls: int | None = No
         raise
     except ValueError as err:
         raise UserInputError(f"--set: {err}") from None
+    if "engine" not in parse_overrides(overrides) and scenario.mode == "quasi-static":
+        scenario.engine = DEFAULT_ENGINE
     if n_balls is not None:
         scenario.n_balls = n_balls
     for unit in scenario.units:
