@@ -86,14 +86,21 @@ def scenario_for(mapping: str, n_balls: int | None = None, overrides: str | None
     from ballchain.systems.chain_scenario import load_scenario, parse_overrides
 
     scenario = load_scenario(SCENARIO, overrides)
-    if "engine" not in parse_overrides(overrides) and scenario.mode == "quasi-static":
+    return hand_over(scenario, mapping, n_balls, parse_overrides(overrides), units=scenario.units[:1])
+
+
+def hand_over(scenario, mapping: str, n_balls: int | None, overrides: dict, units=None):
+    """The station with the sticks of ``units`` (default: all) and the feeder left to an operator
+    or a person: their scripted joysticks removed, the mapping set, the engine ``DEFAULT_ENGINE``
+    unless ``overrides`` (the parsed ``--set`` mapping) name one or the mode is not quasi-static."""
+    if "engine" not in overrides and scenario.mode == "quasi-static":
         scenario.engine = DEFAULT_ENGINE
     if n_balls is not None:
         scenario.n_balls = n_balls
-    unit = scenario.units[0]
-    unit.joystick = []
-    unit.joystick_source = "external"
-    unit.teleop_frame = MAPPINGS[mapping]
+    for unit in scenario.units if units is None else units:
+        unit.joystick = []
+        unit.joystick_source = "external"
+        unit.teleop_frame = MAPPINGS[mapping]
     ins = scenario.insertion
     ins.feeder, ins.feeder_command = True, "external"
     ins.final = ins.initial
@@ -480,18 +487,7 @@ def live_scenario_for(mapping: str, units: str = "one", n_balls: int | None = No
         raise
     except ValueError as err:
         raise UserInputError(f"--set: {err}") from None
-    if "engine" not in parse_overrides(overrides) and scenario.mode == "quasi-static":
-        scenario.engine = DEFAULT_ENGINE
-    if n_balls is not None:
-        scenario.n_balls = n_balls
-    for unit in scenario.units:
-        unit.joystick = []
-        unit.joystick_source = "external"
-        unit.teleop_frame = MAPPINGS[mapping]
-    ins = scenario.insertion
-    ins.feeder, ins.feeder_command = True, "external"
-    ins.final = ins.initial
-    return scenario.validate()
+    return hand_over(scenario, mapping, n_balls, parse_overrides(overrides))
 
 
 class LiveSession:
