@@ -30,6 +30,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "reconfigure": ("reconfigure", "closed-loop magnet axis reconfiguration study (Hall sensor, slip, noise)"),
     "wheels": ("wheels", "omni-wheel kinematics: derived wheel-to-magnet map vs the paper's"),
     "teleop": ("teleop", "simulated operator touches the ablation targets (paper Tasks I/II), two joystick mappings"),
+    "clinical": ("clinical", "the paper's clinical design (two 119 mm spheres) in simulation, and the model's sizing"),
 }
 
 
