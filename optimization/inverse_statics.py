@@ -389,3 +389,49 @@ def max_force_orientation(held: HeldTip, m_start, target_radius: float, friction
         feasible = F[0] > 0 and np.hypot(F[1], F[2]) <= friction * F[0] + 1e-3 * force_scale
     return OrientationPlan(feasible, dipoles, offset, force, friction_needed, turn, result, status,
                            held.evaluations - before)
+
+
+def _direction(angles) -> np.ndarray:
+    az, el = angles
+    return np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+
+
+def _angles(u) -> np.ndarray:
+    return np.array([np.arctan2(u[1], u[0]), np.arcsin(np.clip(u[2], -1.0, 1.0))])
+
+
+def max_force_penalised(held: HeldTip, m_start, target_radius: float, friction: float, force_scale: float,
+                        evaluations: int = 80, penalty: float = 10.0):
+    """A derivative-free companion of ``max_force_orientation`` that starts from outside the cone.
+
+    Nelder-Mead over each magnet's (azimuth, elevation) and the touch point w (o = r w) on the
+    exact penalty ``F_n - penalty * max(0, |F_t| - mu F_n)``, each evaluation warm-started from
+    the best held equilibrium so far. SNOPT started outside the cone often walks to a feasible
+    point that presses almost nothing; this finds the cone's best region first.
+
+    Returns:
+        ``(dipoles (k, 3), equilibrium, F (3,) in held.basis [N])`` of the best evaluation.
+    """
+    from scipy.optimize import minimize
+
+    m0 = _unit_rows(m_start)
+    k = m0.shape[0]
+    F0, _ = held.pressing(np.concatenate([m0.reshape(-1), np.zeros(2)]))
+    best = {"value": -np.inf, "m": m0, "result": held.home, "F": F0}
+
+    def objective(x):
+        m = np.array([_direction(x[2 * j: 2 * j + 2]) for j in range(k)])
+        w = x[2 * k:]
+        w_norm = float(np.linalg.norm(w))
+        held._last = best["result"]
+        F, result = held.pressing(np.concatenate([m.reshape(-1), target_radius * w / max(1.0, w_norm)]))
+        if F is None:
+            return 1e3
+        value = F[0] - penalty * max(0.0, float(np.hypot(F[1], F[2])) - friction * F[0]) - 1e-3 * max(0.0, w_norm - 1.0)
+        if value > best["value"]:
+            best.update(value=value, m=m, result=result, F=F)
+        return -value / force_scale
+
+    x0 = np.concatenate([np.concatenate([_angles(u) for u in m0]), np.zeros(2)])
+    minimize(objective, x0, method="Nelder-Mead", options={"maxfev": evaluations, "xatol": 1e-3, "fatol": 1e-6})
+    return best["m"], best["result"], best["F"]

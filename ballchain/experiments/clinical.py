@@ -41,7 +41,6 @@ import time
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
-from scipy.optimize import minimize
 
 from ballchain.drake_models.dipole import K_DIPOLE
 from ballchain.drake_models.dipole_inversion import moment_from_field
@@ -57,7 +56,7 @@ from ballchain.drake_models.params import (
 )
 from ballchain.experiments.forces import Stand, build_stand
 from ballchain.experiments.planner import teleop_stand
-from ballchain.optimization.inverse_statics import HeldTip, max_force_orientation, pin_tip
+from ballchain.optimization.inverse_statics import HeldTip, max_force_orientation, max_force_penalised, pin_tip
 from ballchain.optimization.sizing import force_between_magnets
 from ballchain.optimization.statics import ChainStatics, StaticsResult
 from ballchain.systems.chain_plant import ContactConfig
@@ -164,15 +163,6 @@ def _slerp(a: np.ndarray, b: np.ndarray, s: float) -> np.ndarray:
             angle = s * math.pi
         out.append(math.cos(angle) * u + math.sin(angle) * np.cross(axis, u) + (1 - math.cos(angle)) * (axis @ u) * axis)
     return np.array(out)
-
-
-def _direction(angles) -> np.ndarray:
-    az, el = angles
-    return np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
-
-
-def _angles(u) -> np.ndarray:
-    return np.array([math.atan2(u[1], u[0]), math.asin(float(np.clip(u[2], -1.0, 1.0)))])
 
 
 def _unit(v):
@@ -301,34 +291,11 @@ class TargetSolver:
         # The re-checked equilibrium holds the tip on the touch point SNOPT chose.
         return (bool(plan.feasible), float(F[0]), plan.dipoles, plan.result, F, plan.solver_status)
 
-    def _penalty_search(self, field_for, centre, axis, m0, home, evaluations: int = 80, rho: float = 10.0):
-        """Nelder-Mead over the magnets' (azimuth, elevation) and the touch point on
-        F_n - rho max(0, |F_t| - mu F_n), each evaluation warm-started from the best so far."""
+    def _penalty_search(self, field_for, centre, axis, m0, home):
         held = HeldTip(self.solver, field_for, centre, axis, home, n_magnets=2)
-        F0, _ = held.pressing(np.concatenate([m0.reshape(-1), np.zeros(2)]))
-        best = {"value": -np.inf, "m": m0, "result": home, "F": F0}
-
-        def unpack(x):
-            m = np.array([_direction(x[0:2]), _direction(x[2:4])])
-            w = x[4:6]
-            return m, self.radius * w / max(1.0, float(np.linalg.norm(w))), float(np.linalg.norm(w))
-
-        def objective(x):
-            m, offset, w_norm = unpack(x)
-            held._last = best["result"]
-            F, result = held.pressing(np.concatenate([m.reshape(-1), offset]))
-            self.solves += 1
-            if F is None:
-                return 1e3
-            value = F[0] - rho * max(0.0, float(np.hypot(F[1], F[2])) - self.friction * F[0])
-            value -= 1e-3 * max(0.0, w_norm - 1.0)
-            if value > best["value"]:
-                best.update(value=value, m=m, result=result, F=F)
-            return -value / newtons_from_gram_force(MIN_FORCE_GF)
-
-        x0 = np.concatenate([_angles(m0[0]), _angles(m0[1]), np.zeros(2)])
-        minimize(objective, x0, method="Nelder-Mead", options={"maxfev": evaluations, "xatol": 1e-3, "fatol": 1e-6})
-        return best["m"], best["result"], best["F"]
+        out = max_force_penalised(held, m0, self.radius, self.friction, newtons_from_gram_force(MIN_FORCE_GF))
+        self.solves += held.evaluations
+        return out
 
     def _seeds(self, field_for: ClinicalField, centre, axis) -> list:
         """Held equilibria for the seed field directions, best first (penalised by the cone).
