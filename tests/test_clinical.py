@@ -201,3 +201,40 @@ def test_right_vein_force_grows_with_the_spheres_and_crosses_10_gf():
     found = clinical.threshold_diameter(solver, solver.solve(0.119), 0.119)
     assert 0.15 < found["diameter_m"] < 0.19
     assert found["steps"] <= 6
+
+
+# --- helpers of the effects models --------------------------------------------------------------
+
+
+def test_frame_field_is_the_same_field_in_rotated_coordinates():
+    from ballchain.drake_models.field_sources import MagnetSource
+
+    source = MagnetSource(SphereMagnet(), [0.2, -0.1, 0.05], effects.frame_along([0.3, 0.4, -0.2]))
+    R = effects.frame_along([-0.2, 0.9, 0.1])
+    t = np.array([0.01, 0.02, -0.03])
+    p_C = np.array([[0.001, 0.002, 0.003], [-0.01, 0.0, 0.02]])
+    B_C, G_C = effects.FrameField(source, R, t).field_and_gradient(p_C)
+    B_S, G_S = source.field_and_gradient(p_C @ R.T + t)
+    np.testing.assert_allclose(B_C @ R.T, B_S, rtol=1e-12, atol=1e-18)
+    np.testing.assert_allclose(np.einsum("ia,kab,jb->kij", R, G_C, R), G_S, rtol=1e-10, atol=1e-15)
+
+
+def test_frozen_field_keeps_each_balls_field_and_drops_the_gradient():
+    from ballchain.drake_models.field_sources import MagnetSource, field_gradient_derivative
+
+    source = MagnetSource(SphereMagnet(), [0.0, -0.2, 0.0])
+    p = np.array([[0.0, 0.0, 0.0], [0.003, 0.0, 0.0], [0.006, 0.001, 0.0]])
+    frozen = effects.FrozenField(source, p)
+    B, G = frozen.field_and_gradient(p + 1e-3)  # moved balls keep their fields
+    np.testing.assert_array_equal(B, source.field_and_gradient(p)[0])
+    assert not G.any() and not field_gradient_derivative(frozen, p).any()
+    with pytest.raises(ValueError, match="3 balls"):
+        frozen.field_and_gradient(p[:2])
+
+
+def test_cli_refuses_bad_flags(capsys):
+    from ballchain.cli import main
+
+    assert main(["clinical", "--chains", "12Fr"]) == 2
+    assert "chains" in capsys.readouterr().err
+    assert main(["clinical", "--max-diameter-mm", "80"]) == 2

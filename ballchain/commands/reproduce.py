@@ -250,8 +250,10 @@ def clinical_section(out: Path, quick: bool) -> tuple[Section, dict]:
         f"(the tip ball alone: {ferro[0.0]['tip_ball_alone_normal_gf']:.0f} gf normal, "
         f"{ferro[0.0]['tip_ball_alone_parallel_gf']:.0f} gf parallel, touching). "
         f"(c) Clamping the chain k balls before the pin, [gf]: {support}; a short free length pinned nearly in line with "
-        "its clamp needs large forces to balance small torques, and can also only pull. "
-        f"(d) Holding the tip at the optimum takes friction {effects['friction']['mu_needed']:.2f} "
+        "its clamp needs large forces to balance small torques"
+        + ("; at some lengths the pin can only pull (negative). " if any(
+            (r["force_gf"] or 0.0) < 0 for r in effects["side_support"]) else ". ")
+        + f"(d) Holding the tip at the optimum takes friction {effects['friction']['mu_needed']:.2f} "
         f"(lateral {effects['friction']['lateral_gf']:.2f} gf); inside a cone the best force is [gf] {cones}. "
         f"(e) Advancing the chain continuously against a pin on the sheath's axis, field along it [gf]: {push}; "
         "the push rises to the buckling load and plateaus (no fold)."

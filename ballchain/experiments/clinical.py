@@ -273,7 +273,8 @@ class TargetSolver:
         feasible, force, m, result, F, status = best
         self.last_dipoles, self.last_result = m, result
         pull, push = force_breakdown(self.chain, field_for(m), result, axis)
-        return TargetForce(self.target, gram_force(force), bool(feasible), float(np.hypot(F[1], F[2]) / F[0]),
+        needed = float(np.hypot(F[1], F[2]) / F[0]) if F[0] > 0 else None
+        return TargetForce(self.target, gram_force(force), bool(feasible), needed,
                            gram_force(pull), gram_force(push), m.tolist(), self.solves, status)
 
     def _inside(self, F) -> bool:
