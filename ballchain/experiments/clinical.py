@@ -352,6 +352,8 @@ def threshold_diameter(solver: TargetSolver, first: TargetForce, first_diameter:
         "history": [(D [m], F [gf]), ...]}``.
     """
     history = [(first_diameter, first.effective_gf)]
+    if first.status == "out of reach":  # no magnet helps a target the chain cannot reach
+        return {"diameter_m": None, "bracket_m": (None, None), "steps": 0, "history": history}
 
     def g(force_gf):
         return math.log(max(force_gf, 1e-3) / min_force_gf)
@@ -522,6 +524,7 @@ def run(*, chains=("8Fr", "today"), ring_step: int = 3, sizing: bool = True,
             if sizing:
                 found = threshold_diameter(solver, best, D0, max_diameter=D_max)
                 target_sizing.append({"chain": key, "target": name, "group": group,
+                                      "reachable": best.status != "out of reach",
                                       "diameter_mm": None if found["diameter_m"] is None else 1e3 * found["diameter_m"],
                                       "steps": found["steps"],
                                       "history": [(1e3 * d, f) for d, f in found["history"]]})
@@ -534,6 +537,7 @@ def run(*, chains=("8Fr", "today"), ring_step: int = 3, sizing: bool = True,
             "vein_force_gf": {r["target"]: r["effective_gf"] for r in mine if r["group"] == "vein"},
             "vein_force_gf_min": min(veins_gf) if veins_gf else None,
             "ring_targets": len(ring_gf),
+            "ring_targets_out_of_reach": [r["target"] for r in mine if r["status"] == "out of reach"],
             "ring_targets_at_least_10_gf": sum(f >= MIN_FORCE_GF * (1 - 1e-4) for f in ring_gf),
             "ring_force_gf_min": min(ring_gf) if ring_gf else None,
             "ring_force_gf_max": max(ring_gf) if ring_gf else None,
@@ -545,13 +549,15 @@ def run(*, chains=("8Fr", "today"), ring_step: int = 3, sizing: bool = True,
             mine_s = [t for t in target_sizing if t["chain"] == key]
             steps = sum(t["steps"] for t in mine_s)
             vein_d = [t["diameter_mm"] for t in mine_s if t["group"] == "vein"]
-            ring_d = [t["diameter_mm"] for t in mine_s if t["group"] != "vein"]
+            ring_d = [t["diameter_mm"] for t in mine_s if t["group"] != "vein" and t["reachable"]]
+            unreachable = sum(1 for t in mine_s if t["group"] != "vein" and not t["reachable"])
             every_vein = None if (not vein_d or None in vein_d) else max(vein_d) * 1e-3
             sizing_rows.append(sizing_row(key, "10 gf on every vein", every_vein, d_c, reference, steps))
             for fraction, label in ((0.9, "90 %"), (1.0, "100 %")):
                 q = _quantile_diameter(ring_d, fraction) if ring_d else None
-                sizing_rows.append(sizing_row(key, f"10 gf on {label} of the ring targets", None if q is None else 1e-3 * q,
-                                              d_c, reference, steps))
+                criterion = f"10 gf on {label} of the ring targets" + (
+                    f" it reaches ({unreachable} of {unreachable + len(ring_d)} out of its reach)" if unreachable else "")
+                sizing_rows.append(sizing_row(key, criterion, None if q is None else 1e-3 * q, d_c, reference, steps))
     magnet = SphereMagnet(diameter=D0)
     r0 = magnet_distance(D0, d_c, reference)
     setup = {
