@@ -86,11 +86,13 @@ def write_files(data: dict, out: Path) -> list[str]:
     fig, ax = plt.subplots(figsize=(10, 4))
     for key, marker in zip(data["summary"], "os^"):
         rows = [r for r in data["rows"] if r["chain"] == key]
-        ax.plot(range(len(rows)), [r["effective_gf"] for r in rows], marker, linestyle="-",
+        forces = [float("nan") if r["status"] == "out of reach" else r["effective_gf"] for r in rows]  # a gap
+        ax.plot(range(len(rows)), forces, marker, linestyle="-",
                 label=f"{key} ({data['setup']['chains'][key]['n_balls']} balls)")
         ax.set_xticks(range(len(rows)), [r["target"] for r in rows], rotation=75, fontsize=7)
     ax.axhline(clinical.MIN_FORCE_GF, color="k", linestyle="--", linewidth=1, label="10 gf (paper's goal)")
     ax.set_ylabel("best tip force inside the friction cone [gf]")
+    ax.set_ylim(bottom=0.0)
     ax.set_title(f"Two {D:.0f} mm N52 spheres at {data['setup']['magnet_distance_cm']:.1f} cm: force per target "
                  "(veins, then left and right rings)")
     ax.legend(fontsize=8)
@@ -103,7 +105,9 @@ def write_files(data: dict, out: Path) -> list[str]:
         colours = {"8Fr": "tab:blue", "today": "tab:orange"}
         for t in data["target_sizing"]:
             h = sorted(t["history"])
-            ax.plot([p[0] for p in h], [max(p[1], 1e-2) for p in h], "-", color=colours.get(t["chain"], "k"),
+            if len(h) < 2:  # out of the chain's reach
+                continue
+            ax.plot([p[0] for p in h], [max(p[1], 0.3) for p in h], ".-", color=colours.get(t["chain"], "k"),
                     alpha=0.35 if t["group"] != "vein" else 0.9, linewidth=1.5 if t["group"] == "vein" else 0.8)
         for key, colour in colours.items():
             ax.plot([], [], color=colour, label=key)
@@ -114,7 +118,7 @@ def write_files(data: dict, out: Path) -> list[str]:
                 ax.axvline(s["diameter_mm"], color=colours.get(s["chain"], "k"), linestyle="--", linewidth=0.8)
         ax.set_xscale("log")
         ax.set_yscale("log")
-        ax.set_xlabel("sphere diameter D [mm] (centre at d_c + D/2)")
+        ax.set_xlabel("sphere diameter D [mm]")
         ax.set_ylabel("best tip force [gf]")
         ax.set_title("Sizing: each target's force against the spheres' size (veins bold)")
         ax.legend(fontsize=8)
