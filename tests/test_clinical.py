@@ -168,6 +168,31 @@ def test_threshold_search_finds_the_power_law_crossing(f0, p):
     assert found["steps"] == fake.calls - 1 <= 6
 
 
+class _FailsOnce(_PowerLaw):
+    """Finds nothing inside the cone at its second solve unless restarted from the seeds."""
+
+    def __init__(self, *args):
+        super().__init__(*args)
+        self.restarts = 0
+
+    def restart(self):
+        self.restarts += 1
+
+    def solve(self, D):
+        out = super().solve(D)
+        if self.calls == 2 and not self.restarts:
+            return clinical.TargetForce("x", 0.0, False, None, None, None, None, 0, "nothing inside the cone")
+        return out
+
+
+def test_threshold_search_retries_a_failed_search_from_the_seeds():
+    fake = _FailsOnce(1.8, 0.119, 2.0)
+    found = clinical.threshold_diameter(fake, fake.solve(0.119), 0.119)
+    assert fake.restarts == 1
+    assert found["diameter_m"] == pytest.approx(0.119 * (10.0 / 1.8) ** 0.5, rel=1e-6)
+    assert all(f > 0 for _, f in found["history"])
+
+
 def test_threshold_search_says_when_the_limit_is_too_small():
     fake = _PowerLaw(0.5, 0.119, 1.0)
     found = clinical.threshold_diameter(fake, fake.solve(0.119), 0.119, max_diameter=0.5)

@@ -277,6 +277,10 @@ class TargetSolver:
         return TargetForce(self.target, gram_force(force), bool(feasible), needed,
                            gram_force(pull), gram_force(push), m.tolist(), self.solves, status)
 
+    def restart(self) -> None:
+        """Forget the last size's optimum: the next solve starts from the seed directions."""
+        self.last_dipoles, self.last_result = None, None
+
     def _inside(self, F) -> bool:
         return bool(F[0] > 0 and np.hypot(F[1], F[2]) <= self.friction * F[0] * (1 + 1e-3))
 
@@ -360,6 +364,11 @@ def threshold_diameter(solver: TargetSolver, first: TargetForce, first_diameter:
 
     def F(D):
         value = solver.solve(D).effective_gf
+        if value == 0.0 and hasattr(solver, "restart"):
+            # Nothing inside the cone from the last size's optimum: a search failure, not physics
+            # (the force grows with D); once more from the seed directions.
+            solver.restart()
+            value = solver.solve(D).effective_gf
         history.append((D, value))
         return value
 
