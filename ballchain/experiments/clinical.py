@@ -42,7 +42,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ballchain.drake_models.dipole import K_DIPOLE
+from ballchain.drake_models.dipole import dipole_field
 from ballchain.drake_models.dipole_inversion import moment_from_field
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
@@ -572,7 +572,9 @@ def run(*, chains=("8Fr", "today"), ring_step: int = 3, sizing: bool = True,
     setup = {
         "diameter_mm": diameter_mm, "mass_kg": magnet.mass, "reference": reference,
         "heart_to_surface_cm": heart_to_surface_cm, "magnet_distance_cm": 1e2 * r0,
-        "field_at_centre_coaxial_mT": 1e3 * 2 * 2 * K_DIPOLE * magnet.dipole_moment / r0**3,
+        # Both dipoles along the line through them: the largest field the pair makes at the centre.
+        "field_at_centre_coaxial_mT": 1e3 * 2 * float(np.linalg.norm(dipole_field(np.array([r0, 0.0, 0.0]),
+                                                                                   np.array([magnet.dipole_moment, 0.0, 0.0])))),
         "friction": friction, "target_radius_mm": 1e3 * target_radius, "ring_step": ring_step,
         "chains": chain_info, "min_force_gf": MIN_FORCE_GF, "max_diameter_mm": max_diameter_mm,
     }
