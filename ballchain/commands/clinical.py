@@ -29,6 +29,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"which chains, some of {sorted(clinical.CHAINS)}")
     parser.add_argument("--ring-step", type=non_negative_int, default=3,
                         help="every N-th target of each ring (1: all 38; 0: veins only)")
+    parser.add_argument("--ring-offset", type=non_negative_int, default=0,
+                        help="first ring target taken (0-based; with --ring-step 2, 0 and 1 split the rings)")
     parser.add_argument("--no-sizing", action="store_true", help="forces at --diameter-mm only, no sizing")
     parser.add_argument("--diameter-mm", type=finite_float, default=clinical.PAPER["diameter_mm"],
                         help="the spheres' diameter for the force table [mm]")
@@ -129,7 +131,7 @@ def write_files(data: dict, out: Path) -> list[str]:
     return [str(f) for f in files]
 
 
-def run(*, chains=("8Fr", "today"), ring_step: int = 3, sizing: bool = True,
+def run(*, chains=("8Fr", "today"), ring_step: int = 3, ring_offset: int = 0, sizing: bool = True,
         diameter_mm: float = clinical.PAPER["diameter_mm"],
         heart_to_surface_cm: float = clinical.PAPER["heart_to_surface_cm"], reference: str = "surface",
         friction: float | None = None, max_diameter_mm: float = 1000.0, out: Path | None = None,
@@ -140,7 +142,8 @@ def run(*, chains=("8Fr", "today"), ring_step: int = 3, sizing: bool = True,
                           reference=reference, max_diameter_mm=max_diameter_mm)
     if out is not None:
         check_out(Path(out))
-    result = clinical.run(chains=tuple(chains), ring_step=ring_step, sizing=sizing, diameter_mm=diameter_mm,
+    result = clinical.run(chains=tuple(chains), ring_step=ring_step, ring_offset=ring_offset, sizing=sizing,
+                          diameter_mm=diameter_mm,
                           heart_to_surface_cm=heart_to_surface_cm, reference=reference,
                           max_diameter_mm=max_diameter_mm, veins=tuple(veins), progress=progress, **extra)
     data = result.to_dict()
@@ -150,7 +153,8 @@ def run(*, chains=("8Fr", "today"), ring_step: int = 3, sizing: bool = True,
 
 
 def main(args: argparse.Namespace) -> int:
-    data = run(chains=args.chains, ring_step=args.ring_step, sizing=not args.no_sizing, diameter_mm=args.diameter_mm,
+    data = run(chains=args.chains, ring_step=args.ring_step, ring_offset=args.ring_offset, sizing=not args.no_sizing,
+               diameter_mm=args.diameter_mm,
                heart_to_surface_cm=args.heart_to_surface_cm, reference=args.reference, friction=args.friction,
                max_diameter_mm=args.max_diameter_mm, out=None if args.no_files else args.out)
     if args.json:

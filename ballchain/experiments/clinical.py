@@ -482,7 +482,7 @@ def check_inputs(*, chains, ring_step: int, diameter_mm: float, heart_to_surface
         raise UserInputError(f"reference must be 'surface' or 'centre', got {reference!r}")
 
 
-def run(*, chains=("8Fr", "today"), ring_step: int = 3, sizing: bool = True,
+def run(*, chains=("8Fr", "today"), ring_step: int = 3, ring_offset: int = 0, sizing: bool = True,
         diameter_mm: float = PAPER["diameter_mm"], heart_to_surface_cm: float = PAPER["heart_to_surface_cm"],
         friction: float = ContactConfig().friction, reference: str = "surface",
         max_diameter_mm: float = 1000.0, veins=VEINS, progress: bool = True) -> ClinicalResult:
@@ -491,6 +491,7 @@ def run(*, chains=("8Fr", "today"), ring_step: int = 3, sizing: bool = True,
     Args:
         chains: which chains ("8Fr", "today").
         ring_step: every ``ring_step``-th target of each ring (1: all 38; 0: none).
+        ring_offset: the first ring target taken (0-based), so runs can split a ring.
         sizing: also find each target's 10 gf diameter and the sizing quantiles.
         diameter_mm: the spheres' diameter for the forces table (the paper's 119 mm).
         heart_to_surface_cm: d_c.
@@ -505,6 +506,8 @@ def run(*, chains=("8Fr", "today"), ring_step: int = 3, sizing: bool = True,
     check_inputs(chains=chains, ring_step=ring_step, diameter_mm=diameter_mm,
                  heart_to_surface_cm=heart_to_surface_cm, friction=friction, reference=reference,
                  max_diameter_mm=max_diameter_mm)
+    if isinstance(ring_offset, bool) or not isinstance(ring_offset, int) or not 0 <= ring_offset < 18:
+        raise UserInputError(f"ring_offset must be an integer in [0, 18), got {ring_offset!r}")
     t0 = time.perf_counter()
     atrium = LeftAtrium()
     D0, d_c, D_max = diameter_mm * 1e-3, heart_to_surface_cm * 1e-2, max_diameter_mm * 1e-3
@@ -518,7 +521,7 @@ def run(*, chains=("8Fr", "today"), ring_step: int = 3, sizing: bool = True,
         picked = list(veins)
         if ring_step:
             for task in ("left", "right"):
-                picked += rings[task][::ring_step]
+                picked += rings[task][ring_offset::ring_step]
         chain_info[key] = {"n_balls": chain.n_balls, "ball_diameter_mm": 1e3 * chain.ball_diameter,
                            "length_mm": 1e3 * chain.length,
                            "alpha": chain.ball_volume / BallChain().ball_volume,
@@ -576,6 +579,7 @@ def run(*, chains=("8Fr", "today"), ring_step: int = 3, sizing: bool = True,
         "field_at_centre_coaxial_mT": 1e3 * 2 * float(np.linalg.norm(dipole_field(np.array([r0, 0.0, 0.0]),
                                                                                    np.array([magnet.dipole_moment, 0.0, 0.0])))),
         "friction": friction, "target_radius_mm": 1e3 * target_radius, "ring_step": ring_step,
+        "ring_offset": ring_offset,
         "chains": chain_info, "min_force_gf": MIN_FORCE_GF, "max_diameter_mm": max_diameter_mm,
     }
     return ClinicalResult(setup, rows, summary, sizing_rows, target_sizing, solves, time.perf_counter() - t0)
