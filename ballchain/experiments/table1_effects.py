@@ -261,7 +261,7 @@ def run(*, quick: bool = False) -> EffectsResult:
     ferro = ferromagnetic_pin(chain, best["result"], target, axis)
     support = side_support(chain, stand, best, vein, free_balls=(3, 6) if quick else (3, 4, 5, 6, 8),
                            grid=4 if quick else 6, refine=10 if quick else 30)
-    friction = friction_needed(chain, stand, best, vein, mus=(0.1,) if quick else (0.1, 0.3, 0.5))
+    friction = friction_needed(chain, stand, best, vein, mus=(0.1,) if quick else (0.1, 0.5))
     push = push_curve(fields_mT=(0.0, 23.0) if quick else (0.0, 9.0, 23.0), steps=12 if quick else 24)
     gradient = gradient_switched_off(chain, stand, best, vein)
 
