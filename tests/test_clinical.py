@@ -263,3 +263,13 @@ def test_cli_refuses_bad_flags(capsys):
     assert main(["clinical", "--chains", "12Fr"]) == 2
     assert "chains" in capsys.readouterr().err
     assert main(["clinical", "--max-diameter-mm", "80"]) == 2
+
+
+def test_slerp_turns_rows_along_the_great_circle():
+    a = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
+    b = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+    half = clinical._slerp(a, b, 0.5)
+    np.testing.assert_allclose(half[0], [math.sqrt(0.5), math.sqrt(0.5), 0.0], atol=1e-12)
+    assert abs(half[1] @ a[1]) < 1e-12 and np.linalg.norm(half[1]) == pytest.approx(1.0)  # opposite: 90 deg
+    np.testing.assert_allclose(half[2], a[2])
+    np.testing.assert_allclose(clinical._slerp(a, b, 1.0), b, atol=1e-12)

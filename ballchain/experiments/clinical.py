@@ -151,17 +151,18 @@ def _slerp(a: np.ndarray, b: np.ndarray, s: float) -> np.ndarray:
     (about any perpendicular axis when a row of ``b`` is opposite to ``a``'s)."""
     out = []
     for u, v in zip(np.asarray(a, float), np.asarray(b, float)):
-        axis = np.cross(u, v)
-        if np.linalg.norm(axis) < 1e-9:
-            if u @ v > 0:
-                out.append(u)
-                continue
+        sin, cos = float(np.linalg.norm(np.cross(u, v))), float(u @ v)
+        if sin < 1e-9 and cos > 0:
+            out.append(u)
+            continue
+        if sin >= 1e-9:
+            axis = np.cross(u, v) / sin
+        else:  # opposite: any axis perpendicular to u
             axis = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0])
-        axis /= np.linalg.norm(axis)
-        angle = s * math.atan2(np.linalg.norm(np.cross(u, v)), u @ v)
-        if np.linalg.norm(np.cross(u, v)) < 1e-9:
-            angle = s * math.pi
-        out.append(math.cos(angle) * u + math.sin(angle) * np.cross(axis, u) + (1 - math.cos(angle)) * (axis @ u) * axis)
+            axis /= np.linalg.norm(axis)
+        angle = s * math.atan2(sin, cos)
+        out.append(math.cos(angle) * u + math.sin(angle) * np.cross(axis, u)
+                   + (1 - math.cos(angle)) * (axis @ u) * axis)
     return np.array(out)
 
 
