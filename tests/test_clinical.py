@@ -193,6 +193,32 @@ def test_threshold_search_retries_a_failed_search_from_the_seeds():
     assert all(f > 0 for _, f in found["history"])
 
 
+class _FailsAt(_PowerLaw):
+    """Finds nothing inside the cone at one size, restarted or not (an isolated search failure)."""
+
+    def __init__(self, *args, bad):
+        super().__init__(*args)
+        self.bad = bad
+
+    def restart(self):
+        pass
+
+    def solve(self, D):
+        if abs(D - self.bad) < 1e-12:
+            self.calls += 1
+            return clinical.TargetForce("x", 0.0, False, None, None, None, None, 0, "nothing inside the cone")
+        return super().solve(D)
+
+
+def test_threshold_search_steps_over_an_isolated_failure():
+    probe = _PowerLaw(1.8, 0.119, 2.0)
+    first_step = clinical.threshold_diameter(probe, probe.solve(0.119), 0.119)["history"][1][0]
+    fake = _FailsAt(1.8, 0.119, 2.0, bad=first_step)
+    found = clinical.threshold_diameter(fake, fake.solve(0.119), 0.119)
+    assert (first_step, 0.0) in found["history"]
+    assert found["diameter_m"] == pytest.approx(0.119 * (10.0 / 1.8) ** 0.5, rel=1e-6)
+
+
 def test_threshold_search_says_when_the_limit_is_too_small():
     fake = _PowerLaw(0.5, 0.119, 1.0)
     found = clinical.threshold_diameter(fake, fake.solve(0.119), 0.119, max_diameter=0.5)

@@ -373,6 +373,18 @@ def threshold_diameter(solver: TargetSolver, first: TargetForce, first_diameter:
         history.append((D, value))
         return value
 
+    def F_checked(D, limit=math.inf):
+        """F(D), stepping 2 % up (at most twice, staying below ``limit``) where the search fails
+        above a size that pressed: a failure there is the search's, and taking it as 'too small'
+        would break the bracket."""
+        value = F(D)
+        for _ in range(2):
+            if value > 0.0 or not any(f > 0.0 and d < D for d, f in history[:-1]) or 1.02 * D >= limit:
+                break
+            D *= 1.02
+            value = F(D)
+        return D, value
+
     lo, hi = None, None
     D, f = first_diameter, first.effective_gf
     # Grow (or shrink) by the power law F ~ D^2 until the bracket closes.
@@ -389,14 +401,15 @@ def threshold_diameter(solver: TargetSolver, first: TargetForce, first_diameter:
             if D >= max_diameter:
                 return {"diameter_m": None, "bracket_m": (D, None), "steps": len(history) - 1, "history": history}
             D = min(max_diameter, D * min(2.0, (min_force_gf / max(f, 1e-3)) ** 0.5 * 1.05))
-        f = F(D)
+        D, f = F_checked(D)
     x_lo, x_hi, y_lo, y_hi = math.log(lo[0]), math.log(hi[0]), g(lo[1]), g(hi[1])
     retained = None
     while hi[0] - lo[0] > rel_tol * hi[0]:
         x = x_lo - y_lo * (x_hi - x_lo) / (y_hi - y_lo) if y_hi != y_lo else 0.5 * (x_lo + x_hi)
         width = x_hi - x_lo
         x = min(max(x, x_lo + 0.1 * width), x_hi - 0.1 * width)  # every step shrinks the bracket
-        f = F(math.exp(x))
+        D, f = F_checked(math.exp(x), limit=hi[0])
+        x = math.log(D)
         if f >= min_force_gf:
             hi, x_hi, y_hi = (math.exp(x), f), x, g(f)
             if retained == "lo":
