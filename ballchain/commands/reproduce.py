@@ -282,7 +282,7 @@ def clinical_section(out: Path, quick: bool) -> tuple[Section, dict]:
         f"OD 2.67 mm; today's: 16 balls of 3.175 mm in today's sleeve. Both magnets' directions optimised for the "
         f"force along the target's axis with the wall's tangential push inside the friction cone (mu {s['friction']}). "
         + "This report does the RSPV" + ("" if quick else " and its sizing (the diameter that gives it 10 gf)")
-        + "; `ballchain clinical --ring-step 1` does all four veins and all 38 ring targets (about an hour here)."
+        + "; `ballchain clinical --ring-step 1` does all four veins and all 38 ring targets (tens of minutes here)."
     )
     section.table(["chain", "target", "best force [gf]", "friction needed", "gradient pull [gf]", "sheath push [gf]"],
                   [[r["chain"], r["target"], r["effective_gf"], r["friction_needed"], r["gradient_pull_gf"],

@@ -26,7 +26,10 @@ same system is simulated with the project's physics:
   (D^3 / (d_c + D/2)^3), and so does each target's best force. The diameter at which a target
   reaches 10 gf is found by bracketed false position (Illinois) on log F against log D, a
   bisection that uses the curve's smoothness; the sizing for "every vein" is the largest of the
-  veins', for 90 % / 100 % of the ring targets the quantiles of the targets'. Mass and the
+  veins', for 90 % / 100 % of the ring targets the quantiles of the targets'. A size where the
+  search finds nothing inside the cone although a smaller one pressed is searched again from the
+  seeds and then stepped over (2 % up, twice at most): the force grows with D, so such a point is
+  the search's failure; where it persists the crossing found is an upper bound. Mass and the
   force between the two magnets follow from ``optimization.sizing``.
 
 The tip force's make-up is measured at each optimum by force balance: the pin's push equals the
