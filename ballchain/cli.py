@@ -35,6 +35,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "teleop": ("teleop", "simulated operator touches the ablation targets (paper Tasks I/II), two joystick mappings"),
     "ablation": ("ablation", "RF lesions of the ball chain and a standard catheter: electro-thermal FEM (paper Sec. V-D)"),
     "sweep": ("sweep", "run a sweep spec or a shipped study on Dask (local cores, a scheduler or a job queue)"),
+    "clinical": ("clinical", "the paper's clinical design (two 119 mm spheres) in simulation, and the model's sizing"),
 }
 
 

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff
+from pydrake.autodiffutils import AutoDiffXd, ExtractGradient, ExtractValue, InitializeAutoDiff
 from pydrake.solvers import MathematicalProgram, SnoptSolver, SolverOptions
 
 from ballchain.drake_models.errors import UserInputError
@@ -271,3 +271,168 @@ def min_turn_orientation(held: HeldTip, m_start, m_previous, min_force: float, t
                     and np.hypot(F[1], F[2]) <= friction * F[0] + 1e-3 * min_force)
     return OrientationPlan(feasible, dipoles, offset, None if result is None else float(F[0]), friction_needed,
                            turn, result, status, held.evaluations - evaluations_before)
+
+
+def max_force_orientation(held: HeldTip, m_start, target_radius: float, friction: float,
+                          force_scale: float, major_iterations: int = 30,
+                          recheck_steps: int = 5, max_evaluations: int = 400) -> OrientationPlan:
+    """The magnet directions that press the target hardest inside the friction cone.
+
+    The MathematicalProgram of ``min_turn_orientation`` with the force as the cost:
+
+        maximise    F_n(m, o)
+        subject to  |m_j|^2 = 1,  |o|^2 <= r^2,  |F_t| <= mu F_n
+
+    solved by SNOPT from ``m_start`` (with ``held.home`` its held equilibrium), the gradients
+    forward differences of warm-started equilibria. The answer is re-checked by turning the
+    magnets from the start to it in ``recheck_steps`` steps (the branch the chain follows).
+
+    Args:
+        held: the held tip of this target.
+        m_start: (k, 3) initial dipole directions.
+        target_radius: r [m], >= 0 (0: the tip held on the centre, as on a sensor pin).
+        friction: mu >= 0 of the tip on the wall.
+        force_scale: a typical force [N] (the cost and constraints are scaled by it).
+        major_iterations: SNOPT's major iteration limit.
+        recheck_steps: steps of the re-check.
+        max_evaluations: equilibria the program may solve; beyond them every evaluation returns
+            the last values with zero gradient, so SNOPT stops (where held equilibria keep
+            failing, each failed one costs two full solves).
+
+    Returns:
+        an OrientationPlan; ``force_N`` is the re-checked normal force, ``feasible`` whether
+        that equilibrium is inside the cone (``turn_rad`` is the turn from ``m_start``).
+    """
+    if not force_scale > 0 or target_radius < 0 or friction < 0:
+        raise ValueError(f"need force_scale > 0 N, target_radius >= 0 m, friction >= 0; got "
+                         f"{force_scale}, {target_radius}, {friction}")
+    m0 = _unit_rows(m_start)
+    k = m0.shape[0]
+    if k != held.k:
+        raise ValueError(f"m_start has {k} rows, the held tip has {held.k} magnets")
+    prog = MathematicalProgram()
+    m = prog.NewContinuousVariables(3 * k, "m")
+    w = prog.NewContinuousVariables(2, "w")  # o = r w
+    x = np.concatenate([m, w])
+    for j in range(k):
+        mj = m[3 * j: 3 * j + 3]
+        prog.AddConstraint(mj[0] * mj[0] + mj[1] * mj[1] + mj[2] * mj[2] == 1.0).evaluator().set_description(
+            f"unit dipole {j + 1}")
+    prog.AddConstraint(w[0] * w[0] + w[1] * w[1] <= 1.0).evaluator().set_description("touch within the circle")
+    prog.AddBoundingBoxConstraint(-1.0, 1.0, m)
+    prog.AddBoundingBoxConstraint(-1.0, 1.0, w)
+    to_held = np.concatenate([np.ones(3 * k), np.full(2, target_radius)])
+    scale = 1.0 / force_scale
+    cache: dict = {}
+
+    def evaluate(value, with_jacobian):  # SNOPT asks for the cost and the cone at the same points
+        key = value.tobytes()
+        if held.evaluations - before > max_evaluations and "F" in cache:
+            J = cache["J"]
+            return cache["F"], None if J is None else np.zeros_like(J)
+        if cache.get("key") != key or (with_jacobian and cache["J"] is None):
+            if with_jacobian:
+                F, J = held.value_and_jacobian(to_held * value)
+                J = None if F is None else J * to_held
+            else:
+                (F, _), J = held.pressing(to_held * value), None
+            cache.update(key=key, F=F, J=J)
+        return cache["F"], cache["J"]
+
+    def cost(xv):
+        if xv.dtype == float:
+            F, _ = evaluate(np.asarray(xv, float), False)
+            return 1e3 if F is None else -scale * F[0]
+        value = ExtractValue(xv).reshape(-1)
+        F, J = evaluate(value, True)
+        if F is None:
+            return AutoDiffXd(1e3, np.zeros(xv.size) @ ExtractGradient(xv))
+        return AutoDiffXd(-scale * F[0], -scale * J[0] @ ExtractGradient(xv))
+
+    def cone(xv):  # (mu F_n)^2 - |F_t|^2 >= 0, in units of the force scale
+        if xv.dtype == float:
+            F, _ = evaluate(np.asarray(xv, float), False)
+            return np.array([-1e3]) if F is None else np.array([scale**2 * ((friction * F[0]) ** 2 - F[1] ** 2 - F[2] ** 2)])
+        value = ExtractValue(xv).reshape(-1)
+        F, J = evaluate(value, True)
+        if F is None:
+            return InitializeAutoDiff(np.array([-1e3]), np.zeros((1, xv.size)) @ ExtractGradient(xv)).reshape(-1)
+        row = scale**2 * 2 * (friction**2 * F[0] * J[0] - F[1] * J[1] - F[2] * J[2])
+        return InitializeAutoDiff(np.array([scale**2 * ((friction * F[0]) ** 2 - F[1] ** 2 - F[2] ** 2)]),
+                                  row[None, :] @ ExtractGradient(xv)).reshape(-1)
+
+    before = held.evaluations
+    prog.AddCost(cost, x, description="minus the normal force")
+    prog.AddConstraint(cone, np.zeros(1), np.full(1, np.inf), x, description="inside the friction cone")
+    snopt = SnoptSolver()
+    options = SolverOptions()
+    options.SetOption(snopt.solver_id(), "Major iterations limit", major_iterations)
+    options.SetOption(snopt.solver_id(), "Major optimality tolerance", 1e-4)
+    options.SetOption(snopt.solver_id(), "Major feasibility tolerance", 1e-5)
+    out = snopt.Solve(prog, np.concatenate([m0.reshape(-1), np.zeros(2)]), options)
+    dipoles = _unit_rows(out.GetSolution(m))
+    w_value = out.GetSolution(w)
+    offset = target_radius * w_value / max(1.0, float(np.linalg.norm(w_value)))
+    status = f"{out.get_solution_result().name} (info {out.get_solver_details().info})"
+    if held.evaluations - before > max_evaluations:
+        status += f", stopped after {max_evaluations} equilibria"
+    held.restart()
+    F, result = None, None
+    for s in np.linspace(0.0, 1.0, recheck_steps + 1)[1:]:
+        F, result = held.pressing(np.concatenate([((1.0 - s) * m0 + s * dipoles).reshape(-1), s * offset]))
+        if result is None:
+            break
+    turn = np.arccos(np.clip(np.sum(dipoles * m0, axis=1), -1.0, 1.0))
+    feasible, friction_needed, force = False, None, None
+    if result is not None:
+        force = float(F[0])
+        friction_needed = float(np.hypot(F[1], F[2]) / F[0]) if F[0] > 0 else np.inf
+        feasible = F[0] > 0 and np.hypot(F[1], F[2]) <= friction * F[0] + 1e-3 * force_scale
+    return OrientationPlan(feasible, dipoles, offset, force, friction_needed, turn, result, status,
+                           held.evaluations - before)
+
+
+def _direction(angles) -> np.ndarray:
+    az, el = angles
+    return np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+
+
+def _angles(u) -> np.ndarray:
+    return np.array([np.arctan2(u[1], u[0]), np.arcsin(np.clip(u[2], -1.0, 1.0))])
+
+
+def max_force_penalised(held: HeldTip, m_start, target_radius: float, friction: float, force_scale: float,
+                        evaluations: int = 80, penalty: float = 10.0):
+    """A derivative-free companion of ``max_force_orientation`` that starts from outside the cone.
+
+    Nelder-Mead over each magnet's (azimuth, elevation) and the touch point w (o = r w) on the
+    exact penalty ``F_n - penalty * max(0, |F_t| - mu F_n)``, each evaluation warm-started from
+    the best held equilibrium so far. SNOPT started outside the cone often walks to a feasible
+    point that presses almost nothing; this finds the cone's best region first.
+
+    Returns:
+        ``(dipoles (k, 3), equilibrium, F (3,) in held.basis [N])`` of the best evaluation.
+    """
+    from scipy.optimize import minimize
+
+    m0 = _unit_rows(m_start)
+    k = m0.shape[0]
+    F0, _ = held.pressing(np.concatenate([m0.reshape(-1), np.zeros(2)]))
+    best = {"value": -np.inf, "m": m0, "result": held.home, "F": F0}
+
+    def objective(x):
+        m = np.array([_direction(x[2 * j: 2 * j + 2]) for j in range(k)])
+        w = x[2 * k:]
+        w_norm = float(np.linalg.norm(w))
+        held._last = best["result"]
+        F, result = held.pressing(np.concatenate([m.reshape(-1), target_radius * w / max(1.0, w_norm)]))
+        if F is None:
+            return 1e3
+        value = F[0] - penalty * max(0.0, float(np.hypot(F[1], F[2])) - friction * F[0]) - 1e-3 * max(0.0, w_norm - 1.0)
+        if value > best["value"]:
+            best.update(value=value, m=m, result=result, F=F)
+        return -value / force_scale
+
+    x0 = np.concatenate([np.concatenate([_angles(u) for u in m0]), np.zeros(2)])
+    minimize(objective, x0, method="Nelder-Mead", options={"maxfev": evaluations, "xatol": 1e-3, "fatol": 1e-6})
+    return best["m"], best["result"], best["F"]

@@ -66,6 +66,12 @@ CASES = [
     ("ablation-tissue", ["ablation", "--tissue", "bone"], "--tissue"),
     ("ablation-mesh-0", ["ablation", "--mesh-mm", "0"], "--mesh-mm"),
     ("ablation-out-is-file", ["ablation", "--out", "{file}"], "--out"),
+    # clinical
+    ("clinical-friction-nan", ["clinical", "--friction", "nan"], "--friction"),
+    ("clinical-max-diameter-negative", ["clinical", "--max-diameter-mm", "-5"], "--max-diameter-mm"),
+    ("clinical-reference", ["clinical", "--reference", "middle"], "--reference"),
+    ("clinical-chains", ["clinical", "--chains", "9Fr"], "--chains"),
+    ("clinical-out-is-file", ["clinical", "--out", "{file}"], "--out"),
     # alignment
     ("alignment-out-under-file", ["alignment", "--out", "{under_file}"], "--out"),
     ("alignment-out-is-file", ["alignment", "--out", "{file}"], "--out"),

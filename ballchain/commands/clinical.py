@@ -1,0 +1,174 @@
+"""The paper's clinical system in simulation (issue 13): two 119 mm N52 spheres beside the patient.
+
+Each sphere's centre sits d_c + D/2 from the atrium's centre (the paper's sizing equation:
+the magnet outside the patient; ``--reference centre`` puts it at d_c), on the patient's left
+and right. For the 8 Fr chain (24 balls of 2.17 mm in an OD 2.67 mm sleeve) and today's
+chain (16 balls of 3.175 mm, today's sleeve): the best tip force on the four veins and on the
+ring targets (both magnets' directions optimised, the wall's tangential push inside the
+friction cone), and the model's own sizing: the sphere diameter that gives 10 gf on every
+vein and on 90 % / 100 % of the ring targets, with its mass and the force between the two
+magnets. Writes a CSV, the JSON and two figures (force per target; force against diameter).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import tempfile
+from pathlib import Path
+
+from ballchain.commands._common import add_json_flag, finite_float, non_negative_int, print_json, to_jsonable
+from ballchain.drake_models.errors import UserInputError
+from ballchain.experiments import clinical
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--chains", nargs="+", default=["8Fr", "today"],
+                        help=f"which chains, some of {sorted(clinical.CHAINS)}")
+    parser.add_argument("--ring-step", type=non_negative_int, default=3,
+                        help="every N-th target of each ring (1: all 38; 0: veins only)")
+    parser.add_argument("--ring-offset", type=non_negative_int, default=0,
+                        help="first ring target taken (0-based; with --ring-step 2, 0 and 1 split the rings)")
+    parser.add_argument("--no-sizing", action="store_true", help="forces at --diameter-mm only, no sizing")
+    parser.add_argument("--diameter-mm", type=finite_float, default=clinical.PAPER["diameter_mm"],
+                        help="the spheres' diameter for the force table [mm]")
+    parser.add_argument("--heart-to-surface-cm", type=finite_float, default=clinical.PAPER["heart_to_surface_cm"],
+                        help="d_c, the heart to the outside of the arm [cm]")
+    parser.add_argument("--reference", choices=["surface", "centre"], default="surface",
+                        help="magnet centre at d_c + D/2 (surface, the paper's sizing) or d_c (centre) from the atrium")
+    parser.add_argument("--friction", type=finite_float, default=None,
+                        help="tip-wall friction coefficient (default: the simulation's contact model, 0.1)")
+    parser.add_argument("--max-diameter-mm", type=finite_float, default=1000.0, help="the sizing's search limit [mm]")
+    parser.add_argument("--out", type=Path, default=Path("results/clinical"), help="folder for the CSV, JSON, PNGs")
+    parser.add_argument("--no-files", action="store_true", help="write no files")
+    add_json_flag(parser)
+
+
+def _atomic_write(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    with os.fdopen(fd, "w", newline="") as f:
+        f.write(text)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes it private; a result file is an ordinary file
+    os.replace(tmp, path)
+
+
+def check_out(out: Path) -> None:
+    """The output folder must be creatable and writable (checked before any solve)."""
+    if out.exists() and not out.is_dir():
+        raise UserInputError(f"--out {out} exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    if not os.access(out, os.W_OK):
+        raise UserInputError(f"--out {out} is not writable")
+
+
+def write_files(data: dict, out: Path) -> list[str]:
+    """CSV of the rows, the JSON, the force-per-target figure and the sizing curves."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out.mkdir(parents=True, exist_ok=True)
+    keys = ["chain", "target", "group", "force_gf", "effective_gf", "feasible", "friction_needed",
+            "gradient_pull_gf", "sheath_push_gf", "status"]
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=keys, extrasaction="ignore")
+    writer.writeheader()
+    writer.writerows(data["rows"])
+    files = [out / "clinical.csv", out / "clinical.json"]
+    _atomic_write(files[0], buffer.getvalue())
+    _atomic_write(files[1], json.dumps(to_jsonable(data), indent=1, allow_nan=False))
+    D = data["setup"]["diameter_mm"]
+    fig, ax = plt.subplots(figsize=(10, 4))
+    for key, marker in zip(data["summary"], "os^"):
+        rows = [r for r in data["rows"] if r["chain"] == key]
+        forces = [float("nan") if r["status"] == "out of reach" else r["effective_gf"] for r in rows]  # a gap
+        ax.plot(range(len(rows)), forces, marker, linestyle="-",
+                label=f"{key} ({data['setup']['chains'][key]['n_balls']} balls)")
+        ax.set_xticks(range(len(rows)), [r["target"] for r in rows], rotation=75, fontsize=7)
+    ax.axhline(clinical.MIN_FORCE_GF, color="k", linestyle="--", linewidth=1, label="10 gf (paper's goal)")
+    ax.set_ylabel("best tip force inside the friction cone [gf]")
+    ax.set_ylim(bottom=0.0)
+    ax.set_title(f"Two {D:.0f} mm N52 spheres at {data['setup']['magnet_distance_cm']:.1f} cm: force per target "
+                 "(veins, then left and right rings)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    files.append(out / "clinical_forces.png")
+    fig.savefig(files[-1], dpi=110)
+    plt.close(fig)
+    if data["target_sizing"]:
+        fig, ax = plt.subplots(figsize=(6, 4.5))
+        colours = {"8Fr": "tab:blue", "today": "tab:orange"}
+        for t in data["target_sizing"]:
+            h = sorted(t["history"])
+            if len(h) < 2:  # out of the chain's reach
+                continue
+            ax.plot([p[0] for p in h], [max(p[1], 0.3) for p in h], ".-", color=colours.get(t["chain"], "k"),
+                    alpha=0.35 if t["group"] != "vein" else 0.9, linewidth=1.5 if t["group"] == "vein" else 0.8)
+        for key, colour in colours.items():
+            ax.plot([], [], color=colour, label=key)
+        ax.axhline(clinical.MIN_FORCE_GF, color="k", linestyle="--", linewidth=1)
+        ax.axvline(clinical.PAPER["diameter_mm"], color="grey", linestyle=":", label="paper: 119 mm")
+        for s in data["sizing"]:
+            if s["diameter_mm"] and s["criterion"].startswith("10 gf on every vein"):
+                ax.axvline(s["diameter_mm"], color=colours.get(s["chain"], "k"), linestyle="--", linewidth=0.8)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("sphere diameter D [mm]")
+        ax.set_ylabel("best tip force [gf]")
+        ax.set_title("Sizing: each target's force against the spheres' size (veins bold)")
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        files.append(out / "clinical_sizing.png")
+        fig.savefig(files[-1], dpi=110)
+        plt.close(fig)
+    return [str(f) for f in files]
+
+
+def run(*, chains=("8Fr", "today"), ring_step: int = 3, ring_offset: int = 0, sizing: bool = True,
+        diameter_mm: float = clinical.PAPER["diameter_mm"],
+        heart_to_surface_cm: float = clinical.PAPER["heart_to_surface_cm"], reference: str = "surface",
+        friction: float | None = None, max_diameter_mm: float = 1000.0, out: Path | None = None,
+        progress: bool = True, veins=clinical.VEINS) -> dict:
+    extra = {} if friction is None else {"friction": friction}
+    clinical.check_inputs(chains=chains, ring_step=ring_step, diameter_mm=diameter_mm,
+                          heart_to_surface_cm=heart_to_surface_cm, friction=0.0 if friction is None else friction,
+                          reference=reference, max_diameter_mm=max_diameter_mm)
+    if out is not None:
+        check_out(Path(out))
+    result = clinical.run(chains=tuple(chains), ring_step=ring_step, ring_offset=ring_offset, sizing=sizing,
+                          diameter_mm=diameter_mm,
+                          heart_to_surface_cm=heart_to_surface_cm, reference=reference,
+                          max_diameter_mm=max_diameter_mm, veins=tuple(veins), progress=progress, **extra)
+    data = result.to_dict()
+    if out is not None:
+        data["files"] = write_files(data, Path(out))
+    return data
+
+
+def main(args: argparse.Namespace) -> int:
+    data = run(chains=args.chains, ring_step=args.ring_step, ring_offset=args.ring_offset, sizing=not args.no_sizing,
+               diameter_mm=args.diameter_mm,
+               heart_to_surface_cm=args.heart_to_surface_cm, reference=args.reference, friction=args.friction,
+               max_diameter_mm=args.max_diameter_mm, out=None if args.no_files else args.out)
+    if args.json:
+        print_json(data)
+        return 0
+    fmt = lambda v, spec: "-" if v is None else format(v, spec)  # noqa: E731
+    s = data["setup"]
+    print(f"two {s['diameter_mm']:.0f} mm spheres ({s['mass_kg']:.2f} kg) at {s['magnet_distance_cm']:.2f} cm "
+          f"from the atrium's centre; friction {s['friction']}")
+    for key, v in data["summary"].items():
+        veins = ", ".join(f"{k} {f:.2f}" for k, f in v["vein_force_gf"].items())
+        print(f"{key}: veins [gf] {veins}; ring {v['ring_targets_at_least_10_gf']}/{v['ring_targets']} >= 10 gf "
+              f"({fmt(v['ring_force_gf_min'], '.2f')}-{fmt(v['ring_force_gf_max'], '.2f')} gf)")
+    for r in data["sizing"]:
+        print(f"{r['chain']:6s} {r['criterion']:36s} D {fmt(r['diameter_mm'], '.1f')} mm, {fmt(r['mass_kg'], '.1f')} kg, "
+              f"between the magnets {fmt(r['force_between_magnets_gf'], '.0f')} gf")
+    return 0
