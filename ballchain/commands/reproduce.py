@@ -230,12 +230,12 @@ def forces_section(out: Path, quick: bool) -> tuple[Section, dict]:
                      f"({len(diffs)} of {len(data['rows'])} rows reached a steady state): two independent computations of the same force, "
                      "one an optimisation, one a time-stepped contact simulation with a spring sensor.")
     section.text(
-        "The model's forces are an order of magnitude below the measured ones. The dipole force "
-        "on one ball from the prototype magnet 16.5 cm away is 0.3 gf on axis; 16 balls cannot "
-        "collect more than a few grams from the field gradient, and the tip force comes mostly "
-        "from the torque on the bent chain. No constant was tuned; what the rig did differently "
-        "(the magnet's distance to the veins rather than to the puncture, friction in the sheath, "
-        "the pin's geometry) is not in the paper."
+        "The model's forces are an order of magnitude below the measured ones. The tip force is "
+        "the torque on the bent chain, carried to the tip as the chain's push from the sheath, plus "
+        "the field's gradient pull on the balls: with the prototype 16.5 cm away the pull is about "
+        "a third of it (LSPV, magnet on the left: 3.5 of 9.4 gf; 7.0 gf with the gradient switched "
+        "off, see the effects below). No constant was tuned; the next section sizes what the rig "
+        "would have had to contain to read tens of grams."
     )
     section.figure(out / "forces" / "forces.png", "paper vs model, grams-force (log scale)")
     return section, data
