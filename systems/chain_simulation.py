@@ -83,8 +83,13 @@ class ChainDiagram:
     field_source: object
     visualizer: object = None
     build_time_s: float = 0.0
-    extras: dict = field(default_factory=dict)
     engine: object = None
+    units: dict = field(default_factory=dict)  # unit name -> UnitHandles (station_units)
+    feeder: object = None  # the Feeder, with ``insertion.feeder``
+    tip_observer: object = None  # TipObserver, for the catheter-frame mapping
+    target_touches: object = None  # TargetTouchTracker, when the atrium has target rings
+    meshcat_overlays: object = None  # MeshcatOverlays / EngineOverlays, with a Meshcat
+    added: dict = field(default_factory=dict)  # what the ``add_systems`` hook returned, by name
 
     @property
     def chain_system(self):
@@ -236,7 +241,7 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
         heart: a prebuilt atrium to reuse (else built from the scenario when it has one).
         add_systems: None, or ``add_systems(builder, ports: StationPorts) -> dict`` called before
             the diagram is built, to add systems that drive the external commands (a simulated
-            operator); the dict it returns is merged into ``extras``. External inputs it leaves
+            operator); the dict it returns is the ChainDiagram's ``added``. External inputs it leaves
             unconnected are exported.
 
     Returns:
@@ -298,24 +303,22 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
         body_poses = cp.plant.get_body_poses_output_port()
         magnet_input = wrench.get_magnet_states_input_port()
         desired = cp.plant.get_desired_state_input_port(cp.feeder_instance)
-    extras = {}
+    units, feeder_system, tip_observer, tracker, overlays, added = {}, None, None, None, None, {}
     if configs:
         # The neutral field is defined where the free chain starts: the sheath exit in the
         # heart, ball 1's initial centre in free space (the canonical statics origin).
         p_W_chain = heart.p_HE if heart is not None else cp.X_WF.multiply(
             np.array([scenario.insertion.initial, 0.0, 0.0]))
-        tip_observer = None
         if any(u.teleop_frame == "tip" for u in scenario.units):
             tip_observer = builder.AddSystem(TipObserver(cp.ball_body_indices[-1], cp.ball_body_indices[-2]))
             builder.Connect(body_poses, tip_observer.get_body_poses_input_port())
-            extras["tip_observer"] = tip_observer
-        extras["units"] = add_units(builder, scenario, configs, magnet_input,
+        units = add_units(builder, scenario, configs, magnet_input,
                                     p_W_chain, cp.sheath_axis_W, tip_observer)
     ins = scenario.insertion
     if ins.external and ins.feeder:
         raise UserInputError("insertion: choose external (exported port) or feeder (the Feeder system), not both")
     if ins.feeder:
-        extras["feeder"] = add_feeder(builder, chain, ins, desired)
+        feeder_system = add_feeder(builder, chain, ins, desired)
     elif ins.external:
         # A feeder's inserted length s (systems/feeder.py's ``inserted_length`` uses the same
         # definition) becomes the slide's desired state (s, 0): the implicit PD tracks it.
@@ -345,18 +348,16 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
             # The engine's chain moves only at its updates: checking in between finds nothing new.
             period=max(scenario.check_period, scenario.statics_period) if statics else scenario.check_period))
         builder.Connect(body_poses, tracker.get_body_poses_input_port())
-        extras["target_touches"] = tracker
     # External commands: the hook's systems drive them; what is left over is exported.
-    joystick_inputs = {u.name: extras["units"][u.name].joystick_input for u in scenario.units
+    joystick_inputs = {u.name: units[u.name].joystick_input for u in scenario.units
                        if u.joystick_source == "external"}
     feeder_input = None
     if ins.feeder and ins.feeder_command == "external":
-        feeder_input = extras["feeder"].GetInputPort("v_insert_cmd")
+        feeder_input = feeder_system.GetInputPort("v_insert_cmd")
     if add_systems is not None:
         ports = StationPorts(cp, body_poses, joystick_inputs, feeder_input, heart,
-                             targets if "target_touches" in extras else None, extras.get("target_touches"),
-                             extras.get("units", {}))
-        extras.update(add_systems(builder, ports) or {})
+                             targets if tracker is not None else None, tracker, units)
+        added = dict(add_systems(builder, ports) or {})
     for name, port in joystick_inputs.items():
         if not builder.IsConnectedOrExported(port):
             builder.ExportInput(port, f"{name}.joystick")
@@ -389,9 +390,9 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
         if configs:
             markers = builder.AddSystem(UnitMeshcatMarkers(meshcat, configs, scenario.publish_period))
             for c in configs:
-                builder.Connect(extras["units"][c.name].magnet.GetOutputPort("X_WM"),
+                builder.Connect(units[c.name].magnet.GetOutputPort("X_WM"),
                                 markers.GetInputPort(f"X_WM_{c.name}"))
-        overlay_args = dict(targets=targets if "target_touches" in extras else None, field_source=source,
+        overlay_args = dict(targets=targets if tracker is not None else None, field_source=source,
                             port_magnets=[c.magnet for c in configs],
                             model=configs[0].field_model if configs else "dipole")
         if statics:
@@ -405,16 +406,17 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
                 **overlay_args))
             builder.Connect(cp.plant.get_contact_results_output_port(), overlays.get_contact_results_input_port())
         builder.Connect(body_poses, overlays.get_body_poses_input_port())
-        if "target_touches" in extras:
-            builder.Connect(extras["target_touches"].get_touched_output_port(), overlays.get_touched_input_port())
+        if tracker is not None:
+            builder.Connect(tracker.get_touched_output_port(), overlays.get_touched_input_port())
         if configs:
             builder.Connect(builder.GetSubsystemByName("magnet_states").get_output_port(),
                             overlays.get_magnet_states_input_port())
-        extras["meshcat_overlays"] = overlays
     diagram = builder.Build()
     diagram.set_name("chain_in_heart")
     return ChainDiagram(diagram, cp, wrench, heart, scenario, source, visualizer,
-                        time.perf_counter() - t0, extras, engine)
+                        time.perf_counter() - t0, engine, units=units, feeder=feeder_system,
+                        tip_observer=tip_observer, target_touches=tracker, meshcat_overlays=overlays,
+                        added=added)
 
 
 def _draw_magnets(meshcat, source) -> None:
@@ -595,7 +597,7 @@ class ChainMonitor:
 
 
 def _targets_touched(cd: ChainDiagram, root_context) -> list[str]:
-    tracker = cd.extras.get("target_touches")
+    tracker = cd.target_touches
     return [] if tracker is None else tracker.touched_names(tracker.GetMyContextFromRoot(root_context))
 
 

@@ -212,7 +212,7 @@ def test_bad_live_input_fails_before_any_work(capsys):
 
 # ---------------------------------------------------------------------------- live station
 def _magnet_angle_about_z(session, unit: str) -> tuple[float, float]:
-    u = session.cd.extras["units"][unit]
+    u = session.cd.units[unit]
     m = u.magnet.GetOutputPort("m_W").Eval(u.magnet.GetMyContextFromRoot(session.root))
     m = m / np.linalg.norm(m)
     return float(np.arctan2(m[1], m[0])), float(m[2])
@@ -231,7 +231,7 @@ def test_gamepad_turns_the_magnet_keys_move_the_feeder_and_quit_ends_the_run():
     meshcat, root = session.meshcat, session.root
     cp = session.cd.chain_plant
     plant_context = cp.plant.GetMyContextFromRoot(root)
-    feeder = session.cd.extras["feeder"]
+    feeder = session.cd.feeder
     feeder_context = feeder.GetMyContextFromRoot(root)
 
     def fed():

@@ -117,7 +117,7 @@ def test_overlay_ports_and_field_at_the_tip(heart, meshcat):
     """With a unit: the overlay's ports and wiring, and its field at the tip equals the wrench
     system's external field there (the same sources, to 1e-12 relative)."""
     cd = build_chain_diagram(load_scenario("teleop_right_unit"), meshcat=meshcat, heart=heart)
-    overlays = cd.extras["meshcat_overlays"]
+    overlays = cd.meshcat_overlays
     assert overlays.get_name() == "meshcat_overlays"
     assert {"target_touches", "meshcat_overlays"} <= {s.get_name() for s in cd.diagram.GetSystems()}
     inputs = [overlays.get_input_port(i) for i in range(overlays.num_input_ports())]
@@ -153,7 +153,7 @@ def test_contact_force_on_the_tip_from_the_wall_and_a_touch_in_the_diagram(heart
     out along the wall's normal from a centroid at the target,
     and the diagram's tracker has left_3 touched. Placed 1 mm off the wall: no force, no touch."""
     cd = build_chain_diagram(load_scenario("heart_wall_contact"), meshcat=meshcat, heart=heart)
-    overlays, tracker = cd.extras["meshcat_overlays"], cd.extras["target_touches"]
+    overlays, tracker = cd.meshcat_overlays, cd.target_touches
     names, p_WT, n_W, _ = heart_targets(heart)
     k = names.index("left_3")
     simulator = _one_step_with_the_tip_at(cd, p_WT[k] + (R_BALL - 0.2e-3) * n_W[k])

@@ -195,13 +195,13 @@ def test_station_with_units_has_named_systems_and_wiring(heart):
     context = cd.diagram.CreateDefaultContext()
     x = cd.wrench.get_magnet_states_input_port().Eval(cd.wrench.GetMyContextFromRoot(context)).reshape(2, 6)
     field = cd.wrench.external_field(cd.wrench.GetMyContextFromRoot(context))
-    for row, unit in zip(x, cd.extras["units"].values()):
+    for row, unit in zip(x, cd.units.values()):
         np.testing.assert_allclose(row[:3], unit.config.p_WM, atol=1e-12)
         np.testing.assert_allclose(row[3:] / np.linalg.norm(row[3:]), unit.m_hat_neutral_W, atol=1e-12)
     B = field.field_and_gradient(heart.p_HE[None])[0][0]
     np.testing.assert_allclose(B / np.linalg.norm(B), heart.sheath_axis_H, atol=1e-9)
     # The paper's placement: 10 cm from the right carina.
-    right = cd.extras["units"]["right_unit"].config
+    right = cd.units["right_unit"].config
     assert np.linalg.norm(np.asarray(right.p_WM) - heart.carinas["right"]) == pytest.approx(0.10)
 
 
@@ -255,7 +255,7 @@ def test_rotating_unit_steers_the_chain_to_the_statics_equilibrium():
     from ballchain.optimization.statics import ChainStatics
 
     cd = build_chain_diagram(load_scenario("free_space_uniform_90deg", UNIT_8_BALLS))
-    unit = cd.extras["units"]["right_unit"]
+    unit = cd.units["right_unit"]
     simulator = Simulator(cd.diagram)
     root = simulator.get_mutable_context()
     plant_context = cd.chain_plant.plant.GetMyContextFromRoot(root)
@@ -292,7 +292,7 @@ def test_reconfiguration_mode_returns_the_magnet_to_neutral():
         "{n_balls: 3, uniform_field: [0.0, 0.0, 0.0], units: [{name: right_unit, p_WM: [0.0, -0.1651, 0.0], "
         f"m_hat_W: [{-np.cos(off)}, {np.sin(off)}, 0.0], joystick: [{{time: 0.0, mode: 1}}]}}]}}"))
     cd = build_chain_diagram(scenario)
-    unit = cd.extras["units"]["right_unit"]
+    unit = cd.units["right_unit"]
     simulator = Simulator(cd.diagram)
     np.testing.assert_allclose(unit.m_hat_neutral_W, [-1.0, 0.0, 0.0], atol=1e-12)
     simulator.AdvanceTo(1.3)
@@ -313,7 +313,7 @@ def test_feeder_plays_the_insertion_ramp():
         "{n_balls: 3, uniform_field: [0.0, 0.0, 0.0], "
         "insertion: {initial: 0.002, final: 0.006, start_time: 0.05, speed: 0.02, feeder: true}}"))
     cd = build_chain_diagram(scenario)
-    feeder = cd.extras["feeder"]
+    feeder = cd.feeder
     simulator = Simulator(cd.diagram)
     root = simulator.get_mutable_context()
     plant_context = cd.chain_plant.plant.GetMyContextFromRoot(root)

@@ -494,7 +494,7 @@ class LiveSession:
     """A station driven by ``MeshcatJoystick``, ready to be advanced (``build_live``).
 
     Attributes:
-        cd: the ChainDiagram; ``cd.extras["meshcat_joystick"]`` is the joystick system.
+        cd: the ChainDiagram; ``cd.added["meshcat_joystick"]`` is the joystick system.
         simulator: its Simulator (target real-time rate set).
         meshcat: the Meshcat (localhost).
         joystick: the MeshcatJoystick.
@@ -527,12 +527,12 @@ class LiveSession:
         return None
 
     def touched(self) -> list[str]:
-        tracker = self.cd.extras.get("target_touches")
+        tracker = self.cd.target_touches
         return [] if tracker is None else tracker.touched_names(tracker.GetMyContextFromRoot(self.root))
 
     def tip_force_N(self) -> np.ndarray:
         """The wall's force on the tip ball now [N] (as the overlay's orange arrow)."""
-        overlays = self.cd.extras.get("meshcat_overlays")
+        overlays = self.cd.meshcat_overlays
         if overlays is None:
             return np.zeros(3)
         return overlays.tip_contact_force(overlays.GetMyContextFromRoot(self.root))[0]
@@ -577,7 +577,7 @@ def build_live(*, mapping: str = "world", units: str = "one", n_balls: int | Non
         return {"meshcat_joystick": j}
 
     cd = build_chain_diagram(scenario, meshcat=meshcat, heart=heart, add_systems=add_joystick)
-    joystick = cd.extras["meshcat_joystick"]
+    joystick = cd.added["meshcat_joystick"]
     simulator = Simulator(cd.diagram)
     simulator.set_target_realtime_rate(realtime_rate)
     chain_monitor = ChainMonitor(cd, tolerate_sinking=lambda p: near_ostium_rim(heart, p))
@@ -628,7 +628,7 @@ def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None 
     session = build_live(mapping=mapping, units=units, n_balls=n_balls, overrides=overrides, meshcat=meshcat,
                          heart=heart, realtime_rate=realtime_rate)
     scenario = session.cd.scenario
-    tracker = session.cd.extras.get("target_touches")
+    tracker = session.cd.target_touches
     n_targets = 0 if tracker is None else len(tracker.names)
     unit_names = session.joystick.unit_names
     echo(f"Meshcat: {session.meshcat.web_url()}  (open it in a browser on this machine)")
