@@ -282,7 +282,8 @@ class UserAtrium:
         sheath_aim: (3,) point the sheath points to [m] (default: the surface's centroid).
         params: wall and sheath parameters.
 
-    There are no ablation targets (``rings`` is empty): a segmentation carries no ostia labels.
+    There are no ablation targets (``rings``, ``ostia`` and ``carinas`` are empty): a segmentation
+    carries no ostia labels. Implements ``drake_models.atrium.Atrium``.
     """
 
     def __init__(self, surface: AtriumSurface, p_HP, sheath_aim=None, params: UserAtriumParams | None = None):
@@ -312,7 +313,9 @@ class UserAtrium:
             raise UserInputError("UserAtrium: the sheath aim coincides with the puncture")
         self.sheath_axis_H = axis / np.linalg.norm(axis)
         self.p_HE = self.p_HP + self.params.sheath_extension * self.sheath_axis_H
-        self.rings: dict = {}
+        self.rings: dict = {}  # no ablation targets, ostia or carinas (the Atrium protocol)
+        self.ostia: list = []
+        self.carinas: dict = {}
         self._normals = mt.vertex_normals(V, F)
         c = V[F].mean(axis=1)
         rel = c - self.p_HP

@@ -173,6 +173,8 @@ def _ellipsoid_normals(p: np.ndarray, semi_axes: np.ndarray) -> np.ndarray:
 class LeftAtrium:
     """The procedural left atrium built from ``HeartParams`` (geometry and anatomical features).
 
+    Implements ``drake_models.atrium.Atrium`` (as ``UserAtrium`` does).
+
     Attributes:
         params: the parameters (lengths already include ``scale``).
         ostia: the four Ostium, in PV_NAMES order.

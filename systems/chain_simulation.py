@@ -284,7 +284,7 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
     p_WP = heart.p_HP if heart is not None else np.zeros(3)
     source = field_source_for(scenario, p_WP)
     anchors = {"puncture": p_WP, "centre": np.zeros(3)}
-    if getattr(heart, "carinas", None):  # the procedural atrium (a user's surface has none)
+    if heart is not None:  # a user's atrium has no carinas
         anchors.update({f"carina_{k}": v for k, v in heart.carinas.items()})
     configs = unit_configs(scenario, anchors)
     engine = wrench = None

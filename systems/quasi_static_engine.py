@@ -503,7 +503,7 @@ class EngineGeometry(LeafSystem):
         if heart is not None:
             files = heart.write_files()
             add(world, RigidTransform(), Mesh(str(files["obj"])), "heart_wall", Rgba(0.85, 0.35, 0.35, 0.35))
-            for side, ring in getattr(heart, "rings", {}).items():
+            for side, ring in heart.rings.items():
                 for k, p in enumerate(ring.p_HT):
                     add(world, RigidTransform(p), Sphere(0.6e-3), f"target_{side}_{k + 1}", Rgba(0.1, 0.6, 0.1, 1.0))
         if sheath is not None and sheath_length > 0:

@@ -88,7 +88,7 @@ def heart_targets(heart) -> tuple[list[str], np.ndarray, np.ndarray, float]:
     """The atrium's ablation targets.
 
     Args:
-        heart: a LeftAtrium (or a UserAtrium, which has no rings).
+        heart: an Atrium (``drake_models/atrium.py``; a UserAtrium has no rings).
 
     Returns:
         (names ["left_1", ..., "right_18"] (1-based, as chain_plant's ``target_<ring>_<k>``
@@ -96,7 +96,7 @@ def heart_targets(heart) -> tuple[list[str], np.ndarray, np.ndarray, float]:
         chamber, target radius [m]).
     """
     names, points = [], []
-    for side, ring in getattr(heart, "rings", {}).items():
+    for side, ring in heart.rings.items():
         names += [f"{side}_{k + 1}" for k in range(len(ring.p_HT))]
         points.append(np.asarray(ring.p_HT, float))
     if not names:

@@ -201,3 +201,19 @@ def test_package_helper_resolves_package_uris(heart, tmp_path, monkeypatch):
     assert model_files.resolve_uri(uri) == files["vtk"].resolve()
     yaml_file = model_files.resolve_uri("package://ballchain_models/station.scenarios.yaml")
     assert yaml_file.exists()
+
+
+def test_both_atria_implement_the_atrium_protocol(heart, tmp_path):
+    """The station uses an atrium only through ``drake_models.atrium.Atrium``: the procedural one
+    and a user's surface both offer it (a user's with no rings, ostia or carinas)."""
+    from ballchain.drake_models.atrium import Atrium
+    from ballchain.drake_models.atrium_mesh import UserAtrium, load_atrium_surface
+
+    assert isinstance(heart, Atrium)
+    assert set(heart.rings) == {"left", "right"} and len(heart.ostia) == 4 and set(heart.carinas) == {"left", "right"}
+    V, F = heart.closed_inner_surface
+    path = tmp_path / "atrium.obj"
+    path.write_text("".join(f"v {x} {y} {z}\n" for x, y, z in V) + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in F))
+    user = UserAtrium(load_atrium_surface(path), heart.p_HP)
+    assert isinstance(user, Atrium)
+    assert user.rings == {} and user.ostia == [] and user.carinas == {}

@@ -258,7 +258,7 @@ RIM_BAND = 3e-3  # [m]
 
 def vein_openings(heart) -> tuple:
     """The ipsilateral vein pairs' openings as the operator sees them (``OperatorParams.keep_out``)."""
-    ostia = list(getattr(heart, "ostia", ()))
+    ostia = list(heart.ostia)
     pairs = [(ostia[0], ostia[1]), (ostia[2], ostia[3])] if len(ostia) == 4 else [(o, o) for o in ostia]
     return tuple((a.p_HO, b.p_HO, 0.5 * a.diameter, 0.5 * b.diameter, a.axis_H, b.axis_H) for a, b in pairs)
 
@@ -271,7 +271,7 @@ def near_ostium_rim(heart, p_W: np.ndarray) -> bool:
     1.2 mm into the wall 0.5 to 1.5 mm from the LIPV rim, the wall pushes back with 0.03 to 0.09 N
     that does not grow with depth, against 0.05 to 0.69 N on the plain wall. A ball sinking past
     the wall's middle there is recorded instead of stopping the run (``ChainMonitor``)."""
-    for o in getattr(heart, "ostia", ()):
+    for o in heart.ostia:
         rel = np.asarray(p_W) - o.p_HO
         along = float(rel @ o.axis_H)
         rho = float(np.linalg.norm(rel - along * o.axis_H))

@@ -1,0 +1,44 @@
+"""What every atrium offers the rest of the stack: the procedural ``LeftAtrium``
+(``drake_models/heart.py``) and a user's segmented ``UserAtrium`` (``drake_models/atrium_mesh.py``).
+
+The plant, the quasi-static engine, the watchdog, the target tracker, the operator and Meshcat
+use an atrium only through these members (frame H: the heart's, the world's in the station).
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+
+@runtime_checkable
+class Atrium(Protocol):
+    """An atrium as the station sees it.
+
+    Attributes:
+        p_HP: (3,) septal puncture [m].
+        p_HE: (3,) the sheath's exit [m].
+        sheath_axis_H: (3,) unit sheath axis, into the chamber.
+        params: wall thickness (``params.wall_thickness`` [m]) and meshing parameters.
+        rings: ablation target rings by side ("left", "right"); empty for a user's atrium (a
+            segmentation carries no ostia labels).
+        ostia: the vein ostia (``heart.Ostium``); empty for a user's atrium.
+        carinas: side -> (3,) carina point [m] (unit placement anchors); empty for a user's atrium.
+        wall_distance: ``wall_distance(p (k, 3)) -> (k,)`` distance to the endocardium [m].
+    """
+
+    p_HP: np.ndarray
+    p_HE: np.ndarray
+    sheath_axis_H: np.ndarray
+    params: object
+    rings: dict
+    ostia: list
+    carinas: dict
+
+    def contains(self, p_H: np.ndarray) -> np.ndarray:
+        """(k,) bool: the points (k, 3) lie inside the chamber."""
+
+    @property
+    def wall_tetrahedra(self) -> tuple[np.ndarray, np.ndarray]:
+        """(vertices (v, 3) [m], tetrahedra (t, 4)) of the wall shell, for hydroelastic contact."""
