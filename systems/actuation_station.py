@@ -178,6 +178,22 @@ def add_unit(
     return UnitSystems(magnet, drive, sensor, estimator, controller, teleop, switch)
 
 
+def connect_other_units(builder: DiagramBuilder, units: dict, compensate: bool = True) -> None:
+    """Each unit's Hall sensor sees the other magnets; each estimator may subtract them.
+
+    Args:
+        builder: the diagram builder.
+        units: unit name -> (UnitSystems, the names of the units its sensor sees).
+        compensate: the estimators subtract the other magnets' fields (their poses known).
+    """
+    for systems, others in units.values():
+        for o in others:
+            X_port = units[o][0].magnet.GetOutputPort("X_WM")
+            builder.Connect(X_port, systems.sensor.GetInputPort(f"X_WM_{o}"))
+            if compensate:
+                builder.Connect(X_port, systems.estimator.GetInputPort(f"X_WM_{o}"))
+
+
 def make_actuation_station(
     units: Sequence[MagnetUnitConfig] | None = None, options: StationOptions | None = None
 ) -> Diagram:
@@ -217,23 +233,17 @@ def make_actuation_station(
         builder.ExportOutput(estimator.GetOutputPort("m_hat_W"), f"{n}.m_hat_W")
         builder.ExportOutput(controller.GetOutputPort("done"), f"{n}.done")
         builder.ExportOutput(controller.GetOutputPort("angle_error"), f"{n}.angle_error")
-        magnets[n] = (magnet, sensor, estimator, others)
-    # Cross-wiring: each sensor sees the other magnets, each estimator may subtract them.
-    for n, (magnet, sensor, estimator, others) in magnets.items():
-        for o in others:
-            X_port = magnets[o.name][0].GetOutputPort("X_WM")
-            builder.Connect(X_port, sensor.GetInputPort(f"X_WM_{o.name}"))
-            if opt.estimator_compensates_other_units:
-                builder.Connect(X_port, estimator.GetInputPort(f"X_WM_{o.name}"))
+        magnets[n] = (systems, [o.name for o in others])
+    connect_other_units(builder, magnets, opt.estimator_compensates_other_units)
     if opt.field_points_W is not None:
         k = len(np.asarray(opt.field_points_W).reshape(-1, 3))
         if len(units) == 1:
-            builder.ExportOutput(magnets[names[0]][0].GetOutputPort("B_points_W"), "B_points_W")
+            builder.ExportOutput(magnets[names[0]][0].magnet.GetOutputPort("B_points_W"), "B_points_W")
         else:
             adder = builder.AddSystem(Adder(len(units), 3 * k))
             adder.set_name("total_field")
             for i, n in enumerate(names):
-                builder.Connect(magnets[n][0].GetOutputPort("B_points_W"), adder.get_input_port(i))
+                builder.Connect(magnets[n][0].magnet.GetOutputPort("B_points_W"), adder.get_input_port(i))
             builder.ExportOutput(adder.get_output_port(), "B_points_W")
     if opt.with_feeder:
         feeder = builder.AddSystem(Feeder(opt.chain, FeederSpec()))

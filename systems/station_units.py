@@ -37,7 +37,7 @@ from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import BallChain, CylinderMagnet, SphereMagnet
 from ballchain.drake_models.dipole_inversion import neutral_direction
-from ballchain.systems.actuation_station import StationOptions, add_unit
+from ballchain.systems.actuation_station import StationOptions, add_unit, connect_other_units
 from ballchain.systems.chain_scenario import ChainScenario, InsertionScenario, JoystickKey
 from ballchain.systems.feeder import Feeder, FeederSpec
 from ballchain.systems.hall_sensor import DipoleDirectionEstimator, HallSensor
@@ -177,6 +177,7 @@ def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig],
         and its ``joystick_input`` (the mapper's input port) is left unconnected for the caller.
     """
     handles: dict[str, UnitHandles] = {}
+    wiring = {}
     for k, (u, config) in enumerate(zip(scenario.units, configs)):
         n = u.name
         others = [c for c in configs if c is not config]
@@ -206,13 +207,8 @@ def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig],
         builder.Connect(mode.get_output_port(), switch.GetInputPort("mode"))
         handles[n] = UnitHandles(config, magnet, drive, sensor, estimator, controller, teleop, stick, m_neutral, m0,
                                  teleop.GetInputPort("joystick"))
-    for n, h in handles.items():
-        for o in handles.values():
-            if o is h:
-                continue
-            X_port = o.magnet.GetOutputPort("X_WM")
-            builder.Connect(X_port, h.sensor.GetInputPort(f"X_WM_{o.config.name}"))
-            builder.Connect(X_port, h.estimator.GetInputPort(f"X_WM_{o.config.name}"))
+        wiring[n] = (systems, [c.name for c in others])
+    connect_other_units(builder, wiring, options.estimator_compensates_other_units)
     mux = builder.AddSystem(Multiplexer([3] * (2 * len(handles))))
     mux.set_name("magnet_states")
     for k, (n, h) in enumerate(handles.items()):
