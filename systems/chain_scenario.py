@@ -18,6 +18,7 @@ import numpy as np
 import yaml
 from pydrake.common.yaml import yaml_load_typed
 
+from ballchain.drake_models import paper
 from ballchain.drake_models.errors import UserInputError
 from ballchain.systems.chain_plant import ContactConfig
 
@@ -48,7 +49,7 @@ class MagnetScenario:
 
     shape: str = "cylinder"
     p_WM: list[float] = field(default_factory=list)
-    distance_from_puncture: float = 0.1651
+    distance_from_puncture: float = paper.WORKING_DISTANCE
     direction_W: list[float] = field(default_factory=lambda: [1.0, 0.0, 0.0])
     m_hat_W: list[float] = field(default_factory=lambda: [0.0, 0.0, 1.0])
     model: str = "dipole"
@@ -145,7 +146,7 @@ class UnitScenario:
     shape: str = "cylinder"
     p_WM: list[float] = field(default_factory=list)
     anchor: str = "puncture"
-    distance: float = 0.1651
+    distance: float = paper.WORKING_DISTANCE
     direction_W: list[float] = field(default_factory=lambda: [-1.0, 0.0, 0.0])
     m_hat_W: list[float] = field(default_factory=list)
     model: str = "dipole"

@@ -25,6 +25,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, Context, LeafSystem
 
+from ballchain.drake_models import paper
 from ballchain.drake_models.errors import UserInputError, check_finite_input
 from ballchain.drake_models.field_sources import FieldModel, MagnetSource
 from ballchain.drake_models.omniwheel import OmniWheelGeometry
@@ -51,7 +52,7 @@ class MagnetUnitConfig:
     """
 
     name: str = "right_unit"
-    p_WM: tuple[float, float, float] = (0.0, -0.1651, 0.0)
+    p_WM: tuple[float, float, float] = (0.0, -paper.WORKING_DISTANCE, 0.0)
     magnet: CylinderMagnet | SphereMagnet = field(default_factory=CylinderMagnet)
     field_model: FieldModel = "dipole"
     geometry: OmniWheelGeometry = field(default_factory=OmniWheelGeometry)

@@ -25,6 +25,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from ballchain.commands._common import add_json_flag, int_in, print_json, to_jsonable, write_json
+from ballchain.drake_models import paper
 from ballchain.drake_models.dipole import K_DIPOLE
 from ballchain.drake_models.errors import UserInputError
 from ballchain.experiments.field_models import DEFAULT_DISTANCES
@@ -317,7 +318,9 @@ def clinical_section(out: Path, quick: bool) -> tuple[Section, dict]:
     if data["sizing"]:
         section.table(["chain", "criterion", "diameter [mm]", "mass [kg]", "centre distance [cm]",
                        "force between the magnets, coaxial [gf]"],
-                      [["paper (8 Fr)", "10 gf (scaled from Table I)", 119.0, 6.6, 29.65 + 5.95, 500]]
+                      [["paper (8 Fr)", "10 gf (scaled from Table I)", paper.SIZING["diameter_mm"], paper.SIZING["mass_kg"],
+                        100 * paper.CLINICAL_DISTANCE + 0.05 * paper.SIZING["diameter_mm"],
+                        paper.SIZING["force_between_magnets_gf"]]]
                       + [[r["chain"], r["criterion"].replace("every vein", "the RSPV"), r["diameter_mm"],
                           r["mass_kg"], r["magnet_distance_cm"], r["force_between_magnets_gf"]] for r in data["sizing"]
                          if "ring" not in r["criterion"]])

@@ -45,6 +45,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from ballchain.drake_models import paper
 from ballchain.drake_models.dipole import dipole_field
 from ballchain.drake_models.dipole_inversion import moment_from_field
 from ballchain.drake_models.errors import UserInputError
@@ -65,13 +66,13 @@ from ballchain.optimization.statics import ChainStatics, StaticsResult
 from ballchain.systems.chain_plant import ContactConfig
 
 PAPER = {
-    "diameter_mm": 119.0,
-    "mass_kg": 6.6,
-    "heart_to_surface_cm": 29.65,
+    "diameter_mm": paper.SIZING["diameter_mm"],
+    "mass_kg": paper.SIZING["mass_kg"],
+    "heart_to_surface_cm": paper.CLINICAL_DISTANCE * 100,
     "ball_diameter_8fr_mm": 2.17,
     "catheter_od_mm": 2.67,
-    "alpha": 0.32,
-    "tip_force_gf": 10.0,
+    "alpha": paper.SIZING["alpha"],
+    "tip_force_gf": paper.SIZING["desired_force_gf"],
 }
 """The paper's clinical design (Section V-A)."""
 

@@ -27,6 +27,7 @@ from typing import Callable
 
 import numpy as np
 
+from ballchain.drake_models import paper
 from ballchain.drake_models.errors import UserInputError
 
 
@@ -161,7 +162,7 @@ class DesignPoint:
     ball_diameter_mm: float = 3.175
     n_balls: int = 0
     magnet: str = "cylinder"
-    distance_cm: float = 16.51
+    distance_cm: float = paper.WORKING_DISTANCE * 100
     vein: str = "LSPV"
     config: str = "both"
     sleeve: bool = False
@@ -278,7 +279,7 @@ def design_figure(rows, out: Path) -> Path:
             label = "76.2 mm cylinder (prototype)" if magnet == "cylinder" else f"{magnet[6:]} mm sphere"
             ax.plot(*zip(*pts), "o-", label=label)
         ax.axhline(TARGET_GF, color="k", ls="--", lw=1, label="10 gf")
-        ax.axvline(29.65, color="grey", ls=":", lw=1)
+        ax.axvline(paper.CLINICAL_DISTANCE * 100, color="grey", ls=":", lw=1)
         if ball < 3:  # the paper's claim: two 119 mm spheres, centres d_c + d_d/2 away, 10 gf
             ax.plot([35.6], [TARGET_GF], "*", color="C2", ms=14, mec="k", label="paper's claim (119 mm, 35.6 cm)")
         ax.set_yscale("log")
@@ -458,7 +459,7 @@ class SleevePoint:
     inner_diameter_mm: float = 3.0
     n_balls: int = 16
     step_deg: float = 5.0
-    distance_cm: float = 16.51
+    distance_cm: float = paper.WORKING_DISTANCE * 100
 
 
 def sleeve_check(p: SleevePoint) -> None:
