@@ -178,15 +178,15 @@ def add_unit(
     return UnitSystems(magnet, drive, sensor, estimator, controller, teleop, switch)
 
 
-def connect_other_units(builder: DiagramBuilder, units: dict, compensate: bool = True) -> None:
+def connect_other_units(builder: DiagramBuilder, units: dict) -> None:
     """Each unit's Hall sensor sees the other magnets; each estimator may subtract them.
 
     Args:
         builder: the diagram builder.
-        units: unit name -> (UnitSystems, the names of the units its sensor sees).
-        compensate: the estimators subtract the other magnets' fields (their poses known).
+        units: unit name -> (UnitSystems, the names of the units its sensor sees, whether its
+            estimator subtracts their fields: ``StationOptions.estimator_compensates_other_units``).
     """
-    for systems, others in units.values():
+    for systems, others, compensate in units.values():
         for o in others:
             X_port = units[o][0].magnet.GetOutputPort("X_WM")
             builder.Connect(X_port, systems.sensor.GetInputPort(f"X_WM_{o}"))
@@ -233,8 +233,8 @@ def make_actuation_station(
         builder.ExportOutput(estimator.GetOutputPort("m_hat_W"), f"{n}.m_hat_W")
         builder.ExportOutput(controller.GetOutputPort("done"), f"{n}.done")
         builder.ExportOutput(controller.GetOutputPort("angle_error"), f"{n}.angle_error")
-        magnets[n] = (systems, [o.name for o in others])
-    connect_other_units(builder, magnets, opt.estimator_compensates_other_units)
+        magnets[n] = (systems, [o.name for o in others], opt.estimator_compensates_other_units)
+    connect_other_units(builder, magnets)
     if opt.field_points_W is not None:
         k = len(np.asarray(opt.field_points_W).reshape(-1, 3))
         if len(units) == 1:

@@ -140,6 +140,15 @@ class UnitScenario:
             paper's: stick axes = magnet angular velocity about world x, y, z) or "tip" (the
             catheter-frame mapping: axes 0/1 swing the field at the tip about the tip frame's z
             and -y, at ``teleop_omega_max``; the tip ball's position and direction are fed to it).
+        slip: fraction of the commanded rotation lost between wheels and sphere, in [0, 1).
+        wheel_map: the controller's wheel conversion: "derived" (rolling contact) or "paper" (the
+            printed map, docs/design.md 4.2).
+        controller_gain: the reconfiguration controller's gain K [1/s].
+        tolerance_deg: reconfiguration done below this measured error [deg].
+        teleop_dead_band: stick dead band (fraction of full stick).
+        sensors_see_other_units: each Hall sensor also measures the other units' fields.
+        estimator_compensates_other_units: each estimator subtracts the other units' fields.
+        (The last seven are ``actuation_station.StationOptions``'s, with its defaults.)
     """
 
     name: str = "right_unit"
@@ -155,6 +164,13 @@ class UnitScenario:
     joystick: list[JoystickKey] = field(default_factory=list)
     joystick_source: str = "script"
     teleop_frame: str = "world"
+    slip: float = 0.0
+    wheel_map: str = "derived"
+    controller_gain: float = 4.0
+    tolerance_deg: float = 0.5
+    teleop_dead_band: float = 0.1
+    sensors_see_other_units: bool = True
+    estimator_compensates_other_units: bool = True
 
 
 @dataclass
@@ -528,6 +544,15 @@ def check_fields(s: "ChainScenario") -> None:
                  f"scenario {where}.p_WM must be 3 coordinates in metres (within {MAX_DISTANCE:g} m), got {u.p_WM}")
         _require(u.teleop_omega_max > 0.0,
                  f"scenario {where}.teleop_omega_max must be > 0 rad/s, got {u.teleop_omega_max:g}")
+        _require(0.0 <= u.slip < 1.0, f"scenario {where}.slip must be in [0, 1), got {u.slip:g}")
+        _require(u.wheel_map in ("derived", "paper"),
+                 f"scenario {where}.wheel_map must be 'derived' or 'paper', got {u.wheel_map!r}")
+        _require(0.0 < u.controller_gain <= 100.0,
+                 f"scenario {where}.controller_gain must be in (0, 100] 1/s, got {u.controller_gain:g}")
+        _require(0.0 < u.tolerance_deg < 90.0,
+                 f"scenario {where}.tolerance_deg must be in (0, 90) deg, got {u.tolerance_deg:g}")
+        _require(0.0 <= u.teleop_dead_band < 1.0,
+                 f"scenario {where}.teleop_dead_band must be in [0, 1), got {u.teleop_dead_band:g}")
         for j, key in enumerate(u.joystick):
             _require(len(key.axes) == 3 and all(abs(a) <= 1.0 for a in key.axes),
                      f"scenario {where}.joystick[{j}].axes must be 3 numbers in [-1, 1], got {key.axes}")

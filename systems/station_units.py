@@ -180,13 +180,18 @@ def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig],
     wiring = {}
     for k, (u, config) in enumerate(zip(scenario.units, configs)):
         n = u.name
-        others = [c for c in configs if c is not config]
+        others = [c for c in configs if c is not config] if u.sensors_see_other_units else []
         m_neutral = neutral_direction(np.asarray(config.p_WM), p_W_chain, feed_direction_W)
         m_neutral = m_neutral / np.linalg.norm(m_neutral)
         m0 = np.asarray(u.m_hat_W, float) if u.m_hat_W else m_neutral
         m0 = m0 / np.linalg.norm(m0)
+        # Every option of a unit is the scenario's (StationOptions' defaults otherwise).
         options = StationOptions(sensor_noise=u.sensor_noise, teleop_omega_max=u.teleop_omega_max,
-                                 teleop_frame=u.teleop_frame)
+                                 teleop_frame=u.teleop_frame, slip=u.slip, wheel_map=u.wheel_map,
+                                 controller_gain=u.controller_gain, tolerance_deg=u.tolerance_deg,
+                                 teleop_dead_band=u.teleop_dead_band,
+                                 sensors_see_other_units=u.sensors_see_other_units,
+                                 estimator_compensates_other_units=u.estimator_compensates_other_units)
         systems = add_unit(builder, config, options, m_neutral_W=m_neutral, others=others, seed=k,
                            R_WM=rotation_with_z_along(m0))
         magnet, drive, sensor, estimator = systems.magnet, systems.drive, systems.sensor, systems.estimator
@@ -207,8 +212,8 @@ def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig],
         builder.Connect(mode.get_output_port(), switch.GetInputPort("mode"))
         handles[n] = UnitHandles(config, magnet, drive, sensor, estimator, controller, teleop, stick, m_neutral, m0,
                                  teleop.GetInputPort("joystick"))
-        wiring[n] = (systems, [c.name for c in others])
-    connect_other_units(builder, wiring, options.estimator_compensates_other_units)
+        wiring[n] = (systems, [c.name for c in others], options.estimator_compensates_other_units)
+    connect_other_units(builder, wiring)
     mux = builder.AddSystem(Multiplexer([3] * (2 * len(handles))))
     mux.set_name("magnet_states")
     for k, (n, h) in enumerate(handles.items()):

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from ballchain.cli import main as cli_main
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.systems.chain_scenario import ChainScenario, load_scenario, scenario_names
 from ballchain.systems.chain_simulation import build_chain_diagram, run_simulation
@@ -326,3 +327,21 @@ def test_feeder_plays_the_insertion_ramp():
     step = feeder.spec.step_length
     assert s0 == pytest.approx(0.002, abs=step) and s1 == pytest.approx(0.006, abs=step)
     np.testing.assert_allclose(p1[0] - p0[0], [s1 - s0, 0.0, 0.0], atol=5e-6)
+
+
+def test_every_unit_option_is_reachable_from_the_scenario():
+    """The scenario's unit fields reach the unit's systems (they were StationOptions-only):
+    slip in the magnet, the printed wheel map and the gain in the controller, no cross-talk."""
+    scenario = load_scenario("teleop_two_units")
+    u = scenario.units[0]
+    u.slip, u.wheel_map, u.controller_gain = 0.05, "paper", 2.0
+    u.sensors_see_other_units = u.estimator_compensates_other_units = False
+    cd = build_chain_diagram(scenario.validate())
+    right, left = cd.units["right_unit"], cd.units["left_unit"]
+    assert right.config.name == "right_unit" and right.magnet._slip == 0.05 and left.magnet._slip == 0.0
+    assert right.controller._K == 2.0 and left.controller._K == 4.0
+    assert right.controller._to_wheels is not right.controller._g.wheel_speeds  # the printed map
+    assert [p.get_name() for p in (right.sensor.get_input_port(i) for i in range(right.sensor.num_input_ports()))] == ["X_WM"]
+    assert "X_WM_right_unit" in [left.sensor.get_input_port(i).get_name() for i in range(left.sensor.num_input_ports())]
+    with pytest.raises(UserInputError, match=r"units\[0\].slip must be in \[0, 1\)"):
+        load_scenario("teleop_right_unit", "{units: [{name: right_unit, slip: 1.5}]}")
