@@ -22,6 +22,7 @@ Diagram (system names):
         leaves unconnected is exported as a diagram input (``<u>.joystick`` (3),
         ``feeder.v_insert_cmd`` (1)).
 
+``run_station`` is the one Simulator loop (watchdog, progress, stop condition, recording, Ctrl-C);
 ``run_simulation`` stops with ``SimulationFailure`` (saying when and which ball) on a NaN, a
 ball leaving the heart or the chain breaking apart, and returns the metrics otherwise.
 """
@@ -612,6 +613,136 @@ def _tip_wall_force(cd: ChainDiagram, plant_context) -> list[float]:
     return [round(float(v), 6) for v in f]
 
 
+@dataclass
+class RunOutcome:
+    """What ``run_station`` ran.
+
+    Attributes:
+        sim_time: simulated time reached [s].
+        wall_time: wall time of Simulator Initialize + AdvanceTo [s] (the build is not counted).
+        cpu_time: the process's CPU time over the same span [s].
+        failure: the watchdog's failure message (or the solver's error, with the time), or None.
+        stopped: True when ``stop`` ended the run before ``duration``.
+        monitor: the ChainMonitor that watched the run (its metrics, tolerated sinkings).
+        context: the Simulator's root context at the end.
+        simulator: the Simulator.
+    """
+
+    sim_time: float
+    wall_time: float
+    cpu_time: float
+    failure: str | None
+    stopped: bool
+    monitor: ChainMonitor
+    context: object
+    simulator: Simulator
+
+
+def _export_recording(cd: ChainDiagram, meshcat, html: Path) -> None:
+    cd.visualizer.StopRecording()
+    cd.visualizer.PublishRecording()
+    atomic_write_text(html, meshcat.StaticHtml())
+
+
+def station_monitor(cd: ChainDiagram, monitor: ChainMonitor, stop=None, on_time=None):
+    """The Simulator monitor of a station run: the watchdog, then ``on_time``, then ``stop``.
+
+    Args:
+        cd: the diagram.
+        monitor: the watchdog (its failure ends the run).
+        stop: None, or ``stop(root_context) -> bool``: a termination when True.
+        on_time: None, or ``on_time(t)`` called with the simulated time [s] (a progress bar).
+
+    Returns:
+        ``monitor(root_context) -> EventStatus`` for ``Simulator.set_monitor``.
+    """
+
+    def watch(root_context):
+        status = monitor(root_context)
+        if status.severity() == EventStatus.Severity.kFailed:
+            return status
+        if on_time is not None:
+            on_time(root_context.get_time())
+        if stop is not None and stop(root_context):
+            return EventStatus.ReachedTermination(cd.diagram, "the stop condition")
+        return status
+
+    return watch
+
+
+def run_station(cd: ChainDiagram, *, duration: float, monitor: ChainMonitor | None = None, stop=None,
+                progress: str | None = None, progress_step: float | None = None, html: Path | None = None,
+                meshcat=None, realtime_rate: float | None = None) -> RunOutcome:
+    """Run a built station: the one Simulator loop of the scenario runs and the teleoperation tasks.
+
+    The Simulator's monitor is the watchdog (``monitor``) first, then the progress bar, then
+    ``stop``. A watchdog failure, or a RuntimeError / ValueError of the solver, ends the run
+    with its message in ``RunOutcome.failure`` (no exception). On Ctrl-C the replay recorded so
+    far is written to ``html`` before the KeyboardInterrupt goes on.
+
+    Args:
+        cd: the built diagram (``build_chain_diagram``).
+        duration: simulated-time limit [s].
+        monitor: the watchdog (default: ``ChainMonitor(cd)``).
+        stop: None, or ``stop(root_context) -> bool``: end the run (a termination) when True.
+        progress: None (no bar), or the label of a tqdm bar of the simulated time on stderr.
+        progress_step: update the bar every this many simulated seconds (default duration/200).
+        html: record the run in Meshcat and write the replay (self-contained HTML) here; the
+            diagram must have been built with ``meshcat`` (the path is checked by the caller).
+        meshcat: the Meshcat the diagram was built with (needed with ``html``).
+        realtime_rate: the Simulator's target real-time rate (None: as fast as possible).
+
+    Returns:
+        RunOutcome.
+    """
+    from pydrake.systems.analysis import SimulatorStatus
+
+    simulator = Simulator(cd.diagram)
+    if realtime_rate is not None:
+        simulator.set_target_realtime_rate(realtime_rate)
+    monitor = ChainMonitor(cd) if monitor is None else monitor
+    bar = None
+    if progress is not None:
+        from tqdm import tqdm
+
+        bar = tqdm(total=duration, desc=progress, unit="sim s", file=sys.stderr,
+                   bar_format="{l_bar}{bar}| {n:.3g}/{total:.3g} sim s [{elapsed}<{remaining}]")
+    step = duration / 200 if progress_step is None else progress_step
+    shown = [0.0]
+
+    def show(t):
+        if t - shown[0] >= step:
+            bar.update(t - shown[0])
+            shown[0] = t
+
+    simulator.set_monitor(station_monitor(cd, monitor, stop=stop, on_time=None if bar is None else show))
+    root = simulator.get_mutable_context()
+    record = cd.visualizer is not None and html is not None
+    if record:
+        cd.visualizer.StartRecording()
+    failure, stopped = None, False
+    start, cpu = time.perf_counter(), time.process_time()
+    try:
+        simulator.Initialize()
+        status = simulator.AdvanceTo(duration)
+        stopped = status.reason() == SimulatorStatus.ReturnReason.kReachedTerminationCondition
+    except (RuntimeError, ValueError) as err:  # the monitor's failure, or a solver/physics error
+        failure = monitor.failure or f"at t = {root.get_time():.4f} s: {' '.join(str(err).split())}"
+    except KeyboardInterrupt:  # Ctrl-C: keep the replay recorded so far, then stop
+        if record:
+            _export_recording(cd, meshcat, html)
+            print(f"{progress or 'run'}: interrupted at t = {root.get_time():.4f} s; replay so far written "
+                  f"to {html}", file=sys.stderr)
+        raise
+    finally:
+        if bar is not None:
+            bar.close()
+    wall, cpu = time.perf_counter() - start, time.process_time() - cpu
+    if record:
+        _export_recording(cd, meshcat, html)
+    return RunOutcome(root.get_time(), wall, cpu, failure, stopped, monitor, root, simulator)
+
+
 def run_simulation(*, scenario: ChainScenario, duration: float | None = None, html: Path | None = None,
                    meshcat=None, heart: LeftAtrium | None = None, progress: bool = False) -> dict:
     """Simulate a scenario and return its metrics.
@@ -644,50 +775,10 @@ def run_simulation(*, scenario: ChainScenario, duration: float | None = None, ht
 
         meshcat = Meshcat(MeshcatParams(host="localhost"))
     cd = build_chain_diagram(scenario, meshcat=meshcat, heart=heart)
-    simulator = Simulator(cd.diagram)
-    monitor = ChainMonitor(cd)
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=duration, desc="simulate", unit="sim s", file=sys.stderr,
-                   bar_format="{l_bar}{bar}| {n:.3g}/{total:.3g} sim s [{elapsed}<{remaining}]")
-        shown = [0.0]
-
-        def watch(root_context):  # the watchdog, plus the bar every 1/200 of the run
-            t = root_context.get_time()
-            if t - shown[0] >= duration / 200:
-                bar.update(t - shown[0])
-                shown[0] = t
-            return monitor(root_context)
-
-        simulator.set_monitor(watch)
-    else:
-        simulator.set_monitor(monitor)
-    root = simulator.get_mutable_context()
+    run = run_station(cd, duration=duration, progress="simulate" if progress else None, html=html, meshcat=meshcat)
+    monitor, root, error = run.monitor, run.context, run.failure
     plant_context = cd.chain_system.GetMyContextFromRoot(root)
-    if cd.visualizer is not None and html is not None:
-        cd.visualizer.StartRecording()
-    start = time.perf_counter()
-    error = None
-    try:
-        simulator.Initialize()
-        simulator.AdvanceTo(duration)
-    except (RuntimeError, ValueError) as err:  # the monitor's failure, or a solver/physics error
-        error = monitor.failure or f"at t = {root.get_time():.4f} s: {' '.join(str(err).split())}"
-    except KeyboardInterrupt:  # Ctrl-C: keep the replay recorded so far, then stop
-        if cd.visualizer is not None and html is not None:
-            cd.visualizer.StopRecording()
-            cd.visualizer.PublishRecording()
-            atomic_write_text(html, meshcat.StaticHtml())
-            print(f"simulate: interrupted at t = {root.get_time():.4f} s; replay so far written to {html}",
-                  file=sys.stderr)
-        raise
-    finally:
-        if bar is not None:
-            bar.close()
-    wall = time.perf_counter() - start
-    sim_time = root.get_time()
+    wall, sim_time = run.wall_time, run.sim_time
     metrics = {
         "realtime_factor": round(sim_time / wall, 4) if wall > 0 else None,
         "sim_time_s": round(sim_time, 6),
@@ -717,9 +808,6 @@ def run_simulation(*, scenario: ChainScenario, duration: float | None = None, ht
             "failures": [e.detail for e in cd.engine.events if e.kind == "solve failed"],
         }
     if cd.visualizer is not None and html is not None:
-        cd.visualizer.StopRecording()
-        cd.visualizer.PublishRecording()
-        atomic_write_text(html, meshcat.StaticHtml())
         metrics["html"] = str(html)
     if error is not None:
         raise SimulationFailure(f"simulation stopped: {error}", metrics)

@@ -144,11 +144,7 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     """
     from dataclasses import replace
 
-    from pydrake.systems.analysis import Simulator
-    from pydrake.systems.framework import EventStatus
-    from tqdm import tqdm
-
-    from ballchain.systems.chain_simulation import ChainMonitor, atrium_for, build_chain_diagram
+    from ballchain.systems.chain_simulation import ChainMonitor, atrium_for, build_chain_diagram, run_station
     from ballchain.systems.simulated_operator import OperatorParams, SimulatedOperator
 
     check_inputs(task, mapping, targets, n_balls, time_limit, seed)
@@ -193,40 +189,15 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     built = time.perf_counter()
     cd = build_chain_diagram(scenario, meshcat=meshcat, heart=heart, add_systems=add_operator)
     op = handles["operator"]
-    simulator = Simulator(cd.diagram)
     built = time.perf_counter() - built
     chain_monitor = ChainMonitor(cd, tolerate_sinking=lambda p: near_ostium_rim(heart, p))
-    root = simulator.get_mutable_context()
-    op_context = op.GetMyContextFromRoot(root)
-    bar = tqdm(total=round(limit, 2), desc=f"teleop {task}/{mapping}", unit="sim s", disable=not progress,
-               bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} sim s [{elapsed}<{remaining}]")
-    shown = [0.0]
-
-    def monitor(context):
-        status = chain_monitor(context)
-        if status.severity() == EventStatus.Severity.kFailed:
-            return status
-        t = context.get_time()
-        if t - shown[0] >= 0.1:
-            bar.update(t - shown[0])
-            shown[0] = t
-        if op.is_done(op.GetMyContextFromRoot(context)):
-            return EventStatus.ReachedTermination(op, "every target touched or given up")
-        return EventStatus.Succeeded()
-
-    simulator.set_monitor(monitor)
-    if cd.visualizer is not None:
-        cd.visualizer.StartRecording()
-    failure = None
-    start, cpu = time.perf_counter(), time.process_time()
-    try:
-        simulator.Initialize()
-        simulator.AdvanceTo(limit)
-    except (RuntimeError, ValueError) as err:
-        failure = chain_monitor.failure or f"at t = {root.get_time():.4f} s: {err}"
-    wall, cpu = time.perf_counter() - start, time.process_time() - cpu
-    bar.close()
-    sim_time = root.get_time()
+    # The run ends when the operator has touched or given up every target.
+    run = run_station(cd, duration=limit, monitor=chain_monitor,
+                      stop=lambda context: op.is_done(op.GetMyContextFromRoot(context)),
+                      progress=f"teleop {task}/{mapping}" if progress else None, progress_step=0.1,
+                      html=html, meshcat=meshcat)
+    op_context = op.GetMyContextFromRoot(run.context)
+    failure, wall, cpu, sim_time = run.failure, run.wall_time, run.cpu_time, run.sim_time
     rows = op.rows(op_context)
     summary = summarize(rows, sim_time, wall, failure)
     summary["build_time_s"] = round(built, 2)
@@ -243,12 +214,7 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
                            "teleop_omega_max_rad_s": scenario.units[0].teleop_omega_max,
                            "operator_period_s": params.period, "reaction_s": params.period * params.reaction_steps,
                            "timeout_s": params.timeout, "axes": list(params.axes), "time_limit_s": limit}}
-    if cd.visualizer is not None:
-        cd.visualizer.StopRecording()
-        cd.visualizer.PublishRecording()
-        from ballchain.drake_models.safe_files import atomic_write_text
-
-        atomic_write_text(html, meshcat.StaticHtml())
+    if html is not None:
         result["html"] = str(html)
     return result
 
@@ -559,9 +525,8 @@ def build_live(*, mapping: str = "world", units: str = "one", n_balls: int | Non
     """
     from pydrake.geometry import Meshcat, MeshcatParams
     from pydrake.systems.analysis import Simulator
-    from pydrake.systems.framework import EventStatus
 
-    from ballchain.systems.chain_simulation import ChainMonitor, atrium_for, build_chain_diagram
+    from ballchain.systems.chain_simulation import ChainMonitor, atrium_for, build_chain_diagram, station_monitor
     from ballchain.systems.meshcat_joystick import MeshcatJoystick
 
     check_live_inputs(mapping, units, n_balls, None, realtime_rate)
@@ -581,16 +546,9 @@ def build_live(*, mapping: str = "world", units: str = "one", n_balls: int | Non
     simulator = Simulator(cd.diagram)
     simulator.set_target_realtime_rate(realtime_rate)
     chain_monitor = ChainMonitor(cd, tolerate_sinking=lambda p: near_ostium_rim(heart, p))
-
-    def monitor(context):
-        status = chain_monitor(context)
-        if status.severity() == EventStatus.Severity.kFailed:
-            return status
-        if joystick.quit_requested(joystick.GetMyContextFromRoot(context)):
-            return EventStatus.ReachedTermination(joystick, "the person quit")
-        return EventStatus.Succeeded()
-
-    simulator.set_monitor(monitor)
+    # The quit button ends the run (a termination); the chunked advance is LiveSession's.
+    simulator.set_monitor(station_monitor(
+        cd, chain_monitor, stop=lambda context: joystick.quit_requested(joystick.GetMyContextFromRoot(context))))
     return LiveSession(cd, simulator, meshcat, joystick, chain_monitor)
 
 
