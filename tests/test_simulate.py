@@ -345,3 +345,18 @@ def test_every_unit_option_is_reachable_from_the_scenario():
     assert "X_WM_right_unit" in [left.sensor.get_input_port(i).get_name() for i in range(left.sensor.num_input_ports())]
     with pytest.raises(UserInputError, match=r"units\[0\].slip must be in \[0, 1\)"):
         load_scenario("teleop_right_unit", "{units: [{name: right_unit, slip: 1.5}]}")
+
+
+def test_the_one_run_loop_stops_on_its_condition_and_reports_a_failure():
+    """``run_station``: a stop condition ends the run (a termination, not a failure); without one
+    the run goes to its duration; the watchdog's failure comes back as a message."""
+    from ballchain.systems.chain_simulation import run_station
+
+    scenario = load_scenario("free_space_uniform_90deg", "{n_balls: 4}")
+    stopped = run_station(build_chain_diagram(scenario), duration=0.2, stop=lambda root: root.get_time() >= 0.05)
+    assert stopped.stopped and stopped.failure is None and 0.05 <= stopped.sim_time < 0.06
+    full = run_station(build_chain_diagram(scenario), duration=0.1)
+    assert not full.stopped and full.failure is None and full.sim_time == pytest.approx(0.1)
+    broken = run_station(build_chain_diagram(load_scenario("free_space_uniform_90deg",
+                                                           "{translational_damping: 0.1}")), duration=0.05)
+    assert "the chain broke between balls" in broken.failure and broken.sim_time < 0.05
