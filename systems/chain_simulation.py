@@ -232,6 +232,19 @@ class StationPorts:
     units: dict
 
 
+def add_magnetic_wrench(builder, cp: ChainPlant, field_source, port_magnets=(), model: str = "dipole"
+                        ) -> MagneticWrenchSystem:
+    """The magnetic wrench system (``magnetic_wrench``) on the plant's balls: body poses in,
+    spatial forces out to the plant (the one place the plant feels the field)."""
+    wrench = builder.AddSystem(MagneticWrenchSystem(
+        cp.config.chain, cp.ball_body_indices, field_source=field_source, base_direction_W=cp.sheath_axis_W,
+        port_magnets=list(port_magnets), model=model))
+    wrench.set_name("magnetic_wrench")
+    builder.Connect(cp.plant.get_body_poses_output_port(), wrench.get_body_poses_input_port())
+    builder.Connect(wrench.get_spatial_forces_output_port(), cp.plant.get_applied_spatial_force_input_port())
+    return wrench
+
+
 def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium | None = None,
                         add_systems=None) -> ChainDiagram:
     """Build the diagram of a (validated) scenario.
@@ -295,12 +308,8 @@ def build_chain_diagram(scenario: ChainScenario, meshcat=None, heart: LeftAtrium
         magnet_input = engine.get_magnet_states_input_port()
         desired = engine.get_feeder_state_input_port()
     else:
-        wrench = builder.AddSystem(MagneticWrenchSystem(
-            chain, cp.ball_body_indices, field_source=source, base_direction_W=cp.sheath_axis_W,
-            port_magnets=[c.magnet for c in configs], model=configs[0].field_model if configs else "dipole"))
-        wrench.set_name("magnetic_wrench")
-        builder.Connect(cp.plant.get_body_poses_output_port(), wrench.get_body_poses_input_port())
-        builder.Connect(wrench.get_spatial_forces_output_port(), cp.plant.get_applied_spatial_force_input_port())
+        wrench = add_magnetic_wrench(builder, cp, source, port_magnets=[c.magnet for c in configs],
+                                     model=configs[0].field_model if configs else "dipole")
         body_poses = cp.plant.get_body_poses_output_port()
         magnet_input = wrench.get_magnet_states_input_port()
         desired = cp.plant.get_desired_state_input_port(cp.feeder_instance)

@@ -64,6 +64,7 @@ from ballchain.drake_models.params import BallChain, gram_force
 from ballchain.optimization.statics import ChainStatics, StaticsResult, straight_chain
 from ballchain.systems.chain_plant import ChainPlant, ChainPlantConfig, ContactConfig, add_chain_plant
 from ballchain.systems.force_sensor_pin import ForceSensorPin, stability_bound
+from ballchain.systems.chain_simulation import add_magnetic_wrench
 from ballchain.systems.magnetic_wrench import MagneticWrenchSystem
 
 
@@ -156,11 +157,7 @@ def build_pin_diagram(chain: BallChain, external, pin_point,
     builder = DiagramBuilder()
     cp = add_chain_plant(builder, plant_config)
     plant = cp.plant
-    wrench = builder.AddSystem(MagneticWrenchSystem(chain, cp.ball_body_indices, field_source=external,
-                                                    base_direction_W=cp.sheath_axis_W))
-    wrench.set_name("magnetic_wrench")
-    builder.Connect(plant.get_body_poses_output_port(), wrench.get_body_poses_input_port())
-    builder.Connect(wrench.get_spatial_forces_output_port(), plant.get_applied_spatial_force_input_port())
+    wrench = add_magnetic_wrench(builder, cp, external)
     pin = builder.AddSystem(ForceSensorPin(plant, cp.ball_bodies[-1], pin_point, config.stiffness))
     pin.set_name("force_sensor_pin")
     builder.Connect(plant.get_body_poses_output_port(), pin.get_body_poses_input_port())
