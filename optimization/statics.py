@@ -339,7 +339,12 @@ class ChainStatics:
         lam_tip = np.zeros(3)
         if self.method == "newton":
             lam0 = getattr(warm_start, "multipliers", None) if constraints is not None else None
-            q, converged, reason, iterations, lam_near, lam_tip = self._newton(model, lam0)
+            try:
+                q, converged, reason, iterations, lam_near, lam_tip = self._newton(model, lam0)
+            except np.linalg.LinAlgError as err:  # a step's system singular in floating point
+                # Not an equilibrium: reported like any other failure (from the warm start).
+                q, converged, iterations, lam_near = np.zeros(model.nq), False, 0, {}
+                reason = f"Newton step: {err} (a singular Hessian or constraint system)"
         else:
             if model.tip_target is not None or model.wall is not None:
                 raise UserInputError("tip targets and walls are solved by the 'newton' method only")

@@ -299,3 +299,14 @@ def test_slerp_turns_rows_along_the_great_circle():
     assert abs(half[1] @ a[1]) < 1e-12 and np.linalg.norm(half[1]) == pytest.approx(1.0)  # opposite: 90 deg
     np.testing.assert_allclose(half[2], a[2])
     np.testing.assert_allclose(clinical._slerp(a, b, 1.0), b, atol=1e-12)
+
+
+def test_the_push_curve_without_a_field_ends_instead_of_raising():
+    """With no field the pushed chain's held-tip Newton system can turn singular in floating point
+    near the straight chain: the solve reports non-convergence (the curve ends there) instead of
+    raising LinAlgError (which stopped ``reproduce``). The push is the chain's buckling load, about
+    2.1 gf."""
+    from ballchain.experiments import table1_effects
+
+    (row,) = table1_effects.push_curve(fields_mT=(0.0,), steps=24)
+    assert row["curve_mm_gf"] and 1.5 < row["plateau_gf"] < 3.0
