@@ -40,7 +40,6 @@ import itertools
 import json
 import math
 import os
-import tempfile
 import time
 import typing
 from dataclasses import dataclass, field
@@ -50,6 +49,7 @@ from typing import Any, Callable, NamedTuple, Sequence
 import yaml
 
 from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.safe_files import atomic_path, check_output_dir
 
 TABLE_PARQUET = "table.parquet"
 TABLE_CSV = "table.csv"
@@ -292,25 +292,10 @@ def _worker_name() -> str:
 
 # --- the table ------------------------------------------------------------------------------------
 
-def _umask_mode() -> int:
-    """The mode a plainly created file gets (0o666 less the umask)."""
-    mask = os.umask(0)
-    os.umask(mask)
-    return 0o666 & ~mask
-
-
 def _atomic_write(path: Path, write: Callable[[str], None]) -> None:
-    """``write(temporary path)`` in the target's folder, then ``os.replace`` onto ``path``."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.chmod(tmp, _umask_mode())  # mkstemp makes it private (0600); the result is not
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """``write(temporary path)`` next to ``path``, then renamed onto it (``safe_files.atomic_path``)."""
+    with atomic_path(path) as tmp:
+        write(str(tmp))
 
 
 def _columns(rows: list[dict], first: Sequence[str]) -> list[str]:
@@ -359,15 +344,9 @@ def read_table(out: Path) -> list[dict]:
 # --- the executor ---------------------------------------------------------------------------------
 
 def _check_out(out: Path) -> Path:
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise UserInputError(f"--out {out} exists and is not a folder")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise UserInputError(f"--out {out}: cannot create the folder: {err}") from None
-    if not os.access(out, os.W_OK):
-        raise UserInputError(f"--out {out} is not writable")
+    """The results folder: checked writable (``safe_files.check_output_dir``), then created."""
+    out = check_output_dir(out, "--out")
+    out.mkdir(parents=True, exist_ok=True)
     return out
 
 

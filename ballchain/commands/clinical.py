@@ -13,14 +13,10 @@ magnets. Writes a CSV, the JSON and two figures (force per target; force against
 from __future__ import annotations
 
 import argparse
-import csv
-import json
-import os
-import tempfile
 from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, finite_float, non_negative_int, print_json, to_jsonable
-from ballchain.drake_models.errors import UserInputError
+from ballchain.commands._common import add_json_flag, finite_float, non_negative_int, print_json
+from ballchain.drake_models.safe_files import check_output_dir
 from ballchain.experiments import clinical
 
 
@@ -46,91 +42,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_json_flag(parser)
 
 
-def _atomic_write(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w", newline="") as f:
-        f.write(text)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes it private; a result file is an ordinary file
-    os.replace(tmp, path)
-
-
-def check_out(out: Path) -> None:
-    """The output folder must be creatable and writable (checked before any solve)."""
-    if out.exists() and not out.is_dir():
-        raise UserInputError(f"--out {out} exists and is not a folder")
-    out.mkdir(parents=True, exist_ok=True)
-    if not os.access(out, os.W_OK):
-        raise UserInputError(f"--out {out} is not writable")
-
-
-def write_files(data: dict, out: Path) -> list[str]:
-    """CSV of the rows, the JSON, the force-per-target figure and the sizing curves."""
-    import io
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    out.mkdir(parents=True, exist_ok=True)
-    keys = ["chain", "target", "group", "force_gf", "effective_gf", "feasible", "friction_needed",
-            "gradient_pull_gf", "sheath_push_gf", "status"]
-    buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=keys, extrasaction="ignore")
-    writer.writeheader()
-    writer.writerows(data["rows"])
-    files = [out / "clinical.csv", out / "clinical.json"]
-    _atomic_write(files[0], buffer.getvalue())
-    _atomic_write(files[1], json.dumps(to_jsonable(data), indent=1, allow_nan=False))
-    D = data["setup"]["diameter_mm"]
-    fig, ax = plt.subplots(figsize=(10, 4))
-    for key, marker in zip(data["summary"], "os^"):
-        rows = [r for r in data["rows"] if r["chain"] == key]
-        forces = [float("nan") if r["status"] == "out of reach" else r["effective_gf"] for r in rows]  # a gap
-        ax.plot(range(len(rows)), forces, marker, linestyle="-",
-                label=f"{key} ({data['setup']['chains'][key]['n_balls']} balls)")
-        ax.set_xticks(range(len(rows)), [r["target"] for r in rows], rotation=75, fontsize=7)
-    ax.axhline(clinical.MIN_FORCE_GF, color="k", linestyle="--", linewidth=1, label="10 gf (paper's goal)")
-    ax.set_ylabel("best tip force inside the friction cone [gf]")
-    ax.set_ylim(bottom=0.0)
-    ax.set_title(f"Two {D:.0f} mm N52 spheres at {data['setup']['magnet_distance_cm']:.1f} cm: force per target "
-                 "(veins, then left and right rings)")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    files.append(out / "clinical_forces.png")
-    fig.savefig(files[-1], dpi=110)
-    plt.close(fig)
-    if data["target_sizing"]:
-        fig, ax = plt.subplots(figsize=(6, 4.5))
-        colours = {"8Fr": "tab:blue", "today": "tab:orange"}
-        for t in data["target_sizing"]:
-            h = sorted(t["history"])
-            if len(h) < 2:  # out of the chain's reach
-                continue
-            ax.plot([p[0] for p in h], [max(p[1], 0.3) for p in h], ".-", color=colours.get(t["chain"], "k"),
-                    alpha=0.35 if t["group"] != "vein" else 0.9, linewidth=1.5 if t["group"] == "vein" else 0.8)
-        for key, colour in colours.items():
-            ax.plot([], [], color=colour, label=key)
-        ax.axhline(clinical.MIN_FORCE_GF, color="k", linestyle="--", linewidth=1)
-        ax.axvline(clinical.PAPER["diameter_mm"], color="grey", linestyle=":", label="paper: 119 mm")
-        for s in data["sizing"]:
-            if s["diameter_mm"] and s["criterion"].startswith("10 gf on every vein"):
-                ax.axvline(s["diameter_mm"], color=colours.get(s["chain"], "k"), linestyle="--", linewidth=0.8)
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_xlabel("sphere diameter D [mm]")
-        ax.set_ylabel("best tip force [gf]")
-        ax.set_title("Sizing: each target's force against the spheres' size (veins bold)")
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        files.append(out / "clinical_sizing.png")
-        fig.savefig(files[-1], dpi=110)
-        plt.close(fig)
-    return [str(f) for f in files]
-
-
 def run(*, chains=("8Fr", "today"), ring_step: int = 3, ring_offset: int = 0, sizing: bool = True,
         diameter_mm: float = clinical.PAPER["diameter_mm"],
         heart_to_surface_cm: float = clinical.PAPER["heart_to_surface_cm"], reference: str = "surface",
@@ -141,14 +52,14 @@ def run(*, chains=("8Fr", "today"), ring_step: int = 3, ring_offset: int = 0, si
                           heart_to_surface_cm=heart_to_surface_cm, friction=0.0 if friction is None else friction,
                           reference=reference, max_diameter_mm=max_diameter_mm)
     if out is not None:
-        check_out(Path(out))
+        check_output_dir(out, "--out")
     result = clinical.run(chains=tuple(chains), ring_step=ring_step, ring_offset=ring_offset, sizing=sizing,
                           diameter_mm=diameter_mm,
                           heart_to_surface_cm=heart_to_surface_cm, reference=reference,
                           max_diameter_mm=max_diameter_mm, veins=tuple(veins), progress=progress, **extra)
     data = result.to_dict()
     if out is not None:
-        data["files"] = write_files(data, Path(out))
+        data["files"] = clinical.write_files(data, Path(out))
     return data
 
 

@@ -244,8 +244,7 @@ def forces_section(out: Path, quick: bool) -> tuple[Section, dict]:
 
 def clinical_section(out: Path, quick: bool) -> tuple[Section, dict]:
     """Table I's gap effect by effect, and the paper's clinical design in simulation (issue 13)."""
-    from ballchain.commands import clinical as clinical_command
-    from ballchain.experiments import table1_effects
+    from ballchain.experiments import clinical, table1_effects
 
     effects = table1_effects.run(quick=quick).to_dict()
     case, grad = effects["case"], effects["gradient"]
@@ -295,11 +294,11 @@ def clinical_section(out: Path, quick: bool) -> tuple[Section, dict]:
         "pin and continuous insertion move the reading by a few grams at most. None is described in the paper; no "
         "constant was tuned."
     )
-    (out / "table1_effects.json").write_text(json.dumps(to_jsonable(effects), indent=1, allow_nan=False))
+    write_json(out / "table1_effects.json", effects)
 
     veins = ("RSPV",)  # one vein keeps this section under a minute; the command does the rest
-    data = clinical_command.run(chains=("8Fr", "today"), ring_step=0, sizing=not quick, veins=veins,
-                                out=out / "clinical", progress=False)
+    data = clinical.run(chains=("8Fr", "today"), ring_step=0, sizing=not quick, veins=veins, progress=False).to_dict()
+    data["files"] = clinical.write_files(data, out / "clinical")
     s = data["setup"]
     section.text(
         f"The paper's clinical design: two N52 spheres of {s['diameter_mm']:.0f} mm ({s['mass_kg']:.2f} kg), "

@@ -42,6 +42,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -51,6 +52,7 @@ from ballchain.drake_models.dipole_inversion import moment_from_field
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
+from ballchain.drake_models.safe_files import agg_pyplot, atomic_write_text, json_text, save_figure, write_csv
 from ballchain.drake_models.params import (
     BallChain,
     Sleeve,
@@ -601,3 +603,55 @@ def run(*, chains=("8Fr", "today"), ring_step: int = 3, ring_offset: int = 0, si
         "chains": chain_info, "min_force_gf": MIN_FORCE_GF, "max_diameter_mm": max_diameter_mm,
     }
     return ClinicalResult(setup, rows, summary, sizing_rows, target_sizing, solves, time.perf_counter() - t0)
+
+
+def write_files(data: dict, out: Path) -> list[str]:
+    """CSV of the rows, the JSON, the force-per-target figure and the sizing curves."""
+    plt = agg_pyplot()
+    out.mkdir(parents=True, exist_ok=True)
+    keys = ["chain", "target", "group", "force_gf", "effective_gf", "feasible", "friction_needed",
+            "gradient_pull_gf", "sheath_push_gf", "status"]
+    files = [write_csv(out / "clinical.csv", data["rows"], keys), atomic_write_text(out / "clinical.json", json_text(data))]
+    D = data["setup"]["diameter_mm"]
+    fig, ax = plt.subplots(figsize=(10, 4))
+    for key, marker in zip(data["summary"], "os^"):
+        rows = [r for r in data["rows"] if r["chain"] == key]
+        forces = [float("nan") if r["status"] == "out of reach" else r["effective_gf"] for r in rows]  # a gap
+        ax.plot(range(len(rows)), forces, marker, linestyle="-",
+                label=f"{key} ({data['setup']['chains'][key]['n_balls']} balls)")
+        ax.set_xticks(range(len(rows)), [r["target"] for r in rows], rotation=75, fontsize=7)
+    ax.axhline(MIN_FORCE_GF, color="k", linestyle="--", linewidth=1, label="10 gf (paper's goal)")
+    ax.set_ylabel("best tip force inside the friction cone [gf]")
+    ax.set_ylim(bottom=0.0)
+    ax.set_title(f"Two {D:.0f} mm N52 spheres at {data['setup']['magnet_distance_cm']:.1f} cm: force per target "
+                 "(veins, then left and right rings)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    files.append(out / "clinical_forces.png")
+    save_figure(fig, files[-1], dpi=110)
+    if data["target_sizing"]:
+        fig, ax = plt.subplots(figsize=(6, 4.5))
+        colours = {"8Fr": "tab:blue", "today": "tab:orange"}
+        for t in data["target_sizing"]:
+            h = sorted(t["history"])
+            if len(h) < 2:  # out of the chain's reach
+                continue
+            ax.plot([p[0] for p in h], [max(p[1], 0.3) for p in h], ".-", color=colours.get(t["chain"], "k"),
+                    alpha=0.35 if t["group"] != "vein" else 0.9, linewidth=1.5 if t["group"] == "vein" else 0.8)
+        for key, colour in colours.items():
+            ax.plot([], [], color=colour, label=key)
+        ax.axhline(MIN_FORCE_GF, color="k", linestyle="--", linewidth=1)
+        ax.axvline(PAPER["diameter_mm"], color="grey", linestyle=":", label="paper: 119 mm")
+        for s in data["sizing"]:
+            if s["diameter_mm"] and s["criterion"].startswith("10 gf on every vein"):
+                ax.axvline(s["diameter_mm"], color=colours.get(s["chain"], "k"), linestyle="--", linewidth=0.8)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("sphere diameter D [mm]")
+        ax.set_ylabel("best tip force [gf]")
+        ax.set_title("Sizing: each target's force against the spheres' size (veins bold)")
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        files.append(out / "clinical_sizing.png")
+        save_figure(fig, files[-1], dpi=110)
+    return [str(f) for f in files]

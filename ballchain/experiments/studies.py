@@ -70,15 +70,9 @@ def _ok(rows):
 
 def _savefig(fig, path: Path) -> Path:
     """Save a figure atomically (a temporary file in the folder, then ``os.replace``)."""
-    import matplotlib.pyplot as plt
+    from ballchain.drake_models.safe_files import save_figure
 
-    from ballchain.sweep import _atomic_write
-
-    try:
-        _atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=120, bbox_inches="tight"))
-    finally:
-        plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=120, bbox_inches="tight")
 
 
 # --- statics: one equilibrium in a uniform field ---------------------------------------------------
