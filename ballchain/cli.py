@@ -15,7 +15,7 @@ import argparse
 import importlib
 import sys
 
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.errors import UserInputError, caused_by_interrupt
 
 # subcommand -> (module under ballchain.commands, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -95,6 +95,11 @@ def main(argv: list[str] | None = None) -> int:
     except StaticsError as err:
         print(f"ballchain {args.command}: {' '.join(str(err).split())}", file=sys.stderr)
         return 1
+    except Exception as err:
+        if not caused_by_interrupt(err):  # a bug: the traceback
+            raise
+        print(f"ballchain {args.command}: interrupted (files already written are complete)", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -8,6 +8,19 @@ with exit status 2. Anything else that escapes is a bug and stays a traceback.
 from __future__ import annotations
 
 
+def caused_by_interrupt(err: BaseException) -> bool:
+    """Whether ``err`` is Ctrl-C, or an error raised because of it: a KeyboardInterrupt that lands
+    inside a compiled call (a numba dispatcher, a Drake callback) comes back wrapped, e.g. as
+    "SystemError: ... returned a result with an exception set", with the interrupt as its context."""
+    seen = set()
+    while err is not None and id(err) not in seen:
+        if isinstance(err, KeyboardInterrupt):
+            return True
+        seen.add(id(err))
+        err = err.__cause__ or err.__context__
+    return False
+
+
 class UserInputError(ValueError):
     """Bad input from the user: reported as one line, exit status 2.
 

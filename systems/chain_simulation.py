@@ -41,7 +41,7 @@ from pydrake.systems.framework import DiagramBuilder, EventStatus
 from pydrake.systems.primitives import MatrixGain, TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
 
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.errors import UserInputError, caused_by_interrupt
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, UniformField
 from ballchain.drake_models.heart import HeartParams, LeftAtrium
 from ballchain.drake_models.params import BallChain, CylinderMagnet, Sleeve, SphereMagnet
@@ -735,14 +735,19 @@ def run_station(cd: ChainDiagram, *, duration: float, monitor: ChainMonitor | No
         simulator.Initialize()
         status = simulator.AdvanceTo(duration)
         stopped = status.reason() == SimulatorStatus.ReturnReason.kReachedTerminationCondition
-    except (RuntimeError, ValueError) as err:  # the monitor's failure, or a solver/physics error
+    except BaseException as err:
+        if caused_by_interrupt(err):  # Ctrl-C (maybe wrapped by a compiled call): keep the replay, stop
+            if record:
+                _export_recording(cd, meshcat, html)
+                print(f"{progress or 'run'}: interrupted at t = {root.get_time():.4f} s; replay so far written "
+                      f"to {html}", file=sys.stderr)
+            if isinstance(err, KeyboardInterrupt):
+                raise
+            raise KeyboardInterrupt from err
+        if not isinstance(err, (RuntimeError, ValueError)):
+            raise
+        # The monitor's failure, or a solver/physics error.
         failure = monitor.failure or f"at t = {root.get_time():.4f} s: {' '.join(str(err).split())}"
-    except KeyboardInterrupt:  # Ctrl-C: keep the replay recorded so far, then stop
-        if record:
-            _export_recording(cd, meshcat, html)
-            print(f"{progress or 'run'}: interrupted at t = {root.get_time():.4f} s; replay so far written "
-                  f"to {html}", file=sys.stderr)
-        raise
     finally:
         if bar is not None:
             bar.close()

@@ -311,3 +311,19 @@ def test_ctrl_c_in_simulate_keeps_the_replay_recorded_so_far(tmp_path):
     assert "interrupted at t = " in text and "ballchain simulate: interrupted" in text
     assert html.read_bytes().rstrip().endswith(b"</html>")
     assert not list(tmp_path.glob("*.partial"))
+
+
+def test_an_interrupt_wrapped_by_a_compiled_call_is_still_an_interrupt():
+    """Ctrl-C landing inside a numba dispatcher comes back as a SystemError whose context is the
+    KeyboardInterrupt: it is treated as Ctrl-C (exit 130), not as a bug."""
+    from ballchain.drake_models.errors import caused_by_interrupt
+
+    try:
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            raise SystemError("CPUDispatcher(...) returned a result with an exception set")
+    except SystemError as err:
+        wrapped = err
+    assert caused_by_interrupt(wrapped) and caused_by_interrupt(KeyboardInterrupt())
+    assert not caused_by_interrupt(SystemError("a bug")) and not caused_by_interrupt(ValueError("bad"))

@@ -27,7 +27,7 @@ from tqdm import tqdm
 from ballchain.commands._common import add_json_flag, int_in, print_json, to_jsonable, write_json
 from ballchain.drake_models import paper
 from ballchain.drake_models.dipole import K_DIPOLE
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.errors import UserInputError, caused_by_interrupt
 from ballchain.experiments.field_models import DEFAULT_DISTANCES
 from ballchain.drake_models.params import BallChain
 from ballchain.drake_models.safe_files import TEMP_SUFFIX, atomic_write_text, check_output_dir
@@ -726,12 +726,16 @@ def run(*, out: Path, quick: bool = False, resume: bool = False, sections=None, 
             pending = [n for n, _ in chosen if n not in summary]
             write_report(TITLE, done + [_timing_section(summary, time.perf_counter() - start, pending)], out)
         current = None
-    except KeyboardInterrupt:
+    except BaseException as err:
+        if not caused_by_interrupt(err):
+            raise
         pending = [n for n, _ in chosen if n not in summary]
         write_report(TITLE, done + [_timing_section(summary, time.perf_counter() - start, pending)], out)
         _say(f"interrupted in {current!r}; {len(summary)} of {len(chosen)} sections finished and kept; "
              f"`ballchain reproduce --out {out}{' --quick' if quick else ''} --resume` finishes the rest")
-        raise
+        if isinstance(err, KeyboardInterrupt):
+            raise
+        raise KeyboardInterrupt from err
     md, page = out / "report.md", out / "report.html"
     return {"report_md": md, "report_html": page, "experiments": summary,
             "total_seconds": time.perf_counter() - start, "quick": quick, "code_version": code,
