@@ -248,9 +248,8 @@ def test_killed_reproduce_leaves_whole_files_and_resume_finishes_it(tmp_path, ho
     sections and runs the rest."""
     out = tmp_path / "results"
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    # The same run once to the end first, so that the compiled kernels are in numba's cache: while
-    # LLVM compiles (a fresh clone's first run), its own SIGINT handler ends the process with the
-    # signal (exit -2) instead of Python's KeyboardInterrupt. Files are written atomically either way.
+    # The same run once to the end first, so that the killed run finds the kernels in numba's cache
+    # and its sections take their usual time (a fresh clone's first run compiles them).
     subprocess.run(_reproduce(tmp_path / "warm-up"), capture_output=True, env=env, check=True, timeout=600)
     proc = subprocess.Popen(_reproduce(out), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     _wait_for(out / ".reproduce" / "sizing.json", proc)
