@@ -25,7 +25,9 @@ class Atrium(Protocol):
             segmentation carries no ostia labels).
         ostia: the vein ostia (``heart.Ostium``); empty for a user's atrium.
         carinas: side -> (3,) carina point [m] (unit placement anchors); empty for a user's atrium.
-        wall_distance: ``wall_distance(p (k, 3)) -> (k,)`` distance to the endocardium [m].
+        wall_distance: ``wall_distance(p (k, 3)) -> (k,)`` distance to the blood-side surface [m].
+        lumen_key: what the lumen test depends on besides ``blood_surface``'s triangles (part
+            of the SDF cache key).
     """
 
     p_HP: np.ndarray
@@ -35,6 +37,7 @@ class Atrium(Protocol):
     rings: dict
     ostia: list
     carinas: dict
+    lumen_key: str
 
     def contains(self, p_H: np.ndarray) -> np.ndarray:
         """(k,) bool: the points (k, 3) lie inside the chamber."""
@@ -42,3 +45,12 @@ class Atrium(Protocol):
     @property
     def wall_tetrahedra(self) -> tuple[np.ndarray, np.ndarray]:
         """(vertices (v, 3) [m], tetrahedra (t, 4)) of the wall shell, for hydroelastic contact."""
+
+    @property
+    def blood_surface(self) -> tuple[np.ndarray, np.ndarray]:
+        """(vertices (v, 3) [m], triangles (f, 3)): the blood-side surface ``wall_distance``
+        measures to (the procedural atrium's includes the vein tubes' inner walls)."""
+
+    def lumen_grid_contains(self, origin: np.ndarray, spacing: float, shape: tuple[int, int, int]) -> np.ndarray:
+        """(nx, ny, nz) bool: the nodes of a grid (origin (3,) [m], spacing [m]) lie in the blood
+        pool, with the sign changing exactly on ``blood_surface``'s triangles (the SDF's sign)."""

@@ -344,6 +344,18 @@ class UserAtrium:
         p = self.params
         return mt.extrude_shell(self.surface.V, self.inner_faces, self._normals, p.wall_thickness, p.wall_layers)
 
+    @property
+    def blood_surface(self) -> tuple[np.ndarray, np.ndarray]:
+        """(vertices (v, 3) [m], triangles (f, 3)) of the blood side: the user's surface."""
+        return self.surface.V, self.surface.F
+
+    def lumen_grid_contains(self, origin: np.ndarray, spacing: float, shape: tuple[int, int, int]) -> np.ndarray:
+        """Whether the nodes of a grid (origin (3,) [m], spacing [m], shape) lie inside the closed
+        surface: ray parity along +z (``mesh_tools.ray_parity_contains``) -> (nx, ny, nz) bool."""
+        return mt.ray_parity_contains(self.surface.V, self.surface.F, origin, spacing, shape)
+
+    lumen_key = "ray_parity"  # the lumen test depends on the triangles only
+
     def contains(self, p_H: np.ndarray) -> np.ndarray:
         """Whether points (k, 3) [m] lie within the outer wall (generalised winding number)."""
         return mt.winding_numbers(np.atleast_2d(p_H), self._outer, self.surface.F) > 0.5

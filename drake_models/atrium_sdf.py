@@ -17,7 +17,8 @@ costs a few microseconds.
   The procedural ``LeftAtrium`` uses ray parity on its faceted endocardium (holes closed) joined
   with its polygonal vein tubes: the sign changes exactly on the triangles the distance is
   measured to (the smooth ellipsoid would give the 0.05-0.1 mm between chord and arc the wrong
-  sign).
+  sign). The atrium says which (``Atrium.lumen_grid_contains``; the tests are
+  ``mesh_tools.ray_parity_contains`` and ``LeftAtrium.lumen_contains``).
 * Interpolation: a quadratic B-spline of the node values (C1: the value, gradient and Hessian are
   derivatives of one function and the wall normal is continuous, as the statics' Newton steps
   need; trilinear interpolation's gradient jumps at every cell face).
@@ -38,122 +39,6 @@ from numba import njit
 from ballchain.drake_models import mesh_tools as mt
 
 SDF_VERSION = 2  # bump when the construction changes: it is part of the cache key
-
-
-def _tube_polygon_inside(o, n_around: int, rel: np.ndarray, along: np.ndarray) -> np.ndarray:
-    """Inside the regular n-gon prism of a vein tube (``mesh_tools.cylinder_surface``'s frame)."""
-    axis = o.axis_H
-    helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = np.cross(axis, helper)
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(axis, e1)
-    radial = rel - along[:, None] * axis
-    angle = np.arctan2(radial @ e2, radial @ e1)
-    sector = 2.0 * np.pi / n_around
-    local = np.mod(angle, sector) - 0.5 * sector  # angle from the nearest face's mid-line
-    apothem = 0.5 * o.diameter * np.cos(0.5 * sector)
-    return np.linalg.norm(radial, axis=1) * np.cos(local) < apothem
-
-
-def procedural_lumen_contains(heart, p_H: np.ndarray) -> np.ndarray:
-    """Whether points (k, 3) [m] lie in the lumen of a procedural ``LeftAtrium``'s collision mesh.
-
-    The lumen is the inside of the faceted endocardium (``closed_inner_surface``: the same
-    triangles as the wall, holes closed; ray parity) together with the inside of each vein's
-    polygonal tube, from half a diameter below the ostium centre (the hole cut in the
-    endocardium) to the tube's end. The facets, not the smooth ellipsoid, so that the sign
-    changes exactly on the triangles the distance is measured to, and it does not flip at the
-    ostia.
-    """
-    p_H = np.atleast_2d(np.asarray(p_H, float))
-    V, F = heart.closed_inner_surface
-    inside = _points_inside_closed(V, F, p_H)
-    tube_end = heart.params.vein_length + heart.params.wall_thickness
-    for o in heart.ostia:
-        rel = p_H - o.p_HO
-        along = rel @ o.axis_H
-        inside |= (along > -0.5 * o.diameter) & (along < tube_end) & _tube_polygon_inside(
-            o, heart.params.vein_segments, rel, along)
-    return inside
-
-
-def _points_inside_closed(V: np.ndarray, F: np.ndarray, P: np.ndarray) -> np.ndarray:
-    """Ray parity (+z) of scattered points against a closed surface (bounding-box filtered)."""
-    inside = np.zeros(len(P), bool)
-    lo, hi = V.min(axis=0), V.max(axis=0)
-    cand = np.flatnonzero(np.all((P >= lo) & (P <= hi), axis=1))
-    if len(cand) == 0:
-        return inside
-    tri = V[F]
-    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-    det = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
-    ok = np.abs(det) > 0.0
-    a, b, c, det = a[ok], b[ok], c[ok], det[ok]
-    tlo, thi = np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c)
-    jitter = 1e-9 * np.array([np.sqrt(2.0), np.sqrt(3.0)])
-    for chunk in np.array_split(cand, max(1, len(cand) // 2000)):
-        x = P[chunk, 0:1] + jitter[0]
-        y = P[chunk, 1:2] + jitter[1]
-        box = (x >= tlo[None, :, 0]) & (x <= thi[None, :, 0]) & (y >= tlo[None, :, 1]) & (y <= thi[None, :, 1])
-        k, t = np.nonzero(box)
-        xk, yk = x[k, 0], y[k, 0]
-        l1 = ((xk - a[t, 0]) * (c[t, 1] - a[t, 1]) - (c[t, 0] - a[t, 0]) * (yk - a[t, 1])) / det[t]
-        l2 = ((b[t, 0] - a[t, 0]) * (yk - a[t, 1]) - (xk - a[t, 0]) * (b[t, 1] - a[t, 1])) / det[t]
-        hit = (l1 >= 0) & (l2 >= 0) & (l1 + l2 <= 1)
-        z = a[t, 2] + l1 * (b[t, 2] - a[t, 2]) + l2 * (c[t, 2] - a[t, 2])
-        below = hit & (z < P[chunk[k], 2])
-        counts = np.bincount(k[below], minlength=len(chunk))
-        inside[chunk] = counts % 2 == 1
-    return inside
-
-
-def ray_parity_contains(V: np.ndarray, F: np.ndarray, origin: np.ndarray, spacing: float,
-                        shape: tuple[int, int, int]) -> np.ndarray:
-    """Inside test of a closed surface at every node of a grid, by ray parity along +z.
-
-    Each triangle is rasterised onto the grid's (x, y) columns its projection covers; a column
-    crosses it at one z. Nodes above an odd number of crossings are inside. The columns are
-    shifted by an irrational fraction of the spacing in the crossing tests, so that no column
-    passes exactly through an edge or a vertex of a mesh laid out on round numbers.
-
-    Args:
-        V, F: a closed, consistently oriented surface [m].
-        origin: (3,) grid origin [m]; spacing: [m]; shape: (nx, ny, nz).
-
-    Returns:
-        (nx, ny, nz) bool.
-    """
-    nx, ny, nz = shape
-    jitter = spacing * np.array([1e-4 * np.sqrt(2.0), 1e-4 * np.sqrt(3.0)])
-    tri = V[F]
-    cols_i, cols_j, zs = [], [], []
-    xy0 = origin[:2] + jitter
-    lo = np.floor((tri[:, :, :2].min(axis=1) - xy0) / spacing).astype(int)
-    hi = np.ceil((tri[:, :, :2].max(axis=1) - xy0) / spacing).astype(int)
-    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-    det = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
-    for t in np.flatnonzero(np.abs(det) > 0.0):  # vertical triangles are never crossed
-        ii, jj = np.meshgrid(np.arange(max(lo[t, 0], 0), min(hi[t, 0], nx - 1) + 1),
-                             np.arange(max(lo[t, 1], 0), min(hi[t, 1], ny - 1) + 1), indexing="ij")
-        ii, jj = ii.ravel(), jj.ravel()
-        x = xy0[0] + ii * spacing
-        y = xy0[1] + jj * spacing
-        # Barycentric coordinates of (x, y) in the projected triangle.
-        l1 = ((x - a[t, 0]) * (c[t, 1] - a[t, 1]) - (c[t, 0] - a[t, 0]) * (y - a[t, 1])) / det[t]
-        l2 = ((b[t, 0] - a[t, 0]) * (y - a[t, 1]) - (x - a[t, 0]) * (b[t, 1] - a[t, 1])) / det[t]
-        hit = (l1 >= 0) & (l2 >= 0) & (l1 + l2 <= 1)
-        if np.any(hit):
-            l1, l2 = l1[hit], l2[hit]
-            cols_i.append(ii[hit])
-            cols_j.append(jj[hit])
-            zs.append(a[t, 2] + l1 * (b[t, 2] - a[t, 2]) + l2 * (c[t, 2] - a[t, 2]))
-    crossings = np.zeros((nx, ny, nz), np.int32)
-    if cols_i:
-        ci, cj, z = np.concatenate(cols_i), np.concatenate(cols_j), np.concatenate(zs)
-        k = np.clip(np.ceil((z - origin[2]) / spacing).astype(int), 0, nz)  # first node above
-        keep = k < nz
-        np.add.at(crossings, (ci[keep], cj[keep], k[keep]), 1)
-    return (np.cumsum(crossings, axis=2) % 2) == 1
 
 
 @njit(cache=True)
@@ -288,20 +173,12 @@ class AtriumSDF:
         return sdf, grad, H
 
 
-def _surface_for(heart) -> tuple[np.ndarray, np.ndarray, str]:
-    """(V, F, inside-test name) of the blood-side surface of a LeftAtrium or a UserAtrium."""
-    if hasattr(heart, "lumen_surface"):  # procedural
-        V, F = heart.lumen_surface
-        return V, F, "procedural"
-    return heart.surface.V, heart.surface.F, "ray_parity"
-
-
-def cache_key(V: np.ndarray, F: np.ndarray, inside: str, spacing: float, band: float, margin: float,
-              extra: bytes = b"") -> str:
+def cache_key(V: np.ndarray, F: np.ndarray, inside: str, spacing: float, band: float, margin: float) -> str:
+    """The grid's cache key: the triangles, the lumen test (``Atrium.lumen_key``), the grid."""
     h = hashlib.sha1()
     for a in (np.ascontiguousarray(V, np.float64), np.ascontiguousarray(F, np.int64)):
         h.update(a.tobytes())
-    h.update(repr((SDF_VERSION, inside, float(spacing), float(band), float(margin))).encode() + extra)
+    h.update(repr((SDF_VERSION, inside, float(spacing), float(band), float(margin))).encode())
     return h.hexdigest()[:16]
 
 
@@ -316,15 +193,12 @@ def build_atrium_sdf(heart, spacing: float = 0.5e-3, band: float = 5e-3, margin:
         margin: the grid reaches this far beyond the surface's bounding box [m].
         progress: show a tqdm bar over the distance chunks.
     """
-    V, F, inside_kind = _surface_for(heart)
+    V, F = heart.blood_surface
     lo = V.min(axis=0) - margin
     shape = tuple(int(np.ceil(s)) + 1 for s in (V.max(axis=0) + margin - lo) / spacing)
     axes = [lo[k] + spacing * np.arange(shape[k]) for k in range(3)]
     P = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    if inside_kind == "procedural":
-        inside = procedural_lumen_contains(heart, P)
-    else:
-        inside = ray_parity_contains(V, F, lo, spacing, shape).reshape(-1)
+    inside = heart.lumen_grid_contains(lo, spacing, shape).reshape(-1)
     # Unsigned distance: exact within the band (candidates from the nearest face centroids).
     from scipy.spatial import cKDTree
 
@@ -356,11 +230,8 @@ def atrium_sdf(heart, spacing: float = 0.5e-3, band: float = 5e-3, margin: float
     or into ``directory``; the key hashes the surface's triangles, the inside test and the grid
     parameters, so a changed mesh never reads a stale grid.
     """
-    V, F, inside_kind = _surface_for(heart)
-    extra = b""
-    if inside_kind == "procedural":  # the lumen test depends on the parameters, not only on F
-        extra = heart.params.key().encode()
-    key = cache_key(V, F, inside_kind, spacing, band, margin, extra)
+    V, F = heart.blood_surface
+    key = cache_key(V, F, heart.lumen_key, spacing, band, margin)
     directory = Path(directory) if directory else Path(heart.write_files()["vtk"]).parent
     path = directory / f"atrium_sdf_{key}.npz"
     if path.exists():

@@ -170,6 +170,21 @@ def _ellipsoid_normals(p: np.ndarray, semi_axes: np.ndarray) -> np.ndarray:
     return n / np.linalg.norm(n, axis=1)[:, None]
 
 
+def _tube_polygon_inside(o, n_around: int, rel: np.ndarray, along: np.ndarray) -> np.ndarray:
+    """Inside the regular n-gon prism of a vein tube (``mesh_tools.cylinder_surface``'s frame)."""
+    axis = o.axis_H
+    helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(axis, helper)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    radial = rel - along[:, None] * axis
+    angle = np.arctan2(radial @ e2, radial @ e1)
+    sector = 2.0 * np.pi / n_around
+    local = np.mod(angle, sector) - 0.5 * sector  # angle from the nearest face's mid-line
+    apothem = 0.5 * o.diameter * np.cos(0.5 * sector)
+    return np.linalg.norm(radial, axis=1) * np.cos(local) < apothem
+
+
 class LeftAtrium:
     """The procedural left atrium built from ``HeartParams`` (geometry and anatomical features).
 
@@ -387,6 +402,45 @@ class LeftAtrium:
             Fs.append(cf)
         offsets = np.cumsum([0] + [len(v) for v in Vs[:-1]])
         return np.concatenate(Vs), np.concatenate([f + o for f, o in zip(Fs, offsets)])
+
+    @property
+    def blood_surface(self) -> tuple[np.ndarray, np.ndarray]:
+        """(vertices (v, 3) [m], triangles (f, 3)) of the blood side: ``lumen_surface``."""
+        return self.lumen_surface
+
+    def lumen_contains(self, p_H: np.ndarray) -> np.ndarray:
+        """Whether points (k, 3) [m] lie in the lumen of the collision mesh (the SDF's sign).
+
+        The lumen is the inside of the faceted endocardium (``closed_inner_surface``: the same
+        triangles as the wall, holes closed; ray parity) together with the inside of each vein's
+        polygonal tube, from half a diameter below the ostium centre (the hole cut in the
+        endocardium) to the tube's end. The facets, not the smooth ellipsoid, so that the sign
+        changes exactly on the triangles the distance is measured to, and it does not flip at the
+        ostia.
+        """
+        p_H = np.atleast_2d(np.asarray(p_H, float))
+        V, F = self.closed_inner_surface
+        inside = mt.points_inside_closed(V, F, p_H)
+        tube_end = self.params.vein_length + self.params.wall_thickness
+        for o in self.ostia:
+            rel = p_H - o.p_HO
+            along = rel @ o.axis_H
+            inside |= (along > -0.5 * o.diameter) & (along < tube_end) & _tube_polygon_inside(
+                o, self.params.vein_segments, rel, along)
+        return inside
+
+    def lumen_grid_contains(self, origin: np.ndarray, spacing: float, shape: tuple[int, int, int]) -> np.ndarray:
+        """``lumen_contains`` at every node of a grid (origin (3,) [m], spacing [m], shape) ->
+        (nx, ny, nz) bool."""
+        axes = [origin[k] + spacing * np.arange(shape[k]) for k in range(3)]
+        P = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+        return self.lumen_contains(P).reshape(shape)
+
+    @property
+    def lumen_key(self) -> str:
+        """What the lumen test depends on besides the blood-side triangles (cache keys): the
+        parameters (the vein tubes' polygons)."""
+        return "procedural" + self.params.key()
 
     @cached_property
     def wall_distance(self) -> mt.SurfaceDistance:

@@ -28,12 +28,10 @@ def atrium_box(heart) -> tuple[np.ndarray, np.ndarray]:
     """The axis-aligned bounding box (lower (3,), upper (3,)) [m] of an atrium's blood side.
 
     Args:
-        heart: a ``LeftAtrium`` (its endocardium with the vein tubes, ``lumen_surface``) or a
-            ``UserAtrium`` (its surface).
+        heart: an ``Atrium`` (its ``blood_surface``: the procedural atrium's endocardium with
+            the vein tubes, a user's surface).
     """
-    surface = getattr(heart, "surface", None)
-    V = surface.V if surface is not None else heart.lumen_surface[0]
-    V = np.asarray(V, float)
+    V = np.asarray(heart.blood_surface[0], float)
     return V.min(axis=0), V.max(axis=0)
 
 

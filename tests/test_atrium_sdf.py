@@ -5,12 +5,7 @@ import numpy as np
 import pytest
 
 from ballchain.drake_models import mesh_tools as mt
-from ballchain.drake_models.atrium_sdf import (
-    atrium_sdf,
-    build_atrium_sdf,
-    procedural_lumen_contains,
-    ray_parity_contains,
-)
+from ballchain.drake_models.atrium_sdf import atrium_sdf, build_atrium_sdf
 from ballchain.drake_models.heart import LeftAtrium
 
 
@@ -40,7 +35,7 @@ def _relevant_points(heart, n, rng):
 def test_grid_matches_exact_mesh_distance(heart, sdf):
     rng = np.random.default_rng(1)
     P = _relevant_points(heart, 3000, rng)
-    exact = heart.wall_distance(P) * np.where(procedural_lumen_contains(heart, P), 1.0, -1.0)
+    exact = heart.wall_distance(P) * np.where(heart.lumen_contains(P), 1.0, -1.0)
     grid = sdf(P, gradient=False)
     # Where a ball centre can be (at most 1 mm sunk into the 2.5 mm wall): the spline's error is
     # O(h^2 curvature) on the faces, up to ~h/4 at the creases of the distance field over the
@@ -125,7 +120,7 @@ def test_user_surface_ray_parity_and_cache(tmp_path):
                                  indexing="ij"), -1).reshape(-1, 3)
     sample = np.random.default_rng(3).choice(len(nodes), 3000, replace=False)
     wn = mt.winding_numbers(nodes[sample], V, F) > 0.5
-    parity = ray_parity_contains(V, F, sdf.origin, sdf.spacing, shape).reshape(-1)[sample]
+    parity = mt.ray_parity_contains(V, F, sdf.origin, sdf.spacing, shape).reshape(-1)[sample]
     assert np.array_equal(wn, parity)
     # Inside points 1-2 mm from the wall: the grid against the exact distance.
     rng = np.random.default_rng(4)
