@@ -89,7 +89,7 @@ print(json.dumps({"file": ballchain.__file__, "realtime_factor": r["realtime_fac
 _STATICS = r"""
 import json, sys
 from threadpoolctl import threadpool_limits
-from ballchain.commands.bench import run_statics
+from ballchain.experiments.statics_bench import run_statics
 import ballchain
 with threadpool_limits(limits=1, user_api="blas"):
     r = run_statics(n_balls=int(sys.argv[1]), repeats=int(sys.argv[2]), progress=False)

@@ -1,6 +1,6 @@
 """Statics benchmark: ChainStatics (Newton, SNOPT; cold and warm) against the naive SLSQP baseline.
 
-A thin script over ``ballchain.commands.bench`` (the one implementation, also run as
+A thin script over ``ballchain.experiments.statics_bench`` (the one implementation, also run as
 ``ballchain bench statics``); it takes the same flags and prints JSON: median wall times [ms],
 the speedup of the Newton solve over the baseline measured in the same run, iterations, and the
 differences of every solver's minimum from the Newton cold solve.
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import sys
 
-from ballchain.commands.bench import run_statics
+from ballchain.experiments.statics_bench import run_statics
 
 
 def run(*, n_balls: int = 16, repeats: int = 5, progress: bool = True, **options) -> dict:

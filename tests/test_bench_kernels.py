@@ -3,7 +3,7 @@
 
 import pytest
 
-from ballchain.commands.bench import compile_cost, run_statics
+from ballchain.experiments.statics_bench import compile_cost, run_statics
 
 
 def test_numpy_reference_rows_and_case_selection():

@@ -4,7 +4,7 @@ minimum as ChainStatics (the reduced-coordinate Newton SQP)."""
 import numpy as np
 import pytest
 
-from ballchain.commands.bench import blas_threads
+from ballchain.experiments.statics_bench import blas_threads
 from ballchain.drake_models.chain_energy import chain_energy
 from ballchain.drake_models.field_sources import UniformField
 from ballchain.drake_models.params import BallChain, Sleeve

@@ -1,0 +1,296 @@
+"""The statics benchmark: medians of repeated solves and a ratio against a baseline measured in the same run.
+
+The equilibrium of an n-ball chain in a uniform field, solved by
+``ChainStatics`` (Newton SQP in reduced coordinates, and its SNOPT reference) cold (from the
+straight chain, no continuation) and warm (from the equilibrium at the field angle minus
+``--warm-offset-deg``), against the naive SLSQP formulation of
+``optimization.naive_statics`` from the straight chain, and against the same Newton solver on
+the numpy reference implementation of the chain's physics (``ReducedChain(backend="numpy")``,
+cold and warm): the compiled kernels of ``drake_models.chain_kernels`` are what the stack runs,
+the numpy rows say what they bought. Every solver must reach the same minimum (energy and tip
+position against the Newton cold solve); the differences are printed.
+
+``--compile-cost`` also times, in fresh processes, importing the kernels and running each once
+with an empty numba cache (``NUMBA_CACHE_DIR`` pointed at a new temporary folder: what the first
+run on a machine pays) and with the cache this run used.
+
+Wall times are measured around each ``solve`` call (``time.perf_counter``), after one untimed
+round, with the cases interleaved so that a burst of load from another process hits them all.
+The problems are tiny (at most a few hundred unknowns), so multithreaded BLAS only adds
+synchronisation: by default the loaded OpenBLAS libraries are limited to one thread for the run
+(``--blas-threads``; 0 leaves them alone). ``--clock cpu`` times the process's CPU time instead
+of wall time: steadier on a machine shared with other jobs. Benchmarks are scripts, not tests: the
+tests check the fields' correctness, never the times.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import sys
+import time
+
+import numpy as np
+
+from ballchain.drake_models.errors import UserInputError
+
+# The agreement required of every solver with the Newton cold solve.
+ENERGY_RTOL = 1e-9
+TIP_ATOL_M = 1e-6
+
+_CASES = ("newton_cold", "newton_warm", "numpy_cold", "numpy_warm", "snopt_cold", "snopt_warm", "baseline")
+# Cases that --cases may leave out (the Newton solves on the kernels are always timed: the
+# reference of every comparison). The naive SLSQP and SNOPT rows cannot run 1000 balls.
+_OPTIONAL = ("numpy", "snopt", "baseline")
+
+
+@contextlib.contextmanager
+def blas_threads(n: int):
+    """Limit the loaded BLAS libraries to ``n`` threads inside the block (``n = 0``: unchanged).
+
+    Yields ``{library: threads in use}`` (what the solves ran with).
+    """
+    from threadpoolctl import ThreadpoolController
+
+    controller = ThreadpoolController()
+    with contextlib.ExitStack() as stack:
+        if n > 0:
+            stack.enter_context(controller.limit(limits=n, user_api="blas"))
+        yield {info["filepath"].rsplit("/", 1)[-1]: info["num_threads"]
+               for info in ThreadpoolController().info() if info["user_api"] == "blas"}
+
+
+# --- statics ----------------------------------------------------------------------------------------
+def _same_minimum(reference, other) -> dict:
+    energy_diff = float(other.energy - reference.energy)
+    tip_diff = float(np.linalg.norm(other.tip_position - reference.tip_position))
+    return {
+        "energy_diff_J": energy_diff,
+        "energy_diff_rel": abs(energy_diff) / abs(reference.energy),
+        "tip_diff_m": tip_diff,
+        "max_position_diff_m": float(np.abs(other.positions - reference.positions).max()),
+        "ok": bool(abs(energy_diff) <= ENERGY_RTOL * abs(reference.energy) and tip_diff <= TIP_ATOL_M),
+    }
+
+
+def _parse_cases(text: str) -> tuple[str, ...]:
+    chosen = tuple(c.strip() for c in text.split(",") if c.strip())
+    bad = [c for c in chosen if c not in _OPTIONAL]
+    if bad:
+        raise UserInputError(f"--cases: unknown case(s) {', '.join(bad)}; allowed: {', '.join(_OPTIONAL)}")
+    return chosen
+
+
+def compile_cost(timeout_s: float = 600.0) -> dict:
+    """Wall time of importing the chain kernels and running each once, in fresh processes.
+
+    Returns:
+        ``{"empty_cache_s", "cached_s", "compile_s"}``: with ``NUMBA_CACHE_DIR`` on a new empty
+        temporary folder (everything compiled), with the cache as configured for this run (loaded
+        from disk), and their difference (what a machine's first run pays once).
+    """
+    import subprocess
+    import tempfile
+
+    code = (
+        "import time; t0, c0 = time.perf_counter(), time.process_time(); "
+        "from ballchain.drake_models import chain_kernels; chain_kernels.warm_up(); "
+        "print(time.perf_counter() - t0, time.process_time() - c0)"
+    )
+
+    def first_run(env) -> tuple[float, float]:
+        proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                              timeout=timeout_s, check=True)
+        wall, cpu = proc.stdout.strip().splitlines()[-1].split()
+        return float(wall), float(cpu)
+
+    with tempfile.TemporaryDirectory(prefix="ballchain-numba-cache-") as empty:
+        empty_s, empty_cpu = first_run({**os.environ, "NUMBA_CACHE_DIR": empty})
+    cached_s, cached_cpu = min(first_run(dict(os.environ)), first_run(dict(os.environ)))
+    return {"empty_cache_s": empty_s, "cached_s": cached_s, "compile_s": empty_s - cached_s,
+            "empty_cache_cpu_s": empty_cpu, "cached_cpu_s": cached_cpu, "compile_cpu_s": empty_cpu - cached_cpu,
+            "note": "import + one call of every kernel in a fresh process (NUMBA_CACHE_DIR empty vs as "
+                    "configured); *_s wall time, *_cpu_s the process's CPU time"}
+
+
+def _spread(samples_ms: list[float]) -> float:
+    """(max - min) / median of a series: a rough noise figure."""
+    return float((max(samples_ms) - min(samples_ms)) / np.median(samples_ms))
+
+
+def run_statics(
+    *,
+    n_balls: int = 16,
+    field_mT: float = 23.0,
+    angle_deg: float = 90.0,
+    warm_offset_deg: float = 2.5,
+    repeats: int = 5,
+    baseline_ftol: float = 1e-12,
+    blas_threads_limit: int = 1,
+    progress: bool = True,
+    cases: str | tuple[str, ...] = _OPTIONAL,
+    measure_compile_cost: bool = False,
+    clock: str = "wall",
+) -> dict:
+    """Time ``ChainStatics`` (newton on the kernels and on the numpy reference, snopt; cold, warm)
+    against the SLSQP baseline.
+
+    Args:
+        n_balls: chain length (>= 2).
+        field_mT: uniform field magnitude [mT] (> 0).
+        angle_deg: field angle from +x towards +y [deg].
+        warm_offset_deg: warm solves start from the (Newton, cold) equilibrium at
+            ``angle_deg - warm_offset_deg`` [deg].
+        repeats: timed solves per case (>= 1), after one untimed round.
+        baseline_ftol: SLSQP's tolerance on the scaled energy.
+        blas_threads_limit: OpenBLAS threads during the run (0: unchanged).
+        progress: show a tqdm bar on stderr.
+        cases: the baselines to time besides the Newton solves on the kernels (any of "numpy",
+            "snopt", "baseline"; a comma-separated string or a tuple).
+        measure_compile_cost: also run ``compile_cost`` (fresh processes).
+        clock: "wall" (``time.perf_counter``) or "cpu" (``time.process_time``).
+
+    Returns:
+        A JSON-able dict: medians [ms] (``cold_median_ms``, ``warm_median_ms`` for Newton,
+        ``numpy_*`` for Newton on the numpy reference, ``snopt_*``, ``baseline_median_ms``; None
+        for a case left out), ``speedup_cold`` (baseline / Newton cold), ``kernel_speedup_*``
+        (numpy reference / kernels), ``compile_cost`` when asked, every sample, ``iterations`` per case, ``converged`` per case, ``same_minimum`` (each solver
+        against the Newton cold solve), and the run's conditions.
+
+    Raises:
+        UserInputError: bad arguments.
+    """
+    if isinstance(n_balls, bool) or not isinstance(n_balls, int) or not 2 <= n_balls <= 64:
+        # the SLSQP baseline's pairwise constraints grow as n^2: 64 balls already take minutes
+        raise UserInputError(f"--balls must be an integer >= 2 and <= 64 (ball 1 is held), got {n_balls!r}")
+    if not (math.isfinite(field_mT) and field_mT > 0):
+        raise UserInputError(f"--field-mT must be a positive finite number, got {field_mT}")
+    if not (math.isfinite(angle_deg) and math.isfinite(warm_offset_deg)):
+        raise UserInputError("--angle-deg and --warm-offset-deg must be finite")
+    if not isinstance(repeats, int) or not 1 <= repeats <= 1000:
+        raise UserInputError(f"--repeats must be an integer in 1..1000, got {repeats!r}")
+    if not (math.isfinite(baseline_ftol) and baseline_ftol > 0):
+        raise UserInputError(f"--baseline-ftol must be a positive finite number, got {baseline_ftol}")
+    if clock not in ("wall", "cpu"):
+        raise UserInputError(f"--clock must be 'wall' or 'cpu', got {clock!r}")
+    now = time.process_time if clock == "cpu" else time.perf_counter
+    chosen = _parse_cases(cases) if isinstance(cases, str) else _parse_cases(",".join(cases))
+    active = tuple(c for c in _CASES if c.startswith("newton") or c.split("_")[0] in chosen)
+
+    from tqdm import tqdm
+
+    from ballchain.drake_models.field_sources import UniformField
+    from ballchain.drake_models.params import BallChain
+    from ballchain.optimization.naive_statics import NaiveStatics
+    from ballchain.optimization.reduced_chain import ReducedChain
+    from ballchain.optimization.statics import ChainStatics
+
+    chain = BallChain(n_balls=n_balls)
+    B = field_mT * 1e-3
+    external = UniformField.in_plane(B, math.radians(angle_deg))
+    warm_angle = angle_deg - warm_offset_deg
+    external_warm = UniformField.in_plane(B, math.radians(warm_angle))
+    newton = ChainStatics(chain, method="newton")
+    reference = ChainStatics(chain, method="newton")
+    # The same solver on the numpy reference of the physics: ChainStatics builds its
+    # ReducedChain on the first solve, unless one is there.
+    reference._model = ReducedChain(chain, None, False, backend="numpy")
+    snopt = ChainStatics(chain, method="snopt") if "snopt" in chosen else None
+
+    load_before = os.getloadavg()
+    bar = tqdm(total=1 + (repeats + 1) * len(active), desc=f"bench statics ({n_balls} balls)", unit="solve",
+               file=sys.stderr, disable=not progress, leave=False)
+    with blas_threads(blas_threads_limit) as threads_in_use:
+        warm_start = newton.solve(external_warm)
+        bar.update()
+        solves = {
+            "newton_cold": lambda: newton.solve(external),
+            "newton_warm": lambda: newton.solve(external, warm_start),
+            "numpy_cold": lambda: reference.solve(external),
+            "numpy_warm": lambda: reference.solve(external, warm_start),
+            "snopt_cold": lambda: snopt.solve(external),
+            "snopt_warm": lambda: snopt.solve(external, warm_start),
+            "baseline": lambda: NaiveStatics(chain, external, ftol=baseline_ftol).solve(),
+        }
+        samples: dict[str, list[float]] = {case: [] for case in active}
+        last = {}
+        for round_ in range(repeats + 1):  # round 0 is untimed (first-call costs)
+            # Rotate the order so that no case always runs first (or right after SLSQP).
+            order = active[round_ % len(active):] + active[: round_ % len(active)]
+            for case in order:
+                t0 = now()
+                result = solves[case]()
+                elapsed = now() - t0
+                if round_ > 0:
+                    samples[case].append(1e3 * elapsed)
+                last[case] = result
+                bar.update()
+    bar.close()
+    load_after = os.getloadavg()
+
+    reference = last["newton_cold"]
+    medians = {case: float(np.median(samples[case])) if case in active else None for case in _CASES}
+    same = {case: _same_minimum(reference, last[case]) for case in active if case != "newton_cold"}
+    converged = {case: bool(last[case].converged) for case in active if case != "baseline"}
+    if "baseline" in active:
+        converged["baseline"] = bool(last["baseline"].success)
+    converged["warm_start"] = bool(warm_start.converged)
+    baseline = last.get("baseline")
+
+    def ratio(a, b):
+        return None if medians[a] is None or medians[b] is None else medians[a] / medians[b]
+
+    def iterations(case):
+        return last[case].iterations if case in last else None
+
+    out = {
+        "benchmark": "statics",
+        "n_balls": n_balls,
+        "field_mT": field_mT,
+        "angle_deg": angle_deg,
+        "warm_start_angle_deg": warm_angle,
+        "repeats": repeats,
+        "clock": clock,
+        "cold_median_ms": medians["newton_cold"],
+        "warm_median_ms": medians["newton_warm"],
+        "numpy_cold_median_ms": medians["numpy_cold"],
+        "numpy_warm_median_ms": medians["numpy_warm"],
+        "snopt_cold_median_ms": medians["snopt_cold"],
+        "snopt_warm_median_ms": medians["snopt_warm"],
+        "baseline_median_ms": medians["baseline"],
+        "speedup_cold": ratio("baseline", "newton_cold"),
+        "speedup_warm": ratio("baseline", "newton_warm"),
+        "speedup_cold_vs_snopt": ratio("snopt_cold", "newton_cold"),
+        "kernel_speedup_cold": ratio("numpy_cold", "newton_cold"),
+        "kernel_speedup_warm": ratio("numpy_warm", "newton_warm"),
+        "kernel_note": "numpy_*: the same Newton solver on the numpy reference of the chain's physics",
+        "same_minimum": {
+            "reference": "newton_cold",
+            "tolerance": {"energy_rel": ENERGY_RTOL, "tip_m": TIP_ATOL_M},
+            **same,
+            "ok": all(v["ok"] for v in same.values()),
+        },
+        "converged": converged,
+        "iterations": {
+            **{case: iterations(case) for case in _CASES},
+            "baseline_evaluations": None if baseline is None else baseline.evaluations,
+        },
+        "iterations_note": "Newton: SQP iterations; SNOPT: energy evaluations; baseline: SLSQP iterations",
+        "energy_J": reference.energy,
+        "tip_position_mm": 1e3 * reference.tip_position,
+        "baseline": None if baseline is None else {"ftol": baseline_ftol, "message": baseline.message,
+                                                   "max_violation": baseline.max_violation},
+        "samples_ms": samples,
+        "spread": {case: _spread(samples[case]) for case in active},
+        "spread_note": "(max - min) / median of each case's samples",
+        "blas_threads": threads_in_use,
+        "load_average_1min": {"before": load_before[0], "after": load_after[0]},
+        "cpu_count": os.cpu_count(),
+    }
+    if measure_compile_cost:
+        out["compile_cost"] = compile_cost()
+    return out
+
+
+run = run_statics  # the experiment's entry point, as every module of ballchain/experiments has
