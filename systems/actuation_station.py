@@ -10,6 +10,10 @@ teleoperation, 1 reconfiguration), and with ``teleop_frame="tip"`` ``<u>.p_WT`` 
 when points are given; with the feeder, input ``feeder.v_insert_cmd`` (1) and outputs
 ``feeder.inserted_length`` (1), ``feeder.balls_out`` (1). No MultibodyPlant is involved: a chain
 simulation can read ``B_points_W`` (or each unit's ``X_WM``) and do its own physics.
+
+This is the hardware-interface view of the station: the units are added and wired to one
+another by ``add_unit_systems``, the same unit step the full station (``station.MakeStation``,
+through ``station_units.add_units``) uses; only what is exported differs.
 """
 
 from __future__ import annotations

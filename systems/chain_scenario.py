@@ -3,7 +3,10 @@
 A scenario is data: the dataclass ``ChainScenario`` is the schema, named scenarios live in
 ``drake_models/station.scenarios.yaml`` (loaded with pydrake's ``yaml_load_typed``), and any
 field can be overridden with inline YAML (``load_scenario("heart_left", "{duration: 0.01}")``).
-All quantities are SI: m, s, T, N, kg.
+All quantities are SI: m, s, T, N, kg. Drake's own config structs are fields of the scenario
+(``plant_config: MultibodyPlantConfig``, ``simulator_config: SimulatorConfig``,
+``visualization: VisualizationConfig``); the time step has one home, ``time_step``. The station
+builder (``systems/station.py``) turns a scenario into a diagram.
 """
 
 
