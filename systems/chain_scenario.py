@@ -128,7 +128,7 @@ class PinScenario:
     """
 
     point: list[float] = field(default_factory=list)
-    stiffness: float = 500.0
+    stiffness: float = 500.0  # [N/m]: 2.4 times below the first failure on Table I's optima (forces_dynamics)
 
 
 def station_visualization_config(**overrides) -> VisualizationConfig:
@@ -673,6 +673,13 @@ def check_drake_configs(s: "ChainScenario") -> None:
         _require(math.isfinite(v) and (v >= 0.0 if name == "sap_near_rigid_threshold" else v > 0.0),
                  f"scenario plant_config.{name} must be a finite number "
                  f"{'>= 0' if name == 'sap_near_rigid_threshold' else '> 0'}, got {v:g}")
+    if s.engine == "statics":  # the engine has no plant: a plant setting would be silently ignored
+        _require(repr(p) == repr(chain_multibody_plant_config()),
+                 "scenario plant_config configures the MultibodyPlant: engine: statics does not read it "
+                 "(leave plant_config out, or use engine: plant)")
+        _require(list(s.insertion.slide_gains) == list(ChainPlantConfig.feeder_gains),
+                 "scenario insertion.slide_gains are the plant's slide actuator: engine: statics does not read "
+                 "them (leave them out, or use engine: plant)")
     c = s.simulator_config
     schemes = GetIntegrationSchemes()
     _require(c.integration_scheme in schemes,

@@ -25,7 +25,7 @@ from ballchain.drake_models.atrium import Atrium
 from ballchain.drake_models.errors import caused_by_interrupt
 from ballchain.drake_models.safe_files import atomic_write_text, check_output_file
 from ballchain.systems.chain_scenario import ChainScenario, check_duration
-from ballchain.systems.station import (  # noqa: F401  (re-exported: the names the rest of the code uses)
+from ballchain.systems.station import (  # re-exported (__all__): the names the rest of the code uses
     MakeStation,
     Station,
     StationPorts,
@@ -51,6 +51,12 @@ class SimulationFailure(RuntimeError):
 # The station builder lives in ``station``; these are its names in the rest of the code.
 ChainDiagram = Station
 build_chain_diagram = MakeStation
+
+__all__ = [
+    "ChainDiagram", "ChainMonitor", "RunOutcome", "SimulationFailure", "StationPorts", "add_magnetic_wrench",
+    "atrium_for", "build_chain_diagram", "chain_for", "field_source_for", "run_simulation", "run_station",
+    "station_monitor",
+]
 
 
 class ChainMonitor:

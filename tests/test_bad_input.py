@@ -151,6 +151,10 @@ CASES = [
     ("set-pin-point-2", SIM + ["--set", "{pin: {point: [0.01, 0.0]}}"], "pin.point"),
     ("set-pin-unstable", SIM + ["--set", "{pin: {point: [0.05, 0.0, 0.0], stiffness: 1.0e+5}}"], "pin.stiffness"),
     ("set-pin-statics", SIM + ["--set", "{engine: statics, pin: {point: [0.05, 0.0, 0.0]}}"], "pin"),
+    ("set-plant-config-with-statics", SIM + ["--set", "{engine: statics, plant_config: {contact_model: point}}"],
+     "plant_config"),
+    ("set-slide-gains-with-statics", SIM + ["--set", "{engine: statics, insertion: {slide_gains: [1.0e+5, 20.0]}}"],
+     "insertion.slide_gains"),
     ("set-slide-gains-negative", SIM + ["--set", "{insertion: {slide_gains: [-1.0, 20.0]}}"],
      "insertion.slide_gains"),
     # simulate: user atrium meshes

@@ -98,7 +98,7 @@ class PinSimulationConfig:
     time_step: float = 1e-3
     translational_damping: float = 1.0
     angular_damping: float = 1e-4
-    stiffness: float = 500.0
+    stiffness: float = PinScenario.stiffness  # 500 N/m (see above)
     feeder_gains: tuple = (1e6, 1e3)
     contact_stiffness: float = 1e6
     overlap: float = 4e-6
