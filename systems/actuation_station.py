@@ -10,6 +10,10 @@ teleoperation, 1 reconfiguration), and with ``teleop_frame="tip"`` ``<u>.p_WT`` 
 when points are given; with the feeder, input ``feeder.v_insert_cmd`` (1) and outputs
 ``feeder.inserted_length`` (1), ``feeder.balls_out`` (1). No MultibodyPlant is involved: a chain
 simulation can read ``B_points_W`` (or each unit's ``X_WM``) and do its own physics.
+
+This is the hardware-interface view of the station: the units are added and wired to one
+another by ``add_unit_systems``, the same unit step the full station (``station.MakeStation``,
+through ``station_units.add_units``) uses; only what is exported differs.
 """
 
 from __future__ import annotations
@@ -194,6 +198,45 @@ def connect_other_units(builder: DiagramBuilder, units: dict) -> None:
                 builder.Connect(X_port, systems.estimator.GetInputPort(f"X_WM_{o}"))
 
 
+def add_unit_systems(
+    builder: DiagramBuilder,
+    units: Sequence[MagnetUnitConfig],
+    options: Sequence[StationOptions],
+    *,
+    m_neutral_W: Sequence[np.ndarray],
+    seeds: Sequence[int],
+    R_WM: Sequence[np.ndarray | None] | None = None,
+) -> dict[str, UnitSystems]:
+    """Add every unit's systems (``add_unit``) and wire the units to one another: the one unit
+    step of both the actuation-only diagram (``make_actuation_station``) and the full station
+    (``station_units.add_units``, from ``station.MakeStation``).
+
+    Each unit's Hall sensor sees the other units' magnets when its options say
+    ``sensors_see_other_units``, and its estimator subtracts their fields when they say
+    ``estimator_compensates_other_units`` (``connect_other_units``). Left to the caller: the
+    joystick and mode inputs and what is exported or connected to a chain.
+
+    Args:
+        builder: the diagram builder.
+        units: the units' configurations (distinct names).
+        options: one StationOptions per unit (hardware figures, controller settings).
+        m_neutral_W: one (3,) reconfiguration target direction per unit.
+        seeds: one Hall-noise seed per unit.
+        R_WM: one initial magnet orientation per unit (None entries: the unit's own default).
+
+    Returns:
+        {unit name: UnitSystems}, in the order of ``units``.
+    """
+    R_WM = list(R_WM) if R_WM is not None else [None] * len(units)
+    systems, wiring = {}, {}
+    for unit, opt, m_c, seed, R in zip(units, options, m_neutral_W, seeds, R_WM):
+        others = [u for u in units if u is not unit] if opt.sensors_see_other_units else []
+        systems[unit.name] = add_unit(builder, unit, opt, m_neutral_W=m_c, others=others, seed=seed, R_WM=R)
+        wiring[unit.name] = (systems[unit.name], [o.name for o in others], opt.estimator_compensates_other_units)
+    connect_other_units(builder, wiring)
+    return systems
+
+
 def make_actuation_station(
     units: Sequence[MagnetUnitConfig] | None = None, options: StationOptions | None = None
 ) -> Diagram:
@@ -213,12 +256,11 @@ def make_actuation_station(
     if len(set(names)) != len(names) or not names:
         raise UserInputError(f"unit names must be distinct and at least one, got {names}")
     builder = DiagramBuilder()
-    magnets = {}
-    for k, unit in enumerate(units):
-        n = unit.name
-        others = [u for u in units if u is not unit] if opt.sensors_see_other_units else []
-        m_c = neutral_direction(unit.p_WM, opt.p_W_chain, opt.feed_direction_W)
-        systems = add_unit(builder, unit, opt, m_neutral_W=m_c, others=others, seed=opt.seed + k)
+    magnets = add_unit_systems(
+        builder, units, [opt] * len(units),
+        m_neutral_W=[neutral_direction(u.p_WM, opt.p_W_chain, opt.feed_direction_W) for u in units],
+        seeds=[opt.seed + k for k in range(len(units))])
+    for n, systems in magnets.items():
         magnet, drive, sensor, estimator = systems.magnet, systems.drive, systems.sensor, systems.estimator
         controller, teleop, switch = systems.controller, systems.teleop, systems.switch
         builder.ExportInput(teleop.GetInputPort("joystick"), f"{n}.joystick")
@@ -233,17 +275,15 @@ def make_actuation_station(
         builder.ExportOutput(estimator.GetOutputPort("m_hat_W"), f"{n}.m_hat_W")
         builder.ExportOutput(controller.GetOutputPort("done"), f"{n}.done")
         builder.ExportOutput(controller.GetOutputPort("angle_error"), f"{n}.angle_error")
-        magnets[n] = (systems, [o.name for o in others], opt.estimator_compensates_other_units)
-    connect_other_units(builder, magnets)
     if opt.field_points_W is not None:
         k = len(np.asarray(opt.field_points_W).reshape(-1, 3))
         if len(units) == 1:
-            builder.ExportOutput(magnets[names[0]][0].magnet.GetOutputPort("B_points_W"), "B_points_W")
+            builder.ExportOutput(magnets[names[0]].magnet.GetOutputPort("B_points_W"), "B_points_W")
         else:
             adder = builder.AddSystem(Adder(len(units), 3 * k))
             adder.set_name("total_field")
             for i, n in enumerate(names):
-                builder.Connect(magnets[n][0].magnet.GetOutputPort("B_points_W"), adder.get_input_port(i))
+                builder.Connect(magnets[n].magnet.GetOutputPort("B_points_W"), adder.get_input_port(i))
             builder.ExportOutput(adder.get_output_port(), "B_points_W")
     if opt.with_feeder:
         feeder = builder.AddSystem(Feeder(opt.chain, FeederSpec()))

@@ -26,6 +26,7 @@ tip ball touches the exit from inside.
 """
 
 
+import copy
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -59,6 +60,24 @@ from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import GRAVITY, BallChain
+
+
+def chain_multibody_plant_config(**overrides) -> MultibodyPlantConfig:
+    """The chain's MultibodyPlantConfig: Drake's defaults but for the three choices below.
+
+    SAP (the damping and the feeder's PD implicit), hydroelastic wall and balls with point
+    contact between balls (``hydroelastic_with_fallback``), and ``sap_near_rigid_threshold = 0``
+    so that SAP does not stiffen the ball-ball contacts to near-rigid (docs/design.md, 5). The
+    time step is left 0 here: its one home is the scenario's ``time_step`` (``ChainPlantConfig``'s
+    ``time_step`` at build time), not this struct.
+
+    Args:
+        overrides: MultibodyPlantConfig fields to change.
+    """
+    values = dict(time_step=0.0, discrete_contact_approximation="sap",
+                  contact_model="hydroelastic_with_fallback", sap_near_rigid_threshold=0.0)
+    values.update(overrides)
+    return MultibodyPlantConfig(**values)
 
 
 @dataclass
@@ -120,6 +139,8 @@ class ChainPlantConfig:
         initial_inserted_length: [m].
         contact: contact parameters.
         feeder_gains: (kp [N/m], kd [N s/m]) of the feeder slide's PD actuator.
+        plant_config: Drake's MultibodyPlantConfig (``chain_multibody_plant_config()``); its
+            ``time_step`` is not read (``time_step`` above is the plant's step).
         wall_plane: () or (x, y, z, nx, ny, nz): a compliant-hydroelastic half-space whose
             surface passes through the point and whose outward normal is n (free space only;
             the statics counterpart is ``ChainStatics.solve(..., wall=...)``).
@@ -138,6 +159,7 @@ class ChainPlantConfig:
     contact: ContactConfig = field(default_factory=ContactConfig)
     feeder_gains: tuple = (2e4, 20.0)
     wall_plane: tuple = ()
+    plant_config: MultibodyPlantConfig = field(default_factory=chain_multibody_plant_config)
 
 
 @dataclass
@@ -281,12 +303,8 @@ def add_chain_plant(builder, config: ChainPlantConfig) -> ChainPlant:
         raise UserInputError(
             f"sheath inner diameter {config.sheath.inner_diameter * 1e3:.2f} mm must exceed the ball "
             f"diameter {chain.ball_diameter * 1e3:.3f} mm")
-    plant_config = MultibodyPlantConfig(
-        time_step=config.time_step,
-        discrete_contact_approximation="sap",
-        contact_model="hydroelastic_with_fallback",
-        sap_near_rigid_threshold=0.0,
-    )
+    plant_config = copy.copy(config.plant_config)
+    plant_config.time_step = config.time_step  # the step has one home (see ChainPlantConfig)
     plant, scene_graph = AddMultibodyPlant(plant_config, builder)
     plant.set_name("plant")
     scene_graph.set_name("scene_graph")

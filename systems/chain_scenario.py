@@ -3,7 +3,10 @@
 A scenario is data: the dataclass ``ChainScenario`` is the schema, named scenarios live in
 ``drake_models/station.scenarios.yaml`` (loaded with pydrake's ``yaml_load_typed``), and any
 field can be overridden with inline YAML (``load_scenario("heart_left", "{duration: 0.01}")``).
-All quantities are SI: m, s, T, N, kg.
+All quantities are SI: m, s, T, N, kg. Drake's own config structs are fields of the scenario
+(``plant_config: MultibodyPlantConfig``, ``simulator_config: SimulatorConfig``,
+``visualization: VisualizationConfig``); the time step has one home, ``time_step``. The station
+builder (``systems/station.py``) turns a scenario into a diagram.
 """
 
 
@@ -17,10 +20,15 @@ from pathlib import Path
 import numpy as np
 import yaml
 from pydrake.common.yaml import yaml_load_typed
+from pydrake.multibody.plant import MultibodyPlantConfig
+from pydrake.systems.analysis import GetIntegrationSchemes, SimulatorConfig
+from pydrake.visualization import VisualizationConfig
 
 from ballchain.drake_models import paper
 from ballchain.drake_models.errors import UserInputError
-from ballchain.systems.chain_plant import ContactConfig
+from ballchain.drake_models.params import BallChain
+from ballchain.systems.chain_plant import ChainPlantConfig, ContactConfig, chain_multibody_plant_config
+from ballchain.systems.force_sensor_pin import stability_bound
 
 SCENARIOS_FILE = Path(__file__).resolve().parents[1] / "drake_models" / "station.scenarios.yaml"
 if not SCENARIOS_FILE.exists():  # installed (non-editable) layout
@@ -74,6 +82,8 @@ class InsertionScenario:
             system ``feeder_command``) or "external" (another system, e.g. a simulated operator:
             the feeder's ``v_insert_cmd`` input (1) [m/s] is left to ``build_chain_diagram``'s
             ``add_systems`` hook, or exported as the diagram input ``feeder.v_insert_cmd``).
+        slide_gains: (kp [N/m], kd [N s/m]) of the PD actuator that holds ball 1's slide on the
+            commanded inserted length (implicit in the discrete solver; the plant engine only).
     """
 
     initial: float = 0.02
@@ -83,6 +93,7 @@ class InsertionScenario:
     external: bool = False
     feeder: bool = False
     feeder_command: str = "ramp"
+    slide_gains: list[float] = field(default_factory=lambda: list(ChainPlantConfig.feeder_gains))
 
 
 @dataclass
@@ -101,6 +112,43 @@ class JoystickKey:
     axes: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     mode: int = 0
 
+
+@dataclass
+class PinScenario:
+    """A force-sensor pin holding the tip ball's centre (``systems/force_sensor_pin.py``).
+
+    Off when ``point`` is empty. The station then adds ``force_sensor_pin`` (a stiff explicit
+    spring from ``point`` to the tip ball's centre, into the plant's generalized forces) and
+    exports its reading as ``pin_reading`` (3) [N] (the force the tip presses on the pin).
+
+    Attributes:
+        point: () or (3,) the pin point in world [m].
+        stiffness: the spring [N/m]; below ``force_sensor_pin.stability_bound`` at the step
+            (with the tip's own magnetic stiffness, see ``experiments/forces_dynamics.py``).
+    """
+
+    point: list[float] = field(default_factory=list)
+    stiffness: float = 500.0  # [N/m]: 2.4 times below the first failure on Table I's optima (forces_dynamics)
+
+
+def station_visualization_config(**overrides) -> VisualizationConfig:
+    """The station's VisualizationConfig: illustration only, 32 frames a second.
+
+    The station draws the illustration geometry (``MeshcatVisualizer``) and its own overlays
+    (the wall's force on the tip, the field, the targets) rather than Drake's proximity,
+    contact and inertia visualisers, so those are off.
+    """
+    values = dict(publish_period=1.0 / 32.0, publish_proximity=False, publish_contacts=False, publish_inertia=False)
+    values.update(overrides)
+    return VisualizationConfig(**values)
+
+
+# The VisualizationConfig fields the station reads (the others must keep the station's values).
+VISUALIZATION_FIELDS_USED = ("publish_period", "default_illustration_color", "delete_on_initialization_event",
+                             "enable_alpha_sliders")
+CONTACT_MODELS = ("point", "hydroelastic", "hydroelastic_with_fallback")
+DISCRETE_CONTACT_APPROXIMATIONS = ("", "tamsi", "sap", "similar", "lagged")
+CONTACT_SURFACE_REPRESENTATIONS = ("triangle", "polygon")
 
 ANCHORS = ("puncture", "centre", "carina_left", "carina_right")
 JOYSTICK_SOURCES = ("script", "external")
@@ -192,7 +240,20 @@ class ChainScenario:
         sheath_aim: (3,) point the sheath points to [m] (default: the chamber's centroid).
         sheath: the transseptal sheath's collision cage (else ball 1 alone is held).
         mode: "quasi-static" (damped floating joints, ~1e-3 s steps) or "dynamics" (no damping).
-        time_step: [s]; 0 means the mode's default (1e-3 or 1e-4).
+        time_step: the plant's discrete step [s]; 0 means the mode's default (1e-3 or 1e-4).
+            The time step's one home: ``plant_config.time_step`` is refused.
+        plant_config: Drake's MultibodyPlantConfig of the chain plant (contact model, discrete
+            contact approximation, SAP near-rigid threshold, ...; defaults:
+            ``chain_plant.chain_multibody_plant_config()``); its ``time_step`` must stay 0 (the
+            step is ``time_step`` above). Not read by ``engine: statics``.
+        simulator_config: Drake's SimulatorConfig, applied by ``run_station``
+            (``ApplySimulatorConfig``; ``target_realtime_rate`` 0: as fast as possible, a run's
+            ``realtime_rate`` argument overrides it; ``start_time`` must be 0).
+        visualization: Drake's VisualizationConfig of the Meshcat view (when a Meshcat is
+            given): ``publish_period`` [s] (Meshcat publishing and replay frames; also the
+            overlays' and unit markers' period), ``default_illustration_color``,
+            ``delete_on_initialization_event``, ``enable_alpha_sliders``; the other fields must
+            keep ``station_visualization_config()``'s values.
         translational_damping: quasi-static damping on each free ball [N s/m].
         angular_damping: quasi-static damping on each free ball [N m s].
         gravity: gravity along -z.
@@ -206,13 +267,13 @@ class ChainScenario:
         duration: default simulated time [s].
         break_gap: a gap between neighbours larger than this means the chain broke [m].
         check_period: how often the monitor checks escape, breaks and clearance [s].
-        publish_period: Meshcat publishing period when recording [s].
         engine: "plant" (the MultibodyPlant: the reference, and the only one for dynamics) or
             "statics" (``systems/quasi_static_engine.py``: the equilibrium solved every
             ``statics_period``, quasi-static mode only).
         statics_period: the statics engine's update period [s] (50 ms: the teleoperated magnet
             turns at most 1.5 deg and the feeder moves 1 mm in one period; larger moves are
             split by the engine's continuation).
+        pin: a force-sensor pin on the tip ball (off by default; plant engine only).
     """
 
     description: str = ""
@@ -228,6 +289,9 @@ class ChainScenario:
     sheath: bool = True
     mode: str = "quasi-static"
     time_step: float = 0.0
+    plant_config: MultibodyPlantConfig = field(default_factory=chain_multibody_plant_config)
+    simulator_config: SimulatorConfig = field(default_factory=SimulatorConfig)
+    visualization: VisualizationConfig = field(default_factory=station_visualization_config)
     translational_damping: float = 1.0
     angular_damping: float = 1e-5
     gravity: bool = True
@@ -240,9 +304,9 @@ class ChainScenario:
     duration: float = 0.1
     break_gap: float = 1e-3
     check_period: float = 5e-3
-    publish_period: float = 1.0 / 32.0
     engine: str = "plant"
     statics_period: float = 0.05
+    pin: PinScenario = field(default_factory=PinScenario)
 
     @property
     def effective_time_step(self) -> float:
@@ -398,12 +462,23 @@ def parse_overrides(overrides: str | None) -> dict:
     return data
 
 
+def _schema_fields(tp) -> dict | None:
+    """{field name: type} of a schema: a dataclass, or a pydrake config struct (``__fields__``,
+    e.g. MultibodyPlantConfig); None for any other type."""
+    if dataclasses.is_dataclass(tp):
+        return typing.get_type_hints(tp)
+    fields = getattr(tp, "__fields__", None) if isinstance(tp, type) else None
+    if isinstance(fields, tuple) and all(hasattr(f, "name") and hasattr(f, "type") for f in fields):
+        return {f.name: f.type for f in fields}
+    return None
+
+
 def _type_name(tp, plural: bool = False) -> str:
     origin = typing.get_origin(tp)
     if origin in (list, tuple):
         args = typing.get_args(tp)
         return "a list" + (f" of {_type_name(args[0], plural=True)}" if args else "")
-    if dataclasses.is_dataclass(tp):
+    if _schema_fields(tp) is not None:
         return f"{tp.__name__} mappings" if plural else f"a mapping of {tp.__name__} fields"
     names = {bool: ("true or false", "true/false values"), int: ("an integer", "integers"),
              float: ("a number", "numbers"), str: ("a string", "strings")}
@@ -434,10 +509,10 @@ def _check_value(value, tp, path: str, where: str) -> None:
             for i, item in enumerate(value):
                 if args:
                     _check_value(item, args[0], f"{path}[{i}]", where)
-    elif dataclasses.is_dataclass(tp):
+    elif _schema_fields(tp) is not None:
         if not isinstance(value, dict):
             raise UserInputError(f"scenario field {path} must be {_type_name(tp)} "
-                                 f"({', '.join(f.name for f in dataclasses.fields(tp))}), got {value!r}")
+                                 f"({', '.join(_schema_fields(tp))}), got {value!r}")
         check_yaml_schema(value, tp, where, path)
         return
     if not ok:
@@ -449,7 +524,8 @@ def check_yaml_schema(data, schema, where: str, path: str = "") -> None:
 
     Args:
         data: the parsed YAML (a dict).
-        schema: the dataclass (ChainScenario or one of its parts).
+        schema: the dataclass (ChainScenario or one of its parts) or a pydrake config struct
+            nested in it (MultibodyPlantConfig, SimulatorConfig, VisualizationConfig).
         where: what the YAML came from, for messages ("--set", "scenario 'heart_left'").
         path: the field path of ``data`` inside the scenario ("" at the top, "units[0]", ...).
 
@@ -458,7 +534,7 @@ def check_yaml_schema(data, schema, where: str, path: str = "") -> None:
     """
     if not isinstance(data, dict):
         raise UserInputError(f"{where} must be {_type_name(schema)}, got {data!r}")
-    hints = typing.get_type_hints(schema)
+    hints = _schema_fields(schema)
     for key, value in data.items():
         if key not in hints:
             raise UserInputError(f"{where}: unknown field {key!r}{f' in {path}' if path else ''}; "
@@ -524,8 +600,11 @@ def check_fields(s: "ChainScenario") -> None:
              "(23 mT is 0.023)")
     _require(len(s.wall_plane) in (0, 6),
              f"scenario wall_plane must be [] or 6 numbers (point, normal) [m], got {s.wall_plane}")
-    for name in ("break_gap", "check_period", "publish_period"):
+    for name in ("break_gap", "check_period"):
         _require(getattr(s, name) > 0.0, f"scenario {name} must be > 0, got {getattr(s, name):g}")
+    check_drake_configs(s)
+    if s.pin.point:
+        check_pin(s)
     for k, m in enumerate(s.magnets):
         where = f"magnets[{k}]"
         _require(0.0 < m.distance_from_puncture <= MAX_DISTANCE,
@@ -563,11 +642,84 @@ def check_fields(s: "ChainScenario") -> None:
     _require(ins.speed > 0.0 or (ins.final == ins.initial and ins.speed == 0.0),
              f"scenario insertion.speed must be > 0 m/s (the ramp's direction comes from initial -> final), "
              f"got {ins.speed:g}")
+    _require(len(ins.slide_gains) == 2 and all(math.isfinite(g) and g >= 0.0 for g in ins.slide_gains)
+             and ins.slide_gains[0] > 0.0,
+             f"scenario insertion.slide_gains must be [kp > 0 N/m, kd >= 0 N s/m], got {ins.slide_gains}")
     c = s.contact
     for name in ("ball_point_stiffness", "wall_hydroelastic_modulus", "hydroelastic_margin", "ball_resolution_hint"):
         _require(getattr(c, name) > 0.0, f"scenario contact.{name} must be > 0, got {getattr(c, name):g}")
     _require(c.relaxation_time >= 0.0, f"scenario contact.relaxation_time must be >= 0 s, got {c.relaxation_time:g}")
     _require(c.friction >= 0.0, f"scenario contact.friction must be >= 0, got {c.friction:g}")
+
+
+def check_drake_configs(s: "ChainScenario") -> None:
+    """The Drake config structs of a scenario: plant_config, simulator_config, visualization.
+
+    Raises:
+        UserInputError: naming the field (``plant_config.time_step`` is refused: the time step's
+            one home is the scenario's ``time_step``).
+    """
+    p = s.plant_config
+    _require(p.time_step == 0.0,
+             f"scenario plant_config.time_step = {p.time_step:g}: the time step has one home, the scenario's "
+             "time_step (0: the mode's default); leave plant_config.time_step out")
+    for name, allowed in (("contact_model", CONTACT_MODELS),
+                          ("discrete_contact_approximation", DISCRETE_CONTACT_APPROXIMATIONS),
+                          ("contact_surface_representation", CONTACT_SURFACE_REPRESENTATIONS)):
+        _require(getattr(p, name) in allowed,
+                 f"scenario plant_config.{name} must be one of {allowed}, got {getattr(p, name)!r}")
+    for name in ("penetration_allowance", "stiction_tolerance", "sap_near_rigid_threshold"):
+        v = getattr(p, name)
+        _require(math.isfinite(v) and (v >= 0.0 if name == "sap_near_rigid_threshold" else v > 0.0),
+                 f"scenario plant_config.{name} must be a finite number "
+                 f"{'>= 0' if name == 'sap_near_rigid_threshold' else '> 0'}, got {v:g}")
+    if s.engine == "statics":  # the engine has no plant: a plant setting would be silently ignored
+        _require(repr(p) == repr(chain_multibody_plant_config()),
+                 "scenario plant_config configures the MultibodyPlant: engine: statics does not read it "
+                 "(leave plant_config out, or use engine: plant)")
+        _require(list(s.insertion.slide_gains) == list(ChainPlantConfig.feeder_gains),
+                 "scenario insertion.slide_gains are the plant's slide actuator: engine: statics does not read "
+                 "them (leave them out, or use engine: plant)")
+    c = s.simulator_config
+    schemes = GetIntegrationSchemes()
+    _require(c.integration_scheme in schemes,
+             f"scenario simulator_config.integration_scheme must be one of {', '.join(schemes)}, "
+             f"got {c.integration_scheme!r}")
+    for name in ("max_step_size", "accuracy"):
+        v = getattr(c, name)
+        _require(math.isfinite(v) and v > 0.0, f"scenario simulator_config.{name} must be > 0, got {v:g}")
+    _require(math.isfinite(c.target_realtime_rate) and c.target_realtime_rate >= 0.0,
+             f"scenario simulator_config.target_realtime_rate must be >= 0 (0: as fast as possible), "
+             f"got {c.target_realtime_rate:g}")
+    _require(c.start_time == 0.0, f"scenario simulator_config.start_time must be 0 (a station run starts at "
+                                  f"t = 0), got {c.start_time:g}")
+    v = s.visualization
+    _require(math.isfinite(v.publish_period) and v.publish_period > 0.0,
+             f"scenario visualization.publish_period must be > 0 s, got {v.publish_period:g}")
+    default = station_visualization_config()
+    for f in VisualizationConfig.__fields__:
+        if f.name not in VISUALIZATION_FIELDS_USED and repr(getattr(v, f.name)) != repr(getattr(default, f.name)):
+            raise UserInputError(
+                f"scenario visualization.{f.name} = {getattr(v, f.name)!r} is not supported by the station "
+                f"(it reads only {', '.join(VISUALIZATION_FIELDS_USED)}; {f.name} stays {getattr(default, f.name)!r})")
+
+
+def check_pin(s: "ChainScenario") -> None:
+    """A pin point (3, in metres) and a stiffness below the explicit spring's stability bound.
+
+    Raises:
+        UserInputError: naming ``pin.point`` or ``pin.stiffness``.
+    """
+    _require(len(s.pin.point) == 3 and np.linalg.norm(s.pin.point) <= MAX_DISTANCE,
+             f"scenario pin.point must be [] (no pin) or 3 coordinates in metres (within {MAX_DISTANCE:g} m), "
+             f"got {s.pin.point}")
+    _require(s.engine == "plant", f"scenario pin needs engine: plant (the pin is a force on the plant), got {s.engine!r}")
+    chain = BallChain(n_balls=s.n_balls)
+    damping = s.translational_damping if s.mode == "quasi-static" else 0.0
+    bound = stability_bound(s.effective_time_step, damping, chain.ball_mass)
+    _require(0.0 < s.pin.stiffness < bound,
+             f"scenario pin.stiffness {s.pin.stiffness:g} N/m must be > 0 and below the explicit spring's "
+             f"stability bound {bound:g} N/m at a {s.effective_time_step:g} s step: lower it or the step")
 
 
 def check_duration(duration: float, time_step: float, what: str = "--duration") -> None:

@@ -1,6 +1,6 @@
 """The actuation side of the chain-in-a-heart station: rotating magnet units and the feeder.
 
-``build_chain_diagram`` (``chain_simulation``) calls these when a scenario has ``units`` or
+``station.MakeStation`` (``build_chain_diagram``) calls these when a scenario has ``units`` or
 ``insertion.feeder``. Per unit ``<u>`` (systems named as in ``actuation_station``):
 
     ``<u>.joystick`` (scripted stick, zero-order hold) -> ``<u>.teleoperation`` ->
@@ -15,8 +15,9 @@ ball's centre and direction from the plant's body poses) feeds the mapper's ``p_
 
 and every unit's dipole ``m_W`` with its fixed centre ``<u>.p_WM`` goes through
 ``magnet_states`` (a Multiplexer) into the MagneticWrenchSystem's ``magnet_states`` input,
-so the chain feels the magnets as the wheels turn them. Each Hall sensor also sees the other
-units, and each estimator subtracts them (their poses known), as in ``actuation_station``.
+so the chain feels the magnets as the wheels turn them. The units themselves (``add_unit`` per
+unit, each Hall sensor also seeing the other units, each estimator subtracting them) are wired
+by ``actuation_station.add_unit_systems``, the same step as the actuation-only diagram's.
 
 The feeder: ``feeder_command`` (the insertion ramp as a speed profile; absent with
 ``insertion.feeder_command: external``) -> ``feeder`` (stepper, quantised) -> ``feeder_interface``
@@ -37,7 +38,7 @@ from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import BallChain, CylinderMagnet, SphereMagnet
 from ballchain.drake_models.dipole_inversion import neutral_direction
-from ballchain.systems.actuation_station import StationOptions, add_unit, connect_other_units
+from ballchain.systems.actuation_station import StationOptions, add_unit_systems
 from ballchain.systems.chain_scenario import ChainScenario, InsertionScenario, JoystickKey
 from ballchain.systems.feeder import Feeder, FeederSpec
 from ballchain.systems.hall_sensor import DipoleDirectionEstimator, HallSensor
@@ -177,25 +178,26 @@ def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig],
         and its ``joystick_input`` (the mapper's input port) is left unconnected for the caller.
     """
     handles: dict[str, UnitHandles] = {}
-    wiring = {}
-    for k, (u, config) in enumerate(zip(scenario.units, configs)):
-        n = u.name
-        others = [c for c in configs if c is not config] if u.sensors_see_other_units else []
-        m_neutral = neutral_direction(np.asarray(config.p_WM), p_W_chain, feed_direction_W)
-        m_neutral = m_neutral / np.linalg.norm(m_neutral)
-        m0 = np.asarray(u.m_hat_W, float) if u.m_hat_W else m_neutral
-        m0 = m0 / np.linalg.norm(m0)
+    m_neutral, m_initial, options = [], [], []
+    for u, config in zip(scenario.units, configs):
+        m_c = neutral_direction(np.asarray(config.p_WM), p_W_chain, feed_direction_W)
+        m_neutral.append(m_c / np.linalg.norm(m_c))
+        m0 = np.asarray(u.m_hat_W, float) if u.m_hat_W else m_neutral[-1]
+        m_initial.append(m0 / np.linalg.norm(m0))
         # Every option of a unit is the scenario's (StationOptions' defaults otherwise).
-        options = StationOptions(sensor_noise=u.sensor_noise, teleop_omega_max=u.teleop_omega_max,
-                                 teleop_frame=u.teleop_frame, slip=u.slip, wheel_map=u.wheel_map,
-                                 controller_gain=u.controller_gain, tolerance_deg=u.tolerance_deg,
-                                 teleop_dead_band=u.teleop_dead_band,
-                                 sensors_see_other_units=u.sensors_see_other_units,
-                                 estimator_compensates_other_units=u.estimator_compensates_other_units)
-        systems = add_unit(builder, config, options, m_neutral_W=m_neutral, others=others, seed=k,
-                           R_WM=rotation_with_z_along(m0))
-        magnet, drive, sensor, estimator = systems.magnet, systems.drive, systems.sensor, systems.estimator
-        controller, teleop, switch = systems.controller, systems.teleop, systems.switch
+        options.append(StationOptions(sensor_noise=u.sensor_noise, teleop_omega_max=u.teleop_omega_max,
+                                      teleop_frame=u.teleop_frame, slip=u.slip, wheel_map=u.wheel_map,
+                                      controller_gain=u.controller_gain, tolerance_deg=u.tolerance_deg,
+                                      teleop_dead_band=u.teleop_dead_band,
+                                      sensors_see_other_units=u.sensors_see_other_units,
+                                      estimator_compensates_other_units=u.estimator_compensates_other_units))
+    # The same unit step as the actuation-only diagram (actuation_station.make_actuation_station).
+    unit_systems = add_unit_systems(builder, configs, options, m_neutral_W=m_neutral, seeds=range(len(configs)),
+                                    R_WM=[rotation_with_z_along(m0) for m0 in m_initial])
+    for u, config, m_c, m0 in zip(scenario.units, configs, m_neutral, m_initial):
+        n = u.name
+        systems = unit_systems[n]
+        teleop, switch = systems.teleop, systems.switch
         if u.teleop_frame == "tip":
             if tip_observer is None:
                 raise UserInputError(f"unit {n!r}: teleop_frame 'tip' needs the tip's pose (a tip observer)")
@@ -210,10 +212,8 @@ def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig],
         mode = _zoh_source([q.time for q in keys], np.array([[float(q.mode) for q in keys]]).reshape(1, -1),
                            f"{n}.mode_command", builder)
         builder.Connect(mode.get_output_port(), switch.GetInputPort("mode"))
-        handles[n] = UnitHandles(config, magnet, drive, sensor, estimator, controller, teleop, stick, m_neutral, m0,
-                                 teleop.GetInputPort("joystick"))
-        wiring[n] = (systems, [c.name for c in others], options.estimator_compensates_other_units)
-    connect_other_units(builder, wiring)
+        handles[n] = UnitHandles(config, systems.magnet, systems.drive, systems.sensor, systems.estimator,
+                                 systems.controller, teleop, stick, m_c, m0, teleop.GetInputPort("joystick"))
     mux = builder.AddSystem(Multiplexer([3] * (2 * len(handles))))
     mux.set_name("magnet_states")
     for k, (n, h) in enumerate(handles.items()):

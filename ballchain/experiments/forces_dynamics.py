@@ -55,17 +55,14 @@ from dataclasses import dataclass
 import numpy as np
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import ConstantVectorSource
 
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import BallChain, gram_force
 from ballchain.optimization.statics import ChainStatics, StaticsResult, straight_chain
-from ballchain.systems.chain_plant import ChainPlant, ChainPlantConfig, ContactConfig, add_chain_plant
-from ballchain.systems.force_sensor_pin import ForceSensorPin, stability_bound
-from ballchain.systems.chain_simulation import add_magnetic_wrench
-from ballchain.systems.magnetic_wrench import MagneticWrenchSystem
+from ballchain.systems.chain_plant import ContactConfig
+from ballchain.systems.chain_scenario import ChainScenario, InsertionScenario, PinScenario
+from ballchain.systems.station import MakeStation, Station, chain_for
 
 
 @dataclass
@@ -101,7 +98,7 @@ class PinSimulationConfig:
     time_step: float = 1e-3
     translational_damping: float = 1.0
     angular_damping: float = 1e-4
-    stiffness: float = 500.0
+    stiffness: float = PinScenario.stiffness  # 500 N/m (see above)
     feeder_gains: tuple = (1e6, 1e3)
     contact_stiffness: float = 1e6
     overlap: float = 4e-6
@@ -117,17 +114,42 @@ class PinSimulationConfig:
     max_gap: float = 0.1e-3
 
 
-@dataclass
-class PinDiagram:
-    diagram: object
-    chain_plant: ChainPlant
-    wrench: MagneticWrenchSystem
-    pin: ForceSensorPin
+# The pinned chain is a station (``systems/station.py``) with its pin step on: the Station's
+# ``pin``, ``chain_plant``, ``diagram`` (output ``pin_reading``) are what the run reads.
+PinDiagram = Station
+
+
+def pin_scenario(chain: BallChain, pin_point, config: PinSimulationConfig = PinSimulationConfig()) -> ChainScenario:
+    """The station scenario of the pinned chain: free space in the statics frame (ball 1 on its
+    slide held at the origin, sheath axis +x), no heart, no sheath cage, no gravity,
+    frictionless ball contacts, the damped (quasi-static) floating joints, the stiff slide and
+    the sensor pin of ``config``.
+
+    Raises:
+        UserInputError: a chain the scenario cannot express (only ``n_balls`` and the standard
+            sleeve are scenario fields), or a pin stiffness above the stability bound.
+    """
+    scenario = ChainScenario(
+        description="the chain's tip on a force-sensor pin (experiments/forces_dynamics.py)",
+        n_balls=chain.n_balls, sleeve=chain.sleeve is not None, heart=False, sheath=False, gravity=False,
+        mode="quasi-static", time_step=config.time_step, translational_damping=config.translational_damping,
+        angular_damping=config.angular_damping,
+        insertion=InsertionScenario(initial=0.0, final=0.0, slide_gains=list(config.feeder_gains)),
+        contact=ContactConfig(ball_point_stiffness=config.contact_stiffness, friction=0.0),  # frictionless statics
+        duration=config.max_time,
+        pin=PinScenario(point=np.asarray(pin_point, float).reshape(3).tolist(), stiffness=config.stiffness))
+    if chain_for(scenario) != chain:
+        raise UserInputError(f"the pinned chain must be a scenario's chain (n_balls, the standard sleeve or none), "
+                             f"got {chain}")
+    return scenario.validate()
 
 
 def build_pin_diagram(chain: BallChain, external, pin_point,
-                      config: PinSimulationConfig = PinSimulationConfig()) -> PinDiagram:
+                      config: PinSimulationConfig = PinSimulationConfig()) -> Station:
     """The chain in free space in the statics frame, in ``external``, its tip held by a sensor pin.
+
+    Built by the station builder (``MakeStation``) from ``pin_scenario``, the stand's field given
+    as a prebuilt field source.
 
     Args:
         chain: the chain (ball 1 at the origin on its slide, the sheath axis +x).
@@ -135,40 +157,7 @@ def build_pin_diagram(chain: BallChain, external, pin_point,
         pin_point: (3,) the pin point in S [m].
         config: the simulation's parameters.
     """
-    bound = stability_bound(config.time_step, config.translational_damping, chain.ball_mass)
-    if config.stiffness >= bound:
-        raise UserInputError(f"pin stiffness {config.stiffness:g} N/m is above the explicit spring's stability "
-                         f"bound {bound:g} N/m at a {config.time_step:g} s step: lower it or the step")
-    d = chain.ball_diameter
-    plant_config = ChainPlantConfig(
-        chain=chain,
-        time_step=config.time_step,
-        translational_damping=config.translational_damping,
-        angular_damping=config.angular_damping,
-        gravity=False,
-        heart=None,
-        sheath=None,
-        p_WE=((chain.n_balls - 0.5) * d, 0.0, 0.0),  # ball 1 at the origin at s = 0: world = S
-        sheath_axis_W=(1.0, 0.0, 0.0),
-        initial_inserted_length=0.0,
-        contact=ContactConfig(ball_point_stiffness=config.contact_stiffness, friction=0.0),  # frictionless statics
-        feeder_gains=tuple(config.feeder_gains),
-    )
-    builder = DiagramBuilder()
-    cp = add_chain_plant(builder, plant_config)
-    plant = cp.plant
-    wrench = add_magnetic_wrench(builder, cp, external)
-    pin = builder.AddSystem(ForceSensorPin(plant, cp.ball_bodies[-1], pin_point, config.stiffness))
-    pin.set_name("force_sensor_pin")
-    builder.Connect(plant.get_body_poses_output_port(), pin.get_body_poses_input_port())
-    builder.Connect(pin.get_generalized_force_output_port(), plant.get_applied_generalized_force_input_port())
-    hold = builder.AddSystem(ConstantVectorSource(np.zeros(2)))  # ball 1 held at s = 0
-    hold.set_name("feeder_hold")
-    builder.Connect(hold.get_output_port(), plant.get_desired_state_input_port(cp.feeder_instance))
-    builder.ExportOutput(pin.get_reading_output_port(), "pin_reading")
-    diagram = builder.Build()
-    diagram.set_name("chain_on_force_sensor_pin")
-    return PinDiagram(diagram, cp, wrench, pin)
+    return MakeStation(pin_scenario(chain, pin_point, config), field_source=external)
 
 
 def set_chain_state(pd: PinDiagram, plant_context, positions: np.ndarray, dipoles: np.ndarray, overlap: float) -> None:

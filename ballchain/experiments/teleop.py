@@ -35,7 +35,7 @@ TASKS = ("left", "right")
 MAPPINGS = {"world": "world", "catheter": "tip"}  # user-facing name -> TeleoperationMapper frame
 PAPER = paper.TELEOP_TASKS
 SCENARIO = "teleop_right_unit"
-REPLAY_PERIOD = 0.1  # [s] Meshcat replay frames (unless the overrides set publish_period)
+REPLAY_PERIOD = 0.1  # [s] Meshcat replay frames (unless the overrides set visualization.publish_period)
 # The station's engine unless the overrides say otherwise: the quasi-static engine
 # (``systems/quasi_static_engine.py``: the chain's equilibrium with the atrium's wall every 50 ms),
 # whole tasks in seconds. ``--set '{engine: plant}'`` runs the MultibodyPlant (minutes per task).
@@ -154,7 +154,7 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
         check_output_file(html, "--html")
     scenario = scenario_for(mapping, n_balls, overrides)
     if "publish_period" not in (overrides or ""):
-        scenario.publish_period = REPLAY_PERIOD  # a task lasts minutes: keep the replay small
+        scenario.visualization.publish_period = REPLAY_PERIOD  # a task lasts minutes: keep the replay small
     heart = heart or atrium_for(scenario)
     ring = heart.rings[task]
     n_targets = len(ring.p_HT) if targets is None else min(int(targets), len(ring.p_HT))
