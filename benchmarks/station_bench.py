@@ -208,7 +208,7 @@ def teleop_task(plant_targets: int | None = 2, repeats: int = 1) -> dict:
     for _ in range(repeats):
         for engine, (overrides, targets) in engines.items():
             samples[engine].append(teleop.run(task="right", mapping="world", targets=targets, progress=False,
-                                              heart=heart, overrides=overrides)["summary"])
+                                              heart=heart, overrides=overrides).summary)
     out = {}
     for engine, runs in samples.items():
         out[engine] = {"targets": runs[0]["targets"], "touched": runs[0]["touched"],

@@ -11,6 +11,7 @@ measured error the field approximations can explain.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +22,7 @@ from ballchain.drake_models.field_sources import UniformField
 from ballchain.drake_models.params import BallChain
 from ballchain.drake_models.safe_files import check_output_dir, note_replacements, write_csv
 from ballchain.drake_models.vectors import angle_between
+from ballchain.experiments._result import Result, optional
 from ballchain.experiments.magnet_poses import side_magnet_for_field
 from ballchain.optimization.statics import ChainStatics, rotation_path, tip_angle_deg
 
@@ -35,6 +37,29 @@ PAPER = {
 MODELS = ("uniform", "dipole", "exact")
 
 
+@dataclass
+class ValidationResult(Result):
+    """What ``run`` returns (edge units: mm, deg).
+
+    Attributes:
+        rows: one per chain length, field angle and model: {n_balls, field_angle_deg, model,
+            tip_angle_deg, tip_mm (3,)}.
+        differences: one per chain length and field angle: {n_balls, field_angle_deg,
+            dipole_vs_exact_angle_deg, dipole_vs_exact_tip_mm, uniform_vs_exact_angle_deg,
+            uniform_vs_exact_tip_mm}.
+        summary: medians and maxima of the differences over 6 or more balls.
+        paper: the paper's measured errors; setup: the magnet's placement, in words.
+        files: the paths written (only with ``out``).
+    """
+
+    rows: list
+    differences: list
+    summary: dict
+    paper: dict
+    setup: str
+    files: list | None = optional()
+
+
 def _field(model: str, theta_deg: float, field_T: float):
     theta = np.radians(theta_deg)
     if model == "uniform":
@@ -43,7 +68,7 @@ def _field(model: str, theta_deg: float, field_T: float):
 
 
 def run(*, balls=range(5, 11), angles_deg=(0.0, 45.0, 90.0, 135.0, 180.0), field_T: float = 0.023,
-        step_deg: float = 22.5, progress: bool = True, out: Path | None = None) -> dict:
+        step_deg: float = 22.5, progress: bool = True, out: Path | None = None) -> ValidationResult:
     """Tip angle and position for every chain length, field angle and field model.
 
     Args:
@@ -56,10 +81,7 @@ def run(*, balls=range(5, 11), angles_deg=(0.0, 45.0, 90.0, 135.0, 180.0), field
             before the work.
 
     Returns:
-        {"rows": [{n_balls, field_angle_deg, model, tip_angle_deg, tip_mm}], "differences":
-        [{n_balls, field_angle_deg, dipole_vs_exact_angle_deg, dipole_vs_exact_tip_mm,
-        uniform_vs_exact_angle_deg, uniform_vs_exact_tip_mm}], "summary": {...}, "paper": ...,
-        "files": [...] (with ``out``)}
+        A ``ValidationResult`` (``files`` set with ``out``).
 
     Raises:
         UserInputError: a field out of range (named by its flag, --field-mT) or an unwritable ``out``.
@@ -110,9 +132,10 @@ def run(*, balls=range(5, 11), angles_deg=(0.0, 45.0, 90.0, 135.0, 180.0), field
     }
     for r in rows:
         r.pop("tip_dipole")
-    data = {"rows": rows, "differences": differences, "summary": summary, "paper": PAPER,
-            "setup": "magnet beside the base at (0, -r, 0), r chosen for a 23 mT point-dipole field at the base"}
+    data = ValidationResult(rows=rows, differences=differences, summary=summary, paper=PAPER,
+                            setup="magnet beside the base at (0, -r, 0), r chosen for a 23 mT point-dipole "
+                                  "field at the base")
     if out is not None:
         note_replacements(out, ["validation.csv"], "validation")
-        data["files"] = [str(write_csv(Path(out) / "validation.csv", differences))]
+        data.files = [str(write_csv(Path(out) / "validation.csv", differences))]
     return data

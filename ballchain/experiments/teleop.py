@@ -24,10 +24,12 @@ several operator seeds (the hand's tremor) and tabulates the spread.
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from ballchain.drake_models.errors import UserInputError
+from ballchain.experiments._result import Result, optional
 
 from ballchain.drake_models import paper
 
@@ -48,6 +50,54 @@ DEFAULT_ENGINE = "statics"
 FAST = "{engine: plant, time_step: 0.004}"
 MAX_SEED = 2**32 - 1
 REPRODUCE_SEEDS = 5  # operator seeds of reproduce's seed spread besides seed 0 (a whole task takes seconds)
+
+
+@dataclass
+class TeleopResult(Result):
+    """What ``run`` returns: one simulated operator doing one task with one mapping.
+
+    Attributes:
+        task: "left" or "right"; mapping: "world" or "catheter".
+        rows: one per target: {target, touched, time_s (spent on it), t_touch_s, accuracy_mm (tip
+            contact point to target centre), relearns (re-probing wiggles), bursts (feeding /
+            retraction bursts), reason (a missed target's: "chain jammed", "out of reach",
+            "confused", "timeout", "not reached" (the run ended first), else None), closest_mm}.
+        summary: {touched, targets, total_time_s, median_time_s, median_accuracy_mm,
+            max_accuracy_mm, missed, missed_reasons ({target: reason}), struggled (missed, or more
+            than twice the median time), sim_time_s, realtime_factor (simulated time over
+            wall_time_s), wall_time_s (the simulation loop: Simulator Initialize + AdvanceTo, the
+            build not counted), failure, build_time_s, realtime_factor_cpu (on the loop's process
+            CPU time), rim_sinkings, rim_sinking_max_mm}.
+        paper: the paper's operator on the task ({human_time_s, targets, ...}).
+        settings: {engine, seed, overrides, statics_period_s, n_balls, time_step_s,
+            teleop_omega_max_rad_s, operator_period_s, reaction_s, timeout_s, axes, time_limit_s}.
+        html: the Meshcat replay written (only with ``html``).
+    """
+
+    task: str
+    mapping: str
+    rows: list
+    summary: dict
+    paper: dict
+    settings: dict
+    html: str | None = optional()
+
+
+@dataclass
+class TeleopSeedsResult(Result):
+    """What ``run_seeds`` returns.
+
+    Attributes:
+        table: one ``aggregate_seeds`` row per (task, mapping) (the columns of ``SEED_FIELDS``).
+        runs: one per run: {task, mapping, seed, summary, rows} (``TeleopResult``'s parts).
+        settings: {seeds, targets, overrides, engine}.
+        files: {"csv", "json"}: the paths written (only with ``out``).
+    """
+
+    table: list
+    runs: list
+    settings: dict
+    files: dict | None = optional()
 
 
 def check_seed(seed, what: str = "seed") -> int:
@@ -109,7 +159,7 @@ def hand_over(scenario, mapping: str, n_balls: int | None, overrides: dict, unit
 
 def run(task: str = "left", mapping: str = "world", targets: int | None = None, html: Path | None = None,
         progress: bool = True, time_limit: float | None = None, n_balls: int | None = None,
-        overrides: str | None = None, operator=None, heart=None, seed: int = 0) -> dict:
+        overrides: str | None = None, operator=None, heart=None, seed: int = 0) -> TeleopResult:
     """Simulate the operator doing a task with a mapping.
 
     Args:
@@ -128,19 +178,7 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
         seed: the operator's seed (its hand's tremor), 0..2**32-1; ignored when ``operator`` is given.
 
     Returns:
-        {"task", "mapping", "rows": [{"target", "touched", "time_s" (spent on it), "t_touch_s",
-        "accuracy_mm" (tip contact point to target centre), "relearns" (re-probing wiggles),
-        "bursts" (feeding / retraction bursts), "reason" (a missed target's: "chain jammed", "out
-        of reach", "confused", "timeout", "not reached" (the run ended first), else None),
-        "closest_mm"}], "summary": {"touched", "targets", "total_time_s", "median_time_s",
-        "median_accuracy_mm", "max_accuracy_mm", "missed", "missed_reasons" ({target: reason}),
-        "struggled" (missed, or more than twice the median time), "sim_time_s",
-        "realtime_factor" (simulated time over ``wall_time_s``), "wall_time_s" (wall time of the
-        simulation loop, Simulator Initialize + AdvanceTo: the build is not counted),
-        "build_time_s", "realtime_factor_cpu" (on the loop's process CPU time), "failure",
-        "rim_sinkings", "rim_sinking_max_mm"},
-        "paper": {"human_time_s", ...}, "settings": {..., "engine", "seed"}} (and "html" when
-        written).
+        A ``TeleopResult`` (``html`` set when the replay was written).
     """
     from dataclasses import replace
 
@@ -206,17 +244,15 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     sinkings = chain_monitor.tolerated_sinkings
     summary["rim_sinkings"] = len(sinkings)
     summary["rim_sinking_max_mm"] = round(max(e[2] for e in sinkings) * 1e3, 3) if sinkings else None
-    result = {"task": task, "mapping": mapping, "rows": rows, "summary": summary,
-              "paper": PAPER[task],
-              "settings": {"engine": scenario.engine, "seed": int(params.seed), "overrides": overrides,
-                           "statics_period_s": scenario.statics_period if scenario.engine == "statics" else None,
-                           "n_balls": scenario.n_balls, "time_step_s": scenario.effective_time_step,
-                           "teleop_omega_max_rad_s": scenario.units[0].teleop_omega_max,
-                           "operator_period_s": params.period, "reaction_s": params.period * params.reaction_steps,
-                           "timeout_s": params.timeout, "axes": list(params.axes), "time_limit_s": limit}}
-    if html is not None:
-        result["html"] = str(html)
-    return result
+    return TeleopResult(
+        task=task, mapping=mapping, rows=rows, summary=summary, paper=PAPER[task],
+        settings={"engine": scenario.engine, "seed": int(params.seed), "overrides": overrides,
+                  "statics_period_s": scenario.statics_period if scenario.engine == "statics" else None,
+                  "n_balls": scenario.n_balls, "time_step_s": scenario.effective_time_step,
+                  "teleop_omega_max_rad_s": scenario.units[0].teleop_omega_max,
+                  "operator_period_s": params.period, "reaction_s": params.period * params.reaction_steps,
+                  "timeout_s": params.timeout, "axes": list(params.axes), "time_limit_s": limit},
+        html=None if html is None else str(html))
 
 
 RIM_BAND = 3e-3  # [m]
@@ -310,14 +346,14 @@ def check_seeds(seeds) -> list[int]:
     return seeds
 
 
-def aggregate_seeds(task: str, mapping: str, results: list[dict]) -> dict:
+def aggregate_seeds(task: str, mapping: str, results: list[TeleopResult]) -> dict:
     """One row of the seed table from the runs of a (task, mapping) (``run`` results).
 
     Touched: min / median / max over the runs; total time (every target's time, touched or
     not): median, min, max; per-target time: the median over the runs of each run's median over
     its touched targets; accuracy likewise; the missed targets' reasons counted over the runs.
     """
-    s = [r["summary"] for r in results]
+    s = [r.summary for r in results]
     touched = [x["touched"] for x in s]
     total = [x["total_time_s"] for x in s]
     per_target = [x["median_time_s"] for x in s if x["median_time_s"] is not None]
@@ -332,7 +368,7 @@ def aggregate_seeds(task: str, mapping: str, results: list[dict]) -> dict:
         return round(float(np.median(values)), 3) if values else None
 
     return {"task": task, "mapping": mapping, "runs": len(results),
-            "seeds": [r["settings"]["seed"] for r in results],
+            "seeds": [r.settings["seed"] for r in results],
             "touched_min": int(min(touched)), "touched_median": med(touched), "touched_max": int(max(touched)),
             "targets": s[0]["targets"],
             "total_time_median_s": med(total), "total_time_min_s": round(float(min(total)), 3),
@@ -344,7 +380,7 @@ def aggregate_seeds(task: str, mapping: str, results: list[dict]) -> dict:
 
 def run_seeds(tasks=TASKS, mappings=tuple(MAPPINGS), seeds=range(5), *, targets: int | None = None,
               out: Path | None = None, progress: bool = True, overrides: str | None = None,
-              n_balls: int | None = None, heart=None) -> dict:
+              n_balls: int | None = None, heart=None) -> TeleopSeedsResult:
     """The spread over operator seeds: every (task, mapping) run once per seed, serially.
 
     (``ballchain sweep`` runs the same study in parallel on Dask; this is the plain serial
@@ -361,8 +397,7 @@ def run_seeds(tasks=TASKS, mappings=tuple(MAPPINGS), seeds=range(5), *, targets:
         heart: a prebuilt atrium (default: built once for all runs).
 
     Returns:
-        {"table": [one ``aggregate_seeds`` row per (task, mapping)], "runs": [{"task", "mapping",
-        "seed", "summary", "rows"} per run], "settings": {...}} (and "files" when written).
+        A ``TeleopSeedsResult`` (``files`` set with ``out``).
     """
     from tqdm import tqdm
 
@@ -392,20 +427,20 @@ def run_seeds(tasks=TASKS, mappings=tuple(MAPPINGS), seeds=range(5), *, targets:
                 r = run(task=task, mapping=mapping, targets=targets, progress=False, n_balls=n_balls,
                         overrides=overrides, heart=heart, seed=seed)
                 results.append(r)
-                runs.append({"task": task, "mapping": mapping, "seed": seed, "summary": r["summary"],
-                             "rows": r["rows"]})
+                runs.append({"task": task, "mapping": mapping, "seed": seed, "summary": r.summary,
+                             "rows": r.rows})
                 bar.update(1)
             table.append(aggregate_seeds(task, mapping, results))
     bar.close()
-    result = {"table": table, "runs": runs,
-              "settings": {"seeds": seeds, "targets": targets, "overrides": overrides,
-                           "engine": results[0]["settings"]["engine"]}}
+    result = TeleopSeedsResult(table=table, runs=runs,
+                               settings={"seeds": seeds, "targets": targets, "overrides": overrides,
+                                         "engine": results[0].settings["engine"]})
     if files is not None:
         from ballchain.drake_models.safe_files import write_csv, write_json
 
         write_csv(files["csv"], table, SEED_FIELDS)
         write_json(files["json"], result)
-        result["files"] = {k: str(v) for k, v in files.items()}
+        result.files = {k: str(v) for k, v in files.items()}
     return result
 
 
