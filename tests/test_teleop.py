@@ -149,11 +149,11 @@ def test_seed_is_validated(capsys):
 
 def _fake_result(task, seed, times, accuracy, reasons=None, rtf=6.0):
     touched = [t for t, a in zip(times, accuracy) if a is not None]
-    return {"settings": {"seed": seed}, "summary": {
+    return teleop.TeleopResult(task=task, mapping="world", rows=[], paper={}, settings={"seed": seed}, summary={
         "touched": len(touched), "targets": len(times), "total_time_s": float(sum(times)),
         "median_time_s": float(np.median(touched)) if touched else None,
         "median_accuracy_mm": float(np.median([a for a in accuracy if a is not None])) if touched else None,
-        "realtime_factor": rtf, "missed_reasons": reasons or {}}}
+        "realtime_factor": rtf, "missed_reasons": reasons or {}})
 
 
 def test_aggregate_seeds_by_hand():

@@ -445,6 +445,33 @@ def run_seeds(tasks=TASKS, mappings=tuple(MAPPINGS), seeds=range(5), *, targets:
 
 
 # ----------------------------------------------------------------------------------- live steering
+@dataclass
+class LiveResult(Result):
+    """What ``run_live`` returns.
+
+    Attributes:
+        url: the Meshcat URL.
+        ended: "quit", "duration", "interrupted" or "failure"; failure: the watchdog's message.
+        sim_time_s, wall_time_s: simulated and wall time [s]; realtime_factor: their ratio
+            (achieved); target_realtime_rate: the one asked for.
+        targets_touched: the targets' names; n_targets: how many the station has.
+        tip_wall_force_N: the wall's force on the tip ball at the end (3,) [N].
+        settings: {mapping, units, n_balls, time_step_s, overrides}.
+    """
+
+    url: str
+    ended: str
+    failure: str | None
+    sim_time_s: float
+    wall_time_s: float
+    realtime_factor: float | None
+    target_realtime_rate: float
+    targets_touched: list
+    n_targets: int
+    tip_wall_force_N: list
+    settings: dict
+
+
 LIVE_SCENARIOS = {"one": SCENARIO, "two": "teleop_two_units"}  # --units: the right unit, or both
 LIVE_CHUNK = 0.05  # [s] simulated time per AdvanceTo: quit, Ctrl-C and the status line between chunks
 LIVE_STATUS_PERIOD = 2.0  # [s] wall time between status lines
@@ -589,7 +616,7 @@ def build_live(*, mapping: str = "world", units: str = "one", n_balls: int | Non
 
 def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None = None,
              overrides: str | None = None, duration: float | None = None, realtime_rate: float = 1.0,
-             meshcat=None, heart=None, echo=print, status_period: float = LIVE_STATUS_PERIOD) -> dict:
+             meshcat=None, heart=None, echo=print, status_period: float = LIVE_STATUS_PERIOD) -> LiveResult:
     """Let a person steer the chain live in Meshcat with a gamepad or the keyboard.
 
     Opens Meshcat on localhost (or uses ``meshcat``), prints its URL and the key map, and runs
@@ -610,9 +637,7 @@ def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None 
         status_period: wall time between status lines [s].
 
     Returns:
-        {"url", "ended" ("quit", "duration", "interrupted" or "failure"), "failure",
-        "sim_time_s", "wall_time_s", "realtime_factor" (achieved), "target_realtime_rate",
-        "targets_touched", "n_targets", "tip_wall_force_N", "settings": {...}}.
+        A ``LiveResult``.
     """
     from ballchain.drake_models.params import gram_force
     from ballchain.systems.meshcat_joystick import key_map_text
@@ -667,9 +692,9 @@ def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None 
     echo(f"ended ({ended}{': ' + failure if failure else ''}) at t = {sim_time:.2f} s after {wall:.1f} s: "
          f"real-time rate {rate}, {len(touched)}/{n_targets} targets touched"
          + (f" ({', '.join(touched)})" if touched else ""))
-    return {"url": session.meshcat.web_url(), "ended": ended, "failure": failure,
-            "sim_time_s": round(sim_time, 4), "wall_time_s": round(wall, 3), "realtime_factor": rate,
-            "target_realtime_rate": realtime_rate, "targets_touched": touched, "n_targets": n_targets,
-            "tip_wall_force_N": [round(float(v), 6) for v in session.tip_force_N()],
-            "settings": {"mapping": mapping, "units": unit_names, "n_balls": scenario.n_balls,
-                         "time_step_s": scenario.effective_time_step, "overrides": overrides}}
+    return LiveResult(url=session.meshcat.web_url(), ended=ended, failure=failure,
+                      sim_time_s=round(sim_time, 4), wall_time_s=round(wall, 3), realtime_factor=rate,
+                      target_realtime_rate=realtime_rate, targets_touched=touched, n_targets=n_targets,
+                      tip_wall_force_N=[round(float(v), 6) for v in session.tip_force_N()],
+                      settings={"mapping": mapping, "units": unit_names, "n_balls": scenario.n_balls,
+                                "time_step_s": scenario.effective_time_step, "overrides": overrides})
