@@ -32,8 +32,8 @@ def test_short_plan_presses_every_target_and_times_the_turns():
         assert r["friction_needed"] <= data.friction * (1 + 1e-3)
         assert r["offset_mm"] <= data.target_radius_mm * (1 + 1e-6)
     turns = np.radians([r["turn_deg"] for r in data.rows])
-    np.testing.assert_allclose(data.summary["magnet_turn_time_s"], turns.sum() / 0.5)
+    np.testing.assert_allclose(data.summary.magnet_turn_time_s, turns.sum() / 0.5)
     # The first turn starts from the magnet's neutral direction, the second from the first plan.
     a, b = (np.array(r["dipole"]) for r in data.rows)
     np.testing.assert_allclose(turns[1], np.arccos(np.clip(a @ b, -1, 1)), atol=1e-9)
-    assert data.summary["insertion_time_s"] == 0.0  # one length only
+    assert data.summary.insertion_time_s == 0.0  # one length only

@@ -35,5 +35,5 @@ def main(args: argparse.Namespace) -> int:
     for n in sorted({r["n_balls"] for r in data.rows}):
         vals = [r["tip_angle_deg"] for r in data.rows if r["n_balls"] == n]
         print(f"{n:7d}  " + "  ".join(f"{v:6.2f}" for v in vals))
-    print(data.summary)
+    print(data.summary.to_dict())
     return 0

@@ -47,6 +47,6 @@ def main(args: argparse.Namespace) -> int:
                  f"friction needed {r['friction_needed']:.3f}, {r['offset_mm']:.2f} mm off centre")
         print(f"{r['target']:9s} {force}")
     s = data.summary
-    print(f"{s['reached']}/{s['targets']} planned, {s['with_at_least_10_gf']} with >= {data.min_force_gf:g} gf; plan "
-          f"{s['plan_time_s']:.1f} s (operator in the paper: {data.paper['human_time_s']:.0f} s)")
+    print(f"{s.reached}/{s.targets} planned, {s.with_at_least_10_gf} with >= {data.min_force_gf:g} gf; plan "
+          f"{s.plan_time_s:.1f} s (operator in the paper: {data.paper['human_time_s']:.0f} s)")
     return 0

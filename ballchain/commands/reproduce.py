@@ -69,8 +69,8 @@ def alignment_section(out: Path, quick: bool) -> tuple[Section, dict]:
     section.text(
         "A 23 mT field rotated from 0 to 180 deg with continuation; the angle between the field "
         "and the tip ball's dipole. Paper: below 1.4 deg for chains longer than 10 balls. "
-        f"Model: at most {s['max_tip_angle_deg_beyond_10_balls']:.2f} deg beyond 10 balls "
-        f"({s['max_tip_angle_deg_beyond_10_balls_at_180deg']:.2f} deg at 180 deg). Short chains do "
+        f"Model: at most {s.max_tip_angle_deg_beyond_10_balls:.2f} deg beyond 10 balls "
+        f"({s.max_tip_angle_deg_beyond_10_balls_at_180deg:.2f} deg at 180 deg). Short chains do "
         "not follow: two balls in an antiparallel field stay straight, because the pair term "
         f"k M^2 / (2 d^3) = {pair * 1e3:.2f} mJ beats the field's M B = {field * 1e3:.2f} mJ."
     )
@@ -143,16 +143,16 @@ def workspace_section(out: Path, quick: bool) -> tuple[Section, dict]:
     section = Section("Workspace with one rotating magnet (paper Fig. workspace_results)")
     section.text(
         f"The prototype magnet beside the insertion point, 16.51 cm away, turns through its range; "
-        f"its field at the base is {s['field_at_base_mT_range'][0]:.1f} to {s['field_at_base_mT_range'][1]:.1f} mT. "
+        f"its field at the base is {s.field_at_base_mT_range[0]:.1f} to {s.field_at_base_mT_range[1]:.1f} mT. "
         "The half workspace is half the area enclosed by the tip curves of the two rotation "
         "directions (16 balls). The magnet's pull makes the side away from it larger, and near "
         "the end of that sweep the chain snaps through to the magnet's side."
     )
     section.table(["quantity", "paper", "model"], [
-        ["half workspace, bare [mm^2]", p["half_area_bare_mm2"], s["half_area_bare_mm2"]],
-        ["half workspace, sleeve [mm^2]", p["half_area_sleeve_mm2"], s["half_area_sleeve_mm2"]],
-        ["reduction by the sleeve [%]", p["reduction_pct"], s["reduction_pct"]],
-        ["tip-to-tip, sleeve vs bare [mm]", p["tip_to_tip_mm"], s["tip_to_tip_max_mm"]],
+        ["half workspace, bare [mm^2]", p["half_area_bare_mm2"], s.half_area_bare_mm2],
+        ["half workspace, sleeve [mm^2]", p["half_area_sleeve_mm2"], s.half_area_sleeve_mm2],
+        ["reduction by the sleeve [%]", p["reduction_pct"], s.reduction_pct],
+        ["tip-to-tip, sleeve vs bare [mm]", p["tip_to_tip_mm"], s.tip_to_tip_max_mm],
     ])
     section.table(["balls", "sleeve", "half area [mm^2]", "snap-through at field angle [deg]"],
                   [[r["n_balls"], r["sleeve"], r["half_area_mm2"], r["far_side_snap_field_angle_deg"]]
@@ -181,14 +181,14 @@ def validation_section(out: Path, quick: bool) -> tuple[Section, dict]:
     )
     section.table(["quantity (6 to 10 balls)", "paper (measured vs model)", "model vs model"], [
         ["tip angle, median [deg]: dipole vs exact cylinder", p["tip_angle_error_median_deg_6plus"],
-         s["dipole_vs_exact_angle_median_deg_6plus"]],
+         s.dipole_vs_exact_angle_median_deg_6plus],
         ["tip angle, max [deg]: dipole vs exact cylinder", p["tip_angle_error_max_deg_6plus"],
-         s["dipole_vs_exact_angle_max_deg_6plus"]],
+         s.dipole_vs_exact_angle_max_deg_6plus],
         ["tip position, max [mm]: dipole vs exact cylinder", p["tip_position_error_max_mm_6plus"],
-         s["dipole_vs_exact_tip_max_mm_6plus"]],
+         s.dipole_vs_exact_tip_max_mm_6plus],
         ["tip angle, median [deg]: uniform vs exact cylinder", p["tip_angle_error_median_deg_6plus"],
-         s["uniform_vs_exact_angle_median_deg_6plus"]],
-        ["tip position, median [mm]: uniform vs exact cylinder", "-", s["uniform_vs_exact_tip_median_mm_6plus"]],
+         s.uniform_vs_exact_angle_median_deg_6plus],
+        ["tip position, median [mm]: uniform vs exact cylinder", "-", s.uniform_vs_exact_tip_median_mm_6plus],
     ])
     section.text(
         "The point-dipole approximation alone moves the tip by about half the paper's median "
@@ -360,8 +360,8 @@ def plan_section(out: Path, quick: bool) -> tuple[Section, dict]:
                              refine=5 if quick else 15)
         data[task] = result
         s = result.summary
-        rows.append([task, f"{s['reached']}/{s['targets']}", s["force_gf_min"], s["force_gf_max"],
-                     s["plan_time_s"], s["compute_time_s"]])
+        rows.append([task, f"{s.reached}/{s.targets}", s.force_gf_min, s.force_gf_max,
+                     s.plan_time_s, s.compute_time_s])
         write_json(out / f"plan_{task}.json", result)
     section.table(["ring", "planned", "min force [gf]", "max force [gf]", "plan motion time [s]",
                    "compute time [s]"], rows)
@@ -371,8 +371,8 @@ def plan_section(out: Path, quick: bool) -> tuple[Section, dict]:
                    "lengths without a plan"], per_target)
     left, right = data["left"].summary, data["right"].summary
     section.text(
-        f"With the one magnet beside the right veins, {right['reached']} of {right['targets']} right-ring "
-        f"targets and {left['reached']} of {left['targets']} left-ring targets can be pressed with 10 gf "
+        f"With the one magnet beside the right veins, {right.reached} of {right.targets} right-ring "
+        f"targets and {left.reached} of {left.targets} left-ring targets can be pressed with 10 gf "
         "(the others: the search for the hardest-pressing orientation, tip held on the centre, found "
         "less than 10 gf; it is a local search). A second magnet on the left, as the paper proposes, "
         "is what the left ring needs. The plan's time is the hardware's motion time only (no "

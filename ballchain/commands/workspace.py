@@ -29,8 +29,8 @@ def main(args: argparse.Namespace) -> int:
         print_json(data.public())
         return 0
     s, p = data.summary, data.paper
-    print(f"half workspace, bare:   {s['half_area_bare_mm2']:7.0f} mm^2 (paper {p['half_area_bare_mm2']:.0f})")
-    print(f"half workspace, sleeve: {s['half_area_sleeve_mm2']:7.0f} mm^2 (paper {p['half_area_sleeve_mm2']:.0f})")
-    print(f"reduction: {s['reduction_pct']:.1f} % (paper {p['reduction_pct']:.0f} %); tip-to-tip "
-          f"{s['tip_to_tip_max_mm']:.1f} mm (paper about {p['tip_to_tip_mm']:.0f})")
+    print(f"half workspace, bare:   {s.half_area_bare_mm2:7.0f} mm^2 (paper {p['half_area_bare_mm2']:.0f})")
+    print(f"half workspace, sleeve: {s.half_area_sleeve_mm2:7.0f} mm^2 (paper {p['half_area_sleeve_mm2']:.0f})")
+    print(f"reduction: {s.reduction_pct:.1f} % (paper {p['reduction_pct']:.0f} %); tip-to-tip "
+          f"{s.tip_to_tip_max_mm:.1f} mm (paper about {p['tip_to_tip_mm']:.0f})")
     return 0

@@ -8,7 +8,7 @@ than 1.4 deg for chains longer than 10 balls. Writes ``alignment.csv`` and ``ali
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +26,22 @@ MAX_BALLS = 64  # every length 1..max is solved at every angle
 
 
 @dataclass
+class AlignmentSummary(Result):
+    """The alignment's headline numbers [deg].
+
+    Attributes:
+        max_tip_angle_deg_beyond_10_balls: the largest tip angle of chains longer than 10 balls
+            over every field angle (None without such chains).
+        max_tip_angle_deg_beyond_10_balls_at_180deg: the same at 180 deg.
+        paper_claim_deg: the paper's bound (1.4 deg).
+    """
+
+    max_tip_angle_deg_beyond_10_balls: float | None
+    max_tip_angle_deg_beyond_10_balls_at_180deg: float | None
+    paper_claim_deg: float
+
+
+@dataclass
 class AlignmentResult(Result):
     """What ``run`` returns.
 
@@ -34,14 +50,13 @@ class AlignmentResult(Result):
             tip_x_mm, tip_y_mm}.
         shapes: {field angle [deg]: ball positions [mm], shape (n, 3)} of the 10-ball chain (the
             longest one if shorter).
-        summary: {max_tip_angle_deg_beyond_10_balls, max_tip_angle_deg_beyond_10_balls_at_180deg
-            (None without chains beyond 10 balls), paper_claim_deg}.
+        summary: the headline numbers.
         files: the paths written (only with ``out``).
     """
 
     rows: list
-    shapes: dict = field(default_factory=dict)
-    summary: dict = field(default_factory=dict)
+    shapes: dict
+    summary: AlignmentSummary
     files: list | None = optional()
 
 def write_files(data: AlignmentResult, out: Path) -> list[str]:
@@ -118,12 +133,12 @@ def run(*, max_balls: int = 16, field_mT: float = 23.0, step_deg: float = 22.5, 
             if n == min(10, max_balls):
                 shapes[float(angle)] = result.positions * 1e3
     beyond = [r["tip_angle_deg"] for r in rows if r["n_balls"] > 10]
-    summary = {
-        "max_tip_angle_deg_beyond_10_balls": max(beyond) if beyond else None,
-        "max_tip_angle_deg_beyond_10_balls_at_180deg": max(
+    summary = AlignmentSummary(
+        max_tip_angle_deg_beyond_10_balls=max(beyond) if beyond else None,
+        max_tip_angle_deg_beyond_10_balls_at_180deg=max(
             (r["tip_angle_deg"] for r in rows if r["n_balls"] > 10 and r["field_angle_deg"] == 180.0), default=None),
-        "paper_claim_deg": PAPER_CLAIM_DEG,
-    }
+        paper_claim_deg=PAPER_CLAIM_DEG,
+    )
     data = AlignmentResult(rows=rows, shapes=shapes, summary=summary)
     if out is not None:
         data.files = write_files(data, Path(out))

@@ -38,6 +38,29 @@ MODELS = ("uniform", "dipole", "exact")
 
 
 @dataclass
+class ValidationSummary(Result):
+    """Medians and maxima over the chains of 6 or more balls [deg, mm].
+
+    Attributes:
+        uniform_model_tip_angle_median_deg_6plus: the uniform model's tip angle to its field.
+        dipole_vs_exact_angle_median_deg_6plus, dipole_vs_exact_angle_max_deg_6plus,
+            dipole_vs_exact_tip_max_mm_6plus: the point dipole against the exact cylinder.
+        uniform_vs_exact_angle_median_deg_6plus, uniform_vs_exact_angle_max_deg_6plus,
+            uniform_vs_exact_tip_median_mm_6plus, uniform_vs_exact_tip_max_mm_6plus: the uniform
+            field against the exact cylinder.
+    """
+
+    uniform_model_tip_angle_median_deg_6plus: float
+    dipole_vs_exact_angle_median_deg_6plus: float
+    dipole_vs_exact_angle_max_deg_6plus: float
+    dipole_vs_exact_tip_max_mm_6plus: float
+    uniform_vs_exact_angle_median_deg_6plus: float
+    uniform_vs_exact_angle_max_deg_6plus: float
+    uniform_vs_exact_tip_median_mm_6plus: float
+    uniform_vs_exact_tip_max_mm_6plus: float
+
+
+@dataclass
 class ValidationResult(Result):
     """What ``run`` returns (edge units: mm, deg).
 
@@ -54,7 +77,7 @@ class ValidationResult(Result):
 
     rows: list
     differences: list
-    summary: dict
+    summary: ValidationSummary
     paper: dict
     setup: str
     files: list | None = optional()
@@ -119,17 +142,17 @@ def run(*, balls=range(5, 11), angles_deg=(0.0, 45.0, 90.0, 135.0, 180.0), field
                 "uniform_vs_exact_tip_mm": float(np.linalg.norm(un["tip_mm"] - ex["tip_mm"])),
             })
     six_plus = [d for d in differences if d["n_balls"] >= 6]
-    summary = {
-        "uniform_model_tip_angle_median_deg_6plus": float(np.median(
+    summary = ValidationSummary(
+        uniform_model_tip_angle_median_deg_6plus=float(np.median(
             [r["tip_angle_deg"] for r in rows if r["model"] == "uniform" and r["n_balls"] >= 6])),
-        "dipole_vs_exact_angle_median_deg_6plus": float(np.median([d["dipole_vs_exact_angle_deg"] for d in six_plus])),
-        "dipole_vs_exact_angle_max_deg_6plus": float(max(d["dipole_vs_exact_angle_deg"] for d in six_plus)),
-        "dipole_vs_exact_tip_max_mm_6plus": float(max(d["dipole_vs_exact_tip_mm"] for d in six_plus)),
-        "uniform_vs_exact_angle_median_deg_6plus": float(np.median([d["uniform_vs_exact_angle_deg"] for d in six_plus])),
-        "uniform_vs_exact_angle_max_deg_6plus": float(max(d["uniform_vs_exact_angle_deg"] for d in six_plus)),
-        "uniform_vs_exact_tip_median_mm_6plus": float(np.median([d["uniform_vs_exact_tip_mm"] for d in six_plus])),
-        "uniform_vs_exact_tip_max_mm_6plus": float(max(d["uniform_vs_exact_tip_mm"] for d in six_plus)),
-    }
+        dipole_vs_exact_angle_median_deg_6plus=float(np.median([d["dipole_vs_exact_angle_deg"] for d in six_plus])),
+        dipole_vs_exact_angle_max_deg_6plus=float(max(d["dipole_vs_exact_angle_deg"] for d in six_plus)),
+        dipole_vs_exact_tip_max_mm_6plus=float(max(d["dipole_vs_exact_tip_mm"] for d in six_plus)),
+        uniform_vs_exact_angle_median_deg_6plus=float(np.median([d["uniform_vs_exact_angle_deg"] for d in six_plus])),
+        uniform_vs_exact_angle_max_deg_6plus=float(max(d["uniform_vs_exact_angle_deg"] for d in six_plus)),
+        uniform_vs_exact_tip_median_mm_6plus=float(np.median([d["uniform_vs_exact_tip_mm"] for d in six_plus])),
+        uniform_vs_exact_tip_max_mm_6plus=float(max(d["uniform_vs_exact_tip_mm"] for d in six_plus)),
+    )
     for r in rows:
         r.pop("tip_dipole")
     data = ValidationResult(rows=rows, differences=differences, summary=summary, paper=PAPER,

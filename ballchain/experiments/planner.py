@@ -109,6 +109,30 @@ def plan_target(chain: BallChain, stand: Stand, name: str, m_previous: np.ndarra
 
 
 @dataclass
+class PlanSummary(Result):
+    """Totals over a plan's targets (edge units: gf, s, mm).
+
+    Attributes:
+        targets: targets asked for; reached: targets with a plan; with_at_least_10_gf: of those,
+            pressing at least the force asked for.
+        force_gf_min, force_gf_max: over the planned targets (None: none planned).
+        plan_time_s: the hardware's motion time, magnet_turn_time_s + insertion_time_s.
+        ring_path_mm: the ring's length; compute_time_s: wall time of the planning.
+    """
+
+    targets: int
+    reached: int
+    with_at_least_10_gf: int
+    force_gf_min: float | None
+    force_gf_max: float | None
+    plan_time_s: float
+    magnet_turn_time_s: float
+    insertion_time_s: float
+    ring_path_mm: float
+    compute_time_s: float
+
+
+@dataclass
 class PlanResult(Result):
     """What ``run`` returns (edge units: gf, deg, mm, s).
 
@@ -116,15 +140,14 @@ class PlanResult(Result):
         task: "left" or "right".
         rows: one per target in order: {target, reached, force_gf, n_balls, dipole (unit (3,)),
             turn_deg, friction_needed, offset_mm, how, reason} (None where not reached).
-        summary: {targets, reached, with_at_least_10_gf, force_gf_min, force_gf_max, plan_time_s,
-            magnet_turn_time_s, insertion_time_s, ring_path_mm, compute_time_s}.
+        summary: the totals (``PlanSummary``).
         paper: the paper's operator on the task; min_force_gf: the force asked for;
         friction: the tip's Coulomb coefficient; target_radius_mm: the targets' radius.
     """
 
     task: str
     rows: list
-    summary: dict
+    summary: PlanSummary
     paper: dict
     min_force_gf: float
     friction: float
@@ -205,14 +228,14 @@ def run(*, task: str = "left", targets: int | None = None, balls=(16,), grid: in
         rows.append(row)
     reached = [r for r in rows if r["reached"]]
     forces_gf = [r["force_gf"] for r in reached]
-    summary = {
-        "targets": len(rows), "reached": len(reached),
-        "with_at_least_10_gf": sum(f >= min_force_gf * (1 - 1e-4) for f in forces_gf),
-        "force_gf_min": min(forces_gf) if forces_gf else None,
-        "force_gf_max": max(forces_gf) if forces_gf else None,
-        "plan_time_s": turn_time + feed_time, "magnet_turn_time_s": turn_time, "insertion_time_s": feed_time,
-        "ring_path_mm": 1e3 * atrium.rings[task].curve_length,
-        "compute_time_s": time.perf_counter() - t0,
-    }
+    summary = PlanSummary(
+        targets=len(rows), reached=len(reached),
+        with_at_least_10_gf=sum(f >= min_force_gf * (1 - 1e-4) for f in forces_gf),
+        force_gf_min=min(forces_gf) if forces_gf else None,
+        force_gf_max=max(forces_gf) if forces_gf else None,
+        plan_time_s=turn_time + feed_time, magnet_turn_time_s=turn_time, insertion_time_s=feed_time,
+        ring_path_mm=1e3 * atrium.rings[task].curve_length,
+        compute_time_s=time.perf_counter() - t0,
+    )
     return PlanResult(task=task, rows=rows, summary=summary, paper=PAPER[task], min_force_gf=min_force_gf,
                       friction=friction, target_radius_mm=1e3 * target_radius)

@@ -35,6 +35,28 @@ DISTANCE = paper.WORKING_DISTANCE
 
 
 @dataclass
+class WorkspaceSummary(Result):
+    """The longest chain's workspace, bare and in the sleeve.
+
+    Attributes:
+        half_area_bare_mm2, half_area_sleeve_mm2: half the area enclosed by the two tip curves [mm^2].
+        reduction_pct: the sleeve's reduction of it [%].
+        tip_to_tip_max_mm: the largest distance between the bare and the sleeved tip at the same
+            magnet angle [mm].
+        chain_length_mm: the chain's length [mm].
+        field_at_base_mT_range: [smallest, largest] field at the insertion point over the
+            magnet's turn [mT].
+    """
+
+    half_area_bare_mm2: float
+    half_area_sleeve_mm2: float
+    reduction_pct: float
+    tip_to_tip_max_mm: float
+    chain_length_mm: float
+    field_at_base_mT_range: list
+
+
+@dataclass
 class WorkspaceResult(Result):
     """What ``run`` returns (edge units: mm, mm^2, mT, deg).
 
@@ -44,15 +66,14 @@ class WorkspaceResult(Result):
         rows: one per chain length and sleeve: {n_balls, sleeve, workspace_area_mm2,
             half_area_mm2, far_side_snap_field_angle_deg, near_side_snap_field_angle_deg (None: no
             snap-through)}.
-        summary: the longest chain's {half_area_bare_mm2, half_area_sleeve_mm2, reduction_pct,
-            tip_to_tip_max_mm, chain_length_mm, field_at_base_mT_range}.
+        summary: the longest chain's areas and the sleeve's effect.
         paper: the paper's numbers; setup: the placement, in words.
         files: the paths written (only with ``out``).
     """
 
     curves: dict
     rows: list
-    summary: dict
+    summary: WorkspaceSummary
     paper: dict
     setup: str
     files: list | None = optional()
@@ -172,15 +193,15 @@ def run(*, balls=(4, 9, 16), step_deg: float = 5.0, distance: float = DISTANCE, 
     half = {r["sleeve"]: r["half_area_mm2"] for r in rows if r["n_balls"] == longest}
     tip_to_tip = tip_to_tip_distance({s: curves[(longest, True, s)] for s in (1, -1)},
                                      {s: curves[(longest, False, s)] for s in (1, -1)})
-    summary = {
-        "half_area_bare_mm2": half[False],
-        "half_area_sleeve_mm2": half[True],
-        "reduction_pct": 100.0 * (1.0 - half[True] / half[False]),
-        "tip_to_tip_max_mm": tip_to_tip,
-        "chain_length_mm": longest * BallChain().ball_diameter * 1e3,
-        "field_at_base_mT_range": [1e3 * side_magnet(np.pi, distance).field([[0, 0, 0]])[0, 0],
-                                   1e3 * np.linalg.norm(side_magnet(np.pi / 2, distance).field([[0, 0, 0]]))],
-    }
+    summary = WorkspaceSummary(
+        half_area_bare_mm2=half[False],
+        half_area_sleeve_mm2=half[True],
+        reduction_pct=100.0 * (1.0 - half[True] / half[False]),
+        tip_to_tip_max_mm=tip_to_tip,
+        chain_length_mm=longest * BallChain().ball_diameter * 1e3,
+        field_at_base_mT_range=[1e3 * side_magnet(np.pi, distance).field([[0, 0, 0]])[0, 0],
+                                1e3 * np.linalg.norm(side_magnet(np.pi / 2, distance).field([[0, 0, 0]]))],
+    )
     data = WorkspaceResult(curves=curves, rows=rows, summary=summary, paper=PAPER,
                            setup=f"magnet at (0, -{distance * 100:.2f} cm, 0) turning about z; half area = half "
                                  "the loop of both tip curves")
