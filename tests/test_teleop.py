@@ -149,11 +149,13 @@ def test_seed_is_validated(capsys):
 
 def _fake_result(task, seed, times, accuracy, reasons=None, rtf=6.0):
     touched = [t for t, a in zip(times, accuracy) if a is not None]
-    return teleop.TeleopResult(task=task, mapping="world", rows=[], paper={}, settings={"seed": seed}, summary={
-        "touched": len(touched), "targets": len(times), "total_time_s": float(sum(times)),
-        "median_time_s": float(np.median(touched)) if touched else None,
-        "median_accuracy_mm": float(np.median([a for a in accuracy if a is not None])) if touched else None,
-        "realtime_factor": rtf, "missed_reasons": reasons or {}})
+    summary = teleop.TeleopSummary(
+        touched=len(touched), targets=len(times), total_time_s=float(sum(times)),
+        median_time_s=float(np.median(touched)) if touched else None,
+        median_accuracy_mm=float(np.median([a for a in accuracy if a is not None])) if touched else None,
+        max_accuracy_mm=None, missed=[], missed_reasons=reasons or {}, struggled=[], sim_time_s=0.0,
+        realtime_factor=rtf, wall_time_s=0.0, failure=None)
+    return teleop.TeleopResult(task=task, mapping="world", rows=[], summary=summary, paper={}, settings={"seed": seed})
 
 
 def test_aggregate_seeds_by_hand():
@@ -264,13 +266,13 @@ def test_operator_on_the_engine_touches_the_first_targets_of_each_ring(task, hea
     10 s, no watchdog stop."""
     for mapping in teleop.MAPPINGS:
         data = teleop.run(task=task, mapping=mapping, targets=2, progress=False, heart=heart)
-        print(task, mapping, data.rows, data.summary["realtime_factor"])
-        assert data.settings["engine"] == "statics" and data.summary["failure"] is None
+        print(task, mapping, data.rows, data.summary.realtime_factor)
+        assert data.settings["engine"] == "statics" and data.summary.failure is None
         assert [r["target"] for r in data.rows] == [f"{task}_1", f"{task}_2"]
         for r in data.rows:
             assert r["touched"] and r["time_s"] < 10.0 and r["reason"] is None
             assert r["accuracy_mm"] <= 2.5 + BALL_RADIUS * 1e3
-        assert data.summary["missed_reasons"] == {}
+        assert data.summary.missed_reasons == {}
 
 
 @pytest.mark.slow
@@ -304,7 +306,7 @@ def test_run_seeds_aggregates_its_runs(tmp_path, heart):
         teleop.TeleopResult(task="right", mapping="world", rows=r["rows"], summary=r["summary"], paper={},
                             settings={"seed": r["seed"]}) for r in runs])
     assert row == expected
-    times = [r["summary"]["total_time_s"] for r in runs]
+    times = [r["summary"].total_time_s for r in runs]
     assert row["total_time_min_s"] == min(times) and row["total_time_max_s"] == max(times)
     assert times[0] != times[1]  # another tremor, another run
     with open(tmp_path / "teleop_seeds.csv") as f:

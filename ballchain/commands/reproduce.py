@@ -414,14 +414,14 @@ def teleop_section(out: Path, quick: bool) -> tuple[Section, dict]:
             result = teleop.run(task=task, mapping=mapping, targets=n_targets, html=html, heart=heart)
             data[f"{task}_{mapping}"] = result
             s = result.summary
-            rows.append([task, mapping, f"{s['touched']}/{s['targets']}", s["total_time_s"], s["median_time_s"],
-                         s["median_accuracy_mm"], result.paper["human_time_s"], s["realtime_factor"],
-                         s["failure"] or "-", f"replays/{html.name}"])
+            rows.append([task, mapping, f"{s.touched}/{s.targets}", s.total_time_s, s.median_time_s,
+                         s.median_accuracy_mm, result.paper["human_time_s"], s.realtime_factor,
+                         s.failure or "-", f"replays/{html.name}"])
             write_json(out / f"teleop_{task}_{mapping}.json", result)
     section.table(["task", "mapping", "touched", "time [s]", "median per target [s]", "median accuracy [mm]",
                    "paper's operator [s]", "real-time factor", "failure", "Meshcat replay"], rows)
     per_target = [[k, r["target"], "yes" if r["touched"] else "no", r["time_s"], r["accuracy_mm"],
-                   v.summary["missed_reasons"].get(r["target"], "-"), r["closest_mm"]]
+                   v.summary.missed_reasons.get(r["target"], "-"), r["closest_mm"]]
                   for k, v in data.items() for r in v.rows]
     section.table(["run", "target", "touched", "time on it [s]", "accuracy [mm]", "missed because",
                    "closest [mm]"], per_target)

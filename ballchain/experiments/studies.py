@@ -345,10 +345,10 @@ def operators_point(p: OperatorsPoint, seed: int) -> dict:
     rows = result.rows
     return {
         "engine_used": engine_used, "note": note,
-        "touched": s["touched"], "n_targets": s["targets"], "total_time_s": s["total_time_s"],
-        "median_time_s": s["median_time_s"], "median_accuracy_mm": s["median_accuracy_mm"],
-        "max_accuracy_mm": s["max_accuracy_mm"], "failure": s["failure"], "sim_time_s": s["sim_time_s"],
-        "realtime_factor": s["realtime_factor"],
+        "touched": s.touched, "n_targets": s.targets, "total_time_s": s.total_time_s,
+        "median_time_s": s.median_time_s, "median_accuracy_mm": s.median_accuracy_mm,
+        "max_accuracy_mm": s.max_accuracy_mm, "failure": s.failure, "sim_time_s": s.sim_time_s,
+        "realtime_factor": s.realtime_factor,
         "target_names": [r["target"] for r in rows],
         "target_times_s": [r["time_s"] for r in rows],
         "target_accuracy_mm": [r["accuracy_mm"] for r in rows],

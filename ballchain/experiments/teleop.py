@@ -53,6 +53,44 @@ REPRODUCE_SEEDS = 5  # operator seeds of reproduce's seed spread besides seed 0 
 
 
 @dataclass
+class TeleopSummary(Result):
+    """Totals over a run's targets (``summarize``; times in s of simulated time, mm).
+
+    Attributes:
+        touched, targets: targets touched, and asked for.
+        total_time_s: every target's time, touched or given up; median_time_s: the median over
+            the touched ones (None: none touched).
+        median_accuracy_mm, max_accuracy_mm: tip contact point to target centre, over the touched.
+        missed: the targets not touched; missed_reasons: {target: reason}.
+        struggled: missed, or more than twice the median time.
+        sim_time_s: simulated time; realtime_factor: simulated time over wall_time_s (the
+            simulation loop's wall time, Simulator Initialize + AdvanceTo, the build not counted).
+        failure: the watchdog's message if it stopped the run, else None.
+        build_time_s: the station's build [s]; realtime_factor_cpu: on the loop's process CPU
+            time; rim_sinkings, rim_sinking_max_mm: balls tolerated sinking at a vein's rim (set by
+            ``run``).
+    """
+
+    touched: int
+    targets: int
+    total_time_s: float
+    median_time_s: float | None
+    median_accuracy_mm: float | None
+    max_accuracy_mm: float | None
+    missed: list
+    missed_reasons: dict
+    struggled: list
+    sim_time_s: float
+    realtime_factor: float | None
+    wall_time_s: float
+    failure: str | None
+    build_time_s: float | None = None
+    realtime_factor_cpu: float | None = None
+    rim_sinkings: int | None = None
+    rim_sinking_max_mm: float | None = None
+
+
+@dataclass
 class TeleopResult(Result):
     """What ``run`` returns: one simulated operator doing one task with one mapping.
 
@@ -62,12 +100,7 @@ class TeleopResult(Result):
             contact point to target centre), relearns (re-probing wiggles), bursts (feeding /
             retraction bursts), reason (a missed target's: "chain jammed", "out of reach",
             "confused", "timeout", "not reached" (the run ended first), else None), closest_mm}.
-        summary: {touched, targets, total_time_s, median_time_s, median_accuracy_mm,
-            max_accuracy_mm, missed, missed_reasons ({target: reason}), struggled (missed, or more
-            than twice the median time), sim_time_s, realtime_factor (simulated time over
-            wall_time_s), wall_time_s (the simulation loop: Simulator Initialize + AdvanceTo, the
-            build not counted), failure, build_time_s, realtime_factor_cpu (on the loop's process
-            CPU time), rim_sinkings, rim_sinking_max_mm}.
+        summary: the totals (``TeleopSummary``).
         paper: the paper's operator on the task ({human_time_s, targets, ...}).
         settings: {engine, seed, overrides, statics_period_s, n_balls, time_step_s,
             teleop_omega_max_rad_s, operator_period_s, reaction_s, timeout_s, axes, time_limit_s}.
@@ -77,7 +110,7 @@ class TeleopResult(Result):
     task: str
     mapping: str
     rows: list
-    summary: dict
+    summary: TeleopSummary
     paper: dict
     settings: dict
     html: str | None = optional()
@@ -238,12 +271,12 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     failure, wall, cpu, sim_time = run.failure, run.wall_time, run.cpu_time, run.sim_time
     rows = op.rows(op_context)
     summary = summarize(rows, sim_time, wall, failure)
-    summary["build_time_s"] = round(built, 2)
+    summary.build_time_s = round(built, 2)
     # On a shared machine wall time counts the waits for a core: the loop's process CPU time too.
-    summary["realtime_factor_cpu"] = round(sim_time / cpu, 4) if cpu > 0 else None
+    summary.realtime_factor_cpu = round(sim_time / cpu, 4) if cpu > 0 else None
     sinkings = chain_monitor.tolerated_sinkings
-    summary["rim_sinkings"] = len(sinkings)
-    summary["rim_sinking_max_mm"] = round(max(e[2] for e in sinkings) * 1e3, 3) if sinkings else None
+    summary.rim_sinkings = len(sinkings)
+    summary.rim_sinking_max_mm = round(max(e[2] for e in sinkings) * 1e3, 3) if sinkings else None
     return TeleopResult(
         task=task, mapping=mapping, rows=rows, summary=summary, paper=PAPER[task],
         settings={"engine": scenario.engine, "seed": int(params.seed), "overrides": overrides,
@@ -293,7 +326,7 @@ def missed_reason(row: dict, failure: str | None = None) -> str:
     return row["reason"]
 
 
-def summarize(rows: list[dict], sim_time: float, wall: float, failure: str | None = None) -> dict:
+def summarize(rows: list[dict], sim_time: float, wall: float, failure: str | None = None) -> TeleopSummary:
     """Totals over the targets: touched count, total and median times, accuracies, and why each
     missed target was missed.
 
@@ -307,21 +340,21 @@ def summarize(rows: list[dict], sim_time: float, wall: float, failure: str | Non
     times = [r["time_s"] for r in touched]
     accuracy = [r["accuracy_mm"] for r in touched]
     spent = [r["time_s"] for r in rows if r["time_s"] is not None]
-    return {
-        "touched": len(touched), "targets": len(rows),
-        "total_time_s": round(float(sum(spent)), 3),
-        "median_time_s": round(float(np.median(times)), 3) if times else None,
-        "median_accuracy_mm": round(float(np.median(accuracy)), 3) if accuracy else None,
-        "max_accuracy_mm": round(float(np.max(accuracy)), 3) if accuracy else None,
-        "missed": [r["target"] for r in rows if not r["touched"]],
-        "missed_reasons": {r["target"]: missed_reason(r, failure) for r in rows if not r["touched"]},
-        "struggled": [r["target"] for r in rows if r["time_s"] is not None and (
+    return TeleopSummary(
+        touched=len(touched), targets=len(rows),
+        total_time_s=round(float(sum(spent)), 3),
+        median_time_s=round(float(np.median(times)), 3) if times else None,
+        median_accuracy_mm=round(float(np.median(accuracy)), 3) if accuracy else None,
+        max_accuracy_mm=round(float(np.max(accuracy)), 3) if accuracy else None,
+        missed=[r["target"] for r in rows if not r["touched"]],
+        missed_reasons={r["target"]: missed_reason(r, failure) for r in rows if not r["touched"]},
+        struggled=[r["target"] for r in rows if r["time_s"] is not None and (
             not r["touched"] or (times and r["time_s"] > 2.0 * float(np.median(times))))],
-        "sim_time_s": round(sim_time, 3),
-        "realtime_factor": round(sim_time / wall, 4) if wall > 0 else None,
-        "wall_time_s": round(wall, 2),
-        "failure": failure,
-    }
+        sim_time_s=round(sim_time, 3),
+        realtime_factor=round(sim_time / wall, 4) if wall > 0 else None,
+        wall_time_s=round(wall, 2),
+        failure=failure,
+    )
 
 
 # ---------------------------------------------------------------------------- spread over seeds
@@ -354,14 +387,14 @@ def aggregate_seeds(task: str, mapping: str, results: list[TeleopResult]) -> dic
     its touched targets; accuracy likewise; the missed targets' reasons counted over the runs.
     """
     s = [r.summary for r in results]
-    touched = [x["touched"] for x in s]
-    total = [x["total_time_s"] for x in s]
-    per_target = [x["median_time_s"] for x in s if x["median_time_s"] is not None]
-    accuracy = [x["median_accuracy_mm"] for x in s if x["median_accuracy_mm"] is not None]
-    rtf = [x["realtime_factor"] for x in s if x["realtime_factor"] is not None]
+    touched = [x.touched for x in s]
+    total = [x.total_time_s for x in s]
+    per_target = [x.median_time_s for x in s if x.median_time_s is not None]
+    accuracy = [x.median_accuracy_mm for x in s if x.median_accuracy_mm is not None]
+    rtf = [x.realtime_factor for x in s if x.realtime_factor is not None]
     reasons: dict[str, int] = {}
     for x in s:
-        for why in x["missed_reasons"].values():
+        for why in x.missed_reasons.values():
             reasons[why] = reasons.get(why, 0) + 1
 
     def med(values):
@@ -370,7 +403,7 @@ def aggregate_seeds(task: str, mapping: str, results: list[TeleopResult]) -> dic
     return {"task": task, "mapping": mapping, "runs": len(results),
             "seeds": [r.settings["seed"] for r in results],
             "touched_min": int(min(touched)), "touched_median": med(touched), "touched_max": int(max(touched)),
-            "targets": s[0]["targets"],
+            "targets": s[0].targets,
             "total_time_median_s": med(total), "total_time_min_s": round(float(min(total)), 3),
             "total_time_max_s": round(float(max(total)), 3),
             "per_target_time_median_s": med(per_target), "accuracy_median_mm": med(accuracy),
