@@ -74,13 +74,13 @@ def run(*, scenarios=HEART_SCENARIOS, repeats: int = 3, duration: float | None =
         row = {}
         for engine, runs in samples.items():
             row[engine] = {
-                "mode": runs[0]["mode"],
-                "rtf_wall": round(float(np.median([r["rtf_wall"] for r in runs])), 3),
-                "rtf_cpu": round(float(np.median([r["rtf_cpu"] for r in runs])), 3),
+                "mode": runs[0].mode,
+                "rtf_wall": round(float(np.median([r.rtf_wall for r in runs])), 3),
+                "rtf_cpu": round(float(np.median([r.rtf_cpu for r in runs])), 3),
             }
             if engine == "statics":
-                row[engine]["median_solve_ms"] = round(float(np.median([r["median_solve_ms"] for r in runs])), 2)
-                row[engine]["solves"] = runs[0]["solves"]
+                row[engine]["median_solve_ms"] = round(float(np.median([r.median_solve_ms for r in runs])), 2)
+                row[engine]["solves"] = runs[0].solves
         row["speedup_wall"] = round(row["statics"]["rtf_wall"] / row["plant"]["rtf_wall"], 2)
         row["speedup_cpu"] = round(row["statics"]["rtf_cpu"] / row["plant"]["rtf_cpu"], 2)
         results[name] = row
@@ -208,15 +208,15 @@ def teleop_task(plant_targets: int | None = 2, repeats: int = 1) -> dict:
     for _ in range(repeats):
         for engine, (overrides, targets) in engines.items():
             samples[engine].append(teleop.run(task="right", mapping="world", targets=targets, progress=False,
-                                              heart=heart, overrides=overrides)["summary"])
+                                              heart=heart, overrides=overrides).summary)
     out = {}
     for engine, runs in samples.items():
-        out[engine] = {"targets": runs[0]["targets"], "touched": runs[0]["touched"],
-                       "sim_s": runs[0]["sim_time_s"],
-                       "wall_s": round(float(np.median([r["wall_time_s"] for r in runs])), 2),
-                       "rtf_wall": round(float(np.median([r["realtime_factor"] for r in runs])), 3),
-                       "rtf_cpu": round(float(np.median([r["realtime_factor_cpu"] for r in runs])), 3),
-                       "failure": runs[0]["failure"], "missed_reasons": runs[0]["missed_reasons"]}
+        out[engine] = {"targets": runs[0].targets, "touched": runs[0].touched,
+                       "sim_s": runs[0].sim_time_s,
+                       "wall_s": round(float(np.median([r.wall_time_s for r in runs])), 2),
+                       "rtf_wall": round(float(np.median([r.realtime_factor for r in runs])), 3),
+                       "rtf_cpu": round(float(np.median([r.realtime_factor_cpu for r in runs])), 3),
+                       "failure": runs[0].failure, "missed_reasons": runs[0].missed_reasons}
     out["speedup_wall"] = round(out["statics"]["rtf_wall"] / out["plant"]["rtf_wall"], 2)
     out["speedup_cpu"] = round(out["statics"]["rtf_cpu"] / out["plant"]["rtf_cpu"], 2)
     print("teleop_right_world", json.dumps(out), flush=True)

@@ -34,23 +34,23 @@ def test_polygon_area_by_hand():
 
 def test_workspace_short_run_sleeve_shrinks_it():
     data = workspace.run(balls=(6, 9), step_deg=15.0, progress=False)
-    rows = {(r["n_balls"], r["sleeve"]): r for r in data["rows"]}
+    rows = {(r["n_balls"], r["sleeve"]): r for r in data.rows}
     for n in (6, 9):
         assert 0.0 < rows[(n, True)]["half_area_mm2"] < rows[(n, False)]["half_area_mm2"]
     assert rows[(9, False)]["half_area_mm2"] > rows[(6, False)]["half_area_mm2"]
     # Every tip stays on the chain's reach: |tip| <= (n - 1) d.
-    for (n, sleeve, side), tips in data["curves"].items():
+    for (n, sleeve, side), tips in data.curves.items():
         assert np.all(np.linalg.norm(tips, axis=1) <= (n - 1) * 3.175 + 1e-9)
 
 
 def test_model_validation_short_run():
     data = model_validation.run(balls=(6,), angles_deg=(0.0, 90.0), progress=False)
-    assert {(r["model"], r["field_angle_deg"]) for r in data["rows"]} == {
+    assert {(r["model"], r["field_angle_deg"]) for r in data.rows} == {
         (m, a) for m in ("uniform", "dipole", "exact") for a in (0.0, 90.0)
     }
-    uniform0 = [r for r in data["rows"] if r["model"] == "uniform" and r["field_angle_deg"] == 0.0][0]
+    uniform0 = [r for r in data.rows if r["model"] == "uniform" and r["field_angle_deg"] == 0.0][0]
     assert uniform0["tip_angle_deg"] == pytest.approx(0.0, abs=1e-9)  # straight chain, aligned field
-    for d in data["differences"]:
+    for d in data.differences:
         # Dipole and exact cylinder differ by a few per cent at 10 cm: a few degrees at most.
         assert 0.0 <= d["dipole_vs_exact_angle_deg"] < 5.0
         assert d["dipole_vs_exact_tip_mm"] < 2.0

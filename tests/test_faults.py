@@ -282,7 +282,7 @@ def test_teleoperation_runs_are_deterministic_across_processes():
     tests/test_notebooks.py)."""
     code = ("import json; from ballchain.experiments import teleop\n"
             "r = teleop.run(task='right', mapping='world', targets=1, progress=False)\n"
-            "print(json.dumps(r['rows']))")
+            "print(json.dumps(r.rows))")
     rows = []
     for seed, threads in (("1", "1"), ("2", "2")):
         env = {**os.environ, "PYTHONHASHSEED": seed, "OPENBLAS_NUM_THREADS": threads, "OMP_NUM_THREADS": threads}

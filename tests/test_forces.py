@@ -142,11 +142,11 @@ def test_simulated_pin_force_agrees_with_the_statics(rspv_optimum):
     assert abs(columns["statics_dynamics_diff_pct"]) < 0.5
     statics_reading = -out["result"].tip_reaction
     sim = pin_force_from_statics(chain, forces.stand_field(stand, ("1",), out["angles_rad"]), target, axis, out["result"])
-    np.testing.assert_allclose(sim["reading_N"], statics_reading, rtol=0, atol=0.005 * np.linalg.norm(statics_reading))
-    np.testing.assert_allclose(sim["deflection_m"], sim["reading_N"] / sim["stiffness_N_per_m"], rtol=1e-12)
-    assert 0.1 < sim["sim_time_s"] < 1.0
+    np.testing.assert_allclose(sim.reading_N, statics_reading, rtol=0, atol=0.005 * np.linalg.norm(statics_reading))
+    np.testing.assert_allclose(sim.deflection_m, sim.reading_N / sim.stiffness_N_per_m, rtol=1e-12)
+    assert 0.1 < sim.sim_time_s < 1.0
     # The tip presses into the vein: the pin gives way along the axis.
-    assert sim["deflection_m"] @ axis > 0
+    assert sim.deflection_m @ axis > 0
 
 
 def test_simulated_pin_force_does_not_depend_on_the_start(rspv_optimum):
@@ -165,8 +165,8 @@ def test_simulated_pin_force_does_not_depend_on_the_start(rspv_optimum):
     perturbed = ChainStatics(chain).solve(external, out["result"], tip_target=target + offset)
     assert perturbed.converged
     sim = simulate_pin_force(chain, external, target, axis, perturbed)
-    assert sim["reason"] == "steady state"
-    assert sim["force_N"] == pytest.approx(out["force_N"], rel=0.01)
+    assert sim.reason == "steady state"
+    assert sim.force_N == pytest.approx(out["force_N"], rel=0.01)
 
 
 def test_a_pin_simulation_that_cannot_settle_says_why(rspv_optimum):
@@ -177,8 +177,8 @@ def test_a_pin_simulation_that_cannot_settle_says_why(rspv_optimum):
     target, axis = stand.targets["RSPV"]
     sim = simulate_pin_force(chain, forces.stand_field(stand, ("1",), out["angles_rad"]), target, axis, out["result"],
                              PinSimulationConfig(max_time=0.05, min_time=0.0))
-    assert sim["force_N"] is None and sim["force_gf"] is None
-    assert sim["reason"].startswith("did not settle in 0.05 s")
+    assert sim.force_N is None and sim.force_gf is None
+    assert sim.reason.startswith("did not settle in 0.05 s")
     with pytest.raises(ValueError, match="stability"):
         simulate_pin_force(chain, None, target, axis, None, PinSimulationConfig(stiffness=5e3))
 
@@ -206,6 +206,7 @@ def test_forces_command_prints_the_simulated_column(capsys, tmp_path, monkeypatc
     # --no-dynamics reaches the experiment (whose rows then say "not simulated"); the statics
     # themselves are not run again here.
     calls = []
-    monkeypatch.setattr(forces, "run", lambda **kwargs: calls.append(kwargs) or {"rows": []})
+    monkeypatch.setattr(forces, "run", lambda **kwargs: calls.append(kwargs) or forces.ForcesResult([], {}, {}))
     assert main(argv[:-1] + ["--no-files", "--no-dynamics", "--json"]) == 0
-    assert calls[0]["dynamics"] is False and json.loads(capsys.readouterr().out) == {"rows": []}
+    assert calls[0]["dynamics"] is False
+    assert json.loads(capsys.readouterr().out) == {"rows": [], "paper": {}, "stand": {}}

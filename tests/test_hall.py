@@ -79,21 +79,21 @@ def test_dipole_assumption_cost_with_exact_cylinder():
     far = inversion_comparison(1.0, theta)
     # Symmetry: on the axis and across it the dipole inverse is exact for the cylinder too.
     for i in (0, 3, 5):
-        assert near["correct_inverse_exact"][i] < 1e-6
+        assert near.correct_inverse_exact[i] < 1e-6
     # At 10 cm from a 76 mm cylinder the dipole inverse is degrees off; far away it is not.
-    assert 4.0 < near["correct_inverse_exact"].max() < 8.0
-    assert far["correct_inverse_exact"].max() < 0.1
+    assert 4.0 < near.correct_inverse_exact.max() < 8.0
+    assert far.correct_inverse_exact.max() < 0.1
     # The cylinder's first correction beyond the dipole is the octupole, relative size (a/D)^2:
     # the error falls by 100x from 0.1 m to 1 m (at 30 deg).
-    exponent = np.log10(near["correct_inverse_exact"][1] / far["correct_inverse_exact"][1])
+    exponent = np.log10(near.correct_inverse_exact[1] / far.correct_inverse_exact[1])
     assert exponent == pytest.approx(2.0, abs=0.1)
     # Gauss-Newton on the exact model removes it; the paper's formula is far worse than both.
-    assert near["refined_exact"].max() < 1e-3
-    assert near["paper_formula_exact"].max() > 30.0
+    assert near.refined_exact.max() < 1e-3
+    assert near.paper_formula_exact.max() > 30.0
     # At 10 cm the field stays inside an MLX90393's +-50 mT.
-    assert near["B_max_mT"] < 50.0
+    assert near.B_max_mT < 50.0
     # At rho_a + 6.5 mm = 50 mm it would read more than three times the range (176 mT on axis).
-    assert inversion_comparison(0.05, [0.0, 90.0])["B_max_mT"] > 150.0
+    assert inversion_comparison(0.05, [0.0, 90.0]).B_max_mT > 150.0
 
 
 def test_quantise_reading_clips_and_rounds():

@@ -101,7 +101,7 @@ def test_map_does_not_depend_on_where_on_the_great_circle_the_wheel_touches():
 
 def test_report_residuals_and_axis_error_of_paper_map():
     report = wheel_map_report(n_samples=200, seed=1)
-    res = report["rolling_residual_relative"]
+    res = report.rolling_residual_relative
     assert res["derived: omega_a = (rho_w/rho_a) A^-1 omega_w"] < 1e-14
     assert res["paper: omega_a = (rho_a/rho_w) A omega_w"] > 0.3
     # The printed (rounded) A itself is fine once used the right way round: < 1 % slip.
@@ -111,7 +111,7 @@ def test_report_residuals_and_axis_error_of_paper_map():
     A = OmniWheelGeometry().A
     R = A.T @ A.T
     exact_angle = np.rad2deg(np.arccos((np.trace(R) - 1.0) / 2.0))
-    assert report["paper_map_commanded_axis_error_deg"] == pytest.approx(exact_angle, abs=0.5)
+    assert report.paper_map_commanded_axis_error_deg == pytest.approx(exact_angle, abs=0.5)
     assert exact_angle > 20.0
 
 

@@ -26,14 +26,14 @@ def test_teleop_stand_targets_lie_a_ball_radius_inside_the_wall():
 @pytest.mark.slow
 def test_short_plan_presses_every_target_and_times_the_turns():
     data = planner.run(task="right", targets=2, balls=(16,), grid=3, refine=4, progress=False)
-    assert [r["reached"] for r in data["rows"]] == [True, True], [r["reason"] for r in data["rows"]]
-    for r in data["rows"]:
+    assert [r["reached"] for r in data.rows] == [True, True], [r["reason"] for r in data.rows]
+    for r in data.rows:
         assert r["force_gf"] >= 10.0 * (1 - 1e-4)
-        assert r["friction_needed"] <= data["friction"] * (1 + 1e-3)
-        assert r["offset_mm"] <= data["target_radius_mm"] * (1 + 1e-6)
-    turns = np.radians([r["turn_deg"] for r in data["rows"]])
-    np.testing.assert_allclose(data["summary"]["magnet_turn_time_s"], turns.sum() / 0.5)
+        assert r["friction_needed"] <= data.friction * (1 + 1e-3)
+        assert r["offset_mm"] <= data.target_radius_mm * (1 + 1e-6)
+    turns = np.radians([r["turn_deg"] for r in data.rows])
+    np.testing.assert_allclose(data.summary.magnet_turn_time_s, turns.sum() / 0.5)
     # The first turn starts from the magnet's neutral direction, the second from the first plan.
-    a, b = (np.array(r["dipole"]) for r in data["rows"])
+    a, b = (np.array(r["dipole"]) for r in data.rows)
     np.testing.assert_allclose(turns[1], np.arccos(np.clip(a @ b, -1, 1)), atol=1e-9)
-    assert data["summary"]["insertion_time_s"] == 0.0  # one length only
+    assert data.summary.insertion_time_s == 0.0  # one length only

@@ -311,9 +311,9 @@ def test_sleeve_point_equals_the_workspace_experiment():
     from ballchain.experiments.studies import SleevePoint, sleeve_point
 
     point = sleeve_point(SleevePoint(n_balls=9, step_deg=15.0), 0)  # the default sleeve: Dragon Skin
-    summary = workspace.run(balls=(9,), step_deg=15.0, progress=False)["summary"]
+    summary = workspace.run(balls=(9,), step_deg=15.0, progress=False).summary
     for key in ("half_area_bare_mm2", "half_area_sleeve_mm2", "reduction_pct", "tip_to_tip_max_mm"):
-        assert point[key] == pytest.approx(summary[key], rel=1e-12), key
+        assert point[key] == pytest.approx(getattr(summary, key), rel=1e-12), key
 
 
 @pytest.mark.slow

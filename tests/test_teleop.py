@@ -149,11 +149,13 @@ def test_seed_is_validated(capsys):
 
 def _fake_result(task, seed, times, accuracy, reasons=None, rtf=6.0):
     touched = [t for t, a in zip(times, accuracy) if a is not None]
-    return {"settings": {"seed": seed}, "summary": {
-        "touched": len(touched), "targets": len(times), "total_time_s": float(sum(times)),
-        "median_time_s": float(np.median(touched)) if touched else None,
-        "median_accuracy_mm": float(np.median([a for a in accuracy if a is not None])) if touched else None,
-        "realtime_factor": rtf, "missed_reasons": reasons or {}}}
+    summary = teleop.TeleopSummary(
+        touched=len(touched), targets=len(times), total_time_s=float(sum(times)),
+        median_time_s=float(np.median(touched)) if touched else None,
+        median_accuracy_mm=float(np.median([a for a in accuracy if a is not None])) if touched else None,
+        max_accuracy_mm=None, missed=[], missed_reasons=reasons or {}, struggled=[], sim_time_s=0.0,
+        realtime_factor=rtf, wall_time_s=0.0, failure=None)
+    return teleop.TeleopResult(task=task, mapping="world", rows=[], summary=summary, paper={}, settings={"seed": seed})
 
 
 def test_aggregate_seeds_by_hand():
@@ -241,9 +243,9 @@ def test_operator_touches_the_first_target_with_the_catheter_mapping(tmp_path):
     """The same target with the catheter-frame mapping (two stick axes), with a Meshcat replay."""
     html = tmp_path / "teleop.html"
     data = teleop.run(task="right", mapping="catheter", targets=1, html=html, progress=False)
-    (row,) = data["rows"]
-    print(row, data["summary"])
-    assert data["settings"]["axes"] == [0, 1]
+    (row,) = data.rows
+    print(row, data.summary)
+    assert data.settings["axes"] == [0, 1]
     assert row["touched"] and row["time_s"] < 10.0
     assert row["accuracy_mm"] <= 2.5 + BALL_RADIUS * 1e3
     assert html.exists() and html.stat().st_size > 100_000
@@ -264,13 +266,13 @@ def test_operator_on_the_engine_touches_the_first_targets_of_each_ring(task, hea
     10 s, no watchdog stop."""
     for mapping in teleop.MAPPINGS:
         data = teleop.run(task=task, mapping=mapping, targets=2, progress=False, heart=heart)
-        print(task, mapping, data["rows"], data["summary"]["realtime_factor"])
-        assert data["settings"]["engine"] == "statics" and data["summary"]["failure"] is None
-        assert [r["target"] for r in data["rows"]] == [f"{task}_1", f"{task}_2"]
-        for r in data["rows"]:
+        print(task, mapping, data.rows, data.summary.realtime_factor)
+        assert data.settings["engine"] == "statics" and data.summary.failure is None
+        assert [r["target"] for r in data.rows] == [f"{task}_1", f"{task}_2"]
+        for r in data.rows:
             assert r["touched"] and r["time_s"] < 10.0 and r["reason"] is None
             assert r["accuracy_mm"] <= 2.5 + BALL_RADIUS * 1e3
-        assert data["summary"]["missed_reasons"] == {}
+        assert data.summary.missed_reasons == {}
 
 
 @pytest.mark.slow
@@ -282,7 +284,7 @@ def test_engine_and_plant_touch_the_same_first_target(heart):
     runs = {}
     for overrides in (None, teleop.FAST):
         data = teleop.run(task="right", mapping="world", targets=1, progress=False, heart=heart, overrides=overrides)
-        runs[data["settings"]["engine"]] = data["rows"][0]
+        runs[data.settings["engine"]] = data.rows[0]
     print(runs)
     assert runs["statics"]["touched"] and runs["plant"]["touched"]
     assert abs(runs["statics"]["t_touch_s"] - runs["plant"]["t_touch_s"]) < 1.5
@@ -297,13 +299,14 @@ def test_run_seeds_aggregates_its_runs(tmp_path, heart):
 
     result = teleop.run_seeds(tasks=("right",), mappings=("world",), seeds=(3, 7), targets=1, out=tmp_path,
                               progress=False, heart=heart)
-    (row,) = result["table"]
-    runs = result["runs"]
+    (row,) = result.table
+    runs = result.runs
     assert [r["seed"] for r in runs] == [3, 7] and row["seeds"] == [3, 7]
-    expected = teleop.aggregate_seeds("right", "world", [{"settings": {"seed": r["seed"]}, "summary": r["summary"]}
-                                                         for r in runs])
+    expected = teleop.aggregate_seeds("right", "world", [
+        teleop.TeleopResult(task="right", mapping="world", rows=r["rows"], summary=r["summary"], paper={},
+                            settings={"seed": r["seed"]}) for r in runs])
     assert row == expected
-    times = [r["summary"]["total_time_s"] for r in runs]
+    times = [r["summary"].total_time_s for r in runs]
     assert row["total_time_min_s"] == min(times) and row["total_time_max_s"] == max(times)
     assert times[0] != times[1]  # another tremor, another run
     with open(tmp_path / "teleop_seeds.csv") as f:

@@ -29,11 +29,11 @@ def main(args: argparse.Namespace) -> int:
     data = run(max_balls=args.max_balls, field_mT=args.field_mT, step_deg=args.step_deg,
                sleeve=args.sleeve, out=None if args.no_files else args.out)
     if args.json:
-        print_json({"rows": data["rows"], "summary": data["summary"], "files": data.get("files", [])})
+        print_json({"rows": data.rows, "summary": data.summary, "files": data.files or []})
         return 0
-    print("n_balls  " + "  ".join(f"{a:>6g}" for a in sorted({r['field_angle_deg'] for r in data['rows']})))
-    for n in sorted({r["n_balls"] for r in data["rows"]}):
-        vals = [r["tip_angle_deg"] for r in data["rows"] if r["n_balls"] == n]
+    print("n_balls  " + "  ".join(f"{a:>6g}" for a in sorted({r['field_angle_deg'] for r in data.rows})))
+    for n in sorted({r["n_balls"] for r in data.rows}):
+        vals = [r["tip_angle_deg"] for r in data.rows if r["n_balls"] == n]
         print(f"{n:7d}  " + "  ".join(f"{v:6.2f}" for v in vals))
-    print(data["summary"])
+    print(data.summary.to_dict())
     return 0

@@ -42,18 +42,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_json_flag(parser)
 
 
-def _print_table(out: dict) -> None:
-    m = out["magnet"]
+def _print_table(out) -> None:
+    m = out.magnet
     print(
         f"cylinder {m['diameter_mm']:g} x {m['length_mm']:g} mm, Br {m['remanence_T']:g} T "
-        f"(|m| = {m['dipole_moment_Am2']:.1f} A m^2); force on one {out['ball_diameter_mm']:g} mm ball"
+        f"(|m| = {m['dipole_moment_Am2']:.1f} A m^2); force on one {out.ball_diameter_mm:g} mm ball"
     )
     header = (
         f"{'r_cm':>6} {'dir':>7} {'|B|dip_mT':>10} {'|B|ex_mT':>10} {'dB_%':>7} {'angB_deg':>8} "
         f"{'dG_%':>7} {'|F|dip_gf':>10} {'|F|ex_gf':>10} {'dF_%':>7} {'angF_deg':>8}"
     )
     print(header)
-    for r in out["rows"]:
+    for r in out.rows:
         print(
             f"{r['distance_cm']:6.2f} {r['direction']:>7} {r['B_dipole_magnitude_mT']:10.4g} "
             f"{r['B_exact_magnitude_mT']:10.4g} {r['B_rel_error_percent']:7.2f} {r['B_angle_error_deg']:8.3f} "
@@ -62,7 +62,7 @@ def _print_table(out: dict) -> None:
             f"{r['force_angle_error_deg']:8.3f}"
         )
     print(
-        f"on-axis asymptote: dB/B ~ {out['on_axis_rel_error_asymptote_cm2']:.2f} cm^2 / r^2 "
+        f"on-axis asymptote: dB/B ~ {out.on_axis_rel_error_asymptote_cm2:.2f} cm^2 / r^2 "
         "(rel error = (dipole - exact)/exact)"
     )
 

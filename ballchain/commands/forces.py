@@ -41,7 +41,7 @@ def main(args: argparse.Namespace) -> int:
         return 0
     fmt = lambda v, spec: "-" if v is None else format(v, spec)  # noqa: E731
     print(f"{'vein':5s} {'config':6s} {'sleeve':6s} {'statics gf':>10s} {'sim gf':>9s} {'diff %':>7s} {'paper gf':>9s}")
-    for r in data["rows"]:
+    for r in data.rows:
         print(f"{r['vein']:5s} {r['config']:6s} {str(r['sleeve']):6s} {fmt(r['statics_gf'], '.2f'):>10s} "
               f"{fmt(r.get('dynamics_gf'), '.2f'):>9s} {fmt(r.get('statics_dynamics_diff_pct'), '+.2f'):>7s} "
               f"{r['paper_gf']:9.1f}"

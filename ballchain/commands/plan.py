@@ -41,12 +41,12 @@ def main(args: argparse.Namespace) -> int:
     if args.json:
         print_json(data)
         return 0
-    for r in data["rows"]:
+    for r in data.rows:
         force = (f"no plan: {r['reason']}" if not r["reached"] else
                  f"{r['force_gf']:6.2f} gf with {r['n_balls']} balls, turn {r['turn_deg']:6.1f} deg, "
                  f"friction needed {r['friction_needed']:.3f}, {r['offset_mm']:.2f} mm off centre")
         print(f"{r['target']:9s} {force}")
-    s = data["summary"]
-    print(f"{s['reached']}/{s['targets']} planned, {s['with_at_least_10_gf']} with >= {data['min_force_gf']:g} gf; plan "
-          f"{s['plan_time_s']:.1f} s (operator in the paper: {data['paper']['human_time_s']:.0f} s)")
+    s = data.summary
+    print(f"{s.reached}/{s.targets} planned, {s.with_at_least_10_gf} with >= {data.min_force_gf:g} gf; plan "
+          f"{s.plan_time_s:.1f} s (operator in the paper: {data.paper['human_time_s']:.0f} s)")
     return 0

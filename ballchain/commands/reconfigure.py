@@ -72,7 +72,7 @@ def main(args: argparse.Namespace) -> int:
         t_max=args.t_max,
         progress=not args.no_progress,
     )
-    summary = {k: result[k] for k in SUMMARY_KEYS}
+    summary = {k: getattr(result, k) for k in SUMMARY_KEYS}
     if args.json:
         print_json(summary)
     else:
@@ -80,6 +80,6 @@ def main(args: argparse.Namespace) -> int:
             f"{summary['converged']}/{summary['runs']} runs converged within {args.tolerance_deg} deg; "
             f"max final error {summary['max_final_error_deg']:.3f} deg; time to done: median "
             f"{summary['median_time_s']:.2f} s, max {summary['max_time_s']:.2f} s "
-            f"(antiparallel start {result['antiparallel_time_s']:.2f} s)"
+            f"(antiparallel start {result.antiparallel_time_s:.2f} s)"
         )
     return 0 if summary["converged"] == summary["runs"] else 1

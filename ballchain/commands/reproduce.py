@@ -58,19 +58,19 @@ def alignment_section(out: Path, quick: bool) -> tuple[Section, dict]:
 
     data = alignment.run(max_balls=12 if quick else 16, step_deg=45.0 if quick else 22.5,
                          out=out / "alignment")
-    s = data["summary"]
+    s = data.summary
     chain = BallChain()
     pair = K_DIPOLE * chain.dipole_moment**2 / (2 * chain.ball_diameter**3)
     field = chain.dipole_moment * 0.023
     by_n = {}
-    for r in data["rows"]:
+    for r in data.rows:
         by_n[r["n_balls"]] = max(by_n.get(r["n_balls"], 0.0), r["tip_angle_deg"])
     section = Section("Tip alignment with the field (model; paper Fig. model_simulation)")
     section.text(
         "A 23 mT field rotated from 0 to 180 deg with continuation; the angle between the field "
         "and the tip ball's dipole. Paper: below 1.4 deg for chains longer than 10 balls. "
-        f"Model: at most {s['max_tip_angle_deg_beyond_10_balls']:.2f} deg beyond 10 balls "
-        f"({s['max_tip_angle_deg_beyond_10_balls_at_180deg']:.2f} deg at 180 deg). Short chains do "
+        f"Model: at most {s.max_tip_angle_deg_beyond_10_balls:.2f} deg beyond 10 balls "
+        f"({s.max_tip_angle_deg_beyond_10_balls_at_180deg:.2f} deg at 180 deg). Short chains do "
         "not follow: two balls in an antiparallel field stay straight, because the pair term "
         f"k M^2 / (2 d^3) = {pair * 1e3:.2f} mJ beats the field's M B = {field * 1e3:.2f} mJ."
     )
@@ -86,7 +86,7 @@ def sizing_section(out: Path, quick: bool) -> tuple[Section, dict]:
     from ballchain.optimization.sizing import SizingInputs
 
     data = sizing_check.run(inputs=SizingInputs())
-    forces = data["force_between_magnets_by_orientation"]
+    forces = data.force_between_magnets_by_orientation
     section = Section("Clinical magnet sizing (paper Section V-A)")
     section.text(
         "alpha f_m d_m^4 V_d = f_d (d_c + d_d/2)^4 V_m with the sphere volume V_d = (pi/6) d_d^3. "
@@ -95,17 +95,17 @@ def sizing_section(out: Path, quick: bool) -> tuple[Section, dict]:
     section.table(
         ["quantity", "paper", "model"],
         [
-            ["diameter [mm]", 119, data["diameter_mm"]],
-            ["mass [kg]", 6.6, data["mass_kg"]],
-            ["printed (typo) equation, SI units [mm]", "-", data["typo_equation_diameter_mm"]],
-            ["force between the two magnets [gf] (coaxial, max)", 500, data["force_between_magnets_gf"]],
+            ["diameter [mm]", 119, data.diameter_mm],
+            ["mass [kg]", 6.6, data.mass_kg],
+            ["printed (typo) equation, SI units [mm]", "-", data.typo_equation_diameter_mm],
+            ["force between the two magnets [gf] (coaxial, max)", 500, data.force_between_magnets_gf],
             ["  side by side [gf]", "-", forces["side_by_side_parallel"]["force_gf"]],
         ],
     )
-    check = data["paper_500gf_check"]
+    check = data.paper_500gf_check
     section.text(
-        f"The two magnets sit {data['magnet_separation_cm']:.1f} cm apart (2 (d_c + d_d/2)); the "
-        f"largest dipole force there is {data['force_between_magnets_gf']:.0f} gf, half the paper's "
+        f"The two magnets sit {data.magnet_separation_cm:.1f} cm apart (2 (d_c + d_d/2)); the "
+        f"largest dipole force there is {data.force_between_magnets_gf:.0f} gf, half the paper's "
         f"500 gf. The coaxial force is {check['coaxial_force_at_separation_2_d_c_gf']:.0f} gf at "
         f"2 d_c = {check['separation_2_d_c_cm']:.1f} cm: the paper probably left out the + d_d/2 "
         "(a hypothesis consistent with the numbers). Either way the force is small."
@@ -126,7 +126,7 @@ def field_models_section(out: Path, quick: bool) -> tuple[Section, dict]:
         "field is magpylib's closed form."
     )
     rows = []
-    for r in data["rows"]:
+    for r in data.rows:
         rows.append([r["distance_cm"], r["polar_angle_deg"], r["B_exact_magnitude_mT"], r["B_rel_error_percent"],
                      r["B_angle_error_deg"], r["force_rel_error_percent"]])
     section.table(["distance [cm]", "polar angle [deg]", "B exact [mT]", "B magnitude error [%]",
@@ -139,24 +139,24 @@ def workspace_section(out: Path, quick: bool) -> tuple[Section, dict]:
     from ballchain.experiments import workspace
 
     data = workspace.run(step_deg=15.0 if quick else 5.0, out=out / "workspace")
-    s, p = data["summary"], data["paper"]
+    s, p = data.summary, data.paper
     section = Section("Workspace with one rotating magnet (paper Fig. workspace_results)")
     section.text(
         f"The prototype magnet beside the insertion point, 16.51 cm away, turns through its range; "
-        f"its field at the base is {s['field_at_base_mT_range'][0]:.1f} to {s['field_at_base_mT_range'][1]:.1f} mT. "
+        f"its field at the base is {s.field_at_base_mT_range[0]:.1f} to {s.field_at_base_mT_range[1]:.1f} mT. "
         "The half workspace is half the area enclosed by the tip curves of the two rotation "
         "directions (16 balls). The magnet's pull makes the side away from it larger, and near "
         "the end of that sweep the chain snaps through to the magnet's side."
     )
     section.table(["quantity", "paper", "model"], [
-        ["half workspace, bare [mm^2]", p["half_area_bare_mm2"], s["half_area_bare_mm2"]],
-        ["half workspace, sleeve [mm^2]", p["half_area_sleeve_mm2"], s["half_area_sleeve_mm2"]],
-        ["reduction by the sleeve [%]", p["reduction_pct"], s["reduction_pct"]],
-        ["tip-to-tip, sleeve vs bare [mm]", p["tip_to_tip_mm"], s["tip_to_tip_max_mm"]],
+        ["half workspace, bare [mm^2]", p["half_area_bare_mm2"], s.half_area_bare_mm2],
+        ["half workspace, sleeve [mm^2]", p["half_area_sleeve_mm2"], s.half_area_sleeve_mm2],
+        ["reduction by the sleeve [%]", p["reduction_pct"], s.reduction_pct],
+        ["tip-to-tip, sleeve vs bare [mm]", p["tip_to_tip_mm"], s.tip_to_tip_max_mm],
     ])
     section.table(["balls", "sleeve", "half area [mm^2]", "snap-through at field angle [deg]"],
                   [[r["n_balls"], r["sleeve"], r["half_area_mm2"], r["far_side_snap_field_angle_deg"]]
-                   for r in data["rows"]])
+                   for r in data.rows])
     section.text(
         "The model's sleeve costs less workspace than the paper measured: with E = 0.15 MPa the "
         "sleeve's bending energy is small against the balls' mutual energy; friction and the "
@@ -170,7 +170,7 @@ def validation_section(out: Path, quick: bool) -> tuple[Section, dict]:
     from ballchain.experiments import model_validation
 
     data = model_validation.run(out=out / "validation", balls=(5, 6, 10) if quick else range(5, 11))
-    s, p = data["summary"], data["paper"]
+    s, p = data.summary, data.paper
     section = Section("Model validation: which field model (paper Fig. model_results)")
     section.text(
         "5..10 balls, 23 mT at 0, 45, 90, 135 and 180 deg. The paper's model assumes a uniform "
@@ -181,14 +181,14 @@ def validation_section(out: Path, quick: bool) -> tuple[Section, dict]:
     )
     section.table(["quantity (6 to 10 balls)", "paper (measured vs model)", "model vs model"], [
         ["tip angle, median [deg]: dipole vs exact cylinder", p["tip_angle_error_median_deg_6plus"],
-         s["dipole_vs_exact_angle_median_deg_6plus"]],
+         s.dipole_vs_exact_angle_median_deg_6plus],
         ["tip angle, max [deg]: dipole vs exact cylinder", p["tip_angle_error_max_deg_6plus"],
-         s["dipole_vs_exact_angle_max_deg_6plus"]],
+         s.dipole_vs_exact_angle_max_deg_6plus],
         ["tip position, max [mm]: dipole vs exact cylinder", p["tip_position_error_max_mm_6plus"],
-         s["dipole_vs_exact_tip_max_mm_6plus"]],
+         s.dipole_vs_exact_tip_max_mm_6plus],
         ["tip angle, median [deg]: uniform vs exact cylinder", p["tip_angle_error_median_deg_6plus"],
-         s["uniform_vs_exact_angle_median_deg_6plus"]],
-        ["tip position, median [mm]: uniform vs exact cylinder", "-", s["uniform_vs_exact_tip_median_mm_6plus"]],
+         s.uniform_vs_exact_angle_median_deg_6plus],
+        ["tip position, median [mm]: uniform vs exact cylinder", "-", s.uniform_vs_exact_tip_median_mm_6plus],
     ])
     section.text(
         "The point-dipole approximation alone moves the tip by about half the paper's median "
@@ -224,11 +224,11 @@ def forces_section(out: Path, quick: bool) -> tuple[Section, dict]:
                    "statics vs simulation [%]", "model: sum of singles [gf]"],
                   [[r["vein"], r["config"], "yes" if r["sleeve"] else "no", r["paper_gf"], r["statics_gf"],
                     r.get("dynamics_gf"), r.get("statics_dynamics_diff_pct"), r.get("superposition_gf")]
-                   for r in data["rows"]])
-    diffs = [abs(r["statics_dynamics_diff_pct"]) for r in data["rows"] if r.get("statics_dynamics_diff_pct") is not None]
+                   for r in data.rows])
+    diffs = [abs(r["statics_dynamics_diff_pct"]) for r in data.rows if r.get("statics_dynamics_diff_pct") is not None]
     if diffs:
         section.text(f"Statics and simulation agree within {max(diffs):.2f} % on every row "
-                     f"({len(diffs)} of {len(data['rows'])} rows reached a steady state): two independent computations of the same force, "
+                     f"({len(diffs)} of {len(data.rows)} rows reached a steady state): two independent computations of the same force, "
                      "one an optimisation, one a time-stepped contact simulation with a spring sensor.")
     section.text(
         "The model's forces are an order of magnitude below the measured ones. The tip force is "
@@ -359,20 +359,20 @@ def plan_section(out: Path, quick: bool) -> tuple[Section, dict]:
         result = planner.run(task=task, targets=n_targets, balls=(16,), grid=3 if quick else 4,
                              refine=5 if quick else 15)
         data[task] = result
-        s = result["summary"]
-        rows.append([task, f"{s['reached']}/{s['targets']}", s["force_gf_min"], s["force_gf_max"],
-                     s["plan_time_s"], s["compute_time_s"]])
+        s = result.summary
+        rows.append([task, f"{s.reached}/{s.targets}", s.force_gf_min, s.force_gf_max,
+                     s.plan_time_s, s.compute_time_s])
         write_json(out / f"plan_{task}.json", result)
     section.table(["ring", "planned", "min force [gf]", "max force [gf]", "plan motion time [s]",
                    "compute time [s]"], rows)
     per_target = [[r["target"], "yes" if r["reached"] else "no", r["force_gf"], r["turn_deg"], r["friction_needed"],
-                   r["offset_mm"], r["reason"] or "-"] for task in ("left", "right") for r in data[task]["rows"]]
+                   r["offset_mm"], r["reason"] or "-"] for task in ("left", "right") for r in data[task].rows]
     section.table(["target", "planned", "force [gf]", "magnet turn [deg]", "F_t / F_n (friction needed)", "off centre [mm]",
                    "lengths without a plan"], per_target)
-    left, right = data["left"]["summary"], data["right"]["summary"]
+    left, right = data["left"].summary, data["right"].summary
     section.text(
-        f"With the one magnet beside the right veins, {right['reached']} of {right['targets']} right-ring "
-        f"targets and {left['reached']} of {left['targets']} left-ring targets can be pressed with 10 gf "
+        f"With the one magnet beside the right veins, {right.reached} of {right.targets} right-ring "
+        f"targets and {left.reached} of {left.targets} left-ring targets can be pressed with 10 gf "
         "(the others: the search for the hardest-pressing orientation, tip held on the centre, found "
         "less than 10 gf; it is a local search). A second magnet on the left, as the paper proposes, "
         "is what the left ring needs. The plan's time is the hardware's motion time only (no "
@@ -413,23 +413,23 @@ def teleop_section(out: Path, quick: bool) -> tuple[Section, dict]:
             html = replays / f"teleop_{task}_{mapping}.html"
             result = teleop.run(task=task, mapping=mapping, targets=n_targets, html=html, heart=heart)
             data[f"{task}_{mapping}"] = result
-            s = result["summary"]
-            rows.append([task, mapping, f"{s['touched']}/{s['targets']}", s["total_time_s"], s["median_time_s"],
-                         s["median_accuracy_mm"], result["paper"]["human_time_s"], s["realtime_factor"],
-                         s["failure"] or "-", f"replays/{html.name}"])
+            s = result.summary
+            rows.append([task, mapping, f"{s.touched}/{s.targets}", s.total_time_s, s.median_time_s,
+                         s.median_accuracy_mm, result.paper["human_time_s"], s.realtime_factor,
+                         s.failure or "-", f"replays/{html.name}"])
             write_json(out / f"teleop_{task}_{mapping}.json", result)
     section.table(["task", "mapping", "touched", "time [s]", "median per target [s]", "median accuracy [mm]",
                    "paper's operator [s]", "real-time factor", "failure", "Meshcat replay"], rows)
     per_target = [[k, r["target"], "yes" if r["touched"] else "no", r["time_s"], r["accuracy_mm"],
-                   v["summary"]["missed_reasons"].get(r["target"], "-"), r["closest_mm"]]
-                  for k, v in data.items() for r in v["rows"]]
+                   v.summary.missed_reasons.get(r["target"], "-"), r["closest_mm"]]
+                  for k, v in data.items() for r in v.rows]
     section.table(["run", "target", "touched", "time on it [s]", "accuracy [mm]", "missed because",
                    "closest [mm]"], per_target)
     spread_targets = 1 if quick else None
     spread = teleop.run_seeds(seeds=seeds, targets=spread_targets, out=out / "teleop_seeds", heart=heart)
     data["seeds"] = spread
     section.text(
-        f"The spread over operator seeds {', '.join(str(v) for v in spread['settings']['seeds'])} (the "
+        f"The spread over operator seeds {', '.join(str(v) for v in spread.settings['seeds'])} (the "
         "hand's tremor: each seed is another operator run) per task and mapping"
         + (f", first {spread_targets} target" if quick else ", whole tasks")
         + "; total time counts every target's time, touched or given up "
@@ -441,7 +441,7 @@ def teleop_section(out: Path, quick: bool) -> tuple[Section, dict]:
                     f"{r['touched_min']}/{r['touched_median']:g}/{r['touched_max']} of {r['targets']}",
                     f"{r['total_time_median_s']} ({r['total_time_min_s']}-{r['total_time_max_s']})",
                     r["per_target_time_median_s"], r["accuracy_median_mm"], r["paper_time_s"], r["missed_reasons"]]
-                   for r in spread["table"]])
+                   for r in spread.table])
     section.text("The paper's operator took 40 s for all 20 left targets and 26 s for the 18 right ones "
                  "(with the world mapping, after learning).")
     return section, data

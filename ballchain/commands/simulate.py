@@ -54,10 +54,8 @@ def main(args: argparse.Namespace) -> int:
             print_json({**failure.metrics, "failure": str(failure)})
         return 1
     if args.json:
-        result = {k: v for k, v in result.items() if k != "p_W_mm"}
-        print_json(result)
+        print_json(result.public())
     else:
-        for key, value in result.items():
-            if key != "p_W_mm":
-                print(f"{key}: {value}")
+        for key, value in result.public().items():
+            print(f"{key}: {value}")
     return 0

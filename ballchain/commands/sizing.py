@@ -53,28 +53,28 @@ def _checked(args: argparse.Namespace) -> dict[str, float]:
     return values
 
 
-def _print_table(out: dict) -> None:
-    paper = out["paper"]
-    print(f"clinical sphere diameter   {out['diameter_mm']:8.2f} mm   (paper {paper['diameter_mm']:g} mm)")
-    print(f"clinical sphere mass       {out['mass_kg']:8.3f} kg   (paper about {paper['mass_kg']:g} kg)")
-    typo = out["typo_equation_diameter_mm_by_length_unit"]
+def _print_table(out) -> None:
+    paper = out.paper
+    print(f"clinical sphere diameter   {out.diameter_mm:8.2f} mm   (paper {paper['diameter_mm']:g} mm)")
+    print(f"clinical sphere mass       {out.mass_kg:8.3f} kg   (paper about {paper['mass_kg']:g} kg)")
+    typo = out.typo_equation_diameter_mm_by_length_unit
     shown = ", ".join(f"{v:.1f} mm in {u}" if v is not None else f"no root in {u}" for u, v in typo.items())
     print(f"typo (d_d/2)^4 equation    {shown}")
     print(
-        f"heart-to-magnet distance   {out['heart_to_magnet_distance_cm']:8.2f} cm,  "
-        f"separation {out['magnet_separation_cm']:.2f} cm, |m| = {out['dipole_moment_Am2']:.1f} A m^2"
+        f"heart-to-magnet distance   {out.heart_to_magnet_distance_cm:8.2f} cm,  "
+        f"separation {out.magnet_separation_cm:.2f} cm, |m| = {out.dipole_moment_Am2:.1f} A m^2"
     )
     print("force between the two clinical magnets (paper: about 500 gf):")
-    for name, f in out["force_between_magnets_by_orientation"].items():
+    for name, f in out.force_between_magnets_by_orientation.items():
         kind = "attract" if f["attractive"] else "repel"
         print(f"  {name:28s} {f['force_gf']:8.1f} gf  {kind}")
-    check = out["paper_500gf_check"]
+    check = out.paper_500gf_check
     print(
         f"  500 gf (coaxial) needs a separation of {check['separation_for_500gf_coaxial_cm']:.1f} cm; "
         f"at 2 d_c = {check['separation_2_d_c_cm']:.1f} cm it is "
         f"{check['coaxial_force_at_separation_2_d_c_gf']:.1f} gf"
     )
-    pre = out["force_law_check"]["aligned_dipole_prefactor_by_polar_angle_deg"]
+    pre = out.force_law_check["aligned_dipole_prefactor_by_polar_angle_deg"]
     print(
         "aligned-dipole force prefactor (x mu0|m_i||m_a|/(4 pi d^4)): "
         + ", ".join(f"{v:.3f} at {k} deg" for k, v in pre.items())

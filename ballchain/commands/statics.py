@@ -35,9 +35,9 @@ def main(args: argparse.Namespace) -> int:
     if args.json:
         print_json(data)
         return 0
-    tip = data["positions_mm"][-1]
-    angle = "-" if data["tip_angle_deg"] is None else f"{data['tip_angle_deg']:.3f} deg"
+    tip = data.positions_mm[-1]
+    angle = "-" if data.tip_angle_deg is None else f"{data.tip_angle_deg:.3f} deg"
     print(f"{args.balls} balls, {args.field_mT} mT at {args.field_angle_deg} deg: tip at "
           f"({tip[0]:.2f}, {tip[1]:.2f}, {tip[2]:.2f}) mm, tip angle {angle}, "
-          f"energy {data['energy_J']:.4e} J ({data['reason']}, {data['solve_time_s'] * 1e3:.1f} ms)")
+          f"energy {data.energy_J:.4e} J ({data.reason}, {data.solve_time_s * 1e3:.1f} ms)")
     return 0

@@ -72,28 +72,28 @@ def main(args: argparse.Namespace) -> int:
     if args.json:
         print_json(data)
         return 0
-    for r in data["rows"]:
+    for r in data.rows:
         if r["touched"]:
             print(f"{r['target']:9s} touched after {r['time_s']:6.2f} s (t = {r['t_touch_s']:6.2f} s), "
                   f"{r['accuracy_mm']:.2f} mm from the centre")
         else:
             spent = "not reached" if r["time_s"] is None else f"missed after {r['time_s']:.2f} s"
-            why = data["summary"]["missed_reasons"].get(r["target"])
+            why = data.summary.missed_reasons.get(r["target"])
             closest = "" if r["closest_mm"] is None else f", closest {r['closest_mm']:.1f} mm"
             print(f"{r['target']:9s} {spent} ({why}{closest})")
-    s = data["summary"]
-    median = "-" if s["median_time_s"] is None else f"{s['median_time_s']:.2f} s"
-    accuracy = "-" if s["median_accuracy_mm"] is None else f"{s['median_accuracy_mm']:.2f} mm"
-    print(f"{data['task']} task, {data['mapping']} mapping: {s['touched']}/{s['targets']} touched in "
-          f"{s['total_time_s']:.1f} s (median {median} per target, median accuracy {accuracy}); "
-          f"operator in the paper: {data['paper']['human_time_s']:.0f} s for the whole task")
-    print(f"simulated {s['sim_time_s']:.1f} s in {s['wall_time_s']:.1f} s of wall time in the simulation loop "
-          f"(real-time factor {s['realtime_factor']}; {data['settings']['engine']} engine, operator seed "
-          f"{data['settings']['seed']})")
-    if s["failure"]:
-        print(f"simulation stopped: {s['failure']}")
-    if "html" in data:
-        print(f"replay: {data['html']}")
+    s = data.summary
+    median = "-" if s.median_time_s is None else f"{s.median_time_s:.2f} s"
+    accuracy = "-" if s.median_accuracy_mm is None else f"{s.median_accuracy_mm:.2f} mm"
+    print(f"{data.task} task, {data.mapping} mapping: {s.touched}/{s.targets} touched in "
+          f"{s.total_time_s:.1f} s (median {median} per target, median accuracy {accuracy}); "
+          f"operator in the paper: {data.paper['human_time_s']:.0f} s for the whole task")
+    print(f"simulated {s.sim_time_s:.1f} s in {s.wall_time_s:.1f} s of wall time in the simulation loop "
+          f"(real-time factor {s.realtime_factor}; {data.settings['engine']} engine, operator seed "
+          f"{data.settings['seed']})")
+    if s.failure:
+        print(f"simulation stopped: {s.failure}")
+    if data.html is not None:
+        print(f"replay: {data.html}")
     return 0
 
 

@@ -26,7 +26,7 @@ def main(args: argparse.Namespace) -> int:
     if args.json:
         print_json(data)
         return 0
-    for key, value in data["summary"].items():
+    for key, value in data.summary.to_dict().items():
         print(f"{key:45s} {value:8.2f}")
-    print("paper:", data["paper"])
+    print("paper:", data.paper)
     return 0

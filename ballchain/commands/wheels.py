@@ -33,18 +33,18 @@ def main(args: argparse.Namespace) -> int:
         return 0
     np.set_printoptions(precision=4, suppress=True)
     print("wheel geometry (unit frame, origin at the sphere centre):")
-    print(f"  contact azimuths [deg]: {np.asarray(report['contact_azimuth_deg'])}")
-    print(f"  contact polar angle from nadir [deg]: {np.asarray(report['contact_polar_angle_from_nadir_deg'])}")
-    print(f"derived A (rows -a_i^T):\n{np.asarray(report['A_derived_rows_minus_a'])}")
-    print(f"paper A:\n{np.asarray(report['A_paper'])}")
-    print(f"max |A_derived - A_paper| = {report['max_abs_A_derived_minus_paper']:.4f} (print rounding)")
+    print(f"  contact azimuths [deg]: {np.asarray(report.contact_azimuth_deg)}")
+    print(f"  contact polar angle from nadir [deg]: {np.asarray(report.contact_polar_angle_from_nadir_deg)}")
+    print(f"derived A (rows -a_i^T):\n{np.asarray(report.A_derived_rows_minus_a)}")
+    print(f"paper A:\n{np.asarray(report.A_paper)}")
+    print(f"max |A_derived - A_paper| = {report.max_abs_A_derived_minus_paper:.4f} (print rounding)")
     print("inverse map omega_w = (rho_a/rho_w) A omega_a; forward map omega_a = (rho_w/rho_a) A^-1 omega_w")
-    print(f"forward map:\n{np.asarray(report['forward_map_sphere_from_wheels'])}")
+    print(f"forward map:\n{np.asarray(report.forward_map_sphere_from_wheels)}")
     print("relative rolling-contact residual, max over samples:")
-    for name, value in report["rolling_residual_relative"].items():
+    for name, value in report.rolling_residual_relative.items():
         print(f"  {value:10.3e}  {name}")
     print(
         f"a rotation commanded through the paper's map turns about an axis "
-        f"{report['paper_map_commanded_axis_error_deg']:.1f} deg off"
+        f"{report.paper_map_commanded_axis_error_deg:.1f} deg off"
     )
     return 0

@@ -25,13 +25,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     data = workspace.run(step_deg=args.step_deg, distance=args.distance_cm / 100.0,
                          out=None if args.no_files else args.out)
-    public = {k: v for k, v in data.items() if k != "curves"}
     if args.json:
-        print_json(public)
+        print_json(data.public())
         return 0
-    s, p = data["summary"], data["paper"]
-    print(f"half workspace, bare:   {s['half_area_bare_mm2']:7.0f} mm^2 (paper {p['half_area_bare_mm2']:.0f})")
-    print(f"half workspace, sleeve: {s['half_area_sleeve_mm2']:7.0f} mm^2 (paper {p['half_area_sleeve_mm2']:.0f})")
-    print(f"reduction: {s['reduction_pct']:.1f} % (paper {p['reduction_pct']:.0f} %); tip-to-tip "
-          f"{s['tip_to_tip_max_mm']:.1f} mm (paper about {p['tip_to_tip_mm']:.0f})")
+    s, p = data.summary, data.paper
+    print(f"half workspace, bare:   {s.half_area_bare_mm2:7.0f} mm^2 (paper {p['half_area_bare_mm2']:.0f})")
+    print(f"half workspace, sleeve: {s.half_area_sleeve_mm2:7.0f} mm^2 (paper {p['half_area_sleeve_mm2']:.0f})")
+    print(f"reduction: {s.reduction_pct:.1f} % (paper {p['reduction_pct']:.0f} %); tip-to-tip "
+          f"{s.tip_to_tip_max_mm:.1f} mm (paper about {p['tip_to_tip_mm']:.0f})")
     return 0

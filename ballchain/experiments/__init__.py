@@ -1,24 +1,30 @@
-"""The paper's experiments in simulation, each a ``run(...)`` returning plain data.
+"""The paper's experiments in simulation, each a ``run(...)`` returning a result dataclass.
 
 One module per experiment; its ``run`` checks its inputs (``UserInputError`` naming the
-command's flag) and its output folder before any work, and writes its figures and CSV files
-when given ``out``. The ``ballchain`` subcommands (``ballchain/commands/``) only parse flags,
-call ``run`` and print; ``ballchain reproduce`` calls the experiments directly.
+command's flag) and its output folder before any work, writes its figures and CSV files when
+given ``out``, and returns a dataclass with typed, documented fields (``<Name>Result``). Every
+result serialises one way (``_result.Result``: ``safe_files.to_jsonable`` of its fields, NaN as
+null): what a command prints and what ``reproduce`` writes to ``OUT/sections/``. The
+``ballchain`` subcommands (``ballchain/commands/``) only parse flags, call ``run`` and print;
+``ballchain reproduce`` calls the experiments directly.
 
-=====================  ======================================================
-subcommand             experiment module
-=====================  ======================================================
-``alignment``          ``alignment``
-``statics``            ``statics_shape``
-``sizing``             ``sizing_check``
-``field-models``       ``field_models``
-``workspace``          ``workspace``
-``validation``         ``model_validation``
-``forces``             ``forces`` (its simulation: ``forces_dynamics``)
-``plan``               ``planner``
-``teleop``             ``teleop``
-``simulate``           ``simulation``
-``reconfigure``        ``reconfiguration``
-``wheels``             ``wheels``
-=====================  ======================================================
+================  ============================================  =======================================
+subcommand        experiment module                             result
+================  ============================================  =======================================
+``alignment``     ``alignment``                                 ``AlignmentResult``
+``statics``       ``statics_shape``                             ``StaticsShapeResult``
+``sizing``        ``sizing_check``                              ``SizingCheckResult``
+``field-models``  ``field_models``                              ``FieldModelsResult``
+``workspace``     ``workspace``                                 ``WorkspaceResult``
+``validation``    ``model_validation``                          ``ValidationResult``
+``forces``        ``forces`` (simulation: ``forces_dynamics``)  ``ForcesResult`` (``PinForceResult``)
+``plan``          ``planner``                                   ``PlanResult``
+``teleop``        ``teleop`` (``run``, ``run_seeds``)           ``TeleopResult``, ``TeleopSeedsResult``
+``simulate``      ``simulation``                                ``SimulationResult``
+``reconfigure``   ``reconfiguration``                           ``ReconfigurationStudyResult``
+``wheels``        ``wheels``                                    ``WheelsResult``
+``ablation``      ``ablation``                                  ``AblationResult``
+``clinical``      ``clinical``, ``table1_effects``              ``ClinicalResult``, ``EffectsResult``
+(notebook)        ``hall_inversion``                            ``InversionComparison``
+================  ============================================  =======================================
 """

@@ -8,6 +8,7 @@ than 1.4 deg for chains longer than 10 balls. Writes ``alignment.csv`` and ``ali
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -17,23 +18,59 @@ from ballchain.drake_models.errors import check_in
 from ballchain.drake_models.field_sources import UniformField
 from ballchain.drake_models.params import BallChain, Sleeve
 from ballchain.drake_models.safe_files import agg_pyplot, check_output_dir, note_replacements, save_figure, write_csv
+from ballchain.experiments._result import Result, optional
 from ballchain.optimization.statics import ChainStatics, rotation_path, tip_angle_deg
 
 PAPER_CLAIM_DEG = 1.4
 MAX_BALLS = 64  # every length 1..max is solved at every angle
 
-def write_files(data: dict, out: Path) -> list[str]:
+
+@dataclass
+class AlignmentSummary(Result):
+    """The alignment's headline numbers [deg].
+
+    Attributes:
+        max_tip_angle_deg_beyond_10_balls: the largest tip angle of chains longer than 10 balls
+            over every field angle (None without such chains).
+        max_tip_angle_deg_beyond_10_balls_at_180deg: the same at 180 deg.
+        paper_claim_deg: the paper's bound (1.4 deg).
+    """
+
+    max_tip_angle_deg_beyond_10_balls: float | None
+    max_tip_angle_deg_beyond_10_balls_at_180deg: float | None
+    paper_claim_deg: float
+
+
+@dataclass
+class AlignmentResult(Result):
+    """What ``run`` returns.
+
+    Attributes:
+        rows: one per chain length and field angle: {n_balls, field_angle_deg, tip_angle_deg,
+            tip_x_mm, tip_y_mm}.
+        shapes: {field angle [deg]: ball positions [mm], shape (n, 3)} of the 10-ball chain (the
+            longest one if shorter).
+        summary: the headline numbers.
+        files: the paths written (only with ``out``).
+    """
+
+    rows: list
+    shapes: dict
+    summary: AlignmentSummary
+    files: list | None = optional()
+
+def write_files(data: AlignmentResult, out: Path) -> list[str]:
     """Write the CSV and the two figures into ``out``; returns their paths."""
     plt = agg_pyplot()
     note_replacements(out, ["alignment.csv", "alignment.png", "alignment_shapes.png"], "alignment")
     out.mkdir(parents=True, exist_ok=True)
-    csv_path = write_csv(out / "alignment.csv", data["rows"])
+    csv_path = write_csv(out / "alignment.csv", data.rows)
     fig, ax = plt.subplots(figsize=(6, 4))
-    angles = sorted({r["field_angle_deg"] for r in data["rows"]})
+    angles = sorted({r["field_angle_deg"] for r in data.rows})
     for angle in angles:
         if angle == 0.0:
             continue  # aligned with the chain: the angle is zero for every length
-        pts = [(r["n_balls"], max(r["tip_angle_deg"], 1e-3)) for r in data["rows"] if r["field_angle_deg"] == angle]
+        pts = [(r["n_balls"], max(r["tip_angle_deg"], 1e-3)) for r in data.rows if r["field_angle_deg"] == angle]
         ax.plot(*zip(*pts), marker="o", ms=3, label=f"{angle:g} deg")
     ax.axhline(PAPER_CLAIM_DEG, color="k", ls="--", lw=1, label="paper: 1.4 deg")
     ax.set_xlabel("balls in the chain")
@@ -45,7 +82,7 @@ def write_files(data: dict, out: Path) -> list[str]:
     png = out / "alignment.png"
     save_figure(fig, png, dpi=120)
     fig, ax = plt.subplots(figsize=(5, 5))
-    for angle, p in data["shapes"].items():
+    for angle, p in data.shapes.items():
         ax.plot(p[:, 0], p[:, 1], "-o", ms=4, label=f"{angle:g} deg")
     ax.set_aspect("equal")
     ax.set_xlabel("x [mm]")
@@ -59,7 +96,7 @@ def write_files(data: dict, out: Path) -> list[str]:
 
 
 def run(*, max_balls: int = 16, field_mT: float = 23.0, step_deg: float = 22.5, sleeve: bool = False,
-        out: Path | None = None, progress: bool = True) -> dict:
+        out: Path | None = None, progress: bool = True) -> AlignmentResult:
     """Tip angle against chain length as the field turns from 0 to 180 deg (continuation).
 
     Args:
@@ -72,9 +109,7 @@ def run(*, max_balls: int = 16, field_mT: float = 23.0, step_deg: float = 22.5, 
         progress: a progress bar.
 
     Returns:
-        {"rows": [{n_balls, field_angle_deg, tip_angle_deg, tip_x_mm, tip_y_mm}], "shapes":
-        {angle_deg: positions_mm (n, 3)} of the 10-ball chain, "summary": {...}, "files": [...]
-        (with ``out``)}.
+        An ``AlignmentResult`` (``files`` set with ``out``).
 
     Raises:
         UserInputError: a value out of range (named by its flag) or an unwritable ``out``.
@@ -98,13 +133,13 @@ def run(*, max_balls: int = 16, field_mT: float = 23.0, step_deg: float = 22.5, 
             if n == min(10, max_balls):
                 shapes[float(angle)] = result.positions * 1e3
     beyond = [r["tip_angle_deg"] for r in rows if r["n_balls"] > 10]
-    summary = {
-        "max_tip_angle_deg_beyond_10_balls": max(beyond) if beyond else None,
-        "max_tip_angle_deg_beyond_10_balls_at_180deg": max(
+    summary = AlignmentSummary(
+        max_tip_angle_deg_beyond_10_balls=max(beyond) if beyond else None,
+        max_tip_angle_deg_beyond_10_balls_at_180deg=max(
             (r["tip_angle_deg"] for r in rows if r["n_balls"] > 10 and r["field_angle_deg"] == 180.0), default=None),
-        "paper_claim_deg": PAPER_CLAIM_DEG,
-    }
-    data = {"rows": rows, "shapes": shapes, "summary": summary}
+        paper_claim_deg=PAPER_CLAIM_DEG,
+    )
+    data = AlignmentResult(rows=rows, shapes=shapes, summary=summary)
     if out is not None:
-        data["files"] = write_files(data, Path(out))
+        data.files = write_files(data, Path(out))
     return data

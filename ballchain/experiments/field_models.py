@@ -28,6 +28,7 @@ from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import MagnetSource
 from ballchain.drake_models.params import BallChain, CylinderMagnet, gram_force
 from ballchain.drake_models.vectors import angle_between
+from ballchain.experiments._result import Result
 
 DEFAULT_DISTANCES = (0.08, 0.12, paper.WORKING_DISTANCE, 0.20)
 """Distances from the magnet centre [m] (16.51 cm is the prototype's working distance)."""
@@ -149,7 +150,28 @@ def on_axis_relative_error_coefficient(magnet: CylinderMagnet = CylinderMagnet()
     return 1.5 * R**2 - 2.0 * half**2
 
 
-def run(*, distances_m, angles_deg, ball: BallChain, magnet: CylinderMagnet = CylinderMagnet()) -> dict:
+@dataclass
+class FieldModelsResult(Result):
+    """What ``run`` returns (edge units: cm, mm, mT, gf, %, deg).
+
+    Attributes:
+        magnet: {diameter_mm, length_mm, remanence_T, dipole_moment_Am2} of the cylinder.
+        ball_diameter_mm: the ball whose aligned force is compared.
+        on_axis_rel_error_asymptote_cm2: c of the on-axis relative error c / r^2 [cm^2].
+        rows: one per (distance, polar angle): fields [mT] (3-vectors and magnitudes), their
+            relative [%] and angle [deg] errors, the gradient's error [%], the aligned ball's
+            forces [gf] and their errors.
+        notes: how the errors are defined.
+    """
+
+    magnet: dict
+    ball_diameter_mm: float
+    on_axis_rel_error_asymptote_cm2: float
+    rows: list
+    notes: list
+
+
+def run(*, distances_m, angles_deg, ball: BallChain, magnet: CylinderMagnet = CylinderMagnet()) -> FieldModelsResult:
     """The comparison of ``compare_field_models`` in edge units (cm, mT, gf, %, deg).
 
     Args:
@@ -159,20 +181,19 @@ def run(*, distances_m, angles_deg, ball: BallChain, magnet: CylinderMagnet = Cy
         magnet: the cylinder.
 
     Returns:
-        JSON-ready dict: ``magnet``, ``ball_diameter_mm``, ``on_axis_rel_error_asymptote_cm2``, one
-        row per (distance, angle) and ``notes``.
+        A ``FieldModelsResult``.
     """
     rows = compare_field_models(magnet, distances_m, angles_deg, ball)
-    return {
-        "magnet": {
+    return FieldModelsResult(
+        magnet={
             "diameter_mm": magnet.diameter * 1e3,
             "length_mm": magnet.length * 1e3,
             "remanence_T": magnet.remanence,
             "dipole_moment_Am2": magnet.dipole_moment,
         },
-        "ball_diameter_mm": ball.ball_diameter * 1e3,
-        "on_axis_rel_error_asymptote_cm2": on_axis_relative_error_coefficient(magnet) * 1e4,
-        "rows": [
+        ball_diameter_mm=ball.ball_diameter * 1e3,
+        on_axis_rel_error_asymptote_cm2=on_axis_relative_error_coefficient(magnet) * 1e4,
+        rows=[
             {
                 "distance_cm": row.distance * 1e2,
                 "polar_angle_deg": row.polar_angle_deg,
@@ -193,9 +214,9 @@ def run(*, distances_m, angles_deg, ball: BallChain, magnet: CylinderMagnet = Cy
             }
             for row in rows
         ],
-        "notes": [
+        notes=[
             "rel error = (|dipole| - |exact|) / |exact|: positive means the dipole overestimates",
             "force: on one ball whose dipole is aligned with each model's own field, F = G m_hat |m_ball|",
             "exact: magpylib closed-form cylinder field; its gradient by central differences (MagnetSource)",
         ],
-    }
+    )

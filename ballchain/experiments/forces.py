@@ -33,6 +33,7 @@ from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rot
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import BallChain, CylinderMagnet, Sleeve, gram_force
 from ballchain.drake_models.safe_files import agg_pyplot, check_output_dir, note_replacements, save_figure, write_csv
+from ballchain.experiments._result import Result, optional
 from ballchain.optimization.inverse_statics import pin_tip
 from ballchain.optimization.statics import ChainStatics
 
@@ -181,21 +182,43 @@ def dynamics_columns(chain: BallChain, stand: Stand, vein: str, configs, best: d
     sim = pin_force_from_statics(chain, stand_field(stand, configs, best["angles_rad"]), target, axis, best["result"],
                                  config or PinSimulationConfig())
     columns = {
-        "dynamics_gf": sim["force_gf"],
-        "dynamics_lateral_gf": sim["lateral_gf"],
+        "dynamics_gf": sim.force_gf,
+        "dynamics_lateral_gf": sim.lateral_gf,
         "statics_dynamics_diff_pct": None,
-        "dynamics_note": sim["reason"],
-        "dynamics_sim_time_s": round(sim["sim_time_s"], 6),
-        "dynamics_wall_time_s": round(sim["wall_time_s"], 3),
+        "dynamics_note": sim.reason,
+        "dynamics_sim_time_s": round(sim.sim_time_s, 6),
+        "dynamics_wall_time_s": round(sim.wall_time_s, 3),
     }
-    if sim["force_gf"] is not None and best["force_gf"] != 0.0:
-        columns["statics_dynamics_diff_pct"] = 100.0 * (sim["force_gf"] - best["force_gf"]) / abs(best["force_gf"])
-        columns["dynamics_deflection_um"] = float(np.linalg.norm(sim["deflection_m"]) * 1e6)
-    if sim["statics_loaded_N"] is not None:  # the statics with the tip where the loaded pin holds it
-        columns["statics_at_deflection_gf"] = gram_force(sim["statics_loaded_N"])
+    if sim.force_gf is not None and best["force_gf"] != 0.0:
+        columns["statics_dynamics_diff_pct"] = 100.0 * (sim.force_gf - best["force_gf"]) / abs(best["force_gf"])
+        columns["dynamics_deflection_um"] = float(np.linalg.norm(sim.deflection_m) * 1e6)
+    if sim.statics_loaded_N is not None:  # the statics with the tip where the loaded pin holds it
+        columns["statics_at_deflection_gf"] = gram_force(sim.statics_loaded_N)
     return columns
 
-def write_files(data: dict, out: Path) -> list[str]:
+@dataclass
+class ForcesResult(Result):
+    """What ``run`` returns (edge units: gf, mm).
+
+    Attributes:
+        rows: one per vein, configuration ("1", "2", "both") and sleeve: {vein, config, sleeve,
+            statics_gf, statics_lateral_gf, n_balls, magnet_dipoles (unit 3-vectors, one per
+            magnet), paper_gf, the simulation columns (``dynamics_columns``: dynamics_gf,
+            dynamics_lateral_gf, statics_dynamics_diff_pct, dynamics_note, ...); the "both" row
+            also superposition_gf (the sum of the single-magnet optima)}; None where no held
+            equilibrium was found.
+        paper: Table I, {"<vein> <config> bare|sleeve": gf}.
+        stand: {targets_mm: {vein: (3,)}, magnets_mm: {config: (3,)}}.
+        files: the paths written (only with ``out``).
+    """
+
+    rows: list
+    paper: dict
+    stand: dict
+    files: list | None = optional()
+
+
+def write_files(data: ForcesResult, out: Path) -> list[str]:
     """Write ``forces.csv`` and the bar chart ``forces.png`` into ``out``; returns their paths."""
     plt = agg_pyplot()
     note_replacements(out, ["forces.csv", "forces.png"], "forces")
@@ -203,8 +226,8 @@ def write_files(data: dict, out: Path) -> list[str]:
     path = out / "forces.csv"
     keys = ["vein", "config", "sleeve", "statics_gf", "dynamics_gf", "statics_dynamics_diff_pct", "paper_gf",
             "statics_lateral_gf", "dynamics_lateral_gf", "n_balls", "superposition_gf", "dynamics_note"]
-    write_csv(path, data["rows"], keys)
-    rows = data["rows"]
+    write_csv(path, data.rows, keys)
+    rows = data.rows
     labels = [f"{r['vein']} {r['config']}{' S' if r['sleeve'] else ''}" for r in rows]
     x = np.arange(len(rows))
     fig, ax = plt.subplots(figsize=(max(6, 0.45 * len(rows)), 4))
@@ -228,7 +251,7 @@ def write_files(data: dict, out: Path) -> list[str]:
 
 def run(*, veins=("LSPV", "LIPV", "RSPV", "RIPV"), sleeves=(False, True), n_balls=(16,), grid: int = 8,
         refine_evaluations: int = 60, progress: bool = True, dynamics: bool = True,
-        out: Path | None = None) -> dict:
+        out: Path | None = None) -> ForcesResult:
     """Table I: every vein x configuration x sleeve, with the paper's number beside it.
 
     ``statics_gf`` is the statics optimum; with ``dynamics`` each optimum is also simulated
@@ -237,7 +260,7 @@ def run(*, veins=("LSPV", "LIPV", "RSPV", "RIPV"), sleeves=(False, True), n_ball
     ``dynamics_lateral_gf`` its size across it, ``statics_dynamics_diff_pct`` the simulation
     against the statics, and ``dynamics_note`` says why a row has no simulated force. With
     ``out`` (a folder, checked writable before any work) it writes ``forces.csv`` and
-    ``forces.png`` there and lists them under ``files``.
+    ``forces.png`` there and lists them under ``files``. Returns a ``ForcesResult``.
 
     Raises:
         UserInputError: an unknown vein or sleeve option, a grid or refine out of range, or an
@@ -289,9 +312,10 @@ def run(*, veins=("LSPV", "LIPV", "RSPV", "RIPV"), sleeves=(False, True), n_ball
             rows.append(row)
         singles = [per_config[c]["force_gf"] for c in ("1", "2") if per_config[c] is not None]
         rows[-1]["superposition_gf"] = sum(singles) if len(singles) == 2 else None
-    data = {"rows": rows, "paper": {f"{k[0]} {k[1]} {'sleeve' if k[2] else 'bare'}": v for k, v in PAPER_GF.items()},
-            "stand": {"targets_mm": {k: v[0] * 1e3 for k, v in stand.targets.items()},
-                      "magnets_mm": {k: v * 1e3 for k, v in stand.magnets.items()}}}
+    data = ForcesResult(rows=rows,
+                        paper={f"{k[0]} {k[1]} {'sleeve' if k[2] else 'bare'}": v for k, v in PAPER_GF.items()},
+                        stand={"targets_mm": {k: v[0] * 1e3 for k, v in stand.targets.items()},
+                               "magnets_mm": {k: v * 1e3 for k, v in stand.magnets.items()}})
     if out is not None:
-        data["files"] = write_files(data, Path(out))
+        data.files = write_files(data, Path(out))
     return data

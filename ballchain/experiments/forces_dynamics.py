@@ -60,6 +60,7 @@ from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import BallChain, gram_force
 from ballchain.optimization.statics import ChainStatics, StaticsResult, straight_chain
+from ballchain.experiments._result import Result, optional
 from ballchain.systems.chain_plant import ContactConfig
 from ballchain.systems.chain_scenario import ChainScenario, InsertionScenario, PinScenario
 from ballchain.systems.station import MakeStation, Station, chain_for
@@ -183,8 +184,47 @@ def set_chain_state(pd: PinDiagram, plant_context, positions: np.ndarray, dipole
     plant.SetVelocities(plant_context, np.zeros(plant.num_velocities()))
 
 
+@dataclass
+class PinForceResult(Result):
+    """What ``simulate_pin_force`` returns: the steady reading of the sensor pin (SI units).
+
+    Attributes:
+        force_N, force_gf: the reading along the axis (None when the run failed or did not
+            settle, with the ``reason``).
+        lateral_N, lateral_gf: its magnitude across the axis.
+        reading_N: the pin's reading (3,) [N]; deflection_m: the pin's deflection (3,) [m].
+        positions: the ball centres at the end (n, 3) [m].
+        settled: the steady-state test passed.
+        drift_rel: the reading's change over the last window over its size.
+        max_speed: (the fastest ball's speed [m/s], angular speed [rad/s]) at the last test.
+        stiffness_N_per_m: the pin's spring; time_step_s: the plant's step [s].
+        sim_time_s, wall_time_s: simulated and wall time [s]; steps: the plant's steps.
+        reason: "steady state" or why not.
+        statics_loaded_N: (``pin_force_from_statics`` only) the statics force along the axis with
+            the tip at the loaded pin's deflection (None if that solve failed).
+    """
+
+    force_N: float | None
+    force_gf: float | None
+    lateral_N: float | None
+    lateral_gf: float | None
+    reading_N: np.ndarray | None
+    deflection_m: np.ndarray | None
+    positions: np.ndarray | None
+    settled: bool
+    drift_rel: float | None
+    max_speed: tuple | None
+    stiffness_N_per_m: float
+    time_step_s: float
+    sim_time_s: float
+    wall_time_s: float
+    steps: int
+    reason: str | None
+    statics_loaded_N: float | None = optional()
+
+
 def simulate_pin_force(chain: BallChain, external, pin_point, axis, start=None,
-                       config: PinSimulationConfig = PinSimulationConfig()) -> dict:
+                       config: PinSimulationConfig = PinSimulationConfig()) -> PinForceResult:
     """The steady reading of the sensor pin holding the tip of the damped chain.
 
     Args:
@@ -198,12 +238,8 @@ def simulate_pin_force(chain: BallChain, external, pin_point, axis, start=None,
         config: the simulation's parameters.
 
     Returns:
-        {"force_N", "force_gf" (the reading along the axis), "lateral_N", "lateral_gf" (its
-        magnitude across the axis), "reading_N" (3,), "deflection_m" (3,), "positions" (n, 3)
-        [m], "settled", "sim_time_s", "wall_time_s", "steps", "drift_rel" (the reading's change
-        over the last window over its size), "max_speed" (the fastest ball's speed [m/s] and
-        angular speed [rad/s] at the last test), "reason" ("steady state" or why not)}; force_N
-        None (with the reason) when the run failed or did not settle.
+        A ``PinForceResult``; its force_N is None (with the reason) when the run failed or did
+        not settle.
     """
     t0 = time.perf_counter()
     pin_point = np.asarray(pin_point, float).reshape(3)
@@ -279,18 +315,18 @@ def simulate_pin_force(chain: BallChain, external, pin_point, axis, start=None,
     out.update(sim_time_s=root.get_time(), wall_time_s=time.perf_counter() - t0,
                steps=int(round(root.get_time() / config.time_step)), reason=reason)
     if not out["settled"]:
-        return out
+        return PinForceResult(**out)
     reading = readings[-1]
     along = float(reading @ axis)
     lateral = float(np.linalg.norm(reading - along * axis))
     out.update(force_N=along, force_gf=gram_force(along), lateral_N=lateral, lateral_gf=gram_force(lateral),
                reading_N=reading, deflection_m=pd.pin.deflection(pin_context),
                positions=pd.chain_plant.ball_positions(plant_context), reason="steady state")
-    return out
+    return PinForceResult(**out)
 
 
 def pin_force_from_statics(chain: BallChain, external, pin_point, axis, result: StaticsResult,
-                           config: PinSimulationConfig = PinSimulationConfig()) -> dict:
+                           config: PinSimulationConfig = PinSimulationConfig()) -> PinForceResult:
     """Simulate a statics optimum on the sensor pin, starting from the equilibrium with the pin loaded.
 
     The start is the statics equilibrium with the tip held where the loaded spring puts it,
@@ -301,9 +337,9 @@ def pin_force_from_statics(chain: BallChain, external, pin_point, axis, result: 
     attraction at the next. Falls back on ``result`` itself if that solve fails.
 
     Returns:
-        ``simulate_pin_force``'s dict plus "statics_loaded_N" (the statics force along the axis
-        with the tip at the loaded pin's deflection, None if that solve failed): its difference
-        from the rigid pin's is the sensor's compliance effect.
+        ``simulate_pin_force``'s result with ``statics_loaded_N`` (the statics force along the
+        axis with the tip at the loaded pin's deflection, None if that solve failed): its
+        difference from the rigid pin's is the sensor's compliance effect.
     """
     t0 = time.perf_counter()
     axis = np.asarray(axis, float) / np.linalg.norm(axis)
@@ -311,6 +347,6 @@ def pin_force_from_statics(chain: BallChain, external, pin_point, axis, result: 
     loaded = ChainStatics(chain, max_iterations=50).solve(external, result, tip_target=loaded_target)
     start = loaded if loaded.converged else result
     out = simulate_pin_force(chain, external, pin_point, axis, start, config)
-    out["statics_loaded_N"] = float(-loaded.tip_reaction @ axis) if loaded.converged else None
-    out["wall_time_s"] = time.perf_counter() - t0  # with the loaded statics solve
+    out.statics_loaded_N = float(-loaded.tip_reaction @ axis) if loaded.converged else None
+    out.wall_time_s = time.perf_counter() - t0  # with the loaded statics solve
     return out

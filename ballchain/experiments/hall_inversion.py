@@ -4,6 +4,8 @@ a refinement on the exact cylinder field (docs/design.md, 4.1).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ballchain.drake_models.dipole import dipole_field
@@ -16,6 +18,35 @@ from ballchain.drake_models.dipole_inversion import (
 )
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
 from ballchain.drake_models.vectors import angle_between
+from ballchain.experiments._result import Result
+
+
+@dataclass
+class InversionComparison(Result):
+    """What ``inversion_comparison`` returns: direction errors per off-axis angle, (k,) arrays [deg].
+
+    Attributes:
+        D_m: the sensor's distance below the magnet centre [m].
+        theta_deg: the angles between the dipole and the world z axis [deg].
+        paper_formula_dipole: the printed formula on the dipole forward field.
+        paper_formula_closed_form: the same in closed form.
+        correct_inverse_dipole: the correct inverse on the dipole field (zero up to round-off).
+        correct_inverse_exact: the correct dipole inverse on the exact cylinder field (what the
+            dipole assumption costs).
+        paper_formula_exact: the printed formula on the exact field.
+        refined_exact: Gauss-Newton on the exact model (NaN without ``refine``).
+        B_max_mT: the largest |B| at the sensor over the angles [mT].
+    """
+
+    D_m: float
+    theta_deg: np.ndarray
+    paper_formula_dipole: np.ndarray
+    paper_formula_closed_form: np.ndarray
+    correct_inverse_dipole: np.ndarray
+    correct_inverse_exact: np.ndarray
+    paper_formula_exact: np.ndarray
+    refined_exact: np.ndarray
+    B_max_mT: float
 
 
 def inversion_comparison(
@@ -24,7 +55,7 @@ def inversion_comparison(
     magnet: CylinderMagnet | SphereMagnet | None = None,
     azimuth_deg: float = 30.0,
     refine: bool = True,
-) -> dict:
+) -> InversionComparison:
     """Direction error of three estimators against the true dipole direction, per off-axis angle.
 
     Args:
@@ -36,12 +67,7 @@ def inversion_comparison(
         refine: also run the Gauss-Newton refinement (about 10 exact evaluations per angle).
 
     Returns:
-        A dict of (k,) arrays [deg]: ``paper_formula_dipole`` (printed formula, dipole forward
-        field), ``paper_formula_closed_form``, ``correct_inverse_dipole`` (correct inverse, dipole
-        forward field: zero up to round-off), ``correct_inverse_exact`` (correct dipole inverse,
-        exact cylinder forward field: what the dipole assumption costs), ``refined_exact``
-        (Gauss-Newton on the exact model; NaN without ``refine``), and ``B_max_mT`` (largest
-        |B| over the angles).
+        An ``InversionComparison`` of (k,) arrays [deg].
     """
     magnet = magnet or CylinderMagnet()
     theta = np.deg2rad(np.asarray(theta_deg, dtype=float))
@@ -63,14 +89,14 @@ def inversion_comparison(
     else:
         refined = np.full_like(m_hat, np.nan)
     deg = np.rad2deg
-    return {
-        "D_m": D,
-        "theta_deg": np.rad2deg(theta),
-        "paper_formula_dipole": deg(angle_between(paper_direction_formula(B_dip, D, moment), m_hat)),
-        "paper_formula_closed_form": deg(paper_formula_angle_error(theta)),
-        "correct_inverse_dipole": deg(angle_between(direction_from_field(B_dip, r), m_hat)),
-        "correct_inverse_exact": deg(angle_between(est_exact, m_hat)),
-        "paper_formula_exact": deg(angle_between(paper_direction_formula(B_exact, D, moment), m_hat)),
-        "refined_exact": deg(angle_between(refined, m_hat)),
-        "B_max_mT": float(np.linalg.norm(B_exact, axis=1).max() * 1e3),
-    }
+    return InversionComparison(
+        D_m=D,
+        theta_deg=np.rad2deg(theta),
+        paper_formula_dipole=deg(angle_between(paper_direction_formula(B_dip, D, moment), m_hat)),
+        paper_formula_closed_form=deg(paper_formula_angle_error(theta)),
+        correct_inverse_dipole=deg(angle_between(direction_from_field(B_dip, r), m_hat)),
+        correct_inverse_exact=deg(angle_between(est_exact, m_hat)),
+        paper_formula_exact=deg(angle_between(paper_direction_formula(B_exact, D, moment), m_hat)),
+        refined_exact=deg(angle_between(refined, m_hat)),
+        B_max_mT=float(np.linalg.norm(B_exact, axis=1).max() * 1e3),
+    )

@@ -11,6 +11,7 @@ measured error the field approximations can explain.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +22,7 @@ from ballchain.drake_models.field_sources import UniformField
 from ballchain.drake_models.params import BallChain
 from ballchain.drake_models.safe_files import check_output_dir, note_replacements, write_csv
 from ballchain.drake_models.vectors import angle_between
+from ballchain.experiments._result import Result, optional
 from ballchain.experiments.magnet_poses import side_magnet_for_field
 from ballchain.optimization.statics import ChainStatics, rotation_path, tip_angle_deg
 
@@ -35,6 +37,52 @@ PAPER = {
 MODELS = ("uniform", "dipole", "exact")
 
 
+@dataclass
+class ValidationSummary(Result):
+    """Medians and maxima over the chains of 6 or more balls [deg, mm].
+
+    Attributes:
+        uniform_model_tip_angle_median_deg_6plus: the uniform model's tip angle to its field.
+        dipole_vs_exact_angle_median_deg_6plus, dipole_vs_exact_angle_max_deg_6plus,
+            dipole_vs_exact_tip_max_mm_6plus: the point dipole against the exact cylinder.
+        uniform_vs_exact_angle_median_deg_6plus, uniform_vs_exact_angle_max_deg_6plus,
+            uniform_vs_exact_tip_median_mm_6plus, uniform_vs_exact_tip_max_mm_6plus: the uniform
+            field against the exact cylinder.
+    """
+
+    uniform_model_tip_angle_median_deg_6plus: float
+    dipole_vs_exact_angle_median_deg_6plus: float
+    dipole_vs_exact_angle_max_deg_6plus: float
+    dipole_vs_exact_tip_max_mm_6plus: float
+    uniform_vs_exact_angle_median_deg_6plus: float
+    uniform_vs_exact_angle_max_deg_6plus: float
+    uniform_vs_exact_tip_median_mm_6plus: float
+    uniform_vs_exact_tip_max_mm_6plus: float
+
+
+@dataclass
+class ValidationResult(Result):
+    """What ``run`` returns (edge units: mm, deg).
+
+    Attributes:
+        rows: one per chain length, field angle and model: {n_balls, field_angle_deg, model,
+            tip_angle_deg, tip_mm (3,)}.
+        differences: one per chain length and field angle: {n_balls, field_angle_deg,
+            dipole_vs_exact_angle_deg, dipole_vs_exact_tip_mm, uniform_vs_exact_angle_deg,
+            uniform_vs_exact_tip_mm}.
+        summary: medians and maxima of the differences over 6 or more balls.
+        paper: the paper's measured errors; setup: the magnet's placement, in words.
+        files: the paths written (only with ``out``).
+    """
+
+    rows: list
+    differences: list
+    summary: ValidationSummary
+    paper: dict
+    setup: str
+    files: list | None = optional()
+
+
 def _field(model: str, theta_deg: float, field_T: float):
     theta = np.radians(theta_deg)
     if model == "uniform":
@@ -43,7 +91,7 @@ def _field(model: str, theta_deg: float, field_T: float):
 
 
 def run(*, balls=range(5, 11), angles_deg=(0.0, 45.0, 90.0, 135.0, 180.0), field_T: float = 0.023,
-        step_deg: float = 22.5, progress: bool = True, out: Path | None = None) -> dict:
+        step_deg: float = 22.5, progress: bool = True, out: Path | None = None) -> ValidationResult:
     """Tip angle and position for every chain length, field angle and field model.
 
     Args:
@@ -56,10 +104,7 @@ def run(*, balls=range(5, 11), angles_deg=(0.0, 45.0, 90.0, 135.0, 180.0), field
             before the work.
 
     Returns:
-        {"rows": [{n_balls, field_angle_deg, model, tip_angle_deg, tip_mm}], "differences":
-        [{n_balls, field_angle_deg, dipole_vs_exact_angle_deg, dipole_vs_exact_tip_mm,
-        uniform_vs_exact_angle_deg, uniform_vs_exact_tip_mm}], "summary": {...}, "paper": ...,
-        "files": [...] (with ``out``)}
+        A ``ValidationResult`` (``files`` set with ``out``).
 
     Raises:
         UserInputError: a field out of range (named by its flag, --field-mT) or an unwritable ``out``.
@@ -97,22 +142,23 @@ def run(*, balls=range(5, 11), angles_deg=(0.0, 45.0, 90.0, 135.0, 180.0), field
                 "uniform_vs_exact_tip_mm": float(np.linalg.norm(un["tip_mm"] - ex["tip_mm"])),
             })
     six_plus = [d for d in differences if d["n_balls"] >= 6]
-    summary = {
-        "uniform_model_tip_angle_median_deg_6plus": float(np.median(
+    summary = ValidationSummary(
+        uniform_model_tip_angle_median_deg_6plus=float(np.median(
             [r["tip_angle_deg"] for r in rows if r["model"] == "uniform" and r["n_balls"] >= 6])),
-        "dipole_vs_exact_angle_median_deg_6plus": float(np.median([d["dipole_vs_exact_angle_deg"] for d in six_plus])),
-        "dipole_vs_exact_angle_max_deg_6plus": float(max(d["dipole_vs_exact_angle_deg"] for d in six_plus)),
-        "dipole_vs_exact_tip_max_mm_6plus": float(max(d["dipole_vs_exact_tip_mm"] for d in six_plus)),
-        "uniform_vs_exact_angle_median_deg_6plus": float(np.median([d["uniform_vs_exact_angle_deg"] for d in six_plus])),
-        "uniform_vs_exact_angle_max_deg_6plus": float(max(d["uniform_vs_exact_angle_deg"] for d in six_plus)),
-        "uniform_vs_exact_tip_median_mm_6plus": float(np.median([d["uniform_vs_exact_tip_mm"] for d in six_plus])),
-        "uniform_vs_exact_tip_max_mm_6plus": float(max(d["uniform_vs_exact_tip_mm"] for d in six_plus)),
-    }
+        dipole_vs_exact_angle_median_deg_6plus=float(np.median([d["dipole_vs_exact_angle_deg"] for d in six_plus])),
+        dipole_vs_exact_angle_max_deg_6plus=float(max(d["dipole_vs_exact_angle_deg"] for d in six_plus)),
+        dipole_vs_exact_tip_max_mm_6plus=float(max(d["dipole_vs_exact_tip_mm"] for d in six_plus)),
+        uniform_vs_exact_angle_median_deg_6plus=float(np.median([d["uniform_vs_exact_angle_deg"] for d in six_plus])),
+        uniform_vs_exact_angle_max_deg_6plus=float(max(d["uniform_vs_exact_angle_deg"] for d in six_plus)),
+        uniform_vs_exact_tip_median_mm_6plus=float(np.median([d["uniform_vs_exact_tip_mm"] for d in six_plus])),
+        uniform_vs_exact_tip_max_mm_6plus=float(max(d["uniform_vs_exact_tip_mm"] for d in six_plus)),
+    )
     for r in rows:
         r.pop("tip_dipole")
-    data = {"rows": rows, "differences": differences, "summary": summary, "paper": PAPER,
-            "setup": "magnet beside the base at (0, -r, 0), r chosen for a 23 mT point-dipole field at the base"}
+    data = ValidationResult(rows=rows, differences=differences, summary=summary, paper=PAPER,
+                            setup="magnet beside the base at (0, -r, 0), r chosen for a 23 mT point-dipole "
+                                  "field at the base")
     if out is not None:
         note_replacements(out, ["validation.csv"], "validation")
-        data["files"] = [str(write_csv(Path(out) / "validation.csv", differences))]
+        data.files = [str(write_csv(Path(out) / "validation.csv", differences))]
     return data

@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 
 import time
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -27,6 +28,7 @@ from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import BallChain, CylinderMagnet, gram_force, newtons_from_gram_force
+from ballchain.experiments._result import Result
 from ballchain.experiments.forces import Stand, max_normal_force
 from ballchain.optimization.inverse_statics import HeldTip, min_turn_orientation, pin_tip
 from ballchain.optimization.statics import ChainStatics, StaticsResult
@@ -106,9 +108,55 @@ def plan_target(chain: BallChain, stand: Stand, name: str, m_previous: np.ndarra
             "max_force_N": max_force, "reason": "" if plan.feasible else f"no feasible answer ({plan.solver_status})"}
 
 
+@dataclass
+class PlanSummary(Result):
+    """Totals over a plan's targets (edge units: gf, s, mm).
+
+    Attributes:
+        targets: targets asked for; reached: targets with a plan; with_at_least_10_gf: of those,
+            pressing at least the force asked for.
+        force_gf_min, force_gf_max: over the planned targets (None: none planned).
+        plan_time_s: the hardware's motion time, magnet_turn_time_s + insertion_time_s.
+        ring_path_mm: the ring's length; compute_time_s: wall time of the planning.
+    """
+
+    targets: int
+    reached: int
+    with_at_least_10_gf: int
+    force_gf_min: float | None
+    force_gf_max: float | None
+    plan_time_s: float
+    magnet_turn_time_s: float
+    insertion_time_s: float
+    ring_path_mm: float
+    compute_time_s: float
+
+
+@dataclass
+class PlanResult(Result):
+    """What ``run`` returns (edge units: gf, deg, mm, s).
+
+    Attributes:
+        task: "left" or "right".
+        rows: one per target in order: {target, reached, force_gf, n_balls, dipole (unit (3,)),
+            turn_deg, friction_needed, offset_mm, how, reason} (None where not reached).
+        summary: the totals (``PlanSummary``).
+        paper: the paper's operator on the task; min_force_gf: the force asked for;
+        friction: the tip's Coulomb coefficient; target_radius_mm: the targets' radius.
+    """
+
+    task: str
+    rows: list
+    summary: PlanSummary
+    paper: dict
+    min_force_gf: float
+    friction: float
+    target_radius_mm: float
+
+
 def run(*, task: str = "left", targets: int | None = None, balls=(16,), grid: int = 4, refine: int = 15,
         min_force_gf: float = MIN_FORCE_GF, friction: float = ContactConfig().friction, omega_max: float = 0.5,
-        feeder_speed: float = 0.02, progress: bool = True) -> dict:
+        feeder_speed: float = 0.02, progress: bool = True) -> PlanResult:
     """A plan that visits every target of a task through held equilibria pressing >= min_force_gf.
 
     For each target in order and each inserted length, the smallest magnet turn from the
@@ -129,6 +177,9 @@ def run(*, task: str = "left", targets: int | None = None, balls=(16,), grid: in
             equilibria are contact equilibria of the simulated station (0: frictionless).
         omega_max: magnet angular speed [rad/s] (the teleoperation mapper's full stick).
         feeder_speed: insertion speed [m/s].
+
+    Returns:
+        A ``PlanResult``.
     """
     if task not in TASKS:
         raise UserInputError(f"task must be 'left' or 'right', got {task!r}")
@@ -177,14 +228,14 @@ def run(*, task: str = "left", targets: int | None = None, balls=(16,), grid: in
         rows.append(row)
     reached = [r for r in rows if r["reached"]]
     forces_gf = [r["force_gf"] for r in reached]
-    summary = {
-        "targets": len(rows), "reached": len(reached),
-        "with_at_least_10_gf": sum(f >= min_force_gf * (1 - 1e-4) for f in forces_gf),
-        "force_gf_min": min(forces_gf) if forces_gf else None,
-        "force_gf_max": max(forces_gf) if forces_gf else None,
-        "plan_time_s": turn_time + feed_time, "magnet_turn_time_s": turn_time, "insertion_time_s": feed_time,
-        "ring_path_mm": 1e3 * atrium.rings[task].curve_length,
-        "compute_time_s": time.perf_counter() - t0,
-    }
-    return {"task": task, "rows": rows, "summary": summary, "paper": PAPER[task], "min_force_gf": min_force_gf,
-            "friction": friction, "target_radius_mm": 1e3 * target_radius}
+    summary = PlanSummary(
+        targets=len(rows), reached=len(reached),
+        with_at_least_10_gf=sum(f >= min_force_gf * (1 - 1e-4) for f in forces_gf),
+        force_gf_min=min(forces_gf) if forces_gf else None,
+        force_gf_max=max(forces_gf) if forces_gf else None,
+        plan_time_s=turn_time + feed_time, magnet_turn_time_s=turn_time, insertion_time_s=feed_time,
+        ring_path_mm=1e3 * atrium.rings[task].curve_length,
+        compute_time_s=time.perf_counter() - t0,
+    )
+    return PlanResult(task=task, rows=rows, summary=summary, paper=PAPER[task], min_force_gf=min_force_gf,
+                      friction=friction, target_radius_mm=1e3 * target_radius)

@@ -10,7 +10,7 @@ dipole and the neutral direction (not the sensor's estimate).
 from __future__ import annotations
 
 import sys
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
@@ -21,8 +21,57 @@ from tqdm import tqdm
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.vectors import angle_between
+from ballchain.experiments._result import Result
 from ballchain.systems.actuation_station import StationOptions, make_actuation_station, right_unit
 from ballchain.systems.rotating_magnet_unit import MagnetUnitConfig, rotation_from_quaternion
+
+
+@dataclass
+class ReconfigurationRun(Result):
+    """What ``run_reconfiguration`` returns: one closed-loop run.
+
+    Attributes:
+        done: the controller's ``done`` latched before t_max.
+        time_s: when it latched (or t_max) [s].
+        initial_error_deg: the true angle to neutral at the start [deg].
+        final_error_deg: the true angle after settling [deg].
+        t: the sensor sample times [s], shape (k,); error_deg: the true angle at each (k,) [deg];
+            measured_error_deg: the controller's estimate at each (k,) [deg].
+    """
+
+    done: bool
+    time_s: float
+    initial_error_deg: float
+    final_error_deg: float
+    t: np.ndarray
+    error_deg: np.ndarray
+    measured_error_deg: np.ndarray
+
+
+@dataclass
+class ReconfigurationStudyResult(Result):
+    """What ``run_reconfiguration_study`` (``run``) returns.
+
+    Attributes:
+        runs: number of runs; converged: runs done with a true final error below the tolerance.
+        max_final_error_deg [deg]; median_time_s, max_time_s: time to done [s].
+        antiparallel_time_s: run 0's (the antiparallel start's) time to done [s].
+        slip, sensor_noise, field_model, wheel_map: the settings.
+        final_error_deg, time_s: per run, lists of length ``runs``.
+    """
+
+    runs: int
+    converged: int
+    max_final_error_deg: float
+    median_time_s: float
+    max_time_s: float
+    antiparallel_time_s: float
+    slip: float
+    sensor_noise: bool
+    field_model: str
+    wheel_map: str
+    final_error_deg: list
+    time_s: list
 
 
 def random_rotations(n: int, seed: int) -> np.ndarray:
@@ -38,14 +87,8 @@ def run_reconfiguration(
     options: StationOptions,
     t_max: float = 15.0,
     settle_s: float = 0.2,
-) -> dict:
-    """One closed-loop run from R_WM0 (3, 3).
-
-    Returns:
-        dict with ``done`` (bool), ``time_s`` (when done latched, or t_max), ``final_error_deg``
-        (true angle after settling), ``initial_error_deg``, and the logged ``t``, ``error_deg``
-        (true angle) and ``measured_error_deg`` at each sensor sample.
-    """
+) -> ReconfigurationRun:
+    """One closed-loop run from R_WM0 (3, 3); returns a ``ReconfigurationRun``."""
     diagram = make_actuation_station([unit], options)
     n = unit.name
     context = diagram.CreateDefaultContext()
@@ -83,15 +126,15 @@ def run_reconfiguration(
     t_done = context.get_time()
     simulator.clear_monitor()
     simulator.AdvanceTo(t_done + settle_s)
-    return {
-        "done": done,
-        "time_s": t_done,
-        "initial_error_deg": initial,
-        "final_error_deg": true_error(context),
-        "t": np.array(log_t),
-        "error_deg": np.array(log_err),
-        "measured_error_deg": np.array(log_meas),
-    }
+    return ReconfigurationRun(
+        done=done,
+        time_s=t_done,
+        initial_error_deg=initial,
+        final_error_deg=true_error(context),
+        t=np.array(log_t),
+        error_deg=np.array(log_err),
+        measured_error_deg=np.array(log_meas),
+    )
 
 
 def run_reconfiguration_study(
@@ -105,7 +148,7 @@ def run_reconfiguration_study(
     tolerance_deg: float = 1.0,
     t_max: float = 15.0,
     progress: bool | Callable[[int], None] | None = None,
-) -> dict:
+) -> ReconfigurationStudyResult:
     """The closed-loop study: seeded random starts, run 0 exactly antiparallel to neutral.
 
     Args:
@@ -122,8 +165,7 @@ def run_reconfiguration_study(
             (e.g. a tqdm bar's ``update``); None or False: none.
 
     Returns:
-        ``{"runs", "converged", "max_final_error_deg", "median_time_s", "max_time_s"}`` plus
-        ``antiparallel_time_s`` and the per-run lists ``final_error_deg`` and ``time_s``.
+        A ``ReconfigurationStudyResult``.
     """
     if runs < 1:
         raise UserInputError(f"runs must be >= 1, got {runs}")
@@ -137,28 +179,28 @@ def run_reconfiguration_study(
     bar = tqdm(total=runs, desc="reconfigure", unit="run", file=sys.stderr, disable=progress is not True)
     for k, R0 in enumerate(starts):
         result = run_reconfiguration(R0, unit=unit, options=replace(base, seed=seed + k), t_max=t_max)
-        ok = result["done"] and result["final_error_deg"] < tolerance_deg
+        ok = result.done and result.final_error_deg < tolerance_deg
         converged += int(ok)
-        finals.append(result["final_error_deg"])
-        times.append(result["time_s"])
+        finals.append(result.final_error_deg)
+        times.append(result.time_s)
         bar.update(1)
         if callable(progress):
             progress(1)
     bar.close()
-    return {
-        "runs": runs,
-        "converged": converged,
-        "max_final_error_deg": float(np.max(finals)),
-        "median_time_s": float(np.median(times)),
-        "max_time_s": float(np.max(times)),
-        "antiparallel_time_s": float(times[0]),
-        "slip": slip,
-        "sensor_noise": noise,
-        "field_model": field_model,
-        "wheel_map": wheel_map,
-        "final_error_deg": finals,
-        "time_s": times,
-    }
+    return ReconfigurationStudyResult(
+        runs=runs,
+        converged=converged,
+        max_final_error_deg=float(np.max(finals)),
+        median_time_s=float(np.median(times)),
+        max_time_s=float(np.max(times)),
+        antiparallel_time_s=float(times[0]),
+        slip=slip,
+        sensor_noise=noise,
+        field_model=field_model,
+        wheel_map=wheel_map,
+        final_error_deg=finals,
+        time_s=times,
+    )
 
 
 run = run_reconfiguration_study

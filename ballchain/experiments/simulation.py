@@ -8,18 +8,44 @@ equilibrium (two independent computations of the same shape).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.params import BallChain, Sleeve
-from ballchain.drake_models.safe_files import check_output_file
+from ballchain.drake_models.safe_files import check_output_file, to_jsonable
+from ballchain.experiments._result import Result
 from ballchain.optimization.statics import uniform_field_equilibrium
 
 
+@dataclass
+class SimulationResult(Result):
+    """What ``run`` returns.
+
+    Attributes:
+        metrics: the run loop's metrics (``chain_simulation.run_simulation``: realtime_factor,
+            sim_time_s, the monitor's tip position [mm], clearances and overlaps, wall_time_s,
+            build_time_s, time_step_s, mode, engine, n_steps, targets_touched, tip_wall_force_N,
+            peak_memory_MB, the engine's statics stats, html, ...), without the ball positions.
+        p_W_mm: the ball centres at the end [mm], shape (n, 3).
+        statics_tip_error_mm: distance from the simulated tip to the statics equilibrium [mm]
+            (None for scenarios that do not settle on the canonical statics problem).
+    """
+
+    metrics: dict
+    p_W_mm: list
+    statics_tip_error_mm: float | None
+
+    def public(self) -> dict:
+        """What the command prints: the metrics and ``statics_tip_error_mm`` in one flat,
+        JSON-ready dict (no ball positions)."""
+        return to_jsonable({**self.metrics, "statics_tip_error_mm": self.statics_tip_error_mm})
+
+
 def run(*, scenario: str, duration: float | None = None, mode: str | None = None,
-        overrides: str | None = None, html: Path | None = None, progress: bool = False) -> dict:
+        overrides: str | None = None, html: Path | None = None, progress: bool = False) -> SimulationResult:
     """Load the scenario, apply the overrides and the mode, simulate; returns the metrics.
 
     Args:
@@ -31,7 +57,8 @@ def run(*, scenario: str, duration: float | None = None, mode: str | None = None
         progress: a progress bar on stderr.
 
     Returns:
-        The metrics of ``chain_simulation.run_simulation`` plus ``statics_tip_error_mm``.
+        A ``SimulationResult``: the metrics of ``chain_simulation.run_simulation``, the ball
+        positions and ``statics_tip_error_mm``.
 
     Raises:
         UserInputError: a bad scenario, override, mode, duration or output path (before any work).
@@ -50,15 +77,16 @@ def run(*, scenario: str, duration: float | None = None, mode: str | None = None
         chosen.validate()
     if duration is not None:
         check_duration(duration, chosen.effective_time_step, "--duration")
-    result = run_simulation(scenario=chosen, duration=duration, html=html, progress=progress)
-    result["statics_tip_error_mm"] = statics_tip_error_mm(chosen, result)
-    return result
+    metrics = run_simulation(scenario=chosen, duration=duration, html=html, progress=progress)
+    p_W_mm = metrics.pop("p_W_mm")
+    return SimulationResult(metrics=metrics, p_W_mm=p_W_mm, statics_tip_error_mm=statics_tip_error_mm(chosen, p_W_mm))
 
 
-def statics_tip_error_mm(scenario, result: dict) -> float | None:
+def statics_tip_error_mm(scenario, p_W_mm) -> float | None:
     """Distance [mm] from the simulated tip to the statics equilibrium, for scenarios that settle
     on the canonical problem (free space, no sheath, ball 1 fixed at the origin, a uniform field,
-    optionally a flat wall); None for the others (heart, magnets, units, moving feeder)."""
+    optionally a flat wall); None for the others (heart, magnets, units, moving feeder).
+    ``p_W_mm``: the simulated ball centres [mm], (n, 3)."""
     canonical = (not scenario.heart and not scenario.sheath and not scenario.magnets and not scenario.units
                  and scenario.insertion.initial == 0.0 and scenario.insertion.final == 0.0)
     if not canonical:
@@ -68,4 +96,4 @@ def statics_tip_error_mm(scenario, result: dict) -> float | None:
     if scenario.wall_plane:
         wall = (np.array(scenario.wall_plane[:3]), np.array(scenario.wall_plane[3:]))
     statics = uniform_field_equilibrium(chain, scenario.uniform_field, scenario.gravity, wall)
-    return float(np.linalg.norm(np.array(result["p_W_mm"][-1]) - statics.tip_position * 1e3))
+    return float(np.linalg.norm(np.array(p_W_mm[-1]) - statics.tip_position * 1e3))

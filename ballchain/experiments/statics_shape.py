@@ -8,6 +8,7 @@ straight chain in steps of at most ``--step-deg`` (as a rotating magnet moves th
 from __future__ import annotations
 
 import sys
+from dataclasses import dataclass
 
 import numpy as np
 from tqdm import tqdm
@@ -15,6 +16,7 @@ from tqdm import tqdm
 from ballchain.drake_models.errors import UserInputError, check_in
 from ballchain.drake_models.field_sources import UniformField
 from ballchain.drake_models.params import BallChain, Sleeve
+from ballchain.experiments._result import Result
 from ballchain.optimization.statics import ChainStatics, rotation_path, tip_angle_deg
 
 MAX_BALLS = 200  # dense Hessians: 200 balls take about 0.5 GB
@@ -22,8 +24,35 @@ MAX_FIELD_MT = 1000.0
 MIN_STEP_DEG = 0.1  # at most 7200 continuation steps over the widest angle
 
 
+@dataclass
+class StaticsShapeResult(Result):
+    """What ``run`` returns: the last equilibrium of the continuation.
+
+    Attributes:
+        positions_mm: ball centres [mm], shape (n, 3).
+        dipoles: unit dipole directions, shape (n, 3).
+        tip_angle_deg: angle between the field and the tip dipole [deg] (None without a field).
+        energy_J: the chain's energy at the equilibrium [J].
+        converged, reason, solver, iterations, solve_time_s: the last solve's report (time in s).
+        continuation_steps: number of field angles solved; continuation_time_s: their total
+            solve time [s].
+    """
+
+    positions_mm: np.ndarray
+    dipoles: np.ndarray
+    tip_angle_deg: float | None
+    energy_J: float
+    converged: bool
+    reason: str
+    solver: str
+    iterations: int
+    solve_time_s: float
+    continuation_steps: int
+    continuation_time_s: float
+
+
 def run(*, balls: int, field_mT: float, field_angle_deg: float, step_deg: float = 22.5,
-        gravity: bool = False, sleeve: bool = False, method: str = "newton") -> dict:
+        gravity: bool = False, sleeve: bool = False, method: str = "newton") -> StaticsShapeResult:
     """The equilibrium after turning the field from +x to ``field_angle_deg`` (continuation).
 
     Args:
@@ -36,9 +65,7 @@ def run(*, balls: int, field_mT: float, field_angle_deg: float, step_deg: float 
         method: "newton" or "snopt".
 
     Returns:
-        JSON-ready dict: ``positions_mm`` (n, 3), ``dipoles`` (n, 3), ``tip_angle_deg`` (None
-        without a field), ``energy_J``, the solver's ``converged``/``reason``/``solver``/
-        ``iterations``/``solve_time_s`` and ``continuation_steps``/``continuation_time_s``.
+        A ``StaticsShapeResult``.
 
     Raises:
         UserInputError: a value out of range, named by its flag (before any solve).
@@ -60,16 +87,16 @@ def run(*, balls: int, field_mT: float, field_angle_deg: float, step_deg: float 
     result = results[-1]
     total_time = sum(step.solve_time for step in results)
     direction = [np.cos(np.radians(field_angle_deg)), np.sin(np.radians(field_angle_deg)), 0.0]
-    return {
-        "positions_mm": result.positions * 1e3,
-        "dipoles": result.dipoles,
-        "tip_angle_deg": tip_angle_deg(result, direction) if field_mT > 0 else None,
-        "energy_J": result.energy,
-        "converged": result.converged,
-        "reason": result.reason,
-        "solver": result.solver,
-        "iterations": result.iterations,
-        "solve_time_s": result.solve_time,
-        "continuation_steps": len(angles),
-        "continuation_time_s": total_time,
-    }
+    return StaticsShapeResult(
+        positions_mm=result.positions * 1e3,
+        dipoles=result.dipoles,
+        tip_angle_deg=tip_angle_deg(result, direction) if field_mT > 0 else None,
+        energy_J=result.energy,
+        converged=result.converged,
+        reason=result.reason,
+        solver=result.solver,
+        iterations=result.iterations,
+        solve_time_s=result.solve_time,
+        continuation_steps=len(angles),
+        continuation_time_s=total_time,
+    )

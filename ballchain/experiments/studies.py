@@ -341,19 +341,19 @@ def operators_point(p: OperatorsPoint, seed: int) -> dict:
     result = teleop.run(task=p.task, mapping=p.mapping, targets=p.targets or None, progress=False,
                         n_balls=p.n_balls, overrides=json.dumps(overrides) if overrides else None,
                         operator=operator)
-    s = result["summary"]
-    rows = result["rows"]
+    s = result.summary
+    rows = result.rows
     return {
         "engine_used": engine_used, "note": note,
-        "touched": s["touched"], "n_targets": s["targets"], "total_time_s": s["total_time_s"],
-        "median_time_s": s["median_time_s"], "median_accuracy_mm": s["median_accuracy_mm"],
-        "max_accuracy_mm": s["max_accuracy_mm"], "failure": s["failure"], "sim_time_s": s["sim_time_s"],
-        "realtime_factor": s["realtime_factor"],
+        "touched": s.touched, "n_targets": s.targets, "total_time_s": s.total_time_s,
+        "median_time_s": s.median_time_s, "median_accuracy_mm": s.median_accuracy_mm,
+        "max_accuracy_mm": s.max_accuracy_mm, "failure": s.failure, "sim_time_s": s.sim_time_s,
+        "realtime_factor": s.realtime_factor,
         "target_names": [r["target"] for r in rows],
         "target_times_s": [r["time_s"] for r in rows],
         "target_accuracy_mm": [r["accuracy_mm"] for r in rows],
         "target_touched": [bool(r["touched"]) for r in rows],
-        "paper_time_per_target_s": result["paper"]["human_time_s"] / result["paper"]["targets"],
+        "paper_time_per_target_s": result.paper["human_time_s"] / result.paper["targets"],
     }
 
 

@@ -24,10 +24,12 @@ several operator seeds (the hand's tremor) and tabulates the spread.
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from ballchain.drake_models.errors import UserInputError
+from ballchain.experiments._result import Result, optional
 
 from ballchain.drake_models import paper
 
@@ -48,6 +50,87 @@ DEFAULT_ENGINE = "statics"
 FAST = "{engine: plant, time_step: 0.004}"
 MAX_SEED = 2**32 - 1
 REPRODUCE_SEEDS = 5  # operator seeds of reproduce's seed spread besides seed 0 (a whole task takes seconds)
+
+
+@dataclass
+class TeleopSummary(Result):
+    """Totals over a run's targets (``summarize``; times in s of simulated time, mm).
+
+    Attributes:
+        touched, targets: targets touched, and asked for.
+        total_time_s: every target's time, touched or given up; median_time_s: the median over
+            the touched ones (None: none touched).
+        median_accuracy_mm, max_accuracy_mm: tip contact point to target centre, over the touched.
+        missed: the targets not touched; missed_reasons: {target: reason}.
+        struggled: missed, or more than twice the median time.
+        sim_time_s: simulated time; realtime_factor: simulated time over wall_time_s (the
+            simulation loop's wall time, Simulator Initialize + AdvanceTo, the build not counted).
+        failure: the watchdog's message if it stopped the run, else None.
+        build_time_s: the station's build [s]; realtime_factor_cpu: on the loop's process CPU
+            time; rim_sinkings, rim_sinking_max_mm: balls tolerated sinking at a vein's rim (set by
+            ``run``).
+    """
+
+    touched: int
+    targets: int
+    total_time_s: float
+    median_time_s: float | None
+    median_accuracy_mm: float | None
+    max_accuracy_mm: float | None
+    missed: list
+    missed_reasons: dict
+    struggled: list
+    sim_time_s: float
+    realtime_factor: float | None
+    wall_time_s: float
+    failure: str | None
+    build_time_s: float | None = None
+    realtime_factor_cpu: float | None = None
+    rim_sinkings: int | None = None
+    rim_sinking_max_mm: float | None = None
+
+
+@dataclass
+class TeleopResult(Result):
+    """What ``run`` returns: one simulated operator doing one task with one mapping.
+
+    Attributes:
+        task: "left" or "right"; mapping: "world" or "catheter".
+        rows: one per target: {target, touched, time_s (spent on it), t_touch_s, accuracy_mm (tip
+            contact point to target centre), relearns (re-probing wiggles), bursts (feeding /
+            retraction bursts), reason (a missed target's: "chain jammed", "out of reach",
+            "confused", "timeout", "not reached" (the run ended first), else None), closest_mm}.
+        summary: the totals (``TeleopSummary``).
+        paper: the paper's operator on the task ({human_time_s, targets, ...}).
+        settings: {engine, seed, overrides, statics_period_s, n_balls, time_step_s,
+            teleop_omega_max_rad_s, operator_period_s, reaction_s, timeout_s, axes, time_limit_s}.
+        html: the Meshcat replay written (only with ``html``).
+    """
+
+    task: str
+    mapping: str
+    rows: list
+    summary: TeleopSummary
+    paper: dict
+    settings: dict
+    html: str | None = optional()
+
+
+@dataclass
+class TeleopSeedsResult(Result):
+    """What ``run_seeds`` returns.
+
+    Attributes:
+        table: one ``aggregate_seeds`` row per (task, mapping) (the columns of ``SEED_FIELDS``).
+        runs: one per run: {task, mapping, seed, summary, rows} (``TeleopResult``'s parts).
+        settings: {seeds, targets, overrides, engine}.
+        files: {"csv", "json"}: the paths written (only with ``out``).
+    """
+
+    table: list
+    runs: list
+    settings: dict
+    files: dict | None = optional()
 
 
 def check_seed(seed, what: str = "seed") -> int:
@@ -109,7 +192,7 @@ def hand_over(scenario, mapping: str, n_balls: int | None, overrides: dict, unit
 
 def run(task: str = "left", mapping: str = "world", targets: int | None = None, html: Path | None = None,
         progress: bool = True, time_limit: float | None = None, n_balls: int | None = None,
-        overrides: str | None = None, operator=None, heart=None, seed: int = 0) -> dict:
+        overrides: str | None = None, operator=None, heart=None, seed: int = 0) -> TeleopResult:
     """Simulate the operator doing a task with a mapping.
 
     Args:
@@ -128,19 +211,7 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
         seed: the operator's seed (its hand's tremor), 0..2**32-1; ignored when ``operator`` is given.
 
     Returns:
-        {"task", "mapping", "rows": [{"target", "touched", "time_s" (spent on it), "t_touch_s",
-        "accuracy_mm" (tip contact point to target centre), "relearns" (re-probing wiggles),
-        "bursts" (feeding / retraction bursts), "reason" (a missed target's: "chain jammed", "out
-        of reach", "confused", "timeout", "not reached" (the run ended first), else None),
-        "closest_mm"}], "summary": {"touched", "targets", "total_time_s", "median_time_s",
-        "median_accuracy_mm", "max_accuracy_mm", "missed", "missed_reasons" ({target: reason}),
-        "struggled" (missed, or more than twice the median time), "sim_time_s",
-        "realtime_factor" (simulated time over ``wall_time_s``), "wall_time_s" (wall time of the
-        simulation loop, Simulator Initialize + AdvanceTo: the build is not counted),
-        "build_time_s", "realtime_factor_cpu" (on the loop's process CPU time), "failure",
-        "rim_sinkings", "rim_sinking_max_mm"},
-        "paper": {"human_time_s", ...}, "settings": {..., "engine", "seed"}} (and "html" when
-        written).
+        A ``TeleopResult`` (``html`` set when the replay was written).
     """
     from dataclasses import replace
 
@@ -200,23 +271,21 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     failure, wall, cpu, sim_time = run.failure, run.wall_time, run.cpu_time, run.sim_time
     rows = op.rows(op_context)
     summary = summarize(rows, sim_time, wall, failure)
-    summary["build_time_s"] = round(built, 2)
+    summary.build_time_s = round(built, 2)
     # On a shared machine wall time counts the waits for a core: the loop's process CPU time too.
-    summary["realtime_factor_cpu"] = round(sim_time / cpu, 4) if cpu > 0 else None
+    summary.realtime_factor_cpu = round(sim_time / cpu, 4) if cpu > 0 else None
     sinkings = chain_monitor.tolerated_sinkings
-    summary["rim_sinkings"] = len(sinkings)
-    summary["rim_sinking_max_mm"] = round(max(e[2] for e in sinkings) * 1e3, 3) if sinkings else None
-    result = {"task": task, "mapping": mapping, "rows": rows, "summary": summary,
-              "paper": PAPER[task],
-              "settings": {"engine": scenario.engine, "seed": int(params.seed), "overrides": overrides,
-                           "statics_period_s": scenario.statics_period if scenario.engine == "statics" else None,
-                           "n_balls": scenario.n_balls, "time_step_s": scenario.effective_time_step,
-                           "teleop_omega_max_rad_s": scenario.units[0].teleop_omega_max,
-                           "operator_period_s": params.period, "reaction_s": params.period * params.reaction_steps,
-                           "timeout_s": params.timeout, "axes": list(params.axes), "time_limit_s": limit}}
-    if html is not None:
-        result["html"] = str(html)
-    return result
+    summary.rim_sinkings = len(sinkings)
+    summary.rim_sinking_max_mm = round(max(e[2] for e in sinkings) * 1e3, 3) if sinkings else None
+    return TeleopResult(
+        task=task, mapping=mapping, rows=rows, summary=summary, paper=PAPER[task],
+        settings={"engine": scenario.engine, "seed": int(params.seed), "overrides": overrides,
+                  "statics_period_s": scenario.statics_period if scenario.engine == "statics" else None,
+                  "n_balls": scenario.n_balls, "time_step_s": scenario.effective_time_step,
+                  "teleop_omega_max_rad_s": scenario.units[0].teleop_omega_max,
+                  "operator_period_s": params.period, "reaction_s": params.period * params.reaction_steps,
+                  "timeout_s": params.timeout, "axes": list(params.axes), "time_limit_s": limit},
+        html=None if html is None else str(html))
 
 
 RIM_BAND = 3e-3  # [m]
@@ -257,7 +326,7 @@ def missed_reason(row: dict, failure: str | None = None) -> str:
     return row["reason"]
 
 
-def summarize(rows: list[dict], sim_time: float, wall: float, failure: str | None = None) -> dict:
+def summarize(rows: list[dict], sim_time: float, wall: float, failure: str | None = None) -> TeleopSummary:
     """Totals over the targets: touched count, total and median times, accuracies, and why each
     missed target was missed.
 
@@ -271,21 +340,21 @@ def summarize(rows: list[dict], sim_time: float, wall: float, failure: str | Non
     times = [r["time_s"] for r in touched]
     accuracy = [r["accuracy_mm"] for r in touched]
     spent = [r["time_s"] for r in rows if r["time_s"] is not None]
-    return {
-        "touched": len(touched), "targets": len(rows),
-        "total_time_s": round(float(sum(spent)), 3),
-        "median_time_s": round(float(np.median(times)), 3) if times else None,
-        "median_accuracy_mm": round(float(np.median(accuracy)), 3) if accuracy else None,
-        "max_accuracy_mm": round(float(np.max(accuracy)), 3) if accuracy else None,
-        "missed": [r["target"] for r in rows if not r["touched"]],
-        "missed_reasons": {r["target"]: missed_reason(r, failure) for r in rows if not r["touched"]},
-        "struggled": [r["target"] for r in rows if r["time_s"] is not None and (
+    return TeleopSummary(
+        touched=len(touched), targets=len(rows),
+        total_time_s=round(float(sum(spent)), 3),
+        median_time_s=round(float(np.median(times)), 3) if times else None,
+        median_accuracy_mm=round(float(np.median(accuracy)), 3) if accuracy else None,
+        max_accuracy_mm=round(float(np.max(accuracy)), 3) if accuracy else None,
+        missed=[r["target"] for r in rows if not r["touched"]],
+        missed_reasons={r["target"]: missed_reason(r, failure) for r in rows if not r["touched"]},
+        struggled=[r["target"] for r in rows if r["time_s"] is not None and (
             not r["touched"] or (times and r["time_s"] > 2.0 * float(np.median(times))))],
-        "sim_time_s": round(sim_time, 3),
-        "realtime_factor": round(sim_time / wall, 4) if wall > 0 else None,
-        "wall_time_s": round(wall, 2),
-        "failure": failure,
-    }
+        sim_time_s=round(sim_time, 3),
+        realtime_factor=round(sim_time / wall, 4) if wall > 0 else None,
+        wall_time_s=round(wall, 2),
+        failure=failure,
+    )
 
 
 # ---------------------------------------------------------------------------- spread over seeds
@@ -310,31 +379,31 @@ def check_seeds(seeds) -> list[int]:
     return seeds
 
 
-def aggregate_seeds(task: str, mapping: str, results: list[dict]) -> dict:
+def aggregate_seeds(task: str, mapping: str, results: list[TeleopResult]) -> dict:
     """One row of the seed table from the runs of a (task, mapping) (``run`` results).
 
     Touched: min / median / max over the runs; total time (every target's time, touched or
     not): median, min, max; per-target time: the median over the runs of each run's median over
     its touched targets; accuracy likewise; the missed targets' reasons counted over the runs.
     """
-    s = [r["summary"] for r in results]
-    touched = [x["touched"] for x in s]
-    total = [x["total_time_s"] for x in s]
-    per_target = [x["median_time_s"] for x in s if x["median_time_s"] is not None]
-    accuracy = [x["median_accuracy_mm"] for x in s if x["median_accuracy_mm"] is not None]
-    rtf = [x["realtime_factor"] for x in s if x["realtime_factor"] is not None]
+    s = [r.summary for r in results]
+    touched = [x.touched for x in s]
+    total = [x.total_time_s for x in s]
+    per_target = [x.median_time_s for x in s if x.median_time_s is not None]
+    accuracy = [x.median_accuracy_mm for x in s if x.median_accuracy_mm is not None]
+    rtf = [x.realtime_factor for x in s if x.realtime_factor is not None]
     reasons: dict[str, int] = {}
     for x in s:
-        for why in x["missed_reasons"].values():
+        for why in x.missed_reasons.values():
             reasons[why] = reasons.get(why, 0) + 1
 
     def med(values):
         return round(float(np.median(values)), 3) if values else None
 
     return {"task": task, "mapping": mapping, "runs": len(results),
-            "seeds": [r["settings"]["seed"] for r in results],
+            "seeds": [r.settings["seed"] for r in results],
             "touched_min": int(min(touched)), "touched_median": med(touched), "touched_max": int(max(touched)),
-            "targets": s[0]["targets"],
+            "targets": s[0].targets,
             "total_time_median_s": med(total), "total_time_min_s": round(float(min(total)), 3),
             "total_time_max_s": round(float(max(total)), 3),
             "per_target_time_median_s": med(per_target), "accuracy_median_mm": med(accuracy),
@@ -344,7 +413,7 @@ def aggregate_seeds(task: str, mapping: str, results: list[dict]) -> dict:
 
 def run_seeds(tasks=TASKS, mappings=tuple(MAPPINGS), seeds=range(5), *, targets: int | None = None,
               out: Path | None = None, progress: bool = True, overrides: str | None = None,
-              n_balls: int | None = None, heart=None) -> dict:
+              n_balls: int | None = None, heart=None) -> TeleopSeedsResult:
     """The spread over operator seeds: every (task, mapping) run once per seed, serially.
 
     (``ballchain sweep`` runs the same study in parallel on Dask; this is the plain serial
@@ -361,8 +430,7 @@ def run_seeds(tasks=TASKS, mappings=tuple(MAPPINGS), seeds=range(5), *, targets:
         heart: a prebuilt atrium (default: built once for all runs).
 
     Returns:
-        {"table": [one ``aggregate_seeds`` row per (task, mapping)], "runs": [{"task", "mapping",
-        "seed", "summary", "rows"} per run], "settings": {...}} (and "files" when written).
+        A ``TeleopSeedsResult`` (``files`` set with ``out``).
     """
     from tqdm import tqdm
 
@@ -392,24 +460,51 @@ def run_seeds(tasks=TASKS, mappings=tuple(MAPPINGS), seeds=range(5), *, targets:
                 r = run(task=task, mapping=mapping, targets=targets, progress=False, n_balls=n_balls,
                         overrides=overrides, heart=heart, seed=seed)
                 results.append(r)
-                runs.append({"task": task, "mapping": mapping, "seed": seed, "summary": r["summary"],
-                             "rows": r["rows"]})
+                runs.append({"task": task, "mapping": mapping, "seed": seed, "summary": r.summary,
+                             "rows": r.rows})
                 bar.update(1)
             table.append(aggregate_seeds(task, mapping, results))
     bar.close()
-    result = {"table": table, "runs": runs,
-              "settings": {"seeds": seeds, "targets": targets, "overrides": overrides,
-                           "engine": results[0]["settings"]["engine"]}}
+    result = TeleopSeedsResult(table=table, runs=runs,
+                               settings={"seeds": seeds, "targets": targets, "overrides": overrides,
+                                         "engine": results[0].settings["engine"]})
     if files is not None:
         from ballchain.drake_models.safe_files import write_csv, write_json
 
         write_csv(files["csv"], table, SEED_FIELDS)
         write_json(files["json"], result)
-        result["files"] = {k: str(v) for k, v in files.items()}
+        result.files = {k: str(v) for k, v in files.items()}
     return result
 
 
 # ----------------------------------------------------------------------------------- live steering
+@dataclass
+class LiveResult(Result):
+    """What ``run_live`` returns.
+
+    Attributes:
+        url: the Meshcat URL.
+        ended: "quit", "duration", "interrupted" or "failure"; failure: the watchdog's message.
+        sim_time_s, wall_time_s: simulated and wall time [s]; realtime_factor: their ratio
+            (achieved); target_realtime_rate: the one asked for.
+        targets_touched: the targets' names; n_targets: how many the station has.
+        tip_wall_force_N: the wall's force on the tip ball at the end (3,) [N].
+        settings: {mapping, units, n_balls, time_step_s, overrides}.
+    """
+
+    url: str
+    ended: str
+    failure: str | None
+    sim_time_s: float
+    wall_time_s: float
+    realtime_factor: float | None
+    target_realtime_rate: float
+    targets_touched: list
+    n_targets: int
+    tip_wall_force_N: list
+    settings: dict
+
+
 LIVE_SCENARIOS = {"one": SCENARIO, "two": "teleop_two_units"}  # --units: the right unit, or both
 LIVE_CHUNK = 0.05  # [s] simulated time per AdvanceTo: quit, Ctrl-C and the status line between chunks
 LIVE_STATUS_PERIOD = 2.0  # [s] wall time between status lines
@@ -554,7 +649,7 @@ def build_live(*, mapping: str = "world", units: str = "one", n_balls: int | Non
 
 def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None = None,
              overrides: str | None = None, duration: float | None = None, realtime_rate: float = 1.0,
-             meshcat=None, heart=None, echo=print, status_period: float = LIVE_STATUS_PERIOD) -> dict:
+             meshcat=None, heart=None, echo=print, status_period: float = LIVE_STATUS_PERIOD) -> LiveResult:
     """Let a person steer the chain live in Meshcat with a gamepad or the keyboard.
 
     Opens Meshcat on localhost (or uses ``meshcat``), prints its URL and the key map, and runs
@@ -575,9 +670,7 @@ def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None 
         status_period: wall time between status lines [s].
 
     Returns:
-        {"url", "ended" ("quit", "duration", "interrupted" or "failure"), "failure",
-        "sim_time_s", "wall_time_s", "realtime_factor" (achieved), "target_realtime_rate",
-        "targets_touched", "n_targets", "tip_wall_force_N", "settings": {...}}.
+        A ``LiveResult``.
     """
     from ballchain.drake_models.params import gram_force
     from ballchain.systems.meshcat_joystick import key_map_text
@@ -632,9 +725,9 @@ def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None 
     echo(f"ended ({ended}{': ' + failure if failure else ''}) at t = {sim_time:.2f} s after {wall:.1f} s: "
          f"real-time rate {rate}, {len(touched)}/{n_targets} targets touched"
          + (f" ({', '.join(touched)})" if touched else ""))
-    return {"url": session.meshcat.web_url(), "ended": ended, "failure": failure,
-            "sim_time_s": round(sim_time, 4), "wall_time_s": round(wall, 3), "realtime_factor": rate,
-            "target_realtime_rate": realtime_rate, "targets_touched": touched, "n_targets": n_targets,
-            "tip_wall_force_N": [round(float(v), 6) for v in session.tip_force_N()],
-            "settings": {"mapping": mapping, "units": unit_names, "n_balls": scenario.n_balls,
-                         "time_step_s": scenario.effective_time_step, "overrides": overrides}}
+    return LiveResult(url=session.meshcat.web_url(), ended=ended, failure=failure,
+                      sim_time_s=round(sim_time, 4), wall_time_s=round(wall, 3), realtime_factor=rate,
+                      target_realtime_rate=realtime_rate, targets_touched=touched, n_targets=n_targets,
+                      tip_wall_force_N=[round(float(v), 6) for v in session.tip_force_N()],
+                      settings={"mapping": mapping, "units": unit_names, "n_balls": scenario.n_balls,
+                                "time_step_s": scenario.effective_time_step, "overrides": overrides})

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import csv
 import io
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -25,11 +26,63 @@ from ballchain.drake_models import paper
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.params import BallChain, Sleeve
 from ballchain.drake_models.safe_files import agg_pyplot, atomic_write_text, check_output_dir, note_replacements, save_figure
+from ballchain.experiments._result import Result, optional
 from ballchain.experiments.magnet_poses import field_angle_for_magnet_angle, side_magnet
 from ballchain.optimization.statics import ChainStatics
 
 PAPER = paper.WORKSPACE
 DISTANCE = paper.WORKING_DISTANCE
+
+
+@dataclass
+class WorkspaceSummary(Result):
+    """The longest chain's workspace, bare and in the sleeve.
+
+    Attributes:
+        half_area_bare_mm2, half_area_sleeve_mm2: half the area enclosed by the two tip curves [mm^2].
+        reduction_pct: the sleeve's reduction of it [%].
+        tip_to_tip_max_mm: the largest distance between the bare and the sleeved tip at the same
+            magnet angle [mm].
+        chain_length_mm: the chain's length [mm].
+        field_at_base_mT_range: [smallest, largest] field at the insertion point over the
+            magnet's turn [mT].
+    """
+
+    half_area_bare_mm2: float
+    half_area_sleeve_mm2: float
+    reduction_pct: float
+    tip_to_tip_max_mm: float
+    chain_length_mm: float
+    field_at_base_mT_range: list
+
+
+@dataclass
+class WorkspaceResult(Result):
+    """What ``run`` returns (edge units: mm, mm^2, mT, deg).
+
+    Attributes:
+        curves: {(n_balls, sleeve, side): tip positions [mm], shape (k, 3)}, side +1 / -1 the
+            magnet's rotation direction.
+        rows: one per chain length and sleeve: {n_balls, sleeve, workspace_area_mm2,
+            half_area_mm2, far_side_snap_field_angle_deg, near_side_snap_field_angle_deg (None: no
+            snap-through)}.
+        summary: the longest chain's areas and the sleeve's effect.
+        paper: the paper's numbers; setup: the placement, in words.
+        files: the paths written (only with ``out``).
+    """
+
+    curves: dict
+    rows: list
+    summary: WorkspaceSummary
+    paper: dict
+    setup: str
+    files: list | None = optional()
+
+    def public(self) -> dict:
+        """The JSON-ready dict without the tip curves (what the command prints)."""
+        data = self.to_dict()
+        del data["curves"]
+        return data
 
 
 def polygon_area(points_xy: np.ndarray) -> float:
@@ -46,7 +99,7 @@ def sweep(chain: BallChain, side: int, step_deg: float, distance: float = DISTAN
     field_angles = [np.degrees(field_angle_for_magnet_angle(phi)) for phi in phis]
     return np.array(tips), np.array(field_angles)
 
-def write_files(data: dict, out: Path) -> list[str]:
+def write_files(data: WorkspaceResult, out: Path) -> list[str]:
     """Write ``workspace_tips.csv`` and ``workspace.png`` into ``out``; returns their paths."""
     plt = agg_pyplot()
     note_replacements(out, ["workspace_tips.csv", "workspace.png"], "workspace")
@@ -55,16 +108,16 @@ def write_files(data: dict, out: Path) -> list[str]:
     f = io.StringIO(newline="")
     writer = csv.writer(f)
     writer.writerow(["n_balls", "sleeve", "side", "tip_x_mm", "tip_y_mm", "tip_z_mm"])
-    for (n, sleeve, side), tips in data["curves"].items():
+    for (n, sleeve, side), tips in data.curves.items():
         for tip in tips:
             writer.writerow([n, sleeve, side, *tip])
     atomic_write_text(csv_path, f.getvalue())
     fig, axes = plt.subplots(1, 3, figsize=(12, 4.5), sharex=True, sharey=True)
-    balls = sorted({k[0] for k in data["curves"]})
+    balls = sorted({k[0] for k in data.curves})
     for ax, n in zip(axes, balls):
         for sleeve, style in ((False, "-"), (True, "--")):
             for side in (1, -1):
-                tips = data["curves"][(n, sleeve, side)]
+                tips = data.curves[(n, sleeve, side)]
                 ax.plot(tips[:, 0], tips[:, 1], style, color="C0" if side > 0 else "C1",
                         label=f"{'sleeve' if sleeve else 'bare'}, {'+y' if side > 0 else '-y'} side")
         ax.plot([0], [0], "ks")
@@ -93,7 +146,7 @@ def tip_to_tip_distance(curves_a: dict, curves_b: dict) -> float:
 
 
 def run(*, balls=(4, 9, 16), step_deg: float = 5.0, distance: float = DISTANCE, progress: bool = True,
-        out: Path | None = None) -> dict:
+        out: Path | None = None) -> WorkspaceResult:
     """Tip curves, half-workspace areas and the sleeve's effect.
 
     Args:
@@ -105,9 +158,7 @@ def run(*, balls=(4, 9, 16), step_deg: float = 5.0, distance: float = DISTANCE, 
             writable before the work.
 
     Returns:
-        {"curves": {(n, sleeve, side): tips_mm (k, 3)}, "rows": [{n_balls, sleeve,
-        workspace_area_mm2, half_area_mm2, snap angles}], "summary": {...}, "paper": ...,
-        "files": [...] (with ``out``)}
+        A ``WorkspaceResult`` (``files`` set with ``out``).
 
     Raises:
         UserInputError: a step or distance out of range (named by its flag), an unwritable ``out``.
@@ -142,17 +193,18 @@ def run(*, balls=(4, 9, 16), step_deg: float = 5.0, distance: float = DISTANCE, 
     half = {r["sleeve"]: r["half_area_mm2"] for r in rows if r["n_balls"] == longest}
     tip_to_tip = tip_to_tip_distance({s: curves[(longest, True, s)] for s in (1, -1)},
                                      {s: curves[(longest, False, s)] for s in (1, -1)})
-    summary = {
-        "half_area_bare_mm2": half[False],
-        "half_area_sleeve_mm2": half[True],
-        "reduction_pct": 100.0 * (1.0 - half[True] / half[False]),
-        "tip_to_tip_max_mm": tip_to_tip,
-        "chain_length_mm": longest * BallChain().ball_diameter * 1e3,
-        "field_at_base_mT_range": [1e3 * side_magnet(np.pi, distance).field([[0, 0, 0]])[0, 0],
-                                   1e3 * np.linalg.norm(side_magnet(np.pi / 2, distance).field([[0, 0, 0]]))],
-    }
-    data = {"curves": curves, "rows": rows, "summary": summary, "paper": PAPER,
-            "setup": f"magnet at (0, -{distance * 100:.2f} cm, 0) turning about z; half area = half the loop of both tip curves"}
+    summary = WorkspaceSummary(
+        half_area_bare_mm2=half[False],
+        half_area_sleeve_mm2=half[True],
+        reduction_pct=100.0 * (1.0 - half[True] / half[False]),
+        tip_to_tip_max_mm=tip_to_tip,
+        chain_length_mm=longest * BallChain().ball_diameter * 1e3,
+        field_at_base_mT_range=[1e3 * side_magnet(np.pi, distance).field([[0, 0, 0]])[0, 0],
+                                1e3 * np.linalg.norm(side_magnet(np.pi / 2, distance).field([[0, 0, 0]]))],
+    )
+    data = WorkspaceResult(curves=curves, rows=rows, summary=summary, paper=PAPER,
+                           setup=f"magnet at (0, -{distance * 100:.2f} cm, 0) turning about z; half area = half "
+                                 "the loop of both tip curves")
     if out is not None:
-        data["files"] = write_files(data, Path(out))
+        data.files = write_files(data, Path(out))
     return data

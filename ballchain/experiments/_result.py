@@ -1,0 +1,34 @@
+"""The one serialisation of the experiments' results (a small base class).
+
+Every ``run(...)`` of ``ballchain.experiments`` returns a dataclass result; its JSON (what a
+command prints, what ``reproduce`` writes to ``OUT/sections/<name>.json``) is
+``drake_models.safe_files.to_jsonable`` of it: the fields in their order, numpy arrays as lists,
+NaN and inf as null, the fields made with ``optional()`` left out while None.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from ballchain.drake_models.safe_files import OMIT_IF_NONE, json_text, to_jsonable
+
+
+def optional(**kwargs):
+    """A dataclass field that defaults to None and is left out of the JSON while None.
+
+    For the parts of a result that exist only in some runs (the files written with ``out``, the
+    replay with ``html``), so that the JSON keeps the keys it had when results were dicts.
+    """
+    return dataclasses.field(default=None, metadata={OMIT_IF_NONE: True}, **kwargs)
+
+
+class Result:
+    """Base of the experiments' result dataclasses: ``to_dict`` / ``to_json`` in one place."""
+
+    def to_dict(self) -> dict:
+        """The JSON-ready dict of the result (``safe_files.to_jsonable``: plain Python, no NaN)."""
+        return to_jsonable(self)
+
+    def to_json(self) -> str:
+        """The result as JSON text (``safe_files.json_text``)."""
+        return json_text(self)
