@@ -243,7 +243,7 @@ def _scalar(value):
         return value
     if isinstance(value, float):
         return value if math.isfinite(value) else None
-    from ballchain.commands._common import to_jsonable
+    from ballchain.drake_models.safe_files import to_jsonable
 
     return json.dumps(to_jsonable(value), allow_nan=False, default=str)
 
@@ -553,7 +553,7 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
         "resubmitted": resubmitted, "interrupted": interrupted, "wall_time_s": time.perf_counter() - start,
         "executor": ex.description, "figure": figure_path, "summary": summary,
     }
-    from ballchain.commands._common import to_jsonable
+    from ballchain.drake_models.safe_files import to_jsonable
 
     _atomic_write(out / "sweep.json", lambda tmp: Path(tmp).write_text(
         json.dumps(to_jsonable(result), indent=1, allow_nan=False, default=str)))

@@ -131,7 +131,7 @@ def main() -> None:
 
 def _bench_reproduce() -> dict:
     """reproduce --quick's sections, serial then on 2 workers (one run each: minutes)."""
-    from ballchain.commands import reproduce
+    from ballchain import reproduce
     from ballchain.sweep import run_sections
 
     def tables(runs):

@@ -219,7 +219,7 @@ def test_power_duration_map_reads_every_duration_from_one_run():
 
 @pytest.mark.slow
 def test_reproduce_section_quick(tmp_path):
-    from ballchain.commands import reproduce
+    from ballchain import reproduce
 
     section, data = reproduce.ablation_section(tmp_path, quick=True)
     assert [d["device"] for d in data["devices"]] == ["ball_chain", "catheter"]

@@ -104,7 +104,7 @@ def test_reproduce_on_two_workers_gives_the_serial_sections(tmp_path):
     """``--workers 2`` runs the sections on a Dask LocalCluster: the same data, the same report order."""
     import json
 
-    from ballchain.commands import reproduce
+    from ballchain import reproduce
 
     names = ["sizing", "field models"]
     serial = reproduce.run(out=tmp_path / "serial", quick=True, sections=names)

@@ -170,7 +170,7 @@ def _fake_experiments(calls: dict, fail_at: str | None = None):
 
 
 def test_resume_reuses_finished_sections_and_checks_them_by_content(tmp_path, monkeypatch):
-    from ballchain.commands import reproduce
+    from ballchain import reproduce
 
     calls: dict = {}
     monkeypatch.setattr(reproduce, "EXPERIMENTS", _fake_experiments(calls, fail_at="two"))

@@ -218,8 +218,8 @@ def test_worker_lost_mid_sweep_loses_and_duplicates_nothing(client, tmp_path, fa
 
 @pytest.mark.slow
 def test_sections_in_parallel_equal_the_serial_run(client, tmp_path):
-    from ballchain.commands import reproduce
-    from ballchain.commands._common import to_jsonable
+    from ballchain import reproduce
+    from ballchain.drake_models.safe_files import to_jsonable
 
     sections = [("sizing", reproduce.sizing_section), ("field models", reproduce.field_models_section)]
     serial = run_sections(sections, tmp_path, quick=True, workers=1)
