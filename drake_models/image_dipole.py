@@ -1,6 +1,6 @@
 """A point dipole near a magnetically soft half-space: the image law and the attraction it gives.
 
-Used to size one candidate explanation of Table I's gap (issue 13, effect (b)): a steel pin or
+Used to size one candidate explanation of Table I's gap (effect (b) of ``ballchain/experiments/table1_effects.py``): a steel pin or
 sensor body attracting the chain's magnetic tip ball.
 
 Derivation. Outside a linear half-space of relative permeability mu_r (no free currents) the

@@ -424,7 +424,7 @@ def load_scenario(name: str, overrides: str | None = None, filename: Path = SCEN
 
 
 # ------------------------------------------------------------------------------------------------
-# Validation at the edge (issue 12): the YAML's shape against the schema before pydrake reads it,
+# Validation at the edge: the YAML's shape against the schema before pydrake reads it,
 # and every field's value (finite, in range, plausible units) before anything is built.
 
 MAX_BALLS = 100  # the paper's chain has 16; the procedural atrium is about 50 mm across

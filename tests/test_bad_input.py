@@ -1,6 +1,6 @@
 """Bad input is answered at once: exit status 2, one line on stderr naming the field, no traceback.
 
-Table-driven (issue 12): every subcommand's flags, the scenario YAML of ``--set``, user atrium
+Table-driven: every subcommand's flags, the scenario YAML of ``--set``, user atrium
 meshes and the Python API. The CLI runs in-process (``ballchain.cli.main``) so the table is fast;
 a few cases go through a subprocess to check what a shell user sees. Each case must answer
 before any long work: the time bound is a hang guard (generous for a loaded machine), not a

@@ -1,4 +1,4 @@
-"""The clinical system (issue 13): field against magpylib, the image-dipole law, the sizing search."""
+"""The clinical system: field against magpylib, the image-dipole law, the sizing search."""
 
 import math
 

@@ -1,4 +1,4 @@
-"""Faults (issue 12): a NaN stops a simulation at once, naming where and when; an interrupted
+"""Faults: a NaN stops a simulation at once, naming where and when; an interrupted
 ``reproduce`` leaves no half-written file and ``--resume`` finishes it; statics never reports NaN
 as converged; the operator's runs are deterministic across processes.
 """
@@ -116,7 +116,7 @@ def test_watchdog_names_the_ball_whose_state_is_not_finite():
 
 
 def test_nan_joystick_in_the_station_stops_at_once_naming_the_unit():
-    """The hang of issue 12 (a NaN stick axis): now the first derivative evaluation refuses it."""
+    """The old hang on a NaN stick axis: now the first derivative evaluation refuses it."""
     from ballchain.systems.chain_scenario import load_scenario
     from ballchain.systems.chain_simulation import build_chain_diagram
 

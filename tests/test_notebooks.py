@@ -3,7 +3,7 @@
 A notebook with a dedicated test (tests/test_notebook_<name>.py, which also checks what it
 prints) is left to that test.
 
-The teleoperation notebook once failed in a full run and passed alone (issue 12). Its runs are
+The teleoperation notebook once failed in a full run and passed alone. Its runs are
 deterministic: the 1-target runs give identical rows in separate processes whatever the hash
 seed or the BLAS thread count (``tests/test_teleop.py``); what differs under load is time. Its
 cells need about 40 s of CPU (two simulated operator runs and a plan), and with the whole suite

@@ -1,4 +1,4 @@
-"""The paper's clinical system in simulation (issue 13): two 119 mm N52 spheres beside the patient.
+"""The paper's clinical system in simulation: two 119 mm N52 spheres beside the patient.
 
 Each sphere's centre sits d_c + D/2 from the atrium's centre (the paper's sizing equation:
 the magnet outside the patient; ``--reference centre`` puts it at d_c), on the patient's left
