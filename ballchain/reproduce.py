@@ -441,7 +441,8 @@ def ablation_section(out: Path, quick: bool) -> tuple[Section, dict]:
     sweep = ablation.power_duration_map(powers_W=(3.0, 15.0) if quick else ablation.MAP_POWERS_W,
                                         durations_s=(60.0, 90.0) if quick else ablation.MAP_DURATIONS_S,
                                         h_mm=0.2, dt_max_s=2.0)
-    files = ablation.write_files(result, out / "ablation", sweep)
+    result.power_duration_map = sweep
+    files = ablation.write_files(result, out / "ablation")
     section = Section("RF ablation: ball chain vs standard catheter (paper Sec. V-D; electro-thermal FEM)")
     s = result.settings
     section.text(
@@ -451,8 +452,8 @@ def ablation_section(out: Path, quick: bool) -> tuple[Section, dict]:
         "as a domain (no flow); the dispersive electrode 30 mm away. Constant power with the cut-off at 100 C "
         "(the power falls so that no tissue or saline exceeds 100 C), sigma +1.5 %/C (saline +2 %/C), Pennes "
         "without perfusion, Arrhenius damage (A = 2.94e39 1/s, Ea = 2.596e5 J/mol). Literature constants, none "
-        f"tuned; bath and tissue at {s['initial_temperature_C']:g} C (the paper does not say). Mesh "
-        f"{s['h_mm']:g} mm at the electrode" + (" (quick run: coarse)." if quick else ".")
+        f"tuned; bath and tissue at {s.initial_temperature_C:g} C (the paper does not say). Mesh "
+        f"{s.h_mm:g} mm at the electrode" + (" (quick run: coarse)." if quick else ".")
     )
     section.table(["device", "quantity", "paper", "model"], ablation.table_rows(result))
     for note in result.notes:
@@ -498,10 +499,8 @@ def ablation_section(out: Path, quick: bool) -> tuple[Section, dict]:
     section.figure(out / "ablation" / "ablation_fields.png", "temperature at switch-off with the lesion contours")
     section.figure(out / "ablation" / "ablation_growth.png", "lesion growth over time")
     section.figure(out / "ablation" / "ablation_map.png", "power-duration map of the ball chain")
-    data = result.public()
-    data["power_duration_map"] = sweep
-    data["files"] = files
-    return section, data
+    result.files = files
+    return section, result.to_dict()
 
 
 EXPERIMENTS = [
