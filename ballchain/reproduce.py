@@ -283,9 +283,9 @@ def clinical_section(out: Path, quick: bool) -> tuple[Section, dict]:
     write_json(out / "table1_effects.json", effects)
 
     veins = ("RSPV",)  # one vein keeps this section under a minute; the command does the rest
-    data = clinical.run(chains=("8Fr", "today"), ring_step=0, sizing=not quick, veins=veins, progress=False)
-    data.files = clinical.write_files(data, out / "clinical")
-    s = data.setup
+    study = clinical.run(chains=("8Fr", "today"), ring_step=0, sizing=not quick, veins=veins, progress=False)
+    study.files = clinical.write_files(study, out / "clinical")
+    s = study.setup
     section.text(
         f"The paper's clinical design: two N52 spheres of {s.diameter_mm:.0f} mm ({s.mass_kg:.2f} kg), "
         f"centres {s.magnet_distance_cm:.2f} cm from the atrium's centre on the patient's left and right "
@@ -299,17 +299,17 @@ def clinical_section(out: Path, quick: bool) -> tuple[Section, dict]:
     )
     section.table(["chain", "target", "best force [gf]", "friction needed", "gradient pull [gf]", "sheath push [gf]"],
                   [[r.chain, r.target, r.effective_gf, r.friction_needed, r.gradient_pull_gf, r.sheath_push_gf]
-                   for r in data.rows])
-    if data.sizing:
+                   for r in study.rows])
+    if study.sizing:
         section.table(["chain", "criterion", "diameter [mm]", "mass [kg]", "centre distance [cm]",
                        "force between the magnets, coaxial [gf]"],
                       [["paper (8 Fr)", "10 gf (scaled from Table I)", paper.SIZING["diameter_mm"], paper.SIZING["mass_kg"],
                         100 * paper.CLINICAL_DISTANCE + 0.05 * paper.SIZING["diameter_mm"],
                         paper.SIZING["force_between_magnets_gf"]]]
                       + [[r.chain, r.criterion.replace("every vein", "the RSPV"), r.diameter_mm,
-                          r.mass_kg, r.magnet_distance_cm, r.force_between_magnets_gf] for r in data.sizing
+                          r.mass_kg, r.magnet_distance_cm, r.force_between_magnets_gf] for r in study.sizing
                          if "ring" not in r.criterion])
-    best_8fr = max((r.effective_gf for r in data.rows if r.chain == "8Fr"), default=0.0)
+    best_8fr = max((r.effective_gf for r in study.rows if r.chain == "8Fr"), default=0.0)
     section.text(
         f"The paper's claim (10 gf with two 119 mm magnets) does not hold in the model: with the 8 Fr chain the best "
         f"force on these targets is {best_8fr:.2f} gf. The force is almost all the sheath's push (the gradient pull "
@@ -320,7 +320,7 @@ def clinical_section(out: Path, quick: bool) -> tuple[Section, dict]:
                           ("clinical_sizing.png", "force against the spheres' diameter")):
         if (out / "clinical" / name).exists():
             section.figure(out / "clinical" / name, caption)
-    return section, {"effects": effects, "clinical": data}
+    return section, {"effects": effects, "clinical": study}
 
 
 def plan_section(out: Path, quick: bool) -> tuple[Section, dict]:
@@ -500,6 +500,8 @@ def ablation_section(out: Path, quick: bool) -> tuple[Section, dict]:
     section.figure(out / "ablation" / "ablation_growth.png", "lesion growth over time")
     section.figure(out / "ablation" / "ablation_map.png", "power-duration map of the ball chain")
     result.files = files
+    # The JSON-ready dict, not the result: its devices hold the FEM fields (a parallel run would
+    # send them back from the worker for nothing).
     return section, result.to_dict()
 
 
