@@ -232,42 +232,42 @@ def clinical_section(out: Path, quick: bool) -> tuple[Section, dict]:
     """Table I's gap effect by effect, and the paper's clinical design in simulation (issue 13)."""
     from ballchain.experiments import clinical, table1_effects
 
-    effects = table1_effects.run(quick=quick).to_dict()
-    case, grad = effects["case"], effects["gradient"]
+    effects = table1_effects.run(quick=quick)
+    case, grad = effects.case, effects.gradient
     section = Section("Table I's gap effect by effect, and the clinical design in simulation")
     section.text(
-        f"The row taken apart: {case['vein']}, the prototype magnet on the left (Configuration 2), bare chain: "
-        f"model {case['model_gf']:.2f} gf (this section's coarser search; Table I's above), paper "
-        f"{case['paper_gf']} gf, {case['shortfall_gf']:.1f} gf short. By force balance the pin's push is the "
-        f"field's gradient pull on balls 2..16 ({grad['gradient_pull_gf']:.2f} gf) plus what the sheath pushes in "
-        f"through ball 1, the torque on the bent chain carried to the tip ({grad['sheath_push_gf']:.2f} gf); "
+        f"The row taken apart: {case.vein}, the prototype magnet on the left (Configuration 2), bare chain: "
+        f"model {case.model_gf:.2f} gf (this section's coarser search; Table I's above), paper "
+        f"{case.paper_gf} gf, {case.shortfall_gf:.1f} gf short. By force balance the pin's push is the "
+        f"field's gradient pull on balls 2..16 ({grad.gradient_pull_gf:.2f} gf) plus what the sheath pushes in "
+        f"through ball 1, the torque on the bent chain carried to the tip ({grad.sheath_push_gf:.2f} gf); "
         "with the gradient switched off (each ball keeps the field it had) the held chain presses "
-        + (f"{grad['without_gradient_gf']:.2f} gf." if grad["without_gradient_gf"] is not None else "(did not converge).")
+        + (f"{grad.without_gradient_gf:.2f} gf." if grad.without_gradient_gf is not None else "(did not converge).")
     )
-    section.table(["effect", "model", "force range [gf]", f"could it bring {case['model_gf']:.1f} gf to {case['paper_gf']} gf?"],
-                  [[r["effect"], r["model"],
-                    "-" if r["force_range_gf"] is None else f"{r['force_range_gf'][0]:.1f} to {r['force_range_gf'][1]:.1f}",
-                    r["could_reach_paper"]] for r in effects["table"]])
-    ferro = {r["gap_mm"]: r for r in effects["ferromagnetic"]}
-    support = ", ".join(f"{r['free_balls']} free: {r['force_gf']:.1f}" for r in effects["side_support"] if r["force_gf"] is not None)
-    cones = ", ".join(f"mu {r['mu']:g}: {r['force_gf']:.2f}" for r in effects["friction"]["cones"])
-    push = ", ".join(f"{r['field_mT']:g} mT: {r['peak_gf']:.1f}" for r in effects["push"] if r["peak_gf"] is not None)
+    section.table(["effect", "model", "force range [gf]", f"could it bring {case.model_gf:.1f} gf to {case.paper_gf} gf?"],
+                  [[r.effect, r.model,
+                    "-" if r.force_range_gf is None else f"{r.force_range_gf[0]:.1f} to {r.force_range_gf[1]:.1f}",
+                    r.could_reach_paper] for r in effects.table])
+    ferro = {r.gap_mm: r for r in effects.ferromagnetic}
+    support = ", ".join(f"{r.free_balls} free: {r.force_gf:.1f}" for r in effects.side_support if r.force_gf is not None)
+    cones = ", ".join(f"mu {r.mu:g}: {r.force_gf:.2f}" for r in effects.friction.cones)
+    push = ", ".join(f"{r.field_mT:g} mT: {r.peak_gf:.1f}" for r in effects.push if r.peak_gf is not None)
     section.text(
-        f"(a) Every Table I value is a whole number of 0.05 N steps ({effects['resolution']['step_gf']:.2f} gf; the "
-        f"largest distance from a whole step is {effects['resolution']['largest_distance_from_a_whole_step']:.3f} steps): "
-        f"the sensor would read the model's force as {effects['table'][0]['reading_of_model_gf']:.1f} gf. "
+        f"(a) Every Table I value is a whole number of 0.05 N steps ({effects.resolution.step_gf:.2f} gf; the "
+        f"largest distance from a whole step is {effects.resolution.largest_distance_from_a_whole_step:.3f} steps): "
+        f"the sensor would read the model's force as {effects.table[0].reading_of_model_gf:.1f} gf. "
         f"(b) Soft iron at the pin's face pulls the whole chain along the sensor's axis with "
-        f"{ferro[0.0]['chain_pull_along_axis_gf']:.0f} gf when the tip ball touches it, "
-        f"{ferro[0.25]['chain_pull_along_axis_gf']:.0f} gf through a 0.25 mm wall, "
-        f"{ferro[1.0]['chain_pull_along_axis_gf']:.0f} gf at 1 mm, {ferro[2.0]['chain_pull_along_axis_gf']:.0f} gf at 2 mm "
-        f"(the tip ball alone: {ferro[0.0]['tip_ball_alone_normal_gf']:.0f} gf normal, "
-        f"{ferro[0.0]['tip_ball_alone_parallel_gf']:.0f} gf parallel, touching). "
+        f"{ferro[0.0].chain_pull_along_axis_gf:.0f} gf when the tip ball touches it, "
+        f"{ferro[0.25].chain_pull_along_axis_gf:.0f} gf through a 0.25 mm wall, "
+        f"{ferro[1.0].chain_pull_along_axis_gf:.0f} gf at 1 mm, {ferro[2.0].chain_pull_along_axis_gf:.0f} gf at 2 mm "
+        f"(the tip ball alone: {ferro[0.0].tip_ball_alone_normal_gf:.0f} gf normal, "
+        f"{ferro[0.0].tip_ball_alone_parallel_gf:.0f} gf parallel, touching). "
         f"(c) Clamping the chain k balls before the pin, [gf]: {support}; a short free length pinned nearly in line with "
         "its clamp needs large forces to balance small torques"
         + ("; at some lengths the pin can only pull (negative). " if any(
-            (r["force_gf"] or 0.0) < 0 for r in effects["side_support"]) else ". ")
-        + f"(d) Holding the tip at the optimum takes friction {effects['friction']['mu_needed']:.2f} "
-        f"(lateral {effects['friction']['lateral_gf']:.2f} gf); inside a cone the best force is [gf] {cones}. "
+            (r.force_gf or 0.0) < 0 for r in effects.side_support) else ". ")
+        + f"(d) Holding the tip at the optimum takes friction {effects.friction.mu_needed:.2f} "
+        f"(lateral {effects.friction.lateral_gf:.2f} gf); inside a cone the best force is [gf] {cones}. "
         f"(e) Advancing the chain continuously against a pin on the sheath's axis, field along it [gf]: {push}; "
         "the push rises to the buckling load and plateaus (no fold)."
     )
@@ -283,33 +283,33 @@ def clinical_section(out: Path, quick: bool) -> tuple[Section, dict]:
     write_json(out / "table1_effects.json", effects)
 
     veins = ("RSPV",)  # one vein keeps this section under a minute; the command does the rest
-    data = clinical.run(chains=("8Fr", "today"), ring_step=0, sizing=not quick, veins=veins, progress=False).to_dict()
-    data["files"] = clinical.write_files(data, out / "clinical")
-    s = data["setup"]
+    study = clinical.run(chains=("8Fr", "today"), ring_step=0, sizing=not quick, veins=veins, progress=False)
+    study.files = clinical.write_files(study, out / "clinical")
+    s = study.setup
     section.text(
-        f"The paper's clinical design: two N52 spheres of {s['diameter_mm']:.0f} mm ({s['mass_kg']:.2f} kg), "
-        f"centres {s['magnet_distance_cm']:.2f} cm from the atrium's centre on the patient's left and right "
+        f"The paper's clinical design: two N52 spheres of {s.diameter_mm:.0f} mm ({s.mass_kg:.2f} kg), "
+        f"centres {s.magnet_distance_cm:.2f} cm from the atrium's centre on the patient's left and right "
         "(d_c + D/2, the paper's sizing equation: the magnet outside the patient; the atrium's centre is the reference "
-        f"because the targets surround it); at most {s['field_at_centre_coaxial_mT']:.1f} mT there. The 8 Fr chain: "
-        f"{s['chains']['8Fr']['n_balls']} balls of 2.17 mm (alpha {s['chains']['8Fr']['alpha']:.3f}) in a sleeve of "
+        f"because the targets surround it); at most {s.field_at_centre_coaxial_mT:.1f} mT there. The 8 Fr chain: "
+        f"{s.chains['8Fr'].n_balls} balls of 2.17 mm (alpha {s.chains['8Fr'].alpha:.3f}) in a sleeve of "
         f"OD 2.67 mm; today's: 16 balls of 3.175 mm in today's sleeve. Both magnets' directions optimised for the "
-        f"force along the target's axis with the wall's tangential push inside the friction cone (mu {s['friction']}). "
+        f"force along the target's axis with the wall's tangential push inside the friction cone (mu {s.friction}). "
         + "This report does the RSPV" + ("" if quick else " and its sizing (the diameter that gives it 10 gf)")
         + "; `ballchain clinical --ring-step 1` does all four veins and all 38 ring targets (tens of minutes here)."
     )
     section.table(["chain", "target", "best force [gf]", "friction needed", "gradient pull [gf]", "sheath push [gf]"],
-                  [[r["chain"], r["target"], r["effective_gf"], r["friction_needed"], r["gradient_pull_gf"],
-                    r["sheath_push_gf"]] for r in data["rows"]])
-    if data["sizing"]:
+                  [[r.chain, r.target, r.effective_gf, r.friction_needed, r.gradient_pull_gf, r.sheath_push_gf]
+                   for r in study.rows])
+    if study.sizing:
         section.table(["chain", "criterion", "diameter [mm]", "mass [kg]", "centre distance [cm]",
                        "force between the magnets, coaxial [gf]"],
                       [["paper (8 Fr)", "10 gf (scaled from Table I)", paper.SIZING["diameter_mm"], paper.SIZING["mass_kg"],
                         100 * paper.CLINICAL_DISTANCE + 0.05 * paper.SIZING["diameter_mm"],
                         paper.SIZING["force_between_magnets_gf"]]]
-                      + [[r["chain"], r["criterion"].replace("every vein", "the RSPV"), r["diameter_mm"],
-                          r["mass_kg"], r["magnet_distance_cm"], r["force_between_magnets_gf"]] for r in data["sizing"]
-                         if "ring" not in r["criterion"]])
-    best_8fr = max((r["effective_gf"] for r in data["rows"] if r["chain"] == "8Fr"), default=0.0)
+                      + [[r.chain, r.criterion.replace("every vein", "the RSPV"), r.diameter_mm,
+                          r.mass_kg, r.magnet_distance_cm, r.force_between_magnets_gf] for r in study.sizing
+                         if "ring" not in r.criterion])
+    best_8fr = max((r.effective_gf for r in study.rows if r.chain == "8Fr"), default=0.0)
     section.text(
         f"The paper's claim (10 gf with two 119 mm magnets) does not hold in the model: with the 8 Fr chain the best "
         f"force on these targets is {best_8fr:.2f} gf. The force is almost all the sheath's push (the gradient pull "
@@ -320,7 +320,7 @@ def clinical_section(out: Path, quick: bool) -> tuple[Section, dict]:
                           ("clinical_sizing.png", "force against the spheres' diameter")):
         if (out / "clinical" / name).exists():
             section.figure(out / "clinical" / name, caption)
-    return section, {"effects": effects, "clinical": data}
+    return section, {"effects": effects, "clinical": study}
 
 
 def plan_section(out: Path, quick: bool) -> tuple[Section, dict]:
@@ -441,7 +441,8 @@ def ablation_section(out: Path, quick: bool) -> tuple[Section, dict]:
     sweep = ablation.power_duration_map(powers_W=(3.0, 15.0) if quick else ablation.MAP_POWERS_W,
                                         durations_s=(60.0, 90.0) if quick else ablation.MAP_DURATIONS_S,
                                         h_mm=0.2, dt_max_s=2.0)
-    files = ablation.write_files(result, out / "ablation", sweep)
+    result.power_duration_map = sweep
+    files = ablation.write_files(result, out / "ablation")
     section = Section("RF ablation: ball chain vs standard catheter (paper Sec. V-D; electro-thermal FEM)")
     s = result.settings
     section.text(
@@ -451,8 +452,8 @@ def ablation_section(out: Path, quick: bool) -> tuple[Section, dict]:
         "as a domain (no flow); the dispersive electrode 30 mm away. Constant power with the cut-off at 100 C "
         "(the power falls so that no tissue or saline exceeds 100 C), sigma +1.5 %/C (saline +2 %/C), Pennes "
         "without perfusion, Arrhenius damage (A = 2.94e39 1/s, Ea = 2.596e5 J/mol). Literature constants, none "
-        f"tuned; bath and tissue at {s['initial_temperature_C']:g} C (the paper does not say). Mesh "
-        f"{s['h_mm']:g} mm at the electrode" + (" (quick run: coarse)." if quick else ".")
+        f"tuned; bath and tissue at {s.initial_temperature_C:g} C (the paper does not say). Mesh "
+        f"{s.h_mm:g} mm at the electrode" + (" (quick run: coarse)." if quick else ".")
     )
     section.table(["device", "quantity", "paper", "model"], ablation.table_rows(result))
     for note in result.notes:
@@ -498,10 +499,10 @@ def ablation_section(out: Path, quick: bool) -> tuple[Section, dict]:
     section.figure(out / "ablation" / "ablation_fields.png", "temperature at switch-off with the lesion contours")
     section.figure(out / "ablation" / "ablation_growth.png", "lesion growth over time")
     section.figure(out / "ablation" / "ablation_map.png", "power-duration map of the ball chain")
-    data = result.public()
-    data["power_duration_map"] = sweep
-    data["files"] = files
-    return section, data
+    result.files = files
+    # The JSON-ready dict, not the result: its devices hold the FEM fields (a parallel run would
+    # send them back from the worker for nothing).
+    return section, result.to_dict()
 
 
 EXPERIMENTS = [

@@ -93,6 +93,7 @@ from ballchain.experiments.statics_bench import run_statics
 import ballchain
 with threadpool_limits(limits=1, user_api="blas"):
     r = run_statics(n_balls=int(sys.argv[1]), repeats=int(sys.argv[2]), progress=False)
+r = r.to_dict() if hasattr(r, "to_dict") else r  # a StaticsBenchResult; a dict in older commits
 print(json.dumps({"file": ballchain.__file__, "cold_median_ms": r["cold_median_ms"],
                   "warm_median_ms": r["warm_median_ms"], "baseline_median_ms": r["baseline_median_ms"],
                   "energy_J": r["energy_J"], "tip_position_mm": list(r["tip_position_mm"])}))

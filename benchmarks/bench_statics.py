@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import sys
 
-from ballchain.experiments.statics_bench import run_statics
+from ballchain.experiments.statics_bench import StaticsBenchResult, run_statics
 
 
-def run(*, n_balls: int = 16, repeats: int = 5, progress: bool = True, **options) -> dict:
-    """The benchmark's data; ``options`` are ``run_statics``'s other keywords."""
+def run(*, n_balls: int = 16, repeats: int = 5, progress: bool = True, **options) -> StaticsBenchResult:
+    """The benchmark's result; ``options`` are ``run_statics``'s other keywords."""
     return run_statics(n_balls=n_balls, repeats=repeats, progress=progress, **options)
 
 

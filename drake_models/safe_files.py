@@ -176,11 +176,15 @@ OMIT_IF_NONE = "omit_if_none"
 """Dataclass field metadata key: a field marked ``{OMIT_IF_NONE: True}`` is left out of the JSON
 while its value is None (an optional part of a result, e.g. the files written only with ``out``)."""
 
+NOT_IN_JSON = "not_in_json"
+"""Dataclass field metadata key: a field marked ``{NOT_IN_JSON: True}`` is never in the JSON (a
+working object a result keeps for its figures, e.g. the simulated fields)."""
+
 
 def to_jsonable(value):
     """numpy arrays and scalars to plain Python, recursively; NaN and inf become None (null), so
     the JSON is valid (the JSON standard has no NaN). A dataclass becomes the dict of its fields
-    in their order (fields marked ``OMIT_IF_NONE`` left out while None)."""
+    in their order (fields marked ``OMIT_IF_NONE`` left out while None, ``NOT_IN_JSON`` always)."""
     if isinstance(value, float):
         return value if math.isfinite(value) else None
     if isinstance(value, dict):
@@ -195,7 +199,8 @@ def to_jsonable(value):
         return str(value)
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         return to_jsonable({f.name: getattr(value, f.name) for f in dataclasses.fields(value)
-                            if not (f.metadata.get(OMIT_IF_NONE) and getattr(value, f.name) is None)})
+                            if not (f.metadata.get(NOT_IN_JSON)
+                                    or (f.metadata.get(OMIT_IF_NONE) and getattr(value, f.name) is None))})
     if value is None or isinstance(value, (bool, int, str)):
         return value
     return str(value)  # anything else (a Drake object, ...): its text, so the JSON is always valid

@@ -90,4 +90,4 @@ def test_benchmark_script_runs():
     spec.loader.exec_module(script)
     assert script.__doc__ and callable(script.main)
     out = script.run(n_balls=3, repeats=1, progress=False)
-    assert out["n_balls"] == 3 and out["same_minimum"]["ok"]
+    assert out.n_balls == 3 and out.same_minimum["ok"]

@@ -136,8 +136,8 @@ def test_normal_dipole_pull_is_the_coaxial_image_limit():
 
 def test_sensor_resolution_every_table_i_value_is_a_whole_step():
     r = effects.sensor_resolution()
-    assert r["step_gf"] == pytest.approx(5.0986, abs=1e-4)
-    assert r["largest_distance_from_a_whole_step"] < 0.01
+    assert r.step_gf == pytest.approx(5.0986, abs=1e-4)
+    assert r.largest_distance_from_a_whole_step < 0.01
 
 
 # --- the sizing search --------------------------------------------------------------------------
@@ -309,4 +309,4 @@ def test_the_push_curve_without_a_field_ends_instead_of_raising():
     from ballchain.experiments import table1_effects
 
     (row,) = table1_effects.push_curve(fields_mT=(0.0,), steps=24)
-    assert row["curve_mm_gf"] and 1.5 < row["plateau_gf"] < 3.0
+    assert row.curve_mm_gf and 1.5 < row.plateau_gf < 3.0

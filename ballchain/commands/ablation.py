@@ -65,27 +65,25 @@ def main(args: argparse.Namespace) -> int:
                           duration_s=args.duration_s, indentation_mm=args.indentation_mm, tissue=args.tissue,
                           initial_temperature_C=args.bath_temperature_C, h_mm=args.mesh_mm,
                           progress=not args.json)
-    sweep = ablation.power_duration_map(indentation_mm=args.indentation_mm, tissue=args.tissue,
-                                        initial_temperature_C=args.bath_temperature_C,
-                                        progress=not args.json) if args.map else None
-    data = result.public()
-    if sweep is not None:
-        data["power_duration_map"] = sweep
+    if args.map:
+        result.power_duration_map = ablation.power_duration_map(
+            indentation_mm=args.indentation_mm, tissue=args.tissue, initial_temperature_C=args.bath_temperature_C,
+            progress=not args.json)
     if args.sensitivity:
-        data["sensitivity"] = ablation.sensitivity(progress=not args.json)
+        result.sensitivity = ablation.sensitivity(progress=not args.json)
     if not args.no_files:
-        data["files"] = ablation.write_files(result, args.out, sweep)
+        result.files = ablation.write_files(result, args.out)
     if args.json:
-        print_json(data)
+        print_json(result)
         return 0
     for row in ablation.table_rows(result):
         print(f"{row[0]:>24} | {row[1]:<48} | paper {row[2]!s:>6} | model {row[3]:.2f}"
               if isinstance(row[3], float) else f"{row[0]:>24} | {row[1]:<48} | paper {row[2]!s:>6} | model {row[3]}")
     for note in result.notes:
         print(note)
-    if sweep is not None:
-        print(sweep["headline"])
-    for r in data.get("sensitivity", []):
+    if result.power_duration_map is not None:
+        print(result.power_duration_map["headline"])
+    for r in result.sensitivity or []:
         print(f"{r['case']:>44} | {r['device']:>10} | {r['width_mm']:.2f} x {r['depth_mm']:.2f} mm (Omega = 1), "
               f"electrode {r['peak_electrode_C']:.0f} C, {r['energy_J']:.0f} J")
     return 0

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 
 from ballchain.commands._common import add_json_flag, finite_float, non_negative_int, positive_int, print_json
-from ballchain.experiments.statics_bench import _OPTIONAL, run_statics
+from ballchain.experiments.statics_bench import _OPTIONAL, StaticsBenchResult, run_statics
 
 TARGETS = ("statics",)
 
@@ -42,34 +42,34 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 # --- BLAS threads ---------------------------------------------------------------------------------
 
 
-def _print_statics(out: dict) -> None:
-    print(f"statics of {out['n_balls']} balls, {out['field_mT']:g} mT at {out['angle_deg']:g} deg "
-          f"(warm start from {out['warm_start_angle_deg']:g} deg), {out['repeats']} repeats, "
-          f"median {'CPU' if out['clock'] == 'cpu' else 'wall'} time:")
-    it = out["iterations"]
+def _print_statics(out: StaticsBenchResult) -> None:
+    print(f"statics of {out.n_balls} balls, {out.field_mT:g} mT at {out.angle_deg:g} deg "
+          f"(warm start from {out.warm_start_angle_deg:g} deg), {out.repeats} repeats, "
+          f"median {'CPU' if out.clock == 'cpu' else 'wall'} time:")
+    it = out.iterations
     rows = (
-        ("newton, cold", out["cold_median_ms"], it["newton_cold"]),
-        ("newton, warm", out["warm_median_ms"], it["newton_warm"]),
-        ("newton (numpy), cold", out["numpy_cold_median_ms"], it["numpy_cold"]),
-        ("newton (numpy), warm", out["numpy_warm_median_ms"], it["numpy_warm"]),
-        ("snopt, cold", out["snopt_cold_median_ms"], it["snopt_cold"]),
-        ("snopt, warm", out["snopt_warm_median_ms"], it["snopt_warm"]),
-        ("SLSQP baseline, cold", out["baseline_median_ms"], it["baseline"]),
+        ("newton, cold", out.cold_median_ms, it["newton_cold"]),
+        ("newton, warm", out.warm_median_ms, it["newton_warm"]),
+        ("newton (numpy), cold", out.numpy_cold_median_ms, it["numpy_cold"]),
+        ("newton (numpy), warm", out.numpy_warm_median_ms, it["numpy_warm"]),
+        ("snopt, cold", out.snopt_cold_median_ms, it["snopt_cold"]),
+        ("snopt, warm", out.snopt_warm_median_ms, it["snopt_warm"]),
+        ("SLSQP baseline, cold", out.baseline_median_ms, it["baseline"]),
     )
     for name, ms, iters in rows:
         if ms is not None:
             print(f"  {name:<22s} {ms:10.2f} ms   {iters:5d} iterations")
-    if out["speedup_cold"] is not None:
-        print(f"  speedup (baseline / newton cold): {out['speedup_cold']:.1f}x, warm: {out['speedup_warm']:.1f}x")
-    if out["kernel_speedup_cold"] is not None:
-        print(f"  kernels vs numpy reference (same solver): cold {out['kernel_speedup_cold']:.1f}x, "
-              f"warm {out['kernel_speedup_warm']:.1f}x")
-    if "compile_cost" in out:
-        c = out["compile_cost"]
+    if out.speedup_cold is not None:
+        print(f"  speedup (baseline / newton cold): {out.speedup_cold:.1f}x, warm: {out.speedup_warm:.1f}x")
+    if out.kernel_speedup_cold is not None:
+        print(f"  kernels vs numpy reference (same solver): cold {out.kernel_speedup_cold:.1f}x, "
+              f"warm {out.kernel_speedup_warm:.1f}x")
+    if out.compile_cost is not None:
+        c = out.compile_cost
         print(f"  kernels' first run in a fresh process: {c['empty_cache_s']:.1f} s with an empty numba cache, "
               f"{c['cached_s']:.2f} s cached (compilation {c['compile_s']:.1f} s wall, {c['compile_cpu_s']:.1f} s "
               "CPU, once per machine)")
-    same = out["same_minimum"]
+    same = out.same_minimum
     worst_tip = max(v["tip_diff_m"] for k, v in same.items() if isinstance(v, dict) and "tip_diff_m" in v)
     worst_e = max(v["energy_diff_rel"] for k, v in same.items() if isinstance(v, dict) and "energy_diff_rel" in v)
     print(f"  same minimum: {'yes' if same['ok'] else 'NO'} (largest tip difference {worst_tip:.2e} m, "

@@ -46,7 +46,8 @@ def run(*, chains=("8Fr", "today"), ring_step: int = 3, ring_offset: int = 0, si
         diameter_mm: float = clinical.PAPER["diameter_mm"],
         heart_to_surface_cm: float = clinical.PAPER["heart_to_surface_cm"], reference: str = "surface",
         friction: float | None = None, max_diameter_mm: float = 1000.0, out: Path | None = None,
-        progress: bool = True, veins=clinical.VEINS) -> dict:
+        progress: bool = True, veins=clinical.VEINS) -> clinical.ClinicalResult:
+    """Check the inputs (and ``out``) before any solve, run the study, write its files into ``out``."""
     extra = {} if friction is None else {"friction": friction}
     clinical.check_inputs(chains=chains, ring_step=ring_step, diameter_mm=diameter_mm,
                           heart_to_surface_cm=heart_to_surface_cm, friction=0.0 if friction is None else friction,
@@ -57,29 +58,28 @@ def run(*, chains=("8Fr", "today"), ring_step: int = 3, ring_offset: int = 0, si
                           diameter_mm=diameter_mm,
                           heart_to_surface_cm=heart_to_surface_cm, reference=reference,
                           max_diameter_mm=max_diameter_mm, veins=tuple(veins), progress=progress, **extra)
-    data = result.to_dict()
     if out is not None:
-        data["files"] = clinical.write_files(data, Path(out))
-    return data
+        result.files = clinical.write_files(result, Path(out))
+    return result
 
 
 def main(args: argparse.Namespace) -> int:
-    data = run(chains=args.chains, ring_step=args.ring_step, ring_offset=args.ring_offset, sizing=not args.no_sizing,
+    result = run(chains=args.chains, ring_step=args.ring_step, ring_offset=args.ring_offset, sizing=not args.no_sizing,
                diameter_mm=args.diameter_mm,
                heart_to_surface_cm=args.heart_to_surface_cm, reference=args.reference, friction=args.friction,
                max_diameter_mm=args.max_diameter_mm, out=None if args.no_files else args.out)
     if args.json:
-        print_json(data)
+        print_json(result)
         return 0
     fmt = lambda v, spec: "-" if v is None else format(v, spec)  # noqa: E731
-    s = data["setup"]
-    print(f"two {s['diameter_mm']:.0f} mm spheres ({s['mass_kg']:.2f} kg) at {s['magnet_distance_cm']:.2f} cm "
-          f"from the atrium's centre; friction {s['friction']}")
-    for key, v in data["summary"].items():
-        veins = ", ".join(f"{k} {f:.2f}" for k, f in v["vein_force_gf"].items())
-        print(f"{key}: veins [gf] {veins}; ring {v['ring_targets_at_least_10_gf']}/{v['ring_targets']} >= 10 gf "
-              f"({fmt(v['ring_force_gf_min'], '.2f')}-{fmt(v['ring_force_gf_max'], '.2f')} gf)")
-    for r in data["sizing"]:
-        print(f"{r['chain']:6s} {r['criterion']:36s} D {fmt(r['diameter_mm'], '.1f')} mm, {fmt(r['mass_kg'], '.1f')} kg, "
-              f"between the magnets {fmt(r['force_between_magnets_gf'], '.0f')} gf")
+    s = result.setup
+    print(f"two {s.diameter_mm:.0f} mm spheres ({s.mass_kg:.2f} kg) at {s.magnet_distance_cm:.2f} cm "
+          f"from the atrium's centre; friction {s.friction}")
+    for key, v in result.summary.items():
+        veins = ", ".join(f"{k} {f:.2f}" for k, f in v.vein_force_gf.items())
+        print(f"{key}: veins [gf] {veins}; ring {v.ring_targets_at_least_10_gf}/{v.ring_targets} >= 10 gf "
+              f"({fmt(v.ring_force_gf_min, '.2f')}-{fmt(v.ring_force_gf_max, '.2f')} gf)")
+    for r in result.sizing:
+        print(f"{r.chain:6s} {r.criterion:36s} D {fmt(r.diameter_mm, '.1f')} mm, {fmt(r.mass_kg, '.1f')} kg, "
+              f"between the magnets {fmt(r.force_between_magnets_gf, '.0f')} gf")
     return 0

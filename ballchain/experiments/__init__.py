@@ -25,6 +25,7 @@ subcommand        experiment module                             result
 ``wheels``        ``wheels``                                    ``WheelsResult``
 ``ablation``      ``ablation``                                  ``AblationResult``
 ``clinical``      ``clinical``, ``table1_effects``              ``ClinicalResult``, ``EffectsResult``
+``bench``         ``statics_bench``                             ``StaticsBenchResult``
 (notebook)        ``hall_inversion``                            ``InversionComparison``
 ================  ============================================  =======================================
 """

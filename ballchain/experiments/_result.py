@@ -3,14 +3,15 @@
 Every ``run(...)`` of ``ballchain.experiments`` returns a dataclass result; its JSON (what a
 command prints, what ``reproduce`` writes to ``OUT/sections/<name>.json``) is
 ``drake_models.safe_files.to_jsonable`` of it: the fields in their order, numpy arrays as lists,
-NaN and inf as null, the fields made with ``optional()`` left out while None.
+NaN and inf as null, the fields made with ``optional()`` left out while None, those made with
+``not_in_json()`` always.
 """
 
 from __future__ import annotations
 
 import dataclasses
 
-from ballchain.drake_models.safe_files import OMIT_IF_NONE, json_text, to_jsonable
+from ballchain.drake_models.safe_files import NOT_IN_JSON, OMIT_IF_NONE, json_text, to_jsonable
 
 
 def optional(**kwargs):
@@ -20,6 +21,15 @@ def optional(**kwargs):
     replay with ``html``), so that the JSON keeps the keys it had when results were dicts.
     """
     return dataclasses.field(default=None, metadata={OMIT_IF_NONE: True}, **kwargs)
+
+
+def not_in_json(**kwargs):
+    """A dataclass field that is never in the JSON (default None, not in the repr).
+
+    For a working object a result keeps for its figures or a caller (the simulated fields of an
+    ablation run), which is no result number.
+    """
+    return dataclasses.field(default=None, repr=False, metadata={NOT_IN_JSON: True}, **kwargs)
 
 
 class Result:

@@ -28,7 +28,8 @@ from tqdm import tqdm
 from ballchain.drake_models import lesion_fem as fem
 from ballchain.drake_models import tissue as laws
 from ballchain.drake_models.errors import UserInputError
-from ballchain.drake_models.safe_files import atomic_write_text, json_text, save_figure, write_csv
+from ballchain.drake_models.safe_files import atomic_write_text, save_figure, write_csv
+from ballchain.experiments._result import Result, not_in_json, optional
 
 PAPER = {
     "ball_chain": {"power_W": 15.0, "duration_s": 90.0, "width_mm": 5.7, "depth_mm": 3.1},
@@ -55,11 +56,11 @@ def electrode_for(device: str, indentation_mm: float) -> fem.Electrode:
 
 
 @dataclass
-class DeviceResult:
+class DeviceResult(Result):
     """One device's application: the lesion by both criteria, temperatures, impedance, energy.
 
-    Lengths in mm, temperatures in C, impedance in Ohm. ``simulation`` holds the fields (not
-    printed as JSON).
+    Lengths in mm, temperatures in C, impedance in Ohm (NaN: no RF step to read it at, null in
+    the JSON). ``simulation`` holds the fields (for the figures; never in the JSON).
     """
 
     device: str
@@ -86,27 +87,50 @@ class DeviceResult:
     paper: dict
     meets_criterion: bool
     growth: list
-    simulation: fem.LesionSimulation | None = field(default=None, repr=False)
-
-    def public(self) -> dict:
-        """Everything but the fields, for JSON."""
-        return {k: v for k, v in self.__dict__.items() if k != "simulation"}
+    simulation: fem.LesionSimulation | None = not_in_json()
 
 
 @dataclass
-class AblationResult:
-    """Both devices and the settings they ran with."""
+class AblationSettings(Result):
+    """The settings both devices ran with, and the sources of the constants."""
 
-    devices: list
-    settings: dict
-    notes: list
+    duration_s: float
+    indentation_mm: float
+    tissue: str
+    initial_temperature_C: float
+    h_mm: float
+    dt_max_s: float
+    tissue_source: str
+    damage_source: str
+    saline_source: str
+
+
+@dataclass
+class AblationResult(Result):
+    """What ``run`` returns: both devices, the settings, the paper's lesions and criterion.
+
+    Attributes:
+        devices: the ball chain's and the catheter's application.
+        settings: what they ran with.
+        paper, criterion: the paper's lesions and its criterion (``PAPER``, ``CRITERION``).
+        notes: one sentence per device, model vs paper.
+        power_duration_map: ``power_duration_map``'s dict (only when it ran).
+        sensitivity: ``sensitivity``'s rows (only when it ran).
+        files: the paths written (only with files).
+    """
+
+    devices: list[DeviceResult]
+    settings: AblationSettings
+    paper: dict = field(default_factory=lambda: dict(PAPER))
+    criterion: dict = field(default_factory=lambda: dict(CRITERION))
+    notes: list = field(default_factory=list)
+    power_duration_map: dict | None = optional()
+    sensitivity: list | None = optional()
+    files: list | None = optional()
 
     def device(self, name: str) -> DeviceResult:
+        """The device ``name`` ('ball_chain' or 'catheter')."""
         return next(d for d in self.devices if d.device == name)
-
-    def public(self) -> dict:
-        return {"devices": [d.public() for d in self.devices], "settings": self.settings,
-                "paper": PAPER, "criterion": CRITERION, "notes": self.notes}
 
 
 def run_device(device: str, *, power_W: float, duration_s: float = 90.0, indentation_mm: float = 1.0,
@@ -175,10 +199,10 @@ def run(*, ball_power_W: float = 15.0, catheter_power_W: float = 30.0, duration_
                   initial_temperature_C=initial_temperature_C, h_mm=h_mm, dt_max_s=dt_max_s, progress=progress)
     devices = [run_device("ball_chain", power_W=ball_power_W, **common),
                run_device("catheter", power_W=catheter_power_W, **common)]
-    settings = {"duration_s": duration_s, "indentation_mm": indentation_mm, "tissue": tissue,
-                "initial_temperature_C": initial_temperature_C, "h_mm": h_mm, "dt_max_s": dt_max_s,
-                "tissue_source": laws.TISSUES[tissue].source, "damage_source": laws.DAMAGE_MODELS[tissue].source,
-                "saline_source": laws.SALINE.source}
+    settings = AblationSettings(duration_s=duration_s, indentation_mm=indentation_mm, tissue=tissue,
+                                initial_temperature_C=initial_temperature_C, h_mm=h_mm, dt_max_s=dt_max_s,
+                                tissue_source=laws.TISSUES[tissue].source,
+                                damage_source=laws.DAMAGE_MODELS[tissue].source, saline_source=laws.SALINE.source)
     return AblationResult(devices=devices, settings=settings, notes=disagreement_notes(devices))
 
 
@@ -365,7 +389,7 @@ def figure_fields(result: AblationResult, path) -> None:
         tri, dom = _mirrored_triangulation(am)
         T_end = sim.snapshots[max(sim.snapshots)]
         temp = np.concatenate([T_end, T_end])
-        levels = np.linspace(result.settings["initial_temperature_C"], 100, 17)
+        levels = np.linspace(result.settings.initial_temperature_C, 100, 17)
         cs = ax.tricontourf(tri, temp, levels=levels, cmap="inferno", extend="both")
         tissue_mask = dom != fem.TISSUE
         tri.set_mask(tissue_mask)
@@ -482,15 +506,17 @@ def table_rows(result: AblationResult) -> list[list]:
     return rows
 
 
-def write_files(result: AblationResult, out: Path, sweep: dict | None = None) -> list[str]:
-    """JSON, CSV (growth, map) and the figures, each written atomically."""
+def write_files(result: AblationResult, out: Path) -> list[str]:
+    """JSON, CSV (growth, map) and the figures, each written atomically.
+
+    ``ablation.json`` is the result's JSON without the sensitivity rows and the file list (the
+    power-duration map is in it when it ran); the map's CSV and figure only then.
+    """
     out.mkdir(parents=True, exist_ok=True)
     files = []
-    data = result.public()
-    if sweep is not None:
-        data["power_duration_map"] = sweep
+    sweep = result.power_duration_map
     path = out / "ablation.json"
-    atomic_write_text(path, json_text(data))
+    atomic_write_text(path, replace(result, sensitivity=None, files=None).to_json())
     files.append(path)
     lines = ["device,t_s,omega_width_mm,omega_depth_mm,iso50_width_mm,iso50_depth_mm"]
     for d in result.devices:

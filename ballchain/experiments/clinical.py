@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -52,7 +52,7 @@ from ballchain.drake_models.dipole_inversion import moment_from_field
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
-from ballchain.drake_models.safe_files import agg_pyplot, atomic_write_text, json_text, save_figure, write_csv
+from ballchain.drake_models.safe_files import agg_pyplot, atomic_write_text, save_figure, write_csv
 from ballchain.drake_models.params import (
     BallChain,
     Sleeve,
@@ -60,6 +60,7 @@ from ballchain.drake_models.params import (
     gram_force,
     newtons_from_gram_force,
 )
+from ballchain.experiments._result import Result, optional
 from ballchain.experiments.forces import Stand, build_stand
 from ballchain.experiments.planner import teleop_stand
 from ballchain.optimization.inverse_statics import HeldTip, max_force_orientation, max_force_penalised, pin_tip
@@ -185,7 +186,7 @@ def seed_directions() -> np.ndarray:
 
 
 @dataclass
-class TargetForce:
+class TargetForce(Result):
     """The best force on one target.
 
     Attributes:
@@ -434,7 +435,109 @@ def threshold_diameter(solver: TargetSolver, first: TargetForce, first_diameter:
 
 
 @dataclass
-class ClinicalResult:
+class ClinicalRow(Result):
+    """One chain's best force on one target at the paper's diameter: the ``TargetForce`` with
+    the chain, the target's group ("vein", "left ring", "right ring") and ``effective_gf``."""
+
+    chain: str
+    target: str
+    group: str
+    force_gf: float | None
+    feasible: bool
+    friction_needed: float | None
+    gradient_pull_gf: float | None
+    sheath_push_gf: float | None
+    dipoles: list | None
+    evaluations: int
+    status: str
+    effective_gf: float
+
+    @classmethod
+    def of(cls, chain: str, group: str, best: TargetForce) -> "ClinicalRow":
+        """The row of ``best`` (its fields, then ``effective_gf``)."""
+        return cls(chain=chain, group=group, effective_gf=best.effective_gf,
+                   **{f.name: getattr(best, f.name) for f in fields(TargetForce)})
+
+
+@dataclass
+class TargetSizing(Result):
+    """One chain's sizing of one target: the diameter [mm] that gives it 10 gf (None: not within
+    the search limit), the search's steps and its (diameter [mm], force [gf]) history."""
+
+    chain: str
+    target: str
+    group: str
+    reachable: bool
+    diameter_mm: float | None
+    steps: int
+    history: list
+
+
+@dataclass
+class SizingRow(Result):
+    """One chain's sizing by one criterion ("10 gf on every vein", "... 90 % of the ring
+    targets", ...): the spheres' diameter [mm], mass [kg], centre distance [cm] and the force
+    between the two magnets [gf] (None where no diameter meets it within the search limit)."""
+
+    chain: str
+    criterion: str
+    diameter_mm: float | None
+    mass_kg: float | None
+    magnet_distance_cm: float | None
+    force_between_magnets_gf: float | None
+    size_steps: int
+    force_between_side_by_side_gf: float | None = optional()
+
+
+@dataclass
+class ChainSummary(Result):
+    """One chain at the paper's diameter: its vein forces and ring coverage [gf] (>= 10 gf inside
+    the cone), the equilibria it took and the largest share of the gradient pull in a force."""
+
+    vein_force_gf: dict
+    vein_force_gf_min: float | None
+    ring_targets: int
+    ring_targets_out_of_reach: list
+    ring_targets_at_least_10_gf: int
+    ring_force_gf_min: float | None
+    ring_force_gf_max: float | None
+    equilibria: int
+    gradient_share_max: float | None
+
+
+@dataclass
+class ChainInfo(Result):
+    """A chain of the study: balls, ball diameter and length [mm], alpha (its ball volume over
+    today's) and the sleeve's inner and outer diameters [mm]."""
+
+    n_balls: int
+    ball_diameter_mm: float
+    length_mm: float
+    alpha: float
+    sleeve_id_od_mm: list
+
+
+@dataclass
+class ClinicalSetup(Result):
+    """The placement and the inputs (mm, cm, kg, mT, gf)."""
+
+    diameter_mm: float
+    mass_kg: float
+    reference: str
+    heart_to_surface_cm: float
+    magnet_distance_cm: float
+    field_at_centre_coaxial_mT: float
+    friction: float
+    target_radius_mm: float
+    ring_step: int
+    ring_offset: int
+    chains: dict[str, ChainInfo]
+    min_force_gf: float
+    max_diameter_mm: float
+
+
+@dataclass
+class ClinicalResult(Result):
     """What ``run`` returns (edge units: mm, cm, gf, kg).
 
     Attributes:
@@ -444,20 +547,19 @@ class ClinicalResult:
         sizing: per chain and criterion ("every vein", "90 % of ring targets", "100 % ...").
         target_sizing: per chain and target: the diameter that gives it 10 gf.
         solves: equilibria solved; compute_time_s: wall time.
+        paper: the paper's numbers (``PAPER``).
+        files: the paths ``write_files`` wrote (empty before).
     """
 
-    setup: dict
-    rows: list
-    summary: dict
-    sizing: list
-    target_sizing: list
+    setup: ClinicalSetup
+    rows: list[ClinicalRow]
+    summary: dict[str, ChainSummary]
+    sizing: list[SizingRow]
+    target_sizing: list[TargetSizing]
     solves: int
     compute_time_s: float
     paper: dict = field(default_factory=lambda: dict(PAPER))
     files: list = field(default_factory=list)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 def _quantile_diameter(diameters: list, fraction: float) -> float | None:
@@ -469,17 +571,17 @@ def _quantile_diameter(diameters: list, fraction: float) -> float | None:
 
 
 def sizing_row(chain_key: str, criterion: str, diameter: float | None, heart_to_surface: float,
-               reference: str, size_steps: int) -> dict:
-    row = {"chain": chain_key, "criterion": criterion, "diameter_mm": None, "mass_kg": None,
-           "magnet_distance_cm": None, "force_between_magnets_gf": None, "size_steps": size_steps}
-    if diameter is not None:
-        sphere = SphereMagnet(diameter=diameter)
-        r = magnet_distance(diameter, heart_to_surface, reference)
-        between = force_between_magnets(sphere.dipole_moment, 2.0 * r)
-        row.update(diameter_mm=1e3 * diameter, mass_kg=sphere.mass, magnet_distance_cm=1e2 * r,
-                   force_between_magnets_gf=gram_force(max(v["force_N"] for v in between.values())),
-                   force_between_side_by_side_gf=gram_force(between["side_by_side_parallel"]["force_N"]))
-    return row
+               reference: str, size_steps: int) -> SizingRow:
+    """The sizing row of a chain and criterion for spheres of ``diameter`` [m] (None: none found)."""
+    if diameter is None:
+        return SizingRow(chain_key, criterion, None, None, None, None, size_steps)
+    sphere = SphereMagnet(diameter=diameter)
+    r = magnet_distance(diameter, heart_to_surface, reference)
+    between = force_between_magnets(sphere.dipole_moment, 2.0 * r)
+    return SizingRow(chain_key, criterion, diameter_mm=1e3 * diameter, mass_kg=sphere.mass, magnet_distance_cm=1e2 * r,
+                     force_between_magnets_gf=gram_force(max(v["force_N"] for v in between.values())),
+                     size_steps=size_steps,
+                     force_between_side_by_side_gf=gram_force(between["side_by_side_parallel"]["force_N"]))
 
 
 def check_inputs(*, chains, ring_step: int, diameter_mm: float, heart_to_surface_cm: float, friction: float,
@@ -542,47 +644,44 @@ def run(*, chains=("8Fr", "today"), ring_step: int = 3, ring_offset: int = 0, si
         if ring_step:
             for task in ("left", "right"):
                 picked += rings[task][ring_offset::ring_step]
-        chain_info[key] = {"n_balls": chain.n_balls, "ball_diameter_mm": 1e3 * chain.ball_diameter,
-                           "length_mm": 1e3 * chain.length,
-                           "alpha": chain.ball_volume / BallChain().ball_volume,
-                           "sleeve_id_od_mm": [1e3 * chain.sleeve.inner_diameter, 1e3 * chain.sleeve.outer_diameter]}
+        chain_info[key] = ChainInfo(n_balls=chain.n_balls, ball_diameter_mm=1e3 * chain.ball_diameter,
+                                    length_mm=1e3 * chain.length, alpha=chain.ball_volume / BallChain().ball_volume,
+                                    sleeve_id_od_mm=[1e3 * chain.sleeve.inner_diameter,
+                                                     1e3 * chain.sleeve.outer_diameter])
         for name in tqdm(picked, desc=f"clinical {key}", unit="target", disable=not progress):
             group = "vein" if name in VEINS else name.split("_")[0] + " ring"
             solver = TargetSolver(chain, name, friction, 0.0 if name in VEINS else target_radius, d_c, reference,
                                   atrium)
             best = solver.solve(D0)
-            row = {"chain": key, "target": name, "group": group, **asdict(best), "effective_gf": best.effective_gf}
-            rows.append(row)
+            rows.append(ClinicalRow.of(key, group, best))
             if sizing:
                 found = threshold_diameter(solver, best, D0, max_diameter=D_max)
-                target_sizing.append({"chain": key, "target": name, "group": group,
-                                      "reachable": best.status != "out of reach",
-                                      "diameter_mm": None if found["diameter_m"] is None else 1e3 * found["diameter_m"],
-                                      "steps": found["steps"],
-                                      "history": [(1e3 * d, f) for d, f in found["history"]]})
+                target_sizing.append(TargetSizing(
+                    chain=key, target=name, group=group, reachable=best.status != "out of reach",
+                    diameter_mm=None if found["diameter_m"] is None else 1e3 * found["diameter_m"],
+                    steps=found["steps"], history=[(1e3 * d, f) for d, f in found["history"]]))
             solves += solver.solves
-        chain_solves = solves - sum(v.get("equilibria", 0) for v in summary.values())
-        mine = [r for r in rows if r["chain"] == key]
-        veins_gf = [r["effective_gf"] for r in mine if r["group"] == "vein"]
-        ring_gf = [r["effective_gf"] for r in mine if r["group"] != "vein"]
-        summary[key] = {
-            "vein_force_gf": {r["target"]: r["effective_gf"] for r in mine if r["group"] == "vein"},
-            "vein_force_gf_min": min(veins_gf) if veins_gf else None,
-            "ring_targets": len(ring_gf),
-            "ring_targets_out_of_reach": [r["target"] for r in mine if r["status"] == "out of reach"],
-            "ring_targets_at_least_10_gf": sum(f >= MIN_FORCE_GF * (1 - 1e-4) for f in ring_gf),
-            "ring_force_gf_min": min(ring_gf) if ring_gf else None,
-            "ring_force_gf_max": max(ring_gf) if ring_gf else None,
-            "equilibria": chain_solves,
-            "gradient_share_max": max((abs(r["gradient_pull_gf"]) / r["force_gf"] for r in mine
-                                       if r["force_gf"]), default=None),
-        }
+        chain_solves = solves - sum(v.equilibria for v in summary.values())
+        mine = [r for r in rows if r.chain == key]
+        veins_gf = [r.effective_gf for r in mine if r.group == "vein"]
+        ring_gf = [r.effective_gf for r in mine if r.group != "vein"]
+        summary[key] = ChainSummary(
+            vein_force_gf={r.target: r.effective_gf for r in mine if r.group == "vein"},
+            vein_force_gf_min=min(veins_gf) if veins_gf else None,
+            ring_targets=len(ring_gf),
+            ring_targets_out_of_reach=[r.target for r in mine if r.status == "out of reach"],
+            ring_targets_at_least_10_gf=sum(f >= MIN_FORCE_GF * (1 - 1e-4) for f in ring_gf),
+            ring_force_gf_min=min(ring_gf) if ring_gf else None,
+            ring_force_gf_max=max(ring_gf) if ring_gf else None,
+            equilibria=chain_solves,
+            gradient_share_max=max((abs(r.gradient_pull_gf) / r.force_gf for r in mine if r.force_gf), default=None),
+        )
         if sizing:
-            mine_s = [t for t in target_sizing if t["chain"] == key]
-            steps = sum(t["steps"] for t in mine_s)
-            vein_d = [t["diameter_mm"] for t in mine_s if t["group"] == "vein"]
-            ring_d = [t["diameter_mm"] for t in mine_s if t["group"] != "vein" and t["reachable"]]
-            unreachable = sum(1 for t in mine_s if t["group"] != "vein" and not t["reachable"])
+            mine_s = [t for t in target_sizing if t.chain == key]
+            steps = sum(t.steps for t in mine_s)
+            vein_d = [t.diameter_mm for t in mine_s if t.group == "vein"]
+            ring_d = [t.diameter_mm for t in mine_s if t.group != "vein" and t.reachable]
+            unreachable = sum(1 for t in mine_s if t.group != "vein" and not t.reachable)
             every_vein = None if (not vein_d or None in vein_d) else max(vein_d) * 1e-3
             sizing_rows.append(sizing_row(key, "10 gf on every vein", every_vein, d_c, reference, steps))
             for fraction, label in ((0.9, "90 %"), (1.0, "100 %")):
@@ -592,59 +691,59 @@ def run(*, chains=("8Fr", "today"), ring_step: int = 3, ring_offset: int = 0, si
                 sizing_rows.append(sizing_row(key, criterion, None if q is None else 1e-3 * q, d_c, reference, steps))
     magnet = SphereMagnet(diameter=D0)
     r0 = magnet_distance(D0, d_c, reference)
-    setup = {
-        "diameter_mm": diameter_mm, "mass_kg": magnet.mass, "reference": reference,
-        "heart_to_surface_cm": heart_to_surface_cm, "magnet_distance_cm": 1e2 * r0,
+    setup = ClinicalSetup(
+        diameter_mm=diameter_mm, mass_kg=magnet.mass, reference=reference,
+        heart_to_surface_cm=heart_to_surface_cm, magnet_distance_cm=1e2 * r0,
         # Both dipoles along the line through them: the largest field the pair makes at the centre.
-        "field_at_centre_coaxial_mT": 1e3 * 2 * float(np.linalg.norm(dipole_field(np.array([r0, 0.0, 0.0]),
-                                                                                   np.array([magnet.dipole_moment, 0.0, 0.0])))),
-        "friction": friction, "target_radius_mm": 1e3 * target_radius, "ring_step": ring_step,
-        "ring_offset": ring_offset,
-        "chains": chain_info, "min_force_gf": MIN_FORCE_GF, "max_diameter_mm": max_diameter_mm,
-    }
+        field_at_centre_coaxial_mT=1e3 * 2 * float(np.linalg.norm(dipole_field(np.array([r0, 0.0, 0.0]),
+                                                                                np.array([magnet.dipole_moment, 0.0, 0.0])))),
+        friction=friction, target_radius_mm=1e3 * target_radius, ring_step=ring_step, ring_offset=ring_offset,
+        chains=chain_info, min_force_gf=MIN_FORCE_GF, max_diameter_mm=max_diameter_mm,
+    )
     return ClinicalResult(setup, rows, summary, sizing_rows, target_sizing, solves, time.perf_counter() - t0)
 
 
-def write_files(data: dict, out: Path) -> list[str]:
+def write_files(result: ClinicalResult, out: Path) -> list[str]:
     """CSV of the rows, the JSON, the force-per-target figure and the sizing curves."""
     plt = agg_pyplot()
     out.mkdir(parents=True, exist_ok=True)
     keys = ["chain", "target", "group", "force_gf", "effective_gf", "feasible", "friction_needed",
             "gradient_pull_gf", "sheath_push_gf", "status"]
-    files = [write_csv(out / "clinical.csv", data["rows"], keys), atomic_write_text(out / "clinical.json", json_text(data))]
-    D = data["setup"]["diameter_mm"]
+    files = [write_csv(out / "clinical.csv", [{k: getattr(r, k) for k in keys} for r in result.rows], keys),
+             atomic_write_text(out / "clinical.json", result.to_json())]
+    D = result.setup.diameter_mm
     fig, ax = plt.subplots(figsize=(10, 4))
-    for key, marker in zip(data["summary"], "os^"):
-        rows = [r for r in data["rows"] if r["chain"] == key]
-        forces = [float("nan") if r["status"] == "out of reach" else r["effective_gf"] for r in rows]  # a gap
+    for key, marker in zip(result.summary, "os^"):
+        rows = [r for r in result.rows if r.chain == key]
+        forces = [float("nan") if r.status == "out of reach" else r.effective_gf for r in rows]  # a gap
         ax.plot(range(len(rows)), forces, marker, linestyle="-",
-                label=f"{key} ({data['setup']['chains'][key]['n_balls']} balls)")
-        ax.set_xticks(range(len(rows)), [r["target"] for r in rows], rotation=75, fontsize=7)
+                label=f"{key} ({result.setup.chains[key].n_balls} balls)")
+        ax.set_xticks(range(len(rows)), [r.target for r in rows], rotation=75, fontsize=7)
     ax.axhline(MIN_FORCE_GF, color="k", linestyle="--", linewidth=1, label="10 gf (paper's goal)")
     ax.set_ylabel("best tip force inside the friction cone [gf]")
     ax.set_ylim(bottom=0.0)
-    ax.set_title(f"Two {D:.0f} mm N52 spheres at {data['setup']['magnet_distance_cm']:.1f} cm: force per target "
+    ax.set_title(f"Two {D:.0f} mm N52 spheres at {result.setup.magnet_distance_cm:.1f} cm: force per target "
                  "(veins, then left and right rings)")
     ax.legend(fontsize=8)
     fig.tight_layout()
     files.append(out / "clinical_forces.png")
     save_figure(fig, files[-1], dpi=110)
-    if data["target_sizing"]:
+    if result.target_sizing:
         fig, ax = plt.subplots(figsize=(6, 4.5))
         colours = {"8Fr": "tab:blue", "today": "tab:orange"}
-        for t in data["target_sizing"]:
-            h = sorted(t["history"])
+        for t in result.target_sizing:
+            h = sorted(t.history)
             if len(h) < 2:  # out of the chain's reach
                 continue
-            ax.plot([p[0] for p in h], [max(p[1], 0.3) for p in h], ".-", color=colours.get(t["chain"], "k"),
-                    alpha=0.35 if t["group"] != "vein" else 0.9, linewidth=1.5 if t["group"] == "vein" else 0.8)
+            ax.plot([p[0] for p in h], [max(p[1], 0.3) for p in h], ".-", color=colours.get(t.chain, "k"),
+                    alpha=0.35 if t.group != "vein" else 0.9, linewidth=1.5 if t.group == "vein" else 0.8)
         for key, colour in colours.items():
             ax.plot([], [], color=colour, label=key)
         ax.axhline(MIN_FORCE_GF, color="k", linestyle="--", linewidth=1)
         ax.axvline(PAPER["diameter_mm"], color="grey", linestyle=":", label="paper: 119 mm")
-        for s in data["sizing"]:
-            if s["diameter_mm"] and s["criterion"].startswith("10 gf on every vein"):
-                ax.axvline(s["diameter_mm"], color=colours.get(s["chain"], "k"), linestyle="--", linewidth=0.8)
+        for s in result.sizing:
+            if s.diameter_mm and s.criterion.startswith("10 gf on every vein"):
+                ax.axvline(s.diameter_mm, color=colours.get(s.chain, "k"), linestyle="--", linewidth=0.8)
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel("sphere diameter D [mm]")

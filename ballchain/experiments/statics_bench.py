@@ -30,10 +30,12 @@ import math
 import os
 import sys
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
 from ballchain.drake_models.errors import UserInputError
+from ballchain.experiments._result import Result, optional
 
 # The agreement required of every solver with the Newton cold solve.
 ENERGY_RTOL = 1e-9
@@ -62,6 +64,67 @@ def blas_threads(n: int):
 
 
 # --- statics ----------------------------------------------------------------------------------------
+
+
+@dataclass(kw_only=True)
+class StaticsBenchResult(Result):
+    """What ``run_statics`` returns (times in ms, medians over the repeats; None: a case left out).
+
+    Attributes:
+        benchmark: "statics".
+        n_balls, field_mT, angle_deg, warm_start_angle_deg, repeats, clock: the run's settings.
+        cold_median_ms, warm_median_ms: Newton on the kernels, cold and warm.
+        numpy_cold_median_ms, numpy_warm_median_ms: the same Newton solver on the numpy reference.
+        snopt_cold_median_ms, snopt_warm_median_ms: SNOPT; baseline_median_ms: naive SLSQP.
+        speedup_cold, speedup_warm: baseline / Newton; speedup_cold_vs_snopt: SNOPT / Newton;
+        kernel_speedup_cold, kernel_speedup_warm: numpy reference / kernels (same-run ratios).
+        same_minimum: each solver against the Newton cold solve (tolerances, differences, "ok").
+        converged: per case (and the warm start); iterations: per case, and the baseline's
+            energy evaluations.
+        energy_J, tip_position_mm: the Newton cold minimum (tip shape (3,)).
+        baseline: SLSQP's tolerance, message and largest constraint violation (None: not run).
+        samples_ms, spread: every timed sample and (max - min) / median per case.
+        blas_threads: {library: threads in use}; load_average_1min: before and after;
+        cpu_count: the machine's.
+        compile_cost: ``compile_cost()``'s dict (only when asked).
+    """
+
+    benchmark: str = "statics"
+    n_balls: int
+    field_mT: float
+    angle_deg: float
+    warm_start_angle_deg: float
+    repeats: int
+    clock: str
+    cold_median_ms: float
+    warm_median_ms: float
+    numpy_cold_median_ms: float | None
+    numpy_warm_median_ms: float | None
+    snopt_cold_median_ms: float | None
+    snopt_warm_median_ms: float | None
+    baseline_median_ms: float | None
+    speedup_cold: float | None
+    speedup_warm: float | None
+    speedup_cold_vs_snopt: float | None
+    kernel_speedup_cold: float | None
+    kernel_speedup_warm: float | None
+    kernel_note: str = "numpy_*: the same Newton solver on the numpy reference of the chain's physics"
+    same_minimum: dict
+    converged: dict
+    iterations: dict
+    iterations_note: str = "Newton: SQP iterations; SNOPT: energy evaluations; baseline: SLSQP iterations"
+    energy_J: float
+    tip_position_mm: np.ndarray
+    baseline: dict | None
+    samples_ms: dict
+    spread: dict
+    spread_note: str = "(max - min) / median of each case's samples"
+    blas_threads: dict
+    load_average_1min: dict
+    cpu_count: int | None
+    compile_cost: dict | None = optional()
+
+
 def _same_minimum(reference, other) -> dict:
     energy_diff = float(other.energy - reference.energy)
     tip_diff = float(np.linalg.norm(other.tip_position - reference.tip_position))
@@ -132,7 +195,7 @@ def run_statics(
     cases: str | tuple[str, ...] = _OPTIONAL,
     measure_compile_cost: bool = False,
     clock: str = "wall",
-) -> dict:
+) -> StaticsBenchResult:
     """Time ``ChainStatics`` (newton on the kernels and on the numpy reference, snopt; cold, warm)
     against the SLSQP baseline.
 
@@ -152,11 +215,12 @@ def run_statics(
         clock: "wall" (``time.perf_counter``) or "cpu" (``time.process_time``).
 
     Returns:
-        A JSON-able dict: medians [ms] (``cold_median_ms``, ``warm_median_ms`` for Newton,
+        A ``StaticsBenchResult``: medians [ms] (``cold_median_ms``, ``warm_median_ms`` for Newton,
         ``numpy_*`` for Newton on the numpy reference, ``snopt_*``, ``baseline_median_ms``; None
         for a case left out), ``speedup_cold`` (baseline / Newton cold), ``kernel_speedup_*``
-        (numpy reference / kernels), ``compile_cost`` when asked, every sample, ``iterations`` per case, ``converged`` per case, ``same_minimum`` (each solver
-        against the Newton cold solve), and the run's conditions.
+        (numpy reference / kernels), ``compile_cost`` when asked, every sample, ``iterations``
+        per case, ``converged`` per case, ``same_minimum`` (each solver against the Newton cold
+        solve), and the run's conditions; ``to_json()`` is what ``bench statics --json`` prints.
 
     Raises:
         UserInputError: bad arguments.
@@ -244,53 +308,47 @@ def run_statics(
     def iterations(case):
         return last[case].iterations if case in last else None
 
-    out = {
-        "benchmark": "statics",
-        "n_balls": n_balls,
-        "field_mT": field_mT,
-        "angle_deg": angle_deg,
-        "warm_start_angle_deg": warm_angle,
-        "repeats": repeats,
-        "clock": clock,
-        "cold_median_ms": medians["newton_cold"],
-        "warm_median_ms": medians["newton_warm"],
-        "numpy_cold_median_ms": medians["numpy_cold"],
-        "numpy_warm_median_ms": medians["numpy_warm"],
-        "snopt_cold_median_ms": medians["snopt_cold"],
-        "snopt_warm_median_ms": medians["snopt_warm"],
-        "baseline_median_ms": medians["baseline"],
-        "speedup_cold": ratio("baseline", "newton_cold"),
-        "speedup_warm": ratio("baseline", "newton_warm"),
-        "speedup_cold_vs_snopt": ratio("snopt_cold", "newton_cold"),
-        "kernel_speedup_cold": ratio("numpy_cold", "newton_cold"),
-        "kernel_speedup_warm": ratio("numpy_warm", "newton_warm"),
-        "kernel_note": "numpy_*: the same Newton solver on the numpy reference of the chain's physics",
-        "same_minimum": {
+    return StaticsBenchResult(
+        n_balls=n_balls,
+        field_mT=field_mT,
+        angle_deg=angle_deg,
+        warm_start_angle_deg=warm_angle,
+        repeats=repeats,
+        clock=clock,
+        cold_median_ms=medians["newton_cold"],
+        warm_median_ms=medians["newton_warm"],
+        numpy_cold_median_ms=medians["numpy_cold"],
+        numpy_warm_median_ms=medians["numpy_warm"],
+        snopt_cold_median_ms=medians["snopt_cold"],
+        snopt_warm_median_ms=medians["snopt_warm"],
+        baseline_median_ms=medians["baseline"],
+        speedup_cold=ratio("baseline", "newton_cold"),
+        speedup_warm=ratio("baseline", "newton_warm"),
+        speedup_cold_vs_snopt=ratio("snopt_cold", "newton_cold"),
+        kernel_speedup_cold=ratio("numpy_cold", "newton_cold"),
+        kernel_speedup_warm=ratio("numpy_warm", "newton_warm"),
+        same_minimum={
             "reference": "newton_cold",
             "tolerance": {"energy_rel": ENERGY_RTOL, "tip_m": TIP_ATOL_M},
             **same,
             "ok": all(v["ok"] for v in same.values()),
         },
-        "converged": converged,
-        "iterations": {
+        converged=converged,
+        iterations={
             **{case: iterations(case) for case in _CASES},
             "baseline_evaluations": None if baseline is None else baseline.evaluations,
         },
-        "iterations_note": "Newton: SQP iterations; SNOPT: energy evaluations; baseline: SLSQP iterations",
-        "energy_J": reference.energy,
-        "tip_position_mm": 1e3 * reference.tip_position,
-        "baseline": None if baseline is None else {"ftol": baseline_ftol, "message": baseline.message,
-                                                   "max_violation": baseline.max_violation},
-        "samples_ms": samples,
-        "spread": {case: _spread(samples[case]) for case in active},
-        "spread_note": "(max - min) / median of each case's samples",
-        "blas_threads": threads_in_use,
-        "load_average_1min": {"before": load_before[0], "after": load_after[0]},
-        "cpu_count": os.cpu_count(),
-    }
-    if measure_compile_cost:
-        out["compile_cost"] = compile_cost()
-    return out
+        energy_J=reference.energy,
+        tip_position_mm=1e3 * reference.tip_position,
+        baseline=None if baseline is None else {"ftol": baseline_ftol, "message": baseline.message,
+                                                "max_violation": baseline.max_violation},
+        samples_ms=samples,
+        spread={case: _spread(samples[case]) for case in active},
+        blas_threads=threads_in_use,
+        load_average_1min={"before": load_before[0], "after": load_after[0]},
+        cpu_count=os.cpu_count(),
+        compile_cost=compile_cost() if measure_compile_cost else None,
+    )
 
 
 run = run_statics  # the experiment's entry point, as every module of ballchain/experiments has

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -40,6 +40,7 @@ from ballchain.drake_models.field_sources import UniformField
 from ballchain.drake_models.image_dipole import image_dipole, normal_attraction
 from ballchain.drake_models.dipole import dipole_field_gradient, force_on_dipole
 from ballchain.drake_models.params import BallChain, gram_force, newtons_from_gram_force
+from ballchain.experiments._result import Result
 from ballchain.experiments.forces import PAPER_GF, Stand, build_stand, max_normal_force, stand_field
 from ballchain.optimization.inverse_statics import HeldTip, max_force_orientation, max_force_penalised, pin_tip
 from ballchain.optimization.statics import ChainStatics
@@ -49,6 +50,112 @@ SENSOR_STEP_N = 0.05
 
 CASE = ("LSPV", "2", False)
 """The row taken apart: LSPV, magnet on the left, bare chain (the paper's 91.8 gf)."""
+
+
+@dataclass
+class Resolution(Result):
+    """(a): the sensor's step [gf], every Table I value in steps ({"vein config bare|sleeve":
+    steps}), the largest distance of one from a whole step [steps] and the reading's largest
+    rounding error [gf]."""
+
+    step_gf: float
+    multiples: dict
+    largest_distance_from_a_whole_step: float
+    max_rounding_error_gf: float
+
+
+@dataclass
+class FerroRow(Result):
+    """(b) at one gap [mm]: the soft iron's pull on the whole chain along the sensor's axis, and
+    on the tip ball alone with its dipole normal and parallel to the face [gf]."""
+
+    gap_mm: float
+    chain_pull_along_axis_gf: float
+    tip_ball_alone_normal_gf: float
+    tip_ball_alone_parallel_gf: float
+
+
+@dataclass
+class SupportRow(Result):
+    """(c) with ``free_balls`` balls beyond the clamp: the best force [gf] (None: none held, and
+    why)."""
+
+    free_balls: int
+    force_gf: float | None
+    reason: str
+
+
+@dataclass
+class ConeRow(Result):
+    """(d) inside one friction cone: the best force [gf], whether it is inside, the solver's word."""
+
+    mu: float
+    force_gf: float
+    inside_cone: bool
+    status: str
+
+
+@dataclass
+class FrictionNeeded(Result):
+    """(d): the optimum's normal and lateral push [gf], the friction it needs (lateral / normal)
+    and the best force inside each cone."""
+
+    normal_gf: float
+    lateral_gf: float
+    mu_needed: float
+    cones: list[ConeRow]
+
+
+@dataclass
+class PushCurve(Result):
+    """(e) in one axial field [mT]: the push along the axis against the advance ([(mm, gf)],
+    sorted), its peak and its value at the furthest advance (None: no point converged)."""
+
+    field_mT: float
+    curve_mm_gf: list
+    peak_gf: float | None
+    plateau_gf: float | None
+
+
+@dataclass
+class GradientSplit(Result):
+    """The optimum's push [gf] split by force balance into the gradient pull on balls 2..n and
+    the sheath's push, and the push re-solved with the gradient switched off (None: did not
+    converge)."""
+
+    force_gf: float
+    gradient_pull_gf: float
+    sheath_push_gf: float
+    without_gradient_gf: float | None
+
+
+@dataclass
+class EffectRow(Result):
+    """One row of the table (a)-(e): the effect, its model, the force range it can produce [gf]
+    (None: nothing to range), the sensor's reading of the model's force [gf] (only (a)) and
+    whether it could bring the model's force to the paper's."""
+
+    effect: str
+    model: str
+    force_range_gf: list | None
+    reading_of_model_gf: float | None
+    could_reach_paper: str
+
+
+@dataclass
+class EffectsCase(Result):
+    """The row taken apart (``CASE``): the model's and the paper's force [gf], the shortfall, the
+    optimum's lateral push [gf], its dipole direction and the equilibria its search solved."""
+
+    vein: str
+    config: str
+    sleeve: bool
+    model_gf: float
+    paper_gf: float
+    shortfall_gf: float
+    lateral_gf: float
+    dipole: list
+    evaluations: int
 
 
 class FrozenField(UniformField):
@@ -91,16 +198,16 @@ def frame_along(x_axis: np.ndarray) -> np.ndarray:
     return np.column_stack([x, y, np.cross(x, y)])
 
 
-def sensor_resolution() -> dict:
+def sensor_resolution() -> Resolution:
     """(a): every Table I value in units of 0.05 N, and what the step does to the model's force."""
     step_gf = gram_force(SENSOR_STEP_N)
     multiples = {f"{v} {c} {'sleeve' if s else 'bare'}": gf / step_gf for (v, c, s), gf in PAPER_GF.items()}
     worst = max(abs(m - round(m)) for m in multiples.values())
-    return {"step_gf": step_gf, "multiples": multiples, "largest_distance_from_a_whole_step": worst,
-            "max_rounding_error_gf": 0.5 * step_gf}
+    return Resolution(step_gf=step_gf, multiples=multiples, largest_distance_from_a_whole_step=worst,
+                      max_rounding_error_gf=0.5 * step_gf)
 
 
-def ferromagnetic_pin(chain: BallChain, result, target, axis, gaps_mm=(0.0, 0.25, 0.5, 1.0, 2.0)) -> list:
+def ferromagnetic_pin(chain: BallChain, result, target, axis, gaps_mm=(0.0, 0.25, 0.5, 1.0, 2.0)) -> list[FerroRow]:
     """(b): the pull of a soft-iron half-space at the pin's face on the whole equilibrium chain.
 
     The face is perpendicular to the sensor's axis, ``gap`` beyond the tip ball's contact point;
@@ -118,14 +225,15 @@ def ferromagnetic_pin(chain: BallChain, result, target, axis, gaps_mm=(0.0, 0.25
         F = force_on_dipole(m, G)
         along = float(F.sum(axis=0) @ axis)
         tip_alone = normal_attraction(M, 0.5 * d + 1e-3 * gap)
-        rows.append({"gap_mm": gap, "chain_pull_along_axis_gf": gram_force(along),
-                     "tip_ball_alone_normal_gf": gram_force(tip_alone),
-                     "tip_ball_alone_parallel_gf": gram_force(normal_attraction(M, 0.5 * d + 1e-3 * gap, math.pi / 2))})
+        rows.append(FerroRow(gap_mm=gap, chain_pull_along_axis_gf=gram_force(along),
+                             tip_ball_alone_normal_gf=gram_force(tip_alone),
+                             tip_ball_alone_parallel_gf=gram_force(normal_attraction(M, 0.5 * d + 1e-3 * gap,
+                                                                                     math.pi / 2))))
     return rows
 
 
 def side_support(chain: BallChain, stand: Stand, best: dict, vein: str, free_balls=(3, 4, 5, 6, 8, 10),
-                 grid: int = 6, refine: int = 30) -> list:
+                 grid: int = 6, refine: int = 30) -> list[SupportRow]:
     """(c): the clamp moved to ball n - k of the optimum equilibrium, k balls free, magnet re-optimised."""
     target, axis = stand.targets[vein]
     p = best["result"].positions
@@ -139,11 +247,11 @@ def side_support(chain: BallChain, stand: Stand, best: dict, vein: str, free_bal
         sub = Stand({vein: (R.T @ (target - t), R.T @ axis)}, {c: R.T @ (v - t) for c, v in stand.magnets.items()},
                     stand.R_HS, stand.p_HE)
         out = max_normal_force(chain.with_balls(k + 1), sub, vein, ("2",), grid, refine)
-        rows.append({"free_balls": k, "force_gf": out.get("force_gf"), "reason": out.get("reason", "")})
+        rows.append(SupportRow(free_balls=k, force_gf=out.get("force_gf"), reason=out.get("reason", "")))
     return rows
 
 
-def friction_needed(chain: BallChain, stand: Stand, best: dict, vein: str, mus=(0.1, 0.3, 0.5)) -> dict:
+def friction_needed(chain: BallChain, stand: Stand, best: dict, vein: str, mus=(0.1, 0.3, 0.5)) -> FrictionNeeded:
     """(d): |F_t| / F_n at the optimum, and the best force inside cones of mu."""
     target, axis = stand.targets[vein]
     F = -best["result"].tip_reaction
@@ -165,9 +273,9 @@ def friction_needed(chain: BallChain, stand: Stand, best: dict, vein: str, mus=(
         if plan.force_N is not None:
             options.append((bool(plan.feasible), plan.force_N, plan.solver_status))
         inside, force, status = max(options)
-        rows.append({"mu": mu, "force_gf": gram_force(force), "inside_cone": inside, "status": status})
-    return {"normal_gf": gram_force(normal), "lateral_gf": gram_force(lateral), "mu_needed": lateral / normal,
-            "cones": rows}
+        rows.append(ConeRow(mu=mu, force_gf=gram_force(force), inside_cone=inside, status=status))
+    return FrictionNeeded(normal_gf=gram_force(normal), lateral_gf=gram_force(lateral), mu_needed=lateral / normal,
+                          cones=rows)
 
 
 def _angles(u) -> np.ndarray:
@@ -175,7 +283,8 @@ def _angles(u) -> np.ndarray:
     return np.array([math.atan2(u[1], u[0]), math.asin(float(np.clip(u[2], -1.0, 1.0)))])
 
 
-def push_curve(n_balls: int = 16, fields_mT=(0.0, 9.0, 23.0), advance_balls: float = 2.0, steps: int = 24) -> list:
+def push_curve(n_balls: int = 16, fields_mT=(0.0, 9.0, 23.0), advance_balls: float = 2.0,
+               steps: int = 24) -> list[PushCurve]:
     """(e): the pin on the sheath's axis, the chain advanced continuously against it.
 
     The tip held at ((n-1) d - s) along the axis for advances s up to ``advance_balls`` d; a
@@ -206,12 +315,12 @@ def push_curve(n_balls: int = 16, fields_mT=(0.0, 9.0, 23.0), advance_balls: flo
             curve.append((1e3 * s, gram_force(float(-current.tip_reaction[0]))))
         curve.sort()
         pushes = [f for _, f in curve]
-        rows.append({"field_mT": B, "curve_mm_gf": curve, "peak_gf": max(pushes) if pushes else None,
-                     "plateau_gf": pushes[-1] if pushes else None})
+        rows.append(PushCurve(field_mT=B, curve_mm_gf=curve, peak_gf=max(pushes) if pushes else None,
+                              plateau_gf=pushes[-1] if pushes else None))
     return rows
 
 
-def gradient_switched_off(chain: BallChain, stand: Stand, best: dict, vein: str) -> dict:
+def gradient_switched_off(chain: BallChain, stand: Stand, best: dict, vein: str) -> GradientSplit:
     """The optimum's force split by force balance, and re-solved with the gradient switched off."""
     target, axis = stand.targets[vein]
     external = stand_field(stand, ("2",), best["angles_rad"])
@@ -220,28 +329,25 @@ def gradient_switched_off(chain: BallChain, stand: Stand, best: dict, vein: str)
     pull = float((chain.dipole_moment * np.einsum("kab,ka->kb", G, res.dipoles))[1:].sum(axis=0) @ axis)
     press = float(-res.tip_reaction @ axis)
     frozen = ChainStatics(chain, max_iterations=200).solve(FrozenField(external, res.positions), res, tip_target=target)
-    return {"force_gf": gram_force(press), "gradient_pull_gf": gram_force(pull),
-            "sheath_push_gf": gram_force(press - pull),
-            "without_gradient_gf": gram_force(float(-frozen.tip_reaction @ axis)) if frozen.converged else None}
+    return GradientSplit(force_gf=gram_force(press), gradient_pull_gf=gram_force(pull),
+                         sheath_push_gf=gram_force(press - pull),
+                         without_gradient_gf=gram_force(float(-frozen.tip_reaction @ axis)) if frozen.converged else None)
 
 
 @dataclass
-class EffectsResult:
+class EffectsResult(Result):
     """What ``run`` returns: the table (a)-(e) and each effect's details (edge units)."""
 
-    table: list
-    case: dict
-    resolution: dict
-    ferromagnetic: list
-    side_support: list
-    friction: dict
-    push: list
-    gradient: dict
+    table: list[EffectRow]
+    case: EffectsCase
+    resolution: Resolution
+    ferromagnetic: list[FerroRow]
+    side_support: list[SupportRow]
+    friction: FrictionNeeded
+    push: list[PushCurve]
+    gradient: GradientSplit
     compute_time_s: float
     notes: dict = field(default_factory=dict)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 def run(*, quick: bool = False) -> EffectsResult:
@@ -268,37 +374,38 @@ def run(*, quick: bool = False) -> EffectsResult:
     def could(extra_max_gf):
         return "yes" if extra_max_gf is not None and extra_max_gf >= shortfall else "no"
 
-    ferro_max = max(r["chain_pull_along_axis_gf"] for r in ferro)
-    ferro_min = min(r["chain_pull_along_axis_gf"] for r in ferro)
-    support_forces = [r["force_gf"] for r in support if r["force_gf"] is not None]
-    cone_forces = [r["force_gf"] for r in friction["cones"] if r["force_gf"] is not None]
-    peaks = [r["peak_gf"] for r in push if r["peak_gf"] is not None]
+    ferro_max = max(r.chain_pull_along_axis_gf for r in ferro)
+    ferro_min = min(r.chain_pull_along_axis_gf for r in ferro)
+    support_forces = [r.force_gf for r in support if r.force_gf is not None]
+    cone_forces = [r.force_gf for r in friction.cones if r.force_gf is not None]
+    peaks = [r.peak_gf for r in push if r.peak_gf is not None]
     table = [
-        {"effect": "(a) sensor resolution (whole multiples of 0.05 N)",
-         "model": f"reading = force rounded to {resolution['step_gf']:.2f} gf",
-         "force_range_gf": [-resolution["max_rounding_error_gf"], resolution["max_rounding_error_gf"]],
-         "reading_of_model_gf": resolution["step_gf"] * round(model_gf / resolution["step_gf"]),
-         "could_reach_paper": could(resolution["max_rounding_error_gf"])},
-        {"effect": "(b) ferromagnetic pin or sensor body (soft-iron image of the chain)",
-         "model": "pull along the sensor axis, steel face 0-2 mm beyond the tip ball",
-         "force_range_gf": [ferro_min, ferro_max], "reading_of_model_gf": None,
-         "could_reach_paper": could(ferro_max) + " (only with steel within about 0.5 mm, on the sensor's fixed side)"},
-        {"effect": "(c) chain supported sideways up to k balls from the pin",
-         "model": f"clamp at ball n-k of the optimum, k = {', '.join(str(r['free_balls']) for r in support)}",
-         "force_range_gf": [min(support_forces), max(support_forces)] if support_forces else None,
-         "reading_of_model_gf": None,
-         "could_reach_paper": could(max(support_forces) - model_gf if support_forces else None)},
-        {"effect": "(d) friction at the pin",
-         "model": f"mu needed {friction['mu_needed']:.2f}; best force inside cones mu = "
-                  + ", ".join(f"{r['mu']:g}" for r in friction["cones"]),
-         "force_range_gf": [min(cone_forces), model_gf] if cone_forces else None, "reading_of_model_gf": None,
-         "could_reach_paper": "no (friction can only let the tip keep the frictionless optimum)"},
-        {"effect": "(e) continuous insertion against the pin (push curve)",
-         "model": "pin on the sheath axis, field along it: " + ", ".join(f"{r['field_mT']:g}" for r in push) + " mT",
-         "force_range_gf": [min(peaks), max(peaks)] if peaks else None, "reading_of_model_gf": None,
-         "could_reach_paper": could(max(peaks) - model_gf if peaks else None)},
+        EffectRow(effect="(a) sensor resolution (whole multiples of 0.05 N)",
+                  model=f"reading = force rounded to {resolution.step_gf:.2f} gf",
+                  force_range_gf=[-resolution.max_rounding_error_gf, resolution.max_rounding_error_gf],
+                  reading_of_model_gf=resolution.step_gf * round(model_gf / resolution.step_gf),
+                  could_reach_paper=could(resolution.max_rounding_error_gf)),
+        EffectRow(effect="(b) ferromagnetic pin or sensor body (soft-iron image of the chain)",
+                  model="pull along the sensor axis, steel face 0-2 mm beyond the tip ball",
+                  force_range_gf=[ferro_min, ferro_max], reading_of_model_gf=None,
+                  could_reach_paper=could(ferro_max) + " (only with steel within about 0.5 mm, on the sensor's "
+                                                       "fixed side)"),
+        EffectRow(effect="(c) chain supported sideways up to k balls from the pin",
+                  model=f"clamp at ball n-k of the optimum, k = {', '.join(str(r.free_balls) for r in support)}",
+                  force_range_gf=[min(support_forces), max(support_forces)] if support_forces else None,
+                  reading_of_model_gf=None,
+                  could_reach_paper=could(max(support_forces) - model_gf if support_forces else None)),
+        EffectRow(effect="(d) friction at the pin",
+                  model=f"mu needed {friction.mu_needed:.2f}; best force inside cones mu = "
+                        + ", ".join(f"{r.mu:g}" for r in friction.cones),
+                  force_range_gf=[min(cone_forces), model_gf] if cone_forces else None, reading_of_model_gf=None,
+                  could_reach_paper="no (friction can only let the tip keep the frictionless optimum)"),
+        EffectRow(effect="(e) continuous insertion against the pin (push curve)",
+                  model="pin on the sheath axis, field along it: " + ", ".join(f"{r.field_mT:g}" for r in push) + " mT",
+                  force_range_gf=[min(peaks), max(peaks)] if peaks else None, reading_of_model_gf=None,
+                  could_reach_paper=could(max(peaks) - model_gf if peaks else None)),
     ]
-    case = {"vein": vein, "config": config, "sleeve": sleeve, "model_gf": model_gf, "paper_gf": paper_gf,
-            "shortfall_gf": shortfall, "lateral_gf": friction["lateral_gf"], "dipole": best["dipoles"][0].tolist(),
-            "evaluations": best["evaluations"]}
+    case = EffectsCase(vein=vein, config=config, sleeve=sleeve, model_gf=model_gf, paper_gf=paper_gf,
+                       shortfall_gf=shortfall, lateral_gf=friction.lateral_gf, dipole=best["dipoles"][0].tolist(),
+                       evaluations=best["evaluations"])
     return EffectsResult(table, case, resolution, ferro, support, friction, push, gradient, time.perf_counter() - t0)
