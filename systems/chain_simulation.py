@@ -243,7 +243,8 @@ class RunOutcome:
         sim_time: simulated time reached [s].
         wall_time: wall time of Simulator Initialize + AdvanceTo [s] (the build is not counted).
         cpu_time: the process's CPU time over the same span [s].
-        failure: the watchdog's failure message (or the solver's error, with the time), or None.
+        failure: the failure message of ``check`` or of the watchdog (or the solver's error, with
+            the time), or None.
         stopped: True when ``stop`` ended the run before ``duration``.
         monitor: the ChainMonitor that watched the run (its metrics, tolerated sinkings).
         context: the Simulator's root context at the end.
@@ -266,20 +267,26 @@ def _export_recording(cd: ChainDiagram, meshcat, html: Path) -> None:
     atomic_write_text(html, meshcat.StaticHtml())
 
 
-def station_monitor(cd: ChainDiagram, monitor: ChainMonitor, stop=None, on_time=None):
-    """The Simulator monitor of a station run: the watchdog, then ``on_time``, then ``stop``.
+def station_monitor(cd: ChainDiagram, monitor: ChainMonitor, stop=None, on_time=None, check=None):
+    """The Simulator monitor of a station run: ``check``, the watchdog, then ``on_time``, then ``stop``.
 
     Args:
         cd: the diagram.
         monitor: the watchdog (its failure ends the run).
         stop: None, or ``stop(root_context) -> bool``: a termination when True.
         on_time: None, or ``on_time(t)`` called with the simulated time [s] (a progress bar).
+        check: None, or ``check(root_context) -> str | None``: the run's own failure test (e.g.
+            the force pin's), called first; a message ends the run as a failure.
 
     Returns:
         ``monitor(root_context) -> EventStatus`` for ``Simulator.set_monitor``.
     """
 
     def watch(root_context):
+        if check is not None:
+            message = check(root_context)
+            if message:
+                return EventStatus.Failed(cd.diagram, message)
         status = monitor(root_context)
         if status.severity() == EventStatus.Severity.kFailed:
             return status
@@ -293,20 +300,27 @@ def station_monitor(cd: ChainDiagram, monitor: ChainMonitor, stop=None, on_time=
 
 
 def run_station(cd: ChainDiagram, *, duration: float, monitor: ChainMonitor | None = None, stop=None,
-                progress: str | None = None, progress_step: float | None = None, html: Path | None = None,
-                meshcat=None, realtime_rate: float | None = None) -> RunOutcome:
-    """Run a built station: the one Simulator loop of the scenario runs and the teleoperation tasks.
+                check=None, context=None, progress: str | None = None, progress_step: float | None = None,
+                html: Path | None = None, meshcat=None, realtime_rate: float | None = None) -> RunOutcome:
+    """Run a built station: the one Simulator loop of the scenario runs, the teleoperation tasks
+    and the force pin.
 
-    The Simulator's monitor is the watchdog (``monitor``) first, then the progress bar, then
-    ``stop``. A watchdog failure, or a RuntimeError / ValueError of the solver, ends the run
-    with its message in ``RunOutcome.failure`` (no exception). On Ctrl-C the replay recorded so
-    far is written to ``html`` before the KeyboardInterrupt goes on.
+    The Simulator's monitor runs after Initialize and after every step: ``check`` first, then
+    the watchdog (``monitor``), then the progress bar, then ``stop``. A failure of ``check`` or
+    of the watchdog, or a RuntimeError / ValueError of the solver, ends the run with its message
+    in ``RunOutcome.failure`` (no exception). On Ctrl-C the replay recorded so far is written to
+    ``html`` before the KeyboardInterrupt goes on. Neither ``check`` nor ``stop`` nor the
+    watchdog changes the trajectory (they only read the state).
 
     Args:
         cd: the built diagram (``build_chain_diagram``).
         duration: simulated-time limit [s].
         monitor: the watchdog (default: ``ChainMonitor(cd)``).
         stop: None, or ``stop(root_context) -> bool``: end the run (a termination) when True.
+        check: None, or ``check(root_context) -> str | None``: the run's own failure test, called
+            before the watchdog; a message ends the run with it as ``RunOutcome.failure``.
+        context: None (the diagram's default context), or a root context of ``cd.diagram`` to
+            start from (an initial state set by the caller); the Simulator runs in it.
         progress: None (no bar), or the label of a tqdm bar of the simulated time on stderr.
         progress_step: update the bar every this many simulated seconds (default duration/200).
         html: record the run in Meshcat and write the replay (self-contained HTML) here; the
@@ -320,7 +334,7 @@ def run_station(cd: ChainDiagram, *, duration: float, monitor: ChainMonitor | No
     """
     from pydrake.systems.analysis import SimulatorStatus
 
-    simulator = Simulator(cd.diagram)
+    simulator = Simulator(cd.diagram) if context is None else Simulator(cd.diagram, context)
     # The scenario's SimulatorConfig (its defaults are the Simulator's own); an explicit
     # ``realtime_rate`` overrides its target_realtime_rate.
     ApplySimulatorConfig(cd.scenario.simulator_config, simulator)
@@ -341,7 +355,16 @@ def run_station(cd: ChainDiagram, *, duration: float, monitor: ChainMonitor | No
             bar.update(t - shown[0])
             shown[0] = t
 
-    simulator.set_monitor(station_monitor(cd, monitor, stop=stop, on_time=None if bar is None else show))
+    checked = []  # the message of ``check``, when it ended the run
+
+    def run_check(root_context):
+        message = check(root_context)
+        if message:
+            checked.append(message)
+        return message
+
+    simulator.set_monitor(station_monitor(cd, monitor, stop=stop, on_time=None if bar is None else show,
+                                          check=None if check is None else run_check))
     root = simulator.get_mutable_context()
     record = cd.visualizer is not None and html is not None
     if record:
@@ -364,7 +387,8 @@ def run_station(cd: ChainDiagram, *, duration: float, monitor: ChainMonitor | No
         if not isinstance(err, (RuntimeError, ValueError)):
             raise
         # The monitor's failure, or a solver/physics error.
-        failure = monitor.failure or f"at t = {root.get_time():.4f} s: {' '.join(str(err).split())}"
+        failure = ((checked[0] if checked else monitor.failure)
+                   or f"at t = {root.get_time():.4f} s: {' '.join(str(err).split())}")
     finally:
         if bar is not None:
             bar.close()

@@ -360,3 +360,24 @@ def test_the_one_run_loop_stops_on_its_condition_and_reports_a_failure():
     broken = run_station(build_chain_diagram(load_scenario("free_space_uniform_90deg",
                                                            "{translational_damping: 0.1}")), duration=0.05)
     assert "the chain broke between balls" in broken.failure and broken.sim_time < 0.05
+
+
+def test_the_run_loop_takes_a_run_check_and_a_start_context():
+    """``run_station``'s ``check`` (a run's own failure test, before the watchdog) ends the run
+    with its message; ``context`` is the state the run starts from (here ball 4 put 2 m away:
+    the watchdog stops the run at t = 0)."""
+    from pydrake.math import RigidTransform
+
+    from ballchain.systems.chain_simulation import run_station
+
+    scenario = load_scenario("free_space_uniform_90deg", "{n_balls: 4}")
+    cd = build_chain_diagram(scenario)
+    checked = run_station(cd, duration=0.2, check=lambda root: "too late" if root.get_time() >= 0.02 else None)
+    assert checked.failure == "too late" and not checked.stopped and checked.sim_time == pytest.approx(0.02)
+    assert checked.monitor.failure is None  # the watchdog saw nothing wrong
+    root = cd.diagram.CreateDefaultContext()
+    plant = cd.chain_plant.plant
+    plant.GetJointByName("ball_4_floating").SetPose(plant.GetMyContextFromRoot(root), RigidTransform([2.0, 0.0, 0.0]))
+    away = run_station(cd, duration=0.2, context=root)
+    assert away.context is root and away.sim_time == 0.0
+    assert away.failure.startswith("ball 4 flew away at t = 0.0000 s")
