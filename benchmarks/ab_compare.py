@@ -65,9 +65,11 @@ with threadpool_limits(limits=1, user_api="blas"):
     # the plant's speed.
     run_simulation(scenario=scenario, duration=2 * scenario.effective_time_step)
     r = run_simulation(scenario=scenario, duration=float(sys.argv[2]))
-print(json.dumps({"file": ballchain.__file__, "realtime_factor": r["realtime_factor"], "p_W_mm": r["p_W_mm"],
-                  "min_wall_clearance_mm": r["min_wall_clearance_mm"], "max_penetration_um": r["max_penetration_um"],
-                  "tip_wall_force_N": r["tip_wall_force_N"]}))
+# Either side's code: SimulationMetrics (attributes) now, a dict before.
+get = r.get if isinstance(r, dict) else lambda key: getattr(r, key)
+print(json.dumps({"file": ballchain.__file__, "realtime_factor": get("realtime_factor"), "p_W_mm": get("p_W_mm"),
+                  "min_wall_clearance_mm": get("min_wall_clearance_mm"), "max_penetration_um": get("max_penetration_um"),
+                  "tip_wall_force_N": get("tip_wall_force_N")}))
 """
 
 _PROFILE = r"""
