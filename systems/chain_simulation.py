@@ -15,7 +15,7 @@ from __future__ import annotations
 import resource
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +24,7 @@ from pydrake.systems.framework import EventStatus
 
 from ballchain.drake_models.atrium import Atrium
 from ballchain.drake_models.errors import caused_by_interrupt
-from ballchain.drake_models.safe_files import OMIT_IF_NONE, atomic_write_text, check_output_file
+from ballchain.drake_models.safe_files import atomic_write_text, check_output_file, optional_field
 from ballchain.systems.chain_scenario import ChainScenario, check_duration
 from ballchain.systems.station import (  # re-exported (__all__): the names the rest of the code uses
     MakeStation,
@@ -37,18 +37,13 @@ from ballchain.systems.station import (  # re-exported (__all__): the names the 
 )
 from ballchain.systems.target_contact import wall_force_on, wall_geometries
 
-def _omitted_if_none():
-    """A field left out of the JSON while None (``safe_files.OMIT_IF_NONE``): the parts of the
-    metrics that only some runs have, so that the JSON keeps the keys it had as a dict."""
-    return field(default=None, metadata={OMIT_IF_NONE: True})
-
 
 @dataclass
 class SnapThrough:
     """A snap-through of the quasi-static engine (its chain jumped to another equilibrium branch).
 
     Attributes:
-        t_s: when [s]; jump_mm: the largest ball displacement of the jump [mm]; detail: its text.
+        t_s: when [s]; jump_mm: the largest ball displacement over the step [mm]; detail: its text.
     """
 
     t_s: float
@@ -128,9 +123,9 @@ class SimulationMetrics:
     targets_touched: list[str]
     tip_wall_force_N: list[float]
     peak_memory_MB: float
-    statics: StaticsEngineStats | None = _omitted_if_none()
-    html: str | None = _omitted_if_none()
-    p_W_mm: list[list[float]] | None = _omitted_if_none()
+    statics: StaticsEngineStats | None = optional_field()
+    html: str | None = optional_field()
+    p_W_mm: list[list[float]] | None = optional_field()
 
 
 class SimulationFailure(RuntimeError):
