@@ -12,6 +12,11 @@ so that the load of the machine hits both alike. Two measurements:
 * ``profile``: ``benchmarks/station_profile.py`` of each side (its own copy) on the scenario:
   exclusive microseconds per step per group of systems (wrench, actuation, monitor, C++ plant).
 * ``statics``: ``ballchain bench statics`` (16 balls by default): Newton cold and warm medians.
+* ``pin``: the force-sensor pin (``forces_dynamics``) on the RSPV optimum of magnet 1 (16 bare
+  balls, a 4 x 5 grid and 5 refinements): the settling run from the loaded statics
+  (``pin_force_from_statics``) once, whose result (all but its wall time) must be the same on
+  both sides, and ``--repeats`` timed runs of ``--duration`` simulated seconds that never settle
+  (``rel_tol`` 0): the median time of build plus run.
 
 Times are the children's CPU time by default (``--clock cpu``: ``time.perf_counter`` is
 replaced by ``time.process_time`` in them, so a real-time factor is simulated time over CPU
@@ -65,9 +70,10 @@ with threadpool_limits(limits=1, user_api="blas"):
     # the plant's speed.
     run_simulation(scenario=scenario, duration=2 * scenario.effective_time_step)
     r = run_simulation(scenario=scenario, duration=float(sys.argv[2]))
-print(json.dumps({"file": ballchain.__file__, "realtime_factor": r["realtime_factor"], "p_W_mm": r["p_W_mm"],
-                  "min_wall_clearance_mm": r["min_wall_clearance_mm"], "max_penetration_um": r["max_penetration_um"],
-                  "tip_wall_force_N": r["tip_wall_force_N"]}))
+# Either side's code: SimulationMetrics (attributes) now, a dict before.
+get = r.get if isinstance(r, dict) else lambda key: getattr(r, key)
+keys = ("realtime_factor", "p_W_mm", "min_wall_clearance_mm", "max_penetration_um", "tip_wall_force_N")
+print(json.dumps({"file": ballchain.__file__, **{key: get(key) for key in keys}}))
 """
 
 _PROFILE = r"""
@@ -97,6 +103,32 @@ r = r.to_dict() if hasattr(r, "to_dict") else r  # a StaticsBenchResult; a dict 
 print(json.dumps({"file": ballchain.__file__, "cold_median_ms": r["cold_median_ms"],
                   "warm_median_ms": r["warm_median_ms"], "baseline_median_ms": r["baseline_median_ms"],
                   "energy_J": r["energy_J"], "tip_position_mm": list(r["tip_position_mm"])}))
+"""
+
+
+_PIN = r"""
+import json, sys, time
+import numpy as np
+from threadpoolctl import threadpool_limits
+from ballchain.drake_models.params import BallChain
+from ballchain.experiments import forces
+from ballchain.experiments.forces_dynamics import PinSimulationConfig, pin_force_from_statics, simulate_pin_force
+import ballchain
+with threadpool_limits(limits=1, user_api="blas"):
+    stand, chain = forces.build_stand(), BallChain(n_balls=16)
+    best = forces.max_normal_force(chain, stand, "RSPV", ("1",), grid=4, refine_evaluations=5)
+    target, axis = stand.targets["RSPV"]
+    external = forces.stand_field(stand, ("1",), best["angles_rad"])
+    settled = pin_force_from_statics(chain, external, target, axis, best["result"]).to_dict()
+    settled.pop("wall_time_s")
+    config = PinSimulationConfig(max_time=float(sys.argv[1]), rel_tol=0.0)
+    times = []
+    for _ in range(int(sys.argv[2])):
+        t = time.perf_counter()
+        long = simulate_pin_force(chain, external, target, axis, best["result"], config)
+        times.append(time.perf_counter() - t)
+print(json.dumps({"file": ballchain.__file__, "settled": settled, "median_s": float(np.median(times)),
+                  "steps": long.steps, "reason": long.reason}))
 """
 
 
@@ -135,6 +167,8 @@ def run(*, base: str, what: str = "station", scenario: str = "heart_left_quasi_s
             code, args = _STATION, [scenario, str(duration)] + ([overrides] if overrides else [])
         elif what == "profile":
             code, args = _PROFILE, [scenario, str(duration), str(REPO)]
+        elif what == "pin":
+            code, args = _PIN, [str(duration), str(repeats)]
         else:
             code, args = _STATICS, [str(n_balls), str(repeats)]
         sides = {"base": [], "head": []}
@@ -162,6 +196,14 @@ def run(*, base: str, what: str = "station", scenario: str = "heart_left_quasi_s
                                           for r in v)) for k, v in sides.items()}
         for key in ("min_wall_clearance_mm", "max_penetration_um", "tip_wall_force_N"):
             out[key] = {k: v[0][key] for k, v in sides.items()}
+    elif what == "pin":
+        out.update(duration_s=duration, repeats=repeats,
+                   median_s={k: float(np.median([r["median_s"] for r in v])) for k, v in sides.items()},
+                   steps={k: v[0]["steps"] for k, v in sides.items()},
+                   settled_identical=sides["base"][0]["settled"] == sides["head"][0]["settled"],
+                   settled={k: {f: v[0]["settled"][f] for f in ("force_N", "steps", "sim_time_s", "settled", "reason")}
+                            for k, v in sides.items()})
+        out["speedup"] = out["median_s"]["base"] / out["median_s"]["head"]
     else:
         for key in ("cold_median_ms", "warm_median_ms", "baseline_median_ms"):
             out[key] = {k: float(np.median([r[key] for r in v])) for k, v in sides.items()}
@@ -176,13 +218,15 @@ def run(*, base: str, what: str = "station", scenario: str = "heart_left_quasi_s
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--base", required=True, help="the earlier commit (any git revision)")
-    parser.add_argument("--what", choices=("station", "profile", "statics"), default="station", help="what to compare")
+    parser.add_argument("--what", choices=("station", "profile", "statics", "pin"), default="station",
+                        help="what to compare")
     parser.add_argument("--scenario", default="heart_left_quasi_static", help="station: scenario name")
     parser.add_argument("--set", dest="overrides", default=None, help="station: inline YAML overrides")
-    parser.add_argument("--duration", type=float, default=0.1, help="station: simulated time [s]")
+    parser.add_argument("--duration", type=float, default=0.1, help="station, pin: simulated time [s]")
     parser.add_argument("--rounds", type=int, default=3, help="runs of each side, alternating")
     parser.add_argument("--balls", type=int, default=16, help="statics: number of balls")
-    parser.add_argument("--repeats", type=int, default=7, help="statics: timed solves per case")
+    parser.add_argument("--repeats", type=int, default=7,
+                        help="statics: timed solves per case; pin: timed runs per round")
     parser.add_argument("--clock", choices=("cpu", "wall"), default="cpu",
                         help="what the children's timers count (default cpu: the process's CPU time)")
     args = parser.parse_args()

@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -36,27 +37,35 @@ HEART_SCENARIOS = ("heart_left_quasi_static", "heart_sleeve_quasi_static", "hear
                    "teleop_right_unit", "teleop_two_units", "heart_right_dynamics")
 
 
-def _run_once(name: str, engine: str, duration: float | None, max_duration: float = np.inf) -> dict:
-    from pydrake.systems.analysis import Simulator
+@dataclass
+class _Run:
+    """One timed run: real-time factors on wall and process CPU time, the mode, the engine's solves."""
 
+    rtf_wall: float
+    rtf_cpu: float
+    sim_s: float
+    mode: str
+    median_solve_ms: float | None = None
+    solves: int | None = None
+
+
+def _run_once(name: str, engine: str, duration: float | None, max_duration: float = np.inf) -> _Run:
     from ballchain.systems.chain_scenario import load_scenario
-    from ballchain.systems.chain_simulation import ChainMonitor, build_chain_diagram
+    from ballchain.systems.chain_simulation import build_chain_diagram, run_station
 
     overrides = "{engine: statics, mode: quasi-static}" if engine == "statics" else "{}"
     sc = load_scenario(name, overrides)
     cd = build_chain_diagram(sc)
-    sim = Simulator(cd.diagram)
-    monitor = ChainMonitor(cd)
-    sim.set_monitor(monitor)
     T = min(sc.duration, max_duration) if duration is None else duration
-    wall, cpu = time.perf_counter(), time.process_time()
-    sim.Initialize()
-    sim.AdvanceTo(T)
-    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
-    out = {"rtf_wall": T / wall, "rtf_cpu": T / cpu, "sim_s": T, "mode": sc.mode}
+    # The one run loop with its watchdog (ChainMonitor); its wall and CPU times are those of
+    # Initialize + AdvanceTo, the build not counted.
+    run = run_station(cd, duration=T)
+    if run.failure is not None:
+        raise RuntimeError(f"{name} ({engine}): {run.failure}")
+    out = _Run(rtf_wall=T / run.wall_time, rtf_cpu=T / run.cpu_time, sim_s=T, mode=sc.mode)
     if cd.engine is not None:
-        out["median_solve_ms"] = 1e3 * float(np.median(cd.engine.solve_times)) if cd.engine.solve_times else None
-        out["solves"] = len(cd.engine.solve_times)
+        out.median_solve_ms = 1e3 * float(np.median(cd.engine.solve_times)) if cd.engine.solve_times else None
+        out.solves = len(cd.engine.solve_times)
     return out
 
 

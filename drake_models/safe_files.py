@@ -181,6 +181,13 @@ NOT_IN_JSON = "not_in_json"
 working object a result keeps for its figures, e.g. the simulated fields)."""
 
 
+def optional_field(**kwargs):
+    """A dataclass field that defaults to None and is left out of the JSON (``to_jsonable``)
+    while None (``OMIT_IF_NONE``): for the parts of a result that exist only in some runs, so that
+    the JSON keeps the keys it had when results were dicts."""
+    return dataclasses.field(default=None, metadata={OMIT_IF_NONE: True}, **kwargs)
+
+
 def to_jsonable(value):
     """numpy arrays and scalars to plain Python, recursively; NaN and inf become None (null), so
     the JSON is valid (the JSON standard has no NaN). A dataclass becomes the dict of its fields

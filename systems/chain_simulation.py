@@ -4,9 +4,10 @@ The diagram is built by ``systems/station.py`` (``MakeStation``: its steps, syst
 exported ports are described there); ``build_chain_diagram`` and ``ChainDiagram`` are its
 ``MakeStation`` and ``Station`` under the names the rest of the code uses.
 
-``run_station`` is the one Simulator loop (watchdog, progress, stop condition, recording, Ctrl-C);
-``run_simulation`` stops with ``SimulationFailure`` (saying when and which ball) on a NaN, a
-ball leaving the heart or the chain breaking apart, and returns the metrics otherwise.
+``run_station`` is the one Simulator loop (watchdog, progress, stop condition, a run's own
+check, recording, Ctrl-C) of ``simulate``, teleoperation and the force pin; ``run_simulation``
+stops with ``SimulationFailure`` (saying when and which ball) on a NaN, a ball leaving the heart
+or the chain breaking apart, and returns the typed ``SimulationMetrics`` otherwise.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from pydrake.systems.framework import EventStatus
 
 from ballchain.drake_models.atrium import Atrium
 from ballchain.drake_models.errors import caused_by_interrupt
-from ballchain.drake_models.safe_files import atomic_write_text, check_output_file
+from ballchain.drake_models.safe_files import atomic_write_text, check_output_file, optional_field
 from ballchain.systems.chain_scenario import ChainScenario, check_duration
 from ballchain.systems.station import (  # re-exported (__all__): the names the rest of the code uses
     MakeStation,
@@ -36,16 +37,108 @@ from ballchain.systems.station import (  # re-exported (__all__): the names the 
 )
 from ballchain.systems.target_contact import wall_force_on, wall_geometries
 
+
+@dataclass
+class SnapThrough:
+    """A snap-through of the quasi-static engine (its chain jumped to another equilibrium branch).
+
+    Attributes:
+        t_s: when [s]; jump_mm: the largest ball displacement over the step [mm]; detail: its text.
+    """
+
+    t_s: float
+    jump_mm: float
+    detail: str
+
+
+@dataclass
+class StaticsEngineStats:
+    """The quasi-static engine's solves over a run (``engine: statics`` only).
+
+    Attributes:
+        solves: statics solves in the run.
+        median_solve_ms, max_solve_ms: their wall time [ms] (None without a solve).
+        median_iterations: Newton iterations per solve, median (None without a solve).
+        snap_throughs: the snap-throughs, in time order.
+        failures: the messages of the solves that failed.
+    """
+
+    solves: int
+    median_solve_ms: float | None
+    max_solve_ms: float | None
+    median_iterations: float | None
+    snap_throughs: list[SnapThrough]
+    failures: list[str]
+
+
+@dataclass
+class SimulationMetrics:
+    """What ``run_simulation`` measured (and ``SimulationFailure`` carries up to the failure).
+
+    Serialised by ``safe_files.to_jsonable``: the fields in this order, ``statics``, ``html`` and
+    ``p_W_mm`` left out while None (the JSON of ``ballchain simulate --json``).
+
+    Attributes:
+        realtime_factor: simulated time over wall_time_s (None for a zero wall time).
+        sim_time_s: simulated time reached [s].
+        tip_position_mm: the tip ball's centre at the end (3,) [mm] (None if not finite).
+        min_wall_clearance_mm: smallest distance from a free ball's surface to the wall [mm]
+            (negative: sunk into it; None without a heart).
+        max_neighbor_gap_um: largest gap between neighbouring balls' surfaces [um] (negative:
+            overlap).
+        max_penetration_um: the larger of the two below [um].
+        max_ball_overlap_um: largest overlap of two balls [um].
+        max_wall_penetration_um: deepest a ball sank into the wall [um].
+        monitor_checks: the watchdog's periodic checks.
+        wall_time_s: wall time of the run loop (Initialize + AdvanceTo) [s]; build_time_s: of
+            the station's build [s].
+        time_step_s: the plant's step, or the quasi-static engine's period [s].
+        mode: "quasi-static" or "dynamics"; engine: "plant" or "statics".
+        n_steps: steps (or engine updates) in sim_time_s.
+        targets_touched: names (e.g. "left_3") of the ablation targets the tip ball touched
+            (``target_contact``; empty without any).
+        tip_wall_force_N: the walls' contact force on the tip ball at the end (3,) [N], world frame.
+        peak_memory_MB: the process's peak resident set size so far (``ru_maxrss``) [MiB] (the
+            whole process, not this run alone).
+        statics: the quasi-static engine's solves (None with the plant).
+        html: the Meshcat replay written (None without one).
+        p_W_mm: the ball centres at the end (n, 3) [mm] (None in ``SimulationFailure.metrics``).
+    """
+
+    realtime_factor: float | None
+    sim_time_s: float
+    tip_position_mm: list[float] | None
+    min_wall_clearance_mm: float | None
+    max_neighbor_gap_um: float | None
+    max_penetration_um: float
+    max_ball_overlap_um: float
+    max_wall_penetration_um: float
+    monitor_checks: int
+    wall_time_s: float
+    build_time_s: float
+    time_step_s: float
+    mode: str
+    engine: str
+    n_steps: int
+    targets_touched: list[str]
+    tip_wall_force_N: list[float]
+    peak_memory_MB: float
+    statics: StaticsEngineStats | None = optional_field()
+    html: str | None = optional_field()
+    p_W_mm: list[list[float]] | None = optional_field()
+
+
 class SimulationFailure(RuntimeError):
     """The simulation stopped: NaN, a ball out of the heart, or the chain broken.
 
     Attributes:
-        metrics: the metrics up to the failure (same keys as ``run_simulation`` returns).
+        metrics: the ``SimulationMetrics`` up to the failure (``p_W_mm`` None), or None when
+            the run did not get that far.
     """
 
-    def __init__(self, message: str, metrics: dict | None = None):
+    def __init__(self, message: str, metrics: SimulationMetrics | None = None):
         super().__init__(message)
-        self.metrics = metrics or {}
+        self.metrics = metrics
 
 
 # The station builder lives in ``station``; these are its names in the rest of the code.
@@ -53,7 +146,8 @@ ChainDiagram = Station
 build_chain_diagram = MakeStation
 
 __all__ = [
-    "ChainDiagram", "ChainMonitor", "RunOutcome", "SimulationFailure", "StationPorts", "add_magnetic_wrench",
+    "ChainDiagram", "ChainMonitor", "RunOutcome", "SimulationFailure", "SimulationMetrics", "SnapThrough",
+    "StaticsEngineStats", "StationPorts", "add_magnetic_wrench",
     "atrium_for", "build_chain_diagram", "chain_for", "field_source_for", "run_simulation", "run_station",
     "station_monitor",
 ]
@@ -201,6 +295,8 @@ class ChainMonitor:
         return EventStatus.Succeeded()
 
     def metrics(self, plant_context) -> dict:
+        """The watchdog's part of ``SimulationMetrics`` (tip_position_mm .. monitor_checks, by
+        field name) at the end of a run; the wall clearance is checked once more here."""
         p = self._cd.ball_positions(plant_context)
         if (self._cd.heart is not None and plant_context.get_time() > self._last_wall_time
                 and np.all(np.isfinite(p)) and self.failure is None):
@@ -243,7 +339,8 @@ class RunOutcome:
         sim_time: simulated time reached [s].
         wall_time: wall time of Simulator Initialize + AdvanceTo [s] (the build is not counted).
         cpu_time: the process's CPU time over the same span [s].
-        failure: the watchdog's failure message (or the solver's error, with the time), or None.
+        failure: the failure message of ``check`` or of the watchdog (or the solver's error, with
+            the time), or None.
         stopped: True when ``stop`` ended the run before ``duration``.
         monitor: the ChainMonitor that watched the run (its metrics, tolerated sinkings).
         context: the Simulator's root context at the end.
@@ -266,20 +363,26 @@ def _export_recording(cd: ChainDiagram, meshcat, html: Path) -> None:
     atomic_write_text(html, meshcat.StaticHtml())
 
 
-def station_monitor(cd: ChainDiagram, monitor: ChainMonitor, stop=None, on_time=None):
-    """The Simulator monitor of a station run: the watchdog, then ``on_time``, then ``stop``.
+def station_monitor(cd: ChainDiagram, monitor: ChainMonitor, stop=None, on_time=None, check=None):
+    """The Simulator monitor of a station run: ``check``, the watchdog, then ``on_time``, then ``stop``.
 
     Args:
         cd: the diagram.
         monitor: the watchdog (its failure ends the run).
         stop: None, or ``stop(root_context) -> bool``: a termination when True.
         on_time: None, or ``on_time(t)`` called with the simulated time [s] (a progress bar).
+        check: None, or ``check(root_context) -> str | None``: the run's own failure test (e.g.
+            the force pin's), called first; a message ends the run as a failure.
 
     Returns:
         ``monitor(root_context) -> EventStatus`` for ``Simulator.set_monitor``.
     """
 
     def watch(root_context):
+        if check is not None:
+            message = check(root_context)
+            if message:
+                return EventStatus.Failed(cd.diagram, message)
         status = monitor(root_context)
         if status.severity() == EventStatus.Severity.kFailed:
             return status
@@ -293,20 +396,27 @@ def station_monitor(cd: ChainDiagram, monitor: ChainMonitor, stop=None, on_time=
 
 
 def run_station(cd: ChainDiagram, *, duration: float, monitor: ChainMonitor | None = None, stop=None,
-                progress: str | None = None, progress_step: float | None = None, html: Path | None = None,
-                meshcat=None, realtime_rate: float | None = None) -> RunOutcome:
-    """Run a built station: the one Simulator loop of the scenario runs and the teleoperation tasks.
+                check=None, context=None, progress: str | None = None, progress_step: float | None = None,
+                html: Path | None = None, meshcat=None, realtime_rate: float | None = None) -> RunOutcome:
+    """Run a built station: the one Simulator loop of the scenario runs, the teleoperation tasks
+    and the force pin.
 
-    The Simulator's monitor is the watchdog (``monitor``) first, then the progress bar, then
-    ``stop``. A watchdog failure, or a RuntimeError / ValueError of the solver, ends the run
-    with its message in ``RunOutcome.failure`` (no exception). On Ctrl-C the replay recorded so
-    far is written to ``html`` before the KeyboardInterrupt goes on.
+    The Simulator's monitor runs after Initialize and after every step: ``check`` first, then
+    the watchdog (``monitor``), then the progress bar, then ``stop``. A failure of ``check`` or
+    of the watchdog, or a RuntimeError / ValueError of the solver, ends the run with its message
+    in ``RunOutcome.failure`` (no exception). On Ctrl-C the replay recorded so far is written to
+    ``html`` before the KeyboardInterrupt goes on. Neither ``check`` nor ``stop`` nor the
+    watchdog changes the trajectory (they only read the state).
 
     Args:
         cd: the built diagram (``build_chain_diagram``).
         duration: simulated-time limit [s].
         monitor: the watchdog (default: ``ChainMonitor(cd)``).
         stop: None, or ``stop(root_context) -> bool``: end the run (a termination) when True.
+        check: None, or ``check(root_context) -> str | None``: the run's own failure test, called
+            before the watchdog; a message ends the run with it as ``RunOutcome.failure``.
+        context: None (the diagram's default context), or a root context of ``cd.diagram`` to
+            start from (an initial state set by the caller); the Simulator runs in it.
         progress: None (no bar), or the label of a tqdm bar of the simulated time on stderr.
         progress_step: update the bar every this many simulated seconds (default duration/200).
         html: record the run in Meshcat and write the replay (self-contained HTML) here; the
@@ -320,7 +430,7 @@ def run_station(cd: ChainDiagram, *, duration: float, monitor: ChainMonitor | No
     """
     from pydrake.systems.analysis import SimulatorStatus
 
-    simulator = Simulator(cd.diagram)
+    simulator = Simulator(cd.diagram) if context is None else Simulator(cd.diagram, context)
     # The scenario's SimulatorConfig (its defaults are the Simulator's own); an explicit
     # ``realtime_rate`` overrides its target_realtime_rate.
     ApplySimulatorConfig(cd.scenario.simulator_config, simulator)
@@ -341,7 +451,16 @@ def run_station(cd: ChainDiagram, *, duration: float, monitor: ChainMonitor | No
             bar.update(t - shown[0])
             shown[0] = t
 
-    simulator.set_monitor(station_monitor(cd, monitor, stop=stop, on_time=None if bar is None else show))
+    checked = []  # the message of ``check``, when it ended the run
+
+    def run_check(root_context):
+        message = check(root_context)
+        if message:
+            checked.append(message)
+        return message
+
+    simulator.set_monitor(station_monitor(cd, monitor, stop=stop, on_time=None if bar is None else show,
+                                          check=None if check is None else run_check))
     root = simulator.get_mutable_context()
     record = cd.visualizer is not None and html is not None
     if record:
@@ -364,7 +483,8 @@ def run_station(cd: ChainDiagram, *, duration: float, monitor: ChainMonitor | No
         if not isinstance(err, (RuntimeError, ValueError)):
             raise
         # The monitor's failure, or a solver/physics error.
-        failure = monitor.failure or f"at t = {root.get_time():.4f} s: {' '.join(str(err).split())}"
+        failure = ((checked[0] if checked else monitor.failure)
+                   or f"at t = {root.get_time():.4f} s: {' '.join(str(err).split())}")
     finally:
         if bar is not None:
             bar.close()
@@ -374,8 +494,21 @@ def run_station(cd: ChainDiagram, *, duration: float, monitor: ChainMonitor | No
     return RunOutcome(root.get_time(), wall, cpu, failure, stopped, monitor, root, simulator)
 
 
+def _statics_stats(engine) -> StaticsEngineStats:
+    """The quasi-static engine's solves over the run."""
+    solves = np.array(engine.solve_times)
+    return StaticsEngineStats(
+        solves=int(len(solves)),
+        median_solve_ms=round(float(np.median(solves)) * 1e3, 3) if len(solves) else None,
+        max_solve_ms=round(float(solves.max()) * 1e3, 3) if len(solves) else None,
+        median_iterations=float(np.median(engine.iterations)) if engine.iterations else None,
+        snap_throughs=[SnapThrough(t_s=round(e.time, 4), jump_mm=round(e.jump * 1e3, 3), detail=e.detail)
+                       for e in engine.events if e.kind == "snap-through"],
+        failures=[e.detail for e in engine.events if e.kind == "solve failed"])
+
+
 def run_simulation(*, scenario: ChainScenario, duration: float | None = None, html: Path | None = None,
-                   meshcat=None, heart: Atrium | None = None, progress: bool = False) -> dict:
+                   meshcat=None, heart: Atrium | None = None, progress: bool = False) -> SimulationMetrics:
     """Simulate a scenario and return its metrics.
 
     Args:
@@ -387,15 +520,11 @@ def run_simulation(*, scenario: ChainScenario, duration: float | None = None, ht
         progress: show a progress bar of the simulated time on stderr.
 
     Returns:
-        {"realtime_factor", "sim_time_s", "tip_position_mm", "min_wall_clearance_mm",
-        "max_neighbor_gap_um", "max_penetration_um", "wall_time_s", "build_time_s",
-        "time_step_s", "mode", "n_steps", "targets_touched" (names such as "left_3" of the
-        ablation targets the tip ball touched, see ``meshcat_overlays``; empty without any),
-        "peak_memory_MB" (the process's peak resident set size, ``ru_maxrss``, in MiB),
-        "p_W_mm" (n, 3)}.
+        The run's ``SimulationMetrics`` (with the ball centres ``p_W_mm``).
 
     Raises:
-        SimulationFailure: NaN, escape or break (message says when and which ball).
+        SimulationFailure: NaN, escape or break (message says when and which ball); its
+            ``metrics`` are the run's up to the failure (no ``p_W_mm``).
     """
     duration = scenario.duration if duration is None else duration
     check_duration(duration, scenario.effective_time_step, "duration")
@@ -410,38 +539,26 @@ def run_simulation(*, scenario: ChainScenario, duration: float | None = None, ht
     monitor, root, error = run.monitor, run.context, run.failure
     plant_context = cd.chain_system.GetMyContextFromRoot(root)
     wall, sim_time = run.wall_time, run.sim_time
-    metrics = {
-        "realtime_factor": round(sim_time / wall, 4) if wall > 0 else None,
-        "sim_time_s": round(sim_time, 6),
+    step = scenario.statics_period if cd.engine is not None else scenario.effective_time_step
+    metrics = SimulationMetrics(
+        realtime_factor=round(sim_time / wall, 4) if wall > 0 else None,
+        sim_time_s=round(sim_time, 6),
         **monitor.metrics(plant_context),
-        "wall_time_s": round(wall, 3),
-        "build_time_s": round(cd.build_time_s, 3),
-        "time_step_s": scenario.statics_period if cd.engine is not None else scenario.effective_time_step,
-        "mode": scenario.mode,
-        "engine": scenario.engine,
-        "n_steps": int(round(sim_time / (scenario.statics_period if cd.engine is not None
-                                         else scenario.effective_time_step))),
-        "targets_touched": _targets_touched(cd, root),
-        "tip_wall_force_N": _tip_wall_force(cd, plant_context),
+        wall_time_s=round(wall, 3),
+        build_time_s=round(cd.build_time_s, 3),
+        time_step_s=step,
+        mode=scenario.mode,
+        engine=scenario.engine,
+        n_steps=int(round(sim_time / step)),
+        targets_touched=_targets_touched(cd, root),
+        tip_wall_force_N=_tip_wall_force(cd, plant_context),
         # ru_maxrss is in KiB on Linux: the process's peak resident set size so far (the whole
         # process, not this run alone).
-        "peak_memory_MB": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
-    }
-    if cd.engine is not None:
-        solves = np.array(cd.engine.solve_times)
-        metrics["statics"] = {
-            "solves": int(len(solves)),
-            "median_solve_ms": round(float(np.median(solves)) * 1e3, 3) if len(solves) else None,
-            "max_solve_ms": round(float(solves.max()) * 1e3, 3) if len(solves) else None,
-            "median_iterations": float(np.median(cd.engine.iterations)) if cd.engine.iterations else None,
-            "snap_throughs": [{"t_s": round(e.time, 4), "jump_mm": round(e.jump * 1e3, 3), "detail": e.detail}
-                              for e in cd.engine.events if e.kind == "snap-through"],
-            "failures": [e.detail for e in cd.engine.events if e.kind == "solve failed"],
-        }
-    if cd.visualizer is not None and html is not None:
-        metrics["html"] = str(html)
+        peak_memory_MB=round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
+        statics=_statics_stats(cd.engine) if cd.engine is not None else None,
+        html=str(html) if cd.visualizer is not None and html is not None else None,
+    )
     if error is not None:
         raise SimulationFailure(f"simulation stopped: {error}", metrics)
-    p = cd.ball_positions(plant_context)
-    metrics["p_W_mm"] = (p * 1e3).round(4).tolist()
+    metrics.p_W_mm = (cd.ball_positions(plant_context) * 1e3).round(4).tolist()
     return metrics

@@ -207,7 +207,7 @@ def test_free_space_quasi_static_settles_on_the_statics_solution():
     assert statics.converged
     scenario = load_scenario("free_space_uniform_90deg", f"{{n_balls: {n}}}")
     result = run_simulation(scenario=scenario, duration=2.5)
-    p = np.array(result["p_W_mm"]) * 1e-3
+    p = np.array(result.p_W_mm) * 1e-3
     np.testing.assert_allclose(p[0], 0.0, atol=1e-9)  # ball 1 clamped at the origin
     tip_error = np.linalg.norm(p[-1] - statics.positions[-1])
     print(f"tip: simulation {p[-1] * 1e3} mm, statics {statics.positions[-1] * 1e3} mm, "
@@ -257,7 +257,7 @@ def test_chain_pressed_against_a_wall_settles_on_the_statics_solution():
                                         wall=(point, normal))
     assert set(statics.wall_forces) == {scenario.n_balls - 1}  # only the tip touches
     result = run_simulation(scenario=scenario, duration=2.5)
-    p = np.array(result["p_W_mm"]) * 1e-3
+    p = np.array(result.p_W_mm) * 1e-3
     error = p - statics.positions
     print(f"tip: simulation {p[-1] * 1e3} mm, statics {statics.positions[-1] * 1e3} mm, "
           f"wall force (statics) {statics.wall_forces[scenario.n_balls - 1]:.3f} N")
@@ -266,6 +266,6 @@ def test_chain_pressed_against_a_wall_settles_on_the_statics_solution():
     assert 0.0 < indentation < 0.3e-3  # into the wall, a fraction of a millimetre
     # The wall's push on the tip: the simulation's contact force against the statics multiplier
     # (0.01 % apart when measured; 2 % allows for the settling that is left after 2.5 s).
-    f_sim = np.array(result["tip_wall_force_N"])
+    f_sim = np.array(result.tip_wall_force_N)
     f_statics = statics.wall_forces[scenario.n_balls - 1] * normal
     np.testing.assert_allclose(f_sim, f_statics, rtol=0, atol=0.02 * np.linalg.norm(f_statics))

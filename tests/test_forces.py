@@ -210,3 +210,22 @@ def test_forces_command_prints_the_simulated_column(capsys, tmp_path, monkeypatc
     assert main(argv[:-1] + ["--no-files", "--no-dynamics", "--json"]) == 0
     assert calls[0]["dynamics"] is False
     assert json.loads(capsys.readouterr().out) == {"rows": [], "paper": {}, "stand": {}}
+
+
+def test_the_station_watchdog_guards_the_pin_run(rspv_optimum):
+    """The pin runs in the station's one run loop (``run_station``): with its own break and
+    slip tests switched off (1 km), the station's watchdog stops a chain blown apart by a stiff
+    pin with too little angular damping (ball 2 is 2.3 m out), at the same sample (10 ms) where
+    the pin's test does."""
+    from ballchain.experiments.forces_dynamics import PinSimulationConfig, simulate_pin_force
+
+    stand, chain, out = rspv_optimum
+    target, axis = stand.targets["RSPV"]
+    external = forces.stand_field(stand, ("1",), out["angles_rad"])
+    blow_up = dict(stiffness=2.4e3, angular_damping=1e-6, max_time=0.5)
+    own = simulate_pin_force(chain, external, target, axis, out["result"], PinSimulationConfig(**blow_up))
+    assert own.reason.startswith("the chain broke apart at t = 0.010 s: balls 2 and 3")
+    guarded = simulate_pin_force(chain, external, target, axis, out["result"],
+                                 PinSimulationConfig(max_gap=1e3, max_deflection=1e3, **blow_up))
+    assert guarded.reason.startswith("ball 2 flew away at t = 0.0100 s")
+    assert guarded.force_N is None and not guarded.settled and guarded.steps == own.steps == 10

@@ -184,7 +184,7 @@ def test_short_recorded_run_has_the_overlays_in_its_html(heart, meshcat, tmp_pat
                  b"overlays/tip_contact_force/shaft"):
         assert path in payload, path
     assert b"animation" in payload and b"visible" in payload
-    assert result["targets_touched"] == []  # the chain is still in the middle of the chamber
+    assert result.targets_touched == []  # the chain is still in the middle of the chamber
 
 
 def test_json_reports_targets_touched_and_peak_memory(capsys):

@@ -268,7 +268,7 @@ def test_every_named_scenario_runs_on_the_statics_engine(name):
     from ballchain.systems.chain_simulation import run_simulation
 
     m = run_simulation(scenario=load_scenario(name, "{engine: statics, duration: 0.2}"))
-    assert m["engine"] == "statics" and m["realtime_factor"] > 0
-    assert m["statics"]["failures"] == [] and m["statics"]["solves"] >= 1
-    if m["min_wall_clearance_mm"] is not None:
-        assert m["min_wall_clearance_mm"] > -1e-3  # the SDF grid's error, not a penetration
+    assert m.engine == "statics" and m.realtime_factor > 0
+    assert m.statics.failures == [] and m.statics.solves >= 1
+    if m.min_wall_clearance_mm is not None:
+        assert m.min_wall_clearance_mm > -1e-3  # the SDF grid's error, not a penetration

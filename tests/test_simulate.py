@@ -1,5 +1,6 @@
 """Scenarios and the `ballchain simulate` command: every named scenario, defaults, bad input."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -50,13 +51,13 @@ def test_every_named_scenario_runs_briefly(name, heart):
     scenario = load_scenario(name)
     duration = 10 * scenario.effective_time_step
     result = run_simulation(scenario=scenario, duration=duration, heart=heart if scenario.heart else None)
-    assert KEYS <= set(result)
-    assert result["sim_time_s"] == pytest.approx(duration)
-    assert result["max_penetration_um"] < 20.0
-    assert result["max_neighbor_gap_um"] < 20.0
+    assert KEYS <= {f.name for f in dataclasses.fields(result)}
+    assert result.sim_time_s == pytest.approx(duration)
+    assert result.max_penetration_um < 20.0
+    assert result.max_neighbor_gap_um < 20.0
     if scenario.heart:
-        assert result["min_wall_clearance_mm"] > 0.0
-    assert np.all(np.isfinite(result["tip_position_mm"]))
+        assert result.min_wall_clearance_mm > 0.0
+    assert np.all(np.isfinite(result.tip_position_mm))
 
 
 def test_cli_prints_json(capsys):
@@ -100,7 +101,7 @@ def test_html_recording(tmp_path):
     result = run_simulation(scenario=load_scenario("free_space_uniform_90deg", "{n_balls: 4}"),
                             duration=0.01, html=html)
     text = html.read_text()
-    assert result["html"] == str(html)
+    assert result.html == str(html)
     assert text.lstrip().lower().startswith("<!doctype html") or "<html" in text[:1000].lower()
     assert len(text) > 10_000
 
@@ -164,9 +165,9 @@ def test_a_user_atrium_surface_runs_and_a_bad_one_is_refused(tmp_path, capsys):
     overrides = f"{{atrium_file: '{obj}', puncture: [-0.027, 0.0, 0.0], insertion: {{initial: 0.02, final: 0.025}}}}"
     scenario = load_scenario("heart_no_field", overrides)
     result = run_simulation(scenario=scenario, duration=0.05)
-    tip = np.array(result["tip_position_mm"])
+    tip = np.array(result.tip_position_mm)
     assert tip[0] > -27.0 + 15.0  # ~20 mm of chain out of the sheath, pointing to the centre
-    assert result["min_wall_clearance_mm"] > 0 and result["max_neighbor_gap_um"] < 20
+    assert result.min_wall_clearance_mm > 0 and result.max_neighbor_gap_um < 20
     # An open surface: the CLI says why, exit status 2.
     bad = mt.write_obj(tmp_path / "open.obj", U * 25.0, F[1:])
     argv = ["simulate", "--scenario", "heart_no_field", "--duration", "0.001",
@@ -360,3 +361,49 @@ def test_the_one_run_loop_stops_on_its_condition_and_reports_a_failure():
     broken = run_station(build_chain_diagram(load_scenario("free_space_uniform_90deg",
                                                            "{translational_damping: 0.1}")), duration=0.05)
     assert "the chain broke between balls" in broken.failure and broken.sim_time < 0.05
+
+
+def test_the_run_loop_takes_a_run_check_and_a_start_context():
+    """``run_station``'s ``check`` (a run's own failure test, before the watchdog) ends the run
+    with its message; ``context`` is the state the run starts from (here ball 4 put 2 m away:
+    the watchdog stops the run at t = 0)."""
+    from pydrake.math import RigidTransform
+
+    from ballchain.systems.chain_simulation import run_station
+
+    scenario = load_scenario("free_space_uniform_90deg", "{n_balls: 4}")
+    cd = build_chain_diagram(scenario)
+    checked = run_station(cd, duration=0.2, check=lambda root: "too late" if root.get_time() >= 0.02 else None)
+    assert checked.failure == "too late" and not checked.stopped and checked.sim_time == pytest.approx(0.02)
+    assert checked.monitor.failure is None  # the watchdog saw nothing wrong
+    root = cd.diagram.CreateDefaultContext()
+    plant = cd.chain_plant.plant
+    plant.GetJointByName("ball_4_floating").SetPose(plant.GetMyContextFromRoot(root), RigidTransform([2.0, 0.0, 0.0]))
+    away = run_station(cd, duration=0.2, context=root)
+    assert away.context is root and away.sim_time == 0.0
+    assert away.failure.startswith("ball 4 flew away at t = 0.0000 s")
+
+
+def test_the_metrics_serialise_to_the_keys_of_the_simulate_json():
+    """``SimulationMetrics`` through ``safe_files.to_jsonable``: the keys of ``ballchain simulate
+    --json`` in their order; the engine's stats (with a snap-through), the replay and the ball
+    centres only when there are any."""
+    from ballchain.drake_models.safe_files import to_jsonable
+    from ballchain.systems.chain_simulation import SimulationMetrics, SnapThrough, StaticsEngineStats
+
+    always = ["realtime_factor", "sim_time_s", "tip_position_mm", "min_wall_clearance_mm", "max_neighbor_gap_um",
+              "max_penetration_um", "max_ball_overlap_um", "max_wall_penetration_um", "monitor_checks",
+              "wall_time_s", "build_time_s", "time_step_s", "mode", "engine", "n_steps", "targets_touched",
+              "tip_wall_force_N", "peak_memory_MB"]
+    values = dict(zip(always, [1.5, 0.1, [1.0, 2.0, 3.0], None, 0.5, 1.0, 1.0, 0.0, 20, 0.2, 1.0, 1e-3,
+                               "quasi-static", "plant", 100, ["left_3"], [0.0, 0.0, 0.1], 300.0]))
+    plain = to_jsonable(SimulationMetrics(**values))
+    assert list(plain) == always and plain == values
+    stats = StaticsEngineStats(solves=2, median_solve_ms=4.0, max_solve_ms=5.0, median_iterations=7.0,
+                               snap_throughs=[SnapThrough(t_s=0.05, jump_mm=float("nan"), detail="branch ended")],
+                               failures=[])
+    full = to_jsonable(SimulationMetrics(**values, statics=stats, html="run.html", p_W_mm=[[0.0, 0.0, 0.0]]))
+    assert list(full) == always + ["statics", "html", "p_W_mm"]
+    assert full["statics"] == {"solves": 2, "median_solve_ms": 4.0, "max_solve_ms": 5.0, "median_iterations": 7.0,
+                               "snap_throughs": [{"t_s": 0.05, "jump_mm": None, "detail": "branch ended"}],
+                               "failures": []}

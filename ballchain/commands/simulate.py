@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 from ballchain.commands._common import add_json_flag, float_in, print_json
+from ballchain.drake_models.safe_files import to_jsonable
 from ballchain.experiments.simulation import run
 
 
@@ -51,7 +52,7 @@ def main(args: argparse.Namespace) -> int:
     except SimulationFailure as failure:
         print(f"ballchain simulate: {failure}", file=sys.stderr)
         if args.json:
-            print_json({**failure.metrics, "failure": str(failure)})
+            print_json({**to_jsonable(failure.metrics or {}), "failure": str(failure)})
         return 1
     if args.json:
         print_json(result.public())

@@ -11,16 +11,11 @@ from __future__ import annotations
 
 import dataclasses
 
-from ballchain.drake_models.safe_files import NOT_IN_JSON, OMIT_IF_NONE, json_text, to_jsonable
+from ballchain.drake_models.safe_files import NOT_IN_JSON, json_text, optional_field, to_jsonable
 
-
-def optional(**kwargs):
-    """A dataclass field that defaults to None and is left out of the JSON while None.
-
-    For the parts of a result that exist only in some runs (the files written with ``out``, the
-    replay with ``html``), so that the JSON keeps the keys it had when results were dicts.
-    """
-    return dataclasses.field(default=None, metadata={OMIT_IF_NONE: True}, **kwargs)
+# A field that defaults to None and is left out of the JSON while None: for the parts of a result
+# that exist only in some runs (the files written with ``out``, the replay with ``html``).
+optional = optional_field
 
 
 def not_in_json(**kwargs):

@@ -45,6 +45,13 @@ Design (``PinSimulationConfig``):
   steady mean reading), at least ``min_time`` (0.2 s) in; after ``max_time`` (3 s) without it
   the row reports no force and why. The chain's slowest mode relaxes in about a second, so the
   test stops with up to about 0.5 % of slow creep left (measured from starts on both sides).
+* The run: the station's one run loop (``chain_simulation.run_station``), the pin's tests
+  (``PinSteadyState``) its ``check`` and ``stop``, the station's watchdog (``ChainMonitor``, at
+  the pin's samples) guarding it too. The watchdog only reads the state: the readings, steps and
+  reasons are bit for bit those of the pin's former loop of its own (measured on nine runs:
+  settled, not settled, tip off the pin, chains blown apart). Only a NaN in a state the reading
+  does not see yet, or a ball flown away with the pin's tests loosened, now ends the run earlier,
+  with the watchdog's message.
 """
 
 from __future__ import annotations
@@ -54,7 +61,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from pydrake.math import RigidTransform, RotationMatrix
-from pydrake.systems.analysis import Simulator
 
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
@@ -137,7 +143,7 @@ def pin_scenario(chain: BallChain, pin_point, config: PinSimulationConfig = PinS
         angular_damping=config.angular_damping,
         insertion=InsertionScenario(initial=0.0, final=0.0, slide_gains=list(config.feeder_gains)),
         contact=ContactConfig(ball_point_stiffness=config.contact_stiffness, friction=0.0),  # frictionless statics
-        duration=config.max_time,
+        duration=config.max_time, check_period=config.check_period,  # the watchdog checks at the pin's samples
         pin=PinScenario(point=np.asarray(pin_point, float).reshape(3).tolist(), stiffness=config.stiffness))
     if chain_for(scenario) != chain:
         raise UserInputError(f"the pinned chain must be a scenario's chain (n_balls, the standard sleeve or none), "
@@ -223,9 +229,111 @@ class PinForceResult(Result):
     statics_loaded_N: float | None = optional()
 
 
+class PinSteadyState:
+    """The pin run's own tests, sampled every ``config.check_period`` (from t = 0) by the run loop.
+
+    ``failure`` is ``run_station``'s ``check``: at each sample it reads the pin and fails the run
+    on a non-finite reading, a broken chain (neighbours more than ``max_gap`` from touching) or
+    a tip off the pin; ``steady`` is its ``stop``: at each sample, once ``min_time`` is in and a
+    window of readings exists, the steady-state test (the reading moved by less than ``rel_tol``
+    of its size over the window, no ball faster than ``max_speed`` / ``max_angular_speed``), and
+    the end at the first sample at or after ``max_time``. Between samples both return at once.
+
+    Attributes:
+        readings: the readings so far (3,) [N], one a sample.
+        settled: the steady-state test passed.
+        drift_rel, max_speed: as in ``PinForceResult`` (at the last test).
+        reason: why the run ended (None while it runs, and when it settled).
+        duration: the time of the last sample the run may need [s] (at or after max_time).
+    """
+
+    def __init__(self, pd: Station, chain: BallChain, config: PinSimulationConfig):
+        self._pd, self._chain, self._config = pd, chain, config
+        self._plant = pd.chain_plant.plant
+        self._n_window = int(round(config.window / config.check_period))
+        self._t = 0.0  # the next sample's time: the same sums of check_period as the samples
+        self._sampled = False  # a sample was taken at this call and awaits the steady-state test
+        self.readings: list[np.ndarray] = []
+        self.settled = False
+        self.drift_rel: float | None = None
+        self.max_speed: tuple | None = None
+        self.reason: str | None = None
+        t = 0.0
+        while t < config.max_time - 1e-12:
+            t = round(t + config.check_period, 12)
+        self.duration = t
+
+    def _due(self, root) -> bool:
+        # The plant steps at time_step; a sample is due at the first step at (or a rounding
+        # error before) its time.
+        return root.get_time() >= self._t - 1e-9
+
+    def failure(self, root) -> str | None:
+        """The failure tests at a sample (``run_station``'s ``check``); None between samples."""
+        if not self._due(root):
+            return None
+        t, config, pd = self._t, self._config, self._pd
+        reading = pd.diagram.GetOutputPort("pin_reading").Eval(root).copy()
+        deflection = pd.pin.deflection(pd.pin.GetMyContextFromRoot(root))
+        if not np.all(np.isfinite(reading)):
+            self.reason = f"NaN in the state at t = {t:.3f} s"
+            return self.reason
+        p = pd.chain_plant.ball_positions(self._plant.GetMyContextFromRoot(root))
+        gaps = np.linalg.norm(np.diff(p, axis=0), axis=1) - self._chain.ball_diameter
+        if np.abs(gaps).max() > config.max_gap:
+            i = int(np.argmax(np.abs(gaps)))
+            self.reason = (f"the chain broke apart at t = {t:.3f} s: balls {i + 1} and {i + 2} are "
+                           f"{gaps[i] * 1e3:+.3f} mm from touching")
+            return self.reason
+        if np.linalg.norm(deflection) > config.max_deflection:
+            self.reason = (f"the tip left the pin: {np.linalg.norm(deflection) * 1e3:.2f} mm from it at "
+                           f"t = {t:.3f} s (> {config.max_deflection * 1e3:.1f} mm)")
+            return self.reason
+        self.readings.append(reading)
+        self._sampled = True
+        return None
+
+    def steady(self, root) -> bool:
+        """The steady-state test at a sample, and the end at max_time (``run_station``'s ``stop``)."""
+        if not self._sampled:
+            return False
+        self._sampled = False
+        t, config = self._t, self._config
+        self._t = round(t + config.check_period, 12)
+        reading = self.readings[-1]
+        if len(self.readings) > self._n_window and t >= config.min_time - 1e-12:
+            recent = np.array(self.readings[-self._n_window - 1:])
+            drift = float(np.linalg.norm(recent - reading, axis=1).max())
+            size = float(np.linalg.norm(reading))
+            self.drift_rel = drift / size if size > 0 else None
+            plant_context = self._plant.GetMyContextFromRoot(root)
+            v = self._plant.GetVelocities(plant_context)[1:].reshape(-1, 6)  # [w, v] of balls 2..n
+            self.max_speed = (float(np.linalg.norm(v[:, 3:], axis=1).max()),
+                              float(np.linalg.norm(v[:, :3], axis=1).max()))
+            at_rest = self.max_speed[0] < config.max_speed and self.max_speed[1] < config.max_angular_speed
+            if drift < max(config.rel_tol * size, config.abs_tol) and at_rest:
+                self.settled = True
+                return True
+        if t >= config.max_time - 1e-12:
+            if self.drift_rel is None:
+                why = "too short for the steady-state test"
+            else:
+                why = (f"the reading still moved by {100 * self.drift_rel:.2g} % over the last {config.window:g} s, "
+                       f"the balls at up to {self.max_speed[0] * 1e3:.2g} mm/s and {self.max_speed[1]:.2g} rad/s")
+            self.reason = f"did not settle in {config.max_time:g} s: {why}"
+            return True
+        return False
+
+
 def simulate_pin_force(chain: BallChain, external, pin_point, axis, start=None,
                        config: PinSimulationConfig = PinSimulationConfig()) -> PinForceResult:
     """The steady reading of the sensor pin holding the tip of the damped chain.
+
+    Runs through the station's one run loop (``chain_simulation.run_station``): the pin's tests
+    (``PinSteadyState``) are its ``check`` and ``stop``, and the station's watchdog
+    (``ChainMonitor``: NaN in any state, a chain broken by more than the scenario's
+    ``break_gap``, a ball flown away) guards the run too; its message is the reason when it
+    stops the run first (it checks the state every step for NaN, the pin only at its samples).
 
     Args:
         chain: the chain.
@@ -241,15 +349,15 @@ def simulate_pin_force(chain: BallChain, external, pin_point, axis, start=None,
         A ``PinForceResult``; its force_N is None (with the reason) when the run failed or did
         not settle.
     """
+    from ballchain.systems.chain_simulation import ChainMonitor, run_station
+
     t0 = time.perf_counter()
     pin_point = np.asarray(pin_point, float).reshape(3)
     axis = np.asarray(axis, float).reshape(3)
     axis = axis / np.linalg.norm(axis)
     pd = build_pin_diagram(chain, external, pin_point, config)
-    simulator = Simulator(pd.diagram)
-    root = simulator.get_mutable_context()
-    plant = pd.chain_plant.plant
-    plant_context = plant.GetMyContextFromRoot(root)
+    root = pd.diagram.CreateDefaultContext()
+    plant_context = pd.chain_plant.plant.GetMyContextFromRoot(root)
     if start is None:
         positions, dipoles = straight_chain(chain)
     elif isinstance(start, StaticsResult):
@@ -257,70 +365,25 @@ def simulate_pin_force(chain: BallChain, external, pin_point, axis, start=None,
     else:
         positions, dipoles = start
     set_chain_state(pd, plant_context, positions, dipoles, config.overlap)
-    reading_port = pd.diagram.GetOutputPort("pin_reading")
-    pin_context = pd.pin.GetMyContextFromRoot(root)
-
-    readings = []
-    out = {"force_N": None, "force_gf": None, "lateral_N": None, "lateral_gf": None, "reading_N": None,
-           "deflection_m": None, "positions": None, "settled": False, "drift_rel": None, "max_speed": None,
-           "stiffness_N_per_m": config.stiffness, "time_step_s": config.time_step}
-    n_window = int(round(config.window / config.check_period))
-    reason = None
-    simulator.Initialize()
-    t = 0.0
-    while True:
-        reading = reading_port.Eval(root).copy()
-        deflection = pd.pin.deflection(pin_context)
-        if not np.all(np.isfinite(reading)):
-            reason = f"NaN in the state at t = {t:.3f} s"
-            break
-        p = pd.chain_plant.ball_positions(plant_context)
-        gaps = np.linalg.norm(np.diff(p, axis=0), axis=1) - chain.ball_diameter
-        if np.abs(gaps).max() > config.max_gap:
-            i = int(np.argmax(np.abs(gaps)))
-            reason = (f"the chain broke apart at t = {t:.3f} s: balls {i + 1} and {i + 2} are "
-                      f"{gaps[i] * 1e3:+.3f} mm from touching")
-            break
-        if np.linalg.norm(deflection) > config.max_deflection:
-            reason = (f"the tip left the pin: {np.linalg.norm(deflection) * 1e3:.2f} mm from it at t = {t:.3f} s "
-                      f"(> {config.max_deflection * 1e3:.1f} mm)")
-            break
-        readings.append(reading)
-        if len(readings) > n_window and t >= config.min_time - 1e-12:
-            recent = np.array(readings[-n_window - 1:])
-            drift = float(np.linalg.norm(recent - reading, axis=1).max())
-            size = float(np.linalg.norm(reading))
-            out["drift_rel"] = drift / size if size > 0 else None
-            v = plant.GetVelocities(plant_context)[1:].reshape(-1, 6)  # [w, v] of balls 2..n
-            out["max_speed"] = (float(np.linalg.norm(v[:, 3:], axis=1).max()),
-                                float(np.linalg.norm(v[:, :3], axis=1).max()))
-            at_rest = out["max_speed"][0] < config.max_speed and out["max_speed"][1] < config.max_angular_speed
-            if drift < max(config.rel_tol * size, config.abs_tol) and at_rest:
-                out["settled"] = True
-                break
-        if t >= config.max_time - 1e-12:
-            if out["drift_rel"] is None:
-                why = "too short for the steady-state test"
-            else:
-                why = (f"the reading still moved by {100 * out['drift_rel']:.2g} % over the last {config.window:g} s, "
-                       f"the balls at up to {out['max_speed'][0] * 1e3:.2g} mm/s and {out['max_speed'][1]:.2g} rad/s")
-            reason = f"did not settle in {config.max_time:g} s: {why}"
-            break
-        t = round(t + config.check_period, 12)
-        try:
-            simulator.AdvanceTo(t)
-        except RuntimeError as err:
-            reason = f"the simulation failed at t = {root.get_time():.3f} s: {err}"
-            break
-    out.update(sim_time_s=root.get_time(), wall_time_s=time.perf_counter() - t0,
-               steps=int(round(root.get_time() / config.time_step)), reason=reason)
-    if not out["settled"]:
+    test = PinSteadyState(pd, chain, config)
+    watchdog = ChainMonitor(pd)
+    run = run_station(pd, duration=test.duration, monitor=watchdog, check=test.failure, stop=test.steady,
+                      context=root)
+    reason = test.reason
+    if run.failure is not None and reason is None:  # the watchdog's, or the solver's error
+        reason = run.failure if watchdog.failure else f"the simulation failed {run.failure}"
+    out = dict(force_N=None, force_gf=None, lateral_N=None, lateral_gf=None, reading_N=None, deflection_m=None,
+               positions=None, settled=test.settled, drift_rel=test.drift_rel, max_speed=test.max_speed,
+               stiffness_N_per_m=config.stiffness, time_step_s=config.time_step, sim_time_s=run.sim_time,
+               wall_time_s=time.perf_counter() - t0, steps=int(round(run.sim_time / config.time_step)),
+               reason=reason)
+    if not test.settled:
         return PinForceResult(**out)
-    reading = readings[-1]
+    reading = test.readings[-1]
     along = float(reading @ axis)
     lateral = float(np.linalg.norm(reading - along * axis))
     out.update(force_N=along, force_gf=gram_force(along), lateral_N=lateral, lateral_gf=gram_force(lateral),
-               reading_N=reading, deflection_m=pd.pin.deflection(pin_context),
+               reading_N=reading, deflection_m=pd.pin.deflection(pd.pin.GetMyContextFromRoot(run.context)),
                positions=pd.chain_plant.ball_positions(plant_context), reason="steady state")
     return PinForceResult(**out)
 

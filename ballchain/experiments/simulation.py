@@ -8,8 +8,9 @@ equilibrium (two independent computations of the same shape).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -19,29 +20,32 @@ from ballchain.drake_models.safe_files import check_output_file, to_jsonable
 from ballchain.experiments._result import Result
 from ballchain.optimization.statics import uniform_field_equilibrium
 
+if TYPE_CHECKING:  # the systems layer (pydrake) loads with the run, not with the command line
+    from ballchain.systems.chain_simulation import SimulationMetrics
+
 
 @dataclass
 class SimulationResult(Result):
     """What ``run`` returns.
 
     Attributes:
-        metrics: the run loop's metrics (``chain_simulation.run_simulation``: realtime_factor,
-            sim_time_s, the monitor's tip position [mm], clearances and overlaps, wall_time_s,
-            build_time_s, time_step_s, mode, engine, n_steps, targets_touched, tip_wall_force_N,
-            peak_memory_MB, the engine's statics stats, html, ...), without the ball positions.
+        metrics: the run's ``chain_simulation.SimulationMetrics`` (real-time factor, the
+            watchdog's tip position, clearances and overlaps, times, steps, targets touched, the
+            tip's wall force, peak memory, the engine's statics stats, html), without the ball
+            positions (``metrics.p_W_mm`` is None: they are ``p_W_mm``).
         p_W_mm: the ball centres at the end [mm], shape (n, 3).
         statics_tip_error_mm: distance from the simulated tip to the statics equilibrium [mm]
             (None for scenarios that do not settle on the canonical statics problem).
     """
 
-    metrics: dict
+    metrics: SimulationMetrics
     p_W_mm: list
     statics_tip_error_mm: float | None
 
     def public(self) -> dict:
         """What the command prints: the metrics and ``statics_tip_error_mm`` in one flat,
         JSON-ready dict (no ball positions)."""
-        return to_jsonable({**self.metrics, "statics_tip_error_mm": self.statics_tip_error_mm})
+        return {**to_jsonable(self.metrics), "statics_tip_error_mm": to_jsonable(self.statics_tip_error_mm)}
 
 
 def run(*, scenario: str, duration: float | None = None, mode: str | None = None,
@@ -78,8 +82,9 @@ def run(*, scenario: str, duration: float | None = None, mode: str | None = None
     if duration is not None:
         check_duration(duration, chosen.effective_time_step, "--duration")
     metrics = run_simulation(scenario=chosen, duration=duration, html=html, progress=progress)
-    p_W_mm = metrics.pop("p_W_mm")
-    return SimulationResult(metrics=metrics, p_W_mm=p_W_mm, statics_tip_error_mm=statics_tip_error_mm(chosen, p_W_mm))
+    p_W_mm = metrics.p_W_mm
+    return SimulationResult(metrics=replace(metrics, p_W_mm=None), p_W_mm=p_W_mm,
+                            statics_tip_error_mm=statics_tip_error_mm(chosen, p_W_mm))
 
 
 def statics_tip_error_mm(scenario, p_W_mm) -> float | None:
