@@ -229,7 +229,7 @@ def forces_section(out: Path, quick: bool) -> tuple[Section, dict]:
 
 
 def clinical_section(out: Path, quick: bool) -> tuple[Section, dict]:
-    """Table I's gap effect by effect, and the paper's clinical design in simulation (issue 13)."""
+    """Table I's gap effect by effect, and the paper's clinical design in simulation."""
     from ballchain.experiments import clinical, table1_effects
 
     effects = table1_effects.run(quick=quick)

@@ -1,4 +1,4 @@
-"""The paper's clinical system in simulation (issue 13): two spheres beside the patient.
+"""The paper's clinical system in simulation: two spheres beside the patient.
 
 The paper (Section V-A) sizes its clinical actuation by scaling Table I: two N52 spheres of
 119 mm (6.6 kg), one each side of the patient, for an 8 Fr chain (balls of 2.17 mm in a 0.5 mm

@@ -1,4 +1,4 @@
-"""Table I's gap taken apart effect by effect (issue 13): could any of them turn 9.6 gf into 91.8 gf?
+"""Table I's gap taken apart effect by effect: could any of them turn 9.6 gf into 91.8 gf?
 
 The model's best force on the LSPV pin with the prototype magnet on the left (Configuration 2,
 bare chain) is about 9.6 gf; the paper measured 91.8 gf. Each effect below is a small model with
