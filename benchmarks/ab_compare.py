@@ -95,7 +95,10 @@ print(json.dumps({"file": ballchain.__file__, "realtime_factor": r["realtime_fac
 _STATICS = r"""
 import json, sys
 from threadpoolctl import threadpool_limits
-from ballchain.experiments.statics_bench import run_statics
+try:
+    from ballchain.experiments.statics_bench import run_statics
+except ImportError:  # commits before the benchmark moved out of the CLI layer
+    from ballchain.commands.bench import run_statics
 import ballchain
 with threadpool_limits(limits=1, user_api="blas"):
     r = run_statics(n_balls=int(sys.argv[1]), repeats=int(sys.argv[2]), progress=False)
