@@ -23,7 +23,8 @@ knows the magnet's pose and the field law, and leaves the feeder to the scenario
 the field alone does to the tip, in a run of a second or two.
 
 It does not plan around the wall: a chain leaning on the endocardium can stall short of the
-target.
+target. ``add_field_following_operator`` adds it (with a ``TipObserver``) for one unit in
+``MakeStation``'s ``add_systems`` hook; ``notebooks/station.ipynb`` runs it with ``run_station``.
 """
 
 from __future__ import annotations
@@ -68,12 +69,13 @@ class FieldFollowingParams:
         for name in ("p_W_target", "p_WM"):
             if np.shape(getattr(self, name)) != (3,):
                 raise UserInputError(f"FieldFollowingParams.{name} must be a point (3,) [m], got {getattr(self, name)!r}")
-        if not self.omega_max > 0 or not self.period > 0 or not self.lever > 0:
-            raise UserInputError("FieldFollowingParams: omega_max, period and lever must be > 0, got "
-                                 f"{self.omega_max}, {self.period}, {self.lever}")
-        if not 0.0 <= self.dead_band < 1.0 or not 0.0 <= self.max_tilt <= np.pi / 2:
-            raise UserInputError(f"FieldFollowingParams: dead_band in [0, 1) and max_tilt in [0, pi/2] rad, got "
-                                 f"{self.dead_band}, {self.max_tilt}")
+        for name in ("omega_max", "period", "lever"):
+            if not getattr(self, name) > 0:
+                raise UserInputError(f"FieldFollowingParams.{name} must be > 0, got {getattr(self, name)!r}")
+        if not 0.0 <= self.dead_band < 1.0:
+            raise UserInputError(f"FieldFollowingParams.dead_band must be in [0, 1), got {self.dead_band!r}")
+        if not 0.0 <= self.max_tilt <= np.pi / 2:
+            raise UserInputError(f"FieldFollowingParams.max_tilt must be in [0, pi/2] rad, got {self.max_tilt!r}")
         return self
 
 
@@ -187,9 +189,12 @@ def add_field_following_operator(builder, ports, unit, p_W_target, start_time: f
     Raises:
         UserInputError: the unit's stick is not external, or its mapping is not the world frame.
     """
-    if unit.joystick_source != "external" or unit.name not in ports.joystick_inputs:
+    if unit.joystick_source != "external":
         raise UserInputError(f"unit {unit.name!r}: the field-following operator needs joystick_source: external, "
                              f"got {unit.joystick_source!r}")
+    if unit.name not in ports.joystick_inputs:
+        raise UserInputError(f"unit {unit.name!r} is not a unit of this station with an external stick "
+                             f"(those: {sorted(ports.joystick_inputs)})")
     if unit.teleop_frame != "world":
         raise UserInputError(f"unit {unit.name!r}: the field-following operator moves the world-frame stick "
                              f"(teleop_frame: world), got {unit.teleop_frame!r}")
