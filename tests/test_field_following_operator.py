@@ -44,6 +44,15 @@ def test_the_wanted_direction_tilts_towards_the_target_by_the_lever_angle_at_mos
         assert abs(angle_between(w, side) - (0.5 * np.pi - tilt)) < 1e-12  # towards the target
 
 
+def test_ports():
+    op = FieldFollowingOperator(FieldFollowingParams(p_W_target=(0.0, 0.0, 0.0), p_WM=(0.1, 0.0, 0.0), omega_max=1.0))
+    assert [(op.get_input_port(i).get_name(), op.get_input_port(i).size()) for i in range(op.num_input_ports())] == [
+        ("p_WT", 3), ("tip_direction_W", 3), ("m_W", 3)]
+    assert [(op.get_output_port(i).get_name(), op.get_output_port(i).size()) for i in range(op.num_output_ports())] == [
+        ("joystick", 3)]
+    assert op.get_name() == "operator"
+
+
 def _run_operator(m_now, p_tip, d_tip, target, p_WM, omega_max, dead_band, start, period=0.1):
     builder = DiagramBuilder()
     op = builder.AddSystem(FieldFollowingOperator(FieldFollowingParams(
