@@ -215,7 +215,8 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     """
     from dataclasses import replace
 
-    from ballchain.systems.chain_simulation import ChainMonitor, atrium_for, build_chain_diagram, run_station
+    from ballchain.systems.chain_simulation import (ChainMonitor, atrium_for, build_chain_diagram, near_ostium_rim,
+                                                    run_station)
     from ballchain.systems.simulated_operator import OperatorParams, SimulatedOperator
 
     check_inputs(task, mapping, targets, n_balls, time_limit, seed)
@@ -288,31 +289,11 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
         html=None if html is None else str(html))
 
 
-RIM_BAND = 3e-3  # [m]
-
-
 def vein_openings(heart) -> tuple:
     """The ipsilateral vein pairs' openings as the operator sees them (``OperatorParams.keep_out``)."""
     ostia = list(heart.ostia)
     pairs = [(ostia[0], ostia[1]), (ostia[2], ostia[3])] if len(ostia) == 4 else [(o, o) for o in ostia]
     return tuple((a.p_HO, b.p_HO, 0.5 * a.diameter, 0.5 * b.diameter, a.axis_H, b.axis_H) for a, b in pairs)
-
-
-def near_ostium_rim(heart, p_W: np.ndarray) -> bool:
-    """Whether a ball centre is within RIM_BAND of a vein ostium's rim (radially, and along the vein
-    axis within a vein radius of the ostium's centre). There the atrium's compliant wall mesh has
-    next to no stiffness (the pressure field of the tetrahedral shell vanishes on the cut faces of
-    the opening, and the vein tube's shell overlaps it): measured with a rigid ball pressed 0.3 to
-    1.2 mm into the wall 0.5 to 1.5 mm from the LIPV rim, the wall pushes back with 0.03 to 0.09 N
-    that does not grow with depth, against 0.05 to 0.69 N on the plain wall. A ball sinking past
-    the wall's middle there is recorded instead of stopping the run (``ChainMonitor``)."""
-    for o in heart.ostia:
-        rel = np.asarray(p_W) - o.p_HO
-        along = float(rel @ o.axis_H)
-        rho = float(np.linalg.norm(rel - along * o.axis_H))
-        if abs(along) < 0.5 * o.diameter and abs(rho - 0.5 * o.diameter) < RIM_BAND:
-            return True
-    return False
 
 
 def missed_reason(row: dict, failure: str | None = None) -> str:
@@ -621,7 +602,8 @@ def build_live(*, mapping: str = "world", units: str = "one", n_balls: int | Non
     from pydrake.geometry import Meshcat, MeshcatParams
     from pydrake.systems.analysis import Simulator
 
-    from ballchain.systems.chain_simulation import ChainMonitor, atrium_for, build_chain_diagram, station_monitor
+    from ballchain.systems.chain_simulation import (ChainMonitor, atrium_for, build_chain_diagram, near_ostium_rim,
+                                                    station_monitor)
     from ballchain.systems.meshcat_joystick import MeshcatJoystick
 
     check_live_inputs(mapping, units, n_balls, None, realtime_rate)
