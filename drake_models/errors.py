@@ -21,6 +21,23 @@ def caused_by_interrupt(err: BaseException) -> bool:
     return False
 
 
+MAX_QUOTED = 80  # characters of a user's value quoted in a message
+
+
+def short_repr(value, limit: int = MAX_QUOTED) -> str:
+    """``repr(value)`` cut to ``limit`` characters (with "..." and the full length), for quoting a
+    user's value in a one-line message: a value that expanded (a YAML alias bomb, a huge list)
+    must not turn the message into megabytes. Never raises, whatever ``value`` is."""
+    try:
+        text = repr(value)
+    except Exception:  # noqa: BLE001 - a broken __repr__ of a user's object
+        text = f"<{type(value).__name__}>"
+    text = " ".join(text.split())
+    if len(text) <= limit:
+        return text
+    return f"{text[:limit - 3]}... ({len(text)} characters)"
+
+
 class UserInputError(ValueError):
     """Bad input from the user: reported as one line, exit status 2.
 
@@ -75,7 +92,7 @@ def check_in(name: str, value, lo, hi, *, lo_open: bool = False, unit: str = "")
     ok = ok and math.isfinite(value) and lo <= value <= hi and not (lo_open and value == lo)
     if not ok:
         interval = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]"
-        raise UserInputError(f"{name} must be a number in {interval}{' ' + unit if unit else ''}, got {value!r}")
+        raise UserInputError(f"{name} must be a number in {interval}{' ' + unit if unit else ''}, got {short_repr(value)}")
 
 
 def require_finite_fields(obj, allow_inf=()) -> None:
@@ -96,4 +113,4 @@ def require_finite_fields(obj, allow_inf=()) -> None:
     for f in dataclasses.fields(obj):
         value = getattr(obj, f.name)
         if bad(value) and not (f.name in allow_inf and not math.isnan(value)):
-            raise UserInputError(f"{type(obj).__name__}.{f.name} must be finite, got {value!r}")
+            raise UserInputError(f"{type(obj).__name__}.{f.name} must be finite, got {short_repr(value)}")
