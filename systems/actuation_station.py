@@ -13,19 +13,19 @@ simulation can read ``B_points_W`` (or each unit's ``X_WM``) and do its own phys
 
 This is the hardware-interface view of the station: the units are added and wired to one
 another by ``add_unit_systems``, the same unit step the full station (``station.MakeStation``,
-through ``station_units.add_units``) uses; only what is exported differs.
+through ``station_units.add_units``) uses; only what is exported differs. Each unit's settings
+are its ``MagnetUnitConfig`` (``unit_config``, the scenario's type), the rest ``StationOptions``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import Adder
 
-from ballchain.drake_models import paper
 from ballchain.drake_models.dipole_inversion import neutral_direction
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.params import BallChain
@@ -33,45 +33,23 @@ from ballchain.systems.feeder import Feeder, FeederSpec
 from ballchain.systems.hall_sensor import DipoleDirectionEstimator, HallSensor, HallSensorSpec
 from ballchain.systems.omni_wheel_drive import OmniWheelDrive, StepperSpec
 from ballchain.systems.reconfiguration import ReconfigurationController
-from ballchain.systems.rotating_magnet_unit import MagnetUnitConfig, RotatingMagnetUnit
+from ballchain.systems.rotating_magnet_unit import RotatingMagnetUnit
 from ballchain.systems.teleoperation import ModeSwitch, TeleoperationMapper
-
-# The paper's actuation distance: unit centre 16.51 cm from the septal puncture (origin).
-UNIT_DISTANCE = paper.WORKING_DISTANCE  # [m]
-
-
-def right_unit(**overrides) -> MagnetUnitConfig:
-    """The right-side unit (patient's right is world -y here), 16.51 cm from the origin."""
-    return replace(MagnetUnitConfig(name="right_unit", p_WM=(0.0, -UNIT_DISTANCE, 0.0)), **overrides)
-
-
-def left_unit(**overrides) -> MagnetUnitConfig:
-    """The left-side unit (world +y), 16.51 cm from the origin."""
-    return replace(MagnetUnitConfig(name="left_unit", p_WM=(0.0, UNIT_DISTANCE, 0.0)), **overrides)
+from ballchain.systems.unit_config import MagnetUnitConfig, right_unit
 
 
 @dataclass
 class StationOptions:
-    """Everything the station builder can vary besides the units.
+    """Everything the station builder can vary besides the units (each unit's own settings,
+    from its slip and Hall noise to its controller and joystick mapping, are its
+    ``MagnetUnitConfig``'s).
 
     Attributes:
         p_W_chain: (3,) where the chain enters (the neutral field is defined there) [m].
         feed_direction_W: (3,) insertion direction; neutral field points along it there.
-        slip: fraction of rotation lost at the wheels, in [0, 1).
-        sensor_noise: add Hall noise.
-        seed: base noise seed (each unit adds its index).
-        sensors_see_other_units: each Hall sensor also measures the other units' fields.
-        estimator_compensates_other_units: each estimator subtracts the other units' predicted
-            fields at its sensor (their poses known); without it they bias it by up to 2.4 deg.
-        sensor_spec, stepper_spec: hardware figures.
-        controller_gain: K [1/s].
-        tolerance_deg: reconfiguration done threshold on the measured error [deg].
-        wheel_map: "derived" or "paper" wheel conversion in the controller.
-        teleop_frame: "world" (paper: stick = magnet angular velocity in world) or "tip" (stick
-            swings the field at the tip in the tip's frame; adds inputs ``<u>.p_WT`` (3) [m]
-            and ``<u>.tip_direction_W`` (3)).
-        teleop_omega_max: full-stick angular speed [rad/s] (magnet, or tip field for "tip").
-        teleop_dead_band: stick dead band fraction.
+        seed: base Hall-noise seed (each unit adds its index): the default of each sensor's seed
+            parameter (``randomness.set_random_context`` draws others).
+        sensor_spec, stepper_spec: hardware figures (every unit's).
         field_points_W: (k, 3) points where the total field is exported [m], or None.
         with_feeder: add the feeder.
         chain: the ball chain fed by the feeder.
@@ -79,19 +57,9 @@ class StationOptions:
 
     p_W_chain: np.ndarray = field(default_factory=lambda: np.zeros(3))
     feed_direction_W: np.ndarray = field(default_factory=lambda: np.array([1.0, 0.0, 0.0]))
-    slip: float = 0.0
-    sensor_noise: bool = True
     seed: int = 0
-    sensors_see_other_units: bool = True
-    estimator_compensates_other_units: bool = True
     sensor_spec: HallSensorSpec = field(default_factory=HallSensorSpec)
     stepper_spec: StepperSpec = field(default_factory=StepperSpec)
-    controller_gain: float = 4.0
-    tolerance_deg: float = 0.5
-    wheel_map: str = "derived"
-    teleop_frame: str = "world"
-    teleop_omega_max: float = 0.5
-    teleop_dead_band: float = 0.1
     field_points_W: np.ndarray | None = None
     with_feeder: bool = False
     chain: BallChain = field(default_factory=BallChain)
@@ -129,47 +97,45 @@ def add_unit(
 
     Args:
         builder: the diagram builder.
-        unit: the unit's configuration.
-        opt: hardware figures and controller settings.
+        unit: the unit's configuration, placed (its slip, Hall noise, controller and mapping).
+        opt: hardware figures (and the field points of the magnet's ``B_points_W``).
         m_neutral_W: (3,) the reconfiguration target direction.
         others: units whose fields this unit's sensor sees (and its estimator may subtract).
-        seed: Hall noise seed.
+        seed: the Hall sensor's default noise seed.
         R_WM: initial magnet orientation (default: the unit's own default).
     """
     n = unit.name
     # The drive holds its wheel speeds over its update period: at that period the magnet's
     # orientation is exact as discrete state (no continuous state, no integrator sub-steps).
-    magnet = builder.AddSystem(RotatingMagnetUnit(unit, R_WM=R_WM, slip=opt.slip, field_points_W=opt.field_points_W,
+    magnet = builder.AddSystem(RotatingMagnetUnit(unit, R_WM=R_WM, field_points_W=opt.field_points_W,
                                                   update_period=opt.stepper_spec.update_period))
     drive = builder.AddSystem(OmniWheelDrive(unit.geometry, opt.stepper_spec, name=n))
-    sensor = builder.AddSystem(
-        HallSensor(unit, other_units=others, spec=opt.sensor_spec, noise=opt.sensor_noise, seed=seed)
-    )
+    sensor = builder.AddSystem(HallSensor(unit, other_units=others, spec=opt.sensor_spec, seed=seed))
     estimator = builder.AddSystem(
-        DipoleDirectionEstimator(unit, compensate_units=others if opt.estimator_compensates_other_units else ())
+        DipoleDirectionEstimator(unit, compensate_units=others if unit.estimator_compensates_other_units else ())
     )
     controller = builder.AddSystem(
         ReconfigurationController(
             m_neutral_W,
-            gain=opt.controller_gain,
+            gain=unit.controller_gain,
             max_wheel_speed=opt.stepper_spec.max_speed,
-            tolerance_deg=opt.tolerance_deg,
+            tolerance_deg=unit.tolerance_deg,
             period=1.0 / opt.sensor_spec.sample_rate_hz,
             geometry=unit.geometry,
-            wheel_map=opt.wheel_map,
+            wheel_map=unit.wheel_map,
             name=n,
         )
     )
     teleop = builder.AddSystem(
         TeleoperationMapper(
-            frame=opt.teleop_frame,
-            omega_max=opt.teleop_omega_max,
-            dead_band=opt.teleop_dead_band,
+            frame=unit.teleop_frame,
+            omega_max=unit.teleop_omega_max,
+            dead_band=unit.teleop_dead_band,
             p_WM=np.asarray(unit.p_WM),
             name=n,
         )
     )
-    if opt.teleop_frame == "tip":
+    if unit.teleop_frame == "tip":
         builder.Connect(magnet.GetOutputPort("m_W"), teleop.GetInputPort("m_W"))
     switch = builder.AddSystem(ModeSwitch(name=n))
     builder.Connect(teleop.GetOutputPort("omega_desired_W"), switch.GetInputPort("omega_teleop_W"))
@@ -188,7 +154,7 @@ def connect_other_units(builder: DiagramBuilder, units: dict) -> None:
     Args:
         builder: the diagram builder.
         units: unit name -> (UnitSystems, the names of the units its sensor sees, whether its
-            estimator subtracts their fields: ``StationOptions.estimator_compensates_other_units``).
+            estimator subtracts their fields: the unit's ``estimator_compensates_other_units``).
     """
     for systems, others, compensate in units.values():
         for o in others:
@@ -201,7 +167,7 @@ def connect_other_units(builder: DiagramBuilder, units: dict) -> None:
 def add_unit_systems(
     builder: DiagramBuilder,
     units: Sequence[MagnetUnitConfig],
-    options: Sequence[StationOptions],
+    options: StationOptions,
     *,
     m_neutral_W: Sequence[np.ndarray],
     seeds: Sequence[int],
@@ -211,17 +177,17 @@ def add_unit_systems(
     step of both the actuation-only diagram (``make_actuation_station``) and the full station
     (``station_units.add_units``, from ``station.MakeStation``).
 
-    Each unit's Hall sensor sees the other units' magnets when its options say
-    ``sensors_see_other_units``, and its estimator subtracts their fields when they say
+    Each unit's Hall sensor sees the other units' magnets when its config says
+    ``sensors_see_other_units``, and its estimator subtracts their fields when it says
     ``estimator_compensates_other_units`` (``connect_other_units``). Left to the caller: the
     joystick and mode inputs and what is exported or connected to a chain.
 
     Args:
         builder: the diagram builder.
-        units: the units' configurations (distinct names).
-        options: one StationOptions per unit (hardware figures, controller settings).
+        units: the units' configurations, placed (distinct names).
+        options: the hardware figures (and field points) of every unit.
         m_neutral_W: one (3,) reconfiguration target direction per unit.
-        seeds: one Hall-noise seed per unit.
+        seeds: one default Hall-noise seed per unit.
         R_WM: one initial magnet orientation per unit (None entries: the unit's own default).
 
     Returns:
@@ -229,10 +195,10 @@ def add_unit_systems(
     """
     R_WM = list(R_WM) if R_WM is not None else [None] * len(units)
     systems, wiring = {}, {}
-    for unit, opt, m_c, seed, R in zip(units, options, m_neutral_W, seeds, R_WM):
-        others = [u for u in units if u is not unit] if opt.sensors_see_other_units else []
-        systems[unit.name] = add_unit(builder, unit, opt, m_neutral_W=m_c, others=others, seed=seed, R_WM=R)
-        wiring[unit.name] = (systems[unit.name], [o.name for o in others], opt.estimator_compensates_other_units)
+    for unit, m_c, seed, R in zip(units, m_neutral_W, seeds, R_WM):
+        others = [u for u in units if u is not unit] if unit.sensors_see_other_units else []
+        systems[unit.name] = add_unit(builder, unit, options, m_neutral_W=m_c, others=others, seed=seed, R_WM=R)
+        wiring[unit.name] = (systems[unit.name], [o.name for o in others], unit.estimator_compensates_other_units)
     connect_other_units(builder, wiring)
     return systems
 
@@ -243,29 +209,33 @@ def make_actuation_station(
     """Build the station diagram (named ``actuation_station``).
 
     Args:
-        units: one or two (or more) unit configs with distinct names (default: the right unit).
+        units: one or two (or more) placed unit configs with distinct names (default: the right
+            unit); each unit's settings are its own, and with ``teleop_frame: tip`` its mapper's
+            ``p_WT`` and ``tip_direction_W`` are exported.
         options: everything else.
 
     Returns:
         The diagram; see the module docstring for its exported ports. The magnets' orientations
         are set through ``diagram.GetSubsystemByName(f"{name}.magnet").set_orientation``.
     """
-    units = list(units) if units is not None else [right_unit()]
+    units = [u.check_placed() for u in units] if units is not None else [right_unit()]
     opt = options or StationOptions()
     names = [u.name for u in units]
     if len(set(names)) != len(names) or not names:
         raise UserInputError(f"unit names must be distinct and at least one, got {names}")
     builder = DiagramBuilder()
     magnets = add_unit_systems(
-        builder, units, [opt] * len(units),
+        builder, units, opt,
         m_neutral_W=[neutral_direction(u.p_WM, opt.p_W_chain, opt.feed_direction_W) for u in units],
         seeds=[opt.seed + k for k in range(len(units))])
-    for n, systems in magnets.items():
+    for unit in units:
+        n = unit.name
+        systems = magnets[n]
         magnet, drive, sensor, estimator = systems.magnet, systems.drive, systems.sensor, systems.estimator
         controller, teleop, switch = systems.controller, systems.teleop, systems.switch
         builder.ExportInput(teleop.GetInputPort("joystick"), f"{n}.joystick")
         builder.ExportInput(switch.GetInputPort("mode"), f"{n}.mode")
-        if opt.teleop_frame == "tip":
+        if unit.teleop_frame == "tip":
             builder.ExportInput(teleop.GetInputPort("p_WT"), f"{n}.p_WT")
             builder.ExportInput(teleop.GetInputPort("tip_direction_W"), f"{n}.tip_direction_W")
         for port in ("q_WM", "X_WM", "m_W"):

@@ -29,6 +29,8 @@ from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.params import BallChain
 from ballchain.systems.chain_plant import ChainPlantConfig, ContactConfig, chain_multibody_plant_config
 from ballchain.systems.force_sensor_pin import stability_bound
+from ballchain.systems.randomness import check_random_seed
+from ballchain.systems.unit_config import MagnetUnitConfig
 
 SCENARIOS_FILE = Path(__file__).resolve().parents[1] / "drake_models" / "station.scenarios.yaml"
 if not SCENARIOS_FILE.exists():  # installed (non-editable) layout
@@ -97,23 +99,6 @@ class InsertionScenario:
 
 
 @dataclass
-class JoystickKey:
-    """One key of a scripted joystick: from ``time`` on (zero-order hold) the stick reads ``axes``.
-
-    Attributes:
-        time: [s].
-        axes: (3,) stick axes in [-1, 1]; with the world mapping (the paper's), full stick turns
-            the magnet at the unit's ``teleop_omega_max`` about world x, y, z.
-        mode: 0 teleoperation (the stick drives the magnet), 1 reconfiguration (the Hall-sensor
-            loop turns the magnet back to its neutral direction; the stick is ignored).
-    """
-
-    time: float = 0.0
-    axes: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
-    mode: int = 0
-
-
-@dataclass
 class PinScenario:
     """A force-sensor pin holding the tip ball's centre (``systems/force_sensor_pin.py``).
 
@@ -157,71 +142,6 @@ FEEDER_COMMANDS = ("ramp", "external")
 
 
 @dataclass
-class UnitScenario:
-    """A rotating actuation unit (magnet on omni-wheels, drive, Hall sensor, controller, joystick).
-
-    Its systems are named ``<name>.magnet``, ``<name>.drive``, ``<name>.hall_sensor``,
-    ``<name>.estimator``, ``<name>.controller``, ``<name>.teleoperation``, ``<name>.mode_switch``,
-    ``<name>.joystick`` and ``<name>.mode_command``.
-
-    Attributes:
-        name: "right_unit", "left_unit", ... (distinct).
-        shape: "cylinder" (the prototype's N52 76.2 x 38.1 mm) or "sphere" (119 mm clinical).
-        p_WM: magnet centre [m]; when empty, ``distance`` along ``direction_W`` from ``anchor``.
-        anchor: "puncture" (the septal puncture; the origin in free space), "centre" (the LA
-            centre, the world origin), "carina_left" or "carina_right" (heart only).
-        distance: [m].
-        direction_W: from the anchor towards the magnet centre.
-        m_hat_W: initial dipole direction; empty: the neutral direction (the field at the sheath
-            exit, or at ball 1 in free space, along the insertion direction), which is also
-            the reconfiguration controller's target.
-        model: "dipole" or "exact" (the same for every unit).
-        teleop_omega_max: magnet angular speed at full stick [rad/s].
-        sensor_noise: Gaussian noise on the Hall sensor.
-        joystick: the scripted stick (zero-order hold; zeros before the first key); with
-            ``joystick_source: external`` only its modes are played (``<name>.mode_command``).
-        joystick_source: "script" (``joystick``, the system ``<name>.joystick``) or "external"
-            (another system moves the stick, e.g. a simulated operator: the mapper's
-            ``joystick`` input (3) is left to ``build_chain_diagram``'s ``add_systems`` hook, or
-            exported as the diagram input ``<name>.joystick``).
-        teleop_frame: the joystick mapping (``teleoperation.TeleoperationMapper``): "world" (the
-            paper's: stick axes = magnet angular velocity about world x, y, z) or "tip" (the
-            catheter-frame mapping: axes 0/1 swing the field at the tip about the tip frame's z
-            and -y, at ``teleop_omega_max``; the tip ball's position and direction are fed to it).
-        slip: fraction of the commanded rotation lost between wheels and sphere, in [0, 1).
-        wheel_map: the controller's wheel conversion: "derived" (rolling contact) or "paper" (the
-            printed map, docs/design.md 4.2).
-        controller_gain: the reconfiguration controller's gain K [1/s].
-        tolerance_deg: reconfiguration done below this measured error [deg].
-        teleop_dead_band: stick dead band (fraction of full stick).
-        sensors_see_other_units: each Hall sensor also measures the other units' fields.
-        estimator_compensates_other_units: each estimator subtracts the other units' fields.
-        (The last seven are ``actuation_station.StationOptions``'s, with its defaults.)
-    """
-
-    name: str = "right_unit"
-    shape: str = "cylinder"
-    p_WM: list[float] = field(default_factory=list)
-    anchor: str = "puncture"
-    distance: float = paper.WORKING_DISTANCE
-    direction_W: list[float] = field(default_factory=lambda: [-1.0, 0.0, 0.0])
-    m_hat_W: list[float] = field(default_factory=list)
-    model: str = "dipole"
-    teleop_omega_max: float = 0.5
-    sensor_noise: bool = True
-    joystick: list[JoystickKey] = field(default_factory=list)
-    joystick_source: str = "script"
-    teleop_frame: str = "world"
-    slip: float = 0.0
-    wheel_map: str = "derived"
-    controller_gain: float = 4.0
-    tolerance_deg: float = 0.5
-    teleop_dead_band: float = 0.1
-    sensors_see_other_units: bool = True
-    estimator_compensates_other_units: bool = True
-
-
-@dataclass
 class ChainScenario:
     """One simulation scenario (see the module docstring).
 
@@ -259,7 +179,8 @@ class ChainScenario:
         gravity: gravity along -z.
         uniform_field: a uniform external field B_W [T] (zeros: none).
         magnets: fixed external magnets.
-        units: rotating actuation units driven by scripted joysticks (systems/station_units.py).
+        units: rotating actuation units driven by scripted joysticks (``unit_config.MagnetUnitConfig``,
+            systems/station_units.py).
         insertion: the feeder's motion.
         contact: contact parameters.
         wall_plane: () or (x, y, z, nx, ny, nz): a flat compliant wall in free space (point on
@@ -274,6 +195,10 @@ class ChainScenario:
             turns at most 1.5 deg and the feeder moves 1 mm in one period; larger moves are
             split by the engine's continuation).
         pin: a force-sensor pin on the tip ball (off by default; plant engine only).
+        random_seed: absent (null): every stochastic system (the Hall sensors' noise, a simulated
+            operator's tremor) keeps its default seed, the run it always was; an integer in
+            0..2**32 - 1: ``run_station`` draws their seeds from ``RandomGenerator(random_seed)``
+            (``randomness.set_random_context``, Drake's SetRandomContext).
     """
 
     description: str = ""
@@ -297,7 +222,7 @@ class ChainScenario:
     gravity: bool = True
     uniform_field: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     magnets: list[MagnetScenario] = field(default_factory=list)
-    units: list[UnitScenario] = field(default_factory=list)
+    units: list[MagnetUnitConfig] = field(default_factory=list)
     insertion: InsertionScenario = field(default_factory=InsertionScenario)
     contact: ContactConfig = field(default_factory=ContactConfig)
     wall_plane: list[float] = field(default_factory=list)
@@ -307,6 +232,7 @@ class ChainScenario:
     engine: str = "plant"
     statics_period: float = 0.05
     pin: PinScenario = field(default_factory=PinScenario)
+    random_seed: typing.Optional[int] = None
 
     @property
     def effective_time_step(self) -> float:
@@ -486,6 +412,10 @@ def _type_name(tp, plural: bool = False) -> str:
 
 
 def _check_value(value, tp, path: str, where: str) -> None:
+    if typing.get_origin(tp) is typing.Union and type(None) in typing.get_args(tp):  # Optional[T]: null or a T
+        if value is None:
+            return
+        (tp,) = [a for a in typing.get_args(tp) if a is not type(None)]
     origin = typing.get_origin(tp)
     ok = True
     if tp is bool:
@@ -615,6 +545,8 @@ def check_fields(s: "ChainScenario") -> None:
             _require(len(v) == 3 and any(v), f"scenario {where}.{name} must be 3 components, not all zero, got {v}")
         _require(not m.p_WM or (len(m.p_WM) == 3 and np.linalg.norm(m.p_WM) <= MAX_DISTANCE),
                  f"scenario {where}.p_WM must be 3 coordinates in metres (within {MAX_DISTANCE:g} m), got {m.p_WM}")
+    if s.random_seed is not None:
+        check_random_seed(s.random_seed, "scenario random_seed")
     for k, u in enumerate(s.units):
         where = f"units[{k}]"
         _require(0.0 < u.distance <= MAX_DISTANCE,

@@ -437,8 +437,10 @@ def run_station(cd: ChainDiagram, *, duration: float, monitor: ChainMonitor | No
         stop: None, or ``stop(root_context) -> bool``: end the run (a termination) when True.
         check: None, or ``check(root_context) -> str | None``: the run's own failure test, called
             before the watchdog; a message ends the run with it as ``RunOutcome.failure``.
-        context: None (the diagram's default context), or a root context of ``cd.diagram`` to
-            start from (an initial state set by the caller); the Simulator runs in it.
+        context: None (the diagram's default context; with the scenario's ``random_seed``, a
+            context randomised with ``RandomGenerator(random_seed)``:
+            ``randomness.set_random_context``), or a root context of ``cd.diagram`` to start from
+            (an initial state set by the caller, used as it is); the Simulator runs in it.
         progress: None (no bar), or the label of a tqdm bar of the simulated time on stderr.
         progress_step: update the bar every this many simulated seconds (default duration/200).
         html: record the run in Meshcat and write the replay (self-contained HTML) here; the
@@ -452,6 +454,13 @@ def run_station(cd: ChainDiagram, *, duration: float, monitor: ChainMonitor | No
     """
     from pydrake.systems.analysis import SimulatorStatus
 
+    if context is None and cd.scenario.random_seed is not None:
+        from pydrake.common import RandomGenerator
+
+        from ballchain.systems.randomness import set_random_context
+
+        context = cd.diagram.CreateDefaultContext()
+        set_random_context(cd.diagram, context, RandomGenerator(cd.scenario.random_seed))
     simulator = Simulator(cd.diagram) if context is None else Simulator(cd.diagram, context)
     # The scenario's SimulatorConfig (its defaults are the Simulator's own); an explicit
     # ``realtime_rate`` overrides its target_realtime_rate.

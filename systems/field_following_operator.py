@@ -177,7 +177,7 @@ def add_field_following_operator(builder, ports, unit, p_W_target, start_time: f
     Args:
         builder: the station's DiagramBuilder (the hook's first argument).
         ports: the hook's ``StationPorts``.
-        unit: the unit's ``UnitScenario`` (``joystick_source: external``, ``teleop_frame: world``):
+        unit: the unit's ``MagnetUnitConfig`` (``joystick_source: external``, ``teleop_frame: world``):
             its name, ``teleop_omega_max`` and ``teleop_dead_band``.
         p_W_target: (3,) where to steer the tip ball's centre [m].
         start_time: the operator's first look [s]. period: between looks [s].

@@ -21,7 +21,8 @@ from pydrake.systems.framework import LeafSystem
 from ballchain.drake_models.dipole_inversion import direction_from_field, refine_direction
 from ballchain.drake_models.errors import UserInputError, require_finite_fields
 from ballchain.drake_models.field_sources import FieldSource, FieldSources, MagnetSource
-from ballchain.systems.rotating_magnet_unit import MagnetUnitConfig
+from ballchain.systems.randomness import SeededLeafSystem
+from ballchain.systems.unit_config import MagnetUnitConfig
 
 
 @dataclass(frozen=True)
@@ -59,7 +60,7 @@ def quantise_reading(B: np.ndarray, spec: HallSensorSpec) -> np.ndarray:
     return out
 
 
-class HallSensor(LeafSystem):
+class HallSensor(SeededLeafSystem):
     """A periodically sampled 3-axis Hall sensor ``D`` below its unit's magnet.
 
     Input ports:
@@ -71,8 +72,11 @@ class HallSensor(LeafSystem):
 
     State: discrete, ``B_sensor_T`` (3) and the sample counter (1), updated at
     ``spec.sample_rate_hz`` and once at initialisation (so the first reading exists at t = 0).
-    Noise is drawn from ``numpy.random.default_rng((seed, sample_index))``: reproducible and a
-    function of the context only.
+
+    Parameter: the noise seed (1; ``randomness.SeededLeafSystem``: its default is the ``seed``
+    given, ``randomness.set_random_context`` draws another). Noise (with the unit's
+    ``sensor_noise``) is drawn from ``numpy.random.default_rng((seed, sample_index))``:
+    reproducible and a function of the context only.
     """
 
     def __init__(
@@ -82,27 +86,26 @@ class HallSensor(LeafSystem):
         other_units: Sequence[MagnetUnitConfig] = (),
         extra_sources: Sequence[FieldSource] = (),
         spec: HallSensorSpec | None = None,
-        noise: bool = True,
         seed: int = 0,
     ) -> None:
         """
         Args:
-            unit: the sensor's own unit (magnet, centre, field model, D).
+            unit: the sensor's own unit, placed (magnet, centre, field model, D; its
+                ``sensor_noise`` adds Gaussian noise, off for exact tests).
             other_units: units whose magnets the sensor also sees (their poses come in ports).
             extra_sources: fixed field sources also seen (e.g. a uniform field).
             spec: sensor figures (MLX90393-like defaults).
-            noise: add Gaussian noise (off for exact tests).
-            seed: noise seed.
+            seed: the default noise seed, 0..2**32 - 1.
         """
         super().__init__()
-        self._unit = unit
-        self._others = tuple(other_units)
+        self._unit = unit.check_placed()
+        self._others = tuple(o.check_placed() for o in other_units)
         self._extra = FieldSources(tuple(extra_sources))
         self._spec = spec or HallSensorSpec()
-        self._noise = bool(noise)
-        self._seed = int(seed)
+        self._noise = bool(unit.sensor_noise)
         self._p_WS = unit.p_WS[None, :]
         self.set_name(f"{unit.name}.hall_sensor")
+        self.DeclareSeedParameter(seed)
 
         self._X_port = self.DeclareAbstractInputPort("X_WM", AbstractValue.Make(RigidTransform()))
         self._other_ports = [
@@ -134,7 +137,7 @@ class HallSensor(LeafSystem):
         k = int(context.get_discrete_state(self._k_index).GetAtIndex(0))
         B = self.true_field(context)
         if self._noise and self._spec.noise_std_T > 0:
-            B = B + np.random.default_rng((self._seed, k)).normal(scale=self._spec.noise_std_T, size=3)
+            B = B + np.random.default_rng((self.seed(context), k)).normal(scale=self._spec.noise_std_T, size=3)
         discrete_state.get_mutable_vector(self._B_index).SetFromVector(quantise_reading(B, self._spec))
         discrete_state.get_mutable_vector(self._k_index).SetAtIndex(0, k + 1)
 
@@ -169,7 +172,7 @@ class DipoleDirectionEstimator(LeafSystem):
     ) -> None:
         """
         Args:
-            unit: the own unit (magnet, D).
+            unit: the own unit, placed (magnet, D).
             model: "dipole" or "exact" (see the class docstring).
             compensate_units: other units whose field (point-dipole model) is subtracted;
                 their poses come in ports (in the station, their simulated poses: the other
@@ -178,11 +181,11 @@ class DipoleDirectionEstimator(LeafSystem):
         super().__init__()
         if model not in ("dipole", "exact"):
             raise UserInputError(f"estimator model must be 'dipole' or 'exact', got {model!r}")
-        self._unit = unit
+        self._unit = unit.check_placed()
         self._model = model
         # The other magnets are a third of a metre away, where their dipole field is within
         # about 1 % of the exact one (and 100 times cheaper than magpylib at every evaluation).
-        self._others = tuple(replace(o, field_model="dipole") for o in compensate_units)
+        self._others = tuple(replace(o, model="dipole") for o in compensate_units)
         self._r = np.array([0.0, 0.0, -unit.sensor_distance])  # magnet centre -> sensor
         self.set_name(f"{unit.name}.estimator")
         self._B_port = self.DeclareVectorInputPort("B_sensor_T", 3)

@@ -17,68 +17,19 @@ derivatives.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 from pydrake.common.eigen_geometry import Quaternion
 from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, Context, LeafSystem
 
-from ballchain.drake_models import paper
-from ballchain.drake_models.errors import UserInputError, check_finite_input
-from ballchain.drake_models.field_sources import FieldModel, MagnetSource
-from ballchain.drake_models.omniwheel import OmniWheelGeometry
-from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
+from ballchain.drake_models.errors import check_finite_input
+from ballchain.drake_models.field_sources import MagnetSource
+from ballchain.systems.unit_config import MagnetUnitConfig, right_unit
 
 # Pull |q| back to 1 at this rate [1/s]: the quaternion ODE conserves the norm exactly, so
 # this only removes integrator drift and never changes the rotation.
 QUATERNION_NORM_GAIN = 10.0
-
-
-@dataclass(frozen=True)
-class MagnetUnitConfig:
-    """One actuation unit: where it is, which magnet it turns, how its field is modelled.
-
-    Attributes:
-        name: dotted-name prefix of the unit's systems (``right_unit`` gives ``right_unit.magnet``).
-        p_WM: (3,) magnet centre in world [m] (fixed: the unit only rotates the magnet).
-        magnet: the prototype CylinderMagnet (default) or a clinical SphereMagnet.
-        field_model: "dipole" or "exact" (magpylib's cylinder; the sphere is exact as a dipole).
-        geometry: omni-wheel geometry (wheel axes in world: the unit is mounted level).
-        sensor_distance: D, Hall sensor distance below the magnet centre along -z [m]. The
-            default 0.10 m keeps the prototype's field (34 mT at most) inside an MLX90393's
-            +-50 mT range; at rho_a + 6.5 mm = 50 mm it would read up to 0.30 T and saturate.
-    """
-
-    name: str = "right_unit"
-    p_WM: tuple[float, float, float] = (0.0, -paper.WORKING_DISTANCE, 0.0)
-    magnet: CylinderMagnet | SphereMagnet = field(default_factory=CylinderMagnet)
-    field_model: FieldModel = "dipole"
-    geometry: OmniWheelGeometry = field(default_factory=OmniWheelGeometry)
-    sensor_distance: float = 0.10
-
-    def __post_init__(self) -> None:
-        p = np.asarray(self.p_WM, dtype=float)
-        if p.shape != (3,) or not np.all(np.isfinite(p)):
-            raise UserInputError(f"MagnetUnitConfig.p_WM must be 3 finite numbers, got {self.p_WM!r}")
-        object.__setattr__(self, "p_WM", tuple(float(v) for v in p))
-        if self.field_model not in ("dipole", "exact"):
-            raise UserInputError(f"field_model must be 'dipole' or 'exact', got {self.field_model!r}")
-        if not np.isfinite(self.sensor_distance) or self.sensor_distance <= self.magnet.bounding_radius:
-            raise UserInputError(
-                f"sensor_distance ({self.sensor_distance} m) must exceed the magnet's bounding "
-                f"radius ({self.magnet.bounding_radius:.4f} m)"
-            )
-
-    @property
-    def p_WS(self) -> np.ndarray:
-        """(3,) Hall sensor position in world [m]."""
-        return np.asarray(self.p_WM) - np.array([0.0, 0.0, self.sensor_distance])
-
-    def source(self, R_WM: np.ndarray) -> MagnetSource:
-        """The shared field model of this unit's magnet at orientation R_WM (3, 3)."""
-        return MagnetSource(self.magnet, np.asarray(self.p_WM), np.asarray(R_WM), self.field_model)
 
 
 def quaternion_from_rotation(R: np.ndarray) -> np.ndarray:
@@ -134,24 +85,21 @@ class RotatingMagnetUnit(LeafSystem):
         config: MagnetUnitConfig | None = None,
         *,
         R_WM: np.ndarray | None = None,
-        slip: float = 0.0,
         field_points_W: np.ndarray | None = None,
         update_period: float | None = None,
     ) -> None:
         """
         Args:
-            config: the unit (default: prototype cylinder, right of the patient).
+            config: the unit, placed (default: ``unit_config.right_unit()``, the prototype
+                cylinder right of the patient); its ``slip``, ``shape`` and ``model`` are read.
             R_WM: (3, 3) default orientation (identity: dipole along +z).
-            slip: fraction of the commanded rotation lost between wheels and sphere, in [0, 1).
             field_points_W: (k, 3) points where ``B_points_W`` reports the field [m].
             update_period: None (continuous state), or the period [s] of a discrete state that
                 is exact when ``omega_wheels`` only changes at multiples of it.
         """
         super().__init__()
-        self._config = config or MagnetUnitConfig()
-        if not (0.0 <= slip < 1.0):
-            raise UserInputError(f"slip must be in [0, 1), got {slip!r}")
-        self._slip = float(slip)
+        self._config = (config or right_unit()).check_placed()
+        self._slip = float(self._config.slip)
         self.set_name(f"{self._config.name}.magnet")
 
         self._omega_wheels_port = self.DeclareVectorInputPort("omega_wheels", 3)

@@ -55,9 +55,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
-from pydrake.systems.framework import EventStatus, LeafSystem
+from pydrake.systems.framework import EventStatus
 
 from ballchain.drake_models.errors import UserInputError, require_finite_fields
+from ballchain.systems.randomness import SeededLeafSystem
 from ballchain.systems.target_contact import targets_touched
 
 
@@ -84,7 +85,7 @@ class OperatorParams:
         max_covariance: cap on the covariance's trace (against wind-up without excitation).
         damping: damped least squares: damping as a fraction of J's largest singular value.
         tremor: amplitude of the hand's random tremor on each stick axis (uniform).
-        seed: of the tremor.
+        seed: of the tremor (the default of the operator's seed parameter), 0..2**32 - 1.
         probe_amplitude: stick deflection of the probing wiggle.
         probe_time: duration of each half of a wiggle [s].
         confusion_window: [s] averaging time of the prediction check.
@@ -212,7 +213,7 @@ class _Memory:
     P: np.ndarray  # (n, n)
     queue: list  # decided controls (n + 1: stick axes, feeder) waiting for the reaction delay
     applied: np.ndarray  # (n + 1,) controls in effect since the last look
-    rng: np.random.Generator
+    rng: np.random.Generator | None = None  # the tremor's; made from the seed parameter at the first look
     p_last: np.ndarray | None = None
     d_last: np.ndarray | None = None
     k: int = 0  # current target
@@ -242,12 +243,13 @@ class _Memory:
                 setattr(new, name, value.copy())
         new.queue = [u.copy() for u in self.queue]
         new.records = [copy.copy(r) for r in self.records]
-        new.rng = np.random.Generator(type(self.rng.bit_generator)())
-        new.rng.bit_generator.state = self.rng.bit_generator.state
+        if self.rng is not None:
+            new.rng = np.random.Generator(type(self.rng.bit_generator)())
+            new.rng.bit_generator.state = self.rng.bit_generator.state
         return new
 
 
-class SimulatedOperator(LeafSystem):
+class SimulatedOperator(SeededLeafSystem):
     """A person at the joystick and the feeder, touching targets in order (module docstring).
 
     Input ports:
@@ -258,6 +260,11 @@ class SimulatedOperator(LeafSystem):
         joystick: (3,) stick axes in [-1, 1] (into a unit's TeleoperationMapper).
         v_insert_cmd: (1,) feeder speed command [m/s] (into the Feeder).
         done: (1,) 1 once every target is touched or given up.
+
+    State: abstract, its memory (what it learned, its plan, its records, its tremor's generator).
+    Parameter: the tremor's seed (1; ``randomness.SeededLeafSystem``: its default is
+    ``params.seed``, ``randomness.set_random_context`` draws another); the tremor is drawn from
+    ``numpy.random.default_rng(seed)``, made at the first look.
 
     Args:
         tip_body_index, previous_body_index: BodyIndex of the tip ball and of the ball before it.
@@ -281,7 +288,8 @@ class SimulatedOperator(LeafSystem):
         self._n = n = len(p.axes)
         memory = _Memory(J=np.zeros((3, n)), P=p.initial_covariance * np.eye(n),
                          queue=[np.zeros(n + 1)] * p.reaction_steps, applied=np.zeros(n + 1),
-                         rng=np.random.default_rng(p.seed), length=p.initial_length)
+                         length=p.initial_length)
+        self.DeclareSeedParameter(p.seed)
         self._poses = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
         self._memory_index = self.DeclareAbstractState(AbstractValue.Make(memory))
         ticket = {self.abstract_state_ticket(self._memory_index)}
@@ -348,6 +356,8 @@ class SimulatedOperator(LeafSystem):
         p = self.params
         t = context.get_time()
         mem = copy.deepcopy(self._memory(context))
+        if mem.rng is None:
+            mem.rng = np.random.default_rng(self.seed(context))
         poses = self._poses.Eval(context)
         tip = poses[self._tip].translation().copy()
         d = tip - poses[self._previous].translation()

@@ -168,7 +168,7 @@ class _Parts:
 
     @property
     def field_model(self) -> str:
-        return self.unit_configs[0].field_model if self.unit_configs else "dipole"
+        return self.unit_configs[0].model if self.unit_configs else "dipole"
 
 
 # ------------------------------------------------------------------------------------------------
@@ -359,7 +359,7 @@ def _add_statics_engine(builder, scenario: ChainScenario, config: ChainPlantConf
                                 0.5 * config.sheath.wall_thickness)
     engine = builder.AddSystem(QuasiStaticEngine(
         config.chain, cp.ball_body_indices, cp.p_WE, cp.sheath_axis_W, sdf=sdf, sheath=sheath, field_source=source,
-        port_magnets=[c.magnet for c in configs], model=configs[0].field_model if configs else "dipole",
+        port_magnets=[c.magnet for c in configs], model=configs[0].model if configs else "dipole",
         gravity=scenario.gravity, period=scenario.statics_period,
         initial_inserted_length=scenario.insertion.initial))
     engine.set_name("quasi_static_engine")

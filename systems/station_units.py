@@ -36,16 +36,17 @@ from pydrake.trajectories import PiecewisePolynomial
 
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
-from ballchain.drake_models.params import BallChain, CylinderMagnet, SphereMagnet
+from ballchain.drake_models.params import BallChain, CylinderMagnet
 from ballchain.drake_models.dipole_inversion import neutral_direction
 from ballchain.systems.actuation_station import StationOptions, add_unit_systems
-from ballchain.systems.chain_scenario import ChainScenario, InsertionScenario, JoystickKey
+from ballchain.systems.chain_scenario import ChainScenario, InsertionScenario
 from ballchain.systems.feeder import Feeder, FeederSpec
 from ballchain.systems.hall_sensor import DipoleDirectionEstimator, HallSensor
 from ballchain.systems.omni_wheel_drive import OmniWheelDrive
 from ballchain.systems.reconfiguration import ReconfigurationController
-from ballchain.systems.rotating_magnet_unit import MagnetUnitConfig, RotatingMagnetUnit
+from ballchain.systems.rotating_magnet_unit import RotatingMagnetUnit
 from ballchain.systems.teleoperation import TeleoperationMapper
+from ballchain.systems.unit_config import JoystickKey, MagnetUnitConfig
 
 
 @dataclass
@@ -77,25 +78,13 @@ class UnitHandles:
 
 
 def unit_configs(scenario: ChainScenario, anchors: dict[str, np.ndarray]) -> list[MagnetUnitConfig]:
-    """The MagnetUnitConfig of each scenario unit.
+    """The scenario's units, placed (``MagnetUnitConfig.placed``: each a copy with its centre).
 
     Args:
         scenario: a validated scenario.
         anchors: {"puncture", "centre", ...}: (3,) anchor points in world [m].
     """
-    configs = []
-    for u in scenario.units:
-        if u.p_WM:
-            p_WM = np.asarray(u.p_WM, float)
-        else:
-            if u.anchor not in anchors:
-                raise UserInputError(f"unit {u.name!r}: anchor {u.anchor!r} is not available here (a user's atrium "
-                                 "has no carinas): give p_WM")
-            direction = np.asarray(u.direction_W, float)
-            p_WM = anchors[u.anchor] + u.distance * direction / np.linalg.norm(direction)
-        magnet = CylinderMagnet() if u.shape == "cylinder" else SphereMagnet()
-        configs.append(MagnetUnitConfig(name=u.name, p_WM=tuple(p_WM), magnet=magnet, field_model=u.model))
-    return configs
+    return [u.placed(anchors) for u in scenario.units]
 
 
 def _zoh_source(times: list[float], values: np.ndarray, name: str, builder):
@@ -166,8 +155,8 @@ def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig],
 
     Args:
         builder: the station's DiagramBuilder.
-        scenario: the scenario (its ``units``, in the same order as ``configs``).
-        configs: from ``unit_configs``.
+        scenario: the scenario (its ``units``, placed, are ``configs``).
+        configs: from ``unit_configs``: every setting of each unit.
         magnet_states_port: the MagneticWrenchSystem's ``magnet_states`` input (6 per unit).
         p_W_chain: (3,) where the neutral field is defined [m] (sheath exit / ball 1).
         feed_direction_W: (3,) the insertion direction (the neutral field's direction there).
@@ -178,23 +167,17 @@ def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig],
         and its ``joystick_input`` (the mapper's input port) is left unconnected for the caller.
     """
     handles: dict[str, UnitHandles] = {}
-    m_neutral, m_initial, options = [], [], []
-    for u, config in zip(scenario.units, configs):
-        m_c = neutral_direction(np.asarray(config.p_WM), p_W_chain, feed_direction_W)
+    m_neutral, m_initial = [], []
+    for u in configs:
+        m_c = neutral_direction(np.asarray(u.p_WM), p_W_chain, feed_direction_W)
         m_neutral.append(m_c / np.linalg.norm(m_c))
         m0 = np.asarray(u.m_hat_W, float) if u.m_hat_W else m_neutral[-1]
         m_initial.append(m0 / np.linalg.norm(m0))
-        # Every option of a unit is the scenario's (StationOptions' defaults otherwise).
-        options.append(StationOptions(sensor_noise=u.sensor_noise, teleop_omega_max=u.teleop_omega_max,
-                                      teleop_frame=u.teleop_frame, slip=u.slip, wheel_map=u.wheel_map,
-                                      controller_gain=u.controller_gain, tolerance_deg=u.tolerance_deg,
-                                      teleop_dead_band=u.teleop_dead_band,
-                                      sensors_see_other_units=u.sensors_see_other_units,
-                                      estimator_compensates_other_units=u.estimator_compensates_other_units))
-    # The same unit step as the actuation-only diagram (actuation_station.make_actuation_station).
-    unit_systems = add_unit_systems(builder, configs, options, m_neutral_W=m_neutral, seeds=range(len(configs)),
-                                    R_WM=[rotation_with_z_along(m0) for m0 in m_initial])
-    for u, config, m_c, m0 in zip(scenario.units, configs, m_neutral, m_initial):
+    # The same unit step as the actuation-only diagram (actuation_station.make_actuation_station),
+    # with the default hardware; unit k's Hall noise seed defaults to k.
+    unit_systems = add_unit_systems(builder, configs, StationOptions(), m_neutral_W=m_neutral,
+                                    seeds=range(len(configs)), R_WM=[rotation_with_z_along(m0) for m0 in m_initial])
+    for u, m_c, m0 in zip(configs, m_neutral, m_initial):
         n = u.name
         systems = unit_systems[n]
         teleop, switch = systems.teleop, systems.switch
@@ -212,7 +195,7 @@ def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig],
         mode = _zoh_source([q.time for q in keys], np.array([[float(q.mode) for q in keys]]).reshape(1, -1),
                            f"{n}.mode_command", builder)
         builder.Connect(mode.get_output_port(), switch.GetInputPort("mode"))
-        handles[n] = UnitHandles(config, systems.magnet, systems.drive, systems.sensor, systems.estimator,
+        handles[n] = UnitHandles(u, systems.magnet, systems.drive, systems.sensor, systems.estimator,
                                  systems.controller, teleop, stick, m_c, m0, teleop.GetInputPort("joystick"))
     mux = builder.AddSystem(Multiplexer([3] * (2 * len(handles))))
     mux.set_name("magnet_states")

@@ -124,11 +124,11 @@ def test_bad_params_name_the_field(field, value):
 def test_the_hook_needs_an_external_world_frame_stick():
     from types import SimpleNamespace
 
-    from ballchain.systems.chain_scenario import UnitScenario
+    from ballchain.systems.unit_config import MagnetUnitConfig
 
     for change, match in (({"joystick_source": "script"}, "joystick_source"),
                           ({"joystick_source": "external", "teleop_frame": "tip"}, "teleop_frame")):
-        unit = UnitScenario(name="right_unit", **change)
+        unit = MagnetUnitConfig(name="right_unit", **change)
         # The station leaves a unit's joystick input to the hook only with joystick_source: external.
         ports = SimpleNamespace(joystick_inputs={"right_unit": object()} if unit.joystick_source == "external" else {})
         with pytest.raises(UserInputError, match=match):

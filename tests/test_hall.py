@@ -1,5 +1,7 @@
 """Hall-sensor inversion (correct vs the paper's formula), the sensor and the estimator systems."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from pydrake.math import RigidTransform, RotationMatrix
@@ -21,7 +23,7 @@ from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
 from ballchain.drake_models.vectors import angle_between
 from ballchain.systems.hall_sensor import DipoleDirectionEstimator, HallSensor, HallSensorSpec, quantise_reading
-from ballchain.systems.rotating_magnet_unit import MagnetUnitConfig
+from ballchain.systems.unit_config import MagnetUnitConfig
 
 RNG = np.random.default_rng(3)
 E3 = np.array([0.0, 0.0, 1.0])
@@ -104,7 +106,7 @@ def test_quantise_reading_clips_and_rounds():
 
 def _sensor_diagram(unit, spec, noise, seed=0):
     builder = DiagramBuilder()
-    sensor = builder.AddSystem(HallSensor(unit, spec=spec, noise=noise, seed=seed))
+    sensor = builder.AddSystem(HallSensor(replace(unit, sensor_noise=noise), spec=spec, seed=seed))
     log = builder.AddSystem(VectorLogSink(3))
     builder.Connect(sensor.get_output_port(0), log.get_input_port(0))
     builder.ExportInput(sensor.GetInputPort("X_WM"), "X_WM")
@@ -112,8 +114,9 @@ def _sensor_diagram(unit, spec, noise, seed=0):
 
 
 def test_hall_sensor_ports_and_equatorial_reading_by_hand():
-    unit = MagnetUnitConfig(p_WM=(0.0, 0.0, 0.0), sensor_distance=0.1)
-    sensor = HallSensor(unit, noise=False)
+    unit = MagnetUnitConfig(p_WM=[0.0, 0.0, 0.0], sensor_noise=False)
+    assert unit.sensor_distance == 0.1
+    sensor = HallSensor(unit)
     assert sensor.get_name() == "right_unit.hall_sensor"
     assert sensor.num_input_ports() == 1 and sensor.get_input_port(0).get_name() == "X_WM"
     assert sensor.num_output_ports() == 1
@@ -131,7 +134,8 @@ def test_hall_sensor_ports_and_equatorial_reading_by_hand():
 
 
 def test_hall_sensor_samples_at_rate_with_seeded_noise_and_saturates():
-    unit = MagnetUnitConfig(p_WM=(0.0, 0.0, 0.0), magnet=SphereMagnet(), sensor_distance=0.1)
+    unit = MagnetUnitConfig(p_WM=[0.0, 0.0, 0.0], shape="sphere")
+    assert unit.magnet == SphereMagnet() and unit.sensor_distance == 0.1
     spec = HallSensorSpec(noise_std_T=20e-6, sample_rate_hz=200.0, lsb_T=(0.0, 0.0, 0.0))
     readings = []
     for seed in (5, 5, 6):
@@ -155,7 +159,8 @@ def test_hall_sensor_samples_at_rate_with_seeded_noise_and_saturates():
 
 
 def test_estimator_ports_and_output_by_hand():
-    unit = MagnetUnitConfig(p_WM=(0.0, 0.0, 0.0), sensor_distance=0.1)
+    unit = MagnetUnitConfig(p_WM=[0.0, 0.0, 0.0])
+    assert unit.sensor_distance == 0.1
     est = DipoleDirectionEstimator(unit)
     assert est.get_name() == "right_unit.estimator"
     assert [est.get_input_port(0).get_name(), est.get_output_port(0).get_name()] == ["B_sensor_T", "m_hat_W"]

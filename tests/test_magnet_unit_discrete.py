@@ -13,6 +13,7 @@ from ballchain.drake_models.omniwheel import OmniWheelGeometry
 from ballchain.drake_models.params import CylinderMagnet
 from ballchain.systems.omni_wheel_drive import OmniWheelDrive, StepperSpec
 from ballchain.systems.rotating_magnet_unit import RotatingMagnetUnit
+from ballchain.systems.unit_config import right_unit
 
 G = OmniWheelGeometry()
 M_PROTO = CylinderMagnet().dipole_moment
@@ -37,7 +38,7 @@ def test_discrete_unit_has_the_same_ports_and_no_continuous_state():
 def test_constant_speed_turns_exactly_at_any_time(t_end):
     """A fixed wheel speed: the dipole turns about world z by (1 - slip) w t, between updates too."""
     m0 = np.array([np.sin(np.pi / 3), 0.0, np.cos(np.pi / 3)])
-    unit = RotatingMagnetUnit(R_WM=rotation_with_z_along(m0), slip=0.05, update_period=5e-3)
+    unit = RotatingMagnetUnit(right_unit(slip=0.05), R_WM=rotation_with_z_along(m0), update_period=5e-3)
     ctx = unit.CreateDefaultContext()
     w = 1.5
     unit.get_input_port(0).FixValue(ctx, G.wheel_speeds([0.0, 0.0, w]))

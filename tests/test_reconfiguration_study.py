@@ -4,7 +4,8 @@ import numpy as np
 
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.experiments.wheels import wheel_map_report
-from ballchain.systems.actuation_station import StationOptions, right_unit
+from ballchain.systems.actuation_station import StationOptions
+from ballchain.systems.unit_config import right_unit
 from ballchain.systems.reconfiguration import ReconfigurationController
 from ballchain.experiments.reconfiguration import run_reconfiguration, run_reconfiguration_study
 
@@ -19,9 +20,9 @@ def test_small_study_converges_every_run_including_antiparallel():
 
 
 def test_antiparallel_run_leaves_the_stall_point_and_error_decreases():
-    opt = StationOptions(slip=0.05, sensor_noise=False)
     m_c = np.array([-1.0, 0.0, 0.0])  # neutral for the right unit, field along +x at the origin
-    run = run_reconfiguration(rotation_with_z_along(-m_c), unit=right_unit(), options=opt)
+    run = run_reconfiguration(rotation_with_z_along(-m_c), unit=right_unit(slip=0.05, sensor_noise=False),
+                              options=StationOptions())
     assert run.initial_error_deg == 180.0
     assert run.done and run.final_error_deg < 1.0
     err = run.error_deg
@@ -33,9 +34,9 @@ def test_antiparallel_run_leaves_the_stall_point_and_error_decreases():
 def test_paper_wheel_map_still_converges_in_closed_loop_but_turns_off_axis():
     # The printed map composes with the true kinematics to a 26.6 deg rotation (< 90 deg), so
     # feedback still converges; the first commanded step shows the axis error.
-    opt = StationOptions(slip=0.0, sensor_noise=False, wheel_map="paper")
     R0 = rotation_with_z_along([0.0, 0.6, 0.8])
-    run = run_reconfiguration(R0, unit=right_unit(), options=opt)
+    run = run_reconfiguration(R0, unit=right_unit(slip=0.0, sensor_noise=False, wheel_map="paper"),
+                              options=StationOptions())
     assert run.done and run.final_error_deg < 1.0
     ctrl = ReconfigurationController([-1.0, 0.0, 0.0], wheel_map="paper", max_wheel_speed=100.0)
     ctx = ctrl.CreateDefaultContext()

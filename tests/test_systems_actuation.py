@@ -9,20 +9,15 @@ from ballchain.drake_models.dipole import K_DIPOLE, dipole_field
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.omniwheel import OmniWheelGeometry
 from ballchain.drake_models.params import BallChain, CylinderMagnet
-from ballchain.systems.actuation_station import (
-    StationOptions,
-    left_unit,
-    make_actuation_station,
-    neutral_direction,
-    right_unit,
-)
+from ballchain.systems.actuation_station import StationOptions, make_actuation_station, neutral_direction
 from ballchain.systems.feeder import Feeder, FeederSpec
 from ballchain.systems.hall_sensor import DipoleDirectionEstimator
 from ballchain.systems.omni_wheel_drive import OmniWheelDrive, StepperSpec
 from ballchain.systems.reconfiguration import ReconfigurationController
 from ballchain.systems import rotating_magnet_unit
-from ballchain.systems.rotating_magnet_unit import MagnetUnitConfig, RotatingMagnetUnit, rotation_from_quaternion
+from ballchain.systems.rotating_magnet_unit import RotatingMagnetUnit, rotation_from_quaternion
 from ballchain.systems.teleoperation import ModeSwitch, TeleoperationMapper, apply_dead_band
+from ballchain.systems.unit_config import MagnetUnitConfig, left_unit, right_unit
 
 G = OmniWheelGeometry()
 M_PROTO = CylinderMagnet().dipole_moment
@@ -56,7 +51,7 @@ def test_magnet_unit_ports_and_outputs_at_rest():
 
 
 def test_magnet_unit_forward_map_and_slip():
-    unit = RotatingMagnetUnit(slip=0.05)
+    unit = RotatingMagnetUnit(right_unit(slip=0.05))
     ctx = unit.CreateDefaultContext()
     omega = np.array([0.3, -0.2, 0.5])
     unit.get_input_port(0).FixValue(ctx, G.wheel_speeds(omega))
@@ -67,7 +62,7 @@ def test_magnet_unit_forward_map_and_slip():
 def test_rotation_about_z_keeps_m_z_and_turns_by_omega_t(slip):
     # Start tilted 60 deg from z, turn about world z at 1.5 rad/s for 1 s.
     m0 = np.array([np.sin(np.pi / 3), 0.0, np.cos(np.pi / 3)])
-    unit = RotatingMagnetUnit(R_WM=rotation_with_z_along(m0), slip=slip)
+    unit = RotatingMagnetUnit(right_unit(slip=slip), R_WM=rotation_with_z_along(m0))
     ctx = unit.CreateDefaultContext()
     w = 1.5
     unit.get_input_port(0).FixValue(ctx, G.wheel_speeds([0.0, 0.0, w]))
@@ -330,8 +325,8 @@ def test_neutral_direction_points_field_along_feed():
 
 def test_two_unit_station_ports_superposition_and_teleop_rotation():
     points = np.array([[0.0, 0.0, 0.0], [0.02, 0.01, -0.01]])
-    opt = StationOptions(field_points_W=points, with_feeder=True, sensor_noise=False)
-    station = make_actuation_station([right_unit(), left_unit()], opt)
+    opt = StationOptions(field_points_W=points, with_feeder=True)
+    station = make_actuation_station([right_unit(sensor_noise=False), left_unit(sensor_noise=False)], opt)
     assert station.get_name() == "actuation_station"
     assert port_names(station, "in") == [
         "right_unit.joystick",
@@ -381,7 +376,7 @@ def test_station_rejects_duplicate_unit_names():
 
 def test_estimator_subtracts_the_other_units_field():
     # Dipole models throughout, so the inverse is exact and any error is cross-talk.
-    r, l = right_unit(field_model="dipole"), left_unit(field_model="dipole")
+    r, l = right_unit(model="dipole"), left_unit(model="dipole")
     m_own = np.array([0.6, -0.3, 0.74])
     m_own /= np.linalg.norm(m_own)
     R_other = rotation_with_z_along([0.0, 1.0, 1.0])
@@ -401,10 +396,10 @@ def test_estimator_subtracts_the_other_units_field():
 
 @pytest.mark.slow
 def test_two_unit_station_reconfigures_both_units():
-    opt = StationOptions(slip=0.05, sensor_noise=True)
     # Dipole models keep it quick; the exact field is exercised by the single-unit study.
-    units = [right_unit(field_model="dipole"), left_unit(field_model="dipole")]
-    station = make_actuation_station(units, opt)
+    units = [right_unit(model="dipole", slip=0.05, sensor_noise=True),
+             left_unit(model="dipole", slip=0.05, sensor_noise=True)]
+    station = make_actuation_station(units, StationOptions())
     ctx = station.CreateDefaultContext()
     starts = {"right_unit": [0.0, 0.6, 0.8], "left_unit": [0.3, -0.2, -0.9]}
     for n, m0 in starts.items():
@@ -422,8 +417,8 @@ def test_two_unit_station_reconfigures_both_units():
 
 def test_station_tip_frame_teleoperation_turns_the_field_at_the_tip():
     points = np.zeros((1, 3))
-    opt = StationOptions(field_points_W=points, sensor_noise=False, teleop_frame="tip", teleop_dead_band=0.0)
-    station = make_actuation_station([right_unit()], opt)
+    opt = StationOptions(field_points_W=points)
+    station = make_actuation_station([right_unit(sensor_noise=False, teleop_frame="tip", teleop_dead_band=0.0)], opt)
     assert {"right_unit.p_WT", "right_unit.tip_direction_W"} <= set(port_names(station, "in"))
     ctx = station.CreateDefaultContext()
     mag = station.GetSubsystemByName("right_unit.magnet")

@@ -22,8 +22,9 @@ from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.vectors import angle_between
 from ballchain.experiments._result import Result
-from ballchain.systems.actuation_station import StationOptions, make_actuation_station, right_unit
-from ballchain.systems.rotating_magnet_unit import MagnetUnitConfig, rotation_from_quaternion
+from ballchain.systems.actuation_station import StationOptions, make_actuation_station
+from ballchain.systems.rotating_magnet_unit import rotation_from_quaternion
+from ballchain.systems.unit_config import MagnetUnitConfig, right_unit
 
 
 @dataclass
@@ -169,8 +170,8 @@ def run_reconfiguration_study(
     """
     if runs < 1:
         raise UserInputError(f"runs must be >= 1, got {runs}")
-    unit = right_unit(field_model=field_model)
-    base = StationOptions(slip=slip, sensor_noise=noise, wheel_map=wheel_map)
+    unit = right_unit(model=field_model, slip=slip, sensor_noise=noise, wheel_map=wheel_map)
+    base = StationOptions()
     # The neutral direction the controller is built with (same computation as in the station).
     m_c = make_actuation_station([unit], base).GetSubsystemByName(f"{unit.name}.controller").m_c_W
     starts = list(random_rotations(runs, seed))
