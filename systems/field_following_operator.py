@@ -37,6 +37,7 @@ from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 from ballchain.drake_models.dipole_inversion import neutral_direction
 from ballchain.drake_models.errors import UserInputError, require_finite_fields
 from ballchain.systems.station_units import TipObserver, joystick_keys_for_rotation
+from ballchain.systems.unit_config import MagnetUnitConfig
 
 
 @dataclass
@@ -58,7 +59,7 @@ class FieldFollowingParams:
     p_W_target: tuple
     p_WM: tuple
     omega_max: float
-    dead_band: float = 0.1
+    dead_band: float = MagnetUnitConfig.teleop_dead_band
     period: float = 0.1
     start_time: float = 0.0
     max_tilt: float = np.deg2rad(15.0)

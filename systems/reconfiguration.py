@@ -29,6 +29,7 @@ from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.omniwheel import OmniWheelGeometry, paper_wheel_speeds
 from ballchain.drake_models.vectors import angle_between, perpendicular_axis
 from ballchain.systems.omni_wheel_drive import saturate_uniformly
+from ballchain.systems.unit_config import MagnetUnitConfig
 
 
 class ReconfigurationController(LeafSystem):
@@ -51,19 +52,19 @@ class ReconfigurationController(LeafSystem):
         self,
         m_c_W: np.ndarray,
         *,
-        gain: float = 4.0,
+        gain: float = MagnetUnitConfig.controller_gain,
         max_wheel_speed: float = 2.0 * np.pi,
-        tolerance_deg: float = 0.5,
+        tolerance_deg: float = MagnetUnitConfig.tolerance_deg,
         antiparallel_deg: float = 5.0,
         period: float = 0.01,
         geometry: OmniWheelGeometry | None = None,
-        wheel_map: str = "derived",
+        wheel_map: str = MagnetUnitConfig.wheel_map,
         name: str = "right_unit",
     ) -> None:
         """
         Args:
             m_c_W: (3,) neutral dipole direction (normalised here).
-            gain: K [1/s].
+            gain: K [1/s] (defaults: a unit's, ``unit_config.MagnetUnitConfig``).
             max_wheel_speed: saturation of the wheel command [rad/s].
             tolerance_deg: measured error at which ``done`` latches [deg].
             antiparallel_deg: half-angle of the cone around -m_c where the stall fix applies [deg].

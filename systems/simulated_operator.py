@@ -60,6 +60,7 @@ from pydrake.systems.framework import EventStatus
 from ballchain.drake_models.errors import UserInputError, require_finite_fields
 from ballchain.systems.randomness import SeededLeafSystem
 from ballchain.systems.target_contact import targets_touched
+from ballchain.systems.unit_config import MagnetUnitConfig
 
 
 @dataclass
@@ -111,7 +112,7 @@ class OperatorParams:
     period: float = 0.05
     reaction_steps: int = 2
     axes: tuple = (0, 1, 2)
-    dead_band: float = 0.1
+    dead_band: float = MagnetUnitConfig.teleop_dead_band
     feeder_speed: float = 0.02
     gain: float = 2.0
     max_speed: float = 0.015

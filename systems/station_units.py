@@ -286,7 +286,7 @@ class UnitMeshcatMarkers(LeafSystem):
 
 
 def joystick_keys_for_rotation(m_from_W, m_to_W, omega_max: float, start_time: float = 0.0,
-                               dead_band: float = 0.1) -> list[JoystickKey]:
+                               dead_band: float = MagnetUnitConfig.teleop_dead_band) -> list[JoystickKey]:
     """A scripted stick that turns a magnet's dipole from ``m_from_W`` to ``m_to_W`` (world mapping).
 
     The shortest rotation, about ``m_from x m_to``, with the largest stick axis at full travel; the
@@ -298,7 +298,7 @@ def joystick_keys_for_rotation(m_from_W, m_to_W, omega_max: float, start_time: f
         m_from_W, m_to_W: (3,) dipole directions (any length).
         omega_max: the unit's ``teleop_omega_max`` [rad/s].
         start_time: when the stick moves [s].
-        dead_band: the mapper's dead band (``TeleoperationMapper``'s default).
+        dead_band: the mapper's dead band (a unit's ``teleop_dead_band``; default: its default).
 
     Returns:
         two keys: the stick at ``start_time``, released after the rotation's duration.

@@ -22,6 +22,7 @@ from pydrake.systems.framework import LeafSystem
 from ballchain.drake_models.dipole import dipole_field
 from ballchain.drake_models.dipole_inversion import moment_from_field
 from ballchain.drake_models.errors import UserInputError
+from ballchain.systems.unit_config import MagnetUnitConfig
 
 E3 = np.array([0.0, 0.0, 1.0])
 
@@ -87,15 +88,16 @@ class TeleoperationMapper(LeafSystem):
     def __init__(
         self,
         *,
-        frame: str = "world",
-        omega_max: float = 0.5,
-        dead_band: float = 0.1,
+        frame: str = MagnetUnitConfig.teleop_frame,
+        omega_max: float = MagnetUnitConfig.teleop_omega_max,
+        dead_band: float = MagnetUnitConfig.teleop_dead_band,
         p_WM: np.ndarray | None = None,
         name: str = "right_unit",
     ) -> None:
         """
         Args:
-            frame: "world" (paper) or "tip" (field rotation in the tip's frame).
+            frame: "world" (paper) or "tip" (field rotation in the tip's frame). (Defaults: a
+                unit's, ``unit_config.MagnetUnitConfig``.)
             omega_max: angular speed at full stick [rad/s] (magnet in "world", field at the tip
                 in "tip").
             dead_band: fraction of the stick travel ignored around centre, in [0, 1).
