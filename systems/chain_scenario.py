@@ -376,28 +376,29 @@ MAX_STEPS = 5_000_000  # updates of the most frequent periodic event: hours of w
 MAX_UNIFORM_FIELD = 0.5  # [T]: clinical fields are tens of mT; 23 here means 23 T (mT typed)
 MAX_DISTANCE = 1.0  # [m]: magnets, points and walls farther away are a unit mistake (mm typed as m)
 
-# Contact parameters: (low, high, unit, why). The bounds keep the contact problem physical and
-# the discrete solver well conditioned; outside them a run fails inside Drake ("factorization
-# not ready") or the balls pass through each other and the wall.
+# Contact parameters: (low, high, unit, why). The bounds keep the contact physical and the
+# discrete solver well conditioned; outside them a run fails inside Drake ("Call to Solve()
+# failed: factorization not ready" at 1e30 N/m) or the chain blows apart at once. Measured on
+# free_space_wall (20 ms at 1 ms and at 0.1 ms steps): 1e5..1e9 N/m run at 0.1 ms, 1e4 N/m
+# breaks the chain at both steps, a relaxation time of 0.01 s breaks it at 1 ms.
 CONTACT_BOUNDS = {
-    # A 3.175 mm steel ball's Hertz stiffness against steel is ~1e7 N/m; SAP's Newton steps
-    # lose precision at k dt^2 / m far beyond that (1e30 fails to factorise); below 10 N/m
-    # a ball's own weight pushes it a ball radius into its neighbour.
-    "ball_point_stiffness": (10.0, 1e9, "N/m", "10 N/m (balls sink into each other) to 1e9 N/m "
-                             "(stiffer than steel on steel: the solver's factorisation fails)"),
-    # SAP's dissipation time scale: 0 is "the time step"; beyond 1 s the contact is a dashpot
-    # that holds the balls for longer than the runs last.
-    "relaxation_time": (0.0, 1.0, "s", "0 (the time step) to 1 s (a contact damped over a whole run)"),
+    # A 3.175 mm steel ball's Hertz stiffness against steel is ~1e8 N/m: 1e9 is stiffer than any
+    # material here. Below 1e5 N/m the magnetic attraction between neighbours (~1 N) presses the
+    # balls into each other by more than 10 um and the chain comes apart.
+    "ball_point_stiffness": (1e5, 1e9, "N/m", "softer, neighbours sink into each other and the chain comes apart; "
+                             "stiffer than steel on steel, the solver's factorisation fails"),
+    # SAP's dissipation time scale: 0 is "the time step"; beyond 0.1 s the contact is a dashpot
+    # that holds the balls for longer than a quasi-static settling lasts.
+    "relaxation_time": (0.0, 0.1, "s", "0 is the time step; a longer one is a dashpot that outlasts the settling"),
     # Coulomb coefficients of steel, PTFE and tissue are below 1.
-    "friction": (0.0, 2.0, "", "0 to 2 (steel, PTFE and tissue are below 1)"),
+    "friction": (0.0, 2.0, "", "steel, PTFE and tissue are below 1"),
     # Atrial tissue is ~1e4-1e5 Pa; the wall model is stiffer on purpose (see ContactConfig);
-    # below 1e4 Pa a pressed ball goes through the 2.5 mm wall, above 1e10 Pa it is stiffer than bone.
-    "wall_hydroelastic_modulus": (1e4, 1e10, "Pa", "1e4 Pa (a pressed ball goes through the wall) to "
-                                  "1e10 Pa (stiffer than bone)"),
-    # Distances at the scale of a ball (3.175 mm): a margin or mesh size beyond 1 mm is larger
+    # cortical bone is ~1e10 Pa.
+    "wall_hydroelastic_modulus": (1e4, 1e10, "Pa", "atrial tissue is ~1e4-1e5 Pa, bone ~1e10 Pa"),
+    # Distances at the scale of a ball (3.175 mm): a margin or mesh size beyond it is larger
     # than the gaps it resolves; a resolution below 0.1 mm meshes each ball with ~1e5 triangles.
-    "hydroelastic_margin": (1e-6, 1e-3, "m", "1e-6 m to 1e-3 m (the scale of a ball)"),
-    "ball_resolution_hint": (1e-4, 1e-2, "m", "1e-4 m (~1e5 triangles a ball) to 1e-2 m"),
+    "hydroelastic_margin": (1e-6, 1e-3, "m", "at most a third of a ball"),
+    "ball_resolution_hint": (1e-4, 1e-2, "m", "finer meshes each ball with ~1e5 triangles"),
 }
 MAX_SLIDE_KP = 1e9  # [N/m]: the slide actuator is implicit in SAP; the same conditioning as the contact
 PLANT_CONFIG_BOUNDS = {  # MultibodyPlantConfig's numbers: (low, high, low open, what)
@@ -814,8 +815,8 @@ def check_contact(s: "ChainScenario") -> None:
     c = s.contact
     for name, (lo, hi, unit, why) in CONTACT_BOUNDS.items():
         v = getattr(c, name)
-        _require(lo <= v <= hi, f"scenario contact.{name} must be in [{lo:g}, {hi:g}]{' ' + unit if unit else ''}: "
-                                f"{why}; got {v:g}")
+        _require(lo <= v <= hi, f"scenario contact.{name} must be in [{lo:g}, {hi:g}]{' ' + unit if unit else ''} "
+                                f"({why}), got {v:g}")
 
 
 def check_drake_configs(s: "ChainScenario") -> None:
