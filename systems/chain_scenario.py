@@ -636,7 +636,7 @@ def check_timing(s: "ChainScenario") -> None:
              f"scenario time_step must be 0 (the mode's default) or in {MIN_TIME_STEP:g}..{MAX_TIME_STEP:g} s, "
              f"got {s.time_step:g}")
     _require(s.mode != "dynamics" or s.effective_time_step <= MAX_DYNAMICS_STEP,
-             f"scenario time_step {s.effective_time_step:g} s is too large for mode: dynamics: the magnetic "
+             f"scenario time_step {s.effective_time_step:g} s is too large for the dynamics mode: the magnetic "
              "forces are explicit and need about 1e-4 s (use quasi-static for larger steps)")
     _require(s.engine != "statics" or s.mode == "quasi-static",
              f"scenario engine: statics needs mode: quasi-static (the engine solves equilibria), got {s.mode!r}")
