@@ -625,6 +625,9 @@ def check_fields(s: "ChainScenario") -> None:
     check_drake_configs(s)
     if s.pin.point:
         check_pin(s)
+    _require(s.pin.point or s.pin.stiffness == PinScenario.stiffness,
+             f"scenario pin.stiffness = {s.pin.stiffness:g} N/m: without pin.point there is no pin "
+             "(give pin.point, or leave pin out)")
 
 
 def check_timing(s: "ChainScenario") -> None:

@@ -66,6 +66,7 @@ CASES = [
                                   "{magnets: [{p_WM: [0.2, 0, 0], distance_from_puncture: 0.3}]}"],
      "magnets[0].distance_from_puncture"),
     ("unit-p-WM-and-anchor", TELEOP + ["--set", "{units: [{p_WM: [0.1, 0.1, 0]}]}"], "units[0].anchor"),
+    ("pin-stiffness-without-point", SIM + ["--set", "{pin: {stiffness: 100.0}}"], "pin.stiffness"),
     # bounds: every position and distance within MAX_DISTANCE
     ("wall-12-m", WALL + ["--set", "{wall_plane: [0, 12.0, 0, 0, -1, 0]}"], "wall_plane point"),
     ("wall-normal-zero", WALL + ["--set", "{wall_plane: [0, 0.012, 0, 0, 0, 0]}"], "wall_plane normal"),
