@@ -86,26 +86,6 @@ class SweepSpec:
         return [(p, s) for p in self.points for s in self.seeds]
 
 
-def _type_name(t) -> str:
-    return getattr(t, "__name__", str(t))
-
-
-def _check_value(where: str, value, t) -> None:
-    """A YAML scalar against a field type (bool, int, float, str), with a message naming it."""
-    ok = {
-        bool: isinstance(value, bool),
-        int: isinstance(value, int) and not isinstance(value, bool),
-        float: isinstance(value, (int, float)) and not isinstance(value, bool)
-        and math.isfinite(float(value)),
-        str: isinstance(value, str),
-    }.get(t)
-    if ok is None:
-        raise TypeError(f"sweep field type {t!r} of {where} is not a scalar")  # a programming error
-    if not ok:
-        raise UserInputError(f"{where} must be a {_type_name(t)}{' (finite)' if t is float else ''}, "
-                             f"got {value!r}")
-
-
 def _schema(experiment) -> type:
     """The typed spec schema of one experiment (for ``yaml_load_typed``)."""
     hints = typing.get_type_hints(experiment.params)
@@ -135,6 +115,7 @@ def load_spec(source: str | Path, *, text: str | None = None) -> SweepSpec:
     from pydrake.common.yaml import yaml_load_typed
 
     from ballchain.experiments.studies import EXPERIMENTS
+    from ballchain.systems.chain_scenario import check_value
 
     label = str(source)
     if text is None:
@@ -170,7 +151,7 @@ def load_spec(source: str | Path, *, text: str | None = None) -> SweepSpec:
         if not values:
             raise UserInputError(f"sweep spec {label}: grid.{key} is empty (give at least one value)")
         for k, v in enumerate(values):
-            _check_value(f"sweep spec {label}: grid.{key}[{k}]", v, hints[key])
+            check_value(v, hints[key], f"grid.{key}[{k}]", f"sweep spec {label}")
     points = raw.get("points") or []
     if not isinstance(points, list):
         raise UserInputError(f"sweep spec {label}: points must be a list of parameter sets")
@@ -181,12 +162,12 @@ def load_spec(source: str | Path, *, text: str | None = None) -> SweepSpec:
             if key not in hints:
                 raise UserInputError(f"sweep spec {label}: points[{k}].{key} is not a field of experiment "
                                      f"{name!r}; fields: {fields}")
-            _check_value(f"sweep spec {label}: points[{k}].{key}", v, hints[key])
+            check_value(v, hints[key], f"points[{k}].{key}", f"sweep spec {label}")
     seeds = raw.get("seeds", [0])
     if not isinstance(seeds, list) or not seeds:
         raise UserInputError(f"sweep spec {label}: seeds must be a non-empty list of integers, got {seeds!r}")
     for k, s in enumerate(seeds):
-        _check_value(f"sweep spec {label}: seeds[{k}]", s, int)
+        check_value(s, int, f"seeds[{k}]", f"sweep spec {label}")
     if len(set(seeds)) != len(seeds):
         raise UserInputError(f"sweep spec {label}: seeds has duplicates: {seeds}")
     if not grid and not points:

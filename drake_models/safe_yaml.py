@@ -1,0 +1,199 @@
+"""One loader for every YAML document a user gives (scenario files, ``--set``, sweep specs, studies).
+
+``load_yaml(text, where)`` reads plain YAML (mappings, lists, strings, numbers, booleans, null)
+and refuses, as a one-line ``UserInputError`` naming ``where``:
+
+- a document larger than ``MAX_BYTES``, or whose aliases expand to more than ``MAX_NODES``
+  values (an "alias bomb": nine anchors of nine aliases each are 10^9 values, which any walk
+  over the data would take hours to visit) or refer to themselves;
+- a mapping that names the same key twice (PyYAML keeps the last one silently);
+- any tag (``!!python/object``, ``!Foo``): the data is plain YAML;
+- text that is not YAML.
+
+Numbers are read as YAML 1.2 reads them: ``2.3e1``, ``1e-9``, ``.5`` and ``+1.`` are floats
+(PyYAML's YAML 1.1 resolver reads the first two as strings). Everything else is PyYAML's
+``SafeLoader``.
+
+``load_typed(data, schema, where, defaults)`` builds a dataclass (or a pydrake config struct)
+from data that ``load_yaml`` returned, with pydrake's ``yaml_load_typed`` (the project's one
+way of typing YAML): the data is re-emitted as plain YAML (no aliases, no tags), so pydrake's
+own parser sees exactly what was checked.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import yaml
+from yaml.nodes import MappingNode, SequenceNode
+
+from ballchain.drake_models.errors import UserInputError, short_repr
+
+MAX_BYTES = 1_000_000  # a scenario file is a few kB; a sweep spec a few hundred lines
+MAX_NODES = 100_000  # values after alias expansion (every use of an alias counts its anchor's values again)
+
+# YAML 1.2 core schema floats (https://yaml.org/spec/1.2.2/#1023-core-schema), beside YAML 1.1's.
+_FLOAT_12 = re.compile(r"^[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?$")
+_BASE = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml's parser when built with it
+
+
+class _Loader(_BASE):
+    """SafeLoader with YAML 1.2 floats and duplicate-key refusal (tags stay unconstructable)."""
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, MappingNode):
+            seen = set()
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue  # "<<: *anchor" merges; an explicit key may override a merged one
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    duplicate = key in seen
+                except TypeError:  # an unhashable key: SafeConstructor reports it
+                    break
+                if duplicate:
+                    raise _Duplicate(key, key_node.start_mark)
+                seen.add(key)
+        return super().construct_mapping(node, deep)
+
+
+# Integers keep their resolver (it comes first); text that only YAML 1.2 reads as a float
+# reaches this one instead of falling through to a string.
+_Loader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_12, list("-+.0123456789"))
+
+
+class _Duplicate(Exception):
+    def __init__(self, key, mark):
+        super().__init__(key)
+        self.key, self.mark = key, mark
+
+
+def _at(mark) -> str:
+    return f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+
+
+def _check_size(root, where: str) -> None:
+    """Count the values of the composed document, each alias as many times as it is used
+    (memoised per node, so the count itself is cheap); refuse above MAX_NODES or a cycle."""
+    sizes: dict[int, int] = {}
+    open_nodes: set[int] = set()
+
+    def size(node) -> int:
+        key = id(node)
+        if key in sizes:
+            return sizes[key]
+        if key in open_nodes:
+            raise UserInputError(f"{where}: an alias refers to its own anchor{_at(node.start_mark)}: "
+                                 "recursive YAML is refused")
+        open_nodes.add(key)
+        if isinstance(node, SequenceNode):
+            children = node.value
+        elif isinstance(node, MappingNode):
+            children = [item for pair in node.value for item in pair]
+        else:
+            children = []
+        total = 1
+        for child in children:
+            total += size(child)
+            if total > MAX_NODES:
+                raise UserInputError(f"{where}: the YAML expands to more than {MAX_NODES} values (aliases "
+                                     f"repeat their anchor's values){_at(node.start_mark)}: refused")
+        open_nodes.discard(key)
+        sizes[key] = total
+        return total
+
+    size(root)
+
+
+def load_yaml(text: str, where: str) -> object:
+    """Parse one plain-YAML document given by the user.
+
+    Args:
+        text: the document.
+        where: what it is, for messages ("--set", "scenario file 'x.yaml'", "sweep spec s.yaml").
+
+    Returns:
+        The data (dict, list, str, int, float, bool or None).
+
+    Raises:
+        UserInputError: one line naming ``where``: too large, an alias bomb or a recursive alias,
+            a duplicate key, a tag, or not YAML (with the line and column).
+    """
+    if isinstance(text, bytes):
+        text = text.decode("utf-8", errors="replace")
+    if len(text.encode("utf-8", errors="replace")) > MAX_BYTES:
+        raise UserInputError(f"{where}: the YAML is {len(text.encode('utf-8', errors='replace'))} bytes, "
+                             f"more than {MAX_BYTES}: refused")
+    loader = _Loader(text)
+    try:
+        root = loader.get_single_node()
+        if root is None:
+            return None
+        _check_size(root, where)
+        return loader.construct_document(root)
+    except _Duplicate as dup:
+        raise UserInputError(f"{where}: duplicate key {short_repr(dup.key)}{_at(dup.mark)}: "
+                             "give each field once") from None
+    except yaml.constructor.ConstructorError as err:
+        problem = " ".join(str(err.problem or err).split())
+        if "could not determine a constructor for the tag" in problem:
+            tag = problem.split("tag", 1)[1].strip()
+            raise UserInputError(f"{where}: the tag {tag[:80]} is refused{_at(err.problem_mark)}: "
+                                 "give plain YAML (mappings, lists, numbers, strings)") from None
+        raise UserInputError(f"{where} is not valid YAML: {problem[:200]}{_at(err.problem_mark)}") from None
+    except yaml.YAMLError as err:
+        problem = getattr(err, "problem", None) or str(err).splitlines()[0]
+        if getattr(err, "context", None) and "single document" in err.context:
+            problem = f"{err.context}, {problem}"  # "expected a single document ..., but found another"
+        problem = " ".join(str(problem).split())[:200]
+        raise UserInputError(f"{where} is not valid YAML: {problem}{_at(getattr(err, 'problem_mark', None))}") \
+            from None
+    except RecursionError:
+        raise UserInputError(f"{where}: the YAML is nested too deeply: refused") from None
+    finally:
+        loader.dispose()
+
+
+def load_yaml_file(path: str | Path, where: str | None = None) -> object:
+    """``load_yaml`` of a file (its size checked before it is read).
+
+    Raises:
+        UserInputError: not a readable file, or as ``load_yaml``.
+    """
+    path = Path(path)
+    where = where or f"YAML file {str(path)!r}"
+    try:
+        if path.stat().st_size > MAX_BYTES:
+            raise UserInputError(f"{where}: the file is {path.stat().st_size} bytes, more than {MAX_BYTES}: refused")
+        text = path.read_text(encoding="utf-8", errors="replace")
+    except OSError as err:
+        raise UserInputError(f"{where}: cannot read it ({err.strerror})") from None
+    return load_yaml(text, where)
+
+
+def dump_yaml(data) -> str:
+    """Plain YAML text of data from ``load_yaml`` (no aliases: every value written out)."""
+
+    class _NoAliases(yaml.SafeDumper):
+        def ignore_aliases(self, data):
+            return True
+
+    return yaml.dump(data, Dumper=_NoAliases, default_flow_style=None, sort_keys=False)
+
+
+def load_typed(data, schema, where: str, defaults=None):
+    """An instance of ``schema`` (a dataclass or a pydrake config struct) from data that
+    ``load_yaml`` returned (a mapping), starting from ``defaults`` (or ``schema()``), with
+    pydrake's ``yaml_load_typed``. Check the data's shape first (``chain_scenario.check_yaml_schema``):
+    pydrake's messages are multi-line.
+
+    Raises:
+        UserInputError: naming ``where``, when pydrake refuses the data.
+    """
+    from pydrake.common.yaml import yaml_load_typed
+
+    try:
+        return yaml_load_typed(schema=schema, data=dump_yaml(data if data is not None else {}), defaults=defaults)
+    except (RuntimeError, ValueError, TypeError) as err:
+        raise UserInputError(f"{where}: {' '.join(str(err).split())[:200]}") from None
