@@ -34,6 +34,7 @@ with the same ``DIR`` skips the points that already have a row without error.
 
 from __future__ import annotations
 
+import codecs
 import dataclasses
 import hashlib
 import itertools
@@ -46,9 +47,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, NamedTuple, Sequence
 
-import yaml
-
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.errors import UserInputError, caused_by_interrupt, short_repr
 from ballchain.drake_models.safe_files import atomic_path, check_output_dir
 
 TABLE_PARQUET = "table.parquet"
@@ -58,6 +57,7 @@ TAIL_COLUMNS = ("wall_time_s", "cpu_time_s", "worker", "error")
 MAX_ATTEMPTS = 3  # submissions of one point whose worker died before it gives up (an error row)
 WRITE_PERIOD = 2.0  # [s] between table writes while results stream in
 SPEC_KEYS = ("experiment", "description", "grid", "points", "seeds")
+DEFAULT_MAX_POINTS = 5000  # runs (points x seeds) a spec may hold unless --max-points raises it
 
 
 # --- the spec ------------------------------------------------------------------------------------
@@ -103,7 +103,7 @@ def _check_value(where: str, value, t) -> None:
         raise TypeError(f"sweep field type {t!r} of {where} is not a scalar")  # a programming error
     if not ok:
         raise UserInputError(f"{where} must be a {_type_name(t)}{' (finite)' if t is float else ''}, "
-                             f"got {value!r}")
+                             f"got {short_repr(value)}")
 
 
 def _schema(experiment) -> type:
@@ -120,108 +120,163 @@ def _schema(experiment) -> type:
     ])
 
 
-def load_spec(source: str | Path, *, text: str | None = None) -> SweepSpec:
+def load_spec(source: str | Path, *, text: str | None = None, max_points: int = DEFAULT_MAX_POINTS) -> SweepSpec:
     """Load and check a sweep spec (a YAML file, or ``text``).
 
     Args:
         source: the spec file (or a label for ``text``).
         text: inline YAML instead of reading ``source``.
+        max_points: the most runs (points x seeds) the spec may hold (``--max-points``).
 
     Raises:
-        UserInputError: unreadable file, unknown experiment, unknown field, a value of the wrong
-            type, an empty grid or field list, or a value the experiment rejects; the message
-            names the field.
+        UserInputError: an unreadable, binary or non-UTF-8 file, YAML that ``safe_yaml`` refuses,
+            an unknown experiment, an unknown field, a value of the wrong type, an empty grid or
+            field list, more runs than ``max_points`` (counted before the grid is expanded), or a
+            value the experiment's command refuses; the message names the field (and the point).
     """
-    from pydrake.common.yaml import yaml_load_typed
-
-    from ballchain.experiments.studies import EXPERIMENTS
+    from ballchain.drake_models.safe_yaml import load_typed, load_yaml
 
     label = str(source)
-    if text is None:
-        path = Path(source)
-        if not path.is_file():
-            raise UserInputError(f"sweep spec {label!r} is not a file")
-        text = path.read_text()
+    where = f"sweep spec {short_repr(label)}"
+    if isinstance(max_points, bool) or not isinstance(max_points, int) or max_points < 1:
+        raise UserInputError(f"--max-points must be an integer >= 1, got {short_repr(max_points)}")
+    raw = load_yaml(_read_spec_text(Path(source), where) if text is None else text, where)
+    experiment = _spec_experiment(raw, where)
+    hints = typing.get_type_hints(experiment.params)
+    grid = _spec_grid(raw, hints, where, experiment.name)
+    points = _spec_points(raw, hints, where, experiment.name)
+    seeds = _spec_seeds(raw, where)
+    n_grid = math.prod(len(values) for values in grid.values()) if grid else 0
+    runs = (n_grid + len(points)) * len(seeds)
+    if runs > max_points:
+        raise UserInputError(f"{where}: {runs} runs ({n_grid} grid points + {len(points)} points, times {len(seeds)} "
+                             f"seed(s)) exceed the limit of {max_points}: split the study, or raise --max-points")
+    typed = load_typed(raw, _schema(experiment), where)
+    axes = [f.name for f in dataclasses.fields(experiment.params) if f.name in grid]
+    product = [experiment.params(**dict(zip(axes, combo)))
+               for combo in itertools.product(*(getattr(typed.grid, a) for a in axes))] if axes else []
+    all_points = product + list(typed.points)
+    _check_point_values(experiment, all_points, len(product), axes, where)
+    keys = [point_key(experiment.name, p, s) for p in all_points for s in seeds]
+    if len(set(keys)) != len(keys):
+        raise UserInputError(f"{where}: the same point appears twice (grid and points overlap)")
+    return SweepSpec(experiment.name, typed.description, all_points, list(seeds), label)
+
+
+def _read_spec_text(path: Path, where: str) -> str:
+    """A spec file's text: UTF-8 (a BOM is skipped), or UTF-16 with its BOM (as some Windows
+    editors save); a binary file or another encoding is refused."""
+    from ballchain.drake_models.safe_yaml import MAX_BYTES
+
+    if not path.is_file():
+        raise UserInputError(f"{where} is not a file")
     try:
-        raw = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        raise UserInputError(f"sweep spec {label}: not valid YAML: {err}") from None
+        if path.stat().st_size > MAX_BYTES:
+            raise UserInputError(f"{where}: the file is {path.stat().st_size} bytes, more than {MAX_BYTES}: refused")
+        data = path.read_bytes()
+    except OSError as err:
+        raise UserInputError(f"{where}: cannot read it ({err.strerror})") from None
+    try:
+        if data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
+            return data.decode("utf-16")
+        if b"\0" in data:
+            raise UserInputError(f"{where} is a binary file, not YAML text (save the spec as UTF-8 text)")
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as err:
+        raise UserInputError(f"{where} is not UTF-8 text (byte {err.start} is not): save it as UTF-8") from None
+
+
+def _spec_experiment(raw, where: str):
+    """The spec's experiment, once the top level is a mapping of known keys."""
+    from ballchain.experiments.studies import EXPERIMENTS
+
+    if raw is None:
+        raise UserInputError(f"{where} is empty: give a mapping with keys {SPEC_KEYS}")
     if not isinstance(raw, dict):
-        raise UserInputError(f"sweep spec {label}: must be a mapping with keys {SPEC_KEYS}")
+        raise UserInputError(f"{where}: must be a mapping with keys {SPEC_KEYS}, got a {type(raw).__name__}")
     unknown = [k for k in raw if k not in SPEC_KEYS]
     if unknown:
-        raise UserInputError(f"sweep spec {label}: unknown field(s) {unknown}; allowed: {SPEC_KEYS}")
-    name = raw.get("experiment")
-    if name not in EXPERIMENTS:
-        raise UserInputError(f"sweep spec {label}: experiment must be one of {sorted(EXPERIMENTS)}, got {name!r}")
-    experiment = EXPERIMENTS[name]
-    hints = typing.get_type_hints(experiment.params)
-    fields = list(hints)
-
-    grid = raw.get("grid") or {}
-    if not isinstance(grid, dict):
-        raise UserInputError(f"sweep spec {label}: grid must be a mapping of field -> list of values")
-    for key, values in grid.items():
-        if key not in hints:
-            raise UserInputError(f"sweep spec {label}: grid.{key} is not a field of experiment {name!r}; "
-                                 f"fields: {fields}")
-        if not isinstance(values, list):
-            raise UserInputError(f"sweep spec {label}: grid.{key} must be a list of values, got {values!r}")
-        if not values:
-            raise UserInputError(f"sweep spec {label}: grid.{key} is empty (give at least one value)")
-        for k, v in enumerate(values):
-            _check_value(f"sweep spec {label}: grid.{key}[{k}]", v, hints[key])
-    points = raw.get("points") or []
-    if not isinstance(points, list):
-        raise UserInputError(f"sweep spec {label}: points must be a list of parameter sets")
-    for k, point in enumerate(points):
-        if not isinstance(point, dict):
-            raise UserInputError(f"sweep spec {label}: points[{k}] must be a mapping of field -> value")
-        for key, v in point.items():
-            if key not in hints:
-                raise UserInputError(f"sweep spec {label}: points[{k}].{key} is not a field of experiment "
-                                     f"{name!r}; fields: {fields}")
-            _check_value(f"sweep spec {label}: points[{k}].{key}", v, hints[key])
-    seeds = raw.get("seeds", [0])
-    if not isinstance(seeds, list) or not seeds:
-        raise UserInputError(f"sweep spec {label}: seeds must be a non-empty list of integers, got {seeds!r}")
-    for k, s in enumerate(seeds):
-        _check_value(f"sweep spec {label}: seeds[{k}]", s, int)
-    if len(set(seeds)) != len(seeds):
-        raise UserInputError(f"sweep spec {label}: seeds has duplicates: {seeds}")
-    if not grid and not points:
-        raise UserInputError(f"sweep spec {label}: the grid is empty and there are no points "
-                             f"(give grid: {{field: [values]}} or points: [{{field: value}}])")
+        raise UserInputError(f"{where}: unknown field(s) {short_repr(unknown)}; allowed: {SPEC_KEYS}")
     for key in ("experiment", "description"):
         if key in raw and not isinstance(raw[key], str):
-            raise UserInputError(f"sweep spec {label}: {key} must be a string, got {raw[key]!r}")
-
-    # Every value is checked above, so the typed load below only builds the dataclasses (and
-    # keeps the project's one way of reading typed YAML).
-    try:
-        typed = yaml_load_typed(schema=_schema(experiment), data=text)
-    except (RuntimeError, ValueError, TypeError) as err:
-        raise UserInputError(f"sweep spec {label}: {err}") from None
-    axes = [f.name for f in dataclasses.fields(experiment.params) if f.name in grid]
-    product = []
-    if axes:
-        for combo in itertools.product(*(getattr(typed.grid, a) for a in axes)):
-            product.append(experiment.params(**dict(zip(axes, combo))))
-    all_points = product + list(typed.points)
-    for k, p in enumerate(all_points):
-        if experiment.check is not None:
-            try:
-                experiment.check(p)
-            except UserInputError as err:
-                raise UserInputError(f"sweep spec {label}: point {k + 1} ({_describe(p)}): {err}") from None
-    keys = [point_key(name, p, s) for p in all_points for s in seeds]
-    if len(set(keys)) != len(keys):
-        raise UserInputError(f"sweep spec {label}: the same point appears twice (grid and points overlap)")
-    return SweepSpec(name, typed.description, all_points, list(seeds), label)
+            raise UserInputError(f"{where}: {key} must be a string, got {short_repr(raw[key])}")
+    name = raw.get("experiment")
+    if name not in EXPERIMENTS:
+        raise UserInputError(f"{where}: experiment must be one of {sorted(EXPERIMENTS)}, got {short_repr(name)}")
+    return EXPERIMENTS[name]
 
 
-def _describe(params) -> str:
-    return ", ".join(f"{k}={v}" for k, v in dataclasses.asdict(params).items())
+def _spec_field(key, hints: dict, where: str, name: str, at: str) -> None:
+    if key not in hints:
+        raise UserInputError(f"{where}: {at} is not a field of experiment {name!r}; fields: {list(hints)}")
+
+
+def _spec_grid(raw: dict, hints: dict, where: str, name: str) -> dict:
+    """The grid: field -> non-empty list of values, each of the field's type."""
+    grid = raw.get("grid")
+    if grid is None:
+        return {}
+    if not isinstance(grid, dict):
+        raise UserInputError(f"{where}: grid must be a mapping of field -> list of values, got {short_repr(grid)}")
+    for key, values in grid.items():
+        _spec_field(key, hints, where, name, f"grid.{key}")
+        if not isinstance(values, list):
+            raise UserInputError(f"{where}: grid.{key} must be a list of values, got {short_repr(values)}")
+        if not values:
+            raise UserInputError(f"{where}: grid.{key} is empty (give at least one value)")
+        for k, v in enumerate(values):
+            _check_value(f"{where}: grid.{key}[{k}]", v, hints[key])
+    return grid
+
+
+def _spec_points(raw: dict, hints: dict, where: str, name: str) -> list:
+    """The explicit points: mappings of field -> value of the field's type."""
+    points = raw.get("points")
+    if points is None:
+        points = []
+    if not isinstance(points, list):
+        raise UserInputError(f"{where}: points must be a list of parameter sets, got {short_repr(points)}")
+    for k, point in enumerate(points):
+        if not isinstance(point, dict):
+            raise UserInputError(f"{where}: points[{k}] must be a mapping of field -> value, got {short_repr(point)}")
+        for key, v in point.items():
+            _spec_field(key, hints, where, name, f"points[{k}].{key}")
+            _check_value(f"{where}: points[{k}].{key}", v, hints[key])
+    if not raw.get("grid") and not points:
+        raise UserInputError(f"{where}: the grid is empty and there are no points "
+                             f"(give grid: {{field: [values]}} or points: [{{field: value}}])")
+    return points
+
+
+def _spec_seeds(raw: dict, where: str) -> list[int]:
+    """Distinct seeds, each in the range the operator's tremor takes (``teleop.check_seed``)."""
+    from ballchain.experiments.teleop import check_seed
+
+    seeds = raw.get("seeds", [0])
+    if not isinstance(seeds, list) or not seeds:
+        raise UserInputError(f"{where}: seeds must be a non-empty list of integers, got {short_repr(seeds)}")
+    for k, s in enumerate(seeds):
+        _check_value(f"{where}: seeds[{k}]", s, int)
+        check_seed(s, f"{where}: seeds[{k}]")
+    if len(set(seeds)) != len(seeds):
+        raise UserInputError(f"{where}: seeds has duplicates: {short_repr(seeds)}")
+    return seeds
+
+
+def _check_point_values(experiment, points: list, n_grid: int, axes: list[str], where: str) -> None:
+    """Every point against the experiment's check (the rules of its command's flags)."""
+    if experiment.check is None:
+        return
+    for k, p in enumerate(points):
+        try:
+            experiment.check(p)
+        except UserInputError as err:
+            if k < n_grid:
+                values = ", ".join(f"{a}={short_repr(getattr(p, a))}" for a in axes)
+                at = f"grid point {k + 1} of {n_grid} ({values})"
+            else:
+                at = f"points[{k - n_grid}]"
+            raise UserInputError(f"{where}: {at}: {err}") from None
 
 
 def point_key(experiment: str, params, seed: int) -> str:
