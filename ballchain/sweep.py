@@ -168,6 +168,8 @@ def _read_spec_text(path: Path, where: str) -> str:
     editors save); a binary file or another encoding is refused."""
     from ballchain.drake_models.safe_yaml import MAX_BYTES
 
+    if path.is_dir():
+        raise UserInputError(f"{where} is a folder, not a spec file")
     if not path.is_file():
         raise UserInputError(f"{where} is not a file")
     try:
@@ -324,6 +326,8 @@ def run_point(experiment: str, params: dict, seed: int) -> dict:
         with threadpool_limits(limits=1, user_api="blas"):
             outputs = exp.point(p, seed)
     except Exception as err:  # noqa: BLE001: a failed point is a row with the reason
+        if caused_by_interrupt(err):  # Ctrl-C inside compiled code comes back wrapped: still Ctrl-C
+            raise KeyboardInterrupt from err
         error = f"{type(err).__name__}: {err}"
     clash = set(outputs) & set(row)
     if clash:
@@ -396,6 +400,54 @@ def read_table(out: Path) -> list[dict]:
     return pq.read_table(path).to_pylist()
 
 
+def read_table_csv(out: Path, experiment) -> list[dict]:
+    """The rows of ``out/table.csv``, typed as the Parquet table is: the experiment's parameters
+    by their fields' types, the key, seed, times, worker and error by theirs; the outputs as
+    pyarrow infers them. Raises pyarrow's errors (or OSError) on a file that does not parse."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    arrow = {bool: pa.bool_(), int: pa.int64(), float: pa.float64(), str: pa.string()}
+    types = {"key": pa.string(), "experiment": pa.string(), "seed": pa.int64(), "wall_time_s": pa.float64(),
+             "cpu_time_s": pa.float64(), "worker": pa.string(), "error": pa.string()}
+    types.update({name: arrow[t] for name, t in typing.get_type_hints(experiment.params).items()})
+    table = pacsv.read_csv(Path(out) / TABLE_CSV,
+                           convert_options=pacsv.ConvertOptions(column_types=types, strings_can_be_null=True))
+    return table.to_pylist()
+
+
+def _read_previous(out: Path, experiment) -> tuple[list[dict], str | None]:
+    """The earlier rows in ``out`` and a one-line note when ``table.parquet`` was unreadable
+    (truncated, corrupt): then the rows come from ``table.csv`` if it parses and holds the same
+    points' keys, else the points run again; the unreadable file is kept beside it.
+
+    Raises:
+        UserInputError: ``table.parquet`` is a readable table but not a sweep's (no key column).
+    """
+    import pyarrow as pa
+
+    parquet = out / TABLE_PARQUET
+    try:
+        rows = read_table(out)
+    except (pa.ArrowException, OSError, ValueError) as err:
+        reason = " ".join(str(err).split())[:120] or type(err).__name__
+    else:
+        if rows and not all(isinstance(r.get("key"), str) and r.get("experiment") for r in rows):
+            raise UserInputError(f"--out {out}: its {TABLE_PARQUET} is not a sweep's table (no key or experiment "
+                                 "column): use another folder")
+        return rows, None
+    aside = parquet.with_name(TABLE_PARQUET + ".unreadable")
+    os.replace(parquet, aside)
+    try:
+        rows = read_table_csv(out, experiment)
+        if not all(isinstance(r.get("key"), str) and r.get("experiment") for r in rows):
+            raise ValueError("no key or experiment column")
+        source = f"resumed from {TABLE_CSV} ({len(rows)} rows)"
+    except (pa.ArrowException, OSError, ValueError):
+        rows, source = [], f"{TABLE_CSV} is unreadable too: every point runs again"
+    return rows, f"--out {out}: {TABLE_PARQUET} is unreadable ({reason}); {source}; the file is kept as {aside.name}"
+
+
 # --- the executor ---------------------------------------------------------------------------------
 
 def _check_out(out: Path) -> Path:
@@ -403,6 +455,11 @@ def _check_out(out: Path) -> Path:
     out = check_output_dir(out, "--out")
     out.mkdir(parents=True, exist_ok=True)
     return out
+
+
+MAX_WORKERS_PER_CORE = 4  # LocalCluster processes per core: more only share the cores (and the memory)
+MAX_JOBS = 256  # job-queue jobs one sweep may ask for
+CONNECT_TIMEOUT = 15.0  # [s] for a scheduler to accept the connection and answer
 
 
 def default_workers() -> int:
@@ -413,23 +470,98 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def max_workers() -> int:
+    """The most LocalCluster worker processes: ``MAX_WORKERS_PER_CORE`` per core."""
+    return MAX_WORKERS_PER_CORE * default_workers()
+
+
 def _check_executor(scheduler: str | None, workers: int | None, jobqueue: str | None) -> None:
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 0):
-        raise UserInputError(f"--workers must be an integer >= 0 (0: serial, in this process), got {workers!r}")
+        raise UserInputError(f"--workers must be an integer >= 0 (0: serial, in this process), got {short_repr(workers)}")
     if scheduler is not None and jobqueue is not None:
         raise UserInputError("--scheduler and --jobqueue exclude each other: give one")
     if scheduler is not None and workers == 0:
         raise UserInputError("--workers 0 (serial) and --scheduler exclude each other")
-    if scheduler is not None and "://" not in scheduler and ":" not in scheduler:
-        raise UserInputError(f"--scheduler must be an address like tcp://host:8786, got {scheduler!r}")
+    if scheduler is not None:
+        _check_address(scheduler)
+    if jobqueue is None and scheduler is None and workers is not None and workers > max_workers():
+        raise UserInputError(f"--workers must be at most {max_workers()} ({MAX_WORKERS_PER_CORE} per core; this "
+                             f"process may use {default_workers()}), got {workers}")
+    if jobqueue is not None and workers is not None and workers > MAX_JOBS:
+        raise UserInputError(f"--workers (jobs of --jobqueue) must be at most {MAX_JOBS}, got {workers}")
     if jobqueue is not None:
         if jobqueue not in JOBQUEUE_CLUSTERS:
-            raise UserInputError(f"--jobqueue must be one of {sorted(JOBQUEUE_CLUSTERS)}, got {jobqueue!r}")
+            raise UserInputError(f"--jobqueue must be one of {sorted(JOBQUEUE_CLUSTERS)}, got {short_repr(jobqueue)}")
         try:
             import dask_jobqueue  # noqa: F401
         except ImportError:
             raise UserInputError("--jobqueue needs dask-jobqueue (pip install dask-jobqueue); it is an "
                                  "optional dependency") from None
+
+
+def _check_address(address) -> None:
+    """A scheduler address: a scheme Dask speaks (tcp:// when none is given), a host and a port."""
+    from distributed.comm.addressing import parse_host_port
+    from distributed.comm.registry import backends
+
+    if not isinstance(address, str):
+        raise UserInputError(f"--scheduler must be an address like tcp://host:8786, got {short_repr(address)}")
+    scheme, sep, location = address.partition("://")
+    if not sep:
+        scheme, location = "tcp", address
+    schemes = sorted(set(backends) - {"inproc"})  # inproc: only within one process
+    if scheme not in schemes:
+        raise UserInputError(f"--scheduler {short_repr(address)}: unknown scheme {short_repr(scheme)}; Dask "
+                             f"speaks {', '.join(schemes)} (e.g. tcp://host:8786)")
+    try:
+        host, port = parse_host_port(location)
+    except ValueError:
+        host, port = "", 0
+    if not host or not 0 < port < 65536:
+        raise UserInputError(f"--scheduler must be an address like tcp://host:8786 (a host and a port in "
+                             f"1..65535), got {short_repr(address)}")
+
+
+def _probe_scheduler(address: str, timeout: float) -> None:
+    """Ask what listens at ``address`` who it is (Dask's ``identity``) within ``timeout`` seconds.
+
+    ``distributed.Client`` waits for a silent peer past its own timeout (the handshake has none),
+    so the question runs first, bounded as a whole, on a loop of its own (in a thread: the caller
+    may be inside a running event loop, e.g. a notebook).
+
+    Raises:
+        UserInputError: nothing answered in time, or what answered is not a Dask scheduler.
+    """
+    import asyncio
+    from concurrent.futures import ThreadPoolExecutor
+
+    from distributed.comm import connect
+
+    async def identity():
+        comm = await connect(address, timeout=timeout)
+        try:
+            await comm.write({"op": "identity"})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    def ask():
+        return asyncio.run(asyncio.wait_for(identity(), timeout))
+
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        try:
+            reply = pool.submit(ask).result()
+        except (asyncio.TimeoutError, TimeoutError):
+            raise UserInputError(f"--scheduler {short_repr(address)}: no Dask scheduler answered within {timeout:g} s "
+                                 "(something else listens there, or it is busy)") from None
+        except OSError as err:
+            raise UserInputError(f"--scheduler {short_repr(address)}: cannot connect: {' '.join(str(err).split())[:200]}") from None
+        except Exception as err:  # noqa: BLE001 - whatever a foreign service sends back
+            raise UserInputError(f"--scheduler {short_repr(address)}: what listens there does not speak Dask's protocol "
+                                 f"({type(err).__name__})") from None
+    kind = reply.get("type") if isinstance(reply, dict) else None
+    if kind != "Scheduler":
+        raise UserInputError(f"--scheduler {short_repr(address)}: a Dask {kind or 'peer'} answers there, not a scheduler")
 
 
 JOBQUEUE_CLUSTERS = {"slurm": "SLURMCluster", "pbs": "PBSCluster", "sge": "SGECluster", "lsf": "LSFCluster",
@@ -443,9 +575,10 @@ class Executor:
     """
 
     def __init__(self, *, scheduler: str | None = None, workers: int | None = None, jobqueue: str | None = None,
-                 client=None):
+                 client=None, connect_timeout: float = CONNECT_TIMEOUT):
         _check_executor(scheduler, workers, jobqueue)
         self.scheduler, self.workers, self.jobqueue = scheduler, workers, jobqueue
+        self.connect_timeout = connect_timeout
         self.client, self._own_client, self.cluster = client, client is None, None
         self.description = "client given by the caller" if client is not None else ""
 
@@ -456,10 +589,11 @@ class Executor:
         from distributed import Client
 
         if self.scheduler is not None:
+            _probe_scheduler(self.scheduler, self.connect_timeout)
             try:
-                self.client = Client(self.scheduler, timeout="15s")
+                self.client = Client(self.scheduler, timeout=f"{self.connect_timeout:g}s")
             except (OSError, TimeoutError) as err:
-                raise UserInputError(f"--scheduler {self.scheduler}: cannot connect: {err}") from None
+                raise UserInputError(f"--scheduler {short_repr(self.scheduler)}: cannot connect: {err}") from None
             self.description = f"scheduler {self.scheduler}"
         elif self.jobqueue is not None:
             import dask_jobqueue
@@ -517,7 +651,8 @@ def _lost_row(experiment: str, params, seed: int, reason: str) -> dict:
 
 def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None, workers: int | None = None,
               jobqueue: str | None = None, client=None, progress: bool = True, figure: bool = True,
-              on_result: Callable[[int, "Executor"], None] | None = None) -> dict:
+              on_result: Callable[[int, "Executor"], None] | None = None,
+              echo: Callable[[str], None] | None = None, connect_timeout: float = CONNECT_TIMEOUT) -> dict:
     """Run every point of ``spec`` not already done in ``out``; write the table (and the figure).
 
     Args:
@@ -534,6 +669,9 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
         figure: draw the experiment's figure from the table at the end.
         on_result: called as ``on_result(points_finished, executor)`` after each finished point
             (tests use it to kill a worker mid-sweep).
+        echo: called with one line each before the work starts: the number of points and an
+            estimate of their time, and a note when an earlier table was unreadable.
+        connect_timeout: [s] for ``scheduler`` to answer (``CONNECT_TIMEOUT``).
 
     Returns:
         {"experiment", "out", "table_parquet", "table_csv", "points", "ran", "skipped", "failed",
@@ -548,7 +686,7 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
     exp = EXPERIMENTS[spec.experiment]
     param_names = [f.name for f in dataclasses.fields(exp.params)]
     first = param_names + ["seed"]
-    previous = read_table(out)
+    previous, note = _read_previous(out, exp)
     others = sorted({r.get("experiment") for r in previous} - {spec.experiment})
     if others:
         raise UserInputError(f"--out {out} holds a sweep of experiment {others[0]!r}, not {spec.experiment!r}: "
@@ -573,13 +711,19 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
             write_table(out, ordered(), first)
             last_write[0] = time.perf_counter()
 
+    if echo is not None:
+        if note:
+            echo(note)
+        echo(_announce(spec.experiment, len(tasks), len(todo), previous, exp.typical_s, scheduler, workers,
+                       jobqueue, client))
     start = time.perf_counter()
     interrupted, resubmitted, ran = False, 0, [0]
     bar = tqdm(total=len(tasks), initial=len(tasks) - len(todo), desc=f"sweep {spec.experiment}", unit="point",
                disable=not progress)
     if not todo:  # everything done before: no cluster to start (the table and figure are redrawn)
         scheduler, workers, jobqueue, client = None, 0, None, None
-    with Executor(scheduler=scheduler, workers=workers, jobqueue=jobqueue, client=client) as ex:
+    with Executor(scheduler=scheduler, workers=workers, jobqueue=jobqueue, client=client,
+                  connect_timeout=connect_timeout) as ex:
         try:
             if ex.client is None:
                 for n, (k, p, s) in enumerate(todo, 1):
@@ -593,6 +737,7 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
                 resubmitted = _run_on_client(ex, spec.experiment, todo, rows, bar, save, on_result, ran)
         except KeyboardInterrupt:
             interrupted = True
+            save(force=True)  # before the cluster closes: a second Ctrl-C there must not cost the rows
     bar.close()
     save(force=True)
     table_rows = ordered()
@@ -606,13 +751,42 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
         "ran": ran[0], "skipped": len(tasks) - len(todo),
         "failed": sum(1 for k in keys if k in rows and rows[k].get("error") is not None),
         "resubmitted": resubmitted, "interrupted": interrupted, "wall_time_s": time.perf_counter() - start,
-        "executor": ex.description, "figure": figure_path, "summary": summary,
+        "executor": ex.description, "figure": figure_path, "summary": summary, "table_note": note,
     }
     from ballchain.drake_models.safe_files import to_jsonable
 
     _atomic_write(out / "sweep.json", lambda tmp: Path(tmp).write_text(
         json.dumps(to_jsonable(result), indent=1, allow_nan=False, default=str)))
     return result
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def _announce(experiment: str, n_tasks: int, n_todo: int, previous: list[dict], typical_s: float,
+              scheduler, workers, jobqueue, client) -> str:
+    """One line before the work: the points, those done before, and an estimate of the time
+    (a point's median CPU time in the earlier table, else the experiment's typical one)."""
+    import statistics
+
+    times = [r["cpu_time_s"] for r in previous
+             if r.get("experiment") == experiment and r.get("error") is None and r.get("cpu_time_s")]
+    per_point, basis = (statistics.median(times), "the earlier table") if times else (typical_s, "typical")
+    cpu = n_todo * per_point
+    if n_todo == 0:
+        where = "nothing to run"
+    elif client is None and scheduler is None and jobqueue is None:
+        n = 1 if workers == 0 else (workers or default_workers())
+        where = f"about {_duration(cpu / min(n, n_todo))} on {n} worker process(es)"
+    else:
+        where = "less on several workers"
+    return (f"sweep {experiment}: {n_tasks} points, {n_tasks - n_todo} done before, {n_todo} to run; estimate "
+            f"{_duration(cpu)} of CPU time ({per_point:.3g} s a point, {basis}), {where}")
 
 
 def _run_on_client(ex: Executor, experiment: str, todo, rows: dict, bar, save, on_result, ran: list) -> int:

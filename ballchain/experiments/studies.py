@@ -597,12 +597,12 @@ def sleeve_figure(rows, out: Path) -> Path:
 EXPERIMENTS: dict[str, Experiment] = {
     e.name: e for e in (
         Experiment("statics", StaticsPoint, statics_point, statics_check,
-                   description="one equilibrium of the canonical chain in a uniform field"),
+                   description="one equilibrium of the canonical chain in a uniform field", typical_s=0.05),
         Experiment("design", DesignPoint, design_point, design_check, design_figure, design_summary,
-                   "ball size x actuation magnet x distance -> tip force on a vein (statics)"),
+                   "ball size x actuation magnet x distance -> tip force on a vein (statics)", typical_s=10.0),
         Experiment("operators", OperatorsPoint, operators_point, operators_check, operators_figure,
-                   operators_summary, "simulated operators on the teleoperation tasks"),
+                   operators_summary, "simulated operators on the teleoperation tasks", typical_s=10.0),
         Experiment("sleeve", SleevePoint, sleeve_point, sleeve_check, sleeve_figure, sleeve_summary,
-                   "workspace against the sleeve's Young's modulus and wall thickness"),
+                   "workspace against the sleeve's Young's modulus and wall thickness", typical_s=15.0),
     )
 }
