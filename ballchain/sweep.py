@@ -15,19 +15,24 @@ parameter sets, times a list of seeds::
       - {ball_diameter_mm: 2.17, magnet: sphere119, distance_cm: 35.6}
     seeds: [0]
 
-Fields a point does not set take the experiment's defaults. The spec is checked (unknown
-experiment, unknown field, wrong type, empty grid, values the experiment rejects) before any
-cluster starts: ``UserInputError`` names the field.
+Fields a point does not set take the experiment's defaults. The spec is checked before any
+cluster starts, ``UserInputError`` naming the field: the file (UTF-8 text, or UTF-16 with its
+BOM; read by ``drake_models/safe_yaml.py``), unknown experiment or field, wrong type, empty grid,
+the number of runs (points x seeds, counted as the product of the axes' lengths before the grid
+is expanded; at most ``DEFAULT_MAX_POINTS`` unless ``max_points`` says more), and every point's
+values against its experiment's check, which applies the rules of the experiment's command.
 
 ``run_sweep`` runs each point as a Dask task: by default on a ``LocalCluster`` of worker
-processes (one thread each) sized to the machine's cores, on an existing cluster
-(``scheduler="tcp://host:8786"``), on a dask-jobqueue cluster (``jobqueue="slurm"``, optional
-dependency), or serially in this process (``workers=0``). Rows stream into ``DIR/table.parquet``
+processes (one thread each) sized to the machine's cores (at most ``MAX_WORKERS_PER_CORE`` per
+core), on an existing cluster (``scheduler="tcp://host:8786"``: asked who it is first, within
+``CONNECT_TIMEOUT``), on a dask-jobqueue cluster (``jobqueue="slurm"``, optional dependency, at
+most ``MAX_JOBS`` jobs), or serially in this process (``workers=0``). Rows stream into ``DIR/table.parquet``
 and ``DIR/table.csv`` (each write atomic: a temporary file and ``os.replace``), one row per point:
 its key (a hash of the experiment, parameters and seed), the parameters, the seed, the outputs,
 the wall and CPU time, the worker and the error if it failed (a failed point is a row with the reason).
-Tasks lost with a worker (killed, restarted) are resubmitted; Ctrl-C keeps what finished; a rerun
-with the same ``DIR`` skips the points that already have a row without error.
+Tasks lost with a worker (killed, restarted) are resubmitted; Ctrl-C writes the table with every
+finished point (before the cluster closes); a rerun with the same ``DIR`` skips the points that
+already have a row without error (from ``table.csv`` when ``table.parquet`` is unreadable).
 
 ``run_sections`` maps independent report sections over the same executor (``reproduce``).
 """
