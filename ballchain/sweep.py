@@ -91,26 +91,6 @@ class SweepSpec:
         return [(p, s) for p in self.points for s in self.seeds]
 
 
-def _type_name(t) -> str:
-    return getattr(t, "__name__", str(t))
-
-
-def _check_value(where: str, value, t) -> None:
-    """A YAML scalar against a field type (bool, int, float, str), with a message naming it."""
-    ok = {
-        bool: isinstance(value, bool),
-        int: isinstance(value, int) and not isinstance(value, bool),
-        float: isinstance(value, (int, float)) and not isinstance(value, bool)
-        and math.isfinite(float(value)),
-        str: isinstance(value, str),
-    }.get(t)
-    if ok is None:
-        raise TypeError(f"sweep field type {t!r} of {where} is not a scalar")  # a programming error
-    if not ok:
-        raise UserInputError(f"{where} must be a {_type_name(t)}{' (finite)' if t is float else ''}, "
-                             f"got {short_repr(value)}")
-
-
 def _schema(experiment) -> type:
     """The typed spec schema of one experiment (for ``yaml_load_typed``)."""
     hints = typing.get_type_hints(experiment.params)
@@ -220,6 +200,8 @@ def _spec_field(key, hints: dict, where: str, name: str, at: str) -> None:
 
 def _spec_grid(raw: dict, hints: dict, where: str, name: str) -> dict:
     """The grid: field -> non-empty list of values, each of the field's type."""
+    from ballchain.systems.chain_scenario import check_value
+
     grid = raw.get("grid")
     if grid is None:
         return {}
@@ -232,12 +214,14 @@ def _spec_grid(raw: dict, hints: dict, where: str, name: str) -> dict:
         if not values:
             raise UserInputError(f"{where}: grid.{key} is empty (give at least one value)")
         for k, v in enumerate(values):
-            _check_value(f"{where}: grid.{key}[{k}]", v, hints[key])
+            check_value(v, hints[key], f"grid.{key}[{k}]", where)
     return grid
 
 
 def _spec_points(raw: dict, hints: dict, where: str, name: str) -> list:
     """The explicit points: mappings of field -> value of the field's type."""
+    from ballchain.systems.chain_scenario import check_value
+
     points = raw.get("points")
     if points is None:
         points = []
@@ -248,7 +232,7 @@ def _spec_points(raw: dict, hints: dict, where: str, name: str) -> list:
             raise UserInputError(f"{where}: points[{k}] must be a mapping of field -> value, got {short_repr(point)}")
         for key, v in point.items():
             _spec_field(key, hints, where, name, f"points[{k}].{key}")
-            _check_value(f"{where}: points[{k}].{key}", v, hints[key])
+            check_value(v, hints[key], f"points[{k}].{key}", where)
     if not raw.get("grid") and not points:
         raise UserInputError(f"{where}: the grid is empty and there are no points "
                              f"(give grid: {{field: [values]}} or points: [{{field: value}}])")
@@ -258,12 +242,13 @@ def _spec_points(raw: dict, hints: dict, where: str, name: str) -> list:
 def _spec_seeds(raw: dict, where: str) -> list[int]:
     """Distinct seeds, each in the range the operator's tremor takes (``teleop.check_seed``)."""
     from ballchain.experiments.teleop import check_seed
+    from ballchain.systems.chain_scenario import check_value
 
     seeds = raw.get("seeds", [0])
     if not isinstance(seeds, list) or not seeds:
         raise UserInputError(f"{where}: seeds must be a non-empty list of integers, got {short_repr(seeds)}")
     for k, s in enumerate(seeds):
-        _check_value(f"{where}: seeds[{k}]", s, int)
+        check_value(s, int, f"seeds[{k}]", where)
         check_seed(s, f"{where}: seeds[{k}]")
     if len(set(seeds)) != len(seeds):
         raise UserInputError(f"{where}: seeds has duplicates: {short_repr(seeds)}")

@@ -18,14 +18,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import yaml
-from pydrake.common.yaml import yaml_load_typed
 from pydrake.multibody.plant import MultibodyPlantConfig
 from pydrake.systems.analysis import GetIntegrationSchemes, SimulatorConfig
 from pydrake.visualization import VisualizationConfig
 
 from ballchain.drake_models import paper
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.drake_models.safe_yaml import load_typed, load_yaml, load_yaml_file
 from ballchain.drake_models.params import BallChain
 from ballchain.systems.chain_plant import ChainPlantConfig, ContactConfig, chain_multibody_plant_config
 from ballchain.systems.force_sensor_pin import stability_bound
@@ -313,153 +312,171 @@ class ChainScenario:
         return self.time_step if self.time_step > 0 else DEFAULT_TIME_STEP[self.mode]
 
     def validate(self) -> "ChainScenario":
-        """Check the values; raises UserInputError saying what is wrong. Returns self."""
+        """Check every field in one pass (``check_fields``); raises UserInputError naming the
+        first bad field. Returns self."""
         check_fields(self)
-        if self.mode not in MODES:
-            raise UserInputError(f"scenario mode must be one of {MODES}, got {self.mode!r}")
-        if self.engine not in ENGINES:
-            raise UserInputError(f"scenario engine must be one of {ENGINES}, got {self.engine!r}")
-        if self.engine == "statics" and (self.mode != "quasi-static" or not 0 < self.statics_period <= 1.0):
-            raise UserInputError(f"engine: statics needs mode: quasi-static and 0 < statics_period <= 1 s, got "
-                                 f"mode {self.mode!r}, statics_period {self.statics_period}")
-        if self.n_balls < 2:
-            raise UserInputError(f"scenario n_balls must be >= 2 (ball 1 is the feeder ball), got {self.n_balls}")
-        if self.time_step < 0 or self.duration < 0 or self.check_period <= 0:
-            raise UserInputError("scenario time_step, duration must be >= 0 and check_period > 0")
-        if self.atrium_file and len(self.puncture) != 3:
-            raise UserInputError("a scenario with atrium_file needs puncture: [x, y, z] (m), the septal "
-                             "puncture on that surface")
-        if self.sheath_aim and len(self.sheath_aim) != 3:
-            raise UserInputError(f"scenario sheath_aim must have 3 components [m], got {self.sheath_aim}")
-        if len(self.uniform_field) != 3:
-            raise UserInputError(f"scenario uniform_field must have 3 components [T], got {self.uniform_field}")
-        for k, m in enumerate(self.magnets):
-            if m.shape not in ("cylinder", "sphere"):
-                raise UserInputError(f"magnet {k + 1}: shape must be 'cylinder' or 'sphere', got {m.shape!r}")
-            if m.model not in ("dipole", "exact"):
-                raise UserInputError(f"magnet {k + 1}: model must be 'dipole' or 'exact', got {m.model!r}")
-            if m.p_WM and len(m.p_WM) != 3:
-                raise UserInputError(f"magnet {k + 1}: p_WM must have 3 components [m], got {m.p_WM}")
-        self._validate_units()
-        ins = self.insertion
-        if ins.feeder_command not in FEEDER_COMMANDS:
-            raise UserInputError(f"insertion.feeder_command must be one of {FEEDER_COMMANDS}, got {ins.feeder_command!r}")
-        if ins.feeder_command == "external" and not ins.feeder:
-            raise UserInputError("insertion.feeder_command: external needs the feeder (insertion.feeder: true)")
-        if self.mode == "dynamics" and self.effective_time_step > 5e-4:
-            raise UserInputError(
-                f"time step {self.effective_time_step} s is too large for the dynamics mode: the "
-                "magnetic forces are explicit and need about 1e-4 s (use quasi-static for larger steps)")
         return self
 
 
-    def _validate_units(self) -> None:
-        names = [u.name for u in self.units]
-        if len(set(names)) != len(names):
-            raise UserInputError(f"scenario units must have distinct names, got {names}")
-        for u in self.units:
-            where = f"unit {u.name!r}"
-            if not u.name or "." in u.name:
-                raise UserInputError(f"{where}: name must be non-empty and without dots")
-            if u.shape not in ("cylinder", "sphere"):
-                raise UserInputError(f"{where}: shape must be 'cylinder' or 'sphere', got {u.shape!r}")
-            if u.model not in ("dipole", "exact") or u.model != self.units[0].model:
-                raise UserInputError(f"{where}: model must be 'dipole' or 'exact', the same for every unit")
-            if u.p_WM and len(u.p_WM) != 3:
-                raise UserInputError(f"{where}: p_WM must have 3 components [m], got {u.p_WM}")
-            if u.m_hat_W and (len(u.m_hat_W) != 3 or not any(u.m_hat_W)):
-                raise UserInputError(f"{where}: m_hat_W must be 3 components, not all zero, got {u.m_hat_W}")
-            if not u.p_WM:
-                if u.anchor not in ANCHORS:
-                    raise UserInputError(f"{where}: anchor must be one of {ANCHORS}, got {u.anchor!r}")
-                if u.anchor.startswith("carina") and not self.heart:
-                    raise UserInputError(f"{where}: anchor {u.anchor!r} needs the heart (heart: true)")
-                if len(u.direction_W) != 3 or not any(u.direction_W) or u.distance <= 0:
-                    raise UserInputError(f"{where}: needs direction_W (3, non-zero) and distance > 0 [m]")
-            if u.joystick_source not in JOYSTICK_SOURCES:
-                raise UserInputError(f"{where}: joystick_source must be one of {JOYSTICK_SOURCES}, got {u.joystick_source!r}")
-            if u.teleop_frame not in TELEOP_FRAMES:
-                raise UserInputError(f"{where}: teleop_frame must be one of {TELEOP_FRAMES}, got {u.teleop_frame!r}")
-            if u.teleop_omega_max <= 0:
-                raise UserInputError(f"{where}: teleop_omega_max must be > 0 [rad/s]")
-            times = [k.time for k in u.joystick]
-            if any(t < 0 for t in times) or any(b < a for a, b in zip(times, times[1:])):
-                raise UserInputError(f"{where}: joystick key times must be >= 0 and non-decreasing, got {times}")
-            for k in u.joystick:
-                if len(k.axes) != 3 or k.mode not in (0, 1):
-                    raise UserInputError(f"{where}: joystick key at t = {k.time} s needs 3 axes and mode 0 or 1")
+def _scenarios_data(filename: Path) -> dict:
+    """The scenarios file as a mapping (read with the one user-YAML loader)."""
+    where = f"scenarios file {Path(filename).name!r}"
+    data = load_yaml_file(filename, where)
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise UserInputError(f"{where} must be a mapping of scenario names to scenarios, got {short_repr(data)}")
+    return data
 
 
 def scenario_names(filename: Path = SCENARIOS_FILE) -> list[str]:
     """Names of the scenarios in a scenarios file (keys not starting with an underscore)."""
-    data = yaml.safe_load(Path(filename).read_text()) or {}
-    return [k for k in data if not str(k).startswith("_")]
+    return [k for k in _scenarios_data(filename) if not str(k).startswith("_")]
 
 
 def load_scenario(name: str, overrides: str | None = None, filename: Path = SCENARIOS_FILE) -> ChainScenario:
     """Load a named scenario, apply inline-YAML overrides, validate it.
 
+    Both YAML documents are read by ``safe_yaml.load_yaml`` (bounded, no duplicate keys, YAML
+    1.2 numbers), checked against the schema, then typed with pydrake's ``yaml_load_typed``.
+
     Args:
         name: a scenario name in ``filename``.
-        overrides: inline YAML mapping (e.g. "{mode: dynamics, duration: 0.01}"), or None.
+        overrides: inline YAML mapping (e.g. "{mode: dynamics, duration: 0.01}"), or None; see
+            ``apply_overrides`` for how lists merge.
         filename: the scenarios file.
 
     Raises:
         UserInputError: unknown name, YAML that does not parse, a field that does not exist, a
             value of the wrong type, or a bad value (the message names the field).
     """
-    names = scenario_names(filename)
+    data = _scenarios_data(filename)
+    names = [k for k in data if not str(k).startswith("_")]
     if name not in names:
-        raise UserInputError(f"unknown scenario {name!r}; known scenarios: {', '.join(names)}")
-    check_yaml_schema(yaml.safe_load(Path(filename).read_text())[name], ChainScenario, f"scenario {name!r}")
-    data = parse_overrides(overrides)
-    try:
-        scenario = yaml_load_typed(schema=ChainScenario, filename=str(filename), child_name=name,
-                                   defaults=ChainScenario())
-        if data:
-            scenario = yaml_load_typed(schema=ChainScenario, data=overrides, defaults=scenario)
-    except RuntimeError as err:  # yaml_load_typed reports unknown keys and bad types this way
-        raise UserInputError(f"scenario {name!r}: {err}") from None
+        raise UserInputError(f"unknown scenario {short_repr(name)}; known scenarios: {', '.join(map(str, names))}")
+    where = f"scenario {name!r}"
+    check_yaml_schema(data[name], ChainScenario, where)
+    scenario = load_typed(data[name], ChainScenario, where, defaults=ChainScenario())
+    changes = parse_overrides(overrides)
+    if changes:
+        scenario = apply_overrides(scenario, changes)
     return scenario.validate()
 
 
 # ------------------------------------------------------------------------------------------------
 # Validation at the edge: the YAML's shape against the schema before pydrake reads it,
-# and every field's value (finite, in range, plausible units) before anything is built.
+# and every field's value (finite, in range, plausible units, taking effect) before anything is built.
 
 MAX_BALLS = 100  # the paper's chain has 16; the procedural atrium is about 50 mm across
 MIN_TIME_STEP = 1e-6  # [s]
 MAX_TIME_STEP = 1e-2  # [s]: the quasi-static contact model needs about 1e-3
+MAX_DYNAMICS_STEP = 5e-4  # [s]: the magnetic forces are explicit; true dynamics needs about 1e-4
 MAX_DURATION = 3600.0  # [s] of simulated time
-MAX_STEPS = 5_000_000  # duration / time_step: hours of wall time at a few ms per step
+MAX_STEPS = 5_000_000  # updates of the most frequent periodic event: hours of wall time at a few ms each
 MAX_UNIFORM_FIELD = 0.5  # [T]: clinical fields are tens of mT; 23 here means 23 T (mT typed)
-MAX_DISTANCE = 1.0  # [m]: magnets and points farther away are a unit mistake (mm typed as m)
+MAX_DISTANCE = 1.0  # [m]: magnets, points and walls farther away are a unit mistake (mm typed as m)
+
+# Contact parameters: (low, high, unit, why). The bounds keep the contact physical and the
+# discrete solver well conditioned; outside them a run fails inside Drake ("Call to Solve()
+# failed: factorization not ready" at 1e30 N/m) or the chain blows apart at once. Measured on
+# free_space_wall (20 ms at 1 ms and at 0.1 ms steps): 1e5..1e9 N/m run at 0.1 ms, 1e4 N/m
+# breaks the chain at both steps, a relaxation time of 0.01 s breaks it at 1 ms.
+CONTACT_BOUNDS = {
+    # A 3.175 mm steel ball's Hertz stiffness against steel is ~1e8 N/m: 1e9 is stiffer than any
+    # material here. Below 1e5 N/m the magnetic attraction between neighbours (~1 N) presses the
+    # balls into each other by more than 10 um and the chain comes apart.
+    "ball_point_stiffness": (1e5, 1e9, "N/m", "softer, neighbours sink into each other and the chain comes apart; "
+                             "stiffer than steel on steel, the solver's factorisation fails"),
+    # SAP's dissipation time scale: 0 is "the time step"; beyond 0.1 s the contact is a dashpot
+    # that holds the balls for longer than a quasi-static settling lasts.
+    "relaxation_time": (0.0, 0.1, "s", "0 is the time step; a longer one is a dashpot that outlasts the settling"),
+    # Coulomb coefficients of steel, PTFE and tissue are below 1.
+    "friction": (0.0, 2.0, "", "steel, PTFE and tissue are below 1"),
+    # Atrial tissue is ~1e4-1e5 Pa; the wall model is stiffer on purpose (see ContactConfig);
+    # cortical bone is ~1e10 Pa.
+    "wall_hydroelastic_modulus": (1e4, 1e10, "Pa", "atrial tissue is ~1e4-1e5 Pa, bone ~1e10 Pa"),
+    # Distances at the scale of a ball (3.175 mm): a margin or mesh size beyond it is larger
+    # than the gaps it resolves; a resolution below 0.1 mm meshes each ball with ~1e5 triangles.
+    "hydroelastic_margin": (1e-6, 1e-3, "m", "at most a third of a ball"),
+    "ball_resolution_hint": (1e-4, 1e-2, "m", "finer meshes each ball with ~1e5 triangles"),
+}
+MAX_SLIDE_KP = 1e9  # [N/m]: the slide actuator is implicit in SAP; the same conditioning as the contact
+PLANT_CONFIG_BOUNDS = {  # MultibodyPlantConfig's numbers: (low, high, low open, what)
+    "penetration_allowance": (0.0, 1e-2, True, "m (a penetration of 1 cm is larger than a ball)"),
+    "stiction_tolerance": (0.0, 1.0, True, "m/s (the chain moves at mm/s)"),
+    "sap_near_rigid_threshold": (0.0, 1.0, False, "(Drake's default is 1)"),
+}
 
 
 def parse_overrides(overrides: str | None) -> dict:
     """The ``--set`` inline YAML as a mapping checked against the schema ({} for None/empty).
 
     Raises:
-        UserInputError: it does not parse, is not a mapping, names an unknown field or gives a
-            value of the wrong shape (a number where a list or mapping belongs, ...).
+        UserInputError: it does not parse (or is too large, an alias bomb, has a duplicate key),
+            is not a mapping, names an unknown field or gives a value of the wrong shape.
     """
     if overrides is None or not str(overrides).strip():
         return {}
-    try:
-        data = yaml.safe_load(overrides)
-    except yaml.YAMLError as err:
-        mark = getattr(err, "problem_mark", None)
-        where = f" at column {mark.column + 1}" if mark is not None else ""
-        problem = getattr(err, "problem", None) or str(err).splitlines()[0]
-        raise UserInputError(f"--set {overrides!r} is not valid YAML: {problem}{where} "
-                             "(give a mapping such as '{n_balls: 10, duration: 0.5}')") from None
+    data = load_yaml(str(overrides), "--set")
     if data is None:
         return {}
     if not isinstance(data, dict):
         raise UserInputError(f"--set must be a YAML mapping of scenario fields such as "
-                             f"'{{n_balls: 10}}', got {overrides!r}")
+                             f"'{{n_balls: 10}}', got {short_repr(overrides)}")
     check_yaml_schema(data, ChainScenario, "--set")
     return data
+
+
+def apply_overrides(scenario: ChainScenario, data: dict, where: str = "--set") -> ChainScenario:
+    """A copy of ``scenario`` with the checked override mapping ``data`` applied.
+
+    A mapping updates only the fields it names (``{insertion: {speed: 0.02}}`` keeps the other
+    insertion fields). A list of numbers replaces the list. A list of mappings (``units``,
+    ``magnets``, a unit's ``joystick``) is the new list, each entry updating the scenario's entry
+    it names: a unit entry with the ``name`` of one of the scenario's units updates that unit;
+    an entry without a name updates the entry at the same position; an entry past the end (or a
+    unit with a new name) starts from the defaults. So ``{units: [{teleop_omega_max: 1.0}]}``
+    changes the first unit's speed and keeps its anchor, distance, direction and joystick, and
+    ``{units: []}`` removes every unit.
+    """
+    return load_typed(_complete_entries(data, scenario, ChainScenario), ChainScenario, where, defaults=scenario)
+
+
+def _list_item_schema(tp):
+    """The schema of a list's items when they are mappings (a dataclass), else None."""
+    if typing.get_origin(tp) in (list, tuple) and typing.get_args(tp):
+        item = typing.get_args(tp)[0]
+        return item if dataclasses.is_dataclass(item) else None
+    return None
+
+
+def _complete_entries(data: dict, base, schema) -> dict:
+    """``data`` with each entry of a list of mappings written out in full from ``base``'s entry
+    it updates (see ``apply_overrides``), so that the typed load keeps what it does not name."""
+    hints = _schema_fields(schema)
+    out = dict(data)
+    for key, value in data.items():
+        item = _list_item_schema(hints[key])
+        if item is not None and isinstance(value, list):
+            old = list(getattr(base, key))
+            out[key] = [_full_entry(entry, _updated_entry(old, entry, i, item), item) for i, entry in enumerate(value)]
+        elif dataclasses.is_dataclass(hints[key]) and isinstance(value, dict):
+            out[key] = _complete_entries(value, getattr(base, key), hints[key])
+    return out
+
+
+def _updated_entry(old: list, entry: dict, i: int, schema):
+    """The entry of ``old`` that override entry ``i`` updates (None: it starts from the defaults)."""
+    if "name" in _schema_fields(schema) and "name" in entry:
+        return next((o for o in old if o.name == entry["name"]), None)
+    return old[i] if i < len(old) else None
+
+
+def _full_entry(entry: dict, base, schema) -> dict:
+    base = schema() if base is None else base
+    full = dataclasses.asdict(base)
+    full.update(_complete_entries(entry, base, schema))
+    return full
 
 
 def _schema_fields(tp) -> dict | None:
@@ -481,42 +498,50 @@ def _type_name(tp, plural: bool = False) -> str:
     if _schema_fields(tp) is not None:
         return f"{tp.__name__} mappings" if plural else f"a mapping of {tp.__name__} fields"
     names = {bool: ("true or false", "true/false values"), int: ("an integer", "integers"),
-             float: ("a number", "numbers"), str: ("a string", "strings")}
+             float: ("a finite number", "finite numbers"), str: ("a string", "strings")}
     return names[tp][plural] if tp in names else str(tp)
 
 
-def _check_value(value, tp, path: str, where: str) -> None:
+def check_value(value, tp, path: str, where: str) -> None:
+    """One YAML value against a schema type: bool, int, float (finite; an int is a float), str,
+    a list of one of these, or a schema (``check_yaml_schema``). The one type check of the
+    scenarios and the sweep specs.
+
+    Args:
+        value: the parsed YAML value (``safe_yaml.load_yaml``).
+        tp: the field's type.
+        path: the field's path for messages ("insertion.speed", "grid.n_balls[0]").
+        where: what the YAML came from ("--set", "scenario 'heart_left'", "sweep spec x.yaml").
+
+    Raises:
+        UserInputError: "{where}: {path} must be {type}, got {value}" (the value cut short).
+    """
+    if tp is np.ndarray:  # a pydrake struct's vector (Rgba.rgba)
+        tp = list[float]
     origin = typing.get_origin(tp)
-    ok = True
     if tp is bool:
         ok = isinstance(value, bool)
     elif tp is int:
         ok = isinstance(value, int) and not isinstance(value, bool)
     elif tp is float:
-        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
-        if isinstance(value, str):  # YAML 1.1 (PyYAML) reads 1e-3 as a string; Drake's parser reads a number
-            try:
-                float(value)
-                ok = True
-            except ValueError:
-                ok = False
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
     elif tp is str:
         ok = isinstance(value, str)
     elif origin in (list, tuple):
         ok = isinstance(value, list)
-        if ok:
-            args = typing.get_args(tp)
-            for i, item in enumerate(value):
-                if args:
-                    _check_value(item, args[0], f"{path}[{i}]", where)
+        args = typing.get_args(tp)
+        for i, item in enumerate(value if ok and args else []):
+            check_value(item, args[0], f"{path}[{i}]", where)
     elif _schema_fields(tp) is not None:
         if not isinstance(value, dict):
-            raise UserInputError(f"scenario field {path} must be {_type_name(tp)} "
-                                 f"({', '.join(_schema_fields(tp))}), got {value!r}")
+            raise UserInputError(f"{where}: {path} must be {_type_name(tp)} "
+                                 f"({', '.join(_schema_fields(tp))}), got {short_repr(value)}")
         check_yaml_schema(value, tp, where, path)
         return
+    else:
+        raise TypeError(f"schema type {tp!r} of {path} is not checked")  # a programming error
     if not ok:
-        raise UserInputError(f"scenario field {path} must be {_type_name(tp)}, got {value!r}")
+        raise UserInputError(f"{where}: {path} must be {_type_name(tp)}, got {short_repr(value)}")
 
 
 def check_yaml_schema(data, schema, where: str, path: str = "") -> None:
@@ -524,8 +549,8 @@ def check_yaml_schema(data, schema, where: str, path: str = "") -> None:
 
     Args:
         data: the parsed YAML (a dict).
-        schema: the dataclass (ChainScenario or one of its parts) or a pydrake config struct
-            nested in it (MultibodyPlantConfig, SimulatorConfig, VisualizationConfig).
+        schema: the dataclass (ChainScenario or one of its parts, a sweep's parameters) or a
+            pydrake config struct nested in it (MultibodyPlantConfig, SimulatorConfig, ...).
         where: what the YAML came from, for messages ("--set", "scenario 'heart_left'").
         path: the field path of ``data`` inside the scenario ("" at the top, "units[0]", ...).
 
@@ -533,13 +558,14 @@ def check_yaml_schema(data, schema, where: str, path: str = "") -> None:
         UserInputError: naming the field path, what it must be and what it got.
     """
     if not isinstance(data, dict):
-        raise UserInputError(f"{where} must be {_type_name(schema)}, got {data!r}")
+        raise UserInputError(f"{where}{': ' + path if path else ''} must be {_type_name(schema)}, "
+                             f"got {short_repr(data)}")
     hints = _schema_fields(schema)
     for key, value in data.items():
         if key not in hints:
-            raise UserInputError(f"{where}: unknown field {key!r}{f' in {path}' if path else ''}; "
+            raise UserInputError(f"{where}: unknown field {short_repr(key)}{f' in {path}' if path else ''}; "
                                  f"{schema.__name__} fields are {', '.join(hints)}")
-        _check_value(value, hints[key], f"{path}.{key}" if path else str(key), where)
+        check_value(value, hints[key], f"{path}.{key}" if path else str(key), where)
 
 
 def _finite_fields(obj, where: str = ""):
@@ -561,95 +587,236 @@ def _require(condition: bool, message: str) -> None:
         raise UserInputError(message)
 
 
+def _one_of(value, allowed, name: str) -> None:
+    _require(value in allowed, f"scenario {name} must be one of {', '.join(map(repr, allowed))}, "
+                               f"got {short_repr(value)}")
+
+
+def _point(v, name: str, n: int = 3, empty_ok: bool = True) -> None:
+    """() (when ``empty_ok``) or ``n`` coordinates in metres within MAX_DISTANCE of the origin."""
+    _require((empty_ok and not v) or (len(v) == n and np.linalg.norm(v[:3]) <= MAX_DISTANCE),
+             f"scenario {name} must be {'[] or ' if empty_ok else ''}{n} coordinates in metres "
+             f"(within {MAX_DISTANCE:g} m), got {short_repr(v)}")
+
+
+def _direction(v, name: str, empty_ok: bool = False) -> None:
+    _require((empty_ok and not v) or (len(v) == 3 and any(v)),
+             f"scenario {name} must be {'[] or ' if empty_ok else ''}3 components, not all zero, got {short_repr(v)}")
+
+
 def check_fields(s: "ChainScenario") -> None:
-    """Every field of a scenario: finite, in range, in plausible units (SI). Called by validate().
+    """Every field of a scenario in one pass, reporting the first bad one: finite, one of the
+    allowed choices, in range, in plausible units (SI), and taking effect (a field the
+    scenario's other choices would ignore is refused). Called by ``ChainScenario.validate``.
 
     Raises:
         UserInputError: naming the field, the value and what is allowed.
     """
     for path, value in _finite_fields(s):
         raise UserInputError(f"scenario {path} must be a finite number, got {value}")
+    _one_of(s.mode, MODES, "mode")
+    _one_of(s.engine, ENGINES, "engine")
+    check_timing(s)
+    check_atrium(s)
+    check_field_sources(s)
+    check_units(s)
+    check_insertion(s)
+    check_contact(s)
+    check_drake_configs(s)
+    if s.pin.point:
+        check_pin(s)
+
+
+def check_timing(s: "ChainScenario") -> None:
+    """The chain's length, the steps and periods, the run's length and the damping."""
     whole = isinstance(s.n_balls, numbers.Integral) and not isinstance(s.n_balls, bool)
     _require(whole and 2 <= s.n_balls <= MAX_BALLS,
              f"scenario n_balls must be an integer in 2..{MAX_BALLS} (ball 1 is the feeder ball), got {s.n_balls!r}")
     _require(s.time_step == 0.0 or MIN_TIME_STEP <= s.time_step <= MAX_TIME_STEP,
              f"scenario time_step must be 0 (the mode's default) or in {MIN_TIME_STEP:g}..{MAX_TIME_STEP:g} s, "
              f"got {s.time_step:g}")
-    _require(0.0 < s.duration <= MAX_DURATION,
-             f"scenario duration must be in (0, {MAX_DURATION:g}] s, got {s.duration:g}")
-    if s.mode in MODES:
-        check_duration(s.duration, s.effective_time_step, "scenario duration")
+    _require(s.mode != "dynamics" or s.effective_time_step <= MAX_DYNAMICS_STEP,
+             f"scenario time_step {s.effective_time_step:g} s is too large for the dynamics mode: the magnetic "
+             "forces are explicit and need about 1e-4 s (use quasi-static for larger steps)")
+    _require(s.engine != "statics" or s.mode == "quasi-static",
+             f"scenario engine: statics needs mode: quasi-static (the engine solves equilibria), got {s.mode!r}")
+    _require(0.0 < s.statics_period <= 1.0, f"scenario statics_period must be in (0, 1] s, got {s.statics_period:g}")
+    for name in ("break_gap", "check_period"):
+        _require(getattr(s, name) > 0.0, f"scenario {name} must be > 0, got {getattr(s, name):g}")
+    _require(s.break_gap <= MAX_DISTANCE, f"scenario break_gap must be at most {MAX_DISTANCE:g} m, got {s.break_gap:g}")
+    check_steps(s, s.duration, "scenario duration")
     for name in ("translational_damping", "angular_damping"):
         _require(getattr(s, name) >= 0.0, f"scenario {name} must be >= 0, got {getattr(s, name):g}")
+        if s.mode == "dynamics" or s.engine == "statics":  # only the plant's quasi-static joints are damped
+            _require(getattr(s, name) == getattr(ChainScenario, name),
+                     f"scenario {name} = {getattr(s, name):g} damps the plant's quasi-static joints: "
+                     f"{'mode: dynamics' if s.mode == 'dynamics' else 'engine: statics'} does not read it "
+                     "(leave it out, or use mode: quasi-static with engine: plant)")
+
+
+def update_periods(s: "ChainScenario") -> dict:
+    """{field: period [s]} of the run's periodic events: the engine's step (the plant's time
+    step or the statics engine's update), the monitor's checks, the publishing, and the
+    simulator's largest step."""
+    step = ("statics_period", s.statics_period) if s.engine == "statics" else ("time_step", s.effective_time_step)
+    return dict([step, ("check_period", s.check_period), ("visualization.publish_period", s.visualization.publish_period),
+                 ("simulator_config.max_step_size", s.simulator_config.max_step_size)])
+
+
+def check_steps(s: "ChainScenario", duration: float, what: str = "--duration") -> None:
+    """A run of ``duration``: positive, at most MAX_DURATION, and at most MAX_STEPS updates of
+    each periodic event of ``update_periods``.
+
+    Raises:
+        UserInputError: naming ``what`` and the period's field.
+    """
+    if not (math.isfinite(duration) and 0.0 < duration <= MAX_DURATION):
+        raise UserInputError(f"{what} must be in (0, {MAX_DURATION:g}] s, got {duration:g}")
+    for name, period in update_periods(s).items():
+        if period > 0.0 and duration / period > MAX_STEPS:
+            raise UserInputError(f"{what} {duration:g} s at a {period:g} s {name} is {duration / period:.3g} updates, "
+                                 f"more than {MAX_STEPS:.0e}: shorten it or raise {name}")
+
+
+def check_atrium(s: "ChainScenario") -> None:
+    """The heart's fields, each only where it takes effect: the procedural atrium's size and
+    mesh, or a user's atrium (file, units, puncture, sheath aim); a flat wall only in free space."""
     _require(0.1 <= s.heart_scale <= 5.0, f"scenario heart_scale must be in 0.1..5, got {s.heart_scale:g}")
     _require(1 <= s.heart_subdivisions <= 6,
              f"scenario heart_subdivisions must be in 1..6, got {s.heart_subdivisions}")
-    _require(s.atrium_units in ("auto", "m", "mm"),
-             f"scenario atrium_units must be 'auto', 'm' or 'mm', got {s.atrium_units!r}")
-    if s.atrium_file:
-        check_atrium_file(s.atrium_file)
+    _one_of(s.atrium_units, ("auto", "m", "mm"), "atrium_units")
     for name in ("puncture", "sheath_aim"):
-        v = getattr(s, name)
-        _require(not v or (len(v) == 3 and np.linalg.norm(v) <= MAX_DISTANCE),
-                 f"scenario {name} must be 3 coordinates in metres (within {MAX_DISTANCE:g} m), got {v}")
+        _point(getattr(s, name), name)
+    default = ChainScenario()
+    procedural = ("heart_scale", "heart_subdivisions")
+    user = ("atrium_file", "atrium_units", "puncture", "sheath_aim")
+    for name in procedural + user:
+        changed = getattr(s, name) != getattr(default, name)
+        _require(not changed or s.heart, f"scenario {name} is for the heart: heart: false does not read it "
+                                         "(leave it out, or use heart: true)")
+        if name in procedural:
+            _require(not changed or not s.atrium_file,
+                     f"scenario {name} shapes the procedural atrium: with atrium_file it is not read (leave it out)")
+        elif name != "atrium_file":
+            _require(not changed or s.atrium_file,
+                     f"scenario {name} is for a user's atrium (atrium_file); the procedural atrium has its own "
+                     "puncture and sheath aim (leave it out, or give atrium_file)")
+    if s.atrium_file:
+        _require(len(s.puncture) == 3, "scenario atrium_file needs puncture: [x, y, z] (m), the septal "
+                                       "puncture on that surface")
+        check_atrium_file(s.atrium_file)
+    _point(s.wall_plane[:3], "wall_plane point")
+    _require(len(s.wall_plane) in (0, 6),
+             f"scenario wall_plane must be [] or 6 numbers (point, normal) [m], got {short_repr(s.wall_plane)}")
+    if s.wall_plane:
+        _direction(s.wall_plane[3:], "wall_plane normal")
+        _require(not s.heart, "scenario wall_plane is for free space (heart: false): the heart has its own wall")
+
+
+def check_field_sources(s: "ChainScenario") -> None:
+    """The fixed field: a uniform field in tesla and fixed magnets within MAX_DISTANCE."""
     _require(len(s.uniform_field) == 3,
-             f"scenario uniform_field must have 3 components [T], got {s.uniform_field}")
+             f"scenario uniform_field must have 3 components [T], got {short_repr(s.uniform_field)}")
     B = float(np.linalg.norm(s.uniform_field))
     _require(B <= MAX_UNIFORM_FIELD,
              f"scenario uniform_field |B| = {B:g} T exceeds {MAX_UNIFORM_FIELD:g} T: it is in tesla "
              "(23 mT is 0.023)")
-    _require(len(s.wall_plane) in (0, 6),
-             f"scenario wall_plane must be [] or 6 numbers (point, normal) [m], got {s.wall_plane}")
-    for name in ("break_gap", "check_period"):
-        _require(getattr(s, name) > 0.0, f"scenario {name} must be > 0, got {getattr(s, name):g}")
-    check_drake_configs(s)
-    if s.pin.point:
-        check_pin(s)
+    default = MagnetScenario()
     for k, m in enumerate(s.magnets):
         where = f"magnets[{k}]"
+        _one_of(m.shape, ("cylinder", "sphere"), f"{where}.shape")
+        _one_of(m.model, ("dipole", "exact"), f"{where}.model")
         _require(0.0 < m.distance_from_puncture <= MAX_DISTANCE,
                  f"scenario {where}.distance_from_puncture must be in (0, {MAX_DISTANCE:g}] m, "
                  f"got {m.distance_from_puncture:g}")
         for name in ("direction_W", "m_hat_W"):
-            v = getattr(m, name)
-            _require(len(v) == 3 and any(v), f"scenario {where}.{name} must be 3 components, not all zero, got {v}")
-        _require(not m.p_WM or (len(m.p_WM) == 3 and np.linalg.norm(m.p_WM) <= MAX_DISTANCE),
-                 f"scenario {where}.p_WM must be 3 coordinates in metres (within {MAX_DISTANCE:g} m), got {m.p_WM}")
+            _direction(getattr(m, name), f"{where}.{name}")
+        _point(m.p_WM, f"{where}.p_WM")
+        for name in ("distance_from_puncture", "direction_W"):
+            _require(not m.p_WM or getattr(m, name) == getattr(default, name),
+                     f"scenario {where}.{name} places the magnet from the puncture: with p_WM it is not read "
+                     "(give one of them)")
+
+
+def check_units(s: "ChainScenario") -> None:
+    """The rotating units: distinct names, choices, placement within MAX_DISTANCE, the
+    controller's numbers, and joysticks with keys in time order."""
+    names = [u.name for u in s.units]
+    _require(len(set(names)) == len(names), f"scenario units must have distinct names, got {short_repr(names)}")
+    default = UnitScenario()
     for k, u in enumerate(s.units):
         where = f"units[{k}]"
+        _require(bool(u.name) and "." not in u.name, f"scenario {where}.name must be non-empty and without dots, "
+                                                     f"got {short_repr(u.name)}")
+        _one_of(u.shape, ("cylinder", "sphere"), f"{where}.shape")
+        _one_of(u.model, ("dipole", "exact"), f"{where}.model")
+        _require(u.model == s.units[0].model, f"scenario {where}.model must be the same for every unit, got "
+                                              f"{u.model!r} and {s.units[0].model!r}")
+        _one_of(u.anchor, ANCHORS, f"{where}.anchor")
+        _require(not u.anchor.startswith("carina") or s.heart or u.p_WM,
+                 f"scenario {where}.anchor {u.anchor!r} needs the heart (heart: true)")
+        _one_of(u.joystick_source, JOYSTICK_SOURCES, f"{where}.joystick_source")
+        _one_of(u.teleop_frame, TELEOP_FRAMES, f"{where}.teleop_frame")
+        _one_of(u.wheel_map, ("derived", "paper"), f"{where}.wheel_map")
         _require(0.0 < u.distance <= MAX_DISTANCE,
                  f"scenario {where}.distance must be in (0, {MAX_DISTANCE:g}] m, got {u.distance:g}")
-        _require(not u.p_WM or (len(u.p_WM) == 3 and np.linalg.norm(u.p_WM) <= MAX_DISTANCE),
-                 f"scenario {where}.p_WM must be 3 coordinates in metres (within {MAX_DISTANCE:g} m), got {u.p_WM}")
-        _require(u.teleop_omega_max > 0.0,
-                 f"scenario {where}.teleop_omega_max must be > 0 rad/s, got {u.teleop_omega_max:g}")
-        _require(0.0 <= u.slip < 1.0, f"scenario {where}.slip must be in [0, 1), got {u.slip:g}")
-        _require(u.wheel_map in ("derived", "paper"),
-                 f"scenario {where}.wheel_map must be 'derived' or 'paper', got {u.wheel_map!r}")
-        _require(0.0 < u.controller_gain <= 100.0,
-                 f"scenario {where}.controller_gain must be in (0, 100] 1/s, got {u.controller_gain:g}")
-        _require(0.0 < u.tolerance_deg < 90.0,
-                 f"scenario {where}.tolerance_deg must be in (0, 90) deg, got {u.tolerance_deg:g}")
-        _require(0.0 <= u.teleop_dead_band < 1.0,
-                 f"scenario {where}.teleop_dead_band must be in [0, 1), got {u.teleop_dead_band:g}")
-        for j, key in enumerate(u.joystick):
-            _require(len(key.axes) == 3 and all(abs(a) <= 1.0 for a in key.axes),
-                     f"scenario {where}.joystick[{j}].axes must be 3 numbers in [-1, 1], got {key.axes}")
+        _direction(u.direction_W, f"{where}.direction_W")
+        _direction(u.m_hat_W, f"{where}.m_hat_W", empty_ok=True)
+        _point(u.p_WM, f"{where}.p_WM")
+        for name in ("anchor", "distance", "direction_W"):
+            _require(not u.p_WM or getattr(u, name) == getattr(default, name),
+                     f"scenario {where}.{name} places the unit from its anchor: with p_WM it is not read "
+                     "(give one of them)")
+        _check_unit_numbers(u, where)
+
+
+def _check_unit_numbers(u: "UnitScenario", where: str) -> None:
+    _require(u.teleop_omega_max > 0.0,
+             f"scenario {where}.teleop_omega_max must be > 0 rad/s, got {u.teleop_omega_max:g}")
+    _require(0.0 <= u.slip < 1.0, f"scenario {where}.slip must be in [0, 1), got {u.slip:g}")
+    _require(0.0 < u.controller_gain <= 100.0,
+             f"scenario {where}.controller_gain must be in (0, 100] 1/s, got {u.controller_gain:g}")
+    _require(0.0 < u.tolerance_deg < 90.0,
+             f"scenario {where}.tolerance_deg must be in (0, 90) deg, got {u.tolerance_deg:g}")
+    _require(0.0 <= u.teleop_dead_band < 1.0,
+             f"scenario {where}.teleop_dead_band must be in [0, 1), got {u.teleop_dead_band:g}")
+    times = [key.time for key in u.joystick]
+    _require(all(t >= 0 for t in times) and all(b >= a for a, b in zip(times, times[1:])),
+             f"scenario {where}.joystick key times must be >= 0 and non-decreasing, got {short_repr(times)}")
+    for j, key in enumerate(u.joystick):
+        _require(len(key.axes) == 3 and all(abs(a) <= 1.0 for a in key.axes),
+                 f"scenario {where}.joystick[{j}].axes must be 3 numbers in [-1, 1], got {short_repr(key.axes)}")
+        _require(key.mode in (0, 1), f"scenario {where}.joystick[{j}].mode must be 0 (teleoperation) or "
+                                     f"1 (reconfiguration), got {key.mode!r}")
+
+
+def check_insertion(s: "ChainScenario") -> None:
+    """The feeder's ramp (lengths within MAX_DISTANCE, a positive speed), its command, and the
+    slide actuator's gains."""
     ins = s.insertion
-    _require(ins.initial >= 0.0 and ins.final >= 0.0,
-             f"scenario insertion.initial and insertion.final must be >= 0 m, got {ins.initial:g}, {ins.final:g}")
+    for name in ("initial", "final"):
+        _require(0.0 <= getattr(ins, name) <= MAX_DISTANCE,
+                 f"scenario insertion.{name} must be in [0, {MAX_DISTANCE:g}] m, got {getattr(ins, name):g}")
     _require(ins.start_time >= 0.0, f"scenario insertion.start_time must be >= 0 s, got {ins.start_time:g}")
     _require(ins.speed > 0.0 or (ins.final == ins.initial and ins.speed == 0.0),
              f"scenario insertion.speed must be > 0 m/s (the ramp's direction comes from initial -> final), "
              f"got {ins.speed:g}")
-    _require(len(ins.slide_gains) == 2 and all(math.isfinite(g) and g >= 0.0 for g in ins.slide_gains)
-             and ins.slide_gains[0] > 0.0,
-             f"scenario insertion.slide_gains must be [kp > 0 N/m, kd >= 0 N s/m], got {ins.slide_gains}")
+    _one_of(ins.feeder_command, FEEDER_COMMANDS, "insertion.feeder_command")
+    _require(ins.feeder_command != "external" or ins.feeder,
+             "scenario insertion.feeder_command: external needs the feeder (insertion.feeder: true)")
+    kp_kd = ins.slide_gains
+    _require(len(kp_kd) == 2 and all(math.isfinite(g) and g >= 0.0 for g in kp_kd) and 0.0 < kp_kd[0] <= MAX_SLIDE_KP,
+             f"scenario insertion.slide_gains must be [kp in (0, {MAX_SLIDE_KP:g}] N/m, kd >= 0 N s/m], "
+             f"got {short_repr(kp_kd)}")
+
+
+def check_contact(s: "ChainScenario") -> None:
+    """The contact parameters within CONTACT_BOUNDS (see there for the reasons)."""
     c = s.contact
-    for name in ("ball_point_stiffness", "wall_hydroelastic_modulus", "hydroelastic_margin", "ball_resolution_hint"):
-        _require(getattr(c, name) > 0.0, f"scenario contact.{name} must be > 0, got {getattr(c, name):g}")
-    _require(c.relaxation_time >= 0.0, f"scenario contact.relaxation_time must be >= 0 s, got {c.relaxation_time:g}")
-    _require(c.friction >= 0.0, f"scenario contact.friction must be >= 0, got {c.friction:g}")
+    for name, (lo, hi, unit, why) in CONTACT_BOUNDS.items():
+        v = getattr(c, name)
+        _require(lo <= v <= hi, f"scenario contact.{name} must be in [{lo:g}, {hi:g}]{' ' + unit if unit else ''} "
+                                f"({why}), got {v:g}")
 
 
 def check_drake_configs(s: "ChainScenario") -> None:
@@ -667,12 +834,11 @@ def check_drake_configs(s: "ChainScenario") -> None:
                           ("discrete_contact_approximation", DISCRETE_CONTACT_APPROXIMATIONS),
                           ("contact_surface_representation", CONTACT_SURFACE_REPRESENTATIONS)):
         _require(getattr(p, name) in allowed,
-                 f"scenario plant_config.{name} must be one of {allowed}, got {getattr(p, name)!r}")
-    for name in ("penetration_allowance", "stiction_tolerance", "sap_near_rigid_threshold"):
+                 f"scenario plant_config.{name} must be one of {allowed}, got {short_repr(getattr(p, name))}")
+    for name, (lo, hi, lo_open, unit) in PLANT_CONFIG_BOUNDS.items():
         v = getattr(p, name)
-        _require(math.isfinite(v) and (v >= 0.0 if name == "sap_near_rigid_threshold" else v > 0.0),
-                 f"scenario plant_config.{name} must be a finite number "
-                 f"{'>= 0' if name == 'sap_near_rigid_threshold' else '> 0'}, got {v:g}")
+        _require(math.isfinite(v) and (lo < v if lo_open else lo <= v) and v <= hi,
+                 f"scenario plant_config.{name} must be in {'(' if lo_open else '['}{lo:g}, {hi:g}] {unit}, got {v:g}")
     if s.engine == "statics":  # the engine has no plant: a plant setting would be silently ignored
         _require(repr(p) == repr(chain_multibody_plant_config()),
                  "scenario plant_config configures the MultibodyPlant: engine: statics does not read it "
@@ -684,7 +850,7 @@ def check_drake_configs(s: "ChainScenario") -> None:
     schemes = GetIntegrationSchemes()
     _require(c.integration_scheme in schemes,
              f"scenario simulator_config.integration_scheme must be one of {', '.join(schemes)}, "
-             f"got {c.integration_scheme!r}")
+             f"got {short_repr(c.integration_scheme)}")
     for name in ("max_step_size", "accuracy"):
         v = getattr(c, name)
         _require(math.isfinite(v) and v > 0.0, f"scenario simulator_config.{name} must be > 0, got {v:g}")
@@ -700,7 +866,7 @@ def check_drake_configs(s: "ChainScenario") -> None:
     for f in VisualizationConfig.__fields__:
         if f.name not in VISUALIZATION_FIELDS_USED and repr(getattr(v, f.name)) != repr(getattr(default, f.name)):
             raise UserInputError(
-                f"scenario visualization.{f.name} = {getattr(v, f.name)!r} is not supported by the station "
+                f"scenario visualization.{f.name} = {short_repr(getattr(v, f.name))} is not supported by the station "
                 f"(it reads only {', '.join(VISUALIZATION_FIELDS_USED)}; {f.name} stays {getattr(default, f.name)!r})")
 
 
@@ -710,9 +876,7 @@ def check_pin(s: "ChainScenario") -> None:
     Raises:
         UserInputError: naming ``pin.point`` or ``pin.stiffness``.
     """
-    _require(len(s.pin.point) == 3 and np.linalg.norm(s.pin.point) <= MAX_DISTANCE,
-             f"scenario pin.point must be [] (no pin) or 3 coordinates in metres (within {MAX_DISTANCE:g} m), "
-             f"got {s.pin.point}")
+    _point(s.pin.point, "pin.point")
     _require(s.engine == "plant", f"scenario pin needs engine: plant (the pin is a force on the plant), got {s.engine!r}")
     chain = BallChain(n_balls=s.n_balls)
     damping = s.translational_damping if s.mode == "quasi-static" else 0.0
@@ -720,21 +884,6 @@ def check_pin(s: "ChainScenario") -> None:
     _require(0.0 < s.pin.stiffness < bound,
              f"scenario pin.stiffness {s.pin.stiffness:g} N/m must be > 0 and below the explicit spring's "
              f"stability bound {bound:g} N/m at a {s.effective_time_step:g} s step: lower it or the step")
-
-
-def check_duration(duration: float, time_step: float, what: str = "--duration") -> None:
-    """A simulated time that is positive, at most MAX_DURATION, and at most MAX_STEPS steps.
-
-    Raises:
-        UserInputError: naming ``what``.
-    """
-    if not (math.isfinite(duration) and 0.0 < duration <= MAX_DURATION):
-        raise UserInputError(f"{what} must be in (0, {MAX_DURATION:g}] s, got {duration:g}")
-    steps = duration / time_step
-    if steps > MAX_STEPS:
-        raise UserInputError(f"{what} {duration:g} s at a {time_step:g} s step is {steps:.3g} steps, more than "
-                             f"{MAX_STEPS:.0e}: shorten it or use a larger time_step")
-
 
 def check_atrium_file(path: str) -> None:
     """An atrium file that exists and is a file (a package:// URI must resolve).

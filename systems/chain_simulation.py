@@ -26,7 +26,7 @@ from pydrake.systems.framework import EventStatus
 from ballchain.drake_models.atrium import Atrium
 from ballchain.drake_models.errors import caused_by_interrupt
 from ballchain.drake_models.safe_files import atomic_write_text, check_output_file, optional_field
-from ballchain.systems.chain_scenario import ChainScenario, check_duration
+from ballchain.systems.chain_scenario import ChainScenario, check_steps
 from ballchain.systems.station import (  # re-exported (__all__): the names the rest of the code uses
     MakeStation,
     Station,
@@ -555,7 +555,7 @@ def run_simulation(*, scenario: ChainScenario, duration: float | None = None, ht
             ``metrics`` are the run's up to the failure (no ``p_W_mm``).
     """
     duration = scenario.duration if duration is None else duration
-    check_duration(duration, scenario.effective_time_step, "duration")
+    check_steps(scenario, duration, "duration")
     if html is not None:
         check_output_file(html, "html")
     if html is not None and meshcat is None:

@@ -29,7 +29,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mode", choices=("quasi-static", "dynamics"), default=None,
                         help="quasi-static (damped, 1e-3 s steps) or true dynamics (1e-4 s steps)")
     parser.add_argument("--set", dest="overrides", default=None, metavar="YAML",
-                        help="inline YAML overriding scenario fields, e.g. '{n_balls: 10}'")
+                        help="inline YAML overriding scenario fields, e.g. '{n_balls: 10}'; a mapping changes only the "
+                             "fields it names; a list of mappings (units, magnets, joystick) is the new list, each "
+                             "entry updating the scenario's entry of the same unit name or position "
+                             "('{units: [{teleop_omega_max: 1.0}]}' keeps the unit's placement; '{units: []}' "
+                             "removes them)")
     parser.add_argument("--html", type=Path, default=None,
                         help="write a self-contained Meshcat recording (HTML) to this file")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")

@@ -68,7 +68,7 @@ def run(*, scenario: str, duration: float | None = None, mode: str | None = None
         UserInputError: a bad scenario, override, mode, duration or output path (before any work).
         SimulationFailure: the run stopped (NaN, escape, chain broken apart); it carries the metrics.
     """
-    from ballchain.systems.chain_scenario import check_duration, load_scenario
+    from ballchain.systems.chain_scenario import check_steps, load_scenario
     from ballchain.systems.chain_simulation import run_simulation
 
     if html is not None:  # before the run: an unwritable path must not cost the results
@@ -80,7 +80,7 @@ def run(*, scenario: str, duration: float | None = None, mode: str | None = None
         chosen.mode = mode
         chosen.validate()
     if duration is not None:
-        check_duration(duration, chosen.effective_time_step, "--duration")
+        check_steps(chosen, duration, "--duration")
     metrics = run_simulation(scenario=chosen, duration=duration, html=html, progress=progress)
     p_W_mm = metrics.p_W_mm
     return SimulationResult(metrics=replace(metrics, p_W_mm=None), p_W_mm=p_W_mm,
