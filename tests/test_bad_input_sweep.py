@@ -143,6 +143,15 @@ def test_bad_executor_flags_are_one_line(capsys, tmp_path, no_cluster, flags, na
     _refused(capsys, tmp_path, GOOD, named, *flags)
 
 
+def test_reproduce_shares_the_worker_cap(capsys, tmp_path):
+    from ballchain.sweep import max_workers
+
+    code = main(["reproduce", "--quick", "--out", str(tmp_path / "r"), "--workers", str(max_workers() + 1)])
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1 and f"--workers must be an integer in 1..{max_workers()}" in lines[0], lines
+    assert not (tmp_path / "r").exists()
+
+
 def test_a_bad_point_is_refused_before_connecting(capsys, tmp_path, no_cluster):
     _refused(capsys, tmp_path, "experiment: statics\ngrid: {n_balls: [0]}", "n_balls",
              "--scheduler", "tcp://127.0.0.1:9")
