@@ -77,6 +77,7 @@ def _refused(capsys, tmp_path, spec_text: str | bytes, named: str, *flags: str) 
     # The forces command's --grid and --refine ranges, the statics' chain length, a sleeve over the balls.
     ("experiment: design\ngrid: {refine_evaluations: [0]}", "refine_evaluations must be a number in [1, 2000]"),
     ("experiment: design\ngrid: {grid: [100000]}", "grid must be a number in [2, 64]"),
+    ("experiment: design\ngrid: {grid: [1" + "0" * 400 + "]}", "grid must be a number in [2, 64]"),  # > any float
     ("experiment: design\ngrid: {ball_diameter_mm: [0.01]}", "a chain of 5080 balls"),
     ("experiment: design\ngrid: {ball_diameter_mm: [1e-300]}", "a chain of 5.08e+301 balls"),
     ("experiment: design\npoints: [{ball_diameter_mm: 4.0, sleeve: true}]", "sleeve.outer_diameter"),
@@ -90,7 +91,7 @@ def _refused(capsys, tmp_path, spec_text: str | bytes, named: str, *flags: str) 
     ("experiment: sleeve\ngrid: {distance_cm: [1.0]}", "distance_cm must be in (10, 100] cm"),
     # Seeds: the range the operator's tremor takes (teleop.check_seed), for every experiment.
     ("experiment: statics\ngrid: {n_balls: [4]}\nseeds: [-1]", "seeds[0] must be an integer in 0..4294967295"),
-], ids=["statics-balls", "statics-step", "statics-field", "statics-iterations", "design-refine", "design-grid",
+], ids=["statics-balls", "statics-step", "statics-field", "statics-iterations", "design-refine", "design-grid", "design-grid-huge-int",
         "design-tiny-balls", "design-vanishing-balls", "design-sleeve-over-balls", "design-distance", "operators-balls", "operators-tremor",
         "operators-plant-step", "sleeve-step", "sleeve-distance", "negative-seed"])
 def test_a_point_the_command_refuses_is_refused_in_a_spec(capsys, tmp_path, no_cluster, text, named):
