@@ -208,12 +208,12 @@ def design_check(p: DesignPoint) -> None:
     _positive("ball_diameter_mm", p.ball_diameter_mm)
     if p.n_balls != 0 and not 3 <= p.n_balls <= MAX_BALLS:
         raise UserInputError(f"n_balls must be 0 (the prototype's length) or in 3..{MAX_BALLS}, got {p.n_balls}")
-    # The count before rounding: a tiny diameter makes it too large to round (inf).
-    n = p.n_balls or PROTOTYPE_BALLS * BallChain().ball_diameter / (p.ball_diameter_mm * 1e-3)
-    if not 3 <= n < MAX_BALLS + 0.5 or not 3 <= design_balls(p) <= MAX_BALLS:
-        raise UserInputError(f"ball_diameter_mm {p.ball_diameter_mm:g} makes a chain of {n:.4g} balls at the "
+    # The count as a float first: a vanishing diameter makes it too large to round (inf).
+    exact = p.n_balls or PROTOTYPE_BALLS * BallChain().ball_diameter / (p.ball_diameter_mm * 1e-3)
+    n = design_balls(p) if exact <= MAX_BALLS + 1 else None
+    if n is None or not 3 <= n <= MAX_BALLS:
+        raise UserInputError(f"ball_diameter_mm {p.ball_diameter_mm:g} makes a chain of {exact:.4g} balls at the "
                              f"prototype's length (n_balls 0); it must have 3..{MAX_BALLS}")
-    n = design_balls(p)
     BallChain(n_balls=n, ball_diameter=p.ball_diameter_mm * 1e-3, sleeve=Sleeve() if p.sleeve else None)
     design_magnet(p.magnet)
     check_in("distance_cm", p.distance_cm, 0.0, MAX_DISTANCE * 100, lo_open=True, unit="cm")
