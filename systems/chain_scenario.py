@@ -592,10 +592,10 @@ def _one_of(value, allowed, name: str) -> None:
                                f"got {short_repr(value)}")
 
 
-def _point(v, name: str, n: int = 3, empty_ok: bool = True) -> None:
-    """() (when ``empty_ok``) or ``n`` coordinates in metres within MAX_DISTANCE of the origin."""
-    _require((empty_ok and not v) or (len(v) == n and np.linalg.norm(v[:3]) <= MAX_DISTANCE),
-             f"scenario {name} must be {'[] or ' if empty_ok else ''}{n} coordinates in metres "
+def _point(v, name: str, empty_ok: bool = True) -> None:
+    """[] (when ``empty_ok``) or 3 coordinates in metres within MAX_DISTANCE of the origin."""
+    _require((empty_ok and not v) or (len(v) == 3 and np.linalg.norm(v) <= MAX_DISTANCE),
+             f"scenario {name} must be {'[] or ' if empty_ok else ''}3 coordinates in metres "
              f"(within {MAX_DISTANCE:g} m), got {short_repr(v)}")
 
 
@@ -625,6 +625,9 @@ def check_fields(s: "ChainScenario") -> None:
     check_drake_configs(s)
     if s.pin.point:
         check_pin(s)
+    _require(s.pin.point or s.pin.stiffness == PinScenario.stiffness,
+             f"scenario pin.stiffness = {s.pin.stiffness:g} N/m: without pin.point there is no pin "
+             "(give pin.point, or leave pin out)")
 
 
 def check_timing(s: "ChainScenario") -> None:
@@ -699,16 +702,16 @@ def check_atrium(s: "ChainScenario") -> None:
                      f"scenario {name} shapes the procedural atrium: with atrium_file it is not read (leave it out)")
         elif name != "atrium_file":
             _require(not changed or s.atrium_file,
-                     f"scenario {name} is for a user's atrium (atrium_file); the procedural atrium has its own "
-                     "puncture and sheath aim (leave it out, or give atrium_file)")
+                     f"scenario {name} is for a user's atrium (atrium_file): the procedural atrium does not read "
+                     "it, it has its own puncture and sheath axis (leave it out, or give atrium_file)")
     if s.atrium_file:
         _require(len(s.puncture) == 3, "scenario atrium_file needs puncture: [x, y, z] (m), the septal "
                                        "puncture on that surface")
         check_atrium_file(s.atrium_file)
-    _point(s.wall_plane[:3], "wall_plane point")
     _require(len(s.wall_plane) in (0, 6),
              f"scenario wall_plane must be [] or 6 numbers (point, normal) [m], got {short_repr(s.wall_plane)}")
     if s.wall_plane:
+        _point(s.wall_plane[:3], "wall_plane point", empty_ok=False)
         _direction(s.wall_plane[3:], "wall_plane normal")
         _require(not s.heart, "scenario wall_plane is for free space (heart: false): the heart has its own wall")
 

@@ -66,6 +66,7 @@ CASES = [
                                   "{magnets: [{p_WM: [0.2, 0, 0], distance_from_puncture: 0.3}]}"],
      "magnets[0].distance_from_puncture"),
     ("unit-p-WM-and-anchor", TELEOP + ["--set", "{units: [{p_WM: [0.1, 0.1, 0]}]}"], "units[0].anchor"),
+    ("pin-stiffness-without-point", SIM + ["--set", "{pin: {stiffness: 100.0}}"], "pin.stiffness"),
     # bounds: every position and distance within MAX_DISTANCE
     ("wall-12-m", WALL + ["--set", "{wall_plane: [0, 12.0, 0, 0, -1, 0]}"], "wall_plane point"),
     ("wall-normal-zero", WALL + ["--set", "{wall_plane: [0, 0.012, 0, 0, 0, 0]}"], "wall_plane normal"),
@@ -148,21 +149,33 @@ def test_scenarios_and_sweep_specs_share_one_type_check():
     assert str(spec.value) == "sweep spec 's.yaml': grid.n_balls[0] must be an integer, got 4.5"
 
 
-def test_set_merges_list_entries_by_unit_name_or_position():
+def test_set_merges_a_unit_entry_without_a_name_by_position():
+    """The audit's case: a partial unit entry used to reset the unit's placement and joystick."""
     from ballchain.systems.chain_scenario import load_scenario
 
-    base = load_scenario("teleop_two_units")
-    right, left = base.units
+    right = load_scenario("teleop_two_units").units[0]
     s = load_scenario("teleop_two_units", "{units: [{teleop_omega_max: 1.0}]}")
     assert len(s.units) == 1 and s.units[0].teleop_omega_max == 1.0
     for name in ("name", "anchor", "distance", "direction_W", "joystick", "sensor_noise"):
         assert getattr(s.units[0], name) == getattr(right, name), name
+
+
+def test_set_merges_units_by_name():
+    from ballchain.systems.chain_scenario import load_scenario
+
+    right, left = load_scenario("teleop_two_units").units
     # By name: the left unit first, keeping its own placement; a new name starts from the defaults.
     s = load_scenario("teleop_two_units", "{units: [{name: left_unit, slip: 0.1}, {name: right_unit}, "
                                           "{name: third, p_WM: [0.0, 0.0, 0.2]}]}")
     assert [u.name for u in s.units] == ["left_unit", "right_unit", "third"]
     assert (s.units[0].anchor, s.units[0].direction_W, s.units[0].slip) == (left.anchor, left.direction_W, 0.1)
     assert s.units[1] == right and s.units[2].joystick == []
+
+
+def test_set_merges_joystick_keys_and_magnets_by_position():
+    from ballchain.systems.chain_scenario import load_scenario
+
+    right = load_scenario("teleop_right_unit").units[0]
     # A unit's joystick keys by position: the first key keeps its time, the list is the one given.
     s = load_scenario("teleop_right_unit", "{units: [{joystick: [{axes: [1.0, 0.0, 0.0]}]}]}")
     assert [(k.time, k.axes) for k in s.units[0].joystick] == [(right.joystick[0].time, [1.0, 0.0, 0.0])]
