@@ -28,7 +28,7 @@ from tqdm import tqdm
 
 from ballchain.drake_models import paper
 from ballchain.drake_models.dipole import K_DIPOLE
-from ballchain.drake_models.errors import UserInputError, caused_by_interrupt
+from ballchain.drake_models.errors import UserInputError, caused_by_interrupt, short_repr
 from ballchain.experiments.field_models import DEFAULT_DISTANCES
 from ballchain.drake_models.params import BallChain
 from ballchain.drake_models.safe_files import TEMP_SUFFIX, atomic_write_text, check_output_dir, to_jsonable, write_json
@@ -667,8 +667,11 @@ def run(*, out: Path, quick: bool = False, resume: bool = False, sections=None, 
     """
     out = Path(out)
     check_output_dir(out, "--out")
-    if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= 64:
-        raise UserInputError(f"--workers must be an integer in 1..64, got {workers!r}")
+    from ballchain.sweep import MAX_WORKERS_PER_CORE, max_workers  # the one cap on worker processes
+
+    if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= max_workers():
+        raise UserInputError(f"--workers must be an integer in 1..{max_workers()} ({MAX_WORKERS_PER_CORE} per "
+                             f"core), got {short_repr(workers)}")
     names = [name for name, _ in EXPERIMENTS]
     if sections is not None:
         unknown = [s for s in sections if s not in names]

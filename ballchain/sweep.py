@@ -15,25 +15,31 @@ parameter sets, times a list of seeds::
       - {ball_diameter_mm: 2.17, magnet: sphere119, distance_cm: 35.6}
     seeds: [0]
 
-Fields a point does not set take the experiment's defaults. The spec is checked (unknown
-experiment, unknown field, wrong type, empty grid, values the experiment rejects) before any
-cluster starts: ``UserInputError`` names the field.
+Fields a point does not set take the experiment's defaults. The spec is checked before any
+cluster starts, ``UserInputError`` naming the field: the file (UTF-8 text, or UTF-16 with its
+BOM; read by ``drake_models/safe_yaml.py``), unknown experiment or field, wrong type, empty grid,
+the number of runs (points x seeds, counted as the product of the axes' lengths before the grid
+is expanded; at most ``DEFAULT_MAX_POINTS`` unless ``max_points`` says more), and every point's
+values against its experiment's check, which applies the rules of the experiment's command.
 
 ``run_sweep`` runs each point as a Dask task: by default on a ``LocalCluster`` of worker
-processes (one thread each) sized to the machine's cores, on an existing cluster
-(``scheduler="tcp://host:8786"``), on a dask-jobqueue cluster (``jobqueue="slurm"``, optional
-dependency), or serially in this process (``workers=0``). Rows stream into ``DIR/table.parquet``
+processes (one thread each) sized to the machine's cores (at most ``MAX_WORKERS_PER_CORE`` per
+core), on an existing cluster (``scheduler="tcp://host:8786"``: asked who it is first, within
+``CONNECT_TIMEOUT``), on a dask-jobqueue cluster (``jobqueue="slurm"``, optional dependency, at
+most ``MAX_JOBS`` jobs), or serially in this process (``workers=0``). Rows stream into ``DIR/table.parquet``
 and ``DIR/table.csv`` (each write atomic: a temporary file and ``os.replace``), one row per point:
 its key (a hash of the experiment, parameters and seed), the parameters, the seed, the outputs,
 the wall and CPU time, the worker and the error if it failed (a failed point is a row with the reason).
-Tasks lost with a worker (killed, restarted) are resubmitted; Ctrl-C keeps what finished; a rerun
-with the same ``DIR`` skips the points that already have a row without error.
+Tasks lost with a worker (killed, restarted) are resubmitted; Ctrl-C writes the table with every
+finished point (before the cluster closes); a rerun with the same ``DIR`` skips the points that
+already have a row without error (from ``table.csv`` when ``table.parquet`` is unreadable).
 
 ``run_sections`` maps independent report sections over the same executor (``reproduce``).
 """
 
 from __future__ import annotations
 
+import codecs
 import dataclasses
 import hashlib
 import itertools
@@ -46,9 +52,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, NamedTuple, Sequence
 
-import yaml
-
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.errors import UserInputError, caused_by_interrupt, short_repr
 from ballchain.drake_models.safe_files import atomic_path, check_output_dir
 
 TABLE_PARQUET = "table.parquet"
@@ -58,6 +62,7 @@ TAIL_COLUMNS = ("wall_time_s", "cpu_time_s", "worker", "error")
 MAX_ATTEMPTS = 3  # submissions of one point whose worker died before it gives up (an error row)
 WRITE_PERIOD = 2.0  # [s] between table writes while results stream in
 SPEC_KEYS = ("experiment", "description", "grid", "points", "seeds")
+DEFAULT_MAX_POINTS = 5000  # runs (points x seeds) a spec may hold unless --max-points raises it
 
 
 # --- the spec ------------------------------------------------------------------------------------
@@ -100,109 +105,170 @@ def _schema(experiment) -> type:
     ])
 
 
-def load_spec(source: str | Path, *, text: str | None = None) -> SweepSpec:
+def load_spec(source: str | Path, *, text: str | None = None, max_points: int = DEFAULT_MAX_POINTS) -> SweepSpec:
     """Load and check a sweep spec (a YAML file, or ``text``).
 
     Args:
         source: the spec file (or a label for ``text``).
         text: inline YAML instead of reading ``source``.
+        max_points: the most runs (points x seeds) the spec may hold (``--max-points``).
 
     Raises:
-        UserInputError: unreadable file, unknown experiment, unknown field, a value of the wrong
-            type, an empty grid or field list, or a value the experiment rejects; the message
-            names the field.
+        UserInputError: an unreadable, binary or non-UTF-8 file, YAML that ``safe_yaml`` refuses,
+            an unknown experiment, an unknown field, a value of the wrong type, an empty grid or
+            field list, more runs than ``max_points`` (counted before the grid is expanded), or a
+            value the experiment's command refuses; the message names the field (and the point).
     """
-    from pydrake.common.yaml import yaml_load_typed
-
-    from ballchain.experiments.studies import EXPERIMENTS
-    from ballchain.systems.chain_scenario import check_value
+    from ballchain.drake_models.safe_yaml import load_typed, load_yaml
 
     label = str(source)
-    if text is None:
-        path = Path(source)
-        if not path.is_file():
-            raise UserInputError(f"sweep spec {label!r} is not a file")
-        text = path.read_text()
+    where = f"sweep spec {short_repr(label)}"
+    if isinstance(max_points, bool) or not isinstance(max_points, int) or max_points < 1:
+        raise UserInputError(f"--max-points must be an integer >= 1, got {short_repr(max_points)}")
+    raw = load_yaml(_read_spec_text(Path(source), where) if text is None else text, where)
+    experiment = _spec_experiment(raw, where)
+    hints = typing.get_type_hints(experiment.params)
+    grid = _spec_grid(raw, hints, where, experiment.name)
+    points = _spec_points(raw, hints, where, experiment.name)
+    seeds = _spec_seeds(raw, where)
+    n_grid = math.prod(len(values) for values in grid.values()) if grid else 0
+    runs = (n_grid + len(points)) * len(seeds)
+    if runs > max_points:
+        raise UserInputError(f"{where}: {runs} runs ({n_grid} grid points + {len(points)} points, times {len(seeds)} "
+                             f"seed(s)) exceed the limit of {max_points}: split the study, or raise --max-points")
+    typed = load_typed(raw, _schema(experiment), where)
+    axes = [f.name for f in dataclasses.fields(experiment.params) if f.name in grid]
+    product = [experiment.params(**dict(zip(axes, combo)))
+               for combo in itertools.product(*(getattr(typed.grid, a) for a in axes))] if axes else []
+    all_points = product + list(typed.points)
+    _check_point_values(experiment, all_points, len(product), axes, where)
+    keys = [point_key(experiment.name, p, s) for p in all_points for s in seeds]
+    if len(set(keys)) != len(keys):
+        raise UserInputError(f"{where}: the same point appears twice (grid and points overlap)")
+    return SweepSpec(experiment.name, typed.description, all_points, list(seeds), label)
+
+
+def _read_spec_text(path: Path, where: str) -> str:
+    """A spec file's text: UTF-8 (a BOM is skipped), or UTF-16 with its BOM (as some Windows
+    editors save); a binary file or another encoding is refused."""
+    from ballchain.drake_models.safe_yaml import MAX_BYTES
+
+    if path.is_dir():
+        raise UserInputError(f"{where} is a folder, not a spec file")
+    if not path.is_file():
+        raise UserInputError(f"{where} is not a file")
     try:
-        raw = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        raise UserInputError(f"sweep spec {label}: not valid YAML: {err}") from None
+        if path.stat().st_size > MAX_BYTES:
+            raise UserInputError(f"{where}: the file is {path.stat().st_size} bytes, more than {MAX_BYTES}: refused")
+        data = path.read_bytes()
+    except OSError as err:
+        raise UserInputError(f"{where}: cannot read it ({err.strerror})") from None
+    try:
+        if data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
+            return data.decode("utf-16")
+        if b"\0" in data:
+            raise UserInputError(f"{where} is a binary file, not YAML text (save the spec as UTF-8 text)")
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as err:
+        raise UserInputError(f"{where} is not UTF-8 text (byte {err.start} is not): save it as UTF-8") from None
+
+
+def _spec_experiment(raw, where: str):
+    """The spec's experiment, once the top level is a mapping of known keys."""
+    from ballchain.experiments.studies import EXPERIMENTS
+
+    if raw is None:
+        raise UserInputError(f"{where} is empty: give a mapping with keys {SPEC_KEYS}")
     if not isinstance(raw, dict):
-        raise UserInputError(f"sweep spec {label}: must be a mapping with keys {SPEC_KEYS}")
+        raise UserInputError(f"{where}: must be a mapping with keys {SPEC_KEYS}, got a {type(raw).__name__}")
     unknown = [k for k in raw if k not in SPEC_KEYS]
     if unknown:
-        raise UserInputError(f"sweep spec {label}: unknown field(s) {unknown}; allowed: {SPEC_KEYS}")
-    name = raw.get("experiment")
-    if name not in EXPERIMENTS:
-        raise UserInputError(f"sweep spec {label}: experiment must be one of {sorted(EXPERIMENTS)}, got {name!r}")
-    experiment = EXPERIMENTS[name]
-    hints = typing.get_type_hints(experiment.params)
-    fields = list(hints)
-
-    grid = raw.get("grid") or {}
-    if not isinstance(grid, dict):
-        raise UserInputError(f"sweep spec {label}: grid must be a mapping of field -> list of values")
-    for key, values in grid.items():
-        if key not in hints:
-            raise UserInputError(f"sweep spec {label}: grid.{key} is not a field of experiment {name!r}; "
-                                 f"fields: {fields}")
-        if not isinstance(values, list):
-            raise UserInputError(f"sweep spec {label}: grid.{key} must be a list of values, got {values!r}")
-        if not values:
-            raise UserInputError(f"sweep spec {label}: grid.{key} is empty (give at least one value)")
-        for k, v in enumerate(values):
-            check_value(v, hints[key], f"grid.{key}[{k}]", f"sweep spec {label}")
-    points = raw.get("points") or []
-    if not isinstance(points, list):
-        raise UserInputError(f"sweep spec {label}: points must be a list of parameter sets")
-    for k, point in enumerate(points):
-        if not isinstance(point, dict):
-            raise UserInputError(f"sweep spec {label}: points[{k}] must be a mapping of field -> value")
-        for key, v in point.items():
-            if key not in hints:
-                raise UserInputError(f"sweep spec {label}: points[{k}].{key} is not a field of experiment "
-                                     f"{name!r}; fields: {fields}")
-            check_value(v, hints[key], f"points[{k}].{key}", f"sweep spec {label}")
-    seeds = raw.get("seeds", [0])
-    if not isinstance(seeds, list) or not seeds:
-        raise UserInputError(f"sweep spec {label}: seeds must be a non-empty list of integers, got {seeds!r}")
-    for k, s in enumerate(seeds):
-        check_value(s, int, f"seeds[{k}]", f"sweep spec {label}")
-    if len(set(seeds)) != len(seeds):
-        raise UserInputError(f"sweep spec {label}: seeds has duplicates: {seeds}")
-    if not grid and not points:
-        raise UserInputError(f"sweep spec {label}: the grid is empty and there are no points "
-                             f"(give grid: {{field: [values]}} or points: [{{field: value}}])")
+        raise UserInputError(f"{where}: unknown field(s) {short_repr(unknown)}; allowed: {SPEC_KEYS}")
     for key in ("experiment", "description"):
         if key in raw and not isinstance(raw[key], str):
-            raise UserInputError(f"sweep spec {label}: {key} must be a string, got {raw[key]!r}")
-
-    # Every value is checked above, so the typed load below only builds the dataclasses (and
-    # keeps the project's one way of reading typed YAML).
-    try:
-        typed = yaml_load_typed(schema=_schema(experiment), data=text)
-    except (RuntimeError, ValueError, TypeError) as err:
-        raise UserInputError(f"sweep spec {label}: {err}") from None
-    axes = [f.name for f in dataclasses.fields(experiment.params) if f.name in grid]
-    product = []
-    if axes:
-        for combo in itertools.product(*(getattr(typed.grid, a) for a in axes)):
-            product.append(experiment.params(**dict(zip(axes, combo))))
-    all_points = product + list(typed.points)
-    for k, p in enumerate(all_points):
-        if experiment.check is not None:
-            try:
-                experiment.check(p)
-            except UserInputError as err:
-                raise UserInputError(f"sweep spec {label}: point {k + 1} ({_describe(p)}): {err}") from None
-    keys = [point_key(name, p, s) for p in all_points for s in seeds]
-    if len(set(keys)) != len(keys):
-        raise UserInputError(f"sweep spec {label}: the same point appears twice (grid and points overlap)")
-    return SweepSpec(name, typed.description, all_points, list(seeds), label)
+            raise UserInputError(f"{where}: {key} must be a string, got {short_repr(raw[key])}")
+    name = raw.get("experiment")
+    if name not in EXPERIMENTS:
+        raise UserInputError(f"{where}: experiment must be one of {sorted(EXPERIMENTS)}, got {short_repr(name)}")
+    return EXPERIMENTS[name]
 
 
-def _describe(params) -> str:
-    return ", ".join(f"{k}={v}" for k, v in dataclasses.asdict(params).items())
+def _spec_field(key, hints: dict, where: str, name: str, at: str) -> None:
+    if key not in hints:
+        raise UserInputError(f"{where}: {at} is not a field of experiment {name!r}; fields: {list(hints)}")
+
+
+def _spec_grid(raw: dict, hints: dict, where: str, name: str) -> dict:
+    """The grid: field -> non-empty list of values, each of the field's type."""
+    from ballchain.systems.chain_scenario import check_value
+
+    grid = raw.get("grid")
+    if grid is None:
+        return {}
+    if not isinstance(grid, dict):
+        raise UserInputError(f"{where}: grid must be a mapping of field -> list of values, got {short_repr(grid)}")
+    for key, values in grid.items():
+        _spec_field(key, hints, where, name, f"grid.{key}")
+        if not isinstance(values, list):
+            raise UserInputError(f"{where}: grid.{key} must be a list of values, got {short_repr(values)}")
+        if not values:
+            raise UserInputError(f"{where}: grid.{key} is empty (give at least one value)")
+        for k, v in enumerate(values):
+            check_value(v, hints[key], f"grid.{key}[{k}]", where)
+    return grid
+
+
+def _spec_points(raw: dict, hints: dict, where: str, name: str) -> list:
+    """The explicit points: mappings of field -> value of the field's type."""
+    from ballchain.systems.chain_scenario import check_value
+
+    points = raw.get("points")
+    if points is None:
+        points = []
+    if not isinstance(points, list):
+        raise UserInputError(f"{where}: points must be a list of parameter sets, got {short_repr(points)}")
+    for k, point in enumerate(points):
+        if not isinstance(point, dict):
+            raise UserInputError(f"{where}: points[{k}] must be a mapping of field -> value, got {short_repr(point)}")
+        for key, v in point.items():
+            _spec_field(key, hints, where, name, f"points[{k}].{key}")
+            check_value(v, hints[key], f"points[{k}].{key}", where)
+    if not raw.get("grid") and not points:
+        raise UserInputError(f"{where}: the grid is empty and there are no points "
+                             f"(give grid: {{field: [values]}} or points: [{{field: value}}])")
+    return points
+
+
+def _spec_seeds(raw: dict, where: str) -> list[int]:
+    """Distinct seeds, each in the range the operator's tremor takes (``teleop.check_seed``)."""
+    from ballchain.experiments.teleop import check_seed
+    from ballchain.systems.chain_scenario import check_value
+
+    seeds = raw.get("seeds", [0])
+    if not isinstance(seeds, list) or not seeds:
+        raise UserInputError(f"{where}: seeds must be a non-empty list of integers, got {short_repr(seeds)}")
+    for k, s in enumerate(seeds):
+        check_value(s, int, f"seeds[{k}]", where)
+        check_seed(s, f"{where}: seeds[{k}]")
+    if len(set(seeds)) != len(seeds):
+        raise UserInputError(f"{where}: seeds has duplicates: {short_repr(seeds)}")
+    return seeds
+
+
+def _check_point_values(experiment, points: list, n_grid: int, axes: list[str], where: str) -> None:
+    """Every point against the experiment's check (the rules of its command's flags)."""
+    if experiment.check is None:
+        return
+    for k, p in enumerate(points):
+        try:
+            experiment.check(p)
+        except UserInputError as err:
+            if k < n_grid:
+                values = ", ".join(f"{a}={short_repr(getattr(p, a))}" for a in axes)
+                at = f"grid point {k + 1} of {n_grid} ({values})"
+            else:
+                at = f"points[{k - n_grid}]"
+            raise UserInputError(f"{where}: {at}: {err}") from None
 
 
 def point_key(experiment: str, params, seed: int) -> str:
@@ -250,6 +316,8 @@ def run_point(experiment: str, params: dict, seed: int) -> dict:
         with threadpool_limits(limits=1, user_api="blas"):
             outputs = exp.point(p, seed)
     except Exception as err:  # noqa: BLE001: a failed point is a row with the reason
+        if caused_by_interrupt(err):  # Ctrl-C inside compiled code comes back wrapped: still Ctrl-C
+            raise KeyboardInterrupt from err
         error = f"{type(err).__name__}: {err}"
     clash = set(outputs) & set(row)
     if clash:
@@ -322,6 +390,54 @@ def read_table(out: Path) -> list[dict]:
     return pq.read_table(path).to_pylist()
 
 
+def read_table_csv(out: Path, experiment) -> list[dict]:
+    """The rows of ``out/table.csv``, typed as the Parquet table is: the experiment's parameters
+    by their fields' types, the key, seed, times, worker and error by theirs; the outputs as
+    pyarrow infers them. Raises pyarrow's errors (or OSError) on a file that does not parse."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    arrow = {bool: pa.bool_(), int: pa.int64(), float: pa.float64(), str: pa.string()}
+    types = {"key": pa.string(), "experiment": pa.string(), "seed": pa.int64(), "wall_time_s": pa.float64(),
+             "cpu_time_s": pa.float64(), "worker": pa.string(), "error": pa.string()}
+    types.update({name: arrow[t] for name, t in typing.get_type_hints(experiment.params).items()})
+    table = pacsv.read_csv(Path(out) / TABLE_CSV,
+                           convert_options=pacsv.ConvertOptions(column_types=types, strings_can_be_null=True))
+    return table.to_pylist()
+
+
+def _read_previous(out: Path, experiment) -> tuple[list[dict], str | None]:
+    """The earlier rows in ``out`` and a one-line note when ``table.parquet`` was unreadable
+    (truncated, corrupt): then the rows come from ``table.csv`` if it parses and holds the same
+    points' keys, else the points run again; the unreadable file is kept beside it.
+
+    Raises:
+        UserInputError: ``table.parquet`` is a readable table but not a sweep's (no key column).
+    """
+    import pyarrow as pa
+
+    parquet = out / TABLE_PARQUET
+    try:
+        rows = read_table(out)
+    except (pa.ArrowException, OSError, ValueError) as err:
+        reason = " ".join(str(err).split())[:120] or type(err).__name__
+    else:
+        if rows and not all(isinstance(r.get("key"), str) and r.get("experiment") for r in rows):
+            raise UserInputError(f"--out {out}: its {TABLE_PARQUET} is not a sweep's table (no key or experiment "
+                                 "column): use another folder")
+        return rows, None
+    aside = parquet.with_name(TABLE_PARQUET + ".unreadable")
+    os.replace(parquet, aside)
+    try:
+        rows = read_table_csv(out, experiment)
+        if not all(isinstance(r.get("key"), str) and r.get("experiment") for r in rows):
+            raise ValueError("no key or experiment column")
+        source = f"resumed from {TABLE_CSV} ({len(rows)} rows)"
+    except (pa.ArrowException, OSError, ValueError):
+        rows, source = [], f"{TABLE_CSV} is unreadable too: every point runs again"
+    return rows, f"--out {out}: {TABLE_PARQUET} is unreadable ({reason}); {source}; the file is kept as {aside.name}"
+
+
 # --- the executor ---------------------------------------------------------------------------------
 
 def _check_out(out: Path) -> Path:
@@ -329,6 +445,11 @@ def _check_out(out: Path) -> Path:
     out = check_output_dir(out, "--out")
     out.mkdir(parents=True, exist_ok=True)
     return out
+
+
+MAX_WORKERS_PER_CORE = 4  # LocalCluster processes per core: more only share the cores (and the memory)
+MAX_JOBS = 256  # job-queue jobs one sweep may ask for
+CONNECT_TIMEOUT = 15.0  # [s] for a scheduler to accept the connection and answer
 
 
 def default_workers() -> int:
@@ -339,23 +460,98 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def max_workers() -> int:
+    """The most LocalCluster worker processes: ``MAX_WORKERS_PER_CORE`` per core."""
+    return MAX_WORKERS_PER_CORE * default_workers()
+
+
 def _check_executor(scheduler: str | None, workers: int | None, jobqueue: str | None) -> None:
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 0):
-        raise UserInputError(f"--workers must be an integer >= 0 (0: serial, in this process), got {workers!r}")
+        raise UserInputError(f"--workers must be an integer >= 0 (0: serial, in this process), got {short_repr(workers)}")
     if scheduler is not None and jobqueue is not None:
         raise UserInputError("--scheduler and --jobqueue exclude each other: give one")
     if scheduler is not None and workers == 0:
         raise UserInputError("--workers 0 (serial) and --scheduler exclude each other")
-    if scheduler is not None and "://" not in scheduler and ":" not in scheduler:
-        raise UserInputError(f"--scheduler must be an address like tcp://host:8786, got {scheduler!r}")
+    if scheduler is not None:
+        _check_address(scheduler)
+    if jobqueue is None and scheduler is None and workers is not None and workers > max_workers():
+        raise UserInputError(f"--workers must be at most {max_workers()} ({MAX_WORKERS_PER_CORE} per core; this "
+                             f"process may use {default_workers()}), got {workers}")
+    if jobqueue is not None and workers is not None and workers > MAX_JOBS:
+        raise UserInputError(f"--workers (jobs of --jobqueue) must be at most {MAX_JOBS}, got {workers}")
     if jobqueue is not None:
         if jobqueue not in JOBQUEUE_CLUSTERS:
-            raise UserInputError(f"--jobqueue must be one of {sorted(JOBQUEUE_CLUSTERS)}, got {jobqueue!r}")
+            raise UserInputError(f"--jobqueue must be one of {sorted(JOBQUEUE_CLUSTERS)}, got {short_repr(jobqueue)}")
         try:
             import dask_jobqueue  # noqa: F401
         except ImportError:
             raise UserInputError("--jobqueue needs dask-jobqueue (pip install dask-jobqueue); it is an "
                                  "optional dependency") from None
+
+
+def _check_address(address) -> None:
+    """A scheduler address: a scheme Dask speaks (tcp:// when none is given), a host and a port."""
+    from distributed.comm.addressing import parse_host_port
+    from distributed.comm.registry import backends
+
+    if not isinstance(address, str):
+        raise UserInputError(f"--scheduler must be an address like tcp://host:8786, got {short_repr(address)}")
+    scheme, sep, location = address.partition("://")
+    if not sep:
+        scheme, location = "tcp", address
+    schemes = sorted(set(backends) - {"inproc"})  # inproc: only within one process
+    if scheme not in schemes:
+        raise UserInputError(f"--scheduler {short_repr(address)}: unknown scheme {short_repr(scheme)}; Dask "
+                             f"speaks {', '.join(schemes)} (e.g. tcp://host:8786)")
+    try:
+        host, port = parse_host_port(location)
+    except ValueError:
+        host, port = "", 0
+    if not host or not 0 < port < 65536:
+        raise UserInputError(f"--scheduler must be an address like tcp://host:8786 (a host and a port in "
+                             f"1..65535), got {short_repr(address)}")
+
+
+def _probe_scheduler(address: str, timeout: float) -> None:
+    """Ask what listens at ``address`` who it is (Dask's ``identity``) within ``timeout`` seconds.
+
+    ``distributed.Client`` waits for a silent peer past its own timeout (the handshake has none),
+    so the question runs first, bounded as a whole, on a loop of its own (in a thread: the caller
+    may be inside a running event loop, e.g. a notebook).
+
+    Raises:
+        UserInputError: nothing answered in time, or what answered is not a Dask scheduler.
+    """
+    import asyncio
+    from concurrent.futures import ThreadPoolExecutor
+
+    from distributed.comm import connect
+
+    async def identity():
+        comm = await connect(address, timeout=timeout)
+        try:
+            await comm.write({"op": "identity"})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    def ask():
+        return asyncio.run(asyncio.wait_for(identity(), timeout))
+
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        try:
+            reply = pool.submit(ask).result()
+        except (asyncio.TimeoutError, TimeoutError):
+            raise UserInputError(f"--scheduler {short_repr(address)}: no Dask scheduler answered within {timeout:g} s "
+                                 "(something else listens there, or it is busy)") from None
+        except OSError as err:
+            raise UserInputError(f"--scheduler {short_repr(address)}: cannot connect: {' '.join(str(err).split())[:200]}") from None
+        except Exception as err:  # noqa: BLE001 - whatever a foreign service sends back
+            raise UserInputError(f"--scheduler {short_repr(address)}: what listens there does not speak Dask's protocol "
+                                 f"({type(err).__name__})") from None
+    kind = reply.get("type") if isinstance(reply, dict) else None
+    if kind != "Scheduler":
+        raise UserInputError(f"--scheduler {short_repr(address)}: a Dask {kind or 'peer'} answers there, not a scheduler")
 
 
 JOBQUEUE_CLUSTERS = {"slurm": "SLURMCluster", "pbs": "PBSCluster", "sge": "SGECluster", "lsf": "LSFCluster",
@@ -369,9 +565,10 @@ class Executor:
     """
 
     def __init__(self, *, scheduler: str | None = None, workers: int | None = None, jobqueue: str | None = None,
-                 client=None):
+                 client=None, connect_timeout: float = CONNECT_TIMEOUT):
         _check_executor(scheduler, workers, jobqueue)
         self.scheduler, self.workers, self.jobqueue = scheduler, workers, jobqueue
+        self.connect_timeout = connect_timeout
         self.client, self._own_client, self.cluster = client, client is None, None
         self.description = "client given by the caller" if client is not None else ""
 
@@ -382,10 +579,11 @@ class Executor:
         from distributed import Client
 
         if self.scheduler is not None:
+            _probe_scheduler(self.scheduler, self.connect_timeout)
             try:
-                self.client = Client(self.scheduler, timeout="15s")
+                self.client = Client(self.scheduler, timeout=f"{self.connect_timeout:g}s")
             except (OSError, TimeoutError) as err:
-                raise UserInputError(f"--scheduler {self.scheduler}: cannot connect: {err}") from None
+                raise UserInputError(f"--scheduler {short_repr(self.scheduler)}: cannot connect: {err}") from None
             self.description = f"scheduler {self.scheduler}"
         elif self.jobqueue is not None:
             import dask_jobqueue
@@ -443,7 +641,8 @@ def _lost_row(experiment: str, params, seed: int, reason: str) -> dict:
 
 def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None, workers: int | None = None,
               jobqueue: str | None = None, client=None, progress: bool = True, figure: bool = True,
-              on_result: Callable[[int, "Executor"], None] | None = None) -> dict:
+              on_result: Callable[[int, "Executor"], None] | None = None,
+              echo: Callable[[str], None] | None = None, connect_timeout: float = CONNECT_TIMEOUT) -> dict:
     """Run every point of ``spec`` not already done in ``out``; write the table (and the figure).
 
     Args:
@@ -460,6 +659,9 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
         figure: draw the experiment's figure from the table at the end.
         on_result: called as ``on_result(points_finished, executor)`` after each finished point
             (tests use it to kill a worker mid-sweep).
+        echo: called with one line each before the work starts: the number of points and an
+            estimate of their time, and a note when an earlier table was unreadable.
+        connect_timeout: [s] for ``scheduler`` to answer (``CONNECT_TIMEOUT``).
 
     Returns:
         {"experiment", "out", "table_parquet", "table_csv", "points", "ran", "skipped", "failed",
@@ -474,7 +676,7 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
     exp = EXPERIMENTS[spec.experiment]
     param_names = [f.name for f in dataclasses.fields(exp.params)]
     first = param_names + ["seed"]
-    previous = read_table(out)
+    previous, note = _read_previous(out, exp)
     others = sorted({r.get("experiment") for r in previous} - {spec.experiment})
     if others:
         raise UserInputError(f"--out {out} holds a sweep of experiment {others[0]!r}, not {spec.experiment!r}: "
@@ -499,13 +701,19 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
             write_table(out, ordered(), first)
             last_write[0] = time.perf_counter()
 
+    if echo is not None:
+        if note:
+            echo(note)
+        echo(_announce(spec.experiment, len(tasks), len(todo), previous, exp.typical_s, scheduler, workers,
+                       jobqueue, client))
     start = time.perf_counter()
     interrupted, resubmitted, ran = False, 0, [0]
     bar = tqdm(total=len(tasks), initial=len(tasks) - len(todo), desc=f"sweep {spec.experiment}", unit="point",
                disable=not progress)
     if not todo:  # everything done before: no cluster to start (the table and figure are redrawn)
         scheduler, workers, jobqueue, client = None, 0, None, None
-    with Executor(scheduler=scheduler, workers=workers, jobqueue=jobqueue, client=client) as ex:
+    with Executor(scheduler=scheduler, workers=workers, jobqueue=jobqueue, client=client,
+                  connect_timeout=connect_timeout) as ex:
         try:
             if ex.client is None:
                 for n, (k, p, s) in enumerate(todo, 1):
@@ -519,6 +727,7 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
                 resubmitted = _run_on_client(ex, spec.experiment, todo, rows, bar, save, on_result, ran)
         except KeyboardInterrupt:
             interrupted = True
+            save(force=True)  # before the cluster closes: a second Ctrl-C there must not cost the rows
     bar.close()
     save(force=True)
     table_rows = ordered()
@@ -532,13 +741,42 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
         "ran": ran[0], "skipped": len(tasks) - len(todo),
         "failed": sum(1 for k in keys if k in rows and rows[k].get("error") is not None),
         "resubmitted": resubmitted, "interrupted": interrupted, "wall_time_s": time.perf_counter() - start,
-        "executor": ex.description, "figure": figure_path, "summary": summary,
+        "executor": ex.description, "figure": figure_path, "summary": summary, "table_note": note,
     }
     from ballchain.drake_models.safe_files import to_jsonable
 
     _atomic_write(out / "sweep.json", lambda tmp: Path(tmp).write_text(
         json.dumps(to_jsonable(result), indent=1, allow_nan=False, default=str)))
     return result
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def _announce(experiment: str, n_tasks: int, n_todo: int, previous: list[dict], typical_s: float,
+              scheduler, workers, jobqueue, client) -> str:
+    """One line before the work: the points, those done before, and an estimate of the time
+    (a point's median CPU time in the earlier table, else the experiment's typical one)."""
+    import statistics
+
+    times = [r["cpu_time_s"] for r in previous
+             if r.get("experiment") == experiment and r.get("error") is None and r.get("cpu_time_s")]
+    per_point, basis = (statistics.median(times), "the earlier table") if times else (typical_s, "typical")
+    cpu = n_todo * per_point
+    if n_todo == 0:
+        where = "nothing to run"
+    elif client is None and scheduler is None and jobqueue is None:
+        n = 1 if workers == 0 else (workers or default_workers())
+        where = f"about {_duration(cpu / min(n, n_todo))} on {n} worker process(es)"
+    else:
+        where = "less on several workers"
+    return (f"sweep {experiment}: {n_tasks} points, {n_tasks - n_todo} done before, {n_todo} to run; estimate "
+            f"{_duration(cpu)} of CPU time ({per_point:.3g} s a point, {basis}), {where}")
 
 
 def _run_on_client(ex: Executor, experiment: str, todo, rows: dict, bar, save, on_result, ran: list) -> int:

@@ -89,7 +89,9 @@ def check_in(name: str, value, lo, hi, *, lo_open: bool = False, unit: str = "")
     import numpy as np
 
     ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
-    ok = ok and math.isfinite(value) and lo <= value <= hi and not (lo_open and value == lo)
+    # An integer is finite (math.isfinite would convert it to a float: OverflowError beyond 1e308).
+    ok = ok and (isinstance(value, (int, np.integer)) or math.isfinite(value))
+    ok = ok and lo <= value <= hi and not (lo_open and value == lo)
     if not ok:
         interval = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]"
         raise UserInputError(f"{name} must be a number in {interval}{' ' + unit if unit else ''}, got {short_repr(value)}")
@@ -108,7 +110,7 @@ def require_finite_fields(obj, allow_inf=()) -> None:
             if isinstance(value, (tuple, list)):
                 return any(bad(v) for v in value)
             return False
-        return not math.isfinite(value)
+        return not (isinstance(value, numbers.Integral) or math.isfinite(value))  # ints: no float conversion
 
     for f in dataclasses.fields(obj):
         value = getattr(obj, f.name)

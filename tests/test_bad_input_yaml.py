@@ -146,7 +146,7 @@ def test_scenarios_and_sweep_specs_share_one_type_check():
     with pytest.raises(UserInputError) as spec:
         load_spec("s.yaml", text="experiment: statics\ngrid: {n_balls: [4.5]}")
     assert str(scenario.value) == "--set: n_balls must be an integer, got 4.5"
-    assert str(spec.value) == "sweep spec s.yaml: grid.n_balls[0] must be an integer, got 4.5"
+    assert str(spec.value) == "sweep spec 's.yaml': grid.n_balls[0] must be an integer, got 4.5"
 
 
 def test_set_merges_a_unit_entry_without_a_name_by_position():

@@ -82,7 +82,7 @@ def client():
     ("experiment: statics\ngrid: {n_balls: 4}", "grid.n_balls must be a list"),
     ("experiment: statics\ngrid: {n_balls: [4]}\nseeds: [1, 1]", "seeds"),
     ("experiment: statics\ngrid: {n_balls: [4]}\nsamples: 3", "samples"),
-    ("experiment: statics\ngrid: {n_balls: [1]}", "n_balls must be >= 2"),
+    ("experiment: statics\ngrid: {n_balls: [0]}", "n_balls must be an integer in 1..200"),
     ("experiment: design\ngrid: {vein: [XXPV]}", "vein must be one of"),
     ("experiment: design\ngrid: {magnet: [cube]}", "magnet must be"),
     ("experiment: operators\ngrid: {engine: [warp]}", "engine must be one of"),

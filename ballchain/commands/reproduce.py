@@ -6,8 +6,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, int_in, print_json
+from ballchain.commands._common import add_json_flag, positive_int, print_json
 from ballchain.reproduce import run
+from ballchain.sweep import MAX_WORKERS_PER_CORE
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -19,9 +20,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sections", nargs="+", default=None, metavar="NAME",
                         help="run only these sections (names as in the report's run-time table, e.g. "
                              "alignment sizing)")
-    parser.add_argument("--workers", type=int_in(1, 64), default=1,
+    parser.add_argument("--workers", type=positive_int, default=1,
                         help="run the sections in parallel on this many worker processes (a Dask "
-                             "LocalCluster on this machine; default 1: one after the other, in this process)")
+                             f"LocalCluster on this machine, at most {MAX_WORKERS_PER_CORE} per core; default 1: one after the other, "
+                             "in this process)")
     add_json_flag(parser)
 
 

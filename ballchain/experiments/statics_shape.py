@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
-from ballchain.drake_models.errors import UserInputError, check_in
+from ballchain.drake_models.errors import UserInputError, check_in, short_repr
 from ballchain.drake_models.field_sources import UniformField
 from ballchain.drake_models.params import BallChain, Sleeve
 from ballchain.experiments._result import Result
@@ -51,6 +51,19 @@ class StaticsShapeResult(Result):
     continuation_time_s: float
 
 
+FLAGS = {"balls": "--balls", "field_mT": "--field-mT", "field_angle_deg": "--field-angle-deg", "step_deg": "--step-deg"}
+
+
+def check_inputs(*, balls, field_mT, field_angle_deg, step_deg, names: dict = FLAGS) -> None:
+    """The ranges of ``run``'s inputs (the command's flags, a sweep's fields: ``names`` maps each
+    argument to the name the message uses); raises UserInputError naming it."""
+    if isinstance(balls, bool) or not isinstance(balls, (int, np.integer)) or not 1 <= balls <= MAX_BALLS:
+        raise UserInputError(f"{names['balls']} must be an integer in 1..{MAX_BALLS}, got {short_repr(balls)}")
+    check_in(names["field_mT"], field_mT, 0.0, MAX_FIELD_MT, unit="mT")
+    check_in(names["field_angle_deg"], field_angle_deg, -360.0, 360.0, unit="deg")
+    check_in(names["step_deg"], step_deg, MIN_STEP_DEG, 90.0, unit="deg")
+
+
 def run(*, balls: int, field_mT: float, field_angle_deg: float, step_deg: float = 22.5,
         gravity: bool = False, sleeve: bool = False, method: str = "newton") -> StaticsShapeResult:
     """The equilibrium after turning the field from +x to ``field_angle_deg`` (continuation).
@@ -70,11 +83,7 @@ def run(*, balls: int, field_mT: float, field_angle_deg: float, step_deg: float 
     Raises:
         UserInputError: a value out of range, named by its flag (before any solve).
     """
-    if isinstance(balls, bool) or not isinstance(balls, (int, np.integer)) or not 1 <= balls <= MAX_BALLS:
-        raise UserInputError(f"--balls must be an integer in 1..{MAX_BALLS}, got {balls!r}")
-    check_in("--field-mT", field_mT, 0.0, MAX_FIELD_MT, unit="mT")
-    check_in("--field-angle-deg", field_angle_deg, -360.0, 360.0, unit="deg")
-    check_in("--step-deg", step_deg, MIN_STEP_DEG, 90.0, unit="deg")
+    check_inputs(balls=balls, field_mT=field_mT, field_angle_deg=field_angle_deg, step_deg=step_deg)
     if method not in ("newton", "snopt"):
         raise UserInputError(f"--method must be 'newton' or 'snopt', got {method!r}")
     chain = BallChain(n_balls=balls, sleeve=Sleeve() if sleeve else None)

@@ -4,7 +4,10 @@ Each experiment here is one point of a sweep: a parameter dataclass (its fields 
 grid or points may set, with their types and defaults), a function ``point(params, seed) ->
 dict`` of scalar outputs that calls an existing experiment (never a re-typed law), a check of the
 values (``UserInputError`` naming the field, run before any cluster starts), and optionally a
-figure and a headline summary drawn from the finished table.
+figure and a headline summary drawn from the finished table. The checks are the commands' own
+(``statics_shape.check_inputs``, ``forces.GRID``/``REFINE``, ``teleop.check_inputs`` and the
+station scenario's ``validate``, ``workspace.check_inputs``, the parameter classes' checks), so
+that a value the command refuses is refused in a spec too, before any point runs.
 
 - ``design``: tip force on a vein from statics (``forces.max_normal_force``) for a ball diameter,
   an actuation magnet (the prototype cylinder or a sphere of any diameter, both placed like the
@@ -18,6 +21,7 @@ figure and a headline summary drawn from the finished table.
 
 # No ``from __future__ import annotations``: pydrake's yaml_load_typed reads the parameter
 # dataclasses' field types as objects, not strings (as in systems/chain_scenario.py).
+import functools
 import json
 import math
 import re
@@ -28,7 +32,7 @@ from typing import Callable
 import numpy as np
 
 from ballchain.drake_models import paper
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.errors import UserInputError, check_in, short_repr
 
 
 @dataclass(frozen=True)
@@ -43,6 +47,8 @@ class Experiment:
         figure: ``figure(rows, out_dir) -> Path`` from the table's rows (dicts), or None.
         summary: ``summary(rows) -> dict`` of headline numbers, or None.
         description: one line.
+        typical_s: a point's typical CPU time [s] on one core, for the estimate printed before a
+            sweep starts (an earlier table's own times replace it when there is one).
     """
 
     name: str
@@ -52,16 +58,17 @@ class Experiment:
     figure: Callable | None = None
     summary: Callable | None = None
     description: str = ""
+    typical_s: float = 1.0
 
 
 def _one_of(name: str, value, allowed) -> None:
     if value not in allowed:
-        raise UserInputError(f"{name} must be one of {tuple(allowed)}, got {value!r}")
+        raise UserInputError(f"{name} must be one of {tuple(allowed)}, got {short_repr(value)}")
 
 
 def _positive(name: str, value, *, zero_ok: bool = False) -> None:
     if not (value >= 0 if zero_ok else value > 0):
-        raise UserInputError(f"{name} must be {'>= 0' if zero_ok else '> 0'}, got {value!r}")
+        raise UserInputError(f"{name} must be {'>= 0' if zero_ok else '> 0'}, got {short_repr(value)}")
 
 
 def _ok(rows):
@@ -98,13 +105,18 @@ class StaticsPoint:
     max_iterations: int = 200
 
 
+MAX_ITERATIONS = 10_000  # Newton converges in tens of iterations or not at all
+
+
 def statics_check(p: StaticsPoint) -> None:
-    if p.n_balls < 2:
-        raise UserInputError(f"n_balls must be >= 2, got {p.n_balls}")
-    _positive("field_mT", p.field_mT)
-    _positive("step_deg", p.step_deg)
-    if p.max_iterations < 1:
-        raise UserInputError(f"max_iterations must be >= 1, got {p.max_iterations}")
+    """The ``statics`` command's ranges (``statics_shape.check_inputs``), under the spec's names."""
+    from ballchain.experiments.statics_shape import check_inputs
+
+    check_inputs(balls=p.n_balls, field_mT=p.field_mT, field_angle_deg=p.field_angle_deg, step_deg=p.step_deg,
+                 names={"balls": "n_balls", "field_mT": "field_mT", "field_angle_deg": "field_angle_deg",
+                        "step_deg": "step_deg"})
+    if not 1 <= p.max_iterations <= MAX_ITERATIONS:
+        raise UserInputError(f"max_iterations must be in 1..{MAX_ITERATIONS}, got {p.max_iterations}")
 
 
 def statics_point(p: StaticsPoint, seed: int) -> dict:
@@ -173,7 +185,7 @@ def design_magnet(name: str):
     match = _SPHERE.match(name)
     if match is None or float(match.group(1)) <= 0:
         raise UserInputError(f"magnet must be 'cylinder' (the 76.2 mm prototype) or 'sphereD' with D the "
-                             f"sphere's diameter in mm (e.g. sphere119), got {name!r}")
+                             f"sphere's diameter in mm (e.g. sphere119), got {short_repr(name)}")
     return SphereMagnet(diameter=float(match.group(1)) * 1e-3)
 
 
@@ -186,15 +198,29 @@ def design_balls(p: DesignPoint) -> int:
 
 
 def design_check(p: DesignPoint) -> None:
+    """The ``forces`` command's grid and refine ranges, the statics' chain length, the scenario's
+    magnet distance range and the parameter classes' own checks (a sleeve over the balls)."""
+    from ballchain.drake_models.params import BallChain, Sleeve
+    from ballchain.experiments.forces import GRID, REFINE
+    from ballchain.experiments.statics_shape import MAX_BALLS
+    from ballchain.systems.chain_scenario import MAX_DISTANCE
+
     _positive("ball_diameter_mm", p.ball_diameter_mm)
-    if p.n_balls != 0 and p.n_balls < 3:
-        raise UserInputError(f"n_balls must be 0 (the prototype's length) or >= 3, got {p.n_balls}")
+    if p.n_balls != 0 and not 3 <= p.n_balls <= MAX_BALLS:
+        raise UserInputError(f"n_balls must be 0 (the prototype's length) or in 3..{MAX_BALLS}, got {p.n_balls}")
+    # The count as a float first: a vanishing diameter makes it too large to round (inf).
+    exact = p.n_balls or PROTOTYPE_BALLS * BallChain().ball_diameter / (p.ball_diameter_mm * 1e-3)
+    n = design_balls(p) if exact <= MAX_BALLS + 1 else None
+    if n is None or not 3 <= n <= MAX_BALLS:
+        raise UserInputError(f"ball_diameter_mm {p.ball_diameter_mm:g} makes a chain of {exact:.4g} balls at the "
+                             f"prototype's length (n_balls 0); it must have 3..{MAX_BALLS}")
+    BallChain(n_balls=n, ball_diameter=p.ball_diameter_mm * 1e-3, sleeve=Sleeve() if p.sleeve else None)
     design_magnet(p.magnet)
-    _positive("distance_cm", p.distance_cm)
+    check_in("distance_cm", p.distance_cm, 0.0, MAX_DISTANCE * 100, lo_open=True, unit="cm")
     _one_of("vein", p.vein, VEINS)
     _one_of("config", p.config, CONFIGS)
-    if p.grid < 2 or p.refine_evaluations < 0:
-        raise UserInputError(f"grid must be >= 2 and refine_evaluations >= 0, got {p.grid}, {p.refine_evaluations}")
+    check_in("grid", p.grid, *GRID)
+    check_in("refine_evaluations", p.refine_evaluations, *REFINE)
 
 
 def design_point(p: DesignPoint, seed: int) -> dict:
@@ -315,31 +341,46 @@ class OperatorsPoint:
     n_balls: int = 16
 
 
-def operators_check(p: OperatorsPoint) -> None:
-    from ballchain.experiments.teleop import MAPPINGS, TASKS
+def _operators_overrides(p: OperatorsPoint) -> str:
+    """The station scenario's overrides of a point (as ``teleop --set`` takes them)."""
+    # The engine is always named: the teleop experiment's own default is the quasi-static engine.
+    overrides = {"engine": p.engine}
+    if p.time_step > 0:
+        overrides["time_step"] = p.time_step
+    return json.dumps(overrides)
 
-    _one_of("task", p.task, TASKS)
-    _one_of("mapping", p.mapping, MAPPINGS)
+
+@functools.lru_cache(maxsize=64)
+def _check_station(mapping: str, n_balls: int, overrides: str) -> None:
+    """The station scenario a point runs (``teleop.scenario_for``: the scenario's own checks, e.g.
+    its time step's range); loaded once per distinct combination."""
+    from ballchain.experiments.teleop import scenario_for
+
+    scenario_for(mapping, n_balls, overrides)
+
+
+def operators_check(p: OperatorsPoint) -> None:
+    """The ``teleop`` command's checks (``teleop.check_inputs``) and the station scenario's."""
+    from ballchain.experiments.teleop import check_inputs
+
     _one_of("engine", p.engine, ENGINES)
     if p.targets < 0:
         raise UserInputError(f"targets must be >= 0 (0: all), got {p.targets}")
+    check_inputs(p.task, p.mapping, p.targets or None, p.n_balls, None)
+    # The operator's stick axes are clipped to [-1, 1]: a larger tremor only saturates them.
+    check_in("tremor", p.tremor, 0.0, 1.0)
     _positive("time_step", p.time_step, zero_ok=True)
-    _positive("tremor", p.tremor, zero_ok=True)
-    if p.n_balls < 3:
-        raise UserInputError(f"n_balls must be >= 3, got {p.n_balls}")
+    _check_station(p.mapping, p.n_balls, _operators_overrides(p))
 
 
 def operators_point(p: OperatorsPoint, seed: int) -> dict:
     from ballchain.experiments import teleop
     from ballchain.systems.simulated_operator import OperatorParams
 
-    # The engine is always named: the teleop experiment's own default is the quasi-static engine.
-    overrides, engine_used, note = {"engine": p.engine}, p.engine, None
-    if p.time_step > 0:
-        overrides["time_step"] = p.time_step
+    overrides, engine_used, note = _operators_overrides(p), p.engine, None
     operator = OperatorParams(axes=(0, 1, 2) if p.mapping == "world" else (0, 1), tremor=p.tremor, seed=seed)
     result = teleop.run(task=p.task, mapping=p.mapping, targets=p.targets or None, progress=False,
-                        n_balls=p.n_balls, overrides=json.dumps(overrides) if overrides else None,
+                        n_balls=p.n_balls, overrides=overrides,
                         operator=operator)
     s = result.summary
     rows = result.rows
@@ -457,22 +498,33 @@ class SleevePoint:
 
 
 def sleeve_check(p: SleevePoint) -> None:
+    """The ``workspace`` command's step and distance ranges (``workspace.check_inputs``), the
+    statics' chain length and the parameter classes' own checks (a sleeve over the balls)."""
+    from ballchain.drake_models.params import BallChain
+    from ballchain.experiments.statics_shape import MAX_BALLS
+    from ballchain.experiments.workspace import check_inputs
+
     _positive("youngs_modulus_MPa", p.youngs_modulus_MPa)
     _positive("wall_thickness_mm", p.wall_thickness_mm)
     _positive("inner_diameter_mm", p.inner_diameter_mm)
-    if p.n_balls < 2:
-        raise UserInputError(f"n_balls must be >= 2, got {p.n_balls}")
-    if not 0 < p.step_deg <= 45:
-        raise UserInputError(f"step_deg must be in (0, 45], got {p.step_deg}")
-    _positive("distance_cm", p.distance_cm)
+    if not 2 <= p.n_balls <= MAX_BALLS:
+        raise UserInputError(f"n_balls must be in 2..{MAX_BALLS}, got {p.n_balls}")
+    check_inputs(p.step_deg, p.distance_cm * 1e-2, names=("step_deg", "distance_cm"))
+    BallChain(n_balls=p.n_balls, sleeve=_sleeve(p))
+
+
+def _sleeve(p: SleevePoint):
+    from ballchain.drake_models.params import Sleeve
+
+    return Sleeve(youngs_modulus=p.youngs_modulus_MPa * 1e6, inner_diameter=p.inner_diameter_mm * 1e-3,
+                  outer_diameter=(p.inner_diameter_mm + 2 * p.wall_thickness_mm) * 1e-3)
 
 
 def sleeve_point(p: SleevePoint, seed: int) -> dict:
-    from ballchain.drake_models.params import BallChain, Sleeve
+    from ballchain.drake_models.params import BallChain
     from ballchain.experiments.workspace import sweep, tip_to_tip_distance, workspace_area
 
-    sleeve = Sleeve(youngs_modulus=p.youngs_modulus_MPa * 1e6, inner_diameter=p.inner_diameter_mm * 1e-3,
-                    outer_diameter=(p.inner_diameter_mm + 2 * p.wall_thickness_mm) * 1e-3)
+    sleeve = _sleeve(p)
     curves = {}
     for label, s in (("bare", None), ("sleeve", sleeve)):
         chain = BallChain(n_balls=p.n_balls, sleeve=s)
@@ -547,12 +599,12 @@ def sleeve_figure(rows, out: Path) -> Path:
 EXPERIMENTS: dict[str, Experiment] = {
     e.name: e for e in (
         Experiment("statics", StaticsPoint, statics_point, statics_check,
-                   description="one equilibrium of the canonical chain in a uniform field"),
+                   description="one equilibrium of the canonical chain in a uniform field", typical_s=0.05),
         Experiment("design", DesignPoint, design_point, design_check, design_figure, design_summary,
-                   "ball size x actuation magnet x distance -> tip force on a vein (statics)"),
+                   "ball size x actuation magnet x distance -> tip force on a vein (statics)", typical_s=10.0),
         Experiment("operators", OperatorsPoint, operators_point, operators_check, operators_figure,
-                   operators_summary, "simulated operators on the teleoperation tasks"),
+                   operators_summary, "simulated operators on the teleoperation tasks", typical_s=10.0),
         Experiment("sleeve", SleevePoint, sleeve_point, sleeve_check, sleeve_figure, sleeve_summary,
-                   "workspace against the sleeve's Young's modulus and wall thickness"),
+                   "workspace against the sleeve's Young's modulus and wall thickness", typical_s=15.0),
     )
 }

@@ -145,6 +145,16 @@ def tip_to_tip_distance(curves_a: dict, curves_b: dict) -> float:
     return max(float(np.max(np.linalg.norm(curves_a[s] - curves_b[s], axis=1))) for s in (1, -1))
 
 
+def check_inputs(step_deg, distance, names=("--step-deg", "--distance-cm")) -> None:
+    """The ranges of ``run``'s step [deg] and distance [m] (the command's flags, or a sweep's
+    fields: ``names``); raises UserInputError naming it."""
+    if not (isinstance(step_deg, (int, float)) and 0.5 <= step_deg <= 45):
+        raise UserInputError(f"{names[0]} must be in [0.5, 45], got {step_deg}")
+    if not (isinstance(distance, (int, float)) and 0.1 < distance <= 1.0):
+        raise UserInputError(f"{names[1]} must be in (10, 100] cm (closer, the magnet would touch the "
+                             f"chain), got {distance * 100:g}")
+
+
 def run(*, balls=(4, 9, 16), step_deg: float = 5.0, distance: float = DISTANCE, progress: bool = True,
         out: Path | None = None) -> WorkspaceResult:
     """Tip curves, half-workspace areas and the sleeve's effect.
@@ -163,11 +173,7 @@ def run(*, balls=(4, 9, 16), step_deg: float = 5.0, distance: float = DISTANCE, 
     Raises:
         UserInputError: a step or distance out of range (named by its flag), an unwritable ``out``.
     """
-    if not (isinstance(step_deg, (int, float)) and 0.5 <= step_deg <= 45):
-        raise UserInputError(f"--step-deg must be in [0.5, 45], got {step_deg}")
-    if not (isinstance(distance, (int, float)) and 0.1 < distance <= 1.0):
-        raise UserInputError(f"--distance-cm must be in (10, 100] cm (closer, the magnet would touch the "
-                             f"chain), got {distance * 100:g}")
+    check_inputs(step_deg, distance)
     if out is not None:  # before the work
         check_output_dir(out, "--out")
     curves, rows, snaps = {}, [], {}
