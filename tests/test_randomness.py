@@ -168,7 +168,7 @@ def test_a_scenarios_random_seed_randomises_the_run_loop():
     from ballchain.systems.chain_simulation import build_chain_diagram, run_station
 
     scenario = load_scenario("teleop_right_unit", "{heart: false, engine: statics, duration: 0.05, units: "
-                                                  "[{name: right_unit}, {name: left_unit, direction_W: [0, 1, 0]}]}")
+                                                  "[{name: right_unit, anchor: puncture}, {name: left_unit, direction_W: [0, 1, 0]}]}")
     cd = build_chain_diagram(scenario)
     sensors = [cd.diagram.GetSubsystemByName(f"{n}.hall_sensor") for n in UNITS]
 
