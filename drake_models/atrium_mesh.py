@@ -361,26 +361,20 @@ class UserAtrium:
         return mt.winding_numbers(np.atleast_2d(p_H), self._outer, self.surface.F) > 0.5
 
     def write_files(self, directory: Path | None = None) -> dict[str, Path]:
-        """Write the wall (VTK) and its boundary (OBJ) to the cache; returns their paths."""
+        """Write the wall (VTK) and its boundary (OBJ) to the cache (reused when intact, see
+        ``model_files.cached_files``); returns their paths."""
         import hashlib
-        import os
-
-        from ballchain.drake_models.model_files import cache_dir
-
         import sys
 
-        from ballchain.drake_models.model_files import source_hash
+        from ballchain.drake_models.model_files import cache_dir, cached_files, source_hash
 
         key = hashlib.sha1(self.surface.V.tobytes() + self.inner_faces.tobytes() + repr(self.params).encode()
                            + source_hash(sys.modules[__name__], mt).encode()).hexdigest()[:12]
         directory = Path(directory) if directory else cache_dir() / f"user_atrium_{key}"
-        directory.mkdir(parents=True, exist_ok=True)
-        paths = {"vtk": directory / "atrium_wall.vtk", "obj": directory / "atrium_wall.obj"}
-        if not (paths["vtk"].exists() and paths["obj"].exists()):
+
+        def write(tmp: dict[str, Path]) -> None:
             V, T = self.wall_tetrahedra
-            tag = f".{os.getpid()}.tmp"
-            tmp_vtk = mt.write_vtk_tetrahedra(paths["vtk"].with_name(paths["vtk"].name + tag), V, T)
-            tmp_obj = mt.write_obj(paths["obj"].with_name(paths["obj"].name + tag), V, mt.boundary_surface(V, T))
-            tmp_vtk.replace(paths["vtk"])
-            tmp_obj.replace(paths["obj"])
-        return paths
+            mt.write_vtk_tetrahedra(tmp["vtk"], V, T)
+            mt.write_obj(tmp["obj"], V, mt.boundary_surface(V, T))
+
+        return cached_files(directory, {"vtk": "atrium_wall.vtk", "obj": "atrium_wall.obj"}, write)

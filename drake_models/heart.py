@@ -45,7 +45,6 @@ contact, and a finer closed visual surface (OBJ).
 from __future__ import annotations
 
 import hashlib
-import os
 from dataclasses import asdict, dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
@@ -470,25 +469,16 @@ class LeftAtrium:
         """Write the wall (VTK, collision) and its visual surface (OBJ); returns their paths.
 
         Files go to ``directory`` or to ``model_files.cache_dir()/heart_<key>``, and are reused
-        when they already exist.
+        when they already exist intact (``model_files.cached_files``).
         """
-        from ballchain.drake_models.model_files import cache_dir
+        from ballchain.drake_models.model_files import cache_dir, cached_files
+
+        def write(tmp: dict[str, Path]) -> None:
+            mt.write_vtk_tetrahedra(tmp["vtk"], *self.wall_tetrahedra)
+            mt.write_obj(tmp["obj"], *self.visual_surface)
 
         directory = Path(directory) if directory else cache_dir() / f"heart_{self.params.key()}"
-        directory.mkdir(parents=True, exist_ok=True)
-        paths = {
-            "vtk": directory / "left_atrium_wall.vtk",
-            "obj": directory / "left_atrium_wall.obj",
-        }
-        if not (paths["vtk"].exists() and paths["obj"].exists()):
-            tag = f".{os.getpid()}.tmp"
-            tmp_vtk = paths["vtk"].with_name(paths["vtk"].name + tag)
-            mt.write_vtk_tetrahedra(tmp_vtk, *self.wall_tetrahedra)
-            tmp_obj = paths["obj"].with_name(paths["obj"].name + tag)
-            mt.write_obj(tmp_obj, *self.visual_surface)
-            tmp_vtk.replace(paths["vtk"])  # atomic, so parallel runs never read half a file
-            tmp_obj.replace(paths["obj"])
-        return paths
+        return cached_files(directory, {"vtk": "left_atrium_wall.vtk", "obj": "left_atrium_wall.obj"}, write)
 
     def summary_mm(self) -> dict:
         """Dimensions and features in mm (for reports)."""
