@@ -40,10 +40,12 @@ from pydrake.solvers import (
     SolverOptions,
 )
 
+from ballchain.drake_models.arg_checks import (as_plane, as_vector, require_bool, require_int, require_positive,
+                                               require_type)
 from ballchain.drake_models.chain_energy import EnergyTerms
 from ballchain.drake_models.chain_kernels import chain_energy
 from ballchain.drake_models.errors import UserInputError
-from ballchain.drake_models.field_sources import FieldSource, UniformField
+from ballchain.drake_models.field_sources import FieldSource, UniformField, require_field_source
 from ballchain.drake_models.params import BallChain
 from ballchain.drake_models.vectors import angle_between
 from ballchain.optimization.reduced_chain import X_AXIS, ReducedChain
@@ -246,6 +248,10 @@ class ChainStatics:
         max_iterations: int = 200,
         qp: str = "dense",
     ):
+        require_type(chain, BallChain, "ChainStatics chain", "a BallChain")
+        require_bool(gravity, "ChainStatics gravity")
+        require_positive(tolerance, "ChainStatics tolerance")
+        require_int(max_iterations, "ChainStatics max_iterations", 1)
         if method not in ("newton", "snopt"):
             raise UserInputError(f"method must be 'newton' or 'snopt', got {method!r}")
         if qp not in ("dense", "clarabel"):
@@ -293,6 +299,15 @@ class ChainStatics:
         Returns:
             The result; check ``converged`` (or use ``solve_or_raise``).
         """
+        require_field_source(external, "external", allow_none=True)
+        if warm_start is not None:
+            require_type(warm_start, StaticsResult, "warm_start", "a StaticsResult or None")
+        if tip_target is not None:
+            as_vector(tip_target, "tip_target", unit="m")
+        if wall is not None:
+            as_plane(wall, "wall")
+        if constraints is not None:
+            require_type(constraints, HeartConstraints, "constraints", "a HeartConstraints or None")
         chain = self.chain
         start = time.perf_counter()
         if warm_start is None:
@@ -671,9 +686,7 @@ def uniform_field_equilibrium(
     The field turns about +x cross B_W in steps of at most ``step_deg`` (continuation from the
     straight chain, as a rotating magnet would move it); raises StaticsError if a step fails.
     """
-    B = np.asarray(B_W, dtype=float).reshape(3)
-    if not np.all(np.isfinite(B)):
-        raise UserInputError(f"B_W must be finite, got {B_W}")
+    B = as_vector(B_W, "B_W", unit="T")
     solver = ChainStatics(chain, gravity=gravity)
     magnitude = float(np.linalg.norm(B))
     if magnitude == 0.0:

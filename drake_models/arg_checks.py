@@ -1,0 +1,113 @@
+"""Checks of the Python API's arguments: one line at the top of a public constructor or function.
+
+Each raises ``UserInputError`` naming the argument, the value (``errors.short_repr``) and what is
+allowed, so that a wrong shape or type from a script or a notebook fails where it was passed, not
+as a numpy broadcasting error three layers down. (The command line and the scenario files check
+their own fields; these are for callers of the library.)
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ballchain.drake_models.errors import UserInputError, short_repr
+
+
+def as_vector(value, name: str, size: int = 3, *, nonzero: bool = False, unit: str = "") -> np.ndarray:
+    """``value`` as a float array of ``size`` finite numbers (a copy), else UserInputError.
+
+    Args:
+        value: a sequence or array of numbers.
+        name: the argument's name, as the caller wrote it.
+        size: how many numbers.
+        nonzero: refuse the zero vector (a direction or a normal).
+        unit: the unit named in the message (e.g. "m", "T").
+    """
+    allowed = f"{size} finite numbers{' [' + unit + ']' if unit else ''}{', not all zero' if nonzero else ''}"
+    if isinstance(value, (str, bytes, dict)) or value is None:
+        raise UserInputError(f"{name} must be {allowed}, got {short_repr(value)}")
+    try:
+        x = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        raise UserInputError(f"{name} must be {allowed}, got {short_repr(value)}") from None
+    if x.shape != (size,):
+        raise UserInputError(f"{name} must be {allowed}, got {short_repr(value)} (shape {x.shape})")
+    if not np.all(np.isfinite(x)) or (nonzero and not np.any(x)):
+        raise UserInputError(f"{name} must be {allowed}, got {short_repr(value)}")
+    return x
+
+
+def as_array(value, name: str, shape: tuple, *, integer: bool = False) -> np.ndarray:
+    """``value`` as a finite array of ``shape`` (-1: any length), else UserInputError.
+
+    With ``integer``, the values must be whole numbers (returned as int64).
+    """
+    allowed = f"an array of shape ({', '.join('k' if s == -1 else str(s) for s in shape)})" \
+        + (" of integers" if integer else " of finite numbers")
+    if isinstance(value, (str, bytes, dict)) or value is None:
+        raise UserInputError(f"{name} must be {allowed}, got {short_repr(value)}")
+    try:
+        x = np.array(value, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        raise UserInputError(f"{name} must be {allowed}, got {short_repr(value)}") from None
+    if x.ndim != len(shape) or any(s != -1 and s != n for s, n in zip(shape, x.shape)):
+        raise UserInputError(f"{name} must be {allowed}, got shape {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise UserInputError(f"{name} must be {allowed}, got non-finite values")
+    if integer:
+        if np.any(x != np.round(x)) or (x.size and np.abs(x).max() >= 2.0**62):
+            raise UserInputError(f"{name} must be {allowed}, got {short_repr(value)}")
+        return x.astype(np.int64)
+    return x
+
+
+def require_type(value, types, name: str, what: str | None = None):
+    """``value`` when it is an instance of ``types`` (a type or a tuple), else UserInputError
+    saying what is expected (``what``, default the types' names)."""
+    if isinstance(value, types):
+        return value
+    expected = what or " or ".join(t.__name__ for t in (types if isinstance(types, tuple) else (types,)))
+    raise UserInputError(f"{name} must be {expected}, got {type(value).__name__} {short_repr(value)}")
+
+
+def require_choice(value, choices, name: str) -> str:
+    """``value`` when it is one of the strings ``choices``, else UserInputError listing them."""
+    if isinstance(value, str) and value in choices:
+        return value
+    raise UserInputError(f"{name} must be one of {', '.join(repr(c) for c in choices)}; got {short_repr(value)}")
+
+
+def require_bool(value, name: str) -> bool:
+    """``value`` when it is True or False (numpy's too), else UserInputError."""
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    raise UserInputError(f"{name} must be True or False, got {short_repr(value)}")
+
+
+def require_int(value, name: str, lo: int, hi: int | None = None) -> int:
+    """``value`` when it is an integer (not a bool) in [lo, hi], else UserInputError."""
+    ok = isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+    if ok and lo <= value and (hi is None or value <= hi):
+        return int(value)
+    allowed = f"an integer >= {lo}" if hi is None else f"an integer in {lo}..{hi}"
+    raise UserInputError(f"{name} must be {allowed}, got {short_repr(value)}")
+
+
+def require_positive(value, name: str, unit: str = "", allow_zero: bool = False) -> float:
+    """``value`` when it is a finite number > 0 (>= 0 with ``allow_zero``), else UserInputError."""
+    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+    if ok and math.isfinite(value) and (value > 0 or (allow_zero and value == 0)):
+        return float(value)
+    allowed = f"a finite number {'>= 0' if allow_zero else '> 0'}{' [' + unit + ']' if unit else ''}"
+    raise UserInputError(f"{name} must be {allowed}, got {short_repr(value)}")
+
+
+def as_plane(value, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """``value`` as a plane ``(point (3,) [m], unit normal (3,))``, else UserInputError."""
+    if isinstance(value, (str, bytes, dict)) or not hasattr(value, "__len__") or len(value) != 2:
+        raise UserInputError(f"{name} must be a (point, normal) pair of 3-vectors, got {short_repr(value)}")
+    point = as_vector(value[0], f"{name} point", unit="m")
+    normal = as_vector(value[1], f"{name} normal", nonzero=True)
+    return point, normal / np.linalg.norm(normal)
