@@ -25,7 +25,7 @@ def as_vector(value, name: str, size: int = 3, *, nonzero: bool = False, unit: s
         nonzero: refuse the zero vector (a direction or a normal).
         unit: the unit named in the message (e.g. "m", "T").
     """
-    allowed = f"{size} finite numbers{' [' + unit + ']' if unit else ''}{', not all zero' if nonzero else ''}"
+    allowed = f"{size} finite numbers{' [' + unit + ']' if unit else ''}{' (non-zero)' if nonzero else ''}"
     if isinstance(value, (str, bytes, dict)) or value is None:
         raise UserInputError(f"{name} must be {allowed}, got {short_repr(value)}")
     try:
@@ -111,3 +111,17 @@ def as_plane(value, name: str) -> tuple[np.ndarray, np.ndarray]:
     point = as_vector(value[0], f"{name} point", unit="m")
     normal = as_vector(value[1], f"{name} normal", nonzero=True)
     return point, normal / np.linalg.norm(normal)
+
+
+def as_rows(value, name: str, rows: int, size: int = 3, *, nonzero: bool = False) -> np.ndarray:
+    """``value`` as ``rows`` finite ``size``-vectors (rows, size); given as (rows, size) or flat
+    (rows * size,), else UserInputError. With ``nonzero`` no row may be the zero vector."""
+    allowed = f"{rows} row(s) of {size} finite numbers{' (each non-zero)' if nonzero else ''}"
+    x = as_array(value, name, (-1,) if np.ndim(value) == 1 else (-1, size)) \
+        if not isinstance(value, (str, bytes, dict)) and value is not None and np.ndim(value) in (1, 2) else None
+    if x is None or x.size != rows * size:
+        raise UserInputError(f"{name} must be {allowed}, got {short_repr(value)}")
+    x = x.reshape(rows, size)
+    if nonzero and np.any(~np.any(x, axis=1)):
+        raise UserInputError(f"{name} must be {allowed}, got {short_repr(value)}")
+    return x
