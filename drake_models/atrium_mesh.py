@@ -24,6 +24,8 @@ from typing import Literal
 import numpy as np
 
 from ballchain.drake_models import mesh_tools as mt
+from ballchain.drake_models.arg_checks import (as_array, as_vector, require_choice, require_int, require_positive,
+                                               require_type)
 from ballchain.drake_models.errors import UserInputError
 
 Units = Literal["auto", "m", "mm"]
@@ -252,10 +254,16 @@ def validate_surface(V: np.ndarray, F: np.ndarray, units: Units = "auto") -> Atr
         F: (nf, 3) triangles.
         units: "m", "mm", or "auto" (guessed from the size).
     """
+    require_choice(units, ("auto", "m", "mm"), "units")
+    V = np.asarray(V, dtype=float) if isinstance(V, np.ndarray) else as_array(V, "V", (-1, 3))
+    F = as_array(F, "F", (-1, 3), integer=True)
+    if V.ndim != 2 or V.shape[1] != 3:
+        raise AtriumMeshError(f"V must be an array of shape (k, 3) of vertex coordinates, got shape {V.shape}")
+    if len(F) and (F.min() < 0 or F.max() >= len(V)):
+        raise AtriumMeshError(f"F must index the {len(V)} vertices (0 to {len(V) - 1}), got indices "
+                              f"{int(F.min())} to {int(F.max())}")
     problems: list[str] = []
     notes: list[str] = []
-    if units not in ("auto", "m", "mm"):
-        raise AtriumMeshError(f"units must be 'auto', 'm' or 'mm', got {units!r}")
     if not np.all(np.isfinite(V)):
         raise AtriumMeshError("the surface has NaN or infinite vertex coordinates")
     if len(F) < 4:
@@ -325,6 +333,8 @@ def load_atrium_surface(path: Path | str, units: Units = "auto") -> AtriumSurfac
     Raises:
         AtriumMeshError: unreadable file or an unusable surface (the message lists why).
     """
+    require_type(path, (str, Path), "path", "a file name (str or Path)")
+    require_choice(units, ("auto", "m", "mm"), "units")
     path = Path(path)
     if not path.exists():
         raise AtriumMeshError(f"{path}: no such file")
@@ -359,6 +369,12 @@ class UserAtriumParams:
     puncture_diameter: float = 6e-3
     sheath_extension: float = 3e-3
 
+    def __post_init__(self) -> None:
+        require_positive(self.wall_thickness, "UserAtriumParams.wall_thickness", "m")
+        require_int(self.wall_layers, "UserAtriumParams.wall_layers", 2)
+        require_positive(self.puncture_diameter, "UserAtriumParams.puncture_diameter", "m")
+        require_positive(self.sheath_extension, "UserAtriumParams.sheath_extension", "m", allow_zero=True)
+
 
 class UserAtrium:
     """A user's segmented atrium, usable wherever the plant takes a ``LeftAtrium``.
@@ -374,6 +390,12 @@ class UserAtrium:
     """
 
     def __init__(self, surface: AtriumSurface, p_HP, sheath_aim=None, params: UserAtriumParams | None = None):
+        require_type(surface, AtriumSurface, "UserAtrium surface", "an AtriumSurface (from load_atrium_surface)")
+        as_vector(p_HP, "UserAtrium p_HP (the puncture)", unit="m")
+        if sheath_aim is not None:
+            as_vector(sheath_aim, "UserAtrium sheath_aim", unit="m")
+        if params is not None:
+            require_type(params, UserAtriumParams, "UserAtrium params", "a UserAtriumParams or None")
         self.surface = surface
         self.params = params or UserAtriumParams()
         if self.params.wall_layers < 2:

@@ -53,6 +53,7 @@ import numpy as np
 
 from ballchain.drake_models import mesh_tools as mt
 from ballchain.drake_models import paper
+from ballchain.drake_models.arg_checks import as_vector, require_int, require_type
 from ballchain.drake_models.errors import UserInputError, require_finite_fields
 
 PV_NAMES = ("LSPV", "LIPV", "RSPV", "RIPV")
@@ -106,6 +107,9 @@ class HeartParams:
     scale: float = 1.0
 
     def __post_init__(self) -> None:
+        as_vector(self.semi_axes, "HeartParams.semi_axes", unit="m")
+        for name in ("wall_layers", "subdivisions", "visual_subdivisions"):
+            require_int(getattr(self, name), f"HeartParams.{name}", 1)
         require_finite_fields(self)
         if len(self.semi_axes) != 3 or min(self.semi_axes) <= 0:
             raise UserInputError(f"HeartParams.semi_axes must be 3 positive lengths, got {self.semi_axes}")
@@ -200,6 +204,8 @@ class LeftAtrium:
     """
 
     def __init__(self, params: HeartParams | None = None):
+        if params is not None:
+            require_type(params, HeartParams, "LeftAtrium params", "a HeartParams or None")
         params = params or HeartParams()
         s = params.scale
         if s != 1.0:
