@@ -125,3 +125,34 @@ def as_rows(value, name: str, rows: int, size: int = 3, *, nonzero: bool = False
     if nonzero and np.any(~np.any(x, axis=1)):
         raise UserInputError(f"{name} must be {allowed}, got {short_repr(value)}")
     return x
+
+
+def as_int_list(value, name: str, lo: int, hi: int | None = None) -> list[int]:
+    """``value`` (a sequence or range of integers, at least one) as a list, each in [lo, hi],
+    else UserInputError."""
+    allowed = f"a non-empty list of integers >= {lo}" if hi is None else f"a non-empty list of integers in {lo}..{hi}"
+    try:
+        items = list(value) if not isinstance(value, (str, bytes, dict)) else None
+    except TypeError:
+        items = None
+    ok = bool(items) and all(isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+                             and lo <= v and (hi is None or v <= hi) for v in items)
+    if not ok:
+        raise UserInputError(f"{name} must be {allowed}, got {short_repr(value)}")
+    return [int(v) for v in items]
+
+
+def as_number_list(value, name: str, lo: float, hi: float, *, lo_open: bool = False, unit: str = "") -> list[float]:
+    """``value`` (a sequence of finite numbers, at least one) as a list of floats, each in [lo, hi]
+    ((lo, hi] with ``lo_open``), else UserInputError."""
+    interval = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]{' ' + unit if unit else ''}"
+    try:
+        items = list(value) if not isinstance(value, (str, bytes, dict)) else None
+    except TypeError:
+        items = None
+    number = (int, float, np.integer, np.floating)
+    ok = bool(items) and all(isinstance(v, number) and not isinstance(v, (bool, np.bool_)) and math.isfinite(v)
+                             and lo <= v <= hi and not (lo_open and v == lo) for v in items)
+    if not ok:
+        raise UserInputError(f"{name} must be a non-empty list of numbers in {interval}, got {short_repr(value)}")
+    return [float(v) for v in items]

@@ -26,7 +26,8 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, Context, LeafSystem
 
 from ballchain.drake_models import paper
-from ballchain.drake_models.errors import UserInputError, check_finite_input
+from ballchain.drake_models.arg_checks import require_positive, require_type
+from ballchain.drake_models.errors import UserInputError, check_finite_input, short_repr
 from ballchain.drake_models.field_sources import FieldModel, MagnetSource
 from ballchain.drake_models.omniwheel import OmniWheelGeometry
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
@@ -59,6 +60,11 @@ class MagnetUnitConfig:
     sensor_distance: float = 0.10
 
     def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise UserInputError(f"MagnetUnitConfig.name must be a non-empty string, got {short_repr(self.name)}")
+        require_type(self.magnet, (CylinderMagnet, SphereMagnet), "MagnetUnitConfig.magnet")
+        require_type(self.geometry, OmniWheelGeometry, "MagnetUnitConfig.geometry")
+        require_positive(self.sensor_distance, "MagnetUnitConfig.sensor_distance", "m")
         p = np.asarray(self.p_WM, dtype=float)
         if p.shape != (3,) or not np.all(np.isfinite(p)):
             raise UserInputError(f"MagnetUnitConfig.p_WM must be 3 finite numbers, got {self.p_WM!r}")

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from ballchain.drake_models.arg_checks import as_int_list
 from ballchain.drake_models import paper
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.params import BallChain, Sleeve
@@ -163,6 +164,7 @@ def run(*, balls=(4, 9, 16), step_deg: float = 5.0, distance: float = DISTANCE, 
     Raises:
         UserInputError: a step or distance out of range (named by its flag), an unwritable ``out``.
     """
+    as_int_list(balls, "balls", 1)
     if not (isinstance(step_deg, (int, float)) and 0.5 <= step_deg <= 45):
         raise UserInputError(f"--step-deg must be in [0.5, 45], got {step_deg}")
     if not (isinstance(distance, (int, float)) and 0.1 < distance <= 1.0):
