@@ -18,6 +18,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 
+from ballchain.drake_models.arg_checks import require_bool, require_int, require_type
 from ballchain.drake_models.dipole_inversion import direction_from_field, refine_direction
 from ballchain.drake_models.errors import UserInputError, require_finite_fields
 from ballchain.drake_models.field_sources import FieldSource, FieldSources, MagnetSource
@@ -95,6 +96,13 @@ class HallSensor(LeafSystem):
             seed: noise seed.
         """
         super().__init__()
+        require_type(unit, MagnetUnitConfig, "HallSensor unit", "a MagnetUnitConfig")
+        for k, other in enumerate(other_units):
+            require_type(other, MagnetUnitConfig, f"HallSensor other_units[{k}]", "a MagnetUnitConfig")
+        if spec is not None:
+            require_type(spec, HallSensorSpec, "HallSensor spec", "a HallSensorSpec or None")
+        require_bool(noise, "HallSensor noise")
+        require_int(seed, "HallSensor seed", 0)
         self._unit = unit
         self._others = tuple(other_units)
         self._extra = FieldSources(tuple(extra_sources))
@@ -176,6 +184,7 @@ class DipoleDirectionEstimator(LeafSystem):
                 unit's orientation is assumed known, e.g. from its own sensor).
         """
         super().__init__()
+        require_type(unit, MagnetUnitConfig, "DipoleDirectionEstimator unit", "a MagnetUnitConfig")
         if model not in ("dipole", "exact"):
             raise UserInputError(f"estimator model must be 'dipole' or 'exact', got {model!r}")
         self._unit = unit

@@ -26,7 +26,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, Context, LeafSystem
 
 from ballchain.drake_models import paper
-from ballchain.drake_models.arg_checks import require_positive, require_type
+from ballchain.drake_models.arg_checks import as_array, require_positive, require_type
 from ballchain.drake_models.errors import UserInputError, check_finite_input, short_repr
 from ballchain.drake_models.field_sources import FieldModel, MagnetSource
 from ballchain.drake_models.omniwheel import OmniWheelGeometry
@@ -154,6 +154,10 @@ class RotatingMagnetUnit(LeafSystem):
                 is exact when ``omega_wheels`` only changes at multiples of it.
         """
         super().__init__()
+        if config is not None:
+            require_type(config, MagnetUnitConfig, "RotatingMagnetUnit config", "a MagnetUnitConfig or None")
+        if R_WM is not None:
+            as_array(R_WM, "RotatingMagnetUnit R_WM", (3, 3))
         self._config = config or MagnetUnitConfig()
         if not (0.0 <= slip < 1.0):
             raise UserInputError(f"slip must be in [0, 1), got {slip!r}")

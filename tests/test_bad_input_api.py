@@ -161,6 +161,10 @@ def _calls():
     from ballchain.optimization.statics import ChainStatics, uniform_field_equilibrium
     from ballchain.systems.actuation_station import StationOptions, make_actuation_station
     from ballchain.systems.rotating_magnet_unit import MagnetUnitConfig
+    from ballchain.systems.feeder import Feeder
+    from ballchain.systems.hall_sensor import HallSensor
+    from ballchain.systems.reconfiguration import ReconfigurationController
+    from ballchain.systems.rotating_magnet_unit import RotatingMagnetUnit
     from ballchain.systems.station import MakeStation
 
     U, F = mt.icosphere(1)
@@ -212,6 +216,10 @@ def _calls():
         ("field_models ball", lambda: field_models.run(distances_m=[0.1], angles_deg=[0.0], ball="3 mm"),
          "ball must be a BallChain"),
         ("planner targets", lambda: planner.run(targets="3"), "targets must be an integer >= 1"),
+        ("Feeder chain", lambda: Feeder("16 balls"), "Feeder chain must be a BallChain or None"),
+        ("HallSensor unit", lambda: HallSensor({"name": "right_unit"}), "HallSensor unit must be a MagnetUnitConfig"),
+        ("RotatingMagnetUnit R_WM", lambda: RotatingMagnetUnit(R_WM=np.eye(2)), r"R_WM must be an array of shape \(3, 3\)"),
+        ("ReconfigurationController m_c_W", lambda: ReconfigurationController([1.0, 0.0]), "m_c_W must be 3 finite"),
         ("wheels samples", lambda: wheels.run(samples=1.5), "samples must be an integer"),
     ]
 
