@@ -617,6 +617,12 @@ def _cached(out: Path, name: str, key: str) -> dict | None:
                 return None
         except (OSError, ValueError):  # a name no file can have (a NUL byte, too long)
             return None
+    for block in record["section"]["blocks"]:
+        figure = Path(block["figure"]["path"]) if "figure" in block else None
+        if figure is not None and not (figure if figure.is_absolute() else out / figure).is_file():
+            _say(f"the record of the finished section {name!r} ({path}) names a missing figure {str(figure)!r}; "
+                 "running the section again")
+            return None
     return record
 
 

@@ -224,11 +224,13 @@ def _edit_record(record: dict, how: str):
         return {**record, "section": {"title": "x", "blocks": "text"}}
     if how == "a block of numbers":
         return {**record, "section": {"title": "x", "blocks": [{"table": {"header": 1, "rows": 2}}]}}
+    if how == "a missing figure":
+        return {**record, "section": {"title": "x", "blocks": [{"figure": {"path": "gone.png"}}]}}
     raise AssertionError(how)
 
 
 @pytest.mark.parametrize("how", ["a JSON list", "no key", "no section", "seconds a string", "files a list",
-                                 "blocks not a list", "a block of numbers", "not JSON"])
+                                 "blocks not a list", "a block of numbers", "a missing figure", "not JSON"])
 def test_a_resume_record_of_the_wrong_shape_reruns_its_section_with_one_line(tmp_path, monkeypatch, capsys, how):
     from ballchain import reproduce
 
@@ -243,8 +245,8 @@ def test_a_resume_record_of_the_wrong_shape_reruns_its_section_with_one_line(tmp
     capsys.readouterr()
     data = reproduce.run(out=tmp_path, quick=True, resume=True)
     assert data["reused"] == ["two"] and calls == {"one": 2, "two": 1}
-    lines = [line for line in capsys.readouterr().err.splitlines() if "damaged" in line]
-    assert len(lines) == 1 and "'one'" in lines[0] and "running the section again" in lines[0]
+    lines = [line for line in capsys.readouterr().err.splitlines() if "running the section again" in line]
+    assert len(lines) == 1 and "'one'" in lines[0]
     assert "Section one" in (tmp_path / "report.md").read_text()
     # The rerun wrote a good record: the next resume reuses both.
     assert reproduce.run(out=tmp_path, quick=True, resume=True)["reused"] == ["one", "two"]
