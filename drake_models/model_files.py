@@ -101,7 +101,13 @@ def cached_files(directory: Path, names: dict[str, str], write: Callable[[dict[s
     Returns:
         key -> path.
     """
-    directory.mkdir(parents=True, exist_ok=True)
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        from ballchain.drake_models.errors import UserInputError
+
+        raise UserInputError(f"cannot make the folder {str(directory)!r} for generated model files "
+                             f"({err.strerror or err})") from None
     paths = {k: directory / n for k, n in names.items()}
     listing = directory / DIGESTS
     damaged = None

@@ -94,6 +94,13 @@ def test_the_procedural_atriums_damaged_wall_is_rebuilt_and_drake_reads_it(tmp_p
     np.testing.assert_allclose(V, heart.wall_tetrahedra[0], atol=1e-9)
 
 
+def test_a_file_where_the_generated_files_go_is_one_line(user_atrium, tmp_path):
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    with pytest.raises(UserInputError, match="cannot make the folder .*afile"):
+        user_atrium.write_files(afile / "wall")
+
+
 # ------------------------------------------------------------------ the atrium SDF grid
 
 @pytest.mark.parametrize("how", ["truncated", "text", "wrong arrays"])
