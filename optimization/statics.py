@@ -141,6 +141,8 @@ def straight_chain(chain: BallChain, direction=X_AXIS) -> tuple[np.ndarray, np.n
 
 def tip_angle_deg(result: StaticsResult, field_direction) -> float:
     """Angle between the tip ball's dipole and a field direction [deg]."""
+    require_type(result, StaticsResult, "result", "a StaticsResult")
+    as_vector(field_direction, "field_direction", nonzero=True)
     f = np.asarray(field_direction, dtype=float)
     return float(np.degrees(angle_between(result.tip_dipole, f / np.linalg.norm(f))))
 
@@ -430,6 +432,10 @@ class ChainStatics:
         This is how a rotating magnet moves the real chain: slowly, from one equilibrium to the
         next. The first solve starts from ``warm_start`` (the straight chain if None).
         """
+        if isinstance(fields, (str, bytes)) or not hasattr(fields, "__iter__") \
+                or hasattr(fields, "field_and_gradient"):
+            raise UserInputError("continuation fields must be a sequence of field sources, got "
+                                 f"{type(fields).__name__}")
         results = []
         current = warm_start
         for external in fields:
