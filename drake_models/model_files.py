@@ -85,7 +85,8 @@ def _sha1(path: Path) -> str:
     return hashlib.sha1(path.read_bytes()).hexdigest()
 
 
-def cached_files(directory: Path, names: dict[str, str], write: Callable[[dict[str, Path]], None]) -> dict[str, Path]:
+def cached_files(directory: Path, names: dict[str, str],
+                 write: Callable[[dict[str, Path]], None]) -> dict[str, Path]:
     """A set of generated files in ``directory``, reused when intact, else (re)written.
 
     Intact means: every file is listed in ``files.sha1`` (written after them) with its SHA-1. A

@@ -34,9 +34,9 @@ def _guard(dispatcher) -> None:
             if caused_by_interrupt(err):
                 raise
             files = _cache_files(cache)
-            try:  # which file: the index, or (the index being readable) its data
-                cache._cache_file._load_index()
-                damaged = files[1] if len(files) > 1 else files[0]
+            try:  # which file: the index, or (the index being readable) this signature's data
+                name = cache._cache_file._load_index().get(cache._index_key(sig, target_context.codegen()))
+                damaged = files[0].with_name(name) if name else files[0]
             except Exception:  # noqa: BLE001
                 damaged = files[0]
             for path in files:
@@ -53,5 +53,5 @@ def guard_cache(namespace: dict) -> None:
     after the kernels are defined)."""
     for value in list(namespace.values()):
         cache = getattr(value, "_cache", None)
-        if cache is not None and hasattr(cache, "_cache_file") and hasattr(value, "py_func"):
+        if hasattr(getattr(cache, "_cache_file", None), "_index_path") and hasattr(value, "py_func"):
             _guard(value)
