@@ -26,7 +26,7 @@ import numpy as np
 from ballchain.drake_models import mesh_tools as mt
 from ballchain.drake_models.arg_checks import (as_array, as_vector, require_choice, require_int, require_positive,
                                                require_type)
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.errors import UserInputError, short_repr
 
 Units = Literal["auto", "m", "mm"]
 SENSIBLE_EXTENT_MM = (30.0, 80.0)  # typical LA size; outside ACCEPTED_EXTENT_MM is refused
@@ -104,8 +104,6 @@ def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
         AtriumMeshError: a line that is not a usable vertex or face, naming the file, the line
             number and what is allowed; a file that is not text, or has no vertices or faces.
     """
-    from ballchain.drake_models.errors import short_repr
-
     text = _mesh_text(path, _read_bytes(path), "OBJ")
     V, F, lines = [], [], []
 
@@ -199,8 +197,6 @@ def read_stl(path: Path) -> tuple[np.ndarray, np.ndarray]:
                 except ValueError:
                     xyz = []
                 if len(xyz) != 3 or not all(np.isfinite(xyz)):
-                    from ballchain.drake_models.errors import short_repr
-
                     raise AtriumMeshError(f"{path}: line {lineno}: bad vertex {short_repr(line.strip())}; "
                                           f"allowed: {STL_VERTEX}")
                 verts.append(xyz)
