@@ -606,7 +606,8 @@ def _cached(out: Path, name: str, key: str) -> dict | None:
     except (ValueError, RecursionError):
         problem = "not JSON"
     if problem is not None:
-        _say(f"the record of the finished section {name!r} ({path}) is damaged ({problem}); running the section again")
+        _say(f"the record of the finished section {name!r} ({path}) is damaged ({problem}); "
+             "running the section again")
         return None
     if record.get("key") != key:
         return None
