@@ -13,9 +13,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 from ballchain.drake_models.errors import UserInputError, caused_by_interrupt
+from ballchain.drake_models.model_files import CACHE_ENV, check_cache_dir
 
 # subcommand -> (module under ballchain.commands, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -79,6 +81,8 @@ def main(argv: list[str] | None = None) -> int:
         # Every matrix here is small (at most a few hundred rows): threaded BLAS only adds
         # synchronisation, and under load it makes solves several times slower.
         with threadpool_limits(limits=1, user_api="blas"):
+            if os.environ.get(CACHE_ENV):  # a bad cache folder is said before any work
+                check_cache_dir()
             return int(module.main(args) or 0)
     except UserInputError as err:
         message = " ".join(str(err).split())  # one line, whatever the message holds
@@ -88,8 +92,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"ballchain {args.command}: interrupted (files already written are complete)", file=sys.stderr)
         return 130
     except BrokenPipeError:  # the reader of stdout went away (``ballchain ... | head``): not an error
-        import os
-
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     except StaticsError as err:

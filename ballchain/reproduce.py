@@ -20,6 +20,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -561,18 +562,67 @@ def _snapshot(out: Path) -> dict[str, tuple[int, int]]:
     return files
 
 
+def _record_problem(record) -> str | None:
+    """What is wrong with the shape of a stored section record (parsed JSON), or None."""
+    if not isinstance(record, dict):
+        return f"a JSON {type(record).__name__}, not an object"
+    missing = [k for k in ("key", "seconds", "files", "section") if k not in record]
+    if missing:
+        return f"no {', '.join(repr(k) for k in missing)}"
+    seconds, files, section = record["seconds"], record["files"], record["section"]
+    if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not math.isfinite(seconds):
+        return f"'seconds' is {short_repr(seconds)}"
+    if not isinstance(files, dict) or not all(isinstance(v, str) for v in files.values()):
+        return "'files' is not an object of file hashes"
+    if not isinstance(section, dict) or not isinstance(section.get("title"), str) \
+            or not isinstance(section.get("blocks"), list):
+        return "'section' has no title or blocks"
+    for block in section["blocks"]:
+        ok = isinstance(block, dict) and (
+            isinstance(block.get("text"), str)
+            or (isinstance(block.get("table"), dict) and isinstance(block["table"].get("header"), list)
+                and isinstance(block["table"].get("rows"), list)
+                and all(isinstance(r, list) for r in block["table"]["rows"]))
+            or (isinstance(block.get("figure"), dict) and isinstance(block["figure"].get("path"), str)))
+        if not ok:
+            return f"a block of 'section' is {short_repr(block)}"
+    return None
+
+
 def _cached(out: Path, name: str, key: str) -> dict | None:
-    """The stored record of a finished section when its key and files still match, else None."""
+    """The stored record of a finished section when its key and files still match, else None.
+
+    A record that is not JSON or not of the record's shape (edited, or written by other code)
+    is not an error: the section runs again, and a line says so.
+    """
     path = out / CACHE / f"{_slug(name)}.json"
     try:
-        record = json.loads(path.read_text())
-    except (OSError, ValueError):
+        text = path.read_text()
+    except OSError:
+        return None
+    try:
+        record = json.loads(text)
+        problem = _record_problem(record)
+    except (ValueError, RecursionError):
+        problem = "not JSON"
+    if problem is not None:
+        _say(f"the record of the finished section {name!r} ({path}) is damaged ({problem}); "
+             "running the section again")
         return None
     if record.get("key") != key:
         return None
     for rel, digest in record.get("files", {}).items():
         f = out / rel
-        if not f.is_file() or _file_hash(f) != digest:
+        try:
+            if not f.is_file() or _file_hash(f) != digest:
+                return None
+        except (OSError, ValueError):  # a name no file can have (a NUL byte, too long)
+            return None
+    for block in record["section"]["blocks"]:
+        figure = Path(block["figure"]["path"]) if "figure" in block else None
+        if figure is not None and not (figure if figure.is_absolute() else out / figure).is_file():
+            _say(f"the record of the finished section {name!r} ({path}) names a missing figure {str(figure)!r}; "
+                 "running the section again")
             return None
     return record
 

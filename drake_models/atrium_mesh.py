@@ -24,7 +24,9 @@ from typing import Literal
 import numpy as np
 
 from ballchain.drake_models import mesh_tools as mt
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.arg_checks import (as_array, as_vector, require_choice, require_int, require_positive,
+                                               require_type)
+from ballchain.drake_models.errors import UserInputError, short_repr
 
 Units = Literal["auto", "m", "mm"]
 SENSIBLE_EXTENT_MM = (30.0, 80.0)  # typical LA size; outside ACCEPTED_EXTENT_MM is refused
@@ -65,32 +67,88 @@ class AtriumSurface:
         return mt.extrude_shell(self.V, self.F, mt.vertex_normals(self.V, self.F), thickness, layers)
 
 
+OBJ_VERTEX = "'v x y z' with 3 finite numbers (more, e.g. colours, are ignored)"
+OBJ_FACE = ("'f i j k ...' with 3 or more vertex indices (1 to the number of vertices so far, or -1 back "
+            "to minus that number; 'i/t/n' forms accepted)")
+
+
+def _mesh_text(path: Path, data: bytes, what: str) -> str:
+    """The text of a mesh file: UTF-8 (or Latin-1), UTF-16/UTF-8 with a byte-order mark; a file
+    of binary data is refused."""
+    for bom, encoding in ((b"\xef\xbb\xbf", "utf-8-sig"), (b"\xff\xfe", "utf-16"), (b"\xfe\xff", "utf-16")):
+        if data.startswith(bom):
+            try:
+                return data.decode(encoding)
+            except UnicodeDecodeError:
+                raise AtriumMeshError(f"{path}: starts like {encoding.upper()} text but does not decode as it; "
+                                      f"save it as a plain-text {what} file") from None
+    if b"\0" in data:
+        raise AtriumMeshError(f"{path}: binary data, not a text {what} file (save the mesh as a plain-text {what})")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        return data.decode("latin-1")  # only v/f records matter: their digits read the same
+
+
+def _read_bytes(path: Path) -> bytes:
+    try:
+        return Path(path).read_bytes()
+    except OSError as err:
+        raise AtriumMeshError(f"{path}: cannot read the file ({err.strerror or err})") from None
+
+
 def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices (nv, 3) and triangles (nf, 3) of a Wavefront OBJ file (polygons fanned)."""
-    V, F = [], []
-    for lineno, line in enumerate(Path(path).read_text(errors="replace").splitlines(), start=1):
+    """Vertices (nv, 3) and triangles (nf, 3) of a Wavefront OBJ file (polygons fanned).
+
+    Raises:
+        AtriumMeshError: a line that is not a usable vertex or face, naming the file, the line
+            number and what is allowed; a file that is not text, or has no vertices or faces.
+    """
+    text = _mesh_text(path, _read_bytes(path), "OBJ")
+    V, F, lines = [], [], []
+
+    def bad(lineno: int, line: str, why: str, allowed: str):
+        return AtriumMeshError(f"{path}: line {lineno}: {why} in {short_repr(line.strip())}; allowed: {allowed}")
+
+    for lineno, line in enumerate(text.splitlines(), start=1):
         parts = line.split()
         if not parts:
             continue
         if parts[0] == "v":
+            if len(parts) < 4:
+                raise bad(lineno, line, f"a vertex with {len(parts) - 1} coordinates", OBJ_VERTEX)
             try:
-                V.append([float(x) for x in parts[1:4]])
+                xyz = [float(x) for x in parts[1:4]]
             except ValueError:
-                raise AtriumMeshError(f"{path}: line {lineno}: bad vertex {line.strip()!r}") from None
+                raise bad(lineno, line, "a vertex coordinate that is not a number", OBJ_VERTEX) from None
+            if not all(np.isfinite(xyz)):
+                raise bad(lineno, line, "a vertex coordinate that is not finite", OBJ_VERTEX)
+            V.append(xyz)
         elif parts[0] == "f":
+            if len(parts) < 4:
+                raise bad(lineno, line, f"a face with {len(parts) - 1} vertices", OBJ_FACE)
             try:
                 idx = [int(tok.split("/")[0]) for tok in parts[1:]]
             except ValueError:
-                raise AtriumMeshError(f"{path}: line {lineno}: bad face {line.strip()!r}") from None
+                raise bad(lineno, line, "a vertex index that is not an integer", OBJ_FACE) from None
+            # Negative indices count back from the last vertex read so far; positive ones are
+            # checked against every vertex once the file is read.
+            if any(i == 0 or i < -len(V) for i in idx):
+                raise bad(lineno, line, f"vertex index {next(i for i in idx if i == 0 or i < -len(V))} "
+                          f"(with {len(V)} vertices so far)", OBJ_FACE)
             idx = [i - 1 if i > 0 else len(V) + i for i in idx]
             for k in range(1, len(idx) - 1):
                 F.append([idx[0], idx[k], idx[k + 1]])
+                lines.append(lineno)
     if not V or not F:
-        raise AtriumMeshError(f"{path}: no vertices or no faces found (is it an OBJ file?)")
-    V, F = np.array(V, float), np.array(F, int)
-    if F.min() < 0 or F.max() >= len(V):
-        raise AtriumMeshError(f"{path}: a face refers to a vertex that does not exist")
-    return V, F
+        raise AtriumMeshError(f"{path}: {len(V)} vertices and {len(F)} faces found; an OBJ surface needs "
+                              f"{OBJ_VERTEX} and {OBJ_FACE} records")
+    beyond = [k for k, face in enumerate(F) if max(face) >= len(V)]
+    if beyond:
+        k = beyond[0]
+        raise AtriumMeshError(f"{path}: line {lines[k]}: vertex index {max(F[k]) + 1} but the file has "
+                              f"{len(V)} vertices; allowed: {OBJ_FACE}")
+    return np.array(V, float), np.array(F, np.int64)
 
 
 def _weld(points: np.ndarray, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
@@ -100,9 +158,17 @@ def _weld(points: np.ndarray, tolerance: float) -> tuple[np.ndarray, np.ndarray]
     return points[first], inverse.reshape(-1, 3)
 
 
+STL_VERTEX = "'vertex x y z' with 3 finite numbers, three per facet"
+
+
 def read_stl(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices and triangles of an ASCII or binary STL file (coincident corners welded)."""
-    data = Path(path).read_bytes()
+    """Vertices and triangles of an ASCII or binary STL file (coincident corners welded).
+
+    Raises:
+        AtriumMeshError: neither format, a bad ASCII 'vertex' line (its number named), no
+            triangles, or coordinates that are not finite.
+    """
+    data = _read_bytes(path)
     corners = None
     if len(data) >= 84:
         n = struct.unpack("<I", data[80:84])[0]
@@ -110,17 +176,34 @@ def read_stl(path: Path) -> tuple[np.ndarray, np.ndarray]:
             rec = np.frombuffer(data, dtype=np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")]),
                                 count=n, offset=84)
             corners = rec["v"].astype(float).reshape(-1, 3)
+            if not np.all(np.isfinite(corners)):
+                k = int(np.flatnonzero(~np.all(np.isfinite(rec["v"].reshape(n, -1)), axis=1))[0])
+                raise AtriumMeshError(f"{path}: triangle {k + 1} of the binary STL has a coordinate that is not "
+                                      "finite (NaN or inf)")
     if corners is None:
-        text = data.decode(errors="replace")
+        text_bom = data.startswith((b"\xef\xbb\xbf", b"\xff\xfe", b"\xfe\xff"))
+        if not data.lstrip().lower().startswith(b"solid") and not text_bom:
+            raise AtriumMeshError(f"{path}: neither a binary STL (its size does not match the triangle count "
+                                  "in its header) nor an ASCII STL (starting with 'solid')")
+        text = _mesh_text(path, data, "STL")
         if not text.lstrip().lower().startswith("solid"):
-            raise AtriumMeshError(f"{path}: neither a binary STL (size does not match) nor an ASCII STL")
-        verts = [line.split()[1:4] for line in text.splitlines() if line.strip().lower().startswith("vertex")]
-        try:
-            corners = np.array(verts, float)
-        except ValueError:
-            raise AtriumMeshError(f"{path}: bad 'vertex' line in the ASCII STL") from None
-        if len(corners) == 0 or len(corners) % 3:
-            raise AtriumMeshError(f"{path}: the ASCII STL has {len(corners)} vertices, not a multiple of 3")
+            raise AtriumMeshError(f"{path}: neither a binary STL nor an ASCII STL (starting with 'solid')")
+        verts = []
+        for lineno, line in enumerate(text.splitlines(), start=1):
+            parts = line.split()
+            if parts and parts[0].lower() == "vertex":
+                try:
+                    xyz = [float(x) for x in parts[1:]]
+                except ValueError:
+                    xyz = []
+                if len(xyz) != 3 or not all(np.isfinite(xyz)):
+                    raise AtriumMeshError(f"{path}: line {lineno}: bad vertex {short_repr(line.strip())}; "
+                                          f"allowed: {STL_VERTEX}")
+                verts.append(xyz)
+        corners = np.array(verts, float).reshape(-1, 3)
+        if len(corners) % 3:
+            raise AtriumMeshError(f"{path}: the ASCII STL has {len(corners)} vertices, not a multiple of 3 "
+                                  f"(allowed: {STL_VERTEX})")
     if len(corners) == 0:
         raise AtriumMeshError(f"{path}: the STL has no triangles")
     extent = float(np.ptp(corners, axis=0).max()) or 1.0
@@ -167,10 +250,16 @@ def validate_surface(V: np.ndarray, F: np.ndarray, units: Units = "auto") -> Atr
         F: (nf, 3) triangles.
         units: "m", "mm", or "auto" (guessed from the size).
     """
+    require_choice(units, ("auto", "m", "mm"), "units")
+    V = np.asarray(V, dtype=float) if isinstance(V, np.ndarray) else as_array(V, "V", (-1, 3))
+    F = as_array(F, "F", (-1, 3), integer=True)
+    if V.ndim != 2 or V.shape[1] != 3:
+        raise AtriumMeshError(f"V must be an array of shape (k, 3) of vertex coordinates, got shape {V.shape}")
+    if len(F) and (F.min() < 0 or F.max() >= len(V)):
+        raise AtriumMeshError(f"F must index the {len(V)} vertices (0 to {len(V) - 1}), got indices "
+                              f"{int(F.min())} to {int(F.max())}")
     problems: list[str] = []
     notes: list[str] = []
-    if units not in ("auto", "m", "mm"):
-        raise AtriumMeshError(f"units must be 'auto', 'm' or 'mm', got {units!r}")
     if not np.all(np.isfinite(V)):
         raise AtriumMeshError("the surface has NaN or infinite vertex coordinates")
     if len(F) < 4:
@@ -240,9 +329,13 @@ def load_atrium_surface(path: Path | str, units: Units = "auto") -> AtriumSurfac
     Raises:
         AtriumMeshError: unreadable file or an unusable surface (the message lists why).
     """
+    require_type(path, (str, Path), "path", "a file name (str or Path)")
+    require_choice(units, ("auto", "m", "mm"), "units")
     path = Path(path)
     if not path.exists():
         raise AtriumMeshError(f"{path}: no such file")
+    if not path.is_file():
+        raise AtriumMeshError(f"{path}: not a file (a folder?); give an .obj or .stl file")
     suffix = path.suffix.lower()
     if suffix == ".obj":
         V, F = read_obj(path)
@@ -272,6 +365,12 @@ class UserAtriumParams:
     puncture_diameter: float = 6e-3
     sheath_extension: float = 3e-3
 
+    def __post_init__(self) -> None:
+        require_positive(self.wall_thickness, "UserAtriumParams.wall_thickness", "m")
+        require_int(self.wall_layers, "UserAtriumParams.wall_layers", 2)
+        require_positive(self.puncture_diameter, "UserAtriumParams.puncture_diameter", "m")
+        require_positive(self.sheath_extension, "UserAtriumParams.sheath_extension", "m", allow_zero=True)
+
 
 class UserAtrium:
     """A user's segmented atrium, usable wherever the plant takes a ``LeftAtrium``.
@@ -287,6 +386,12 @@ class UserAtrium:
     """
 
     def __init__(self, surface: AtriumSurface, p_HP, sheath_aim=None, params: UserAtriumParams | None = None):
+        require_type(surface, AtriumSurface, "UserAtrium surface", "an AtriumSurface (from load_atrium_surface)")
+        as_vector(p_HP, "UserAtrium p_HP (the puncture)", unit="m")
+        if sheath_aim is not None:
+            as_vector(sheath_aim, "UserAtrium sheath_aim", unit="m")
+        if params is not None:
+            require_type(params, UserAtriumParams, "UserAtrium params", "a UserAtriumParams or None")
         self.surface = surface
         self.params = params or UserAtriumParams()
         if self.params.wall_layers < 2:
@@ -361,26 +466,20 @@ class UserAtrium:
         return mt.winding_numbers(np.atleast_2d(p_H), self._outer, self.surface.F) > 0.5
 
     def write_files(self, directory: Path | None = None) -> dict[str, Path]:
-        """Write the wall (VTK) and its boundary (OBJ) to the cache; returns their paths."""
+        """Write the wall (VTK) and its boundary (OBJ) to the cache (reused when intact, see
+        ``model_files.cached_files``); returns their paths."""
         import hashlib
-        import os
-
-        from ballchain.drake_models.model_files import cache_dir
-
         import sys
 
-        from ballchain.drake_models.model_files import source_hash
+        from ballchain.drake_models.model_files import cache_dir, cached_files, source_hash
 
         key = hashlib.sha1(self.surface.V.tobytes() + self.inner_faces.tobytes() + repr(self.params).encode()
                            + source_hash(sys.modules[__name__], mt).encode()).hexdigest()[:12]
         directory = Path(directory) if directory else cache_dir() / f"user_atrium_{key}"
-        directory.mkdir(parents=True, exist_ok=True)
-        paths = {"vtk": directory / "atrium_wall.vtk", "obj": directory / "atrium_wall.obj"}
-        if not (paths["vtk"].exists() and paths["obj"].exists()):
+
+        def write(tmp: dict[str, Path]) -> None:
             V, T = self.wall_tetrahedra
-            tag = f".{os.getpid()}.tmp"
-            tmp_vtk = mt.write_vtk_tetrahedra(paths["vtk"].with_name(paths["vtk"].name + tag), V, T)
-            tmp_obj = mt.write_obj(paths["obj"].with_name(paths["obj"].name + tag), V, mt.boundary_surface(V, T))
-            tmp_vtk.replace(paths["vtk"])
-            tmp_obj.replace(paths["obj"])
-        return paths
+            mt.write_vtk_tetrahedra(tmp["vtk"], V, T)
+            mt.write_obj(tmp["obj"], V, mt.boundary_surface(V, T))
+
+        return cached_files(directory, {"vtk": "atrium_wall.vtk", "obj": "atrium_wall.obj"}, write)

@@ -30,6 +30,8 @@ from __future__ import annotations
 
 import hashlib
 import os
+import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,6 +39,8 @@ import numpy as np
 from numba import njit
 
 from ballchain.drake_models import mesh_tools as mt
+from ballchain.drake_models.model_files import report_rebuilt
+from ballchain.drake_models.numba_cache import guard_cache
 
 SDF_VERSION = 2  # bump when the construction changes: it is part of the cache key
 
@@ -234,13 +238,19 @@ def atrium_sdf(heart, spacing: float = 0.5e-3, band: float = 5e-3, margin: float
     key = cache_key(V, F, heart.lumen_key, spacing, band, margin)
     directory = Path(directory) if directory else Path(heart.write_files()["vtk"]).parent
     path = directory / f"atrium_sdf_{key}.npz"
+    damaged = False
     if path.exists():
         try:
             with np.load(path) as data:
-                return AtriumSDF(data["origin"], float(data["spacing"]), data["values"].astype(float),
-                                 float(data["band"]), key)
-        except (OSError, KeyError, ValueError):
-            pass  # a damaged file: rebuild it
+                origin, values = data["origin"], data["values"]
+                stored = float(data["spacing"]), float(data["band"])
+            if (origin.shape == (3,) and values.ndim == 3 and min(values.shape) >= 1
+                    and stored == (float(spacing), float(band)) and np.all(np.isfinite(origin))
+                    and np.all(np.isfinite(values))):
+                return AtriumSDF(origin, stored[0], values.astype(float), stored[1], key)
+            damaged = True
+        except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, zlib.error):
+            damaged = True  # truncated, edited or not an npz at all: rebuild it
     sdf = build_atrium_sdf(heart, spacing, band, margin)
     sdf.key = key
     directory.mkdir(parents=True, exist_ok=True)
@@ -248,4 +258,9 @@ def atrium_sdf(heart, spacing: float = 0.5e-3, band: float = 5e-3, margin: float
     np.savez_compressed(tmp, origin=sdf.origin, spacing=sdf.spacing, values=sdf.values.astype(np.float32),
                         band=sdf.band)
     os.replace(tmp, path)
+    if damaged:
+        report_rebuilt(path)
     return sdf
+
+
+guard_cache(globals())  # a damaged cache file is recompiled, not a traceback on every run

@@ -19,7 +19,7 @@ only for the rows asked for.
 
 Kernels are compiled on first use and cached on disk (``cache=True``, next to this file or in
 ``NUMBA_CACHE_DIR``): a machine pays the compilation once (``ballchain bench statics`` reports
-the cost).
+the cost). A damaged cache file is recompiled with one line on stderr (``numba_cache``).
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ import numpy as np
 from numba import njit
 
 from ballchain.drake_models.dipole import K_DIPOLE
+from ballchain.drake_models.numba_cache import guard_cache
 
 # Energy parts, in the order of the kernels' ``terms`` arrays (EnergyTerms' fields).
 TERM_BALLS, TERM_EXTERNAL, TERM_SLEEVE, TERM_GRAVITY = 0, 1, 2, 3
@@ -953,3 +954,6 @@ def warm_up() -> None:
     ev.jacobian[np.arange(len(ev.gaps))]
     model.constraint_hessian(q, np.array([0]), np.array([1.0]))
     model.tip_hessian(q, np.ones(3))
+
+
+guard_cache(globals())  # a damaged cache file is recompiled, not a traceback on every run

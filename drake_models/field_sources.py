@@ -11,6 +11,7 @@ How far apart the dipole and exact models of the prototype cylinder are is measu
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Literal, Protocol, Sequence
 
@@ -18,7 +19,8 @@ import numpy as np
 
 from ballchain.drake_models.chain_kernels import dipole_field_and_gradient
 from ballchain.drake_models.dipole import dipole_field
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.arg_checks import as_array, as_vector, require_choice, require_positive, require_type
+from ballchain.drake_models.errors import UserInputError, check_in, short_repr
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
 from ballchain.drake_models.vectors import perpendicular_basis
 
@@ -28,6 +30,14 @@ FieldModel = Literal["dipole", "exact"]
 class FieldSource(Protocol):
     def field_and_gradient(self, p_W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(B_W (k, 3) [T], G_W (k, 3, 3) [T/m]) at the points p_W (k, 3) [m]."""
+
+
+def require_field_source(source, name: str, allow_none: bool = False):
+    """``source`` when it is a field source (it has ``field_and_gradient``), else UserInputError."""
+    if (source is None and allow_none) or callable(getattr(source, "field_and_gradient", None)):
+        return source
+    allowed = "UniformField, MagnetSource, FieldSources" + (" or None" if allow_none else "")
+    raise UserInputError(f"{name} must be a field source ({allowed}), got {type(source).__name__} {short_repr(source)}")
 
 
 def _as_points(p_W) -> np.ndarray:
@@ -43,7 +53,7 @@ def _as_points(p_W) -> np.ndarray:
 
 def rotation_with_z_along(direction) -> np.ndarray:
     """A rotation matrix R_WM whose third column is the unit vector along ``direction``."""
-    z = np.asarray(direction, dtype=float)
+    z = as_vector(direction, "direction", nonzero=True)
     norm = np.linalg.norm(z)
     if not np.isfinite(norm) or norm == 0.0:
         raise UserInputError(f"direction must be a finite non-zero vector, got {direction!r}")
@@ -58,13 +68,15 @@ class UniformField:
     B_W: np.ndarray
 
     def __post_init__(self) -> None:
-        self.B_W = np.asarray(self.B_W, dtype=float).reshape(3)
+        self.B_W = as_vector(self.B_W, "UniformField.B_W", unit="T")
         if not np.all(np.isfinite(self.B_W)):
             raise UserInputError(f"UniformField.B_W must be finite, got {self.B_W}")
 
     @staticmethod
     def in_plane(magnitude_T: float, angle_rad: float) -> "UniformField":
         """A field in the x-y plane at ``angle_rad`` from +x towards +y."""
+        check_in("UniformField.in_plane magnitude_T", magnitude_T, -math.inf, math.inf, unit="T")
+        check_in("UniformField.in_plane angle_rad", angle_rad, -math.inf, math.inf, unit="rad")
         return UniformField(magnitude_T * np.array([np.cos(angle_rad), np.sin(angle_rad), 0.0]))
 
     def field_and_gradient(self, p_W):
@@ -91,8 +103,11 @@ class MagnetSource:
     fd_step: float = 1e-5  # central-difference step for the exact model's gradient [m]
 
     def __post_init__(self) -> None:
-        self.p_WM = np.asarray(self.p_WM, dtype=float).reshape(3)
-        self.R_WM = np.asarray(self.R_WM, dtype=float).reshape(3, 3)
+        require_type(self.magnet, (CylinderMagnet, SphereMagnet), "MagnetSource.magnet")
+        self.p_WM = as_vector(self.p_WM, "MagnetSource.p_WM", unit="m")
+        self.R_WM = as_array(self.R_WM, "MagnetSource.R_WM", (3, 3))
+        require_choice(self.model, ("dipole", "exact"), "MagnetSource.model")
+        require_positive(self.fd_step, "MagnetSource.fd_step", "m")
         if not np.all(np.isfinite(self.p_WM)) or not np.all(np.isfinite(self.R_WM)):
             raise UserInputError("MagnetSource pose must be finite")
         if not np.allclose(self.R_WM.T @ self.R_WM, np.eye(3), atol=1e-6):
@@ -171,6 +186,11 @@ class FieldSources:
     """Superposition of any number of field sources (the field of the sum is the sum of fields)."""
 
     sources: Sequence[FieldSource] = ()
+
+    def __post_init__(self) -> None:
+        require_type(self.sources, (list, tuple), "FieldSources.sources", "a list of field sources")
+        for k, source in enumerate(self.sources):
+            require_field_source(source, f"FieldSources.sources[{k}]")
 
     def field_and_gradient(self, p_W):
         p = _as_points(p_W)

@@ -45,7 +45,6 @@ contact, and a finer closed visual surface (OBJ).
 from __future__ import annotations
 
 import hashlib
-import os
 from dataclasses import asdict, dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
@@ -54,6 +53,7 @@ import numpy as np
 
 from ballchain.drake_models import mesh_tools as mt
 from ballchain.drake_models import paper
+from ballchain.drake_models.arg_checks import as_vector, require_int, require_type
 from ballchain.drake_models.errors import UserInputError, require_finite_fields
 
 PV_NAMES = ("LSPV", "LIPV", "RSPV", "RIPV")
@@ -107,6 +107,9 @@ class HeartParams:
     scale: float = 1.0
 
     def __post_init__(self) -> None:
+        as_vector(self.semi_axes, "HeartParams.semi_axes", unit="m")
+        for name in ("wall_layers", "subdivisions", "visual_subdivisions"):
+            require_int(getattr(self, name), f"HeartParams.{name}", 1)
         require_finite_fields(self)
         if len(self.semi_axes) != 3 or min(self.semi_axes) <= 0:
             raise UserInputError(f"HeartParams.semi_axes must be 3 positive lengths, got {self.semi_axes}")
@@ -201,6 +204,8 @@ class LeftAtrium:
     """
 
     def __init__(self, params: HeartParams | None = None):
+        if params is not None:
+            require_type(params, HeartParams, "LeftAtrium params", "a HeartParams or None")
         params = params or HeartParams()
         s = params.scale
         if s != 1.0:
@@ -470,25 +475,16 @@ class LeftAtrium:
         """Write the wall (VTK, collision) and its visual surface (OBJ); returns their paths.
 
         Files go to ``directory`` or to ``model_files.cache_dir()/heart_<key>``, and are reused
-        when they already exist.
+        when they already exist intact (``model_files.cached_files``).
         """
-        from ballchain.drake_models.model_files import cache_dir
+        from ballchain.drake_models.model_files import cache_dir, cached_files
+
+        def write(tmp: dict[str, Path]) -> None:
+            mt.write_vtk_tetrahedra(tmp["vtk"], *self.wall_tetrahedra)
+            mt.write_obj(tmp["obj"], *self.visual_surface)
 
         directory = Path(directory) if directory else cache_dir() / f"heart_{self.params.key()}"
-        directory.mkdir(parents=True, exist_ok=True)
-        paths = {
-            "vtk": directory / "left_atrium_wall.vtk",
-            "obj": directory / "left_atrium_wall.obj",
-        }
-        if not (paths["vtk"].exists() and paths["obj"].exists()):
-            tag = f".{os.getpid()}.tmp"
-            tmp_vtk = paths["vtk"].with_name(paths["vtk"].name + tag)
-            mt.write_vtk_tetrahedra(tmp_vtk, *self.wall_tetrahedra)
-            tmp_obj = paths["obj"].with_name(paths["obj"].name + tag)
-            mt.write_obj(tmp_obj, *self.visual_surface)
-            tmp_vtk.replace(paths["vtk"])  # atomic, so parallel runs never read half a file
-            tmp_obj.replace(paths["obj"])
-        return paths
+        return cached_files(directory, {"vtk": "left_atrium_wall.vtk", "obj": "left_atrium_wall.obj"}, write)
 
     def summary_mm(self) -> dict:
         """Dimensions and features in mm (for reports)."""

@@ -13,7 +13,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ballchain.drake_models.dipole import MU0
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.errors import UserInputError, short_repr
 
 GRAVITY = 9.80665  # standard gravity [m/s^2]; also the grams-force conversion
 
@@ -22,7 +22,7 @@ def _require_positive(owner: str, **values: float) -> None:
     # numbers.Real takes numpy scalars too (np.float32, np.int64); bool is refused.
     for name, value in values.items():
         if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) or value <= 0:
-            raise UserInputError(f"{owner}.{name} must be a positive finite number, got {value!r}")
+            raise UserInputError(f"{owner}.{name} must be a positive finite number, got {short_repr(value)}")
 
 
 @dataclass(frozen=True)
@@ -83,7 +83,7 @@ class BallChain:
 
     def __post_init__(self) -> None:
         if isinstance(self.n_balls, bool) or not isinstance(self.n_balls, numbers.Integral) or self.n_balls < 1:
-            raise UserInputError(f"BallChain.n_balls must be an integer >= 1, got {self.n_balls!r}")
+            raise UserInputError(f"BallChain.n_balls must be an integer >= 1, got {short_repr(self.n_balls)}")
         object.__setattr__(self, "n_balls", int(self.n_balls))  # a numpy integer becomes an int
         _require_positive(
             "BallChain",
@@ -92,7 +92,7 @@ class BallChain:
             density=self.density,
         )
         if self.sleeve is not None and not isinstance(self.sleeve, Sleeve):
-            raise UserInputError(f"BallChain.sleeve must be a Sleeve or None, got {self.sleeve!r}")
+            raise UserInputError(f"BallChain.sleeve must be a Sleeve or None, got {short_repr(self.sleeve)}")
         # The sleeve's inside may be a little smaller than the balls (the silicone stretches over
         # them: the paper's ID 3.0 mm on 3.175 mm balls), but its outside must contain them.
         if self.sleeve is not None and self.sleeve.outer_diameter <= self.ball_diameter:

@@ -32,8 +32,9 @@ import numpy as np
 from pydrake.autodiffutils import AutoDiffXd, ExtractGradient, ExtractValue, InitializeAutoDiff
 from pydrake.solvers import MathematicalProgram, SnoptSolver, SolverOptions
 
-from ballchain.drake_models.errors import UserInputError
-from ballchain.drake_models.field_sources import FieldSource
+from ballchain.drake_models.arg_checks import as_rows, as_vector, require_int, require_positive, require_type
+from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.drake_models.field_sources import FieldSource, require_field_source
 from ballchain.optimization.statics import ChainStatics, StaticsResult
 
 FieldFor = Callable[[np.ndarray], FieldSource]  # (k, 3) unit dipole directions -> external field
@@ -46,6 +47,12 @@ def pin_tip(solver: ChainStatics, external: FieldSource, target: np.ndarray, sta
     Each step is warm-started from the last, as a hand would move the tip. Returns None when a
     step does not converge (no held equilibrium on this branch).
     """
+    require_type(solver, ChainStatics, "pin_tip solver", "a ChainStatics")
+    require_field_source(external, "pin_tip external", allow_none=True)
+    as_vector(target, "pin_tip target", unit="m")
+    if start is not None:
+        require_type(start, StaticsResult, "pin_tip start", "a StaticsResult or None")
+    require_int(steps, "pin_tip steps", 1)
     current = start if start is not None else solver.solve(external)
     if not current.converged:
         return None
@@ -83,6 +90,14 @@ class HeldTip:
 
     def __init__(self, solver: ChainStatics, field_for: FieldFor, centre, axis, home: StaticsResult,
                  n_magnets: int = 1):
+        require_type(solver, ChainStatics, "HeldTip solver", "a ChainStatics")
+        if not callable(field_for):
+            raise UserInputError("HeldTip field_for must be a function of the dipole directions, got "
+                                 f"{short_repr(field_for)}")
+        as_vector(centre, "HeldTip centre", unit="m")
+        as_vector(axis, "HeldTip axis", nonzero=True)
+        require_type(home, StaticsResult, "HeldTip home", "a StaticsResult")
+        require_int(n_magnets, "HeldTip n_magnets", 1)
         self.solver = solver
         self.field_for = field_for
         self.centre = np.asarray(centre, dtype=float).reshape(3)
@@ -198,6 +213,13 @@ def min_turn_orientation(held: HeldTip, m_start, m_previous, min_force: float, t
         an OrientationPlan (``feasible`` False: no orientation met the constraints; ``dipoles``
         is then SNOPT's last iterate).
     """
+    require_type(held, HeldTip, "held", "a HeldTip")
+    as_rows(m_start, "m_start", held.k, nonzero=True)
+    as_rows(m_previous, "m_previous", held.k, nonzero=True)
+    require_positive(min_force, "min_force", "N")
+    require_positive(target_radius, "target_radius", "m", allow_zero=True)
+    require_positive(friction, "friction", allow_zero=True)
+    require_int(major_iterations, "major_iterations", 1)
     if not min_force > 0 or target_radius < 0 or friction < 0:
         raise UserInputError(f"need min_force > 0 N, target_radius >= 0 m, friction >= 0; got "
                          f"{min_force}, {target_radius}, {friction}")
@@ -303,6 +325,14 @@ def max_force_orientation(held: HeldTip, m_start, target_radius: float, friction
         an OrientationPlan; ``force_N`` is the re-checked normal force, ``feasible`` whether
         that equilibrium is inside the cone (``turn_rad`` is the turn from ``m_start``).
     """
+    require_type(held, HeldTip, "held", "a HeldTip")
+    as_rows(m_start, "m_start", held.k, nonzero=True)
+    require_positive(target_radius, "target_radius", "m", allow_zero=True)
+    require_positive(friction, "friction", allow_zero=True)
+    require_positive(force_scale, "force_scale", "N")
+    for name, value in (("major_iterations", major_iterations), ("recheck_steps", recheck_steps),
+                        ("max_evaluations", max_evaluations)):
+        require_int(value, name, 1)
     if not force_scale > 0 or target_radius < 0 or friction < 0:
         raise ValueError(f"need force_scale > 0 N, target_radius >= 0 m, friction >= 0; got "
                          f"{force_scale}, {target_radius}, {friction}")
@@ -413,6 +443,13 @@ def max_force_penalised(held: HeldTip, m_start, target_radius: float, friction: 
     Returns:
         ``(dipoles (k, 3), equilibrium, F (3,) in held.basis [N])`` of the best evaluation.
     """
+    require_type(held, HeldTip, "held", "a HeldTip")
+    as_rows(m_start, "m_start", held.k, nonzero=True)
+    require_positive(target_radius, "target_radius", "m", allow_zero=True)
+    require_positive(friction, "friction", allow_zero=True)
+    require_positive(force_scale, "force_scale", "N")
+    require_int(evaluations, "evaluations", 1)
+    require_positive(penalty, "penalty", allow_zero=True)
     from scipy.optimize import minimize
 
     m0 = _unit_rows(m_start)

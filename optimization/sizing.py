@@ -29,8 +29,9 @@ import numpy as np
 from scipy.optimize import brentq
 
 from ballchain.drake_models import paper
+from ballchain.drake_models.arg_checks import as_number_list, require_positive, require_type
 from ballchain.drake_models.dipole import K_DIPOLE, dipole_field, dipole_field_gradient, force_on_dipole
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.errors import UserInputError, short_repr
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet, newtons_from_gram_force
 
 PAPER = {
@@ -74,7 +75,7 @@ class SizingInputs:
                 or not math.isfinite(value)
                 or value <= 0
             ):
-                raise UserInputError(f"SizingInputs.{name} must be a positive finite number, got {value!r}")
+                raise UserInputError(f"SizingInputs.{name} must be a positive finite number, got {short_repr(value)}")
 
 
 @dataclass(frozen=True)
@@ -120,6 +121,7 @@ def size_clinical_magnet(inputs: SizingInputs = SizingInputs()) -> SizingResult:
         ValueError: if no sphere of any size reaches the desired force (the residual is negative
             at its peak r = 3 d_c).
     """
+    require_type(inputs, SizingInputs, "inputs", "a SizingInputs")
     r_peak = 3.0 * inputs.heart_to_surface
     g_peak = _residual(inputs, r_peak)
     if not g_peak > 0.0:
@@ -160,6 +162,8 @@ def solve_typo_equation(inputs: SizingInputs = SizingInputs(), length_unit: floa
     Returns:
         The diameter [m] (converted back to SI), or None if the equation has no positive root.
     """
+    require_type(inputs, SizingInputs, "inputs", "a SizingInputs")
+    require_positive(length_unit, "length_unit", "m")
     if not (math.isfinite(length_unit) and length_unit > 0):
         raise UserInputError(f"length_unit must be a positive finite number of metres, got {length_unit!r}")
     d_m = inputs.measured_distance / length_unit
@@ -203,6 +207,8 @@ def force_between_magnets(moment: float, separation: float) -> dict[str, dict[st
         ``attractive`` (1.0 if B is pulled towards A, else 0.0) and ``prefactor`` (the force in
         units of ``mu0 m^2 / (4 pi s^4)``).
     """
+    require_positive(moment, "moment", "A m^2")
+    require_positive(separation, "separation", "m")
     if not (math.isfinite(moment) and moment > 0 and math.isfinite(separation) and separation > 0):
         raise UserInputError(f"moment and separation must be positive finite, got {moment!r}, {separation!r}")
     r_AB = np.array([separation, 0.0, 0.0])
@@ -233,6 +239,7 @@ def aligned_force_prefactors(polar_angles_deg=(0.0, 45.0, 90.0)) -> dict[float, 
     Returns:
         ``{angle_deg: c}``.
     """
+    as_number_list(polar_angles_deg, "polar_angles_deg", 0.0, 180.0, unit="deg")
     m_a = np.array([0.0, 0.0, 1.0])
     out = {}
     for angle in polar_angles_deg:

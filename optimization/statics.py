@@ -40,10 +40,12 @@ from pydrake.solvers import (
     SolverOptions,
 )
 
+from ballchain.drake_models.arg_checks import (as_plane, as_vector, require_bool, require_int, require_positive,
+                                               require_type)
 from ballchain.drake_models.chain_energy import EnergyTerms
 from ballchain.drake_models.chain_kernels import chain_energy
 from ballchain.drake_models.errors import UserInputError
-from ballchain.drake_models.field_sources import FieldSource, UniformField
+from ballchain.drake_models.field_sources import FieldSource, UniformField, require_field_source
 from ballchain.drake_models.params import BallChain
 from ballchain.drake_models.vectors import angle_between
 from ballchain.optimization.reduced_chain import X_AXIS, ReducedChain
@@ -139,6 +141,8 @@ def straight_chain(chain: BallChain, direction=X_AXIS) -> tuple[np.ndarray, np.n
 
 def tip_angle_deg(result: StaticsResult, field_direction) -> float:
     """Angle between the tip ball's dipole and a field direction [deg]."""
+    require_type(result, StaticsResult, "result", "a StaticsResult")
+    as_vector(field_direction, "field_direction", nonzero=True)
     f = np.asarray(field_direction, dtype=float)
     return float(np.degrees(angle_between(result.tip_dipole, f / np.linalg.norm(f))))
 
@@ -246,6 +250,10 @@ class ChainStatics:
         max_iterations: int = 200,
         qp: str = "dense",
     ):
+        require_type(chain, BallChain, "ChainStatics chain", "a BallChain")
+        require_bool(gravity, "ChainStatics gravity")
+        require_positive(tolerance, "ChainStatics tolerance")
+        require_int(max_iterations, "ChainStatics max_iterations", 1)
         if method not in ("newton", "snopt"):
             raise UserInputError(f"method must be 'newton' or 'snopt', got {method!r}")
         if qp not in ("dense", "clarabel"):
@@ -293,6 +301,15 @@ class ChainStatics:
         Returns:
             The result; check ``converged`` (or use ``solve_or_raise``).
         """
+        require_field_source(external, "external", allow_none=True)
+        if warm_start is not None:
+            require_type(warm_start, StaticsResult, "warm_start", "a StaticsResult or None")
+        if tip_target is not None:
+            as_vector(tip_target, "tip_target", unit="m")
+        if wall is not None:
+            as_plane(wall, "wall")
+        if constraints is not None:
+            require_type(constraints, HeartConstraints, "constraints", "a HeartConstraints or None")
         chain = self.chain
         start = time.perf_counter()
         if warm_start is None:
@@ -415,6 +432,10 @@ class ChainStatics:
         This is how a rotating magnet moves the real chain: slowly, from one equilibrium to the
         next. The first solve starts from ``warm_start`` (the straight chain if None).
         """
+        if isinstance(fields, (str, bytes)) or not hasattr(fields, "__iter__") \
+                or hasattr(fields, "field_and_gradient"):
+            raise UserInputError("continuation fields must be a sequence of field sources, got "
+                                 f"{type(fields).__name__}")
         results = []
         current = warm_start
         for external in fields:
@@ -671,9 +692,7 @@ def uniform_field_equilibrium(
     The field turns about +x cross B_W in steps of at most ``step_deg`` (continuation from the
     straight chain, as a rotating magnet would move it); raises StaticsError if a step fails.
     """
-    B = np.asarray(B_W, dtype=float).reshape(3)
-    if not np.all(np.isfinite(B)):
-        raise UserInputError(f"B_W must be finite, got {B_W}")
+    B = as_vector(B_W, "B_W", unit="T")
     solver = ChainStatics(chain, gravity=gravity)
     magnitude = float(np.linalg.norm(B))
     if magnitude == 0.0:

@@ -27,7 +27,9 @@ from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import Adder
 
 from ballchain.drake_models.dipole_inversion import neutral_direction
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.arg_checks import (as_vector, require_bool, require_choice, require_int, require_positive,
+                                               require_type)
+from ballchain.drake_models.errors import UserInputError, check_in, short_repr
 from ballchain.drake_models.params import BallChain
 from ballchain.systems.feeder import Feeder, FeederSpec
 from ballchain.systems.hall_sensor import DipoleDirectionEstimator, HallSensor, HallSensorSpec
@@ -63,6 +65,34 @@ class StationOptions:
     field_points_W: np.ndarray | None = None
     with_feeder: bool = False
     chain: BallChain = field(default_factory=BallChain)
+
+    def __post_init__(self) -> None:
+        as_vector(self.p_W_chain, "StationOptions.p_W_chain", unit="m")
+        as_vector(self.feed_direction_W, "StationOptions.feed_direction_W", nonzero=True)
+        for name in ("slip", "teleop_dead_band"):  # fractions in [0, 1)
+            check_in(f"StationOptions.{name}", getattr(self, name), 0.0, 1.0)
+            if getattr(self, name) == 1.0:
+                raise UserInputError(f"StationOptions.{name} must be in [0, 1), got 1.0")
+        for name in ("sensor_noise", "sensors_see_other_units", "estimator_compensates_other_units",
+                     "with_feeder"):
+            require_bool(getattr(self, name), f"StationOptions.{name}")
+        require_int(self.seed, "StationOptions.seed", 0)
+        require_type(self.sensor_spec, HallSensorSpec, "StationOptions.sensor_spec")
+        require_type(self.stepper_spec, StepperSpec, "StationOptions.stepper_spec")
+        require_positive(self.controller_gain, "StationOptions.controller_gain", "1/s")
+        require_positive(self.tolerance_deg, "StationOptions.tolerance_deg", "deg")
+        require_choice(self.wheel_map, ("derived", "paper"), "StationOptions.wheel_map")
+        require_choice(self.teleop_frame, ("world", "tip"), "StationOptions.teleop_frame")
+        require_positive(self.teleop_omega_max, "StationOptions.teleop_omega_max", "rad/s")
+        if self.field_points_W is not None:
+            try:
+                points = np.asarray(self.field_points_W, dtype=float).reshape(-1, 3)
+            except (TypeError, ValueError):
+                points = np.zeros((0, 3))
+            if not len(points) or not np.all(np.isfinite(points)):
+                raise UserInputError("StationOptions.field_points_W must be (k, 3) finite points [m] or None, got "
+                                     f"{short_repr(self.field_points_W)}")
+        require_type(self.chain, BallChain, "StationOptions.chain")
 
 
 @dataclass
@@ -218,6 +248,12 @@ def make_actuation_station(
         The diagram; see the module docstring for its exported ports. The magnets' orientations
         are set through ``diagram.GetSubsystemByName(f"{name}.magnet").set_orientation``.
     """
+    if units is not None:
+        require_type(units, (list, tuple), "make_actuation_station units", "a list of MagnetUnitConfig or None")
+        for k, unit in enumerate(units):
+            require_type(unit, MagnetUnitConfig, f"make_actuation_station units[{k}]")
+    if options is not None:
+        require_type(options, StationOptions, "make_actuation_station options", "a StationOptions or None")
     units = [u.check_placed() for u in units] if units is not None else [right_unit()]
     opt = options or StationOptions()
     names = [u.name for u in units]

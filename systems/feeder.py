@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from pydrake.systems.framework import BasicVector, LeafSystem
 
+from ballchain.drake_models.arg_checks import require_positive, require_type
 from ballchain.drake_models.errors import UserInputError, check_finite_input, require_finite_fields
 from ballchain.drake_models.params import BallChain
 
@@ -76,6 +77,11 @@ class Feeder(LeafSystem):
                 (rounded to whole microsteps).
         """
         super().__init__()
+        if chain is not None:
+            require_type(chain, BallChain, "Feeder chain", "a BallChain or None")
+        if spec is not None:
+            require_type(spec, FeederSpec, "Feeder spec", "a FeederSpec or None")
+        require_positive(initial_length, "Feeder initial_length", "m", allow_zero=True)
         self._chain = chain or BallChain()
         self._spec = spec or FeederSpec()
         if not 0.0 <= initial_length <= self._chain.length:

@@ -28,6 +28,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import BasicVector, LeafSystem
+from ballchain.drake_models.arg_checks import as_vector, require_positive
 from ballchain.drake_models.errors import UserInputError
 
 
@@ -82,6 +83,8 @@ class ForceSensorPin(LeafSystem):
 
     def __init__(self, plant, body, p_WP, stiffness: float):
         super().__init__()
+        as_vector(p_WP, "ForceSensorPin p_WP", unit="m")
+        require_positive(stiffness, "ForceSensorPin stiffness", "N/m")
         if not plant.is_finalized():
             raise UserInputError("ForceSensorPin: finalise the plant first")
         self._p_WP = np.asarray(p_WP, dtype=float).reshape(3)

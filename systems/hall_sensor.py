@@ -18,6 +18,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 
+from ballchain.drake_models.arg_checks import require_int, require_type
 from ballchain.drake_models.dipole_inversion import direction_from_field, refine_direction
 from ballchain.drake_models.errors import UserInputError, require_finite_fields
 from ballchain.drake_models.field_sources import FieldSource, FieldSources, MagnetSource
@@ -98,6 +99,12 @@ class HallSensor(SeededLeafSystem):
             seed: the default noise seed, 0..2**32 - 1.
         """
         super().__init__()
+        require_type(unit, MagnetUnitConfig, "HallSensor unit", "a MagnetUnitConfig")
+        for k, other in enumerate(other_units):
+            require_type(other, MagnetUnitConfig, f"HallSensor other_units[{k}]", "a MagnetUnitConfig")
+        if spec is not None:
+            require_type(spec, HallSensorSpec, "HallSensor spec", "a HallSensorSpec or None")
+        require_int(seed, "HallSensor seed", 0)
         self._unit = unit.check_placed()
         self._others = tuple(o.check_placed() for o in other_units)
         self._extra = FieldSources(tuple(extra_sources))
@@ -179,6 +186,7 @@ class DipoleDirectionEstimator(LeafSystem):
                 unit's orientation is assumed known, e.g. from its own sensor).
         """
         super().__init__()
+        require_type(unit, MagnetUnitConfig, "DipoleDirectionEstimator unit", "a MagnetUnitConfig")
         if model not in ("dipole", "exact"):
             raise UserInputError(f"estimator model must be 'dipole' or 'exact', got {model!r}")
         self._unit = unit.check_placed()

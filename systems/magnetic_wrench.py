@@ -18,6 +18,7 @@ from pydrake.multibody.math import SpatialForce
 from pydrake.multibody.plant import ExternallyAppliedSpatialForce
 from pydrake.systems.framework import LeafSystem
 
+from ballchain.drake_models.arg_checks import require_type
 from ballchain.drake_models.chain_kernels import chain_wrenches, dipole_field_and_gradient
 from ballchain.drake_models.errors import NonFiniteSignal, UserInputError
 from ballchain.drake_models.field_sources import FieldSource, FieldSources, MagnetSource
@@ -116,6 +117,7 @@ class MagneticWrenchSystem(LeafSystem):
         model: str = "dipole",
     ):
         super().__init__()
+        require_type(chain, BallChain, "MagneticWrenchSystem chain", "a BallChain")
         if len(ball_body_indices) != chain.n_balls:
             raise UserInputError(
                 f"MagneticWrenchSystem: {len(ball_body_indices)} body indices for a chain of "

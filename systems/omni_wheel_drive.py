@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
+from ballchain.drake_models.arg_checks import require_type
 from ballchain.drake_models.errors import UserInputError, check_finite_input
 from ballchain.drake_models.omniwheel import OmniWheelGeometry
 
@@ -83,6 +84,10 @@ class OmniWheelDrive(LeafSystem):
         name: str = "right_unit",
     ) -> None:
         super().__init__()
+        if geometry is not None:
+            require_type(geometry, OmniWheelGeometry, "OmniWheelDrive geometry", "an OmniWheelGeometry or None")
+        if spec is not None:
+            require_type(spec, StepperSpec, "OmniWheelDrive spec", "a StepperSpec or None")
         self._geometry = geometry or OmniWheelGeometry()
         self._spec = spec or StepperSpec()
         self.set_name(f"{name}.drive")

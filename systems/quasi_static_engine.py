@@ -44,6 +44,7 @@ from pydrake.geometry import (
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
+from ballchain.drake_models.arg_checks import as_vector, require_type
 from ballchain.drake_models.errors import UserInputError, caused_by_interrupt
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import BallChain
@@ -141,6 +142,9 @@ class QuasiStaticEngine(LeafSystem):
                  max_angle_step: float = np.radians(1.0), max_insertion_step: float = 1e-3,
                  snap_distance: float = 1.5e-3):
         super().__init__()
+        require_type(chain, BallChain, "QuasiStaticEngine chain", "a BallChain")
+        as_vector(p_WE, "QuasiStaticEngine p_WE", unit="m")
+        as_vector(axis_W, "QuasiStaticEngine axis_W", nonzero=True)
         if not period > 0:
             raise UserInputError(f"QuasiStaticEngine: period must be > 0 s, got {period}")
         self.chain = chain

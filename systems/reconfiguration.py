@@ -25,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
+from ballchain.drake_models.arg_checks import as_vector, require_type
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.omniwheel import OmniWheelGeometry, paper_wheel_speeds
 from ballchain.drake_models.vectors import angle_between, perpendicular_axis
@@ -74,6 +75,10 @@ class ReconfigurationController(LeafSystem):
             name: unit name for the system name.
         """
         super().__init__()
+        as_vector(m_c_W, "ReconfigurationController m_c_W", nonzero=True)
+        if geometry is not None:
+            require_type(geometry, OmniWheelGeometry, "ReconfigurationController geometry",
+                         "an OmniWheelGeometry or None")
         m_c = np.asarray(m_c_W, dtype=float).reshape(3)
         if not np.all(np.isfinite(m_c)) or np.linalg.norm(m_c) == 0:
             raise UserInputError(f"neutral direction must be finite and non-zero, got {m_c_W!r}")

@@ -26,6 +26,7 @@ from pydrake.systems.framework import BasicVector, Context, LeafSystem
 from ballchain.drake_models.errors import check_finite_input
 from ballchain.drake_models.field_sources import MagnetSource
 from ballchain.systems.unit_config import MagnetUnitConfig, right_unit
+from ballchain.drake_models.arg_checks import as_array, require_type
 
 # Pull |q| back to 1 at this rate [1/s]: the quaternion ODE conserves the norm exactly, so
 # this only removes integrator drift and never changes the rotation.
@@ -98,6 +99,10 @@ class RotatingMagnetUnit(LeafSystem):
                 is exact when ``omega_wheels`` only changes at multiples of it.
         """
         super().__init__()
+        if config is not None:
+            require_type(config, MagnetUnitConfig, "RotatingMagnetUnit config", "a MagnetUnitConfig or None")
+        if R_WM is not None:
+            as_array(R_WM, "RotatingMagnetUnit R_WM", (3, 3))
         self._config = (config or right_unit()).check_placed()
         self._slip = float(self._config.slip)
         self.set_name(f"{self._config.name}.magnet")

@@ -51,8 +51,9 @@ from pydrake.systems.primitives import MatrixGain, TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
 
 from ballchain.drake_models.atrium import Atrium
-from ballchain.drake_models.errors import UserInputError
-from ballchain.drake_models.field_sources import FieldSources, MagnetSource, UniformField
+from ballchain.drake_models.arg_checks import require_type
+from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.drake_models.field_sources import FieldSources, MagnetSource, UniformField, require_field_source
 from ballchain.drake_models.heart import HeartParams, LeftAtrium
 from ballchain.drake_models.params import BallChain, CylinderMagnet, Sleeve, SphereMagnet
 from ballchain.systems.chain_plant import ChainPlant, ChainPlantConfig, SheathConfig, add_chain_plant
@@ -600,6 +601,13 @@ def MakeStation(scenario: ChainScenario, meshcat=None, *, heart: Atrium | None =
     Raises:
         UserInputError: a bad scenario (naming the field).
     """
+    require_type(scenario, ChainScenario, "MakeStation scenario", "a ChainScenario (from load_scenario)")
+    if heart is not None:
+        require_type(heart, Atrium, "MakeStation heart", "an atrium (LeftAtrium, UserAtrium) or None")
+    if add_systems is not None and not callable(add_systems):
+        raise UserInputError(f"MakeStation add_systems must be a function or None, got {short_repr(add_systems)}")
+    if field_source is not FROM_SCENARIO:
+        require_field_source(field_source, "MakeStation field_source", allow_none=True)
     t0 = time.perf_counter()
     scenario.validate()
     parts = _Parts(scenario)

@@ -22,6 +22,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ballchain.drake_models.arg_checks import as_number_list, require_type
 from ballchain.drake_models import paper
 from ballchain.drake_models.dipole import force_on_dipole
 from ballchain.drake_models.errors import UserInputError
@@ -183,6 +184,10 @@ def run(*, distances_m, angles_deg, ball: BallChain, magnet: CylinderMagnet = Cy
     Returns:
         A ``FieldModelsResult``.
     """
+    as_number_list(distances_m, "distances_m", 0.0, 10.0, lo_open=True, unit="m")
+    as_number_list(angles_deg, "angles_deg", 0.0, 180.0, unit="deg")
+    require_type(ball, BallChain, "ball", "a BallChain")
+    require_type(magnet, CylinderMagnet, "magnet", "a CylinderMagnet")
     rows = compare_field_models(magnet, distances_m, angles_deg, ball)
     return FieldModelsResult(
         magnet={

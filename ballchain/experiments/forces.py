@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import minimize
 
+from ballchain.drake_models.arg_checks import as_int_list
 from ballchain.drake_models import paper
 from ballchain.drake_models.errors import UserInputError, check_in
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
@@ -274,6 +275,7 @@ def run(*, veins=("LSPV", "LIPV", "RSPV", "RIPV"), sleeves=(False, True), n_ball
         raise UserInputError(f"--sleeve: the sleeve cases must be False (bare) and/or True, got {list(sleeves)}")
     check_in("--grid", grid, *GRID)
     check_in("--refine", refine_evaluations, *REFINE)
+    as_int_list(n_balls, "n_balls", 2)
     if out is not None:
         check_output_dir(out, "--out")
 

@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.arg_checks import as_int_list, as_number_list
+from ballchain.drake_models.errors import UserInputError, check_in
 from ballchain.drake_models.field_sources import UniformField
 from ballchain.drake_models.params import BallChain
 from ballchain.drake_models.safe_files import check_output_dir, note_replacements, write_csv
@@ -109,6 +110,9 @@ def run(*, balls=range(5, 11), angles_deg=(0.0, 45.0, 90.0, 135.0, 180.0), field
     Raises:
         UserInputError: a field out of range (named by its flag, --field-mT) or an unwritable ``out``.
     """
+    as_int_list(balls, "balls", 2)
+    as_number_list(angles_deg, "angles_deg", -360.0, 360.0, unit="deg")
+    check_in("step_deg", step_deg, 0.0, 90.0, lo_open=True, unit="deg")
     if not (isinstance(field_T, (int, float)) and 0 < field_T <= 1.0):
         shown = field_T * 1e3 if isinstance(field_T, (int, float)) else field_T
         raise UserInputError(f"--field-mT must be in (0, 1000] mT, got {shown}")

@@ -22,6 +22,7 @@ from typing import Callable
 import numpy as np
 from tqdm import tqdm
 
+from ballchain.drake_models.arg_checks import as_int_list, require_int
 from ballchain.drake_models import paper
 from ballchain.drake_models.dipole_inversion import neutral_direction
 from ballchain.drake_models.errors import UserInputError
@@ -181,6 +182,11 @@ def run(*, task: str = "left", targets: int | None = None, balls=(16,), grid: in
     Returns:
         A ``PlanResult``.
     """
+    if targets is not None:
+        require_int(targets, "targets", 1)
+    as_int_list(balls, "balls", 2)
+    require_int(grid, "grid", 1)
+    require_int(refine, "refine", 0)
     if task not in TASKS:
         raise UserInputError(f"task must be 'left' or 'right', got {task!r}")
     if targets is not None and targets < 1:

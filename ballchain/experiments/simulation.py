@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ballchain.drake_models.arg_checks import require_type
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.params import BallChain, Sleeve
 from ballchain.drake_models.safe_files import check_output_file, to_jsonable
@@ -68,6 +69,7 @@ def run(*, scenario: str, duration: float | None = None, mode: str | None = None
         UserInputError: a bad scenario, override, mode, duration or output path (before any work).
         SimulationFailure: the run stopped (NaN, escape, chain broken apart); it carries the metrics.
     """
+    require_type(scenario, str, "scenario", "a scenario name (str)")
     from ballchain.systems.chain_scenario import check_steps, load_scenario
     from ballchain.systems.chain_simulation import run_simulation
 

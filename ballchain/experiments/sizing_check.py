@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ballchain.drake_models.arg_checks import require_type
 from ballchain.drake_models.params import gram_force, newtons_from_gram_force
 from ballchain.optimization.sizing import (
     PAPER,
@@ -70,6 +71,7 @@ def run(*, inputs: SizingInputs) -> SizingCheckResult:
     Returns:
         A ``SizingCheckResult``.
     """
+    require_type(inputs, SizingInputs, "inputs", "a SizingInputs")
     result = size_clinical_magnet(inputs)
     separation = 2.0 * result.distance
     forces = force_between_magnets(result.dipole_moment, separation)

@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ballchain.drake_models.arg_checks import require_bool
 from ballchain.drake_models.field_sources import UniformField
 from ballchain.drake_models.image_dipole import image_dipole, normal_attraction
 from ballchain.drake_models.dipole import dipole_field_gradient, force_on_dipole
@@ -352,6 +353,7 @@ class EffectsResult(Result):
 
 def run(*, quick: bool = False) -> EffectsResult:
     """Every effect on Table I's LSPV / Configuration 2 / bare row; ``quick``: coarser searches."""
+    require_bool(quick, "quick")
     t0 = time.perf_counter()
     vein, config, sleeve = CASE
     chain = BallChain(n_balls=16)

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ballchain.drake_models.arg_checks import require_int
 from ballchain.drake_models.omniwheel import PAPER_A, OmniWheelGeometry, paper_forward_map
 from ballchain.experiments._result import Result
 
@@ -58,6 +59,8 @@ class WheelsResult(Result):
 
 def run(*, samples: int = 1000, seed: int = 0) -> WheelsResult:
     """The report (see ``wheel_map_report``)."""
+    require_int(samples, "samples", 1, 10_000_000)
+    require_int(seed, "seed", 0)
     return wheel_map_report(n_samples=samples, seed=seed)
 
 

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from ballchain.drake_models.arg_checks import as_int_list
 from ballchain.drake_models import paper
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.params import BallChain, Sleeve
@@ -173,6 +174,7 @@ def run(*, balls=(4, 9, 16), step_deg: float = 5.0, distance: float = DISTANCE, 
     Raises:
         UserInputError: a step or distance out of range (named by its flag), an unwritable ``out``.
     """
+    as_int_list(balls, "balls", 1)
     check_inputs(step_deg, distance)
     if out is not None:  # before the work
         check_output_dir(out, "--out")

@@ -1,0 +1,266 @@
+"""Bad input through the Python API and in a user's mesh file: a UserInputError naming the
+argument (or the file and line) and what is allowed, never a numpy error from deep inside."""
+
+from __future__ import annotations
+
+import re
+import struct
+
+import numpy as np
+import pytest
+
+from ballchain.drake_models import mesh_tools as mt
+from ballchain.drake_models.atrium_mesh import AtriumMeshError, load_atrium_surface, read_obj
+from ballchain.drake_models.errors import UserInputError
+
+
+# ------------------------------------------------------------------ a user's mesh file
+
+def _sphere_obj_lines() -> list[str]:
+    U, F = mt.icosphere(1)
+    V = U * 25.0  # mm
+    return [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in V] + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in F]
+
+
+def _with_line(lines: list[str], index: int, text: str) -> str:
+    return "\n".join(lines[:index] + [text] + lines[index:]) + "\n"
+
+
+def _obj_case(how: str, lines: list[str]) -> tuple[str, int]:
+    """(file text, 1-based number of the bad line)."""
+    nv = sum(1 for line in lines if line.startswith("v "))
+    cases = {
+        "two coordinates": (3, "v 1.0 2.0"),
+        "a word for a coordinate": (3, "v 1.0 two 3.0"),
+        "NaN coordinate": (3, "v 1.0 nan 3.0"),
+        "inf coordinate": (3, "v 1.0 2.0 -inf"),
+        "index beyond int64": (nv + 2, "f 1 2 99999999999999999999999"),
+        "index beyond the vertices": (nv + 2, f"f 1 2 {nv + 1}"),
+        "index 0": (nv + 2, "f 0 1 2"),
+        "negative index too far back": (nv + 2, f"f -1 -2 -{nv + 1}"),
+        "a face of two vertices": (nv + 2, "f 1 2"),
+        "a word for an index": (nv + 2, "f 1 two 3"),
+    }
+    index, text = cases[how]
+    return _with_line(lines, index, text), index + 1
+
+
+OBJ_CASES = ["two coordinates", "a word for a coordinate", "NaN coordinate", "inf coordinate", "index beyond int64",
+             "index beyond the vertices", "index 0", "negative index too far back", "a face of two vertices",
+             "a word for an index"]
+
+
+@pytest.mark.parametrize("how", OBJ_CASES)
+def test_a_malformed_obj_line_is_named_with_what_is_allowed(tmp_path, how):
+    text, lineno = _obj_case(how, _sphere_obj_lines())
+    path = tmp_path / "atrium.obj"
+    path.write_text(text)
+    with pytest.raises(AtriumMeshError) as err:
+        load_atrium_surface(path)
+    message = str(err.value)
+    assert "\n" not in message and str(path) in message and f"line {lineno}:" in message, message
+    assert "allowed:" in message
+
+
+def test_an_obj_of_the_same_surface_in_utf16_or_with_a_bom_reads_the_same(tmp_path):
+    text = "# an atrium\n" + "\n".join(_sphere_obj_lines()) + "\n"
+    plain = read_obj(_write(tmp_path / "plain.obj", text.encode()))
+    for name, data in (("utf16.obj", text.encode("utf-16")), ("bom.obj", b"\xef\xbb\xbf" + text.encode())):
+        V, F = read_obj(_write(tmp_path / name, data))
+        np.testing.assert_array_equal(V, plain[0])
+        np.testing.assert_array_equal(F, plain[1])
+
+
+def _write(path, data: bytes):
+    path.write_bytes(data)
+    return path
+
+
+@pytest.mark.parametrize("name, data, expected", [
+    ("empty.obj", b"", "0 vertices and 0 faces"),
+    ("comments.obj", b"# nothing here\n\n", "0 vertices and 0 faces"),
+    ("garbage.obj", bytes(range(256)) * 4, "binary data, not a text OBJ"),
+    ("garbage.stl", bytes(range(256)) * 4, "neither a binary STL"),
+    ("empty.stl", b"", "neither a binary STL"),
+])
+def test_an_empty_or_binary_mesh_file_is_one_line(tmp_path, name, data, expected):
+    path = _write(tmp_path / name, data)
+    with pytest.raises(AtriumMeshError, match=expected) as err:
+        load_atrium_surface(path)
+    assert "\n" not in str(err.value) and str(path) in str(err.value)
+
+
+def test_malformed_stl_records_are_named(tmp_path):
+    U, F = mt.icosphere(1)
+    V = U * 25.0
+    ascii_path = tmp_path / "two.stl"
+    from ballchain.drake_models.atrium_mesh import write_stl_ascii, write_stl_binary
+
+    lines = write_stl_ascii(ascii_path, V, F).read_text().splitlines()
+    k = next(i for i, line in enumerate(lines) if line.startswith("vertex"))
+    lines[k] = "vertex 1.0 2.0"
+    ascii_path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(AtriumMeshError, match=rf"line {k + 1}: bad vertex .*allowed: 'vertex x y z'"):
+        load_atrium_surface(ascii_path)
+    binary = write_stl_binary(tmp_path / "nan.stl", V, F)
+    data = bytearray(binary.read_bytes())
+    data[84 + 50 * 3 + 12: 84 + 50 * 3 + 16] = struct.pack("<f", float("nan"))  # triangle 4, first corner x
+    binary.write_bytes(bytes(data))
+    with pytest.raises(AtriumMeshError, match="triangle 4 of the binary STL .* not finite"):
+        load_atrium_surface(binary)
+
+
+def test_a_folder_for_a_mesh_file_is_one_line(tmp_path):
+    folder = tmp_path / "atrium.obj"
+    folder.mkdir()
+    with pytest.raises(AtriumMeshError, match="not a file"):
+        load_atrium_surface(folder)
+
+
+def test_the_command_says_which_line_of_the_users_mesh_is_wrong(tmp_path, capsys):
+    from ballchain.cli import main
+
+    text, lineno = _obj_case("two coordinates", _sphere_obj_lines())
+    path = tmp_path / "la.obj"
+    path.write_text(text)
+    argv = ["simulate", "--scenario", "heart_no_field", "--duration", "0.001",
+            "--set", f"{{atrium_file: '{path}', puncture: [-0.025, 0.0, 0.0]}}"]
+    assert main(argv) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "atrium_file" in line and str(path) in line and f"line {lineno}:" in line and "3 finite numbers" in line
+
+
+# ------------------------------------------------------------------ the Python API
+
+def _chain():
+    from ballchain.drake_models.params import BallChain
+
+    return BallChain(n_balls=4)
+
+
+def _field():
+    from ballchain.drake_models.field_sources import UniformField
+
+    return UniformField([0.0, 0.023, 0.0])
+
+
+def _solver():
+    from ballchain.optimization.statics import ChainStatics
+
+    return ChainStatics(_chain())
+
+
+def _calls():
+    """(label, call, the words the message must hold)."""
+    from ballchain.drake_models import field_sources as fs
+    from ballchain.drake_models.atrium_mesh import UserAtrium, validate_surface
+    from ballchain.drake_models.heart import HeartParams, LeftAtrium
+    from ballchain.drake_models.params import CylinderMagnet
+    from ballchain.experiments import field_models, planner, wheels
+    from ballchain.optimization import inverse_statics, sizing
+    from ballchain.optimization.statics import ChainStatics, tip_angle_deg, uniform_field_equilibrium
+    from ballchain.systems.actuation_station import StationOptions, make_actuation_station
+    from ballchain.systems.rotating_magnet_unit import MagnetUnitConfig
+    from ballchain.systems.feeder import Feeder
+    from ballchain.systems.hall_sensor import HallSensor
+    from ballchain.systems.reconfiguration import ReconfigurationController
+    from ballchain.systems.rotating_magnet_unit import RotatingMagnetUnit
+    from ballchain.systems.station import MakeStation
+
+    U, F = mt.icosphere(1)
+    return [
+        ("UniformField 2-vector", lambda: fs.UniformField([0, 0.023]), "UniformField.B_W must be 3 finite numbers"),
+        ("UniformField text", lambda: fs.UniformField("north"), "UniformField.B_W must be 3 finite numbers"),
+        ("UniformField None", lambda: fs.UniformField(None), "UniformField.B_W"),
+        ("MagnetSource magnet", lambda: fs.MagnetSource("N52", [0, 0, 0.1]),
+         "MagnetSource.magnet must be CylinderMagnet"),
+        ("MagnetSource p_WM", lambda: fs.MagnetSource(CylinderMagnet(), [0, 0.1]), "MagnetSource.p_WM must be 3"),
+        ("MagnetSource model", lambda: fs.MagnetSource(CylinderMagnet(), [0, 0, 0.1], model=None),
+         "MagnetSource.model must be one of 'dipole', 'exact'"),
+        ("FieldSources of one", lambda: fs.FieldSources(_field()), "FieldSources.sources must be a list"),
+        ("FieldSources item", lambda: fs.FieldSources([_field(), 0.023]), r"FieldSources.sources\[1\] must be a field"),
+        ("direction zero", lambda: fs.rotation_with_z_along([0, 0, 0]),
+         "direction must be 3 finite numbers (non-zero)"),
+        ("ChainStatics chain", lambda: ChainStatics("not a chain"), "ChainStatics chain must be a BallChain, got str"),
+        ("ChainStatics iterations", lambda: ChainStatics(_chain(), max_iterations=0),
+         "max_iterations must be an integer"),
+        ("ChainStatics gravity", lambda: ChainStatics(_chain(), gravity="yes"), "gravity must be True or False"),
+        ("solve external", lambda: _solver().solve("field"), "external must be a field source"),
+        ("solve warm start", lambda: _solver().solve(_field(), warm_start=[1, 2]),
+         "warm_start must be a StaticsResult"),
+        ("tip target 2-vector", lambda: _solver().solve(_field(), tip_target=[0.01, 0.0]),
+         "tip_target must be 3 finite"),
+        ("wall normal 2-vector", lambda: _solver().solve(_field(), wall=([0.0, 0.0, -0.01], [0.0, 1.0])),
+         "wall normal must be 3 finite numbers"),
+        ("wall zero normal", lambda: _solver().solve(_field(), wall=([0.0, 0.0, -0.01], [0, 0, 0])),
+         "wall normal must be 3 finite numbers (non-zero)"),
+        ("wall not a pair", lambda: _solver().solve(_field(), wall=[0.0, 0.0, -0.01]),
+         "wall must be a (point, normal) pair"),
+        ("continuation of one field", lambda: _solver().continuation(_field()),
+         "continuation fields must be a sequence"),
+        ("tip angle direction", lambda: tip_angle_deg(_solver().solve(_field()), [0.0, 1.0]),
+         "field_direction must be 3"),
+        ("uniform equilibrium B_W", lambda: uniform_field_equilibrium(_chain(), [0.0, 0.023]), "B_W must be 3 finite"),
+        ("pin_tip target", lambda: inverse_statics.pin_tip(_solver(), _field(), [0.01, 0.0], None),
+         "pin_tip target must be 3 finite"),
+        ("pin_tip solver", lambda: inverse_statics.pin_tip(_chain(), _field(), [0.01, 0, 0], None),
+         "pin_tip solver must be a ChainStatics"),
+        ("HeldTip axis", lambda: inverse_statics.HeldTip(_solver(), lambda m: None, [0, 0, 0], [1.0, 0.0], None),
+         "HeldTip axis must be 3 finite numbers"),
+        ("sizing moment", lambda: sizing.force_between_magnets(-1.0, 0.1), "moment must be a finite number > 0"),
+        ("sizing inputs", lambda: sizing.size_clinical_magnet({"alpha": 0.32}), "inputs must be a SizingInputs"),
+        ("MakeStation dict", lambda: MakeStation(dict), "MakeStation scenario must be a ChainScenario"),
+        ("actuation units", lambda: make_actuation_station([{"name": "right_unit"}]),
+         r"make_actuation_station units\[0\] must be MagnetUnitConfig"),
+        ("actuation options", lambda: make_actuation_station(None, {"slip": 0.1}), "options must be a StationOptions"),
+        ("StationOptions slip", lambda: StationOptions(slip=1.5), "StationOptions.slip must be a number in"),
+        ("StationOptions frame", lambda: StationOptions(teleop_frame="body"),
+         "StationOptions.teleop_frame must be one of"),
+        ("StationOptions points", lambda: StationOptions(field_points_W=[0.0, 0.1]), "StationOptions.field_points_W"),
+        ("MagnetUnitConfig magnet", lambda: MagnetUnitConfig(magnet="sphere"), "MagnetUnitConfig.magnet must be"),
+        ("units None", lambda: validate_surface(U * 25.0, F, units=None), "units must be one of 'auto', 'm', 'mm'"),
+        ("surface V 2 columns", lambda: validate_surface(U[:, :2], F), r"V must be an array of shape \(k, 3\)"),
+        ("surface F beyond V", lambda: validate_surface(U * 25.0, F + 1), "F must index the 42 vertices"),
+        ("UserAtrium surface", lambda: UserAtrium("atrium.obj", [0, 0, 0]),
+         "UserAtrium surface must be an AtriumSurface"),
+        ("HeartParams semi_axes", lambda: HeartParams(semi_axes=(0.03, 0.02)), "HeartParams.semi_axes must be 3"),
+        ("LeftAtrium params", lambda: LeftAtrium({"scale": 1.0}), "LeftAtrium params must be a HeartParams"),
+        ("field_models ball", lambda: field_models.run(distances_m=[0.1], angles_deg=[0.0], ball="3 mm"),
+         "ball must be a BallChain"),
+        ("planner targets", lambda: planner.run(targets="3"), "targets must be an integer >= 1"),
+        ("Feeder chain", lambda: Feeder("16 balls"), "Feeder chain must be a BallChain or None"),
+        ("HallSensor unit", lambda: HallSensor({"name": "right_unit"}), "HallSensor unit must be a MagnetUnitConfig"),
+        ("RotatingMagnetUnit R_WM", lambda: RotatingMagnetUnit(R_WM=np.eye(2)),
+         r"R_WM must be an array of shape \(3, 3\)"),
+        ("ReconfigurationController m_c_W", lambda: ReconfigurationController([1.0, 0.0]), "m_c_W must be 3 finite"),
+        ("wheels samples", lambda: wheels.run(samples=1.5), "samples must be an integer"),
+    ]
+
+
+CALLS = _calls()
+
+
+@pytest.mark.parametrize("label, call, expected", CALLS, ids=[c[0] for c in CALLS])
+def test_a_bad_api_argument_is_a_user_input_error_naming_it(label, call, expected):
+    with pytest.raises(UserInputError) as err:
+        call()
+    message = str(err.value)
+    assert expected in message or re.search(expected, message), message
+    assert "\n" not in message and len(message) < 400
+
+
+def test_the_checks_do_not_refuse_what_was_accepted():
+    """Lists, tuples and numpy arrays of the right shape, numpy scalars and ints still work."""
+    from ballchain.drake_models import field_sources as fs
+    from ballchain.drake_models.params import CylinderMagnet
+    from ballchain.systems.actuation_station import StationOptions
+
+    B = fs.UniformField((0, np.float32(0.023), 0)).B_W
+    assert B.dtype == float and B.tolist() == pytest.approx([0.0, 0.023, 0.0])
+    fs.MagnetSource(CylinderMagnet(), np.array([0, 0, 0.2]), np.eye(3).tolist())
+    StationOptions(field_points_W=np.zeros(6), seed=np.int64(3), sensor_noise=np.bool_(False))
+    solver = _solver()
+    free = solver.solve(_field())
+    held = solver.solve(_field(), free, tip_target=tuple(free.tip_position))
+    assert free.converged and held.converged
+    np.testing.assert_allclose(held.tip_position, free.tip_position, atol=1e-9)

@@ -1,0 +1,259 @@
+"""Caches that heal: a damaged cached file (generated wall mesh, atrium SDF, the generated
+package's package.xml, numba's compiled kernels, a reproduce section record) is rebuilt with one
+line on stderr and gives the same result as a fresh build; a bad ``BALLCHAIN_CACHE`` is one line."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ballchain.drake_models import mesh_tools as mt
+from ballchain.drake_models import model_files
+from ballchain.drake_models.errors import UserInputError
+
+
+@pytest.fixture(scope="module")
+def user_atrium():
+    from ballchain.drake_models.atrium_mesh import UserAtrium, validate_surface
+
+    U, F = mt.icosphere(2)
+    return UserAtrium(validate_surface(U * np.array([25e-3, 18e-3, 22e-3]), F, "m"), p_HP=[-25e-3, 0.0, 0.0])
+
+
+def _one_rebuilt_line(err: str, path: Path) -> None:
+    lines = [line for line in err.splitlines() if "was damaged" in line]
+    assert len(lines) == 1, err
+    assert lines[0].startswith("ballchain: ") and str(path) in lines[0] and "rebuilt" in lines[0]
+
+
+# ------------------------------------------------------------------ generated wall meshes
+
+def _damage(path: Path, how: str) -> None:
+    data = path.read_bytes()
+    if how == "truncated":
+        path.write_bytes(data[: len(data) // 3])
+    elif how == "edited":  # same size, one number changed
+        i = data.index(b"\n", len(data) // 2) + 1
+        path.write_bytes(data[:i] + (b"9" if data[i:i + 1] != b"9" else b"8") + data[i + 1:])
+    elif how == "empty":
+        path.write_bytes(b"")
+
+
+@pytest.mark.parametrize("which, how", [("vtk", "truncated"), ("obj", "edited"), ("vtk", "empty")])
+def test_a_damaged_generated_mesh_is_rebuilt_with_one_line(user_atrium, tmp_path, capsys, which, how):
+    files = user_atrium.write_files(tmp_path)
+    fresh = {k: p.read_bytes() for k, p in files.items()}
+    capsys.readouterr()
+    _damage(files[which], how)
+    again = user_atrium.write_files(tmp_path)
+    _one_rebuilt_line(capsys.readouterr().err, files[which])
+    assert {k: p.read_bytes() for k, p in again.items()} == fresh
+    user_atrium.write_files(tmp_path)  # intact now: reused, nothing said
+    assert "damaged" not in capsys.readouterr().err
+
+
+def test_a_damaged_digest_list_rebuilds_and_a_missing_one_rebuilds_quietly(user_atrium, tmp_path, capsys):
+    files = user_atrium.write_files(tmp_path)
+    fresh = files["vtk"].read_bytes()
+    listing = tmp_path / model_files.DIGESTS
+    listing.write_bytes(b"\xff\xfe garbage without the two-space separator\n")
+    files["vtk"].write_bytes(b"half a file")
+    capsys.readouterr()
+    user_atrium.write_files(tmp_path)
+    _one_rebuilt_line(capsys.readouterr().err, listing)
+    assert files["vtk"].read_bytes() == fresh
+    # A set never finished (a run killed between the files and their list): rebuilt, nothing said.
+    listing.unlink()
+    files["obj"].write_bytes(b"v 0 0")
+    user_atrium.write_files(tmp_path)
+    assert "damaged" not in capsys.readouterr().err and listing.exists()
+    assert files["obj"].read_bytes().startswith(b"# generated")
+
+
+@pytest.mark.slow
+def test_the_procedural_atriums_damaged_wall_is_rebuilt_and_drake_reads_it(tmp_path, capsys):
+    from pydrake.geometry import ReadObjToTriangleSurfaceMesh
+
+    from ballchain.drake_models.heart import HeartParams, LeftAtrium
+
+    heart = LeftAtrium(HeartParams(subdivisions=2, visual_subdivisions=2))
+    files = heart.write_files(tmp_path)
+    n_faces = ReadObjToTriangleSurfaceMesh(str(files["obj"])).num_triangles()
+    _damage(files["obj"], "truncated")
+    capsys.readouterr()
+    files = heart.write_files(tmp_path)
+    _one_rebuilt_line(capsys.readouterr().err, files["obj"])
+    assert ReadObjToTriangleSurfaceMesh(str(files["obj"])).num_triangles() == n_faces
+    V, T = mt.read_vtk_tetrahedra(files["vtk"])
+    np.testing.assert_allclose(V, heart.wall_tetrahedra[0], atol=1e-9)
+
+
+def test_a_file_where_the_generated_files_go_is_one_line(user_atrium, tmp_path):
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    with pytest.raises(UserInputError, match="cannot make the folder .*afile"):
+        user_atrium.write_files(afile / "wall")
+
+
+# ------------------------------------------------------------------ the atrium SDF grid
+
+@pytest.mark.parametrize("how", ["truncated", "text", "wrong arrays"])
+def test_a_damaged_sdf_grid_is_rebuilt_with_one_line(user_atrium, tmp_path, capsys, how):
+    from ballchain.drake_models.atrium_sdf import atrium_sdf
+
+    grid = dict(spacing=2e-3, band=3e-3)
+    fresh = atrium_sdf(user_atrium, directory=tmp_path, **grid)
+    (path,) = tmp_path.glob("atrium_sdf_*.npz")
+    if how == "truncated":  # numpy: zipfile.BadZipFile
+        path.write_bytes(path.read_bytes()[:200])
+    elif how == "text":
+        path.write_text("not a zip file\n")
+    else:  # a readable npz of the wrong shape
+        np.savez(path, origin=np.zeros(2), spacing=2e-3, values=np.zeros(5), band=3e-3)
+    capsys.readouterr()
+    sdf = atrium_sdf(user_atrium, directory=tmp_path, **grid)
+    _one_rebuilt_line(capsys.readouterr().err, path)
+    np.testing.assert_array_equal(sdf.values, fresh.values)
+    again = atrium_sdf(user_atrium, directory=tmp_path, **grid)  # the rebuilt file is read back
+    assert "damaged" not in capsys.readouterr().err
+    np.testing.assert_array_equal(again.values, sdf.values)
+
+
+# ------------------------------------------------------------------ the cache folder itself
+
+def test_a_damaged_package_xml_is_rewritten_and_drake_reads_it(tmp_path, monkeypatch, capsys):
+    from pydrake.multibody.parsing import PackageMap
+
+    monkeypatch.setenv("BALLCHAIN_CACHE", str(tmp_path))
+    model_files.cache_dir()
+    xml = tmp_path / "package.xml"
+    xml.write_text(xml.read_text()[:40])
+    capsys.readouterr()
+    model_files.cache_dir()
+    _one_rebuilt_line(capsys.readouterr().err, xml)
+    packages = PackageMap()
+    packages.AddPackageXml(str(xml))
+    assert packages.Contains(model_files.GENERATED_PACKAGE)
+
+
+@pytest.mark.parametrize("where", ["a file", "under a file"])
+def test_ballchain_cache_that_cannot_be_a_folder_is_one_line(tmp_path, monkeypatch, where):
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    target = afile if where == "a file" else afile / "cache"
+    monkeypatch.setenv("BALLCHAIN_CACHE", str(target))
+    with pytest.raises(UserInputError, match=r"\$BALLCHAIN_CACHE .*afile"):
+        model_files.cache_dir()
+
+
+def test_ballchain_cache_a_file_stops_the_command_before_any_work(tmp_path, monkeypatch, capsys):
+    from ballchain import cli
+
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    monkeypatch.setenv("BALLCHAIN_CACHE", str(afile))
+    assert cli.main(["wheels", "--json"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    (line,) = captured.err.strip().splitlines()
+    assert "$BALLCHAIN_CACHE" in line and "is a file" in line
+
+
+# ------------------------------------------------------------------ numba's compiled kernels
+
+_KERNEL_CALL = """
+import numpy as np
+from ballchain.drake_models import chain_kernels as ck
+r, x, y = np.array([1e-3, 2e-3, 0.5e-3]), np.array([0.0, 0.0, 1.0]), np.array([0.6, 0.0, 0.8])
+g = [np.zeros(3) for _ in range(3)]
+print(repr(float(ck._pair_first(r, x, y, 1.0, *g))))
+"""
+
+
+def _kernel_run(cache: Path) -> subprocess.CompletedProcess:
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+    return subprocess.run([sys.executable, "-c", _KERNEL_CALL], env=env, capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("which, how", [("nbi", "truncated"), ("nbc", "garbage")])
+def test_a_damaged_numba_cache_file_is_recompiled_with_one_line(tmp_path, which, how):
+    first = _kernel_run(tmp_path)
+    assert first.returncode == 0 and "damaged" not in first.stderr, first.stderr
+    files = {p.suffix[1:]: p for p in tmp_path.rglob("chain_kernels._pair_first-*")}
+    assert set(files) == {"nbi", "nbc"}, files
+    data = files[which].read_bytes()
+    files[which].write_bytes(data[:20] if how == "truncated" else bytes(range(256)) * 8)
+    second = _kernel_run(tmp_path)
+    assert second.returncode == 0, second.stderr
+    _one_line = [line for line in second.stderr.splitlines() if "was damaged" in line]
+    assert len(_one_line) == 1 and str(files[which]) in _one_line[0] and "recompiled" in _one_line[0]
+    assert second.stdout == first.stdout  # the same number, from a fresh compilation
+    third = _kernel_run(tmp_path)  # numba wrote the files again: read back, nothing said
+    assert third.returncode == 0 and "damaged" not in third.stderr and third.stdout == first.stdout
+    assert files[which].exists()
+
+
+# ------------------------------------------------------------------ reproduce --resume records
+
+def _experiments(calls: dict):
+    from ballchain.drake_models.safe_files import atomic_write_text
+    from ballchain.report import Section
+
+    def make(name):
+        def section(out: Path, quick: bool):
+            calls[name] = calls.get(name, 0) + 1
+            atomic_write_text(out / f"{name}.txt", f"{name}\n")
+            return Section(f"Section {name}").text(f"{name} done"), {"n": name}
+        return section
+
+    return [(name, make(name)) for name in ("one", "two")]
+
+
+def _edit_record(record: dict, how: str):
+    if how == "a JSON list":
+        return [record]
+    if how == "no key":
+        return {k: v for k, v in record.items() if k != "key"}
+    if how == "no section":
+        return {k: v for k, v in record.items() if k != "section"}
+    if how == "seconds a string":
+        return {**record, "seconds": "fast"}
+    if how == "files a list":
+        return {**record, "files": list(record["files"])}
+    if how == "blocks not a list":
+        return {**record, "section": {"title": "x", "blocks": "text"}}
+    if how == "a block of numbers":
+        return {**record, "section": {"title": "x", "blocks": [{"table": {"header": 1, "rows": 2}}]}}
+    if how == "a missing figure":
+        return {**record, "section": {"title": "x", "blocks": [{"figure": {"path": "gone.png"}}]}}
+    raise AssertionError(how)
+
+
+@pytest.mark.parametrize("how", ["a JSON list", "no key", "no section", "seconds a string", "files a list",
+                                 "blocks not a list", "a block of numbers", "a missing figure", "not JSON"])
+def test_a_resume_record_of_the_wrong_shape_reruns_its_section_with_one_line(tmp_path, monkeypatch, capsys, how):
+    from ballchain import reproduce
+
+    calls: dict = {}
+    monkeypatch.setattr(reproduce, "EXPERIMENTS", _experiments(calls))
+    reproduce.run(out=tmp_path, quick=True)
+    path = tmp_path / reproduce.CACHE / "one.json"
+    if how == "not JSON":
+        path.write_text(path.read_text()[:30])
+    else:
+        path.write_text(json.dumps(_edit_record(json.loads(path.read_text()), how)))
+    capsys.readouterr()
+    data = reproduce.run(out=tmp_path, quick=True, resume=True)
+    assert data["reused"] == ["two"] and calls == {"one": 2, "two": 1}
+    lines = [line for line in capsys.readouterr().err.splitlines() if "running the section again" in line]
+    assert len(lines) == 1 and "'one'" in lines[0]
+    assert "Section one" in (tmp_path / "report.md").read_text()
+    # The rerun wrote a good record: the next resume reuses both.
+    assert reproduce.run(out=tmp_path, quick=True, resume=True)["reused"] == ["one", "two"]
