@@ -69,21 +69,10 @@ class StationOptions:
     def __post_init__(self) -> None:
         as_vector(self.p_W_chain, "StationOptions.p_W_chain", unit="m")
         as_vector(self.feed_direction_W, "StationOptions.feed_direction_W", nonzero=True)
-        for name in ("slip", "teleop_dead_band"):  # fractions in [0, 1)
-            check_in(f"StationOptions.{name}", getattr(self, name), 0.0, 1.0)
-            if getattr(self, name) == 1.0:
-                raise UserInputError(f"StationOptions.{name} must be in [0, 1), got 1.0")
-        for name in ("sensor_noise", "sensors_see_other_units", "estimator_compensates_other_units",
-                     "with_feeder"):
-            require_bool(getattr(self, name), f"StationOptions.{name}")
+        require_bool(self.with_feeder, "StationOptions.with_feeder")
         require_int(self.seed, "StationOptions.seed", 0)
         require_type(self.sensor_spec, HallSensorSpec, "StationOptions.sensor_spec")
         require_type(self.stepper_spec, StepperSpec, "StationOptions.stepper_spec")
-        require_positive(self.controller_gain, "StationOptions.controller_gain", "1/s")
-        require_positive(self.tolerance_deg, "StationOptions.tolerance_deg", "deg")
-        require_choice(self.wheel_map, ("derived", "paper"), "StationOptions.wheel_map")
-        require_choice(self.teleop_frame, ("world", "tip"), "StationOptions.teleop_frame")
-        require_positive(self.teleop_omega_max, "StationOptions.teleop_omega_max", "rad/s")
         if self.field_points_W is not None:
             try:
                 points = np.asarray(self.field_points_W, dtype=float).reshape(-1, 3)

@@ -213,11 +213,10 @@ def _calls():
         ("actuation units", lambda: make_actuation_station([{"name": "right_unit"}]),
          r"make_actuation_station units\[0\] must be MagnetUnitConfig"),
         ("actuation options", lambda: make_actuation_station(None, {"slip": 0.1}), "options must be a StationOptions"),
-        ("StationOptions slip", lambda: StationOptions(slip=1.5), "StationOptions.slip must be a number in"),
-        ("StationOptions frame", lambda: StationOptions(teleop_frame="body"),
-         "StationOptions.teleop_frame must be one of"),
+        ("unit slip", lambda: make_actuation_station([MagnetUnitConfig(p_WM=[0.0, -0.2, 0.0], slip=1.5)]), "slip must be in \\[0, 1\\)"),
+        ("StationOptions seed", lambda: StationOptions(seed=-1), "StationOptions.seed must be"),
         ("StationOptions points", lambda: StationOptions(field_points_W=[0.0, 0.1]), "StationOptions.field_points_W"),
-        ("MagnetUnitConfig magnet", lambda: MagnetUnitConfig(magnet="sphere"), "MagnetUnitConfig.magnet must be"),
+        ("MagnetUnitConfig shape", lambda: MagnetUnitConfig(shape="ball").magnet, "shape must be one of"),
         ("units None", lambda: validate_surface(U * 25.0, F, units=None), "units must be one of 'auto', 'm', 'mm'"),
         ("surface V 2 columns", lambda: validate_surface(U[:, :2], F), r"V must be an array of shape \(k, 3\)"),
         ("surface F beyond V", lambda: validate_surface(U * 25.0, F + 1), "F must index the 42 vertices"),
@@ -258,7 +257,7 @@ def test_the_checks_do_not_refuse_what_was_accepted():
     B = fs.UniformField((0, np.float32(0.023), 0)).B_W
     assert B.dtype == float and B.tolist() == pytest.approx([0.0, 0.023, 0.0])
     fs.MagnetSource(CylinderMagnet(), np.array([0, 0, 0.2]), np.eye(3).tolist())
-    StationOptions(field_points_W=np.zeros(6), seed=np.int64(3), sensor_noise=np.bool_(False))
+    StationOptions(field_points_W=np.zeros(6), seed=np.int64(3), with_feeder=np.bool_(False))
     solver = _solver()
     free = solver.solve(_field())
     held = solver.solve(_field(), free, tip_target=tuple(free.tip_position))
