@@ -17,7 +17,8 @@ open in a browser:
   repeats). A browser only reports presses, not releases, so the keys move a virtual stick that
   stays where it was put, like a throttle: each press moves one axis (or the feeder command) by
   ``key_step`` towards +1 or -1; Space centres the stick and stops the feeder; N selects the
-  next magnet; Escape quits. ``KEY_MAP`` lists the keys.
+  next magnet; Escape quits; R starts the live view over after the watchdog paused it (read by
+  the live view, ``experiments/teleop.py``). ``KEY_MAP`` lists the keys.
 
 What reaches the station is the sum of the two, clipped to [-1, 1]; the stick drives only the
 selected unit (the others get zero), the feeder command is scaled by ``feeder_speed``.
@@ -43,7 +44,7 @@ class Key:
 
     label: str
     code: str
-    action: str  # "axis", "feed", "centre", "next", "quit"
+    action: str  # "axis", "feed", "centre", "next", "quit", "reset" (read by the live view, not here)
     index: int = 0  # the stick axis for "axis"
     sign: float = 1.0
 
@@ -60,6 +61,7 @@ KEY_MAP: tuple[Key, ...] = (
     Key("centre stick, stop feeder (Space)", "Space", "centre"),
     Key("next magnet (N)", "KeyN", "next"),
     Key("quit (Escape)", "Escape", "quit"),
+    Key("start over after a stop (R)", "KeyR", "reset"),
 )
 
 # The browser's standard gamepad mapping (https://w3c.github.io/gamepad/#remapping).

@@ -22,6 +22,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
 from ballchain.systems.magnetic_wrench import external_field_source
+from ballchain.systems.meshcat_view import MESHCAT_FOV_DEG
 from ballchain.systems.target_contact import wall_force_on, wall_geometries
 
 FIELD_ARROW_SCALE = 1.0  # [m/T]: 1 mm per mT
@@ -181,3 +182,77 @@ class MeshcatOverlays(LeafSystem):
         self._draw_targets(context, changed_only=False)
         self._draw_arrows(context)
         return EventStatus.Succeeded()
+
+
+# --------------------------------------------------------------------------- text on the screen
+# Meshcat draws no text of its own: a panel is a picture of the text (PIL) on a flat square
+# (an OBJ with its texture) that is a child of Meshcat's camera, so it stays put on the screen
+# while the person turns the view. three.js keeps the vertical field of view (MESHCAT_FOV_DEG) and
+# widens the horizontal one with the window, so a panel is placed by its height on the screen.
+CAMERA_PATH = "/Cameras/default/rotated/<object>"
+TEXT_DEPTH = 0.015  # [m] in front of the camera (Meshcat's near plane is at 0.01 m)
+TEXT_PX_PER_VIEW = 1400  # texture pixels per screen height (sharp on screens up to about 1400 px)
+TEXT_FONT_PX = 26  # font height in texture pixels (13 px on a 700 px high view)
+
+
+def text_panel_mesh(lines: Sequence[str], width_px: int, colour=(255, 255, 255), background=(20, 20, 20),
+                    font_px: int = TEXT_FONT_PX):
+    """A flat rectangle showing ``lines`` as a Drake Mesh (in memory: OBJ, MTL and PNG), its
+    height in metres at ``TEXT_DEPTH`` in front of the camera (from ``TEXT_PX_PER_VIEW``).
+
+    Returns:
+        (Mesh, (width, height) [m]): the rectangle is centred on its origin, facing +z.
+    """
+    import io
+
+    from PIL import Image, ImageDraw, ImageFont
+    from pydrake.common import MemoryFile
+    from pydrake.geometry import InMemoryMesh, Mesh
+
+    font = ImageFont.load_default(size=font_px)
+    line_px = int(round(1.25 * font_px))
+    height_px = line_px * max(1, len(lines)) + font_px // 2
+    image = Image.new("RGB", (int(width_px), height_px), background)
+    draw = ImageDraw.Draw(image)
+    for k, line in enumerate(lines):
+        draw.text((font_px // 2, font_px // 4 + k * line_px), line, font=font, fill=colour)
+    png = io.BytesIO()
+    image.save(png, format="PNG")
+    view_height = 2.0 * TEXT_DEPTH * np.tan(np.radians(0.5 * MESHCAT_FOV_DEG))
+    w, h = view_height * width_px / TEXT_PX_PER_VIEW, view_height * height_px / TEXT_PX_PER_VIEW
+    obj = (f"mtllib panel.mtl\nv {-w / 2} {-h / 2} 0\nv {w / 2} {-h / 2} 0\nv {w / 2} {h / 2} 0\n"
+           f"v {-w / 2} {h / 2} 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvn 0 0 1\nusemtl panel\n"
+           "f 1/1/1 2/2/1 3/3/1\nf 1/1/1 3/3/1 4/4/1\n")
+    mtl = "newmtl panel\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nmap_Kd panel.png\n"
+    mesh = InMemoryMesh(mesh_file=MemoryFile(obj, ".obj", "panel.obj"),
+                        supporting_files={"panel.mtl": MemoryFile(mtl, ".mtl", "panel.mtl"),
+                                          "panel.png": MemoryFile(png.getvalue(), ".png", "panel.png")})
+    return Mesh(mesh), (w, h)
+
+
+def show_text(meshcat, name: str, lines: Sequence[str] | None, anchor: tuple[float, float], width_px: int = 700,
+              colour=(255, 255, 255), background=(20, 20, 20)) -> None:
+    """Show ``lines`` in a panel fixed on the screen (a child of Meshcat's camera), or hide it.
+
+    Args:
+        meshcat: the Meshcat.
+        name: the panel's name (``<camera>/text/<name>``); showing it again replaces its text.
+        lines: the text, one string a line; None hides the panel.
+        anchor: where the panel's top-left corner goes, in screen heights from the screen's
+            centre (x to the right, y up: (-0.5, 0.5) is the top edge, half a screen height
+            left of the centre, the left edge of a square window).
+        width_px: the panel's width in texture pixels (``TEXT_PX_PER_VIEW`` per screen height).
+        colour, background: RGB of the text and of the panel.
+    """
+    from pydrake.math import RigidTransform
+
+    path = f"{CAMERA_PATH}/text/{name}"
+    if lines is None:
+        meshcat.SetProperty(path, "visible", False)
+        return
+    mesh, (w, h) = text_panel_mesh(lines, width_px, colour, background)
+    view_height = 2.0 * TEXT_DEPTH * np.tan(np.radians(0.5 * MESHCAT_FOV_DEG))
+    x, y = anchor[0] * view_height + 0.5 * w, anchor[1] * view_height - 0.5 * h
+    meshcat.SetObject(path, mesh)
+    meshcat.SetTransform(path, RigidTransform([x, y, -TEXT_DEPTH]))
+    meshcat.SetProperty(path, "visible", True)
