@@ -240,3 +240,22 @@ def key_map_text(keys: Sequence[Key] = KEY_MAP) -> str:
               "  RT / LT     feed / retract (analogue)",
               "  RB next magnet; B centre the keyboard's stick; Start quit"]
     return "\n".join(lines)
+
+
+def key_map_compact(keys: Sequence[Key] = KEY_MAP, per_line: int = 3) -> list[str]:
+    """The bindings in a few short lines (for a panel on the page): a key pair of one axis (or of
+    the feeder) as "D/A stick 0 +/-", the others as "Space centre stick, stop feeder"."""
+    entries, seen = [], set()
+    for k in keys:
+        if (k.action, k.index) in seen:
+            continue
+        pair = [q for q in keys if q.action == k.action and q.index == k.index] if k.action in ("axis", "feed") else [k]
+        seen.add((k.action, k.index))
+        codes = "/".join(q.code.removeprefix("Key") for q in pair)
+        words = [q.label.rsplit(" (", 1)[0] for q in pair]
+        if len(pair) == 2 and k.action == "axis":
+            words = [f"{words[0][:-2]} +/-"]
+        entries.append(f"{codes} {' / '.join(words)}")
+    lines = ["   ".join(entries[i:i + per_line]) for i in range(0, len(entries), per_line)]
+    return lines + ["gamepad: left stick axes 0, 1; right stick axis 2; RT/LT feed/retract; RB next; B centre; "
+                    "Start quit"]

@@ -203,6 +203,7 @@ def text_panel_mesh(lines: Sequence[str], width_px: int, colour=(255, 255, 255),
     Returns:
         (Mesh, (width, height) [m]): the rectangle is centred on its origin, facing +z.
     """
+    import hashlib
     import io
 
     from PIL import Image, ImageDraw, ImageFont
@@ -218,41 +219,83 @@ def text_panel_mesh(lines: Sequence[str], width_px: int, colour=(255, 255, 255),
         draw.text((font_px // 2, font_px // 4 + k * line_px), line, font=font, fill=colour)
     png = io.BytesIO()
     image.save(png, format="PNG")
+    # Files named by their content: the page keeps a texture by its file name, so a new text under
+    # a name seen before would never be loaded.
+    name = "panel_" + hashlib.sha1(png.getvalue()).hexdigest()[:12]
     view_height = 2.0 * TEXT_DEPTH * np.tan(np.radians(0.5 * MESHCAT_FOV_DEG))
     w, h = view_height * width_px / TEXT_PX_PER_VIEW, view_height * height_px / TEXT_PX_PER_VIEW
-    obj = (f"mtllib panel.mtl\nv {-w / 2} {-h / 2} 0\nv {w / 2} {-h / 2} 0\nv {w / 2} {h / 2} 0\n"
-           f"v {-w / 2} {h / 2} 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvn 0 0 1\nusemtl panel\n"
+    obj = (f"mtllib {name}.mtl\nv {-w / 2} {-h / 2} 0\nv {w / 2} {-h / 2} 0\nv {w / 2} {h / 2} 0\n"
+           f"v {-w / 2} {h / 2} 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvn 0 0 1\nusemtl {name}\n"
            "f 1/1/1 2/2/1 3/3/1\nf 1/1/1 3/3/1 4/4/1\n")
-    mtl = "newmtl panel\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nmap_Kd panel.png\n"
-    mesh = InMemoryMesh(mesh_file=MemoryFile(obj, ".obj", "panel.obj"),
-                        supporting_files={"panel.mtl": MemoryFile(mtl, ".mtl", "panel.mtl"),
-                                          "panel.png": MemoryFile(png.getvalue(), ".png", "panel.png")})
+    # Emissive only (no diffuse): the panel shows its picture's colours whatever the lights.
+    mtl = f"newmtl {name}\nKa 0 0 0\nKd 0 0 0\nKs 0 0 0\nKe 1 1 1\nmap_Ke {name}.png\n"
+    mesh = InMemoryMesh(mesh_file=MemoryFile(obj, ".obj", f"{name}.obj"),
+                        supporting_files={f"{name}.mtl": MemoryFile(mtl, ".mtl", f"{name}.mtl"),
+                                          f"{name}.png": MemoryFile(png.getvalue(), ".png", f"{name}.png")})
     return Mesh(mesh), (w, h)
 
 
-def show_text(meshcat, name: str, lines: Sequence[str] | None, anchor: tuple[float, float], width_px: int = 700,
-              colour=(255, 255, 255), background=(20, 20, 20)) -> None:
-    """Show ``lines`` in a panel fixed on the screen (a child of Meshcat's camera), or hide it.
+class TextPanel:
+    """Lines of text fixed on the screen: a child of Meshcat's camera, so it stays put while the
+    person turns the view.
+
+    A new text is a new picture that the browser decodes before it can draw it (drawn before,
+    its square is black). So each text goes into one of two slots, hidden, and is shown (the
+    other slot hidden) at the next ``show`` or ``flush``: what the page shows lags one update.
 
     Args:
         meshcat: the Meshcat.
-        name: the panel's name (``<camera>/text/<name>``); showing it again replaces its text.
-        lines: the text, one string a line; None hides the panel.
+        name: the panel's name (``<camera>/text/<name>``).
         anchor: where the panel's top-left corner goes, in screen heights from the screen's
-            centre (x to the right, y up: (-0.5, 0.5) is the top edge, half a screen height
-            left of the centre, the left edge of a square window).
+            centre (x to the right, y up: (-0.5, 0.5) is the top edge, half a screen height left
+            of the centre, the left edge of a square window).
         width_px: the panel's width in texture pixels (``TEXT_PX_PER_VIEW`` per screen height).
-        colour, background: RGB of the text and of the panel.
     """
-    from pydrake.math import RigidTransform
 
-    path = f"{CAMERA_PATH}/text/{name}"
-    if lines is None:
-        meshcat.SetProperty(path, "visible", False)
-        return
-    mesh, (w, h) = text_panel_mesh(lines, width_px, colour, background)
-    view_height = 2.0 * TEXT_DEPTH * np.tan(np.radians(0.5 * MESHCAT_FOV_DEG))
-    x, y = anchor[0] * view_height + 0.5 * w, anchor[1] * view_height - 0.5 * h
-    meshcat.SetObject(path, mesh)
-    meshcat.SetTransform(path, RigidTransform([x, y, -TEXT_DEPTH]))
-    meshcat.SetProperty(path, "visible", True)
+    def __init__(self, meshcat, name: str, anchor: tuple[float, float], width_px: int = 700):
+        self._meshcat, self._anchor, self._width = meshcat, anchor, int(width_px)
+        self.path = f"{CAMERA_PATH}/text/{name}"
+        self._shown: int | None = None  # the slot on the screen
+        self._pending: int | None = None  # the slot written last, not shown yet
+        self.lines: list[str] | None = None  # the text written last
+
+    def show(self, lines: Sequence[str], colour=(255, 255, 255), background=(20, 20, 20)) -> None:
+        """Write ``lines`` (one string a line) in the colours given (RGB); the text written before
+        goes on the screen now, this one at the next ``show`` or ``flush``."""
+        from pydrake.math import RigidTransform
+
+        self.flush()
+        slot = 0 if self._shown != 0 else 1
+        path = f"{self.path}/{slot}"
+        mesh, (w, h) = text_panel_mesh(lines, self._width, colour, background)
+        view_height = 2.0 * TEXT_DEPTH * np.tan(np.radians(0.5 * MESHCAT_FOV_DEG))
+        x, y = self._anchor[0] * view_height + 0.5 * w, self._anchor[1] * view_height - 0.5 * h
+        # Off the screen until ``flush`` (the page loads the picture of a visible object only).
+        self._meshcat.SetTransform(path, RigidTransform([x + 10.0 * view_height, y, -TEXT_DEPTH]))
+        self._meshcat.SetObject(path, mesh)
+        self._meshcat.SetProperty(path, "visible", True)
+        self._meshcat.SetProperty(self.path, "visible", True)
+        self._pending, self._pending_xy, self.lines = slot, (x, y), list(lines)
+
+    def flush(self) -> None:
+        """Put the text written last on the screen (the other slot hidden)."""
+        from pydrake.math import RigidTransform
+
+        if self._pending is None:
+            return
+        self._meshcat.SetTransform(f"{self.path}/{self._pending}", RigidTransform([*self._pending_xy, -TEXT_DEPTH]))
+        if self._shown is not None and self._shown != self._pending:
+            self._meshcat.SetProperty(f"{self.path}/{self._shown}", "visible", False)
+        self._shown, self._shown_xy, self._pending = self._pending, self._pending_xy, None
+
+    def redraw(self) -> None:
+        """Make the page draw the panel again (its pose sent again): the page draws only when
+        told something changed, not when it has decoded a picture, so a still scene (a paused
+        run) shows a new panel only after this."""
+        from pydrake.math import RigidTransform
+
+        if self._shown is not None:
+            self._meshcat.SetTransform(f"{self.path}/{self._shown}", RigidTransform([*self._shown_xy, -TEXT_DEPTH]))
+
+    def hide(self) -> None:
+        self._meshcat.SetProperty(self.path, "visible", False)

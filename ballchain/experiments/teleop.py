@@ -500,6 +500,9 @@ LIVE_CHUNK = 0.05  # [s] simulated time per advance: quit, Ctrl-C and the readou
 LIVE_STATUS_PERIOD = 2.0  # [s] wall time between console status lines
 LIVE_PANEL_PERIOD = 0.5  # [s] wall time between updates of the page's readout panel
 LIVE_POLL = 0.05  # [s] wall time between looks at Meshcat while waiting (a browser, a reset)
+# Where the page's panels go (``TextPanel``: top-left corners, screen heights from the centre):
+# the readouts top left, the key map bottom left, the heart in the middle of the screen.
+LIVE_STATUS_ANCHOR, LIVE_KEYS_ANCHOR = (-0.7, 0.44), (-0.7, -0.34)
 
 
 def check_live_inputs(mapping: str, units: str, n_balls: int | None, duration: float | None,
@@ -556,10 +559,12 @@ class LiveSession:
         meshcat: the Meshcat (localhost).
         joystick: the MeshcatJoystick.
         chain_monitor: the ChainMonitor (watchdog).
+        status: the page's readout panel (``TextPanel``, set by ``run_live``), or None.
     """
 
     def __init__(self, cd, runner, meshcat, joystick):
         self.cd, self.runner, self.meshcat, self.joystick = cd, runner, meshcat, joystick
+        self.status = None
         self.simulator, self.root, self.chain_monitor = runner.simulator, runner.context, runner.monitor
 
     def advance_to(self, t: float) -> str | None:
@@ -648,13 +653,13 @@ def build_live(*, mapping: str = "world", units: str = "one", n_balls: int | Non
 
 
 def _panel_lines(session, mapping: str, omega: float) -> list[str]:
-    """The page's key-map panel: the mapping and every binding."""
-    from ballchain.systems.meshcat_joystick import key_map_text
+    """The page's key-map panel: the mapping and every binding, in a few lines."""
+    from ballchain.systems.meshcat_joystick import key_map_compact
 
     head = (f"world mapping: stick axes 0, 1, 2 turn the magnet about world x, y, z (up to {omega:g} rad/s)"
             if mapping == "world" else
             f"catheter mapping: axes 0, 1 swing the tip's field about its z, -y (up to {omega:g} rad/s)")
-    return [head] + key_map_text(session.joystick.keys).splitlines()
+    return [head] + key_map_compact(session.joystick.keys)
 
 
 def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None = None,
@@ -697,7 +702,7 @@ def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None 
     from ballchain.drake_models.params import gram_force
     from ballchain.systems.chain_simulation import frozen_gc
     from ballchain.systems.meshcat_joystick import key_map_text
-    from ballchain.systems.meshcat_overlays import show_text
+    from ballchain.systems.meshcat_overlays import TextPanel
 
     check_live_inputs(mapping, units, n_balls, duration, realtime_rate)
     session = build_live(mapping=mapping, units=units, n_balls=n_balls, overrides=overrides, meshcat=meshcat,
@@ -715,12 +720,14 @@ def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None 
     echo(_panel_lines(session, mapping, omega)[0])
     echo(key_map_text(session.joystick.keys))
     echo("the targets turn green when the tip touches them; the orange arrow is the wall's force on the tip")
-    show_text(meshcat, "keys", _panel_lines(session, mapping, omega), anchor=(-0.7, -0.08), width_px=1000)
+    keys = TextPanel(meshcat, "keys", anchor=LIVE_KEYS_ANCHOR, width_px=1150)
+    keys.show(_panel_lines(session, mapping, omega))
+    keys.flush()
+    status = session.status = TextPanel(meshcat, "status", anchor=LIVE_STATUS_ANCHOR, width_px=1150)
 
     def panel(lines, paused=False):
-        show_text(meshcat, "status", lines, anchor=(-0.7, 0.44), width_px=1000,
-                  colour=(255, 235, 120) if paused else (255, 255, 255),
-                  background=(110, 10, 10) if paused else (20, 20, 20))
+        status.show(lines, colour=(255, 235, 120) if paused else (255, 255, 255),
+                    background=(150, 20, 20) if paused else (20, 20, 20))
 
     ended, stops, restarts = "duration", [], 0
     limit = np.inf if duration is None else float(duration)
@@ -731,6 +738,7 @@ def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None 
         if wait_for_browser and meshcat.GetNumActiveConnections() == 0:
             echo("waiting for a browser to open the page (the clock starts then)")
             panel(["waiting for the page to connect"])
+            status.flush()
             while meshcat.GetNumActiveConnections() == 0:
                 time.sleep(LIVE_POLL)
         waited = time.perf_counter() - waited
@@ -757,7 +765,12 @@ def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None 
                     panel(["PAUSED: the watchdog stopped the run", *_wrap(reason, 80),
                            "R: start over from the beginning    Escape: quit"], paused=True)
                     reset0, quit0 = session.clicks("reset"), session.clicks("quit")
+                    paused = time.perf_counter()
                     while session.clicks("reset") == reset0 and session.clicks("quit") == quit0:
+                        if time.perf_counter() - paused > LIVE_PANEL_PERIOD:
+                            status.flush()  # the page has decoded the pause panel by now
+                            status.redraw()
+                            paused = time.perf_counter()
                         time.sleep(LIVE_POLL)
                     if session.clicks("quit") != quit0:
                         ended = "quit"
@@ -814,8 +827,6 @@ def _wrap(text: str, width: int) -> list[str]:
 
 def _end_live(session, echo, ended: str, stops: list, wall: float, n_targets: int) -> list[str]:
     """The summary line; the buttons removed from the page and the panel says the session ended."""
-    from ballchain.systems.meshcat_overlays import show_text
-
     sim_time = session.root.get_time()
     touched = session.touched()
     failure = stops[-1]["reason"] if ended == "failure" else None
@@ -823,6 +834,6 @@ def _end_live(session, echo, ended: str, stops: list, wall: float, n_targets: in
          f"{len(touched)}/{n_targets} targets touched" + (f" ({', '.join(touched)})" if touched else "")
          + (f", {len(stops)} stop(s)" if stops else ""))
     session.joystick.remove_buttons()
-    show_text(session.meshcat, "status", [f"the session ended ({ended}) at t = {sim_time:.1f} s"], anchor=(-0.7, 0.44),
-              width_px=1000)
+    session.status.show([f"the session ended ({ended}) at t = {sim_time:.1f} s"])
+    session.status.flush()
     return touched
