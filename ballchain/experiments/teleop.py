@@ -498,7 +498,9 @@ class LiveResult(Result):
 LIVE_SCENARIOS = {"one": SCENARIO, "two": "teleop_two_units"}  # --units: the right unit, or both
 LIVE_CHUNK = 0.05  # [s] simulated time per advance: quit, Ctrl-C and the readouts between chunks
 LIVE_STATUS_PERIOD = 2.0  # [s] wall time between console status lines
-LIVE_PANEL_PERIOD = 0.5  # [s] wall time between updates of the page's readout panel
+# [s] wall time between updates of the page's readout panel: each is a new picture the page
+# decodes (a software-drawing browser under load took over 0.5 s to; at 1.5 s the pictures show).
+LIVE_PANEL_PERIOD = 1.5
 LIVE_POLL = 0.05  # [s] wall time between looks at Meshcat while waiting (a browser, a reset)
 # Where the page's panels go (``TextPanel``: top-left corners, screen heights from the centre):
 # the readouts top left, the key map bottom left, the heart in the middle of the screen.
@@ -742,7 +744,7 @@ def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None 
             while meshcat.GetNumActiveConnections() == 0:
                 time.sleep(LIVE_POLL)
         waited = time.perf_counter() - waited
-        start = last_wall = last_panel = time.perf_counter()
+        start = last_wall = last_panel = last_line = time.perf_counter()
         last_sim, last_ball_1 = 0.0, session.ball_1_along_sheath()
         with frozen_gc(freeze_gc):
             while session.root.get_time() < limit - 1e-12:
@@ -778,30 +780,33 @@ def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None 
                     session.restart()
                     restarts += 1
                     echo("started over")
-                    last_wall = last_panel = time.perf_counter()
+                    last_wall = last_panel = last_line = time.perf_counter()
                     last_sim, last_ball_1 = 0.0, session.ball_1_along_sheath()
                     continue
                 now = time.perf_counter()
-                if now - last_panel >= LIVE_PANEL_PERIOD or now - last_wall >= status_period:
+                panel_due, line_due = now - last_panel >= LIVE_PANEL_PERIOD, now - last_line >= status_period
+                if panel_due or line_due:
                     t = session.root.get_time()
                     unit, stick, v_cmd = session.joystick_state()
                     ball_1 = session.ball_1_along_sheath()
-                    # Measured over the period: the chain's actual insertion, not the command.
+                    # Measured since the last readout: the chain's actual insertion, not the command.
                     v_ball_1 = (ball_1 - last_ball_1) / (t - last_sim) if t > last_sim else 0.0
                     rate = (t - last_sim) / (now - last_wall)
                     f_gf = gram_force(float(np.linalg.norm(session.tip_force_N())))
                     touched = session.touched()
-                    panel([f"t = {t:.1f} s   real-time rate {rate:.2f}   {unit}",
-                           f"targets touched {len(touched)}/{n_targets}"
-                           + (f": {', '.join(touched[-4:])}" if touched else ""),
-                           f"tip force on the wall {f_gf:.1f} gf",
-                           f"feeder: ball 1 moves {v_ball_1 * 1e3:+.1f} mm/s (command {v_cmd * 1e3:+.1f} mm/s)"])
-                    meshcat.SetRealtimeRate(rate)
-                    last_panel = now
-                    if now - last_wall >= status_period:
+                    if panel_due:
+                        panel([f"t = {t:.1f} s   real-time rate {rate:.2f}   {unit}",
+                               f"targets touched {len(touched)}/{n_targets}"
+                               + (f": {', '.join(touched[-4:])}" if touched else ""),
+                               f"tip force on the wall {f_gf:.1f} gf",
+                               f"feeder: ball 1 moves {v_ball_1 * 1e3:+.1f} mm/s (command {v_cmd * 1e3:+.1f} mm/s)"])
+                        meshcat.SetRealtimeRate(rate)
+                        last_panel = now
+                    if line_due:
                         echo(f"t = {t:7.2f} s  real-time rate {rate:5.2f}  targets {len(touched)}/{n_targets}  "
                              f"tip force {f_gf:5.1f} gf  {unit} stick {np.round(stick, 2).tolist()}  "
                              f"feeder: ball 1 {v_ball_1 * 1e3:+.1f} mm/s (command {v_cmd * 1e3:+.1f})")
+                        last_line = now
                     last_wall, last_sim, last_ball_1 = now, t, ball_1
     except KeyboardInterrupt:
         _end_live(session, echo, "interrupted", stops, time.perf_counter() - start, n_targets)
