@@ -5,7 +5,9 @@ exported ports are described there); ``build_chain_diagram`` and ``ChainDiagram`
 ``MakeStation`` and ``Station`` under the names the rest of the code uses.
 
 ``run_station`` is the one Simulator loop (watchdog, progress, stop condition, a run's own
-check, recording, Ctrl-C) of ``simulate``, teleoperation and the force pin; ``run_simulation``
+check, recording, Ctrl-C) of ``simulate``, teleoperation and the force pin, on a
+``StationRunner`` (the Simulator with the scenario's simulator_config and the station monitor),
+which the live view advances in chunks and starts over after a stop; ``run_simulation``
 stops with ``SimulationFailure`` (saying when and which ball) on a NaN, a ball leaving the heart
 or the chain breaking apart, and returns the typed ``SimulationMetrics`` otherwise.
 """
