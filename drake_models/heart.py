@@ -425,14 +425,7 @@ class LeftAtrium:
         """
         p_H = np.atleast_2d(np.asarray(p_H, float))
         V, F = self.closed_inner_surface
-        inside = mt.points_inside_closed(V, F, p_H)
-        tube_end = self.params.vein_length + self.params.wall_thickness
-        for o in self.ostia:
-            rel = p_H - o.p_HO
-            along = rel @ o.axis_H
-            inside |= (along > -0.5 * o.diameter) & (along < tube_end) & _tube_polygon_inside(
-                o, self.params.vein_segments, rel, along)
-        return inside
+        return mt.points_inside_closed(V, F, p_H) | self.in_veins(p_H, outer=False)
 
     def lumen_grid_contains(self, origin: np.ndarray, spacing: float, shape: tuple[int, int, int]) -> np.ndarray:
         """``lumen_contains`` at every node of a grid (origin (3,) [m], spacing [m], shape) ->
@@ -456,14 +449,31 @@ class LeftAtrium:
         """Whether points (k, 3) [m] are inside the chamber (within its outer wall) or a vein."""
         p_H = np.atleast_2d(np.asarray(p_H, float))
         outer = self.semi_axes + self.params.wall_thickness
-        inside = ((p_H / outer) ** 2).sum(axis=1) <= 1.0
+        return (((p_H / outer) ** 2).sum(axis=1) <= 1.0) | self.in_veins(p_H, outer=True)
+
+    def in_veins(self, p_H: np.ndarray, outer: bool = False) -> np.ndarray:
+        """Whether points (k, 3) [m] lie in a vein: the one rule of what a vein holds, for every
+        containment test (``lumen_contains``: the SDF's sign; ``contains``: the watchdog's escape
+        test).
+
+        Along each vein's axis, from half a diameter below the ostium centre (where the hole is
+        cut in the endocardium) to the tube's open end, ``vein_length + wall_thickness`` beyond
+        the ostium centre (where ``_vein_tubes``' mesh ends); across it, inside the lumen of the
+        tube's collision mesh (its regular polygon), or with ``outer`` within the tube's outer
+        wall (radius plus the wall thickness, a circle: the wall's outside).
+        """
+        p_H = np.atleast_2d(np.asarray(p_H, float))
+        tube_end = self.params.vein_length + self.params.wall_thickness
+        inside = np.zeros(len(p_H), bool)
         for o in self.ostia:
-            rel = p_H - (o.p_HO + o.tube_start * o.axis_H)
+            rel = p_H - o.p_HO
             along = rel @ o.axis_H
-            radial = np.linalg.norm(rel - along[:, None] * o.axis_H, axis=1)
-            inside |= (along >= 0) & (along <= self.params.vein_length + self.params.wall_thickness) & (
-                radial <= 0.5 * o.diameter + self.params.wall_thickness
-            )
+            span = (along > -0.5 * o.diameter) & (along < tube_end)
+            if outer:
+                radial = np.linalg.norm(rel - along[:, None] * o.axis_H, axis=1)
+                inside |= span & (radial <= 0.5 * o.diameter + self.params.wall_thickness)
+            else:
+                inside |= span & _tube_polygon_inside(o, self.params.vein_segments, rel, along)
         return inside
 
     @property

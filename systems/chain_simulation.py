@@ -5,7 +5,9 @@ exported ports are described there); ``build_chain_diagram`` and ``ChainDiagram`
 ``MakeStation`` and ``Station`` under the names the rest of the code uses.
 
 ``run_station`` is the one Simulator loop (watchdog, progress, stop condition, a run's own
-check, recording, Ctrl-C) of ``simulate``, teleoperation and the force pin; ``run_simulation``
+check, recording, Ctrl-C) of ``simulate``, teleoperation and the force pin, on a
+``StationRunner`` (the Simulator with the scenario's simulator_config and the station monitor),
+which the live view advances in chunks and starts over after a stop; ``run_simulation``
 stops with ``SimulationFailure`` (saying when and which ball) on a NaN, a ball leaving the heart
 or the chain breaking apart, and returns the typed ``SimulationMetrics`` otherwise.
 """
@@ -16,6 +18,7 @@ import gc
 import resource
 import sys
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -148,9 +151,9 @@ build_chain_diagram = MakeStation
 
 __all__ = [
     "ChainDiagram", "ChainMonitor", "RunOutcome", "SimulationFailure", "SimulationMetrics", "SnapThrough",
-    "StaticsEngineStats", "StationPorts", "add_magnetic_wrench",
-    "atrium_for", "build_chain_diagram", "chain_for", "field_source_for", "run_simulation", "run_station",
-    "station_monitor",
+    "StaticsEngineStats", "StationPorts", "StationRunner", "add_magnetic_wrench",
+    "atrium_for", "build_chain_diagram", "chain_for", "field_source_for", "frozen_gc", "run_simulation",
+    "run_station", "station_monitor",
 ]
 
 
@@ -218,6 +221,14 @@ class ChainMonitor:
         self._iu = np.triu_indices(cd.chain_plant.n_balls, k=1)
         self._tolerate_sinking = tolerate_sinking
         self.tolerated_sinkings: list[tuple[float, int, float]] = []
+
+    def restart(self) -> None:
+        """Forget the failure and the check schedule: the run starts over from its initial state
+        (``StationRunner.restart``); the metrics keep their extremes over every start."""
+        self.failure = None
+        self._next_check = 0.0
+        self._since_wall = self._wall_every - 1
+        self._last_wall_time = -np.inf
 
     def _finite(self, context) -> bool:
         if self._cd.engine is not None:
@@ -417,11 +428,130 @@ def station_monitor(cd: ChainDiagram, monitor: ChainMonitor, stop=None, on_time=
     return watch
 
 
+@contextmanager
+def frozen_gc(enabled: bool = True):
+    """Freeze the Python objects alive now (``gc.freeze``) for the ``with`` block, unfreeze after.
+
+    The libraries and a built station keep ~170k Python objects alive; a full (generation 2)
+    collection scans them all (~65 ms on this machine) and lands in a run wherever the
+    allocation count says. Frozen they are not scanned (garbage made in the block is still
+    collected); unfrozen afterwards, so any garbage among them is collected later. A process-wide
+    switch: only a program that owns its process (the command line) asks for it, after the build
+    (``run_station(freeze_gc=True)``, the live view).
+    """
+    if not enabled:
+        yield
+        return
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
+
+
+class StationRunner:
+    """The Simulator of a built station with its watchdog: the run loop of ``run_station`` (one
+    advance to the end) and of the live view (chunks between a person's inputs, and a restart).
+
+    The Simulator gets the scenario's ``simulator_config`` (its defaults are the Simulator's
+    own; an explicit ``realtime_rate`` overrides its target_realtime_rate) and the monitor
+    ``station_monitor(cd, monitor, stop, on_time, check)``. Neither ``check`` nor ``stop`` nor
+    the watchdog changes the trajectory (they only read the state).
+
+    Args:
+        cd: the built diagram.
+        monitor: the watchdog (default: ``ChainMonitor(cd)``).
+        stop, check, on_time: as ``station_monitor``.
+        context: None (the diagram's default context), or a root context to start from.
+        realtime_rate: the target real-time rate (None: the scenario's).
+        restartable: keep a copy of the initial context for ``restart``.
+
+    Attributes:
+        simulator, context (its root context), monitor; stopped: ``stop`` ended the last advance;
+        failure: the failure message that ended the last advance, or None.
+    """
+
+    def __init__(self, cd: ChainDiagram, *, monitor: ChainMonitor | None = None, stop=None, check=None,
+                 on_time=None, context=None, realtime_rate: float | None = None, restartable: bool = False):
+        self.cd = cd
+        if context is None and cd.scenario.random_seed is not None:
+            from pydrake.common import RandomGenerator
+
+            from ballchain.systems.randomness import set_random_context
+
+            context = cd.diagram.CreateDefaultContext()
+            set_random_context(cd.diagram, context, RandomGenerator(cd.scenario.random_seed))
+        self.simulator = Simulator(cd.diagram) if context is None else Simulator(cd.diagram, context)
+        ApplySimulatorConfig(cd.scenario.simulator_config, self.simulator)
+        if realtime_rate is not None:
+            self.simulator.set_target_realtime_rate(realtime_rate)
+        self.monitor = ChainMonitor(cd) if monitor is None else monitor
+        self._checked = []  # the message of ``check``, when it ended the run
+
+        def run_check(root_context):
+            message = check(root_context)
+            if message:
+                self._checked.append(message)
+            return message
+
+        self.simulator.set_monitor(station_monitor(cd, self.monitor, stop=stop, on_time=on_time,
+                                                   check=None if check is None else run_check))
+        self.context = self.simulator.get_mutable_context()
+        self._initial = self.context.Clone() if restartable else None
+        self._initialized = False
+        self.stopped = False
+        self.failure: str | None = None
+
+    def advance_to(self, t: float) -> str | None:
+        """Advance to simulated time t [s] (Initialize first, at the first call).
+
+        Returns:
+            None (t reached, or ``stop`` ended the advance: ``stopped``), or the failure message
+            of ``check`` or of the watchdog, or the solver's error with the time (no exception).
+
+        Raises:
+            KeyboardInterrupt: Ctrl-C, also when a compiled call wrapped it in another error.
+        """
+        from pydrake.systems.analysis import SimulatorStatus
+
+        try:
+            if not self._initialized:
+                self._initialized = True
+                self.simulator.Initialize()
+            status = self.simulator.AdvanceTo(t)
+        except BaseException as err:
+            if caused_by_interrupt(err):
+                if isinstance(err, KeyboardInterrupt):
+                    raise
+                raise KeyboardInterrupt from err
+            if not isinstance(err, (RuntimeError, ValueError)):
+                raise
+            self.failure = ((self._checked[0] if self._checked else self.monitor.failure)
+                            or f"at t = {self.context.get_time():.4f} s: {' '.join(str(err).split())}")
+            return self.failure
+        self.stopped = status.reason() == SimulatorStatus.ReturnReason.kReachedTerminationCondition
+        return None
+
+    def restart(self) -> None:
+        """Start over from the initial context (time, state, parameters; needs ``restartable``):
+        the watchdog's schedule and failure and the quasi-static engine's failure are cleared and
+        the next advance initialises the Simulator again (its real-time pacing too)."""
+        if self._initial is None:
+            raise RuntimeError("StationRunner.restart needs restartable=True")
+        self.context.SetTimeStateAndParametersFrom(self._initial)
+        self.monitor.restart()
+        if self.cd.engine is not None:
+            self.cd.engine.failure = None
+        self._checked.clear()
+        self._initialized, self.stopped, self.failure = False, False, None
+
+
 def run_station(cd: ChainDiagram, *, duration: float, monitor: ChainMonitor | None = None, stop=None,
                 check=None, context=None, progress: str | None = None, progress_step: float | None = None,
-                html: Path | None = None, meshcat=None, realtime_rate: float | None = None) -> RunOutcome:
+                html: Path | None = None, meshcat=None, realtime_rate: float | None = None,
+                freeze_gc: bool = False) -> RunOutcome:
     """Run a built station: the one Simulator loop of the scenario runs, the teleoperation tasks
-    and the force pin.
+    and the force pin (``StationRunner``, advanced once to ``duration``).
 
     The Simulator's monitor runs after Initialize and after every step: ``check`` first, then
     the watchdog (``monitor``), then the progress bar, then ``stop``. A failure of ``check`` or
@@ -448,26 +578,12 @@ def run_station(cd: ChainDiagram, *, duration: float, monitor: ChainMonitor | No
         meshcat: the Meshcat the diagram was built with (needed with ``html``).
         realtime_rate: the Simulator's target real-time rate (None: the scenario's
             ``simulator_config.target_realtime_rate``, 0 by default: as fast as possible).
+        freeze_gc: freeze the objects alive at the start for the run (``frozen_gc``: a
+            process-wide switch, for a program that owns its process).
 
     Returns:
         RunOutcome.
     """
-    from pydrake.systems.analysis import SimulatorStatus
-
-    if context is None and cd.scenario.random_seed is not None:
-        from pydrake.common import RandomGenerator
-
-        from ballchain.systems.randomness import set_random_context
-
-        context = cd.diagram.CreateDefaultContext()
-        set_random_context(cd.diagram, context, RandomGenerator(cd.scenario.random_seed))
-    simulator = Simulator(cd.diagram) if context is None else Simulator(cd.diagram, context)
-    # The scenario's SimulatorConfig (its defaults are the Simulator's own); an explicit
-    # ``realtime_rate`` overrides its target_realtime_rate.
-    ApplySimulatorConfig(cd.scenario.simulator_config, simulator)
-    if realtime_rate is not None:
-        simulator.set_target_realtime_rate(realtime_rate)
-    monitor = ChainMonitor(cd) if monitor is None else monitor
     bar = None
     if progress is not None:
         from tqdm import tqdm
@@ -482,53 +598,29 @@ def run_station(cd: ChainDiagram, *, duration: float, monitor: ChainMonitor | No
             bar.update(t - shown[0])
             shown[0] = t
 
-    checked = []  # the message of ``check``, when it ended the run
-
-    def run_check(root_context):
-        message = check(root_context)
-        if message:
-            checked.append(message)
-        return message
-
-    simulator.set_monitor(station_monitor(cd, monitor, stop=stop, on_time=None if bar is None else show,
-                                          check=None if check is None else run_check))
-    root = simulator.get_mutable_context()
+    runner = StationRunner(cd, monitor=monitor, stop=stop, check=check, on_time=None if bar is None else show,
+                           context=context, realtime_rate=realtime_rate)
+    root = runner.context
     record = cd.visualizer is not None and html is not None
     if record:
         cd.visualizer.StartRecording()
-    failure, stopped = None, False
-    # The libraries and the built station keep ~170k Python objects alive; a full (generation 2)
-    # collection scans them all (~65 ms on this machine) and lands in a run wherever the
-    # allocation count says. Frozen for the run they are not scanned (garbage made during the run
-    # is still collected); unfrozen afterwards, so any garbage among them is collected later.
-    gc.freeze()
-    start, cpu = time.perf_counter(), time.process_time()
     try:
-        simulator.Initialize()
-        status = simulator.AdvanceTo(duration)
-        stopped = status.reason() == SimulatorStatus.ReturnReason.kReachedTerminationCondition
-    except BaseException as err:
-        if caused_by_interrupt(err):  # Ctrl-C (maybe wrapped by a compiled call): keep the replay, stop
-            if record:
-                _export_recording(cd, meshcat, html)
-                print(f"{progress or 'run'}: interrupted at t = {root.get_time():.4f} s; replay so far written "
-                      f"to {html}", file=sys.stderr)
-            if isinstance(err, KeyboardInterrupt):
-                raise
-            raise KeyboardInterrupt from err
-        if not isinstance(err, (RuntimeError, ValueError)):
-            raise
-        # The monitor's failure, or a solver/physics error.
-        failure = ((checked[0] if checked else monitor.failure)
-                   or f"at t = {root.get_time():.4f} s: {' '.join(str(err).split())}")
+        with frozen_gc(freeze_gc):
+            start, cpu = time.perf_counter(), time.process_time()
+            failure = runner.advance_to(duration)
+    except KeyboardInterrupt:  # Ctrl-C: keep the replay, stop
+        if record:
+            _export_recording(cd, meshcat, html)
+            print(f"{progress or 'run'}: interrupted at t = {root.get_time():.4f} s; replay so far written "
+                  f"to {html}", file=sys.stderr)
+        raise
     finally:
-        gc.unfreeze()
         if bar is not None:
             bar.close()
     wall, cpu = time.perf_counter() - start, time.process_time() - cpu
     if record:
         _export_recording(cd, meshcat, html)
-    return RunOutcome(root.get_time(), wall, cpu, failure, stopped, monitor, root, simulator)
+    return RunOutcome(root.get_time(), wall, cpu, failure, runner.stopped, runner.monitor, root, runner.simulator)
 
 
 def _statics_stats(engine) -> StaticsEngineStats:

@@ -17,7 +17,8 @@ open in a browser:
   repeats). A browser only reports presses, not releases, so the keys move a virtual stick that
   stays where it was put, like a throttle: each press moves one axis (or the feeder command) by
   ``key_step`` towards +1 or -1; Space centres the stick and stops the feeder; N selects the
-  next magnet; Escape quits. ``KEY_MAP`` lists the keys.
+  next magnet; Escape quits; R starts the live view over after the watchdog paused it (read by
+  the live view, ``experiments/teleop.py``). ``KEY_MAP`` lists the keys.
 
 What reaches the station is the sum of the two, clipped to [-1, 1]; the stick drives only the
 selected unit (the others get zero), the feeder command is scaled by ``feeder_speed``.
@@ -43,7 +44,7 @@ class Key:
 
     label: str
     code: str
-    action: str  # "axis", "feed", "centre", "next", "quit"
+    action: str  # "axis", "feed", "centre", "next", "quit", "reset" (read by the live view, not here)
     index: int = 0  # the stick axis for "axis"
     sign: float = 1.0
 
@@ -60,6 +61,7 @@ KEY_MAP: tuple[Key, ...] = (
     Key("centre stick, stop feeder (Space)", "Space", "centre"),
     Key("next magnet (N)", "KeyN", "next"),
     Key("quit (Escape)", "Escape", "quit"),
+    Key("start over after a stop (R)", "KeyR", "reset"),
 )
 
 # The browser's standard gamepad mapping (https://w3c.github.io/gamepad/#remapping).
@@ -238,3 +240,22 @@ def key_map_text(keys: Sequence[Key] = KEY_MAP) -> str:
               "  RT / LT     feed / retract (analogue)",
               "  RB next magnet; B centre the keyboard's stick; Start quit"]
     return "\n".join(lines)
+
+
+def key_map_compact(keys: Sequence[Key] = KEY_MAP, per_line: int = 3) -> list[str]:
+    """The bindings in a few short lines (for a panel on the page): a key pair of one axis (or of
+    the feeder) as "D/A stick 0 +/-", the others as "Space centre stick, stop feeder"."""
+    entries, seen = [], set()
+    for k in keys:
+        if (k.action, k.index) in seen:
+            continue
+        pair = [q for q in keys if q.action == k.action and q.index == k.index] if k.action in ("axis", "feed") else [k]
+        seen.add((k.action, k.index))
+        codes = "/".join(q.code.removeprefix("Key") for q in pair)
+        words = [q.label.rsplit(" (", 1)[0] for q in pair]
+        if len(pair) == 2 and k.action == "axis":
+            words = [f"{words[0][:-2]} +/-"]
+        entries.append(f"{codes} {' / '.join(words)}")
+    lines = ["   ".join(entries[i:i + per_line]) for i in range(0, len(entries), per_line)]
+    return lines + ["gamepad: left stick axes 0, 1; right stick axis 2; RT/LT feed/retract; RB next; B centre; "
+                    "Start quit"]

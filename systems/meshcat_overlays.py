@@ -22,6 +22,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
 from ballchain.systems.magnetic_wrench import external_field_source
+from ballchain.systems.meshcat_view import MESHCAT_FOV_DEG
 from ballchain.systems.target_contact import wall_force_on, wall_geometries
 
 FIELD_ARROW_SCALE = 1.0  # [m/T]: 1 mm per mT
@@ -181,3 +182,120 @@ class MeshcatOverlays(LeafSystem):
         self._draw_targets(context, changed_only=False)
         self._draw_arrows(context)
         return EventStatus.Succeeded()
+
+
+# --------------------------------------------------------------------------- text on the screen
+# Meshcat draws no text of its own: a panel is a picture of the text (PIL) on a flat square
+# (an OBJ with its texture) that is a child of Meshcat's camera, so it stays put on the screen
+# while the person turns the view. three.js keeps the vertical field of view (MESHCAT_FOV_DEG) and
+# widens the horizontal one with the window, so a panel is placed by its height on the screen.
+CAMERA_PATH = "/Cameras/default/rotated/<object>"
+TEXT_DEPTH = 0.015  # [m] in front of the camera (Meshcat's near plane is at 0.01 m)
+TEXT_PX_PER_VIEW = 1400  # texture pixels per screen height (sharp on screens up to about 1400 px)
+TEXT_FONT_PX = 26  # font height in texture pixels (13 px on a 700 px high view)
+
+
+def text_panel_mesh(lines: Sequence[str], width_px: int, colour=(255, 255, 255), background=(20, 20, 20),
+                    font_px: int = TEXT_FONT_PX):
+    """A flat rectangle showing ``lines`` as a Drake Mesh (in memory: OBJ, MTL and PNG), its
+    height in metres at ``TEXT_DEPTH`` in front of the camera (from ``TEXT_PX_PER_VIEW``).
+
+    Returns:
+        (Mesh, (width, height) [m]): the rectangle is centred on its origin, facing +z.
+    """
+    import hashlib
+    import io
+
+    from PIL import Image, ImageDraw, ImageFont
+    from pydrake.common import MemoryFile
+    from pydrake.geometry import InMemoryMesh, Mesh
+
+    font = ImageFont.load_default(size=font_px)
+    line_px = int(round(1.25 * font_px))
+    height_px = line_px * max(1, len(lines)) + font_px // 2
+    image = Image.new("RGB", (int(width_px), height_px), background)
+    draw = ImageDraw.Draw(image)
+    for k, line in enumerate(lines):
+        draw.text((font_px // 2, font_px // 4 + k * line_px), line, font=font, fill=colour)
+    png = io.BytesIO()
+    image.save(png, format="PNG")
+    # Files named by their content: the page keeps a texture by its file name, so a new text under
+    # a name seen before would never be loaded.
+    name = "panel_" + hashlib.sha1(png.getvalue()).hexdigest()[:12]
+    view_height = 2.0 * TEXT_DEPTH * np.tan(np.radians(0.5 * MESHCAT_FOV_DEG))
+    w, h = view_height * width_px / TEXT_PX_PER_VIEW, view_height * height_px / TEXT_PX_PER_VIEW
+    obj = (f"mtllib {name}.mtl\nv {-w / 2} {-h / 2} 0\nv {w / 2} {-h / 2} 0\nv {w / 2} {h / 2} 0\n"
+           f"v {-w / 2} {h / 2} 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvn 0 0 1\nusemtl {name}\n"
+           "f 1/1/1 2/2/1 3/3/1\nf 1/1/1 3/3/1 4/4/1\n")
+    # Emissive only (no diffuse): the panel shows its picture's colours whatever the lights.
+    mtl = f"newmtl {name}\nKa 0 0 0\nKd 0 0 0\nKs 0 0 0\nKe 1 1 1\nmap_Ke {name}.png\n"
+    mesh = InMemoryMesh(mesh_file=MemoryFile(obj, ".obj", f"{name}.obj"),
+                        supporting_files={f"{name}.mtl": MemoryFile(mtl, ".mtl", f"{name}.mtl"),
+                                          f"{name}.png": MemoryFile(png.getvalue(), ".png", f"{name}.png")})
+    return Mesh(mesh), (w, h)
+
+
+class TextPanel:
+    """Lines of text fixed on the screen: a child of Meshcat's camera, so it stays put while the
+    person turns the view.
+
+    A new text is a new picture that the browser decodes before it can draw it (drawn before,
+    its square is black). So each text goes into one of two slots, hidden, and is shown (the
+    other slot hidden) at the next ``show`` or ``flush``: what the page shows lags one update.
+
+    Args:
+        meshcat: the Meshcat.
+        name: the panel's name (``<camera>/text/<name>``).
+        anchor: where the panel's top-left corner goes, in screen heights from the screen's
+            centre (x to the right, y up: (-0.5, 0.5) is the top edge, half a screen height left
+            of the centre, the left edge of a square window).
+        width_px: the panel's width in texture pixels (``TEXT_PX_PER_VIEW`` per screen height).
+    """
+
+    def __init__(self, meshcat, name: str, anchor: tuple[float, float], width_px: int = 700):
+        self._meshcat, self._anchor, self._width = meshcat, anchor, int(width_px)
+        self.path = f"{CAMERA_PATH}/text/{name}"
+        self._shown: int | None = None  # the slot on the screen
+        self._pending: int | None = None  # the slot written last, not shown yet
+        self.lines: list[str] | None = None  # the text written last
+
+    def show(self, lines: Sequence[str], colour=(255, 255, 255), background=(20, 20, 20)) -> None:
+        """Write ``lines`` (one string a line) in the colours given (RGB); the text written before
+        goes on the screen now, this one at the next ``show`` or ``flush``."""
+        from pydrake.math import RigidTransform
+
+        self.flush()
+        slot = 0 if self._shown != 0 else 1
+        path = f"{self.path}/{slot}"
+        mesh, (w, h) = text_panel_mesh(lines, self._width, colour, background)
+        view_height = 2.0 * TEXT_DEPTH * np.tan(np.radians(0.5 * MESHCAT_FOV_DEG))
+        x, y = self._anchor[0] * view_height + 0.5 * w, self._anchor[1] * view_height - 0.5 * h
+        # Off the screen until ``flush`` (the page loads the picture of a visible object only).
+        self._meshcat.SetTransform(path, RigidTransform([x + 10.0 * view_height, y, -TEXT_DEPTH]))
+        self._meshcat.SetObject(path, mesh)
+        self._meshcat.SetProperty(path, "visible", True)
+        self._meshcat.SetProperty(self.path, "visible", True)
+        self._pending, self._pending_xy, self.lines = slot, (x, y), list(lines)
+
+    def flush(self) -> None:
+        """Put the text written last on the screen (the other slot hidden)."""
+        from pydrake.math import RigidTransform
+
+        if self._pending is None:
+            return
+        self._meshcat.SetTransform(f"{self.path}/{self._pending}", RigidTransform([*self._pending_xy, -TEXT_DEPTH]))
+        if self._shown is not None and self._shown != self._pending:
+            self._meshcat.SetProperty(f"{self.path}/{self._shown}", "visible", False)
+        self._shown, self._shown_xy, self._pending = self._pending, self._pending_xy, None
+
+    def redraw(self) -> None:
+        """Make the page draw the panel again (its pose sent again): the page draws only when
+        told something changed, not when it has decoded a picture, so a still scene (a paused
+        run) shows a new panel only after this."""
+        from pydrake.math import RigidTransform
+
+        if self._shown is not None:
+            self._meshcat.SetTransform(f"{self.path}/{self._shown}", RigidTransform([*self._shown_xy, -TEXT_DEPTH]))
+
+    def hide(self) -> None:
+        self._meshcat.SetProperty(self.path, "visible", False)

@@ -293,7 +293,7 @@ def test_two_units_next_magnet_moves_the_stick_to_the_other_unit():
 def test_live_run_headless_with_a_bounded_duration(capsys):
     """``ballchain teleop --live --duration`` runs headless on localhost, prints the URL and the key
     map (to stderr with --json) and stops at the duration with the achieved real-time rate."""
-    code = cli_main(["teleop", "--live", "--balls", "8", "--duration", "0.2", "--json"])
+    code = cli_main(["teleop", "--live", "--balls", "8", "--duration", "0.2", "--json", "--no-wait"])
     assert code == 0
     out = capsys.readouterr()
     data = json.loads(out.out)
@@ -312,14 +312,14 @@ def test_live_run_headless_with_a_bounded_duration(capsys):
 
 @pytest.mark.slow
 def test_ctrl_c_ends_a_live_run_cleanly():
-    """Ctrl-C (SIGINT) during a live run without --duration ends it with a summary and status 0."""
+    """Ctrl-C (SIGINT) during a live run without --duration ends it with a summary and status 130."""
     import signal
     import subprocess
     import sys
 
     code = "import sys; from ballchain.cli import main; sys.exit(main(sys.argv[1:]))"
     # SIGINT back to its default in the child: a test runner may have it ignored.
-    p = subprocess.Popen([sys.executable, "-c", code, "teleop", "--live", "--balls", "8"], stdout=subprocess.PIPE,
+    p = subprocess.Popen([sys.executable, "-c", code, "teleop", "--live", "--balls", "8", "--no-wait"], stdout=subprocess.PIPE,
                          stderr=subprocess.STDOUT, text=True,
                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
@@ -333,5 +333,5 @@ def test_ctrl_c_ends_a_live_run_cleanly():
     finally:
         if p.poll() is None:
             p.kill()
-    assert p.returncode == 0, "".join(seen) + rest
+    assert p.returncode == 130, "".join(seen) + rest
     assert "ended (interrupted)" in rest

@@ -10,8 +10,12 @@ missed target, and writes a Meshcat replay with ``--html``. The chain is the qua
 tremor. The real-time factor is simulated time over the wall time of the simulation loop.
 
 ``--live`` instead opens Meshcat on localhost and lets a person steer the chain in real time with a
-gamepad or the keyboard (``systems/meshcat_joystick.py``; the key map is printed on start), until
-Escape, the gamepad's Start, Ctrl-C or ``--duration`` simulated seconds.
+gamepad or the keyboard (``systems/meshcat_joystick.py``; the key map is printed on start and
+shown on the page), until Escape, the gamepad's Start, Ctrl-C (exit status 130) or ``--duration``
+simulated seconds; the clock starts when the first browser opens the page (``--no-wait``: at
+once). The flags of the simulated operator's task (``--task``, ``--targets``, ``--seed``,
+``--time-limit``, ``--html``, ``--no-progress``) do not apply to it and are refused, as the
+live-only flags are without ``--live``.
 """
 
 from __future__ import annotations
@@ -30,7 +34,8 @@ def _int(text: str) -> int:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--task", default="left", help="left (Task I, 20 targets) or right (Task II, 18 targets)")
+    parser.add_argument("--task", default=None,
+                        help="left (Task I, 20 targets; the default) or right (Task II, 18 targets)")
     parser.add_argument("--mapping", default="world",
                         help="world (the paper's: stick = magnet angular velocity in world) or catheter "
                              "(stick swings the tip in the tip's frame)")
@@ -39,7 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="chain length (default 16, the paper's; fewer is faster but not the paper's task)")
     parser.add_argument("--time-limit", type=finite_float, default=None,
                         help="simulated-time limit in seconds (default: every target's timeout plus 5 s)")
-    parser.add_argument("--seed", type=_int, default=0,
+    parser.add_argument("--seed", type=_int, default=None,
                         help="the simulated operator's seed (its hand's tremor), an integer in 0..2**32-1 (default 0)")
     parser.add_argument("--set", dest="overrides", default=None, metavar="YAML",
                         help="inline YAML overriding the station scenario (teleop_right_unit); the engine is the "
@@ -50,13 +55,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--live", action="store_true",
                         help="steer the chain yourself in Meshcat (localhost) with a gamepad or the keyboard, "
-                             "in real time; prints the URL and the key map (--task, --targets and --html do not apply)")
-    parser.add_argument("--units", default="one",
+                             "in real time; prints the URL and the key map (--task, --targets, --seed, --time-limit, "
+                             "--html and --no-progress do not apply)")
+    parser.add_argument("--units", default=None,
                         help="with --live: one (the right unit) or two (both sides; N or the gamepad's RB switches)")
     parser.add_argument("--duration", type=finite_float, default=None,
                         help="with --live: stop after this many simulated seconds (default: until you quit)")
-    parser.add_argument("--realtime-rate", type=finite_float, default=1.0,
+    parser.add_argument("--realtime-rate", type=finite_float, default=None,
                         help="with --live: target real-time rate (default 1; 0 runs as fast as possible)")
+    parser.add_argument("--no-wait", action="store_true",
+                        help="with --live: start the clock at once instead of when the first browser opens the page")
     add_json_flag(parser)
 
 
@@ -65,10 +73,13 @@ def main(args: argparse.Namespace) -> int:
 
     if args.live:
         return _main_live(args)
+    _refuse("without --live", (("--units", args.units), ("--duration", args.duration),
+                               ("--realtime-rate", args.realtime_rate), ("--no-wait", args.no_wait or None)),
+            "they steer the chain yourself")
     # teleop.run checks every input, the --html path and the --set YAML before the (slow) build.
-    data = teleop.run(task=args.task, mapping=args.mapping, targets=args.targets, html=args.html,
-                      progress=not args.no_progress, time_limit=args.time_limit, n_balls=args.balls,
-                      overrides=args.overrides, seed=args.seed)
+    data = teleop.run(task="left" if args.task is None else args.task, mapping=args.mapping, targets=args.targets,
+                      html=args.html, progress=not args.no_progress, time_limit=args.time_limit, n_balls=args.balls,
+                      overrides=args.overrides, seed=0 if args.seed is None else args.seed)
     if args.json:
         print_json(data)
         return 0
@@ -97,22 +108,35 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
+def _refuse(where: str, flags, why: str) -> None:
+    """UserInputError naming the first of ``flags`` ((flag, value or None), ...) that was given."""
+    from ballchain.drake_models.errors import UserInputError, short_repr
+
+    for flag, value in flags:
+        if value is not None:
+            shown = "" if value is True else f" (got {short_repr(value)})"
+            raise UserInputError(f"{flag} does not apply {where}{shown}: {why}")
+
+
 def _main_live(args: argparse.Namespace) -> int:
     import sys
 
-    from ballchain.drake_models.errors import UserInputError
     from ballchain.experiments import teleop
 
-    for flag, value in (("--html", args.html), ("--targets", args.targets), ("--time-limit", args.time_limit),
-                        ("--seed", args.seed or None)):
-        if value is not None:
-            raise UserInputError(f"{flag} does not apply to --live (got {value}); use --duration to bound a live run")
-    teleop.check_live_inputs(args.mapping, args.units, args.balls, args.duration, args.realtime_rate)
+    _refuse("to --live", (("--task", args.task), ("--targets", args.targets), ("--seed", args.seed),
+                          ("--time-limit", args.time_limit), ("--html", args.html),
+                          ("--no-progress", args.no_progress or None)),
+            "they set up the simulated operator's task; use --duration to bound a live run")
+    units = "one" if args.units is None else args.units
+    rate = 1.0 if args.realtime_rate is None else args.realtime_rate
+    teleop.check_live_inputs(args.mapping, units, args.balls, args.duration, rate)
     # With --json the console lines go to stderr, so that stdout is the JSON alone.
     stream = sys.stderr if args.json else sys.stdout
     echo = lambda line: print(line, file=stream, flush=True)  # noqa: E731
-    data = teleop.run_live(mapping=args.mapping, units=args.units, n_balls=args.balls, overrides=args.overrides,
-                           duration=args.duration, realtime_rate=args.realtime_rate, echo=echo)
+    # Ctrl-C: run_live prints its summary and lets the KeyboardInterrupt go on (exit status 130).
+    data = teleop.run_live(mapping=args.mapping, units=units, n_balls=args.balls, overrides=args.overrides,
+                           duration=args.duration, realtime_rate=rate, echo=echo,
+                           wait_for_browser=not args.no_wait, freeze_gc=True)
     if args.json:
         print_json(data)
     return 0

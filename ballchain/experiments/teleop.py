@@ -465,9 +465,15 @@ class LiveResult(Result):
 
     Attributes:
         url: the Meshcat URL.
-        ended: "quit", "duration", "interrupted" or "failure"; failure: the watchdog's message.
-        sim_time_s, wall_time_s: simulated and wall time [s]; realtime_factor: their ratio
-            (achieved); target_realtime_rate: the one asked for.
+        ended: "quit", "duration" or "failure" (the watchdog stopped it with nobody watching); a
+            live view a person watches pauses on a failure instead (see ``stops``).
+        failure: the last watchdog message (None: none).
+        stops: every watchdog message, in order, with the simulated time it came at
+            [{t_s, reason}]; restarts: how often the person started over after one.
+        sim_time_s, wall_time_s: simulated time since the last start and the wall time since the
+            clock started (the first browser connected) [s]; realtime_factor: simulated time over
+            wall time in the advances (pauses not counted); target_realtime_rate: the one asked for.
+        wait_s: wall time spent waiting for a browser [s].
         targets_touched: the targets' names; n_targets: how many the station has.
         tip_wall_force_N: the wall's force on the tip ball at the end (3,) [N].
         settings: {mapping, units, n_balls, time_step_s, overrides}.
@@ -476,10 +482,13 @@ class LiveResult(Result):
     url: str
     ended: str
     failure: str | None
+    stops: list
+    restarts: int
     sim_time_s: float
     wall_time_s: float
     realtime_factor: float | None
     target_realtime_rate: float
+    wait_s: float
     targets_touched: list
     n_targets: int
     tip_wall_force_N: list
@@ -487,20 +496,27 @@ class LiveResult(Result):
 
 
 LIVE_SCENARIOS = {"one": SCENARIO, "two": "teleop_two_units"}  # --units: the right unit, or both
-LIVE_CHUNK = 0.05  # [s] simulated time per AdvanceTo: quit, Ctrl-C and the status line between chunks
-LIVE_STATUS_PERIOD = 2.0  # [s] wall time between status lines
+LIVE_CHUNK = 0.05  # [s] simulated time per advance: quit, Ctrl-C and the readouts between chunks
+LIVE_STATUS_PERIOD = 2.0  # [s] wall time between console status lines
+# [s] wall time between updates of the page's readout panel: each is a new picture the page
+# decodes (a software-drawing browser under load took over 0.5 s to; at 1.5 s the pictures show).
+LIVE_PANEL_PERIOD = 1.5
+LIVE_POLL = 0.05  # [s] wall time between looks at Meshcat while waiting (a browser, a reset)
+# Where the page's panels go (``TextPanel``: top-left corners, screen heights from the centre):
+# the readouts top left, the key map bottom left, the heart in the middle of the screen.
+LIVE_STATUS_ANCHOR, LIVE_KEYS_ANCHOR = (-0.7, 0.44), (-0.7, -0.34)
 
 
 def check_live_inputs(mapping: str, units: str, n_balls: int | None, duration: float | None,
                       realtime_rate: float) -> None:
     """Raises UserInputError naming the flag on bad input for ``run_live``."""
-    from ballchain.drake_models.errors import UserInputError
+    from ballchain.drake_models.errors import UserInputError, short_repr
 
     if mapping not in MAPPINGS:
-        raise UserInputError(f"--mapping must be one of {tuple(MAPPINGS)}, got {mapping!r}")
+        raise UserInputError(f"--mapping must be one of {tuple(MAPPINGS)}, got {short_repr(mapping)}")
     if units not in LIVE_SCENARIOS:
         raise UserInputError(f"--units must be one of {tuple(LIVE_SCENARIOS)} (the right unit, or both), "
-                             f"got {units!r}")
+                             f"got {short_repr(units)}")
     if n_balls is not None and n_balls < 3:
         raise UserInputError(f"--balls must be >= 3 (ball 1 stays in the sheath), got {n_balls}")
     if duration is not None and not (np.isfinite(duration) and duration > 0):
@@ -535,19 +551,23 @@ def live_scenario_for(mapping: str, units: str = "one", n_balls: int | None = No
 class LiveSession:
     """A station driven by ``MeshcatJoystick``, ready to be advanced (``build_live``).
 
+    The run loop is the station's (``chain_simulation.StationRunner``, as ``run_station``'s): the
+    scenario's simulator_config, the watchdog, the quit button as the stop condition, advanced
+    in chunks, and started over after a stop (``restart``).
+
     Attributes:
         cd: the ChainDiagram; ``cd.added["meshcat_joystick"]`` is the joystick system.
-        simulator: its Simulator (target real-time rate set).
+        runner: the StationRunner; simulator: its Simulator; root: its root context.
         meshcat: the Meshcat (localhost).
         joystick: the MeshcatJoystick.
-        chain_monitor: the ChainMonitor (watchdog) installed with the quit check.
+        chain_monitor: the ChainMonitor (watchdog).
+        status: the page's readout panel (``TextPanel``, set by ``run_live``), or None.
     """
 
-    def __init__(self, cd, simulator, meshcat, joystick, chain_monitor):
-        self.cd, self.simulator, self.meshcat = cd, simulator, meshcat
-        self.joystick, self.chain_monitor = joystick, chain_monitor
-        self.root = simulator.get_mutable_context()
-        self._initialized = False
+    def __init__(self, cd, runner, meshcat, joystick):
+        self.cd, self.runner, self.meshcat, self.joystick = cd, runner, meshcat, joystick
+        self.status = None
+        self.simulator, self.root, self.chain_monitor = runner.simulator, runner.context, runner.monitor
 
     def advance_to(self, t: float) -> str | None:
         """Advance the simulation to time t [s].
@@ -555,18 +575,14 @@ class LiveSession:
         Returns:
             None (reached t), "quit" (the person asked to quit) or the watchdog's failure message.
         """
-        from pydrake.systems.analysis import SimulatorStatus
-
-        if not self._initialized:
-            self.simulator.Initialize()
-            self._initialized = True
-        try:
-            status = self.simulator.AdvanceTo(t)
-        except (RuntimeError, ValueError) as err:
-            return self.chain_monitor.failure or f"at t = {self.root.get_time():.4f} s: {err}"
-        if status.reason() == SimulatorStatus.ReturnReason.kReachedTerminationCondition:
+        failure = self.runner.advance_to(t)
+        if failure is None and self.runner.stopped:
             return "quit"
-        return None
+        return failure
+
+    def restart(self) -> None:
+        """Start over from the initial state (after the watchdog stopped the run)."""
+        self.runner.restart()
 
     def touched(self) -> list[str]:
         tracker = self.cd.target_touches
@@ -579,12 +595,23 @@ class LiveSession:
             return np.zeros(3)
         return overlays.tip_contact_force(overlays.GetMyContextFromRoot(self.root))[0]
 
+    def ball_1_along_sheath(self) -> float:
+        """Ball 1's centre along the sheath axis from the sheath exit [m]: the chain's actual
+        insertion (the feeder's speed is its rate of change)."""
+        cp = self.cd.chain_plant
+        p = self.cd.ball_positions(self.cd.chain_system.GetMyContextFromRoot(self.root))
+        return float((p[0] - cp.p_WE) @ cp.sheath_axis_W)
+
     def joystick_state(self) -> tuple[str, np.ndarray, float]:
         """(selected unit, stick axes (3,), feeder command [m/s]) as sent now."""
         j = self.joystick
         ctx = j.GetMyContextFromRoot(self.root)
         unit = j.selected_unit(ctx)
         return unit, j.get_joystick_output_port(unit).Eval(ctx), float(j.GetOutputPort("v_insert_cmd").Eval(ctx)[0])
+
+    def clicks(self, action: str) -> float:
+        """Clicks so far of the key bound to ``action`` (Meshcat's count; read while paused)."""
+        return sum(self.meshcat.GetButtonClicks(k.label) for k in self.joystick.keys if k.action == action)
 
 
 def build_live(*, mapping: str = "world", units: str = "one", n_balls: int | None = None,
@@ -596,14 +623,14 @@ def build_live(*, mapping: str = "world", units: str = "one", n_balls: int | Non
         mapping, units, n_balls, overrides: as ``live_scenario_for``.
         meshcat: a Meshcat to use (default: a new one on localhost).
         heart: a prebuilt atrium to reuse.
-        realtime_rate: the simulator's target real-time rate (0: as fast as possible).
+        realtime_rate: the simulator's target real-time rate (0: as fast as possible); the
+            scenario's simulator_config applies otherwise.
         joystick_period: how often the joystick reads Meshcat [s] (simulated time).
     """
     from pydrake.geometry import Meshcat, MeshcatParams
-    from pydrake.systems.analysis import Simulator
 
-    from ballchain.systems.chain_simulation import (ChainMonitor, atrium_for, build_chain_diagram, near_ostium_rim,
-                                                    station_monitor)
+    from ballchain.systems.chain_simulation import (ChainMonitor, StationRunner, atrium_for, build_chain_diagram,
+                                                    near_ostium_rim)
     from ballchain.systems.meshcat_joystick import MeshcatJoystick
 
     check_live_inputs(mapping, units, n_balls, None, realtime_rate)
@@ -620,24 +647,38 @@ def build_live(*, mapping: str = "world", units: str = "one", n_balls: int | Non
 
     cd = build_chain_diagram(scenario, meshcat=meshcat, heart=heart, add_systems=add_joystick)
     joystick = cd.added["meshcat_joystick"]
-    simulator = Simulator(cd.diagram)
-    simulator.set_target_realtime_rate(realtime_rate)
     chain_monitor = ChainMonitor(cd, tolerate_sinking=lambda p: near_ostium_rim(heart, p))
-    # The quit button ends the run (a termination); the chunked advance is LiveSession's.
-    simulator.set_monitor(station_monitor(
-        cd, chain_monitor, stop=lambda context: joystick.quit_requested(joystick.GetMyContextFromRoot(context))))
-    return LiveSession(cd, simulator, meshcat, joystick, chain_monitor)
+    # The quit button ends an advance (a termination).
+    runner = StationRunner(cd, monitor=chain_monitor, realtime_rate=realtime_rate, restartable=True,
+                           stop=lambda context: joystick.quit_requested(joystick.GetMyContextFromRoot(context)))
+    return LiveSession(cd, runner, meshcat, joystick)
+
+
+def _panel_lines(session, mapping: str, omega: float) -> list[str]:
+    """The page's key-map panel: the mapping and every binding, in a few lines."""
+    from ballchain.systems.meshcat_joystick import key_map_compact
+
+    head = (f"world mapping: stick axes 0, 1, 2 turn the magnet about world x, y, z (up to {omega:g} rad/s)"
+            if mapping == "world" else
+            f"catheter mapping: axes 0, 1 swing the tip's field about its z, -y (up to {omega:g} rad/s)")
+    return [head] + key_map_compact(session.joystick.keys)
 
 
 def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None = None,
              overrides: str | None = None, duration: float | None = None, realtime_rate: float = 1.0,
-             meshcat=None, heart=None, echo=print, status_period: float = LIVE_STATUS_PERIOD) -> LiveResult:
+             meshcat=None, heart=None, echo=print, status_period: float = LIVE_STATUS_PERIOD,
+             wait_for_browser: bool = True, freeze_gc: bool = False) -> LiveResult:
     """Let a person steer the chain live in Meshcat with a gamepad or the keyboard.
 
-    Opens Meshcat on localhost (or uses ``meshcat``), prints its URL and the key map, and runs
-    the station in real time (``realtime_rate``) until the person quits (Escape, Start), Ctrl-C,
-    the watchdog stops it, or ``duration`` simulated seconds have passed. When the station is
-    slower than real time it runs as fast as it can: the status lines report the rate achieved.
+    Opens Meshcat on localhost (or uses ``meshcat``), prints its URL and the key map, waits for a
+    browser to open the page (the simulated clock starts then), and runs the station in real
+    time (``realtime_rate``) until the person quits (Escape, Start), Ctrl-C, or ``duration``
+    simulated seconds have passed. When the station is slower than real time it runs as fast as
+    it can. The page shows the key map and a readout panel (time, the real-time rate achieved,
+    targets touched, the wall's force on the tip, the feeder's actual speed: ball 1's along the
+    sheath). When the watchdog stops the run (a ball out of the heart, the chain broken, a
+    failed solve) while a browser is connected, the view pauses with the reason on the page
+    until the person starts over (R) or quits; with nobody connected the run ends as a failure.
 
     Args:
         mapping: "world" or "catheter".
@@ -650,66 +691,154 @@ def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None 
         heart: a prebuilt atrium to reuse.
         echo: where the URL, the key map and the status lines go (``print``).
         status_period: wall time between status lines [s].
+        wait_for_browser: start the clock when the first browser connects (False: at once).
+        freeze_gc: freeze the objects alive after the build for the session
+            (``chain_simulation.frozen_gc``; the command line asks for it).
 
     Returns:
         A ``LiveResult``.
+
+    Raises:
+        KeyboardInterrupt: Ctrl-C (after the summary line and removing the buttons).
     """
     from ballchain.drake_models.params import gram_force
+    from ballchain.systems.chain_simulation import frozen_gc
     from ballchain.systems.meshcat_joystick import key_map_text
+    from ballchain.systems.meshcat_overlays import TextPanel
 
     check_live_inputs(mapping, units, n_balls, duration, realtime_rate)
     session = build_live(mapping=mapping, units=units, n_balls=n_balls, overrides=overrides, meshcat=meshcat,
                          heart=heart, realtime_rate=realtime_rate)
     scenario = session.cd.scenario
+    meshcat = session.meshcat
     tracker = session.cd.target_touches
     n_targets = 0 if tracker is None else len(tracker.names)
     unit_names = session.joystick.unit_names
-    echo(f"Meshcat: {session.meshcat.web_url()}  (open it in a browser on this machine)")
+    omega = scenario.units[0].teleop_omega_max
+    echo(f"Meshcat: {meshcat.web_url()}  (open it in a browser on this machine)")
     echo(f"steering {', '.join(unit_names)} with the {mapping} mapping, {scenario.n_balls} balls, "
          f"time step {scenario.effective_time_step * 1e3:g} ms, target real-time rate {realtime_rate:g}"
          + (f", for {duration:g} s" if duration is not None else ", until you quit (Escape, Start or Ctrl-C)"))
-    omega = scenario.units[0].teleop_omega_max
-    echo(f"world mapping: stick axes 0, 1, 2 turn the selected magnet about world x, y, z (up to {omega:g} rad/s)"
-         if mapping == "world" else
-         f"catheter mapping: stick axes 0 and 1 swing the field at the tip about the tip's z and -y axes "
-         f"(up to {omega:g} rad/s); axis 2 does nothing")
+    echo(_panel_lines(session, mapping, omega)[0])
     echo(key_map_text(session.joystick.keys))
     echo("the targets turn green when the tip touches them; the orange arrow is the wall's force on the tip")
-    ended, failure = "duration", None
-    start = time.perf_counter()
-    last_wall, last_sim = start, 0.0
+    keys = TextPanel(meshcat, "keys", anchor=LIVE_KEYS_ANCHOR, width_px=1150)
+    keys.show(_panel_lines(session, mapping, omega))
+    keys.flush()
+    status = session.status = TextPanel(meshcat, "status", anchor=LIVE_STATUS_ANCHOR, width_px=1150)
+
+    def panel(lines, paused=False):
+        status.show(lines, colour=(255, 235, 120) if paused else (255, 255, 255),
+                    background=(150, 20, 20) if paused else (20, 20, 20))
+
+    ended, stops, restarts = "duration", [], 0
     limit = np.inf if duration is None else float(duration)
+    waited = time.perf_counter()
+    advancing, simulated = 0.0, 0.0  # wall and simulated time in the advances [s] (pauses not counted)
+    start = time.perf_counter()
     try:
-        while session.root.get_time() < limit - 1e-12:
-            reason = session.advance_to(min(session.root.get_time() + LIVE_CHUNK, limit))
-            if reason == "quit":
-                ended = "quit"
-                break
-            if reason is not None:
-                ended, failure = "failure", reason
-                break
-            now = time.perf_counter()
-            if now - last_wall >= status_period:
-                t = session.root.get_time()
-                unit, stick, v = session.joystick_state()
-                f_gf = gram_force(float(np.linalg.norm(session.tip_force_N())))
-                echo(f"t = {t:7.2f} s  real-time rate {(t - last_sim) / (now - last_wall):5.2f}  "
-                     f"targets {len(session.touched())}/{n_targets}  tip force {f_gf:5.1f} gf  "
-                     f"{unit} stick {np.round(stick, 2).tolist()}  feeder {v * 1e3:+.1f} mm/s")
-                last_wall, last_sim = now, t
+        if wait_for_browser and meshcat.GetNumActiveConnections() == 0:
+            echo("waiting for a browser to open the page (the clock starts then)")
+            panel(["waiting for the page to connect"])
+            status.flush()
+            while meshcat.GetNumActiveConnections() == 0:
+                time.sleep(LIVE_POLL)
+        waited = time.perf_counter() - waited
+        start = last_wall = last_panel = last_line = time.perf_counter()
+        last_sim, last_ball_1 = 0.0, session.ball_1_along_sheath()
+        with frozen_gc(freeze_gc):
+            while session.root.get_time() < limit - 1e-12:
+                t0, sim0 = time.perf_counter(), session.root.get_time()
+                reason = session.advance_to(min(sim0 + LIVE_CHUNK, limit))
+                advancing += time.perf_counter() - t0
+                simulated += session.root.get_time() - sim0
+                if reason == "quit":
+                    ended = "quit"
+                    break
+                if reason is not None:
+                    t_stop = session.root.get_time()
+                    stops.append({"t_s": round(t_stop, 4), "reason": reason})
+                    echo(f"stopped at t = {t_stop:.2f} s: {reason}")
+                    if meshcat.GetNumActiveConnections() == 0:
+                        ended = "failure"
+                        break
+                    # Paused: the reason on the page until the person starts over or quits.
+                    echo("paused: press R (or 'start over' in Meshcat's controls) to start over, Escape to quit")
+                    panel(["PAUSED: the watchdog stopped the run", *_wrap(reason, 80),
+                           "R: start over from the beginning    Escape: quit"], paused=True)
+                    reset0, quit0 = session.clicks("reset"), session.clicks("quit")
+                    paused = time.perf_counter()
+                    while session.clicks("reset") == reset0 and session.clicks("quit") == quit0:
+                        if time.perf_counter() - paused > LIVE_PANEL_PERIOD:
+                            status.flush()  # the page has decoded the pause panel by now
+                            status.redraw()
+                            paused = time.perf_counter()
+                        time.sleep(LIVE_POLL)
+                    if session.clicks("quit") != quit0:
+                        ended = "quit"
+                        break
+                    session.restart()
+                    restarts += 1
+                    echo("started over")
+                    last_wall = last_panel = last_line = time.perf_counter()
+                    last_sim, last_ball_1 = 0.0, session.ball_1_along_sheath()
+                    continue
+                now = time.perf_counter()
+                panel_due, line_due = now - last_panel >= LIVE_PANEL_PERIOD, now - last_line >= status_period
+                if panel_due or line_due:
+                    t = session.root.get_time()
+                    unit, stick, v_cmd = session.joystick_state()
+                    ball_1 = session.ball_1_along_sheath()
+                    # Measured since the last readout: the chain's actual insertion, not the command.
+                    v_ball_1 = (ball_1 - last_ball_1) / (t - last_sim) if t > last_sim else 0.0
+                    rate = (t - last_sim) / (now - last_wall)
+                    f_gf = gram_force(float(np.linalg.norm(session.tip_force_N())))
+                    touched = session.touched()
+                    if panel_due:
+                        panel([f"t = {t:.1f} s   real-time rate {rate:.2f}   {unit}",
+                               f"targets touched {len(touched)}/{n_targets}"
+                               + (f": {', '.join(touched[-4:])}" if touched else ""),
+                               f"tip force on the wall {f_gf:.1f} gf",
+                               f"feeder: ball 1 moves {v_ball_1 * 1e3:+.1f} mm/s (command {v_cmd * 1e3:+.1f} mm/s)"])
+                        meshcat.SetRealtimeRate(rate)
+                        last_panel = now
+                    if line_due:
+                        echo(f"t = {t:7.2f} s  real-time rate {rate:5.2f}  targets {len(touched)}/{n_targets}  "
+                             f"tip force {f_gf:5.1f} gf  {unit} stick {np.round(stick, 2).tolist()}  "
+                             f"feeder: ball 1 {v_ball_1 * 1e3:+.1f} mm/s (command {v_cmd * 1e3:+.1f})")
+                        last_line = now
+                    last_wall, last_sim, last_ball_1 = now, t, ball_1
     except KeyboardInterrupt:
-        ended = "interrupted"
+        _end_live(session, echo, "interrupted", stops, time.perf_counter() - start, n_targets)
+        raise
     wall = time.perf_counter() - start
+    touched = _end_live(session, echo, ended, stops, wall, n_targets)
     sim_time = session.root.get_time()
-    session.joystick.remove_buttons()
-    touched = session.touched()
-    rate = round(sim_time / wall, 4) if wall > 0 else None
-    echo(f"ended ({ended}{': ' + failure if failure else ''}) at t = {sim_time:.2f} s after {wall:.1f} s: "
-         f"real-time rate {rate}, {len(touched)}/{n_targets} targets touched"
-         + (f" ({', '.join(touched)})" if touched else ""))
-    return LiveResult(url=session.meshcat.web_url(), ended=ended, failure=failure,
-                      sim_time_s=round(sim_time, 4), wall_time_s=round(wall, 3), realtime_factor=rate,
-                      target_realtime_rate=realtime_rate, targets_touched=touched, n_targets=n_targets,
+    rate = round(simulated / advancing, 4) if advancing > 0 else None
+    return LiveResult(url=meshcat.web_url(), ended=ended, failure=stops[-1]["reason"] if stops else None,
+                      stops=stops, restarts=restarts, sim_time_s=round(sim_time, 4), wall_time_s=round(wall, 3),
+                      realtime_factor=rate, target_realtime_rate=realtime_rate, wait_s=round(waited, 3),
+                      targets_touched=touched, n_targets=n_targets,
                       tip_wall_force_N=[round(float(v), 6) for v in session.tip_force_N()],
                       settings={"mapping": mapping, "units": unit_names, "n_balls": scenario.n_balls,
                                 "time_step_s": scenario.effective_time_step, "overrides": overrides})
+
+
+def _wrap(text: str, width: int) -> list[str]:
+    import textwrap
+
+    return textwrap.wrap(text, width) or [""]
+
+
+def _end_live(session, echo, ended: str, stops: list, wall: float, n_targets: int) -> list[str]:
+    """The summary line; the buttons removed from the page and the panel says the session ended."""
+    sim_time = session.root.get_time()
+    touched = session.touched()
+    failure = stops[-1]["reason"] if ended == "failure" else None
+    echo(f"ended ({ended}{': ' + failure if failure else ''}) at t = {sim_time:.2f} s after {wall:.1f} s, "
+         f"{len(touched)}/{n_targets} targets touched" + (f" ({', '.join(touched)})" if touched else "")
+         + (f", {len(stops)} stop(s)" if stops else ""))
+    session.joystick.remove_buttons()
+    session.status.show([f"the session ended ({ended}) at t = {sim_time:.1f} s"])
+    session.status.flush()
+    return touched

@@ -1,0 +1,191 @@
+"""The live view in a real browser: headless Chromium (the system's, driven by Playwright) opens
+the Meshcat page of ``run_live`` on localhost and presses keys on it, as a person would.
+
+What is checked is what the person sees: the scene in the page (the tip ball's position, the
+target discs' colour, read from the page's three.js scene tree), the page's pixels (the
+readout panel), and the console lines. Screenshots go to ``LIVE_SHOTS`` (default
+/work/live_shots, else a temporary directory). Every wait is for a condition, with a deadline.
+"""
+
+import os
+import shutil
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+playwright_api = pytest.importorskip("playwright.sync_api", reason="playwright is in the test extras")
+pytestmark = [pytest.mark.slow,
+              pytest.mark.skipif(CHROMIUM is None, reason="needs the system's Chromium (apt-get install chromium)")]
+
+VIEW = {"width": 960, "height": 540}  # small: the headless browser draws in software
+DEADLINE = 30.0  # [s] wall time any one condition may take
+# Meshcat frames at 10 Hz instead of 32 Hz: the headless browser draws in software (SwiftShader).
+LIGHT = "{visualization: {publish_period: 0.1}}"
+
+# The page's scene tree, in Drake's z-up world: three.js is y-up, (x, y, z)_three = (x, z, -y)_drake.
+JS_BALL = """name => {
+  let found = null;
+  const walk = node => { for (const k in node.children) { if (found) return;
+      if (k === name) { found = node.children[k]; return; } walk(node.children[k]); } };
+  walk(viewer.scene_tree.find(["drake", "visualizer"]));
+  if (!found) return null;
+  const THREE_V = found.object.position.constructor;
+  const p = new THREE_V(); found.object.getWorldPosition(p);
+  return [p.x, -p.z, p.y];
+}"""
+JS_TOUCHED = """() => {
+  const targets = viewer.scene_tree.find(["drake", "overlays", "targets"]);
+  return Object.keys(targets.children).filter(k => {
+      const t = targets.children[k].children["touched"]; return t && t.object.visible; });
+}"""
+
+
+def _shots() -> Path:
+    path = Path(os.environ.get("LIVE_SHOTS", "/work/live_shots"))
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        path = Path(tempfile.mkdtemp(prefix="live_shots_"))
+    return path
+
+
+def _wait(condition, what: str, deadline: float = DEADLINE, poll: float = 0.1):
+    end = time.monotonic() + deadline
+    while time.monotonic() < end:
+        value = condition()
+        if value:
+            return value
+        time.sleep(poll)
+    raise AssertionError(f"timed out ({deadline:g} s) waiting for {what}")
+
+
+def _panel_colour(page) -> np.ndarray:
+    """The readout panel's background colour on the screen (RGB), from a screenshot's pixels a
+    few pixels inside its top-left corner (``teleop.LIVE_STATUS_ANCHOR``, in screen heights)."""
+    from io import BytesIO
+
+    from PIL import Image
+
+    from ballchain.experiments.teleop import LIVE_STATUS_ANCHOR
+
+    image = Image.open(BytesIO(page.screenshot())).convert("RGB")
+    h = VIEW["height"]
+    x, y = int(VIEW["width"] / 2 + LIVE_STATUS_ANCHOR[0] * h) + 3, int(h / 2 - LIVE_STATUS_ANCHOR[1] * h) + 3
+    return np.asarray(image.crop((x, y, x + 6, y + 4))).reshape(-1, 3).mean(axis=0)
+
+
+def test_a_person_steers_the_chain_in_the_browser_into_a_vein_and_starts_over_after_a_stop():
+    """Keys pressed on the page reach the station: the chain moves, a target turns green; the tip
+    goes down a vein (the left inferior) and the session goes on there; a stop of the watchdog
+    (forced: the vein tubes made not to count, a stand-in for a real escape) pauses the session
+    with the reason on the page (red panel), R starts over (the chain back at the start) and
+    Escape ends it."""
+    from ballchain.drake_models.heart import LeftAtrium
+    from ballchain.experiments import teleop
+    from ballchain.systems.meshcat_joystick import KEY_MAP
+
+    heart = LeftAtrium()
+    n = 16
+    lines, result = [], {}
+
+    def live():  # Meshcat's buttons must be added from the thread that made the Meshcat: this one
+        try:
+            result["live"] = teleop.run_live(heart=heart, echo=lines.append, status_period=0.5, overrides=LIGHT)
+        except BaseException as err:  # noqa: BLE001 - reported by the test
+            result["error"] = err
+
+    thread = threading.Thread(target=live, daemon=True)
+    thread.start()
+    shots = _shots()
+    with playwright_api.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM,
+                                     args=["--use-gl=swiftshader", "--enable-unsafe-swiftshader"])
+        try:
+            page = browser.new_page(viewport=VIEW)
+            url = _wait(lambda: next((ln.split()[1] for ln in lines if ln.startswith("Meshcat: ")), None)
+                        or ("error" in result and pytest.fail(repr(result["error"]))), "the URL", deadline=120)
+            _wait(lambda: any(ln.startswith("waiting for a browser") for ln in lines), "the wait for a browser")
+            assert not any(ln.startswith("t = ") for ln in lines), "the clock started before the page connected"
+            page.goto(url)
+            tip = lambda: page.evaluate(JS_BALL, f"ball_{n}")  # noqa: E731
+            p0 = np.array(_wait(tip, "the chain on the page"))
+            _wait(lambda: any(ln.startswith("t = ") for ln in lines), "the clock to start")
+            # The page binds a key once it has the button's control: wait for all of them.
+            _wait(lambda: page.evaluate("() => Object.keys(viewer.keydown_callbacks).length") >= len(KEY_MAP),
+                  "the page to bind the keys")
+            page.mouse.click(5, VIEW["height"] - 5)  # focus on the page (a click, no drag: the view stays)
+            page.screenshot(path=shots / "01_start.png")
+
+            # Feed at full speed (4 presses of ArrowUp): the chain moves and touches a target.
+            for _ in range(4):
+                page.keyboard.press("ArrowUp")
+            _wait(lambda: np.linalg.norm(np.array(tip()) - p0) > 10e-3, "the tip to move 10 mm")
+            touched = _wait(lambda: page.evaluate(JS_TOUCHED), "a target to turn green")
+            page.screenshot(path=shots / "02_target_green.png")
+            assert touched
+            # The chain all in: the feeder's readout says ball 1 stopped while the command is full.
+            _wait(lambda: any("feeder: ball 1 +0.0 mm/s (command +20.0)" in ln for ln in lines),
+                  "ball 1 to stop at full insertion (its actual speed, not the command)")
+
+            # Turn the magnet about world y (W, full stick) until the tip is down a vein.
+            page.keyboard.press("Space")
+            for _ in range(4):
+                page.keyboard.press("KeyW")
+            _wait(lambda: heart.in_veins(np.array(tip()))[0], "the tip to go down a vein")
+            page.keyboard.press("Space")
+            t_vein = float(_last_time(lines))
+            _wait(lambda: _last_time(lines) >= t_vein + 2.0, "2 s more of simulated time with the tip in the vein")
+            assert heart.in_veins(np.array(tip()))[0]
+            assert thread.is_alive() and not any(ln.startswith("stopped at") for ln in lines), "\n".join(lines)
+            page.screenshot(path=shots / "03_tip_in_vein.png")
+            calm = _panel_colour(page)
+
+            # A stop of the watchdog: the vein tubes no longer count as inside.
+            outer = heart.semi_axes + heart.params.wall_thickness
+            heart.contains = lambda p: ((np.atleast_2d(p) / outer) ** 2).sum(axis=1) <= 1.0
+            _wait(lambda: any(ln.startswith("paused") for ln in lines), "the pause")
+            stop = next(ln for ln in lines if ln.startswith("stopped at"))
+            assert "escaped the heart" in stop, stop
+            red = _wait(lambda: (lambda c: c.tolist() if c[0] > 2 * c[1] + 20 else None)(_panel_colour(page)),
+                        "the red pause panel on the page")
+            page.screenshot(path=shots / "04_paused.png")
+            assert thread.is_alive()
+            assert calm[0] < 2 * calm[1] + 20 < red[0]  # grey while running, red when paused
+            del heart.contains  # the real rule again
+
+            # R starts over: the chain back where it started, the panel grey again.
+            page.keyboard.press("KeyR")
+            _wait(lambda: "started over" in lines, "the restart")
+            # (The page redraws the chain after the restart: the tip is missing for a moment.)
+            _wait(lambda: (lambda p: p is not None and np.linalg.norm(np.array(p) - p0) < 1e-3)(tip()),
+                  "the chain back at the start")
+            _wait(lambda: (lambda c: c.tolist() if c[0] < 2 * c[1] + 20 else None)(_panel_colour(page)),
+                  "the grey readout panel again")
+            page.screenshot(path=shots / "05_started_over.png")
+
+            page.keyboard.press("Escape")
+            thread.join(DEADLINE)
+            assert not thread.is_alive()
+        finally:
+            if thread.is_alive():  # a failed check: end the session (Escape quits, also when paused)
+                page.keyboard.press("Escape")
+                thread.join(DEADLINE)
+            browser.close()
+    assert "error" not in result, result.get("error")
+    live = result["live"]
+    assert live.ended == "quit" and live.restarts == 1 and len(live.stops) == 1
+    assert "escaped the heart" in live.stops[0]["reason"]
+    assert live.wait_s > 0  # the clock waited for the page
+
+
+def _last_time(lines) -> float:
+    """The simulated time of the last console status line ("t = ... s ...")."""
+    for ln in reversed(lines):
+        if ln.startswith("t = "):
+            return float(ln.split()[2])
+    return -1.0
