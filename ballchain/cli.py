@@ -77,10 +77,11 @@ class StopSignals:
 
     The first signal is recorded (``signum``) and raises ``StopRequest(signum)``, a
     KeyboardInterrupt, so the command stops as on Ctrl-C and keeps what finished. Later signals
-    are only recorded (``later``) while that is saved; a third one raises again (whoever sends
-    it wants out even if the saving is not done: the files stay whole, being atomic). A signal
-    that was ignored when the command started (``nohup``, a background job) stays ignored.
-    Only the main thread can install handlers; elsewhere this does nothing.
+    (a second Ctrl-C, a process group's kill reaching the process twice) are only recorded
+    (``later``), with a one-line note, so that they cannot cut the saving short nor change the
+    exit status (SIGKILL stops at once). A signal that was ignored when the command started
+    (``nohup``, a background job) stays ignored. Only the main thread can install handlers;
+    elsewhere this does nothing.
     """
 
     def __init__(self):
@@ -101,8 +102,12 @@ class StopSignals:
             self.signum = signum
             raise StopRequest(signum)
         self.later.append(signum)
-        if len(self.later) >= 2:
-            raise StopRequest(signum)
+        if len(self.later) == 1:  # os.write: a print here could land inside another print
+            try:
+                os.write(2, f"ballchain: {signal.Signals(signum).name} received while saving what finished; "
+                            "it finishes first (SIGKILL stops at once)\n".encode())
+            except OSError:
+                pass
 
     def ignore(self) -> None:
         """From now on the stop signals are ignored: nothing can raise or kill any more."""
@@ -117,7 +122,7 @@ class StopSignals:
 
     def settle(self, program: bool) -> None:
         """End of the command: ignore the stop signals (``program``) or restore the handlers from
-        before. A signal landing meanwhile may raise once more: then again, until it is done."""
+        before. A first signal landing meanwhile raises: then again, until it is done."""
         while True:
             try:
                 self.ignore() if program else self.restore()

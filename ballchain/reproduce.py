@@ -666,7 +666,7 @@ def run(*, out: Path, quick: bool = False, resume: bool = False, sections=None, 
         UserInputError: an unwritable ``out`` or an unknown section name.
     """
     out = Path(out)
-    check_output_dir(out, "--out")
+    check_output_dir(out, "--out", names=("report.md", "report.html"))
     if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= 64:
         raise UserInputError(f"--workers must be an integer in 1..64, got {workers!r}")
     names = [name for name, _ in EXPERIMENTS]

@@ -48,7 +48,7 @@ from typing import Any, Callable, NamedTuple, Sequence
 
 import yaml
 
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.errors import UserInputError, caused_by_interrupt
 from ballchain.drake_models.safe_files import atomic_path, check_output_dir
 
 TABLE_PARQUET = "table.parquet"
@@ -269,6 +269,8 @@ def run_point(experiment: str, params: dict, seed: int) -> dict:
         with threadpool_limits(limits=1, user_api="blas"):
             outputs = exp.point(p, seed)
     except Exception as err:  # noqa: BLE001: a failed point is a row with the reason
+        if caused_by_interrupt(err):  # a stop landing in a compiled call: the sweep's, not the point's
+            raise
         error = f"{type(err).__name__}: {err}"
     clash = set(outputs) & set(row)
     if clash:
@@ -345,7 +347,7 @@ def read_table(out: Path) -> list[dict]:
 
 def _check_out(out: Path) -> Path:
     """The results folder: checked writable (``safe_files.check_output_dir``), then created."""
-    out = check_output_dir(out, "--out")
+    out = check_output_dir(out, "--out", names=(TABLE_PARQUET, TABLE_CSV, "sweep.json"))
     out.mkdir(parents=True, exist_ok=True)
     return out
 

@@ -90,6 +90,11 @@ def destination(path) -> tuple[Path, str]:
 _ONLY_FILES = "only regular files are replaced, and a named pipe is written into"
 
 
+def _phrase(kind: str) -> str:
+    """A kind of ``destination`` as words for a message: "a folder", "a character device", ..."""
+    return {"file": "a file", "fifo": "a named pipe", "folder": "a folder"}.get(kind, kind)
+
+
 def output_error(path, err: OSError) -> OutputError:
     """``OutputError`` naming ``path`` and the reason of ``err`` (with the free space for a full disk)."""
     reason = err.strerror or str(err)
@@ -125,7 +130,7 @@ def atomic_path(path):
     """
     target, kind = destination(path)
     if kind not in ("absent", "file", "fifo"):
-        raise OutputError(f"cannot write {short_repr(str(path))}: it is {kind}, not a regular file ({_ONLY_FILES})")
+        raise OutputError(f"cannot write {short_repr(str(path))}: it is {_phrase(kind)}, not a regular file ({_ONLY_FILES})")
     try:
         if kind == "fifo":  # the temporary file goes to the temporary folder (a pipe's folder may be /dev/fd)
             fd, tmp = tempfile.mkstemp(prefix=".ballchain.", suffix=TEMP_SUFFIX)
@@ -248,7 +253,7 @@ def check_output_dir(path, what: str, *, expected_bytes: float = 0, names=()) ->
     check_name_lengths(path, what, room=FOLDER_NAME_ROOM)
     target, kind = destination(path)
     if kind not in ("absent", "folder"):
-        raise UserInputError(f"{what} {shown} is {'a file' if kind == 'file' else kind}, not a folder")
+        raise UserInputError(f"{what} {shown} is {_phrase(kind)}, not a folder")
     base = _existing_folder(path.absolute())
     if not base.is_dir():
         raise UserInputError(f"{what} {shown}: {short_repr(str(base))} is a file, so the folder cannot be created")
@@ -263,7 +268,7 @@ def check_output_dir(path, what: str, *, expected_bytes: float = 0, names=()) ->
     for name in names:
         _, kind = destination(path / name)
         if kind not in ("absent", "file", "fifo"):
-            raise UserInputError(f"{what} {shown}: {short_repr(name)} in it is {kind}, and this run writes a file "
+            raise UserInputError(f"{what} {shown}: {short_repr(name)} in it is {_phrase(kind)}, and this run writes a file "
                                  "of that name; move it away or give another folder")
     return path
 

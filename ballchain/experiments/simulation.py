@@ -69,7 +69,7 @@ def run(*, scenario: str, duration: float | None = None, mode: str | None = None
         SimulationFailure: the run stopped (NaN, escape, chain broken apart); it carries the metrics.
     """
     from ballchain.systems.chain_scenario import check_duration, load_scenario
-    from ballchain.systems.chain_simulation import run_simulation
+    from ballchain.systems.chain_simulation import replay_bytes, run_simulation
 
     if html is not None:  # before the run: an unwritable path must not cost the results
         check_output_file(html, "--html")
@@ -81,6 +81,9 @@ def run(*, scenario: str, duration: float | None = None, mode: str | None = None
         chosen.validate()
     if duration is not None:
         check_duration(duration, chosen.effective_time_step, "--duration")
+    if html is not None:  # room on the disk for the replay of this scenario and duration
+        check_output_file(html, "--html", expected_bytes=replay_bytes(chosen, chosen.duration if duration is None
+                                                                       else duration))
     metrics = run_simulation(scenario=chosen, duration=duration, html=html, progress=progress)
     p_W_mm = metrics.p_W_mm
     return SimulationResult(metrics=replace(metrics, p_W_mm=None), p_W_mm=p_W_mm,
