@@ -195,7 +195,9 @@ def _run(argv: list[str], stop: StopSignals) -> int:
         from threadpoolctl import threadpool_limits
 
         from ballchain.optimization.statics import StaticsError
-    except KeyboardInterrupt:  # a stop while the libraries load: nothing was started
+    except BaseException as err:  # a stop while the libraries load (pydrake wraps it): nothing was started
+        if not caused_by_interrupt(err):
+            raise
         print(f"ballchain {argv[0]}: {stop.note()}", file=sys.stderr)
         return stop.status()
 
