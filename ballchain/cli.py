@@ -13,7 +13,8 @@ first raises ``StopRequest`` (a KeyboardInterrupt) where Ctrl-C would, so every 
 what finished as it does on Ctrl-C (the replay so far, the finished sections of a report, the
 finished points of a sweep: result files are written atomically, so what was written is whole);
 signals after it are recorded while that is saved. The command then exits with status
-128 + the signal's number (130, 143, 129) and a one-line note, and no later signal can change
+128 + the signal's number (130, 143, 129) and a one-line note (a command that ends its run
+itself on a stop returns ``INTERRUPTED``, 130, to get the same), and no later signal can change
 that status.
 """
 
@@ -69,6 +70,7 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, argparse.Argument
     return parser, subparsers
 
 
+INTERRUPTED = 130  # what a command returns when it ended its run itself on a stop (Ctrl-C's status)
 STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
 
 
@@ -147,7 +149,7 @@ _stop: StopSignals | None = None
 def stop_signal() -> int | None:
     """The stop signal (its number) the running ``ballchain`` command received, or None: for a
     command that ends a run itself on KeyboardInterrupt and wants to say which signal it was.
-    Whatever the command then returns, the exit status is 128 + that number."""
+    If the command then returns ``INTERRUPTED`` (130), the exit status is 128 + that number."""
     return None if _stop is None else _stop.signum
 
 
@@ -206,8 +208,9 @@ def _run(argv: list[str], stop: StopSignals) -> int:
         # synchronisation, and under load it makes solves several times slower.
         with threadpool_limits(limits=1, user_api="blas"):
             code = int(module.main(args) or 0)
-        # A command that ends its run itself on a stop (a sweep, the live view) has said so.
-        return stop.status() if stop.signum is not None else code
+        # A command that ends its run itself on a stop and keeps its results (a sweep) says so
+        # with INTERRUPTED; the status then names the signal. Any other status is the command's.
+        return stop.status() if stop.signum is not None and code == INTERRUPTED else code
     except UserInputError as err:
         message = " ".join(str(err).split())  # one line, whatever the message holds
         print(f"ballchain {args.command}: error: {message}", file=sys.stderr)

@@ -93,9 +93,11 @@ def test_the_exit_status_is_128_plus_the_signal_and_one_line_says_so(monkeypatch
     assert signal.getsignal(signal.SIGINT) == previous and cli.stop_signal() is None
 
 
-def test_a_command_that_ends_its_run_itself_on_a_stop_still_exits_128_plus_the_signal(monkeypatch, capsys):
-    """The sweep and the live view catch the interrupt, keep their results and return: the
-    status is still the signal's; ``cli.stop_signal()`` tells the command which one it was."""
+@pytest.mark.parametrize("returned, status", [(cli.INTERRUPTED, 129), (0, 0)])
+def test_a_command_that_ends_its_run_itself_on_a_stop(monkeypatch, capsys, returned, status):
+    """A sweep catches the interrupt, keeps its results and returns INTERRUPTED (130): the status
+    names the signal; a command that returns another status (the live view's 0) keeps it.
+    ``cli.stop_signal()`` tells the command which signal it was."""
     seen = []
 
     def body(args):
@@ -104,10 +106,10 @@ def test_a_command_that_ends_its_run_itself_on_a_stop_still_exits_128_plus_the_s
             _busy_until_signal()
         except KeyboardInterrupt:
             seen.append(cli.stop_signal())
-            return 0
+            return returned
 
     _patch_command(monkeypatch, body)
-    assert cli_main(["wheels"]) == 129 and seen == [signal.SIGHUP]
+    assert cli_main(["wheels"]) == status and seen == [signal.SIGHUP]
 
 
 def test_a_stop_wrapped_by_a_compiled_call_is_still_a_stop(monkeypatch, capsys):
