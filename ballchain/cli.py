@@ -177,10 +177,10 @@ def main(argv: list[str] | None = None) -> int:
         for stream in (sys.stdout, sys.stderr):
             try:
                 stream.flush()
-            except (OSError, ValueError):
+            except BaseException:  # noqa: BLE001 - a closed pipe, or an interrupt a compiled call left set
                 pass
         if stop.signum is not None:
-            os._exit(code)
+            os._exit(code)  # nothing more runs: no exit hook nor shutdown step can change the status
     return code
 
 
