@@ -270,7 +270,7 @@ def run_point(experiment: str, params: dict, seed: int) -> dict:
             outputs = exp.point(p, seed)
     except Exception as err:  # noqa: BLE001: a failed point is a row with the reason
         if caused_by_interrupt(err):  # a stop landing in a compiled call: the sweep's, not the point's
-            raise
+            raise KeyboardInterrupt from err
         error = f"{type(err).__name__}: {err}"
     clash = set(outputs) & set(row)
     if clash:

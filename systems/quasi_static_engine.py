@@ -44,7 +44,7 @@ from pydrake.geometry import (
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.errors import UserInputError, caused_by_interrupt
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import BallChain
 from ballchain.optimization.statics import ChainStatics, StaticsResult
@@ -215,8 +215,9 @@ class QuasiStaticEngine(LeafSystem):
         try:
             with _one_blas_thread():
                 self.equilibrium(self._s0, None)
-        except Exception:  # noqa: BLE001 - a warm-up only; the run reports real failures
-            pass
+        except Exception as err:  # noqa: BLE001 - a warm-up only; the run reports real failures
+            if caused_by_interrupt(err):  # but a stop landing in a compiled call is a stop
+                raise KeyboardInterrupt from err
         del self.solve_times[n_solves:], self.iterations[n_solves:]
         self.events = events
 
