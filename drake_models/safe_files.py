@@ -130,7 +130,8 @@ def atomic_path(path):
     """
     target, kind = destination(path)
     if kind not in ("absent", "file", "fifo"):
-        raise OutputError(f"cannot write {short_repr(str(path))}: it is {_phrase(kind)}, not a regular file ({_ONLY_FILES})")
+        raise OutputError(f"cannot write {short_repr(str(path))}: it is {_phrase(kind)}, not a regular file "
+                          f"({_ONLY_FILES})")
     try:
         if kind == "fifo":  # the temporary file goes to the temporary folder (a pipe's folder may be /dev/fd)
             fd, tmp = tempfile.mkstemp(prefix=".ballchain.", suffix=TEMP_SUFFIX)
@@ -268,8 +269,8 @@ def check_output_dir(path, what: str, *, expected_bytes: float = 0, names=()) ->
     for name in names:
         _, kind = destination(path / name)
         if kind not in ("absent", "file", "fifo"):
-            raise UserInputError(f"{what} {shown}: {short_repr(name)} in it is {_phrase(kind)}, and this run writes a file "
-                                 "of that name; move it away or give another folder")
+            raise UserInputError(f"{what} {shown}: {short_repr(name)} in it is {_phrase(kind)}, and this run writes "
+                                 "a file of that name; move it away or give another folder")
     return path
 
 
