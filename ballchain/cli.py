@@ -5,18 +5,30 @@ Each subcommand lives in ``ballchain/commands/<name>.py`` with ``add_arguments(p
 fast. Every subcommand that computes something takes ``--json``. Bad input (argparse's errors
 and ``UserInputError``) exits with status 2 and a one-line message on stderr, never a traceback;
 any other exception is a bug and stays a traceback (exit status 1), so that it gets reported.
-Ctrl-C stops with status 130 and a one-line note (result files are written atomically, so what
-was finished stays intact).
+A result file that cannot be written (full disk, ...) is one line too, exit status 1.
+
+Stopping: Ctrl-C (SIGINT), SIGTERM (``kill``, ``timeout``, a batch scheduler's time limit) and
+SIGHUP (the terminal closed) are one request to stop, handled once, here (``StopSignals``): the
+first raises ``StopRequest`` (a KeyboardInterrupt) where Ctrl-C would, so every command keeps
+what finished as it does on Ctrl-C (the replay so far, the finished sections of a report, the
+finished points of a sweep: result files are written atomically, so what was written is whole);
+signals after it are recorded while that is saved. The command then exits with status
+128 + the signal's number (130, 143, 129) and a one-line note (a command that ends its run
+itself on a stop returns ``INTERRUPTED``, 130, to get the same), and no later signal can change
+that status.
 """
 
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import os
+import signal
 import sys
+import threading
 
-from ballchain.drake_models.errors import UserInputError, caused_by_interrupt
+from ballchain.drake_models.errors import OutputError, StopRequest, UserInputError, caused_by_interrupt
 from ballchain.drake_models.model_files import CACHE_ENV, check_cache_dir
 
 # subcommand -> (module under ballchain.commands, one-line help)
@@ -59,8 +71,121 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, argparse.Argument
     return parser, subparsers
 
 
+INTERRUPTED = 130  # what a command returns when it ended its run itself on a stop (Ctrl-C's status)
+STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
+
+
+class StopSignals:
+    """The one handler of the stop signals (SIGINT, SIGTERM, SIGHUP) while a command runs.
+
+    The first signal is recorded (``signum``) and raises ``StopRequest(signum)``, a
+    KeyboardInterrupt, so the command stops as on Ctrl-C and keeps what finished. Later signals
+    (a second Ctrl-C, a process group's kill reaching the process twice) are only recorded
+    (``later``), with a one-line note, so that they cannot cut the saving short nor change the
+    exit status (SIGKILL stops at once). A signal that was ignored when the command started
+    (``nohup``, a background job) stays ignored. Only the main thread can install handlers;
+    elsewhere this does nothing.
+    """
+
+    def __init__(self):
+        self.signum: int | None = None
+        self.later: list[int] = []
+        self._previous: dict[int, object] = {}
+
+    def install(self) -> None:
+        if threading.current_thread() is threading.main_thread():
+            for signum in STOP_SIGNALS:
+                previous = signal.getsignal(signum)
+                if previous is not signal.SIG_IGN:
+                    self._previous[signum] = previous
+                    signal.signal(signum, self._handle)
+
+    def _handle(self, signum, frame):
+        if self.signum is None:
+            self.signum = signum
+            raise StopRequest(signum)
+        self.later.append(signum)
+        if len(self.later) == 1:  # os.write: a print here could land inside another print
+            try:
+                os.write(2, f"ballchain: {signal.Signals(signum).name} received while saving what finished; "
+                            "it finishes first (SIGKILL stops at once)\n".encode())
+            except OSError:
+                pass
+
+    def ignore(self) -> None:
+        """From now on the stop signals are ignored: nothing can raise or kill any more."""
+        for signum in self._previous:
+            signal.signal(signum, signal.SIG_IGN)
+
+    def restore(self) -> None:
+        """The handlers from before (when the command ran inside another program, e.g. a test)."""
+        for signum, previous in self._previous.items():
+            signal.signal(signum, previous)
+        self._previous = {}
+
+    def settle(self, program: bool) -> None:
+        """End of the command: ignore the stop signals (``program``) or restore the handlers from
+        before. A first signal landing meanwhile raises: then again, until it is done."""
+        while True:
+            try:
+                self.ignore() if program else self.restore()
+                return
+            except KeyboardInterrupt:
+                continue
+
+    def status(self) -> int:
+        """The exit status of a stopped command: 128 + the first signal's number (Ctrl-C: 130)."""
+        return 128 + (self.signum or signal.SIGINT)
+
+    def note(self) -> str:
+        """How the command was stopped, for its one-line note."""
+        if self.signum in (None, signal.SIGINT):
+            return "interrupted"
+        return f"interrupted by {signal.Signals(self.signum).name}"
+
+
+_stop: StopSignals | None = None
+
+
+def stop_signal() -> int | None:
+    """The stop signal (its number) the running ``ballchain`` command received, or None: for a
+    command that ends a run itself on KeyboardInterrupt and wants to say which signal it was.
+    If the command then returns ``INTERRUPTED`` (130), the exit status is 128 + that number."""
+    return None if _stop is None else _stop.signum
+
+
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
+    """Run ``ballchain`` with ``argv`` (default: the process's arguments) and return its exit status.
+
+    Called as the program (``argv`` None), a stopped command flushes its output and ends the
+    process with 128 + the signal's number at once, and after a finished command the stop
+    signals are ignored: nothing left to run (interpreter shutdown, a library's exit hook) can
+    turn the status into another one or die by a second signal.
+    """
+    global _stop
+    program = argv is None
+    argv = sys.argv[1:] if program else argv
+    stop = _stop = StopSignals()
+    try:
+        stop.install()
+        code = _run(argv, stop)
+    except KeyboardInterrupt:  # a stop outside the command's own handling (as it starts or ends)
+        code = stop.status()
+    finally:
+        stop.settle(program)
+        _stop = None
+    if program:
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except BaseException:  # noqa: BLE001 - a closed pipe, or an interrupt a compiled call left set
+                pass
+        if stop.signum is not None:
+            os._exit(code)  # nothing more runs: no exit hook nor shutdown step can change the status
+    return code
+
+
+def _run(argv: list[str], stop: StopSignals) -> int:
     parser, subparsers = build_parser()
     if not argv or argv[0] not in COMMANDS:
         parser.parse_args(argv)  # prints help or the error, and exits
@@ -73,9 +198,11 @@ def main(argv: list[str] | None = None) -> int:
         from threadpoolctl import threadpool_limits
 
         from ballchain.optimization.statics import StaticsError
-    except KeyboardInterrupt:  # Ctrl-C while the libraries load: nothing was started
-        print(f"ballchain {argv[0]}: interrupted", file=sys.stderr)
-        return 130
+    except BaseException as err:  # a stop while the libraries load (pydrake wraps it): nothing was started
+        if not caused_by_interrupt(err):
+            raise
+        print(f"ballchain {argv[0]}: {stop.note()}", file=sys.stderr)
+        return stop.status()
 
     try:
         # Every matrix here is small (at most a few hundred rows): threaded BLAS only adds
@@ -83,25 +210,37 @@ def main(argv: list[str] | None = None) -> int:
         with threadpool_limits(limits=1, user_api="blas"):
             if os.environ.get(CACHE_ENV):  # a bad cache folder is said before any work
                 check_cache_dir()
-            return int(module.main(args) or 0)
+            code = int(module.main(args) or 0)
+        # A command that ends its run itself on a stop and keeps its results (a sweep) says so
+        # with INTERRUPTED; the status then names the signal. Any other status is the command's.
+        return stop.status() if stop.signum is not None and code == INTERRUPTED else code
     except UserInputError as err:
         message = " ".join(str(err).split())  # one line, whatever the message holds
         print(f"ballchain {args.command}: error: {message}", file=sys.stderr)
         return 2
+    except OutputError as err:
+        print(f"ballchain {args.command}: error: {' '.join(str(err).split())}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
-        print(f"ballchain {args.command}: interrupted (files already written are complete)", file=sys.stderr)
-        return 130
+        print(f"ballchain {args.command}: {stop.note()} (files already written are complete)", file=sys.stderr)
+        return stop.status()
     except BrokenPipeError:  # the reader of stdout went away (``ballchain ... | head``): not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     except StaticsError as err:
         print(f"ballchain {args.command}: {' '.join(str(err).split())}", file=sys.stderr)
         return 1
+    except OSError as err:
+        if err.errno not in (errno.ENOSPC, errno.EDQUOT):  # a full disk outside the result files (a cache)
+            raise
+        print(f"ballchain {args.command}: error: {err.strerror}: {err.filename or ''} (files already written "
+              "are complete)", file=sys.stderr)
+        return 1
     except Exception as err:
         if not caused_by_interrupt(err):  # a bug: the traceback
             raise
-        print(f"ballchain {args.command}: interrupted (files already written are complete)", file=sys.stderr)
-        return 130
+        print(f"ballchain {args.command}: {stop.note()} (files already written are complete)", file=sys.stderr)
+        return stop.status()
 
 
 if __name__ == "__main__":

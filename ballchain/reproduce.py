@@ -716,7 +716,7 @@ def run(*, out: Path, quick: bool = False, resume: bool = False, sections=None, 
         UserInputError: an unwritable ``out`` or an unknown section name.
     """
     out = Path(out)
-    check_output_dir(out, "--out")
+    check_output_dir(out, "--out", names=("report.md", "report.html"))
     from ballchain.sweep import MAX_WORKERS_PER_CORE, max_workers  # the one cap on worker processes
 
     if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= max_workers():

@@ -442,7 +442,7 @@ def _read_previous(out: Path, experiment) -> tuple[list[dict], str | None]:
 
 def _check_out(out: Path) -> Path:
     """The results folder: checked writable (``safe_files.check_output_dir``), then created."""
-    out = check_output_dir(out, "--out")
+    out = check_output_dir(out, "--out", names=(TABLE_PARQUET, TABLE_CSV, "sweep.json"))
     out.mkdir(parents=True, exist_ok=True)
     return out
 

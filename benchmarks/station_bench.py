@@ -250,6 +250,14 @@ def main():
     args = parser.parse_args()
     if args.plant_targets < 0 or args.teleop_repeats < 1:
         parser.error("--plant-targets must be >= 0 and --teleop-repeats >= 1")
+    if args.json:  # before the runs: a path that cannot be written must not cost them
+        from ballchain.drake_models.errors import UserInputError
+        from ballchain.drake_models.safe_files import check_output_file
+
+        try:
+            check_output_file(args.json, "--json")
+        except UserInputError as err:
+            parser.error(str(err))
     out = {}
     if args.scenarios:
         out = run(scenarios=args.scenarios, repeats=args.repeats, duration=args.duration,
@@ -258,8 +266,9 @@ def main():
     if args.teleop:
         out["teleop_right_world"] = teleop_task(args.plant_targets or None, args.teleop_repeats)
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(out, f, indent=1)
+        from ballchain.drake_models.safe_files import write_json
+
+        write_json(args.json, out)
 
 
 if __name__ == "__main__":

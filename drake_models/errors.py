@@ -38,6 +38,23 @@ def short_repr(value, limit: int = MAX_QUOTED) -> str:
     return f"{text[:limit - 3]}... ({len(text)} characters)"
 
 
+class StopRequest(KeyboardInterrupt):
+    """A request to stop from outside, raised where Ctrl-C raises ``KeyboardInterrupt``: the
+    ``ballchain`` command turns SIGINT, SIGTERM and SIGHUP into it, so every path that keeps what
+    finished on Ctrl-C (a replay, the sections of a report, the rows of a sweep) keeps it for a
+    ``kill``, a time limit or a closed terminal too. ``signum`` is the signal's number."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = int(signum)
+
+
+class OutputError(Exception):
+    """A result file could not be written (the disk is full, a name is too long, the place is
+    not writable...): reported as one line naming the file and the reason, exit status 1. The
+    file's earlier content, if any, is unchanged (the writes are atomic)."""
+
+
 class UserInputError(ValueError):
     """Bad input from the user: reported as one line, exit status 2.
 

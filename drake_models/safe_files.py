@@ -6,25 +6,109 @@ to a temporary file in the destination's folder, which replaces the destination 
 new one, never a truncated file that looks whole. ``check_output_file`` / ``check_output_dir``
 are called by the commands before they compute, so an unwritable ``--out`` or ``--html`` is
 refused at once instead of after the run.
+
+Only regular files are ever replaced. A destination that is a named pipe (FIFO, e.g. ``--html
+/dev/stdout`` in a pipeline or a shell's ``>(...)``) gets the finished data written into it; a
+character or block device (``/dev/null``), a socket or a folder is refused, also behind a
+symbolic link. A symbolic link to a file stays a link: its target gets the new content. Names
+longer than the file system allows and a disk without room for the output are refused up
+front; a write that fails anyway (the disk filled up during the run) raises ``OutputError``
+naming the file and the reason, and the destination keeps its earlier content.
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import json
 import math
 import os
+import shutil
+import stat
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.errors import OutputError, UserInputError, short_repr
 
 TEMP_SUFFIX = ".partial"
 _UMASK = os.umask(0o022)
 os.umask(_UMASK)  # read once: mkstemp makes 0600 files, results get the usual 0666 & ~umask
+
+NAME_MAX = 255  # bytes per name, when the file system does not say (Linux, macOS)
+PATH_MAX = 4096  # bytes per path, when the file system does not say (Linux)
+TEMP_NAME_KEPT = 200  # characters of the destination's name in its temporary file's name (<= NAME_MAX - 18)
+FOLDER_NAME_ROOM = 80  # bytes kept free in a folder's path for the names of the files written inside
+MIN_FREE_BYTES = 1 << 20  # every output needs at least this much free space besides its own estimate
+
+# OSError numbers of a write that failed because of where it goes (not a bug): one line, no traceback.
+WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.ENAMETOOLONG, errno.EROFS, errno.EACCES,
+                          errno.EPERM, errno.EISDIR, errno.ENOTDIR, errno.EIO, errno.EPIPE})
+
+
+def _kind(mode: int) -> str:
+    """What a stat mode is, in words: "file", "fifo", "folder", "a character device", ..."""
+    if stat.S_ISREG(mode):
+        return "file"
+    if stat.S_ISFIFO(mode):
+        return "fifo"
+    if stat.S_ISDIR(mode):
+        return "folder"
+    if stat.S_ISCHR(mode):
+        return "a character device"
+    if stat.S_ISBLK(mode):
+        return "a block device"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    return "not a regular file"
+
+
+def destination(path) -> tuple[Path, str]:
+    """Where a write of ``path`` goes and what is there now.
+
+    Returns:
+        (the path to write, its kind): kind "absent", "file", "fifo", "folder" or a phrase
+        ("a character device", "a block device", "a socket"). A symbolic link is followed: the
+        path returned for a link to a file (or a dangling link) is its target, so that the link
+        stays a link.
+    """
+    path = Path(path)
+    try:
+        mode = os.stat(path).st_mode  # follows links
+    except FileNotFoundError:
+        return (Path(os.path.realpath(path)) if path.is_symlink() else path), "absent"
+    except NotADirectoryError:
+        return path, "absent"  # a parent is a file: the folder checks say so
+    kind = _kind(mode)
+    if kind == "file" and path.is_symlink():
+        return Path(os.path.realpath(path)), kind
+    return path, kind
+
+
+_ONLY_FILES = "only regular files are replaced, and a named pipe is written into"
+
+
+def _phrase(kind: str) -> str:
+    """A kind of ``destination`` as words for a message: "a folder", "a character device", ..."""
+    return {"file": "a file", "fifo": "a named pipe", "folder": "a folder"}.get(kind, kind)
+
+
+def output_error(path, err: OSError) -> OutputError:
+    """``OutputError`` naming ``path`` and the reason of ``err`` (with the free space for a full disk)."""
+    reason = err.strerror or str(err)
+    if err.errno in (errno.ENOSPC, errno.EDQUOT):
+        base = _existing_folder(Path(path).absolute().parent)
+        with contextlib.suppress(OSError):
+            reason += f" ({_megabytes(shutil.disk_usage(base).free)} free in {short_repr(str(base))})"
+    elif err.errno == errno.EPIPE:
+        reason += " (the reader of the pipe went away)"
+    return OutputError(f"cannot write {short_repr(str(path))}: {reason}; nothing was replaced")
+
+
+def _megabytes(n: float) -> str:
+    return f"{n / 1e6:.1f} MB"
 
 
 @contextlib.contextmanager
@@ -32,23 +116,48 @@ def atomic_path(path):
     """Yield a temporary path next to ``path``; on success it replaces ``path`` atomically.
 
     The temporary file is removed when the block raises (also on KeyboardInterrupt), so nothing
-    half-written is left behind. The folder is created when missing.
+    half-written is left behind. The folder is created when missing. A named pipe at ``path``
+    is not replaced: the finished data are written into it (the write waits for a reader).
 
     Example:
         with atomic_path(out / "forces.png") as tmp:
             fig.savefig(tmp, format="png")
+
+    Raises:
+        OutputError: ``path`` is not a regular file nor a named pipe (a device, a socket, a
+            folder), or the write failed for a reason of the place (full disk, read-only, name
+            too long, ...: ``WRITE_ERRNOS``); ``path`` is unchanged.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TEMP_SUFFIX, dir=path.parent)
-    os.close(fd)
+    target, kind = destination(path)
+    if kind not in ("absent", "file", "fifo"):
+        raise OutputError(f"cannot write {short_repr(str(path))}: it is {_phrase(kind)}, not a regular file "
+                          f"({_ONLY_FILES})")
+    try:
+        if kind == "fifo":  # the temporary file goes to the temporary folder (a pipe's folder may be /dev/fd)
+            fd, tmp = tempfile.mkstemp(prefix=".ballchain.", suffix=TEMP_SUFFIX)
+        else:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=f".{target.name[:TEMP_NAME_KEPT]}.", suffix=TEMP_SUFFIX,
+                                       dir=target.parent)
+        os.close(fd)
+    except OSError as err:
+        if err.errno not in WRITE_ERRNOS:
+            raise
+        raise output_error(path, err) from None
     tmp = Path(tmp)
     try:
         yield tmp
-        os.chmod(tmp, 0o666 & ~_UMASK)
-        os.replace(tmp, path)
-    except BaseException:
+        if kind == "fifo":
+            with open(tmp, "rb") as source, open(target, "wb") as pipe:
+                shutil.copyfileobj(source, pipe)
+            tmp.unlink()
+        else:
+            os.chmod(tmp, 0o666 & ~_UMASK)
+            os.replace(tmp, target)
+    except BaseException as err:
         tmp.unlink(missing_ok=True)
+        if isinstance(err, OSError) and err.errno in WRITE_ERRNOS:
+            raise output_error(path, err) from err
         raise
 
 
@@ -66,58 +175,138 @@ def atomic_write_bytes(path, data: bytes) -> Path:
     return Path(path)
 
 
-def _first_existing_parent(path: Path) -> Path:
+def _existing_folder(path: Path) -> Path:
+    """The nearest folder among ``path`` and its parents that exists (never raises)."""
     p = path
-    while not p.exists():
-        if p.parent == p:
-            break
-        p = p.parent
-    return p
+    while True:
+        try:
+            os.stat(p)
+            return p
+        except OSError:
+            if p.parent == p:
+                return p
+            p = p.parent
 
 
-def check_output_dir(path, what: str) -> Path:
+def _limit(folder: Path, name: str, default: int) -> int:
+    try:
+        return int(os.pathconf(folder, name))
+    except (OSError, ValueError, TypeError):
+        return default
+
+
+def check_name_lengths(path, what: str, room: int = 0) -> None:
+    """Each name in ``path`` fits the file system (NAME_MAX bytes), and so does the whole path
+    (PATH_MAX bytes, with ``room`` bytes to spare for names added to it).
+
+    Raises:
+        UserInputError: naming the flag, the too long name (cut) and the limit.
+    """
+    absolute = Path(os.path.abspath(path))
+    base = _existing_folder(absolute)
+    name_max, path_max = _limit(base, "PC_NAME_MAX", NAME_MAX), _limit(base, "PC_PATH_MAX", PATH_MAX)
+    for part in absolute.parts[1:]:
+        size = len(os.fsencode(part))
+        if size > name_max:
+            raise UserInputError(f"{what} {short_repr(str(path))}: the name {short_repr(part)} is {size} bytes long; "
+                                 f"the file system allows {name_max} bytes per name")
+    size = len(os.fsencode(str(absolute)))
+    if size + room >= path_max:
+        raise UserInputError(f"{what} {short_repr(str(path))}: the path is {size} bytes long; the file system "
+                             f"allows {path_max - 1 - room} here")
+
+
+def check_free_space(folder, what: str, expected_bytes: float = 0, shown=None) -> None:
+    """The disk holding ``folder`` (or its nearest existing parent) has room for an output of
+    about ``expected_bytes`` (plus ``MIN_FREE_BYTES``).
+
+    Raises:
+        UserInputError: naming the flag, the free space and the estimate.
+    """
+    base = _existing_folder(Path(folder).absolute())
+    try:
+        free = shutil.disk_usage(base).free
+    except OSError:
+        return  # no answer from the file system: the write will tell
+    if free < MIN_FREE_BYTES + expected_bytes:
+        need = f"about {_megabytes(expected_bytes)}" if expected_bytes else f"at least {_megabytes(MIN_FREE_BYTES)}"
+        raise UserInputError(f"{what} {short_repr(str(shown if shown is not None else folder))}: only "
+                             f"{_megabytes(free)} free on the disk holding {short_repr(str(base))}; this run writes "
+                             f"{need}")
+
+
+def check_output_dir(path, what: str, *, expected_bytes: float = 0, names=()) -> Path:
     """Check that ``path`` is (or can be created as) a writable folder, without creating it.
 
     Args:
         path: the folder.
         what: the flag or field named in the message (e.g. "--out").
+        expected_bytes: about how much the run writes there (checked against the free space).
+        names: the files the run writes in the folder: any that exists must be a regular file
+            (or a named pipe), not a folder or a device.
 
     Raises:
-        UserInputError: it is a file, or it (or its nearest existing parent) is not writable.
+        UserInputError: it is a file, or it (or its nearest existing parent) is not writable, a
+            name is too long, the disk is (nearly) full, or one of ``names`` is not a file.
     """
     path = Path(path)
-    if path.exists() and not path.is_dir():
-        raise UserInputError(f"{what} {str(path)!r} is a file, not a folder")
-    base = _first_existing_parent(path.absolute())
+    shown = short_repr(str(path))
+    check_name_lengths(path, what, room=FOLDER_NAME_ROOM)
+    target, kind = destination(path)
+    if kind not in ("absent", "folder"):
+        raise UserInputError(f"{what} {shown} is {_phrase(kind)}, not a folder")
+    base = _existing_folder(path.absolute())
     if not base.is_dir():
-        raise UserInputError(f"{what} {str(path)!r}: {str(base)!r} is a file, so the folder cannot be created")
+        raise UserInputError(f"{what} {shown}: {short_repr(str(base))} is a file, so the folder cannot be created")
     if not os.access(base, os.W_OK | os.X_OK):
-        raise UserInputError(f"{what} {str(path)!r}: folder {str(base)!r} is not writable")
+        raise UserInputError(f"{what} {shown}: folder {short_repr(str(base))} is not writable")
     try:  # os.access says yes to root even on a read-only file system: try it
         with tempfile.TemporaryFile(dir=base, prefix=".ballchain_probe"):
             pass
     except OSError as err:
-        raise UserInputError(f"{what} {str(path)!r}: cannot write in {str(base)!r} ({err.strerror})") from None
+        raise UserInputError(f"{what} {shown}: cannot write in {short_repr(str(base))} ({err.strerror})") from None
+    check_free_space(base, what, expected_bytes, shown=path)
+    for name in names:
+        _, kind = destination(path / name)
+        if kind not in ("absent", "file", "fifo"):
+            raise UserInputError(f"{what} {shown}: {short_repr(name)} in it is {_phrase(kind)}, and this run writes "
+                                 "a file of that name; move it away or give another folder")
     return path
 
 
-def check_output_file(path, what: str) -> Path:
+def check_output_file(path, what: str, *, expected_bytes: float = 0) -> Path:
     """Check that the file ``path`` can be written (its folder exists or can be created).
 
+    A named pipe is accepted (it is written into); a device, a socket or a folder is refused,
+    also behind a symbolic link.
+
+    Args:
+        path: the file.
+        what: the flag or field named in the message (e.g. "--html").
+        expected_bytes: about how big the file will be (checked against the free space).
+
     Raises:
-        UserInputError: it is a folder, a read-only file, or in an unwritable place.
+        UserInputError: it is a folder, a device, a read-only file, in an unwritable place, its
+            name is too long, or the disk is (nearly) full.
     """
     path = Path(path)
-    if path.is_dir():
-        raise UserInputError(f"{what} {str(path)!r} is a folder; give a file name")
-    if path.exists() and not os.access(path, os.W_OK):
-        raise UserInputError(f"{what} {str(path)!r} exists and is not writable")
+    shown = short_repr(str(path))
+    check_name_lengths(path, what)
+    target, kind = destination(path)
+    if kind == "folder":
+        raise UserInputError(f"{what} {shown} is a folder; give a file name")
+    if kind not in ("absent", "file", "fifo"):
+        raise UserInputError(f"{what} {shown} is {kind}, not a regular file; give a file name ({_ONLY_FILES})")
+    if kind != "absent" and not os.access(target, os.W_OK):
+        raise UserInputError(f"{what} {shown} exists and is not writable")
+    if kind == "fifo":
+        return path
     try:
-        check_output_dir(path.parent, what)
+        check_output_dir(target.parent, what, expected_bytes=expected_bytes)
     except UserInputError:
-        base = _first_existing_parent(path.absolute().parent)
+        base = _existing_folder(target.absolute().parent)
         if base.exists() and not base.is_dir():
-            raise UserInputError(f"{what} {str(path)!r}: {str(base)!r} is a file, so the folder cannot "
+            raise UserInputError(f"{what} {shown}: {short_repr(str(base))} is a file, so the folder cannot "
                                  "be created") from None
         raise
     return path

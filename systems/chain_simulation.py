@@ -390,6 +390,21 @@ class RunOutcome:
     simulator: Simulator
 
 
+# The size of a Meshcat replay (``StaticHtml``): the page with its meshes, plus one pose per
+# body per published frame (measured: 2.35 MB at t = 0 and 77 kB per simulated second at 32
+# frames/s for 16 balls, about 150 bytes per body and frame).
+REPLAY_BASE_BYTES = 2.5e6
+REPLAY_BYTES_PER_BODY_FRAME = 200.0
+
+
+def replay_bytes(scenario: ChainScenario, duration: float) -> float:
+    """About how big the replay of ``duration`` simulated seconds of ``scenario`` is [bytes]
+    (for the free-space check before the run; an estimate on the high side)."""
+    frames = duration / scenario.visualization.publish_period
+    bodies = scenario.n_balls + 8  # the balls, the sheath, the magnets and the units' parts
+    return REPLAY_BASE_BYTES + frames * bodies * REPLAY_BYTES_PER_BODY_FRAME
+
+
 def _export_recording(cd: ChainDiagram, meshcat, html: Path) -> None:
     cd.visualizer.StopRecording()
     cd.visualizer.PublishRecording()
@@ -658,7 +673,7 @@ def run_simulation(*, scenario: ChainScenario, duration: float | None = None, ht
     duration = scenario.duration if duration is None else duration
     check_steps(scenario, duration, "duration")
     if html is not None:
-        check_output_file(html, "html")
+        check_output_file(html, "html", expected_bytes=replay_bytes(scenario, duration))
     if html is not None and meshcat is None:
         from pydrake.geometry import Meshcat, MeshcatParams
 

@@ -240,23 +240,30 @@ def _wait_for(path: Path, proc, timeout: float = 300.0) -> None:
         time.sleep(0.05)
 
 
+@pytest.fixture(scope="module")
+def warm_reproduce(tmp_path_factory):
+    """The same run once to the end first, so that the killed runs find the kernels in numba's
+    cache and their sections take their usual time (a fresh clone's first run compiles them)."""
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    subprocess.run(_reproduce(tmp_path_factory.mktemp("warm-up")), capture_output=True, env=env, check=True,
+                   timeout=600)
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("how", ["SIGKILL", "SIGINT"])
-def test_killed_reproduce_leaves_whole_files_and_resume_finishes_it(tmp_path, how):
+@pytest.mark.parametrize("how", ["SIGKILL", "SIGINT", "SIGTERM", "SIGHUP"])
+def test_killed_reproduce_leaves_whole_files_and_resume_finishes_it(tmp_path, how, warm_reproduce):
     """Kill ``reproduce --quick`` after its second section (SIGKILL: no clean-up at all; SIGINT:
-    Ctrl-C), check that every file left is whole, then ``--resume`` reuses the finished
-    sections and runs the rest."""
+    Ctrl-C; SIGTERM: ``kill``, a time limit; SIGHUP: the terminal closed), check that every
+    file left is whole, then ``--resume`` reuses the finished sections and runs the rest."""
     out = tmp_path / "results"
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    # The same run once to the end first, so that the killed run finds the kernels in numba's cache
-    # and its sections take their usual time (a fresh clone's first run compiles them).
-    subprocess.run(_reproduce(tmp_path / "warm-up"), capture_output=True, env=env, check=True, timeout=600)
     proc = subprocess.Popen(_reproduce(out), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     _wait_for(out / ".reproduce" / "sizing.json", proc)
-    proc.send_signal(getattr(signal, how))
+    signum = getattr(signal, how)
+    proc.send_signal(signum)
     _, err = proc.communicate(timeout=120)
-    if how == "SIGINT":
-        assert proc.returncode == 130, err[-3000:]
+    if how != "SIGKILL":  # stopped like Ctrl-C: the finished sections kept, status 128 + the signal
+        assert proc.returncode == 128 + signum, err[-3000:]
         assert "--resume" in err and "interrupted" in err
     else:
         assert proc.returncode == -signal.SIGKILL

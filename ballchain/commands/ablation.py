@@ -15,6 +15,7 @@ from pathlib import Path
 
 from ballchain.commands._common import add_json_flag, finite_float, print_json
 from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.safe_files import check_output_dir
 from ballchain.experiments import ablation
 
 
@@ -55,8 +56,8 @@ def _check(args: argparse.Namespace) -> None:
                 ablation.check_settings(**{key: value})
         except UserInputError as err:
             raise UserInputError(str(err).replace(key, FLAGS[key], 1)) from None
-    if not args.no_files and args.out.exists() and not args.out.is_dir():
-        raise UserInputError(f"--out {args.out} exists and is not a folder")
+    if not args.no_files:
+        check_output_dir(args.out, "--out")
 
 
 def main(args: argparse.Namespace) -> int:

@@ -71,7 +71,7 @@ def run(*, scenario: str, duration: float | None = None, mode: str | None = None
     """
     require_type(scenario, str, "scenario", "a scenario name (str)")
     from ballchain.systems.chain_scenario import check_steps, load_scenario
-    from ballchain.systems.chain_simulation import run_simulation
+    from ballchain.systems.chain_simulation import replay_bytes, run_simulation
 
     if html is not None:  # before the run: an unwritable path must not cost the results
         check_output_file(html, "--html")
@@ -83,6 +83,9 @@ def run(*, scenario: str, duration: float | None = None, mode: str | None = None
         chosen.validate()
     if duration is not None:
         check_steps(chosen, duration, "--duration")
+    if html is not None:  # room on the disk for the replay of this scenario and duration
+        check_output_file(html, "--html", expected_bytes=replay_bytes(chosen, chosen.duration if duration is None
+                                                                       else duration))
     metrics = run_simulation(scenario=chosen, duration=duration, html=html, progress=progress)
     p_W_mm = metrics.p_W_mm
     return SimulationResult(metrics=replace(metrics, p_W_mm=None), p_W_mm=p_W_mm,

@@ -257,6 +257,11 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     if html is not None:
         from pydrake.geometry import Meshcat, MeshcatParams
 
+        from ballchain.drake_models.safe_files import check_output_file
+        from ballchain.systems.chain_simulation import replay_bytes
+
+        check_output_file(html, "--html", expected_bytes=replay_bytes(scenario, limit))  # room for the replay
+
         meshcat = Meshcat(MeshcatParams(host="localhost"))
     built = time.perf_counter()
     cd = build_chain_diagram(scenario, meshcat=meshcat, heart=heart, add_systems=add_operator)

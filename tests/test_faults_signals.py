@@ -1,0 +1,323 @@
+"""SIGTERM and SIGHUP keep what Ctrl-C keeps (ballchain/cli.py's ``StopSignals``).
+
+A ``kill``, ``timeout`` or a batch scheduler (SIGTERM) and a closed terminal (SIGHUP) stop a
+command the way Ctrl-C (SIGINT) does: the replay recorded so far, the finished sections of a
+report and the finished points of a sweep are kept, one line says so, and the exit status is
+128 + the signal's number (130, 143, 129). Signals after the first are recorded, not raised:
+they cannot cut the saving short nor change the status. The process tests wait for a progress
+line before they signal (never a fixed sleep).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from ballchain import cli
+from ballchain.cli import StopSignals, main as cli_main
+from ballchain.drake_models.errors import StopRequest
+
+STOPS = [signal.SIGINT, signal.SIGTERM, signal.SIGHUP]
+ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
+
+
+def _busy_until_signal(seconds: float = 60.0) -> None:
+    """Python bytecode (where a signal's handler runs) until a signal's exception, at most ``seconds``."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        pass
+    raise AssertionError("no signal arrived")
+
+
+# ------------------------------------------------------------------ the handler, in this process
+
+def test_the_first_signal_raises_a_stop_request_and_later_ones_are_recorded(capfd):
+    previous = {s: signal.getsignal(s) for s in STOPS}
+    stop = StopSignals()
+    stop.install()
+    try:
+        with pytest.raises(StopRequest) as err:
+            signal.raise_signal(signal.SIGTERM)
+            _busy_until_signal()
+        assert err.value.signum == signal.SIGTERM and isinstance(err.value, KeyboardInterrupt)
+        for later in (signal.SIGINT, signal.SIGHUP, signal.SIGTERM):
+            signal.raise_signal(later)  # recorded, not raised
+        sum(range(1000))  # bytecode where a pending handler would run
+        assert stop.signum == signal.SIGTERM and stop.later == [signal.SIGINT, signal.SIGHUP, signal.SIGTERM]
+        assert stop.status() == 143 and stop.note() == "interrupted by SIGTERM"
+    finally:
+        stop.settle(program=False)
+    assert {s: signal.getsignal(s) for s in STOPS} == previous
+    assert capfd.readouterr().err.count("SIGINT received while saving what finished") == 1  # one note
+
+
+def test_a_signal_ignored_at_the_start_stays_ignored():
+    before = signal.signal(signal.SIGHUP, signal.SIG_IGN)  # as under nohup
+    try:
+        stop = StopSignals()
+        stop.install()
+        assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+        assert signal.getsignal(signal.SIGTERM) == stop._handle
+        stop.settle(program=False)
+    finally:
+        signal.signal(signal.SIGHUP, before)
+
+
+def _patch_command(monkeypatch, body):
+    """``ballchain wheels`` runs ``body(args)`` instead (a cheap command's module, loaded by the CLI)."""
+    from ballchain.commands import wheels
+
+    monkeypatch.setattr(wheels, "main", body)
+
+
+@pytest.mark.parametrize("signum", STOPS, ids=lambda s: signal.Signals(s).name)
+def test_the_exit_status_is_128_plus_the_signal_and_one_line_says_so(monkeypatch, capsys, signum):
+    def body(args):
+        signal.raise_signal(signum)
+        _busy_until_signal()
+
+    _patch_command(monkeypatch, body)
+    previous = signal.getsignal(signal.SIGINT)
+    assert cli_main(["wheels"]) == 128 + signum
+    err = capsys.readouterr().err.strip()
+    name = "" if signum == signal.SIGINT else f" by {signal.Signals(signum).name}"
+    assert err == f"ballchain wheels: interrupted{name} (files already written are complete)"
+    assert signal.getsignal(signal.SIGINT) == previous and cli.stop_signal() is None
+
+
+@pytest.mark.parametrize("returned, status", [(cli.INTERRUPTED, 129), (0, 0)])
+def test_a_command_that_ends_its_run_itself_on_a_stop(monkeypatch, capsys, returned, status):
+    """A sweep catches the interrupt, keeps its results and returns INTERRUPTED (130): the status
+    names the signal; a command that returns another status (the live view's 0) keeps it.
+    ``cli.stop_signal()`` tells the command which signal it was."""
+    seen = []
+
+    def body(args):
+        try:
+            signal.raise_signal(signal.SIGHUP)
+            _busy_until_signal()
+        except KeyboardInterrupt:
+            seen.append(cli.stop_signal())
+            return returned
+
+    _patch_command(monkeypatch, body)
+    assert cli_main(["wheels"]) == status and seen == [signal.SIGHUP]
+
+
+def test_a_stop_wrapped_by_a_compiled_call_is_still_a_stop(monkeypatch, capsys):
+    def body(args):
+        try:
+            signal.raise_signal(signal.SIGTERM)
+            _busy_until_signal()
+        except KeyboardInterrupt:
+            raise SystemError("CPUDispatcher(...) returned a result with an exception set")
+
+    _patch_command(monkeypatch, body)
+    assert cli_main(["wheels"]) == 143
+    assert "interrupted by SIGTERM" in capsys.readouterr().err
+
+
+def test_a_stop_while_the_libraries_load_is_a_stop(monkeypatch, capsys):
+    """pydrake's import turns an interrupt into "Could not initialize pydrake" (an ImportError
+    caused by it): still a stop, one line, nothing started."""
+    def load(name):
+        try:
+            signal.raise_signal(signal.SIGTERM)
+            _busy_until_signal()
+        except KeyboardInterrupt as err:
+            raise ImportError("Could not initialize pydrake") from err
+
+    monkeypatch.setattr(cli.importlib, "import_module", load)
+    assert cli_main(["simulate"]) == 143
+    assert capsys.readouterr().err.strip() == "ballchain simulate: interrupted by SIGTERM"
+
+
+def test_signals_while_saving_do_not_cut_the_saving_short(monkeypatch, capfd, tmp_path):
+    from ballchain.drake_models.safe_files import atomic_write_text
+
+    def body(args):
+        try:
+            signal.raise_signal(signal.SIGTERM)
+            _busy_until_signal()
+        except KeyboardInterrupt:
+            for later in (signal.SIGINT, signal.SIGINT, signal.SIGHUP):  # Ctrl-C mashed while saving
+                signal.raise_signal(later)
+                sum(range(10000))
+            atomic_write_text(tmp_path / "kept.txt", "what finished\n")
+            raise
+
+    _patch_command(monkeypatch, body)
+    assert cli_main(["wheels"]) == 143
+    assert (tmp_path / "kept.txt").read_text() == "what finished\n"
+    err = capfd.readouterr().err
+    assert "SIGINT received while saving" in err and "interrupted by SIGTERM" in err
+
+
+# ------------------------------------------------------------------ the process's exit status
+
+PROGRAM = textwrap.dedent("""
+    import atexit, os, signal, sys, time
+    from ballchain import cli
+    from ballchain.commands import wheels
+
+    how = sys.argv[1]
+
+    def body(args):
+        if how == "finished":
+            return 0
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            end = time.monotonic() + 60
+            while time.monotonic() < end:
+                pass
+        except KeyboardInterrupt:
+            os.kill(os.getpid(), signal.SIGINT)  # a second signal while saving
+            time.sleep(0.2)
+            raise
+
+    wheels.main = body
+    # Whatever runs after the command (an exit hook, a library's thread) sends more signals.
+    atexit.register(lambda: os.kill(os.getpid(), signal.SIGINT))
+    sys.argv = ["ballchain", "wheels"]
+    code = cli.main()
+    os.kill(os.getpid(), signal.SIGHUP)
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(0.5)
+    sys.exit(code)
+""")
+
+
+@pytest.mark.parametrize("how, status", [("stopped", 143), ("finished", 0)])
+def test_nothing_after_the_command_changes_the_exit_status(tmp_path, how, status):
+    """Called as the program, the CLI ends a stopped command with 128 + the first signal at once;
+    after a finished one the stop signals are ignored: an exit hook's or a thread's late signal
+    neither kills the process nor changes its status."""
+    script = tmp_path / "program.py"
+    script.write_text(PROGRAM)
+    proc = subprocess.run([sys.executable, str(script), how], capture_output=True, text=True, timeout=120, env=ENV)
+    assert proc.returncode == status, proc.stderr
+    if how == "stopped":
+        assert "interrupted by SIGTERM (files already written are complete)" in proc.stderr
+        assert "SIGINT received while saving" in proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+# ------------------------------------------------------------------ real runs, killed
+
+def _start(argv: list[str], log: Path) -> tuple[subprocess.Popen, object]:
+    err = log.open("w")
+    proc = subprocess.Popen([sys.executable, "-m", "ballchain", *argv], stdout=subprocess.PIPE, stderr=err,
+                            text=True, env=ENV)
+    return proc, err
+
+
+def _wait_for_progress(log: Path, proc, pattern: str, at_least: float, timeout: float = 600.0) -> float:
+    """Wait until the progress bar on stderr shows ``pattern``'s number >= ``at_least``; returns it."""
+    end = time.monotonic() + timeout
+    while True:
+        found = [float(m) for m in re.findall(pattern, log.read_text())]
+        if found and max(found) >= at_least:
+            return max(found)
+        assert proc.poll() is None, log.read_text()[-3000:]
+        assert time.monotonic() < end, f"no progress: {log.read_text()[-2000:]}"
+        time.sleep(0.05)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP], ids=lambda s: signal.Signals(s).name)
+def test_a_stopped_simulate_keeps_the_replay_recorded_so_far(tmp_path, signum):
+    html, log = tmp_path / "replay.html", tmp_path / "stderr.txt"
+    proc, err = _start(["simulate", "--scenario", "free_space_uniform_90deg", "--duration", "600",
+                        "--html", str(html)], log)
+    with err:
+        _wait_for_progress(log, proc, r"\| ([0-9.]+)/600 sim s", at_least=1e-9)  # the simulation is running
+        proc.send_signal(signum)
+        proc.communicate(timeout=300)
+    text = log.read_text()
+    assert proc.returncode == 128 + signum, text[-3000:]
+    t = float(re.search(r"interrupted at t = ([0-9.]+) s; replay so far written", text).group(1))
+    assert t > 0.0
+    assert f"ballchain simulate: interrupted by {signal.Signals(signum).name}" in text
+    assert html.read_bytes().rstrip().endswith(b"</html>")
+    assert not list(tmp_path.glob(".*.partial"))
+
+
+@pytest.mark.slow
+def test_more_signals_while_the_replay_is_saved_change_nothing(tmp_path):
+    """SIGHUP, then SIGTERM and SIGINT again and again (a batch system's kill reaching the process
+    twice, Ctrl-C mashed) until the replay is saved: it is written whole, and the status is
+    SIGHUP's. (Signals that arrive together are handled in the order of their numbers: SIGHUP,
+    1, comes first whenever it is pending.)"""
+    html, log = tmp_path / "replay.html", tmp_path / "stderr.txt"
+    proc, err = _start(["simulate", "--scenario", "free_space_uniform_90deg", "--duration", "600",
+                        "--html", str(html)], log)
+    with err:
+        _wait_for_progress(log, proc, r"\| ([0-9.]+)/600 sim s", at_least=1e-9)
+        proc.send_signal(signal.SIGHUP)
+        end = time.monotonic() + 120
+        while True:  # at once, and until the replay is written
+            for later in (signal.SIGTERM, signal.SIGINT):
+                os.kill(proc.pid, later)
+            if "interrupted at t = " in log.read_text():
+                break
+            assert time.monotonic() < end and proc.poll() is None, log.read_text()[-3000:]
+            time.sleep(0.01)
+        proc.communicate(timeout=300)
+    text = log.read_text()
+    assert proc.returncode == 129, text[-3000:]
+    assert text.count("received while saving what finished") == 1 and "interrupted by SIGHUP" in text
+    assert html.read_bytes().rstrip().endswith(b"</html>")
+
+
+@pytest.mark.slow
+def test_a_stopped_teleop_keeps_its_replay(tmp_path):
+    html, log = tmp_path / "teleop.html", tmp_path / "stderr.txt"
+    proc, err = _start(["teleop", "--task", "right", "--targets", "2", "--html", str(html)], log)
+    with err:
+        _wait_for_progress(log, proc, r"\| ([0-9.]+)/[0-9.]+ sim s", at_least=0.5)
+        proc.send_signal(signal.SIGHUP)
+        proc.communicate(timeout=300)
+    text = log.read_text()
+    assert proc.returncode == 129, text[-3000:]
+    assert "replay so far written" in text and "interrupted by SIGHUP" in text
+    assert html.read_bytes().rstrip().endswith(b"</html>")
+
+
+SWEEP = """
+experiment: statics
+grid:
+  n_balls: [12]
+  field_angle_deg: [80.0, 90, 100, 110, 120, 130, 140, 150, 160, 170, 180]
+  step_deg: [0.5]
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("workers", ["0", "2"])
+def test_a_stopped_sweep_keeps_every_finished_point_in_its_table(tmp_path, workers):
+    """SIGTERM after a few of 11 points: the table holds every point the run finished (the
+    progress bar's last count), not only those of the last periodic write."""
+    from ballchain.sweep import read_table
+
+    spec, out, log = tmp_path / "spec.yaml", tmp_path / "sweep", tmp_path / "stderr.txt"
+    spec.write_text(SWEEP)
+    proc, err = _start(["sweep", str(spec), "--out", str(out), "--workers", workers, "--no-figure"], log)
+    with err:
+        _wait_for_progress(log, proc, r"(\d+)/11 \[", at_least=3)
+        proc.send_signal(signal.SIGTERM)
+        stdout, _ = proc.communicate(timeout=300)
+    text = log.read_text()
+    assert proc.returncode == 143, text[-3000:]
+    assert "interrupted: the table holds the points that finished" in stdout
+    finished = max(int(m) for m in re.findall(r"(\d+)/11 \[", text))
+    rows = read_table(out)
+    assert 3 <= finished < 11 and len(rows) == finished
+    assert all(r["error"] is None for r in rows)
