@@ -215,7 +215,7 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     """
     from dataclasses import replace
 
-    from ballchain.systems.chain_simulation import (ChainMonitor, atrium_for, build_chain_diagram, near_ostium_rim,
+    from ballchain.systems.chain_simulation import (ChainMonitor, MakeStation, atrium_for, near_ostium_rim,
                                                     run_station)
     from ballchain.systems.simulated_operator import OperatorParams, SimulatedOperator
 
@@ -236,7 +236,7 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     def add_operator(builder, ports):
         names, p_WT, n_W, radius = ports.targets
         chosen = [i for i, n in enumerate(names) if n.startswith(f"{task}_")][:n_targets]
-        cp = ports.chain_plant
+        cp = ports.chain
         indices = cp.ball_body_indices
         # What the console shows besides the camera: the sheath exit, the feeder's readout.
         seen = replace(params, ball_radius=0.5 * cp.config.chain.ball_diameter, target_radius=radius,
@@ -259,7 +259,7 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
 
         meshcat = Meshcat(MeshcatParams(host="localhost"))
     built = time.perf_counter()
-    cd = build_chain_diagram(scenario, meshcat=meshcat, heart=heart, add_systems=add_operator)
+    cd = MakeStation(scenario, meshcat=meshcat, heart=heart, add_systems=add_operator)
     op = handles["operator"]
     built = time.perf_counter() - built
     chain_monitor = ChainMonitor(cd, tolerate_sinking=lambda p: near_ostium_rim(heart, p))
@@ -536,7 +536,7 @@ class LiveSession:
     """A station driven by ``MeshcatJoystick``, ready to be advanced (``build_live``).
 
     Attributes:
-        cd: the ChainDiagram; ``cd.added["meshcat_joystick"]`` is the joystick system.
+        cd: the Station; ``cd.added["meshcat_joystick"]`` is the joystick system.
         simulator: its Simulator (target real-time rate set).
         meshcat: the Meshcat (localhost).
         joystick: the MeshcatJoystick.
@@ -602,7 +602,7 @@ def build_live(*, mapping: str = "world", units: str = "one", n_balls: int | Non
     from pydrake.geometry import Meshcat, MeshcatParams
     from pydrake.systems.analysis import Simulator
 
-    from ballchain.systems.chain_simulation import (ChainMonitor, atrium_for, build_chain_diagram, near_ostium_rim,
+    from ballchain.systems.chain_simulation import (ChainMonitor, MakeStation, atrium_for, near_ostium_rim,
                                                     station_monitor)
     from ballchain.systems.meshcat_joystick import MeshcatJoystick
 
@@ -618,7 +618,7 @@ def build_live(*, mapping: str = "world", units: str = "one", n_balls: int | Non
         builder.Connect(j.GetOutputPort("v_insert_cmd"), ports.feeder_command_input)
         return {"meshcat_joystick": j}
 
-    cd = build_chain_diagram(scenario, meshcat=meshcat, heart=heart, add_systems=add_joystick)
+    cd = MakeStation(scenario, meshcat=meshcat, heart=heart, add_systems=add_joystick)
     joystick = cd.added["meshcat_joystick"]
     simulator = Simulator(cd.diagram)
     simulator.set_target_realtime_rate(realtime_rate)
