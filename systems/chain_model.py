@@ -36,7 +36,6 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import LeafSystem
 
-from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import FieldSource, rotation_with_z_along
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
 
@@ -261,8 +260,9 @@ class ChainModel(ABC):
         registered with, for a MeshcatVisualizer (added to ``builder`` when needed)."""
 
     def add_pin(self, builder, point: np.ndarray, stiffness: float):
-        """A force-sensor pin on the tip ball (``force_sensor_pin``): only a model with forces can hold one."""
-        raise UserInputError(f"scenario pin needs engine: plant (the pin is a force on the plant), got {self.engine!r}")
+        """A force-sensor pin on the tip ball (``force_sensor_pin``): only a model with forces can
+        hold one (the scenario's validation refuses a pin on the others)."""
+        raise TypeError(f"the {self.engine!r} chain model cannot hold a force-sensor pin")
 
     # --- the state ------------------------------------------------------------------------------
     @abstractmethod
