@@ -148,7 +148,7 @@ def test_engine_ports_outputs_and_a_short_run():
     assert [engine.get_input_port(i).get_name() for i in range(engine.num_input_ports())] == ["feeder_desired_state"]
     assert engine.get_feeder_state_input_port().size() == 2
     assert [engine.get_output_port(i).get_name() for i in range(engine.num_output_ports())] == [
-        "body_poses", "tip_wall_force", "snap_throughs"]
+        "body_poses", "tip_wall_force", "ball_positions", "snap_throughs"]
     from pydrake.systems.analysis import Simulator
 
     sim = Simulator(cd.diagram)
