@@ -27,19 +27,19 @@ def run(*, scenario: str = "heart_left_quasi_static", n_steps: int = 200, repeat
     from pydrake.systems.analysis import Simulator
 
     from ballchain.systems.chain_scenario import load_scenario
-    from ballchain.systems.chain_simulation import build_chain_diagram
+    from ballchain.systems.chain_simulation import MakeStation
 
     out = {"scenario": scenario}
     for mode in ("quasi-static", "dynamics"):
         sc = load_scenario(scenario, f"{{mode: {mode}}}")
-        cd = build_chain_diagram(sc)
+        cd = MakeStation(sc)
         sim = Simulator(cd.diagram)
         sim.Initialize()
         root = sim.get_mutable_context()
-        wrench_ctx = cd.wrench.GetMyContextFromRoot(root)
-        port = cd.wrench.get_spatial_forces_output_port()
+        wrench_ctx = cd.chain.wrench.GetMyContextFromRoot(root)
+        port = cd.chain.wrench.get_spatial_forces_output_port()
         value = port.Allocate()
-        wrench_s = _median_time(lambda: [cd.wrench._calc_spatial_forces(wrench_ctx, value) for _ in range(100)],
+        wrench_s = _median_time(lambda: [cd.chain.wrench._calc_spatial_forces(wrench_ctx, value) for _ in range(100)],
                                 repeats) / 100
         dt = sc.effective_time_step
 

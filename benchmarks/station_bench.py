@@ -51,11 +51,11 @@ class _Run:
 
 def _run_once(name: str, engine: str, duration: float | None, max_duration: float = np.inf) -> _Run:
     from ballchain.systems.chain_scenario import load_scenario
-    from ballchain.systems.chain_simulation import build_chain_diagram, run_station
+    from ballchain.systems.chain_simulation import MakeStation, run_station
 
     overrides = "{engine: statics, mode: quasi-static}" if engine == "statics" else "{}"
     sc = load_scenario(name, overrides)
-    cd = build_chain_diagram(sc)
+    cd = MakeStation(sc)
     T = min(sc.duration, max_duration) if duration is None else duration
     # The one run loop with its watchdog (ChainMonitor); its wall and CPU times are those of
     # Initialize + AdvanceTo, the build not counted.
@@ -63,9 +63,10 @@ def _run_once(name: str, engine: str, duration: float | None, max_duration: floa
     if run.failure is not None:
         raise RuntimeError(f"{name} ({engine}): {run.failure}")
     out = _Run(rtf_wall=T / run.wall_time, rtf_cpu=T / run.cpu_time, sim_s=T, mode=sc.mode)
-    if cd.engine is not None:
-        out.median_solve_ms = 1e3 * float(np.median(cd.engine.solve_times)) if cd.engine.solve_times else None
-        out.solves = len(cd.engine.solve_times)
+    stats = cd.chain.solver_stats()
+    if stats is not None:
+        out.median_solve_ms = stats.median_solve_ms
+        out.solves = stats.solves
     return out
 
 
@@ -103,11 +104,11 @@ def profile_equilibrium(repeats: int = 20) -> dict:
     from ballchain.optimization.reduced_chain import ReducedChain
     from ballchain.optimization.wall_constraints import ConstrainedChain
     from ballchain.systems.chain_scenario import load_scenario
-    from ballchain.systems.chain_simulation import build_chain_diagram
+    from ballchain.systems.chain_simulation import MakeStation
 
     sc = load_scenario("heart_wall_contact", "{engine: statics, insertion: {initial: 0.03, final: 0.03}}")
-    cd = build_chain_diagram(sc)
-    engine = cd.engine
+    cd = MakeStation(sc)
+    engine = cd.chain.engine_system
     s = 0.03
     p, m, result, k = engine.equilibrium(s, None)
     B = np.array(cd.field_source.B_W, float)

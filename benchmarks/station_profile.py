@@ -91,10 +91,10 @@ def _build(scenario_name: str, overrides: str | None):
     from pydrake.systems.analysis import Simulator
 
     from ballchain.systems.chain_scenario import load_scenario
-    from ballchain.systems.chain_simulation import ChainMonitor, build_chain_diagram
+    from ballchain.systems.chain_simulation import ChainMonitor, MakeStation
 
     scenario = load_scenario(scenario_name, overrides)
-    cd = build_chain_diagram(scenario)
+    cd = MakeStation(scenario)
     simulator = Simulator(cd.diagram)
     simulator.set_monitor(ChainMonitor(cd))
     simulator.Initialize()

@@ -25,7 +25,6 @@ straight; ball 1's centre is at p_WE + (s - (n - 1/2) d) u (u the sheath axis), 
 tip ball touches the exit from inside.
 """
 
-
 import copy
 from dataclasses import dataclass, field
 
@@ -55,11 +54,15 @@ from pydrake.multibody.tree import (
     SpatialInertia,
     UnitInertia,
 )
+from pydrake.systems.primitives import ConstantVectorSource
 
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import GRAVITY, BallChain
+from ballchain.systems.chain_model import BallCentres, ChainGeometry, ChainModel, FieldCoupling, chain_geometry
+from ballchain.systems.magnetic_wrench import MagneticWrenchSystem
+from ballchain.systems.target_contact import WallForceOnBall
 
 
 def chain_multibody_plant_config(**overrides) -> MultibodyPlantConfig:
@@ -163,52 +166,19 @@ class ChainPlantConfig:
 
 
 @dataclass
-class ChainPlant:
-    """Handles to what ``add_chain_plant`` made."""
+class ChainPlant(ChainGeometry):
+    """Handles to what ``add_chain_plant`` made (and the chain's geometry, ``ChainGeometry``)."""
 
-    plant: object
-    scene_graph: object
-    config: ChainPlantConfig
-    ball_bodies: list
-    feeder_joint: object
-    feeder_instance: object
-    p_WE: np.ndarray
-    sheath_axis_W: np.ndarray
-    X_WF: RigidTransform  # the feeder slide's fixed frame: ball 1 is at X_WF * (q, 0, 0)
-
-    @property
-    def n_balls(self) -> int:
-        return len(self.ball_bodies)
-
-    @property
-    def ball_body_indices(self) -> list:
-        return [b.index() for b in self.ball_bodies]
+    plant: object = None
+    scene_graph: object = None
+    ball_bodies: list = field(default_factory=list)
+    feeder_joint: object = None
+    feeder_instance: object = None
 
     def ball_positions(self, plant_context) -> np.ndarray:
         """Ball centres (n, 3) in world [m]."""
         poses = self.plant.get_body_poses_output_port().Eval(plant_context)
         return np.array([poses[int(b.index())].translation() for b in self.ball_bodies])
-
-    def max_inserted_length(self) -> float:
-        """Largest inserted length that keeps ball 1 inside the sheath [m]."""
-        d = self.config.chain.ball_diameter
-        return (self.n_balls - 1.0) * d
-
-    def in_sheath(self, p_W: np.ndarray) -> np.ndarray:
-        """Whether points (k, 3) lie inside the sheath tube (within its outer radius)."""
-        sheath = self.config.sheath
-        if sheath is None:
-            return np.zeros(len(p_W), bool)
-        rel = np.asarray(p_W) - self.p_WE
-        along = rel @ self.sheath_axis_W
-        radial = np.linalg.norm(rel - along[:, None] * self.sheath_axis_W, axis=1)
-        length = self.sheath_length()
-        return (along <= 0.5 * self.config.chain.ball_diameter) & (along >= -length) & (
-            radial <= 0.5 * sheath.inner_diameter + sheath.wall_thickness)
-
-    def sheath_length(self) -> float:
-        c = self.config
-        return c.chain.n_balls * c.chain.ball_diameter + (c.sheath.extra_length if c.sheath else 0.0)
 
 
 def _ball_properties(config: ChainPlantConfig) -> ProximityProperties:
@@ -312,13 +282,8 @@ def add_chain_plant(builder, config: ChainPlantConfig) -> ChainPlant:
     plant.mutable_gravity_field().set_gravity_vector([0.0, 0.0, -GRAVITY if config.gravity else 0.0])
 
     heart = config.heart
-    if heart is not None:
-        p_WE, axis = heart.p_HE.copy(), heart.sheath_axis_H.copy()
-    else:
-        p_WE = np.asarray(config.p_WE, float)
-        axis = np.asarray(config.sheath_axis_W, float)
-        axis = axis / np.linalg.norm(axis)
-
+    geometry = chain_geometry(config)  # the sheath exit, its axis and the feeder frame
+    p_WE, axis, X_WF = geometry.p_WE, geometry.sheath_axis_W, geometry.X_WF
     d = chain.ball_diameter
     r = 0.5 * d
     inertia = SpatialInertia(chain.ball_mass, np.zeros(3), UnitInertia.SolidSphere(r))
@@ -338,9 +303,6 @@ def add_chain_plant(builder, config: ChainPlantConfig) -> ChainPlant:
         balls.append(body)
 
     # Ball 1 slides along the sheath axis: frame F has its x along the axis.
-    R_WF = RotationMatrix(rotation_with_z_along(axis)[:, [2, 0, 1]])  # columns: x = axis
-    L0 = (chain.n_balls - 0.5) * d
-    X_WF = RigidTransform(R_WF, p_WE - L0 * axis)
     slide_frame = plant.AddFrame(FixedOffsetFrame("feeder_slide_frame", plant.world_frame(), X_WF))
     feeder_joint = plant.AddJoint(PrismaticJoint(
         "feeder_slide", slide_frame, balls[0].body_frame(), [1.0, 0.0, 0.0]))
@@ -371,8 +333,10 @@ def add_chain_plant(builder, config: ChainPlantConfig) -> ChainPlant:
         _add_sheath_cage(plant, config, p_WE, axis)
     plant.Finalize()
 
-    handles = ChainPlant(plant, scene_graph, config, balls, feeder_joint, feeder_instance,
-                         p_WE, axis, X_WF)
+    # The balls' BodyIndex values are the geometry's 1..n (the statics engine publishes at them).
+    assert [b.index() for b in balls] == geometry.ball_body_indices
+    handles = ChainPlant(config, p_WE, axis, X_WF, geometry.ball_body_indices, plant, scene_graph, balls,
+                         feeder_joint, feeder_instance)
     s0 = config.initial_inserted_length
     if not 0.0 <= s0 <= handles.max_inserted_length():
         raise UserInputError(
@@ -384,5 +348,100 @@ def add_chain_plant(builder, config: ChainPlantConfig) -> ChainPlant:
     gap = -4e-6
     for i, joint in enumerate(floating, start=1):
         p = X_WF.translation() + (s0 + i * (d + gap)) * axis
-        joint.SetDefaultPose(RigidTransform(R_WF, p))
+        joint.SetDefaultPose(RigidTransform(X_WF.rotation(), p))
     return handles
+
+
+class PlantChainModel(ChainModel):
+    """The chain as a MultibodyPlant (``engine: plant``): ``add_chain_plant``'s plant and scene
+    graph, ``magnetic_wrench`` (the one place the plant feels the field: body poses in, spatial
+    forces out to the plant), the walls' force on the tip ball from the plant's contact results
+    (``tip_wall_force``, a ``WallForceOnBall``) and the ball centres (``ball_positions``).
+
+    Attributes (besides ``ChainModel``'s):
+        handles: the ChainPlant; plant, scene_graph, ball_bodies, feeder_joint,
+            feeder_instance: its parts.
+        wrench: the MagneticWrenchSystem.
+    """
+
+    engine = "plant"
+
+    def __init__(self, handles: ChainPlant, wrench: MagneticWrenchSystem, tip_force: WallForceOnBall,
+                 centres: BallCentres, snaps: ConstantVectorSource):
+        self.geometry = self.handles = handles
+        self.plant, self.scene_graph, self.ball_bodies = handles.plant, handles.scene_graph, handles.ball_bodies
+        self.feeder_joint, self.feeder_instance = handles.feeder_joint, handles.feeder_instance
+        self.system = self.plant
+        self.time_step = handles.config.time_step
+        self.wrench = wrench
+        self._tip_force, self._centres, self._snaps = tip_force, centres, snaps
+
+    @classmethod
+    def add_to(cls, builder, scenario, config: ChainPlantConfig, coupling: FieldCoupling) -> "PlantChainModel":
+        """The plant (``add_chain_plant``), its wrench, the tip's wall force and the ball centres."""
+        cp = add_chain_plant(builder, config)
+        plant = cp.plant
+        wrench = builder.AddSystem(MagneticWrenchSystem(
+            config.chain, cp.ball_body_indices, field_source=coupling.field_source, base_direction_W=cp.sheath_axis_W,
+            port_magnets=list(coupling.port_magnets), model=coupling.model))
+        wrench.set_name("magnetic_wrench")
+        builder.Connect(plant.get_body_poses_output_port(), wrench.get_body_poses_input_port())
+        builder.Connect(wrench.get_spatial_forces_output_port(), plant.get_applied_spatial_force_input_port())
+        tip_force = builder.AddSystem(WallForceOnBall(plant, cp.scene_graph.model_inspector(),
+                                                      cp.ball_body_indices[-1]))
+        tip_force.set_name("tip_wall_force")
+        builder.Connect(plant.get_contact_results_output_port(), tip_force.get_contact_results_input_port())
+        builder.Connect(plant.get_body_poses_output_port(), tip_force.get_body_poses_input_port())
+        centres = builder.AddSystem(BallCentres(cp.ball_body_indices))
+        centres.set_name("ball_positions")
+        builder.Connect(plant.get_body_poses_output_port(), centres.get_body_poses_input_port())
+        snaps = builder.AddSystem(ConstantVectorSource([0.0]))  # the plant integrates: it has no snap-throughs
+        snaps.set_name("snap_throughs")
+        return cls(cp, wrench, tip_force, centres, snaps)
+
+    def get_magnet_states_input_port(self):
+        return self.wrench.get_magnet_states_input_port()
+
+    def get_feeder_state_input_port(self):
+        return self.plant.get_desired_state_input_port(self.feeder_instance)
+
+    def get_body_poses_output_port(self):
+        return self.plant.get_body_poses_output_port()
+
+    def get_ball_positions_output_port(self):
+        return self._centres.get_output_port()
+
+    def get_tip_wall_force_output_port(self):
+        return self._tip_force.get_wall_force_output_port()
+
+    def get_snap_throughs_output_port(self):
+        return self._snaps.get_output_port()
+
+    def add_geometry(self, builder):
+        return self.scene_graph  # the plant registered its geometry (and the heart's, the sheath's) there
+
+    def add_pin(self, builder, point: np.ndarray, stiffness: float):
+        """The ``ForceSensorPin`` on the tip ball, into the plant's generalized forces."""
+        from ballchain.systems.force_sensor_pin import ForceSensorPin
+
+        pin = builder.AddSystem(ForceSensorPin(self.plant, self.ball_bodies[-1], point, stiffness))
+        pin.set_name("force_sensor_pin")
+        builder.Connect(self.get_body_poses_output_port(), pin.get_body_poses_input_port())
+        builder.Connect(pin.get_generalized_force_output_port(), self.plant.get_applied_generalized_force_input_port())
+        return pin
+
+    def ball_positions(self, context) -> np.ndarray:
+        return self.handles.ball_positions(context)
+
+    def is_finite(self, context) -> bool:
+        plant = self.plant
+        return bool(np.all(np.isfinite(plant.GetPositions(context))) and np.all(np.isfinite(plant.GetVelocities(context))))
+
+    def non_finite_part(self, context) -> str:
+        for i, body in enumerate(self.ball_bodies):
+            X = self.plant.EvalBodyPoseInWorld(context, body).GetAsMatrix34()
+            V = self.plant.EvalBodySpatialVelocityInWorld(context, body).get_coeffs()
+            if not (np.all(np.isfinite(X)) and np.all(np.isfinite(V))):
+                part = "position" if not np.all(np.isfinite(X)) else "velocity"
+                return f"ball {i + 1} ({part})"
+        return "the feeder slide"

@@ -82,7 +82,7 @@ class InsertionScenario:
             ``inserted_length`` drives the slide. ``speed`` must not exceed the feeder's limit.
         feeder_command: with ``feeder``, who commands its speed: "ramp" (the ramp above, the
             system ``feeder_command``) or "external" (another system, e.g. a simulated operator:
-            the feeder's ``v_insert_cmd`` input (1) [m/s] is left to ``build_chain_diagram``'s
+            the feeder's ``v_insert_cmd`` input (1) [m/s] is left to ``MakeStation``'s
             ``add_systems`` hook, or exported as the diagram input ``feeder.v_insert_cmd``).
         slide_gains: (kp [N/m], kd [N s/m]) of the PD actuator that holds ball 1's slide on the
             commanded inserted length (implicit in the discrete solver; the plant engine only).

@@ -1,8 +1,9 @@
 """Run the station of a scenario: the one run loop, its watchdog and metrics.
 
 The diagram is built by ``systems/station.py`` (``MakeStation``: its steps, system names and
-exported ports are described there); ``build_chain_diagram`` and ``ChainDiagram`` are its
-``MakeStation`` and ``Station`` under the names the rest of the code uses.
+exported ports are described there). The run loop, the watchdog and the metrics read the chain
+through its model's interface (``Station.chain``, a ``chain_model.ChainModel``): the same code for
+the plant and the quasi-static engine.
 
 ``run_station`` is the one Simulator loop (watchdog, progress, stop condition, a run's own
 check, recording, Ctrl-C) of ``simulate``, teleoperation and the force pin, on a
@@ -29,50 +30,16 @@ from pydrake.systems.framework import EventStatus
 from ballchain.drake_models.atrium import Atrium
 from ballchain.drake_models.errors import caused_by_interrupt
 from ballchain.drake_models.safe_files import atomic_write_text, check_output_file, optional_field
+from ballchain.systems.chain_model import SnapThrough, StaticsEngineStats
 from ballchain.systems.chain_scenario import ChainScenario, check_steps
-from ballchain.systems.station import (  # re-exported (__all__): the names the rest of the code uses
+from ballchain.systems.station import (  # re-exported (__all__)
     MakeStation,
     Station,
     StationPorts,
-    add_magnetic_wrench,
     atrium_for,
     chain_for,
     field_source_for,
 )
-from ballchain.systems.target_contact import wall_force_on, wall_geometries
-
-
-@dataclass
-class SnapThrough:
-    """A snap-through of the quasi-static engine (its chain jumped to another equilibrium branch).
-
-    Attributes:
-        t_s: when [s]; jump_mm: the largest ball displacement over the step [mm]; detail: its text.
-    """
-
-    t_s: float
-    jump_mm: float
-    detail: str
-
-
-@dataclass
-class StaticsEngineStats:
-    """The quasi-static engine's solves over a run (``engine: statics`` only).
-
-    Attributes:
-        solves: statics solves in the run.
-        median_solve_ms, max_solve_ms: their wall time [ms] (None without a solve).
-        median_iterations: Newton iterations per solve, median (None without a solve).
-        snap_throughs: the snap-throughs, in time order.
-        failures: the messages of the solves that failed.
-    """
-
-    solves: int
-    median_solve_ms: float | None
-    max_solve_ms: float | None
-    median_iterations: float | None
-    snap_throughs: list[SnapThrough]
-    failures: list[str]
 
 
 @dataclass
@@ -145,14 +112,10 @@ class SimulationFailure(RuntimeError):
         self.metrics = metrics
 
 
-# The station builder lives in ``station``; these are its names in the rest of the code.
-ChainDiagram = Station
-build_chain_diagram = MakeStation
-
 __all__ = [
-    "ChainDiagram", "ChainMonitor", "RunOutcome", "SimulationFailure", "SimulationMetrics", "SnapThrough",
-    "StaticsEngineStats", "StationPorts", "StationRunner", "add_magnetic_wrench",
-    "atrium_for", "build_chain_diagram", "chain_for", "field_source_for", "frozen_gc", "run_simulation",
+    "ChainMonitor", "MakeStation", "RunOutcome", "SimulationFailure", "SimulationMetrics", "SnapThrough",
+    "StaticsEngineStats", "Station", "StationPorts", "StationRunner",
+    "atrium_for", "chain_for", "field_source_for", "frozen_gc", "replay_bytes", "run_simulation",
     "run_station", "station_monitor",
 ]
 
@@ -179,7 +142,7 @@ def near_ostium_rim(heart, p_W: np.ndarray) -> bool:
 
 
 class ChainMonitor:
-    """Per-step watchdog and metrics of a ChainDiagram (install with ``simulator.set_monitor``).
+    """Per-step watchdog and metrics of a Station (install with ``simulator.set_monitor``).
 
     Every ``scenario.check_period`` it checks the state for NaN, the chain for breaks and ball
     overlaps (cheap); every ``wall_check_every``-th of those checks it also checks escapes from
@@ -198,15 +161,15 @@ class ChainMonitor:
             1 checks them every ``check_period``).
     """
 
-    def __init__(self, cd: ChainDiagram, tolerate_sinking=None, wall_check_every: int = 4):
+    def __init__(self, cd: Station, tolerate_sinking=None, wall_check_every: int = 4):
         if int(wall_check_every) != wall_check_every or wall_check_every < 1:
             raise ValueError(f"wall_check_every must be an integer >= 1, got {wall_check_every!r}")
         self._cd = cd
-        self._system = cd.chain_system  # the plant, or the quasi-static engine
-        self._d = cd.chain_plant.config.chain.ball_diameter
-        self._period = cd.scenario.check_period
-        if cd.engine is not None:  # the engine's chain only moves at its updates
-            self._period = max(self._period, cd.engine.period)
+        self._chain = cd.chain
+        self._system = cd.chain.system  # the system whose context holds the chain
+        self._d = cd.chain.config.chain.ball_diameter
+        # A chain that moves only at its updates (the engine's) shows nothing new in between.
+        self._period = max(cd.scenario.check_period, cd.chain.move_period)
         self._next_check = 0.0
         self._wall_every = int(wall_check_every)
         self._since_wall = self._wall_every - 1  # the first periodic check includes the wall
@@ -218,7 +181,7 @@ class ChainMonitor:
         self.max_ball_overlap = 0.0
         self.max_wall_penetration = 0.0
         self.checks = 0
-        self._iu = np.triu_indices(cd.chain_plant.n_balls, k=1)
+        self._iu = np.triu_indices(cd.chain.n_balls, k=1)
         self._tolerate_sinking = tolerate_sinking
         self.tolerated_sinkings: list[tuple[float, int, float]] = []
 
@@ -230,26 +193,20 @@ class ChainMonitor:
         self._since_wall = self._wall_every - 1
         self._last_wall_time = -np.inf
 
-    def _finite(self, context) -> bool:
-        if self._cd.engine is not None:
-            return bool(np.all(np.isfinite(self._cd.engine.state_vector(context))))
-        plant = self._system
-        return bool(np.all(np.isfinite(plant.GetPositions(context))) and np.all(np.isfinite(plant.GetVelocities(context))))
-
     def check(self, plant_context, wall: bool = True) -> str | None:
         """Check a state now; returns a failure message or None, and updates the metrics.
 
         Args:
-            plant_context: the chain system's context (the plant's or the quasi-static engine's).
+            plant_context: the chain system's context (``Station.chain.system``'s).
             wall: also check escapes from the heart and the wall clearance.
         """
         t = plant_context.get_time()
-        if not self._finite(plant_context):
-            return f"NaN or inf in the state at t = {t:.4f} s: {self._non_finite_ball(plant_context)}"
-        if self._cd.engine is not None and self._cd.engine.failure:
-            return self._cd.engine.failure
-        cp = self._cd.chain_plant
-        p = self._cd.ball_positions(plant_context)
+        chain = self._chain
+        if not chain.is_finite(plant_context):
+            return f"NaN or inf in the state at t = {t:.4f} s: {chain.non_finite_part(plant_context)}"
+        if chain.failure:
+            return chain.failure
+        p = chain.ball_positions(plant_context)
         self.checks += 1
         gaps = np.linalg.norm(np.diff(p, axis=0), axis=1) - self._d
         self.max_gap = max(self.max_gap, float(gaps.max()))
@@ -261,7 +218,7 @@ class ChainMonitor:
             return self._check_gaps(gaps, t)
         if heart is not None:
             self._last_wall_time = t
-            in_sheath = cp.in_sheath(p)
+            in_sheath = chain.in_sheath(p)
             outside = ~heart.contains(p) & ~in_sheath
             if np.any(outside):
                 i = int(np.argmax(outside))
@@ -284,25 +241,10 @@ class ChainMonitor:
                     return (f"ball {i + 1} sank {-clearance.min() * 1e3:.2f} mm into the wall at "
                             f"t = {t:.4f} s, past its middle ({half_wall * 1e3:.2f} mm), where the "
                             "compliant wall would push it out: raise contact.wall_hydroelastic_modulus")
-        elif np.any(np.linalg.norm(p, axis=1) > 10 * cp.config.chain.length + 0.1):
+        elif np.any(np.linalg.norm(p, axis=1) > 10 * chain.config.chain.length + 0.1):
             i = int(np.argmax(np.linalg.norm(p, axis=1)))
             return f"ball {i + 1} flew away at t = {t:.4f} s: centre at {np.round(p[i] * 1e3, 1).tolist()} mm"
         return self._check_gaps(gaps, t)
-
-    def _non_finite_ball(self, plant_context) -> str:
-        """Which ball's position or velocity is not finite (for the failure message)."""
-        if self._cd.engine is not None:
-            p = self._cd.engine.ball_positions(plant_context)
-            bad = np.flatnonzero(~np.all(np.isfinite(p), axis=1))
-            return f"ball {bad[0] + 1} (position)" if len(bad) else "the engine's state"
-        plant = self._system
-        for i, body in enumerate(self._cd.chain_plant.ball_bodies):
-            X = plant.EvalBodyPoseInWorld(plant_context, body).GetAsMatrix34()
-            V = plant.EvalBodySpatialVelocityInWorld(plant_context, body).get_coeffs()
-            if not (np.all(np.isfinite(X)) and np.all(np.isfinite(V))):
-                part = "position" if not np.all(np.isfinite(X)) else "velocity"
-                return f"ball {i + 1} ({part})"
-        return "the feeder slide"
 
     def _check_gaps(self, gaps: np.ndarray, t: float) -> str | None:
         if gaps.max() > self._cd.scenario.break_gap:
@@ -314,8 +256,8 @@ class ChainMonitor:
     def __call__(self, root_context):
         plant_context = self._system.GetMyContextFromRoot(root_context)
         t = root_context.get_time()
-        if t + 1e-12 < self._next_check and not (self._cd.engine is not None and self._cd.engine.failure):
-            if self._finite(plant_context):
+        if t + 1e-12 < self._next_check and not self._chain.failure:
+            if self._chain.is_finite(plant_context):
                 return EventStatus.Succeeded()
         self._next_check = t + self._period
         self._since_wall += 1
@@ -330,7 +272,7 @@ class ChainMonitor:
     def metrics(self, plant_context) -> dict:
         """The watchdog's part of ``SimulationMetrics`` (tip_position_mm .. monitor_checks, by
         field name) at the end of a run; the wall clearance is checked once more here."""
-        p = self._cd.ball_positions(plant_context)
+        p = self._chain.ball_positions(plant_context)
         if (self._cd.heart is not None and plant_context.get_time() > self._last_wall_time
                 and np.all(np.isfinite(p)) and self.failure is None):
             # The clearance at the end of the run too (the wall check runs at a coarser period).
@@ -348,19 +290,15 @@ class ChainMonitor:
         }
 
 
-def _targets_touched(cd: ChainDiagram, root_context) -> list[str]:
+def _targets_touched(cd: Station, root_context) -> list[str]:
     tracker = cd.target_touches
     return [] if tracker is None else tracker.touched_names(tracker.GetMyContextFromRoot(root_context))
 
 
-def _tip_wall_force(cd: ChainDiagram, plant_context) -> list[float]:
+def _tip_wall_force(cd: Station, root_context) -> list[float]:
     """The walls' contact force on the tip ball at the end of the run [N] (world frame)."""
-    if cd.engine is not None:
-        return [round(float(v), 6) for v in cd.engine.get_tip_wall_force_output_port().Eval(plant_context)[:3]]
-    plant = cd.chain_plant.plant
-    tip = set(plant.GetCollisionGeometriesForBody(cd.chain_plant.ball_bodies[-1]))
-    walls = wall_geometries(plant, cd.chain_plant.scene_graph.model_inspector())
-    f, _ = wall_force_on(plant.get_contact_results_output_port().Eval(plant_context), tip, walls)
+    port = cd.chain.get_tip_wall_force_output_port()
+    f = port.Eval(port.get_system().GetMyContextFromRoot(root_context))[:3]
     return [round(float(v), 6) for v in f]
 
 
@@ -405,13 +343,13 @@ def replay_bytes(scenario: ChainScenario, duration: float) -> float:
     return REPLAY_BASE_BYTES + frames * bodies * REPLAY_BYTES_PER_BODY_FRAME
 
 
-def _export_recording(cd: ChainDiagram, meshcat, html: Path) -> None:
+def _export_recording(cd: Station, meshcat, html: Path) -> None:
     cd.visualizer.StopRecording()
     cd.visualizer.PublishRecording()
     atomic_write_text(html, meshcat.StaticHtml())
 
 
-def station_monitor(cd: ChainDiagram, monitor: ChainMonitor, stop=None, on_time=None, check=None):
+def station_monitor(cd: Station, monitor: ChainMonitor, stop=None, on_time=None, check=None):
     """The Simulator monitor of a station run: ``check``, the watchdog, then ``on_time``, then ``stop``.
 
     Args:
@@ -486,7 +424,7 @@ class StationRunner:
         failure: the failure message that ended the last advance, or None.
     """
 
-    def __init__(self, cd: ChainDiagram, *, monitor: ChainMonitor | None = None, stop=None, check=None,
+    def __init__(self, cd: Station, *, monitor: ChainMonitor | None = None, stop=None, check=None,
                  on_time=None, context=None, realtime_rate: float | None = None, restartable: bool = False):
         self.cd = cd
         if context is None and cd.scenario.random_seed is not None:
@@ -555,13 +493,12 @@ class StationRunner:
             raise RuntimeError("StationRunner.restart needs restartable=True")
         self.context.SetTimeStateAndParametersFrom(self._initial)
         self.monitor.restart()
-        if self.cd.engine is not None:
-            self.cd.engine.failure = None
+        self.cd.chain.clear_failure()
         self._checked.clear()
         self._initialized, self.stopped, self.failure = False, False, None
 
 
-def run_station(cd: ChainDiagram, *, duration: float, monitor: ChainMonitor | None = None, stop=None,
+def run_station(cd: Station, *, duration: float, monitor: ChainMonitor | None = None, stop=None,
                 check=None, context=None, progress: str | None = None, progress_step: float | None = None,
                 html: Path | None = None, meshcat=None, realtime_rate: float | None = None,
                 freeze_gc: bool = False) -> RunOutcome:
@@ -576,7 +513,7 @@ def run_station(cd: ChainDiagram, *, duration: float, monitor: ChainMonitor | No
     watchdog changes the trajectory (they only read the state).
 
     Args:
-        cd: the built diagram (``build_chain_diagram``).
+        cd: the built station (``MakeStation``).
         duration: simulated-time limit [s].
         monitor: the watchdog (default: ``ChainMonitor(cd)``).
         stop: None, or ``stop(root_context) -> bool``: end the run (a termination) when True.
@@ -638,19 +575,6 @@ def run_station(cd: ChainDiagram, *, duration: float, monitor: ChainMonitor | No
     return RunOutcome(root.get_time(), wall, cpu, failure, runner.stopped, runner.monitor, root, runner.simulator)
 
 
-def _statics_stats(engine) -> StaticsEngineStats:
-    """The quasi-static engine's solves over the run."""
-    solves = np.array(engine.solve_times)
-    return StaticsEngineStats(
-        solves=int(len(solves)),
-        median_solve_ms=round(float(np.median(solves)) * 1e3, 3) if len(solves) else None,
-        max_solve_ms=round(float(solves.max()) * 1e3, 3) if len(solves) else None,
-        median_iterations=float(np.median(engine.iterations)) if engine.iterations else None,
-        snap_throughs=[SnapThrough(t_s=round(e.time, 4), jump_mm=round(e.jump * 1e3, 3), detail=e.detail)
-                       for e in engine.events if e.kind == "snap-through"],
-        failures=[e.detail for e in engine.events if e.kind == "solve failed"])
-
-
 def run_simulation(*, scenario: ChainScenario, duration: float | None = None, html: Path | None = None,
                    meshcat=None, heart: Atrium | None = None, progress: bool = False) -> SimulationMetrics:
     """Simulate a scenario and return its metrics.
@@ -678,12 +602,13 @@ def run_simulation(*, scenario: ChainScenario, duration: float | None = None, ht
         from pydrake.geometry import Meshcat, MeshcatParams
 
         meshcat = Meshcat(MeshcatParams(host="localhost"))
-    cd = build_chain_diagram(scenario, meshcat=meshcat, heart=heart)
+    cd = MakeStation(scenario, meshcat=meshcat, heart=heart)
     run = run_station(cd, duration=duration, progress="simulate" if progress else None, html=html, meshcat=meshcat)
     monitor, root, error = run.monitor, run.context, run.failure
-    plant_context = cd.chain_system.GetMyContextFromRoot(root)
+    chain = cd.chain
+    plant_context = chain.system.GetMyContextFromRoot(root)
     wall, sim_time = run.wall_time, run.sim_time
-    step = scenario.statics_period if cd.engine is not None else scenario.effective_time_step
+    step = chain.time_step
     metrics = SimulationMetrics(
         realtime_factor=round(sim_time / wall, 4) if wall > 0 else None,
         sim_time_s=round(sim_time, 6),
@@ -695,14 +620,14 @@ def run_simulation(*, scenario: ChainScenario, duration: float | None = None, ht
         engine=scenario.engine,
         n_steps=int(round(sim_time / step)),
         targets_touched=_targets_touched(cd, root),
-        tip_wall_force_N=_tip_wall_force(cd, plant_context),
+        tip_wall_force_N=_tip_wall_force(cd, root),
         # ru_maxrss is in KiB on Linux: the process's peak resident set size so far (the whole
         # process, not this run alone).
         peak_memory_MB=round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
-        statics=_statics_stats(cd.engine) if cd.engine is not None else None,
+        statics=chain.solver_stats(),
         html=str(html) if cd.visualizer is not None and html is not None else None,
     )
     if error is not None:
         raise SimulationFailure(f"simulation stopped: {error}", metrics)
-    metrics.p_W_mm = (cd.ball_positions(plant_context) * 1e3).round(4).tolist()
+    metrics.p_W_mm = (chain.ball_positions(plant_context) * 1e3).round(4).tolist()
     return metrics

@@ -199,7 +199,7 @@ def add_field_following_operator(builder, ports, unit, p_W_target, start_time: f
     if unit.teleop_frame != "world":
         raise UserInputError(f"unit {unit.name!r}: the field-following operator moves the world-frame stick "
                              f"(teleop_frame: world), got {unit.teleop_frame!r}")
-    cp = ports.chain_plant
+    cp = ports.chain
     tip = builder.AddSystem(TipObserver(cp.ball_body_indices[-1], cp.ball_body_indices[-2]))
     builder.Connect(ports.body_poses, tip.get_body_poses_input_port())
     handles = ports.units[unit.name]

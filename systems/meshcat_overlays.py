@@ -3,8 +3,8 @@
 ``meshcat_overlays`` (MeshcatOverlays, only with a Meshcat): the 5 mm targets as discs on the
 wall (yellow, green once touched), the total external field at the tip ball as a blue arrow and
 the wall's contact force on the tip ball as an orange arrow. Everything is also stored in the
-Meshcat recording, so the HTML replay shows it. Which targets are touched, and the wall force,
-come from ``systems/target_contact.py``.
+Meshcat recording, so the HTML replay shows it. Which targets are touched comes from
+``systems/target_contact.py``, the wall force from the chain model's ``tip_wall_force``.
 """
 
 from __future__ import annotations
@@ -15,15 +15,12 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import Cylinder, MeshcatCone, Rgba
 from pydrake.math import RigidTransform, RotationMatrix
-from pydrake.multibody.plant import ContactResults
-from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import EventStatus, LeafSystem
 
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
 from ballchain.systems.magnetic_wrench import external_field_source
 from ballchain.systems.meshcat_view import MESHCAT_FOV_DEG
-from ballchain.systems.target_contact import wall_force_on, wall_geometries
 
 FIELD_ARROW_SCALE = 1.0  # [m/T]: 1 mm per mT
 FORCE_ARROW_SCALE = 0.1  # [m/N]: 10 mm per 0.1 N
@@ -56,8 +53,9 @@ class MeshcatOverlays(LeafSystem):
             per 0.1 N, from the contact centroid; hidden when the tip does not touch the wall.
 
     Input ports:
-        body_poses: abstract list[RigidTransform] indexed by BodyIndex (the plant's ``body_poses``).
-        contact_results: abstract ContactResults (the plant's ``contact_results``).
+        body_poses: abstract list[RigidTransform] indexed by BodyIndex (the chain's ``body_poses``).
+        tip_wall_force: (6) the walls' force on the tip ball f_W [N], then where it acts [m] (the
+            chain model's ``tip_wall_force``).
         touched: (n_targets,) only when there are targets (TargetTouchTracker's ``touched``).
         magnet_states: (6 k,) only with port magnets: as MagneticWrenchSystem's ``magnet_states``
             (per magnet p_WM [m] then its dipole direction).
@@ -67,8 +65,6 @@ class MeshcatOverlays(LeafSystem):
 
     Args:
         meshcat: the Meshcat.
-        plant: the finalised MultibodyPlant (for the tip's and the walls' geometry ids).
-        inspector: the SceneGraph's ``model_inspector()`` (for the walls' geometry names).
         tip_body_index: the tip ball's BodyIndex.
         period: publishing period [s].
         targets: ``heart_targets(heart)``, or None for no targets.
@@ -77,7 +73,7 @@ class MeshcatOverlays(LeafSystem):
         model: "dipole" or "exact", the port magnets' field model (as the wrench system's).
     """
 
-    def __init__(self, meshcat, plant, inspector, tip_body_index, period: float, targets=None, field_source=None,
+    def __init__(self, meshcat, tip_body_index, period: float, targets=None, field_source=None,
                  port_magnets: Sequence[CylinderMagnet | SphereMagnet] = (), model: str = "dipole") -> None:
         super().__init__()
         self.set_name("meshcat_overlays")
@@ -91,12 +87,10 @@ class MeshcatOverlays(LeafSystem):
         names, p_WT, n_W, radius = targets if targets is not None else ([], np.zeros((0, 3)), None, 0.0)
         self.target_names = list(names)
         self._body_poses_port = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
-        self._contact_port = self.DeclareAbstractInputPort("contact_results", AbstractValue.Make(ContactResults()))
+        self._tip_force_port = self.DeclareVectorInputPort("tip_wall_force", 6)
         self._touched_port = self.DeclareVectorInputPort("touched", len(names)) if names else None
         self._magnet_port = (self.DeclareVectorInputPort("magnet_states", 6 * len(self._port_magnets))
                              if self._port_magnets else None)
-        self._tip_geometries = set(plant.GetCollisionGeometriesForBody(plant.get_body(BodyIndex(self._tip))))
-        self._wall_geometries = wall_geometries(plant, inspector)
         # Targets: the discs sit 0.1 mm off the wall so that the semi-transparent wall does not hide them.
         self._target_paths = [f"overlays/targets/{n}" for n in names]
         for path, p, n in zip(self._target_paths, p_WT, n_W if names else []):
@@ -116,8 +110,8 @@ class MeshcatOverlays(LeafSystem):
     def get_body_poses_input_port(self):
         return self._body_poses_port
 
-    def get_contact_results_input_port(self):
-        return self._contact_port
+    def get_tip_wall_force_input_port(self):
+        return self._tip_force_port
 
     def get_touched_input_port(self):
         return self._touched_port
@@ -136,8 +130,10 @@ class MeshcatOverlays(LeafSystem):
 
     def tip_contact_force(self, context) -> tuple[np.ndarray, np.ndarray | None]:
         """(f_W (3,) [N], p_WC (3,) [m] or None): the walls' contact force on the tip ball, and
-        where it acts (the contact centroids, weighted by force; None without contact)."""
-        return wall_force_on(self._contact_port.Eval(context), self._tip_geometries, self._wall_geometries)
+        where it acts (None without contact)."""
+        v = self._tip_force_port.Eval(context)
+        f = np.array(v[:3])
+        return f, (np.array(v[3:]) if np.linalg.norm(f) > 0 else None)
 
     # ------------------------------------------------------------------------------- drawing
     def _set_arrow(self, path: str, p_W: np.ndarray | None, v_W: np.ndarray, t: float) -> None:

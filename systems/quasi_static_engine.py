@@ -18,11 +18,11 @@ once from the straight chain. The solves run with BLAS on one thread (``_one_bla
 The engine assumes what the statics assume: frictionless contacts (ball-ball, wall, sheath) and
 no dynamics. The plant stays the reference and the dynamics engine (``engine: plant``).
 
-Outputs match the plant's where the station reads them: ``body_poses`` (indexed by the same
-BodyIndex values as the plant's balls) for the watchdog, target tracker, tip observer,
-simulated operator and overlays; ``tip_wall_force`` for the overlay's arrow and the metrics.
-``EngineGeometry`` draws the balls in Meshcat through a SceneGraph, and ``EngineOverlays`` is the
-overlays system reading the engine's wall force instead of the plant's contact results.
+``StaticsChainModel`` is the engine behind the station's chain-model interface
+(``chain_model.ChainModel``, the plant's is ``chain_plant.PlantChainModel``): the same ports
+(``body_poses`` indexed by the plant's BodyIndex values, ``ball_positions``, ``tip_wall_force``,
+``snap_throughs``), and ``EngineGeometry`` draws the balls in Meshcat through a SceneGraph of
+their own.
 """
 
 from __future__ import annotations
@@ -50,8 +50,15 @@ from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import BallChain
 from ballchain.optimization.statics import ChainStatics, StaticsResult
 from ballchain.optimization.wall_constraints import HeartConstraints, SheathGeometry, base_ball, base_rotation
+from ballchain.systems.chain_model import (
+    ChainGeometry,
+    ChainModel,
+    FieldCoupling,
+    SnapThrough,
+    StaticsEngineStats,
+    chain_geometry,
+)
 from ballchain.systems.magnetic_wrench import external_field_source
-from ballchain.systems.meshcat_overlays import MeshcatOverlays
 
 
 _BLAS = None
@@ -110,6 +117,7 @@ class QuasiStaticEngine(LeafSystem):
             the others identity): each ball's centre, x along its dipole.
         tip_wall_force: (6) the wall's push on the tip ball f_W [N] and its contact point [m]
             (the tip's centre minus a radius along the push; the centre when there is none).
+        ball_positions: (3 n) the ball centres [m].
         snap_throughs: (1) snap-throughs so far.
 
     State (discrete, updated every ``period``): ball centres (3 n), dipoles (3 n), the tip's
@@ -206,6 +214,8 @@ class QuasiStaticEngine(LeafSystem):
             prerequisites_of_calc={self.xd_ticket()})
         self._tip_force_port = self.DeclareVectorOutputPort(
             "tip_wall_force", 6, self._calc_tip_force, prerequisites_of_calc={self.xd_ticket()})
+        self._positions_port = self.DeclareVectorOutputPort(
+            "ball_positions", 3 * n, self._calc_positions, prerequisites_of_calc={self.xd_ticket()})
         self._snaps_port = self.DeclareVectorOutputPort(
             "snap_throughs", 1, self._calc_snaps, prerequisites_of_calc={self.xd_ticket()})
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
@@ -236,6 +246,9 @@ class QuasiStaticEngine(LeafSystem):
 
     def get_tip_wall_force_output_port(self):
         return self._tip_force_port
+
+    def get_ball_positions_output_port(self):
+        return self._positions_port
 
     def get_snap_throughs_output_port(self):
         return self._snaps_port
@@ -465,6 +478,9 @@ class QuasiStaticEngine(LeafSystem):
     def _calc_tip_force(self, context, output):
         output.SetFromVector(self.state_vector(context)[self._slices["tip"]])
 
+    def _calc_positions(self, context, output):
+        output.SetFromVector(self.state_vector(context)[self._slices["p"]])
+
     def _calc_snaps(self, context, output):
         output.SetFromVector(self.state_vector(context)[self._slices["snaps"]])
 
@@ -536,35 +552,111 @@ class EngineGeometry(LeafSystem):
             value.set_value(frame, poses[index])
 
 
-class _NoContactGeometry:
-    """Stands in for the plant in ``MeshcatOverlays.__init__``: the engine has no contact geometry."""
+class StaticsChainModel(ChainModel):
+    """The chain as the ``QuasiStaticEngine`` (``engine: statics``): the wall is the atrium's SDF
+    or a flat ``wall_plane``, the sheath its bore; drawn by ``EngineGeometry``.
 
-    def GetCollisionGeometriesForBody(self, body):
-        return []
-
-    def get_body(self, index):
-        return None
-
-    def world_body(self):
-        return None
-
-
-class EngineOverlays(MeshcatOverlays):
-    """``MeshcatOverlays`` with the wall's force on the tip from the engine (``tip_wall_force``)
-    instead of the plant's contact results (its ``contact_results`` input stays unconnected).
-
-    Extra input port:
-        tip_wall_force: (6) f_W [N] and the contact point [m] (the engine's output).
+    Attributes (besides ``ChainModel``'s):
+        engine_system: the QuasiStaticEngine (also ``system``).
+        sheath: its SheathGeometry, or None.
     """
 
-    def __init__(self, meshcat, tip_body_index, period: float, **kwargs) -> None:
-        super().__init__(meshcat, _NoContactGeometry(), None, tip_body_index, period, **kwargs)
-        self._tip_force_port = self.DeclareVectorInputPort("tip_wall_force", 6)
+    engine = "statics"
 
-    def get_tip_wall_force_input_port(self):
-        return self._tip_force_port
+    def __init__(self, geometry: ChainGeometry, engine: QuasiStaticEngine, sheath: SheathGeometry | None):
+        self.geometry = geometry
+        self.system = self.engine_system = engine
+        self.sheath = sheath
+        self.time_step = self.move_period = engine.period
 
-    def tip_contact_force(self, context):
-        v = self._tip_force_port.Eval(context)
-        f = np.array(v[:3])
-        return f, (np.array(v[3:]) if np.linalg.norm(f) > 0 else None)
+    @classmethod
+    def add_to(cls, builder, scenario, config, coupling: FieldCoupling) -> StaticsChainModel:
+        """The engine, solving every ``scenario.statics_period`` (warmed up here, not in the timed run)."""
+        from ballchain.optimization.wall_constraints import PlaneSDF
+
+        geometry = chain_geometry(config)
+        sdf = None
+        if config.heart is not None:
+            from ballchain.drake_models.atrium_sdf import atrium_sdf
+
+            sdf = atrium_sdf(config.heart)
+        elif config.wall_plane:
+            w = np.asarray(config.wall_plane, float)
+            sdf = PlaneSDF(w[:3], w[3:])
+        sheath = None
+        if config.sheath is not None:
+            sheath = SheathGeometry(geometry.p_WE, geometry.sheath_axis_W, 0.5 * config.sheath.inner_diameter,
+                                    0.5 * config.sheath.wall_thickness)
+        engine = builder.AddSystem(QuasiStaticEngine(
+            config.chain, geometry.ball_body_indices, geometry.p_WE, geometry.sheath_axis_W, sdf=sdf, sheath=sheath,
+            field_source=coupling.field_source, port_magnets=coupling.port_magnets, model=coupling.model,
+            gravity=config.gravity, period=scenario.statics_period,
+            initial_inserted_length=config.initial_inserted_length))
+        engine.set_name("quasi_static_engine")
+        engine.warm_up()  # compiled kernels and solvers loaded at build time, not in the timed run
+        return cls(geometry, engine, sheath)
+
+    def get_magnet_states_input_port(self):
+        return self.engine_system.get_magnet_states_input_port()
+
+    def get_feeder_state_input_port(self):
+        return self.engine_system.get_feeder_state_input_port()
+
+    def get_body_poses_output_port(self):
+        return self.engine_system.get_body_poses_output_port()
+
+    def get_ball_positions_output_port(self):
+        return self.engine_system.get_ball_positions_output_port()
+
+    def get_tip_wall_force_output_port(self):
+        return self.engine_system.get_tip_wall_force_output_port()
+
+    def get_snap_throughs_output_port(self):
+        return self.engine_system.get_snap_throughs_output_port()
+
+    def add_geometry(self, builder):
+        """A SceneGraph of the engine's own, with ``engine_geometry`` posing the balls in it."""
+        from pydrake.geometry import SceneGraph
+
+        scene_graph = builder.AddSystem(SceneGraph())
+        scene_graph.set_name("scene_graph")
+        geometry = builder.AddSystem(EngineGeometry(
+            scene_graph, self.ball_body_indices, 0.5 * self.config.chain.ball_diameter, self.config.heart,
+            self.sheath, self.sheath_length() if self.config.sheath is not None else 0.0))
+        geometry.set_name("engine_geometry")
+        builder.Connect(self.get_body_poses_output_port(), geometry.get_body_poses_input_port())
+        builder.Connect(geometry.get_geometry_pose_output_port(), scene_graph.get_source_pose_port(geometry.source_id))
+        return scene_graph
+
+    def ball_positions(self, context) -> np.ndarray:
+        return self.engine_system.ball_positions(context)
+
+    def is_finite(self, context) -> bool:
+        return bool(np.all(np.isfinite(self.engine_system.state_vector(context))))
+
+    def non_finite_part(self, context) -> str:
+        bad = np.flatnonzero(~np.all(np.isfinite(self.ball_positions(context)), axis=1))
+        return f"ball {bad[0] + 1} (position)" if len(bad) else "the engine's state"
+
+    @property
+    def failure(self) -> str | None:
+        return self.engine_system.failure
+
+    def clear_failure(self) -> None:
+        self.engine_system.failure = None
+
+    @property
+    def events(self) -> list[EngineEvent]:
+        return self.engine_system.events
+
+    def solver_stats(self) -> StaticsEngineStats:
+        engine = self.engine_system
+        solves = np.array(engine.solve_times)
+        return StaticsEngineStats(
+            solves=int(len(solves)),
+            median_solve_ms=round(float(np.median(solves)) * 1e3, 3) if len(solves) else None,
+            max_solve_ms=round(float(solves.max()) * 1e3, 3) if len(solves) else None,
+            median_iterations=float(np.median(engine.iterations)) if engine.iterations else None,
+            snap_throughs=[SnapThrough(t_s=round(e.time, 4), jump_mm=round(e.jump * 1e3, 3), detail=e.detail)
+                           for e in engine.events if e.kind == "snap-through"],
+            failures=[e.detail for e in engine.events if e.kind == "solve failed"])

@@ -1,6 +1,6 @@
 """The actuation side of the chain-in-a-heart station: rotating magnet units and the feeder.
 
-``station.MakeStation`` (``build_chain_diagram``) calls these when a scenario has ``units`` or
+``station.MakeStation`` calls these when a scenario has ``units`` or
 ``insertion.feeder``. Per unit ``<u>`` (systems named as in ``actuation_station``):
 
     ``<u>.joystick`` (scripted stick, zero-order hold) -> ``<u>.teleoperation`` ->
@@ -14,7 +14,7 @@ ball's centre and direction from the plant's body poses) feeds the mapper's ``p_
 ``tip_direction_W``, and the magnet's ``m_W`` feeds its ``m_W``.
 
 and every unit's dipole ``m_W`` with its fixed centre ``<u>.p_WM`` goes through
-``magnet_states`` (a Multiplexer) into the MagneticWrenchSystem's ``magnet_states`` input,
+``magnet_states`` (a Multiplexer) into the chain model's ``magnet_states`` input,
 so the chain feels the magnets as the wheels turn them. The units themselves (``add_unit`` per
 unit, each Hall sensor also seeing the other units, each estimator subtracting them) are wired
 by ``actuation_station.add_unit_systems``, the same step as the actuation-only diagram's.
@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.systems.framework import LeafSystem
+from pydrake.systems.framework import LeafSystem, OutputPort
 from pydrake.systems.primitives import ConstantVectorSource, MatrixGain, Multiplexer, TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
 
@@ -150,21 +150,22 @@ class TipObserver(LeafSystem):
 
 def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig], magnet_states_port,
               p_W_chain: np.ndarray, feed_direction_W: np.ndarray, tip_observer: TipObserver | None = None
-              ) -> dict[str, UnitHandles]:
-    """Add the units' systems to ``builder`` and connect them to the wrench's ``magnet_states``.
+              ) -> tuple[dict[str, UnitHandles], OutputPort]:
+    """Add the units' systems to ``builder`` and connect them to the chain's ``magnet_states``.
 
     Args:
         builder: the station's DiagramBuilder.
         scenario: the scenario (its ``units``, placed, are ``configs``).
         configs: from ``unit_configs``: every setting of each unit.
-        magnet_states_port: the MagneticWrenchSystem's ``magnet_states`` input (6 per unit).
+        magnet_states_port: the chain model's ``magnet_states`` input (6 per unit).
         p_W_chain: (3,) where the neutral field is defined [m] (sheath exit / ball 1).
         feed_direction_W: (3,) the insertion direction (the neutral field's direction there).
         tip_observer: the tip's position and direction, needed by units with ``teleop_frame: tip``.
 
     Returns:
-        {unit name: UnitHandles}. With ``joystick_source: external`` a unit's ``joystick`` is None
-        and its ``joystick_input`` (the mapper's input port) is left unconnected for the caller.
+        ({unit name: UnitHandles}, the units' ``magnet_states`` output (the Multiplexer's)). With
+        ``joystick_source: external`` a unit's ``joystick`` is None and its ``joystick_input``
+        (the mapper's input port) is left unconnected for the caller.
     """
     handles: dict[str, UnitHandles] = {}
     m_neutral, m_initial = [], []
@@ -206,7 +207,7 @@ def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig],
         # The wrench normalises the dipole: its size is the magnet's, fixed in port_magnets.
         builder.Connect(h.magnet.GetOutputPort("m_W"), mux.get_input_port(2 * k + 1))
     builder.Connect(mux.get_output_port(), magnet_states_port)
-    return handles
+    return handles, mux.get_output_port()
 
 
 def add_feeder(builder, chain: BallChain, insertion: InsertionScenario, desired_state_port) -> Feeder:

@@ -84,6 +84,49 @@ def wall_force_on(results: ContactResults, body_geometries: set, walls: set) -> 
     return f, (np.asarray(points) * w[:, None]).sum(axis=0)
 
 
+class WallForceOnBall(LeafSystem):
+    """The walls' contact force on one ball of the plant (``wall_force_on``), as the quasi-static
+    engine's ``tip_wall_force`` output.
+
+    Input ports:
+        contact_results: abstract ContactResults (the plant's).
+        body_poses: abstract list[RigidTransform] indexed by BodyIndex (the plant's).
+
+    Output ports:
+        wall_force: (6) f_W [N], then where it acts p_WC [m] (the contact centroids, weighted by
+            force; the ball's centre without contact).
+
+    Args:
+        plant: the finalised MultibodyPlant.
+        inspector: its SceneGraph's ``model_inspector()``.
+        body_index: the ball's BodyIndex.
+    """
+
+    def __init__(self, plant, inspector, body_index) -> None:
+        super().__init__()
+        self._index = int(body_index)
+        self._body = set(plant.GetCollisionGeometriesForBody(plant.get_body(body_index)))
+        self._walls = wall_geometries(plant, inspector)
+        self._contact_port = self.DeclareAbstractInputPort("contact_results", AbstractValue.Make(ContactResults()))
+        self._poses_port = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
+        self._output = self.DeclareVectorOutputPort("wall_force", 6, self._calc)
+
+    def get_contact_results_input_port(self):
+        return self._contact_port
+
+    def get_body_poses_input_port(self):
+        return self._poses_port
+
+    def get_wall_force_output_port(self):
+        return self._output
+
+    def _calc(self, context, output):
+        f, p_WC = wall_force_on(self._contact_port.Eval(context), self._body, self._walls)
+        if p_WC is None:
+            p_WC = self._poses_port.Eval(context)[self._index].translation()
+        output.SetFromVector(np.concatenate([f, p_WC]))
+
+
 def heart_targets(heart) -> tuple[list[str], np.ndarray, np.ndarray, float]:
     """The atrium's ablation targets.
 

@@ -85,7 +85,7 @@ class MagnetUnitConfig:
             (``<name>.mode_command``).
         joystick_source: "script" (``joystick``, the system ``<name>.joystick``) or "external"
             (another system moves the stick, e.g. a simulated operator: the mapper's
-            ``joystick`` input (3) is left to ``build_chain_diagram``'s ``add_systems`` hook, or
+            ``joystick`` input (3) is left to ``MakeStation``'s ``add_systems`` hook, or
             exported as the diagram input ``<name>.joystick``).
         teleop_frame: the joystick mapping (``teleoperation.TeleoperationMapper``): "world" (the
             paper's: stick axes = magnet angular velocity about world x, y, z) or "tip" (the

@@ -14,7 +14,7 @@ from ballchain.drake_models.heart import HeartParams, LeftAtrium
 from ballchain.drake_models.params import BallChain, CylinderMagnet, Sleeve
 from ballchain.systems.chain_plant import ChainPlantConfig, add_chain_plant
 from ballchain.systems.chain_scenario import load_scenario
-from ballchain.systems.chain_simulation import build_chain_diagram, run_simulation
+from ballchain.systems.chain_simulation import MakeStation, run_simulation
 from ballchain.systems.magnetic_wrench import MagneticWrenchSystem
 
 RNG = np.random.default_rng(3)
@@ -182,19 +182,19 @@ def test_short_quasi_static_run_in_the_heart_keeps_the_chain_intact(coarse_heart
     """Insert 5 mm in 0.1 s with no field: the tip advances ~5 mm along the sheath, chain intact."""
     scenario = load_scenario("heart_no_field", "{heart_subdivisions: 3, gravity: false, "
                              "insertion: {initial: 0.02, final: 0.025, start_time: 0.0, speed: 0.05}}")
-    cd = build_chain_diagram(scenario, heart=coarse_heart)
+    cd = MakeStation(scenario, heart=coarse_heart)
     simulator = Simulator(cd.diagram)
-    plant_context = cd.chain_plant.plant.GetMyContextFromRoot(simulator.get_mutable_context())
-    p0 = cd.chain_plant.ball_positions(plant_context)
+    plant_context = cd.chain.plant.GetMyContextFromRoot(simulator.get_mutable_context())
+    p0 = cd.chain.ball_positions(plant_context)
     simulator.AdvanceTo(0.15)
-    p1 = cd.chain_plant.ball_positions(plant_context)
-    d = cd.chain_plant.config.chain.ball_diameter
+    p1 = cd.chain.ball_positions(plant_context)
+    d = cd.chain.config.chain.ball_diameter
     gaps = np.linalg.norm(np.diff(p1, axis=0), axis=1) - d
     assert np.all(np.abs(gaps) < 20e-6)  # touching, < 20 um of overlap or gap
-    assert np.all(coarse_heart.contains(p1) | cd.chain_plant.in_sheath(p1))
-    advance = (p1 - p0) @ cd.chain_plant.sheath_axis_W
+    assert np.all(coarse_heart.contains(p1) | cd.chain.in_sheath(p1))
+    advance = (p1 - p0) @ cd.chain.sheath_axis_W
     np.testing.assert_allclose(advance, 5e-3, atol=0.3e-3)  # straight chain, pushed 5 mm
-    assert np.linalg.norm(np.cross(p1[-1] - p1[0], cd.chain_plant.sheath_axis_W)) < 0.2e-3
+    assert np.linalg.norm(np.cross(p1[-1] - p1[0], cd.chain.sheath_axis_W)) < 0.2e-3
 
 
 def test_free_space_quasi_static_settles_on_the_statics_solution():
@@ -223,22 +223,22 @@ def test_compliant_wall_holds_the_chain_from_inside():
     from ballchain.systems.chain_simulation import ChainMonitor
 
     scenario = load_scenario("heart_wall_contact")
-    cd = build_chain_diagram(scenario)
+    cd = MakeStation(scenario)
     simulator = Simulator(cd.diagram)
     monitor = ChainMonitor(cd)
     simulator.set_monitor(monitor)
     simulator.AdvanceTo(0.8)
-    plant = cd.chain_plant.plant
+    plant = cd.chain.plant
     plant_context = plant.GetMyContextFromRoot(simulator.get_context())
     contacts = plant.get_contact_results_output_port().Eval(plant_context)
     assert contacts.num_hydroelastic_contacts() >= 1
-    p = cd.chain_plant.ball_positions(plant_context)
+    p = cd.chain.ball_positions(plant_context)
     heart = cd.heart
     assert p[-1, 2] > 0.8 * heart.semi_axes[2]  # the tip is up at the roof
     half_wall = 0.5 * heart.params.wall_thickness
     assert -half_wall < monitor.min_clearance < 0.0
     assert monitor.max_gap < 20e-6
-    assert np.all(heart.contains(p) | cd.chain_plant.in_sheath(p))
+    assert np.all(heart.contains(p) | cd.chain.in_sheath(p))
 
 
 @pytest.mark.slow

@@ -101,13 +101,13 @@ def test_wrench_system_names_the_port_the_magnet_and_the_time():
 
 def test_watchdog_names_the_ball_whose_state_is_not_finite():
     from ballchain.systems.chain_scenario import load_scenario
-    from ballchain.systems.chain_simulation import ChainMonitor, build_chain_diagram
+    from ballchain.systems.chain_simulation import ChainMonitor, MakeStation
 
-    cd = build_chain_diagram(load_scenario("free_space_uniform_90deg", "{n_balls: 4}"))
+    cd = MakeStation(load_scenario("free_space_uniform_90deg", "{n_balls: 4}"))
     context = cd.diagram.CreateDefaultContext()
-    plant = cd.chain_plant.plant
+    plant = cd.chain.plant
     pc = plant.GetMyContextFromRoot(context)
-    body = cd.chain_plant.ball_bodies[2]
+    body = cd.chain.ball_bodies[2]
     X = plant.GetFreeBodyPose(pc, body)
     X.set_translation([np.nan, 0.0, 0.0])
     plant.SetFreeBodyPose(pc, body, X)
@@ -118,14 +118,14 @@ def test_watchdog_names_the_ball_whose_state_is_not_finite():
 def test_nan_joystick_in_the_station_stops_at_once_naming_the_unit():
     """The old hang on a NaN stick axis: now the first derivative evaluation refuses it."""
     from ballchain.systems.chain_scenario import load_scenario
-    from ballchain.systems.chain_simulation import build_chain_diagram
+    from ballchain.systems.chain_simulation import MakeStation
 
     scenario = load_scenario("teleop_right_unit", "{heart: false, sheath: false, n_balls: 4, duration: 0.05, "
                              "insertion: {initial: 0.0, final: 0.0}, "
                              "units: [{name: right_unit, anchor: puncture, distance: 0.1}]}")
     scenario.units[0].joystick_source = "external"
     scenario.units[0].joystick = []
-    cd = build_chain_diagram(scenario.validate())
+    cd = MakeStation(scenario.validate())
     simulator = Simulator(cd.diagram)
     port = cd.diagram.GetInputPort("right_unit.joystick")
     port.FixValue(simulator.get_mutable_context(), np.array([np.nan, 0.0, 0.0]))

@@ -9,22 +9,22 @@ import pytest
 
 from ballchain.cli import main as cli_main
 from ballchain.systems.chain_scenario import load_scenario
-from ballchain.systems.chain_simulation import StationRunner, build_chain_diagram, run_station
+from ballchain.systems.chain_simulation import StationRunner, MakeStation, run_station
 
 FREE = "free_space_uniform_90deg"
 
 
 def _positions(cd, root):
-    return cd.ball_positions(cd.chain_system.GetMyContextFromRoot(root)).copy()
+    return cd.chain.ball_positions(cd.chain.system.GetMyContextFromRoot(root)).copy()
 
 
 def test_chunked_advances_reach_the_state_of_one_advance():
     """Five 20 ms advances of a StationRunner and one 100 ms run_station: the same ball centres
     (bit for bit: the same steps and events)."""
     scenario = load_scenario(FREE, "{n_balls: 4}")
-    cd_one = build_chain_diagram(scenario)
+    cd_one = MakeStation(scenario)
     one = run_station(cd_one, duration=0.1)
-    cd = build_chain_diagram(scenario)
+    cd = MakeStation(scenario)
     runner = StationRunner(cd)
     for k in range(1, 6):
         assert runner.advance_to(0.02 * k) is None and not runner.stopped
@@ -35,7 +35,7 @@ def test_chunked_advances_reach_the_state_of_one_advance():
 def test_a_stopped_run_starts_over_and_stops_again_the_same_way():
     """A chain that breaks (too little damping): the watchdog's message; after ``restart`` the
     time is 0, the state the initial one, no failure, and the run breaks again at the same time."""
-    cd = build_chain_diagram(load_scenario(FREE, "{translational_damping: 0.1}"))
+    cd = MakeStation(load_scenario(FREE, "{translational_damping: 0.1}"))
     runner = StationRunner(cd, restartable=True)
     first = runner.advance_to(0.05)
     assert first is not None and "the chain broke between balls" in first and runner.failure == first
@@ -59,10 +59,10 @@ def test_gc_freeze_only_when_asked_for():
         return False
 
     assert gc.get_freeze_count() == 0
-    run_station(build_chain_diagram(scenario), duration=0.005, stop=look)
+    run_station(MakeStation(scenario), duration=0.005, stop=look)
     assert max(seen) == 0
     seen.clear()
-    run_station(build_chain_diagram(scenario), duration=0.005, stop=look, freeze_gc=True)
+    run_station(MakeStation(scenario), duration=0.005, stop=look, freeze_gc=True)
     assert min(seen) > 0 and gc.get_freeze_count() == 0
 
 

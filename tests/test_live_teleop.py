@@ -115,15 +115,15 @@ def test_the_atrium_is_framed_in_the_static_html():
 
 
 def test_a_free_space_station_is_framed_on_the_chain():
-    """build_chain_diagram frames every Meshcat scene: in free space the chain's reach around ball 1."""
+    """MakeStation frames every Meshcat scene: in free space the chain's reach around ball 1."""
     from ballchain.systems.chain_scenario import load_scenario
-    from ballchain.systems.chain_simulation import build_chain_diagram
+    from ballchain.systems.chain_simulation import MakeStation
 
     meshcat = _meshcat()
-    cd = build_chain_diagram(load_scenario("free_space_uniform_90deg", "{n_balls: 3}"), meshcat=meshcat)
+    cd = MakeStation(load_scenario("free_space_uniform_90deg", "{n_balls: 3}"), meshcat=meshcat)
     p_WC, p_WT = _camera_in_html(meshcat.StaticHtml())
-    np.testing.assert_allclose(p_WT, cd.chain_plant.p_WE, atol=1e-9)
-    L = cd.chain_plant.config.chain.length
+    np.testing.assert_allclose(p_WT, cd.chain.p_WE, atol=1e-9)
+    L = cd.chain.config.chain.length
     assert L < np.linalg.norm(p_WC - p_WT) < 10 * L
 
 
@@ -229,7 +229,7 @@ def test_gamepad_turns_the_magnet_keys_move_the_feeder_and_quit_ends_the_run():
     Measured: 0.2514 rad, feeder 4.49 mm, ball 1 4.47 mm."""
     session = teleop.build_live(n_balls=8, realtime_rate=0.0, overrides="{engine: plant}")
     meshcat, root = session.meshcat, session.root
-    cp = session.cd.chain_plant
+    cp = session.cd.chain
     plant_context = cp.plant.GetMyContextFromRoot(root)
     feeder = session.cd.feeder
     feeder_context = feeder.GetMyContextFromRoot(root)

@@ -20,7 +20,7 @@ from ballchain.cli import main as cli_main
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import BallChain
 from ballchain.systems.chain_scenario import load_scenario
-from ballchain.systems.chain_simulation import build_chain_diagram, run_simulation
+from ballchain.systems.chain_simulation import MakeStation, run_simulation
 from ballchain.systems.target_contact import TOUCH_TOLERANCE, TargetTouchTracker, heart_targets, targets_touched
 
 R_BALL = 0.5 * BallChain().ball_diameter  # 1.5875 mm
@@ -116,12 +116,12 @@ def test_tracker_ports_and_memory(heart):
 def test_overlay_ports_and_field_at_the_tip(heart, meshcat):
     """With a unit: the overlay's ports and wiring, and its field at the tip equals the wrench
     system's external field there (the same sources, to 1e-12 relative)."""
-    cd = build_chain_diagram(load_scenario("teleop_right_unit"), meshcat=meshcat, heart=heart)
+    cd = MakeStation(load_scenario("teleop_right_unit"), meshcat=meshcat, heart=heart)
     overlays = cd.meshcat_overlays
     assert overlays.get_name() == "meshcat_overlays"
     assert {"target_touches", "meshcat_overlays"} <= {s.get_name() for s in cd.diagram.GetSystems()}
     inputs = [overlays.get_input_port(i) for i in range(overlays.num_input_ports())]
-    assert [p.get_name() for p in inputs] == ["body_poses", "contact_results", "touched", "magnet_states"]
+    assert [p.get_name() for p in inputs] == ["body_poses", "tip_wall_force", "touched", "magnet_states"]
     assert overlays.get_touched_input_port().size() == 38 and overlays.get_magnet_states_input_port().size() == 6
     assert overlays.num_output_ports() == 0
     for path in ("overlays/targets/left_1/open", "overlays/targets/right_18/touched",
@@ -129,9 +129,9 @@ def test_overlay_ports_and_field_at_the_tip(heart, meshcat):
         assert meshcat.HasPath(path), path
     context = cd.diagram.CreateDefaultContext()
     o_context = overlays.GetMyContextFromRoot(context)
-    w_context = cd.wrench.GetMyContextFromRoot(context)
-    tip = cd.chain_plant.ball_positions(cd.chain_plant.plant.GetMyContextFromRoot(context))[-1]
-    B_wrench = cd.wrench.external_field(w_context).field_and_gradient(tip[None])[0][0]
+    w_context = cd.chain.wrench.GetMyContextFromRoot(context)
+    tip = cd.chain.ball_positions(cd.chain.plant.GetMyContextFromRoot(context))[-1]
+    B_wrench = cd.chain.wrench.external_field(w_context).field_and_gradient(tip[None])[0][0]
     B = overlays.tip_field(o_context)
     assert np.linalg.norm(B) > 1e-3  # about 12 mT near the sheath exit
     np.testing.assert_allclose(B, B_wrench, rtol=1e-12)
@@ -140,10 +140,10 @@ def test_overlay_ports_and_field_at_the_tip(heart, meshcat):
 def _one_step_with_the_tip_at(cd, p_W_tip):
     """One plant step from the default state with the tip ball moved to p_W_tip; returns the
     simulator. The plant's contact results are sampled: they are the step's, from that state."""
-    plant = cd.chain_plant.plant
+    plant = cd.chain.plant
     simulator = Simulator(cd.diagram)
     plant_context = plant.GetMyContextFromRoot(simulator.get_mutable_context())
-    plant.SetFreeBodyPose(plant_context, cd.chain_plant.ball_bodies[-1], RigidTransform(p_W_tip))
+    plant.SetFreeBodyPose(plant_context, cd.chain.ball_bodies[-1], RigidTransform(p_W_tip))
     simulator.AdvanceTo(cd.scenario.effective_time_step)
     return simulator
 
@@ -152,7 +152,7 @@ def test_contact_force_on_the_tip_from_the_wall_and_a_touch_in_the_diagram(heart
     """The tip ball placed 0.2 mm into the wall at target left_3 for one step: the wall pushes it
     out along the wall's normal from a centroid at the target,
     and the diagram's tracker has left_3 touched. Placed 1 mm off the wall: no force, no touch."""
-    cd = build_chain_diagram(load_scenario("heart_wall_contact"), meshcat=meshcat, heart=heart)
+    cd = MakeStation(load_scenario("heart_wall_contact"), meshcat=meshcat, heart=heart)
     overlays, tracker = cd.meshcat_overlays, cd.target_touches
     names, p_WT, n_W, _ = heart_targets(heart)
     k = names.index("left_3")

@@ -133,9 +133,9 @@ def test_heart_statics_multipliers_balance_every_sub_chain(heart, sdf):
 # --- the engine as a system -----------------------------------------------------------------------
 def _engine_diagram(name, overrides):
     from ballchain.systems.chain_scenario import load_scenario
-    from ballchain.systems.chain_simulation import build_chain_diagram
+    from ballchain.systems.chain_simulation import MakeStation
 
-    return build_chain_diagram(load_scenario(name, "{engine: statics, " + overrides.strip()[1:-1] + "}"))
+    return MakeStation(load_scenario(name, "{engine: statics, " + overrides.strip()[1:-1] + "}"))
 
 
 @pytest.mark.slow
@@ -144,11 +144,11 @@ def test_engine_ports_outputs_and_a_short_run():
     plant's BodyIndex values); the chain is in equilibrium at initialisation and, pushed by the
     feeder, moves by the inserted length at the sheath and stays a radius inside the lumen."""
     cd = _engine_diagram("heart_left_quasi_static", "{duration: 0.2}")
-    engine = cd.engine
+    engine = cd.chain.engine_system
     assert [engine.get_input_port(i).get_name() for i in range(engine.num_input_ports())] == ["feeder_desired_state"]
     assert engine.get_feeder_state_input_port().size() == 2
     assert [engine.get_output_port(i).get_name() for i in range(engine.num_output_ports())] == [
-        "body_poses", "tip_wall_force", "snap_throughs"]
+        "body_poses", "tip_wall_force", "ball_positions", "snap_throughs"]
     from pydrake.systems.analysis import Simulator
 
     sim = Simulator(cd.diagram)
@@ -156,20 +156,20 @@ def test_engine_ports_outputs_and_a_short_run():
     ctx = engine.GetMyContextFromRoot(sim.get_context())
     p0 = engine.ball_positions(ctx).copy()
     poses = engine.get_body_poses_output_port().Eval(ctx)
-    for i, index in enumerate(cd.chain_plant.ball_body_indices):
+    for i, index in enumerate(cd.chain.ball_body_indices):
         np.testing.assert_allclose(poses[int(index)].translation(), p0[i], atol=1e-15)
-    d = cd.chain_plant.config.chain.ball_diameter
+    d = cd.chain.config.chain.ball_diameter
     np.testing.assert_allclose(np.linalg.norm(np.diff(p0, axis=0), axis=1), d, rtol=1e-9)  # touching
-    m0 = np.array([poses[int(i)].rotation().matrix()[:, 0] for i in cd.chain_plant.ball_body_indices])
+    m0 = np.array([poses[int(i)].rotation().matrix()[:, 0] for i in cd.chain.ball_body_indices])
     sim.AdvanceTo(0.201)  # past the update at 0.2 s: the feeder moved 3 mm (from 0.05 s at 20 mm/s)
     p1 = engine.ball_positions(ctx)
     s0, s1 = 0.02, 0.02 + 0.02 * 0.15
     # The balls still in the sheath move along its axis by exactly the feeder's travel.
-    np.testing.assert_allclose(p1[0] - p0[0], (s1 - s0) * cd.chain_plant.sheath_axis_W, atol=1e-12)
+    np.testing.assert_allclose(p1[0] - p0[0], (s1 - s0) * cd.chain.sheath_axis_W, atol=1e-12)
     assert np.linalg.norm(p1[-1] - p0[-1]) > 1e-3  # the tip moved
-    free = ~cd.chain_plant.in_sheath(p1)
-    assert np.all(cd.engine._sdf(p1[free], gradient=False) >= 0.5 * d - 1e-6 * d)
-    assert np.all(cd.heart.contains(p1) | cd.chain_plant.in_sheath(p1))
+    free = ~cd.chain.in_sheath(p1)
+    assert np.all(cd.chain.engine_system._sdf(p1[free], gradient=False) >= 0.5 * d - 1e-6 * d)
+    assert np.all(cd.heart.contains(p1) | cd.chain.in_sheath(p1))
     assert np.allclose(np.linalg.norm(m0, axis=1), 1.0)
 
 
@@ -182,34 +182,34 @@ def _settled_plant_from(cd_engine, scenario_name, overrides, duration, from_engi
     from pydrake.systems.analysis import Simulator
 
     from ballchain.systems.chain_scenario import load_scenario
-    from ballchain.systems.chain_simulation import _tip_wall_force, build_chain_diagram
+    from ballchain.systems.chain_simulation import MakeStation, _tip_wall_force
     from ballchain.systems.quasi_static_engine import rotations_with_x_along
 
     sim_e = Simulator(cd_engine.diagram)
     sim_e.Initialize()
-    ctx_e = cd_engine.engine.GetMyContextFromRoot(sim_e.get_context())
-    x = cd_engine.engine.state_vector(ctx_e)
-    n = cd_engine.chain_plant.n_balls
+    ctx_e = cd_engine.chain.engine_system.GetMyContextFromRoot(sim_e.get_context())
+    x = cd_engine.chain.engine_system.state_vector(ctx_e)
+    n = cd_engine.chain.n_balls
     p_e, m_e = x[: 3 * n].reshape(n, 3), x[3 * n: 6 * n].reshape(n, 3)
-    cd = build_chain_diagram(load_scenario(scenario_name, overrides))
+    cd = MakeStation(load_scenario(scenario_name, overrides))
     sim = Simulator(cd.diagram)
-    plant = cd.chain_plant.plant
+    plant = cd.chain.plant
     ctx = plant.GetMyMutableContextFromRoot(sim.get_mutable_context())
     R = rotations_with_x_along(m_e)
     # Neighbours 4 um into each other, as chain_plant starts them: SAP's contact constraint
     # needs the pair in contact (exactly touching, 2 N of attraction slams them together).
-    d = cd.chain_plant.config.chain.ball_diameter
+    d = cd.chain.config.chain.ball_diameter
     links = np.diff(p_e, axis=0) * (1.0 - 4e-6 / d)
     p_start = p_e[0] + np.vstack([np.zeros(3), np.cumsum(links, axis=0)])
-    for i, body in enumerate(cd.chain_plant.ball_bodies[1:], start=1):
+    for i, body in enumerate(cd.chain.ball_bodies[1:], start=1):
         if from_engine:
             plant.SetFreeBodyPose(ctx, body, RigidTransform(RotationMatrix(R[i]), p_start[i]))
     sim.Initialize()
     sim.AdvanceTo(duration)
     speeds = [np.linalg.norm(plant.EvalBodySpatialVelocityInWorld(ctx, b).translational())
-              for b in cd.chain_plant.ball_bodies]
+              for b in cd.chain.ball_bodies]
     f_e = x[6 * n: 6 * n + 3]
-    return cd.chain_plant.ball_positions(ctx), float(max(speeds)), np.array(_tip_wall_force(cd, ctx)), p_e, f_e
+    return cd.chain.ball_positions(ctx), float(max(speeds)), np.array(_tip_wall_force(cd, sim.get_context())), p_e, f_e
 
 
 @pytest.mark.slow

@@ -165,11 +165,11 @@ def test_a_scenarios_random_seed_randomises_the_run_loop():
     """A short free-space teleoperation scenario with two noisy units: no random_seed is the old
     seeding (unit k's sensor seed k), a random_seed the same run each time, another another."""
     from ballchain.systems.chain_scenario import load_scenario
-    from ballchain.systems.chain_simulation import build_chain_diagram, run_station
+    from ballchain.systems.chain_simulation import MakeStation, run_station
 
     scenario = load_scenario("teleop_right_unit", "{heart: false, engine: statics, duration: 0.05, units: "
                                                   "[{name: right_unit, anchor: puncture}, {name: left_unit, direction_W: [0, 1, 0]}]}")
-    cd = build_chain_diagram(scenario)
+    cd = MakeStation(scenario)
     sensors = [cd.diagram.GetSubsystemByName(f"{n}.hall_sensor") for n in UNITS]
 
     def readings(random_seed):

@@ -10,7 +10,7 @@ from ballchain.cli import main as cli_main
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.systems.chain_scenario import ChainScenario, load_scenario, scenario_names
-from ballchain.systems.chain_simulation import build_chain_diagram, run_simulation
+from ballchain.systems.chain_simulation import MakeStation, run_simulation
 
 KEYS = {"realtime_factor", "sim_time_s", "tip_position_mm", "min_wall_clearance_mm",
         "max_neighbor_gap_um", "max_penetration_um", "targets_touched", "peak_memory_MB"}
@@ -38,10 +38,10 @@ def test_scenario_file_and_defaults():
 
 
 def test_diagram_has_named_systems(heart):
-    cd = build_chain_diagram(load_scenario("heart_left_quasi_static"), heart=heart)
+    cd = MakeStation(load_scenario("heart_left_quasi_static"), heart=heart)
     names = {s.get_name() for s in cd.diagram.GetSystems()}
     assert {"plant", "scene_graph", "magnetic_wrench", "feeder_command"} <= names
-    external = build_chain_diagram(load_scenario("heart_no_field", "{insertion: {external: true}}"), heart=heart)
+    external = MakeStation(load_scenario("heart_no_field", "{insertion: {external: true}}"), heart=heart)
     assert external.diagram.GetInputPort("inserted_length").size() == 1
 
 
@@ -80,7 +80,7 @@ def test_bad_scenarios_fail_with_clear_messages(capsys):
     with pytest.raises(ValueError, match="unknown field 'no_such_field'"):
         load_scenario("heart_no_field", "{no_such_field: 1}")
     with pytest.raises(ValueError, match="ball 1 must stay in the sheath"):
-        build_chain_diagram(load_scenario("free_space_uniform_90deg", "{insertion: {initial: 0.2}}"))
+        MakeStation(load_scenario("free_space_uniform_90deg", "{insertion: {initial: 0.2}}"))
 
 
 def test_a_breaking_chain_stops_with_when_and_which_ball(capsys):
@@ -113,8 +113,8 @@ def test_monitor_names_the_escaped_ball_and_nan(heart):
 
     from ballchain.systems.chain_simulation import ChainMonitor
 
-    cd = build_chain_diagram(load_scenario("heart_no_field"), heart=heart)
-    plant = cd.chain_plant.plant
+    cd = MakeStation(load_scenario("heart_no_field"), heart=heart)
+    plant = cd.chain.plant
     context = plant.CreateDefaultContext()
     monitor = ChainMonitor(cd)
     assert monitor.check(context) is None
@@ -137,21 +137,21 @@ def test_the_feeder_system_drives_the_chain():
 
     scenario = load_scenario("free_space_uniform_90deg",
                              "{n_balls: 6, uniform_field: [0.0, 0.0, 0.0], insertion: {initial: 0.0, external: true}}")
-    cd = build_chain_diagram(scenario)
+    cd = MakeStation(scenario)
     builder = DiagramBuilder()
     chain = builder.AddSystem(cd.diagram)
-    feeder = builder.AddSystem(Feeder(cd.chain_plant.config.chain))
+    feeder = builder.AddSystem(Feeder(cd.chain.config.chain))
     speed = builder.AddSystem(ConstantVectorSource([0.02]))  # m/s
     builder.Connect(speed.get_output_port(), feeder.GetInputPort("v_insert_cmd"))
     builder.Connect(feeder.GetOutputPort("inserted_length"), chain.GetInputPort("inserted_length"))
     diagram = builder.Build()
     simulator = Simulator(diagram)
-    plant = cd.chain_plant.plant
+    plant = cd.chain.plant
     plant_context = plant.GetMyContextFromRoot(simulator.get_mutable_context())
-    p0 = cd.chain_plant.ball_positions(plant_context)
+    p0 = cd.chain.ball_positions(plant_context)
     simulator.AdvanceTo(0.3)
     s = feeder.GetOutputPort("inserted_length").Eval(feeder.GetMyContextFromRoot(simulator.get_context()))[0]
-    p1 = cd.chain_plant.ball_positions(plant_context)
+    p1 = cd.chain.ball_positions(plant_context)
     assert s > 2e-3  # the feeder did move
     np.testing.assert_allclose((p1 - p0)[:, 0], s, atol=0.05e-3)  # the whole chain, straight
 
@@ -185,18 +185,19 @@ UNIT_8_BALLS = ("{n_balls: 8, uniform_field: [0.0, 0.0, 0.0], units: [{name: rig
 
 @pytest.mark.slow
 def test_station_with_units_has_named_systems_and_wiring(heart):
-    cd = build_chain_diagram(load_scenario("teleop_two_units"), heart=heart)
+    cd = MakeStation(load_scenario("teleop_two_units"), heart=heart)
     names = {s.get_name() for s in cd.diagram.GetSystems()}
     for unit in ("right_unit", "left_unit"):
         assert {f"{unit}.{part}" for part in ("magnet", "drive", "hall_sensor", "estimator", "controller",
                                               "teleoperation", "mode_switch", "joystick", "mode_command")} <= names
     assert {"feeder", "feeder_command", "feeder_interface", "magnet_states", "magnetic_wrench"} <= names
-    assert cd.wrench.get_magnet_states_input_port().size() == 12  # (p_WM, m_hat_W) per unit
+    assert cd.chain.wrench.get_magnet_states_input_port().size() == 12  # (p_WM, m_hat_W) per unit
     # Fixed inputs at t = 0: the wrench sees each unit at its centre with its neutral dipole, and the
     # neutral dipole makes the field at the sheath exit point along the sheath (to 1e-9).
     context = cd.diagram.CreateDefaultContext()
-    x = cd.wrench.get_magnet_states_input_port().Eval(cd.wrench.GetMyContextFromRoot(context)).reshape(2, 6)
-    field = cd.wrench.external_field(cd.wrench.GetMyContextFromRoot(context))
+    wrench = cd.chain.wrench
+    x = wrench.get_magnet_states_input_port().Eval(wrench.GetMyContextFromRoot(context)).reshape(2, 6)
+    field = wrench.external_field(wrench.GetMyContextFromRoot(context))
     for row, unit in zip(x, cd.units.values()):
         np.testing.assert_allclose(row[:3], unit.config.p_WM, atol=1e-12)
         np.testing.assert_allclose(row[3:] / np.linalg.norm(row[3:]), unit.m_hat_neutral_W, atol=1e-12)
@@ -215,11 +216,11 @@ def test_bad_unit_scenarios_fail_clearly(heart):
     with pytest.raises(ValueError, match="joystick key times"):
         load_scenario("teleop_right_unit", "{units: [{name: a, joystick: [{time: 0.5}, {time: 0.1}]}]}")
     with pytest.raises(ValueError, match="exceeds the feeder's limit"):
-        build_chain_diagram(load_scenario("free_space_uniform_90deg", "{insertion: {final: 0.01, speed: 0.5, feeder: true}}"))
+        MakeStation(load_scenario("free_space_uniform_90deg", "{insertion: {final: 0.01, speed: 0.5, feeder: true}}"))
     with pytest.raises(ValueError, match="external .* or feeder"):
-        build_chain_diagram(load_scenario("free_space_uniform_90deg", "{insertion: {external: true, feeder: true}}"))
+        MakeStation(load_scenario("free_space_uniform_90deg", "{insertion: {external: true, feeder: true}}"))
     with pytest.raises(ValueError, match="has no carinas"):
-        build_chain_diagram(load_scenario("teleop_right_unit", "{units: [{name: a, anchor: carina_right}]}"),
+        MakeStation(load_scenario("teleop_right_unit", "{units: [{name: a, anchor: carina_right}]}"),
                             heart=_without_carinas(heart))
 
 
@@ -237,7 +238,7 @@ def test_meshcat_draws_the_units():
 
     meshcat = Meshcat(MeshcatParams(host="localhost"))
     scenario = load_scenario("free_space_uniform_90deg", "{n_balls: 3, units: [{name: right_unit, p_WM: [0.0, -0.1, 0.0]}]}")
-    cd = build_chain_diagram(scenario, meshcat=meshcat)
+    cd = MakeStation(scenario, meshcat=meshcat)
     assert "unit_markers" in {s.get_name() for s in cd.diagram.GetSystems()}
     assert meshcat.HasPath("units/right_unit/body") and meshcat.HasPath("units/right_unit/dipole")
 
@@ -256,16 +257,16 @@ def test_rotating_unit_steers_the_chain_to_the_statics_equilibrium():
     from ballchain.drake_models.field_sources import MagnetSource
     from ballchain.optimization.statics import ChainStatics
 
-    cd = build_chain_diagram(load_scenario("free_space_uniform_90deg", UNIT_8_BALLS))
+    cd = MakeStation(load_scenario("free_space_uniform_90deg", UNIT_8_BALLS))
     unit = cd.units["right_unit"]
     simulator = Simulator(cd.diagram)
     root = simulator.get_mutable_context()
-    plant_context = cd.chain_plant.plant.GetMyContextFromRoot(root)
+    plant_context = cd.chain.plant.GetMyContextFromRoot(root)
     magnet_context = unit.magnet.GetMyContextFromRoot(root)
     simulator.Initialize()
-    p0 = cd.chain_plant.ball_positions(plant_context)
+    p0 = cd.chain.ball_positions(plant_context)
     simulator.AdvanceTo(0.8)
-    p = cd.chain_plant.ball_positions(plant_context)
+    p = cd.chain.ball_positions(plant_context)
     R_WM = unit.magnet.R_WM(magnet_context)
     m0, m1 = unit.m_hat_initial_W, R_WM[:, 2]
     turned = np.arctan2(np.cross(m0, m1)[2], m0 @ m1)
@@ -276,7 +277,7 @@ def test_rotating_unit_steers_the_chain_to_the_statics_equilibrium():
     B_mid = source.field(p0[len(p0) // 2][None])[0]
     assert B_mid[1] < 0 and p[-1, 1] < -5e-3 and p0[-1, 1] == pytest.approx(0.0, abs=1e-6)
     # Statics: the same magnet, the equilibrium reached from the straight chain.
-    statics = ChainStatics(cd.chain_plant.config.chain).solve_or_raise(source)
+    statics = ChainStatics(cd.chain.config.chain).solve_or_raise(source)
     tip_error = np.linalg.norm(p[-1] - statics.positions[-1])
     print(f"tip {p[-1] * 1e3} mm, statics {statics.positions[-1] * 1e3} mm, error {tip_error * 1e3:.3f} mm")
     assert tip_error < 0.1e-3
@@ -293,7 +294,7 @@ def test_reconfiguration_mode_returns_the_magnet_to_neutral():
     scenario = load_scenario("free_space_uniform_90deg", (
         "{n_balls: 3, uniform_field: [0.0, 0.0, 0.0], units: [{name: right_unit, p_WM: [0.0, -0.1651, 0.0], "
         f"m_hat_W: [{-np.cos(off)}, {np.sin(off)}, 0.0], joystick: [{{time: 0.0, mode: 1}}]}}]}}"))
-    cd = build_chain_diagram(scenario)
+    cd = MakeStation(scenario)
     unit = cd.units["right_unit"]
     simulator = Simulator(cd.diagram)
     np.testing.assert_allclose(unit.m_hat_neutral_W, [-1.0, 0.0, 0.0], atol=1e-12)
@@ -314,17 +315,17 @@ def test_feeder_plays_the_insertion_ramp():
     scenario = load_scenario("free_space_uniform_90deg", (
         "{n_balls: 3, uniform_field: [0.0, 0.0, 0.0], "
         "insertion: {initial: 0.002, final: 0.006, start_time: 0.05, speed: 0.02, feeder: true}}"))
-    cd = build_chain_diagram(scenario)
+    cd = MakeStation(scenario)
     feeder = cd.feeder
     simulator = Simulator(cd.diagram)
     root = simulator.get_mutable_context()
-    plant_context = cd.chain_plant.plant.GetMyContextFromRoot(root)
+    plant_context = cd.chain.plant.GetMyContextFromRoot(root)
     feeder_context = feeder.GetMyContextFromRoot(root)
     s0 = feeder.GetOutputPort("inserted_length").Eval(feeder_context)[0]
-    p0 = cd.chain_plant.ball_positions(plant_context)
+    p0 = cd.chain.ball_positions(plant_context)
     simulator.AdvanceTo(0.6)  # ramp 0.2 s, plus 0.2 s for the feeder's acceleration limit
     s1 = feeder.GetOutputPort("inserted_length").Eval(feeder_context)[0]
-    p1 = cd.chain_plant.ball_positions(plant_context)
+    p1 = cd.chain.ball_positions(plant_context)
     step = feeder.spec.step_length
     assert s0 == pytest.approx(0.002, abs=step) and s1 == pytest.approx(0.006, abs=step)
     np.testing.assert_allclose(p1[0] - p0[0], [s1 - s0, 0.0, 0.0], atol=5e-6)
@@ -337,7 +338,7 @@ def test_every_unit_option_is_reachable_from_the_scenario():
     u = scenario.units[0]
     u.slip, u.wheel_map, u.controller_gain = 0.05, "paper", 2.0
     u.sensors_see_other_units = u.estimator_compensates_other_units = False
-    cd = build_chain_diagram(scenario.validate())
+    cd = MakeStation(scenario.validate())
     right, left = cd.units["right_unit"], cd.units["left_unit"]
     assert right.config.name == "right_unit" and right.magnet._slip == 0.05 and left.magnet._slip == 0.0
     assert right.controller._K == 2.0 and left.controller._K == 4.0
@@ -354,11 +355,11 @@ def test_the_one_run_loop_stops_on_its_condition_and_reports_a_failure():
     from ballchain.systems.chain_simulation import run_station
 
     scenario = load_scenario("free_space_uniform_90deg", "{n_balls: 4}")
-    stopped = run_station(build_chain_diagram(scenario), duration=0.2, stop=lambda root: root.get_time() >= 0.05)
+    stopped = run_station(MakeStation(scenario), duration=0.2, stop=lambda root: root.get_time() >= 0.05)
     assert stopped.stopped and stopped.failure is None and 0.05 <= stopped.sim_time < 0.06
-    full = run_station(build_chain_diagram(scenario), duration=0.1)
+    full = run_station(MakeStation(scenario), duration=0.1)
     assert not full.stopped and full.failure is None and full.sim_time == pytest.approx(0.1)
-    broken = run_station(build_chain_diagram(load_scenario("free_space_uniform_90deg",
+    broken = run_station(MakeStation(load_scenario("free_space_uniform_90deg",
                                                            "{translational_damping: 0.1}")), duration=0.05)
     assert "the chain broke between balls" in broken.failure and broken.sim_time < 0.05
 
@@ -372,12 +373,12 @@ def test_the_run_loop_takes_a_run_check_and_a_start_context():
     from ballchain.systems.chain_simulation import run_station
 
     scenario = load_scenario("free_space_uniform_90deg", "{n_balls: 4}")
-    cd = build_chain_diagram(scenario)
+    cd = MakeStation(scenario)
     checked = run_station(cd, duration=0.2, check=lambda root: "too late" if root.get_time() >= 0.02 else None)
     assert checked.failure == "too late" and not checked.stopped and checked.sim_time == pytest.approx(0.02)
     assert checked.monitor.failure is None  # the watchdog saw nothing wrong
     root = cd.diagram.CreateDefaultContext()
-    plant = cd.chain_plant.plant
+    plant = cd.chain.plant
     plant.GetJointByName("ball_4_floating").SetPose(plant.GetMyContextFromRoot(root), RigidTransform([2.0, 0.0, 0.0]))
     away = run_station(cd, duration=0.2, context=root)
     assert away.context is root and away.sim_time == 0.0

@@ -20,13 +20,13 @@ def test_the_default_plant_config_is_the_chain_plants_and_the_step_has_one_home(
 
     for mode, step in (("quasi-static", 1e-3), ("dynamics", 1e-4)):
         st = MakeStation(load_scenario(SMALL, f"{{n_balls: 3, mode: {mode}}}"))
-        plant = st.chain_plant.plant
+        plant = st.chain.plant
         assert plant.time_step() == step
         assert plant.get_discrete_contact_approximation() == DiscreteContactApproximation.kSap
         assert plant.get_contact_model().name == "kHydroelasticWithFallback"
         assert plant.get_sap_near_rigid_threshold() == 0.0
     st = MakeStation(load_scenario(SMALL, "{n_balls: 3, time_step: 2.0e-3}"))
-    assert st.chain_plant.plant.time_step() == 2e-3
+    assert st.chain.plant.time_step() == 2e-3
 
 
 def test_plant_config_fields_reach_the_plant():
@@ -34,7 +34,7 @@ def test_plant_config_fields_reach_the_plant():
 
     st = MakeStation(load_scenario(SMALL, "{n_balls: 3, plant_config: {sap_near_rigid_threshold: 1.0, "
                                           "discrete_contact_approximation: lagged, contact_model: point}}"))
-    plant = st.chain_plant.plant
+    plant = st.chain.plant
     assert plant.get_sap_near_rigid_threshold() == 1.0
     assert plant.get_discrete_contact_approximation() == DiscreteContactApproximation.kLagged
     assert plant.get_contact_model().name == "kPoint"
@@ -88,7 +88,7 @@ def test_visualization_config_reaches_the_visualiser_the_overlays_and_the_marker
 
     def spy(cls, name):
         def make(*args, **kwargs):
-            seen[name] = args[4] if name == "overlays" else args[2]  # their ``period`` argument
+            seen[name] = args[2]  # their ``period`` argument
             return cls(*args, **kwargs)
         return make
 
@@ -116,11 +116,11 @@ def test_the_pin_step_reads_the_spring_on_the_tip():
                                           "stiffness: 400.0}}"))
     assert st.pin is not None and st.diagram.HasOutputPort("pin_reading")
     context = st.diagram.CreateDefaultContext()
-    plant_context = st.chain_plant.plant.GetMyContextFromRoot(context)
-    tip = st.chain_plant.ball_positions(plant_context)[-1]
+    plant_context = st.chain.plant.GetMyContextFromRoot(context)
+    tip = st.chain.ball_positions(plant_context)[-1]
     reading = st.diagram.GetOutputPort("pin_reading").Eval(context)
     np.testing.assert_allclose(reading, 400.0 * (tip - np.asarray(point)), rtol=1e-12, atol=1e-15)
-    generalized = st.chain_plant.plant.get_applied_generalized_force_input_port().Eval(plant_context)
+    generalized = st.chain.plant.get_applied_generalized_force_input_port().Eval(plant_context)
     assert generalized[-3:] == pytest.approx(-reading, rel=1e-12)  # the tip ball's translational forces
 
 
@@ -129,7 +129,7 @@ def test_a_prebuilt_field_source_replaces_the_scenarios_field_and_not_both():
 
     source = UniformField(np.array([0.0, 0.023, 0.0]))
     st = MakeStation(load_scenario(SMALL, "{n_balls: 3, uniform_field: [0, 0, 0]}"), field_source=source)
-    assert st.field_source is source and st.wrench is not None
+    assert st.field_source is source and st.chain.wrench is not None
     with pytest.raises(UserInputError, match="field_source"):
         MakeStation(load_scenario(SMALL, "{n_balls: 3}"), field_source=source)
 

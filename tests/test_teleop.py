@@ -194,12 +194,12 @@ def test_bad_input_is_rejected_with_clear_messages(capsys):
 def test_station_wiring_for_both_mappings():
     """External stick and feeder: the scenario hooks route the mapping to the mapper's frame and
     leave the inputs to the operator (exported when nothing drives them)."""
-    from ballchain.systems.chain_simulation import build_chain_diagram
+    from ballchain.systems.chain_simulation import MakeStation
 
     for mapping, frame in (("world", "world"), ("catheter", "tip")):
         scenario = teleop.scenario_for(mapping, n_balls=10)
         assert scenario.units[0].teleop_frame == frame
-        cd = build_chain_diagram(scenario)
+        cd = MakeStation(scenario)
         names = {s.get_name() for s in cd.diagram.GetSystems()}
         assert "right_unit.joystick" not in names and "feeder_command" not in names
         assert ("tip_observer" in names) == (frame == "tip")

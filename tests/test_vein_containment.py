@@ -69,15 +69,15 @@ def test_every_containment_test_agrees_down_each_vein(heart, vein):
 
 
 def _fake_station(heart, n: int):
-    """The parts of a ChainDiagram ChainMonitor reads: a chain of n balls whose centres are set."""
+    """The parts of a Station ChainMonitor reads (its ``chain``, a ChainModel): a chain of n
+    balls whose centres are set."""
     state = {"p": np.zeros((n, 3))}
-    system = SimpleNamespace(GetMyContextFromRoot=lambda root: root,
-                             GetPositions=lambda ctx: state["p"].ravel(), GetVelocities=lambda ctx: np.zeros(3 * n))
-    chain_plant = SimpleNamespace(config=SimpleNamespace(chain=SimpleNamespace(ball_diameter=BALL, length=n * BALL)),
-                                  n_balls=n, in_sheath=lambda p: np.zeros(len(p), bool))
-    cd = SimpleNamespace(chain_system=system, chain_plant=chain_plant, engine=None, heart=heart,
-                         scenario=SimpleNamespace(check_period=5e-3, break_gap=1e-3),
-                         ball_positions=lambda ctx: state["p"])
+    chain = SimpleNamespace(system=SimpleNamespace(GetMyContextFromRoot=lambda root: root),
+                            config=SimpleNamespace(chain=SimpleNamespace(ball_diameter=BALL, length=n * BALL)),
+                            n_balls=n, move_period=1e-3, failure=None, in_sheath=lambda p: np.zeros(len(p), bool),
+                            is_finite=lambda ctx: bool(np.all(np.isfinite(state["p"]))),
+                            non_finite_part=lambda ctx: "a ball", ball_positions=lambda ctx: state["p"])
+    cd = SimpleNamespace(chain=chain, heart=heart, scenario=SimpleNamespace(check_period=5e-3, break_gap=1e-3))
     return cd, state
 
 

@@ -16,9 +16,7 @@ from pathlib import Path
 from ballchain.commands._common import add_json_flag, float_in, print_json
 from ballchain.drake_models.safe_files import to_jsonable
 from ballchain.experiments.simulation import run
-
-
-MAX_DURATION = 3600.0  # [s] simulated (the scenario's cap, systems/chain_scenario.py)
+from ballchain.systems.chain_scenario import MAX_DURATION  # [s] simulated: the scenario's cap
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

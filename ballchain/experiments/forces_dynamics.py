@@ -122,7 +122,7 @@ class PinSimulationConfig:
 
 
 # The pinned chain is a station (``systems/station.py``) with its pin step on: the Station's
-# ``pin``, ``chain_plant``, ``diagram`` (output ``pin_reading``) are what the run reads.
+# ``pin``, ``chain``, ``diagram`` (output ``pin_reading``) are what the run reads.
 PinDiagram = Station
 
 
@@ -173,7 +173,7 @@ def set_chain_state(pd: PinDiagram, plant_context, positions: np.ndarray, dipole
     The links keep their directions and are shortened by ``overlap``; each ball's body x (its
     dipole) along the configuration's dipole. Velocities zero.
     """
-    cp = pd.chain_plant
+    cp = pd.chain
     plant = cp.plant
     positions = np.asarray(positions, float)
     dipoles = np.asarray(dipoles, float)
@@ -249,7 +249,7 @@ class PinSteadyState:
 
     def __init__(self, pd: Station, chain: BallChain, config: PinSimulationConfig):
         self._pd, self._chain, self._config = pd, chain, config
-        self._plant = pd.chain_plant.plant
+        self._plant = pd.chain.plant
         self._n_window = int(round(config.window / config.check_period))
         self._t = 0.0  # the next sample's time: the same sums of check_period as the samples
         self._sampled = False  # a sample was taken at this call and awaits the steady-state test
@@ -278,7 +278,7 @@ class PinSteadyState:
         if not np.all(np.isfinite(reading)):
             self.reason = f"NaN in the state at t = {t:.3f} s"
             return self.reason
-        p = pd.chain_plant.ball_positions(self._plant.GetMyContextFromRoot(root))
+        p = pd.chain.ball_positions(self._plant.GetMyContextFromRoot(root))
         gaps = np.linalg.norm(np.diff(p, axis=0), axis=1) - self._chain.ball_diameter
         if np.abs(gaps).max() > config.max_gap:
             i = int(np.argmax(np.abs(gaps)))
@@ -357,7 +357,7 @@ def simulate_pin_force(chain: BallChain, external, pin_point, axis, start=None,
     axis = axis / np.linalg.norm(axis)
     pd = build_pin_diagram(chain, external, pin_point, config)
     root = pd.diagram.CreateDefaultContext()
-    plant_context = pd.chain_plant.plant.GetMyContextFromRoot(root)
+    plant_context = pd.chain.plant.GetMyContextFromRoot(root)
     if start is None:
         positions, dipoles = straight_chain(chain)
     elif isinstance(start, StaticsResult):
@@ -384,7 +384,7 @@ def simulate_pin_force(chain: BallChain, external, pin_point, axis, start=None,
     lateral = float(np.linalg.norm(reading - along * axis))
     out.update(force_N=along, force_gf=gram_force(along), lateral_N=lateral, lateral_gf=gram_force(lateral),
                reading_N=reading, deflection_m=pd.pin.deflection(pd.pin.GetMyContextFromRoot(run.context)),
-               positions=pd.chain_plant.ball_positions(plant_context), reason="steady state")
+               positions=pd.chain.ball_positions(plant_context), reason="steady state")
     return PinForceResult(**out)
 
 

@@ -16,7 +16,6 @@ import numpy as np
 
 from ballchain.drake_models.arg_checks import require_type
 from ballchain.drake_models.errors import UserInputError
-from ballchain.drake_models.params import BallChain, Sleeve
 from ballchain.drake_models.safe_files import check_output_file, to_jsonable
 from ballchain.experiments._result import Result
 from ballchain.optimization.statics import uniform_field_equilibrium
@@ -101,7 +100,9 @@ def statics_tip_error_mm(scenario, p_W_mm) -> float | None:
                  and scenario.insertion.initial == 0.0 and scenario.insertion.final == 0.0)
     if not canonical:
         return None
-    chain = BallChain(n_balls=scenario.n_balls, sleeve=Sleeve() if scenario.sleeve else None)
+    from ballchain.systems.station import chain_for
+
+    chain = chain_for(scenario)
     wall = None
     if scenario.wall_plane:
         wall = (np.array(scenario.wall_plane[:3]), np.array(scenario.wall_plane[3:]))

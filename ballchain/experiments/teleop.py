@@ -215,7 +215,7 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     """
     from dataclasses import replace
 
-    from ballchain.systems.chain_simulation import (ChainMonitor, atrium_for, build_chain_diagram, near_ostium_rim,
+    from ballchain.systems.chain_simulation import (ChainMonitor, MakeStation, atrium_for, near_ostium_rim,
                                                     run_station)
     from ballchain.systems.simulated_operator import OperatorParams, SimulatedOperator
 
@@ -236,7 +236,7 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     def add_operator(builder, ports):
         names, p_WT, n_W, radius = ports.targets
         chosen = [i for i, n in enumerate(names) if n.startswith(f"{task}_")][:n_targets]
-        cp = ports.chain_plant
+        cp = ports.chain
         indices = cp.ball_body_indices
         # What the console shows besides the camera: the sheath exit, the feeder's readout.
         seen = replace(params, ball_radius=0.5 * cp.config.chain.ball_diameter, target_radius=radius,
@@ -264,7 +264,7 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
 
         meshcat = Meshcat(MeshcatParams(host="localhost"))
     built = time.perf_counter()
-    cd = build_chain_diagram(scenario, meshcat=meshcat, heart=heart, add_systems=add_operator)
+    cd = MakeStation(scenario, meshcat=meshcat, heart=heart, add_systems=add_operator)
     op = handles["operator"]
     built = time.perf_counter() - built
     chain_monitor = ChainMonitor(cd, tolerate_sinking=lambda p: near_ostium_rim(heart, p))
@@ -561,7 +561,7 @@ class LiveSession:
     in chunks, and started over after a stop (``restart``).
 
     Attributes:
-        cd: the ChainDiagram; ``cd.added["meshcat_joystick"]`` is the joystick system.
+        cd: the Station; ``cd.added["meshcat_joystick"]`` is the joystick system.
         runner: the StationRunner; simulator: its Simulator; root: its root context.
         meshcat: the Meshcat (localhost).
         joystick: the MeshcatJoystick.
@@ -603,9 +603,9 @@ class LiveSession:
     def ball_1_along_sheath(self) -> float:
         """Ball 1's centre along the sheath axis from the sheath exit [m]: the chain's actual
         insertion (the feeder's speed is its rate of change)."""
-        cp = self.cd.chain_plant
-        p = self.cd.ball_positions(self.cd.chain_system.GetMyContextFromRoot(self.root))
-        return float((p[0] - cp.p_WE) @ cp.sheath_axis_W)
+        chain = self.cd.chain
+        p = chain.ball_positions(chain.system.GetMyContextFromRoot(self.root))
+        return float((p[0] - chain.p_WE) @ chain.sheath_axis_W)
 
     def joystick_state(self) -> tuple[str, np.ndarray, float]:
         """(selected unit, stick axes (3,), feeder command [m/s]) as sent now."""
@@ -634,7 +634,7 @@ def build_live(*, mapping: str = "world", units: str = "one", n_balls: int | Non
     """
     from pydrake.geometry import Meshcat, MeshcatParams
 
-    from ballchain.systems.chain_simulation import (ChainMonitor, StationRunner, atrium_for, build_chain_diagram,
+    from ballchain.systems.chain_simulation import (ChainMonitor, MakeStation, StationRunner, atrium_for,
                                                     near_ostium_rim)
     from ballchain.systems.meshcat_joystick import MeshcatJoystick
 
@@ -650,7 +650,7 @@ def build_live(*, mapping: str = "world", units: str = "one", n_balls: int | Non
         builder.Connect(j.GetOutputPort("v_insert_cmd"), ports.feeder_command_input)
         return {"meshcat_joystick": j}
 
-    cd = build_chain_diagram(scenario, meshcat=meshcat, heart=heart, add_systems=add_joystick)
+    cd = MakeStation(scenario, meshcat=meshcat, heart=heart, add_systems=add_joystick)
     joystick = cd.added["meshcat_joystick"]
     chain_monitor = ChainMonitor(cd, tolerate_sinking=lambda p: near_ostium_rim(heart, p))
     # The quit button ends an advance (a termination).
