@@ -16,7 +16,7 @@ from typing import Literal, Protocol, Sequence
 
 import numpy as np
 
-from ballchain.drake_models.chain_kernels import dipole_field_and_gradient
+from ballchain.drake_models.kernels import dipole_field_and_gradient
 from ballchain.drake_models.dipole import dipole_field
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet

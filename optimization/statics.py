@@ -41,7 +41,7 @@ from pydrake.solvers import (
 )
 
 from ballchain.drake_models.chain_energy import EnergyTerms
-from ballchain.drake_models.chain_kernels import chain_energy
+from ballchain.drake_models.kernels import chain_energy
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import FieldSource, UniformField
 from ballchain.drake_models.params import BallChain
