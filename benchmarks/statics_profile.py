@@ -48,7 +48,7 @@ class _PieceTimer:
 
 @contextlib.contextmanager
 def _instrumented(timer: _PieceTimer):
-    from ballchain.drake_models import chain_kernels as ck
+    from ballchain.drake_models import kernels as ck
     from ballchain.optimization import reduced_chain as rc
     from ballchain.optimization import statics as st
 

@@ -17,7 +17,7 @@ from typing import Literal, Protocol, Sequence
 
 import numpy as np
 
-from ballchain.drake_models.chain_kernels import dipole_field_and_gradient
+from ballchain.drake_models.kernels import dipole_field_and_gradient
 from ballchain.drake_models.dipole import dipole_field
 from ballchain.drake_models.arg_checks import as_array, as_vector, require_choice, require_positive, require_type
 from ballchain.drake_models.errors import UserInputError, check_in, short_repr

@@ -516,12 +516,7 @@ def simulate(electrode: Electrode, *, power_W: float, duration_s: float, tissue_
     tissue_nodes = am.nodes_of(TISSUE)
     electrode_nodes = am.nodes_of(ELECTRODE)
     water_nodes = am.nodes_of(TISSUE, SALINE)
-    # Volume weights (r x area) of the electrode's triangles: its bulk (mean) temperature.
-    el_t = am.mesh.t[:, am.domain == ELECTRODE]
-    el_p = am.mesh.p[:, el_t]
-    el_w = el_p[0].mean(axis=0) * 0.5 * np.abs((el_p[0, 1] - el_p[0, 0]) * (el_p[1, 2] - el_p[1, 0])
-                                               - (el_p[0, 2] - el_p[0, 0]) * (el_p[1, 1] - el_p[1, 0]))
-    el_w = el_w / el_w.sum()
+    el_t, el_w = _electrode_volume_weights(am)
     output_times = np.arange(output_every_s, duration_s + 1e-9, output_every_s)
     rf_times = time_steps(duration_s, dt_max, breakpoints=output_times)
     cool_times = duration_s + time_steps(cooldown_s, dt_max, dt_first=dt_max) if cooldown_s > 0 else np.array([])
@@ -540,28 +535,11 @@ def simulate(electrode: Electrode, *, power_W: float, duration_s: float, tissue_
     for i, t in enumerate(all_times):
         dt = t - t_prev
         rf_on = t <= duration_s + 1e-9
-        K = model.thermal_stiffness(T)
-        A = (model.mass / dt + K).tocsr()
-        lu = spla.splu(A[free][:, free].tocsc())
-        base = model.mass @ T / dt
-        T_next = T0.copy()
-        T_next[free] = lu.solve(base[free] - A[free][:, fixed] @ T0[fixed])
+        A, lu, base, T_next = _conduction_step(model, T, T0, dt, free, fixed)
         voltage, delivered, impedance, limited = 0.0, 0.0, float("nan"), False
         if rf_on and power_W > 0:
-            _, conductance, unit_density = model.unit_potential(T)
-            impedance = 1.0 / conductance
-            unit_load = model.joule_load(unit_density)
-            rise = np.zeros(n)
-            rise[free] = lu.solve(unit_load[free])
-            v2_set = laws.constant_power_voltage(power_W, conductance, max_voltage_V) ** 2
-            v2 = laws.temperature_limited_voltage_squared(v2_set, T_next[water_nodes], rise[water_nodes],
-                                                          limit_C)
-            limited = v2 < v2_set * (1 - 1e-12)
-            voltage = math.sqrt(v2)
-            T_next = T_next + v2 * rise
-            # The load's integral (the shape functions sum to one): the Joule power delivered.
-            delivered = 2.0 * math.pi * v2 * float(unit_load.sum())
-            load = v2 * unit_load
+            T_next, voltage, delivered, impedance, limited, load = _joule_heating(
+                model, T, T_next, lu, free, water_nodes, power_W, max_voltage_V, limit_C)
         else:
             load = np.zeros(n)
         # Heat into the far boundary's fixed nodes (their equations are replaced by T = T0):
@@ -584,11 +562,7 @@ def simulate(electrode: Electrode, *, power_W: float, duration_s: float, tissue_
             vaporised_at = float(t)
         if round(float(t), 9) in outputs:
             snapshots[float(t)] = T.copy()
-            row = {"t_s": float(t)}
-            for key, ext in (("omega", lesion_extent(am, damage, 1.0)),
-                             ("iso50", lesion_extent(am, peak, laws.LESION_ISOTHERM_C))):
-                row.update({f"{key}_{k}": v for k, v in ext.items()})
-            growth.append(row)
+            growth.append(_growth_row(am, float(t), damage, peak))
         if progress is not None:
             progress(i + 1, len(all_times))
         t_prev = t
@@ -601,6 +575,65 @@ def simulate(electrode: Electrode, *, power_W: float, duration_s: float, tissue_
         energy_stored_J=stored, energy_boundary_J=outflow, vaporisation_time_s=vaporised_at,
         info={"nodes": n, "elements": am.mesh.t.shape[1], "steps": len(all_times), "tissue": tissue_name,
               "initial_temperature_C": initial_temperature_C, "h_mm": am.h * 1e3})
+
+
+def _electrode_volume_weights(am: AblationMesh):
+    """The electrode's triangles (3, m) and their volume weights (r x area, summing to one): the
+    weights of its bulk (mean) temperature."""
+    el_t = am.mesh.t[:, am.domain == ELECTRODE]
+    el_p = am.mesh.p[:, el_t]
+    el_w = el_p[0].mean(axis=0) * 0.5 * np.abs((el_p[0, 1] - el_p[0, 0]) * (el_p[1, 2] - el_p[1, 0])
+                                               - (el_p[0, 2] - el_p[0, 0]) * (el_p[1, 1] - el_p[1, 0]))
+    return el_t, el_w / el_w.sum()
+
+
+def _conduction_step(model: ElectroThermalModel, T, T0, dt: float, free, fixed):
+    """One implicit (backward Euler) step of conduction alone from T, the far boundary held at T0.
+
+    Returns:
+        ``(A, lu, base, T_next)``: the step's matrix ``M / dt + K(T)``, the LU factors of its free
+        block, the right-hand side ``M T / dt`` and the temperature without Joule heat.
+    """
+    K = model.thermal_stiffness(T)
+    A = (model.mass / dt + K).tocsr()
+    lu = spla.splu(A[free][:, free].tocsc())
+    base = model.mass @ T / dt
+    T_next = T0.copy()
+    T_next[free] = lu.solve(base[free] - A[free][:, fixed] @ T0[fixed])
+    return A, lu, base, T_next
+
+
+def _joule_heating(model: ElectroThermalModel, T, T_next, lu, free, water_nodes, power_W: float,
+                   max_voltage_V: float | None, limit_C: float | None):
+    """The step's Joule heat at constant power (voltage limit and cut-off at vaporisation), added
+    to the conduction step's T_next (the temperature rise is linear in V^2, through ``lu``).
+
+    Returns:
+        ``(T_next, voltage [V rms], delivered [W], impedance [Ohm], limited, load (n_nodes,))``.
+    """
+    _, conductance, unit_density = model.unit_potential(T)
+    impedance = 1.0 / conductance
+    unit_load = model.joule_load(unit_density)
+    rise = np.zeros(len(T))
+    rise[free] = lu.solve(unit_load[free])
+    v2_set = laws.constant_power_voltage(power_W, conductance, max_voltage_V) ** 2
+    v2 = laws.temperature_limited_voltage_squared(v2_set, T_next[water_nodes], rise[water_nodes],
+                                                  limit_C)
+    limited = v2 < v2_set * (1 - 1e-12)
+    voltage = math.sqrt(v2)
+    T_next = T_next + v2 * rise
+    # The load's integral (the shape functions sum to one): the Joule power delivered.
+    delivered = 2.0 * math.pi * v2 * float(unit_load.sum())
+    return T_next, voltage, delivered, impedance, limited, v2 * unit_load
+
+
+def _growth_row(am: AblationMesh, t: float, damage, peak) -> dict:
+    """The lesion's extent at time t: Omega >= 1 (``omega_*``) and the 50 C isotherm (``iso50_*``)."""
+    row = {"t_s": t}
+    for key, ext in (("omega", lesion_extent(am, damage, 1.0)),
+                     ("iso50", lesion_extent(am, peak, laws.LESION_ISOTHERM_C))):
+        row.update({f"{key}_{k}": v for k, v in ext.items()})
+    return row
 
 
 def joule_share(am: AblationMesh, temperature_C=None, tissue_material: laws.Material = laws.MYOCARDIUM) -> dict:

@@ -48,10 +48,16 @@ def _guard(dispatcher) -> None:
     cache.load_overload = load_overload
 
 
+def guard_kernel(dispatcher):
+    """Guard one cached numba kernel (a dispatcher of ``njit(cache=True)``); returns it."""
+    cache = getattr(dispatcher, "_cache", None)
+    if hasattr(getattr(cache, "_cache_file", None), "_index_path") and hasattr(dispatcher, "py_func"):
+        _guard(dispatcher)
+    return dispatcher
+
+
 def guard_cache(namespace: dict) -> None:
     """Guard every cached numba kernel in a module's ``namespace`` (call it with ``globals()``
     after the kernels are defined)."""
     for value in list(namespace.values()):
-        cache = getattr(value, "_cache", None)
-        if hasattr(getattr(cache, "_cache_file", None), "_index_path") and hasattr(value, "py_func"):
-            _guard(value)
+        guard_kernel(value)

@@ -352,8 +352,33 @@ def max_force_orientation(held: HeldTip, m_start, target_radius: float, friction
     prog.AddBoundingBoxConstraint(-1.0, 1.0, m)
     prog.AddBoundingBoxConstraint(-1.0, 1.0, w)
     to_held = np.concatenate([np.ones(3 * k), np.full(2, target_radius)])
-    scale = 1.0 / force_scale
+    before = held.evaluations
+    cost, cone = _force_cost_and_cone(held, to_held, 1.0 / force_scale, friction, max_evaluations)
+    prog.AddCost(cost, x, description="minus the normal force")
+    prog.AddConstraint(cone, np.zeros(1), np.full(1, np.inf), x, description="inside the friction cone")
+    snopt = SnoptSolver()
+    options = SolverOptions()
+    options.SetOption(snopt.solver_id(), "Major iterations limit", major_iterations)
+    options.SetOption(snopt.solver_id(), "Major optimality tolerance", 1e-4)
+    options.SetOption(snopt.solver_id(), "Major feasibility tolerance", 1e-5)
+    out = snopt.Solve(prog, np.concatenate([m0.reshape(-1), np.zeros(2)]), options)
+    dipoles = _unit_rows(out.GetSolution(m))
+    w_value = out.GetSolution(w)
+    offset = target_radius * w_value / max(1.0, float(np.linalg.norm(w_value)))
+    status = f"{out.get_solution_result().name} (info {out.get_solver_details().info})"
+    if held.evaluations - before > max_evaluations:
+        status += f", stopped after {max_evaluations} equilibria"
+    return _recheck_max_force(held, m0, dipoles, offset, recheck_steps, friction, force_scale, status, before)
+
+
+def _force_cost_and_cone(held: HeldTip, to_held, scale: float, friction: float, max_evaluations: int):
+    """``max_force_orientation``'s cost (minus the normal force) and friction-cone constraint
+    for SNOPT, in units of the force scale (``scale`` = 1 / force_scale), over x = (m, w): one
+    held equilibrium per point (``to_held`` maps x to the held tip's (m, o)), its Jacobian when
+    SNOPT asks for gradients; beyond ``max_evaluations`` equilibria, the last values with zero
+    gradient."""
     cache: dict = {}
+    before = held.evaluations
 
     def evaluate(value, with_jacobian):  # SNOPT asks for the cost and the cone at the same points
         key = value.tobytes()
@@ -391,21 +416,14 @@ def max_force_orientation(held: HeldTip, m_start, target_radius: float, friction
         return InitializeAutoDiff(np.array([scale**2 * ((friction * F[0]) ** 2 - F[1] ** 2 - F[2] ** 2)]),
                                   row[None, :] @ ExtractGradient(xv)).reshape(-1)
 
-    before = held.evaluations
-    prog.AddCost(cost, x, description="minus the normal force")
-    prog.AddConstraint(cone, np.zeros(1), np.full(1, np.inf), x, description="inside the friction cone")
-    snopt = SnoptSolver()
-    options = SolverOptions()
-    options.SetOption(snopt.solver_id(), "Major iterations limit", major_iterations)
-    options.SetOption(snopt.solver_id(), "Major optimality tolerance", 1e-4)
-    options.SetOption(snopt.solver_id(), "Major feasibility tolerance", 1e-5)
-    out = snopt.Solve(prog, np.concatenate([m0.reshape(-1), np.zeros(2)]), options)
-    dipoles = _unit_rows(out.GetSolution(m))
-    w_value = out.GetSolution(w)
-    offset = target_radius * w_value / max(1.0, float(np.linalg.norm(w_value)))
-    status = f"{out.get_solution_result().name} (info {out.get_solver_details().info})"
-    if held.evaluations - before > max_evaluations:
-        status += f", stopped after {max_evaluations} equilibria"
+    return cost, cone
+
+
+def _recheck_max_force(held: HeldTip, m0, dipoles, offset, recheck_steps: int, friction: float,
+                       force_scale: float, status: str, before: int) -> OrientationPlan:
+    """``max_force_orientation``'s answer re-checked: the magnets turned from m0 to ``dipoles``
+    and the touch point slid to ``offset`` in ``recheck_steps`` steps (the branch the chain
+    follows); the plan of that equilibrium (``before``: the held tip's evaluations at the start)."""
     held.restart()
     F, result = None, None
     for s in np.linspace(0.0, 1.0, recheck_steps + 1)[1:]:

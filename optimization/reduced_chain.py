@@ -14,7 +14,7 @@ with t2 the out-of-plane direction (z, or x near the poles) made orthogonal to r
 t1 = t2 x r0. The initial guess is always q = 0, planar problems move in ``a`` only and the
 chart's singularity (w = +-t2) stays 90 degrees away. Coordinates: q = (a_1..a_K, b_1..b_K).
 
-The physics and the chain rule run as the compiled kernels of ``drake_models.chain_kernels``
+The physics and the chain rule run as the compiled kernels of ``drake_models.kernels``
 (``backend="kernel"``, the default): O(n^2) memory, the rigidity Jacobian built only for the rows
 asked for (``ConstraintJacobian``). ``backend="numpy"`` is the reference the tests hold the kernels
 to: ``drake_models.chain_energy`` (``field_energy``, ``sleeve_bending``) and the chain rule as
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ballchain.drake_models import chain_kernels as ck
+from ballchain.drake_models import kernels as ck
 from ballchain.drake_models.chain_energy import EnergyTerms, field_energy, sleeve_bending
 from ballchain.drake_models.dipole import K_DIPOLE
 from ballchain.drake_models.errors import UserInputError

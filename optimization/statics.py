@@ -43,7 +43,7 @@ from pydrake.solvers import (
 from ballchain.drake_models.arg_checks import (as_plane, as_vector, require_bool, require_int, require_positive,
                                                require_type)
 from ballchain.drake_models.chain_energy import EnergyTerms
-from ballchain.drake_models.chain_kernels import chain_energy
+from ballchain.drake_models.kernels import chain_energy
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import FieldSource, UniformField, require_field_source
 from ballchain.drake_models.params import BallChain
@@ -225,6 +225,83 @@ def _positive_definite(H: np.ndarray, floor: float = 1e-10) -> np.ndarray:
     return (V * np.maximum(np.abs(w), delta)) @ V.T
 
 
+def _set_tip_target_and_wall(model: ReducedChain, tip_target, wall) -> None:
+    """Pin the model's tip at ``tip_target`` (or not) and place its plane ``wall`` (or none)."""
+    model.tip_target = None if tip_target is None else np.asarray(tip_target, dtype=float).reshape(3)
+    if model.tip_target is not None and not np.all(np.isfinite(model.tip_target)):
+        raise UserInputError(f"tip target must be finite, got {tip_target}")
+    if wall is None:
+        model.wall = None
+    else:
+        point, normal = (np.asarray(v, dtype=float).reshape(3) for v in wall)
+        if not (np.all(np.isfinite(point)) and np.all(np.isfinite(normal)) and np.linalg.norm(normal) > 0):
+            raise UserInputError(f"wall must be a finite point and a non-zero normal, got {wall}")
+        model.wall = (point, normal / np.linalg.norm(normal))
+        if point @ model.wall[1] > -0.5 * model.d:
+            raise UserInputError("the wall cuts ball 1 (held at the origin): move it beyond half a ball")
+
+
+def _infeasibility(e, pinned: bool) -> float:
+    """The summed violation of an evaluation's rows (and of the tip target when ``pinned``)."""
+    tip = float(np.abs(e.tip_residual).sum()) if pinned else 0.0
+    return float(np.maximum(0.0, -e.gaps).sum()) + tip
+
+
+def _negative_curvature(ev, H, near, lam, pinned: bool, nq: int):
+    """None when H is positive semi-definite (up to 1e-7) on the tangent space of the active rows
+    (multiplier above 1e-9, and the tip target when ``pinned``): a local minimum. Else
+    ``(Z, V)``: the tangent space's basis and the eigenvectors of H on it, the most negative first."""
+    active = near[lam > 1e-9] if len(near) else near
+    rows = [ev.jacobian[active]] + ([ev.tip_jacobian] if pinned else [])
+    J_active = np.vstack(rows)
+    Z = _null_space(J_active) if len(J_active) else np.eye(nq)
+    H_tangent = Z.T @ H @ Z
+    try:  # positive semi-definite up to 1e-7: a local minimum (cheap test first)
+        np.linalg.cholesky(H_tangent + 1e-7 * np.eye(len(H_tangent)))
+        return None
+    except np.linalg.LinAlgError:
+        w, V = np.linalg.eigh(H_tangent)
+    return Z, V
+
+
+def _line_search(model: ReducedChain, q, dq, ev, near, pinned: bool, rho: float, merit0: float, slope: float):
+    """Backtracking on the l1 merit ``energy + rho * infeasibility`` along dq from q (Armijo,
+    1e-4), with a second-order correction of the full step onto curved rows.
+
+    Returns:
+        ``(t, dq, trial)``: the step length (below 1e-10: no descent), the step (corrected or
+        not) and the evaluation there (with derivatives when the full step was taken).
+    """
+    t = 1.0
+    while True:
+        # The full step is usually taken: evaluate it with derivatives for the next
+        # iteration; shorter trials only need the energy.
+        trial = model.evaluate(q + t * dq, 2 if t == 1.0 else 0)
+        merit = trial.energy + rho * _infeasibility(trial, pinned)
+        if merit <= merit0 + 1e-4 * t * min(slope, 0.0) or t < 1e-10:
+            break
+        if t == 1.0 and pinned:
+            # Second-order correction: the full step leaves the tip off target by the
+            # constraint's curvature (Maratos effect); project it back before shortening.
+            correction = -np.linalg.pinv(ev.tip_jacobian) @ trial.tip_residual
+            corrected = model.evaluate(q + dq + correction, 2)
+            if corrected.energy + rho * _infeasibility(corrected, pinned) <= merit0 + 1e-4 * min(slope, 0.0):
+                dq, trial = dq + correction, corrected
+                break
+        if t == 1.0 and not pinned and len(near):
+            # The same for the inequality rows the full step violates (a ball pressed
+            # on a curved wall): the linearised row is met, the curved one is not.
+            rows = near[trial.gaps[near] < 0.0]
+            if len(rows):
+                correction = -np.linalg.pinv(ev.jacobian[rows]) @ trial.gaps[rows]
+                corrected = model.evaluate(q + dq + correction, 2)
+                if corrected.energy + rho * _infeasibility(corrected, pinned) <= merit0 + 1e-4 * min(slope, 0.0):
+                    dq, trial = dq + correction, corrected
+                    break
+        t *= 0.5
+    return t, dq, trial
+
+
 class ChainStatics:
     """Equilibria of one chain, reusable across solves (warm starts, continuation).
 
@@ -340,18 +417,7 @@ class ChainStatics:
                 self._model = ReducedChain(chain, external, self.gravity)
             model = self._model
         model.external = external
-        model.tip_target = None if tip_target is None else np.asarray(tip_target, dtype=float).reshape(3)
-        if model.tip_target is not None and not np.all(np.isfinite(model.tip_target)):
-            raise UserInputError(f"tip target must be finite, got {tip_target}")
-        if wall is None:
-            model.wall = None
-        else:
-            point, normal = (np.asarray(v, dtype=float).reshape(3) for v in wall)
-            if not (np.all(np.isfinite(point)) and np.all(np.isfinite(normal)) and np.linalg.norm(normal) > 0):
-                raise UserInputError(f"wall must be a finite point and a non-zero normal, got {wall}")
-            model.wall = (point, normal / np.linalg.norm(normal))
-            if point @ model.wall[1] > -0.5 * model.d:
-                raise UserInputError("the wall cuts ball 1 (held at the origin): move it beyond half a ball")
+        _set_tip_target_and_wall(model, tip_target, wall)
         model.chart_from_configuration(p0, m0)
         lam_tip = np.zeros(3)
         if self.method == "newton":
@@ -366,6 +432,12 @@ class ChainStatics:
             if model.tip_target is not None or model.wall is not None:
                 raise UserInputError("tip targets and walls are solved by the 'newton' method only")
             q, converged, reason, iterations, lam_near = self._snopt_solve(model)
+        return self._result(model, q, converged, reason, iterations, lam_near, lam_tip, constraints, start)
+
+    def _result(self, model, q, converged: bool, reason: str, iterations: int, lam_near: dict, lam_tip,
+                constraints: HeartConstraints | None, start: float) -> StaticsResult:
+        """The StaticsResult of the solver's answer q: configuration, energy, the constraints'
+        violation (which can overrule ``converged``) and the multipliers as forces [N]."""
         ev = model.evaluate(q, 0)
         p, m_hat = model.configuration(q)
         P = model.n_pairs
@@ -475,11 +547,6 @@ class ChainStatics:
         lam_tip = np.zeros(3)
         pinned = model.tip_target is not None
         K = model.n_vectors
-
-        def infeasibility(e) -> float:
-            tip = float(np.abs(e.tip_residual).sum()) if pinned else 0.0
-            return float(np.maximum(0.0, -e.gaps).sum()) + tip
-
         for iteration in range(1, self.max_iterations + 1):
             g, H = ev.gradient, ev.hessian
             near = np.flatnonzero(ev.gaps < self.contact_margin)
@@ -489,27 +556,11 @@ class ChainStatics:
                 H = H - model.constraint_hessian(q, pairs, np.array(list(lam_near.values())))
             if pinned and np.any(lam_tip):
                 H = H - model.tip_hessian(q, lam_tip)
-            if pinned and not len(near):
-                # Equality constraints only: a null-space step. Only the curvature along the
-                # constraints' tangent space matters, so only that part is made positive definite.
-                J = ev.tip_jacobian
-                Z = _null_space(J)
-                dq_n = -np.linalg.pinv(J) @ ev.tip_residual
-                Hz = _positive_definite(Z.T @ H @ Z)
-                dq = dq_n - Z @ np.linalg.solve(Hz, Z.T @ (g + H @ dq_n))
-                Hm = Z @ Hz @ Z.T  # the model's curvature, for the predicted decrease below
-                lam, lam_tip = np.zeros(0), np.linalg.lstsq(J.T, g + H @ dq, rcond=None)[0]
-            elif len(near) or pinned:
-                Hm = _positive_definite(H)
-                dq, lam, lam_tip = self._qp_step(Hm, g, ev.gaps[near], ev.jacobian[near],
-                                                 ev.tip_residual, ev.tip_jacobian)
-                if dq is None:
-                    return q, False, "QP step infeasible (rigidity or tip constraints)", iteration, {}, lam_tip
-            else:
-                Hm = _positive_definite(H)
-                dq, lam = -np.linalg.solve(Hm, g), np.zeros(0)
+            dq, Hm, lam, lam_tip = self._newton_step(ev, H, g, near, pinned, lam_tip)
+            if dq is None:
+                return q, False, "QP step infeasible (rigidity or tip constraints)", iteration, {}, lam_tip
             lam_near = dict(zip(near.tolist(), lam.tolist()))
-            violation = infeasibility(ev)
+            violation = _infeasibility(ev, pinned)
             stationarity = g - (ev.jacobian[near].T @ lam if len(near) else 0.0)
             if pinned:
                 stationarity = stationarity - ev.tip_jacobian.T @ lam_tip
@@ -521,20 +572,14 @@ class ChainStatics:
             )
             if first_order and violation < self.feasibility_tolerance:
                 # First-order point: check curvature on the active constraints' tangent space.
-                active = near[lam > 1e-9] if len(near) else near
-                rows = [ev.jacobian[active]] + ([ev.tip_jacobian] if pinned else [])
-                J_active = np.vstack(rows)
-                Z = _null_space(J_active) if len(J_active) else np.eye(model.nq)
-                H_tangent = Z.T @ H @ Z
-                try:  # positive semi-definite up to 1e-7: a local minimum (cheap test first)
-                    np.linalg.cholesky(H_tangent + 1e-7 * np.eye(len(H_tangent)))
+                tangent = _negative_curvature(ev, H, near, lam, pinned, model.nq)
+                if tangent is None:
                     return (q, True, "local minimum (KKT and second-order conditions)", iteration,
                             lam_near, lam_tip)
-                except np.linalg.LinAlgError:
-                    w, V = np.linalg.eigh(H_tangent)
                 if escapes >= 10:
                     return q, False, "stuck at a saddle point", iteration, lam_near, lam_tip
                 escapes += 1
+                Z, V = tangent
                 dq = 0.1 * (Z @ V[:, 0])
                 if model.evaluate(q - dq, 0).energy < model.evaluate(q + dq, 0).energy:
                     dq = -dq
@@ -546,33 +591,7 @@ class ChainStatics:
                 rho = max(rho, 2.0 * float(multipliers.max()))
             merit0 = ev.energy + rho * violation
             slope = float(g @ dq) - rho * violation
-            t = 1.0
-            while True:
-                # The full step is usually taken: evaluate it with derivatives for the next
-                # iteration; shorter trials only need the energy.
-                trial = model.evaluate(q + t * dq, 2 if t == 1.0 else 0)
-                merit = trial.energy + rho * infeasibility(trial)
-                if merit <= merit0 + 1e-4 * t * min(slope, 0.0) or t < 1e-10:
-                    break
-                if t == 1.0 and pinned:
-                    # Second-order correction: the full step leaves the tip off target by the
-                    # constraint's curvature (Maratos effect); project it back before shortening.
-                    correction = -np.linalg.pinv(ev.tip_jacobian) @ trial.tip_residual
-                    corrected = model.evaluate(q + dq + correction, 2)
-                    if corrected.energy + rho * infeasibility(corrected) <= merit0 + 1e-4 * min(slope, 0.0):
-                        dq, trial = dq + correction, corrected
-                        break
-                if t == 1.0 and not pinned and len(near):
-                    # The same for the inequality rows the full step violates (a ball pressed
-                    # on a curved wall): the linearised row is met, the curved one is not.
-                    rows = near[trial.gaps[near] < 0.0]
-                    if len(rows):
-                        correction = -np.linalg.pinv(ev.jacobian[rows]) @ trial.gaps[rows]
-                        corrected = model.evaluate(q + dq + correction, 2)
-                        if corrected.energy + rho * infeasibility(corrected) <= merit0 + 1e-4 * min(slope, 0.0):
-                            dq, trial = dq + correction, corrected
-                            break
-                t *= 0.5
+            t, dq, trial = _line_search(model, q, dq, ev, near, pinned, rho, merit0, slope)
             if t < 1e-10:
                 if np.abs(stationarity).max() < 1e3 * self.tolerance and violation < 1e-9:
                     return (q, True, "local minimum (stationary within line-search precision)", iteration,
@@ -589,6 +608,33 @@ class ChainStatics:
                 ev = trial if trial.hessian is not None else model.evaluate(q, 2)
         return (q, False, f"iteration limit ({self.max_iterations}) reached", self.max_iterations,
                 lam_near, lam_tip)
+
+    def _newton_step(self, ev, H, g, near, pinned: bool, lam_tip):
+        """The Newton step at ``ev`` for the Lagrangian's Hessian H and gradient g.
+
+        Returns:
+            ``(dq, Hm, lam, lam_tip)``: the step, the model's curvature (H made positive
+            definite), the multipliers of the rows ``near`` and of the tip target (``lam_tip``
+            as given when neither is in play); dq is None when the step's QP is infeasible.
+        """
+        if pinned and not len(near):
+            # Equality constraints only: a null-space step. Only the curvature along the
+            # constraints' tangent space matters, so only that part is made positive definite.
+            J = ev.tip_jacobian
+            Z = _null_space(J)
+            dq_n = -np.linalg.pinv(J) @ ev.tip_residual
+            Hz = _positive_definite(Z.T @ H @ Z)
+            dq = dq_n - Z @ np.linalg.solve(Hz, Z.T @ (g + H @ dq_n))
+            Hm = Z @ Hz @ Z.T  # the model's curvature, for the predicted decrease
+            lam, lam_tip = np.zeros(0), np.linalg.lstsq(J.T, g + H @ dq, rcond=None)[0]
+        elif len(near) or pinned:
+            Hm = _positive_definite(H)
+            dq, lam, lam_tip = self._qp_step(Hm, g, ev.gaps[near], ev.jacobian[near],
+                                             ev.tip_residual, ev.tip_jacobian)
+        else:
+            Hm = _positive_definite(H)
+            dq, lam = -np.linalg.solve(Hm, g), np.zeros(0)
+        return dq, Hm, lam, lam_tip
 
     # --- SNOPT reference ------------------------------------------------------------------------
     def _snopt_solve(self, model: ReducedChain):

@@ -121,7 +121,7 @@ class PointDipoles:
     def field_and_gradient(self, p_B):
         p_B = np.ascontiguousarray(np.asarray(p_B, float).reshape(-1, 3))
         if _dipole_kernel is not None and len(self.p):
-            # The same law as dipole.dipole_field(_gradient), compiled (drake_models.chain_kernels).
+            # The same law as dipole.dipole_field(_gradient), compiled (drake_models.kernels).
             status, B, G = _dipole_kernel(p_B, np.ascontiguousarray(self.p), np.ascontiguousarray(self.m),
                                           np.zeros(len(self.p)))
             if status < 0:
@@ -132,7 +132,7 @@ class PointDipoles:
 
 
 try:  # the compiled point-dipole law when the kernels are there; numpy (dipole.py) otherwise
-    from ballchain.drake_models.chain_kernels import dipole_field_and_gradient as _dipole_kernel
+    from ballchain.drake_models.kernels import dipole_field_and_gradient as _dipole_kernel
 except ImportError:  # pragma: no cover - depends on the branch
     _dipole_kernel = None
 

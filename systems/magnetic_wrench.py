@@ -1,7 +1,7 @@
 """MagneticWrenchSystem: the magnetic (and sleeve) wrenches on every ball of a chain, for a plant.
 
 Every number comes from the chain's energy as the compiled kernel
-``drake_models.chain_kernels.chain_wrenches`` (ball-ball dipole interactions, the external
+``drake_models.kernels.chain_wrenches`` (ball-ball dipole interactions, the external
 field, the sleeve's bending; the numpy ``chain_energy`` is its tests' reference): the force on
 ball i is -dU/dp_i and its torque m_hat_i x (-dU/dm_hat_i). Gravity is left to the plant. Ball i's dipole points along
 its body frame's +x axis.
@@ -19,7 +19,7 @@ from pydrake.multibody.plant import ExternallyAppliedSpatialForce
 from pydrake.systems.framework import LeafSystem
 
 from ballchain.drake_models.arg_checks import require_type
-from ballchain.drake_models.chain_kernels import chain_wrenches, dipole_field_and_gradient
+from ballchain.drake_models.kernels import chain_wrenches, dipole_field_and_gradient
 from ballchain.drake_models.errors import NonFiniteSignal, UserInputError
 from ballchain.drake_models.field_sources import FieldSource, FieldSources, MagnetSource
 from ballchain.drake_models.params import BallChain, CylinderMagnet, SphereMagnet
@@ -29,7 +29,7 @@ class PortDipoles:
     """The point-dipole field of the port magnets, all at once (a FieldSource).
 
     The same law as ``MagnetSource(model="dipole")`` (``dipole.dipole_field`` and
-    ``dipole_field_gradient``, as the compiled ``chain_kernels.dipole_field_and_gradient``),
+    ``dipole_field_gradient``, as the compiled ``kernels.dipole_field_and_gradient``),
     without building a MagnetSource per magnet per step: the wrench system rebuilds its external
     field every step while the units turn.
 

@@ -8,7 +8,7 @@ reference's own round-off.
 import numpy as np
 import pytest
 
-from ballchain.drake_models import chain_kernels as ck
+from ballchain.drake_models import kernels as ck
 from ballchain.drake_models.chain_energy import chain_energy as chain_energy_numpy
 from ballchain.drake_models.chain_energy import field_energy
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, UniformField

@@ -169,7 +169,7 @@ def test_ballchain_cache_a_file_stops_the_command_before_any_work(tmp_path, monk
 
 _KERNEL_CALL = """
 import numpy as np
-from ballchain.drake_models import chain_kernels as ck
+from ballchain.drake_models.kernels import pair as ck
 r, x, y = np.array([1e-3, 2e-3, 0.5e-3]), np.array([0.0, 0.0, 1.0]), np.array([0.6, 0.0, 0.8])
 g = [np.zeros(3) for _ in range(3)]
 print(repr(float(ck._pair_first(r, x, y, 1.0, *g))))
@@ -186,7 +186,7 @@ def _kernel_run(cache: Path) -> subprocess.CompletedProcess:
 def test_a_damaged_numba_cache_file_is_recompiled_with_one_line(tmp_path, which, how):
     first = _kernel_run(tmp_path)
     assert first.returncode == 0 and "damaged" not in first.stderr, first.stderr
-    files = {p.suffix[1:]: p for p in tmp_path.rglob("chain_kernels._pair_first-*")}
+    files = {p.suffix[1:]: p for p in tmp_path.rglob("pair._pair_first-*")}
     assert set(files) == {"nbi", "nbc"}, files
     data = files[which].read_bytes()
     files[which].write_bytes(data[:20] if how == "truncated" else bytes(range(256)) * 8)

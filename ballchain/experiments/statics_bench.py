@@ -6,7 +6,7 @@ straight chain, no continuation) and warm (from the equilibrium at the field ang
 ``--warm-offset-deg``), against the naive SLSQP formulation of
 ``optimization.naive_statics`` from the straight chain, and against the same Newton solver on
 the numpy reference implementation of the chain's physics (``ReducedChain(backend="numpy")``,
-cold and warm): the compiled kernels of ``drake_models.chain_kernels`` are what the stack runs,
+cold and warm): the compiled kernels of ``drake_models.kernels`` are what the stack runs,
 the numpy rows say what they bought. Every solver must reach the same minimum (energy and tip
 position against the Newton cold solve); the differences are printed.
 
@@ -158,7 +158,7 @@ def compile_cost(timeout_s: float = 600.0) -> dict:
 
     code = (
         "import time; t0, c0 = time.perf_counter(), time.process_time(); "
-        "from ballchain.drake_models import chain_kernels; chain_kernels.warm_up(); "
+        "from ballchain.optimization.warm_up import warm_up; warm_up(); "
         "print(time.perf_counter() - t0, time.process_time() - c0)"
     )
 

@@ -1,0 +1,98 @@
+"""What every kernel file shares: the ``kernel`` decorator (numba, cached on disk), the energy
+parts' order in the ``terms`` arrays, and the status codes with their messages.
+
+Numba's on-disk cache (``cache=True``: ``__pycache__`` next to the source file, or
+``NUMBA_CACHE_DIR``) keys a compiled kernel on its own file's content only, while a kernel
+carries the compiled code of the kernels it calls from other files. ``kernel`` therefore stamps
+every kernel's cache with the content of the whole package: editing any kernel file recompiles
+them all, and a stale callee is never loaded from disk.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+from pathlib import Path
+
+from numba import njit
+from numba.core.caching import (
+    CompileResultCacheImpl,
+    FunctionCache,
+    InTreeCacheLocator,
+    UserProvidedCacheLocator,
+    UserWideCacheLocator,
+)
+
+from ballchain.drake_models.numba_cache import guard_kernel
+
+# Energy parts, in the order of the kernels' ``terms`` arrays (EnergyTerms' fields).
+TERM_BALLS, TERM_EXTERNAL, TERM_SLEEVE, TERM_GRAVITY = 0, 1, 2, 3
+
+# Status codes of the kernels (raised as ValueError by the Python wrappers).
+OK, COINCIDENT, FOLDED = 0, 1, 2
+
+_STATUS_MESSAGES = {
+    COINCIDENT: "two balls coincide (zero separation)",
+    FOLDED: "a sleeve bend of 180 deg (chain folded onto itself)",
+}
+
+
+def check_status(status: int, what: str) -> None:
+    """Raise ValueError, naming ``what``, for a kernel's non-OK status."""
+    if status != OK:
+        raise ValueError(f"{what}: {_STATUS_MESSAGES.get(int(status), f'kernel status {status}')}")
+
+
+_PACKAGE = Path(__file__).resolve().parent
+
+
+def _package_stamp() -> str:
+    """SHA-256 of every source file of this package (names and contents, in name order)."""
+    files = sorted(_PACKAGE.glob("*.py"))
+    return _hash_files(tuple((str(f), f.stat().st_mtime_ns, f.stat().st_size) for f in files))
+
+
+@functools.lru_cache(maxsize=None)
+def _hash_files(files: tuple) -> str:
+    """The hash of the files named in ``files`` ((path, mtime, size) each: a changed file re-hashes)."""
+    digest = hashlib.sha256()
+    for path, _, _ in files:
+        digest.update(Path(path).name.encode())
+        digest.update(Path(path).read_bytes())
+    return digest.hexdigest()
+
+
+class _PackageStamp:
+    """A cache locator whose freshness stamp is the package's, not the function's file's."""
+
+    def get_source_stamp(self):
+        return _package_stamp()
+
+
+class _UserProvidedLocator(_PackageStamp, UserProvidedCacheLocator):
+    pass
+
+
+class _InTreeLocator(_PackageStamp, InTreeCacheLocator):
+    pass
+
+
+class _UserWideLocator(_PackageStamp, UserWideCacheLocator):
+    pass
+
+
+class _PackageCacheImpl(CompileResultCacheImpl):
+    # numba's own order: NUMBA_CACHE_DIR, then __pycache__ next to the file, then the user's cache.
+    _locator_classes = [_UserProvidedLocator, _InTreeLocator, _UserWideLocator]
+
+
+class _PackageCache(FunctionCache):
+    _impl_class = _PackageCacheImpl
+
+
+def kernel(py_func):
+    """``numba.njit`` with the on-disk cache stamped by the whole package's sources, and healed
+    when a cache file is damaged (``numba_cache.guard_kernel``)."""
+    dispatcher = njit(cache=True)(py_func)
+    dispatcher._cache = _PackageCache(py_func)  # what ``cache=True`` set, with the package stamp
+    return guard_kernel(dispatcher)  # a damaged cache file is recompiled, not a traceback on every run

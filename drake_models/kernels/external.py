@@ -1,0 +1,135 @@
+"""The external field: point dipoles' flux density and gradient, and the energy ``-M m_hat . B``
+of the balls in a field with its derivatives.
+
+The laws of ``dipole.py`` (``dipole_field``, ``dipole_field_gradient``) and of the external term
+of ``chain_energy.field_energy``, compiled. Field sources stay Python objects
+(``field_sources.FieldSource``): ``external_arrays`` evaluates one at the ball centres and the
+kernels take the arrays.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ballchain.drake_models.dipole import K_DIPOLE
+from ballchain.drake_models.kernels._common import kernel
+
+
+@kernel
+def dipole_field_and_gradient(points, centres, moments, r2_min):
+    """Flux density and gradient of point dipoles at points, summed over the dipoles.
+
+    The law of ``dipole.dipole_field`` and ``dipole.dipole_field_gradient``:
+    ``B = k (3 r (m . r) / r^5 - m / r^3)``,
+    ``G[a, b] = 3 k / r^5 (m_a r_b + r_a m_b + (m . r) delta_ab - 5 (m . r) r_a r_b / r^2)``,
+    r from the dipole to the point.
+
+    Args:
+        points: (n, 3) field points [m].
+        centres: (k, 3) dipole positions [m]; moments: (k, 3) dipole moments [A m^2].
+        r2_min: (k,) no point may be at a squared distance <= this from a centre [m^2].
+
+    Returns:
+        ``(violation, B (n, 3) [T], G (n, 3, 3) [T/m])``; ``violation`` is -1, or
+        ``point * k + dipole`` of the first point too close to a dipole (B, G then incomplete).
+    """
+    n = points.shape[0]
+    k = centres.shape[0]
+    B = np.zeros((n, 3))
+    G = np.zeros((n, 3, 3))
+    r = np.empty(3)
+    for i in range(n):
+        for j in range(k):
+            r2 = 0.0
+            mr = 0.0
+            for c in range(3):
+                r[c] = points[i, c] - centres[j, c]
+                r2 += r[c] * r[c]
+                mr += moments[j, c] * r[c]
+            if r2 <= r2_min[j] or r2 <= 0.0:
+                return i * k + j, B, G
+            inv_r2 = 1.0 / r2
+            inv_r = math.sqrt(inv_r2)
+            inv_r3 = inv_r2 * inv_r
+            inv_r5 = inv_r3 * inv_r2
+            for a in range(3):
+                B[i, a] += K_DIPOLE * (3.0 * r[a] * mr * inv_r5 - moments[j, a] * inv_r3)
+                for b in range(3):
+                    g = moments[j, a] * r[b] + r[a] * moments[j, b] - 5.0 * mr * inv_r2 * r[a] * r[b]
+                    if a == b:
+                        g += mr
+                    G[i, a, b] += 3.0 * K_DIPOLE * inv_r5 * g
+    return -1, B, G
+
+
+@kernel
+def add_external(p, m_hat, M, B, G, dU_dp, dU_dm):
+    """Add ``U_e = -M sum_k m_hat_k . B_k`` to the gradients; returns U_e [J]."""
+    n = p.shape[0]
+    U = 0.0
+    for k in range(n):
+        for a in range(3):
+            U -= M * m_hat[k, a] * B[k, a]
+            dU_dm[k, a] -= M * B[k, a]
+            for b in range(3):
+                dU_dp[k, b] -= M * G[k, a, b] * m_hat[k, a]
+    return U
+
+
+@kernel
+def external_hessian_blocks(m_hat, M, G, dG):
+    """The external field's per-ball Hessian blocks.
+
+    Args:
+        m_hat: (n, 3) unit dipoles; M: dipole moment [A m^2].
+        G: (n, 3, 3) field gradient [T/m]; dG: (n, 3, 3, 3) its derivative [T/m^2].
+
+    Returns:
+        ``(H_pp, H_pm)`` (n, 3, 3): ``d2U_e / dp_k dp_k`` and ``d2U_e / dp_k dm_hat_k``.
+    """
+    n = m_hat.shape[0]
+    H_pp = np.zeros((n, 3, 3))
+    H_pm = np.zeros((n, 3, 3))
+    for k in range(n):
+        for b in range(3):
+            for c in range(3):
+                acc = 0.0
+                for a in range(3):
+                    acc += m_hat[k, a] * dG[k, a, b, c]
+                H_pp[k, b, c] = -M * acc
+                H_pm[k, b, c] = -M * G[k, c, b]
+    return H_pp, H_pm
+
+
+_ZEROS: dict = {}
+
+
+def _zeros(shape) -> np.ndarray:
+    """A cached array of zeros (the kernels only read their field inputs)."""
+    z = _ZEROS.get(shape)
+    if z is None:
+        z = _ZEROS[shape] = np.zeros(shape)
+    return z
+
+
+def external_arrays(external, p: np.ndarray, hessian: bool = False):
+    """(has_external, B (n, 3), G (n, 3, 3), dG (n, 3, 3, 3)) of a FieldSource (or None) at p.
+
+    dG (from ``field_sources.field_gradient_derivative``) only when ``hessian``; zeros otherwise.
+    The zero arrays are shared between calls (the kernels only read them): do not write to them.
+    """
+    from ballchain.drake_models.field_sources import UniformField, field_gradient_derivative
+
+    n = p.shape[0]
+    if external is None:
+        return False, _zeros((n, 3)), _zeros((n, 3, 3)), _zeros((n, 3, 3, 3))
+    if isinstance(external, UniformField):  # the same field everywhere: no gradient
+        B = np.empty((n, 3))
+        B[:] = external.B_W
+        return True, B, _zeros((n, 3, 3)), _zeros((n, 3, 3, 3))
+    B, G = external.field_and_gradient(p)
+    dG = field_gradient_derivative(external, p) if hessian else np.zeros((n, 3, 3, 3))
+    return True, np.ascontiguousarray(B, dtype=float), np.ascontiguousarray(G, dtype=float), \
+        np.ascontiguousarray(dG, dtype=float)
