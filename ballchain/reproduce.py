@@ -249,6 +249,18 @@ def clinical_section(out: Path, quick: bool) -> tuple[Section, dict]:
                   [[r.effect, r.model,
                     "-" if r.force_range_gf is None else f"{r.force_range_gf[0]:.1f} to {r.force_range_gf[1]:.1f}",
                     r.could_reach_paper] for r in effects.table])
+    _effects_text(section, effects)
+    write_json(out / "table1_effects.json", effects)
+
+    veins = ("RSPV",)  # one vein keeps this section under a minute; the command does the rest
+    study = clinical.run(chains=("8Fr", "today"), ring_step=0, sizing=not quick, veins=veins, progress=False)
+    study.files = clinical.write_files(study, out / "clinical")
+    _clinical_design_text(section, study, out, quick)
+    return section, {"effects": effects, "clinical": study}
+
+
+def _effects_text(section: Section, effects) -> None:
+    """Effects (a) to (e) of Table I's gap in numbers, and what the rig would have had to contain."""
     ferro = {r.gap_mm: r for r in effects.ferromagnetic}
     support = ", ".join(f"{r.free_balls} free: {r.force_gf:.1f}" for r in effects.side_support if r.force_gf is not None)
     cones = ", ".join(f"mu {r.mu:g}: {r.force_gf:.2f}" for r in effects.friction.cones)
@@ -281,11 +293,10 @@ def clinical_section(out: Path, quick: bool) -> tuple[Section, dict]:
         "pin and continuous insertion move the reading by a few grams at most. None is described in the paper; no "
         "constant was tuned."
     )
-    write_json(out / "table1_effects.json", effects)
 
-    veins = ("RSPV",)  # one vein keeps this section under a minute; the command does the rest
-    study = clinical.run(chains=("8Fr", "today"), ring_step=0, sizing=not quick, veins=veins, progress=False)
-    study.files = clinical.write_files(study, out / "clinical")
+
+def _clinical_design_text(section: Section, study, out: Path, quick: bool) -> None:
+    """The clinical design's set-up, its forces and sizing tables, the verdict on the paper's claim, the figures."""
     s = study.setup
     section.text(
         f"The paper's clinical design: two N52 spheres of {s.diameter_mm:.0f} mm ({s.mass_kg:.2f} kg), "
@@ -321,7 +332,6 @@ def clinical_section(out: Path, quick: bool) -> tuple[Section, dict]:
                           ("clinical_sizing.png", "force against the spheres' diameter")):
         if (out / "clinical" / name).exists():
             section.figure(out / "clinical" / name, caption)
-    return section, {"effects": effects, "clinical": study}
 
 
 def plan_section(out: Path, quick: bool) -> tuple[Section, dict]:

@@ -182,6 +182,127 @@ def _spread(samples_ms: list[float]) -> float:
     return float((max(samples_ms) - min(samples_ms)) / np.median(samples_ms))
 
 
+def _check_statics_inputs(n_balls, field_mT, angle_deg, warm_offset_deg, repeats, baseline_ftol, clock) -> None:
+    """``run_statics``'s arguments checked before any work: a ``UserInputError`` naming the bad one."""
+    if isinstance(n_balls, bool) or not isinstance(n_balls, int) or not 2 <= n_balls <= 64:
+        # the SLSQP baseline's pairwise constraints grow as n^2: 64 balls already take minutes
+        raise UserInputError(f"--balls must be an integer >= 2 and <= 64 (ball 1 is held), got {n_balls!r}")
+    if not (math.isfinite(field_mT) and field_mT > 0):
+        raise UserInputError(f"--field-mT must be a positive finite number, got {field_mT}")
+    if not (math.isfinite(angle_deg) and math.isfinite(warm_offset_deg)):
+        raise UserInputError("--angle-deg and --warm-offset-deg must be finite")
+    if not isinstance(repeats, int) or not 1 <= repeats <= 1000:
+        raise UserInputError(f"--repeats must be an integer in 1..1000, got {repeats!r}")
+    if not (math.isfinite(baseline_ftol) and baseline_ftol > 0):
+        raise UserInputError(f"--baseline-ftol must be a positive finite number, got {baseline_ftol}")
+    if clock not in ("wall", "cpu"):
+        raise UserInputError(f"--clock must be 'wall' or 'cpu', got {clock!r}")
+
+
+def _statics_solves(chain, field_mT: float, angle_deg: float, warm_angle: float, baseline_ftol: float,
+                    chosen) -> tuple:
+    """The solvers of every case, built once: ``(warm_up, solves)``.
+
+    ``warm_up()`` is the Newton solve at ``warm_angle`` (the warm cases' start); ``solves(warm_start)``
+    maps each case's name to a call that runs one solve at ``angle_deg``.
+    """
+    from ballchain.drake_models.field_sources import UniformField
+    from ballchain.optimization.naive_statics import NaiveStatics
+    from ballchain.optimization.reduced_chain import ReducedChain
+    from ballchain.optimization.statics import ChainStatics
+
+    B = field_mT * 1e-3
+    external = UniformField.in_plane(B, math.radians(angle_deg))
+    external_warm = UniformField.in_plane(B, math.radians(warm_angle))
+    newton = ChainStatics(chain, method="newton")
+    reference = ChainStatics(chain, method="newton")
+    # The same solver on the numpy reference of the physics: ChainStatics builds its
+    # ReducedChain on the first solve, unless one is there.
+    reference._model = ReducedChain(chain, None, False, backend="numpy")
+    snopt = ChainStatics(chain, method="snopt") if "snopt" in chosen else None
+
+    def solves(warm_start) -> dict:
+        return {
+            "newton_cold": lambda: newton.solve(external),
+            "newton_warm": lambda: newton.solve(external, warm_start),
+            "numpy_cold": lambda: reference.solve(external),
+            "numpy_warm": lambda: reference.solve(external, warm_start),
+            "snopt_cold": lambda: snopt.solve(external),
+            "snopt_warm": lambda: snopt.solve(external, warm_start),
+            "baseline": lambda: NaiveStatics(chain, external, ftol=baseline_ftol).solve(),
+        }
+
+    return (lambda: newton.solve(external_warm)), solves
+
+
+def _timed_rounds(solves, active: tuple, repeats: int, now, bar, warm_start) -> tuple[dict, dict]:
+    """One untimed round, then ``repeats`` timed ones of every active case: ``(samples_ms, last result)``."""
+    calls = solves(warm_start)
+    samples: dict[str, list[float]] = {case: [] for case in active}
+    last = {}
+    for round_ in range(repeats + 1):  # round 0 is untimed (first-call costs)
+        # Rotate the order so that no case always runs first (or right after SLSQP).
+        order = active[round_ % len(active):] + active[: round_ % len(active)]
+        for case in order:
+            t0 = now()
+            result = calls[case]()
+            elapsed = now() - t0
+            if round_ > 0:
+                samples[case].append(1e3 * elapsed)
+            last[case] = result
+            bar.update()
+    return samples, last
+
+
+def _statics_result(samples: dict, last: dict, active: tuple, warm_start) -> dict:
+    """The result's medians, ratios, agreement, convergence and iteration counts (``StaticsBenchResult``
+    fields), from the timed samples and each case's last solve."""
+    reference = last["newton_cold"]
+    medians = {case: float(np.median(samples[case])) if case in active else None for case in _CASES}
+    same = {case: _same_minimum(reference, last[case]) for case in active if case != "newton_cold"}
+    converged = {case: bool(last[case].converged) for case in active if case != "baseline"}
+    if "baseline" in active:
+        converged["baseline"] = bool(last["baseline"].success)
+    converged["warm_start"] = bool(warm_start.converged)
+    baseline = last.get("baseline")
+
+    def ratio(a, b):
+        return None if medians[a] is None or medians[b] is None else medians[a] / medians[b]
+
+    def iterations(case):
+        return last[case].iterations if case in last else None
+
+    return dict(
+        cold_median_ms=medians["newton_cold"],
+        warm_median_ms=medians["newton_warm"],
+        numpy_cold_median_ms=medians["numpy_cold"],
+        numpy_warm_median_ms=medians["numpy_warm"],
+        snopt_cold_median_ms=medians["snopt_cold"],
+        snopt_warm_median_ms=medians["snopt_warm"],
+        baseline_median_ms=medians["baseline"],
+        speedup_cold=ratio("baseline", "newton_cold"),
+        speedup_warm=ratio("baseline", "newton_warm"),
+        speedup_cold_vs_snopt=ratio("snopt_cold", "newton_cold"),
+        kernel_speedup_cold=ratio("numpy_cold", "newton_cold"),
+        kernel_speedup_warm=ratio("numpy_warm", "newton_warm"),
+        same_minimum={
+            "reference": "newton_cold",
+            "tolerance": {"energy_rel": ENERGY_RTOL, "tip_m": TIP_ATOL_M},
+            **same,
+            "ok": all(v["ok"] for v in same.values()),
+        },
+        converged=converged,
+        iterations={
+            **{case: iterations(case) for case in _CASES},
+            "baseline_evaluations": None if baseline is None else baseline.evaluations,
+        },
+        energy_J=reference.energy,
+        tip_position_mm=1e3 * reference.tip_position,
+        samples_ms=samples,
+        spread={case: _spread(samples[case]) for case in active},
+    )
+
+
 def run_statics(
     *,
     n_balls: int = 16,
@@ -225,89 +346,30 @@ def run_statics(
     Raises:
         UserInputError: bad arguments.
     """
-    if isinstance(n_balls, bool) or not isinstance(n_balls, int) or not 2 <= n_balls <= 64:
-        # the SLSQP baseline's pairwise constraints grow as n^2: 64 balls already take minutes
-        raise UserInputError(f"--balls must be an integer >= 2 and <= 64 (ball 1 is held), got {n_balls!r}")
-    if not (math.isfinite(field_mT) and field_mT > 0):
-        raise UserInputError(f"--field-mT must be a positive finite number, got {field_mT}")
-    if not (math.isfinite(angle_deg) and math.isfinite(warm_offset_deg)):
-        raise UserInputError("--angle-deg and --warm-offset-deg must be finite")
-    if not isinstance(repeats, int) or not 1 <= repeats <= 1000:
-        raise UserInputError(f"--repeats must be an integer in 1..1000, got {repeats!r}")
-    if not (math.isfinite(baseline_ftol) and baseline_ftol > 0):
-        raise UserInputError(f"--baseline-ftol must be a positive finite number, got {baseline_ftol}")
-    if clock not in ("wall", "cpu"):
-        raise UserInputError(f"--clock must be 'wall' or 'cpu', got {clock!r}")
+    _check_statics_inputs(n_balls, field_mT, angle_deg, warm_offset_deg, repeats, baseline_ftol, clock)
     now = time.process_time if clock == "cpu" else time.perf_counter
     chosen = _parse_cases(cases) if isinstance(cases, str) else _parse_cases(",".join(cases))
     active = tuple(c for c in _CASES if c.startswith("newton") or c.split("_")[0] in chosen)
 
     from tqdm import tqdm
 
-    from ballchain.drake_models.field_sources import UniformField
     from ballchain.drake_models.params import BallChain
-    from ballchain.optimization.naive_statics import NaiveStatics
-    from ballchain.optimization.reduced_chain import ReducedChain
-    from ballchain.optimization.statics import ChainStatics
 
     chain = BallChain(n_balls=n_balls)
-    B = field_mT * 1e-3
-    external = UniformField.in_plane(B, math.radians(angle_deg))
     warm_angle = angle_deg - warm_offset_deg
-    external_warm = UniformField.in_plane(B, math.radians(warm_angle))
-    newton = ChainStatics(chain, method="newton")
-    reference = ChainStatics(chain, method="newton")
-    # The same solver on the numpy reference of the physics: ChainStatics builds its
-    # ReducedChain on the first solve, unless one is there.
-    reference._model = ReducedChain(chain, None, False, backend="numpy")
-    snopt = ChainStatics(chain, method="snopt") if "snopt" in chosen else None
+    warm_up, solves = _statics_solves(chain, field_mT, angle_deg, warm_angle, baseline_ftol, chosen)
 
     load_before = os.getloadavg()
     bar = tqdm(total=1 + (repeats + 1) * len(active), desc=f"bench statics ({n_balls} balls)", unit="solve",
                file=sys.stderr, disable=not progress, leave=False)
     with blas_threads(blas_threads_limit) as threads_in_use:
-        warm_start = newton.solve(external_warm)
+        warm_start = warm_up()
         bar.update()
-        solves = {
-            "newton_cold": lambda: newton.solve(external),
-            "newton_warm": lambda: newton.solve(external, warm_start),
-            "numpy_cold": lambda: reference.solve(external),
-            "numpy_warm": lambda: reference.solve(external, warm_start),
-            "snopt_cold": lambda: snopt.solve(external),
-            "snopt_warm": lambda: snopt.solve(external, warm_start),
-            "baseline": lambda: NaiveStatics(chain, external, ftol=baseline_ftol).solve(),
-        }
-        samples: dict[str, list[float]] = {case: [] for case in active}
-        last = {}
-        for round_ in range(repeats + 1):  # round 0 is untimed (first-call costs)
-            # Rotate the order so that no case always runs first (or right after SLSQP).
-            order = active[round_ % len(active):] + active[: round_ % len(active)]
-            for case in order:
-                t0 = now()
-                result = solves[case]()
-                elapsed = now() - t0
-                if round_ > 0:
-                    samples[case].append(1e3 * elapsed)
-                last[case] = result
-                bar.update()
+        samples, last = _timed_rounds(solves, active, repeats, now, bar, warm_start)
     bar.close()
     load_after = os.getloadavg()
 
-    reference = last["newton_cold"]
-    medians = {case: float(np.median(samples[case])) if case in active else None for case in _CASES}
-    same = {case: _same_minimum(reference, last[case]) for case in active if case != "newton_cold"}
-    converged = {case: bool(last[case].converged) for case in active if case != "baseline"}
-    if "baseline" in active:
-        converged["baseline"] = bool(last["baseline"].success)
-    converged["warm_start"] = bool(warm_start.converged)
-    baseline = last.get("baseline")
-
-    def ratio(a, b):
-        return None if medians[a] is None or medians[b] is None else medians[a] / medians[b]
-
-    def iterations(case):
-        return last[case].iterations if case in last else None
-
+    result = _statics_result(samples, last, active, warm_start)
     return StaticsBenchResult(
         n_balls=n_balls,
         field_mT=field_mT,
@@ -315,35 +377,9 @@ def run_statics(
         warm_start_angle_deg=warm_angle,
         repeats=repeats,
         clock=clock,
-        cold_median_ms=medians["newton_cold"],
-        warm_median_ms=medians["newton_warm"],
-        numpy_cold_median_ms=medians["numpy_cold"],
-        numpy_warm_median_ms=medians["numpy_warm"],
-        snopt_cold_median_ms=medians["snopt_cold"],
-        snopt_warm_median_ms=medians["snopt_warm"],
-        baseline_median_ms=medians["baseline"],
-        speedup_cold=ratio("baseline", "newton_cold"),
-        speedup_warm=ratio("baseline", "newton_warm"),
-        speedup_cold_vs_snopt=ratio("snopt_cold", "newton_cold"),
-        kernel_speedup_cold=ratio("numpy_cold", "newton_cold"),
-        kernel_speedup_warm=ratio("numpy_warm", "newton_warm"),
-        same_minimum={
-            "reference": "newton_cold",
-            "tolerance": {"energy_rel": ENERGY_RTOL, "tip_m": TIP_ATOL_M},
-            **same,
-            "ok": all(v["ok"] for v in same.values()),
-        },
-        converged=converged,
-        iterations={
-            **{case: iterations(case) for case in _CASES},
-            "baseline_evaluations": None if baseline is None else baseline.evaluations,
-        },
-        energy_J=reference.energy,
-        tip_position_mm=1e3 * reference.tip_position,
-        baseline=None if baseline is None else {"ftol": baseline_ftol, "message": baseline.message,
-                                                "max_violation": baseline.max_violation},
-        samples_ms=samples,
-        spread={case: _spread(samples[case]) for case in active},
+        **result,
+        baseline=None if "baseline" not in last else {"ftol": baseline_ftol, "message": last["baseline"].message,
+                                                      "max_violation": last["baseline"].max_violation},
         blas_threads=threads_in_use,
         load_average_1min={"before": load_before[0], "after": load_after[0]},
         cpu_count=os.cpu_count(),

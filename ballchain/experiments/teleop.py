@@ -706,10 +706,7 @@ def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None 
     Raises:
         KeyboardInterrupt: Ctrl-C (after the summary line and removing the buttons).
     """
-    from ballchain.drake_models.params import gram_force
     from ballchain.systems.chain_simulation import frozen_gc
-    from ballchain.systems.meshcat_joystick import key_map_text
-    from ballchain.systems.meshcat_overlays import TextPanel
 
     check_live_inputs(mapping, units, n_balls, duration, realtime_rate)
     session = build_live(mapping=mapping, units=units, n_balls=n_balls, overrides=overrides, meshcat=meshcat,
@@ -719,22 +716,7 @@ def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None 
     tracker = session.cd.target_touches
     n_targets = 0 if tracker is None else len(tracker.names)
     unit_names = session.joystick.unit_names
-    omega = scenario.units[0].teleop_omega_max
-    echo(f"Meshcat: {meshcat.web_url()}  (open it in a browser on this machine)")
-    echo(f"steering {', '.join(unit_names)} with the {mapping} mapping, {scenario.n_balls} balls, "
-         f"time step {scenario.effective_time_step * 1e3:g} ms, target real-time rate {realtime_rate:g}"
-         + (f", for {duration:g} s" if duration is not None else ", until you quit (Escape, Start or Ctrl-C)"))
-    echo(_panel_lines(session, mapping, omega)[0])
-    echo(key_map_text(session.joystick.keys))
-    echo("the targets turn green when the tip touches them; the orange arrow is the wall's force on the tip")
-    keys = TextPanel(meshcat, "keys", anchor=LIVE_KEYS_ANCHOR, width_px=1150)
-    keys.show(_panel_lines(session, mapping, omega))
-    keys.flush()
-    status = session.status = TextPanel(meshcat, "status", anchor=LIVE_STATUS_ANCHOR, width_px=1150)
-
-    def panel(lines, paused=False):
-        status.show(lines, colour=(255, 235, 120) if paused else (255, 255, 255),
-                    background=(150, 20, 20) if paused else (20, 20, 20))
+    status = _announce_live(session, mapping, realtime_rate, duration, echo)
 
     ended, stops, restarts = "duration", [], 0
     limit = np.inf if duration is None else float(duration)
@@ -743,14 +725,10 @@ def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None 
     start = time.perf_counter()
     try:
         if wait_for_browser and meshcat.GetNumActiveConnections() == 0:
-            echo("waiting for a browser to open the page (the clock starts then)")
-            panel(["waiting for the page to connect"])
-            status.flush()
-            while meshcat.GetNumActiveConnections() == 0:
-                time.sleep(LIVE_POLL)
+            _wait_for_browser(meshcat, status, echo)
         waited = time.perf_counter() - waited
-        start = last_wall = last_panel = last_line = time.perf_counter()
-        last_sim, last_ball_1 = 0.0, session.ball_1_along_sheath()
+        start = time.perf_counter()
+        readout = _LiveReadout(session, status, echo, n_targets, status_period, start)
         with frozen_gc(freeze_gc):
             while session.root.get_time() < limit - 1e-12:
                 t0, sim0 = time.perf_counter(), session.root.get_time()
@@ -767,52 +745,15 @@ def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None 
                     if meshcat.GetNumActiveConnections() == 0:
                         ended = "failure"
                         break
-                    # Paused: the reason on the page until the person starts over or quits.
-                    echo("paused: press R (or 'start over' in Meshcat's controls) to start over, Escape to quit")
-                    panel(["PAUSED: the watchdog stopped the run", *_wrap(reason, 80),
-                           "R: start over from the beginning    Escape: quit"], paused=True)
-                    reset0, quit0 = session.clicks("reset"), session.clicks("quit")
-                    paused = time.perf_counter()
-                    while session.clicks("reset") == reset0 and session.clicks("quit") == quit0:
-                        if time.perf_counter() - paused > LIVE_PANEL_PERIOD:
-                            status.flush()  # the page has decoded the pause panel by now
-                            status.redraw()
-                            paused = time.perf_counter()
-                        time.sleep(LIVE_POLL)
-                    if session.clicks("quit") != quit0:
+                    if _pause_until_choice(session, status, reason, echo) == "quit":
                         ended = "quit"
                         break
                     session.restart()
                     restarts += 1
                     echo("started over")
-                    last_wall = last_panel = last_line = time.perf_counter()
-                    last_sim, last_ball_1 = 0.0, session.ball_1_along_sheath()
+                    readout.start_over(time.perf_counter())
                     continue
-                now = time.perf_counter()
-                panel_due, line_due = now - last_panel >= LIVE_PANEL_PERIOD, now - last_line >= status_period
-                if panel_due or line_due:
-                    t = session.root.get_time()
-                    unit, stick, v_cmd = session.joystick_state()
-                    ball_1 = session.ball_1_along_sheath()
-                    # Measured since the last readout: the chain's actual insertion, not the command.
-                    v_ball_1 = (ball_1 - last_ball_1) / (t - last_sim) if t > last_sim else 0.0
-                    rate = (t - last_sim) / (now - last_wall)
-                    f_gf = gram_force(float(np.linalg.norm(session.tip_force_N())))
-                    touched = session.touched()
-                    if panel_due:
-                        panel([f"t = {t:.1f} s   real-time rate {rate:.2f}   {unit}",
-                               f"targets touched {len(touched)}/{n_targets}"
-                               + (f": {', '.join(touched[-4:])}" if touched else ""),
-                               f"tip force on the wall {f_gf:.1f} gf",
-                               f"feeder: ball 1 moves {v_ball_1 * 1e3:+.1f} mm/s (command {v_cmd * 1e3:+.1f} mm/s)"])
-                        meshcat.SetRealtimeRate(rate)
-                        last_panel = now
-                    if line_due:
-                        echo(f"t = {t:7.2f} s  real-time rate {rate:5.2f}  targets {len(touched)}/{n_targets}  "
-                             f"tip force {f_gf:5.1f} gf  {unit} stick {np.round(stick, 2).tolist()}  "
-                             f"feeder: ball 1 {v_ball_1 * 1e3:+.1f} mm/s (command {v_cmd * 1e3:+.1f})")
-                        last_line = now
-                    last_wall, last_sim, last_ball_1 = now, t, ball_1
+                readout.maybe_show(time.perf_counter())
     except KeyboardInterrupt:
         _end_live(session, echo, "interrupted", stops, time.perf_counter() - start, n_targets)
         raise
@@ -828,6 +769,107 @@ def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None 
                       settings={"mapping": mapping, "units": unit_names, "n_balls": scenario.n_balls,
                                 "time_step_s": scenario.effective_time_step, "overrides": overrides})
 
+
+def _announce_live(session, mapping: str, realtime_rate: float, duration: float | None, echo):
+    """The URL, the settings and the key map on the terminal; the key-map panel on the page.
+
+    Returns the page's status panel (also kept as ``session.status``).
+    """
+    from ballchain.systems.meshcat_joystick import key_map_text
+    from ballchain.systems.meshcat_overlays import TextPanel
+
+    scenario, meshcat = session.cd.scenario, session.meshcat
+    omega = scenario.units[0].teleop_omega_max
+    echo(f"Meshcat: {meshcat.web_url()}  (open it in a browser on this machine)")
+    echo(f"steering {', '.join(session.joystick.unit_names)} with the {mapping} mapping, {scenario.n_balls} balls, "
+         f"time step {scenario.effective_time_step * 1e3:g} ms, target real-time rate {realtime_rate:g}"
+         + (f", for {duration:g} s" if duration is not None else ", until you quit (Escape, Start or Ctrl-C)"))
+    echo(_panel_lines(session, mapping, omega)[0])
+    echo(key_map_text(session.joystick.keys))
+    echo("the targets turn green when the tip touches them; the orange arrow is the wall's force on the tip")
+    keys = TextPanel(meshcat, "keys", anchor=LIVE_KEYS_ANCHOR, width_px=1150)
+    keys.show(_panel_lines(session, mapping, omega))
+    keys.flush()
+    status = session.status = TextPanel(meshcat, "status", anchor=LIVE_STATUS_ANCHOR, width_px=1150)
+    return status
+
+
+def _status_panel(status, lines: list[str], paused: bool = False) -> None:
+    """The status panel's lines: white on dark grey, or yellow on red while paused."""
+    status.show(lines, colour=(255, 235, 120) if paused else (255, 255, 255),
+                background=(150, 20, 20) if paused else (20, 20, 20))
+
+
+def _wait_for_browser(meshcat, status, echo) -> None:
+    """Wait until a browser has the page open (the simulated clock starts then)."""
+    echo("waiting for a browser to open the page (the clock starts then)")
+    _status_panel(status, ["waiting for the page to connect"])
+    status.flush()
+    while meshcat.GetNumActiveConnections() == 0:
+        time.sleep(LIVE_POLL)
+
+
+def _pause_until_choice(session, status, reason: str, echo) -> str:
+    """The watchdog's reason on the page until the person starts over or quits: "restart" or "quit"."""
+    echo("paused: press R (or 'start over' in Meshcat's controls) to start over, Escape to quit")
+    _status_panel(status, ["PAUSED: the watchdog stopped the run", *_wrap(reason, 80),
+                           "R: start over from the beginning    Escape: quit"], paused=True)
+    reset0, quit0 = session.clicks("reset"), session.clicks("quit")
+    paused = time.perf_counter()
+    while session.clicks("reset") == reset0 and session.clicks("quit") == quit0:
+        if time.perf_counter() - paused > LIVE_PANEL_PERIOD:
+            status.flush()  # the page has decoded the pause panel by now
+            status.redraw()
+            paused = time.perf_counter()
+        time.sleep(LIVE_POLL)
+    return "quit" if session.clicks("quit") != quit0 else "restart"
+
+
+class _LiveReadout:
+    """The live readout: the page's status panel every ``LIVE_PANEL_PERIOD`` and a status line every
+    ``status_period`` of wall time, with rates measured since the last readout."""
+
+    def __init__(self, session, status, echo, n_targets: int, status_period: float, now: float):
+        self.session, self.status, self.echo = session, status, echo
+        self.n_targets, self.status_period = n_targets, status_period
+        self.start_over(now)
+
+    def start_over(self, now: float) -> None:
+        """Measure from ``now`` and the chain's start (at the session's start and after a restart)."""
+        self.last_wall = self.last_panel = self.last_line = now
+        self.last_sim, self.last_ball_1 = 0.0, self.session.ball_1_along_sheath()
+
+    def maybe_show(self, now: float) -> None:
+        """The panel and the status line, each when due."""
+        from ballchain.drake_models.params import gram_force
+
+        session, n_targets = self.session, self.n_targets
+        panel_due = now - self.last_panel >= LIVE_PANEL_PERIOD
+        line_due = now - self.last_line >= self.status_period
+        if not (panel_due or line_due):
+            return
+        t = session.root.get_time()
+        unit, stick, v_cmd = session.joystick_state()
+        ball_1 = session.ball_1_along_sheath()
+        # Measured since the last readout: the chain's actual insertion, not the command.
+        v_ball_1 = (ball_1 - self.last_ball_1) / (t - self.last_sim) if t > self.last_sim else 0.0
+        rate = (t - self.last_sim) / (now - self.last_wall)
+        f_gf = gram_force(float(np.linalg.norm(session.tip_force_N())))
+        touched = session.touched()
+        if panel_due:
+            _status_panel(self.status, [
+                f"t = {t:.1f} s   real-time rate {rate:.2f}   {unit}",
+                f"targets touched {len(touched)}/{n_targets}" + (f": {', '.join(touched[-4:])}" if touched else ""),
+                f"tip force on the wall {f_gf:.1f} gf",
+                f"feeder: ball 1 moves {v_ball_1 * 1e3:+.1f} mm/s (command {v_cmd * 1e3:+.1f} mm/s)"])
+            session.meshcat.SetRealtimeRate(rate)
+            self.last_panel = now
+        if line_due:
+            self.echo(f"t = {t:7.2f} s  real-time rate {rate:5.2f}  targets {len(touched)}/{n_targets}  "
+                      f"tip force {f_gf:5.1f} gf  {unit} stick {np.round(stick, 2).tolist()}  "
+                      f"feeder: ball 1 {v_ball_1 * 1e3:+.1f} mm/s (command {v_cmd * 1e3:+.1f})")
+            self.last_line = now
+        self.last_wall, self.last_sim, self.last_ball_1 = now, t, ball_1
 
 def _wrap(text: str, width: int) -> list[str]:
     import textwrap
