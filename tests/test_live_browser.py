@@ -82,7 +82,7 @@ def _panel_colour(page) -> np.ndarray:
 def test_a_person_steers_the_chain_in_the_browser_into_a_vein_and_starts_over_after_a_stop():
     """Keys pressed on the page reach the station: the chain moves, a target turns green; the tip
     goes down a vein (the left inferior) and the session goes on there; a stop of the watchdog
-    (forced: the vein tubes made not to count, a stand-in for a real escape) pauses the session
+    (forced: nothing counts as inside, a stand-in for a real escape) pauses the session
     with the reason on the page (red panel), R starts over (the chain back at the start) and
     Escape ends it."""
     from ballchain.drake_models.heart import LeftAtrium
@@ -138,16 +138,19 @@ def test_a_person_steers_the_chain_in_the_browser_into_a_vein_and_starts_over_af
                 page.keyboard.press("KeyW")
             _wait(lambda: heart.in_veins(np.array(tip()))[0], "the tip to go down a vein")
             page.keyboard.press("Space")
+            # The session goes on after the tip entered the vein (the watchdog's old rule stopped it
+            # there). With the stick released the tip may slide back out within those 2 s of
+            # real-time steering, so the check is the entry above and no stop after it.
             t_vein = float(_last_time(lines))
-            _wait(lambda: _last_time(lines) >= t_vein + 2.0, "2 s more of simulated time with the tip in the vein")
-            assert heart.in_veins(np.array(tip()))[0]
+            _wait(lambda: _last_time(lines) >= t_vein + 2.0, "2 s more of simulated time after the tip entered the vein")
             assert thread.is_alive() and not any(ln.startswith("stopped at") for ln in lines), "\n".join(lines)
             page.screenshot(path=shots / "03_tip_in_vein.png")
             calm = _panel_colour(page)
 
-            # A stop of the watchdog: the vein tubes no longer count as inside.
-            outer = heart.semi_axes + heart.params.wall_thickness
-            heart.contains = lambda p: ((np.atleast_2d(p) / outer) ** 2).sum(axis=1) <= 1.0
+            # A stop of the watchdog: nothing counts as inside the heart any more, so every ball out
+            # of the sheath has escaped (the ellipsoid without the veins was a stand-in that
+            # depended on how far down the vein the real-time steering had taken the tip).
+            heart.contains = lambda p: np.zeros(len(np.atleast_2d(p)), dtype=bool)
             _wait(lambda: any(ln.startswith("paused") for ln in lines), "the pause")
             stop = next(ln for ln in lines if ln.startswith("stopped at"))
             assert "escaped the heart" in stop, stop
