@@ -62,9 +62,11 @@ API_HEAD = """\
 # API reference
 
 `import ballchain` gives what a script needs: the names below are `ballchain.__all__`, each with
-its one-line summary; follow a name for its full documentation. Everything not listed here is
-private by convention: the sub-packages (`ballchain.drake_models`, `ballchain.optimization`,
-`ballchain.systems`, `ballchain.experiments`) keep their import paths, but may change without
+its one-line summary; follow a name for its full documentation. The names load when first used,
+so `import ballchain` alone does not import Drake. The experiments are public too, one module each:
+`ballchain.experiments.<name>.run` ([the experiments](guide/experiments.md)). Everything else is
+private by convention: the modules of the sub-packages (`ballchain.drake_models`,
+`ballchain.optimization`, `ballchain.systems`) keep their import paths, but may change without
 notice. This page is generated from `ballchain.__all__` when the site is built.
 
 ```{{eval-rst}}
