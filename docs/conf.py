@@ -7,6 +7,7 @@ without running them. The API reference is generated here from ``ballchain.__all
 export appears without editing any page.
 """
 
+import inspect
 import os
 from pathlib import Path
 
@@ -81,13 +82,22 @@ notice. This page is generated from `ballchain.__all__` when the site is built.
 """
 
 
+def is_value(name: str) -> bool:
+    """An exported value (such as ``__version__``) rather than a module, class or function: listed
+    with its value, as it has no documentation of its own."""
+    obj = getattr(ballchain, name)
+    return not (callable(obj) or inspect.ismodule(obj))
+
+
 def write_api_page() -> None:
     """Write ``api.md`` from ``ballchain.__all__`` (only when it changed, so that Sphinx's incremental
     build does not redo it for nothing)."""
     names = list(getattr(ballchain, "__all__", []))
     if not names:
         raise RuntimeError("ballchain.__all__ is empty: the API reference would list nothing")
-    text = API_HEAD.format(entries="\n".join(f"   {name}" for name in names))
+    entries = "\n".join(f"   {name}" for name in names if not is_value(name))
+    values = "".join(f"`ballchain.{name}` = `{getattr(ballchain, name)!r}`\n\n" for name in names if is_value(name))
+    text = API_HEAD.format(entries=entries) + ("\n## Values\n\n" + values if values else "")
     page = DOCS / "api.md"
     if not page.exists() or page.read_text() != text:
         page.write_text(text)
