@@ -101,6 +101,10 @@ def write_api_page() -> None:
     page = DOCS / "api.md"
     if not page.exists() or page.read_text() != text:
         page.write_text(text)
+    documented = {f"ballchain.{name}.rst" for name in names if not is_value(name)}
+    for stub in (DOCS / "generated").glob("*.rst"):  # a name no longer exported leaves no page behind
+        if stub.name not in documented:
+            stub.unlink()
 
 
 def write_scenarios_table() -> None:
