@@ -111,7 +111,7 @@ class Station:
 
     Readings of a context (the diagram's root context, e.g. ``RunOutcome.context``, or the
     chain system's own): ``ball_positions``, ``tip_position``, ``tip_wall_force``,
-    ``targets_touched``.
+    ``unit_magnet``, ``targets_touched``.
     """
 
     diagram: Diagram
@@ -147,6 +147,14 @@ class Station:
         """The walls' contact force on the tip ball f_W (3,) [N] (zeros when nothing pushes)."""
         port = self.chain.get_tip_wall_force_output_port()
         return np.array(port.Eval(subsystem_context(port.get_system(), context))[:3])
+
+    def unit_magnet(self, name: str, context) -> MagnetSource:
+        """Unit ``name``'s magnet at its pose in the context (a MagnetSource: its field anywhere)."""
+        if name not in self.units:
+            raise UserInputError(f"no unit {short_repr(name)} in this station; its units: "
+                                 f"{', '.join(self.units) or 'none'}")
+        magnet = self.units[name].magnet
+        return magnet.magnet_source(subsystem_context(magnet, context))
 
     def targets_touched(self, context) -> list[str]:
         """The names of the ablation targets the tip ball touched so far ([] without target rings)."""
