@@ -110,8 +110,8 @@ class Station:
         pin: the ForceSensorPin, with ``scenario.pin``.
 
     Readings of a context (the diagram's root context, e.g. ``RunOutcome.context``, or the
-    chain system's own): ``ball_positions``, ``tip_position``, ``tip_wall_force``,
-    ``unit_magnet``, ``targets_touched``.
+    context of the system read): ``ball_positions``, ``tip_position`` (the chain system's),
+    ``tip_wall_force``, ``unit_magnet``, ``targets_touched``.
     """
 
     diagram: Diagram
@@ -130,7 +130,7 @@ class Station:
     pin: ForceSensorPin | None = None
 
     # Readings of a context: each takes the diagram's root context (``RunOutcome.context``, a
-    # Simulator's context) or the chain system's own context.
+    # Simulator's context) or the context of the system it reads (``chain_context`` for the chain).
     def chain_context(self, context):
         """The chain system's (``chain.system``'s) context, from the root context or itself."""
         return subsystem_context(self.chain.system, context)
