@@ -110,8 +110,8 @@ class Station:
         pin: the ForceSensorPin, with ``scenario.pin``.
 
     Readings of a context (the diagram's root context, e.g. ``RunOutcome.context``, or the
-    chain system's own): ``ball_positions``, ``tip_position``, ``tip_wall_force``,
-    ``targets_touched``.
+    context of the system read): ``ball_positions``, ``tip_position`` (the chain system's),
+    ``tip_wall_force``, ``unit_magnet``, ``targets_touched``.
     """
 
     diagram: Diagram
@@ -130,7 +130,7 @@ class Station:
     pin: ForceSensorPin | None = None
 
     # Readings of a context: each takes the diagram's root context (``RunOutcome.context``, a
-    # Simulator's context) or the chain system's own context.
+    # Simulator's context) or the context of the system it reads (``chain_context`` for the chain).
     def chain_context(self, context):
         """The chain system's (``chain.system``'s) context, from the root context or itself."""
         return subsystem_context(self.chain.system, context)
@@ -147,6 +147,14 @@ class Station:
         """The walls' contact force on the tip ball f_W (3,) [N] (zeros when nothing pushes)."""
         port = self.chain.get_tip_wall_force_output_port()
         return np.array(port.Eval(subsystem_context(port.get_system(), context))[:3])
+
+    def unit_magnet(self, name: str, context) -> MagnetSource:
+        """Unit ``name``'s magnet at its pose in the context (a MagnetSource: its field anywhere)."""
+        if name not in self.units:
+            raise UserInputError(f"no unit {short_repr(name)} in this station; its units: "
+                                 f"{', '.join(self.units) or 'none'}")
+        magnet = self.units[name].magnet
+        return magnet.magnet_source(subsystem_context(magnet, context))
 
     def targets_touched(self, context) -> list[str]:
         """The names of the ablation targets the tip ball touched so far ([] without target rings)."""

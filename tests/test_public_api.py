@@ -58,10 +58,12 @@ def test_import_ballchain_does_not_import_drake_until_a_name_is_used():
             "ballchain.__all__, dir(ballchain), ballchain.__version__\n"
             "print(any(m.split('.')[0] == 'pydrake' for m in sys.modules))\n"
             "ballchain.MakeStation\n"
-            "print(any(m.split('.')[0] == 'pydrake' for m in sys.modules))\n")
+            "print(any(m.split('.')[0] == 'pydrake' for m in sys.modules))\n"
+            "print(all(getattr(ballchain, name) is not None for name in ballchain.__all__))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    # Not before a name is used; then it is (the check would see it).
-    assert out.split() == ["False", "True"]
+    # Not before a name is used; then it is (the check would see it). In a fresh interpreter
+    # every name loads (no import cycle among their modules).
+    assert out.split() == ["False", "True", "True"]
 
 
 def test_scenario_descriptions_cover_every_scenario():
@@ -119,3 +121,17 @@ def test_the_first_script_runs():
     p = result.tip_position
     assert p[1] > p[0] > 0.0 and p[2] == pytest.approx(0.0, abs=1e-12)
     assert np.linalg.norm(p) < (chain.n_balls - 1) * chain.ball_diameter
+
+
+def test_unit_magnet_reading_takes_the_root_context():
+    unit = "{name: right_unit, anchor: puncture, distance: 0.12, direction_W: [-1.0, 0.0, 0.0]}"
+    station = bc.MakeStation(bc.load_scenario(SMALL, "{uniform_field: [0.0, 0.0, 0.0], units: [%s]}" % unit))
+    root = station.diagram.CreateDefaultContext()
+    unit = station.units["right_unit"]
+    own = unit.magnet.magnet_source(unit.magnet.GetMyContextFromRoot(root))
+    source = station.unit_magnet("right_unit", root)
+    np.testing.assert_array_equal(source.m_W, own.m_W)
+    # At the start the unit's dipole is its neutral direction.
+    np.testing.assert_allclose(source.m_W / np.linalg.norm(source.m_W), unit.m_hat_initial_W, atol=1e-12)
+    with pytest.raises(bc.UserInputError, match="no unit 'left_unit'.*right_unit"):
+        station.unit_magnet("left_unit", root)

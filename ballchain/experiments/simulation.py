@@ -1,9 +1,9 @@
 """A named scenario simulated (``ballchain simulate``): the chain in the left atrium or free space.
 
-Loads the scenario of ``drake_models/station.scenarios.yaml``, applies the ``--set`` overrides
-and the mode, runs ``systems/chain_simulation.run_simulation`` and adds, for the scenarios that
-settle on the canonical statics problem, how far the simulated tip is from the statics
-equilibrium (two independent computations of the same shape).
+Loads the scenario of ``drake_models/station.scenarios.yaml``, applies the ``--set`` overrides,
+the mode and the engine, runs ``systems/chain_simulation.run_simulation`` and adds, for the
+scenarios that settle on the canonical statics problem, how far the simulated tip is from the
+statics equilibrium (two independent computations of the same shape).
 """
 
 from __future__ import annotations
