@@ -1,0 +1,43 @@
+"""Small anatomy files for the anatomy tests, written into a test's tmp_path."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ballchain.drake_models import mesh_tools as mt
+from ballchain.drake_models.atrium_mesh import write_stl_binary
+from ballchain.drake_models.heart import LeftAtrium
+
+SEMI_AXES_MM = np.array([27.0, 19.0, 24.0])  # the procedural atrium's endocardium, as a faceted ellipsoid
+
+
+def ellipsoid_mesh(subdivisions: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """(V (nv, 3) [mm], F): an icosphere stretched to SEMI_AXES_MM, outward."""
+    U, F = mt.icosphere(subdivisions)
+    return U * SEMI_AXES_MM, F
+
+
+def lumen_anatomy(directory: Path, n_targets: int = 4, csv_text: str | None = None, **fields) -> Path:
+    """A lumen anatomy in millimetres: a faceted ellipsoid (binary STL), targets at the mesh
+    vertices nearest to every fifth target of the procedural left ring (a CSV with a header and
+    names), the procedural atrium's puncture and sheath aim. ``fields`` replace YAML lines
+    (a value of None drops the field)."""
+    directory = Path(directory)
+    V, F = ellipsoid_mesh()
+    write_stl_binary(directory / "atrium.stl", V, F)
+    heart = LeftAtrium()
+    ring = heart.rings["left"].p_HT[:: 5][:n_targets] * 1e3
+    nearest = [V[int(np.argmin(np.linalg.norm(V - p, axis=1)))].tolist() for p in ring]
+    if csv_text is None:
+        csv_text = "name,x,y,z\n" + "".join(f"L{k + 1},{x!r},{y!r},{z!r}\n" for k, (x, y, z) in enumerate(nearest))
+    (directory / "targets.csv").write_text(csv_text)
+    p = (heart.p_HP * 1e3).tolist()
+    lines = {"mesh": "atrium.stl", "length_unit": "mm", "side": "lumen", "targets": "targets.csv",
+             "sheath": f"{{puncture: [{p[0]!r}, {p[1]!r}, {p[2]!r}], aim: [0, 0, 0]}}"}
+    lines.update(fields)
+    text = "".join(f"{k}: {v}\n" for k, v in lines.items() if v is not None)
+    path = directory / "anatomy.yaml"
+    path.write_text(text)
+    return path
