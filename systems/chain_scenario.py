@@ -159,6 +159,9 @@ class ChainScenario:
         puncture: (3,) septal puncture in the user atrium's frame [m] (required with
             ``atrium_file``; moved to the nearest surface vertex).
         sheath_aim: (3,) point the sheath points to [m] (default: the chamber's centroid).
+        anatomy: an anatomy file (``drake_models.anatomy``: a surface, its targets, sheath and
+            magnet units) to use instead of the procedural atrium or ``atrium_file``; the units
+            stand at its magnets (``station.apply_anatomy``).
         sheath: the transseptal sheath's collision cage (else ball 1 alone is held).
         mode: "quasi-static" (damped floating joints, ~1e-3 s steps) or "dynamics" (no damping).
         time_step: the plant's discrete step [s]; 0 means the mode's default (1e-3 or 1e-4).
@@ -212,6 +215,7 @@ class ChainScenario:
     atrium_units: str = "auto"
     puncture: list[float] = field(default_factory=list)
     sheath_aim: list[float] = field(default_factory=list)
+    anatomy: str = ""
     sheath: bool = True
     mode: str = "quasi-static"
     time_step: float = 0.0
@@ -534,6 +538,8 @@ def check_atrium(s: "ChainScenario") -> None:
     default = ChainScenario()
     procedural = ("heart_scale", "heart_subdivisions")
     user = ("atrium_file", "atrium_units", "puncture", "sheath_aim")
+    if s.anatomy:
+        check_anatomy_field(s, procedural + user, default)
     for name in procedural + user:
         changed = getattr(s, name) != getattr(default, name)
         _require(not changed or s.heart, f"scenario {name} is for the heart: heart: false does not read it "
@@ -728,6 +734,21 @@ def check_pin(s: "ChainScenario") -> None:
     _require(0.0 < s.pin.stiffness < bound,
              f"scenario pin.stiffness {s.pin.stiffness:g} N/m must be > 0 and below the explicit spring's "
              f"stability bound {bound:g} N/m at a {s.effective_time_step:g} s step: lower it or the step")
+
+def check_anatomy_field(s: "ChainScenario", others: tuple, default: "ChainScenario") -> None:
+    """An anatomy file takes the heart's place: heart: true, none of the procedural or user
+    atrium's fields, and a file that exists (its fields are checked when it is loaded, before the
+    build: ``station.atrium_for``)."""
+    _require(s.heart, "scenario anatomy is for the heart: heart: false does not read it (leave it out, or use "
+                      "heart: true)")
+    for name in others:
+        _require(getattr(s, name) == getattr(default, name),
+                 f"scenario {name} cannot go with anatomy: the anatomy file gives the surface, its units, the "
+                 f"sheath and the targets (leave {name} out)")
+    path = Path(s.anatomy)
+    _require(path.is_file(), f"scenario anatomy {short_repr(s.anatomy)}: "
+                             f"{'not a file (a folder?)' if path.exists() else 'no such file'}")
+
 
 def check_atrium_file(path: str) -> None:
     """An atrium file that exists and is a file (a package:// URI must resolve).
