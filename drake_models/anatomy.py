@@ -200,7 +200,9 @@ class AnatomyTargets:
 
 
 def _where(path: Path) -> str:
-    return f"anatomy file {short_repr(str(path))}"
+    """The file as messages name it: its path, or .../its name when the path is long."""
+    text = str(path)
+    return f"anatomy file {short_repr(text if len(text) <= 72 else f'.../{Path(text).name}')}"
 
 
 def _bad(path: Path, field_name: str, message: str) -> UserInputError:
@@ -233,7 +235,8 @@ def load_anatomy(path: str | Path) -> Anatomy:
     touch = DEFAULT_TOUCH_RADIUS if spec.touch_radius == 0.0 else spec.touch_radius * scale
     mesh, surface = _mesh(path, spec, R, t)
     p_WT = place(points)
-    gaps, n_W = _surface_at(surface, p_WT, spec.side)
+    procedural = LeftAtrium() if surface is None else None
+    gaps, n_W = _surface_at(surface or procedural, p_WT, spec.side)
     far = np.flatnonzero(gaps > MAX_TARGET_GAP)
     if len(far):
         k = int(far[0])
@@ -247,7 +250,7 @@ def load_anatomy(path: str | Path) -> Anatomy:
         magnets = [default_magnet(p_WT, n_W)]
     return Anatomy(path=path, name=path.stem, description=spec.description, mesh=mesh, side=spec.side,
                    surface=surface, target_names=names, p_WT=p_WT, n_W=n_W, gaps=gaps, touch_radius=touch,
-                   magnets=np.array(magnets), magnets_default=default, **sheath)
+                   magnets=np.array(magnets), magnets_default=default, _atrium=procedural, **sheath)
 
 
 def default_magnet(p_WT: np.ndarray, n_W: np.ndarray, distance: float = DEFAULT_MAGNET_DISTANCE) -> np.ndarray:
@@ -318,9 +321,10 @@ def _check_sheath_fields(path: Path, spec: AnatomySpec, data: dict) -> None:
             if name in data:
                 raise _bad(path, name, "is not read with mesh: procedural (the built-in atrium has its own frame, "
                                        "puncture and sheath axis): leave it out")
-        if spec.side != "lumen" or spec.length_unit != "m":
-            raise _bad(path, "side" if spec.side != "lumen" else "length_unit",
-                       "must be lumen and m with mesh: procedural (the built-in atrium)")
+        if spec.side != "lumen":
+            raise _bad(path, "side", "must be lumen with mesh: procedural (the chain works inside the built-in atrium)")
+        if spec.length_unit != "m":
+            raise _bad(path, "length_unit", "must be m with mesh: procedural (the built-in atrium is in metres)")
         return
     wanted = ("puncture", "aim") if spec.side == "lumen" else ("tip", "direction")
     wrong = [n for n in given if n not in wanted]
@@ -357,11 +361,11 @@ def _mesh(path: Path, spec: AnatomySpec, R: np.ndarray, t: np.ndarray) -> tuple[
     return mesh, surface
 
 
-def _surface_at(surface: AtriumSurface | None, p: np.ndarray, side: str) -> tuple[np.ndarray, np.ndarray]:
-    """Distances (n,) [m] from the points to the surface and the unit normals there (n, 3),
-    pointing to the chain's side."""
-    if surface is None:  # the procedural atrium: its targets lie on the endocardial ellipsoid
-        atrium = LeftAtrium()
+def _surface_at(surface, p: np.ndarray, side: str) -> tuple[np.ndarray, np.ndarray]:
+    """Distances (n,) [m] from the points to the surface (an AtriumSurface, or the procedural
+    LeftAtrium) and the unit normals there (n, 3), pointing to the chain's side."""
+    if isinstance(surface, LeftAtrium):  # the procedural atrium: its targets lie on the endocardial ellipsoid
+        atrium = surface
         gaps = np.asarray(atrium.wall_distance(p), float)
         return gaps, np.array([ellipsoid_inward_normal(q, atrium.semi_axes) for q in p]).reshape(-1, 3)
     V, F = surface.V, surface.F
@@ -404,7 +408,7 @@ def _sheath(path: Path, spec: AnatomySpec, surface: AtriumSurface | None, place,
         out["puncture"] = surface.V[int(np.argmin(np.linalg.norm(surface.V - p, axis=1)))].copy()
     if s.aim:
         out["aim"] = place(s.aim)
-        if np.linalg.norm(out["aim"] - out["puncture"]) < 1e-6:
+        if np.linalg.norm(out["aim"] - place(s.puncture)) < 1e-6 or np.linalg.norm(out["aim"] - out["puncture"]) < 1e-6:
             raise _bad(path, "sheath.aim", "coincides with the puncture: give a point the sheath points to")
     if s.tip:
         out["tip"] = place(s.tip)
@@ -427,7 +431,9 @@ def _targets(path: Path, raw, unit: str) -> tuple[list[str], np.ndarray, list[st
         if not csv.is_file():
             raise _bad(path, "targets", f"{short_repr(raw)}: {'not a file' if csv.exists() else 'no such file'} "
                                         f"(looked for {csv})")
-        names, points, rows = read_targets_csv(csv, f"{_where(path)}: targets {short_repr(raw)}")
+        label = f"targets {short_repr(raw)}"
+        names, points, rows = read_targets_csv(csv, f"{_where(path)}: {label}")
+        rows = [f"{short_repr(raw)} {row}" for row in rows]
     elif isinstance(raw, list):
         names, points, rows = _inline_targets(path, raw, unit)
     else:
@@ -502,8 +508,8 @@ def read_targets_csv(csv: Path, where: str) -> tuple[list[str], list[list[float]
     if lines and all(_number(c) is None for c in _split(lines[0][1])):
         header = [re.sub(r"\W", "", c.lower()) for c in _split(lines[0][1])]
         columns = [_HEADER_NAMES.get(c) for c in header]
-        if sorted(c for c in columns if c in "xyz") != ["x", "y", "z"] or len(set(filter(None, columns))) != \
-                len([c for c in columns if c]):
+        named = [c for c in columns if c is not None]
+        if sorted(c for c in named if c in "xyz") != ["x", "y", "z"] or len(set(named)) != len(named):
             raise UserInputError(f"{where}: row {lines[0][0]}: the header {short_repr(lines[0][1].strip())} must "
                                  "name the columns x, y, z once each (and optionally name)")
         lines = lines[1:]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -13,10 +14,23 @@ from ballchain.drake_models.heart import LeftAtrium
 SEMI_AXES_MM = np.array([27.0, 19.0, 24.0])  # the procedural atrium's endocardium, as a faceted ellipsoid
 
 
-def ellipsoid_mesh(subdivisions: int = 4) -> tuple[np.ndarray, np.ndarray]:
-    """(V (nv, 3) [mm], F): an icosphere stretched to SEMI_AXES_MM, outward."""
+@functools.lru_cache
+def _ellipsoid(subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
     U, F = mt.icosphere(subdivisions)
     return U * SEMI_AXES_MM, F
+
+
+def ellipsoid_mesh(subdivisions: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """(V (nv, 3) [mm], F): an icosphere stretched to SEMI_AXES_MM, outward."""
+    V, F = _ellipsoid(subdivisions)
+    return V.copy(), F.copy()
+
+
+@functools.lru_cache
+def _procedural_points() -> tuple[np.ndarray, np.ndarray]:
+    """(the procedural left ring's targets, its puncture) [mm]."""
+    heart = LeftAtrium()
+    return heart.rings["left"].p_HT * 1e3, heart.p_HP * 1e3
 
 
 def lumen_anatomy(directory: Path, n_targets: int = 4, csv_text: str | None = None, **fields) -> Path:
@@ -27,13 +41,13 @@ def lumen_anatomy(directory: Path, n_targets: int = 4, csv_text: str | None = No
     directory = Path(directory)
     V, F = ellipsoid_mesh()
     write_stl_binary(directory / "atrium.stl", V, F)
-    heart = LeftAtrium()
-    ring = heart.rings["left"].p_HT[:: 5][:n_targets] * 1e3
+    ring, puncture = _procedural_points()
+    ring = ring[:: 5][:n_targets]
     nearest = [V[int(np.argmin(np.linalg.norm(V - p, axis=1)))].tolist() for p in ring]
     if csv_text is None:
         csv_text = "name,x,y,z\n" + "".join(f"L{k + 1},{x!r},{y!r},{z!r}\n" for k, (x, y, z) in enumerate(nearest))
     (directory / "targets.csv").write_text(csv_text)
-    p = (heart.p_HP * 1e3).tolist()
+    p = puncture.tolist()
     lines = {"mesh": "atrium.stl", "length_unit": "mm", "side": "lumen", "targets": "targets.csv",
              "sheath": f"{{puncture: [{p[0]!r}, {p[1]!r}, {p[2]!r}], aim: [0, 0, 0]}}"}
     lines.update(fields)
