@@ -17,6 +17,7 @@ No third-party mesh library is needed: OBJ (``v``/``f`` records, polygons fanned
 from __future__ import annotations
 
 import struct
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -27,11 +28,17 @@ from ballchain.drake_models import mesh_tools as mt
 from ballchain.drake_models.arg_checks import (as_array, as_vector, require_choice, require_int, require_positive,
                                                require_type)
 from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.drake_models.surface_tree import SurfaceTree
 
 Units = Literal["auto", "m", "mm"]
 SENSIBLE_EXTENT_MM = (30.0, 80.0)  # typical LA size; outside ACCEPTED_EXTENT_MM is refused
 ACCEPTED_EXTENT_MM = (20.0, 120.0)
 MAX_PUNCTURE_DISTANCE = 5e-3  # [m] a user's puncture may lie this far from the surface
+MAX_OPENING_AREA = 1e-6  # [m^2] an opening (a seam not welded) up to this area is bridged, not refused
+DECIMATE_ABOVE = 40_000  # triangles: a larger surface is decimated for contact and the signed distance
+DECIMATE_TO = 20_000  # triangles after decimation (edges about 1 mm on an atrium)
+MAX_TRIANGLES = 2_000_000  # refused above (a segmentation at 0.1 mm voxels has about 1 million)
+NESTED_FRACTION = 0.9  # a shell with this share of its vertices inside another is nested in it
 DEGENERATE_VOLUME_FRACTION = 1e-6  # a wall tetrahedron this much smaller than the median is flat
 
 
@@ -242,13 +249,19 @@ def _guess_units(extent: float) -> str | None:
     return None
 
 
-def validate_surface(V: np.ndarray, F: np.ndarray, units: Units = "auto") -> AtriumSurface:
+def validate_surface(V: np.ndarray, F: np.ndarray, units: Units = "auto", progress: bool = True) -> AtriumSurface:
     """Check a surface and convert it to metres; raises AtriumMeshError listing every problem.
+
+    Accepted beyond a single closed shell: several shells (each oriented by how deeply it is
+    nested: outward, inward in a cavity, ...), seams left slightly open (openings up to
+    ``MAX_OPENING_AREA``), and a mesh of up to ``MAX_TRIANGLES`` triangles, decimated above
+    ``DECIMATE_ABOVE`` (see ``decimate``).
 
     Args:
         V: (nv, 3) vertices in the file's units.
         F: (nf, 3) triangles.
         units: "m", "mm", or "auto" (guessed from the size).
+        progress: say on stderr when a large mesh is decimated.
     """
     require_choice(units, ("auto", "m", "mm"), "units")
     V = np.asarray(V, dtype=float) if isinstance(V, np.ndarray) else as_array(V, "V", (-1, 3))
@@ -258,12 +271,16 @@ def validate_surface(V: np.ndarray, F: np.ndarray, units: Units = "auto") -> Atr
     if len(F) and (F.min() < 0 or F.max() >= len(V)):
         raise AtriumMeshError(f"F must index the {len(V)} vertices (0 to {len(V) - 1}), got indices "
                               f"{int(F.min())} to {int(F.max())}")
-    problems: list[str] = []
-    notes: list[str] = []
     if not np.all(np.isfinite(V)):
         raise AtriumMeshError("the surface has NaN or infinite vertex coordinates")
     if len(F) < 4:
         raise AtriumMeshError(f"the surface has {len(F)} triangles: a closed surface needs at least 4")
+    if len(F) > MAX_TRIANGLES:
+        raise AtriumMeshError(
+            f"the surface has {len(F):,} triangles, more than the {MAX_TRIANGLES:,} accepted (reading and "
+            f"decimating it would take minutes; contact and the signed distance use {DECIMATE_TO:,}): "
+            "decimate it first (e.g. quadric decimation in MeshLab or Blender)")
+    notes: list[str] = []
     extent_raw = float(np.ptp(V, axis=0).max())
     guessed = units == "auto"
     if guessed:
@@ -274,27 +291,49 @@ def validate_surface(V: np.ndarray, F: np.ndarray, units: Units = "auto") -> Atr
                 f"atrium is about 30-80 mm: 0.03-0.08 in metres or 30-80 in millimetres); rescale "
                 f"the mesh or declare its units")
         notes.append(f"units guessed as {units} from the size")
-    scale = 1e-3 if units == "mm" else 1.0
-    V = V * scale
+    V = V * (1e-3 if units == "mm" else 1.0)
     extent_mm = np.ptp(V, axis=0) * 1e3
+    problems = _size_problems(extent_mm, units, notes) + _topology_problems(V, F, notes)
+    if problems:
+        raise AtriumMeshError("atrium surface rejected:\n  - " + "\n  - ".join(problems))
+    V, F = _drop_unused(V, F, notes)
+    if len(F) > DECIMATE_ABOVE:
+        V, F = decimate(V, F, DECIMATE_TO, notes, progress)
+    F, volume = orient_shells(V, F, notes)
+    return AtriumSurface(V, F, units, guessed, extent_mm, volume * 1e6, notes)
+
+
+def _size_problems(extent_mm: np.ndarray, units: str, notes: list[str]) -> list[str]:
     if not ACCEPTED_EXTENT_MM[0] <= extent_mm.max() <= ACCEPTED_EXTENT_MM[1]:
-        problems.append(
-            f"size: the largest side is {extent_mm.max():.1f} mm in {units}, outside "
-            f"{ACCEPTED_EXTENT_MM[0]:.0f}-{ACCEPTED_EXTENT_MM[1]:.0f} mm (a left atrium is about "
-            f"{SENSIBLE_EXTENT_MM[0]:.0f}-{SENSIBLE_EXTENT_MM[1]:.0f} mm): wrong units or not an atrium?")
-    elif not SENSIBLE_EXTENT_MM[0] <= extent_mm.max() <= SENSIBLE_EXTENT_MM[1]:
+        return [f"size: the largest side is {extent_mm.max():.1f} mm in {units}, outside "
+                f"{ACCEPTED_EXTENT_MM[0]:.0f}-{ACCEPTED_EXTENT_MM[1]:.0f} mm (a left atrium is about "
+                f"{SENSIBLE_EXTENT_MM[0]:.0f}-{SENSIBLE_EXTENT_MM[1]:.0f} mm): wrong units or not an atrium?"]
+    if not SENSIBLE_EXTENT_MM[0] <= extent_mm.max() <= SENSIBLE_EXTENT_MM[1]:
         notes.append(f"largest side {extent_mm.max():.1f} mm is outside the usual 30-80 mm")
+    return []
+
+
+def _topology_problems(V: np.ndarray, F: np.ndarray, notes: list[str]) -> list[str]:
+    """Degenerate triangles, holes (openings larger than ``MAX_OPENING_AREA``; smaller ones, such
+    as a seam left unwelded, are noted), non-manifold edges, a shell's inconsistent winding."""
+    problems = []
     area2 = np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
-    degenerate = int((area2 <= 1e-12 * max(extent_mm.max() * 1e-3, 1e-9) ** 2).sum())
+    degenerate = int((area2 <= 1e-12 * max(float(np.ptp(V, axis=0).max()), 1e-9) ** 2).sum())
     if degenerate:
         problems.append(f"{degenerate} degenerate (zero-area or repeated-vertex) triangles")
     edges, counts, balance = mt.edge_use_counts(F)
     open_edges = int((counts == 1).sum())
     non_manifold = int((counts > 2).sum())
     if open_edges:
-        problems.append(
-            f"not closed: {open_edges} boundary edges (holes); close the holes (e.g. cap the "
-            "pulmonary veins and the mitral valve) so that the surface is watertight")
+        openings = opening_areas(V, F)
+        if openings.max() > MAX_OPENING_AREA:
+            problems.append(
+                f"not closed: {open_edges} boundary edges (holes, the largest {openings.max() * 1e6:.1f} mm^2 "
+                f"> {MAX_OPENING_AREA * 1e6:.0f} mm^2); close the holes (e.g. cap the pulmonary veins and the "
+                "mitral valve) so that the surface is watertight")
+        else:
+            notes.append(f"{open_edges} boundary edges in {len(openings)} narrow openings (seams, each under "
+                         f"{MAX_OPENING_AREA * 1e6:.0f} mm^2): the winding-number inside test bridges them")
     if non_manifold:
         problems.append(f"not manifold: {non_manifold} edges shared by more than two triangles")
     flipped_edges = int(((counts == 2) & (balance != 0)).sum())
@@ -302,21 +341,133 @@ def validate_surface(V: np.ndarray, F: np.ndarray, units: Units = "auto") -> Atr
         problems.append(
             f"inconsistent orientation: {flipped_edges} edges between triangles facing opposite "
             "ways; make the triangle winding consistent")
+    return problems
+
+
+def _drop_unused(V: np.ndarray, F: np.ndarray, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
     used = np.zeros(len(V), bool)
     used[F.ravel()] = True
-    if not used.all():
-        notes.append(f"{int((~used).sum())} unused vertices dropped")
-        remap = -np.ones(len(V), int)
-        remap[used] = np.arange(used.sum())
-        V, F = V[used], remap[F]
+    if used.all():
+        return V, F
+    notes.append(f"{int((~used).sum())} unused vertices dropped")
+    remap = -np.ones(len(V), int)
+    remap[used] = np.arange(used.sum())
+    return V[used], remap[F]
+
+
+def opening_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """The area [m^2] of each opening of a surface: per connected set of boundary edges, the
+    length of its vector area (half the sum of a x b over its edges a -> b). A hole spans its
+    area; a seam left open (two rims running side by side in opposite directions) spans
+    almost none, however long. Empty for a closed surface."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    directed = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    _, inverse, counts = np.unique(np.sort(directed, axis=1), axis=0, return_inverse=True, return_counts=True)
+    rim = directed[counts[inverse.ravel()] == 1]
+    if len(rim) == 0:
+        return np.zeros(0)
+    graph = coo_matrix((np.ones(len(rim)), (rim[:, 0], rim[:, 1])), shape=(len(V), len(V)))
+    _, label = connected_components(graph, directed=False)
+    parts = np.unique(label[rim[:, 0]], return_inverse=True)[1].ravel()
+    area = np.zeros((parts.max() + 1, 3))
+    np.add.at(area, parts, 0.5 * np.cross(V[rim[:, 0]], V[rim[:, 1]]))
+    return np.linalg.norm(area, axis=1)
+
+
+def decimate(V: np.ndarray, F: np.ndarray, target: int, notes: list[str], progress: bool = True
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Quadric-error decimation of a large surface to about ``target`` triangles
+    (``fast_simplification``, Garland and Heckbert's edge collapses), for the contact wall and the
+    signed distance; refused when the result is no longer a usable surface.
+
+    Raises:
+        AtriumMeshError: the decimated surface has degenerate triangles, new holes or folds.
+    """
+    import time
+
+    import fast_simplification
+
+    if progress:
+        print(f"atrium mesh: decimating {len(F):,} triangles to about {target:,} (quadric decimation) ...",
+              file=sys.stderr, flush=True)
+    t0 = time.process_time()
+    Vd, Fd = fast_simplification.simplify(np.ascontiguousarray(V), np.ascontiguousarray(F, np.int32),
+                                          target_count=target)
+    Vd, Fd = np.asarray(Vd, float), np.asarray(Fd, np.int64)
+    cpu = time.process_time() - t0
+    problems = _topology_problems(Vd, Fd, [])
     if problems:
-        raise AtriumMeshError("atrium surface rejected:\n  - " + "\n  - ".join(problems))
-    volume = mt.enclosed_volume(V, F)
-    if volume < 0:
-        F = F[:, [0, 2, 1]]
-        volume = -volume
-        notes.append("triangles faced inward: orientation flipped to outward")
-    return AtriumSurface(V, F, units, guessed, extent_mm, volume * 1e6, notes)
+        raise AtriumMeshError(
+            f"the surface has {len(F):,} triangles (> {DECIMATE_ABOVE:,}) and its decimation to {target:,} is "
+            f"not usable ({'; '.join(problems)}): decimate it yourself to at most {DECIMATE_ABOVE:,} triangles")
+    Vd, Fd = _drop_unused(Vd, Fd, [])
+    notes.append(f"decimated from {len(F):,} to {len(Fd):,} triangles for contact and the signed distance "
+                 f"({cpu:.1f} s CPU)")
+    if progress:
+        print(f"atrium mesh: {len(F):,} -> {len(Fd):,} triangles in {cpu:.1f} s CPU", file=sys.stderr, flush=True)
+    return Vd, Fd
+
+
+def shell_labels(F: np.ndarray, nv: int) -> np.ndarray:
+    """The shell (connected piece) of each triangle (nf,), numbered from 0."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    edges = np.concatenate([F[:, [0, 1]], F[:, [1, 2]]])
+    graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(nv, nv))
+    _, label = connected_components(graph, directed=False)
+    return np.unique(label[F[:, 0]], return_inverse=True)[1].ravel()
+
+
+def shell_containment(V: np.ndarray, F: np.ndarray, shells: np.ndarray, samples: int = 64) -> np.ndarray:
+    """(k, k) fraction of shell i's sampled vertices that shell j encloses (|winding| > 1/2,
+    either orientation); the diagonal is 0. 1: i nested in j; 0: apart or around j; between:
+    the two overlap."""
+    k = int(shells.max()) + 1
+    inside = np.zeros((k, k))
+    boxes, points = [], []
+    rng = np.random.default_rng(0)
+    for i in range(k):
+        vi = np.unique(F[shells == i])
+        boxes.append((V[vi].min(axis=0), V[vi].max(axis=0)))
+        points.append(V[rng.choice(vi, min(samples, len(vi)), replace=False)])
+    for j in range(k):
+        tree = None
+        for i in range(k):
+            lo, hi = boxes[j]
+            if i == j or np.any(boxes[i][0] > hi) or np.any(boxes[i][1] < lo):
+                continue
+            tree = tree or SurfaceTree.build(V, F[shells == j])
+            inside[i, j] = np.mean(np.abs(tree.winding_numbers(points[i])) > 0.5)
+    return inside
+
+
+def orient_shells(V: np.ndarray, F: np.ndarray, notes: list[str]) -> tuple[np.ndarray, float]:
+    """Orient each shell by its nesting depth (outward at even depth, inward in a cavity) so that
+    winding numbers add up to 1 in the solid and 0 in cavities and outside; returns the
+    re-oriented triangles and the enclosed volume [m^3]."""
+    shells = shell_labels(F, len(V))
+    k = int(shells.max()) + 1
+    depth = (shell_containment(V, F, shells) > NESTED_FRACTION).sum(axis=1) if k > 1 else np.zeros(1, int)
+    F = F.copy()
+    flipped = 0
+    volume = 0.0
+    for i in range(k):
+        mine = shells == i
+        v = mt.enclosed_volume(V, F[mine])
+        want = 1.0 if depth[i] % 2 == 0 else -1.0
+        if v * want < 0:
+            F[mine] = F[mine][:, [0, 2, 1]]
+            flipped += 1
+        volume += abs(v) * want
+    if k > 1:
+        notes.append(f"{k} shells (nesting depths {sorted(int(d) for d in depth)})")
+    if flipped:
+        notes.append("triangles faced inward: orientation flipped to outward" if k == 1 else
+                     f"{flipped} of {k} shells faced the wrong way: re-oriented by nesting depth")
+    return F, volume
 
 
 def load_atrium_surface(path: Path | str, units: Units = "auto") -> AtriumSurface:
@@ -354,82 +505,175 @@ class UserAtriumParams:
     """Wall and sheath parameters of a user atrium (the counterpart of HeartParams).
 
     Attributes:
-        wall_thickness: grown outward from the surface [m].
+        wall_thickness: the wall behind the surface [m]: grown outward from a lumen, inward into
+            a solid.
         wall_layers: tetrahedra layers through the wall (>= 2).
-        puncture_diameter: hole cut for the sheath around the puncture [m].
-        sheath_extension: how far the sheath reaches beyond the wall into the chamber [m].
+        puncture_diameter: hole cut for the sheath around the puncture [m] (lumen).
+        sheath_extension: how far the sheath reaches beyond the wall into the chamber [m] (lumen;
+            a solid's sheath ends at its given tip).
+        working_margin: (solid) the chain works within the box around the solid and the sheath
+            tip grown by this much [m]; a ball beyond it has left the scene.
     """
 
     wall_thickness: float = 2.5e-3
     wall_layers: int = 2
     puncture_diameter: float = 6e-3
     sheath_extension: float = 3e-3
+    working_margin: float = 0.1
 
     def __post_init__(self) -> None:
         require_positive(self.wall_thickness, "UserAtriumParams.wall_thickness", "m")
         require_int(self.wall_layers, "UserAtriumParams.wall_layers", 2)
         require_positive(self.puncture_diameter, "UserAtriumParams.puncture_diameter", "m")
         require_positive(self.sheath_extension, "UserAtriumParams.sheath_extension", "m", allow_zero=True)
+        require_positive(self.working_margin, "UserAtriumParams.working_margin", "m")
+
+
+SIDES = ("lumen", "solid")
+SHEATH_CHECK_LENGTH = 5e-3  # [m] the sheath's axis must stay on the chain's side this far past its exit
+MIN_TIP_CLEARANCE = 1e-3  # [m] a solid's sheath tip stands at least this far from the surface
 
 
 class UserAtrium:
-    """A user's segmented atrium, usable wherever the plant takes a ``LeftAtrium``.
+    """A user's anatomy surface, usable wherever the plant takes a ``LeftAtrium``.
 
     Args:
-        surface: a validated endocardial surface (``load_atrium_surface``).
-        p_HP: (3,) septal puncture [m]; it is moved onto the surface (nearest vertex).
-        sheath_aim: (3,) point the sheath points to [m] (default: the surface's centroid).
+        surface: a validated surface (``load_atrium_surface``).
+        p_HP: (3,) [m]. ``side="lumen"``: the septal puncture, moved onto the surface (nearest
+            vertex; at most ``MAX_PUNCTURE_DISTANCE`` away). ``side="solid"``: the sheath's tip
+            in free space (its exit), at least ``MIN_TIP_CLEARANCE`` from the surface.
+        sheath_aim: (3,) point the sheath points to [m] (default: the lumen's centroid; for a
+            solid, the surface point nearest the tip).
         params: wall and sheath parameters.
+        side: "lumen": the chain works inside the closed surface (a segmented atrium: several
+            overlapping shells, such as vein tubes, join into one chamber, and disjoint pieces
+            are refused); "solid": it works outside (a printed phantom part, a wall section with
+            vein openings; several parts allowed): the signed distance, the wall, the inside
+            test and the escape test are mirrored.
 
-    There are no ablation targets (``rings``, ``ostia`` and ``carinas`` are empty): a segmentation
+    There are no ablation targets (``rings``, ``ostia`` and ``carinas`` are empty): a mesh
     carries no ostia labels. Implements ``drake_models.atrium.Atrium``.
     """
 
-    def __init__(self, surface: AtriumSurface, p_HP, sheath_aim=None, params: UserAtriumParams | None = None):
+    def __init__(self, surface: AtriumSurface, p_HP, sheath_aim=None, params: UserAtriumParams | None = None,
+                 side: str = "lumen"):
         require_type(surface, AtriumSurface, "UserAtrium surface", "an AtriumSurface (from load_atrium_surface)")
-        as_vector(p_HP, "UserAtrium p_HP (the puncture)", unit="m")
+        require_choice(side, SIDES, "UserAtrium side")
+        p_HP = as_vector(p_HP, "UserAtrium p_HP (the puncture or the sheath tip)", unit="m")
         if sheath_aim is not None:
-            as_vector(sheath_aim, "UserAtrium sheath_aim", unit="m")
+            sheath_aim = as_vector(sheath_aim, "UserAtrium sheath_aim", unit="m")
         if params is not None:
             require_type(params, UserAtriumParams, "UserAtrium params", "a UserAtriumParams or None")
         self.surface = surface
+        self.side = side
         self.params = params or UserAtriumParams()
-        if self.params.wall_layers < 2:
-            raise UserInputError("UserAtriumParams.wall_layers must be >= 2")
         V, F = surface.V, surface.F
-        p_HP = np.asarray(p_HP, float)
-        if p_HP.shape != (3,) or not np.all(np.isfinite(p_HP)):
-            raise UserInputError(f"puncture must be 3 finite coordinates [m], got {np.asarray(p_HP).tolist()}")
+        self._tree = SurfaceTree.build(V, F)
+        self._chamber_faces = self._union_boundary()
+        if side == "lumen":
+            self._place_lumen_sheath(p_HP, sheath_aim)
+        else:
+            self._place_solid_sheath(p_HP, sheath_aim)
+        self.rings: dict = {}  # no ablation targets, ostia or carinas (the Atrium protocol)
+        self.ostia: list = []
+        self.carinas: dict = {}
+        self._normals = mt.vertex_normals(V, F)
+        grow = 1.0 if side == "lumen" else -1.0  # the wall lies behind the surface, seen from the chain
+        self._wall_normals = grow * self._normals
+        self._behind = SurfaceTree.build(V + self._wall_normals * self.params.wall_thickness, F)
+        self.inner_faces = self._chamber_faces
+        if side == "lumen":
+            c = V[self.inner_faces].mean(axis=1)
+            rel = c - self.p_HP
+            along = rel @ self.sheath_axis_H
+            radial = np.linalg.norm(rel - along[:, None] * self.sheath_axis_H, axis=1)
+            self.inner_faces = self.inner_faces[~((radial < 0.5 * self.params.puncture_diameter)
+                                                  & (np.abs(along) < 10e-3))]
+        self.wall_distance = mt.SurfaceDistance(V, self.inner_faces)
+        lo, hi = np.minimum(V.min(axis=0), self.p_HP), np.maximum(V.max(axis=0), self.p_HP)
+        self.working_box = (lo - self.params.working_margin, hi + self.params.working_margin)
+        self._check_wall()
+
+    def _union_boundary(self) -> np.ndarray:
+        """The triangles on the boundary of the union of the shells (lumen: the chamber with its
+        vein tubes; solid: the parts): a shell's triangles inside another shell are dropped (as
+        the procedural atrium's ostia are open), so that the wall does not close an ostium."""
+        V, F = self.surface.V, self.surface.F
+        shells = shell_labels(F, len(V))
+        k = int(shells.max()) + 1
+        if k == 1:
+            return F
+        if self.side == "lumen":
+            self._require_one_chamber(shells)
+        keep = np.ones(len(F), bool)
+        centroids = V[F].mean(axis=1)
+        for j in range(k):
+            others = shells != j
+            tree = SurfaceTree.build(V, F[shells == j])
+            keep[others] &= tree.winding_numbers(centroids[others]) <= 0.5
+        return F[keep]
+
+    def _require_one_chamber(self, shells: np.ndarray) -> None:
+        """A lumen is one chamber: shells that neither overlap nor nest are refused."""
+        V, F = self.surface.V, self.surface.F
+        inside = shell_containment(V, F, shells)
+        touching = (inside > 0) | (inside.T > 0)
+        from scipy.sparse.csgraph import connected_components
+
+        n, label = connected_components(touching, directed=False)
+        if n > 1:
+            sizes = [float(np.ptp(V[np.unique(F[np.isin(shells, np.flatnonzero(label == g))])], axis=0).max() * 1e3)
+                     for g in range(n)]
+            raise UserInputError(
+                f"mesh: the surface has {n} disjoint pieces (largest sides {', '.join(f'{s:.1f}' for s in sizes)} "
+                "mm) but with side: lumen the chain works inside one chamber; keep only the chamber (remove "
+                "the other pieces), or use side: solid for separate phantom parts")
+
+    def _place_lumen_sheath(self, p_HP: np.ndarray, sheath_aim) -> None:
+        V = self.surface.V
         # The puncture is snapped onto the surface: only a small correction is accepted, so a
         # mistyped point (or one in millimetres) is refused instead of silently moved far away.
-        gap = float(mt.SurfaceDistance(V, F)(p_HP)[0])
+        gap = float(self._tree.distances(p_HP[None])[0])
         if gap > MAX_PUNCTURE_DISTANCE:
             raise UserInputError(
                 f"puncture {np.round(p_HP, 6).tolist()} m is {gap * 1e3:.1f} mm from the atrium surface; it "
                 f"must lie within {MAX_PUNCTURE_DISTANCE * 1e3:.0f} mm of it (coordinates in metres, in the "
                 "surface's frame after its units are applied)")
-        k = int(np.argmin(np.linalg.norm(V - p_HP, axis=1)))
-        self.p_HP = V[k].copy()
-        if sheath_aim is not None and (np.shape(sheath_aim) != (3,) or not np.all(np.isfinite(sheath_aim))):
-            raise UserInputError(f"sheath_aim must be 3 finite coordinates [m], got {sheath_aim}")
-        aim = V.mean(axis=0) if sheath_aim is None else np.asarray(sheath_aim, float)
-        axis = aim - self.p_HP
-        if np.linalg.norm(axis) == 0:
-            raise UserInputError("UserAtrium: the sheath aim coincides with the puncture")
-        self.sheath_axis_H = axis / np.linalg.norm(axis)
+        self.p_HP = V[int(np.argmin(np.linalg.norm(V - p_HP, axis=1)))].copy()
+        aim = V.mean(axis=0) if sheath_aim is None else sheath_aim
+        self.sheath_axis_H = self._axis(aim)
         self.p_HE = self.p_HP + self.params.sheath_extension * self.sheath_axis_H
-        self.rings: dict = {}  # no ablation targets, ostia or carinas (the Atrium protocol)
-        self.ostia: list = []
-        self.carinas: dict = {}
-        self._normals = mt.vertex_normals(V, F)
-        c = V[F].mean(axis=1)
-        rel = c - self.p_HP
-        along = rel @ self.sheath_axis_H
-        radial = np.linalg.norm(rel - along[:, None] * self.sheath_axis_H, axis=1)
-        self.inner_faces = F[~((radial < 0.5 * self.params.puncture_diameter) & (np.abs(along) < 10e-3))]
-        self._outer = V + self._normals * self.params.wall_thickness
-        self.wall_distance = mt.SurfaceDistance(V, self.inner_faces)
-        self._check_wall()
+        ahead = self.p_HE + np.linspace(0.0, SHEATH_CHECK_LENGTH, 6)[:, None] * self.sheath_axis_H
+        if not np.all(self._free(ahead)):
+            raise UserInputError(
+                f"sheath_aim: the sheath from the puncture {np.round(self.p_HP * 1e3, 2).tolist()} mm towards "
+                f"{np.round(np.asarray(aim) * 1e3, 2).tolist()} mm leaves the chamber within "
+                f"{(self.params.sheath_extension + SHEATH_CHECK_LENGTH) * 1e3:.0f} mm: aim it into the lumen")
+
+    def _place_solid_sheath(self, p_HP: np.ndarray, sheath_aim) -> None:
+        gap = float(self._tree.distances(p_HP[None])[0])
+        if not self._free(p_HP[None])[0] or gap < MIN_TIP_CLEARANCE:
+            where = "inside the solid" if not self._free(p_HP[None])[0] else f"{gap * 1e3:.2f} mm from its surface"
+            raise UserInputError(
+                f"sheath tip {np.round(p_HP * 1e3, 2).tolist()} mm is {where}; with side: solid the sheath ends "
+                f"in free space, at least {MIN_TIP_CLEARANCE * 1e3:.0f} mm from the surface")
+        self.p_HP = p_HP.copy()
+        if sheath_aim is None:  # towards the nearest vertex of the solid
+            V = self.surface.V
+            sheath_aim = V[int(np.argmin(np.linalg.norm(V - p_HP, axis=1)))]
+        self.sheath_axis_H = self._axis(sheath_aim)
+        self.p_HE = self.p_HP.copy()
+
+    def _axis(self, aim) -> np.ndarray:
+        axis = np.asarray(aim, float) - self.p_HP
+        if np.linalg.norm(axis) == 0:
+            raise UserInputError("sheath_aim: the sheath aim coincides with the puncture (or the sheath tip)")
+        return axis / np.linalg.norm(axis)
+
+    def _free(self, p_H: np.ndarray) -> np.ndarray:
+        """Whether points (k, 3) lie on the chain's side of the surface (the lumen, or outside the solid)."""
+        inside = self._tree.winding_numbers(p_H) > 0.5
+        return inside if self.side == "lumen" else ~inside
 
     def _check_wall(self) -> None:
         """Refuse a surface whose grown wall has flat tetrahedra (Drake cannot give them a
@@ -446,35 +690,59 @@ class UserAtrium:
 
     @property
     def wall_tetrahedra(self) -> tuple[np.ndarray, np.ndarray]:
+        """The wall behind the surface (outward from a lumen, into a solid), as tetrahedra."""
         p = self.params
-        return mt.extrude_shell(self.surface.V, self.inner_faces, self._normals, p.wall_thickness, p.wall_layers)
+        return mt.extrude_shell(self.surface.V, self.inner_faces, self._wall_normals, p.wall_thickness,
+                                p.wall_layers)
 
     @property
     def blood_surface(self) -> tuple[np.ndarray, np.ndarray]:
-        """(vertices (v, 3) [m], triangles (f, 3)) of the blood side: the user's surface."""
-        return self.surface.V, self.surface.F
+        """(vertices (v, 3) [m], triangles (f, 3)) of the chain's side: the user's surface (the
+        boundary of the union of its shells)."""
+        return self.surface.V, self._chamber_faces
 
     def lumen_grid_contains(self, origin: np.ndarray, spacing: float, shape: tuple[int, int, int]) -> np.ndarray:
-        """Whether the nodes of a grid (origin (3,) [m], spacing [m], shape) lie inside the closed
-        surface: ray parity along +z (``mesh_tools.ray_parity_contains``) -> (nx, ny, nz) bool."""
-        return mt.ray_parity_contains(self.surface.V, self.surface.F, origin, spacing, shape)
+        """Whether the nodes of a grid lie where the chain works (inside a lumen, outside a solid)
+        by the winding number of every shell (``surface_tree``; ``grid_winding_inside``)
+        -> (nx, ny, nz) bool."""
+        inside = grid_winding_inside(self._tree, origin, spacing, shape)
+        return inside if self.side == "lumen" else ~inside
 
-    lumen_key = "ray_parity"  # the lumen test depends on the triangles only
+    @property
+    def lumen_key(self) -> str:
+        """The inside test (winding numbers of every shell, on this side) for the SDF cache key."""
+        import hashlib
+
+        digest = hashlib.sha1(self.surface.V.tobytes() + self.surface.F.tobytes()).hexdigest()[:12]
+        return f"winding_{self.side}_{digest}"
+
+    def grid_distances(self, points: np.ndarray, band: float) -> np.ndarray:
+        """Distances (k,) [m] from points (k, 3) to ``blood_surface``, capped at ``band`` (the
+        SDF's; the bounding-sphere tree, ``surface_tree``)."""
+        V, F = self.blood_surface
+        if getattr(self, "_blood_tree", None) is None:
+            self._blood_tree = SurfaceTree.build(V, F)
+        return self._blood_tree.distances(points, band)
 
     def contains(self, p_H: np.ndarray) -> np.ndarray:
-        """Whether points (k, 3) [m] lie within the outer wall (generalised winding number)."""
-        return mt.winding_numbers(np.atleast_2d(p_H), self._outer, self.surface.F) > 0.5
+        """Whether points (k, 3) [m] are where the chain may be: a lumen's points within its outer
+        wall; a solid's outside its wall's far side and within ``working_box``."""
+        p_H = np.atleast_2d(np.asarray(p_H, float))
+        behind = self._behind.winding_numbers(p_H) > 0.5
+        if self.side == "lumen":
+            return behind
+        lo, hi = self.working_box
+        return ~behind & np.all((p_H >= lo) & (p_H <= hi), axis=1)
 
     def write_files(self, directory: Path | None = None) -> dict[str, Path]:
         """Write the wall (VTK) and its boundary (OBJ) to the cache (reused when intact, see
         ``model_files.cached_files``); returns their paths."""
         import hashlib
-        import sys
 
         from ballchain.drake_models.model_files import cache_dir, cached_files, source_hash
 
         key = hashlib.sha1(self.surface.V.tobytes() + self.inner_faces.tobytes() + repr(self.params).encode()
-                           + source_hash(sys.modules[__name__], mt).encode()).hexdigest()[:12]
+                           + self.side.encode() + source_hash(sys.modules[__name__], mt).encode()).hexdigest()[:12]
         directory = Path(directory) if directory else cache_dir() / f"user_atrium_{key}"
 
         def write(tmp: dict[str, Path]) -> None:
@@ -483,3 +751,38 @@ class UserAtrium:
             mt.write_obj(tmp["obj"], V, mt.boundary_surface(V, T))
 
         return cached_files(directory, {"vtk": "atrium_wall.vtk", "obj": "atrium_wall.obj"}, write)
+
+
+def grid_winding_inside(tree: SurfaceTree, origin: np.ndarray, spacing: float, shape: tuple[int, int, int]
+                        ) -> np.ndarray:
+    """Winding number > 1/2 at every node of a grid, evaluated where it can change.
+
+    Nodes within 1.5 spacings of the surface get their own winding number. The others form
+    connected regions (6-neighbours) that the surface does not cross (two neighbouring nodes
+    farther than half a spacing from it see no surface between them); each region is decided by
+    its nodes on a 4-spacing sub-grid (and one node at least), and evaluated node by node only
+    if they disagree (a region reaching round an opening).
+    """
+    from scipy import ndimage
+
+    axes = [origin[k] + spacing * np.arange(shape[k]) for k in range(3)]
+    P = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    near = tree.distances(P, 1.5 * spacing) < 1.5 * spacing
+    inside = np.zeros(len(P), bool)
+    inside[near] = tree.winding_numbers(P[near]) > 0.5
+    labels, n = ndimage.label(~near.reshape(shape))
+    labels = labels.reshape(-1)
+    ijk = np.indices(shape).reshape(3, -1).T
+    coarse = np.all(ijk % 4 == 0, axis=1)
+    order = np.argsort(labels, kind="stable")
+    bounds = np.searchsorted(labels[order], np.arange(1, n + 2))
+    for region in range(1, n + 1):
+        members = order[bounds[region - 1]:bounds[region]]
+        probe = members[coarse[members]]
+        probe = probe if len(probe) else members[:1]
+        votes = tree.winding_numbers(P[probe]) > 0.5
+        if votes.all() or not votes.any():
+            inside[members] = votes[0]
+        else:
+            inside[members] = tree.winding_numbers(P[members]) > 0.5
+    return inside.reshape(shape)

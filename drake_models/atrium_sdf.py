@@ -203,6 +203,10 @@ def build_atrium_sdf(heart, spacing: float = 0.5e-3, band: float = 5e-3, margin:
     axes = [lo[k] + spacing * np.arange(shape[k]) for k in range(3)]
     P = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     inside = heart.lumen_grid_contains(lo, spacing, shape).reshape(-1)
+    if hasattr(heart, "grid_distances"):  # a user's surface: its own bounding-sphere tree
+        dist = heart.grid_distances(P, band)
+        sdf = np.where(inside, 1.0, -1.0) * np.minimum(dist, band)
+        return AtriumSDF(lo, spacing, sdf.reshape(shape).astype(np.float32), band)
     # Unsigned distance: exact within the band (candidates from the nearest face centroids).
     from scipy.spatial import cKDTree
 
