@@ -151,9 +151,9 @@ class Anatomy:
     def _user_atrium(self):
         try:
             if self.side == "lumen":
-                atrium = UserAtrium(self.surface, self.puncture, self.aim)
-            else:
-                atrium = UserAtrium.in_free_space(self.surface, self.tip, self.direction, side=self.side)
+                atrium = UserAtrium(self.surface, self.puncture, self.aim, side="lumen")
+            else:  # the sheath's end in free space, pointing along its direction
+                atrium = UserAtrium(self.surface, self.tip, self.tip + 0.01 * self.direction, side="solid")
         except UserInputError as err:
             raise UserInputError(f"anatomy file {short_repr(str(self.path))}: sheath: {err}") from None
         atrium.rings = {"anatomy": AnatomyTargets(self.target_names, self.p_WT, self.n_W, self.touch_radius)}
@@ -368,18 +368,13 @@ def _surface_at(surface, p: np.ndarray, side: str) -> tuple[np.ndarray, np.ndarr
         atrium = surface
         gaps = np.asarray(atrium.wall_distance(p), float)
         return gaps, np.array([ellipsoid_inward_normal(q, atrium.semi_axes) for q in p]).reshape(-1, 3)
-    V, F = surface.V, surface.F
-    tri = V[F]
+    tri = surface.V[surface.F]
     n_face = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # outward, area-weighted
-    from scipy.spatial import cKDTree
-
-    k = min(48, len(F))
-    _, idx = cKDTree(tri.mean(axis=1)).query(p, k=k)
-    idx = np.asarray(idx).reshape(len(p), k)
-    d = mt.point_triangle_distances(p, tri[idx])
-    gaps = d.min(axis=1)
-    near = d <= gaps[:, None] + NORMAL_BAND
-    n_out = np.einsum("nk,nkj->nj", near.astype(float), n_face[idx])
+    gaps, n_out = np.zeros(len(p)), np.zeros((len(p), 3))
+    for k, q in enumerate(p):  # exact over every triangle (a plate's faces are large: no centroid search)
+        d = mt.point_triangle_distances(q[None], tri[None])[0]
+        gaps[k] = d.min()
+        n_out[k] = n_face[d <= gaps[k] + NORMAL_BAND].sum(axis=0)
     n_out /= np.linalg.norm(n_out, axis=1, keepdims=True)
     return gaps, (-n_out if side == "lumen" else n_out)
 
@@ -400,7 +395,7 @@ def _sheath(path: Path, spec: AnatomySpec, surface: AtriumSurface | None, place,
         return out
     if s.puncture:
         p = place(s.puncture)
-        gap = float(mt.SurfaceDistance(surface.V, surface.F)(p)[0])
+        gap = float(mt.point_triangle_distances(p[None], surface.V[surface.F][None]).min())
         if gap > MAX_PUNCTURE_DISTANCE:
             raise _bad(path, "sheath.puncture", f"is {gap * 1e3:.1f} mm from the surface; it must lie within "
                                                 f"{MAX_PUNCTURE_DISTANCE * 1e3:g} mm of it (it is snapped onto it), "

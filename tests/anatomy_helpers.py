@@ -55,3 +55,32 @@ def lumen_anatomy(directory: Path, n_targets: int = 4, csv_text: str | None = No
     path = directory / "anatomy.yaml"
     path.write_text(text)
     return path
+
+
+HOLES_MM = (-14.0, 14.0)  # x of the two vein openings through the phantom's plate
+
+
+def solid_anatomy(directory: Path, per_hole: int = 4, **fields) -> Path:
+    """A bench phantom built with another mesh library (trimesh, manifold3d booleans): a
+    60 x 40 x 4 mm wall section with two 10 mm vein openings, its top face at z = 2 mm, in
+    millimetres; ``per_hole`` targets on the top face 8 mm around each opening (the ring around
+    the first, then the second), a sheath ending 20 mm above the plate, pointing down and in.
+    ``fields`` replace YAML lines (None drops one)."""
+    import trimesh
+
+    directory = Path(directory)
+    plate = trimesh.creation.box(extents=[60.0, 40.0, 4.0])
+    holes = [trimesh.creation.cylinder(radius=5.0, height=10.0, transform=trimesh.transformations.translation_matrix(
+        [x, 0.0, 0.0])) for x in HOLES_MM]
+    phantom = plate.difference(trimesh.util.concatenate(holes))
+    phantom.export(directory / "phantom.stl")
+    angles = np.linspace(0.0, 2.0 * np.pi, per_hole, endpoint=False) + 0.5 * np.pi
+    rows = [(f"{side}_{k + 1}", [x + 8.0 * float(np.cos(a)), 8.0 * float(np.sin(a)), 2.0])
+            for side, x in zip(("left", "right"), HOLES_MM) for k, a in enumerate(angles)]
+    (directory / "targets.csv").write_text("".join(f"{n} {x!r} {y!r} {z!r}\n" for n, (x, y, z) in rows))
+    lines = {"mesh": "phantom.stl", "length_unit": "mm", "side": "solid", "targets": "targets.csv",
+             "sheath": "{tip: [0, -22, 20], direction: [0, 0.6, -0.8]}"}
+    lines.update(fields)
+    path = directory / "phantom.yaml"
+    path.write_text("".join(f"{k}: {v}\n" for k, v in lines.items() if v is not None))
+    return path
