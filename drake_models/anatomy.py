@@ -165,7 +165,7 @@ class Anatomy:
 
     def describe(self) -> dict:
         """What reports and replays show: the file, the side, the targets and the magnets (mm)."""
-        mm = lambda p: [round(1e3 * float(v), 3) for v in p]  # noqa: E731
+        mm = lambda p: [round(1e3 * float(v), 3) + 0.0 for v in p]  # noqa: E731 (+ 0.0: no -0.0)
         return {"file": str(self.path), "name": self.name, "description": self.description,
                 "mesh": PROCEDURAL if self.mesh is None else str(self.mesh), "side": self.side,
                 "touch_radius_mm": round(1e3 * self.touch_radius, 4),

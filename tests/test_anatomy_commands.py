@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 import pytest
-from anatomy_helpers import lumen_anatomy
+from anatomy_helpers import lumen_anatomy, solid_anatomy
 
 from ballchain.cli import main
 from ballchain.drake_models.anatomy import PROCEDURAL_FILE
@@ -99,3 +99,20 @@ def test_the_procedural_file_plans_the_paper_task_as_the_ring_stand_does():
     if out["feasible"]:
         assert row["dipole"] == out["plan"].dipoles[0].tolist()
         assert row["turn_deg"] == float(np.degrees(out["plan"].turn_rad[0]))
+
+
+def test_plan_and_teleop_on_a_solid_phantom(tmp_path, capsys):
+    path = solid_anatomy(tmp_path, per_hole=2)
+    plan = run_json(capsys, "plan", "--anatomy", path, "--targets", "2", "--balls", "16", "--grid", "2",
+                    "--refine", "3")
+    assert plan["anatomy"]["side"] == "solid" and [r["target"] for r in plan["rows"]] == ["left_1", "left_2"]
+    # The default unit stands 10 cm below the plate's top face, under the targets' centroid.
+    np.testing.assert_allclose(plan["anatomy"]["magnets_mm"][0], [0.0, 0.0, 2.0 - 100.0], atol=1e-3)
+    for row in plan["rows"]:
+        assert row["reason"] or row["force_gf"] >= 10.0 * (1 - 1e-4)
+    data = run_json(capsys, "teleop", "--anatomy", path, "--task", "right", "--no-progress")
+    assert [r["target"] for r in data["rows"]] == ["right_1", "right_2"] and data["task"] == "right"
+    assert data["summary"]["failure"] is None
+    for row in data["rows"]:
+        if row["touched"]:
+            assert row["accuracy_mm"] <= data["anatomy"]["touch_radius_mm"] + 1e-6
