@@ -11,8 +11,6 @@ from anatomy_helpers import lumen_anatomy, solid_anatomy
 from ballchain.cli import main
 from ballchain.drake_models.anatomy import PROCEDURAL_FILE
 
-pytestmark = pytest.mark.slow
-
 
 def run_json(capsys, *argv) -> dict:
     code = main([str(a) for a in argv] + ["--json"])
@@ -30,6 +28,7 @@ def without_first_target(directory):
     return path
 
 
+@pytest.mark.slow
 def test_plan_reports_each_target_of_the_anatomy(tmp_path, capsys):
     path = without_first_target(tmp_path)
     data = run_json(capsys, "plan", "--anatomy", path, "--targets", "2", "--balls", "16", "--grid", "2",
@@ -50,6 +49,7 @@ def test_plan_reports_each_target_of_the_anatomy(tmp_path, capsys):
     assert data["summary"]["reached"] >= 1
 
 
+@pytest.mark.slow
 def test_teleop_visits_the_anatomy_s_targets_in_file_order_and_writes_the_replay(tmp_path, capsys):
     path = lumen_anatomy(tmp_path)
     html = tmp_path / "replay.html"
@@ -80,6 +80,7 @@ def test_teleop_live_runs_on_the_anatomy(tmp_path, capsys):
     assert data["ended"] == "duration" and data["failure"] is None
 
 
+@pytest.mark.slow
 def test_the_procedural_file_plans_the_paper_task_as_the_ring_stand_does():
     """The plan through the procedural anatomy file is the plan on the ring's own stand
     (``teleop_stand``, the procedural atrium's rings and its carina magnet) to the last bit."""
@@ -101,6 +102,7 @@ def test_the_procedural_file_plans_the_paper_task_as_the_ring_stand_does():
         assert row["turn_deg"] == float(np.degrees(out["plan"].turn_rad[0]))
 
 
+@pytest.mark.slow
 def test_plan_and_teleop_on_a_solid_phantom(tmp_path, capsys):
     path = solid_anatomy(tmp_path, per_hole=2)
     plan = run_json(capsys, "plan", "--anatomy", path, "--targets", "2", "--balls", "16", "--grid", "2",
