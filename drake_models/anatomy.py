@@ -164,10 +164,13 @@ class Anatomy:
         return [k for k, n in enumerate(self.target_names) if prefix is None or n.startswith(f"{prefix}_")]
 
     def describe(self) -> dict:
-        """What reports and replays show: the file, the side, the targets and the magnets (mm)."""
+        """What reports and replays show: the file, the side, the sheath's exit and axis, the
+        targets and the magnets (mm)."""
         mm = lambda p: [round(1e3 * float(v), 3) + 0.0 for v in p]  # noqa: E731 (+ 0.0: no -0.0)
+        atrium = self.atrium()
         return {"file": str(self.path), "name": self.name, "description": self.description,
                 "mesh": PROCEDURAL if self.mesh is None else str(self.mesh), "side": self.side,
+                "sheath_exit_mm": mm(atrium.p_HE), "sheath_axis": [float(v) for v in atrium.sheath_axis_H],
                 "touch_radius_mm": round(1e3 * self.touch_radius, 4),
                 "targets": [{"name": n, "position_mm": mm(p), "gap_mm": round(1e3 * float(g), 4)}
                             for n, p, g in zip(self.target_names, self.p_WT, self.gaps)],

@@ -43,6 +43,9 @@ def test_plan_reports_each_target_of_the_anatomy(tmp_path, capsys):
             assert row["force_gf"] >= 10.0 * (1 - 1e-4)
             assert row["friction_needed"] <= data["friction"] * (1 + 1e-3)  # the tolerances of test_planner
             assert abs(np.linalg.norm(row["dipole"]) - 1.0) < 1e-9
+            # The world-frame dipole is the statics frame's turned by the sheath's frame (x along the sheath).
+            axis = np.array(row["dipole_W"]) @ np.array(data["anatomy"]["sheath_axis"])
+            assert abs(axis - row["dipole"][0]) < 1e-9
             assert row["offset_mm"] <= data["target_radius_mm"] * (1 + 1e-6)
         else:
             assert row["reason"]

@@ -58,7 +58,8 @@ def main(args: argparse.Namespace) -> int:
     for r in data.rows:
         force = (f"no plan: {r['reason']}" if not r["reached"] else
                  f"{r['force_gf']:6.2f} gf with {r['n_balls']} balls, turn {r['turn_deg']:6.1f} deg, "
-                 f"friction needed {r['friction_needed']:.3f}, {r['offset_mm']:.2f} mm off centre")
+                 f"friction needed {r['friction_needed']:.3f}, {r['offset_mm']:.2f} mm off centre, magnet "
+                 f"dipole {[round(v, 3) for v in r['dipole_W']]} (world)")
         print(f"{r['target']:9s} {force}")
     s = data.summary
     human = "" if data.paper is None else f" (operator in the paper: {data.paper['human_time_s']:.0f} s)"

@@ -150,7 +150,8 @@ class PlanResult(Result):
 
     Attributes:
         task: "left" or "right" (None: a user anatomy's every target).
-        rows: one per target in order: {target, reached, force_gf, n_balls, dipole (unit (3,)),
+        rows: one per target in order: {target, reached, force_gf, n_balls, dipole (unit (3,), in the
+            statics frame: x along the sheath), dipole_W (the same in the world frame),
             turn_deg, friction_needed, offset_mm, how, reason} (None where not reached).
         summary: the totals (``PlanSummary``).
         paper: the paper's operator on the task; min_force_gf: the force asked for;
@@ -234,6 +235,7 @@ def run(*, task: str | None = None, targets: int | None = None, balls=(16,), gri
             else:
                 reasons.append(f"{n} balls: {out.get('reason', '')}")
         row = {"target": name, "reached": bool(options), "force_gf": None, "n_balls": None, "dipole": None,
+               "dipole_W": None,
                "turn_deg": None, "friction_needed": None, "offset_mm": None, "how": None,
                "reason": "; ".join(reasons)}
         if options:
@@ -245,6 +247,7 @@ def run(*, task: str | None = None, targets: int | None = None, balls=(16,), gri
             m_now, n_now = plan.dipoles[0], n
             row.update(friction_needed=plan.friction_needed, offset_mm=float(1e3 * np.linalg.norm(plan.offset)))
             row.update(force_gf=gram_force(plan.force_N), n_balls=n, dipole=plan.dipoles[0].tolist(),
+                       dipole_W=(stand.R_HS @ plan.dipoles[0]).tolist(),
                        turn_deg=float(np.degrees(plan.turn_rad[0])), how=how)
         rows.append(row)
     reached = [r for r in rows if r["reached"]]
