@@ -13,7 +13,6 @@ builder (``systems/station.py``) turns a scenario into a diagram.
 import dataclasses
 import math
 import numbers
-import sys
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,8 +24,9 @@ from pydrake.visualization import VisualizationConfig
 
 from ballchain.drake_models import paper
 from ballchain.drake_models.errors import UserInputError, short_repr
-from ballchain.drake_models.safe_yaml import (check_value, check_yaml_schema, load_typed, load_yaml,
-                                             load_yaml_file, schema_fields as _schema_fields)
+from ballchain.drake_models.safe_yaml import check_value  # noqa: F401 (the sweep's check imports it from here)
+from ballchain.drake_models.safe_yaml import (check_yaml_schema, load_typed, load_yaml, load_yaml_file,
+                                             schema_fields as _schema_fields)
 from ballchain.drake_models.params import BallChain
 from ballchain.systems.chain_plant import ChainPlantConfig, ContactConfig, chain_multibody_plant_config
 from ballchain.systems.force_sensor_pin import stability_bound

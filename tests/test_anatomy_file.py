@@ -18,7 +18,7 @@ def refused(path) -> str:
     with pytest.raises(UserInputError) as err:
         load_anatomy(path)
     message = str(err.value)
-    assert "\n" not in message and f"anatomy file '" in message and path.name in message, message
+    assert "\n" not in message and "anatomy file '" in message and path.name in message, message
     return message
 
 

@@ -108,7 +108,8 @@ def main(args: argparse.Namespace) -> int:
     s = data.summary
     median = "-" if s.median_time_s is None else f"{s.median_time_s:.2f} s"
     accuracy = "-" if s.median_accuracy_mm is None else f"{s.median_accuracy_mm:.2f} mm"
-    human = "" if data.paper is None else f"; operator in the paper: {data.paper['human_time_s']:.0f} s for the whole task"
+    human = ("" if data.paper is None else
+             f"; operator in the paper: {data.paper['human_time_s']:.0f} s for the whole task")
     print(f"{data.task or 'every'} task, {data.mapping} mapping: {s.touched}/{s.targets} touched in "
           f"{s.total_time_s:.1f} s (median {median} per target, median accuracy {accuracy}){human}")
     print(f"simulated {s.sim_time_s:.1f} s in {s.wall_time_s:.1f} s of wall time in the simulation loop "
