@@ -154,8 +154,8 @@ class Anatomy:
                 atrium = UserAtrium(self.surface, self.puncture, self.aim, side="lumen")
             else:  # the sheath's end in free space, pointing along its direction
                 atrium = UserAtrium(self.surface, self.tip, self.tip + 0.01 * self.direction, side="solid")
-        except UserInputError as err:
-            raise UserInputError(f"anatomy file {short_repr(str(self.path))}: sheath: {err}") from None
+        except UserInputError as err:  # names the mesh or the sheath's field
+            raise UserInputError(f"{_where(self.path)}: {' '.join(str(err).split())}") from None
         atrium.rings = {"anatomy": AnatomyTargets(self.target_names, self.p_WT, self.n_W, self.touch_radius)}
         return atrium
 
@@ -251,9 +251,11 @@ def load_anatomy(path: str | Path) -> Anatomy:
     default = not magnets
     if default:
         magnets = [default_magnet(p_WT, n_W)]
-    return Anatomy(path=path, name=path.stem, description=spec.description, mesh=mesh, side=spec.side,
-                   surface=surface, target_names=names, p_WT=p_WT, n_W=n_W, gaps=gaps, touch_radius=touch,
-                   magnets=np.array(magnets), magnets_default=default, _atrium=procedural, **sheath)
+    anatomy = Anatomy(path=path, name=path.stem, description=spec.description, mesh=mesh, side=spec.side,
+                      surface=surface, target_names=names, p_WT=p_WT, n_W=n_W, gaps=gaps, touch_radius=touch,
+                      magnets=np.array(magnets), magnets_default=default, _atrium=procedural, **sheath)
+    anatomy.atrium()  # the surface's and the sheath's checks that need the wall (one chamber, a free tip)
+    return anatomy
 
 
 def default_magnet(p_WT: np.ndarray, n_W: np.ndarray, distance: float = DEFAULT_MAGNET_DISTANCE) -> np.ndarray:

@@ -303,3 +303,11 @@ def test_the_scenario_s_anatomy_must_exist(tmp_path):
     with pytest.raises(UserInputError, match="scenario anatomy .*no such file"):
         load_scenario("heart_left_quasi_static", f"{{anatomy: {tmp_path / 'none.yaml'}}}")
 
+
+
+def test_a_solid_phantom_s_sheath_tip_inside_the_solid_is_refused_naming_the_file(tmp_path):
+    from anatomy_helpers import solid_anatomy
+
+    anatomy = load_anatomy(solid_anatomy(tmp_path))
+    assert anatomy.side == "solid" and np.allclose(anatomy.n_W, [0.0, 0.0, 1.0])  # up, out of the plate's top
+    assert "sheath tip" in refused(solid_anatomy(tmp_path, sheath="{tip: [0, 10, 0], direction: [0, 0, 1]}"))
