@@ -29,7 +29,7 @@ naming the field and the file. The built-in procedural atrium is one such file,
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -362,8 +362,7 @@ def _mesh(path: Path, spec: AnatomySpec, R: np.ndarray, t: np.ndarray) -> tuple[
         surface = load_atrium_surface(mesh, spec.length_unit)
     except UserInputError as err:
         raise _bad(path, "mesh", f"{short_repr(spec.mesh)}: {' '.join(str(err).split())}") from None
-    surface.V = surface.V @ R.T + t
-    return mesh, surface
+    return mesh, replace(surface, V=surface.V @ R.T + t)  # a rigid motion: the orientation and volume stay
 
 
 def _surface_at(surface, p: np.ndarray, side: str) -> tuple[np.ndarray, np.ndarray]:
