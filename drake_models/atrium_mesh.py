@@ -1,17 +1,25 @@
-"""Load and validate a user's segmented left-atrium surface (OBJ or STL), and give it a wall.
+"""Load and validate a user's anatomy surface (OBJ, STL, PLY or VTK), and give it a wall.
 
-The surface must be the endocardial (blood-side) surface of the chamber: one closed,
-consistently oriented triangle mesh (every edge shared by exactly two triangles). Its size
-decides the units when they are not declared: a left atrium is about 30-80 mm across, so a
-largest bounding-box side of 0.02-0.12 is read as metres and 20-120 as millimetres. Every check
-that fails is reported in one ``AtriumMeshError`` listing what is wrong and how to fix it.
+The surface is where the chain meets the anatomy: a segmented atrium's endocardial (blood-side)
+surface, with the chain inside it (``side="lumen"``), or a printed phantom part, a wall section
+with vein openings, with the chain outside it (``side="solid"``). Meshes nobody here generated
+are accepted as they come: several shells (vein tubes overlapping the chamber join it; a shell
+nested in another is a cavity, each oriented by its nesting depth), seams left slightly open
+(openings up to ``MAX_OPENING_AREA``), inside-out winding; inside tests use the generalised
+winding number of every shell (``surface_tree``). A surface above ``DECIMATE_ABOVE`` triangles
+is decimated (quadric edge collapses) for contact and the signed distance; one above
+``MAX_TRIANGLES`` is refused. Its size decides the units when they are not declared: a left
+atrium is about 30-80 mm across, so a largest bounding-box side of 0.02-0.12 is read as metres
+and 20-120 as millimetres. Every check that fails is reported in one ``AtriumMeshError``
+listing what is wrong and how to fix it.
 
 ``UserAtrium`` turns a validated surface into an atrium the chain plant accepts (a wall grown
-outward in two tetrahedra layers, a hole at the septal puncture, inside tests by winding
-number); a scenario selects it with ``atrium_file`` and ``puncture``.
+behind the surface in two tetrahedra layers, a hole at a lumen's septal puncture, inside tests
+by winding number); a scenario selects it with ``atrium_file`` and ``puncture``.
 
-No third-party mesh library is needed: OBJ (``v``/``f`` records, polygons fanned into triangles,
-``f a/b/c`` and negative indices accepted) and STL (ASCII or binary) are parsed here.
+No third-party mesh reader is needed: OBJ (``v``/``f`` records, polygons fanned into triangles,
+``f a/b/c`` and negative indices accepted), STL (ASCII or binary), PLY (ASCII or binary) and
+legacy ASCII VTK polydata are parsed here.
 """
 
 from __future__ import annotations
@@ -48,7 +56,8 @@ class AtriumMeshError(UserInputError):
 
 @dataclass
 class AtriumSurface:
-    """A validated endocardial surface in metres, outward oriented.
+    """A validated surface in metres, each shell oriented by its nesting depth (outward, inward
+    around a cavity).
 
     Attributes:
         V: (nv, 3) vertices [m].
@@ -215,6 +224,145 @@ def read_stl(path: Path) -> tuple[np.ndarray, np.ndarray]:
         raise AtriumMeshError(f"{path}: the STL has no triangles")
     extent = float(np.ptp(corners, axis=0).max()) or 1.0
     return _weld(corners, extent * 1e-9)
+
+
+PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+             "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+             "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
+
+
+def _ply_header(path: Path, data: bytes) -> tuple[str, list, int]:
+    """(format, elements [(name, count, [(property, type, list count type or None)])], body offset)."""
+    end = data.find(b"end_header")
+    if not data.startswith(b"ply") or end < 0:
+        raise AtriumMeshError(f"{path}: not a PLY file (it must start with 'ply' and have an 'end_header' line)")
+    body = data.index(b"\n", end) + 1
+    fmt, elements = "", []
+    for line in data[:end].decode("latin-1").splitlines()[1:]:
+        parts = line.split()
+        if not parts or parts[0] in ("comment", "obj_info"):
+            continue
+        try:
+            if parts[0] == "format":
+                fmt = parts[1]
+            elif parts[0] == "element":
+                elements.append((parts[1], int(parts[2]), []))
+            elif parts[0] == "property" and parts[1] == "list":
+                elements[-1][2].append((parts[4], PLY_TYPES[parts[3]], PLY_TYPES[parts[2]]))
+            elif parts[0] == "property":
+                elements[-1][2].append((parts[2], PLY_TYPES[parts[1]], None))
+        except (IndexError, KeyError, ValueError):
+            raise AtriumMeshError(f"{path}: PLY header line {short_repr(line)} is not understood") from None
+    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+        raise AtriumMeshError(f"{path}: PLY format {short_repr(fmt)}; allowed: ascii, binary_little_endian, "
+                              "binary_big_endian")
+    return fmt, elements, body
+
+
+def _ply_records(fmt: str, props: list, count: int, data: bytes, pos: int, tokens: list):
+    """One element's records as lists of values (lists for list properties); the new position."""
+    end = "<" if fmt == "binary_little_endian" else ">"
+    rows = []
+    for _ in range(count):
+        row = []
+        for _, typ, list_type in props:
+            if fmt == "ascii":
+                n = int(tokens[pos]) if list_type else 1
+                values = [float(x) for x in tokens[pos + (1 if list_type else 0):pos + (1 if list_type else 0) + n]]
+                pos += n + (1 if list_type else 0)
+            else:
+                if list_type:
+                    n = int(np.frombuffer(data, end + list_type, 1, pos)[0])
+                    pos += np.dtype(list_type).itemsize
+                else:
+                    n = 1
+                values = np.frombuffer(data, end + typ, n, pos).tolist()
+                pos += n * np.dtype(typ).itemsize
+            row.append(values if list_type else values[0])
+        rows.append(row)
+    return rows, pos
+
+
+def read_ply(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and triangles of a PLY file (ASCII or binary; the 'vertex' element's x, y, z and
+    the 'face' element's index list, polygons fanned into triangles).
+
+    Raises:
+        AtriumMeshError: not a PLY, an unknown format or type, missing x/y/z or faces, a short file.
+    """
+    data = _read_bytes(path)
+    fmt, elements, body = _ply_header(path, data)
+    tokens = data[body:].split() if fmt == "ascii" else []
+    pos = 0 if fmt == "ascii" else body
+    V = F = None
+    try:
+        for name, count, props in elements:
+            fast = fmt != "ascii" and all(t is None for _, _, t in props)
+            if fast:  # fixed-size records: one read
+                end = "<" if fmt == "binary_little_endian" else ">"
+                rec = np.frombuffer(data, np.dtype([(p, end + t) for p, t, _ in props]), count, pos)
+                pos += rec.nbytes
+                rows = None
+            else:
+                rows, pos = _ply_records(fmt, props, count, data, pos, tokens)
+            names = [p for p, _, _ in props]
+            if name == "vertex":
+                if not {"x", "y", "z"} <= set(names):
+                    raise AtriumMeshError(f"{path}: the PLY vertex element has no x, y and z properties")
+                V = (np.stack([rec[k].astype(float) for k in "xyz"], axis=1) if fast else
+                     np.array([[row[names.index(k)] for k in "xyz"] for row in rows], float))
+            elif name == "face":
+                lists = [k for k, (_, _, t) in enumerate(props) if t]
+                if not lists or rows is None:
+                    raise AtriumMeshError(f"{path}: the PLY face element has no vertex index list")
+                F = [[int(r[lists[0]][0]), int(r[lists[0]][k]), int(r[lists[0]][k + 1])]
+                     for r in rows for k in range(1, len(r[lists[0]]) - 1)]
+    except (ValueError, IndexError, TypeError):
+        raise AtriumMeshError(f"{path}: the PLY body is shorter than its header says, or has a value that is "
+                              "not a number") from None
+    if V is None or not F:
+        raise AtriumMeshError(f"{path}: the PLY file needs a 'vertex' element (x, y, z) and a 'face' element")
+    F = np.array(F, np.int64)
+    if F.min() < 0 or F.max() >= len(V):
+        raise AtriumMeshError(f"{path}: a PLY face index is outside 0..{len(V) - 1}")
+    if not np.all(np.isfinite(V)):
+        raise AtriumMeshError(f"{path}: a PLY vertex coordinate is not finite (NaN or inf)")
+    return V, F
+
+
+def read_vtk_polydata(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and triangles of a legacy ASCII VTK file with a POLYDATA data set (POINTS and
+    POLYGONS, polygons fanned into triangles).
+
+    Raises:
+        AtriumMeshError: not ASCII POLYDATA, or a short or malformed POINTS/POLYGONS section.
+    """
+    text = _mesh_text(path, _read_bytes(path), "VTK")
+    tokens = text.split()
+    upper = [t.upper() for t in tokens[:200]]
+    if "ASCII" not in upper or "POLYDATA" not in upper:
+        raise AtriumMeshError(f"{path}: only legacy ASCII VTK files with 'DATASET POLYDATA' (POINTS and POLYGONS) "
+                              "are read; save the surface as ASCII VTK, STL, OBJ or PLY")
+    try:
+        i = [t.upper() for t in tokens].index("POINTS")
+        nv = int(tokens[i + 1])
+        V = np.array(tokens[i + 3:i + 3 + 3 * nv], float).reshape(nv, 3)
+        j = [t.upper() for t in tokens].index("POLYGONS")
+        n, size = int(tokens[j + 1]), int(tokens[j + 2])
+        flat = np.array(tokens[j + 3:j + 3 + size], np.int64)
+    except (ValueError, IndexError):
+        raise AtriumMeshError(f"{path}: the VTK POINTS or POLYGONS section is missing, short or not numbers") from None
+    F, k = [], 0
+    for _ in range(n):
+        m = int(flat[k])
+        poly = flat[k + 1:k + 1 + m]
+        F += [[poly[0], poly[q], poly[q + 1]] for q in range(1, m - 1)]
+        k += m + 1
+    F = np.array(F, np.int64).reshape(-1, 3)
+    if len(F) == 0 or F.min() < 0 or F.max() >= nv or not np.all(np.isfinite(V)):
+        raise AtriumMeshError(f"{path}: the VTK POLYGONS are empty or index outside the {nv} points, or a point "
+                              "is not finite")
+    return V, F
 
 
 def write_stl_ascii(path: Path, V: np.ndarray, F: np.ndarray) -> Path:
@@ -471,10 +619,10 @@ def orient_shells(V: np.ndarray, F: np.ndarray, notes: list[str]) -> tuple[np.nd
 
 
 def load_atrium_surface(path: Path | str, units: Units = "auto") -> AtriumSurface:
-    """Read an OBJ or STL endocardial surface, validate it and return it in metres.
+    """Read an OBJ, STL, PLY or VTK surface, validate it and return it in metres.
 
     Args:
-        path: .obj or .stl file.
+        path: .obj, .stl, .ply or .vtk (legacy ASCII polydata) file.
         units: "m", "mm" or "auto" (guessed from the size, see the module docstring).
 
     Raises:
@@ -486,14 +634,12 @@ def load_atrium_surface(path: Path | str, units: Units = "auto") -> AtriumSurfac
     if not path.exists():
         raise AtriumMeshError(f"{path}: no such file")
     if not path.is_file():
-        raise AtriumMeshError(f"{path}: not a file (a folder?); give an .obj or .stl file")
+        raise AtriumMeshError(f"{path}: not a file (a folder?); give an .obj, .stl, .ply or .vtk file")
     suffix = path.suffix.lower()
-    if suffix == ".obj":
-        V, F = read_obj(path)
-    elif suffix == ".stl":
-        V, F = read_stl(path)
-    else:
-        raise AtriumMeshError(f"{path}: unsupported format {suffix!r} (use .obj or .stl)")
+    readers = {".obj": read_obj, ".stl": read_stl, ".ply": read_ply, ".vtk": read_vtk_polydata}
+    if suffix not in readers:
+        raise AtriumMeshError(f"{path}: unsupported format {suffix!r} (use .obj, .stl, .ply or .vtk)")
+    V, F = readers[suffix](path)
     try:
         return validate_surface(V, F, units)
     except AtriumMeshError as err:
