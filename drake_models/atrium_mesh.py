@@ -43,9 +43,12 @@ SENSIBLE_EXTENT_MM = (30.0, 80.0)  # typical LA size; outside ACCEPTED_EXTENT_MM
 ACCEPTED_EXTENT_MM = (20.0, 120.0)
 MAX_PUNCTURE_DISTANCE = 5e-3  # [m] a user's puncture may lie this far from the surface
 MAX_OPENING_AREA = 1e-6  # [m^2] an opening (a seam not welded) up to this area is bridged, not refused
+SEAM_GAP = 0.2e-3  # [m] rims closer than this belong to one opening (the two sides of a seam)
 DECIMATE_ABOVE = 40_000  # triangles: a larger surface is decimated for contact and the signed distance
 DECIMATE_TO = 20_000  # triangles after decimation (edges about 1 mm on an atrium)
 MAX_TRIANGLES = 2_000_000  # refused above (a segmentation at 0.1 mm voxels has about 1 million)
+MAX_MITER = 3.0  # a wall vertex moves at most this many wall thicknesses (at a sharp corner)
+MAX_SLIVER_FRACTION = 0.01  # triangles whose wall prism is flat: left out of the wall up to this share
 NESTED_FRACTION = 0.9  # a shell with this share of its vertices inside another is nested in it
 DEGENERATE_VOLUME_FRACTION = 1e-6  # a wall tetrahedron this much smaller than the median is flat
 
@@ -504,19 +507,19 @@ def _drop_unused(V: np.ndarray, F: np.ndarray, notes: list[str]) -> tuple[np.nda
 
 
 def opening_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """The area [m^2] of each opening of a surface: per connected set of boundary edges, the
-    length of its vector area (half the sum of a x b over its edges a -> b). A hole spans its
-    area; a seam left open (two rims running side by side in opposite directions) spans
-    almost none, however long. Empty for a closed surface."""
+    """The area [m^2] of each opening of a surface: per set of boundary edges connected through
+    shared vertices or vertices closer than ``SEAM_GAP``, the length of its vector area (half the
+    sum of a x b over its edges a -> b). A hole spans its area; a seam left open (two rims
+    running side by side in opposite directions, welded or not) spans almost none, however
+    long. Empty for a closed surface."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    directed = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
-    _, inverse, counts = np.unique(np.sort(directed, axis=1), axis=0, return_inverse=True, return_counts=True)
-    rim = directed[counts[inverse.ravel()] == 1]
+    rim = _rim_edges(F)
     if len(rim) == 0:
         return np.zeros(0)
-    graph = coo_matrix((np.ones(len(rim)), (rim[:, 0], rim[:, 1])), shape=(len(V), len(V)))
+    links = np.concatenate([rim, _seam_links(V, rim)])
+    graph = coo_matrix((np.ones(len(links)), (links[:, 0], links[:, 1])), shape=(len(V), len(V)))
     _, label = connected_components(graph, directed=False)
     parts = np.unique(label[rim[:, 0]], return_inverse=True)[1].ravel()
     area = np.zeros((parts.max() + 1, 3))
@@ -558,12 +561,31 @@ def decimate(V: np.ndarray, F: np.ndarray, target: int, notes: list[str], progre
     return Vd, Fd
 
 
-def shell_labels(F: np.ndarray, nv: int) -> np.ndarray:
-    """The shell (connected piece) of each triangle (nf,), numbered from 0."""
+def _rim_edges(F: np.ndarray) -> np.ndarray:
+    """The boundary edges (k, 2) of a surface, as its triangles run them."""
+    directed = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    _, inverse, counts = np.unique(np.sort(directed, axis=1), axis=0, return_inverse=True, return_counts=True)
+    return directed[counts[inverse.ravel()] == 1]
+
+
+def _seam_links(V: np.ndarray, rim: np.ndarray) -> np.ndarray:
+    """Pairs (k, 2) of boundary vertices closer than ``SEAM_GAP``: the two sides of a seam."""
+    from scipy.spatial import cKDTree
+
+    ends = np.unique(rim)
+    if len(ends) < 2:
+        return np.zeros((0, 2), np.int64)
+    return ends[cKDTree(V[ends]).query_pairs(SEAM_GAP, output_type="ndarray")].reshape(-1, 2)
+
+
+def shell_labels(F: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """The shell (connected piece) of each triangle (nf,), numbered from 0; pieces that meet
+    along a seam left open (boundary vertices closer than ``SEAM_GAP``) are one shell."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    edges = np.concatenate([F[:, [0, 1]], F[:, [1, 2]]])
+    nv = len(V)
+    edges = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], _seam_links(V, _rim_edges(F))])
     graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(nv, nv))
     _, label = connected_components(graph, directed=False)
     return np.unique(label[F[:, 0]], return_inverse=True)[1].ravel()
@@ -596,7 +618,7 @@ def orient_shells(V: np.ndarray, F: np.ndarray, notes: list[str]) -> tuple[np.nd
     """Orient each shell by its nesting depth (outward at even depth, inward in a cavity) so that
     winding numbers add up to 1 in the solid and 0 in cavities and outside; returns the
     re-oriented triangles and the enclosed volume [m^3]."""
-    shells = shell_labels(F, len(V))
+    shells = shell_labels(F, V)
     k = int(shells.max()) + 1
     depth = (shell_containment(V, F, shells) > NESTED_FRACTION).sum(axis=1) if k > 1 else np.zeros(1, int)
     F = F.copy()
@@ -723,9 +745,8 @@ class UserAtrium:
         self.rings: dict = {}  # no ablation targets, ostia or carinas (the Atrium protocol)
         self.ostia: list = []
         self.carinas: dict = {}
-        self._normals = mt.vertex_normals(V, F)
         grow = 1.0 if side == "lumen" else -1.0  # the wall lies behind the surface, seen from the chain
-        self._wall_normals = grow * self._normals
+        self._wall_normals = grow * wall_directions(V, F)
         self._behind = SurfaceTree.build(V + self._wall_normals * self.params.wall_thickness, F)
         self.inner_faces = self._chamber_faces
         if side == "lumen":
@@ -745,7 +766,7 @@ class UserAtrium:
         vein tubes; solid: the parts): a shell's triangles inside another shell are dropped (as
         the procedural atrium's ostia are open), so that the wall does not close an ostium."""
         V, F = self.surface.V, self.surface.F
-        shells = shell_labels(F, len(V))
+        shells = shell_labels(F, V)
         k = int(shells.max()) + 1
         if k == 1:
             return F
@@ -822,23 +843,33 @@ class UserAtrium:
         return inside if self.side == "lumen" else ~inside
 
     def _check_wall(self) -> None:
-        """Refuse a surface whose grown wall has flat tetrahedra (Drake cannot give them a
-        pressure field: "A mesh field element was degenerate"), saying where they are."""
-        Vt, T = self.wall_tetrahedra
+        """Leave out of the wall the triangles whose prisms have flat tetrahedra (slivers, as a
+        boolean union leaves along its seams: Drake cannot give a flat element a pressure field,
+        "A mesh field element was degenerate"); their neighbours' prisms cover the gap. More than
+        ``MAX_SLIVER_FRACTION`` of them is refused, saying where the first is."""
+        p = self.params
+        faces = self.inner_faces
+        Vt, T = mt.extrude_shell(self.surface.V, faces, self._wall_normals, p.wall_thickness, p.wall_layers)
         vol = mt.signed_volumes(Vt, T)
         bad = np.flatnonzero(vol <= DEGENERATE_VOLUME_FRACTION * np.median(np.abs(vol)))
-        if len(bad):
+        self.wall_faces = faces
+        if len(bad) == 0:
+            return
+        slivers = np.unique(bad % len(faces))  # extrude_shell stacks the tetrahedra face by face
+        if len(slivers) > MAX_SLIVER_FRACTION * len(faces):
             where = np.round(Vt[T[bad[0]]].mean(axis=0) * 1e3, 2).tolist()
             raise AtriumMeshError(
                 f"atrium_file: the wall grown from this surface has {len(bad)} flat (zero-volume) tetrahedra, the "
                 f"first near {where} mm: the surface has a zero-area triangle or a fold there; remesh it (e.g. "
                 "remove degenerate faces) and try again")
+        self.wall_faces = np.delete(faces, slivers, axis=0)
+        self.surface.notes.append(f"{len(slivers)} sliver triangles left out of the contact wall")
 
     @property
     def wall_tetrahedra(self) -> tuple[np.ndarray, np.ndarray]:
         """The wall behind the surface (outward from a lumen, into a solid), as tetrahedra."""
         p = self.params
-        return mt.extrude_shell(self.surface.V, self.inner_faces, self._wall_normals, p.wall_thickness,
+        return mt.extrude_shell(self.surface.V, self.wall_faces, self._wall_normals, p.wall_thickness,
                                 p.wall_layers)
 
     @property
@@ -887,7 +918,7 @@ class UserAtrium:
 
         from ballchain.drake_models.model_files import cache_dir, cached_files, source_hash
 
-        key = hashlib.sha1(self.surface.V.tobytes() + self.inner_faces.tobytes() + repr(self.params).encode()
+        key = hashlib.sha1(self.surface.V.tobytes() + self.wall_faces.tobytes() + repr(self.params).encode()
                            + self.side.encode() + source_hash(sys.modules[__name__], mt).encode()).hexdigest()[:12]
         directory = Path(directory) if directory else cache_dir() / f"user_atrium_{key}"
 
@@ -897,6 +928,28 @@ class UserAtrium:
             mt.write_obj(tmp["obj"], V, mt.boundary_surface(V, T))
 
         return cached_files(directory, {"vtk": "atrium_wall.vtk", "obj": "atrium_wall.obj"}, write)
+
+
+def wall_directions(V: np.ndarray, F: np.ndarray, cap: float = MAX_MITER) -> np.ndarray:
+    """Per vertex, the displacement (nv, 3) for a wall one unit thick: along the angle-weighted
+    normal (Thuermer and Wuethrich 1998: independent of how the faces around the vertex are
+    triangulated, so a box corner's points along its diagonal), lengthened so that every face
+    around the vertex moves at least one unit along its own normal (a mitred corner: a box's
+    corner moves by (1, 1, 1)), at most ``cap`` units (a spike)."""
+    tri = V[F]
+    face_n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    face_n /= np.linalg.norm(face_n, axis=1)[:, None]
+    N = np.zeros_like(V)
+    for k in range(3):
+        e1 = tri[:, (k + 1) % 3] - tri[:, k]
+        e2 = tri[:, (k + 2) % 3] - tri[:, k]
+        cos = np.einsum("ij,ij->i", e1, e2) / (np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1))
+        np.add.at(N, F[:, k], np.arccos(np.clip(cos, -1.0, 1.0))[:, None] * face_n)
+    N /= np.linalg.norm(N, axis=1)[:, None]
+    least = np.full(len(V), np.inf)
+    for k in range(3):
+        np.minimum.at(least, F[:, k], np.einsum("ij,ij->i", N[F[:, k]], face_n))
+    return N / np.clip(least, 1.0 / cap, 1.0)[:, None]
 
 
 def grid_winding_inside(tree: SurfaceTree, origin: np.ndarray, spacing: float, shape: tuple[int, int, int]
