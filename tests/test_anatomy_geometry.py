@@ -25,7 +25,7 @@ from ballchain.drake_models.atrium_sdf import atrium_sdf  # noqa: E402
 from ballchain.drake_models.errors import UserInputError  # noqa: E402
 from ballchain.drake_models.surface_tree import SurfaceTree  # noqa: E402
 
-PLATE_TIP_MM = [0.0, 0.0, 14.0]  # the sheath's tip above the plate, between the holes
+PLATE_TIP_MM = [0.0, 0.0, 25.0]  # the sheath's tip above the plate, between the holes
 
 
 def wall_section() -> "trimesh.Trimesh":
@@ -302,3 +302,50 @@ def test_a_large_mesh_is_decimated_for_contact_and_the_distance(tmp_path):
     atrium = UserAtrium(surface, [-25e-3, 0.0, 0.0], params=UserAtriumParams())
     files = atrium.write_files(tmp_path / "wall")
     assert files["vtk"].stat().st_size > 0
+
+
+def _short_push(engine: str, heart):
+    """20 mm of chain pushed out of the sheath at 0.1 m/s, no field: the chain meets the anatomy."""
+    from ballchain.systems.chain_scenario import load_scenario
+    from ballchain.systems.chain_simulation import run_simulation
+
+    scenario = load_scenario("heart_no_field", f"{{engine: {engine}, insertion: {{initial: 0.01, final: 0.024, "
+                                               "start_time: 0.0, speed: 0.1}}")
+    result = run_simulation(scenario=scenario, duration=0.3, heart=heart)
+    return result, np.array(result.p_W_mm) * 1e-3, scenario
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("engine", ["plant", "statics"])
+def test_a_chain_pushed_onto_the_solid_phantom_stays_outside_it(plate_stl, engine):
+    """The sheath 25 mm off the plate's top face, aimed obliquely at its middle: the chain
+    reaches the face and rests on it (its tip a ball radius above it, within the contact's
+    penetration), every ball outside trimesh's solid."""
+    heart = UserAtrium(load_atrium_surface(plate_stl, "mm"), np.array([0.0, -25.0, 20.0]) * 1e-3,
+                       sheath_aim=[0.0, 0.0, 0.0], side="solid")
+    result, p, scenario = _short_push(engine, heart)
+    mesh = wall_section()
+    mesh.apply_scale(1e-3)
+    assert not mesh.contains(p).any()
+    r = 0.5 * 3.175e-3
+    clearance = np.abs(trimesh.proximity.signed_distance(mesh, p)) - r
+    # the plant's compliant wall lets a ball in by about 0.1 mm (its contact penetration); the
+    # statics keep centres a radius from the surface to the solver's tolerance
+    assert clearance.min() > (-0.3e-3 if engine == "plant" else -1e-6)
+    assert clearance[-1] < 0.3e-3  # the tip is on the face
+    assert result.max_neighbor_gap_um < 20
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("engine", ["plant", "statics"])
+def test_a_chain_in_the_atrium_with_an_appendage_stays_inside(appendage, engine):
+    """The sheath through the septum at -x, aimed at the chamber's centre: the balls out of the
+    sheath stay inside trimesh's union, a ball radius from its surface."""
+    result, p, scenario = _short_push(engine, appendage)
+    p = p[(p - appendage.p_HE) @ appendage.sheath_axis_H > 0]  # out of the sheath
+    assert len(p) >= 5
+    mesh = appendage_atrium()
+    assert mesh.contains(p).all()
+    clearance = trimesh.proximity.signed_distance(mesh, p) - 0.5 * 3.175e-3
+    assert clearance.min() > (-0.3e-3 if engine == "plant" else -1e-6)
+    assert result.max_neighbor_gap_um < 20
