@@ -1,17 +1,25 @@
-"""Load and validate a user's segmented left-atrium surface (OBJ or STL), and give it a wall.
+"""Load and validate a user's anatomy surface (OBJ, STL, PLY or VTK), and give it a wall.
 
-The surface must be the endocardial (blood-side) surface of the chamber: one closed,
-consistently oriented triangle mesh (every edge shared by exactly two triangles). Its size
-decides the units when they are not declared: a left atrium is about 30-80 mm across, so a
-largest bounding-box side of 0.02-0.12 is read as metres and 20-120 as millimetres. Every check
-that fails is reported in one ``AtriumMeshError`` listing what is wrong and how to fix it.
+The surface is where the chain meets the anatomy: a segmented atrium's endocardial (blood-side)
+surface, with the chain inside it (``side="lumen"``), or a printed phantom part, a wall section
+with vein openings, with the chain outside it (``side="solid"``). Meshes nobody here generated
+are accepted as they come: several shells (vein tubes overlapping the chamber join it; a shell
+nested in another is a cavity, each oriented by its nesting depth), seams left slightly open
+(openings up to ``MAX_OPENING_AREA``), inside-out winding; inside tests use the generalised
+winding number of every shell (``surface_tree``). A surface above ``DECIMATE_ABOVE`` triangles
+is decimated (quadric edge collapses) for contact and the signed distance; one above
+``MAX_TRIANGLES`` is refused. Its size decides the units when they are not declared: a left
+atrium is about 30-80 mm across, so a largest bounding-box side of 0.02-0.12 is read as metres
+and 20-120 as millimetres. Every check that fails is reported in one ``AtriumMeshError``
+listing what is wrong and how to fix it.
 
 ``UserAtrium`` turns a validated surface into an atrium the chain plant accepts (a wall grown
-outward in two tetrahedra layers, a hole at the septal puncture, inside tests by winding
-number); a scenario selects it with ``atrium_file`` and ``puncture``.
+behind the surface in two tetrahedra layers, a hole at a lumen's septal puncture, inside tests
+by winding number); a scenario selects it with ``atrium_file`` and ``puncture``.
 
-No third-party mesh library is needed: OBJ (``v``/``f`` records, polygons fanned into triangles,
-``f a/b/c`` and negative indices accepted) and STL (ASCII or binary) are parsed here.
+No third-party mesh reader is needed: OBJ (``v``/``f`` records, polygons fanned into triangles,
+``f a/b/c`` and negative indices accepted), STL (ASCII or binary), PLY (ASCII or binary) and
+legacy ASCII VTK polydata are parsed here.
 """
 
 from __future__ import annotations
@@ -35,9 +43,12 @@ SENSIBLE_EXTENT_MM = (30.0, 80.0)  # typical LA size; outside ACCEPTED_EXTENT_MM
 ACCEPTED_EXTENT_MM = (20.0, 120.0)
 MAX_PUNCTURE_DISTANCE = 5e-3  # [m] a user's puncture may lie this far from the surface
 MAX_OPENING_AREA = 1e-6  # [m^2] an opening (a seam not welded) up to this area is bridged, not refused
-DECIMATE_ABOVE = 40_000  # triangles: a larger surface is decimated for contact and the signed distance
-DECIMATE_TO = 20_000  # triangles after decimation (edges about 1 mm on an atrium)
+SEAM_GAP = 0.2e-3  # [m] rims closer than this belong to one opening (the two sides of a seam)
+DECIMATE_ABOVE = 20_000  # triangles: a larger surface is decimated for contact and the signed distance
+DECIMATE_TO = 10_000  # triangles after decimation (edges about 1.4 mm on a 50 mm atrium)
 MAX_TRIANGLES = 2_000_000  # refused above (a segmentation at 0.1 mm voxels has about 1 million)
+MAX_MITER = 3.0  # a wall vertex moves at most this many wall thicknesses (at a sharp corner)
+MAX_SLIVER_FRACTION = 0.01  # triangles whose wall prism is flat: left out of the wall up to this share
 NESTED_FRACTION = 0.9  # a shell with this share of its vertices inside another is nested in it
 DEGENERATE_VOLUME_FRACTION = 1e-6  # a wall tetrahedron this much smaller than the median is flat
 
@@ -48,7 +59,8 @@ class AtriumMeshError(UserInputError):
 
 @dataclass
 class AtriumSurface:
-    """A validated endocardial surface in metres, outward oriented.
+    """A validated surface in metres, each shell oriented by its nesting depth (outward, inward
+    around a cavity).
 
     Attributes:
         V: (nv, 3) vertices [m].
@@ -217,6 +229,145 @@ def read_stl(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return _weld(corners, extent * 1e-9)
 
 
+PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+             "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+             "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
+
+
+def _ply_header(path: Path, data: bytes) -> tuple[str, list, int]:
+    """(format, elements [(name, count, [(property, type, list count type or None)])], body offset)."""
+    end = data.find(b"end_header")
+    if not data.startswith(b"ply") or end < 0:
+        raise AtriumMeshError(f"{path}: not a PLY file (it must start with 'ply' and have an 'end_header' line)")
+    body = data.index(b"\n", end) + 1
+    fmt, elements = "", []
+    for line in data[:end].decode("latin-1").splitlines()[1:]:
+        parts = line.split()
+        if not parts or parts[0] in ("comment", "obj_info"):
+            continue
+        try:
+            if parts[0] == "format":
+                fmt = parts[1]
+            elif parts[0] == "element":
+                elements.append((parts[1], int(parts[2]), []))
+            elif parts[0] == "property" and parts[1] == "list":
+                elements[-1][2].append((parts[4], PLY_TYPES[parts[3]], PLY_TYPES[parts[2]]))
+            elif parts[0] == "property":
+                elements[-1][2].append((parts[2], PLY_TYPES[parts[1]], None))
+        except (IndexError, KeyError, ValueError):
+            raise AtriumMeshError(f"{path}: PLY header line {short_repr(line)} is not understood") from None
+    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+        raise AtriumMeshError(f"{path}: PLY format {short_repr(fmt)}; allowed: ascii, binary_little_endian, "
+                              "binary_big_endian")
+    return fmt, elements, body
+
+
+def _ply_records(fmt: str, props: list, count: int, data: bytes, pos: int, tokens: list):
+    """One element's records as lists of values (lists for list properties); the new position."""
+    end = "<" if fmt == "binary_little_endian" else ">"
+    rows = []
+    for _ in range(count):
+        row = []
+        for _, typ, list_type in props:
+            if fmt == "ascii":
+                n = int(tokens[pos]) if list_type else 1
+                values = [float(x) for x in tokens[pos + (1 if list_type else 0):pos + (1 if list_type else 0) + n]]
+                pos += n + (1 if list_type else 0)
+            else:
+                if list_type:
+                    n = int(np.frombuffer(data, end + list_type, 1, pos)[0])
+                    pos += np.dtype(list_type).itemsize
+                else:
+                    n = 1
+                values = np.frombuffer(data, end + typ, n, pos).tolist()
+                pos += n * np.dtype(typ).itemsize
+            row.append(values if list_type else values[0])
+        rows.append(row)
+    return rows, pos
+
+
+def read_ply(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and triangles of a PLY file (ASCII or binary; the 'vertex' element's x, y, z and
+    the 'face' element's index list, polygons fanned into triangles).
+
+    Raises:
+        AtriumMeshError: not a PLY, an unknown format or type, missing x/y/z or faces, a short file.
+    """
+    data = _read_bytes(path)
+    fmt, elements, body = _ply_header(path, data)
+    tokens = data[body:].split() if fmt == "ascii" else []
+    pos = 0 if fmt == "ascii" else body
+    V = F = None
+    try:
+        for name, count, props in elements:
+            fast = fmt != "ascii" and all(t is None for _, _, t in props)
+            if fast:  # fixed-size records: one read
+                end = "<" if fmt == "binary_little_endian" else ">"
+                rec = np.frombuffer(data, np.dtype([(p, end + t) for p, t, _ in props]), count, pos)
+                pos += rec.nbytes
+                rows = None
+            else:
+                rows, pos = _ply_records(fmt, props, count, data, pos, tokens)
+            names = [p for p, _, _ in props]
+            if name == "vertex":
+                if not {"x", "y", "z"} <= set(names):
+                    raise AtriumMeshError(f"{path}: the PLY vertex element has no x, y and z properties")
+                V = (np.stack([rec[k].astype(float) for k in "xyz"], axis=1) if fast else
+                     np.array([[row[names.index(k)] for k in "xyz"] for row in rows], float))
+            elif name == "face":
+                lists = [k for k, (_, _, t) in enumerate(props) if t]
+                if not lists or rows is None:
+                    raise AtriumMeshError(f"{path}: the PLY face element has no vertex index list")
+                F = [[int(r[lists[0]][0]), int(r[lists[0]][k]), int(r[lists[0]][k + 1])]
+                     for r in rows for k in range(1, len(r[lists[0]]) - 1)]
+    except (ValueError, IndexError, TypeError):
+        raise AtriumMeshError(f"{path}: the PLY body is shorter than its header says, or has a value that is "
+                              "not a number") from None
+    if V is None or not F:
+        raise AtriumMeshError(f"{path}: the PLY file needs a 'vertex' element (x, y, z) and a 'face' element")
+    F = np.array(F, np.int64)
+    if F.min() < 0 or F.max() >= len(V):
+        raise AtriumMeshError(f"{path}: a PLY face index is outside 0..{len(V) - 1}")
+    if not np.all(np.isfinite(V)):
+        raise AtriumMeshError(f"{path}: a PLY vertex coordinate is not finite (NaN or inf)")
+    return V, F
+
+
+def read_vtk_polydata(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and triangles of a legacy ASCII VTK file with a POLYDATA data set (POINTS and
+    POLYGONS, polygons fanned into triangles).
+
+    Raises:
+        AtriumMeshError: not ASCII POLYDATA, or a short or malformed POINTS/POLYGONS section.
+    """
+    text = _mesh_text(path, _read_bytes(path), "VTK")
+    tokens = text.split()
+    upper = [t.upper() for t in tokens[:200]]
+    if "ASCII" not in upper or "POLYDATA" not in upper:
+        raise AtriumMeshError(f"{path}: only legacy ASCII VTK files with 'DATASET POLYDATA' (POINTS and POLYGONS) "
+                              "are read; save the surface as ASCII VTK, STL, OBJ or PLY")
+    try:
+        i = [t.upper() for t in tokens].index("POINTS")
+        nv = int(tokens[i + 1])
+        V = np.array(tokens[i + 3:i + 3 + 3 * nv], float).reshape(nv, 3)
+        j = [t.upper() for t in tokens].index("POLYGONS")
+        n, size = int(tokens[j + 1]), int(tokens[j + 2])
+        flat = np.array(tokens[j + 3:j + 3 + size], np.int64)
+    except (ValueError, IndexError):
+        raise AtriumMeshError(f"{path}: the VTK POINTS or POLYGONS section is missing, short or not numbers") from None
+    F, k = [], 0
+    for _ in range(n):
+        m = int(flat[k])
+        poly = flat[k + 1:k + 1 + m]
+        F += [[poly[0], poly[q], poly[q + 1]] for q in range(1, m - 1)]
+        k += m + 1
+    F = np.array(F, np.int64).reshape(-1, 3)
+    if len(F) == 0 or F.min() < 0 or F.max() >= nv or not np.all(np.isfinite(V)):
+        raise AtriumMeshError(f"{path}: the VTK POLYGONS are empty or index outside the {nv} points, or a point "
+                              "is not finite")
+    return V, F
+
+
 def write_stl_ascii(path: Path, V: np.ndarray, F: np.ndarray) -> Path:
     """Write an ASCII STL (for tests and round trips)."""
     lines = ["solid atrium"]
@@ -356,19 +507,19 @@ def _drop_unused(V: np.ndarray, F: np.ndarray, notes: list[str]) -> tuple[np.nda
 
 
 def opening_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """The area [m^2] of each opening of a surface: per connected set of boundary edges, the
-    length of its vector area (half the sum of a x b over its edges a -> b). A hole spans its
-    area; a seam left open (two rims running side by side in opposite directions) spans
-    almost none, however long. Empty for a closed surface."""
+    """The area [m^2] of each opening of a surface: per set of boundary edges connected through
+    shared vertices or vertices closer than ``SEAM_GAP``, the length of its vector area (half the
+    sum of a x b over its edges a -> b). A hole spans its area; a seam left open (two rims
+    running side by side in opposite directions, welded or not) spans almost none, however
+    long. Empty for a closed surface."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    directed = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
-    _, inverse, counts = np.unique(np.sort(directed, axis=1), axis=0, return_inverse=True, return_counts=True)
-    rim = directed[counts[inverse.ravel()] == 1]
+    rim = _rim_edges(F)
     if len(rim) == 0:
         return np.zeros(0)
-    graph = coo_matrix((np.ones(len(rim)), (rim[:, 0], rim[:, 1])), shape=(len(V), len(V)))
+    links = np.concatenate([rim, _seam_links(V, rim)])
+    graph = coo_matrix((np.ones(len(links)), (links[:, 0], links[:, 1])), shape=(len(V), len(V)))
     _, label = connected_components(graph, directed=False)
     parts = np.unique(label[rim[:, 0]], return_inverse=True)[1].ravel()
     area = np.zeros((parts.max() + 1, 3))
@@ -410,12 +561,31 @@ def decimate(V: np.ndarray, F: np.ndarray, target: int, notes: list[str], progre
     return Vd, Fd
 
 
-def shell_labels(F: np.ndarray, nv: int) -> np.ndarray:
-    """The shell (connected piece) of each triangle (nf,), numbered from 0."""
+def _rim_edges(F: np.ndarray) -> np.ndarray:
+    """The boundary edges (k, 2) of a surface, as its triangles run them."""
+    directed = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    _, inverse, counts = np.unique(np.sort(directed, axis=1), axis=0, return_inverse=True, return_counts=True)
+    return directed[counts[inverse.ravel()] == 1]
+
+
+def _seam_links(V: np.ndarray, rim: np.ndarray) -> np.ndarray:
+    """Pairs (k, 2) of boundary vertices closer than ``SEAM_GAP``: the two sides of a seam."""
+    from scipy.spatial import cKDTree
+
+    ends = np.unique(rim)
+    if len(ends) < 2:
+        return np.zeros((0, 2), np.int64)
+    return ends[cKDTree(V[ends]).query_pairs(SEAM_GAP, output_type="ndarray")].reshape(-1, 2)
+
+
+def shell_labels(F: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """The shell (connected piece) of each triangle (nf,), numbered from 0; pieces that meet
+    along a seam left open (boundary vertices closer than ``SEAM_GAP``) are one shell."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    edges = np.concatenate([F[:, [0, 1]], F[:, [1, 2]]])
+    nv = len(V)
+    edges = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], _seam_links(V, _rim_edges(F))])
     graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(nv, nv))
     _, label = connected_components(graph, directed=False)
     return np.unique(label[F[:, 0]], return_inverse=True)[1].ravel()
@@ -448,7 +618,7 @@ def orient_shells(V: np.ndarray, F: np.ndarray, notes: list[str]) -> tuple[np.nd
     """Orient each shell by its nesting depth (outward at even depth, inward in a cavity) so that
     winding numbers add up to 1 in the solid and 0 in cavities and outside; returns the
     re-oriented triangles and the enclosed volume [m^3]."""
-    shells = shell_labels(F, len(V))
+    shells = shell_labels(F, V)
     k = int(shells.max()) + 1
     depth = (shell_containment(V, F, shells) > NESTED_FRACTION).sum(axis=1) if k > 1 else np.zeros(1, int)
     F = F.copy()
@@ -471,10 +641,10 @@ def orient_shells(V: np.ndarray, F: np.ndarray, notes: list[str]) -> tuple[np.nd
 
 
 def load_atrium_surface(path: Path | str, units: Units = "auto") -> AtriumSurface:
-    """Read an OBJ or STL endocardial surface, validate it and return it in metres.
+    """Read an OBJ, STL, PLY or VTK surface, validate it and return it in metres.
 
     Args:
-        path: .obj or .stl file.
+        path: .obj, .stl, .ply or .vtk (legacy ASCII polydata) file.
         units: "m", "mm" or "auto" (guessed from the size, see the module docstring).
 
     Raises:
@@ -486,14 +656,12 @@ def load_atrium_surface(path: Path | str, units: Units = "auto") -> AtriumSurfac
     if not path.exists():
         raise AtriumMeshError(f"{path}: no such file")
     if not path.is_file():
-        raise AtriumMeshError(f"{path}: not a file (a folder?); give an .obj or .stl file")
+        raise AtriumMeshError(f"{path}: not a file (a folder?); give an .obj, .stl, .ply or .vtk file")
     suffix = path.suffix.lower()
-    if suffix == ".obj":
-        V, F = read_obj(path)
-    elif suffix == ".stl":
-        V, F = read_stl(path)
-    else:
-        raise AtriumMeshError(f"{path}: unsupported format {suffix!r} (use .obj or .stl)")
+    readers = {".obj": read_obj, ".stl": read_stl, ".ply": read_ply, ".vtk": read_vtk_polydata}
+    if suffix not in readers:
+        raise AtriumMeshError(f"{path}: unsupported format {suffix!r} (use .obj, .stl, .ply or .vtk)")
+    V, F = readers[suffix](path)
     try:
         return validate_surface(V, F, units)
     except AtriumMeshError as err:
@@ -577,9 +745,8 @@ class UserAtrium:
         self.rings: dict = {}  # no ablation targets, ostia or carinas (the Atrium protocol)
         self.ostia: list = []
         self.carinas: dict = {}
-        self._normals = mt.vertex_normals(V, F)
         grow = 1.0 if side == "lumen" else -1.0  # the wall lies behind the surface, seen from the chain
-        self._wall_normals = grow * self._normals
+        self._wall_normals = grow * wall_directions(V, F)
         self._behind = SurfaceTree.build(V + self._wall_normals * self.params.wall_thickness, F)
         self.inner_faces = self._chamber_faces
         if side == "lumen":
@@ -599,7 +766,7 @@ class UserAtrium:
         vein tubes; solid: the parts): a shell's triangles inside another shell are dropped (as
         the procedural atrium's ostia are open), so that the wall does not close an ostium."""
         V, F = self.surface.V, self.surface.F
-        shells = shell_labels(F, len(V))
+        shells = shell_labels(F, V)
         k = int(shells.max()) + 1
         if k == 1:
             return F
@@ -676,23 +843,33 @@ class UserAtrium:
         return inside if self.side == "lumen" else ~inside
 
     def _check_wall(self) -> None:
-        """Refuse a surface whose grown wall has flat tetrahedra (Drake cannot give them a
-        pressure field: "A mesh field element was degenerate"), saying where they are."""
-        Vt, T = self.wall_tetrahedra
+        """Leave out of the wall the triangles whose prisms have flat tetrahedra (slivers, as a
+        boolean union leaves along its seams: Drake cannot give a flat element a pressure field,
+        "A mesh field element was degenerate"); their neighbours' prisms cover the gap. More than
+        ``MAX_SLIVER_FRACTION`` of them is refused, saying where the first is."""
+        p = self.params
+        faces = self.inner_faces
+        Vt, T = mt.extrude_shell(self.surface.V, faces, self._wall_normals, p.wall_thickness, p.wall_layers)
         vol = mt.signed_volumes(Vt, T)
         bad = np.flatnonzero(vol <= DEGENERATE_VOLUME_FRACTION * np.median(np.abs(vol)))
-        if len(bad):
+        self.wall_faces = faces
+        if len(bad) == 0:
+            return
+        slivers = np.unique(bad % len(faces))  # extrude_shell stacks the tetrahedra face by face
+        if len(slivers) > MAX_SLIVER_FRACTION * len(faces):
             where = np.round(Vt[T[bad[0]]].mean(axis=0) * 1e3, 2).tolist()
             raise AtriumMeshError(
                 f"atrium_file: the wall grown from this surface has {len(bad)} flat (zero-volume) tetrahedra, the "
                 f"first near {where} mm: the surface has a zero-area triangle or a fold there; remesh it (e.g. "
                 "remove degenerate faces) and try again")
+        self.wall_faces = np.delete(faces, slivers, axis=0)
+        self.surface.notes.append(f"{len(slivers)} sliver triangles left out of the contact wall")
 
     @property
     def wall_tetrahedra(self) -> tuple[np.ndarray, np.ndarray]:
         """The wall behind the surface (outward from a lumen, into a solid), as tetrahedra."""
         p = self.params
-        return mt.extrude_shell(self.surface.V, self.inner_faces, self._wall_normals, p.wall_thickness,
+        return mt.extrude_shell(self.surface.V, self.wall_faces, self._wall_normals, p.wall_thickness,
                                 p.wall_layers)
 
     @property
@@ -741,7 +918,7 @@ class UserAtrium:
 
         from ballchain.drake_models.model_files import cache_dir, cached_files, source_hash
 
-        key = hashlib.sha1(self.surface.V.tobytes() + self.inner_faces.tobytes() + repr(self.params).encode()
+        key = hashlib.sha1(self.surface.V.tobytes() + self.wall_faces.tobytes() + repr(self.params).encode()
                            + self.side.encode() + source_hash(sys.modules[__name__], mt).encode()).hexdigest()[:12]
         directory = Path(directory) if directory else cache_dir() / f"user_atrium_{key}"
 
@@ -751,6 +928,28 @@ class UserAtrium:
             mt.write_obj(tmp["obj"], V, mt.boundary_surface(V, T))
 
         return cached_files(directory, {"vtk": "atrium_wall.vtk", "obj": "atrium_wall.obj"}, write)
+
+
+def wall_directions(V: np.ndarray, F: np.ndarray, cap: float = MAX_MITER) -> np.ndarray:
+    """Per vertex, the displacement (nv, 3) for a wall one unit thick: along the angle-weighted
+    normal (Thuermer and Wuethrich 1998: independent of how the faces around the vertex are
+    triangulated, so a box corner's points along its diagonal), lengthened so that every face
+    around the vertex moves at least one unit along its own normal (a mitred corner: a box's
+    corner moves by (1, 1, 1)), at most ``cap`` units (a spike)."""
+    tri = V[F]
+    face_n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    face_n /= np.linalg.norm(face_n, axis=1)[:, None]
+    N = np.zeros_like(V)
+    for k in range(3):
+        e1 = tri[:, (k + 1) % 3] - tri[:, k]
+        e2 = tri[:, (k + 2) % 3] - tri[:, k]
+        cos = np.einsum("ij,ij->i", e1, e2) / (np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1))
+        np.add.at(N, F[:, k], np.arccos(np.clip(cos, -1.0, 1.0))[:, None] * face_n)
+    N /= np.linalg.norm(N, axis=1)[:, None]
+    least = np.full(len(V), np.inf)
+    for k in range(3):
+        np.minimum.at(least, F[:, k], np.einsum("ij,ij->i", N[F[:, k]], face_n))
+    return N / np.clip(least, 1.0 / cap, 1.0)[:, None]
 
 
 def grid_winding_inside(tree: SurfaceTree, origin: np.ndarray, spacing: float, shape: tuple[int, int, int]

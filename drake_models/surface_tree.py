@@ -8,9 +8,11 @@ any origin (a segmentation, a printed phantom's CAD export) at grid scale.
   (overlapping shells give 2 where they overlap, nested shells of opposite orientation give 0 in
   the cavity). A point is inside where w > 1/2. Exact per triangle (Van Oosterom and Strackee
   1983) near the point; a cluster of triangles whose bounding sphere (radius r) is farther than
-  ``beta`` r contributes its dipole term A . (c - p) / (4 pi |c - p|^3), A the cluster's summed
-  vector area and c its area centroid (the far-field expansion of Barill et al. 2018, first
-  order): the error is O((r/d)^2) of the cluster's own small solid angle.
+  ``beta`` r contributes the far-field expansion of Barill et al. 2018 to second order: with
+  g(x) = (x - p) / |x - p|^3, each triangle's solid angle is A_i . g(c_i) (A_i its vector area,
+  c_i its centroid), expanded about the cluster's area centroid c:
+  A . g(c) + sum_ab J_ab(c) N_ab, J = dg/dx, N = sum_i A_i (c_i - c)^T; the error is
+  O((r/d)^2) of the cluster's own small solid angle.
 * Distance: exact point-to-triangle distance (closest point by Voronoi regions, Ericson 2005,
   5.1.5), branch and bound over the spheres (a cluster is skipped when |p - c| - r exceeds the
   best distance so far or the cut-off).
@@ -21,7 +23,7 @@ triangle centroids, leaves of at most ``LEAF_SIZE`` triangles); the queries are 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
@@ -29,7 +31,7 @@ from numba import njit
 from ballchain.drake_models.numba_cache import guard_cache
 
 LEAF_SIZE = 8
-BETA = 3.0  # a cluster counts as a dipole beyond BETA times its bounding radius
+BETA = 3.0  # a cluster is expanded beyond BETA times its bounding radius
 
 
 @dataclass
@@ -41,6 +43,8 @@ class SurfaceTree:
             contiguous rows ``start:start + count``.
         centre, radius: (nn, 3), (nn,) node bounding spheres [m] (centre: the area centroid).
         area: (nn, 3) summed vector area (half the cross products) of each node's triangles [m^2].
+        moment: (nn, 3, 3) sum of A_i (c_i - c)^T over each node's triangles [m^3].
+        reach: the largest distance from a triangle's centroid to its corners [m].
         start, count, left, right: (nn,) node ranges and children (-1 at leaves).
     """
 
@@ -48,10 +52,13 @@ class SurfaceTree:
     centre: np.ndarray
     radius: np.ndarray
     area: np.ndarray
+    moment: np.ndarray
+    reach: float
     start: np.ndarray
     count: np.ndarray
     left: np.ndarray
     right: np.ndarray
+    _centroids: object = field(default=None, repr=False)
 
     @classmethod
     def build(cls, V: np.ndarray, F: np.ndarray, leaf_size: int = LEAF_SIZE) -> "SurfaceTree":
@@ -84,23 +91,37 @@ class SurfaceTree:
         # Per-node sums by prefix sums over the contiguous ranges.
         cum = lambda a: np.concatenate([np.zeros((1,) + a.shape[1:]), np.cumsum(a, axis=0)])  # noqa: E731
         cw, cwc, ca = cum(weight), cum(weight[:, None] * centroids), cum(vec_area)
+        cac = cum(vec_area[:, :, None] * centroids[:, None, :])
         centre = (cwc[start + count] - cwc[start]) / (cw[start + count] - cw[start])[:, None]
         area = ca[start + count] - ca[start]
+        moment = cac[start + count] - cac[start] - area[:, :, None] * centre[:, None, :]
         radius = _node_radii(tri, centre, start, count)
-        return cls(np.ascontiguousarray(tri), centre, radius, area, start, count, nodes[:, 2].copy(),
-                   nodes[:, 3].copy())
+        reach = float(np.linalg.norm(tri - centroids[:, None], axis=2).max())
+        return cls(np.ascontiguousarray(tri), centre, radius, area, np.ascontiguousarray(moment), reach, start,
+                   count, nodes[:, 2].copy(), nodes[:, 3].copy())
 
     def winding_numbers(self, points: np.ndarray, beta: float = BETA) -> np.ndarray:
         """Generalised winding numbers (k,) of the surface at points (k, 3) [m]."""
         P = np.ascontiguousarray(np.atleast_2d(np.asarray(points, float)))
-        return _winding(P, self.tri, self.centre, self.radius, self.area, self.start, self.count, self.left,
-                        self.right, float(beta))
+        return _winding(P, self.tri, self.centre, self.radius, self.area, self.moment, self.start, self.count,
+                        self.left, self.right, float(beta))
 
     def distances(self, points: np.ndarray, cutoff: float = np.inf) -> np.ndarray:
         """Unsigned distances (k,) [m] from points (k, 3) [m] to the surface, capped at ``cutoff``."""
         P = np.ascontiguousarray(np.atleast_2d(np.asarray(points, float)))
-        return _distance(P, self.tri, self.centre, self.radius, self.start, self.count, self.left, self.right,
-                         float(cutoff))
+        # The nearest centroid bounds the distance: from above by its own distance, from below
+        # by that less ``reach``; only points that may lie within the cut-off are searched.
+        from scipy.spatial import cKDTree
+
+        if getattr(self, "_centroids", None) is None:
+            self._centroids = cKDTree(self.tri.mean(axis=1))
+        d_c, _ = self._centroids.query(P, k=1, distance_upper_bound=cutoff + self.reach)
+        out = np.full(len(P), float(cutoff))
+        todo = np.flatnonzero(d_c - self.reach < cutoff)
+        upper = np.minimum(d_c[todo], cutoff)
+        out[todo] = _distance(np.ascontiguousarray(P[todo]), self.tri, self.centre, self.radius, self.start,
+                              self.count, self.left, self.right, upper)
+        return out
 
 
 @njit(cache=True)
@@ -121,34 +142,41 @@ def _node_radii(tri, centre, start, count):
 @njit(cache=True)
 def _solid_angle(p, t):
     """Signed solid angle [sr] of triangle t (3, 3) seen from p (Van Oosterom and Strackee)."""
-    a = t[0] - p
-    b = t[1] - p
-    c = t[2] - p
-    la = np.sqrt(a @ a)
-    lb = np.sqrt(b @ b)
-    lc = np.sqrt(c @ c)
-    det = a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0]) + a[2] * (b[0] * c[1] - b[1] * c[0])
-    den = la * lb * lc + (a @ b) * lc + (b @ c) * la + (c @ a) * lb
+    ax, ay, az = t[0, 0] - p[0], t[0, 1] - p[1], t[0, 2] - p[2]
+    bx, by, bz = t[1, 0] - p[0], t[1, 1] - p[1], t[1, 2] - p[2]
+    cx, cy, cz = t[2, 0] - p[0], t[2, 1] - p[1], t[2, 2] - p[2]
+    la = np.sqrt(ax * ax + ay * ay + az * az)
+    lb = np.sqrt(bx * bx + by * by + bz * bz)
+    lc = np.sqrt(cx * cx + cy * cy + cz * cz)
+    det = ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)
+    den = (la * lb * lc + (ax * bx + ay * by + az * bz) * lc + (bx * cx + by * cy + bz * cz) * la
+           + (cx * ax + cy * ay + cz * az) * lb)
     return 2.0 * np.arctan2(det, den)
 
 
 @njit(cache=True)
-def _winding(P, tri, centre, radius, area, start, count, left, right, beta):
+def _winding(P, tri, centre, radius, area, moment, start, count, left, right, beta):
     out = np.zeros(P.shape[0])
     stack = np.empty(128, np.int64)
     for i in range(P.shape[0]):
         p = P[i]
         w = 0.0
-        top = 0
         stack[0] = 0
         top = 1
         while top > 0:
             top -= 1
             k = stack[top]
-            d = centre[k] - p
-            dist = np.sqrt(d @ d)
-            if dist > beta * radius[k]:
-                w += (area[k] @ d) / dist**3
+            dx, dy, dz = centre[k, 0] - p[0], centre[k, 1] - p[1], centre[k, 2] - p[2]
+            r2 = dx * dx + dy * dy + dz * dz
+            if r2 > (beta * radius[k]) ** 2:
+                r = np.sqrt(r2)
+                r3 = r2 * r
+                w += (area[k, 0] * dx + area[k, 1] * dy + area[k, 2] * dz) / r3
+                # sum_ab J_ab N_ab, J = I / r^3 - 3 x x^T / r^5 at x = c - p
+                m = moment[k]
+                xnx = (dx * (m[0, 0] * dx + m[0, 1] * dy + m[0, 2] * dz) + dy * (m[1, 0] * dx + m[1, 1] * dy
+                       + m[1, 2] * dz) + dz * (m[2, 0] * dx + m[2, 1] * dy + m[2, 2] * dz))
+                w += (m[0, 0] + m[1, 1] + m[2, 2]) / r3 - 3.0 * xnx / (r3 * r2)
             elif left[k] < 0:
                 for t in range(start[k], start[k] + count[k]):
                     w += _solid_angle(p, tri[t])
@@ -161,67 +189,71 @@ def _winding(P, tri, centre, radius, area, start, count, left, right, beta):
 
 
 @njit(cache=True)
-def _point_triangle(p, a, b, c):
-    """Distance from p to triangle abc (closest point by Voronoi regions, Ericson 5.1.5)."""
-    ab = b - a
-    ac = c - a
-    ap = p - a
-    d1 = ab @ ap
-    d2 = ac @ ap
+def _point_triangle(p, t):
+    """Distance from p to triangle t (3, 3) (closest point by Voronoi regions, Ericson 5.1.5)."""
+    abx, aby, abz = t[1, 0] - t[0, 0], t[1, 1] - t[0, 1], t[1, 2] - t[0, 2]
+    acx, acy, acz = t[2, 0] - t[0, 0], t[2, 1] - t[0, 1], t[2, 2] - t[0, 2]
+    apx, apy, apz = p[0] - t[0, 0], p[1] - t[0, 1], p[2] - t[0, 2]
+    d1 = abx * apx + aby * apy + abz * apz
+    d2 = acx * apx + acy * apy + acz * apz
+    u, v = 0.0, 0.0  # the closest point is a + u ab + v ac
     if d1 <= 0.0 and d2 <= 0.0:
-        q = a
+        pass
     else:
-        bp = p - b
-        d3 = ab @ bp
-        d4 = ac @ bp
-        cp = p - c
-        d5 = ab @ cp
-        d6 = ac @ cp
+        bpx, bpy, bpz = p[0] - t[1, 0], p[1] - t[1, 1], p[2] - t[1, 2]
+        d3 = abx * bpx + aby * bpy + abz * bpz
+        d4 = acx * bpx + acy * bpy + acz * bpz
+        cpx, cpy, cpz = p[0] - t[2, 0], p[1] - t[2, 1], p[2] - t[2, 2]
+        d5 = abx * cpx + aby * cpy + abz * cpz
+        d6 = acx * cpx + acy * cpy + acz * cpz
         vc = d1 * d4 - d3 * d2
         vb = d5 * d2 - d1 * d6
         va = d3 * d6 - d5 * d4
         if d3 >= 0.0 and d4 <= d3:
-            q = b
+            u = 1.0
         elif vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-            q = a + (d1 / (d1 - d3)) * ab
+            u = d1 / (d1 - d3)
         elif d6 >= 0.0 and d5 <= d6:
-            q = c
+            v = 1.0
         elif vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-            q = a + (d2 / (d2 - d6)) * ac
+            v = d2 / (d2 - d6)
         elif va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
-            q = b + ((d4 - d3) / ((d4 - d3) + (d5 - d6))) * (c - b)
+            s = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+            u, v = 1.0 - s, s
         else:
             s = va + vb + vc
-            if s == 0.0:  # a degenerate triangle: its longest edge
-                q = a
-            else:
-                q = a + ab * (vb / s) + ac * (vc / s)
-    e = p - q
-    return np.sqrt(e @ e)
+            if s != 0.0:  # else a degenerate triangle: its corner a
+                u, v = vb / s, vc / s
+    ex = apx - u * abx - v * acx
+    ey = apy - u * aby - v * acy
+    ez = apz - u * abz - v * acz
+    return np.sqrt(ex * ex + ey * ey + ez * ez)
 
 
 @njit(cache=True)
-def _distance(P, tri, centre, radius, start, count, left, right, cutoff):
+def _distance(P, tri, centre, radius, start, count, left, right, upper):
     out = np.empty(P.shape[0])
     stack = np.empty(128, np.int64)
     for i in range(P.shape[0]):
         p = P[i]
-        best = cutoff
+        best = upper[i]
         stack[0] = 0
         top = 1
         while top > 0:
             top -= 1
             k = stack[top]
-            d = centre[k] - p
-            if np.sqrt(d @ d) - radius[k] >= best:
+            dx, dy, dz = centre[k, 0] - p[0], centre[k, 1] - p[1], centre[k, 2] - p[2]
+            reach = best + radius[k]
+            if dx * dx + dy * dy + dz * dz >= reach * reach:
                 continue
             if left[k] < 0:
                 for t in range(start[k], start[k] + count[k]):
-                    best = min(best, _point_triangle(p, tri[t, 0], tri[t, 1], tri[t, 2]))
+                    best = min(best, _point_triangle(p, tri[t]))
             else:
-                dl = centre[left[k]] - p
-                dr = centre[right[k]] - p
-                near, far = (left[k], right[k]) if dl @ dl < dr @ dr else (right[k], left[k])
+                l, r = left[k], right[k]
+                dl = (centre[l, 0] - p[0]) ** 2 + (centre[l, 1] - p[1]) ** 2 + (centre[l, 2] - p[2]) ** 2
+                dr = (centre[r, 0] - p[0]) ** 2 + (centre[r, 1] - p[1]) ** 2 + (centre[r, 2] - p[2]) ** 2
+                near, far = (l, r) if dl < dr else (r, l)
                 stack[top] = far
                 stack[top + 1] = near
                 top += 2
