@@ -349,3 +349,18 @@ def test_a_chain_in_the_atrium_with_an_appendage_stays_inside(appendage, engine)
     clearance = trimesh.proximity.signed_distance(mesh, p) - 0.5 * 3.175e-3
     assert clearance.min() > (-0.3e-3 if engine == "plant" else -1e-6)
     assert result.max_neighbor_gap_um < 20
+
+
+def test_the_camera_frames_a_solid_with_its_sheath(plate, appendage):
+    """A lumen's box is its surface's (the sheath is inside); a solid's also holds the sheath's
+    tip and its last 20 mm, in free space above the plate."""
+    from ballchain.systems.meshcat_view import SHEATH_IN_VIEW, atrium_box
+
+    lo, hi = atrium_box(appendage)
+    np.testing.assert_allclose(lo, appendage.surface.V.min(axis=0))
+    np.testing.assert_allclose(hi, appendage.surface.V.max(axis=0))
+    lo, hi = atrium_box(plate)
+    back = plate.p_HE - SHEATH_IN_VIEW * plate.sheath_axis_H
+    for p in (plate.p_HE, back, *plate.surface.V):
+        assert np.all(p >= lo - 1e-12) and np.all(p <= hi + 1e-12)
+    np.testing.assert_allclose(hi[2], back[2])  # the sheath stands highest
