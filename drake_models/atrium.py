@@ -28,6 +28,9 @@ class Atrium(Protocol):
         wall_distance: ``wall_distance(p (k, 3)) -> (k,)`` distance to the blood-side surface [m].
         lumen_key: what the lumen test depends on besides ``blood_surface``'s triangles (part
             of the SDF cache key).
+        side: "lumen" (the chain works inside the surface: an atrium) or "solid" (it works
+            outside: a printed phantom part; the signed distance, the wall, ``contains`` and the
+            camera framing are mirrored, see ``atrium_mesh.UserAtrium``).
     """
 
     p_HP: np.ndarray
@@ -38,9 +41,11 @@ class Atrium(Protocol):
     ostia: list
     carinas: dict
     lumen_key: str
+    side: str
 
     def contains(self, p_H: np.ndarray) -> np.ndarray:
-        """(k,) bool: the points (k, 3) lie inside the chamber."""
+        """(k,) bool: the points (k, 3) lie where the chain may be (inside the chamber; for a
+        solid, outside it and within the working box)."""
 
     @property
     def wall_tetrahedra(self) -> tuple[np.ndarray, np.ndarray]:

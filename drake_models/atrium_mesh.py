@@ -1,22 +1,31 @@
-"""Load and validate a user's segmented left-atrium surface (OBJ or STL), and give it a wall.
+"""Load and validate a user's anatomy surface (OBJ, STL, PLY or VTK), and give it a wall.
 
-The surface must be the endocardial (blood-side) surface of the chamber: one closed,
-consistently oriented triangle mesh (every edge shared by exactly two triangles). Its size
-decides the units when they are not declared: a left atrium is about 30-80 mm across, so a
-largest bounding-box side of 0.02-0.12 is read as metres and 20-120 as millimetres. Every check
-that fails is reported in one ``AtriumMeshError`` listing what is wrong and how to fix it.
+The surface is where the chain meets the anatomy: a segmented atrium's endocardial (blood-side)
+surface, with the chain inside it (``side="lumen"``), or a printed phantom part, a wall section
+with vein openings, with the chain outside it (``side="solid"``). Meshes nobody here generated
+are accepted as they come: several shells (vein tubes overlapping the chamber join it; a shell
+nested in another is a cavity, each oriented by its nesting depth), seams left slightly open
+(openings up to ``MAX_OPENING_AREA``), inside-out winding; inside tests use the generalised
+winding number of every shell (``surface_tree``). A surface above ``DECIMATE_ABOVE`` triangles
+is decimated (quadric edge collapses) for contact and the signed distance; one above
+``MAX_TRIANGLES`` is refused. Its size decides the units when they are not declared: a left
+atrium is about 30-80 mm across, so a largest bounding-box side of 0.02-0.12 is read as metres
+and 20-120 as millimetres. Every check that fails is reported in one ``AtriumMeshError``
+listing what is wrong and how to fix it.
 
 ``UserAtrium`` turns a validated surface into an atrium the chain plant accepts (a wall grown
-outward in two tetrahedra layers, a hole at the septal puncture, inside tests by winding
-number); a scenario selects it with ``atrium_file`` and ``puncture``.
+behind the surface in two tetrahedra layers, a hole at a lumen's septal puncture, inside tests
+by winding number); a scenario selects it with ``atrium_file`` and ``puncture``.
 
-No third-party mesh library is needed: OBJ (``v``/``f`` records, polygons fanned into triangles,
-``f a/b/c`` and negative indices accepted) and STL (ASCII or binary) are parsed here.
+No third-party mesh reader is needed: OBJ (``v``/``f`` records, polygons fanned into triangles,
+``f a/b/c`` and negative indices accepted), STL (ASCII or binary), PLY (ASCII or binary) and
+legacy ASCII VTK polydata are parsed here.
 """
 
 from __future__ import annotations
 
 import struct
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -27,11 +36,20 @@ from ballchain.drake_models import mesh_tools as mt
 from ballchain.drake_models.arg_checks import (as_array, as_vector, require_choice, require_int, require_positive,
                                                require_type)
 from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.drake_models.surface_tree import SurfaceTree
 
 Units = Literal["auto", "m", "mm"]
 SENSIBLE_EXTENT_MM = (30.0, 80.0)  # typical LA size; outside ACCEPTED_EXTENT_MM is refused
 ACCEPTED_EXTENT_MM = (20.0, 120.0)
 MAX_PUNCTURE_DISTANCE = 5e-3  # [m] a user's puncture may lie this far from the surface
+MAX_OPENING_AREA = 1e-6  # [m^2] an opening (a seam not welded) up to this area is bridged, not refused
+SEAM_GAP = 0.2e-3  # [m] rims closer than this belong to one opening (the two sides of a seam)
+DECIMATE_ABOVE = 20_000  # triangles: a larger surface is decimated for contact and the signed distance
+DECIMATE_TO = 10_000  # triangles after decimation (edges about 1.4 mm on a 50 mm atrium)
+MAX_TRIANGLES = 2_000_000  # refused above (a segmentation at 0.1 mm voxels has about 1 million)
+MAX_MITER = 3.0  # a wall vertex moves at most this many wall thicknesses (at a sharp corner)
+MAX_SLIVER_FRACTION = 0.01  # triangles whose wall prism is flat: left out of the wall up to this share
+NESTED_FRACTION = 0.9  # a shell with this share of its vertices inside another is nested in it
 DEGENERATE_VOLUME_FRACTION = 1e-6  # a wall tetrahedron this much smaller than the median is flat
 
 
@@ -41,7 +59,8 @@ class AtriumMeshError(UserInputError):
 
 @dataclass
 class AtriumSurface:
-    """A validated endocardial surface in metres, outward oriented.
+    """A validated surface in metres, each shell oriented by its nesting depth (outward, inward
+    around a cavity).
 
     Attributes:
         V: (nv, 3) vertices [m].
@@ -210,6 +229,145 @@ def read_stl(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return _weld(corners, extent * 1e-9)
 
 
+PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+             "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+             "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
+
+
+def _ply_header(path: Path, data: bytes) -> tuple[str, list, int]:
+    """(format, elements [(name, count, [(property, type, list count type or None)])], body offset)."""
+    end = data.find(b"end_header")
+    if not data.startswith(b"ply") or end < 0:
+        raise AtriumMeshError(f"{path}: not a PLY file (it must start with 'ply' and have an 'end_header' line)")
+    body = data.index(b"\n", end) + 1
+    fmt, elements = "", []
+    for line in data[:end].decode("latin-1").splitlines()[1:]:
+        parts = line.split()
+        if not parts or parts[0] in ("comment", "obj_info"):
+            continue
+        try:
+            if parts[0] == "format":
+                fmt = parts[1]
+            elif parts[0] == "element":
+                elements.append((parts[1], int(parts[2]), []))
+            elif parts[0] == "property" and parts[1] == "list":
+                elements[-1][2].append((parts[4], PLY_TYPES[parts[3]], PLY_TYPES[parts[2]]))
+            elif parts[0] == "property":
+                elements[-1][2].append((parts[2], PLY_TYPES[parts[1]], None))
+        except (IndexError, KeyError, ValueError):
+            raise AtriumMeshError(f"{path}: PLY header line {short_repr(line)} is not understood") from None
+    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+        raise AtriumMeshError(f"{path}: PLY format {short_repr(fmt)}; allowed: ascii, binary_little_endian, "
+                              "binary_big_endian")
+    return fmt, elements, body
+
+
+def _ply_records(fmt: str, props: list, count: int, data: bytes, pos: int, tokens: list):
+    """One element's records as lists of values (lists for list properties); the new position."""
+    end = "<" if fmt == "binary_little_endian" else ">"
+    rows = []
+    for _ in range(count):
+        row = []
+        for _, typ, list_type in props:
+            if fmt == "ascii":
+                n = int(tokens[pos]) if list_type else 1
+                values = [float(x) for x in tokens[pos + (1 if list_type else 0):pos + (1 if list_type else 0) + n]]
+                pos += n + (1 if list_type else 0)
+            else:
+                if list_type:
+                    n = int(np.frombuffer(data, end + list_type, 1, pos)[0])
+                    pos += np.dtype(list_type).itemsize
+                else:
+                    n = 1
+                values = np.frombuffer(data, end + typ, n, pos).tolist()
+                pos += n * np.dtype(typ).itemsize
+            row.append(values if list_type else values[0])
+        rows.append(row)
+    return rows, pos
+
+
+def read_ply(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and triangles of a PLY file (ASCII or binary; the 'vertex' element's x, y, z and
+    the 'face' element's index list, polygons fanned into triangles).
+
+    Raises:
+        AtriumMeshError: not a PLY, an unknown format or type, missing x/y/z or faces, a short file.
+    """
+    data = _read_bytes(path)
+    fmt, elements, body = _ply_header(path, data)
+    tokens = data[body:].split() if fmt == "ascii" else []
+    pos = 0 if fmt == "ascii" else body
+    V = F = None
+    try:
+        for name, count, props in elements:
+            fast = fmt != "ascii" and all(t is None for _, _, t in props)
+            if fast:  # fixed-size records: one read
+                end = "<" if fmt == "binary_little_endian" else ">"
+                rec = np.frombuffer(data, np.dtype([(p, end + t) for p, t, _ in props]), count, pos)
+                pos += rec.nbytes
+                rows = None
+            else:
+                rows, pos = _ply_records(fmt, props, count, data, pos, tokens)
+            names = [p for p, _, _ in props]
+            if name == "vertex":
+                if not {"x", "y", "z"} <= set(names):
+                    raise AtriumMeshError(f"{path}: the PLY vertex element has no x, y and z properties")
+                V = (np.stack([rec[k].astype(float) for k in "xyz"], axis=1) if fast else
+                     np.array([[row[names.index(k)] for k in "xyz"] for row in rows], float))
+            elif name == "face":
+                lists = [k for k, (_, _, t) in enumerate(props) if t]
+                if not lists or rows is None:
+                    raise AtriumMeshError(f"{path}: the PLY face element has no vertex index list")
+                F = [[int(r[lists[0]][0]), int(r[lists[0]][k]), int(r[lists[0]][k + 1])]
+                     for r in rows for k in range(1, len(r[lists[0]]) - 1)]
+    except (ValueError, IndexError, TypeError):
+        raise AtriumMeshError(f"{path}: the PLY body is shorter than its header says, or has a value that is "
+                              "not a number") from None
+    if V is None or not F:
+        raise AtriumMeshError(f"{path}: the PLY file needs a 'vertex' element (x, y, z) and a 'face' element")
+    F = np.array(F, np.int64)
+    if F.min() < 0 or F.max() >= len(V):
+        raise AtriumMeshError(f"{path}: a PLY face index is outside 0..{len(V) - 1}")
+    if not np.all(np.isfinite(V)):
+        raise AtriumMeshError(f"{path}: a PLY vertex coordinate is not finite (NaN or inf)")
+    return V, F
+
+
+def read_vtk_polydata(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and triangles of a legacy ASCII VTK file with a POLYDATA data set (POINTS and
+    POLYGONS, polygons fanned into triangles).
+
+    Raises:
+        AtriumMeshError: not ASCII POLYDATA, or a short or malformed POINTS/POLYGONS section.
+    """
+    text = _mesh_text(path, _read_bytes(path), "VTK")
+    tokens = text.split()
+    upper = [t.upper() for t in tokens[:200]]
+    if "ASCII" not in upper or "POLYDATA" not in upper:
+        raise AtriumMeshError(f"{path}: only legacy ASCII VTK files with 'DATASET POLYDATA' (POINTS and POLYGONS) "
+                              "are read; save the surface as ASCII VTK, STL, OBJ or PLY")
+    try:
+        i = [t.upper() for t in tokens].index("POINTS")
+        nv = int(tokens[i + 1])
+        V = np.array(tokens[i + 3:i + 3 + 3 * nv], float).reshape(nv, 3)
+        j = [t.upper() for t in tokens].index("POLYGONS")
+        n, size = int(tokens[j + 1]), int(tokens[j + 2])
+        flat = np.array(tokens[j + 3:j + 3 + size], np.int64)
+    except (ValueError, IndexError):
+        raise AtriumMeshError(f"{path}: the VTK POINTS or POLYGONS section is missing, short or not numbers") from None
+    F, k = [], 0
+    for _ in range(n):
+        m = int(flat[k])
+        poly = flat[k + 1:k + 1 + m]
+        F += [[poly[0], poly[q], poly[q + 1]] for q in range(1, m - 1)]
+        k += m + 1
+    F = np.array(F, np.int64).reshape(-1, 3)
+    if len(F) == 0 or F.min() < 0 or F.max() >= nv or not np.all(np.isfinite(V)):
+        raise AtriumMeshError(f"{path}: the VTK POLYGONS are empty or index outside the {nv} points, or a point "
+                              "is not finite")
+    return V, F
+
+
 def write_stl_ascii(path: Path, V: np.ndarray, F: np.ndarray) -> Path:
     """Write an ASCII STL (for tests and round trips)."""
     lines = ["solid atrium"]
@@ -242,13 +400,19 @@ def _guess_units(extent: float) -> str | None:
     return None
 
 
-def validate_surface(V: np.ndarray, F: np.ndarray, units: Units = "auto") -> AtriumSurface:
+def validate_surface(V: np.ndarray, F: np.ndarray, units: Units = "auto", progress: bool = True) -> AtriumSurface:
     """Check a surface and convert it to metres; raises AtriumMeshError listing every problem.
+
+    Accepted beyond a single closed shell: several shells (each oriented by how deeply it is
+    nested: outward, inward in a cavity, ...), seams left slightly open (openings up to
+    ``MAX_OPENING_AREA``), and a mesh of up to ``MAX_TRIANGLES`` triangles, decimated above
+    ``DECIMATE_ABOVE`` (see ``decimate``).
 
     Args:
         V: (nv, 3) vertices in the file's units.
         F: (nf, 3) triangles.
         units: "m", "mm", or "auto" (guessed from the size).
+        progress: say on stderr when a large mesh is decimated.
     """
     require_choice(units, ("auto", "m", "mm"), "units")
     V = np.asarray(V, dtype=float) if isinstance(V, np.ndarray) else as_array(V, "V", (-1, 3))
@@ -258,12 +422,16 @@ def validate_surface(V: np.ndarray, F: np.ndarray, units: Units = "auto") -> Atr
     if len(F) and (F.min() < 0 or F.max() >= len(V)):
         raise AtriumMeshError(f"F must index the {len(V)} vertices (0 to {len(V) - 1}), got indices "
                               f"{int(F.min())} to {int(F.max())}")
-    problems: list[str] = []
-    notes: list[str] = []
     if not np.all(np.isfinite(V)):
         raise AtriumMeshError("the surface has NaN or infinite vertex coordinates")
     if len(F) < 4:
         raise AtriumMeshError(f"the surface has {len(F)} triangles: a closed surface needs at least 4")
+    if len(F) > MAX_TRIANGLES:
+        raise AtriumMeshError(
+            f"the surface has {len(F):,} triangles, more than the {MAX_TRIANGLES:,} accepted (reading and "
+            f"decimating it would take minutes; contact and the signed distance use {DECIMATE_TO:,}): "
+            "decimate it first (e.g. quadric decimation in MeshLab or Blender)")
+    notes: list[str] = []
     extent_raw = float(np.ptp(V, axis=0).max())
     guessed = units == "auto"
     if guessed:
@@ -274,27 +442,49 @@ def validate_surface(V: np.ndarray, F: np.ndarray, units: Units = "auto") -> Atr
                 f"atrium is about 30-80 mm: 0.03-0.08 in metres or 30-80 in millimetres); rescale "
                 f"the mesh or declare its units")
         notes.append(f"units guessed as {units} from the size")
-    scale = 1e-3 if units == "mm" else 1.0
-    V = V * scale
+    V = V * (1e-3 if units == "mm" else 1.0)
     extent_mm = np.ptp(V, axis=0) * 1e3
+    problems = _size_problems(extent_mm, units, notes) + _topology_problems(V, F, notes)
+    if problems:
+        raise AtriumMeshError("atrium surface rejected:\n  - " + "\n  - ".join(problems))
+    V, F = _drop_unused(V, F, notes)
+    if len(F) > DECIMATE_ABOVE:
+        V, F = decimate(V, F, DECIMATE_TO, notes, progress)
+    F, volume = orient_shells(V, F, notes)
+    return AtriumSurface(V, F, units, guessed, extent_mm, volume * 1e6, notes)
+
+
+def _size_problems(extent_mm: np.ndarray, units: str, notes: list[str]) -> list[str]:
     if not ACCEPTED_EXTENT_MM[0] <= extent_mm.max() <= ACCEPTED_EXTENT_MM[1]:
-        problems.append(
-            f"size: the largest side is {extent_mm.max():.1f} mm in {units}, outside "
-            f"{ACCEPTED_EXTENT_MM[0]:.0f}-{ACCEPTED_EXTENT_MM[1]:.0f} mm (a left atrium is about "
-            f"{SENSIBLE_EXTENT_MM[0]:.0f}-{SENSIBLE_EXTENT_MM[1]:.0f} mm): wrong units or not an atrium?")
-    elif not SENSIBLE_EXTENT_MM[0] <= extent_mm.max() <= SENSIBLE_EXTENT_MM[1]:
+        return [f"size: the largest side is {extent_mm.max():.1f} mm in {units}, outside "
+                f"{ACCEPTED_EXTENT_MM[0]:.0f}-{ACCEPTED_EXTENT_MM[1]:.0f} mm (a left atrium is about "
+                f"{SENSIBLE_EXTENT_MM[0]:.0f}-{SENSIBLE_EXTENT_MM[1]:.0f} mm): wrong units or not an atrium?"]
+    if not SENSIBLE_EXTENT_MM[0] <= extent_mm.max() <= SENSIBLE_EXTENT_MM[1]:
         notes.append(f"largest side {extent_mm.max():.1f} mm is outside the usual 30-80 mm")
+    return []
+
+
+def _topology_problems(V: np.ndarray, F: np.ndarray, notes: list[str]) -> list[str]:
+    """Degenerate triangles, holes (openings larger than ``MAX_OPENING_AREA``; smaller ones, such
+    as a seam left unwelded, are noted), non-manifold edges, a shell's inconsistent winding."""
+    problems = []
     area2 = np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
-    degenerate = int((area2 <= 1e-12 * max(extent_mm.max() * 1e-3, 1e-9) ** 2).sum())
+    degenerate = int((area2 <= 1e-12 * max(float(np.ptp(V, axis=0).max()), 1e-9) ** 2).sum())
     if degenerate:
         problems.append(f"{degenerate} degenerate (zero-area or repeated-vertex) triangles")
     edges, counts, balance = mt.edge_use_counts(F)
     open_edges = int((counts == 1).sum())
     non_manifold = int((counts > 2).sum())
     if open_edges:
-        problems.append(
-            f"not closed: {open_edges} boundary edges (holes); close the holes (e.g. cap the "
-            "pulmonary veins and the mitral valve) so that the surface is watertight")
+        openings = opening_areas(V, F)
+        if openings.max() > MAX_OPENING_AREA:
+            problems.append(
+                f"not closed: {open_edges} boundary edges (holes, the largest {openings.max() * 1e6:.1f} mm^2 "
+                f"> {MAX_OPENING_AREA * 1e6:.0f} mm^2); close the holes (e.g. cap the pulmonary veins and the "
+                "mitral valve) so that the surface is watertight")
+        else:
+            notes.append(f"{open_edges} boundary edges in {len(openings)} narrow openings (seams, each under "
+                         f"{MAX_OPENING_AREA * 1e6:.0f} mm^2): the winding-number inside test bridges them")
     if non_manifold:
         problems.append(f"not manifold: {non_manifold} edges shared by more than two triangles")
     flipped_edges = int(((counts == 2) & (balance != 0)).sum())
@@ -302,28 +492,159 @@ def validate_surface(V: np.ndarray, F: np.ndarray, units: Units = "auto") -> Atr
         problems.append(
             f"inconsistent orientation: {flipped_edges} edges between triangles facing opposite "
             "ways; make the triangle winding consistent")
+    return problems
+
+
+def _drop_unused(V: np.ndarray, F: np.ndarray, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
     used = np.zeros(len(V), bool)
     used[F.ravel()] = True
-    if not used.all():
-        notes.append(f"{int((~used).sum())} unused vertices dropped")
-        remap = -np.ones(len(V), int)
-        remap[used] = np.arange(used.sum())
-        V, F = V[used], remap[F]
+    if used.all():
+        return V, F
+    notes.append(f"{int((~used).sum())} unused vertices dropped")
+    remap = -np.ones(len(V), int)
+    remap[used] = np.arange(used.sum())
+    return V[used], remap[F]
+
+
+def opening_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """The area [m^2] of each opening of a surface: per set of boundary edges connected through
+    shared vertices or vertices closer than ``SEAM_GAP``, the length of its vector area (half the
+    sum of a x b over its edges a -> b). A hole spans its area; a seam left open (two rims
+    running side by side in opposite directions, welded or not) spans almost none, however
+    long. Empty for a closed surface."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    rim = _rim_edges(F)
+    if len(rim) == 0:
+        return np.zeros(0)
+    links = np.concatenate([rim, _seam_links(V, rim)])
+    graph = coo_matrix((np.ones(len(links)), (links[:, 0], links[:, 1])), shape=(len(V), len(V)))
+    _, label = connected_components(graph, directed=False)
+    parts = np.unique(label[rim[:, 0]], return_inverse=True)[1].ravel()
+    area = np.zeros((parts.max() + 1, 3))
+    np.add.at(area, parts, 0.5 * np.cross(V[rim[:, 0]], V[rim[:, 1]]))
+    return np.linalg.norm(area, axis=1)
+
+
+def decimate(V: np.ndarray, F: np.ndarray, target: int, notes: list[str], progress: bool = True
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Quadric-error decimation of a large surface to about ``target`` triangles
+    (``fast_simplification``, Garland and Heckbert's edge collapses), for the contact wall and the
+    signed distance; refused when the result is no longer a usable surface.
+
+    Raises:
+        AtriumMeshError: the decimated surface has degenerate triangles, new holes or folds.
+    """
+    import time
+
+    import fast_simplification
+
+    if progress:
+        print(f"atrium mesh: decimating {len(F):,} triangles to about {target:,} (quadric decimation) ...",
+              file=sys.stderr, flush=True)
+    t0 = time.process_time()
+    Vd, Fd = fast_simplification.simplify(np.ascontiguousarray(V), np.ascontiguousarray(F, np.int32),
+                                          target_count=target)
+    Vd, Fd = np.asarray(Vd, float), np.asarray(Fd, np.int64)
+    cpu = time.process_time() - t0
+    problems = _topology_problems(Vd, Fd, [])
     if problems:
-        raise AtriumMeshError("atrium surface rejected:\n  - " + "\n  - ".join(problems))
-    volume = mt.enclosed_volume(V, F)
-    if volume < 0:
-        F = F[:, [0, 2, 1]]
-        volume = -volume
-        notes.append("triangles faced inward: orientation flipped to outward")
-    return AtriumSurface(V, F, units, guessed, extent_mm, volume * 1e6, notes)
+        raise AtriumMeshError(
+            f"the surface has {len(F):,} triangles (> {DECIMATE_ABOVE:,}) and its decimation to {target:,} is "
+            f"not usable ({'; '.join(problems)}): decimate it yourself to at most {DECIMATE_ABOVE:,} triangles")
+    Vd, Fd = _drop_unused(Vd, Fd, [])
+    notes.append(f"decimated from {len(F):,} to {len(Fd):,} triangles for contact and the signed distance "
+                 f"({cpu:.1f} s CPU)")
+    if progress:
+        print(f"atrium mesh: {len(F):,} -> {len(Fd):,} triangles in {cpu:.1f} s CPU", file=sys.stderr, flush=True)
+    return Vd, Fd
+
+
+def _rim_edges(F: np.ndarray) -> np.ndarray:
+    """The boundary edges (k, 2) of a surface, as its triangles run them."""
+    directed = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    _, inverse, counts = np.unique(np.sort(directed, axis=1), axis=0, return_inverse=True, return_counts=True)
+    return directed[counts[inverse.ravel()] == 1]
+
+
+def _seam_links(V: np.ndarray, rim: np.ndarray) -> np.ndarray:
+    """Pairs (k, 2) of boundary vertices closer than ``SEAM_GAP``: the two sides of a seam."""
+    from scipy.spatial import cKDTree
+
+    ends = np.unique(rim)
+    if len(ends) < 2:
+        return np.zeros((0, 2), np.int64)
+    return ends[cKDTree(V[ends]).query_pairs(SEAM_GAP, output_type="ndarray")].reshape(-1, 2)
+
+
+def shell_labels(F: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """The shell (connected piece) of each triangle (nf,), numbered from 0; pieces that meet
+    along a seam left open (boundary vertices closer than ``SEAM_GAP``) are one shell."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    nv = len(V)
+    edges = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], _seam_links(V, _rim_edges(F))])
+    graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(nv, nv))
+    _, label = connected_components(graph, directed=False)
+    return np.unique(label[F[:, 0]], return_inverse=True)[1].ravel()
+
+
+def shell_containment(V: np.ndarray, F: np.ndarray, shells: np.ndarray, samples: int = 64) -> np.ndarray:
+    """(k, k) fraction of shell i's sampled vertices that shell j encloses (|winding| > 1/2,
+    either orientation); the diagonal is 0. 1: i nested in j; 0: apart or around j; between:
+    the two overlap."""
+    k = int(shells.max()) + 1
+    inside = np.zeros((k, k))
+    boxes, points = [], []
+    rng = np.random.default_rng(0)
+    for i in range(k):
+        vi = np.unique(F[shells == i])
+        boxes.append((V[vi].min(axis=0), V[vi].max(axis=0)))
+        points.append(V[rng.choice(vi, min(samples, len(vi)), replace=False)])
+    for j in range(k):
+        tree = None
+        for i in range(k):
+            lo, hi = boxes[j]
+            if i == j or np.any(boxes[i][0] > hi) or np.any(boxes[i][1] < lo):
+                continue
+            tree = tree or SurfaceTree.build(V, F[shells == j])
+            inside[i, j] = np.mean(np.abs(tree.winding_numbers(points[i])) > 0.5)
+    return inside
+
+
+def orient_shells(V: np.ndarray, F: np.ndarray, notes: list[str]) -> tuple[np.ndarray, float]:
+    """Orient each shell by its nesting depth (outward at even depth, inward in a cavity) so that
+    winding numbers add up to 1 in the solid and 0 in cavities and outside; returns the
+    re-oriented triangles and the enclosed volume [m^3]."""
+    shells = shell_labels(F, V)
+    k = int(shells.max()) + 1
+    depth = (shell_containment(V, F, shells) > NESTED_FRACTION).sum(axis=1) if k > 1 else np.zeros(1, int)
+    F = F.copy()
+    flipped = 0
+    volume = 0.0
+    for i in range(k):
+        mine = shells == i
+        v = mt.enclosed_volume(V, F[mine])
+        want = 1.0 if depth[i] % 2 == 0 else -1.0
+        if v * want < 0:
+            F[mine] = F[mine][:, [0, 2, 1]]
+            flipped += 1
+        volume += abs(v) * want
+    if k > 1:
+        notes.append(f"{k} shells (nesting depths {sorted(int(d) for d in depth)})")
+    if flipped:
+        notes.append("triangles faced inward: orientation flipped to outward" if k == 1 else
+                     f"{flipped} of {k} shells faced the wrong way: re-oriented by nesting depth")
+    return F, volume
 
 
 def load_atrium_surface(path: Path | str, units: Units = "auto") -> AtriumSurface:
-    """Read an OBJ or STL endocardial surface, validate it and return it in metres.
+    """Read an OBJ, STL, PLY or VTK surface, validate it and return it in metres.
 
     Args:
-        path: .obj or .stl file.
+        path: .obj, .stl, .ply or .vtk (legacy ASCII polydata) file.
         units: "m", "mm" or "auto" (guessed from the size, see the module docstring).
 
     Raises:
@@ -335,14 +656,12 @@ def load_atrium_surface(path: Path | str, units: Units = "auto") -> AtriumSurfac
     if not path.exists():
         raise AtriumMeshError(f"{path}: no such file")
     if not path.is_file():
-        raise AtriumMeshError(f"{path}: not a file (a folder?); give an .obj or .stl file")
+        raise AtriumMeshError(f"{path}: not a file (a folder?); give an .obj, .stl, .ply or .vtk file")
     suffix = path.suffix.lower()
-    if suffix == ".obj":
-        V, F = read_obj(path)
-    elif suffix == ".stl":
-        V, F = read_stl(path)
-    else:
-        raise AtriumMeshError(f"{path}: unsupported format {suffix!r} (use .obj or .stl)")
+    readers = {".obj": read_obj, ".stl": read_stl, ".ply": read_ply, ".vtk": read_vtk_polydata}
+    if suffix not in readers:
+        raise AtriumMeshError(f"{path}: unsupported format {suffix!r} (use .obj, .stl, .ply or .vtk)")
+    V, F = readers[suffix](path)
     try:
         return validate_surface(V, F, units)
     except AtriumMeshError as err:
@@ -354,127 +673,253 @@ class UserAtriumParams:
     """Wall and sheath parameters of a user atrium (the counterpart of HeartParams).
 
     Attributes:
-        wall_thickness: grown outward from the surface [m].
+        wall_thickness: the wall behind the surface [m]: grown outward from a lumen, inward into
+            a solid.
         wall_layers: tetrahedra layers through the wall (>= 2).
-        puncture_diameter: hole cut for the sheath around the puncture [m].
-        sheath_extension: how far the sheath reaches beyond the wall into the chamber [m].
+        puncture_diameter: hole cut for the sheath around the puncture [m] (lumen).
+        sheath_extension: how far the sheath reaches beyond the wall into the chamber [m] (lumen;
+            a solid's sheath ends at its given tip).
+        working_margin: (solid) the chain works within the box around the solid and the sheath
+            tip grown by this much [m]; a ball beyond it has left the scene.
     """
 
     wall_thickness: float = 2.5e-3
     wall_layers: int = 2
     puncture_diameter: float = 6e-3
     sheath_extension: float = 3e-3
+    working_margin: float = 0.1
 
     def __post_init__(self) -> None:
         require_positive(self.wall_thickness, "UserAtriumParams.wall_thickness", "m")
         require_int(self.wall_layers, "UserAtriumParams.wall_layers", 2)
         require_positive(self.puncture_diameter, "UserAtriumParams.puncture_diameter", "m")
         require_positive(self.sheath_extension, "UserAtriumParams.sheath_extension", "m", allow_zero=True)
+        require_positive(self.working_margin, "UserAtriumParams.working_margin", "m")
+
+
+SIDES = ("lumen", "solid")
+SHEATH_CHECK_LENGTH = 5e-3  # [m] the sheath's axis must stay on the chain's side this far past its exit
+MIN_TIP_CLEARANCE = 1e-3  # [m] a solid's sheath tip stands at least this far from the surface
 
 
 class UserAtrium:
-    """A user's segmented atrium, usable wherever the plant takes a ``LeftAtrium``.
+    """A user's anatomy surface, usable wherever the plant takes a ``LeftAtrium``.
 
     Args:
-        surface: a validated endocardial surface (``load_atrium_surface``).
-        p_HP: (3,) septal puncture [m]; it is moved onto the surface (nearest vertex).
-        sheath_aim: (3,) point the sheath points to [m] (default: the surface's centroid).
+        surface: a validated surface (``load_atrium_surface``).
+        p_HP: (3,) [m]. ``side="lumen"``: the septal puncture, moved onto the surface (nearest
+            vertex; at most ``MAX_PUNCTURE_DISTANCE`` away). ``side="solid"``: the sheath's tip
+            in free space (its exit), at least ``MIN_TIP_CLEARANCE`` from the surface.
+        sheath_aim: (3,) point the sheath points to [m] (default: the lumen's centroid; for a
+            solid, the surface point nearest the tip).
         params: wall and sheath parameters.
+        side: "lumen": the chain works inside the closed surface (a segmented atrium: several
+            overlapping shells, such as vein tubes, join into one chamber, and disjoint pieces
+            are refused); "solid": it works outside (a printed phantom part, a wall section with
+            vein openings; several parts allowed): the signed distance, the wall, the inside
+            test and the escape test are mirrored.
 
-    There are no ablation targets (``rings``, ``ostia`` and ``carinas`` are empty): a segmentation
+    There are no ablation targets (``rings``, ``ostia`` and ``carinas`` are empty): a mesh
     carries no ostia labels. Implements ``drake_models.atrium.Atrium``.
     """
 
-    def __init__(self, surface: AtriumSurface, p_HP, sheath_aim=None, params: UserAtriumParams | None = None):
+    def __init__(self, surface: AtriumSurface, p_HP, sheath_aim=None, params: UserAtriumParams | None = None,
+                 side: str = "lumen"):
         require_type(surface, AtriumSurface, "UserAtrium surface", "an AtriumSurface (from load_atrium_surface)")
-        as_vector(p_HP, "UserAtrium p_HP (the puncture)", unit="m")
+        require_choice(side, SIDES, "UserAtrium side")
+        p_HP = as_vector(p_HP, "UserAtrium p_HP (the puncture or the sheath tip)", unit="m")
         if sheath_aim is not None:
-            as_vector(sheath_aim, "UserAtrium sheath_aim", unit="m")
+            sheath_aim = as_vector(sheath_aim, "UserAtrium sheath_aim", unit="m")
         if params is not None:
             require_type(params, UserAtriumParams, "UserAtrium params", "a UserAtriumParams or None")
         self.surface = surface
+        self.side = side
         self.params = params or UserAtriumParams()
-        if self.params.wall_layers < 2:
-            raise UserInputError("UserAtriumParams.wall_layers must be >= 2")
         V, F = surface.V, surface.F
-        p_HP = np.asarray(p_HP, float)
-        if p_HP.shape != (3,) or not np.all(np.isfinite(p_HP)):
-            raise UserInputError(f"puncture must be 3 finite coordinates [m], got {np.asarray(p_HP).tolist()}")
+        self._tree = SurfaceTree.build(V, F)
+        self._chamber_faces = self._union_boundary()
+        if side == "lumen":
+            self._place_lumen_sheath(p_HP, sheath_aim)
+        else:
+            self._place_solid_sheath(p_HP, sheath_aim)
+        self.rings: dict = {}  # no ablation targets, ostia or carinas (the Atrium protocol)
+        self.ostia: list = []
+        self.carinas: dict = {}
+        grow = 1.0 if side == "lumen" else -1.0  # the wall lies behind the surface, seen from the chain
+        self._wall_normals = grow * wall_directions(V, F)
+        self._behind = SurfaceTree.build(V + self._wall_normals * self.params.wall_thickness, F)
+        self.inner_faces = self._chamber_faces
+        if side == "lumen":
+            c = V[self.inner_faces].mean(axis=1)
+            rel = c - self.p_HP
+            along = rel @ self.sheath_axis_H
+            radial = np.linalg.norm(rel - along[:, None] * self.sheath_axis_H, axis=1)
+            self.inner_faces = self.inner_faces[~((radial < 0.5 * self.params.puncture_diameter)
+                                                  & (np.abs(along) < 10e-3))]
+        self.wall_distance = mt.SurfaceDistance(V, self.inner_faces)
+        lo, hi = np.minimum(V.min(axis=0), self.p_HP), np.maximum(V.max(axis=0), self.p_HP)
+        self.working_box = (lo - self.params.working_margin, hi + self.params.working_margin)
+        self._check_wall()
+
+    def _union_boundary(self) -> np.ndarray:
+        """The triangles on the boundary of the union of the shells (lumen: the chamber with its
+        vein tubes; solid: the parts): a shell's triangles inside another shell are dropped (as
+        the procedural atrium's ostia are open), so that the wall does not close an ostium."""
+        V, F = self.surface.V, self.surface.F
+        shells = shell_labels(F, V)
+        k = int(shells.max()) + 1
+        if k == 1:
+            return F
+        if self.side == "lumen":
+            self._require_one_chamber(shells)
+        keep = np.ones(len(F), bool)
+        centroids = V[F].mean(axis=1)
+        for j in range(k):
+            others = shells != j
+            tree = SurfaceTree.build(V, F[shells == j])
+            keep[others] &= tree.winding_numbers(centroids[others]) <= 0.5
+        return F[keep]
+
+    def _require_one_chamber(self, shells: np.ndarray) -> None:
+        """A lumen is one chamber: shells that neither overlap nor nest are refused."""
+        V, F = self.surface.V, self.surface.F
+        inside = shell_containment(V, F, shells)
+        touching = (inside > 0) | (inside.T > 0)
+        from scipy.sparse.csgraph import connected_components
+
+        n, label = connected_components(touching, directed=False)
+        if n > 1:
+            sizes = [float(np.ptp(V[np.unique(F[np.isin(shells, np.flatnonzero(label == g))])], axis=0).max() * 1e3)
+                     for g in range(n)]
+            raise UserInputError(
+                f"mesh: the surface has {n} disjoint pieces (largest sides {', '.join(f'{s:.1f}' for s in sizes)} "
+                "mm) but with side: lumen the chain works inside one chamber; keep only the chamber (remove "
+                "the other pieces), or use side: solid for separate phantom parts")
+
+    def _place_lumen_sheath(self, p_HP: np.ndarray, sheath_aim) -> None:
+        V = self.surface.V
         # The puncture is snapped onto the surface: only a small correction is accepted, so a
         # mistyped point (or one in millimetres) is refused instead of silently moved far away.
-        gap = float(mt.SurfaceDistance(V, F)(p_HP)[0])
+        gap = float(self._tree.distances(p_HP[None])[0])
         if gap > MAX_PUNCTURE_DISTANCE:
             raise UserInputError(
                 f"puncture {np.round(p_HP, 6).tolist()} m is {gap * 1e3:.1f} mm from the atrium surface; it "
                 f"must lie within {MAX_PUNCTURE_DISTANCE * 1e3:.0f} mm of it (coordinates in metres, in the "
                 "surface's frame after its units are applied)")
-        k = int(np.argmin(np.linalg.norm(V - p_HP, axis=1)))
-        self.p_HP = V[k].copy()
-        if sheath_aim is not None and (np.shape(sheath_aim) != (3,) or not np.all(np.isfinite(sheath_aim))):
-            raise UserInputError(f"sheath_aim must be 3 finite coordinates [m], got {sheath_aim}")
-        aim = V.mean(axis=0) if sheath_aim is None else np.asarray(sheath_aim, float)
-        axis = aim - self.p_HP
-        if np.linalg.norm(axis) == 0:
-            raise UserInputError("UserAtrium: the sheath aim coincides with the puncture")
-        self.sheath_axis_H = axis / np.linalg.norm(axis)
+        self.p_HP = V[int(np.argmin(np.linalg.norm(V - p_HP, axis=1)))].copy()
+        aim = V.mean(axis=0) if sheath_aim is None else sheath_aim
+        self.sheath_axis_H = self._axis(aim)
         self.p_HE = self.p_HP + self.params.sheath_extension * self.sheath_axis_H
-        self.rings: dict = {}  # no ablation targets, ostia or carinas (the Atrium protocol)
-        self.ostia: list = []
-        self.carinas: dict = {}
-        self._normals = mt.vertex_normals(V, F)
-        c = V[F].mean(axis=1)
-        rel = c - self.p_HP
-        along = rel @ self.sheath_axis_H
-        radial = np.linalg.norm(rel - along[:, None] * self.sheath_axis_H, axis=1)
-        self.inner_faces = F[~((radial < 0.5 * self.params.puncture_diameter) & (np.abs(along) < 10e-3))]
-        self._outer = V + self._normals * self.params.wall_thickness
-        self.wall_distance = mt.SurfaceDistance(V, self.inner_faces)
-        self._check_wall()
+        ahead = self.p_HE + np.linspace(0.0, SHEATH_CHECK_LENGTH, 6)[:, None] * self.sheath_axis_H
+        if not np.all(self._free(ahead)):
+            raise UserInputError(
+                f"sheath_aim: the sheath from the puncture {np.round(self.p_HP * 1e3, 2).tolist()} mm towards "
+                f"{np.round(np.asarray(aim) * 1e3, 2).tolist()} mm leaves the chamber within "
+                f"{(self.params.sheath_extension + SHEATH_CHECK_LENGTH) * 1e3:.0f} mm: aim it into the lumen")
+
+    def _place_solid_sheath(self, p_HP: np.ndarray, sheath_aim) -> None:
+        gap = float(self._tree.distances(p_HP[None])[0])
+        if not self._free(p_HP[None])[0] or gap < MIN_TIP_CLEARANCE:
+            where = "inside the solid" if not self._free(p_HP[None])[0] else f"{gap * 1e3:.2f} mm from its surface"
+            raise UserInputError(
+                f"sheath tip {np.round(p_HP * 1e3, 2).tolist()} mm is {where}; with side: solid the sheath ends "
+                f"in free space, at least {MIN_TIP_CLEARANCE * 1e3:.0f} mm from the surface")
+        self.p_HP = p_HP.copy()
+        if sheath_aim is None:  # towards the nearest vertex of the solid
+            V = self.surface.V
+            sheath_aim = V[int(np.argmin(np.linalg.norm(V - p_HP, axis=1)))]
+        self.sheath_axis_H = self._axis(sheath_aim)
+        self.p_HE = self.p_HP.copy()
+
+    def _axis(self, aim) -> np.ndarray:
+        axis = np.asarray(aim, float) - self.p_HP
+        if np.linalg.norm(axis) == 0:
+            raise UserInputError("sheath_aim: the sheath aim coincides with the puncture (or the sheath tip)")
+        return axis / np.linalg.norm(axis)
+
+    def _free(self, p_H: np.ndarray) -> np.ndarray:
+        """Whether points (k, 3) lie on the chain's side of the surface (the lumen, or outside the solid)."""
+        inside = self._tree.winding_numbers(p_H) > 0.5
+        return inside if self.side == "lumen" else ~inside
 
     def _check_wall(self) -> None:
-        """Refuse a surface whose grown wall has flat tetrahedra (Drake cannot give them a
-        pressure field: "A mesh field element was degenerate"), saying where they are."""
-        Vt, T = self.wall_tetrahedra
+        """Leave out of the wall the triangles whose prisms have flat tetrahedra (slivers, as a
+        boolean union leaves along its seams: Drake cannot give a flat element a pressure field,
+        "A mesh field element was degenerate"); their neighbours' prisms cover the gap. More than
+        ``MAX_SLIVER_FRACTION`` of them is refused, saying where the first is."""
+        p = self.params
+        faces = self.inner_faces
+        Vt, T = mt.extrude_shell(self.surface.V, faces, self._wall_normals, p.wall_thickness, p.wall_layers)
         vol = mt.signed_volumes(Vt, T)
         bad = np.flatnonzero(vol <= DEGENERATE_VOLUME_FRACTION * np.median(np.abs(vol)))
-        if len(bad):
+        self.wall_faces = faces
+        if len(bad) == 0:
+            return
+        slivers = np.unique(bad % len(faces))  # extrude_shell stacks the tetrahedra face by face
+        if len(slivers) > MAX_SLIVER_FRACTION * len(faces):
             where = np.round(Vt[T[bad[0]]].mean(axis=0) * 1e3, 2).tolist()
             raise AtriumMeshError(
                 f"atrium_file: the wall grown from this surface has {len(bad)} flat (zero-volume) tetrahedra, the "
                 f"first near {where} mm: the surface has a zero-area triangle or a fold there; remesh it (e.g. "
                 "remove degenerate faces) and try again")
+        self.wall_faces = np.delete(faces, slivers, axis=0)
+        self.surface.notes.append(f"{len(slivers)} sliver triangles left out of the contact wall")
 
     @property
     def wall_tetrahedra(self) -> tuple[np.ndarray, np.ndarray]:
+        """The wall behind the surface (outward from a lumen, into a solid), as tetrahedra."""
         p = self.params
-        return mt.extrude_shell(self.surface.V, self.inner_faces, self._normals, p.wall_thickness, p.wall_layers)
+        return mt.extrude_shell(self.surface.V, self.wall_faces, self._wall_normals, p.wall_thickness,
+                                p.wall_layers)
 
     @property
     def blood_surface(self) -> tuple[np.ndarray, np.ndarray]:
-        """(vertices (v, 3) [m], triangles (f, 3)) of the blood side: the user's surface."""
-        return self.surface.V, self.surface.F
+        """(vertices (v, 3) [m], triangles (f, 3)) of the chain's side: the user's surface (the
+        boundary of the union of its shells)."""
+        return self.surface.V, self._chamber_faces
 
     def lumen_grid_contains(self, origin: np.ndarray, spacing: float, shape: tuple[int, int, int]) -> np.ndarray:
-        """Whether the nodes of a grid (origin (3,) [m], spacing [m], shape) lie inside the closed
-        surface: ray parity along +z (``mesh_tools.ray_parity_contains``) -> (nx, ny, nz) bool."""
-        return mt.ray_parity_contains(self.surface.V, self.surface.F, origin, spacing, shape)
+        """Whether the nodes of a grid lie where the chain works (inside a lumen, outside a solid)
+        by the winding number of every shell (``surface_tree``; ``grid_winding_inside``)
+        -> (nx, ny, nz) bool."""
+        inside = grid_winding_inside(self._tree, origin, spacing, shape)
+        return inside if self.side == "lumen" else ~inside
 
-    lumen_key = "ray_parity"  # the lumen test depends on the triangles only
+    @property
+    def lumen_key(self) -> str:
+        """The inside test (winding numbers of every shell, on this side) for the SDF cache key."""
+        import hashlib
+
+        digest = hashlib.sha1(self.surface.V.tobytes() + self.surface.F.tobytes()).hexdigest()[:12]
+        return f"winding_{self.side}_{digest}"
+
+    def grid_distances(self, points: np.ndarray, band: float) -> np.ndarray:
+        """Distances (k,) [m] from points (k, 3) to ``blood_surface``, capped at ``band`` (the
+        SDF's; the bounding-sphere tree, ``surface_tree``)."""
+        V, F = self.blood_surface
+        if getattr(self, "_blood_tree", None) is None:
+            self._blood_tree = SurfaceTree.build(V, F)
+        return self._blood_tree.distances(points, band)
 
     def contains(self, p_H: np.ndarray) -> np.ndarray:
-        """Whether points (k, 3) [m] lie within the outer wall (generalised winding number)."""
-        return mt.winding_numbers(np.atleast_2d(p_H), self._outer, self.surface.F) > 0.5
+        """Whether points (k, 3) [m] are where the chain may be: a lumen's points within its outer
+        wall; a solid's outside its wall's far side and within ``working_box``."""
+        p_H = np.atleast_2d(np.asarray(p_H, float))
+        behind = self._behind.winding_numbers(p_H) > 0.5
+        if self.side == "lumen":
+            return behind
+        lo, hi = self.working_box
+        return ~behind & np.all((p_H >= lo) & (p_H <= hi), axis=1)
 
     def write_files(self, directory: Path | None = None) -> dict[str, Path]:
         """Write the wall (VTK) and its boundary (OBJ) to the cache (reused when intact, see
         ``model_files.cached_files``); returns their paths."""
         import hashlib
-        import sys
 
         from ballchain.drake_models.model_files import cache_dir, cached_files, source_hash
 
-        key = hashlib.sha1(self.surface.V.tobytes() + self.inner_faces.tobytes() + repr(self.params).encode()
-                           + source_hash(sys.modules[__name__], mt).encode()).hexdigest()[:12]
+        key = hashlib.sha1(self.surface.V.tobytes() + self.wall_faces.tobytes() + repr(self.params).encode()
+                           + self.side.encode() + source_hash(sys.modules[__name__], mt).encode()).hexdigest()[:12]
         directory = Path(directory) if directory else cache_dir() / f"user_atrium_{key}"
 
         def write(tmp: dict[str, Path]) -> None:
@@ -483,3 +928,60 @@ class UserAtrium:
             mt.write_obj(tmp["obj"], V, mt.boundary_surface(V, T))
 
         return cached_files(directory, {"vtk": "atrium_wall.vtk", "obj": "atrium_wall.obj"}, write)
+
+
+def wall_directions(V: np.ndarray, F: np.ndarray, cap: float = MAX_MITER) -> np.ndarray:
+    """Per vertex, the displacement (nv, 3) for a wall one unit thick: along the angle-weighted
+    normal (Thuermer and Wuethrich 1998: independent of how the faces around the vertex are
+    triangulated, so a box corner's points along its diagonal), lengthened so that every face
+    around the vertex moves at least one unit along its own normal (a mitred corner: a box's
+    corner moves by (1, 1, 1)), at most ``cap`` units (a spike)."""
+    tri = V[F]
+    face_n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    face_n /= np.linalg.norm(face_n, axis=1)[:, None]
+    N = np.zeros_like(V)
+    for k in range(3):
+        e1 = tri[:, (k + 1) % 3] - tri[:, k]
+        e2 = tri[:, (k + 2) % 3] - tri[:, k]
+        cos = np.einsum("ij,ij->i", e1, e2) / (np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1))
+        np.add.at(N, F[:, k], np.arccos(np.clip(cos, -1.0, 1.0))[:, None] * face_n)
+    N /= np.linalg.norm(N, axis=1)[:, None]
+    least = np.full(len(V), np.inf)
+    for k in range(3):
+        np.minimum.at(least, F[:, k], np.einsum("ij,ij->i", N[F[:, k]], face_n))
+    return N / np.clip(least, 1.0 / cap, 1.0)[:, None]
+
+
+def grid_winding_inside(tree: SurfaceTree, origin: np.ndarray, spacing: float, shape: tuple[int, int, int]
+                        ) -> np.ndarray:
+    """Winding number > 1/2 at every node of a grid, evaluated where it can change.
+
+    Nodes within 1.5 spacings of the surface get their own winding number. The others form
+    connected regions (6-neighbours) that the surface does not cross (two neighbouring nodes
+    farther than half a spacing from it see no surface between them); each region is decided by
+    its nodes on a 4-spacing sub-grid (and one node at least), and evaluated node by node only
+    if they disagree (a region reaching round an opening).
+    """
+    from scipy import ndimage
+
+    axes = [origin[k] + spacing * np.arange(shape[k]) for k in range(3)]
+    P = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    near = tree.distances(P, 1.5 * spacing) < 1.5 * spacing
+    inside = np.zeros(len(P), bool)
+    inside[near] = tree.winding_numbers(P[near]) > 0.5
+    labels, n = ndimage.label(~near.reshape(shape))
+    labels = labels.reshape(-1)
+    ijk = np.indices(shape).reshape(3, -1).T
+    coarse = np.all(ijk % 4 == 0, axis=1)
+    order = np.argsort(labels, kind="stable")
+    bounds = np.searchsorted(labels[order], np.arange(1, n + 2))
+    for region in range(1, n + 1):
+        members = order[bounds[region - 1]:bounds[region]]
+        probe = members[coarse[members]]
+        probe = probe if len(probe) else members[:1]
+        votes = tree.winding_numbers(P[probe]) > 0.5
+        if votes.all() or not votes.any():
+            inside[members] = votes[0]
+        else:
+            inside[members] = tree.winding_numbers(P[members]) > 0.5
+    return inside.reshape(shape)

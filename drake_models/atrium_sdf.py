@@ -1,4 +1,5 @@
-"""The atrium's signed distance on a cached grid: sdf > 0 in the blood pool, < 0 beyond the wall.
+"""The atrium's signed distance on a cached grid: sdf > 0 in the blood pool, < 0 beyond the wall
+(for a solid phantom part, ``side == "solid"``: > 0 in the free space around it, < 0 inside).
 
 The statics engine keeps every free ball's centre at least a ball radius inside the lumen
 (``optimization.wall_constraints``): it needs the distance to the blood-side surface and its
@@ -13,7 +14,10 @@ costs a few microseconds.
 * Sign (inside test): never from face normals, which flip at the vein ostia (a node closest to an
   ostium rim sees a rim edge, whose normal is meaningless: the distance jumped by 4 mm there in
   a prototype); a user's closed surface uses ray parity along +z (each grid
-  column crosses the surface an even number of times; a node is inside after an odd number).
+  column crosses the surface an even number of times; a node is inside after an odd number);
+  a ``UserAtrium`` (a mesh of any origin, several shells, narrow open seams, either side) uses the
+  generalised winding number of every shell (``surface_tree``, ``atrium_mesh.grid_winding_inside``)
+  and its bounding-sphere tree for the distances.
   The procedural ``LeftAtrium`` uses ray parity on its faceted endocardium (holes closed) joined
   with its polygonal vein tubes: the sign changes exactly on the triangles the distance is
   measured to (the smooth ellipsoid would give the 0.05-0.1 mm between chord and arc the wrong
@@ -186,6 +190,12 @@ def cache_key(V: np.ndarray, F: np.ndarray, inside: str, spacing: float, band: f
     return h.hexdigest()[:16]
 
 
+def _margin(heart, margin: float, band: float) -> float:
+    """The grid's reach beyond the surface: at least ``band`` around a solid (the chain works
+    outside it, so the grid's edge must hold the free space's clamped +band)."""
+    return max(margin, band) if getattr(heart, "side", "lumen") == "solid" else margin
+
+
 def build_atrium_sdf(heart, spacing: float = 0.5e-3, band: float = 5e-3, margin: float = 2e-3,
                      progress: bool = False) -> AtriumSDF:
     """Build the grid of a LeftAtrium or UserAtrium (no cache; see ``atrium_sdf``).
@@ -198,11 +208,16 @@ def build_atrium_sdf(heart, spacing: float = 0.5e-3, band: float = 5e-3, margin:
         progress: show a tqdm bar over the distance chunks.
     """
     V, F = heart.blood_surface
+    margin = _margin(heart, margin, band)
     lo = V.min(axis=0) - margin
     shape = tuple(int(np.ceil(s)) + 1 for s in (V.max(axis=0) + margin - lo) / spacing)
     axes = [lo[k] + spacing * np.arange(shape[k]) for k in range(3)]
     P = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     inside = heart.lumen_grid_contains(lo, spacing, shape).reshape(-1)
+    if hasattr(heart, "grid_distances"):  # a user's surface: its own bounding-sphere tree
+        dist = heart.grid_distances(P, band)
+        sdf = np.where(inside, 1.0, -1.0) * np.minimum(dist, band)
+        return AtriumSDF(lo, spacing, sdf.reshape(shape).astype(np.float32), band)
     # Unsigned distance: exact within the band (candidates from the nearest face centroids).
     from scipy.spatial import cKDTree
 
@@ -235,6 +250,7 @@ def atrium_sdf(heart, spacing: float = 0.5e-3, band: float = 5e-3, margin: float
     parameters, so a changed mesh never reads a stale grid.
     """
     V, F = heart.blood_surface
+    margin = _margin(heart, margin, band)
     key = cache_key(V, F, heart.lumen_key, spacing, band, margin)
     directory = Path(directory) if directory else Path(heart.write_files()["vtk"]).parent
     path = directory / f"atrium_sdf_{key}.npz"

@@ -203,6 +203,8 @@ class LeftAtrium:
         p_HE: (3,) sheath exit in the LA [m].
     """
 
+    side = "lumen"  # the chain works inside the chamber (``drake_models.atrium.Atrium``)
+
     def __init__(self, params: HeartParams | None = None):
         if params is not None:
             require_type(params, HeartParams, "LeftAtrium params", "a HeartParams or None")

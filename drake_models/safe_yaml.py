@@ -22,8 +22,14 @@ own parser sees exactly what was checked.
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import re
+import sys
+import typing
 from pathlib import Path
+
+import numpy as np
 
 import yaml
 from yaml.nodes import MappingNode, SequenceNode
@@ -185,7 +191,7 @@ def dump_yaml(data) -> str:
 def load_typed(data, schema, where: str, defaults=None):
     """An instance of ``schema`` (a dataclass or a pydrake config struct) from data that
     ``load_yaml`` returned (a mapping), starting from ``defaults`` (or ``schema()``), with
-    pydrake's ``yaml_load_typed``. Check the data's shape first (``chain_scenario.check_yaml_schema``):
+    pydrake's ``yaml_load_typed``. Check the data's shape first (``check_yaml_schema``):
     pydrake's messages are multi-line.
 
     Raises:
@@ -197,3 +203,99 @@ def load_typed(data, schema, where: str, defaults=None):
         return yaml_load_typed(schema=schema, data=dump_yaml(data if data is not None else {}), defaults=defaults)
     except (RuntimeError, ValueError, TypeError) as err:
         raise UserInputError(f"{where}: {' '.join(str(err).split())[:200]}") from None
+
+
+# ------------------------------------------------------------------ schema check of loaded YAML
+def schema_fields(tp) -> dict | None:
+    """{field name: type} of a schema: a dataclass, or a pydrake config struct (``__fields__``,
+    e.g. MultibodyPlantConfig); None for any other type."""
+    if dataclasses.is_dataclass(tp):
+        return typing.get_type_hints(tp)
+    fields = getattr(tp, "__fields__", None) if isinstance(tp, type) else None
+    if isinstance(fields, tuple) and all(hasattr(f, "name") and hasattr(f, "type") for f in fields):
+        return {f.name: f.type for f in fields}
+    return None
+
+
+def _type_name(tp, plural: bool = False) -> str:
+    origin = typing.get_origin(tp)
+    if origin in (list, tuple):
+        args = typing.get_args(tp)
+        return "a list" + (f" of {_type_name(args[0], plural=True)}" if args else "")
+    if schema_fields(tp) is not None:
+        return f"{tp.__name__} mappings" if plural else f"a mapping of {tp.__name__} fields"
+    names = {bool: ("true or false", "true/false values"), int: ("an integer", "integers"),
+             float: ("a finite number", "finite numbers"), str: ("a string", "strings")}
+    return names[tp][plural] if tp in names else str(tp)
+
+
+def check_value(value, tp, path: str, where: str) -> None:
+    """One YAML value against a schema type: bool, int, float (finite; an int is a float), str,
+    a list of one of these, or a schema (``check_yaml_schema``). The one type check of the
+    scenarios, the sweep specs and the anatomy files.
+
+    Args:
+        value: the parsed YAML value (``safe_yaml.load_yaml``).
+        tp: the field's type.
+        path: the field's path for messages ("insertion.speed", "grid.n_balls[0]").
+        where: what the YAML came from ("--set", "scenario 'heart_left'", "sweep spec x.yaml").
+
+    Raises:
+        UserInputError: "{where}: {path} must be {type}, got {value}" (the value cut short).
+    """
+    if typing.get_origin(tp) is typing.Union and type(None) in typing.get_args(tp):  # Optional[T]: null or a T
+        if value is None:
+            return
+        (tp,) = [a for a in typing.get_args(tp) if a is not type(None)]
+    if tp is np.ndarray:  # a pydrake struct's vector (Rgba.rgba)
+        tp = list[float]
+    origin = typing.get_origin(tp)
+    if tp is bool:
+        ok = isinstance(value, bool)
+    elif tp is int:
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif tp is float:
+        # an int is a float too, but one beyond float's range (400 digits) is not a number here
+        ok = ((isinstance(value, float) and math.isfinite(value))
+              or (isinstance(value, int) and not isinstance(value, bool) and abs(value) <= sys.float_info.max))
+    elif tp is str:
+        ok = isinstance(value, str)
+    elif origin in (list, tuple):
+        ok = isinstance(value, list)
+        args = typing.get_args(tp)
+        for i, item in enumerate(value if ok and args else []):
+            check_value(item, args[0], f"{path}[{i}]", where)
+    elif schema_fields(tp) is not None:
+        if not isinstance(value, dict):
+            raise UserInputError(f"{where}: {path} must be {_type_name(tp)} "
+                                 f"({', '.join(schema_fields(tp))}), got {short_repr(value)}")
+        check_yaml_schema(value, tp, where, path)
+        return
+    else:
+        raise TypeError(f"schema type {tp!r} of {path} is not checked")  # a programming error
+    if not ok:
+        raise UserInputError(f"{where}: {path} must be {_type_name(tp)}, got {short_repr(value)}")
+
+
+def check_yaml_schema(data, schema, where: str, path: str = "") -> None:
+    """Check parsed YAML against a dataclass schema: known fields, value shapes and types.
+
+    Args:
+        data: the parsed YAML (a dict).
+        schema: the dataclass (ChainScenario or one of its parts, a sweep's parameters) or a
+            pydrake config struct nested in it (MultibodyPlantConfig, SimulatorConfig, ...).
+        where: what the YAML came from, for messages ("--set", "scenario 'heart_left'").
+        path: the field path of ``data`` inside the scenario ("" at the top, "units[0]", ...).
+
+    Raises:
+        UserInputError: naming the field path, what it must be and what it got.
+    """
+    if not isinstance(data, dict):
+        raise UserInputError(f"{where}{': ' + path if path else ''} must be {_type_name(schema)}, "
+                             f"got {short_repr(data)}")
+    hints = schema_fields(schema)
+    for key, value in data.items():
+        if key not in hints:
+            raise UserInputError(f"{where}: unknown field {short_repr(key)}{f' in {path}' if path else ''}; "
+                                 f"{schema.__name__} fields are {', '.join(hints)}")
+        check_value(value, hints[key], f"{path}.{key}" if path else str(key), where)

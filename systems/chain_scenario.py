@@ -13,7 +13,6 @@ builder (``systems/station.py``) turns a scenario into a diagram.
 import dataclasses
 import math
 import numbers
-import sys
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,7 +24,9 @@ from pydrake.visualization import VisualizationConfig
 
 from ballchain.drake_models import paper
 from ballchain.drake_models.errors import UserInputError, short_repr
-from ballchain.drake_models.safe_yaml import load_typed, load_yaml, load_yaml_file
+from ballchain.drake_models.safe_yaml import check_value  # noqa: F401 (the sweep's check imports it from here)
+from ballchain.drake_models.safe_yaml import (check_yaml_schema, load_typed, load_yaml, load_yaml_file,
+                                             schema_fields as _schema_fields)
 from ballchain.drake_models.params import BallChain
 from ballchain.systems.chain_plant import ChainPlantConfig, ContactConfig, chain_multibody_plant_config
 from ballchain.systems.force_sensor_pin import stability_bound
@@ -160,6 +161,9 @@ class ChainScenario:
         puncture: (3,) septal puncture in the user atrium's frame [m] (required with
             ``atrium_file``; moved to the nearest surface vertex).
         sheath_aim: (3,) point the sheath points to [m] (default: the chamber's centroid).
+        anatomy: an anatomy file (``drake_models.anatomy``: a surface, its targets, sheath and
+            magnet units) to use instead of the procedural atrium or ``atrium_file``; the units
+            stand at its magnets (``station.apply_anatomy``).
         sheath: the transseptal sheath's collision cage (else ball 1 alone is held).
         mode: "quasi-static" (damped floating joints, ~1e-3 s steps) or "dynamics" (no damping).
         time_step: the plant's discrete step [s]; 0 means the mode's default (1e-3 or 1e-4).
@@ -213,6 +217,7 @@ class ChainScenario:
     atrium_units: str = "auto"
     puncture: list[float] = field(default_factory=list)
     sheath_aim: list[float] = field(default_factory=list)
+    anatomy: str = ""
     sheath: bool = True
     mode: str = "quasi-static"
     time_step: float = 0.0
@@ -415,101 +420,6 @@ def _full_entry(entry: dict, base, schema) -> dict:
     return full
 
 
-def _schema_fields(tp) -> dict | None:
-    """{field name: type} of a schema: a dataclass, or a pydrake config struct (``__fields__``,
-    e.g. MultibodyPlantConfig); None for any other type."""
-    if dataclasses.is_dataclass(tp):
-        return typing.get_type_hints(tp)
-    fields = getattr(tp, "__fields__", None) if isinstance(tp, type) else None
-    if isinstance(fields, tuple) and all(hasattr(f, "name") and hasattr(f, "type") for f in fields):
-        return {f.name: f.type for f in fields}
-    return None
-
-
-def _type_name(tp, plural: bool = False) -> str:
-    origin = typing.get_origin(tp)
-    if origin in (list, tuple):
-        args = typing.get_args(tp)
-        return "a list" + (f" of {_type_name(args[0], plural=True)}" if args else "")
-    if _schema_fields(tp) is not None:
-        return f"{tp.__name__} mappings" if plural else f"a mapping of {tp.__name__} fields"
-    names = {bool: ("true or false", "true/false values"), int: ("an integer", "integers"),
-             float: ("a finite number", "finite numbers"), str: ("a string", "strings")}
-    return names[tp][plural] if tp in names else str(tp)
-
-
-def check_value(value, tp, path: str, where: str) -> None:
-    """One YAML value against a schema type: bool, int, float (finite; an int is a float), str,
-    a list of one of these, or a schema (``check_yaml_schema``). The one type check of the
-    scenarios and the sweep specs.
-
-    Args:
-        value: the parsed YAML value (``safe_yaml.load_yaml``).
-        tp: the field's type.
-        path: the field's path for messages ("insertion.speed", "grid.n_balls[0]").
-        where: what the YAML came from ("--set", "scenario 'heart_left'", "sweep spec x.yaml").
-
-    Raises:
-        UserInputError: "{where}: {path} must be {type}, got {value}" (the value cut short).
-    """
-    if typing.get_origin(tp) is typing.Union and type(None) in typing.get_args(tp):  # Optional[T]: null or a T
-        if value is None:
-            return
-        (tp,) = [a for a in typing.get_args(tp) if a is not type(None)]
-    if tp is np.ndarray:  # a pydrake struct's vector (Rgba.rgba)
-        tp = list[float]
-    origin = typing.get_origin(tp)
-    if tp is bool:
-        ok = isinstance(value, bool)
-    elif tp is int:
-        ok = isinstance(value, int) and not isinstance(value, bool)
-    elif tp is float:
-        # an int is a float too, but one beyond float's range (400 digits) is not a number here
-        ok = ((isinstance(value, float) and math.isfinite(value))
-              or (isinstance(value, int) and not isinstance(value, bool) and abs(value) <= sys.float_info.max))
-    elif tp is str:
-        ok = isinstance(value, str)
-    elif origin in (list, tuple):
-        ok = isinstance(value, list)
-        args = typing.get_args(tp)
-        for i, item in enumerate(value if ok and args else []):
-            check_value(item, args[0], f"{path}[{i}]", where)
-    elif _schema_fields(tp) is not None:
-        if not isinstance(value, dict):
-            raise UserInputError(f"{where}: {path} must be {_type_name(tp)} "
-                                 f"({', '.join(_schema_fields(tp))}), got {short_repr(value)}")
-        check_yaml_schema(value, tp, where, path)
-        return
-    else:
-        raise TypeError(f"schema type {tp!r} of {path} is not checked")  # a programming error
-    if not ok:
-        raise UserInputError(f"{where}: {path} must be {_type_name(tp)}, got {short_repr(value)}")
-
-
-def check_yaml_schema(data, schema, where: str, path: str = "") -> None:
-    """Check parsed YAML against a dataclass schema: known fields, value shapes and types.
-
-    Args:
-        data: the parsed YAML (a dict).
-        schema: the dataclass (ChainScenario or one of its parts, a sweep's parameters) or a
-            pydrake config struct nested in it (MultibodyPlantConfig, SimulatorConfig, ...).
-        where: what the YAML came from, for messages ("--set", "scenario 'heart_left'").
-        path: the field path of ``data`` inside the scenario ("" at the top, "units[0]", ...).
-
-    Raises:
-        UserInputError: naming the field path, what it must be and what it got.
-    """
-    if not isinstance(data, dict):
-        raise UserInputError(f"{where}{': ' + path if path else ''} must be {_type_name(schema)}, "
-                             f"got {short_repr(data)}")
-    hints = _schema_fields(schema)
-    for key, value in data.items():
-        if key not in hints:
-            raise UserInputError(f"{where}: unknown field {short_repr(key)}{f' in {path}' if path else ''}; "
-                                 f"{schema.__name__} fields are {', '.join(hints)}")
-        check_value(value, hints[key], f"{path}.{key}" if path else str(key), where)
-
-
 def _finite_fields(obj, where: str = ""):
     """Yield (path, value) of every non-finite number in a dataclass tree."""
     for f in dataclasses.fields(obj):
@@ -637,6 +547,8 @@ def check_atrium(s: "ChainScenario") -> None:
     default = ChainScenario()
     procedural = ("heart_scale", "heart_subdivisions")
     user = ("atrium_file", "atrium_units", "puncture", "sheath_aim")
+    if s.anatomy:
+        check_anatomy_field(s, procedural + user, default)
     for name in procedural + user:
         changed = getattr(s, name) != getattr(default, name)
         _require(not changed or s.heart, f"scenario {name} is for the heart: heart: false does not read it "
@@ -831,6 +743,21 @@ def check_pin(s: "ChainScenario") -> None:
     _require(0.0 < s.pin.stiffness < bound,
              f"scenario pin.stiffness {s.pin.stiffness:g} N/m must be > 0 and below the explicit spring's "
              f"stability bound {bound:g} N/m at a {s.effective_time_step:g} s step: lower it or the step")
+
+def check_anatomy_field(s: "ChainScenario", others: tuple, default: "ChainScenario") -> None:
+    """An anatomy file takes the heart's place: heart: true, none of the procedural or user
+    atrium's fields, and a file that exists (its fields are checked when it is loaded, before the
+    build: ``station.atrium_for``)."""
+    _require(s.heart, "scenario anatomy is for the heart: heart: false does not read it (leave it out, or use "
+                      "heart: true)")
+    for name in others:
+        _require(getattr(s, name) == getattr(default, name),
+                 f"scenario {name} cannot go with anatomy: the anatomy file gives the surface, its units, the "
+                 f"sheath and the targets (leave {name} out)")
+    path = Path(s.anatomy)
+    _require(path.is_file(), f"scenario anatomy {short_repr(s.anatomy)}: "
+                             f"{'not a file (a folder?)' if path.exists() else 'no such file'}")
+
 
 def check_atrium_file(path: str) -> None:
     """An atrium file that exists and is a file (a package:// URI must resolve).

@@ -222,8 +222,9 @@ class ChainMonitor:
             outside = ~heart.contains(p) & ~in_sheath
             if np.any(outside):
                 i = int(np.argmax(outside))
-                return (f"ball {i + 1} escaped the heart at t = {t:.4f} s: centre at "
-                        f"{np.round(p[i] * 1e3, 2).tolist()} mm")
+                where = ("entered the solid (or left the working box)" if getattr(heart, "side", "lumen") == "solid"
+                         else "escaped the heart")
+                return f"ball {i + 1} {where} at t = {t:.4f} s: centre at {np.round(p[i] * 1e3, 2).tolist()} mm"
             free = ~in_sheath
             if np.any(free):
                 clearance = heart.wall_distance(p[free]) - 0.5 * self._d

@@ -24,14 +24,22 @@ MESHCAT_FOV_DEG = 75.0  # meshcat's default perspective camera (vertical field o
 MARGIN = 1.1  # the camera stands this much farther than the tightest fit
 
 
+SHEATH_IN_VIEW = 0.02  # [m] of a solid's sheath, back from its tip, kept in view
+
+
 def atrium_box(heart) -> tuple[np.ndarray, np.ndarray]:
-    """The axis-aligned bounding box (lower (3,), upper (3,)) [m] of an atrium's blood side.
+    """The axis-aligned bounding box (lower (3,), upper (3,)) [m] of an atrium's blood side;
+    for a solid phantom part (``side == "solid"``: the chain works outside it) the box also holds
+    the sheath's tip and its last ``SHEATH_IN_VIEW``, which stand in free space.
 
     Args:
         heart: an ``Atrium`` (its ``blood_surface``: the procedural atrium's endocardium with
             the vein tubes, a user's surface).
     """
     V = np.asarray(heart.blood_surface[0], float)
+    if getattr(heart, "side", "lumen") == "solid":
+        tip = np.asarray(heart.p_HE, float)
+        V = np.vstack([V, tip, tip - SHEATH_IN_VIEW * np.asarray(heart.sheath_axis_H, float)])
     return V.min(axis=0), V.max(axis=0)
 
 

@@ -233,7 +233,12 @@ class View:
 
 
 def atrium_for(scenario: ChainScenario) -> Atrium:
-    """The scenario's atrium: the user's surface when ``atrium_file`` is set, else procedural."""
+    """The scenario's atrium: its anatomy file's (``anatomy``), the user's surface when
+    ``atrium_file`` is set, else procedural."""
+    if scenario.anatomy:
+        from ballchain.drake_models.anatomy import load_anatomy
+
+        return load_anatomy(scenario.anatomy).atrium()
     if not scenario.atrium_file:
         return LeftAtrium(HeartParams(scale=scenario.heart_scale, subdivisions=scenario.heart_subdivisions))
     from ballchain.drake_models.atrium_mesh import UserAtrium, load_atrium_surface
@@ -246,6 +251,28 @@ def atrium_for(scenario: ChainScenario) -> Atrium:
     except UserInputError as err:  # name the scenario field the user typed
         raise UserInputError(f"scenario atrium_file: {err}") from None
     return UserAtrium(surface, scenario.puncture, scenario.sheath_aim or None)
+
+
+def apply_anatomy(scenario: ChainScenario, anatomy, units=None) -> ChainScenario:
+    """The scenario on a loaded anatomy (``drake_models.anatomy.Anatomy``): ``anatomy`` names its
+    file, and the units (default: all), in order, stand at its magnets (``p_WM``).
+
+    Raises:
+        UserInputError: fewer magnets in the file than units to place (naming the file).
+    """
+    from dataclasses import replace
+
+    units = scenario.units if units is None else units
+    if len(anatomy.magnets) < len(units):
+        raise UserInputError(f"anatomy file {short_repr(str(anatomy.path))}: magnets gives {len(anatomy.magnets)} "
+                             f"unit position(s), the station has {len(units)} unit(s): give one per unit")
+    scenario.anatomy = str(anatomy.path)
+    fresh = type(units[0])() if units else None
+    for unit, p_WM in zip(units, anatomy.magnets):
+        placed = replace(unit, p_WM=[float(v) for v in p_WM], anchor=fresh.anchor, distance=fresh.distance,
+                         direction_W=list(fresh.direction_W))
+        scenario.units[next(k for k, u in enumerate(scenario.units) if u is unit)] = placed
+    return scenario.validate()
 
 
 def chain_for(scenario: ChainScenario) -> BallChain:

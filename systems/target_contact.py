@@ -133,7 +133,9 @@ def heart_targets(heart) -> tuple[list[str], np.ndarray, np.ndarray, float]:
     """The atrium's ablation targets.
 
     Args:
-        heart: an Atrium (``drake_models/atrium.py``; a UserAtrium has no rings).
+        heart: an Atrium (``drake_models/atrium.py``; a UserAtrium has no rings unless an anatomy
+            file gave it its targets: ``drake_models.anatomy.AnatomyTargets``, names and normals
+            its own).
 
     Returns:
         (names ["left_1", ..., "right_18"] (1-based, as chain_plant's ``target_<ring>_<k>``
@@ -142,11 +144,14 @@ def heart_targets(heart) -> tuple[list[str], np.ndarray, np.ndarray, float]:
     """
     names, points = [], []
     for side, ring in heart.rings.items():
-        names += [f"{side}_{k + 1}" for k in range(len(ring.p_HT))]
+        names += list(getattr(ring, "names", None) or [f"{side}_{k + 1}" for k in range(len(ring.p_HT))])
         points.append(np.asarray(ring.p_HT, float))
     if not names:
         return [], np.zeros((0, 3)), np.zeros((0, 3)), 0.0
     p_WT = np.concatenate(points)
+    if "anatomy" in heart.rings:  # an anatomy file's targets carry their normals and touch radius
+        ring = heart.rings["anatomy"]
+        return names, p_WT, np.asarray(ring.n_HT, float), float(ring.radius)
     # The targets lie on the endocardial ellipsoid (heart.py): its outward normal is
     # grad((x/a)^2) ~ p / a^2; the chamber is on the other side.
     outward = p_WT / np.asarray(heart.semi_axes, float) ** 2

@@ -37,12 +37,17 @@ def paths(tmp_path_factory):
     atrium = write_stl_ascii(root / "atrium.stl", 0.025 * V, F)  # a 50 mm sphere, in metres
     garbage = root / "garbage.stl"
     garbage.write_bytes(b"\x00\x01 not a mesh at all")
-    # Closed and consistently oriented, but one triangle has zero area (its corner sits on the
-    # opposite edge): the wall grown from it has a flat tetrahedron that Drake cannot use.
-    a, b, c = F[0]
-    m = len(V)
-    sliver = mt.write_obj(root / "sliver.obj", 0.025 * np.vstack([V, 0.5 * (V[a] + V[b])]),
-                          np.vstack([F[1:], [[a, m, c], [m, b, c], [a, b, m]]]))
+    # Closed and consistently oriented, but 4 triangles (over 1 %) have zero area (a corner on
+    # the opposite edge): the wall grown from them has flat tetrahedra that Drake cannot use
+    # (fewer are left out of the wall).
+    V2, F2 = V.copy(), F.copy()
+    for k in (0, 80, 160, 240):  # faces sharing no edge
+        a, b, c = F[k]
+        m = len(V2)
+        V2 = np.vstack([V2, 0.5 * (V[a] + V[b])])
+        F2 = np.vstack([F2, [[a, m, c], [m, b, c], [a, b, m]]])
+    F2 = np.delete(F2, [0, 80, 160, 240], axis=0)
+    sliver = mt.write_obj(root / "sliver.obj", 0.025 * V2, F2)
     return {"file": str(a_file), "folder": str(a_folder), "atrium": str(atrium), "garbage": str(garbage),
             "sliver": str(sliver), "under_file": str(a_file / "x.html")}
 

@@ -176,7 +176,7 @@ def test_user_surface_errors_say_what_is_wrong(tmp_path):
     with pytest.raises(AtriumMeshError, match="cannot tell the units"):
         load_atrium_surface(_write_obj(tmp_path / "tiny.obj", V * 1e-2, F))
     with pytest.raises(AtriumMeshError, match="unsupported format"):
-        load_atrium_surface(_write_obj(tmp_path / "la.ply", V, F))
+        load_atrium_surface(_write_obj(tmp_path / "la.off", V, F))
     with pytest.raises(AtriumMeshError, match="no such file"):
         load_atrium_surface(tmp_path / "missing.obj")
     # Inward-facing but otherwise fine: accepted, flipped, and said so.

@@ -6,6 +6,8 @@ peak_memory_MB (the process's peak resident set size); stops with a clear messag
 on a NaN, a ball escaping the heart or the chain breaking apart. The experiment is
 ``ballchain.experiments.simulation``. ``--scenario list`` prints the scenarios with their engine,
 mode and description; ``--engine`` and ``--mode`` set the scenario fields of the same names.
+``--anatomy FILE`` runs the scenario on an anatomy file (``drake_models/anatomy.py``) instead of
+the procedural atrium, its units standing at the file's magnets.
 """
 
 from __future__ import annotations
@@ -42,6 +44,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--html", type=Path, default=None,
                         help="write a self-contained Meshcat recording (HTML) to this file")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    parser.add_argument("--anatomy", type=Path, default=None, metavar="FILE",
+                        help="an anatomy file (YAML: mesh, length_unit, side, targets, sheath, magnets) to run the "
+                             "scenario on; the units stand at its magnets, in order")
     add_json_flag(parser)
 
 
@@ -52,7 +57,8 @@ def main(args: argparse.Namespace) -> int:
         return _list_scenarios(args.json)
     try:
         result = run(scenario=args.scenario, duration=args.duration, mode=args.mode, engine=args.engine,
-                     overrides=args.overrides, html=args.html, progress=not args.no_progress)
+                     overrides=args.overrides, html=args.html, progress=not args.no_progress,
+                     anatomy=args.anatomy)
     except SimulationFailure as failure:
         print(f"ballchain simulate: {failure}", file=sys.stderr)
         if args.json:

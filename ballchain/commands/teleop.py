@@ -16,6 +16,11 @@ simulated seconds; the clock starts when the first browser opens the page (``--n
 once). The flags of the simulated operator's task (``--task``, ``--targets``, ``--seed``,
 ``--time-limit``, ``--html``, ``--no-progress``) do not apply to it and are refused, as the
 live-only flags are without ``--live``.
+
+``--anatomy FILE`` (with or without ``--live``) runs on an anatomy file instead of the procedural
+atrium (``drake_models/anatomy.py``: a segmented atrium or a bench phantom, its targets, sheath and
+magnet units): the simulated operator visits its targets in file order (``--task X``: only those
+named X_...), the unit standing at the file's first magnet.
 """
 
 from __future__ import annotations
@@ -53,6 +58,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(the MultibodyPlant, minutes per task; '{engine: plant, time_step: 0.004}' is 3 "
                              "times faster, tip path within 0.3 mm of the default 1 ms step)")
     parser.add_argument("--html", type=Path, default=None, help="write a Meshcat replay (HTML) to this file")
+    parser.add_argument("--anatomy", type=Path, default=None, metavar="FILE",
+                        help="an anatomy file (YAML: mesh, length_unit, side, targets, sheath, magnets) instead of "
+                             "the procedural atrium; the operator visits its targets in file order")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--live", action="store_true",
                         help="steer the chain yourself in Meshcat (localhost) with a gamepad or the keyboard, "
@@ -79,12 +87,17 @@ def main(args: argparse.Namespace) -> int:
                                ("--realtime-rate", args.realtime_rate), ("--no-wait", args.no_wait or None)),
             "they steer the chain yourself")
     # teleop.run checks every input, the --html path and the --set YAML before the (slow) build.
-    data = teleop.run(task="left" if args.task is None else args.task, mapping=args.mapping, targets=args.targets,
+    task = "left" if args.task is None and args.anatomy is None else args.task
+    data = teleop.run(task=task, mapping=args.mapping, targets=args.targets,
                       html=args.html, progress=not args.no_progress, time_limit=args.time_limit, n_balls=args.balls,
-                      overrides=args.overrides, seed=0 if args.seed is None else args.seed)
+                      overrides=args.overrides, seed=0 if args.seed is None else args.seed, anatomy=args.anatomy)
     if args.json:
         print_json(data)
         return 0
+    if data.anatomy is not None:
+        a = data.anatomy
+        print(f"anatomy {a['file']} ({a['side']} side, {len(a['targets'])} targets, the unit at "
+              f"{a['magnets_mm'][0]} mm{' (the default place)' if a['magnets_default'] else ''})")
     for r in data.rows:
         if r["touched"]:
             print(f"{r['target']:9s} touched after {r['time_s']:6.2f} s (t = {r['t_touch_s']:6.2f} s), "
@@ -97,9 +110,10 @@ def main(args: argparse.Namespace) -> int:
     s = data.summary
     median = "-" if s.median_time_s is None else f"{s.median_time_s:.2f} s"
     accuracy = "-" if s.median_accuracy_mm is None else f"{s.median_accuracy_mm:.2f} mm"
-    print(f"{data.task} task, {data.mapping} mapping: {s.touched}/{s.targets} touched in "
-          f"{s.total_time_s:.1f} s (median {median} per target, median accuracy {accuracy}); "
-          f"operator in the paper: {data.paper['human_time_s']:.0f} s for the whole task")
+    human = ("" if data.paper is None else
+             f"; operator in the paper: {data.paper['human_time_s']:.0f} s for the whole task")
+    print(f"{data.task or 'every'} task, {data.mapping} mapping: {s.touched}/{s.targets} touched in "
+          f"{s.total_time_s:.1f} s (median {median} per target, median accuracy {accuracy}){human}")
     print(f"simulated {s.sim_time_s:.1f} s in {s.wall_time_s:.1f} s of wall time in the simulation loop "
           f"(real-time factor {s.realtime_factor}; {data.settings['engine']} engine, operator seed "
           f"{data.settings['seed']})")
@@ -138,7 +152,7 @@ def _main_live(args: argparse.Namespace) -> int:
     # Ctrl-C: run_live prints its summary and lets the KeyboardInterrupt go on (exit status 130).
     data = teleop.run_live(mapping=args.mapping, units=units, n_balls=args.balls, overrides=args.overrides,
                            duration=args.duration, realtime_rate=rate, echo=echo,
-                           wait_for_browser=not args.no_wait, freeze_gc=True)
+                           wait_for_browser=not args.no_wait, freeze_gc=True, anatomy=args.anatomy)
     if args.json:
         print_json(data)
     return 0

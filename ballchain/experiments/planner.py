@@ -24,12 +24,14 @@ from tqdm import tqdm
 
 from ballchain.drake_models.arg_checks import as_int_list, require_int
 from ballchain.drake_models import paper
+from ballchain.drake_models.anatomy import (PROCEDURAL_FILE, Anatomy, AnatomyTargets, ellipsoid_inward_normal,
+                                            load_anatomy)
 from ballchain.drake_models.dipole_inversion import neutral_direction
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.errors import UserInputError, short_repr
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import BallChain, CylinderMagnet, gram_force, newtons_from_gram_force
-from ballchain.experiments._result import Result
+from ballchain.experiments._result import Result, optional
 from ballchain.experiments.forces import Stand, max_normal_force
 from ballchain.optimization.inverse_statics import HeldTip, min_turn_orientation, pin_tip
 from ballchain.optimization.statics import ChainStatics, StaticsResult
@@ -42,19 +44,29 @@ MIN_FORCE_GF = 10.0
 
 def teleop_stand(atrium: LeftAtrium, task: str, ball_diameter: float, carina_distance: float = 0.10) -> Stand:
     """The ring's targets and the teleoperation magnet in the statics frame."""
-    R_HS = rotation_with_z_along(atrium.sheath_axis_H)[:, [2, 0, 1]]
-    to_S = lambda p_H: R_HS.T @ (np.asarray(p_H) - atrium.p_HE)  # noqa: E731
     ring = atrium.rings[task]
-    targets = {}
-    for k, p_HT in enumerate(ring.p_HT):
-        # The targets lie on the ellipsoidal endocardium: its outward normal is along p / a^2.
-        n_out = p_HT / atrium.semi_axes**2
-        n_in = -n_out / np.linalg.norm(n_out)  # into the chamber
-        # Sensor axis: into the wall (the direction the tip presses).
-        targets[f"{task}_{k + 1}"] = (to_S(p_HT + 0.5 * ball_diameter * n_in), R_HS.T @ (-n_in))
+    # The targets lie on the ellipsoidal endocardium (``anatomy.ellipsoid_inward_normal``).
+    n_in = [ellipsoid_inward_normal(p_HT, atrium.semi_axes) for p_HT in ring.p_HT]
     carina = atrium.carinas["right"]
     p_HM = carina + carina_distance * carina / np.linalg.norm(carina)
+    return target_stand(atrium, [f"{task}_{k + 1}" for k in range(len(ring.p_HT))], ring.p_HT, n_in, p_HM,
+                        ball_diameter)
+
+
+def target_stand(atrium, names: list[str], p_HT, n_in, p_HM, ball_diameter: float) -> Stand:
+    """Targets (centres p_HT (n, 3) on the wall, unit normals n_in (n, 3) to the chain's side) and
+    one magnet (centre p_HM) in the statics frame: the tip ball's centre a ball radius off the
+    wall, its sensor axis into the wall (the direction the tip presses)."""
+    R_HS = rotation_with_z_along(atrium.sheath_axis_H)[:, [2, 0, 1]]
+    to_S = lambda p_H: R_HS.T @ (np.asarray(p_H) - atrium.p_HE)  # noqa: E731
+    targets = {name: (to_S(p + 0.5 * ball_diameter * n), R_HS.T @ (-n)) for name, p, n in zip(names, p_HT, n_in)}
     return Stand(targets, {"1": to_S(p_HM)}, R_HS, atrium.p_HE)
+
+
+def anatomy_stand(anatomy: Anatomy, indices: list[int], ball_diameter: float) -> Stand:
+    """The anatomy's targets ``indices`` (file order) and its first magnet unit in the statics frame."""
+    return target_stand(anatomy.atrium(), [anatomy.target_names[k] for k in indices], anatomy.p_WT[indices],
+                        anatomy.n_W[indices], anatomy.magnets[0], ball_diameter)
 
 
 def neutral_dipole(stand: Stand) -> np.ndarray:
@@ -138,26 +150,30 @@ class PlanResult(Result):
     """What ``run`` returns (edge units: gf, deg, mm, s).
 
     Attributes:
-        task: "left" or "right".
-        rows: one per target in order: {target, reached, force_gf, n_balls, dipole (unit (3,)),
+        task: "left" or "right" (None: a user anatomy's every target).
+        rows: one per target in order: {target, reached, force_gf, n_balls, dipole (unit (3,), in the
+            statics frame: x along the sheath), dipole_W (the same in the world frame),
             turn_deg, friction_needed, offset_mm, how, reason} (None where not reached).
         summary: the totals (``PlanSummary``).
         paper: the paper's operator on the task; min_force_gf: the force asked for;
         friction: the tip's Coulomb coefficient; target_radius_mm: the targets' radius.
+        anatomy: the user anatomy's file, side, targets and magnets (``Anatomy.describe``; left
+            out for the procedural atrium).
     """
 
-    task: str
+    task: str | None
     rows: list
     summary: PlanSummary
-    paper: dict
+    paper: dict | None
     min_force_gf: float
     friction: float
     target_radius_mm: float
+    anatomy: dict | None = optional()
 
 
-def run(*, task: str = "left", targets: int | None = None, balls=(16,), grid: int = 4, refine: int = 15,
+def run(*, task: str | None = None, targets: int | None = None, balls=(16,), grid: int = 4, refine: int = 15,
         min_force_gf: float = MIN_FORCE_GF, friction: float = ContactConfig().friction, omega_max: float = 0.5,
-        feeder_speed: float = 0.02, progress: bool = True) -> PlanResult:
+        feeder_speed: float = 0.02, progress: bool = True, anatomy=None) -> PlanResult:
     """A plan that visits every target of a task through held equilibria pressing >= min_force_gf.
 
     For each target in order and each inserted length, the smallest magnet turn from the
@@ -167,7 +183,8 @@ def run(*, task: str = "left", targets: int | None = None, balls=(16,), grid: in
     at ``omega_max`` and the feeder's length change at ``feeder_speed``.
 
     Args:
-        task: "left" (Task I) or "right" (Task II).
+        task: "left" (Task I) or "right" (Task II) on the procedural atrium (None: "left"); on a
+            user's anatomy, only its targets named "{task}_..." (None: every target, in file order).
         targets: only the first ``targets`` targets (None: all).
         balls: inserted chain lengths to try for each target.
         grid, refine: effort of the fallback search for the hardest-pressing orientation
@@ -178,6 +195,8 @@ def run(*, task: str = "left", targets: int | None = None, balls=(16,), grid: in
             equilibria are contact equilibria of the simulated station (0: frictionless).
         omega_max: magnet angular speed [rad/s] (the teleoperation mapper's full stick).
         feeder_speed: insertion speed [m/s].
+        anatomy: an anatomy file (``drake_models.anatomy``) or a loaded ``Anatomy``: its targets,
+            touch radius, sheath and first magnet unit (None: the procedural atrium's file).
 
     Returns:
         A ``PlanResult``.
@@ -187,8 +206,6 @@ def run(*, task: str = "left", targets: int | None = None, balls=(16,), grid: in
     as_int_list(balls, "balls", 2)
     require_int(grid, "grid", 1)
     require_int(refine, "refine", 0)
-    if task not in TASKS:
-        raise UserInputError(f"task must be 'left' or 'right', got {task!r}")
     if targets is not None and targets < 1:
         raise UserInputError(f"targets must be >= 1, got {targets}")
     if not (math.isfinite(min_force_gf) and min_force_gf > 0):
@@ -197,17 +214,17 @@ def run(*, task: str = "left", targets: int | None = None, balls=(16,), grid: in
         raise UserInputError(f"friction must be a finite number >= 0, got {friction}")
     if not balls or any(n < 2 for n in balls):
         raise UserInputError(f"balls must be chain lengths >= 2, got {balls}")
-    atrium = LeftAtrium()
+    anatomy, task, chosen = anatomy_targets(anatomy, task)
     d = BallChain().ball_diameter
-    stand = teleop_stand(atrium, task, d)
+    stand = anatomy_stand(anatomy, chosen, d)
     names = list(stand.targets)[: targets or None]
     min_force_N = newtons_from_gram_force(min_force_gf)
-    target_radius = 0.5 * atrium.params.target_diameter
+    target_radius = anatomy.touch_radius
     m_now, n_now = neutral_dipole(stand), None
     held = {n: None for n in balls}  # the last held equilibrium of each length
     rows, turn_time, feed_time = [], 0.0, 0.0
     t0 = time.perf_counter()
-    for name in tqdm(names, desc=f"plan {task}", unit="target", disable=not progress):
+    for name in tqdm(names, desc=f"plan {task or anatomy.name}", unit="target", disable=not progress):
         options, reasons = [], []
         for n in balls:
             out = plan_target(BallChain(n_balls=n), stand, name, m_now, held[n], min_force_N, target_radius,
@@ -219,6 +236,7 @@ def run(*, task: str = "left", targets: int | None = None, balls=(16,), grid: in
             else:
                 reasons.append(f"{n} balls: {out.get('reason', '')}")
         row = {"target": name, "reached": bool(options), "force_gf": None, "n_balls": None, "dipole": None,
+               "dipole_W": None,
                "turn_deg": None, "friction_needed": None, "offset_mm": None, "how": None,
                "reason": "; ".join(reasons)}
         if options:
@@ -230,6 +248,7 @@ def run(*, task: str = "left", targets: int | None = None, balls=(16,), grid: in
             m_now, n_now = plan.dipoles[0], n
             row.update(friction_needed=plan.friction_needed, offset_mm=float(1e3 * np.linalg.norm(plan.offset)))
             row.update(force_gf=gram_force(plan.force_N), n_balls=n, dipole=plan.dipoles[0].tolist(),
+                       dipole_W=(stand.R_HS @ plan.dipoles[0]).tolist(),
                        turn_deg=float(np.degrees(plan.turn_rad[0])), how=how)
         rows.append(row)
     reached = [r for r in rows if r["reached"]]
@@ -240,8 +259,33 @@ def run(*, task: str = "left", targets: int | None = None, balls=(16,), grid: in
         force_gf_min=min(forces_gf) if forces_gf else None,
         force_gf_max=max(forces_gf) if forces_gf else None,
         plan_time_s=turn_time + feed_time, magnet_turn_time_s=turn_time, insertion_time_s=feed_time,
-        ring_path_mm=1e3 * atrium.rings[task].curve_length,
+        ring_path_mm=1e3 * (anatomy.atrium().rings[task].curve_length if anatomy.procedural else
+                            AnatomyTargets([], anatomy.p_WT[chosen], None, 0.0).polygon_length),
         compute_time_s=time.perf_counter() - t0,
     )
-    return PlanResult(task=task, rows=rows, summary=summary, paper=PAPER[task], min_force_gf=min_force_gf,
-                      friction=friction, target_radius_mm=1e3 * target_radius)
+    return PlanResult(task=task, rows=rows, summary=summary, paper=PAPER.get(task) if anatomy.procedural else None,
+                      min_force_gf=min_force_gf, friction=friction, target_radius_mm=1e3 * target_radius,
+                      anatomy=None if anatomy.path == PROCEDURAL_FILE else anatomy.describe())
+
+
+def anatomy_targets(anatomy, task: str | None) -> tuple[Anatomy, str | None, list[int]]:
+    """(the loaded anatomy, the task, the indices of its targets to visit): the procedural
+    atrium's ring ``task`` ("left" when None), or a user anatomy's targets named "{task}_..."
+    (all when None), in file order.
+
+    Raises:
+        UserInputError: a task the anatomy has no targets for (naming the file).
+    """
+    if anatomy is None:
+        anatomy = PROCEDURAL_FILE
+    if not isinstance(anatomy, Anatomy):
+        anatomy = load_anatomy(anatomy)
+    if anatomy.procedural and task is None:
+        task = "left"
+    if anatomy.procedural and task not in TASKS:
+        raise UserInputError(f"task must be 'left' or 'right' on the procedural atrium, got {short_repr(task)}")
+    chosen = anatomy.indices(task)
+    if not chosen:
+        raise UserInputError(f"task {short_repr(task)}: anatomy file {short_repr(str(anatomy.path))} has no "
+                             f"targets named {task}_... (leave the task out for all its targets)")
+    return anatomy, task, chosen

@@ -17,7 +17,7 @@ import numpy as np
 from ballchain.drake_models.arg_checks import require_type
 from ballchain.drake_models.errors import UserInputError, short_repr
 from ballchain.drake_models.safe_files import check_output_file, to_jsonable
-from ballchain.experiments._result import Result
+from ballchain.experiments._result import Result, optional
 from ballchain.optimization.statics import uniform_field_equilibrium
 
 if TYPE_CHECKING:  # the systems layer (pydrake) loads with the run, not with the command line
@@ -36,20 +36,25 @@ class SimulationResult(Result):
         p_W_mm: the ball centres at the end [mm], shape (n, 3).
         statics_tip_error_mm: distance from the simulated tip to the statics equilibrium [mm]
             (None for scenarios that do not settle on the canonical statics problem).
+        anatomy: the anatomy file's name, side, targets and magnets (``Anatomy.describe``; only
+            with ``anatomy``).
     """
 
     metrics: SimulationMetrics
     p_W_mm: list
     statics_tip_error_mm: float | None
+    anatomy: dict | None = optional()
 
     def public(self) -> dict:
         """What the command prints: the metrics and ``statics_tip_error_mm`` in one flat,
         JSON-ready dict (no ball positions)."""
-        return {**to_jsonable(self.metrics), "statics_tip_error_mm": to_jsonable(self.statics_tip_error_mm)}
+        out = {**to_jsonable(self.metrics), "statics_tip_error_mm": to_jsonable(self.statics_tip_error_mm)}
+        return out if self.anatomy is None else {**out, "anatomy": to_jsonable(self.anatomy)}
 
 
 def run(*, scenario: str, duration: float | None = None, mode: str | None = None, engine: str | None = None,
-        overrides: str | None = None, html: Path | None = None, progress: bool = False) -> SimulationResult:
+        overrides: str | None = None, html: Path | None = None, progress: bool = False,
+        anatomy: Path | str | None = None) -> SimulationResult:
     """Load the scenario, apply the overrides, the mode and the engine, simulate; returns the metrics.
 
     Args:
@@ -61,6 +66,8 @@ def run(*, scenario: str, duration: float | None = None, mode: str | None = None
             agree with ``mode`` and ``engine`` when those are given.
         html: write a Meshcat recording (HTML) to this file.
         progress: a progress bar on stderr.
+        anatomy: an anatomy file (``drake_models.anatomy``): the scenario runs on it, its units
+            standing at the file's magnets (``station.apply_anatomy``).
 
     Returns:
         A ``SimulationResult``: the metrics of ``chain_simulation.run_simulation``, the ball
@@ -81,15 +88,24 @@ def run(*, scenario: str, duration: float | None = None, mode: str | None = None
     chosen = load_scenario(scenario)
     if changes:
         chosen = apply_overrides(chosen, changes).validate()
+    heart = None
+    if anatomy is not None:
+        from ballchain.drake_models.anatomy import load_anatomy
+        from ballchain.systems.station import apply_anatomy
+
+        anatomy = load_anatomy(anatomy)
+        apply_anatomy(chosen, anatomy)
+        heart = anatomy.atrium()
     if duration is not None:
         check_steps(chosen, duration, "--duration")
     if html is not None:  # room on the disk for the replay of this scenario and duration
         check_output_file(html, "--html", expected_bytes=replay_bytes(chosen, chosen.duration if duration is None
                                                                        else duration))
-    metrics = run_simulation(scenario=chosen, duration=duration, html=html, progress=progress)
+    metrics = run_simulation(scenario=chosen, duration=duration, html=html, progress=progress, heart=heart)
     p_W_mm = metrics.p_W_mm
     return SimulationResult(metrics=replace(metrics, p_W_mm=None), p_W_mm=p_W_mm,
-                            statics_tip_error_mm=statics_tip_error_mm(chosen, p_W_mm))
+                            statics_tip_error_mm=statics_tip_error_mm(chosen, p_W_mm),
+                            anatomy=None if anatomy is None else anatomy.describe())
 
 
 def _with_flags(changes: dict, **flags) -> dict:

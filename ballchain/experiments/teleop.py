@@ -105,15 +105,19 @@ class TeleopResult(Result):
         settings: {engine, seed, overrides, statics_period_s, n_balls, time_step_s,
             teleop_omega_max_rad_s, operator_period_s, reaction_s, timeout_s, axes, time_limit_s}.
         html: the Meshcat replay written (only with ``html``).
+        anatomy: the anatomy file's name, side, targets and magnets (only with ``anatomy``,
+            ``Anatomy.describe``); task is then None (every target) or the names' prefix, and
+            paper None unless it is the procedural atrium.
     """
 
-    task: str
+    task: str | None
     mapping: str
     rows: list
     summary: TeleopSummary
-    paper: dict
+    paper: dict | None
     settings: dict
     html: str | None = optional()
+    anatomy: dict | None = optional()
 
 
 @dataclass
@@ -141,11 +145,12 @@ def check_seed(seed, what: str = "seed") -> int:
     return int(seed)
 
 
-def check_inputs(task: str, mapping: str, targets: int | None, n_balls: int | None, time_limit: float | None,
-                 seed: int = 0) -> None:
-    """Raises UserInputError with a clear message on bad input."""
+def check_inputs(task: str | None, mapping: str, targets: int | None, n_balls: int | None,
+                 time_limit: float | None, seed: int = 0, anatomy: bool = False) -> None:
+    """Raises UserInputError with a clear message on bad input (with an anatomy file, ``task``
+    is a prefix of its target names, or None for all)."""
     check_seed(seed)
-    if task not in TASKS:
+    if task not in TASKS and not (anatomy and (task is None or isinstance(task, str))):
         raise UserInputError(f"task must be one of {TASKS} ('left': Task I, 'right': Task II), got {task!r}")
     if mapping not in MAPPINGS:
         raise UserInputError(f"mapping must be one of {tuple(MAPPINGS)}, got {mapping!r}")
@@ -159,8 +164,9 @@ def check_inputs(task: str, mapping: str, targets: int | None, n_balls: int | No
         raise UserInputError(f"time_limit must be in (0, 3600] s of simulated time, got {time_limit}")
 
 
-def scenario_for(mapping: str, n_balls: int | None = None, overrides: str | None = None):
-    """The paper's teleoperation station with the stick and the feeder left to an operator.
+def scenario_for(mapping: str, n_balls: int | None = None, overrides: str | None = None, anatomy=None):
+    """The paper's teleoperation station with the stick and the feeder left to an operator; on
+    a loaded ``anatomy`` (``drake_models.anatomy.Anatomy``) its unit stands at the file's first magnet.
 
     The engine is ``DEFAULT_ENGINE`` (the quasi-static engine) unless ``overrides`` name the
     engine, or a mode other than quasi-static (then the plant: the only one for dynamics); the
@@ -169,6 +175,10 @@ def scenario_for(mapping: str, n_balls: int | None = None, overrides: str | None
     from ballchain.systems.chain_scenario import load_scenario, parse_overrides
 
     scenario = load_scenario(SCENARIO, overrides)
+    if anatomy is not None:
+        from ballchain.systems.station import apply_anatomy
+
+        apply_anatomy(scenario, anatomy, units=scenario.units[:1])
     return hand_over(scenario, mapping, n_balls, parse_overrides(overrides), units=scenario.units[:1])
 
 
@@ -192,11 +202,12 @@ def hand_over(scenario, mapping: str, n_balls: int | None, overrides: dict, unit
 
 def run(task: str = "left", mapping: str = "world", targets: int | None = None, html: Path | None = None,
         progress: bool = True, time_limit: float | None = None, n_balls: int | None = None,
-        overrides: str | None = None, operator=None, heart=None, seed: int = 0) -> TeleopResult:
+        overrides: str | None = None, operator=None, heart=None, seed: int = 0, anatomy=None) -> TeleopResult:
     """Simulate the operator doing a task with a mapping.
 
     Args:
-        task: "left" (Task I) or "right" (Task II).
+        task: "left" (Task I) or "right" (Task II); with ``anatomy``, only its targets named
+            "{task}_..." (None: all of them, in file order).
         mapping: "world" (the paper's) or "catheter".
         targets: only the first N targets (None: all).
         html: write a Meshcat replay (self-contained HTML) here.
@@ -209,6 +220,8 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
         operator: OperatorParams (default: OperatorParams() with the mapping's axes and ``seed``).
         heart: a prebuilt LeftAtrium to reuse.
         seed: the operator's seed (its hand's tremor), 0..2**32-1; ignored when ``operator`` is given.
+        anatomy: an anatomy file (``drake_models.anatomy``; its surface, targets, sheath, first
+            magnet unit) instead of the procedural atrium's Task I or II.
 
     Returns:
         A ``TeleopResult`` (``html`` set when the replay was written).
@@ -218,24 +231,30 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     from ballchain.systems.chain_simulation import (ChainMonitor, MakeStation, atrium_for, near_ostium_rim,
                                                     run_station)
     from ballchain.systems.simulated_operator import OperatorParams, SimulatedOperator
+    from ballchain.systems.target_contact import heart_targets
 
-    check_inputs(task, mapping, targets, n_balls, time_limit, seed)
+    check_inputs(task, mapping, targets, n_balls, time_limit, seed, anatomy=anatomy is not None)
     if html is not None:  # before the run: an unwritable replay path must not cost the results
         from ballchain.drake_models.safe_files import check_output_file
 
         check_output_file(html, "--html")
-    scenario = scenario_for(mapping, n_balls, overrides)
+    if anatomy is not None:
+        from ballchain.experiments.planner import anatomy_targets
+
+        anatomy, task, _ = anatomy_targets(anatomy, task)
+        heart = anatomy.atrium()
+    scenario = scenario_for(mapping, n_balls, overrides, anatomy)
     if "publish_period" not in (overrides or ""):
         scenario.visualization.publish_period = REPLAY_PERIOD  # a task lasts minutes: keep the replay small
     heart = heart or atrium_for(scenario)
-    ring = heart.rings[task]
-    n_targets = len(ring.p_HT) if targets is None else min(int(targets), len(ring.p_HT))
+    task_names = [n for n in heart_targets(heart)[0] if task is None or n.startswith(f"{task}_")]
+    n_targets = len(task_names) if targets is None else min(int(targets), len(task_names))
     params = operator or OperatorParams(axes=(0, 1, 2) if mapping == "world" else (0, 1), seed=int(seed))
     handles = {}
 
     def add_operator(builder, ports):
         names, p_WT, n_W, radius = ports.targets
-        chosen = [i for i, n in enumerate(names) if n.startswith(f"{task}_")][:n_targets]
+        chosen = [i for i, n in enumerate(names) if task is None or n.startswith(f"{task}_")][:n_targets]
         cp = ports.chain
         indices = cp.ball_body_indices
         # What the console shows besides the camera: the sheath exit, the feeder's readout.
@@ -284,14 +303,15 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     summary.rim_sinkings = len(sinkings)
     summary.rim_sinking_max_mm = round(max(e[2] for e in sinkings) * 1e3, 3) if sinkings else None
     return TeleopResult(
-        task=task, mapping=mapping, rows=rows, summary=summary, paper=PAPER[task],
+        task=task, mapping=mapping, rows=rows, summary=summary,
+        paper=PAPER[task] if anatomy is None or anatomy.procedural else None,
         settings={"engine": scenario.engine, "seed": int(params.seed), "overrides": overrides,
                   "statics_period_s": scenario.statics_period if scenario.engine == "statics" else None,
                   "n_balls": scenario.n_balls, "time_step_s": scenario.effective_time_step,
                   "teleop_omega_max_rad_s": scenario.units[0].teleop_omega_max,
                   "operator_period_s": params.period, "reaction_s": params.period * params.reaction_steps,
                   "timeout_s": params.timeout, "axes": list(params.axes), "time_limit_s": limit},
-        html=None if html is None else str(html))
+        html=None if html is None else str(html), anatomy=None if anatomy is None else anatomy.describe())
 
 
 def vein_openings(heart) -> tuple:
@@ -530,7 +550,8 @@ def check_live_inputs(mapping: str, units: str, n_balls: int | None, duration: f
         raise UserInputError(f"--realtime-rate must be >= 0 (0: as fast as possible), got {realtime_rate}")
 
 
-def live_scenario_for(mapping: str, units: str = "one", n_balls: int | None = None, overrides: str | None = None):
+def live_scenario_for(mapping: str, units: str = "one", n_balls: int | None = None, overrides: str | None = None,
+                      anatomy=None):
     """The teleoperation station with every unit's stick and the feeder left to a person.
 
     Args:
@@ -540,6 +561,7 @@ def live_scenario_for(mapping: str, units: str = "one", n_balls: int | None = No
         overrides: inline YAML overrides of the scenario (``--set``), applied first. The engine is
             ``DEFAULT_ENGINE`` (the quasi-static engine: real time for 16 balls; the plant runs at
             about a fifth of it) unless they name one, e.g. ``{engine: plant}``.
+        anatomy: a loaded ``Anatomy``: the station on it, the units at its magnets (in order).
     """
     from ballchain.drake_models.errors import UserInputError
     from ballchain.systems.chain_scenario import load_scenario, parse_overrides
@@ -550,6 +572,10 @@ def live_scenario_for(mapping: str, units: str = "one", n_balls: int | None = No
         raise
     except ValueError as err:
         raise UserInputError(f"--set: {err}") from None
+    if anatomy is not None:
+        from ballchain.systems.station import apply_anatomy
+
+        apply_anatomy(scenario, anatomy)
     return hand_over(scenario, mapping, n_balls, parse_overrides(overrides))
 
 
@@ -621,7 +647,7 @@ class LiveSession:
 
 def build_live(*, mapping: str = "world", units: str = "one", n_balls: int | None = None,
                overrides: str | None = None, meshcat=None, heart=None, realtime_rate: float = 1.0,
-               joystick_period: float = 0.02) -> LiveSession:
+               joystick_period: float = 0.02, anatomy=None) -> LiveSession:
     """Build the station with ``MeshcatJoystick`` driving every unit's stick and the feeder.
 
     Args:
@@ -631,6 +657,8 @@ def build_live(*, mapping: str = "world", units: str = "one", n_balls: int | Non
         realtime_rate: the simulator's target real-time rate (0: as fast as possible); the
             scenario's simulator_config applies otherwise.
         joystick_period: how often the joystick reads Meshcat [s] (simulated time).
+        anatomy: an anatomy file or a loaded ``Anatomy`` (its surface, targets, sheath, units at
+            its magnets) instead of the procedural atrium.
     """
     from pydrake.geometry import Meshcat, MeshcatParams
 
@@ -639,7 +667,12 @@ def build_live(*, mapping: str = "world", units: str = "one", n_balls: int | Non
     from ballchain.systems.meshcat_joystick import MeshcatJoystick
 
     check_live_inputs(mapping, units, n_balls, None, realtime_rate)
-    scenario = live_scenario_for(mapping, units, n_balls, overrides)
+    if anatomy is not None:
+        from ballchain.drake_models.anatomy import Anatomy, load_anatomy
+
+        anatomy = anatomy if isinstance(anatomy, Anatomy) else load_anatomy(anatomy)
+        heart = anatomy.atrium()
+    scenario = live_scenario_for(mapping, units, n_balls, overrides, anatomy)
     meshcat = meshcat if meshcat is not None else Meshcat(MeshcatParams(host="localhost"))
     heart = heart or atrium_for(scenario)
 
@@ -672,7 +705,7 @@ def _panel_lines(session, mapping: str, omega: float) -> list[str]:
 def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None = None,
              overrides: str | None = None, duration: float | None = None, realtime_rate: float = 1.0,
              meshcat=None, heart=None, echo=print, status_period: float = LIVE_STATUS_PERIOD,
-             wait_for_browser: bool = True, freeze_gc: bool = False) -> LiveResult:
+             wait_for_browser: bool = True, freeze_gc: bool = False, anatomy=None) -> LiveResult:
     """Let a person steer the chain live in Meshcat with a gamepad or the keyboard.
 
     Opens Meshcat on localhost (or uses ``meshcat``), prints its URL and the key map, waits for a
@@ -699,6 +732,8 @@ def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None 
         wait_for_browser: start the clock when the first browser connects (False: at once).
         freeze_gc: freeze the objects alive after the build for the session
             (``chain_simulation.frozen_gc``; the command line asks for it).
+        anatomy: an anatomy file or a loaded ``Anatomy`` instead of the procedural atrium
+            (``build_live``).
 
     Returns:
         A ``LiveResult``.
@@ -710,7 +745,7 @@ def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None 
 
     check_live_inputs(mapping, units, n_balls, duration, realtime_rate)
     session = build_live(mapping=mapping, units=units, n_balls=n_balls, overrides=overrides, meshcat=meshcat,
-                         heart=heart, realtime_rate=realtime_rate)
+                         heart=heart, realtime_rate=realtime_rate, anatomy=anatomy)
     scenario = session.cd.scenario
     meshcat = session.meshcat
     tracker = session.cd.target_touches
@@ -767,7 +802,8 @@ def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None 
                       targets_touched=touched, n_targets=n_targets,
                       tip_wall_force_N=[round(float(v), 6) for v in session.tip_force_N()],
                       settings={"mapping": mapping, "units": unit_names, "n_balls": scenario.n_balls,
-                                "time_step_s": scenario.effective_time_step, "overrides": overrides})
+                                "time_step_s": scenario.effective_time_step, "overrides": overrides,
+                                "anatomy": scenario.anatomy or None})
 
 
 def _announce_live(session, mapping: str, realtime_rate: float, duration: float | None, echo):
