@@ -312,6 +312,10 @@ class ChainStatics:
         tolerance: stationarity tolerance on the scaled energy gradient (energy in units of the
             pair energy of two touching balls, angles in rad).
         max_iterations: Newton iteration limit.
+        qp: the Newton steps' QP solver, "dense" (active set) or "clarabel".
+        compiled: run the whole Newton solve (with the dense QP) as one compiled call
+            (``optimization.compiled_newton``); False runs the Python solver, the reference
+            the compiled one is held to.
     """
 
     contact_margin = 0.3  # pairs with |p_i - p_j|^2 / d^2 - 1 below this enter the step's QP
@@ -326,9 +330,11 @@ class ChainStatics:
         tolerance: float = 1e-8,
         max_iterations: int = 200,
         qp: str = "dense",
+        compiled: bool = True,
     ):
         require_type(chain, BallChain, "ChainStatics chain", "a BallChain")
         require_bool(gravity, "ChainStatics gravity")
+        require_bool(compiled, "ChainStatics compiled")
         require_positive(tolerance, "ChainStatics tolerance")
         require_int(max_iterations, "ChainStatics max_iterations", 1)
         if method not in ("newton", "snopt"):
@@ -336,6 +342,7 @@ class ChainStatics:
         if qp not in ("dense", "clarabel"):
             raise UserInputError(f"qp must be 'dense' or 'clarabel', got {qp!r}")
         self.qp = qp
+        self.compiled = compiled
         self._constrained: ConstrainedChain | None = None
         self.chain = chain
         self.gravity = gravity
