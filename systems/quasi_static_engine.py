@@ -44,7 +44,7 @@ from pydrake.geometry import (
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
-from ballchain.drake_models.arg_checks import as_vector, require_type
+from ballchain.drake_models.arg_checks import as_vector, require_bool, require_type
 from ballchain.drake_models.errors import UserInputError, caused_by_interrupt
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import BallChain
@@ -84,13 +84,35 @@ def rotation_with_x_along(direction) -> np.ndarray:
 
 def rotations_with_x_along(directions: np.ndarray) -> np.ndarray:
     """(k, 3, 3) rotations whose first columns are the unit vectors along ``directions`` (k, 3)
-    (``rotation_with_x_along`` for all balls at once: the engine publishes 16 poses per update)."""
-    x = directions / np.linalg.norm(directions, axis=1, keepdims=True)
-    helper = np.where(np.abs(x[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
-    y = np.cross(helper, x)
-    y /= np.linalg.norm(y, axis=1, keepdims=True)
-    z = np.cross(x, y)
-    return np.stack([x, y, z], axis=2)
+    (``rotation_with_x_along`` for all balls at once: the engine publishes every ball's pose per
+    update). The cross products are written out by components (numpy's ``cross`` formula, the
+    same floating-point results) to save its per-call overhead."""
+    return ball_frames(directions, np.zeros_like(directions))[:, :, :3]
+
+
+def ball_frames(directions: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """(k, 3, 4) poses [R_WB | p_WB] of balls at ``centres`` (k, 3) [m] with x along
+    ``directions`` (k, 3): one array for all balls (``RigidTransform.MakeUnchecked`` of each row
+    is its pose)."""
+    d = np.asarray(directions, float)
+    x = d / np.sqrt(np.add.reduce(d * d, axis=1))[:, None]
+    x0, x1, x2 = x[:, 0], x[:, 1], x[:, 2]
+    along_x = np.abs(x0) < 0.9  # helper e_x (else e_y), as rotation_with_z_along
+    y = np.empty_like(x)
+    # y = helper x x: e_x x x = (0, -x2, x1), e_y x x = (x2, 0, -x0), as numpy's cross computes them
+    y[:, 0] = np.where(along_x, 0.0 * x2 - 0.0 * x1, 1.0 * x2 - 0.0 * x1)
+    y[:, 1] = np.where(along_x, 0.0 * x0 - 1.0 * x2, 0.0 * x0 - 0.0 * x2)
+    y[:, 2] = np.where(along_x, 1.0 * x1 - 0.0 * x0, 0.0 * x1 - 1.0 * x0)
+    y /= np.sqrt(np.add.reduce(y * y, axis=1))[:, None]
+    y0, y1, y2 = y[:, 0], y[:, 1], y[:, 2]
+    out = np.empty((len(x), 3, 4))
+    out[:, :, 0] = x
+    out[:, :, 1] = y
+    out[:, 0, 2] = x1 * y2 - x2 * y1
+    out[:, 1, 2] = x2 * y0 - x0 * y2
+    out[:, 2, 2] = x0 * y1 - x1 * y0
+    out[:, :, 3] = centres
+    return out
 
 
 @dataclass
@@ -142,15 +164,25 @@ class QuasiStaticEngine(LeafSystem):
         max_angle_step: largest magnet turn per continuation step [rad].
         max_insertion_step: largest feeder move per continuation step [m].
         snap_distance: a ball moving further in one step marks a possible snap-through [m].
+        compiled: solve with the compiled statics (``ChainStatics(compiled=True)``, default);
+            False: the Python solver, the reference.
     """
 
     def __init__(self, chain: BallChain, ball_body_indices, p_WE, axis_W, sdf=None,
                  sheath: SheathGeometry | None = None, field_source=None, port_magnets=(), model: str = "dipole",
                  gravity: bool = True, period: float = 0.02, initial_inserted_length: float = 0.0,
                  max_angle_step: float = np.radians(1.0), max_insertion_step: float = 1e-3,
-                 snap_distance: float = 1.5e-3):
+                 snap_distance: float = 1.5e-3, compiled: bool = True):
         super().__init__()
         require_type(chain, BallChain, "QuasiStaticEngine chain", "a BallChain")
+        require_bool(compiled, "QuasiStaticEngine compiled")
+        # What replica() rebuilds the engine from.
+        self._arguments = dict(
+            chain=chain, ball_body_indices=ball_body_indices, p_WE=p_WE, axis_W=axis_W, sdf=sdf, sheath=sheath,
+            field_source=field_source, port_magnets=port_magnets, model=model, gravity=gravity, period=period,
+            initial_inserted_length=initial_inserted_length, max_angle_step=max_angle_step,
+            max_insertion_step=max_insertion_step, snap_distance=snap_distance, compiled=compiled)
+        self.compiled = compiled
         as_vector(p_WE, "QuasiStaticEngine p_WE", unit="m")
         as_vector(axis_W, "QuasiStaticEngine axis_W", nonzero=True)
         if not period > 0:
@@ -189,7 +221,8 @@ class QuasiStaticEngine(LeafSystem):
         self.free_in_bore = 1
         self.events: list[EngineEvent] = []
         self.failure: str | None = None  # the first failed update (the monitor stops the run)
-        self.solve_times: list[float] = []  # wall time of every statics solve [s]
+        self.solve_times: list[float] = []  # time of every statics solve [s], by ``clock``
+        self.clock = time.perf_counter  # wall time; a benchmark may set time.process_time
         self.iterations: list[int] = []
         km = 6 * len(self._port_magnets)
         self._slices = {}
@@ -208,7 +241,11 @@ class QuasiStaticEngine(LeafSystem):
         self._feeder_port = self.DeclareVectorInputPort("feeder_desired_state", 2)
         self._magnet_port = self.DeclareVectorInputPort("magnet_states", km) if km else None
         size = max(self._indices) + 1
+        # The published list: identities (bodies that are not balls) with the balls' poses set per
+        # update; balls on consecutive BodyIndex values are set as one slice.
         self._poses = [RigidTransform() for _ in range(size)]
+        first = self._indices[0]
+        self._ball_slice = (slice(first, first + n) if self._indices == list(range(first, first + n)) else None)
         self._body_poses_port = self.DeclareAbstractOutputPort(
             "body_poses", lambda: AbstractValue.Make(list(self._poses)), self._calc_body_poses,
             prerequisites_of_calc={self.xd_ticket()})
@@ -222,6 +259,10 @@ class QuasiStaticEngine(LeafSystem):
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
 
     # --- ports ----------------------------------------------------------------------------------
+    def replica(self, **changes) -> QuasiStaticEngine:
+        """A new engine with this one's arguments, except ``changes`` (e.g. ``compiled=False``)."""
+        return QuasiStaticEngine(**{**self._arguments, **changes})
+
     def warm_up(self) -> None:
         """One untimed solve (the initial insertion, the fixed field only): loads the compiled
         kernels' caches and the solvers before a timed run. Leaves no trace in the reports."""
@@ -300,7 +341,7 @@ class QuasiStaticEngine(LeafSystem):
         solver = self._solvers.get(n_sub)
         if solver is None:
             solver = self._solvers[n_sub] = ChainStatics(self.chain.with_balls(n_sub), gravity=self._gravity,
-                                                         tolerance=self.tolerance)
+                                                         tolerance=self.tolerance, compiled=self.compiled)
             # Rows met to 1e-9 of a ball diameter (3 pm) rather than 1e-12: one Newton
             # iteration less (the last one only certifies round-off).
             solver.feasibility_tolerance = 1e-9
@@ -313,13 +354,13 @@ class QuasiStaticEngine(LeafSystem):
                                  "warm start", "", 0, 0.0, multipliers=self._multipliers.get(n_sub, {}))
 
         field = self._field(magnets)
-        start = time.perf_counter()
+        start = self.clock()
         starts = ([] if predicted is None else [predicted]) + [(p_W, m_W)] + ([(None, None)] if p_W is not None else [])
         for p0, m0 in starts:  # the prediction, the last equilibrium, then one cold restart
             result = solver.solve(field, warm_from(p0, m0), constraints=c)
             if result.converged:
                 break
-        self.solve_times.append(time.perf_counter() - start)
+        self.solve_times.append(self.clock() - start)
         if result.converged:
             self._multipliers[n_sub] = result.multipliers
         self.iterations.append(result.iterations)
@@ -418,62 +459,63 @@ class QuasiStaticEngine(LeafSystem):
 
         x = self.state_vector(context)
         s, mags = self._inputs(context)
-        p = x[self._slices["p"]].reshape(-1, 3)
-        m = x[self._slices["m"]].reshape(-1, 3)
-        s_last = float(x[self._slices["s"]][0])
-        mags_last = None if mags is None else x[self._slices["magnets"]].copy()
-        t = context.get_time()
+        sl = self._slices
+        s_last = float(x[sl["s"]][0])
+        mags_last = None if mags is None else x[sl["magnets"]]
         if s == s_last and (mags is None or np.array_equal(mags, mags_last)):
             # Nothing moved: the chain stays where it is (and the next move starts afresh).
-            x = x.copy()
-            x[self._slices["u"]] = 0.0
-            discrete_state.get_mutable_vector(self._state_index).SetFromVector(x)
+            # discrete_state holds the current state: only the step size changes.
+            discrete_state.get_mutable_vector(self._state_index).get_mutable_value()[sl["u"]] = 0.0
             return EventStatus.Succeeded()
-        snaps_before = sum(e.kind == "snap-through" for e in self.events)
+        t = context.get_time()
+        n_events = len(self.events)
         motion = None
-        if x[self._slices["u"]][0] > 0:
-            motion = (x[self._slices["dp"]].reshape(-1, 3), x[self._slices["dm"]].reshape(-1, 3),
-                      float(x[self._slices["u"]][0]))
+        if x[sl["u"]][0] > 0:
+            motion = (x[sl["dp"]].reshape(-1, 3), x[sl["dm"]].reshape(-1, 3), float(x[sl["u"]][0]))
         try:
             with _one_blas_thread():
-                p, m, result, motion = self._walk(t, s_last, s, mags_last, mags, p, m, motion=motion)
-            failures = 0
+                p, m, result, motion = self._walk(t, s_last, s, mags_last, mags, x[sl["p"]].reshape(-1, 3),
+                                                  x[sl["m"]].reshape(-1, 3), motion=motion)
         except StaticsError as err:  # keep the last equilibrium, report it (the watchdog stops)
             # Not EventStatus.Failed(self, ...): formatting a Python system's failure message
             # crashes pydrake 1.51 (NiceTypeName without the GIL); the monitor fails instead.
             self.events.append(EngineEvent(t, "solve failed", 0.0, str(err)))
             self.failure = f"quasi-static engine at t = {t:.4f} s: {err}"
             return EventStatus.Succeeded()
-        snaps = sum(e.kind == "snap-through" for e in self.events) - snaps_before
-        self._store(discrete_state, context, p, m, result, s, mags, snaps, failures, motion)
+        snaps = sum(e.kind == "snap-through" for e in self.events[n_events:])  # this update's
+        self._store(discrete_state, context, p, m, result, s, mags, snaps, 0, motion)
         return EventStatus.Succeeded()
 
     def _store(self, discrete_state, context, p, m, result, s, mags, new_snaps, new_failures, motion=None):
-        x = self.state_vector(context).copy()
+        """Writes the update into ``discrete_state`` in place (it holds the current state)."""
+        x = discrete_state.get_mutable_vector(self._state_index).get_mutable_value()
+        sl = self._slices
         if motion is None:
-            x[self._slices["u"]] = 0.0
+            x[sl["u"]] = 0.0
         else:
-            x[self._slices["dp"]] = motion[0].ravel()
-            x[self._slices["dm"]] = motion[1].ravel()
-            x[self._slices["u"]] = motion[2]
-        x[self._slices["p"]] = p.ravel()
-        x[self._slices["m"]] = m.ravel()
-        x[self._slices["tip"]] = self._tip_force(p, result)
-        x[self._slices["s"]] = s
+            x[sl["dp"]] = motion[0].ravel()
+            x[sl["dm"]] = motion[1].ravel()
+            x[sl["u"]] = motion[2]
+        x[sl["p"]] = p.ravel()
+        x[sl["m"]] = m.ravel()
+        x[sl["tip"]] = self._tip_force(p, result)
+        x[sl["s"]] = s
         if mags is not None:
-            x[self._slices["magnets"]] = mags
-        x[self._slices["snaps"]] += new_snaps
-        x[self._slices["failures"]] += new_failures
-        discrete_state.get_mutable_vector(self._state_index).SetFromVector(x)
+            x[sl["magnets"]] = mags
+        x[sl["snaps"]] += new_snaps
+        x[sl["failures"]] += new_failures
 
     # --- outputs ---------------------------------------------------------------------------------
     def _calc_body_poses(self, context, output):
         x = self.state_vector(context)
-        p = x[self._slices["p"]].reshape(-1, 3)
-        R = rotations_with_x_along(x[self._slices["m"]].reshape(-1, 3))
-        for i, index in enumerate(self._indices):
-            self._poses[index] = RigidTransform(RotationMatrix(R[i]), p[i])
-        output.set_value(list(self._poses))
+        X = ball_frames(x[self._slices["m"]].reshape(-1, 3), x[self._slices["p"]].reshape(-1, 3))
+        poses = list(self._poses)  # a new list: a consumer may hold the last one
+        if self._ball_slice is not None:
+            poses[self._ball_slice] = map(RigidTransform.MakeUnchecked, X)
+        else:
+            for index, X_i in zip(self._indices, X):
+                poses[index] = RigidTransform.MakeUnchecked(X_i)
+        output.set_value(poses)
 
     def _calc_tip_force(self, context, output):
         output.SetFromVector(self.state_vector(context)[self._slices["tip"]])
@@ -546,8 +588,7 @@ class EngineGeometry(LeafSystem):
 
     def _calc_geometry_pose(self, context, output):
         poses = self._poses_port.Eval(context)
-        value = output.get_mutable_value()
-        value.clear()
+        value = output.get_mutable_value()  # the same frames every time: overwritten, not cleared
         for frame, index in zip(self._frames, self._indices):
             value.set_value(frame, poses[index])
 
