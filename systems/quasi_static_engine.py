@@ -224,6 +224,7 @@ class QuasiStaticEngine(LeafSystem):
         self.solve_times: list[float] = []  # time of every statics solve [s], by ``clock``
         self.clock = time.perf_counter  # wall time; a benchmark may set time.process_time
         self.iterations: list[int] = []
+        self.last_result: StaticsResult | None = None  # the last solve's (wall contacts, multipliers)
         km = 6 * len(self._port_magnets)
         self._slices = {}
         offset = 0
@@ -364,6 +365,7 @@ class QuasiStaticEngine(LeafSystem):
         if result.converged:
             self._multipliers[n_sub] = result.multipliers
         self.iterations.append(result.iterations)
+        self.last_result = result
         if not result.converged:
             raise StaticsError(f"statics in the heart did not converge at s = {s * 1e3:.2f} mm: {result.reason}")
         p, m = c.full_configuration(result.positions, result.dipoles, self._d)
@@ -399,24 +401,17 @@ class QuasiStaticEngine(LeafSystem):
         which saves Newton iterations while the magnets turn or the feeder moves steadily.
         Returns (p, m, result, motion).
         """
-        steps = 1
-        if mag0 is not None and len(mag0):
-            a = mag0.reshape(-1, 6)[:, 3:]
-            b = mag1.reshape(-1, 6)[:, 3:]
-            cos = np.einsum("ij,ij->i", a, b) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
-            angle = float(np.arccos(np.clip(cos, -1.0, 1.0)).max())
-            moved = float(np.linalg.norm(mag0.reshape(-1, 6)[:, :3] - mag1.reshape(-1, 6)[:, :3], axis=1).max())
-            steps = max(steps, int(np.ceil(angle / self.max_angle_step)), int(np.ceil(moved / 5e-3)))
-        steps = max(steps, int(np.ceil(abs(s1 - s0) / self.max_insertion_step)))
+        # As many steps as the largest of the moves over its per-step limit asks for (the
+        # ceiling of the largest ratio is the largest of the ratios' ceilings).
+        u = self._step_size(s0, s1, mag0, mag1)
+        steps = max(1, int(np.ceil(u)))
         result = None
-        u_step = self._step_size(s0, s1, mag0, mag1) / steps
+        u_step = u / steps
+        s_prev, f_prev = s0 + 0.0 * (s1 - s0), 0.0
         for j in range(1, steps + 1):
             f = j / steps
             s = s0 + f * (s1 - s0)
             mag = None if mag0 is None else self._interpolate(mag0, mag1, f)
-            fp = (j - 1) / steps
-            s_prev = s0 + fp * (s1 - s0)
-            mag_prev = None if mag0 is None else self._interpolate(mag0, mag1, fp)
             predicted = None
             if motion is not None and motion[2] > 0 and u_step > 0:
                 ratio = min(u_step / motion[2], 2.0)
@@ -425,6 +420,7 @@ class QuasiStaticEngine(LeafSystem):
             jump = float(np.linalg.norm(p_new - p, axis=1).max() - abs(s - s_prev))
             if jump > self.snap_distance:
                 if depth < 4:  # refine: a smooth path moves less over a shorter step
+                    mag_prev = None if mag0 is None else self._interpolate(mag0, mag1, f_prev)
                     p_new, m_new, result, _ = self._walk(t, s_prev, s, mag_prev, mag, p, m, depth + 1)
                 elif steps == 1:
                     self.events.append(EngineEvent(t, "snap-through", jump + abs(s - s_prev),
@@ -433,6 +429,7 @@ class QuasiStaticEngine(LeafSystem):
             else:
                 motion = (p_new - p, m_new - m, u_step)
             p, m = p_new, m_new
+            s_prev, f_prev = s, f
         return p, m, result, motion
 
     @staticmethod
