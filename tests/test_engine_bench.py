@@ -119,23 +119,40 @@ def test_compiled_engine_matches_the_reference():
         assert np.abs(compiled.ball_positions(contexts[0]) - reference.ball_positions(contexts[1])).max() <= 1e-9
 
 
-def test_bench_engine_json(capsys):
-    rc = cli_main(["bench", "engine", "--path-s", "0.09", "--rate-hz", "200", "--clock", "cpu", "--no-progress",
-                   "--json"])
-    assert rc == 0
-    out = json.loads(capsys.readouterr().out)
-    assert out["benchmark"] == "engine" and out["clock"] == "cpu" and out["rate_hz"] == 200
-    assert out["path_points"] + out["skipped"] == round(0.09 * 200) + 1 and out["path_points"] >= 2
+def _check_engine_json(out: dict) -> None:
     for name in ("compiled", "reference"):
         u = out[name]["update"]
         assert u["updates"] == out["path_points"] - 1
         assert u["median_ms"] <= u["p99_ms"] <= u["max_ms"]
         assert u["achieved_rate_hz"] == pytest.approx(1e3 / u["mean_ms"], rel=1e-12)
         assert 0.0 <= u["within_period"] <= 1.0 and out[name]["failures"] == 0
+        assert out[name]["solve"]["updates"] >= u["updates"]  # at least one solve per update
     assert out["speedup_median"] == pytest.approx(
         out["reference"]["update"]["median_ms"] / out["compiled"]["update"]["median_ms"], rel=1e-12)
     assert out["max_position_difference_m"] <= 1e-9
-    assert 0.0 <= out["in_contact"] <= 1.0
+
+
+def test_bench_engine_json(capsys, monkeypatch):
+    """The replay on a path of the feeder pushing the wall problem's chain 0.1 mm per update."""
+    points = [(1e-4 * i, None) for i in range(6)]
+    monkeypatch.setattr(engine_bench, "record_path", lambda *args: (_wall_engine(), points, 0))
+    rc = cli_main(["bench", "engine", "--path-s", "0.005", "--clock", "cpu", "--no-progress", "--json"])
+    assert rc == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["benchmark"] == "engine" and out["clock"] == "cpu" and out["rate_hz"] == 1000
+    assert out["path_points"] == 6 and out["skipped"] == 0
+    _check_engine_json(out)
+    assert out["in_contact"] == 1.0 and out["median_wall_contacts"] >= 1
+
+
+@pytest.mark.slow
+def test_bench_engine_on_the_recorded_teleoperation_path(capsys):
+    rc = cli_main(["bench", "engine", "--path-s", "0.12", "--rate-hz", "500", "--no-progress", "--json"])
+    assert rc == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["path_points"] + out["skipped"] == round(0.12 * 500) + 1 and out["path_points"] >= 10
+    _check_engine_json(out)
+    assert out["in_contact"] == 1.0  # PATH_INSERTION keeps the chain on the wall
 
 
 def test_bench_scaling_writes_the_table(tmp_path, capsys):
