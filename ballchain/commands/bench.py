@@ -150,7 +150,7 @@ def _run_other(args: argparse.Namespace) -> int:
 
     if args.target == "engine":
         out = engine_bench.run(scenario=args.scenario, path_s=args.path_s, rate_hz=args.rate_hz, clock=args.clock,
-                               reference=not args.no_reference, progress=not args.no_progress)
+                               reference=not args.no_reference, progress=not args.no_progress, freeze_gc=True)
     else:
         out = engine_bench.run_scaling(sizes=args.sizes, field_mT=args.field_mT, angle_deg=args.angle_deg,
                                        warm_offset_deg=args.warm_offset_deg, repeats=args.repeats, clock=args.clock,

@@ -17,7 +17,10 @@ alternating), each timed by ``clock`` (``cpu``: this process's CPU time, steadie
 machine; ``wall``). Reported per solver: the median, 99th percentile and largest update time, the
 achieved update rate (updates per second of solving back to back) and the share of updates
 within the period; the speed-up is the ratio of the medians in the same run, and the two solvers'
-ball positions are compared along the path.
+ball positions are compared along the path. With ``freeze_gc`` (the command line's choice, as a
+real-time loop would) the objects alive before the replay are frozen out of Python's garbage
+collector (``chain_simulation.frozen_gc``): a full collection scans the station's ~170k objects
+(tens of ms) and would land on whichever update allocates at the time.
 
 ``run_scaling`` (``ballchain bench scaling``): one equilibrium of 8, 16, 32 and 64 balls in a
 23 mT field at 90 deg, in free space (the canonical problem) and pressed on a flat wall (the
@@ -89,6 +92,7 @@ class EngineBenchResult(Result):
             quantiles are ``updates``, ``median_ms``, ``p99_ms``, ``max_ms``, ``mean_ms``,
             ``achieved_rate_hz`` (1 / mean) and ``within_period`` (share of updates within 1/rate).
             reference is None when left out.
+        gc_frozen: the replay ran with the garbage collector's old objects frozen.
         speedup_median, speedup_p99: reference / compiled, updates (same-run ratios).
         max_position_difference_m: largest ball-centre difference of the two solvers along the path.
         load_average_1min: before and after; cpu_count: the machine's.
@@ -106,6 +110,7 @@ class EngineBenchResult(Result):
     median_wall_contacts: float
     compiled: dict
     reference: dict | None
+    gc_frozen: bool
     speedup_median: float | None
     speedup_p99: float | None
     max_position_difference_m: float | None
@@ -192,7 +197,7 @@ class _Replay:
 
 
 def run(*, scenario: str = "teleop_right_unit", path_s: float = 0.7, rate_hz: float = 1000.0, clock: str = "wall",
-        reference: bool = True, progress: bool = True) -> EngineBenchResult:
+        reference: bool = True, progress: bool = True, freeze_gc: bool = False) -> EngineBenchResult:
     """Replay a recorded teleoperation path at ``rate_hz`` through the engine, compiled and reference.
 
     Args:
@@ -202,6 +207,8 @@ def run(*, scenario: str = "teleop_right_unit", path_s: float = 0.7, rate_hz: fl
         clock: "cpu" (this process's CPU time) or "wall".
         reference: also replay the Python reference (``compiled=False``), interleaved.
         progress: a tqdm bar on stderr.
+        freeze_gc: freeze the garbage collector's old objects for the replay (a process-wide
+            switch: for a program that owns its process).
 
     Returns:
         An ``EngineBenchResult``.
@@ -213,12 +220,13 @@ def run(*, scenario: str = "teleop_right_unit", path_s: float = 0.7, rate_hz: fl
     now = _clock(clock)
     from tqdm import tqdm
 
+    from ballchain.systems.chain_simulation import frozen_gc
     from ballchain.systems.quasi_static_engine import _one_blas_thread
 
     load_before = os.getloadavg()
     engine, points, skipped = record_path(scenario, path_s, rate_hz)
     solvers = SOLVERS if reference else SOLVERS[:1]
-    with _one_blas_thread():
+    with _one_blas_thread(), frozen_gc(freeze_gc):
         replays = {name: _Replay(engine, name == "compiled", points[0], now) for name in solvers}
         for i, point in enumerate(tqdm(points[1:], desc="bench engine", unit="update", file=sys.stderr,
                                        disable=not progress, leave=False)):
@@ -238,7 +246,7 @@ def run(*, scenario: str = "teleop_right_unit", path_s: float = 0.7, rate_hz: fl
         path_points=len(points), skipped=skipped,
         in_contact=float(np.mean(np.asarray(judge.contacts) > 0)),
         median_wall_contacts=float(np.median(judge.contacts)),
-        compiled=out["compiled"], reference=out.get("reference"),
+        compiled=out["compiled"], reference=out.get("reference"), gc_frozen=freeze_gc,
         speedup_median=None if ratio is None else ratio[0], speedup_p99=None if ratio is None else ratio[1],
         max_position_difference_m=difference,
         load_average_1min={"before": load_before[0], "after": os.getloadavg()[0]}, cpu_count=os.cpu_count())
