@@ -77,6 +77,12 @@ def _one_blas_thread():
     return _BLAS.limit(limits=1, user_api="blas")
 
 
+def _norms(rows: np.ndarray) -> np.ndarray:
+    """The rows' Euclidean norms, as ``np.linalg.norm(rows, axis=1)`` computes them (the square
+    root of the summed squares: the same floats) without its wrapper's cost."""
+    return np.sqrt(np.add.reduce(rows * rows, axis=1))
+
+
 def rotation_with_x_along(direction) -> np.ndarray:
     """R_WB whose first column is the unit vector along ``direction`` (a ball's dipole is +x)."""
     return rotation_with_z_along(direction)[:, [2, 0, 1]]
@@ -210,6 +216,7 @@ class QuasiStaticEngine(LeafSystem):
         self.max_insertion_step = max_insertion_step
         self.snap_distance = snap_distance
         self._solvers: dict[int, ChainStatics] = {}
+        self._last_constraints = None  # (s, (k, HeartConstraints)) of the last solve
         # The last solution's multipliers per sub-chain size: a warm start for the next solve's
         # quadratic model only (the solution does not depend on them).
         self._multipliers: dict[int, dict] = {}
@@ -302,6 +309,13 @@ class QuasiStaticEngine(LeafSystem):
         return self._p_WE + along[:, None] * self._axis, np.tile(self._axis, (self._n, 1))
 
     def _constraints(self, s: float) -> tuple[int, HeartConstraints]:
+        """The held ball and the rows at inserted length s (the last ones again while s stays)."""
+        if self._last_constraints is not None and self._last_constraints[0] == s:
+            return self._last_constraints[1]
+        self._last_constraints = (s, self._new_constraints(s))
+        return self._last_constraints[1]
+
+    def _new_constraints(self, s: float) -> tuple[int, HeartConstraints]:
         if self._sheath is not None:
             k, a = base_ball(self._n, s, self._d, self.free_in_bore)
             p_WB = self._p_WE + a * self._axis
@@ -387,10 +401,9 @@ class QuasiStaticEngine(LeafSystem):
         u = abs(s1 - s0) / self.max_insertion_step
         if mag0 is not None and len(mag0):
             a, b = mag0.reshape(-1, 6), mag1.reshape(-1, 6)
-            cos = np.einsum("ij,ij->i", a[:, 3:], b[:, 3:]) / (
-                np.linalg.norm(a[:, 3:], axis=1) * np.linalg.norm(b[:, 3:], axis=1))
-            u = max(u, float(np.arccos(np.clip(cos, -1.0, 1.0)).max()) / self.max_angle_step,
-                    float(np.linalg.norm(a[:, :3] - b[:, :3], axis=1).max()) / 5e-3)
+            cos = np.einsum("ij,ij->i", a[:, 3:], b[:, 3:]) / (_norms(a[:, 3:]) * _norms(b[:, 3:]))
+            u = max(u, float(np.arccos(np.minimum(np.maximum(cos, -1.0), 1.0)).max()) / self.max_angle_step,
+                    float(_norms(a[:, :3] - b[:, :3]).max()) / 5e-3)
         return u
 
     def _walk(self, t, s0, s1, mag0, mag1, p, m, depth=0, motion=None):
@@ -417,7 +430,7 @@ class QuasiStaticEngine(LeafSystem):
                 ratio = min(u_step / motion[2], 2.0)
                 predicted = (p + ratio * motion[0], m + ratio * motion[1])
             p_new, m_new, result, _ = self.equilibrium(s, mag, p, m, predicted)
-            jump = float(np.linalg.norm(p_new - p, axis=1).max() - abs(s - s_prev))
+            jump = float(_norms(p_new - p).max() - abs(s - s_prev))
             if jump > self.snap_distance:
                 if depth < 4:  # refine: a smooth path moves less over a shorter step
                     mag_prev = None if mag0 is None else self._interpolate(mag0, mag1, f_prev)
@@ -436,7 +449,7 @@ class QuasiStaticEngine(LeafSystem):
     def _interpolate(a: np.ndarray, b: np.ndarray, f: float) -> np.ndarray:
         a, b = a.reshape(-1, 6), b.reshape(-1, 6)
         out = (1 - f) * a + f * b  # centres: linear; directions: normalised (a short arc)
-        out[:, 3:] /= np.linalg.norm(out[:, 3:], axis=1, keepdims=True)
+        out[:, 3:] /= _norms(out[:, 3:])[:, None]
         return out.ravel()
 
     def _inputs(self, context):

@@ -23,8 +23,8 @@ collector (``chain_simulation.frozen_gc``): a full collection scans the station'
 (tens of ms) and would land on whichever update allocates at the time.
 
 ``run_scaling`` (``ballchain bench scaling``): one equilibrium of 8, 16, 32 and 64 balls in a
-23 mT field at 90 deg, in free space (the canonical problem) and pressed on a flat wall (the
-engine's wall rows on a ``PlaneSDF`` at 60 % of the free equilibrium's reach), cold (from the
+23 mT field at 90 deg, in free space (the canonical problem) and pressed on a flat rigid wall
+(``ChainStatics.solve(wall=...)``, the plane y = 60 % of the free equilibrium's reach), cold (from the
 straight chain) and warm (from the equilibrium 2.5 deg before), compiled and reference,
 interleaved; the table as CSV and markdown and a figure when ``out`` is given.
 
@@ -301,17 +301,14 @@ def _scaling_problems(n: int, field_mT: float, angle_deg: float, warm_offset_deg
     from ballchain.drake_models.field_sources import UniformField
     from ballchain.drake_models.params import BallChain
     from ballchain.optimization.statics import ChainStatics
-    from ballchain.optimization.wall_constraints import HeartConstraints, PlaneSDF
 
     B = 1e-3 * field_mT
     fields = (UniformField.in_plane(B, math.radians(angle_deg)),
               UniformField.in_plane(B, math.radians(angle_deg - warm_offset_deg)))
     reach = ChainStatics(BallChain(n_balls=n), compiled=False).solve(fields[0]).positions[:, 1].max()
-    # Frame B = world at ball 1: the wall's rows as the engine builds them, no sheath, no gravity.
-    wall = HeartConstraints(np.zeros(3), np.eye(3), PlaneSDF([0.0, 0.6 * reach, 0.0], [0.0, -1.0, 0.0]),
-                            None, n_behind=0, gravity=False)
+    wall = (np.array([0.0, 0.6 * reach, 0.0]), np.array([0.0, -1.0, 0.0]))  # the chain on the -y side
     return {"free": (lambda statics, field, warm: statics.solve(field, warm), fields),
-            "contact": (lambda statics, field, warm: statics.solve(field, warm, constraints=wall), fields)}
+            "contact": (lambda statics, field, warm: statics.solve(field, warm, wall=wall), fields)}
 
 
 def _scaling_rows(n: int, field_mT, angle_deg, warm_offset_deg, repeats: int, solvers, now) -> list[dict]:
@@ -343,7 +340,7 @@ def _scaling_rows(n: int, field_mT, angle_deg, warm_offset_deg, repeats: int, so
                 "compiled_iterations": result.iterations,
                 "reference_iterations": last["reference", start].iterations if "reference" in ms else None,
                 "converged": all(last[name, start].converged for name in solvers),
-                "wall_contacts": sum(bool(np.any(f)) for f in result.wall_forces_W.values()),
+                "wall_contacts": sum(f > 0 for f in result.wall_forces.values()),
                 "max_position_difference_m": float(np.abs(
                     result.positions - last["reference", start].positions).max()) if "reference" in ms else None})
     return rows
