@@ -71,6 +71,11 @@ def _one_blas_thread():
     its Cholesky 0.26 ms against 0.05 ms)."""
     global _BLAS
     if _BLAS is None:
+        # numba's compiled np.linalg (the compiled statics' Cholesky and solves) calls LAPACK
+        # through scipy's OpenBLAS, a second library that numpy's does not load: loaded here, so
+        # that the controller (a snapshot of the libraries loaded) limits it too. Unlimited, its
+        # threads take over from 32 balls on (measured: a 32-ball solve 10 times slower in CPU time).
+        import scipy.linalg.cython_lapack  # noqa: F401
         from threadpoolctl import ThreadpoolController
 
         _BLAS = ThreadpoolController()
