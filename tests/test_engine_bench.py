@@ -216,3 +216,16 @@ def test_scaling_out_that_is_a_file_is_refused_before_any_work(tmp_path, capsys,
     assert cli_main(["bench", "scaling", "--sizes", "4", "--out", str(blocker)]) == 2
     err = capsys.readouterr().err.strip()
     assert "--out" in err and len(err.splitlines()) == 1
+
+
+def test_one_blas_thread_limits_the_compiled_solves_lapack_too():
+    """numba's np.linalg calls scipy's OpenBLAS, not numpy's: the engine's limit must reach it."""
+    from threadpoolctl import threadpool_info
+
+    from ballchain.systems.quasi_static_engine import _one_blas_thread
+
+    with _one_blas_thread():
+        libraries = {i["filepath"].rsplit("/", 1)[-1]: i["num_threads"] for i in threadpool_info()
+                     if i["user_api"] == "blas"}
+    assert any(name.startswith("libscipy_openblas") and "64" not in name for name in libraries), libraries
+    assert all(threads == 1 for threads in libraries.values()), libraries
