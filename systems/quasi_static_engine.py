@@ -251,6 +251,11 @@ class QuasiStaticEngine(LeafSystem):
         x0[self._slices["tip"]][3:] = p0[-1]
         x0[self._slices["s"]] = self._s0
         self._state_index = self.DeclareDiscreteState(BasicVector(x0))
+        self._declare_ports(n, km)
+        self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
+        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
+
+    def _declare_ports(self, n: int, km: int) -> None:
         self._feeder_port = self.DeclareVectorInputPort("feeder_desired_state", 2)
         self._magnet_port = self.DeclareVectorInputPort("magnet_states", km) if km else None
         size = max(self._indices) + 1
@@ -268,8 +273,6 @@ class QuasiStaticEngine(LeafSystem):
             "ball_positions", 3 * n, self._calc_positions, prerequisites_of_calc={self.xd_ticket()})
         self._snaps_port = self.DeclareVectorOutputPort(
             "snap_throughs", 1, self._calc_snaps, prerequisites_of_calc={self.xd_ticket()})
-        self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
-        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
 
     # --- ports ----------------------------------------------------------------------------------
     def replica(self, **changes) -> QuasiStaticEngine:
