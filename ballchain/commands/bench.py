@@ -127,7 +127,8 @@ def _print_engine(out) -> None:
             continue
         u, s = r["update"], r["solve"]
         print(f"  {name:<10s} median {u['median_ms']:7.3f} ms  p99 {u['p99_ms']:7.3f}  max {u['max_ms']:7.3f}  "
-              f"rate {u['achieved_rate_hz']:7.0f} Hz  within {1e3 / out.rate_hz:g} ms: {100 * u['within_period']:.1f} %  "
+              f"rate {u['achieved_rate_hz']:7.0f} Hz  "
+              f"within {1e3 / out.rate_hz:g} ms: {100 * u['within_period']:.1f} %  "
               f"(solve alone: median {s['median_ms']:.3f} ms; {r['median_iterations']:g} iterations; "
               f"{r['failures']} failures)")
     if out.speedup_median is not None:
