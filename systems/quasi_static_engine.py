@@ -187,6 +187,7 @@ class QuasiStaticEngine(LeafSystem):
         super().__init__()
         require_type(chain, BallChain, "QuasiStaticEngine chain", "a BallChain")
         require_bool(compiled, "QuasiStaticEngine compiled")
+        ball_body_indices = [int(i) for i in ball_body_indices]  # also for replica(): an iterator is read once
         # What replica() rebuilds the engine from.
         self._arguments = dict(
             chain=chain, ball_body_indices=ball_body_indices, p_WE=p_WE, axis_W=axis_W, sdf=sdf, sheath=sheath,
