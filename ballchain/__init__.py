@@ -1,8 +1,92 @@
 """Magnetic ball-chain catheter simulation on Drake.
 
-The layers live in sub-packages: ``ballchain.drake_models`` (physics and models),
-``ballchain.optimization`` (MathematicalProgram problems), ``ballchain.systems`` (LeafSystems and
-diagrams); ``ballchain.cli`` is the ``ballchain`` command.
+The public API is what ``ballchain`` exports (``__all__``): a first script needs one import::
+
+    import ballchain as bc
+
+    station = bc.MakeStation(bc.load_scenario("heart_left_quasi_static"))
+    outcome = bc.run_station(station, duration=1.0)
+    print(outcome.tip_position)  # (3,) [m]
+    result = bc.ChainStatics(bc.BallChain(n_balls=16)).solve(bc.UniformField([0.0, 0.023, 0.0]))
+    print(result.tip_position)  # (3,) [m]
+
+The exported names, by job:
+
+- scenarios: ``ChainScenario``, ``load_scenario``, ``scenario_names``, ``scenario_descriptions``,
+  ``parse_overrides``, ``apply_overrides``;
+- the station and its run: ``MakeStation``, ``Station``, ``MagnetUnitConfig``,
+  ``StationOptions``, ``run_station``, ``RunOutcome``, ``StationRunner``, ``ChainMonitor``,
+  ``run_simulation``, ``SimulationFailure``;
+- statics: ``ChainStatics``, ``StaticsResult``, ``StaticsError``, ``BallChain``, ``Sleeve``,
+  ``UniformField``, ``MagnetSource``, ``FieldSources``, ``CylinderMagnet``, ``SphereMagnet``;
+- anatomy: ``LeftAtrium`` (the procedural atrium), ``UserAtrium`` (a segmented one);
+- the paper's experiments: ``experiments`` (``ballchain.experiments.<name>.run``);
+- sweeps: ``SweepSpec``, ``load_spec``, ``Executor``, ``run_sweep``;
+- errors: ``UserInputError`` (bad input, naming the field and what is allowed).
+
+The names load when first used (a module ``__getattr__``), so ``import ballchain`` does not
+import Drake. Every other name, in ``ballchain`` or its sub-packages, is private by convention:
+it may change without notice. The layers live in sub-packages: ``ballchain.drake_models``
+(physics and models), ``ballchain.optimization`` (MathematicalProgram problems),
+``ballchain.systems`` (LeafSystems and diagrams); ``ballchain.cli`` is the ``ballchain`` command.
 """
 
+import importlib as _importlib
+
 __version__ = "0.1.0"
+
+# exported name -> the module that defines it (its one home)
+_EXPORTS: dict[str, str] = {
+    "ChainScenario": "ballchain.systems.chain_scenario",
+    "load_scenario": "ballchain.systems.chain_scenario",
+    "scenario_names": "ballchain.systems.chain_scenario",
+    "scenario_descriptions": "ballchain.systems.chain_scenario",
+    "parse_overrides": "ballchain.systems.chain_scenario",
+    "apply_overrides": "ballchain.systems.chain_scenario",
+    "MakeStation": "ballchain.systems.station",
+    "Station": "ballchain.systems.station",
+    "MagnetUnitConfig": "ballchain.systems.unit_config",
+    "StationOptions": "ballchain.systems.actuation_station",
+    "run_station": "ballchain.systems.chain_simulation",
+    "RunOutcome": "ballchain.systems.chain_simulation",
+    "StationRunner": "ballchain.systems.chain_simulation",
+    "ChainMonitor": "ballchain.systems.chain_simulation",
+    "run_simulation": "ballchain.systems.chain_simulation",
+    "SimulationFailure": "ballchain.systems.chain_simulation",
+    "ChainStatics": "ballchain.optimization.statics",
+    "StaticsResult": "ballchain.optimization.statics",
+    "StaticsError": "ballchain.optimization.statics",
+    "BallChain": "ballchain.drake_models.params",
+    "Sleeve": "ballchain.drake_models.params",
+    "CylinderMagnet": "ballchain.drake_models.params",
+    "SphereMagnet": "ballchain.drake_models.params",
+    "UniformField": "ballchain.drake_models.field_sources",
+    "MagnetSource": "ballchain.drake_models.field_sources",
+    "FieldSources": "ballchain.drake_models.field_sources",
+    "LeftAtrium": "ballchain.drake_models.heart",
+    "UserAtrium": "ballchain.drake_models.atrium_mesh",
+    "UserInputError": "ballchain.drake_models.errors",
+    "SweepSpec": "ballchain.sweep",
+    "load_spec": "ballchain.sweep",
+    "Executor": "ballchain.sweep",
+    "run_sweep": "ballchain.sweep",
+}
+_SUBPACKAGES = ("experiments",)
+
+__all__ = ["__version__", *_EXPORTS, *_SUBPACKAGES]
+
+
+def __getattr__(name: str):
+    """Load an exported name on first use (PEP 562) and keep it in the module's namespace."""
+    if name in _EXPORTS:
+        value = getattr(_importlib.import_module(_EXPORTS[name]), name)
+    elif name in _SUBPACKAGES:
+        value = _importlib.import_module(f"{__name__}.{name}")
+    else:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

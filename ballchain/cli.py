@@ -53,6 +53,39 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+DESCRIPTION = ("Simulation and optimisation of magnetic ball-chain ablation catheters on Drake:\n"
+               "the paper's checks, named scenarios, studies and sweeps, one subcommand per job.")
+START_HERE = """\
+start here:
+  ballchain reproduce --out results    the paper's checks in simulation; open results/report.html
+  ballchain simulate --scenario list   the named scenarios (engine, mode, description)
+  ballchain simulate --scenario free_space_uniform_90deg
+  ballchain COMMAND --help             a command's flags, with their defaults
+in Python: import ballchain (its __all__ is the public API); docs: README.md and docs/"""
+
+
+class DefaultsHelpFormatter(argparse.HelpFormatter):
+    """Help that shows every option's default: "(default: X)" is added to an option's help
+    unless the help already speaks of its default, or there is none to show (None, a flag)."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        default = action.default
+        if (not action.option_strings or default is None or default is False or default is argparse.SUPPRESS
+                or "default" in text.lower() or "%(default)" in text):
+            return text
+        return f"{text} (default: {format_default(default).replace('%', '%%')})".lstrip()
+
+
+def format_default(value) -> str:
+    """A default as a user would type it: 16.51, not 16.509999999999998; lists space-separated."""
+    if isinstance(value, (list, tuple)):
+        return " ".join(format_default(v) for v in value)
+    if isinstance(value, float):
+        return f"{value:g}" if float(f"{value:g}") == value else f"{value:.10g}"
+    return str(value)
+
+
 class _OneLineParser(argparse.ArgumentParser):
     """An ArgumentParser whose errors are one line (no usage block): exit status 2."""
 
@@ -63,11 +96,13 @@ class _OneLineParser(argparse.ArgumentParser):
 
 def build_parser() -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentParser]]:
     """The top-level parser and one (argument-less) subparser per subcommand."""
-    parser = _OneLineParser(prog="ballchain", description=__doc__.split("\n")[0])
+    parser = _OneLineParser(prog="ballchain", description=DESCRIPTION, epilog=START_HERE,
+                            formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     subparsers = {}
     for name, (module, help_text) in COMMANDS.items():
-        subparsers[name] = sub.add_parser(name, help=help_text, description=help_text)
+        subparsers[name] = sub.add_parser(name, help=help_text, description=help_text,
+                                          formatter_class=DefaultsHelpFormatter)
     return parser, subparsers
 
 

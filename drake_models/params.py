@@ -107,7 +107,7 @@ class BallChain:
 
     @property
     def dipole_moment(self) -> float:
-        """|m| = Br V / mu0 of one ball [A m^2] (0.0192 for the defaults)."""
+        """``|m| = Br V / mu0`` of one ball [A m^2] (0.0192 for the defaults)."""
         return self.remanence * self.ball_volume / MU0
 
     @property
@@ -130,7 +130,7 @@ class _UniformMagnet:
 
     @property
     def dipole_moment(self) -> float:
-        """|m| = Br V / mu0 [A m^2] (about 199 A m^2 for the prototype cylinder)."""
+        """``|m| = Br V / mu0`` [A m^2] (about 199 A m^2 for the prototype cylinder)."""
         return self.remanence * self.volume / MU0
 
     @property

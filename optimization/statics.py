@@ -83,7 +83,7 @@ class StaticsResult:
         solver: solver name.
         iterations: Newton iterations, or energy evaluations for SNOPT.
         solve_time: wall time of the solve [s].
-        max_violation: largest rigidity-constraint violation, |p_i - p_j| < d, [m] (0 if none).
+        max_violation: largest rigidity-constraint violation, ``|p_i - p_j| < d``, [m] (0 if none).
         pair_forces: ``{(i, j): force [N]}`` between non-adjacent balls i, j (0-based) that touch
             at the equilibrium: the rigidity constraints' multipliers.
         tip_reaction: (3,) force [N] that a tip target exerts on the tip ball (the tip

@@ -42,9 +42,10 @@ from ballchain.systems.unit_config import MagnetUnitConfig, right_unit
 
 @dataclass
 class StationOptions:
-    """Everything the station builder can vary besides the units (each unit's own settings,
-    from its slip and Hall noise to its controller and joystick mapping, are its
-    ``MagnetUnitConfig``'s).
+    """The actuation station's options besides its units: where the chain enters, the hardware, the feeder.
+
+    Each unit's own settings, from its slip and Hall noise to its controller and joystick
+    mapping, are its ``MagnetUnitConfig``'s.
 
     Attributes:
         p_W_chain: (3,) where the chain enters (the neutral field is defined there) [m].

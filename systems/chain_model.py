@@ -43,6 +43,16 @@ if TYPE_CHECKING:
     from ballchain.systems.chain_plant import ChainPlantConfig
 
 
+def subsystem_context(system, context):
+    """``system``'s own context from either the diagram's root context (what a Simulator holds,
+    ``RunOutcome.context``) or ``system``'s own context (returned as it is)."""
+    try:
+        system.ValidateContext(context)
+    except RuntimeError:
+        return system.GetMyContextFromRoot(context)
+    return context
+
+
 @dataclass
 class SnapThrough:
     """A snap-through of the quasi-static engine (its chain jumped to another equilibrium branch).
@@ -267,7 +277,7 @@ class ChainModel(ABC):
     # --- the state ------------------------------------------------------------------------------
     @abstractmethod
     def ball_positions(self, context) -> np.ndarray:
-        """Ball centres (n, 3) [m] from ``system``'s context."""
+        """Ball centres (n, 3) [m] from ``system``'s context or the diagram's root context."""
 
     @abstractmethod
     def is_finite(self, context) -> bool:

@@ -60,7 +60,14 @@ from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import GRAVITY, BallChain
-from ballchain.systems.chain_model import BallCentres, ChainGeometry, ChainModel, FieldCoupling, chain_geometry
+from ballchain.systems.chain_model import (
+    BallCentres,
+    ChainGeometry,
+    ChainModel,
+    FieldCoupling,
+    chain_geometry,
+    subsystem_context,
+)
 from ballchain.systems.magnetic_wrench import MagneticWrenchSystem
 from ballchain.systems.target_contact import WallForceOnBall
 
@@ -431,7 +438,7 @@ class PlantChainModel(ChainModel):
         return pin
 
     def ball_positions(self, context) -> np.ndarray:
-        return self.handles.ball_positions(context)
+        return self.handles.ball_positions(subsystem_context(self.plant, context))
 
     def is_finite(self, context) -> bool:
         plant = self.plant

@@ -143,7 +143,9 @@ FEEDER_COMMANDS = ("ramp", "external")
 
 @dataclass
 class ChainScenario:
-    """One simulation scenario (see the module docstring).
+    """One simulation scenario: the chain, the atrium, the fields, the units, the insertion, the engine.
+
+    Load a named one with ``load_scenario``; the module docstring describes the schema.
 
     Attributes:
         description: one line.
@@ -259,6 +261,13 @@ def _scenarios_data(filename: Path) -> dict:
 def scenario_names(filename: Path = SCENARIOS_FILE) -> list[str]:
     """Names of the scenarios in a scenarios file (keys not starting with an underscore)."""
     return [k for k in _scenarios_data(filename) if not str(k).startswith("_")]
+
+
+def scenario_descriptions(filename: Path = SCENARIOS_FILE) -> dict[str, str]:
+    """Each scenario's one-line description, by name (in the file's order; "" when it has none)."""
+    data = _scenarios_data(filename)
+    return {str(k): str(v.get("description", "")) if isinstance(v, dict) else "" for k, v in data.items()
+            if not str(k).startswith("_")}
 
 
 def load_scenario(name: str, overrides: str | None = None, filename: Path = SCENARIOS_FILE) -> ChainScenario:

@@ -304,7 +304,10 @@ def _tip_wall_force(cd: Station, root_context) -> list[float]:
 
 @dataclass
 class RunOutcome:
-    """What ``run_station`` ran.
+    """What ``run_station`` ran: its times, its failure, the final context and the chain's state in it.
+
+    The chain's state at the end: ``tip_position`` (3,) [m], ``ball_positions`` (n, 3) [m]
+    (``Station``'s readings of ``context``).
 
     Attributes:
         sim_time: simulated time reached [s].
@@ -316,6 +319,7 @@ class RunOutcome:
         monitor: the ChainMonitor that watched the run (its metrics, tolerated sinkings).
         context: the Simulator's root context at the end.
         simulator: the Simulator.
+        station: the Station that ran.
     """
 
     sim_time: float
@@ -326,6 +330,22 @@ class RunOutcome:
     monitor: ChainMonitor
     context: object
     simulator: Simulator
+    station: Station | None = None
+
+    def _station(self) -> Station:
+        if self.station is None:
+            raise ValueError("this RunOutcome has no station: read the state with Station.ball_positions(context)")
+        return self.station
+
+    @property
+    def ball_positions(self) -> np.ndarray:
+        """The ball centres (n, 3) [m] at the end of the run, ball 1 first, the tip ball last."""
+        return self._station().ball_positions(self.context)
+
+    @property
+    def tip_position(self) -> np.ndarray:
+        """The tip ball's centre (3,) [m] at the end of the run."""
+        return self._station().tip_position(self.context)
 
 
 # The size of a Meshcat replay (``StaticHtml``): the page with its meshes, plus one pose per
@@ -403,8 +423,10 @@ def frozen_gc(enabled: bool = True):
 
 
 class StationRunner:
-    """The Simulator of a built station with its watchdog: the run loop of ``run_station`` (one
-    advance to the end) and of the live view (chunks between a person's inputs, and a restart).
+    """The Simulator of a built station with its watchdog, advanced in chunks (and restartable).
+
+    The run loop of ``run_station`` (one advance to the end) and of the live view (chunks
+    between a person's inputs, and a restart).
 
     The Simulator gets the scenario's ``simulator_config`` (its defaults are the Simulator's
     own; an explicit ``realtime_rate`` overrides its target_realtime_rate) and the monitor
@@ -502,8 +524,10 @@ def run_station(cd: Station, *, duration: float, monitor: ChainMonitor | None = 
                 check=None, context=None, progress: str | None = None, progress_step: float | None = None,
                 html: Path | None = None, meshcat=None, realtime_rate: float | None = None,
                 freeze_gc: bool = False) -> RunOutcome:
-    """Run a built station: the one Simulator loop of the scenario runs, the teleoperation tasks
-    and the force pin (``StationRunner``, advanced once to ``duration``).
+    """Run a built station for ``duration`` simulated seconds and return its ``RunOutcome``.
+
+    The one Simulator loop of the scenario runs, the teleoperation tasks and the force pin
+    (``StationRunner``, advanced once to ``duration``).
 
     The Simulator's monitor runs after Initialize and after every step: ``check`` first, then
     the watchdog (``monitor``), then the progress bar, then ``stop``. A failure of ``check`` or
@@ -572,7 +596,7 @@ def run_station(cd: Station, *, duration: float, monitor: ChainMonitor | None = 
     wall, cpu = time.perf_counter() - start, time.process_time() - cpu
     if record:
         _export_recording(cd, meshcat, html)
-    return RunOutcome(root.get_time(), wall, cpu, failure, runner.stopped, runner.monitor, root, runner.simulator)
+    return RunOutcome(root.get_time(), wall, cpu, failure, runner.stopped, runner.monitor, root, runner.simulator, cd)
 
 
 def run_simulation(*, scenario: ChainScenario, duration: float | None = None, html: Path | None = None,

@@ -57,6 +57,7 @@ from ballchain.systems.chain_model import (
     SnapThrough,
     StaticsEngineStats,
     chain_geometry,
+    subsystem_context,
 )
 from ballchain.systems.magnetic_wrench import external_field_source
 
@@ -689,7 +690,7 @@ class StaticsChainModel(ChainModel):
         return scene_graph
 
     def ball_positions(self, context) -> np.ndarray:
-        return self.engine_system.ball_positions(context)
+        return self.engine_system.ball_positions(subsystem_context(self.engine_system, context))
 
     def is_finite(self, context) -> bool:
         return bool(np.all(np.isfinite(self.engine_system.state_vector(context))))

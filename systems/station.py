@@ -59,7 +59,7 @@ from ballchain.drake_models.errors import UserInputError, short_repr
 from ballchain.drake_models.field_sources import FieldSource, FieldSources, MagnetSource, UniformField, require_field_source
 from ballchain.drake_models.heart import HeartParams, LeftAtrium
 from ballchain.drake_models.params import BallChain, CylinderMagnet, Sleeve, SphereMagnet
-from ballchain.systems.chain_model import ChainModel, FieldCoupling, chain_geometry
+from ballchain.systems.chain_model import ChainModel, FieldCoupling, chain_geometry, subsystem_context
 from ballchain.systems.chain_plant import ChainPlantConfig, PlantChainModel, SheathConfig
 from ballchain.systems.chain_scenario import ChainScenario
 from ballchain.systems.feeder import Feeder
@@ -108,6 +108,10 @@ class Station:
         meshcat_overlays: the MeshcatOverlays, with a Meshcat.
         added: what the ``add_systems`` hook returned, by name.
         pin: the ForceSensorPin, with ``scenario.pin``.
+
+    Readings of a context (the diagram's root context, e.g. ``RunOutcome.context``, or the
+    context of the system read): ``ball_positions``, ``tip_position`` (the chain system's),
+    ``tip_wall_force``, ``unit_magnet``, ``targets_touched``.
     """
 
     diagram: Diagram
@@ -124,6 +128,38 @@ class Station:
     meshcat_overlays: MeshcatOverlays | None = None
     added: dict = field(default_factory=dict)
     pin: ForceSensorPin | None = None
+
+    # Readings of a context: each takes the diagram's root context (``RunOutcome.context``, a
+    # Simulator's context) or the context of the system it reads (``chain_context`` for the chain).
+    def chain_context(self, context):
+        """The chain system's (``chain.system``'s) context, from the root context or itself."""
+        return subsystem_context(self.chain.system, context)
+
+    def ball_positions(self, context) -> np.ndarray:
+        """The ball centres (n, 3) [m], ball 1 (the feeder ball) first, the tip ball last."""
+        return self.chain.ball_positions(self.chain_context(context))
+
+    def tip_position(self, context) -> np.ndarray:
+        """The tip ball's centre (3,) [m]."""
+        return self.ball_positions(context)[-1]
+
+    def tip_wall_force(self, context) -> np.ndarray:
+        """The walls' contact force on the tip ball f_W (3,) [N] (zeros when nothing pushes)."""
+        port = self.chain.get_tip_wall_force_output_port()
+        return np.array(port.Eval(subsystem_context(port.get_system(), context))[:3])
+
+    def unit_magnet(self, name: str, context) -> MagnetSource:
+        """Unit ``name``'s magnet at its pose in the context (a MagnetSource: its field anywhere)."""
+        if name not in self.units:
+            raise UserInputError(f"no unit {short_repr(name)} in this station; its units: "
+                                 f"{', '.join(self.units) or 'none'}")
+        magnet = self.units[name].magnet
+        return magnet.magnet_source(subsystem_context(magnet, context))
+
+    def targets_touched(self, context) -> list[str]:
+        """The names of the ablation targets the tip ball touched so far ([] without target rings)."""
+        tracker = self.target_touches
+        return [] if tracker is None else tracker.touched_names(context)
 
 
 @dataclass

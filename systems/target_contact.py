@@ -28,6 +28,8 @@ from pydrake.math import RigidTransform
 from pydrake.multibody.plant import ContactResults
 from pydrake.systems.framework import EventStatus, LeafSystem
 
+from ballchain.systems.chain_model import subsystem_context
+
 TOUCH_TOLERANCE = 0.5e-3  # [m] the ball's surface this close to the wall counts as touching
 WALL_GEOMETRY_NAMES = ("heart_wall", "wall_plane")  # chain_plant's collision walls
 
@@ -222,6 +224,6 @@ class TargetTouchTracker(LeafSystem):
         return EventStatus.Succeeded()
 
     def touched_names(self, context) -> list[str]:
-        """The names of the targets touched so far in this (system's) context."""
-        x = self._touched_port.Eval(context)
+        """The names of the targets touched so far (this system's context or the diagram's root context)."""
+        x = self._touched_port.Eval(subsystem_context(self, context))
         return [n for n, v in zip(self.names, x) if v > 0.5]

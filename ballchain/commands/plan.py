@@ -20,7 +20,7 @@ from ballchain.experiments import planner
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--task", choices=["left", "right"], default="left", help="which ring of targets")
-    parser.add_argument("--targets", type=positive_int, default=None, help="only the first N targets")
+    parser.add_argument("--targets", type=positive_int, default=None, help="only the first N targets (default: all)")
     parser.add_argument("--balls", type=int_in(2, 64), nargs="+", default=[12, 16],
                         help="inserted chain lengths to try (balls beyond the sheath, ball 1 included)")
     parser.add_argument("--min-force", type=float_in(0.0, 1000.0, lo_open=True), default=planner.MIN_FORCE_GF,

@@ -19,7 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "a hash of the section's inputs and the code, and of its files)")
     parser.add_argument("--sections", nargs="+", default=None, metavar="NAME",
                         help="run only these sections (names as in the report's run-time table, e.g. "
-                             "alignment sizing)")
+                             "alignment sizing) (default: all)")
     parser.add_argument("--workers", type=positive_int, default=1,
                         help="run the sections in parallel on this many worker processes (a Dask "
                              f"LocalCluster on this machine, at most {MAX_WORKERS_PER_CORE} per core; default 1: one after the other, "

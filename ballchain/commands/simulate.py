@@ -4,7 +4,8 @@ Prints realtime_factor, sim_time_s, tip_position_mm, min_wall_clearance_mm, max_
 max_penetration_um, targets_touched (the ablation targets the tip ball touched, e.g. "left_3") and
 peak_memory_MB (the process's peak resident set size); stops with a clear message (exit status 1)
 on a NaN, a ball escaping the heart or the chain breaking apart. The experiment is
-``ballchain.experiments.simulation``.
+``ballchain.experiments.simulation``. ``--scenario list`` prints the scenarios with their engine,
+mode and description; ``--engine`` and ``--mode`` set the scenario fields of the same names.
 """
 
 from __future__ import annotations
@@ -16,16 +17,22 @@ from pathlib import Path
 from ballchain.commands._common import add_json_flag, float_in, print_json
 from ballchain.drake_models.safe_files import to_jsonable
 from ballchain.experiments.simulation import run
-from ballchain.systems.chain_scenario import MAX_DURATION  # [s] simulated: the scenario's cap
+from ballchain.systems.chain_scenario import ENGINES, MAX_DURATION, MODES  # MAX_DURATION [s]: the scenario's cap
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scenario", required=True,
-                        help="scenario name in drake_models/station.scenarios.yaml (or 'list')")
+                        help="scenario name in drake_models/station.scenarios.yaml; 'list' prints each name with "
+                             "its engine, mode and description")
     parser.add_argument("--duration", type=float_in(0.0, MAX_DURATION, lo_open=True), default=None,
                         help=f"simulated time in seconds, (0, {MAX_DURATION:g}] (default: the scenario's)")
-    parser.add_argument("--mode", choices=("quasi-static", "dynamics"), default=None,
-                        help="quasi-static (damped, 1e-3 s steps) or true dynamics (1e-4 s steps)")
+    parser.add_argument("--mode", choices=MODES, default=None,
+                        help="quasi-static (damped, 1e-3 s steps) or true dynamics (1e-4 s steps) (default: the "
+                             "scenario's mode)")
+    parser.add_argument("--engine", choices=ENGINES, default=None,
+                        help="the scenario's engine field: plant (the MultibodyPlant with contact, the reference) or "
+                             "statics (the chain's equilibrium solved every statics_period, quasi-static mode only, "
+                             "much faster) (default: the scenario's engine, plant unless it says otherwise)")
     parser.add_argument("--set", dest="overrides", default=None, metavar="YAML",
                         help="inline YAML overriding scenario fields, e.g. '{n_balls: 10}'; a mapping changes only the "
                              "fields it names; a list of mappings (units, magnets, joystick) is the new list, each "
@@ -39,17 +46,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from ballchain.systems.chain_scenario import scenario_names
     from ballchain.systems.chain_simulation import SimulationFailure
 
     if args.scenario == "list":
-        if args.json:
-            print_json({"scenarios": scenario_names()})
-        else:
-            print("\n".join(scenario_names()))
-        return 0
+        return _list_scenarios(args.json)
     try:
-        result = run(scenario=args.scenario, duration=args.duration, mode=args.mode,
+        result = run(scenario=args.scenario, duration=args.duration, mode=args.mode, engine=args.engine,
                      overrides=args.overrides, html=args.html, progress=not args.no_progress)
     except SimulationFailure as failure:
         print(f"ballchain simulate: {failure}", file=sys.stderr)
@@ -61,4 +63,25 @@ def main(args: argparse.Namespace) -> int:
     else:
         for key, value in result.public().items():
             print(f"{key}: {value}")
+    return 0
+
+
+def _list_scenarios(as_json: bool) -> int:
+    """``--scenario list``: each scenario's name, engine, mode and description."""
+    from ballchain.systems.chain_scenario import load_scenario, scenario_descriptions
+
+    rows = []
+    for name, description in scenario_descriptions().items():
+        scenario = load_scenario(name)
+        rows.append({"name": name, "engine": scenario.engine, "mode": scenario.mode, "description": description})
+    if as_json:
+        print_json({"scenarios": [r["name"] for r in rows], "details": rows})
+        return 0
+    width = max(len(r["name"]) for r in rows)
+    kinds = [f"{r['engine']}, {r['mode']}" for r in rows]
+    kind_width = max(map(len, kinds))
+    print(f"{'scenario':<{width}}  {'engine, mode':<{kind_width}}  description")
+    for r, kind in zip(rows, kinds):
+        print(f"{r['name']:<{width}}  {kind:<{kind_width}}  {r['description']}")
+    print("\nrun one: ballchain simulate --scenario NAME [--engine plant|statics] [--set YAML]")
     return 0

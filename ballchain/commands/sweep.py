@@ -37,7 +37,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-points", type=positive_int, default=DEFAULT_MAX_POINTS,
                         help=f"refuse a spec of more runs (points x seeds) than this (default {DEFAULT_MAX_POINTS})")
     parser.add_argument("--jobqueue", default=None, metavar="KIND",
-                        help="a dask-jobqueue cluster: slurm, pbs, sge, lsf, htcondor, moab, oar (optional dependency)")
+                        help="a dask-jobqueue cluster: slurm, pbs, sge, lsf, htcondor, moab, oar (optional dependency) "
+                             "(default: none, the workers run here)")
     parser.add_argument("--no-figure", action="store_true", help="do not draw the study's figure")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_json_flag(parser)

@@ -35,11 +35,12 @@ def _int(text: str) -> int:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--task", default=None,
-                        help="left (Task I, 20 targets; the default) or right (Task II, 18 targets)")
+                        help="left (Task I, 20 targets) or right (Task II, 18 targets) (default: left)")
     parser.add_argument("--mapping", default="world",
                         help="world (the paper's: stick = magnet angular velocity in world) or catheter "
                              "(stick swings the tip in the tip's frame)")
-    parser.add_argument("--targets", type=_int, default=None, help="only the first N targets of the task")
+    parser.add_argument("--targets", type=_int, default=None,
+                        help="only the first N targets of the task (default: all)")
     parser.add_argument("--balls", type=_int, default=None,
                         help="chain length (default 16, the paper's; fewer is faster but not the paper's task)")
     parser.add_argument("--time-limit", type=finite_float, default=None,
@@ -58,7 +59,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "in real time; prints the URL and the key map (--task, --targets, --seed, --time-limit, "
                              "--html and --no-progress do not apply)")
     parser.add_argument("--units", default=None,
-                        help="with --live: one (the right unit) or two (both sides; N or the gamepad's RB switches)")
+                        help="with --live: one (the right unit) or two (both sides; N or the gamepad's RB switches) "
+                             "(default: one)")
     parser.add_argument("--duration", type=finite_float, default=None,
                         help="with --live: stop after this many simulated seconds (default: until you quit)")
     parser.add_argument("--realtime-rate", type=finite_float, default=None,

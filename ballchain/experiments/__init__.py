@@ -6,7 +6,8 @@ given ``out``, and returns a dataclass with typed, documented fields (``<Name>Re
 result serialises one way (``_result.Result``: ``safe_files.to_jsonable`` of its fields, NaN as
 null): what a command prints and what ``reproduce`` writes to ``OUT/sections/``. The
 ``ballchain`` subcommands (``ballchain/commands/``) only parse flags, call ``run`` and print;
-``ballchain reproduce`` calls the experiments directly.
+``ballchain reproduce`` calls the experiments directly. Each module loads on first use:
+``ballchain.experiments.alignment.run(...)`` works after ``import ballchain``.
 
 ================  ============================================  =======================================
 subcommand        experiment module                             result
@@ -29,3 +30,21 @@ subcommand        experiment module                             result
 (notebook)        ``hall_inversion``                            ``InversionComparison``
 ================  ============================================  =======================================
 """
+
+import importlib as _importlib
+import pkgutil as _pkgutil
+
+
+def _modules() -> list[str]:
+    return [m.name for m in _pkgutil.iter_modules(__path__) if not m.name.startswith("_")]
+
+
+def __getattr__(name: str):
+    """An experiment module, imported on first use (PEP 562)."""
+    if name in _modules():
+        return _importlib.import_module(f"{__name__}.{name}")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_modules()))

@@ -1,9 +1,9 @@
 """A named scenario simulated (``ballchain simulate``): the chain in the left atrium or free space.
 
-Loads the scenario of ``drake_models/station.scenarios.yaml``, applies the ``--set`` overrides
-and the mode, runs ``systems/chain_simulation.run_simulation`` and adds, for the scenarios that
-settle on the canonical statics problem, how far the simulated tip is from the statics
-equilibrium (two independent computations of the same shape).
+Loads the scenario of ``drake_models/station.scenarios.yaml``, applies the ``--set`` overrides,
+the mode and the engine, runs ``systems/chain_simulation.run_simulation`` and adds, for the
+scenarios that settle on the canonical statics problem, how far the simulated tip is from the
+statics equilibrium (two independent computations of the same shape).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ballchain.drake_models.arg_checks import require_type
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.errors import UserInputError, short_repr
 from ballchain.drake_models.safe_files import check_output_file, to_jsonable
 from ballchain.experiments._result import Result
 from ballchain.optimization.statics import uniform_field_equilibrium
@@ -48,15 +48,17 @@ class SimulationResult(Result):
         return {**to_jsonable(self.metrics), "statics_tip_error_mm": to_jsonable(self.statics_tip_error_mm)}
 
 
-def run(*, scenario: str, duration: float | None = None, mode: str | None = None,
+def run(*, scenario: str, duration: float | None = None, mode: str | None = None, engine: str | None = None,
         overrides: str | None = None, html: Path | None = None, progress: bool = False) -> SimulationResult:
-    """Load the scenario, apply the overrides and the mode, simulate; returns the metrics.
+    """Load the scenario, apply the overrides, the mode and the engine, simulate; returns the metrics.
 
     Args:
         scenario: a name in ``drake_models/station.scenarios.yaml``.
         duration: simulated time [s] (None: the scenario's).
         mode: "quasi-static" or "dynamics" (None: the scenario's).
-        overrides: inline YAML overriding scenario fields.
+        engine: "plant" or "statics", the scenario's ``engine`` field (None: the scenario's).
+        overrides: inline YAML overriding scenario fields; a ``mode`` or ``engine`` in it must
+            agree with ``mode`` and ``engine`` when those are given.
         html: write a Meshcat recording (HTML) to this file.
         progress: a progress bar on stderr.
 
@@ -65,21 +67,20 @@ def run(*, scenario: str, duration: float | None = None, mode: str | None = None
         positions and ``statics_tip_error_mm``.
 
     Raises:
-        UserInputError: a bad scenario, override, mode, duration or output path (before any work).
+        UserInputError: a bad scenario, override, mode, engine, duration or output path (before
+            any work).
         SimulationFailure: the run stopped (NaN, escape, chain broken apart); it carries the metrics.
     """
     require_type(scenario, str, "scenario", "a scenario name (str)")
-    from ballchain.systems.chain_scenario import check_steps, load_scenario
+    from ballchain.systems.chain_scenario import apply_overrides, check_steps, load_scenario, parse_overrides
     from ballchain.systems.chain_simulation import replay_bytes, run_simulation
 
     if html is not None:  # before the run: an unwritable path must not cost the results
         check_output_file(html, "--html")
-    chosen = load_scenario(scenario, overrides)
-    if mode is not None:
-        if mode not in ("quasi-static", "dynamics"):
-            raise UserInputError(f"--mode must be 'quasi-static' or 'dynamics', got {mode!r}")
-        chosen.mode = mode
-        chosen.validate()
+    changes = _with_flags(parse_overrides(overrides), mode=mode, engine=engine)
+    chosen = load_scenario(scenario)
+    if changes:
+        chosen = apply_overrides(chosen, changes).validate()
     if duration is not None:
         check_steps(chosen, duration, "--duration")
     if html is not None:  # room on the disk for the replay of this scenario and duration
@@ -89,6 +90,24 @@ def run(*, scenario: str, duration: float | None = None, mode: str | None = None
     p_W_mm = metrics.p_W_mm
     return SimulationResult(metrics=replace(metrics, p_W_mm=None), p_W_mm=p_W_mm,
                             statics_tip_error_mm=statics_tip_error_mm(chosen, p_W_mm))
+
+
+def _with_flags(changes: dict, **flags) -> dict:
+    """The ``--set`` mapping with the ``--mode`` and ``--engine`` flags (the scenario fields of the
+    same names) added; a flag and a ``--set`` entry that disagree are refused."""
+    from ballchain.systems.chain_scenario import ENGINES, MODES
+
+    allowed = {"mode": MODES, "engine": ENGINES}
+    for name, value in flags.items():
+        if value is None:
+            continue
+        if value not in allowed[name]:
+            raise UserInputError(f"--{name} must be one of {', '.join(allowed[name])}, got {short_repr(value)}")
+        if name in changes and changes[name] != value:
+            raise UserInputError(f"--{name} {value} disagrees with --set {name}: {short_repr(changes[name])}; "
+                                 "give only one of them")
+        changes = {**changes, name: value}
+    return changes
 
 
 def statics_tip_error_mm(scenario, p_W_mm) -> float | None:

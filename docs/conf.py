@@ -1,0 +1,127 @@
+"""Sphinx configuration of the ballchain documentation site.
+
+Build it (offline, warnings as errors) with ``python -m sphinx -W -b html docs DIR`` after
+``pip install -e ".[docs]"``. The notebooks of ``notebooks/`` (``docs/notebooks`` links to them) are
+executed at build time in the quick mode the tests use; ``-D nb_execution_mode=off`` renders them
+without running them. The API reference is generated here from ``ballchain.__all__``, so a new
+export appears without editing any page.
+"""
+
+import inspect
+import os
+from pathlib import Path
+
+import ballchain
+
+DOCS = Path(__file__).resolve().parent
+
+project = "ballchain"
+author = "the ballchain authors"
+copyright = "the ballchain authors, BSD-3-Clause"
+release = version = ballchain.__version__
+
+extensions = [
+    "myst_nb",  # Markdown pages (MyST) and the notebooks, executed
+    "sphinx.ext.autodoc",
+    "sphinx.ext.autosummary",
+    "sphinx.ext.napoleon",  # the docstrings are Google style, with units
+    "sphinx.ext.mathjax",
+]
+
+exclude_patterns = ["_build", "_generated", "figures", "**.ipynb_checkpoints", "notebooks/README*"]
+templates_path = ["_templates"]
+
+html_theme = "furo"
+html_title = "ballchain"
+html_static_path = []
+
+myst_enable_extensions = ["dollarmath", "colon_fence"]
+myst_heading_anchors = 3
+
+napoleon_google_docstring = True
+napoleon_numpy_docstring = False
+autosummary_generate = True
+autodoc_member_order = "bysource"
+autodoc_typehints = "description"
+
+# The notebooks, as the tests run them (tests/notebook_runner.py): quick mode, figures through the
+# Agg backend (each notebook asks for inline figures), one BLAS thread, a fixed hash seed. The kernel
+# inherits this environment; a value the caller set is kept.
+for _name, _value in {"BALLCHAIN_NOTEBOOK_LONG": "0", "BALLCHAIN_NOTEBOOK_FULL": "0", "MPLBACKEND": "Agg",
+                      "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+                      "PYTHONHASHSEED": "0"}.items():
+    os.environ.setdefault(_name, _value)
+nb_execution_mode = "force"
+nb_execution_timeout = 1800  # a hang guard, as the tests'
+nb_execution_raise_on_error = True  # a notebook that fails breaks the build
+nb_execution_show_tb = True
+nb_execution_in_temp = True  # what a notebook writes (figures, replays) stays out of the source tree
+nb_merge_streams = True
+
+
+API_HEAD = """\
+# API reference
+
+`import ballchain` gives what a script needs: the names below are `ballchain.__all__`, each with
+its one-line summary; follow a name for its full documentation. The names load when first used,
+so `import ballchain` alone does not import Drake. The experiments are public too, one module each:
+`ballchain.experiments.<name>.run` ([the experiments](guide/experiments.md)). Everything else is
+private by convention: the modules of the sub-packages (`ballchain.drake_models`,
+`ballchain.optimization`, `ballchain.systems`) keep their import paths, but may change without
+notice. This page is generated from `ballchain.__all__` when the site is built.
+
+```{{eval-rst}}
+.. currentmodule:: ballchain
+
+.. autosummary::
+   :toctree: generated
+   :nosignatures:
+
+{entries}
+```
+"""
+
+
+def is_value(name: str) -> bool:
+    """An exported value (such as ``__version__``) rather than a module, class or function: listed
+    with its value, as it has no documentation of its own."""
+    obj = getattr(ballchain, name)
+    return not (callable(obj) or inspect.ismodule(obj))
+
+
+def write_api_page() -> None:
+    """Write ``api.md`` from ``ballchain.__all__`` (only when it changed, so that Sphinx's incremental
+    build does not redo it for nothing)."""
+    names = list(getattr(ballchain, "__all__", []))
+    if not names:
+        raise RuntimeError("ballchain.__all__ is empty: the API reference would list nothing")
+    entries = "\n".join(f"   {name}" for name in names if not is_value(name))
+    values = "".join(f"`ballchain.{name}` = `{getattr(ballchain, name)!r}`\n\n" for name in names if is_value(name))
+    text = API_HEAD.format(entries=entries) + ("\n## Values\n\n" + values if values else "")
+    page = DOCS / "api.md"
+    if not page.exists() or page.read_text() != text:
+        page.write_text(text)
+    documented = {f"ballchain.{name}.rst" for name in names if not is_value(name)}
+    for stub in (DOCS / "generated").glob("*.rst"):  # a name no longer exported leaves no page behind
+        if stub.name not in documented:
+            stub.unlink()
+
+
+def write_scenarios_table() -> None:
+    """Write ``_generated/scenarios_table.md``: every named scenario with its description, engine and
+    mode, read from the scenarios file (the guide's scenarios page includes it)."""
+    from ballchain.systems.chain_scenario import load_scenario, scenario_names
+
+    rows = ["| scenario | engine | mode | what it is |", "|---|---|---|---|"]
+    for name in scenario_names():
+        s = load_scenario(name)
+        rows.append(f"| `{name}` | {s.engine} | {s.mode} | {s.description.replace('|', '/')} |")
+    out = DOCS / "_generated" / "scenarios_table.md"
+    out.parent.mkdir(exist_ok=True)
+    text = "\n".join(rows) + "\n"
+    if not out.exists() or out.read_text() != text:
+        out.write_text(text)
+
+
+write_api_page()
+write_scenarios_table()
