@@ -1,12 +1,14 @@
 """Real-time factor of the station per engine and mode, and the per-piece profile of one
 equilibrium in contact.
 
-For every named heart scenario (or ``--scenarios``) the same simulated stretch is run with the
+For every named heart scenario (``heart_scenarios``: those of the scenarios file inside the
+atrium; or ``--scenarios``) the same simulated stretch is run with the
 plant (the scenario's mode: quasi-static at 1 ms or dynamics at 0.1 ms) and with the
 quasi-static engine (``engine: statics``), in one process, alternating, each ``--repeats``
 times after an untimed warm-up of each (imports, the SDF's cache, the plant's first build).
 Printed: median RTF on wall time and on process CPU time (the machine is shared, and wall time
-counts the waits), and the engine's speed-up over the plant in the same run.
+counts the waits), and the engine's speed-up over the plant in the same run; at the end a table
+of every scenario's engine and plant RTF (CPU time).
 
 The profile: one warm equilibrium of 16 balls pressed on the atrium's roof (heart_wall_contact at
 30 mm inserted, the field turned by 1 deg about x), timed piece by piece: the evaluations (the
@@ -16,7 +18,7 @@ convergence tests, chart).
 
 The teleoperation task (``--teleop``): the simulated operator doing Task II (the 18 right-ring
 targets, world mapping, seed 0) on each engine in the same run: the whole task on the quasi-static
-engine, and the plant (4 ms quasi-static steps, ``teleop.FAST``) on the first ``--plant-targets``
+engine (its wall time printed), and the plant (4 ms quasi-static steps, ``teleop.FAST``) on the first ``--plant-targets``
 targets (the plant's whole task takes minutes: ``--plant-targets 0`` runs it whole). RTF on the
 wall and CPU time of the simulation loop; the engine's speed-up is the ratio of the RTFs.
 
@@ -33,8 +35,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-HEART_SCENARIOS = ("heart_left_quasi_static", "heart_sleeve_quasi_static", "heart_no_field", "heart_wall_contact",
-                   "teleop_right_unit", "teleop_two_units", "heart_right_dynamics")
+
+
+def heart_scenarios() -> list[str]:
+    """The named scenarios inside the atrium (``heart: true``), in the scenarios file's order."""
+    from ballchain.systems.chain_scenario import load_scenario, scenario_names
+
+    return [name for name in scenario_names() if load_scenario(name).heart]
 
 
 @dataclass
@@ -70,11 +77,12 @@ def _run_once(name: str, engine: str, duration: float | None, max_duration: floa
     return out
 
 
-def run(*, scenarios=HEART_SCENARIOS, repeats: int = 3, duration: float | None = None,
+def run(*, scenarios=None, repeats: int = 3, duration: float | None = None,
         max_duration: float = np.inf, profile_repeats: int = 20, profile: bool = True) -> dict:
-    """RTF per scenario and engine (medians) and the profile of one equilibrium in contact."""
+    """RTF per scenario and engine (medians; ``scenarios`` None: ``heart_scenarios()``) and the
+    profile of one equilibrium in contact."""
     results = {}
-    for name in scenarios:
+    for name in heart_scenarios() if scenarios is None else scenarios:
         _run_once(name, "plant", min(duration or 0.02, 0.02))  # warm-up (untimed)
         _run_once(name, "statics", duration, max_duration)
         samples = {"plant": [], "statics": []}
@@ -95,7 +103,20 @@ def run(*, scenarios=HEART_SCENARIOS, repeats: int = 3, duration: float | None =
         row["speedup_cpu"] = round(row["statics"]["rtf_cpu"] / row["plant"]["rtf_cpu"], 2)
         results[name] = row
         print(name, json.dumps(row), flush=True)
+    print(rtf_table(results), flush=True)
     return {"scenarios": results, "profile": profile_equilibrium(profile_repeats) if profile else None}
+
+
+def rtf_table(results: dict) -> str:
+    """Markdown: every scenario's engine and plant RTF (CPU time), the engine's median solve and
+    its speed-up over the plant (same run)."""
+    lines = ["| scenario | engine RTF (CPU) | median solve [ms] | plant mode | plant RTF (CPU) | engine / plant |",
+             "|---|---:|---:|---|---:|---:|"]
+    for name, row in results.items():
+        e, p = row["statics"], row["plant"]
+        lines.append(f"| {name} | {e['rtf_cpu']:.2f} | {e['median_solve_ms']:.2f} | {p['mode']} | {p['rtf_cpu']:.2f} | "
+                     f"{row['speedup_cpu']:.1f}x |")
+    return "\n".join(lines)
 
 
 def profile_equilibrium(repeats: int = 20) -> dict:
@@ -230,12 +251,17 @@ def teleop_task(plant_targets: int | None = 2, repeats: int = 1) -> dict:
     out["speedup_wall"] = round(out["statics"]["rtf_wall"] / out["plant"]["rtf_wall"], 2)
     out["speedup_cpu"] = round(out["statics"]["rtf_cpu"] / out["plant"]["rtf_cpu"], 2)
     print("teleop_right_world", json.dumps(out), flush=True)
+    e = out["statics"]
+    print(f"Task II (right ring, world mapping) with the engine: {e['touched']}/{e['targets']} targets, "
+          f"{e['sim_s']:.1f} s simulated in {e['wall_s']:.2f} s wall (RTF {e['rtf_wall']:.1f} wall, "
+          f"{e['rtf_cpu']:.1f} CPU)", flush=True)
     return out
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--scenarios", nargs="*", default=list(HEART_SCENARIOS), help="named scenarios")
+    parser.add_argument("--scenarios", nargs="*", default=None,
+                        help="named scenarios (default: every named heart scenario)")
     parser.add_argument("--repeats", type=int, default=3, help="timed runs per scenario and engine")
     parser.add_argument("--duration", type=float, default=None, help="simulated time per run [s] (default: the scenario's)")
     parser.add_argument("--max-duration", type=float, default=np.inf,
@@ -260,7 +286,7 @@ def main():
         except UserInputError as err:
             parser.error(str(err))
     out = {}
-    if args.scenarios:
+    if args.scenarios is None or args.scenarios:
         out = run(scenarios=args.scenarios, repeats=args.repeats, duration=args.duration,
                   max_duration=args.max_duration, profile_repeats=args.profile_repeats,
                   profile=not args.no_profile)

@@ -7,6 +7,9 @@ Two measurements of the same scenario, each on a freshly built diagram:
    the time of the callbacks it triggers through its input ports, so each millisecond is counted
    once, in the group of the system that spent it. What is left of the total is C++: the plant
    (dynamics, SAP contact, hydroelastic geometry queries), the integrator and the framework.
+   With the quasi-static engine (``--set "{engine: statics}"``) its statics solves are a group of
+   their own (``statics_solve``: ``ChainStatics.solve``) and ``engine`` is the rest of the
+   engine's updates and outputs (continuation, bookkeeping, poses) and its geometry's poses.
 2. cProfile of the same second (the top functions by internal time), as a cross-check; its
    overhead inflates Python-heavy code, so its shares are not the real ones.
 
@@ -27,6 +30,7 @@ from collections import defaultdict
 GROUPS = {
     "wrench": ("ballchain.systems.magnetic_wrench", ("MagneticWrenchSystem",)),
     "monitor": ("ballchain.systems.chain_simulation", ("ChainMonitor",)),
+    "engine": ("ballchain.systems.quasi_static_engine", ("QuasiStaticEngine", "EngineGeometry")),
 }
 ACTUATION = {
     "ballchain.systems.rotating_magnet_unit": ("RotatingMagnetUnit",),
@@ -56,6 +60,12 @@ class ExclusiveTimer:
             original = getattr(cls, name)
             self._saved.append((cls, name, original))
             setattr(cls, name, self._timed(original, group))
+
+    def wrap_method(self, cls, name: str, group: str) -> None:
+        """Time one method of ``cls`` (e.g. ``ChainStatics.solve``) in ``group``."""
+        original = getattr(cls, name)
+        self._saved.append((cls, name, original))
+        setattr(cls, name, self._timed(original, group))
 
     def _timed(self, fn, group):
         timer = self
@@ -120,6 +130,11 @@ def run(*, scenario: str = "teleop_right_unit", overrides: str | None = None, du
             timer.wrap(cls, "actuation")
     for cls in _classes(*GROUPS["monitor"]):
         timer.wrap(cls, "monitor")
+    for cls in _classes(*GROUPS["engine"]):
+        timer.wrap(cls, "engine")
+    from ballchain.optimization.statics import ChainStatics
+
+    timer.wrap_method(ChainStatics, "solve", "statics_solve")
     try:
         sc, simulator = _build(scenario, overrides)
         timer.totals.clear()

@@ -18,6 +18,7 @@ from typing import Literal, Protocol, Sequence
 import numpy as np
 
 from ballchain.drake_models.kernels import dipole_field_and_gradient
+from ballchain.drake_models.kernels.external import GRADIENT_STEP
 from ballchain.drake_models.dipole import dipole_field
 from ballchain.drake_models.arg_checks import as_array, as_vector, require_choice, require_positive, require_type
 from ballchain.drake_models.errors import UserInputError, check_in, short_repr
@@ -203,7 +204,7 @@ class FieldSources:
         return B, G
 
 
-def field_gradient_derivative(source: FieldSource, p_W, step: float = 1e-6) -> np.ndarray:
+def field_gradient_derivative(source: FieldSource, p_W, step: float = GRADIENT_STEP) -> np.ndarray:
     """Second spatial derivative ``dG[k, a, b, c] = d2 B_a / dp_b dp_c`` (k, 3, 3, 3) [T/m^2].
 
     Zero for a uniform field; otherwise central differences of the source's analytic (or, for

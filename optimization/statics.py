@@ -48,6 +48,7 @@ from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import FieldSource, UniformField, require_field_source
 from ballchain.drake_models.params import BallChain
 from ballchain.drake_models.vectors import angle_between
+from ballchain.optimization import compiled_newton
 from ballchain.optimization.reduced_chain import X_AXIS, ReducedChain
 from ballchain.optimization.wall_constraints import ConstrainedChain, HeartConstraints
 
@@ -312,6 +313,10 @@ class ChainStatics:
         tolerance: stationarity tolerance on the scaled energy gradient (energy in units of the
             pair energy of two touching balls, angles in rad).
         max_iterations: Newton iteration limit.
+        qp: the Newton steps' QP solver, "dense" (active set) or "clarabel".
+        compiled: run the whole Newton solve (with the dense QP) as one compiled call
+            (``optimization.compiled_newton``); False runs the Python solver, the reference
+            the compiled one is held to.
     """
 
     contact_margin = 0.3  # pairs with |p_i - p_j|^2 / d^2 - 1 below this enter the step's QP
@@ -326,9 +331,11 @@ class ChainStatics:
         tolerance: float = 1e-8,
         max_iterations: int = 200,
         qp: str = "dense",
+        compiled: bool = True,
     ):
         require_type(chain, BallChain, "ChainStatics chain", "a BallChain")
         require_bool(gravity, "ChainStatics gravity")
+        require_bool(compiled, "ChainStatics compiled")
         require_positive(tolerance, "ChainStatics tolerance")
         require_int(max_iterations, "ChainStatics max_iterations", 1)
         if method not in ("newton", "snopt"):
@@ -336,6 +343,7 @@ class ChainStatics:
         if qp not in ("dense", "clarabel"):
             raise UserInputError(f"qp must be 'dense' or 'clarabel', got {qp!r}")
         self.qp = qp
+        self.compiled = compiled
         self._constrained: ConstrainedChain | None = None
         self.chain = chain
         self.gravity = gravity
@@ -418,10 +426,16 @@ class ChainStatics:
             model = self._model
         model.external = external
         _set_tip_target_and_wall(model, tip_target, wall)
+        lam0 = getattr(warm_start, "multipliers", None) if constraints is not None else None
+        if self.compiled and self.method == "newton" and self.qp == "dense":
+            answer = compiled_newton.run(self, model, external, p0, m0, lam0, constraints)
+            if answer is not None:  # else a field or wall the kernels do not evaluate: Python's
+                converged, reason, iterations, lam_near, lam_tip, p, m_hat, t, gaps, v = answer
+                return self._assemble(model, p, m_hat, EnergyTerms(*t.tolist()), gaps, converged, reason,
+                                      iterations, lam_near, lam_tip, constraints, start, v)
         model.chart_from_configuration(p0, m0)
         lam_tip = np.zeros(3)
         if self.method == "newton":
-            lam0 = getattr(warm_start, "multipliers", None) if constraints is not None else None
             try:
                 q, converged, reason, iterations, lam_near, lam_tip = self._newton(model, lam0)
             except np.linalg.LinAlgError as err:  # a step's system singular in floating point
@@ -440,14 +454,23 @@ class ChainStatics:
         violation (which can overrule ``converged``) and the multipliers as forces [N]."""
         ev = model.evaluate(q, 0)
         p, m_hat = model.configuration(q)
+        return self._assemble(model, p, m_hat, ev.terms, ev.gaps, converged, reason, iterations, lam_near,
+                              lam_tip, constraints, start, None if constraints is None else q)
+
+    def _assemble(self, model, p, m_hat, terms: EnergyTerms, row_gaps, converged: bool, reason: str,
+                  iterations: int, lam_near: dict, lam_tip, constraints: HeartConstraints | None, start: float,
+                  rows_at) -> StaticsResult:
+        """The StaticsResult of an answer's configuration (p, m_hat), energy terms and rows' values
+        (``Evaluation.gaps``); ``rows_at`` the heart rows' gradients v (2L, 3) or the chart
+        coordinates to find them at (with ``constraints``)."""
         P = model.n_pairs
-        gaps = np.sqrt(np.maximum(ev.gaps[:P] + 1.0, 0.0)) * model.d - model.d  # [m]
-        gaps = np.concatenate([gaps, ev.gaps[P:] * model.d])  # wall rows: n . (p - p0) - d/2
+        gaps = np.sqrt(np.maximum(row_gaps[:P] + 1.0, 0.0)) * model.d - model.d  # [m]
+        gaps = np.concatenate([gaps, row_gaps[P:] * model.d])  # wall rows: n . (p - p0) - d/2
         max_violation = float(max(0.0, -gaps.min())) if len(gaps) else 0.0
         if not np.all(np.isfinite(p)) or not np.all(np.isfinite(m_hat)):
             converged, reason = False, "non-finite configuration"
-        elif not np.isfinite(ev.terms.total):
-            converged, reason = False, f"non-finite energy ({ev.terms.total}) at the solver's answer"
+        elif not np.isfinite(terms.total):
+            converged, reason = False, f"non-finite energy ({terms.total}) at the solver's answer"
         elif converged and max_violation > 1e-7 * model.d:
             converged, reason = False, f"rigidity or wall violated by {max_violation:.3g} m"
         pair_forces = {
@@ -459,7 +482,8 @@ class ChainStatics:
                        if lam > 1e-12 and k >= P}
         extra = {}
         if constraints is not None:
-            wall_W, sheath_W = model.forces_at(q, lam_near)
+            wall_W, sheath_W = (model.forces_at(rows_at, lam_near) if rows_at.ndim == 1
+                                else model.forces_of_rows(rows_at, lam_near))
             wall_forces = {k: float(np.linalg.norm(f)) for k, f in wall_W.items()}
             p_W, m_W = constraints.to_world(p, m_hat)
             extra = dict(wall_forces_W=wall_W, sheath_forces_W=sheath_W, positions_W=p_W, dipoles_W=m_W)
@@ -467,8 +491,8 @@ class ChainStatics:
         return StaticsResult(
             positions=p,
             dipoles=m_hat,
-            energy=ev.terms.total,
-            terms=ev.terms,
+            energy=terms.total,
+            terms=terms,
             converged=converged,
             reason=reason,
             solver=f"{self.method} ({qp_name if self.method == 'newton' else 'MathematicalProgram: SNOPT'})",

@@ -393,10 +393,14 @@ class ConstrainedChain(ReducedChain):
         ``({ball: f_W (3,)}, {ball: f_W (3,)})``, ball 0-based in the sub-chain, from the
         statics' multipliers ``lam_near`` (row -> multiplier). Frictionless: along the rows'
         gradients (the wall's normal), nothing tangential."""
-        L = self.n_links
         w = self.unit_vectors(q)[0]
         p_B = self._configuration(w)[0]
         _, v, _ = self._rows(p_B[1:], hessian=False)
+        return self.forces_of_rows(v, lam_near)
+
+    def forces_of_rows(self, v: np.ndarray, lam_near: dict) -> tuple[dict, dict]:
+        """``forces_at`` from the rows' gradients v (2L, 3) through the centres (``_rows``)."""
+        L = self.n_links
         E0, d, R = self.energy_scale, self.d, self.constraints.R_WB
         wall, sheath = {}, {}
         for k, lam in lam_near.items():

@@ -44,7 +44,7 @@ from pydrake.geometry import (
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
-from ballchain.drake_models.arg_checks import as_vector, require_type
+from ballchain.drake_models.arg_checks import as_vector, require_bool, require_type
 from ballchain.drake_models.errors import UserInputError, caused_by_interrupt
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import BallChain
@@ -72,10 +72,21 @@ def _one_blas_thread():
     its Cholesky 0.26 ms against 0.05 ms)."""
     global _BLAS
     if _BLAS is None:
+        # numba's compiled np.linalg (the compiled statics' Cholesky and solves) calls LAPACK
+        # through scipy's OpenBLAS, a second library that numpy's does not load: loaded here, so
+        # that the controller (a snapshot of the libraries loaded) limits it too. Unlimited, its
+        # threads take over from 32 balls on (measured: a 32-ball solve 10 times slower in CPU time).
+        import scipy.linalg.cython_lapack  # noqa: F401
         from threadpoolctl import ThreadpoolController
 
         _BLAS = ThreadpoolController()
     return _BLAS.limit(limits=1, user_api="blas")
+
+
+def _norms(rows: np.ndarray) -> np.ndarray:
+    """The rows' Euclidean norms, as ``np.linalg.norm(rows, axis=1)`` computes them (the square
+    root of the summed squares: the same floats) without its wrapper's cost."""
+    return np.sqrt(np.add.reduce(rows * rows, axis=1))
 
 
 def rotation_with_x_along(direction) -> np.ndarray:
@@ -85,13 +96,35 @@ def rotation_with_x_along(direction) -> np.ndarray:
 
 def rotations_with_x_along(directions: np.ndarray) -> np.ndarray:
     """(k, 3, 3) rotations whose first columns are the unit vectors along ``directions`` (k, 3)
-    (``rotation_with_x_along`` for all balls at once: the engine publishes 16 poses per update)."""
-    x = directions / np.linalg.norm(directions, axis=1, keepdims=True)
-    helper = np.where(np.abs(x[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
-    y = np.cross(helper, x)
-    y /= np.linalg.norm(y, axis=1, keepdims=True)
-    z = np.cross(x, y)
-    return np.stack([x, y, z], axis=2)
+    (``rotation_with_x_along`` for all balls at once: the engine publishes every ball's pose per
+    update). The cross products are written out by components (numpy's ``cross`` formula, the
+    same floating-point results) to save its per-call overhead."""
+    return ball_frames(directions, np.zeros_like(directions))[:, :, :3]
+
+
+def ball_frames(directions: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """(k, 3, 4) poses [R_WB | p_WB] of balls at ``centres`` (k, 3) [m] with x along
+    ``directions`` (k, 3): one array for all balls (``RigidTransform.MakeUnchecked`` of each row
+    is its pose)."""
+    d = np.asarray(directions, float)
+    x = d / np.sqrt(np.add.reduce(d * d, axis=1))[:, None]
+    x0, x1, x2 = x[:, 0], x[:, 1], x[:, 2]
+    along_x = np.abs(x0) < 0.9  # helper e_x (else e_y), as rotation_with_z_along
+    y = np.empty_like(x)
+    # y = helper x x: e_x x x = (0, -x2, x1), e_y x x = (x2, 0, -x0), as numpy's cross computes them
+    y[:, 0] = np.where(along_x, 0.0 * x2 - 0.0 * x1, 1.0 * x2 - 0.0 * x1)
+    y[:, 1] = np.where(along_x, 0.0 * x0 - 1.0 * x2, 0.0 * x0 - 0.0 * x2)
+    y[:, 2] = np.where(along_x, 1.0 * x1 - 0.0 * x0, 0.0 * x1 - 1.0 * x0)
+    y /= np.sqrt(np.add.reduce(y * y, axis=1))[:, None]
+    y0, y1, y2 = y[:, 0], y[:, 1], y[:, 2]
+    out = np.empty((len(x), 3, 4))
+    out[:, :, 0] = x
+    out[:, :, 1] = y
+    out[:, 0, 2] = x1 * y2 - x2 * y1
+    out[:, 1, 2] = x2 * y0 - x0 * y2
+    out[:, 2, 2] = x0 * y1 - x1 * y0
+    out[:, :, 3] = centres
+    return out
 
 
 @dataclass
@@ -143,15 +176,26 @@ class QuasiStaticEngine(LeafSystem):
         max_angle_step: largest magnet turn per continuation step [rad].
         max_insertion_step: largest feeder move per continuation step [m].
         snap_distance: a ball moving further in one step marks a possible snap-through [m].
+        compiled: solve with the compiled statics (``ChainStatics(compiled=True)``, default);
+            False: the Python solver, the reference.
     """
 
     def __init__(self, chain: BallChain, ball_body_indices, p_WE, axis_W, sdf=None,
                  sheath: SheathGeometry | None = None, field_source=None, port_magnets=(), model: str = "dipole",
                  gravity: bool = True, period: float = 0.02, initial_inserted_length: float = 0.0,
                  max_angle_step: float = np.radians(1.0), max_insertion_step: float = 1e-3,
-                 snap_distance: float = 1.5e-3):
+                 snap_distance: float = 1.5e-3, compiled: bool = True):
         super().__init__()
         require_type(chain, BallChain, "QuasiStaticEngine chain", "a BallChain")
+        require_bool(compiled, "QuasiStaticEngine compiled")
+        ball_body_indices = [int(i) for i in ball_body_indices]  # also for replica(): an iterator is read once
+        # What replica() rebuilds the engine from.
+        self._arguments = dict(
+            chain=chain, ball_body_indices=ball_body_indices, p_WE=p_WE, axis_W=axis_W, sdf=sdf, sheath=sheath,
+            field_source=field_source, port_magnets=port_magnets, model=model, gravity=gravity, period=period,
+            initial_inserted_length=initial_inserted_length, max_angle_step=max_angle_step,
+            max_insertion_step=max_insertion_step, snap_distance=snap_distance, compiled=compiled)
+        self.compiled = compiled
         as_vector(p_WE, "QuasiStaticEngine p_WE", unit="m")
         as_vector(axis_W, "QuasiStaticEngine axis_W", nonzero=True)
         if not period > 0:
@@ -179,6 +223,7 @@ class QuasiStaticEngine(LeafSystem):
         self.max_insertion_step = max_insertion_step
         self.snap_distance = snap_distance
         self._solvers: dict[int, ChainStatics] = {}
+        self._last_constraints = None  # (s, (k, HeartConstraints)) of the last solve
         # The last solution's multipliers per sub-chain size: a warm start for the next solve's
         # quadratic model only (the solution does not depend on them).
         self._multipliers: dict[int, dict] = {}
@@ -190,8 +235,10 @@ class QuasiStaticEngine(LeafSystem):
         self.free_in_bore = 1
         self.events: list[EngineEvent] = []
         self.failure: str | None = None  # the first failed update (the monitor stops the run)
-        self.solve_times: list[float] = []  # wall time of every statics solve [s]
+        self.solve_times: list[float] = []  # time of every statics solve [s], by ``clock``
+        self.clock = time.perf_counter  # wall time; a benchmark may set time.process_time
         self.iterations: list[int] = []
+        self.last_result: StaticsResult | None = None  # the last solve's (wall contacts, multipliers)
         km = 6 * len(self._port_magnets)
         self._slices = {}
         offset = 0
@@ -206,10 +253,19 @@ class QuasiStaticEngine(LeafSystem):
         x0[self._slices["tip"]][3:] = p0[-1]
         x0[self._slices["s"]] = self._s0
         self._state_index = self.DeclareDiscreteState(BasicVector(x0))
+        self._declare_ports(n, km)
+        self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
+        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
+
+    def _declare_ports(self, n: int, km: int) -> None:
         self._feeder_port = self.DeclareVectorInputPort("feeder_desired_state", 2)
         self._magnet_port = self.DeclareVectorInputPort("magnet_states", km) if km else None
         size = max(self._indices) + 1
+        # The published list: identities (bodies that are not balls) with the balls' poses set per
+        # update; balls on consecutive BodyIndex values are set as one slice.
         self._poses = [RigidTransform() for _ in range(size)]
+        first = self._indices[0]
+        self._ball_slice = (slice(first, first + n) if self._indices == list(range(first, first + n)) else None)
         self._body_poses_port = self.DeclareAbstractOutputPort(
             "body_poses", lambda: AbstractValue.Make(list(self._poses)), self._calc_body_poses,
             prerequisites_of_calc={self.xd_ticket()})
@@ -219,10 +275,12 @@ class QuasiStaticEngine(LeafSystem):
             "ball_positions", 3 * n, self._calc_positions, prerequisites_of_calc={self.xd_ticket()})
         self._snaps_port = self.DeclareVectorOutputPort(
             "snap_throughs", 1, self._calc_snaps, prerequisites_of_calc={self.xd_ticket()})
-        self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
-        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
 
     # --- ports ----------------------------------------------------------------------------------
+    def replica(self, **changes) -> QuasiStaticEngine:
+        """A new engine with this one's arguments, except ``changes`` (e.g. ``compiled=False``)."""
+        return QuasiStaticEngine(**{**self._arguments, **changes})
+
     def warm_up(self) -> None:
         """One untimed solve (the initial insertion, the fixed field only): loads the compiled
         kernels' caches and the solvers before a timed run. Leaves no trace in the reports."""
@@ -261,6 +319,13 @@ class QuasiStaticEngine(LeafSystem):
         return self._p_WE + along[:, None] * self._axis, np.tile(self._axis, (self._n, 1))
 
     def _constraints(self, s: float) -> tuple[int, HeartConstraints]:
+        """The held ball and the rows at inserted length s (the last ones again while s stays)."""
+        if self._last_constraints is not None and self._last_constraints[0] == s:
+            return self._last_constraints[1]
+        self._last_constraints = (s, self._new_constraints(s))
+        return self._last_constraints[1]
+
+    def _new_constraints(self, s: float) -> tuple[int, HeartConstraints]:
         if self._sheath is not None:
             k, a = base_ball(self._n, s, self._d, self.free_in_bore)
             p_WB = self._p_WE + a * self._axis
@@ -301,7 +366,7 @@ class QuasiStaticEngine(LeafSystem):
         solver = self._solvers.get(n_sub)
         if solver is None:
             solver = self._solvers[n_sub] = ChainStatics(self.chain.with_balls(n_sub), gravity=self._gravity,
-                                                         tolerance=self.tolerance)
+                                                         tolerance=self.tolerance, compiled=self.compiled)
             # Rows met to 1e-9 of a ball diameter (3 pm) rather than 1e-12: one Newton
             # iteration less (the last one only certifies round-off).
             solver.feasibility_tolerance = 1e-9
@@ -314,16 +379,17 @@ class QuasiStaticEngine(LeafSystem):
                                  "warm start", "", 0, 0.0, multipliers=self._multipliers.get(n_sub, {}))
 
         field = self._field(magnets)
-        start = time.perf_counter()
+        start = self.clock()
         starts = ([] if predicted is None else [predicted]) + [(p_W, m_W)] + ([(None, None)] if p_W is not None else [])
         for p0, m0 in starts:  # the prediction, the last equilibrium, then one cold restart
             result = solver.solve(field, warm_from(p0, m0), constraints=c)
             if result.converged:
                 break
-        self.solve_times.append(time.perf_counter() - start)
+        self.solve_times.append(self.clock() - start)
         if result.converged:
             self._multipliers[n_sub] = result.multipliers
         self.iterations.append(result.iterations)
+        self.last_result = result
         if not result.converged:
             raise StaticsError(f"statics in the heart did not converge at s = {s * 1e3:.2f} mm: {result.reason}")
         p, m = c.full_configuration(result.positions, result.dipoles, self._d)
@@ -345,10 +411,9 @@ class QuasiStaticEngine(LeafSystem):
         u = abs(s1 - s0) / self.max_insertion_step
         if mag0 is not None and len(mag0):
             a, b = mag0.reshape(-1, 6), mag1.reshape(-1, 6)
-            cos = np.einsum("ij,ij->i", a[:, 3:], b[:, 3:]) / (
-                np.linalg.norm(a[:, 3:], axis=1) * np.linalg.norm(b[:, 3:], axis=1))
-            u = max(u, float(np.arccos(np.clip(cos, -1.0, 1.0)).max()) / self.max_angle_step,
-                    float(np.linalg.norm(a[:, :3] - b[:, :3], axis=1).max()) / 5e-3)
+            cos = np.einsum("ij,ij->i", a[:, 3:], b[:, 3:]) / (_norms(a[:, 3:]) * _norms(b[:, 3:]))
+            u = max(u, float(np.arccos(np.minimum(np.maximum(cos, -1.0), 1.0)).max()) / self.max_angle_step,
+                    float(_norms(a[:, :3] - b[:, :3]).max()) / 5e-3)
         return u
 
     def _walk(self, t, s0, s1, mag0, mag1, p, m, depth=0, motion=None):
@@ -359,32 +424,26 @@ class QuasiStaticEngine(LeafSystem):
         which saves Newton iterations while the magnets turn or the feeder moves steadily.
         Returns (p, m, result, motion).
         """
-        steps = 1
-        if mag0 is not None and len(mag0):
-            a = mag0.reshape(-1, 6)[:, 3:]
-            b = mag1.reshape(-1, 6)[:, 3:]
-            cos = np.einsum("ij,ij->i", a, b) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
-            angle = float(np.arccos(np.clip(cos, -1.0, 1.0)).max())
-            moved = float(np.linalg.norm(mag0.reshape(-1, 6)[:, :3] - mag1.reshape(-1, 6)[:, :3], axis=1).max())
-            steps = max(steps, int(np.ceil(angle / self.max_angle_step)), int(np.ceil(moved / 5e-3)))
-        steps = max(steps, int(np.ceil(abs(s1 - s0) / self.max_insertion_step)))
+        # As many steps as the largest of the moves over its per-step limit asks for (the
+        # ceiling of the largest ratio is the largest of the ratios' ceilings).
+        u = self._step_size(s0, s1, mag0, mag1)
+        steps = max(1, int(np.ceil(u)))
         result = None
-        u_step = self._step_size(s0, s1, mag0, mag1) / steps
+        u_step = u / steps
+        s_prev, f_prev = s0 + 0.0 * (s1 - s0), 0.0
         for j in range(1, steps + 1):
             f = j / steps
             s = s0 + f * (s1 - s0)
             mag = None if mag0 is None else self._interpolate(mag0, mag1, f)
-            fp = (j - 1) / steps
-            s_prev = s0 + fp * (s1 - s0)
-            mag_prev = None if mag0 is None else self._interpolate(mag0, mag1, fp)
             predicted = None
             if motion is not None and motion[2] > 0 and u_step > 0:
                 ratio = min(u_step / motion[2], 2.0)
                 predicted = (p + ratio * motion[0], m + ratio * motion[1])
             p_new, m_new, result, _ = self.equilibrium(s, mag, p, m, predicted)
-            jump = float(np.linalg.norm(p_new - p, axis=1).max() - abs(s - s_prev))
+            jump = float(_norms(p_new - p).max() - abs(s - s_prev))
             if jump > self.snap_distance:
                 if depth < 4:  # refine: a smooth path moves less over a shorter step
+                    mag_prev = None if mag0 is None else self._interpolate(mag0, mag1, f_prev)
                     p_new, m_new, result, _ = self._walk(t, s_prev, s, mag_prev, mag, p, m, depth + 1)
                 elif steps == 1:
                     self.events.append(EngineEvent(t, "snap-through", jump + abs(s - s_prev),
@@ -393,13 +452,14 @@ class QuasiStaticEngine(LeafSystem):
             else:
                 motion = (p_new - p, m_new - m, u_step)
             p, m = p_new, m_new
+            s_prev, f_prev = s, f
         return p, m, result, motion
 
     @staticmethod
     def _interpolate(a: np.ndarray, b: np.ndarray, f: float) -> np.ndarray:
         a, b = a.reshape(-1, 6), b.reshape(-1, 6)
         out = (1 - f) * a + f * b  # centres: linear; directions: normalised (a short arc)
-        out[:, 3:] /= np.linalg.norm(out[:, 3:], axis=1, keepdims=True)
+        out[:, 3:] /= _norms(out[:, 3:])[:, None]
         return out.ravel()
 
     def _inputs(self, context):
@@ -419,62 +479,63 @@ class QuasiStaticEngine(LeafSystem):
 
         x = self.state_vector(context)
         s, mags = self._inputs(context)
-        p = x[self._slices["p"]].reshape(-1, 3)
-        m = x[self._slices["m"]].reshape(-1, 3)
-        s_last = float(x[self._slices["s"]][0])
-        mags_last = None if mags is None else x[self._slices["magnets"]].copy()
-        t = context.get_time()
+        sl = self._slices
+        s_last = float(x[sl["s"]][0])
+        mags_last = None if mags is None else x[sl["magnets"]]
         if s == s_last and (mags is None or np.array_equal(mags, mags_last)):
             # Nothing moved: the chain stays where it is (and the next move starts afresh).
-            x = x.copy()
-            x[self._slices["u"]] = 0.0
-            discrete_state.get_mutable_vector(self._state_index).SetFromVector(x)
+            # discrete_state holds the current state: only the step size changes.
+            discrete_state.get_mutable_vector(self._state_index).get_mutable_value()[sl["u"]] = 0.0
             return EventStatus.Succeeded()
-        snaps_before = sum(e.kind == "snap-through" for e in self.events)
+        t = context.get_time()
+        n_events = len(self.events)
         motion = None
-        if x[self._slices["u"]][0] > 0:
-            motion = (x[self._slices["dp"]].reshape(-1, 3), x[self._slices["dm"]].reshape(-1, 3),
-                      float(x[self._slices["u"]][0]))
+        if x[sl["u"]][0] > 0:
+            motion = (x[sl["dp"]].reshape(-1, 3), x[sl["dm"]].reshape(-1, 3), float(x[sl["u"]][0]))
         try:
             with _one_blas_thread():
-                p, m, result, motion = self._walk(t, s_last, s, mags_last, mags, p, m, motion=motion)
-            failures = 0
+                p, m, result, motion = self._walk(t, s_last, s, mags_last, mags, x[sl["p"]].reshape(-1, 3),
+                                                  x[sl["m"]].reshape(-1, 3), motion=motion)
         except StaticsError as err:  # keep the last equilibrium, report it (the watchdog stops)
             # Not EventStatus.Failed(self, ...): formatting a Python system's failure message
             # crashes pydrake 1.51 (NiceTypeName without the GIL); the monitor fails instead.
             self.events.append(EngineEvent(t, "solve failed", 0.0, str(err)))
             self.failure = f"quasi-static engine at t = {t:.4f} s: {err}"
             return EventStatus.Succeeded()
-        snaps = sum(e.kind == "snap-through" for e in self.events) - snaps_before
-        self._store(discrete_state, context, p, m, result, s, mags, snaps, failures, motion)
+        snaps = sum(e.kind == "snap-through" for e in self.events[n_events:])  # this update's
+        self._store(discrete_state, context, p, m, result, s, mags, snaps, 0, motion)
         return EventStatus.Succeeded()
 
     def _store(self, discrete_state, context, p, m, result, s, mags, new_snaps, new_failures, motion=None):
-        x = self.state_vector(context).copy()
+        """Writes the update into ``discrete_state`` in place (it holds the current state)."""
+        x = discrete_state.get_mutable_vector(self._state_index).get_mutable_value()
+        sl = self._slices
         if motion is None:
-            x[self._slices["u"]] = 0.0
+            x[sl["u"]] = 0.0
         else:
-            x[self._slices["dp"]] = motion[0].ravel()
-            x[self._slices["dm"]] = motion[1].ravel()
-            x[self._slices["u"]] = motion[2]
-        x[self._slices["p"]] = p.ravel()
-        x[self._slices["m"]] = m.ravel()
-        x[self._slices["tip"]] = self._tip_force(p, result)
-        x[self._slices["s"]] = s
+            x[sl["dp"]] = motion[0].ravel()
+            x[sl["dm"]] = motion[1].ravel()
+            x[sl["u"]] = motion[2]
+        x[sl["p"]] = p.ravel()
+        x[sl["m"]] = m.ravel()
+        x[sl["tip"]] = self._tip_force(p, result)
+        x[sl["s"]] = s
         if mags is not None:
-            x[self._slices["magnets"]] = mags
-        x[self._slices["snaps"]] += new_snaps
-        x[self._slices["failures"]] += new_failures
-        discrete_state.get_mutable_vector(self._state_index).SetFromVector(x)
+            x[sl["magnets"]] = mags
+        x[sl["snaps"]] += new_snaps
+        x[sl["failures"]] += new_failures
 
     # --- outputs ---------------------------------------------------------------------------------
     def _calc_body_poses(self, context, output):
         x = self.state_vector(context)
-        p = x[self._slices["p"]].reshape(-1, 3)
-        R = rotations_with_x_along(x[self._slices["m"]].reshape(-1, 3))
-        for i, index in enumerate(self._indices):
-            self._poses[index] = RigidTransform(RotationMatrix(R[i]), p[i])
-        output.set_value(list(self._poses))
+        X = ball_frames(x[self._slices["m"]].reshape(-1, 3), x[self._slices["p"]].reshape(-1, 3))
+        poses = list(self._poses)  # a new list: a consumer may hold the last one
+        if self._ball_slice is not None:
+            poses[self._ball_slice] = map(RigidTransform.MakeUnchecked, X)
+        else:
+            for index, X_i in zip(self._indices, X):
+                poses[index] = RigidTransform.MakeUnchecked(X_i)
+        output.set_value(poses)
 
     def _calc_tip_force(self, context, output):
         output.SetFromVector(self.state_vector(context)[self._slices["tip"]])
@@ -547,8 +608,7 @@ class EngineGeometry(LeafSystem):
 
     def _calc_geometry_pose(self, context, output):
         poses = self._poses_port.Eval(context)
-        value = output.get_mutable_value()
-        value.clear()
+        value = output.get_mutable_value()  # the same frames every time: overwritten, not cleared
         for frame, index in zip(self._frames, self._indices):
             value.set_value(frame, poses[index])
 

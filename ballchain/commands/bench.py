@@ -1,18 +1,32 @@
-"""``ballchain bench statics``: a thin adapter over ``ballchain.experiments.statics_bench`` (its
-docstring says what is timed and how)."""
+"""``ballchain bench statics|engine|scaling``: a thin adapter over ``ballchain.experiments.statics_bench``
+(statics) and ``ballchain.experiments.engine_bench`` (engine: the quasi-static engine at 1 kHz along
+a teleoperation path; scaling: solve time against chain length); their docstrings say what is
+timed and how."""
 
 from __future__ import annotations
 
 import argparse
 
 from ballchain.commands._common import add_json_flag, finite_float, non_negative_int, positive_int, print_json
+from ballchain.drake_models.errors import UserInputError
 from ballchain.experiments.statics_bench import _OPTIONAL, StaticsBenchResult, run_statics
 
-TARGETS = ("statics",)
+TARGETS = ("statics", "engine", "scaling")
+# The flags each target reads (besides --clock, --no-progress, --json); any other given is refused.
+_STATICS_FLAGS = ("balls", "field_mT", "angle_deg", "warm_offset_deg", "repeats", "baseline_ftol", "blas_threads",
+                  "cases", "compile_cost")
+_FLAGS = {
+    "statics": _STATICS_FLAGS,
+    "engine": ("scenario", "path_s", "rate_hz", "no_reference"),
+    "scaling": ("sizes", "field_mT", "angle_deg", "warm_offset_deg", "repeats", "no_reference", "out"),
+}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("target", choices=TARGETS, help="what to benchmark: statics (the chain's equilibrium solve)")
+    parser.add_argument("target", choices=TARGETS,
+                        help="what to benchmark: statics (the chain's equilibrium solve against SLSQP), engine "
+                             "(the quasi-static engine at 1 kHz along a teleoperation path, compiled vs Python "
+                             "reference), scaling (solve time against chain length, free and on a wall)")
     parser.add_argument("--balls", type=positive_int, default=16, help="number of balls, >= 2 (default 16)")
     parser.add_argument("--field-mT", type=finite_float, default=23.0, help="uniform field magnitude [mT] (default 23)")
     parser.add_argument("--angle-deg", type=finite_float, default=90.0,
@@ -35,8 +49,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--compile-cost", action="store_true",
                         help="also time the kernels' first run in a fresh process, with an empty numba "
                              "cache and with the cache (a few tens of seconds)")
+    parser.add_argument("--scenario", default="teleop_right_unit",
+                        help="engine: the teleoperation scenario whose path is replayed (teleop_right_unit, "
+                             "teleop_two_units; default teleop_right_unit)")
+    parser.add_argument("--path-s", type=finite_float, default=0.7,
+                        help="engine: simulated time of the recorded path [s] (default 0.7: the joystick's sweep)")
+    parser.add_argument("--rate-hz", type=finite_float, default=1000.0,
+                        help="engine: updates per simulated second (default 1000: one equilibrium per ms of path)")
+    parser.add_argument("--sizes", default="8,16,32,64",
+                        help="scaling: comma-separated chain lengths (default 8,16,32,64)")
+    parser.add_argument("--no-reference", action="store_true",
+                        help="engine, scaling: leave out the Python reference solver (compiled only)")
+    parser.add_argument("--out", default=None,
+                        help="scaling: write scaling.csv, scaling.md and scaling.png into this folder")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     add_json_flag(parser)
+    parser.set_defaults(_defaults={dest: parser.get_default(dest) for flags in _FLAGS.values() for dest in flags})
+
+
+def _check_flags(args: argparse.Namespace) -> None:
+    """A flag of another target given with this one is refused (it would be ignored)."""
+    for dest, default in args._defaults.items():
+        if dest not in _FLAGS[args.target] and getattr(args, dest) != default:
+            raise UserInputError(f"--{dest.replace('_', '-')} does not apply to bench {args.target} "
+                                 f"(its flags: {', '.join('--' + f.replace('_', '-') for f in _FLAGS[args.target])})")
 
 
 # --- BLAS threads ---------------------------------------------------------------------------------
@@ -80,7 +116,60 @@ def _print_statics(out: StaticsBenchResult) -> None:
               "times are not comparable)")
 
 
+def _print_engine(out) -> None:
+    clock = "CPU" if out.clock == "cpu" else "wall"
+    print(f"engine along {out.scenario}'s path (insertion {out.insertion}), {out.path_s:g} s at {out.rate_hz:g} Hz: "
+          f"{out.path_points} points ({out.skipped} unchanged skipped), {100 * out.in_contact:.0f} % in contact "
+          f"(median {out.median_wall_contacts:g} balls on the wall); update times, {clock}:")
+    for name in ("compiled", "reference"):
+        r = getattr(out, name)
+        if r is None:
+            continue
+        u, s = r["update"], r["solve"]
+        print(f"  {name:<10s} median {u['median_ms']:7.3f} ms  p99 {u['p99_ms']:7.3f}  max {u['max_ms']:7.3f}  "
+              f"rate {u['achieved_rate_hz']:7.0f} Hz  "
+              f"within {1e3 / out.rate_hz:g} ms: {100 * u['within_period']:.1f} %  "
+              f"(solve alone: median {s['median_ms']:.3f} ms; {r['median_iterations']:g} iterations; "
+              f"{r['failures']} failures)")
+    if out.speedup_median is not None:
+        print(f"  reference / compiled (same run): median {out.speedup_median:.1f}x, p99 {out.speedup_p99:.1f}x; "
+              f"largest ball difference {out.max_position_difference_m:.1e} m")
+
+
+def _print_scaling(out) -> None:
+    from ballchain.experiments.engine_bench import scaling_markdown
+
+    print(f"statics solve against chain length, {out.field_mT:g} mT at {out.angle_deg:g} deg, median of "
+          f"{out.repeats} ({'CPU' if out.clock == 'cpu' else 'wall'} time):")
+    print(scaling_markdown(out), end="")
+    for path in out.files or ():
+        print(f"  wrote {path}")
+
+
+def _run_other(args: argparse.Namespace) -> int:
+    from ballchain.experiments import engine_bench
+
+    if args.target == "engine":
+        out = engine_bench.run(scenario=args.scenario, path_s=args.path_s, rate_hz=args.rate_hz, clock=args.clock,
+                               reference=not args.no_reference, progress=not args.no_progress, freeze_gc=True)
+    else:
+        out = engine_bench.run_scaling(sizes=args.sizes, field_mT=args.field_mT, angle_deg=args.angle_deg,
+                                       warm_offset_deg=args.warm_offset_deg, repeats=args.repeats, clock=args.clock,
+                                       reference=not args.no_reference, out=args.out,
+                                       progress=not args.no_progress)
+    if args.json:
+        print_json(out)
+    elif args.target == "engine":
+        _print_engine(out)
+    else:
+        _print_scaling(out)
+    return 0
+
+
 def main(args: argparse.Namespace) -> int:
+    _check_flags(args)
+    if args.target != "statics":
+        return _run_other(args)
     if args.target == "statics":
         out = run_statics(
             n_balls=args.balls,

@@ -5,7 +5,8 @@ Numba's on-disk cache (``cache=True``: ``__pycache__`` next to the source file, 
 ``NUMBA_CACHE_DIR``) keys a compiled kernel on its own file's content only, while a kernel
 carries the compiled code of the kernels it calls from other files. ``kernel`` therefore stamps
 every kernel's cache with the content of the whole package: editing any kernel file recompiles
-them all, and a stale callee is never loaded from disk.
+them all, and a stale callee is never loaded from disk. A kernel defined outside the package
+(the compiled Newton solver of ``optimization``) is stamped with its own file as well.
 """
 
 from __future__ import annotations
@@ -46,9 +47,12 @@ def check_status(status: int, what: str) -> None:
 _PACKAGE = Path(__file__).resolve().parent
 
 
-def _package_stamp() -> str:
-    """SHA-256 of every source file of this package (names and contents, in name order)."""
+def _package_stamp(own_file: str | None = None) -> str:
+    """SHA-256 of every source file of this package (names and contents, in name order), and of
+    ``own_file`` when it lies outside the package (a kernel of another package that calls these)."""
     files = sorted(_PACKAGE.glob("*.py"))
+    if own_file is not None and Path(own_file).resolve().parent != _PACKAGE:
+        files.append(Path(own_file))
     return _hash_files(tuple((str(f), f.stat().st_mtime_ns, f.stat().st_size) for f in files))
 
 
@@ -66,7 +70,7 @@ class _PackageStamp:
     """A cache locator whose freshness stamp is the package's, not the function's file's."""
 
     def get_source_stamp(self):
-        return _package_stamp()
+        return _package_stamp(getattr(self, "_py_file", None))
 
 
 class _UserProvidedLocator(_PackageStamp, UserProvidedCacheLocator):

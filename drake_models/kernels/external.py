@@ -64,6 +64,46 @@ def dipole_field_and_gradient(points, centres, moments, r2_min):
     return -1, B, G
 
 
+# The step of ``field_sources.field_gradient_derivative``'s central differences [m].
+GRADIENT_STEP = 1e-6
+
+
+@kernel
+def dipole_arrays(points, centres, moments, B0, r2_min, hessian):
+    """A uniform field B0 (3,) [T] plus point dipoles at points (n, 3): the arrays
+    ``external_arrays`` gives for such a source, all in one compiled call.
+
+    ``dG[k, a, b, c] = d2 B_a / dp_b dp_c`` (when ``hessian``, else zeros) is the central
+    difference of the gradient with the step and stencil of
+    ``field_sources.field_gradient_derivative``.
+
+    Returns:
+        ``(violation, B (n, 3), G (n, 3, 3), dG (n, 3, 3, 3))``: violation as
+        ``dipole_field_and_gradient``'s (-1: every point is clear of the dipoles).
+    """
+    n = points.shape[0]
+    violation, B, G = dipole_field_and_gradient(points, centres, moments, r2_min)
+    for i in range(n):
+        for a in range(3):
+            B[i, a] += B0[a]
+    dG = np.zeros((n, 3, 3, 3))
+    if violation >= 0 or not hessian:
+        return violation, B, G, dG
+    stencil = np.empty((6 * n, 3))
+    for i in range(n):
+        for s in range(6):
+            for c in range(3):
+                stencil[6 * i + s, c] = points[i, c]
+            stencil[6 * i + s, s % 3] += GRADIENT_STEP if s < 3 else -GRADIENT_STEP
+    violation, _, Gs = dipole_field_and_gradient(stencil, centres, moments, r2_min)
+    for i in range(n):
+        for c in range(3):
+            for a in range(3):
+                for b in range(3):
+                    dG[i, a, b, c] = (Gs[6 * i + c, a, b] - Gs[6 * i + 3 + c, a, b]) / (2 * GRADIENT_STEP)
+    return violation, B, G, dG
+
+
 @kernel
 def add_external(p, m_hat, M, B, G, dU_dp, dU_dm):
     """Add ``U_e = -M sum_k m_hat_k . B_k`` to the gradients; returns U_e [J]."""

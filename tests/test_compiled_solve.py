@@ -1,0 +1,178 @@
+"""The compiled Newton solve (``optimization.compiled_newton``, ``ChainStatics(compiled=True)``)
+against the Python solver it replaces (``compiled=False``, the reference): the same equilibria to
+1e-9 m, the same multipliers to 1e-6 relative, the same iterations and the same failures, in free
+space, with a tip target, a plane wall, in the heart and along a recorded teleoperation path."""
+
+import numpy as np
+import pytest
+
+from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.field_sources import FieldSources, MagnetSource, UniformField
+from ballchain.drake_models.params import BallChain, CylinderMagnet, Sleeve
+from ballchain.optimization.statics import ChainStatics, rotation_path
+from ballchain.optimization.wall_constraints import HeartConstraints, SheathGeometry, base_rotation, sheath_split
+
+B23 = 0.023
+
+
+def field(deg, magnitude=B23):
+    return UniformField.in_plane(magnitude, np.radians(deg))
+
+
+def assert_same(compiled, reference, positions_atol=1e-9, iterations=True):
+    """The compiled result is the reference's: converged or not for the same reason, the same
+    configuration (1e-9 m) and multipliers (1e-6 relative to the largest)."""
+    assert (compiled.converged, compiled.reason) == (reference.converged, reference.reason)
+    if iterations:
+        assert compiled.iterations == reference.iterations
+    np.testing.assert_allclose(compiled.positions, reference.positions, rtol=0, atol=positions_atol)
+    np.testing.assert_allclose(compiled.dipoles, reference.dipoles, rtol=0, atol=positions_atol / 3.175e-3)
+    np.testing.assert_allclose(compiled.energy, reference.energy, rtol=1e-9, atol=1e-15)
+    active = {k for k, v in reference.multipliers.items() if v > 1e-9}
+    assert active == {k for k, v in compiled.multipliers.items() if v > 1e-9}
+    scale = max([1e-12] + [abs(v) for v in reference.multipliers.values()])
+    for k in active:
+        assert abs(compiled.multipliers[k] - reference.multipliers[k]) <= 1e-6 * scale, k
+    for name in ("pair_forces", "wall_forces"):
+        a, b = getattr(compiled, name), getattr(reference, name)
+        assert set(a) == set(b), name
+        for k in b:
+            assert abs(a[k] - b[k]) <= 1e-6 * max(1e-12, max(abs(x) for x in b.values())), (name, k)
+    np.testing.assert_allclose(compiled.tip_reaction, reference.tip_reaction, rtol=1e-6,
+                               atol=1e-6 * max(1e-12, np.abs(reference.tip_reaction).max()))
+    for name in ("wall_forces_W", "sheath_forces_W"):
+        a, b = getattr(compiled, name), getattr(reference, name)
+        assert set(a) == set(b), name
+        for k in b:
+            np.testing.assert_allclose(a[k], b[k], rtol=0, atol=1e-6 * np.linalg.norm(b[k]))
+
+
+def both(chain, **kw):
+    return ChainStatics(chain, compiled=True, **kw), ChainStatics(chain, compiled=False, **kw)
+
+
+@pytest.mark.parametrize("sleeve,gravity", [(False, False), (True, True)])
+def test_free_space_continuation_matches_the_reference(sleeve, gravity):
+    """A 90-degree turn of a uniform field in 22.5-degree steps, each solve warm-started from
+    the last (cold for the first), with and without sleeve and gravity."""
+    chain = BallChain(n_balls=10, sleeve=Sleeve() if sleeve else None)
+    fast, slow = both(chain, gravity=gravity)
+    a = b = None
+    for angle in rotation_path(0.0, 90.0, 22.5):
+        a, b = fast.solve(field(angle), a), slow.solve(field(angle), b)
+        assert b.converged
+        assert_same(a, b)
+
+
+def test_magnets_and_their_sum_match_the_reference():
+    """Point-dipole magnets (the kernels evaluate their field and its derivative) and a sum
+    with a uniform field, from the straight chain."""
+    chain = BallChain(n_balls=12)
+    magnet = MagnetSource.pointing(CylinderMagnet(), [0.02, 0.08, 0.0], [0.0, -1.0, 0.0], "dipole")
+    fast, slow = both(chain)
+    for source in (magnet, FieldSources([magnet, field(45.0, 0.005)])):
+        a, b = fast.solve(source), slow.solve(source)
+        assert b.converged
+        assert_same(a, b)
+
+
+def test_tip_target_matches_the_reference():
+    """The tip held on a target off its free position: the null-space step, the QP with the
+    tip's equality rows and its second-order correction; the reaction is the same."""
+    chain = BallChain(n_balls=10)
+    fast, slow = both(chain)
+    free = slow.solve(field(90.0), slow.solve(field(45.0)))
+    for offset_mm in ((1.0, 0.0, 0.0), (-3.0, 2.0, 0.0), (0.0, -2.0, 1.5)):
+        target = free.tip_position + 1e-3 * np.array(offset_mm)
+        a, b = fast.solve(field(90.0), free, tip_target=target), slow.solve(field(90.0), free, tip_target=target)
+        assert b.converged and np.linalg.norm(b.tip_reaction) > 1e-3
+        assert_same(a, b)
+
+
+def test_plane_wall_matches_the_reference():
+    """The chain turned onto a plane wall: the wall rows' multipliers are the same pushes."""
+    chain = BallChain(n_balls=8)
+    wall = (np.array([0.0, 0.012, 0.0]), np.array([0.0, -1.0, 0.0]))
+    fast, slow = both(chain)
+    a = b = None
+    for angle in rotation_path(0.0, 90.0, 22.5):
+        a, b = fast.solve(field(angle), a, wall=wall), slow.solve(field(angle), b, wall=wall)
+        assert_same(a, b)
+    assert b.wall_forces and b.converged
+
+
+def test_failures_are_the_same_failures():
+    """The iteration limit, an unreachable tip target (the QP infeasible), a non-finite field
+    and a field the kernels do not evaluate (the Python solver takes it) are reported alike."""
+    chain = BallChain(n_balls=10)
+    fast, slow = both(chain, max_iterations=1)
+    a, b = fast.solve(field(90.0)), slow.solve(field(90.0))
+    assert not a.converged and "iteration limit (1)" in a.reason
+    assert_same(a, b)
+    fast, slow = both(chain)
+    far = np.array([0.1, 0.0, 0.0])  # three times the chain's length away
+    a, b = fast.solve(field(90.0), tip_target=far), slow.solve(field(90.0), tip_target=far)
+    assert not a.converged and a.reason == b.reason
+    np.testing.assert_allclose(a.positions, b.positions, atol=1e-9)
+
+    class NaNField:
+        def field_and_gradient(self, p):
+            return np.full((len(p), 3), np.nan), np.zeros((len(p), 3, 3))
+
+    a, b = fast.solve(NaNField()), slow.solve(NaNField())
+    assert not a.converged and a.reason == b.reason and "not finite" in a.reason
+
+    class Python:  # a field source the kernels cannot evaluate: the same answer, from Python
+        def field_and_gradient(self, p):
+            B, G = field(60.0).field_and_gradient(p)
+            return B, G
+
+    assert_same(fast.solve(Python()), slow.solve(Python()))
+
+
+def test_compiled_is_checked():
+    with pytest.raises(UserInputError, match="compiled"):
+        ChainStatics(BallChain(n_balls=4), compiled="yes")
+
+
+# --- in the heart ----------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def heart():
+    from ballchain.drake_models.heart import LeftAtrium
+
+    return LeftAtrium()
+
+
+@pytest.fixture(scope="module")
+def sdf(heart):
+    from ballchain.drake_models.atrium_sdf import atrium_sdf
+
+    return atrium_sdf(heart)
+
+
+def _constraints(heart, sdf, s, n=16, d=3.175e-3):
+    k, a = sheath_split(n, s, d)
+    sheath = SheathGeometry(heart.p_HE, heart.sheath_axis_H, 1.8e-3, 0.3e-3)
+    return k, HeartConstraints(heart.p_HE + a * heart.sheath_axis_H, base_rotation(heart.sheath_axis_H), sdf,
+                               sheath, n_behind=k, gravity=True)
+
+
+def test_heart_insertion_matches_the_reference(heart, sdf):
+    """The chain pushed into the atrium against its wall by a magnet, insertion by insertion,
+    warm-started with the last solution's multipliers (as the engine does): the same
+    equilibria, wall and sheath pushes."""
+    chain = BallChain(n_balls=16)
+    u = np.array([1.0, 0.0, 0.0])
+    magnet = MagnetSource.pointing(CylinderMagnet(), heart.p_HP + 0.1651 * u, [0.0, -1.0, 0.0], "dipole")
+    a = b = None
+    touched = False
+    for s in (0.021, 0.024, 0.027):
+        k, c = _constraints(heart, sdf, s)
+        fast, slow = both(chain.with_balls(16 - k), gravity=True)
+        warm = None if b is None or len(b.positions) != 16 - k else b
+        a, b = fast.solve(magnet, warm, constraints=c), slow.solve(magnet, warm, constraints=c)
+        assert b.converged
+        assert_same(a, b)
+        np.testing.assert_allclose(a.positions_W, b.positions_W, atol=1e-9)
+        touched |= bool(b.wall_forces_W)
+    assert touched, "the chain should touch the wall"
