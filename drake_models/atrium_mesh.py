@@ -775,9 +775,11 @@ class UserAtrium:
         keep = np.ones(len(F), bool)
         centroids = V[F].mean(axis=1)
         for j in range(k):
-            others = shells != j
-            tree = SurfaceTree.build(V, F[shells == j])
-            keep[others] &= tree.winding_numbers(centroids[others]) <= 0.5
+            mine = F[shells == j]
+            lo, hi = V[mine].reshape(-1, 3).min(axis=0), V[mine].reshape(-1, 3).max(axis=0)
+            near = np.flatnonzero((shells != j) & np.all((centroids >= lo) & (centroids <= hi), axis=1))
+            if len(near):
+                keep[near] &= SurfaceTree.build(V, mine).winding_numbers(centroids[near]) <= 0.5
         return F[keep]
 
     def _require_one_chamber(self, shells: np.ndarray) -> None:
