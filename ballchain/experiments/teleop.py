@@ -164,6 +164,14 @@ def check_inputs(task: str | None, mapping: str, targets: int | None, n_balls: i
         raise UserInputError(f"time_limit must be in (0, 3600] s of simulated time, got {time_limit}")
 
 
+def _label(task: str | None, anatomy) -> str:
+    """What the progress bar calls the run: the task, or the anatomy file's name (and its task)."""
+    if anatomy is None:
+        return str(task)
+    name = anatomy.path.stem
+    return name if task is None else f"{name} {task}"
+
+
 def scenario_for(mapping: str, n_balls: int | None = None, overrides: str | None = None, anatomy=None):
     """The paper's teleoperation station with the stick and the feeder left to an operator; on
     a loaded ``anatomy`` (``drake_models.anatomy.Anatomy``) its unit stands at the file's first magnet.
@@ -290,7 +298,7 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     # The run ends when the operator has touched or given up every target.
     run = run_station(cd, duration=limit, monitor=chain_monitor,
                       stop=lambda context: op.is_done(op.GetMyContextFromRoot(context)),
-                      progress=f"teleop {task}/{mapping}" if progress else None, progress_step=0.1,
+                      progress=f"teleop {_label(task, anatomy)}/{mapping}" if progress else None, progress_step=0.1,
                       html=html, meshcat=meshcat)
     op_context = op.GetMyContextFromRoot(run.context)
     failure, wall, cpu, sim_time = run.failure, run.wall_time, run.cpu_time, run.sim_time
