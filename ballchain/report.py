@@ -249,7 +249,10 @@ def to_markdown(title: str, sections: list[Section], out_dir: Path) -> str:
 _STYLE = ("<style>body{font-family:sans-serif;max-width:60em;margin:2em auto;line-height:1.4}"
           "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:.2em .5em;"
           "text-align:right}th{background:#eee}img{max-width:100%}figcaption,caption{color:#555}"
-          "table.summary td{text-align:left}td.agrees{background:#e3f4e1}td.disagrees{background:#fbe3e0}"
+          ".text,table.summary td,table.summary th{text-align:left}"
+          "table.summary td:nth-child(3),table.summary td:nth-child(4),"
+          "table.summary td:nth-child(5){white-space:nowrap}"
+          "td.agrees{background:#e3f4e1}td.disagrees{background:#fbe3e0}"
           "code{background:#f3f3f3;padding:0 .2em}</style>")
 
 
@@ -279,9 +282,13 @@ def _block_html(block, out_dir: Path | None) -> str:
         return f"<p>{_inline(block, out_dir, False)}</p>"
     if isinstance(block, Table):
         parts = ["<table>"] + ([f"<caption>{esc(block.caption)}</caption>"] if block.caption else [])
-        parts.append("<tr>" + "".join(f"<th>{esc(h)}</th>" for h in block.header) + "</tr>")
-        parts += ["<tr>" + "".join(f"<td>{_inline(c, out_dir, False)}</td>" for c in row) + "</tr>"
-                  for row in _formatted_rows(block)]
+        numbers = [any(_is_number(r[i]) for r in block.rows if i < len(r)) for i in range(len(block.header))]
+        parts.append("<tr>" + "".join(f"<th>{esc(h)}</th>" if numbers[i] else f"<th class='text'>{esc(h)}</th>"
+                                      for i, h in enumerate(block.header)) + "</tr>")
+        for values, row in zip(block.rows, _formatted_rows(block)):  # numbers to the right, text to the left
+            parts.append("<tr>" + "".join(f"<td>{_inline(c, out_dir, False)}</td>" if _is_number(v) or v in (None, "-")
+                                          else f"<td class='text'>{_inline(c, out_dir, False)}</td>"
+                                          for v, c in zip(values, row)) + "</tr>")
         return "\n".join(parts + ["</table>"])
     if not block.path.exists():  # say so instead of failing the whole report
         return f"<p><em>figure missing: {esc(str(block.path))}</em></p>"

@@ -69,7 +69,8 @@ def alignment_section(out: Path, quick: bool) -> tuple[Section, dict]:
     beyond = s.max_tip_angle_deg_beyond_10_balls
     section.headline("tip-to-field angle beyond 10 balls, max [deg]", f"< {paper.ALIGNMENT_MAX_DEG:g}", beyond,
                      None if beyond is None else beyond < paper.ALIGNMENT_MAX_DEG,
-                     "the chain follows the field; only chains of 2 balls or fewer stay straight in an antiparallel one")
+                     "the chain follows the field; only chains of 2 balls or fewer stay straight in an "
+                     "antiparallel one")
     section.figure(out / "alignment" / "alignment.png", "tip angle against chain length")
     section.figure(out / "alignment" / "alignment_shapes.png", "10-ball chain shapes")
     return section, data
