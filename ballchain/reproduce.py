@@ -3,9 +3,12 @@
 The command ``ballchain reproduce`` (``commands/reproduce.py``) is a thin adapter of ``run``; each
 section calls its experiments (``ballchain/experiments/``) and lays out their results.
 
-Runs every experiment available in this version, with progress bars, and writes
-``OUT/report.md``, ``OUT/report.html`` (self-contained), the figures and the CSV/JSON data.
-``--quick`` shortens every experiment (for tests and smoke runs).
+Runs every experiment available in this version, with progress bars (the overall one weighted by
+the sections' measured costs, ``SECTION_COST_S``), and writes ``OUT/report.md``,
+``OUT/report.html`` (self-contained), the figures and the CSV/JSON data. Each section names its
+headlines: rows of its own paper-vs-model tables with a verdict (``AGREES_WITHIN``) and why; the
+report opens with them as a summary table, and ``run`` returns them as one line each for the
+console. ``--quick`` shortens every experiment (for tests and smoke runs).
 
 Nothing is lost on an interruption: every file is written atomically; as each section finishes
 its data go to ``OUT/sections/<name>.json``, its report part and the hashes of the files it
@@ -198,7 +201,8 @@ def validation_section(out: Path, quick: bool) -> tuple[Section, dict]:
         ["tip position, median [mm]: uniform vs exact cylinder", "-", s.uniform_vs_exact_tip_median_mm_6plus],
     ]
     section.table(["quantity (6 to 10 balls)", "paper (measured vs model)", "model vs model"], rows)
-    section.headline(*rows[0], None, "not the same comparison: the point dipole alone explains about half of the "
+    share = f"{100 * rows[0][2] / rows[0][1]:.0f} %" if rows[0][2] is not None and rows[0][1] else "part"
+    section.headline(*rows[0], None, f"not the same comparison: the point dipole alone accounts for {share} of the "
                      "paper's measured error; the magnet's placement is not reported")
     section.text(
         "The point-dipole approximation alone moves the tip by about half the paper's median "
@@ -239,8 +243,8 @@ def forces_section(out: Path, quick: bool) -> tuple[Section, dict]:
     ratios = [r[4] / r[3] for r in rows if r[3]]
     section.headline(f"tip force, {row[0]}, configuration {row[1]}, sleeve {row[2]} [gf]", row[3], row[4],
                      _agrees(row[3], row[4]),
-                     f"every row {min(ratios):.2f} to {max(ratios):.2f} of the paper's; no constant tuned, "
-                     "and only steel near the pin would read tens of grams (next section)")
+                     f"every row {min(ratios):.2f} to {max(ratios):.2f} of the paper's, no constant tuned; only a "
+                     "steel part at the pin reaches the measured size (next section)")
     diffs = [abs(r["statics_dynamics_diff_pct"]) for r in data.rows if r.get("statics_dynamics_diff_pct") is not None]
     if diffs:
         section.text(f"Statics and simulation agree within {max(diffs):.2f} % on every row "
@@ -492,8 +496,8 @@ def _teleop_headlines(section: Section, rows: list[list], data: dict) -> None:
         asked = data[f"{row[0]}_world"].summary.targets
         section.headline(f"{row[0]} ring, world mapping: targets touched", f"{asked}/{asked}", row[2],
                          row[2] == f"{asked}/{asked}",
-                         f"the simulated operator took {row[3]:.1f} s for these targets, the paper's {row[6]:g} s "
-                         f"for all {paper.TELEOP_TASKS[row[0]]['targets']} (it has no perception delay or hesitation)")
+                         f"the simulated operator took {row[3]:.1f} s for these targets, the paper's operator "
+                         f"{row[6]:g} s for all {paper.TELEOP_TASKS[row[0]]['targets']}")
 
 
 def ablation_section(out: Path, quick: bool) -> tuple[Section, dict]:
@@ -905,7 +909,7 @@ def run(*, out: Path, quick: bool = False, resume: bool = False, sections=None, 
         if unknown:
             raise UserInputError(f"--sections: unknown section(s) {unknown}; the sections are {', '.join(names)}")
     chosen = [(n, f) for n, f in EXPERIMENTS if sections is None or n in sections]
-    replaced = _prepare_out(out, chosen, resume)
+    replaced = _prepare_out(out, resume)
     # Read before a fresh run forgets the previous records: the progress bar's weights.
     weights = section_weights([n for n, _ in chosen], quick, _previous_seconds(out, [n for n, _ in chosen], quick))
     if not resume:  # a fresh run: only its own sections may be resumed later
@@ -942,7 +946,7 @@ def run(*, out: Path, quick: bool = False, resume: bool = False, sections=None, 
             "headlines": summary_lines(list(zip(summary, done)))}
 
 
-def _prepare_out(out: Path, chosen, resume: bool) -> list[str]:
+def _prepare_out(out: Path, resume: bool) -> list[str]:
     """Create ``out``, remove a killed run's temporary files, say what a fresh run replaces; returns
     the names of the files and folders already there."""
     replaced = sorted(p.name + ("/" if p.is_dir() else "") for p in out.iterdir()
