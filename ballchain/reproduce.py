@@ -241,7 +241,8 @@ def forces_section(out: Path, quick: bool) -> tuple[Section, dict]:
     # The row the next section takes apart (the largest single-magnet force in Table I), else the first.
     row = next((r for r in rows if r[:3] == ["LSPV", "2", "no"]), rows[0])
     ratios = [r[4] / r[3] for r in rows if r[3]]
-    section.headline(f"tip force, {row[0]}, configuration {row[1]}, sleeve {row[2]} [gf]", row[3], row[4],
+    chain = "in the sleeve" if row[2] == "yes" else "bare chain"
+    section.headline(f"tip force, {row[0]}, configuration {row[1]}, {chain} [gf]", row[3], row[4],
                      _agrees(row[3], row[4]),
                      f"every row {min(ratios):.2f} to {max(ratios):.2f} of the paper's, no constant tuned; only a "
                      "steel part at the pin reaches the measured size (next section)")
