@@ -743,6 +743,7 @@ def run_section(out: Path, name: str, experiment, quick: bool, key: str, resume:
     section, data = experiment(out, quick)
     seconds = time.perf_counter() - t0
     write_json(out / SECTION_DATA / f"{_slug(name)}.json", data)
+    section.text(f"All of this section's data: `{SECTION_DATA}/{_slug(name)}.json`.")  # a link in the report
     after = _snapshot(out)
     changed = sorted(rel for rel, stamp in after.items() if before.get(rel) != stamp)
     record = {"key": key, "name": name, "seconds": seconds, "quick": quick,

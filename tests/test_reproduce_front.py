@@ -169,3 +169,31 @@ def test_a_quick_batch_run_prints_no_meshcat_line_says_where_replays_go_and_ends
     # The replays are linked; the force-per-target figure is left out with one target per chain.
     assert "[replays/teleop_left_world.html](replays/teleop_left_world.html)" in md
     assert "clinical_forces.png" not in md and (out / "clinical" / "clinical_forces.png").exists()
+
+
+def _fake_experiments():
+    def sizing(out: Path, quick: bool):
+        section = (Section("Clinical magnet sizing").table(["quantity", "paper", "model"], [["diameter [mm]", 119, 150.0]])
+                   .headline("diameter [mm]", 119, 150.0, False, "a fake section"))
+        return section, {"diameter_mm": 150.0}
+
+    def notes(out: Path, quick: bool):
+        return Section("Notes").text("nothing to compare"), {"n": 1}
+
+    return [("sizing", sizing), ("notes", notes)]
+
+
+def test_the_command_ends_with_the_findings_and_the_reports_path(tmp_path, monkeypatch, capsys):
+    from ballchain import reproduce
+    from ballchain.cli import main
+
+    monkeypatch.setattr(reproduce, "EXPERIMENTS", _fake_experiments())
+    assert main(["reproduce", "--out", str(tmp_path)]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[-1] == f"open {tmp_path / 'report.html'}"
+    assert lines[-2] == ("  disagrees  sizing: diameter [mm]: paper 119, model 150 (+26 %); a fake section")
+    md = (tmp_path / "report.md").read_text()
+    # Each section links its data; the summary has the one headline, the contents every section.
+    assert "[`sections/sizing.json`](sections/sizing.json)" in md and "(sections/notes.json)" in md
+    assert md.index("## Summary") < md.index("## Contents") < md.index("## Clinical magnet sizing")
+    assert "- [Notes](#notes)" in md and "- [Run time](#run-time)" in md
