@@ -798,16 +798,17 @@ def _say(message: str) -> None:
 
 
 SECTION_COST_S = {  # name: (wall seconds of a full run, of a --quick run)
-    "alignment": (80.0, 0.6), "sizing": (1.2, 0.01), "field models": (3.8, 0.01), "workspace": (7.0, 0.84),
-    "model validation": (17.3, 2.0), "tip forces": (219.0, 3.9), "Table I effects and clinical design": (64.3, 8.4),
-    "model-based steering": (171.0, 7.0), "teleoperation": (655.0, 29.7), "ablation": (76.6, 10.2),
+    "alignment": (80.0, 15.5), "sizing": (1.2, 2.8), "field models": (3.8, 0.3), "workspace": (7.0, 6.7),
+    "model validation": (17.3, 14.2), "tip forces": (219.0, 41.8), "Table I effects and clinical design": (64.3, 57.9),
+    "model-based steering": (171.0, 59.0), "teleoperation": (655.0, 148.1), "ablation": (76.6, 56.5),
 }
-"""Each section's cost, measured once: the wall time of a full and of a --quick run on a 2-core
-machine under load (the full run took 21.6 min). Only the ratios matter: they weight the overall
-progress bar, so that its estimate of the time left counts a teleoperation section as about ten
-alignment sections rather than one. The times of the previous run into the same folder, when its
-records say them, replace these (scaled to this machine); a section missing from both weighs the
-median."""
+"""Each section's cost, measured once: the wall time of a full run (21.6 min) and of a --quick run
+(6.7 min), each ``ballchain reproduce`` in a new process (the first section pays for the imports
+and the compiled kernels) on a 2-core machine under load. Only the ratios matter: they weight the
+overall progress bar, so that its estimate of the time left counts a teleoperation section as
+about eight alignment sections rather than one. The times of the previous run into the same
+folder, when its records say them, replace these (scaled to this machine); a section missing
+from both weighs the median."""
 
 
 def _previous_seconds(out: Path, names: list[str], quick: bool) -> dict[str, float]:
