@@ -22,6 +22,7 @@ from __future__ import annotations
 import base64
 import html
 import math
+import numbers
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -101,7 +102,7 @@ class Section:
 
 
 def _is_number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
 
 
 def column_scales(rows: list[list]) -> list[float]:
@@ -282,13 +283,15 @@ def _block_html(block, out_dir: Path | None) -> str:
         return f"<p>{_inline(block, out_dir, False)}</p>"
     if isinstance(block, Table):
         parts = ["<table>"] + ([f"<caption>{esc(block.caption)}</caption>"] if block.caption else [])
-        numbers = [any(_is_number(r[i]) for r in block.rows if i < len(r)) for i in range(len(block.header))]
-        parts.append("<tr>" + "".join(f"<th>{esc(h)}</th>" if numbers[i] else f"<th class='text'>{esc(h)}</th>"
+        numeric = [any(_is_number(r[i]) for r in block.rows if i < len(r)) for i in range(len(block.header))]
+        parts.append("<tr>" + "".join(f"<th>{esc(h)}</th>" if numeric[i] else f"<th class='text'>{esc(h)}</th>"
                                       for i, h in enumerate(block.header)) + "</tr>")
         for values, row in zip(block.rows, _formatted_rows(block)):  # numbers to the right, text to the left
-            parts.append("<tr>" + "".join(f"<td>{_inline(c, out_dir, False)}</td>" if _is_number(v) or v in (None, "-")
+            right = [_is_number(v) or (v in (None, "-") and i < len(numeric) and numeric[i])  # "-": as its column
+                     for i, v in enumerate(values)]
+            parts.append("<tr>" + "".join(f"<td>{_inline(c, out_dir, False)}</td>" if r
                                           else f"<td class='text'>{_inline(c, out_dir, False)}</td>"
-                                          for v, c in zip(values, row)) + "</tr>")
+                                          for r, c in zip(right, row)) + "</tr>")
         return "\n".join(parts + ["</table>"])
     if not block.path.exists():  # say so instead of failing the whole report
         return f"<p><em>figure missing: {esc(str(block.path))}</em></p>"
