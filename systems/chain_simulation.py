@@ -364,6 +364,23 @@ def replay_bytes(scenario: ChainScenario, duration: float) -> float:
     return REPLAY_BASE_BYTES + frames * bodies * REPLAY_BYTES_PER_BODY_FRAME
 
 
+def replay_meshcat():
+    """A Meshcat on localhost to record a replay file with (``html=``), without drake's "Meshcat
+    listening for connections" line: in a batch run nobody is meant to connect, the file is the
+    replay. Drake's logger is raised to WARNING while the server starts, then put back."""
+    import logging
+
+    from pydrake.geometry import Meshcat, MeshcatParams
+
+    drake_logger = logging.getLogger("drake")
+    level = drake_logger.level
+    drake_logger.setLevel(max(logging.WARNING, drake_logger.getEffectiveLevel()))
+    try:
+        return Meshcat(MeshcatParams(host="localhost"))
+    finally:
+        drake_logger.setLevel(level)
+
+
 def _export_recording(cd: Station, meshcat, html: Path) -> None:
     cd.visualizer.StopRecording()
     cd.visualizer.PublishRecording()
@@ -624,9 +641,7 @@ def run_simulation(*, scenario: ChainScenario, duration: float | None = None, ht
     if html is not None:
         check_output_file(html, "html", expected_bytes=replay_bytes(scenario, duration))
     if html is not None and meshcat is None:
-        from pydrake.geometry import Meshcat, MeshcatParams
-
-        meshcat = Meshcat(MeshcatParams(host="localhost"))
+        meshcat = replay_meshcat()
     cd = MakeStation(scenario, meshcat=meshcat, heart=heart)
     run = run_station(cd, duration=duration, progress="simulate" if progress else None, html=html, meshcat=meshcat)
     monitor, root, error = run.monitor, run.context, run.failure

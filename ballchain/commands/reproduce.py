@@ -7,7 +7,7 @@ import argparse
 from pathlib import Path
 
 from ballchain.commands._common import add_json_flag, positive_int, print_json
-from ballchain.reproduce import run
+from ballchain.reproduce import AGREES_WITHIN, run
 from ballchain.sweep import MAX_WORKERS_PER_CORE
 
 
@@ -34,4 +34,9 @@ def main(args: argparse.Namespace) -> int:
     else:
         reused = f" (reused {len(data['reused'])} finished sections)" if data["reused"] else ""
         print(f"wrote {data['report_md']} and {data['report_html']} in {data['total_seconds']:.1f} s{reused}")
+        if data["headlines"]:
+            print(f"what it found, paper vs model (agrees: within {100 * AGREES_WITHIN:g} %; the report's summary "
+                  "says more):")
+            print("\n".join(f"  {line}" for line in data["headlines"]))
+        print(f"open {data['report_html']}")
     return 0

@@ -282,14 +282,12 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     limit = time_limit if time_limit is not None else n_targets * params.timeout + params.start_time + 5.0
     meshcat = None
     if html is not None:
-        from pydrake.geometry import Meshcat, MeshcatParams
-
         from ballchain.drake_models.safe_files import check_output_file
-        from ballchain.systems.chain_simulation import replay_bytes
+        from ballchain.systems.chain_simulation import replay_bytes, replay_meshcat
 
         check_output_file(html, "--html", expected_bytes=replay_bytes(scenario, limit))  # room for the replay
 
-        meshcat = Meshcat(MeshcatParams(host="localhost"))
+        meshcat = replay_meshcat()
     built = time.perf_counter()
     cd = MakeStation(scenario, meshcat=meshcat, heart=heart, add_systems=add_operator)
     op = handles["operator"]
