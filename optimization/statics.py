@@ -427,7 +427,7 @@ class ChainStatics:
         model.external = external
         _set_tip_target_and_wall(model, tip_target, wall)
         lam0 = getattr(warm_start, "multipliers", None) if constraints is not None else None
-        if self.compiled and self.method == "newton" and self.qp == "dense":
+        if self.compiled and self.method == "newton" and self.qp == "dense" and model.backend == "kernel":
             answer = compiled_newton.run(self, model, external, p0, m0, lam0, constraints)
             if answer is not None:  # else a field or wall the kernels do not evaluate: Python's
                 converged, reason, iterations, lam_near, lam_tip, p, m_hat, t, gaps, v = answer
