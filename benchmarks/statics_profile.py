@@ -152,11 +152,12 @@ def _compiled_pieces(solver, external, warm, solves: int, now) -> dict:
     checks, the field check, the model's arrays, the result), and single calls of the physics
     kernel (``reduced_energy``, order 2 and 0) at the warm start for scale. Medians per solve."""
     from ballchain.drake_models import kernels as ck
+    from ballchain.optimization import compiled_model as cm
     from ballchain.optimization import compiled_newton as cn
 
     result = solver.solve(external, warm)
     model = solver._model
-    arrays = cn.model_tuple(solver, model, external, None)
+    arrays = cm.model_tuple(solver, model, external, None)
     p0, m0 = np.ascontiguousarray(warm.positions), np.ascontiguousarray(warm.dipoles)
     rows, weights = np.zeros(0, np.int64), np.zeros(0)
     chart = ck.chart_frames(ck.configuration_vectors(p0, m0))
@@ -177,7 +178,7 @@ def _compiled_pieces(solver, external, warm, solves: int, now) -> dict:
     kernel = median_ms(lambda: cn.solve(p0, m0, arrays, rows, weights))
     pieces = {
         "compiled call (Newton loop, evaluations, QP, line search)": kernel,
-        "model arrays (model_tuple)": median_ms(lambda: cn.model_tuple(solver, model, external, None)),
+        "model arrays (model_tuple)": median_ms(lambda: cm.model_tuple(solver, model, external, None)),
         "one energy/gradient/Hessian evaluation (reduced_energy, order 2), for scale": median_ms(
             lambda: ck.reduced_energy(V, p, m_hat, B, G, dG, model._params, True, 2)),
         "one energy evaluation (reduced_energy, order 0), for scale": median_ms(
