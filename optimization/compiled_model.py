@@ -9,11 +9,19 @@ from __future__ import annotations
 
 import numpy as np
 
+from ballchain.drake_models.atrium_sdf import AtriumSDF
+from ballchain.drake_models.field_sources import FieldSources, MagnetSource, UniformField
+from ballchain.drake_models.kernels import check_status
+from ballchain.drake_models.params import GRAVITY
+from ballchain.optimization.wall_constraints import RHO_SMOOTHING, PointDipoles
 from ballchain.optimization.compiled_newton import (R_FIELD, R_LIMIT, R_LINALG, R_LINE, R_MINIMUM, R_MINIMUM_LINE,
                                                     R_QP, R_SADDLE, R_ENERGY, S_HEART_WEIGHT, solve)
 
 _EMPTY3 = np.zeros((0, 3))
 _NO_GRID = np.zeros((0, 0, 0))
+# Constant inputs of the kernels (which only read them): no model arrays built for what is absent.
+_ZERO3, _ZERO6, _EYE3, _NO_FRAME, _NO_SHEATH = np.zeros(3), np.zeros(6), np.eye(3), np.zeros(7), np.zeros(5)
+_NO_ROWS, _NO_WEIGHTS = np.zeros(0, np.int64), np.zeros(0)
 
 
 def field_arrays(source):
@@ -23,9 +31,6 @@ def field_arrays(source):
 
     A magnet's r2_min is its bounding sphere's: a ball inside it stops the compiled solve and
     the Python solver, which refuses a ball inside the magnet itself, decides."""
-    from ballchain.drake_models.field_sources import FieldSources, MagnetSource, UniformField
-    from ballchain.optimization.wall_constraints import PointDipoles
-
     if isinstance(source, UniformField):
         return _EMPTY3, _EMPTY3, np.asarray(source.B_W, float).reshape(3), np.zeros(0)
     if isinstance(source, PointDipoles):
@@ -55,19 +60,15 @@ def model_tuple(statics, model, external, constraints):
         field, has_external = field_arrays(external), 1
         if field is None:
             return None
-    tip = np.zeros(3) if model.tip_target is None else np.asarray(model.tip_target, float)
-    wall = np.zeros(6) if model.wall is None else np.concatenate(model.wall).astype(float)
+    tip = _ZERO3 if model.tip_target is None else np.asarray(model.tip_target, float)
+    wall = _ZERO6 if model.wall is None else np.concatenate(model.wall).astype(float)
     settings = np.array([statics.tolerance, statics.feasibility_tolerance, statics.contact_margin,
                          statics.max_step, 0.0, 0.5 * model.d])
-    p_WB, R_WB, grid, frame, sheath = np.zeros(3), np.eye(3), _NO_GRID, np.zeros(7), np.zeros(5)
+    p_WB, R_WB, grid, frame, sheath = _ZERO3, _EYE3, _NO_GRID, _NO_FRAME, _NO_SHEATH
     if constraints is not None:
-        from ballchain.optimization.wall_constraints import RHO_SMOOTHING
-
         p_WB = np.ascontiguousarray(constraints.p_WB, float)
         R_WB = np.ascontiguousarray(constraints.R_WB, float)
         if constraints.gravity:
-            from ballchain.drake_models.params import GRAVITY
-
             settings[S_HEART_WEIGHT] = model.chain.ball_mass * GRAVITY
         if constraints.sdf is not None:
             grid, frame = _sdf_arrays(constraints.sdf)
@@ -95,8 +96,6 @@ def _sdf_arrays(sdf):
 
 def compilable_constraints(constraints) -> bool:
     """Whether the kernels evaluate this HeartConstraints' wall (an AtriumSDF grid, or none)."""
-    from ballchain.drake_models.atrium_sdf import AtriumSDF
-
     return constraints is None or constraints.sdf is None or isinstance(constraints.sdf, AtriumSDF)
 
 
@@ -116,15 +115,13 @@ def run(statics, model, external, p0, m0, lam0, constraints):
     Python solver must take it (a field or wall the kernels do not evaluate, a ball inside a
     magnet's bounding sphere). Raises ValueError, as the Python model, on two coincident balls
     or a folded sleeve."""
-    from ballchain.drake_models.kernels import check_status
-
     if not compilable_constraints(constraints):
         return None
     tup = model_tuple(statics, model, external, constraints)
     if tup is None:
         return None
-    rows0 = np.fromiter(lam0.keys(), np.int64, len(lam0)) if lam0 else np.zeros(0, np.int64)
-    weights0 = np.fromiter(lam0.values(), float, len(lam0)) if lam0 else np.zeros(0)
+    rows0 = np.fromiter(lam0.keys(), np.int64, len(lam0)) if lam0 else _NO_ROWS
+    weights0 = np.fromiter(lam0.values(), float, len(lam0)) if lam0 else _NO_WEIGHTS
     reason, status, iterations, rows, lam, lam_tip, p, m_hat, terms, gaps, v = solve(
         np.ascontiguousarray(p0, float), np.ascontiguousarray(m0, float), tup, rows0, weights0)
     if reason == R_FIELD:

@@ -197,16 +197,17 @@ def infeasibility(ev, pinned):
 
 @kernel
 def positive_definite(H):
-    """``(ok, Hm, Lc)``: H itself when it is positive definite, else H with its eigenvalues
-    replaced by max(|lambda|, 1e-10 max|lambda|); Lc its Cholesky factor (ok False: none)."""
+    """``(ok, Hm, Lc, definite)``: H itself when it is positive definite (``definite``), else H
+    with its eigenvalues replaced by max(|lambda|, 1e-10 max|lambda|); Lc its Cholesky factor
+    (ok False: none)."""
     ok, Lc = cholesky(H)
     if ok:
-        return True, H, Lc
+        return True, H, Lc, True
     w, Vec = np.linalg.eigh(H)
     delta = 1e-10 * max(1.0, np.abs(w).max())
     Hm = (Vec * np.maximum(np.abs(w), delta)) @ Vec.T
     ok, Lc = cholesky(Hm)
-    return ok, Hm, Lc
+    return ok, Hm, Lc, False
 
 
 @kernel
@@ -227,8 +228,9 @@ def newton_step(ev, H, near, pinned, lam_tip, model):
     """The Newton step at ev for the Lagrangian's Hessian H (``ChainStatics._newton_step``).
 
     Returns:
-        ``(ok, dq, Hm, lam, lam_tip)``; ok False when the step's QP is infeasible; raises
-        (a LinAlgError) when a system is singular.
+        ``(ok, dq, Hm, lam, lam_tip, definite)``; ok False when the step's QP is infeasible;
+        definite when H itself is positive definite; raises (a LinAlgError) when a system is
+        singular.
     """
     g = ev[4]
     if pinned and near.size == 0:
@@ -236,18 +238,18 @@ def newton_step(ev, H, near, pinned, lam_tip, model):
         J = tip_jacobian(ev[7])
         Z = null_space(J)
         dq_n = -(np.linalg.pinv(J) @ ev[6])
-        ok, Hz, Lz = positive_definite(Z.T @ H @ Z)
+        ok, Hz, Lz, _ = positive_definite(Z.T @ H @ Z)
         if not ok:
             raise np.linalg.LinAlgError("Matrix is not positive definite.")
         dq = dq_n - Z @ cho_solve(Lz, Z.T @ (g + H @ dq_n))
         Hm = Z @ Hz @ Z.T
         lam_tip = np.linalg.lstsq(np.ascontiguousarray(J.T), g + H @ dq)[0]
-        return True, dq, Hm, np.zeros(0), lam_tip
-    ok, Hm, Lc = positive_definite(H)
+        return True, dq, Hm, np.zeros(0), lam_tip, False
+    ok, Hm, Lc, definite = positive_definite(H)
     if not ok:
         raise np.linalg.LinAlgError("Matrix is not positive definite.")
     if near.size == 0:
-        return True, -cho_solve(Lc, g), Hm, np.zeros(0), lam_tip
+        return True, -cho_solve(Lc, g), Hm, np.zeros(0), lam_tip, definite
     n_in = near.size
     J = jacobian_rows(near, ev, model)
     gaps = ev[3]
@@ -259,9 +261,9 @@ def newton_step(ev, H, near, pinned, lam_tip, model):
         c = gaps[near]
     ok, dq, y = dense_qp(Lc, g, N, c, n_in, 200)
     if not ok:
-        return False, dq, Hm, y, lam_tip
+        return False, dq, Hm, y, lam_tip, definite
     lam_tip = y[n_in:].copy() if pinned else np.zeros(3)
-    return True, dq, Hm, y[:n_in].copy(), lam_tip
+    return True, dq, Hm, y[:n_in].copy(), lam_tip, definite
 
 
 @kernel
@@ -389,7 +391,7 @@ def newton(chart, model, rows0, weights0):
         g = ev[4]
         near = np.flatnonzero(ev[3] < margin)
         H = lagrangian_hessian(ev, rows, lam_rows, pinned, lam_tip, model)
-        ok, dq, Hm, lam, lam_tip = newton_step(ev, H, near, pinned, lam_tip, model)
+        ok, dq, Hm, lam, lam_tip, definite = newton_step(ev, H, near, pinned, lam_tip, model)
         if not ok:
             return R_QP, OK, iteration, q, np.zeros(0, np.int64), np.zeros(0), lam_tip
         rows, lam_rows = near, lam
@@ -403,7 +405,10 @@ def newton(chart, model, rows0, weights0):
         decrease = -(g @ dq) - 0.5 * (dq @ (Hm @ dq))
         first_order = worst < tol or (abs(decrease) < 1e-14 * max(1.0, abs(ev[1])) and worst < 1e-6)
         if first_order and violation < feas:
-            saddle, step = escape_direction(q, ev, H, near, lam, pinned, chart, model)
+            # H positive definite with no active row: H + 1e-7 I is too (the saddle test's answer).
+            saddle, step = False, dq
+            if not (definite and not pinned and not np.any(lam > 1e-9)):
+                saddle, step = escape_direction(q, ev, H, near, lam, pinned, chart, model)
             if not saddle:
                 return R_MINIMUM, OK, iteration, q, rows, lam_rows, lam_tip
             if escapes >= 10:

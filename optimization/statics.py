@@ -463,11 +463,14 @@ class ChainStatics:
         """The StaticsResult of an answer's configuration (p, m_hat), energy terms and rows' values
         (``Evaluation.gaps``); ``rows_at`` the heart rows' gradients v (2L, 3) or the chart
         coordinates to find them at (with ``constraints``)."""
-        P = model.n_pairs
-        gaps = np.sqrt(np.maximum(row_gaps[:P] + 1.0, 0.0)) * model.d - model.d  # [m]
-        gaps = np.concatenate([gaps, row_gaps[P:] * model.d])  # wall rows: n . (p - p0) - d/2
-        max_violation = float(max(0.0, -gaps.min())) if len(gaps) else 0.0
-        if not np.all(np.isfinite(p)) or not np.all(np.isfinite(m_hat)):
+        P, d = model.n_pairs, model.d
+        # The smallest gap [m]: rigidity rows |p_j - p_i| - d (monotone in c_ij: its smallest),
+        # then wall rows n . (p - p0) - d/2.
+        smallest = [float(np.sqrt(max(row_gaps[:P].min() + 1.0, 0.0)) * d - d)] if P else []
+        if len(row_gaps) > P:
+            smallest.append(float(row_gaps[P:].min() * d))
+        max_violation = max(0.0, -min(smallest)) if smallest else 0.0
+        if not (np.isfinite(p).all() and np.isfinite(m_hat).all()):
             converged, reason = False, "non-finite configuration"
         elif not np.isfinite(terms.total):
             converged, reason = False, f"non-finite energy ({terms.total}) at the solver's answer"
