@@ -14,8 +14,9 @@ from ballchain.drake_models.field_sources import FieldSources, MagnetSource, Uni
 from ballchain.drake_models.kernels import check_status
 from ballchain.drake_models.params import GRAVITY
 from ballchain.optimization.wall_constraints import RHO_SMOOTHING, PointDipoles
-from ballchain.optimization.compiled_newton import (R_FIELD, R_LIMIT, R_LINALG, R_LINE, R_MINIMUM, R_MINIMUM_LINE,
-                                                    R_QP, R_SADDLE, R_ENERGY, S_HEART_WEIGHT, solve)
+from ballchain.optimization.compiled_newton import (R_FIELD, R_LIMIT, R_LINE, R_MINIMUM, R_MINIMUM_LINE,
+                                                    R_QP, R_SADDLE, R_ENERGY, S_HEART_WEIGHT, newton)
+from ballchain.drake_models.kernels import chart_frames, configuration_vectors
 
 _EMPTY3 = np.zeros((0, 3))
 _NO_GRID = np.zeros((0, 0, 0))
@@ -105,7 +106,6 @@ REASONS = {
     R_QP: "QP step infeasible (rigidity or tip constraints)",
     R_SADDLE: "stuck at a saddle point",
     R_LINE: "line search failed (no descent)",
-    R_LINALG: "Newton step: singular matrix (a singular Hessian or constraint system)",
 }
 
 
@@ -122,8 +122,11 @@ def run(statics, model, external, p0, m0, lam0, constraints):
         return None
     rows0 = np.fromiter(lam0.keys(), np.int64, len(lam0)) if lam0 else _NO_ROWS
     weights0 = np.fromiter(lam0.values(), float, len(lam0)) if lam0 else _NO_WEIGHTS
-    reason, status, iterations, rows, lam, lam_tip, p, m_hat, terms, gaps, v = solve(
-        np.ascontiguousarray(p0, float), np.ascontiguousarray(m0, float), tup, rows0, weights0)
+    chart = chart_frames(configuration_vectors(np.ascontiguousarray(p0, float), np.ascontiguousarray(m0, float)))
+    try:
+        reason, status, iterations, rows, lam, lam_tip, p, m_hat, terms, gaps, v = newton(chart, tup, rows0, weights0)
+    except np.linalg.LinAlgError as err:  # a step's system singular in floating point
+        return _singular(model, chart, err)
     if reason == R_FIELD:
         return None
     if reason == R_ENERGY:
@@ -135,3 +138,20 @@ def run(statics, model, external, p0, m0, lam0, constraints):
     lam_near = dict(zip(rows.tolist(), lam.tolist()))
     return (reason in (R_MINIMUM, R_MINIMUM_LINE), text, int(iterations), lam_near, lam_tip, p, m_hat, terms,
             gaps, v)
+
+
+def _singular(model, chart, err) -> tuple:
+    """``run``'s answer when a Newton step's system was singular: not an equilibrium, reported
+    like any other failure, at the chart's centre (the warm start, or where the chart was last
+    re-centred), without multipliers (as the Python solver)."""
+    model.r0, model.t1, model.t2 = chart
+    model._last = None
+    if hasattr(model, "_cache"):
+        model._cache = None
+    q = np.zeros(model.nq)
+    ev = model.evaluate(q, 0)
+    p, m_hat = model.configuration(q)
+    v = np.zeros((0, 3))
+    terms = np.array([ev.terms.balls, ev.terms.external, ev.terms.sleeve, ev.terms.gravity])
+    return (False, f"Newton step: {err} (a singular Hessian or constraint system)", 0, {}, np.zeros(3), p, m_hat,
+            terms, ev.gaps, v)

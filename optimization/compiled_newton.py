@@ -38,7 +38,7 @@ S_TOL, S_FEAS, S_MARGIN, S_MAX_STEP, S_HEART_WEIGHT, S_RADIUS = 0, 1, 2, 3, 4, 5
 F_MAX_ITER, F_EXTERNAL, F_PINNED, F_WALL, F_HEART = 0, 1, 2, 3, 4
 
 # Why the solve stopped (``REASONS`` in statics.py gives the reference's messages).
-R_MINIMUM, R_MINIMUM_LINE, R_QP, R_SADDLE, R_LINE, R_LIMIT, R_LINALG, R_FIELD, R_ENERGY = range(9)
+R_MINIMUM, R_MINIMUM_LINE, R_QP, R_SADDLE, R_LINE, R_LIMIT, R_FIELD, R_ENERGY = range(8)
 
 
 @kernel
@@ -367,12 +367,16 @@ def recentre(q, chart, model):
 
 @kernel
 def newton(chart, model, rows0, weights0):
-    """The SQP iteration from q = 0 in the chart (re-centred in place near the poles).
+    """One equilibrium: the SQP iteration from q = 0 in the chart (centred on the warm start by
+    the caller, re-centred in place near the poles), and the model at the answer. This is the
+    one call per equilibrium: a singular system raises numpy's LinAlgError (the caller reports
+    it as the reference does).
 
     Returns:
-        ``(reason, status, iterations, q, rows, lam, lam_tip)``: an ``R_*`` reason; the
-        evaluation's status when it is ``R_ENERGY`` or ``R_FIELD``; the multipliers of the rows
-        ``rows`` near contact and of the tip target.
+        ``(reason, status, iterations, rows, lam, lam_tip, p, m_hat, terms, gaps, v)``: an
+        ``R_*`` reason; the evaluation's status when it is ``R_ENERGY`` or ``R_FIELD``; the
+        multipliers of the rows ``rows`` near contact and of the tip target; the configuration,
+        energy terms [J], rows' values and heart rows' gradients at the answer.
     """
     settings, flags = model[12], model[13]
     tol, feas, margin, max_step = settings[S_TOL], settings[S_FEAS], settings[S_MARGIN], settings[S_MAX_STEP]
@@ -387,13 +391,13 @@ def newton(chart, model, rows0, weights0):
     escapes = 0
     for iteration in range(1, flags[F_MAX_ITER] + 1):
         if ev[0] != OK:
-            return (R_FIELD if ev[0] < 0 else R_ENERGY), ev[0], iteration, q, rows, lam_rows, lam_tip
+            return _answer((R_FIELD if ev[0] < 0 else R_ENERGY), ev[0], iteration, rows, lam_rows, lam_tip, ev)
         g = ev[4]
         near = np.flatnonzero(ev[3] < margin)
         H = lagrangian_hessian(ev, rows, lam_rows, pinned, lam_tip, model)
         ok, dq, Hm, lam, lam_tip, definite = newton_step(ev, H, near, pinned, lam_tip, model)
         if not ok:
-            return R_QP, OK, iteration, q, np.zeros(0, np.int64), np.zeros(0), lam_tip
+            return _answer(R_QP, OK, iteration, np.zeros(0, np.int64), np.zeros(0), lam_tip, ev)
         rows, lam_rows = near, lam
         violation = infeasibility(ev, pinned)
         stationarity = g.copy()
@@ -410,9 +414,9 @@ def newton(chart, model, rows0, weights0):
             if not (definite and not pinned and not np.any(lam > 1e-9)):
                 saddle, step = escape_direction(q, ev, H, near, lam, pinned, chart, model)
             if not saddle:
-                return R_MINIMUM, OK, iteration, q, rows, lam_rows, lam_tip
+                return _answer(R_MINIMUM, OK, iteration, rows, lam_rows, lam_tip, ev)
             if escapes >= 10:
-                return R_SADDLE, OK, iteration, q, rows, lam_rows, lam_tip
+                return _answer(R_SADDLE, OK, iteration, rows, lam_rows, lam_tip, ev)
             escapes += 1
             dq = step
         big = np.abs(dq).max()
@@ -426,11 +430,11 @@ def newton(chart, model, rows0, weights0):
         slope = g @ dq - rho * violation
         t, dq, trial = line_search(q, dq, ev, near, pinned, rho, merit0, slope, chart, model)
         if trial[0] != OK:
-            return (R_FIELD if trial[0] < 0 else R_ENERGY), trial[0], iteration, q, rows, lam_rows, lam_tip
+            return _answer((R_FIELD if trial[0] < 0 else R_ENERGY), trial[0], iteration, rows, lam_rows, lam_tip, ev)
         if t < 1e-10:
             if worst < 1e3 * tol and violation < 1e-9:
-                return R_MINIMUM_LINE, OK, iteration, q, rows, lam_rows, lam_tip
-            return R_LINE, OK, iteration, q, rows, lam_rows, lam_tip
+                return _answer(R_MINIMUM_LINE, OK, iteration, rows, lam_rows, lam_tip, ev)
+            return _answer(R_LINE, OK, iteration, rows, lam_rows, lam_tip, ev)
         q = q + t * dq
         if np.abs(q[K:]).max() > 1.2:  # close to the chart's poles: re-centre it
             recentre(q, chart, model)
@@ -441,24 +445,10 @@ def newton(chart, model, rows0, weights0):
             ev = trial
         else:
             ev = evaluate(q, 2, chart, model)
-    return R_LIMIT, OK, flags[F_MAX_ITER], q, rows, lam_rows, lam_tip
+    return _answer(R_LIMIT, OK, flags[F_MAX_ITER], rows, lam_rows, lam_tip, ev)
 
 
 @kernel
-def solve(p0, m0, model, rows0, weights0):
-    """One equilibrium from the warm start (p0, m0) (n, 3): the chart centred on it, the SQP
-    (``newton``), and the model at the answer.
-
-    Returns:
-        ``(reason, status, iterations, rows, lam, lam_tip, p, m_hat, terms, gaps, v)``. A
-        singular system (``R_LINALG``) answers the warm start itself, with no multipliers.
-    """
-    chart = chart_frames(configuration_vectors(p0, m0))
-    K = chart[0].shape[0]
-    try:
-        reason, status, iterations, q, rows, lam, lam_tip = newton(chart, model, rows0, weights0)
-    except Exception:  # noqa: BLE001 - numba catches only the class: a singular system
-        reason, status, iterations, q = R_LINALG, OK, 0, np.zeros(2 * K)
-        rows, lam, lam_tip = np.zeros(0, np.int64), np.zeros(0), np.zeros(3)
-    ev = evaluate(q, 0, chart, model)
+def _answer(reason, status, iterations, rows, lam, lam_tip, ev):
+    """``newton``'s answer with the model's configuration, terms, rows and row gradients at it."""
     return reason, status, iterations, rows, lam, lam_tip, ev[8], ev[9], ev[2], ev[3], ev[10]
