@@ -175,7 +175,7 @@ def _compiled_pieces(solver, external, warm, solves: int, now) -> dict:
         return 1e3 * float(np.median(samples))
 
     whole = median_ms(lambda: solver.solve(external, warm))
-    kernel = median_ms(lambda: cn.solve(p0, m0, arrays, rows, weights))
+    kernel = median_ms(lambda: cn.newton(ck.chart_frames(ck.configuration_vectors(p0, m0)), arrays, rows, weights))
     pieces = {
         "compiled call (Newton loop, evaluations, QP, line search)": kernel,
         "model arrays (model_tuple)": median_ms(lambda: cm.model_tuple(solver, model, external, None)),
