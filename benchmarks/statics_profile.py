@@ -1,9 +1,10 @@
 """Per-piece profile of one warm equilibrium: where a ChainStatics solve spends its time.
 
 The 16-ball chain at 23 mT and 90 deg, warm-started from its equilibrium at 87.5 deg (the
-``ballchain bench statics`` warm case), solved many times by the same Newton solver on the
-compiled kernels and on the numpy reference of the physics, in one run with the cases
-interleaved. The pieces are timed by wrapping the functions the solve calls (exclusive times:
+``ballchain bench statics`` warm case), solved many times by the Python Newton solver
+(``ChainStatics(compiled=False)``) on the compiled kernels and on the numpy reference of the
+physics, in one run with the cases interleaved, and by the compiled solve (one call per
+equilibrium: its pieces are the call, the Python around it and single kernel calls for scale). The pieces are timed by wrapping the functions the solve calls (exclusive times:
 a piece's time excludes the wrapped pieces it calls), per solve; "Newton loop, rest" is the
 solve's wall time less the pieces. The wrappers add about a microsecond a call: the unwrapped
 median of the same solves is printed beside them. Prints a table, or JSON with ``--json``.
@@ -90,7 +91,8 @@ def _instrumented(timer: _PieceTimer):
 
 def run(*, n_balls: int = 16, solves: int = 200, field_mT: float = 23.0, angle_deg: float = 90.0,
         warm_offset_deg: float = 2.5, clock: str = "wall") -> dict:
-    """Profile ``solves`` warm solves per backend ("kernel", "numpy").
+    """Profile ``solves`` warm solves of the Python Newton solver per backend of the physics
+    ("kernel", "numpy"), and of the compiled solve ("compiled", ``_compiled_pieces``).
 
     ``clock``: "wall" (``time.perf_counter``) or "cpu" (``time.process_time``: this process's
     CPU time, steadier on a machine shared with other jobs).
@@ -111,7 +113,7 @@ def run(*, n_balls: int = 16, solves: int = 200, field_mT: float = 23.0, angle_d
     B = field_mT * 1e-3
     external = UniformField.in_plane(B, math.radians(angle_deg))
     warm_field = UniformField.in_plane(B, math.radians(angle_deg - warm_offset_deg))
-    solvers = {"kernel": ChainStatics(chain), "numpy": ChainStatics(chain)}
+    solvers = {"kernel": ChainStatics(chain, compiled=False), "numpy": ChainStatics(chain, compiled=False)}
     solvers["numpy"]._model = ReducedChain(chain, None, False, backend="numpy")
     out = {}
     with threadpool_limits(limits=1, user_api="blas"):
@@ -140,7 +142,51 @@ def run(*, n_balls: int = 16, solves: int = 200, field_mT: float = 23.0, angle_d
                 "pieces_ms": pieces,
                 "calls": {k: v / solves for k, v in timer.calls.items()},
             }
+        out["compiled"] = _compiled_pieces(ChainStatics(chain), external, warm, solves, now)
     return out
+
+
+def _compiled_pieces(solver, external, warm, solves: int, now) -> dict:
+    """The compiled solve (``optimization.compiled_newton``) in pieces: the whole warm solve, the
+    one compiled call (the Newton loop and every evaluation), the Python around it (argument
+    checks, the field check, the model's arrays, the result), and single calls of the physics
+    kernel (``reduced_energy``, order 2 and 0) at the warm start for scale. Medians per solve."""
+    from ballchain.drake_models import kernels as ck
+    from ballchain.optimization import compiled_model as cm
+    from ballchain.optimization import compiled_newton as cn
+
+    result = solver.solve(external, warm)
+    model = solver._model
+    arrays = cm.model_tuple(solver, model, external, None)
+    p0, m0 = np.ascontiguousarray(warm.positions), np.ascontiguousarray(warm.dipoles)
+    rows, weights = np.zeros(0, np.int64), np.zeros(0)
+    chart = ck.chart_frames(ck.configuration_vectors(p0, m0))
+    q = np.zeros(model.nq)
+    V = ck.chart_vectors(q, *chart)
+    p, m_hat = ck.chain_configuration(V[0], model.n_links, model.d)
+    _, B, G, dG = ck.external_arrays(external, p, hessian=True)
+
+    def median_ms(call) -> float:
+        samples = []
+        for _ in range(solves):
+            t0 = now()
+            call()
+            samples.append(now() - t0)
+        return 1e3 * float(np.median(samples))
+
+    whole = median_ms(lambda: solver.solve(external, warm))
+    kernel = median_ms(lambda: cn.newton(ck.chart_frames(ck.configuration_vectors(p0, m0)), arrays, rows, weights))
+    pieces = {
+        "compiled call (Newton loop, evaluations, QP, line search)": kernel,
+        "model arrays (model_tuple)": median_ms(lambda: cm.model_tuple(solver, model, external, None)),
+        "one energy/gradient/Hessian evaluation (reduced_energy, order 2), for scale": median_ms(
+            lambda: ck.reduced_energy(V, p, m_hat, B, G, dG, model._params, True, 2)),
+        "one energy evaluation (reduced_energy, order 0), for scale": median_ms(
+            lambda: ck.reduced_energy(V, p, m_hat, B, G, dG, model._params, True, 0)),
+    }
+    pieces["Python around the call (checks, field check, result)"] = whole - kernel - pieces["model arrays (model_tuple)"]
+    return {"median_ms": whole, "instrumented_ms": whole, "iterations": result.iterations,
+            "converged": bool(result.converged), "energy_J": result.energy, "pieces_ms": pieces, "calls": {}}
 
 
 def main() -> None:

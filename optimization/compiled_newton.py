@@ -11,7 +11,7 @@ target, a plane wall, or the heart's wall and sheath rows (``kernels.heart_rows`
 along any direction of frame B.
 
 The external field must be point dipoles and a uniform field (``field_arrays``): the kernel
-evaluates it itself. Python prepares the arrays (``CompiledModel``) and reads the answer.
+evaluates it itself. Python prepares the arrays and reads the answer (``compiled_model``).
 
 The model travels through the kernels as one tuple (``model_tuple``):
 ``(params, field_c, field_m, field_B0, field_r2, tip_target, wall, p_WB, R_WB, sdf_grid,
@@ -38,7 +38,7 @@ S_TOL, S_FEAS, S_MARGIN, S_MAX_STEP, S_HEART_WEIGHT, S_RADIUS = 0, 1, 2, 3, 4, 5
 F_MAX_ITER, F_EXTERNAL, F_PINNED, F_WALL, F_HEART = 0, 1, 2, 3, 4
 
 # Why the solve stopped (``REASONS`` in statics.py gives the reference's messages).
-R_MINIMUM, R_MINIMUM_LINE, R_QP, R_SADDLE, R_LINE, R_LIMIT, R_LINALG, R_FIELD, R_ENERGY = range(9)
+R_MINIMUM, R_MINIMUM_LINE, R_QP, R_SADDLE, R_LINE, R_LIMIT, R_FIELD, R_ENERGY = range(8)
 
 
 @kernel
@@ -197,16 +197,17 @@ def infeasibility(ev, pinned):
 
 @kernel
 def positive_definite(H):
-    """``(ok, Hm, Lc)``: H itself when it is positive definite, else H with its eigenvalues
-    replaced by max(|lambda|, 1e-10 max|lambda|); Lc its Cholesky factor (ok False: none)."""
+    """``(ok, Hm, Lc, definite)``: H itself when it is positive definite (``definite``), else H
+    with its eigenvalues replaced by max(|lambda|, 1e-10 max|lambda|); Lc its Cholesky factor
+    (ok False: none)."""
     ok, Lc = cholesky(H)
     if ok:
-        return True, H, Lc
+        return True, H, Lc, True
     w, Vec = np.linalg.eigh(H)
     delta = 1e-10 * max(1.0, np.abs(w).max())
     Hm = (Vec * np.maximum(np.abs(w), delta)) @ Vec.T
     ok, Lc = cholesky(Hm)
-    return ok, Hm, Lc
+    return ok, Hm, Lc, False
 
 
 @kernel
@@ -227,28 +228,28 @@ def newton_step(ev, H, near, pinned, lam_tip, model):
     """The Newton step at ev for the Lagrangian's Hessian H (``ChainStatics._newton_step``).
 
     Returns:
-        ``(ok, dq, Hm, lam, lam_tip)``; ok False when the step's QP is infeasible; raises
-        (a LinAlgError) when a system is singular.
+        ``(ok, dq, Hm, lam, lam_tip, definite)``; ok False when the step's QP is infeasible;
+        definite when H itself is positive definite; raises (a LinAlgError) when a system is
+        singular.
     """
     g = ev[4]
-    nq = g.shape[0]
     if pinned and near.size == 0:
         # Equality constraints only: a null-space step, positive definite on the tangent space.
         J = tip_jacobian(ev[7])
         Z = null_space(J)
         dq_n = -(np.linalg.pinv(J) @ ev[6])
-        ok, Hz, Lz = positive_definite(Z.T @ H @ Z)
+        ok, Hz, Lz, _ = positive_definite(Z.T @ H @ Z)
         if not ok:
             raise np.linalg.LinAlgError("Matrix is not positive definite.")
         dq = dq_n - Z @ cho_solve(Lz, Z.T @ (g + H @ dq_n))
         Hm = Z @ Hz @ Z.T
         lam_tip = np.linalg.lstsq(np.ascontiguousarray(J.T), g + H @ dq)[0]
-        return True, dq, Hm, np.zeros(0), lam_tip
-    ok, Hm, Lc = positive_definite(H)
+        return True, dq, Hm, np.zeros(0), lam_tip, False
+    ok, Hm, Lc, definite = positive_definite(H)
     if not ok:
         raise np.linalg.LinAlgError("Matrix is not positive definite.")
     if near.size == 0:
-        return True, -cho_solve(Lc, g), Hm, np.zeros(0), lam_tip
+        return True, -cho_solve(Lc, g), Hm, np.zeros(0), lam_tip, definite
     n_in = near.size
     J = jacobian_rows(near, ev, model)
     gaps = ev[3]
@@ -260,9 +261,9 @@ def newton_step(ev, H, near, pinned, lam_tip, model):
         c = gaps[near]
     ok, dq, y = dense_qp(Lc, g, N, c, n_in, 200)
     if not ok:
-        return False, dq, Hm, y, lam_tip
+        return False, dq, Hm, y, lam_tip, definite
     lam_tip = y[n_in:].copy() if pinned else np.zeros(3)
-    return True, dq, Hm, y[:n_in].copy(), lam_tip
+    return True, dq, Hm, y[:n_in].copy(), lam_tip, definite
 
 
 @kernel
@@ -275,7 +276,12 @@ def negative_curvature(ev, H, near, lam, pinned, model):
     J = jacobian_rows(active, ev, model)
     if pinned:
         J = np.vstack((J, tip_jacobian(ev[7])))
-    Z = null_space(J) if J.shape[0] else np.eye(nq)
+    if J.shape[0] == 0:  # no active row: the whole space (Z = I)
+        ok, _ = cholesky(H + 1e-7 * np.eye(nq))
+        if ok:
+            return False, np.zeros(nq)
+        return True, np.ascontiguousarray(np.linalg.eigh(H)[1][:, 0])
+    Z = null_space(J)
     Ht = Z.T @ H @ Z
     ok, _ = cholesky(Ht + 1e-7 * np.eye(Ht.shape[0]))
     if ok:
@@ -361,12 +367,16 @@ def recentre(q, chart, model):
 
 @kernel
 def newton(chart, model, rows0, weights0):
-    """The SQP iteration from q = 0 in the chart (re-centred in place near the poles).
+    """One equilibrium: the SQP iteration from q = 0 in the chart (centred on the warm start by
+    the caller, re-centred in place near the poles), and the model at the answer. This is the
+    one call per equilibrium: a singular system raises numpy's LinAlgError (the caller reports
+    it as the reference does).
 
     Returns:
-        ``(reason, status, iterations, q, rows, lam, lam_tip)``: an ``R_*`` reason; the
-        evaluation's status when it is ``R_ENERGY`` or ``R_FIELD``; the multipliers of the rows
-        ``rows`` near contact and of the tip target.
+        ``(reason, status, iterations, rows, lam, lam_tip, p, m_hat, terms, gaps, v)``: an
+        ``R_*`` reason; the evaluation's status when it is ``R_ENERGY`` or ``R_FIELD``; the
+        multipliers of the rows ``rows`` near contact and of the tip target; the configuration,
+        energy terms [J], rows' values and heart rows' gradients at the answer.
     """
     settings, flags = model[12], model[13]
     tol, feas, margin, max_step = settings[S_TOL], settings[S_FEAS], settings[S_MARGIN], settings[S_MAX_STEP]
@@ -381,13 +391,13 @@ def newton(chart, model, rows0, weights0):
     escapes = 0
     for iteration in range(1, flags[F_MAX_ITER] + 1):
         if ev[0] != OK:
-            return (R_FIELD if ev[0] < 0 else R_ENERGY), ev[0], iteration, q, rows, lam_rows, lam_tip
+            return _answer((R_FIELD if ev[0] < 0 else R_ENERGY), ev[0], iteration, rows, lam_rows, lam_tip, ev)
         g = ev[4]
         near = np.flatnonzero(ev[3] < margin)
         H = lagrangian_hessian(ev, rows, lam_rows, pinned, lam_tip, model)
-        ok, dq, Hm, lam, lam_tip = newton_step(ev, H, near, pinned, lam_tip, model)
+        ok, dq, Hm, lam, lam_tip, definite = newton_step(ev, H, near, pinned, lam_tip, model)
         if not ok:
-            return R_QP, OK, iteration, q, np.zeros(0, np.int64), np.zeros(0), lam_tip
+            return _answer(R_QP, OK, iteration, np.zeros(0, np.int64), np.zeros(0), lam_tip, ev)
         rows, lam_rows = near, lam
         violation = infeasibility(ev, pinned)
         stationarity = g.copy()
@@ -399,11 +409,14 @@ def newton(chart, model, rows0, weights0):
         decrease = -(g @ dq) - 0.5 * (dq @ (Hm @ dq))
         first_order = worst < tol or (abs(decrease) < 1e-14 * max(1.0, abs(ev[1])) and worst < 1e-6)
         if first_order and violation < feas:
-            saddle, step = escape_direction(q, ev, H, near, lam, pinned, chart, model)
+            # H positive definite with no active row: H + 1e-7 I is too (the saddle test's answer).
+            saddle, step = False, dq
+            if not (definite and not pinned and not np.any(lam > 1e-9)):
+                saddle, step = escape_direction(q, ev, H, near, lam, pinned, chart, model)
             if not saddle:
-                return R_MINIMUM, OK, iteration, q, rows, lam_rows, lam_tip
+                return _answer(R_MINIMUM, OK, iteration, rows, lam_rows, lam_tip, ev)
             if escapes >= 10:
-                return R_SADDLE, OK, iteration, q, rows, lam_rows, lam_tip
+                return _answer(R_SADDLE, OK, iteration, rows, lam_rows, lam_tip, ev)
             escapes += 1
             dq = step
         big = np.abs(dq).max()
@@ -417,11 +430,11 @@ def newton(chart, model, rows0, weights0):
         slope = g @ dq - rho * violation
         t, dq, trial = line_search(q, dq, ev, near, pinned, rho, merit0, slope, chart, model)
         if trial[0] != OK:
-            return (R_FIELD if trial[0] < 0 else R_ENERGY), trial[0], iteration, q, rows, lam_rows, lam_tip
+            return _answer((R_FIELD if trial[0] < 0 else R_ENERGY), trial[0], iteration, rows, lam_rows, lam_tip, ev)
         if t < 1e-10:
             if worst < 1e3 * tol and violation < 1e-9:
-                return R_MINIMUM_LINE, OK, iteration, q, rows, lam_rows, lam_tip
-            return R_LINE, OK, iteration, q, rows, lam_rows, lam_tip
+                return _answer(R_MINIMUM_LINE, OK, iteration, rows, lam_rows, lam_tip, ev)
+            return _answer(R_LINE, OK, iteration, rows, lam_rows, lam_tip, ev)
         q = q + t * dq
         if np.abs(q[K:]).max() > 1.2:  # close to the chart's poles: re-centre it
             recentre(q, chart, model)
@@ -432,153 +445,10 @@ def newton(chart, model, rows0, weights0):
             ev = trial
         else:
             ev = evaluate(q, 2, chart, model)
-    return R_LIMIT, OK, flags[F_MAX_ITER], q, rows, lam_rows, lam_tip
+    return _answer(R_LIMIT, OK, flags[F_MAX_ITER], rows, lam_rows, lam_tip, ev)
 
 
 @kernel
-def solve(p0, m0, model, rows0, weights0):
-    """One equilibrium from the warm start (p0, m0) (n, 3): the chart centred on it, the SQP
-    (``newton``), and the model at the answer.
-
-    Returns:
-        ``(reason, status, iterations, rows, lam, lam_tip, p, m_hat, terms, gaps, v)``. A
-        singular system (``R_LINALG``) answers the warm start itself, with no multipliers.
-    """
-    chart = chart_frames(configuration_vectors(p0, m0))
-    K = chart[0].shape[0]
-    try:
-        reason, status, iterations, q, rows, lam, lam_tip = newton(chart, model, rows0, weights0)
-    except Exception:  # noqa: BLE001 - numba catches only the class: a singular system
-        reason, status, iterations, q = R_LINALG, OK, 0, np.zeros(2 * K)
-        rows, lam, lam_tip = np.zeros(0, np.int64), np.zeros(0), np.zeros(3)
-    ev = evaluate(q, 0, chart, model)
+def _answer(reason, status, iterations, rows, lam, lam_tip, ev):
+    """``newton``'s answer with the model's configuration, terms, rows and row gradients at it."""
     return reason, status, iterations, rows, lam, lam_tip, ev[8], ev[9], ev[2], ev[3], ev[10]
-
-
-# --- Python side: the model's arrays, and the answer -------------------------------------------
-_EMPTY3 = np.zeros((0, 3))
-_NO_GRID = np.zeros((0, 0, 0))
-
-
-def field_arrays(source):
-    """``(centres (k, 3), moments (k, 3), B0 (3,), r2_min (k,))`` of a field source made of point
-    dipoles and uniform fields (UniformField, MagnetSource with the "dipole" model, the heart's
-    PointDipoles, sums of them), or None for any other source (the Python solver takes those).
-
-    A magnet's r2_min is its bounding sphere's: a ball inside it stops the compiled solve and
-    the Python solver, which refuses a ball inside the magnet itself, decides."""
-    from ballchain.drake_models.field_sources import FieldSources, MagnetSource, UniformField
-    from ballchain.optimization.wall_constraints import PointDipoles
-
-    if isinstance(source, UniformField):
-        return _EMPTY3, _EMPTY3, np.asarray(source.B_W, float).reshape(3), np.zeros(0)
-    if isinstance(source, PointDipoles):
-        return source.p, source.m, np.asarray(source.B0, float).reshape(3), np.zeros(len(source.p))
-    if isinstance(source, MagnetSource) and source.model == "dipole" \
-            and hasattr(source.magnet, "bounding_radius"):
-        return (np.asarray(source.p_WM, float).reshape(1, 3), np.asarray(source.m_W, float).reshape(1, 3),
-                np.zeros(3), np.array([source.magnet.bounding_radius**2]))
-    if isinstance(source, FieldSources):
-        parts = [field_arrays(s) for s in source.sources]
-        if any(part is None for part in parts):
-            return None
-        if not parts:
-            return _EMPTY3, _EMPTY3, np.zeros(3), np.zeros(0)
-        return (np.vstack([p[0] for p in parts]), np.vstack([p[1] for p in parts]),
-                np.sum([p[2] for p in parts], axis=0), np.concatenate([p[3] for p in parts]))
-    return None
-
-
-def model_tuple(statics, model, external, constraints):
-    """The kernels' model tuple for a ChainStatics' model (``ReducedChain`` with its tip target
-    and wall set, or ``ConstrainedChain`` with its constraints), or None when the external field
-    is not one the kernels evaluate (``field_arrays``)."""
-    if external is None:
-        field, has_external = (_EMPTY3, _EMPTY3, np.zeros(3), np.zeros(0)), 0
-    else:
-        field, has_external = field_arrays(external), 1
-        if field is None:
-            return None
-    tip = np.zeros(3) if model.tip_target is None else np.asarray(model.tip_target, float)
-    wall = np.zeros(6) if model.wall is None else np.concatenate(model.wall).astype(float)
-    settings = np.array([statics.tolerance, statics.feasibility_tolerance, statics.contact_margin,
-                         statics.max_step, 0.0, 0.5 * model.d])
-    p_WB, R_WB, grid, frame, sheath = np.zeros(3), np.eye(3), _NO_GRID, np.zeros(7), np.zeros(5)
-    if constraints is not None:
-        from ballchain.optimization.wall_constraints import RHO_SMOOTHING
-
-        p_WB = np.ascontiguousarray(constraints.p_WB, float)
-        R_WB = np.ascontiguousarray(constraints.R_WB, float)
-        if constraints.gravity:
-            from ballchain.drake_models.params import GRAVITY
-
-            settings[S_HEART_WEIGHT] = model.chain.ball_mass * GRAVITY
-        if constraints.sdf is not None:
-            grid, frame = _sdf_arrays(constraints.sdf)
-        if constraints.sheath is not None:
-            sh = constraints.sheath
-            a_E = float((sh.p_WE - p_WB) @ R_WB[:, 0])
-            sheath = np.array([1.0, a_E, sh.bore_radius + sh.lip_radius, model.r + sh.lip_radius, RHO_SMOOTHING])
-    flags = np.array([statics.max_iterations, has_external, model.tip_target is not None, model.wall is not None,
-                      constraints is not None], dtype=np.int64)
-    centres, moments, B0, r2 = (np.ascontiguousarray(a, float) for a in field)
-    return (model._params, centres, moments, B0, r2, tip, wall, p_WB, R_WB, grid, frame, sheath, settings, flags)
-
-
-def _sdf_arrays(sdf):
-    """(padded node values, (origin, spacing, shape)) of an AtriumSDF (or any object with the
-    same grid); a plane or other SDF is not compiled (raises TypeError: the caller checks)."""
-    cached = getattr(sdf, "_compiled_arrays", None)
-    if cached is None:
-        frame = np.concatenate([np.asarray(sdf.origin, float), [float(sdf.spacing)],
-                                np.asarray(sdf._shape, float)])
-        cached = (np.ascontiguousarray(sdf._padded, float), frame)
-        sdf._compiled_arrays = cached
-    return cached
-
-
-def compilable_constraints(constraints) -> bool:
-    """Whether the kernels evaluate this HeartConstraints' wall (an AtriumSDF grid, or none)."""
-    from ballchain.drake_models.atrium_sdf import AtriumSDF
-
-    return constraints is None or constraints.sdf is None or isinstance(constraints.sdf, AtriumSDF)
-
-
-REASONS = {
-    R_MINIMUM: "local minimum (KKT and second-order conditions)",
-    R_MINIMUM_LINE: "local minimum (stationary within line-search precision)",
-    R_QP: "QP step infeasible (rigidity or tip constraints)",
-    R_SADDLE: "stuck at a saddle point",
-    R_LINE: "line search failed (no descent)",
-    R_LINALG: "Newton step: singular matrix (a singular Hessian or constraint system)",
-}
-
-
-def run(statics, model, external, p0, m0, lam0, constraints):
-    """The compiled solve of a ChainStatics' model from (p0, m0): ``(converged, reason,
-    iterations, lam_near dict, lam_tip, p, m_hat, terms (4,), gaps, v)``, or None when the
-    Python solver must take it (a field or wall the kernels do not evaluate, a ball inside a
-    magnet's bounding sphere). Raises ValueError, as the Python model, on two coincident balls
-    or a folded sleeve."""
-    from ballchain.drake_models.kernels import check_status
-
-    if not compilable_constraints(constraints):
-        return None
-    tup = model_tuple(statics, model, external, constraints)
-    if tup is None:
-        return None
-    rows0 = np.fromiter(lam0.keys(), np.int64, len(lam0)) if lam0 else np.zeros(0, np.int64)
-    weights0 = np.fromiter(lam0.values(), float, len(lam0)) if lam0 else np.zeros(0)
-    reason, status, iterations, rows, lam, lam_tip, p, m_hat, terms, gaps, v = solve(
-        np.ascontiguousarray(p0, float), np.ascontiguousarray(m0, float), tup, rows0, weights0)
-    if reason == R_FIELD:
-        return None
-    if reason == R_ENERGY:
-        check_status(status, "ReducedChain.evaluate")
-    if reason == R_LIMIT:
-        text = f"iteration limit ({statics.max_iterations}) reached"
-    else:
-        text = REASONS[reason]
-    lam_near = dict(zip(rows.tolist(), lam.tolist()))
-    return (reason in (R_MINIMUM, R_MINIMUM_LINE), text, int(iterations), lam_near, lam_tip, p, m_hat, terms,
-            gaps, v)

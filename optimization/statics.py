@@ -48,7 +48,7 @@ from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import FieldSource, UniformField, require_field_source
 from ballchain.drake_models.params import BallChain
 from ballchain.drake_models.vectors import angle_between
-from ballchain.optimization import compiled_newton
+from ballchain.optimization import compiled_model
 from ballchain.optimization.reduced_chain import X_AXIS, ReducedChain
 from ballchain.optimization.wall_constraints import ConstrainedChain, HeartConstraints
 
@@ -427,8 +427,8 @@ class ChainStatics:
         model.external = external
         _set_tip_target_and_wall(model, tip_target, wall)
         lam0 = getattr(warm_start, "multipliers", None) if constraints is not None else None
-        if self.compiled and self.method == "newton" and self.qp == "dense":
-            answer = compiled_newton.run(self, model, external, p0, m0, lam0, constraints)
+        if self.compiled and self.method == "newton" and self.qp == "dense" and model.backend == "kernel":
+            answer = compiled_model.run(self, model, external, p0, m0, lam0, constraints)
             if answer is not None:  # else a field or wall the kernels do not evaluate: Python's
                 converged, reason, iterations, lam_near, lam_tip, p, m_hat, t, gaps, v = answer
                 return self._assemble(model, p, m_hat, EnergyTerms(*t.tolist()), gaps, converged, reason,
@@ -463,11 +463,14 @@ class ChainStatics:
         """The StaticsResult of an answer's configuration (p, m_hat), energy terms and rows' values
         (``Evaluation.gaps``); ``rows_at`` the heart rows' gradients v (2L, 3) or the chart
         coordinates to find them at (with ``constraints``)."""
-        P = model.n_pairs
-        gaps = np.sqrt(np.maximum(row_gaps[:P] + 1.0, 0.0)) * model.d - model.d  # [m]
-        gaps = np.concatenate([gaps, row_gaps[P:] * model.d])  # wall rows: n . (p - p0) - d/2
-        max_violation = float(max(0.0, -gaps.min())) if len(gaps) else 0.0
-        if not np.all(np.isfinite(p)) or not np.all(np.isfinite(m_hat)):
+        P, d = model.n_pairs, model.d
+        # The smallest gap [m]: rigidity rows |p_j - p_i| - d (monotone in c_ij: its smallest),
+        # then wall rows n . (p - p0) - d/2.
+        smallest = [float(np.sqrt(max(row_gaps[:P].min() + 1.0, 0.0)) * d - d)] if P else []
+        if len(row_gaps) > P:
+            smallest.append(float(row_gaps[P:].min() * d))
+        max_violation = max(0.0, -min(smallest)) if smallest else 0.0
+        if not (np.isfinite(p).all() and np.isfinite(m_hat).all()):
             converged, reason = False, "non-finite configuration"
         elif not np.isfinite(terms.total):
             converged, reason = False, f"non-finite energy ({terms.total}) at the solver's answer"
@@ -729,6 +732,9 @@ def _non_finite_field(external, p: np.ndarray) -> str | None:
     """Why the external field is unusable at the balls p (n, 3) (a reason string), or None."""
     if external is None:
         return None
+    if isinstance(external, UniformField):  # the same B everywhere, no gradient: B is the answer
+        finite = np.all(np.isfinite(np.asarray(external.B_W, float)))
+        return None if finite else "the external field is not finite (NaN or inf) at ball 1"
     B, G = external.field_and_gradient(p)  # a source that refuses the points says why (raises)
     bad = ~(np.all(np.isfinite(np.reshape(B, (len(p), -1))), axis=1)
             & np.all(np.isfinite(np.reshape(G, (len(p), -1))), axis=1))

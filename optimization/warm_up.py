@@ -32,3 +32,6 @@ def warm_up() -> None:
     ev.jacobian[np.arange(len(ev.gaps))]
     model.constraint_hessian(q, np.array([0]), np.array([1.0]))
     model.tip_hessian(q, np.ones(3))
+    from ballchain.optimization.statics import ChainStatics
+
+    ChainStatics(chain, gravity=True).solve(UniformField([0.0, 0.02, 0.0]))  # the compiled Newton solve

@@ -176,3 +176,37 @@ def test_heart_insertion_matches_the_reference(heart, sdf):
         np.testing.assert_allclose(a.positions_W, b.positions_W, atol=1e-9)
         touched |= bool(b.wall_forces_W)
     assert touched, "the chain should touch the wall"
+
+
+# --- along the engine's paths (recorded solves, replayed) ----------------------------------------
+HEART_SCENARIOS = ["heart_left_quasi_static", "heart_sleeve_quasi_static", "heart_no_field", "heart_wall_contact",
+                   "teleop_right_unit", "teleop_two_units"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", HEART_SCENARIOS)
+def test_engine_paths_match_the_reference(name, monkeypatch):
+    """Every equilibrium the quasi-static engine solves in a short run of each named heart
+    scenario (the teleoperation ones: the magnets moved by the recorded joystick path; the
+    insertion; warm-started from the last equilibrium with its multipliers), solved again by the
+    compiled solve and by the Python reference with the engine's settings: the same answers."""
+    from ballchain.systems.chain_scenario import load_scenario
+    from ballchain.systems.chain_simulation import run_simulation
+
+    calls = []
+    original = ChainStatics.solve
+
+    def recording(self, external, warm_start=None, tip_target=None, wall=None, constraints=None):
+        calls.append((self.chain, self.gravity, self.tolerance, self.feasibility_tolerance, external, warm_start,
+                      constraints))
+        return original(self, external, warm_start, tip_target, wall, constraints)
+
+    monkeypatch.setattr(ChainStatics, "solve", recording)
+    run_simulation(scenario=load_scenario(name, "{engine: statics, duration: 0.2}"))
+    monkeypatch.setattr(ChainStatics, "solve", original)
+    assert len(calls) >= 5
+    for chain, gravity, tolerance, feasibility, external, warm, constraints in calls:
+        fast, slow = both(chain, gravity=gravity, tolerance=tolerance)
+        fast.feasibility_tolerance = slow.feasibility_tolerance = feasibility
+        a, b = fast.solve(external, warm, constraints=constraints), slow.solve(external, warm, constraints=constraints)
+        assert_same(a, b)

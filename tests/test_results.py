@@ -68,9 +68,11 @@ CLINICAL_ROW_KEYS = ["chain", "target", "group", "force_gf", "feasible", "fricti
 SIZING_KEYS = ["chain", "criterion", "diameter_mm", "mass_kg", "magnet_distance_cm", "force_between_magnets_gf",
                "size_steps"]
 BENCH_KEYS = ["benchmark", "n_balls", "field_mT", "angle_deg", "warm_start_angle_deg", "repeats", "clock",
-              "cold_median_ms", "warm_median_ms", "numpy_cold_median_ms", "numpy_warm_median_ms",
+              "cold_median_ms", "warm_median_ms", "python_cold_median_ms", "python_warm_median_ms",
+              "numpy_cold_median_ms", "numpy_warm_median_ms",
               "snopt_cold_median_ms", "snopt_warm_median_ms", "baseline_median_ms", "speedup_cold", "speedup_warm",
-              "speedup_cold_vs_snopt", "kernel_speedup_cold", "kernel_speedup_warm", "kernel_note", "same_minimum",
+              "speedup_cold_vs_snopt", "kernel_speedup_cold", "kernel_speedup_warm", "compiled_speedup_cold",
+              "compiled_speedup_warm", "kernel_note", "same_minimum",
               "converged", "iterations", "iterations_note", "energy_J", "tip_position_mm", "baseline", "samples_ms",
               "spread", "spread_note", "blas_threads", "load_average_1min", "cpu_count"]
 

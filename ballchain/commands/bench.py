@@ -84,8 +84,10 @@ def _print_statics(out: StaticsBenchResult) -> None:
           f"median {'CPU' if out.clock == 'cpu' else 'wall'} time:")
     it = out.iterations
     rows = (
-        ("newton, cold", out.cold_median_ms, it["newton_cold"]),
-        ("newton, warm", out.warm_median_ms, it["newton_warm"]),
+        ("newton compiled, cold", out.cold_median_ms, it["newton_cold"]),
+        ("newton compiled, warm", out.warm_median_ms, it["newton_warm"]),
+        ("newton (Python), cold", out.python_cold_median_ms, it["python_cold"]),
+        ("newton (Python), warm", out.python_warm_median_ms, it["python_warm"]),
         ("newton (numpy), cold", out.numpy_cold_median_ms, it["numpy_cold"]),
         ("newton (numpy), warm", out.numpy_warm_median_ms, it["numpy_warm"]),
         ("snopt, cold", out.snopt_cold_median_ms, it["snopt_cold"]),
@@ -97,9 +99,19 @@ def _print_statics(out: StaticsBenchResult) -> None:
             print(f"  {name:<22s} {ms:10.2f} ms   {iters:5d} iterations")
     if out.speedup_cold is not None:
         print(f"  speedup (baseline / newton cold): {out.speedup_cold:.1f}x, warm: {out.speedup_warm:.1f}x")
+    if out.compiled_speedup_cold is not None:
+        print(f"  compiled vs Python solver (same kernels): cold {out.compiled_speedup_cold:.1f}x, "
+              f"warm {out.compiled_speedup_warm:.1f}x")
     if out.kernel_speedup_cold is not None:
-        print(f"  kernels vs numpy reference (same solver): cold {out.kernel_speedup_cold:.1f}x, "
+        print(f"  compiled vs Python solver on the numpy reference: cold {out.kernel_speedup_cold:.1f}x, "
               f"warm {out.kernel_speedup_warm:.1f}x")
+    if out.contact is not None:
+        c, py = out.contact["compiled"], out.contact["python"]
+        print(f"  in contact (16 balls in the atrium, {out.contact['solves']} warm solves, "
+              f"{out.contact['in_contact']} of each pass touching): compiled median {c['median_ms']:.2f} ms, "
+              f"p99 {c['p99_ms']:.2f}, max {c['max_ms']:.2f}; Python {py['median_ms']:.2f} / {py['p99_ms']:.2f} / "
+              f"{py['max_ms']:.2f} ms: {out.contact['speedup_median']:.1f}x (largest position difference "
+              f"{out.contact['max_position_diff_m']:.1e} m)")
     if out.compile_cost is not None:
         c = out.compile_cost
         print(f"  kernels' first run in a fresh process: {c['empty_cache_s']:.1f} s with an empty numba cache, "

@@ -4,11 +4,19 @@ The equilibrium of an n-ball chain in a uniform field, solved by
 ``ChainStatics`` (Newton SQP in reduced coordinates, and its SNOPT reference) cold (from the
 straight chain, no continuation) and warm (from the equilibrium at the field angle minus
 ``--warm-offset-deg``), against the naive SLSQP formulation of
-``optimization.naive_statics`` from the straight chain, and against the same Newton solver on
-the numpy reference implementation of the chain's physics (``ReducedChain(backend="numpy")``,
-cold and warm): the compiled kernels of ``drake_models.kernels`` are what the stack runs,
-the numpy rows say what they bought. Every solver must reach the same minimum (energy and tip
-position against the Newton cold solve); the differences are printed.
+``optimization.naive_statics`` from the straight chain, against the Python Newton solver on the
+same kernels (``ChainStatics(compiled=False)``, the reference the compiled solve is held to:
+"python" rows) and against that Python solver on the numpy reference implementation of the
+chain's physics (``ReducedChain(backend="numpy")``, cold and warm): the compiled solve
+(``optimization.compiled_newton``) is what the stack runs, the python and numpy rows say what
+compiling the solve and the physics bought. Every solver must reach the same minimum (energy and
+tip position against the Newton cold solve); the differences are printed.
+
+The "contact" case times equilibria in contact: the 16-ball chain (``--balls`` is for the free
+cases) pushed into the procedural left atrium by the left magnet of the heart scenarios,
+inserted from 26.2 to 29 mm in 0.1 mm steps, each solve warm-started from the last (as the
+quasi-static engine does), by the compiled solve and the Python reference alternately; the
+median, p99 and maximum over every solve of every round.
 
 ``--compile-cost`` also times, in fresh processes, importing the kernels and running each once
 with an empty numba cache (``NUMBA_CACHE_DIR`` pointed at a new temporary folder: what the first
@@ -41,10 +49,12 @@ from ballchain.experiments._result import Result, optional
 ENERGY_RTOL = 1e-9
 TIP_ATOL_M = 1e-6
 
-_CASES = ("newton_cold", "newton_warm", "numpy_cold", "numpy_warm", "snopt_cold", "snopt_warm", "baseline")
-# Cases that --cases may leave out (the Newton solves on the kernels are always timed: the
-# reference of every comparison). The naive SLSQP and SNOPT rows cannot run 1000 balls.
-_OPTIONAL = ("numpy", "snopt", "baseline")
+_CASES = ("newton_cold", "newton_warm", "python_cold", "python_warm", "numpy_cold", "numpy_warm", "snopt_cold",
+          "snopt_warm", "baseline")
+# Cases that --cases may leave out (the compiled Newton solves are always timed: the reference
+# of every comparison). The naive SLSQP and SNOPT rows cannot run 1000 balls. "contact": the
+# equilibria in contact in the heart (``contact_solves``).
+_OPTIONAL = ("python", "numpy", "snopt", "baseline", "contact")
 
 
 @contextlib.contextmanager
@@ -73,11 +83,14 @@ class StaticsBenchResult(Result):
     Attributes:
         benchmark: "statics".
         n_balls, field_mT, angle_deg, warm_start_angle_deg, repeats, clock: the run's settings.
-        cold_median_ms, warm_median_ms: Newton on the kernels, cold and warm.
-        numpy_cold_median_ms, numpy_warm_median_ms: the same Newton solver on the numpy reference.
+        cold_median_ms, warm_median_ms: the compiled Newton solve, cold and warm.
+        python_cold_median_ms, python_warm_median_ms: the Python Newton solver on the kernels.
+        numpy_cold_median_ms, numpy_warm_median_ms: the Python Newton solver on the numpy reference.
         snopt_cold_median_ms, snopt_warm_median_ms: SNOPT; baseline_median_ms: naive SLSQP.
         speedup_cold, speedup_warm: baseline / Newton; speedup_cold_vs_snopt: SNOPT / Newton;
-        kernel_speedup_cold, kernel_speedup_warm: numpy reference / kernels (same-run ratios).
+        kernel_speedup_cold, kernel_speedup_warm: numpy reference / compiled (same-run ratios).
+        compiled_speedup_cold, compiled_speedup_warm: Python solver / compiled solve.
+        contact: the equilibria in contact (``contact_solves``; None: left out).
         same_minimum: each solver against the Newton cold solve (tolerances, differences, "ok").
         converged: per case (and the warm start); iterations: per case, and the baseline's
             energy evaluations.
@@ -98,6 +111,8 @@ class StaticsBenchResult(Result):
     clock: str
     cold_median_ms: float
     warm_median_ms: float
+    python_cold_median_ms: float | None
+    python_warm_median_ms: float | None
     numpy_cold_median_ms: float | None
     numpy_warm_median_ms: float | None
     snopt_cold_median_ms: float | None
@@ -108,7 +123,10 @@ class StaticsBenchResult(Result):
     speedup_cold_vs_snopt: float | None
     kernel_speedup_cold: float | None
     kernel_speedup_warm: float | None
-    kernel_note: str = "numpy_*: the same Newton solver on the numpy reference of the chain's physics"
+    compiled_speedup_cold: float | None
+    compiled_speedup_warm: float | None
+    kernel_note: str = ("python_*: the Newton solver in Python on the compiled kernels (the compiled solve's "
+                        "reference); numpy_*: that solver on the numpy reference of the chain's physics")
     same_minimum: dict
     converged: dict
     iterations: dict
@@ -122,6 +140,7 @@ class StaticsBenchResult(Result):
     blas_threads: dict
     load_average_1min: dict
     cpu_count: int | None
+    contact: dict | None = optional()
     compile_cost: dict | None = optional()
 
 
@@ -177,6 +196,71 @@ def compile_cost(timeout_s: float = 600.0) -> dict:
                     "configured); *_s wall time, *_cpu_s the process's CPU time"}
 
 
+CONTACT_PATH_MM = (26.2, 29.0, 0.1)  # the contact case's insertions: from, to, step [mm]
+
+
+def contact_solves(repeats: int, now) -> dict:
+    """Equilibria in contact, compiled against the Python reference (``ChainStatics(compiled=False)``)
+    in the same run: the 16-ball chain pushed into the procedural left atrium by the heart
+    scenarios' left magnet along ``CONTACT_PATH_MM``, each solve warm-started from the last (and
+    its multipliers), one untimed pass then ``repeats`` timed ones of each solver, alternating.
+
+    Returns:
+        ``{"compiled", "python": {"median_ms", "p99_ms", "max_ms"}, "speedup_median",
+        "solves", "in_contact", "max_position_diff_m", "iterations"}``.
+    """
+    from ballchain.drake_models.atrium_sdf import atrium_sdf
+    from ballchain.drake_models.field_sources import MagnetSource
+    from ballchain.drake_models.heart import LeftAtrium
+    from ballchain.drake_models.params import BallChain, CylinderMagnet
+    from ballchain.optimization.statics import ChainStatics
+    from ballchain.optimization.wall_constraints import HeartConstraints, SheathGeometry, base_rotation, sheath_split
+
+    heart = LeftAtrium()
+    sdf = atrium_sdf(heart)
+    chain = BallChain(n_balls=16)
+    d = chain.ball_diameter
+    magnet = MagnetSource.pointing(CylinderMagnet(), heart.p_HP + np.array([0.1651, 0.0, 0.0]), [0.0, -1.0, 0.0],
+                                   "dipole")
+    sheath = SheathGeometry(heart.p_HE, heart.sheath_axis_H, 1.8e-3, 0.3e-3)
+    R_WB = base_rotation(heart.sheath_axis_H)
+    start, stop, step = CONTACT_PATH_MM
+    path = []
+    for s in 1e-3 * np.arange(start, stop + 0.5 * step, step):
+        k, a = sheath_split(chain.n_balls, s, d)
+        path.append((k, HeartConstraints(heart.p_HE + a * heart.sheath_axis_H, R_WB, sdf, sheath, n_behind=k)))
+    solvers = {name: {} for name in ("compiled", "python")}
+
+    def one_pass(name: str, times: list | None) -> list:
+        results, previous = [], None
+        for k, c in path:
+            n = chain.n_balls - k
+            solver = solvers[name].get(n) or solvers[name].setdefault(
+                n, ChainStatics(chain.with_balls(n), gravity=True, compiled=name == "compiled"))
+            warm = previous if previous is not None and len(previous.positions) == n else None
+            t0 = now()
+            previous = solver.solve(magnet, warm, constraints=c)
+            if times is not None:
+                times.append(1e3 * (now() - t0))
+            results.append(previous)
+        return results
+
+    times: dict[str, list] = {"compiled": [], "python": []}
+    last = {name: one_pass(name, None) for name in times}
+    for _ in range(repeats):
+        for name in times:
+            last[name] = one_pass(name, times[name])
+    stats = {name: {"median_ms": float(np.median(t)), "p99_ms": float(np.percentile(t, 99)),
+                    "max_ms": float(np.max(t))} for name, t in times.items()}
+    return {**stats, "speedup_median": stats["python"]["median_ms"] / stats["compiled"]["median_ms"],
+            "solves": len(times["compiled"]),
+            "in_contact": sum(bool(r.wall_forces_W) for r in last["compiled"]),
+            "converged": all(r.converged for name in last for r in last[name]),
+            "max_position_diff_m": float(max(np.abs(a.positions - b.positions).max()
+                                             for a, b in zip(last["compiled"], last["python"]))),
+            "iterations": {name: [r.iterations for r in last[name]] for name in last}}
+
+
 def _spread(samples_ms: list[float]) -> float:
     """(max - min) / median of a series: a rough noise figure."""
     return float((max(samples_ms) - min(samples_ms)) / np.median(samples_ms))
@@ -215,7 +299,8 @@ def _statics_solves(chain, field_mT: float, angle_deg: float, warm_angle: float,
     external = UniformField.in_plane(B, math.radians(angle_deg))
     external_warm = UniformField.in_plane(B, math.radians(warm_angle))
     newton = ChainStatics(chain, method="newton")
-    reference = ChainStatics(chain, method="newton")
+    python = ChainStatics(chain, method="newton", compiled=False)
+    reference = ChainStatics(chain, method="newton", compiled=False)
     # The same solver on the numpy reference of the physics: ChainStatics builds its
     # ReducedChain on the first solve, unless one is there.
     reference._model = ReducedChain(chain, None, False, backend="numpy")
@@ -225,6 +310,8 @@ def _statics_solves(chain, field_mT: float, angle_deg: float, warm_angle: float,
         return {
             "newton_cold": lambda: newton.solve(external),
             "newton_warm": lambda: newton.solve(external, warm_start),
+            "python_cold": lambda: python.solve(external),
+            "python_warm": lambda: python.solve(external, warm_start),
             "numpy_cold": lambda: reference.solve(external),
             "numpy_warm": lambda: reference.solve(external, warm_start),
             "snopt_cold": lambda: snopt.solve(external),
@@ -275,6 +362,8 @@ def _statics_result(samples: dict, last: dict, active: tuple, warm_start) -> dic
     return dict(
         cold_median_ms=medians["newton_cold"],
         warm_median_ms=medians["newton_warm"],
+        python_cold_median_ms=medians["python_cold"],
+        python_warm_median_ms=medians["python_warm"],
         numpy_cold_median_ms=medians["numpy_cold"],
         numpy_warm_median_ms=medians["numpy_warm"],
         snopt_cold_median_ms=medians["snopt_cold"],
@@ -285,6 +374,8 @@ def _statics_result(samples: dict, last: dict, active: tuple, warm_start) -> dic
         speedup_cold_vs_snopt=ratio("snopt_cold", "newton_cold"),
         kernel_speedup_cold=ratio("numpy_cold", "newton_cold"),
         kernel_speedup_warm=ratio("numpy_warm", "newton_warm"),
+        compiled_speedup_cold=ratio("python_cold", "newton_cold"),
+        compiled_speedup_warm=ratio("python_warm", "newton_warm"),
         same_minimum={
             "reference": "newton_cold",
             "tolerance": {"energy_rel": ENERGY_RTOL, "tip_m": TIP_ATOL_M},
@@ -350,6 +441,7 @@ def run_statics(
     now = time.process_time if clock == "cpu" else time.perf_counter
     chosen = _parse_cases(cases) if isinstance(cases, str) else _parse_cases(",".join(cases))
     active = tuple(c for c in _CASES if c.startswith("newton") or c.split("_")[0] in chosen)
+    contact = None
 
     from tqdm import tqdm
 
@@ -366,6 +458,8 @@ def run_statics(
         warm_start = warm_up()
         bar.update()
         samples, last = _timed_rounds(solves, active, repeats, now, bar, warm_start)
+        if "contact" in chosen:
+            contact = contact_solves(repeats, now)
     bar.close()
     load_after = os.getloadavg()
 
@@ -383,6 +477,7 @@ def run_statics(
         blas_threads=threads_in_use,
         load_average_1min={"before": load_before[0], "after": load_after[0]},
         cpu_count=os.cpu_count(),
+        contact=contact,
         compile_cost=compile_cost() if measure_compile_cost else None,
     )
 
