@@ -67,6 +67,7 @@ def test_teleop_visits_the_anatomy_s_targets_in_file_order_and_writes_the_replay
     assert data["summary"]["failure"] is None
 
 
+@pytest.mark.slow
 def test_simulate_runs_a_scenario_on_the_anatomy(tmp_path, capsys):
     path = lumen_anatomy(tmp_path)
     data = run_json(capsys, "simulate", "--scenario", "teleop_right_unit", "--anatomy", path, "--duration", "0.2",
