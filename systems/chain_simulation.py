@@ -21,6 +21,7 @@ import sys
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass
+from html import escape as html_escape
 from pathlib import Path
 
 import numpy as np
@@ -384,7 +385,24 @@ def replay_meshcat():
 def _export_recording(cd: Station, meshcat, html: Path) -> None:
     cd.visualizer.StopRecording()
     cd.visualizer.PublishRecording()
-    atomic_write_text(html, meshcat.StaticHtml())
+    atomic_write_text(html, captioned_replay(meshcat.StaticHtml(), replay_caption(cd.scenario)))
+
+
+def replay_caption(scenario: ChainScenario) -> str | None:
+    """What a replay names besides the scene: the anatomy file it ran on (None: the built-in atrium)."""
+    return f"anatomy: {Path(scenario.anatomy).name}" if scenario.anatomy else None
+
+
+def captioned_replay(page: str, caption: str | None) -> str:
+    """The replay page with ``caption`` as its title and a line of text in its top-left corner."""
+    if not caption:
+        return page
+    text = html_escape(caption)
+    label = (f'<div id="ballchain-caption" style="position:fixed;top:6px;left:10px;z-index:10;'
+             f'font:14px sans-serif;color:#222;background:rgba(255,255,255,0.7);padding:2px 6px">{text}</div>')
+    page = page.replace("<head>", f"<head><title>{text}</title>", 1)
+    at = page.rfind("</body>")
+    return page + label if at < 0 else page[:at] + label + page[at:]
 
 
 def station_monitor(cd: Station, monitor: ChainMonitor, stop=None, on_time=None, check=None):

@@ -60,6 +60,7 @@ def test_teleop_visits_the_anatomy_s_targets_in_file_order_and_writes_the_replay
     assert data["anatomy"]["file"] == str(path) and data["task"] is None and data["paper"] is None
     assert [r["target"] for r in data["rows"]] == ["L1", "L2"]
     assert html.stat().st_size > 0 and data["html"] == str(html)
+    assert f"anatomy: {path.name}" in html.read_text()  # the replay names the anatomy it ran on
     radius = data["anatomy"]["touch_radius_mm"]
     for row in data["rows"]:
         if row["touched"]:
@@ -122,3 +123,13 @@ def test_plan_and_teleop_on_a_solid_phantom(tmp_path, capsys):
     for row in data["rows"]:
         if row["touched"]:
             assert row["accuracy_mm"] <= data["anatomy"]["touch_radius_mm"] + 1e-6
+
+
+def test_a_replay_names_its_anatomy_in_its_title_and_corner():
+    from ballchain.systems.chain_simulation import captioned_replay
+
+    page = "<html><head><meta></head><body><div>scene</div></body></html>"
+    assert captioned_replay(page, None) == page  # the built-in atrium: the page as Meshcat wrote it
+    out = captioned_replay(page, "anatomy: a<b>.yaml")
+    assert out.startswith("<html><head><title>anatomy: a&lt;b&gt;.yaml</title><meta>")
+    assert out.index('id="ballchain-caption"') < out.index("</body>") and "a<b>" not in out
