@@ -1,6 +1,7 @@
 """The actuation units' per-step shortcuts give the very values of the plain formulas.
 
-The Hall sensor remembers each magnet's field for its last orientation; its samples must be
+The omni-wheel drive and the feeder step on plain floats; their states must equal the numpy
+stepper and feed laws exactly. The Hall sensor remembers each magnet's field for its last orientation; its samples must be
 bit-identical to the field law evaluated afresh (``MagnetUnitConfig.source(R).field``), also when
 a magnet turns, stops, and turns back to an earlier orientation.
 """
@@ -13,7 +14,10 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from ballchain.drake_models.field_sources import rotation_with_z_along
+from ballchain.drake_models.params import BallChain
+from ballchain.systems.feeder import Feeder
 from ballchain.systems.hall_sensor import HallSensor, HallSensorSpec, quantise_reading
+from ballchain.systems.omni_wheel_drive import OmniWheelDrive
 from ballchain.systems.unit_config import MagnetUnitConfig
 
 
@@ -62,3 +66,57 @@ def test_hall_sensor_true_field_is_not_shared_with_its_memory():
     first = sensor.true_field(ctx)
     first[:] = 0.0  # a caller's scribbling must not reach the next sample
     np.testing.assert_array_equal(sensor.true_field(ctx), unit.source(R).field(unit.p_WS[None, :])[0])
+
+
+def _advance_with_inputs(system, inputs, period):
+    """Run ``system`` alone, one update period per input value; yield (input, state before, context)."""
+    ctx = system.CreateDefaultContext()
+    sim = Simulator(system, ctx)
+    for k, u in enumerate(inputs):
+        system.get_input_port(0).FixValue(ctx, u)
+        before = [ctx.get_discrete_state().get_vector(i).CopyToVector()
+                  for i in range(ctx.num_discrete_state_groups())]
+        sim.AdvanceTo((k + 0.5) * period)  # the update at k * period, under input u
+        yield u, before, ctx
+
+
+def test_omni_wheel_drive_update_equals_the_numpy_stepper_law():
+    drive = OmniWheelDrive()
+    s = drive.spec
+    dt, msa = s.update_period, s.microstep_angle
+    rng = np.random.default_rng(5)
+    inputs = [rng.normal(size=3) * 2.0 for _ in range(12)] + [np.zeros(3)] * 4
+    for u, (speed, angle, steps, _), ctx in _advance_with_inputs(drive, inputs, dt):
+        target = drive.wheel_command(u)
+        exp_speed = speed + np.clip(target - speed, -s.max_acceleration * dt, s.max_acceleration * dt)
+        exp_angle = angle + exp_speed * dt
+        exp_steps = np.round(exp_angle / msa)
+        state = ctx.get_discrete_state()
+        np.testing.assert_array_equal(state.get_vector(0).CopyToVector(), exp_speed)
+        np.testing.assert_array_equal(state.get_vector(1).CopyToVector(), exp_angle)
+        np.testing.assert_array_equal(state.get_vector(2).CopyToVector(), exp_steps)
+        np.testing.assert_array_equal(state.get_vector(3).CopyToVector(), (exp_steps - steps) * msa / dt)
+    assert np.any(state.get_vector(2).CopyToVector() != 0.0)  # the wheels did move
+
+
+def test_feeder_update_equals_the_numpy_feed_law_including_the_end_stop():
+    chain = BallChain()
+    feeder = Feeder(chain, initial_length=chain.length - 1e-7)
+    s = feeder.spec
+    dt = s.update_period
+    inputs = [np.array([v]) for v in (0.01, 0.05, 0.05, 0.05, 0.05, -0.2, -0.2, -0.2, 0.003)]
+    stops = 0
+    for u, (speed, length, _), ctx in _advance_with_inputs(feeder, inputs, dt):
+        v = speed[0]
+        target = np.clip(u[0], -s.max_speed, s.max_speed)
+        v = v + np.clip(target - v, -s.max_acceleration * dt, s.max_acceleration * dt)
+        x = length[0] + v * dt
+        if x <= 0.0 or x >= chain.length:
+            x, v, stops = np.clip(x, 0.0, chain.length), 0.0, stops + 1
+        steps = min(np.round(x / s.step_length), np.floor(chain.length / s.step_length))
+        state = ctx.get_discrete_state()
+        assert state.get_vector(0).GetAtIndex(0) == v
+        assert state.get_vector(1).GetAtIndex(0) == x
+        assert state.get_vector(2).GetAtIndex(0) == steps
+    assert stops > 0  # the end stop was reached
+    assert state.get_vector(0).GetAtIndex(0) < 0.0  # and the feeder retracts from it
