@@ -87,6 +87,9 @@ class Feeder(LeafSystem):
         if not 0.0 <= initial_length <= self._chain.length:
             raise UserInputError(f"Feeder initial_length {initial_length} m is outside 0..{self._chain.length} m")
         self.set_name(name)
+        self._chain_length = float(self._chain.length)
+        self._step_length = float(self._spec.step_length)
+        self._max_steps = float(np.floor(self._chain_length / self._step_length))
         self._v_port = self.DeclareVectorInputPort("v_insert_cmd", 1)
         self._speed_index = self.DeclareDiscreteState(1)
         self._length_index = self.DeclareDiscreteState(BasicVector([float(initial_length)]))
@@ -101,21 +104,24 @@ class Feeder(LeafSystem):
         return self._spec
 
     def _update(self, context, discrete_state):
+        # Plain floats throughout (500 updates a second): min/max clip a finite number as
+        # np.clip does, and round() rounds half to even as np.round does.
         s = self._spec
         dt = s.update_period
         # np.clip keeps a NaN: refuse it here, naming the feeder, the port and the time.
-        command = check_finite_input(self, self._v_port, context)[0]
-        target = float(np.clip(command, -s.max_speed, s.max_speed))
+        command = float(check_finite_input(self, self._v_port, context)[0])
+        target = min(max(command, -s.max_speed), s.max_speed)
+        dv = s.max_acceleration * dt
         v = context.get_discrete_state(self._speed_index).GetAtIndex(0)
-        v += float(np.clip(target - v, -s.max_acceleration * dt, s.max_acceleration * dt))
+        v += min(max(target - v, -dv), dv)
         x = context.get_discrete_state(self._length_index).GetAtIndex(0) + v * dt
-        if x <= 0.0 or x >= self._chain.length:  # end stops: stop there, no wind-up
-            x = float(np.clip(x, 0.0, self._chain.length))
+        if x <= 0.0 or x >= self._chain_length:  # end stops: stop there, no wind-up
+            x = min(max(x, 0.0), self._chain_length)
             v = 0.0
         discrete_state.get_mutable_vector(self._speed_index).SetAtIndex(0, v)
         discrete_state.get_mutable_vector(self._length_index).SetAtIndex(0, x)
         # Whole microsteps, never past the end stops.
-        steps = min(np.round(x / s.step_length), np.floor(self._chain.length / s.step_length))
+        steps = min(float(round(x / self._step_length)), self._max_steps)
         discrete_state.get_mutable_vector(self._steps_index).SetAtIndex(0, steps)
 
     def _length(self, context) -> float:

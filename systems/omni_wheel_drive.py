@@ -91,6 +91,7 @@ class OmniWheelDrive(LeafSystem):
         self._geometry = geometry or OmniWheelGeometry()
         self._spec = spec or StepperSpec()
         self.set_name(f"{name}.drive")
+        self._microstep_angle = float(self._spec.microstep_angle)
 
         self._omega_port = self.DeclareVectorInputPort("omega_desired_W", 3)
         self._speed_index = self.DeclareDiscreteState(3)
@@ -111,21 +112,25 @@ class OmniWheelDrive(LeafSystem):
         return saturate_uniformly(self._geometry.wheel_speeds(omega_desired_W), self._spec.max_speed)
 
     def _update(self, context, discrete_state):
+        # Element by element on plain floats (200 updates a second, three wheels): min/max clip
+        # as np.clip does and round() rounds half to even as np.round does.
         s = self._spec
         dt = s.update_period
+        step = self._microstep_angle
         # A NaN command would pass the speed limit (max |NaN| is NaN) and reach the magnet.
-        target = self.wheel_command(check_finite_input(self, self._omega_port, context))
-        speed = context.get_discrete_state(self._speed_index).CopyToVector()
+        target = self.wheel_command(check_finite_input(self, self._omega_port, context)).tolist()
+        state = context.get_discrete_state()
         dv = s.max_acceleration * dt
-        speed = speed + np.clip(target - speed, -dv, dv)
-        angle = context.get_discrete_state(self._angle_index).CopyToVector() + speed * dt
-        steps_old = context.get_discrete_state(self._steps_index).CopyToVector()
-        steps = np.round(angle / s.microstep_angle)
+        speed_old, angle_old, steps_old = (state.get_vector(i).value().tolist()
+                                           for i in (self._speed_index, self._angle_index, self._steps_index))
+        speed = [v + min(max(t - v, -dv), dv) for t, v in zip(target, speed_old)]
+        angle = [a + v * dt for a, v in zip(angle_old, speed)]
+        steps = [float(round(a / step)) for a in angle]
         discrete_state.get_mutable_vector(self._speed_index).SetFromVector(speed)
         discrete_state.get_mutable_vector(self._angle_index).SetFromVector(angle)
         discrete_state.get_mutable_vector(self._steps_index).SetFromVector(steps)
         discrete_state.get_mutable_vector(self._applied_index).SetFromVector(
-            (steps - steps_old) * s.microstep_angle / dt
+            [(n - n_old) * step / dt for n, n_old in zip(steps, steps_old)]
         )
 
     def _calc_angles(self, context, output):
