@@ -51,6 +51,21 @@ def _rz(t: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+def _convex(K: np.ndarray, W: np.ndarray) -> np.ndarray:
+    """K - t W for the largest t in (1, 1/2, 1/4, ...) that keeps it positive definite (t = 0:
+    K, the elastic Hessian, always is): the wall's curvature where it helps, without the cost
+    of an eigendecomposition."""
+    t = 1.0
+    for _ in range(6):
+        H = K - t * W
+        try:
+            np.linalg.cholesky(H)
+            return H
+        except np.linalg.LinAlgError:
+            t *= 0.5
+    return K
+
+
 def frame_along(axis) -> np.ndarray:
     """A rotation whose z column is ``axis`` (unit) and whose x column is the most horizontal
     direction normal to it (world z up), the sheath's frame before any twist."""
@@ -208,6 +223,32 @@ class RodStatics:
                 value += rho * float(np.maximum(-gaps, 0.0).sum())
         return value
 
+    def wall_hessian(self, pose: RodPose, lam: np.ndarray) -> np.ndarray:
+        """sum_m lam_m d^2 sdf(p_m) / dq^2: the wall rows' curvature in the joint angles (the
+        sdf's Hessian through the Jacobian, and the sdf's gradient through the chain's second
+        derivatives d^2 p / dq_i dq_j = w_i x (w_j x (p - p_j)), i no later than j)."""
+        n = pose.J.shape[2]
+        out = np.zeros((n, n))
+        active = np.flatnonzero(lam > 0)
+        if not len(active):
+            return out
+        _, grads, hess = self.sdf(pose.nodes[active], gradient=True, hessian=True)
+        axes = pose.J_rot.T  # (3f, 3) each column's axis
+        col_joint = np.repeat(np.arange(n // 3), 3)
+        joints = pose.nodes[:-1]  # node i < f is joint i
+        for w, m, gr, He in zip(lam[active], active, grads, hess):
+            Jm = pose.J[m]
+            out += w * (Jm.T @ He @ Jm)
+            lever = pose.nodes[m] - joints[col_joint]  # (3f, 3)
+            moving = np.flatnonzero(col_joint < m)  # the joints before node m move it
+            inner = np.cross(axes[moving], lever[moving])  # w_j x (p - p_j)
+            # d2[i, j] = gr . (w_i x inner_j) = inner_j . (gr x w_i), for i <= j.
+            d2 = np.cross(gr, axes[moving]) @ inner.T
+            d2 = np.triu(d2)
+            d2 = d2 + np.triu(d2, 1).T
+            out[np.ix_(moving, moving)] += w * d2
+        return out
+
     def _step(self, q, H, g, length, phi):
         """The SQP step and the wall multipliers (one per node) at q."""
         if self.sdf is None or not len(g):
@@ -234,13 +275,21 @@ class RodStatics:
         length = float(np.clip(length, 0.0, self.max_length))
         j0 = self.first_free(length)
         K = self.stiffness(j0)
-        # From the straight rod (out of the sheath's bore: inside the lumen) unless warm-started.
-        q = np.zeros(len(K)) if q0 is None or len(q0) != len(K) else np.array(q0, float)
+        # From the straight rod (out of the sheath's bore: inside the lumen) unless warm-started;
+        # a warm start with fewer (more) free joints gains straight joints at the exit (loses the
+        # proximal ones): the continuation of pushing (pulling) rod through the exit.
+        q = np.zeros(len(K))
+        if q0 is not None and len(q0):
+            q0 = np.asarray(q0, float)
+            keep = min(len(q0), len(K))
+            q[len(K) - keep:] = q0[len(q0) - keep:]
         H = np.diag(K)
         lam, rho = np.zeros(0), 1.0
         converged, it = False, 0
         for it in range(1, max_iterations + 1):
             g = self.gradient(q, length, phi, kappa, force, torque)
+            if len(lam) and lam.any():  # the Lagrangian's Hessian with the last multipliers
+                H = _convex(np.diag(K), self.wall_hessian(self.pose(q, length, phi), lam))
             dq, lam = self._step(q, H, g, length, phi)
             big = np.abs(dq).max() if len(dq) else 0.0
             if big < tol:

@@ -103,9 +103,9 @@ def test_wall_stops_the_rod_and_pushes_back():
     x_mat = rod.R_E[:, 0]
     wall_at = 15e-3
 
-    def sdf(p, gradient=True):
-        values = wall_at - p @ x_mat
-        return values, np.tile(-x_mat, (len(p), 1))
+    def sdf(p, gradient=True, hessian=False):
+        values, grads = wall_at - p @ x_mat, np.tile(-x_mat, (len(p), 1))
+        return (values, grads, np.zeros((len(p), 3, 3))) if hessian else (values, grads)
 
     rod.sdf = sdf
     sol = rod.solve(60e-3, 0.0, np.pi / 60e-3)  # a half turn would reach 38 mm along x_mat
@@ -171,3 +171,36 @@ def test_catheter_constants_and_bad_input():
         SteerableCatheter(mu_static=0.1, mu_kinetic=0.2).validate()
     with pytest.raises(UserInputError, match="lumen_diameter"):
         SteerableCatheter(lumen_diameter=3e-3).validate()
+
+
+def test_wall_hessian_matches_finite_differences():
+    """sum lam d^2 sdf(p_m(q)) / dq^2 against central differences of the rows' gradients, for a
+    curved wall (a sphere's signed distance) and a bent, twisted rod."""
+    cat = SteerableCatheter()
+    centre, radius = np.array([0.03, 0.01, 0.0]), 0.04
+
+    def sdf(p, gradient=True, hessian=False):
+        rel = np.atleast_2d(p) - centre
+        d = np.linalg.norm(rel, axis=1)
+        n = rel / d[:, None]
+        hess = (np.eye(3)[None] - n[:, :, None] * n[:, None, :]) / d[:, None, None]
+        return (radius - d, -n, -hess) if hessian else (radius - d, -n)
+
+    rod = RodStatics(cat, np.zeros(3), AXIS, sdf)
+    length, phi = 50e-3, 0.3
+    j0 = rod.first_free(length)
+    q = 0.1 * np.random.default_rng(5).standard_normal(3 * (rod.n_joints - j0))
+    m = len(rod.pose(q, length, phi).nodes)
+    lam = np.zeros(m)
+    lam[[3, m // 2, m - 1]] = [0.5, 1.0, 2.0]
+
+    def rows_gradient(x):
+        pose = rod.pose(x, length, phi)
+        _, grads = sdf(pose.nodes)
+        return np.einsum("m,mi,mij->j", lam, grads, pose.J)
+
+    W = rod.wall_hessian(rod.pose(q, length, phi), lam)
+    eps = 1e-6
+    fd = np.array([(rows_gradient(q + eps * e) - rows_gradient(q - eps * e)) / (2 * eps) for e in np.eye(len(q))])
+    assert np.abs(W - W.T).max() < 1e-12 * np.abs(W).max()
+    assert np.abs(fd - W).max() < 1e-6 * np.abs(W).max()
