@@ -75,6 +75,8 @@ class SteerableCatheter:
         mu_static, mu_kinetic: shaft on the sheath's PTFE liner.
         sheath_bend_radius: radius of the sheath's bends [m]; sheath_bends: how many.
         shaft_elements: elements of the shaft's friction chain.
+        braid_torsion: the shaft's torsional stiffness over the plain tube's (1: the braid
+            neglected, the lower bound; a sensitivity parameter, no source for a higher value).
     """
 
     diameter: float = 8 * FRENCH
@@ -93,6 +95,7 @@ class SteerableCatheter:
     sheath_bend_radius: float = 25e-3
     sheath_bends: int = 2
     shaft_elements: int = 8
+    braid_torsion: float = 1.0
 
     def validate(self) -> "SteerableCatheter":
         require_finite_fields(self)
@@ -105,6 +108,8 @@ class SteerableCatheter:
         if not 0 <= self.mu_kinetic <= self.mu_static:
             raise UserInputError("SteerableCatheter: friction needs 0 <= mu_kinetic <= mu_static, got "
                                  f"{self.mu_kinetic}, {self.mu_static}")
+        if not self.braid_torsion >= 1.0:
+            raise UserInputError(f"SteerableCatheter.braid_torsion must be >= 1 (1: no braid), got {self.braid_torsion}")
         if not self.deflectable_length <= self.model_length or self.shaft_elements < 1:
             raise UserInputError("SteerableCatheter: deflectable_length <= model_length and shaft_elements >= 1")
         return self
@@ -121,7 +126,7 @@ class SteerableCatheter:
 
     @property
     def shaft_GJ(self) -> float:
-        return self.shaft_EI / (1.0 + self.poisson)
+        return self.braid_torsion * self.shaft_EI / (1.0 + self.poisson)
 
     @property
     def tip_GJ(self) -> float:
