@@ -21,6 +21,28 @@ from ballchain.drake_models.errors import UserInputError
 from ballchain.experiments import teleop
 
 STRATEGIES = ("switch", "keep")
+# The comparison's manual arm: the catheter with its shaft's braid counted in torsion as ten times
+# the plain Pebax tube's GJ. An order of magnitude for a stainless braid, not from a source and not
+# fitted to the paper's times (the only value tried); with the braid neglected (1) the shaft's
+# static friction holds the tip until the handle leads it by about 140 degrees
+# (``torsion_lead_deg``), and the simulated operator, which learns a linear mapping, touches
+# nothing. ``ballchain teleop --device steerable_catheter --braid 1`` runs that case.
+BRAID_TORSION = 10.0
+
+
+def comparison_catheter(braid_torsion: float = BRAID_TORSION):
+    from ballchain.drake_models.steerable_catheter import SteerableCatheter
+
+    return SteerableCatheter(braid_torsion=braid_torsion).validate()
+
+
+def torsion_lead_deg(catheter) -> dict:
+    """How far the handle leads the tip in twist before the tip turns [deg]: the twist chain's
+    static lead (every node at its static friction) and kinetic one (each just after a slip)."""
+    chain = catheter.twist_chain()
+    nodes = chain.n * (chain.n + 1) / 2
+    return {"static_deg": round(float(np.degrees(nodes * chain.static / chain.k)), 1),
+            "kinetic_deg": round(float(np.degrees(nodes * chain.kinetic / chain.k)), 1)}
 
 
 def scenario_for():
@@ -44,7 +66,7 @@ def check_inputs(task: str, targets, time_limit, seed, strategy: str) -> None:
 
 def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy: str = "switch",
         time_limit: float | None = None, heart=None, hand=None, catheter=None) -> teleop.TeleopResult:
-    """The operator does ``task`` with the manual catheter.
+    """The operator does ``task`` with the manual catheter (default: ``comparison_catheter()``).
 
     Returns:
         a ``teleop.TeleopResult`` (mapping "manual"); its settings add the catheter's and the
@@ -56,7 +78,7 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
 
     from ballchain.systems.catheter_station import HandParams
     from ballchain.systems.simulated_operator import OperatorParams, SimulatedOperator
-    from ballchain.systems.station import MakeStation, atrium_for
+    from ballchain.systems.station import atrium_for
 
     check_inputs(task, targets, time_limit, seed, strategy)
     scenario = scenario_for()
@@ -85,12 +107,11 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
         return {"operator": op}
 
     built = time.perf_counter()
-    if catheter is None:
-        station = MakeStation(scenario, heart=heart, add_systems=add_operator)
-    else:  # a catheter other than the default (a sensitivity): the sibling builder directly
-        from ballchain.systems.catheter_station import make_catheter_station
+    from ballchain.systems.catheter_station import make_catheter_station
 
-        station = make_catheter_station(scenario, heart=heart, add_systems=add_operator, catheter=catheter, hand=hand)
+    # MakeStation's catheter diagram, with this catheter and hand.
+    station = make_catheter_station(scenario, heart=heart, add_systems=add_operator,
+                                    catheter=catheter or comparison_catheter(), hand=hand)
     built = time.perf_counter() - built
     op = handles["operator"]
     limit = time_limit if time_limit is not None else n_targets * params.timeout + params.start_time + 5.0
@@ -121,7 +142,9 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
     hand_state = station.hand.GetOutputPort("state").Eval(station.hand.GetMyContextFromRoot(root))
     path = {"t": tip_log.sample_times().tolist(), "tip": tip_log.data().T.tolist(),
             "twist": wind_log.data()[0].tolist(), "exit_twist": wind_log.data()[1].tolist()}
+    used = catheter or comparison_catheter()
     settings = {"device": "steerable_catheter", "seed": int(seed), "strategy": hand.strategy,
+                "braid_torsion": used.braid_torsion, "torsion_lead": torsion_lead_deg(used),
                 "statics_period_s": scenario.statics_period, "operator_period_s": params.period,
                 "reaction_s": params.period * params.reaction_steps, "timeout_s": params.timeout,
                 "axes": list(params.axes), "time_limit_s": limit, "push_speed_m_s": hand.push_speed,
