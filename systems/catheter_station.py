@@ -246,6 +246,39 @@ class SteerableCatheterSystem(LeafSystem):
         output.SetFromVector([st.twist[0], st.twist[-1], float(st.slips)])
 
 
+class CatheterMeshcat(LeafSystem):
+    """The catheter in Meshcat: the atrium's blood-side surface and the targets drawn once, the
+    rod's nodes (spheres of its radius) moved at every publish from ``body_poses``.
+
+    Input ports: body_poses (abstract list[RigidTransform]).
+    """
+
+    def __init__(self, meshcat, heart, n_bodies: int, radius: float, targets=None, period: float = 0.05) -> None:
+        super().__init__()
+        from pydrake.geometry import Rgba, Sphere
+
+        self.set_name("catheter_meshcat")
+        self._meshcat, self._n = meshcat, n_bodies
+        self._poses = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
+        V, F = heart.blood_surface
+        meshcat.SetTriangleMesh("catheter_view/atrium", np.asarray(V, float).T, np.asarray(F).T,
+                                Rgba(0.85, 0.45, 0.45, 0.25))
+        if targets is not None:
+            for name, p in zip(targets[0], targets[1]):
+                meshcat.SetObject(f"catheter_view/targets/{name}", Sphere(targets[3]), Rgba(0.2, 0.6, 0.9, 0.6))
+                meshcat.SetTransform(f"catheter_view/targets/{name}", RigidTransform(p))
+        for i in range(n_bodies):
+            meshcat.SetObject(f"catheter_view/rod/{i}", Sphere(radius), Rgba(0.3, 0.3, 0.3, 1.0))
+        self.DeclarePeriodicPublishEvent(period, 0.0, self._publish)
+        self.DeclareForcedPublishEvent(self._publish)
+
+    def _publish(self, context):
+        poses = self._poses.Eval(context)
+        for i in range(self._n):
+            self._meshcat.SetTransform(f"catheter_view/rod/{i}", poses[i + 1], context.get_time())
+        return EventStatus.Succeeded()
+
+
 @dataclass
 class CatheterPorts:
     """What the ``add_systems`` hook may connect to (as ``station.StationPorts`` for the chain):
@@ -274,9 +307,11 @@ class CatheterStation:
 
 
 def make_catheter_station(scenario, *, heart=None, add_systems=None, catheter: SteerableCatheter | None = None,
-                          hand: HandParams | None = None, initial_length: float = 20e-3) -> CatheterStation:
+                          hand: HandParams | None = None, initial_length: float = 20e-3,
+                          meshcat=None) -> CatheterStation:
     """The catheter station of a ``device: steerable_catheter`` scenario (module docstring); the
-    catheter updates every ``scenario.statics_period``, the targets are checked as often."""
+    catheter updates every ``scenario.statics_period``, the targets are checked as often; with a
+    Meshcat, ``catheter_meshcat`` draws it (``scenario.visualization.publish_period``)."""
     from ballchain.drake_models.atrium_sdf import atrium_sdf
     from ballchain.systems.station import atrium_for
 
@@ -296,6 +331,10 @@ def make_catheter_station(scenario, *, heart=None, add_systems=None, catheter: S
         builder.Connect(cat.GetOutputPort("body_poses"), tracker.get_body_poses_input_port())
     ports = CatheterPorts(cat, cat.GetOutputPort("body_poses"), hand_system.GetInputPort("joystick"),
                           hand_system.GetInputPort("v_insert_cmd"), heart, targets, tracker)
+    if meshcat is not None:
+        view = builder.AddSystem(CatheterMeshcat(meshcat, heart, cat.n_bodies, cat.catheter.radius, targets,
+                                                 scenario.visualization.publish_period))
+        builder.Connect(cat.GetOutputPort("body_poses"), view.GetInputPort("body_poses"))
     added = dict(add_systems(builder, ports) or {}) if add_systems is not None else {}
     for port, name in ((ports.joystick_input, "hand.joystick"), (ports.feeder_command_input, "hand.v_insert_cmd")):
         if not builder.IsConnectedOrExported(port):

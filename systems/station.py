@@ -521,11 +521,11 @@ def MakeStation(scenario: ChainScenario, meshcat=None, *, heart: Atrium | None =
     t0 = time.perf_counter()
     scenario.validate()
     if scenario.device == "steerable_catheter":  # the paper's manual arm: its own diagram
-        if meshcat is not None or field_source is not FROM_SCENARIO:
-            raise UserInputError("MakeStation: device: steerable_catheter takes no meshcat or field_source")
+        if field_source is not FROM_SCENARIO:
+            raise UserInputError("MakeStation: device: steerable_catheter takes no field_source (it is not magnetic)")
         from ballchain.systems.catheter_station import make_catheter_station
 
-        return make_catheter_station(scenario, heart=heart, add_systems=add_systems)
+        return make_catheter_station(scenario, heart=heart, add_systems=add_systems, meshcat=meshcat)
     heart = apply_atrium(scenario, heart)
     config = apply_chain_plant_config(scenario, heart)
     fields = add_field_sources(scenario, heart, field_source)

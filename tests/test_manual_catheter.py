@@ -151,3 +151,30 @@ def test_manual_task_smoke(task):
     assert len(r.settings["path"]["tip"]) == len(r.settings["path"]["t"]) > 10
     assert len(mc.transitions(r)) == 2
     assert mc.effort(r)["handle_revolutions"] >= 0.0
+
+
+def test_make_station_builds_the_catheter_with_its_meshcat_view(atrium):
+    """MakeStation with device: steerable_catheter: the catheter's diagram with the hand's inputs
+    exported (the knob turned by the stick bends the tip off the sheath axis), and the atrium,
+    the targets and the rod's nodes in a (localhost) Meshcat."""
+    from pydrake.geometry import Meshcat, MeshcatParams
+
+    from ballchain.systems.station import MakeStation
+
+    heart, _ = atrium
+    meshcat = Meshcat(MeshcatParams(host="localhost"))
+    station = MakeStation(mc.scenario_for(), meshcat=meshcat, heart=heart)
+    diagram = station.diagram
+    sim = Simulator(diagram)
+    context = sim.get_mutable_context()
+    diagram.GetInputPort("hand.joystick").FixValue(context, [0.0, 1.0, 0.0])
+    diagram.GetInputPort("hand.v_insert_cmd").FixValue(context, [0.0])
+    sim.AdvanceTo(0.5)
+    diagram.ForcedPublish(context)
+    assert station.hand.GetOutputPort("handle").Eval(station.hand.GetMyContextFromRoot(context))[2] > 0.3
+    tip = station.catheter.GetOutputPort("tip_position").Eval(station.catheter.GetMyContextFromRoot(context))
+    rel = tip - heart.p_HE
+    assert np.linalg.norm(rel - (rel @ heart.sheath_axis_H) * heart.sheath_axis_H) > 1e-3
+    for path in ("catheter_view/atrium", "catheter_view/targets/left_1",
+                 f"catheter_view/rod/{station.catheter.n_bodies - 1}"):
+        assert meshcat.HasPath(path)
