@@ -30,7 +30,9 @@ Sources of the constants (no constant was tuned to the paper's times):
   modulus 500 MPa (the top of the Pebax 33 series' 10-500 MPa range, Arkema's Pebax mechanical
   properties page, ISO 178), the braid neglected (a lower bound): E pi (D^4 - d^4) / 64.
 * GJ = EI / (1 + nu) (an isotropic tube, J = 2 I), nu = 0.45 (a thermoplastic elastomer); the
-  braid, which raises a shaft's torque response, is neglected (a lower bound).
+  braid, which raises a shaft's torque response, is neglected (a lower bound) unless
+  ``braid_torsion`` says otherwise: no source for how much a braid adds was found here, so the
+  comparison's factor (``experiments.manual_catheter.BRAID_TORSION``) is a stated sensitivity.
 * Deflectable segment: 55 mm long, largest curvature 180 degrees over it on the tighter (D) side
   and 120 degrees on the wider (F) side: the size of a D-F bidirectional curve (a half turn of
   about 35 mm reach on the D side). No curve datasheet was found in the reference material

@@ -211,9 +211,10 @@ class SteerableCatheterSystem(LeafSystem):
             st.slips += slips
             sol = self.rod.solve(length, st.twist[-1], kappa, q0=st.q if len(st.q) else None)
             if not (np.all(np.isfinite(sol.q)) and np.isfinite(sol.base_torque)):
-                st.failures.append(f"rod statics not finite at length {length * 1e3:.1f} mm")
-                return st
-            if not sol.converged:
+                if len(st.failures) < 20:
+                    st.failures.append(f"rod statics not finite at length {length * 1e3:.1f} mm")
+                return st  # the last finite state stays
+            if not sol.converged and len(st.failures) < 20:  # the first few, for the run's warnings
                 st.failures.append(f"rod statics did not converge at length {length * 1e3:.1f} mm")
             changed = abs(sol.base_torque - st.torque) > 0.05 * self._twist_chain.kinetic
             st.q, st.torque, st.length = sol.q, sol.base_torque, length
