@@ -451,8 +451,9 @@ def manual_section(out: Path, quick: bool) -> tuple[Section, dict]:
     comparison = mc.compare(seeds=seeds, targets=targets)
     write_json(out / "manual_comparison.json", comparison)
     mc.transition_figure(comparison, out / "manual_transitions.png")
-    plain = mc.torsion_lead_deg(mc.comparison_catheter(1.0))
-    braided = mc.torsion_lead_deg(mc.comparison_catheter())
+    plain = mc.torsion_lead_deg(mc.comparison_catheter(0))
+    cat = mc.comparison_catheter()
+    braided = mc.torsion_lead_deg(cat)
     section = Section("Robotic vs manual navigation (paper Sec. V-C)")
     section.text(
         "The same simulated operator (it sees only the tip, learns its inputs' effect, gives up after 20 s) "
@@ -464,8 +465,10 @@ def manual_section(out: Path, quick: bool) -> tuple[Section, dict]:
            f"Whole tasks, operator seeds {', '.join(map(str, seeds))}; medians over the seeds. ")
         + "Smoothness: SPARC of the tip's speed per transition (Balasubramanian et al. 2015; closer to 0 is "
         f"smoother). The shaft's twist lags the handle by {braided['kinetic_deg']}-{braided['static_deg']} deg "
-        f"with the braid counted as 10 times the plain tube's torsional stiffness (an order of magnitude, no source), "
-        f"{plain['kinetic_deg']}-{plain['static_deg']} deg with it neglected: there the operator touches nothing.")
+        f"with the shaft's steel braid in torsion ({cat.braid_wires} wires of {cat.braid_wire_diameter * 1e3:.3f} mm at "
+        f"{math.degrees(cat.braid_angle):.0f} deg, netting analysis: GJ {cat.shaft_GJ / cat.plain_GJ:.1f} times the "
+        f"plain tube's; `drake_models/steerable_catheter.py`), {plain['kinetic_deg']}-{plain['static_deg']} deg with "
+        "it neglected: there the operator touches nothing.")
     section.table(["task", "device", "touched", "total [s]", "paper [s]", "transition median [s]",
                    "accuracy median [mm]", "SPARC median", "reversals", "handle revolutions / stick travel"],
                   [[r["task"], r["device"], f"{r['touched_median']:g}/{r['targets']}", r["total_time_median_s"],

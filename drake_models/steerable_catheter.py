@@ -29,10 +29,29 @@ Sources of the constants (no constant was tuned to the paper's times):
 * Shaft's EI: a Pebax tube of the 8 Fr outer diameter and an assumed 1.5 mm lumen, flexural
   modulus 500 MPa (the top of the Pebax 33 series' 10-500 MPa range, Arkema's Pebax mechanical
   properties page, ISO 178), the braid neglected (a lower bound): E pi (D^4 - d^4) / 64.
-* GJ = EI / (1 + nu) (an isotropic tube, J = 2 I), nu = 0.45 (a thermoplastic elastomer); the
-  braid, which raises a shaft's torque response, is neglected (a lower bound) unless
-  ``braid_torsion`` says otherwise: no source for how much a braid adds was found here, so the
-  comparison's factor (``experiments.manual_catheter.BRAID_TORSION``) is a stated sensitivity.
+* The plain tube's GJ = EI / (1 + nu) (an isotropic tube, J = 2 I), nu = 0.45 (a thermoplastic
+  elastomer); the deflectable segment's likewise from its EI.
+* The shaft's braid in torsion (``braid_GJ``, added to the plain tube's GJ): ablation-catheter
+  shafts carry a stainless-steel braid (304V wire) embedded in the polymer wall for torque
+  transmission (catheter-tubing makers' descriptions). Modelled by netting analysis: N wires, N/2
+  each way, on helices at +-alpha to the axis, on a cylinder of radius R_b, each carrying only
+  axial force (no bending of the wires, no slip at the crossings: an upper bound for the braid's
+  share). Twisting the shaft by theta' per unit length strains a wire by
+  eps = R_b theta' sin(alpha) cos(alpha) (one set stretched, the other compressed); a wire's length
+  per unit of shaft is 1 / cos(alpha), so the strain energy per unit length is
+  N E_w A_w eps^2 / (2 cos alpha) = GJ_braid theta'^2 / 2, that is
+
+      GJ_braid = N E_w A_w R_b^2 sin(alpha)^2 cos(alpha),   A_w = pi d_w^2 / 4.
+
+  Construction, assumptions at the level of typical catheter braids (no datasheet of the Tactiflex
+  shaft was found): N = 16 wires (the common 16-carrier braider; 8-32 exist), round wire
+  d_w = 0.002 in = 0.051 mm (catheter braid wire is 0.001-0.003 in), braid angle 60 degrees from
+  the axis (a fine pick: 45-70 degrees; sin^2 cos varies by under 10 % over 45-65 degrees),
+  R_b = 1.1 mm (under a jacket of about 0.2 mm of the 8 Fr wall), E_w = 193 GPa (304 stainless
+  steel). GJ_braid = 2.8e-3 N m^2, 3.7 times the plain tube's 7.7e-4: the shaft's GJ is 4.7 times
+  the braid-free value (d_w 0.001-0.003 in: 1.9-9.3 times). The braid also stiffens the shaft in
+  bending; that is not counted (the shaft's EI stays the plain tube's, as the sheath's normal
+  force, which is sized from it).
 * Deflectable segment: 55 mm long, largest curvature 180 degrees over it on the tighter (D) side
   and 120 degrees on the wider (F) side: the size of a D-F bidirectional curve (a half turn of
   about 35 mm reach on the D side). No curve datasheet was found in the reference material
@@ -77,8 +96,11 @@ class SteerableCatheter:
         mu_static, mu_kinetic: shaft on the sheath's PTFE liner.
         sheath_bend_radius: radius of the sheath's bends [m]; sheath_bends: how many.
         shaft_elements: elements of the shaft's friction chain.
-        braid_torsion: the shaft's torsional stiffness over the plain tube's (1: the braid
-            neglected, the lower bound; a sensitivity parameter, no source for a higher value).
+        braid_wires: the shaft braid's wire count (0: no braid, the plain tube's GJ).
+        braid_wire_diameter: its round wire's diameter [m].
+        braid_angle: its wires' angle from the shaft's axis [rad].
+        braid_radius: the braid's mean radius [m].
+        braid_modulus: its wire's Young's modulus [Pa].
     """
 
     diameter: float = 8 * FRENCH
@@ -97,7 +119,11 @@ class SteerableCatheter:
     sheath_bend_radius: float = 25e-3
     sheath_bends: int = 2
     shaft_elements: int = 8
-    braid_torsion: float = 1.0
+    braid_wires: int = 16
+    braid_wire_diameter: float = 0.002 * 25.4e-3
+    braid_angle: float = np.radians(60.0)
+    braid_radius: float = 1.1e-3
+    braid_modulus: float = 193e9
 
     def validate(self) -> "SteerableCatheter":
         require_finite_fields(self)
@@ -110,8 +136,16 @@ class SteerableCatheter:
         if not 0 <= self.mu_kinetic <= self.mu_static:
             raise UserInputError("SteerableCatheter: friction needs 0 <= mu_kinetic <= mu_static, got "
                                  f"{self.mu_kinetic}, {self.mu_static}")
-        if not self.braid_torsion >= 1.0:
-            raise UserInputError(f"SteerableCatheter.braid_torsion must be >= 1 (1: no braid), got {self.braid_torsion}")
+        if int(self.braid_wires) != self.braid_wires or self.braid_wires < 0 or self.braid_wires % 2:
+            raise UserInputError("SteerableCatheter.braid_wires must be an even count >= 0 (half each way; 0: no "
+                                 f"braid), got {self.braid_wires}")
+        for name in ("braid_wire_diameter", "braid_modulus"):
+            if not getattr(self, name) > 0:
+                raise UserInputError(f"SteerableCatheter.{name} must be > 0, got {getattr(self, name)}")
+        if not 0 < self.braid_angle < 0.5 * np.pi:
+            raise UserInputError(f"SteerableCatheter.braid_angle must be in (0, pi/2) rad, got {self.braid_angle}")
+        if self.braid_wires and not 0 < self.braid_radius < self.radius:
+            raise UserInputError(f"SteerableCatheter.braid_radius must be in (0, diameter / 2), got {self.braid_radius}")
         if not self.deflectable_length <= self.model_length or self.shaft_elements < 1:
             raise UserInputError("SteerableCatheter: deflectable_length <= model_length and shaft_elements >= 1")
         return self
@@ -127,8 +161,22 @@ class SteerableCatheter:
         return self.flexural_modulus * np.pi * (self.diameter**4 - self.lumen_diameter**4) / 64.0
 
     @property
+    def plain_GJ(self) -> float:
+        """The plain (braid-free) tube's GJ = EI / (1 + nu) [N m^2]."""
+        return self.shaft_EI / (1.0 + self.poisson)
+
+    @property
+    def braid_GJ(self) -> float:
+        """The braid's torsional stiffness by netting analysis (module docstring) [N m^2]:
+        N E_w (pi d_w^2 / 4) R_b^2 sin(alpha)^2 cos(alpha)."""
+        area = np.pi * self.braid_wire_diameter**2 / 4.0
+        a = self.braid_angle
+        return self.braid_wires * self.braid_modulus * area * self.braid_radius**2 * np.sin(a) ** 2 * np.cos(a)
+
+    @property
     def shaft_GJ(self) -> float:
-        return self.braid_torsion * self.shaft_EI / (1.0 + self.poisson)
+        """The shaft's torsional stiffness: the plain tube's and the braid's [N m^2]."""
+        return self.plain_GJ + self.braid_GJ
 
     @property
     def tip_GJ(self) -> float:

@@ -15,7 +15,7 @@ AXIS = np.array([1.0, 0.0, 0.0])
 def _uniform(EI=1e-3, length=80e-3, h=2e-3):
     """A rod of one stiffness over its modelled length (the deflectable segment covering it)."""
     # A thin rod (0.02 mm): the tip sphere's centre is the rod's end within 1e-5 m.
-    cat = SteerableCatheter(diameter=2e-5, lumen_diameter=1e-5, tip_EI=EI, flexural_modulus=1.0,
+    cat = SteerableCatheter(diameter=2e-5, lumen_diameter=1e-5, tip_EI=EI, flexural_modulus=1.0, braid_wires=0,
                             deflectable_length=length, model_length=length, segment_length=h)
     rod = RodStatics(cat, np.zeros(3), AXIS)
     rod.EI[:] = EI

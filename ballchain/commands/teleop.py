@@ -23,7 +23,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, finite_float, print_json
+from ballchain.commands._common import add_json_flag, finite_float, non_negative_int, print_json
 
 
 def _int(text: str) -> int:
@@ -42,9 +42,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--strategy", default=None,
                         help="with --device steerable_catheter: at the handle's windup switch (the opposite tendon "
                              "and back by half a turn; the default) or keep (keep turning)")
-    parser.add_argument("--braid", type=finite_float, default=None,
-                        help="with --device steerable_catheter: the shaft's torsional stiffness over the plain "
-                             "tube's (default 10, the comparison's; 1: the braid neglected)")
+    parser.add_argument("--braid", type=non_negative_int, default=None,
+                        help="with --device steerable_catheter: the shaft braid's wire count, even (default 16, "
+                             "the comparison's; 0: the braid neglected in torsion)")
     parser.add_argument("--mapping", default=None,
                         help="world (the paper's: stick = magnet angular velocity in world) or catheter "
                              "(stick swings the tip in the tip's frame)")
@@ -137,10 +137,9 @@ def _main_manual(args: argparse.Namespace) -> int:
                                                ("--no-wait", args.no_wait or None)),
             "they set up the robotic chain or the live view")
     strategy = "switch" if args.strategy is None else args.strategy
-    braid = manual_catheter.BRAID_TORSION if args.braid is None else args.braid
     manual_catheter.check_inputs("left" if args.task is None else args.task, args.targets, args.time_limit,
                                  0 if args.seed is None else args.seed, strategy)
-    catheter = manual_catheter.comparison_catheter(braid)
+    catheter = manual_catheter.comparison_catheter(args.braid)
     data = manual_catheter.run(task="left" if args.task is None else args.task, targets=args.targets,
                                seed=0 if args.seed is None else args.seed, strategy=strategy,
                                time_limit=args.time_limit, catheter=catheter)

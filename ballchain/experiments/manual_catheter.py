@@ -21,19 +21,16 @@ from ballchain.drake_models.errors import UserInputError
 from ballchain.experiments import teleop
 
 STRATEGIES = ("switch", "keep")
-# The comparison's manual arm: the catheter with its shaft's braid counted in torsion as ten times
-# the plain Pebax tube's GJ. An order of magnitude for a stainless braid, not from a source and not
-# fitted to the paper's times (the only value tried); with the braid neglected (1) the shaft's
-# static friction holds the tip until the handle leads it by about 140 degrees
-# (``torsion_lead_deg``), and the simulated operator, which learns a linear mapping, touches
-# nothing. ``ballchain teleop --device steerable_catheter --braid 1`` runs that case.
-BRAID_TORSION = 10.0
 
 
-def comparison_catheter(braid_torsion: float = BRAID_TORSION):
+def comparison_catheter(braid_wires: int | None = None):
+    """The comparison's manual arm: the catheter with its shaft's braid in torsion
+    (``SteerableCatheter.braid_GJ``: a netting calculation from the braid's construction);
+    ``braid_wires`` 0 neglects the braid (the shaft's static friction then holds the tip until the
+    handle leads it by about 140 degrees, ``torsion_lead_deg``)."""
     from ballchain.drake_models.steerable_catheter import SteerableCatheter
 
-    return SteerableCatheter(braid_torsion=braid_torsion).validate()
+    return (SteerableCatheter() if braid_wires is None else SteerableCatheter(braid_wires=braid_wires)).validate()
 
 
 def torsion_lead_deg(catheter) -> dict:
@@ -144,7 +141,8 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
             "twist": wind_log.data()[0].tolist(), "exit_twist": wind_log.data()[1].tolist()}
     used = catheter or comparison_catheter()
     settings = {"device": "steerable_catheter", "seed": int(seed), "strategy": hand.strategy,
-                "braid_torsion": used.braid_torsion, "torsion_lead": torsion_lead_deg(used),
+                "braid_wires": used.braid_wires,
+                "shaft_GJ_over_plain": round(used.shaft_GJ / used.plain_GJ, 3), "torsion_lead": torsion_lead_deg(used),
                 "statics_period_s": scenario.statics_period, "operator_period_s": params.period,
                 "reaction_s": params.period * params.reaction_steps, "timeout_s": params.timeout,
                 "axes": list(params.axes), "time_limit_s": limit, "push_speed_m_s": hand.push_speed,
