@@ -69,6 +69,7 @@ Sources of the constants (no constant was tuned to the paper's times):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -256,22 +257,28 @@ class CoulombChain:
         Returns:
             (x (n + 1,), slips: how many node slips it took).
         """
-        x = np.array(x, float)
+        # On Python floats (the same IEEE arithmetic as numpy's scalars, without their overhead).
+        x = [float(v) for v in np.asarray(x, float)]
         x[0] = float(handle)
+        k, n, load = float(self.k), self.n, float(load)
+        limit, kinetic = self.static * (1.0 + 1e-12), float(self.kinetic)
         slips = 0
         for _ in range(max_sweeps):
             moved = False
-            for i in range(1, self.n + 1):
-                right = x[i + 1] if i < self.n else None
-                f = self.k * (x[i - 1] - x[i]) + (self.k * (right - x[i]) if right is not None else load)
-                if abs(f) > self.static * (1.0 + 1e-12):
-                    stiffness = self.k * (2.0 if right is not None else 1.0)
-                    x[i] += (f - np.sign(f) * self.kinetic) / stiffness
+            for i in range(1, n + 1):
+                if i < n:
+                    f = k * (x[i - 1] - x[i]) + k * (x[i + 1] - x[i])
+                    stiffness = k * 2.0
+                else:
+                    f = k * (x[i - 1] - x[i]) + load
+                    stiffness = k
+                if abs(f) > limit:
+                    x[i] += (f - math.copysign(kinetic, f)) / stiffness
                     slips += 1
                     moved = True
             if not moved:
-                return x, slips
-        return x, slips
+                break
+        return np.array(x), slips
 
     def windup(self, x: np.ndarray) -> float:
         """The handle's lead over the distal node (x_0 - x_n)."""

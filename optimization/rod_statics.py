@@ -139,6 +139,7 @@ class RodStatics:
         self.p_E = np.asarray(p_E, float)
         self.R_E = frame_along(axis)
         self.sdf = sdf
+        self._last_pose = None
 
     @property
     def max_length(self) -> float:
@@ -166,24 +167,44 @@ class RodStatics:
 
     def pose(self, q: np.ndarray, length: float, phi: float) -> RodPose:
         """The free nodes and their Jacobians for joint angles q, ``length`` beyond the exit and
-        the shaft's twist ``phi`` at the exit."""
+        the shaft's twist ``phi`` at the exit (the last one computed is kept: the SQP asks for
+        the same iterate's pose several times)."""
+        q = np.asarray(q, float)
+        key = (q.tobytes(), float(length), float(phi))
+        if self._last_pose is not None and self._last_pose[0] == key:
+            return self._last_pose[1]
+        pose = self._pose(q, length, phi)
+        self._last_pose = (key, pose)
+        return pose
+
+    def _pose(self, q: np.ndarray, length: float, phi: float) -> RodPose:
         j0 = self.first_free(length)
         f = self.n_joints - j0
-        q = np.asarray(q, float).reshape(f, 3)
+        q = q.reshape(f, 3)
         R = self.R_E @ _rz(phi)
         p = self.p_E + R[:, 2] * (length - (self.sigma[j0] if f else length))
-        joints, axes = np.zeros((f, 3)), np.zeros((3 * f, 3))
+        # The joints' elementary rotations, all at once; then their product along the chain.
+        c, s = np.cos(q), np.sin(q)
+        rot = np.zeros((3, f, 3, 3))
+        for k, (i, j) in enumerate(((1, 2), (2, 0), (0, 1))):  # about x, y, z
+            rot[k, :, k, k] = 1.0
+            rot[k, :, i, i] = rot[k, :, j, j] = c[:, k]
+            rot[k, :, i, j], rot[k, :, j, i] = -s[:, k], s[:, k]
+        axes, ends = np.zeros((f, 3, 3)), np.zeros((f, 3))
         for i in range(f):
-            joints[i] = p
-            axes[3 * i] = R[:, 0]
-            R = R @ _rx(q[i, 0])
-            axes[3 * i + 1] = R[:, 1]
-            R = R @ _ry(q[i, 1])
-            axes[3 * i + 2] = R[:, 2]
-            R = R @ _rz(q[i, 2])
-            last = i == f - 1
-            p = p + R[:, 2] * (0.5 * self.h - self.catheter.radius if last else self.h)
-        nodes = np.vstack([joints, p[None, :]]) if f else p[None, :]
+            axes[i, 0] = R[:, 0]
+            R = R @ rot[0, i]
+            axes[i, 1] = R[:, 1]
+            R = R @ rot[1, i]
+            axes[i, 2] = R[:, 2]
+            R = R @ rot[2, i]
+            ends[i] = R[:, 2]
+        steps = np.full(f, self.h)
+        if f:
+            steps[-1] = 0.5 * self.h - self.catheter.radius
+        points = np.cumsum(np.vstack([p[None, :], ends * steps[:, None]]), axis=0)
+        joints, axes = points[:f], axes.reshape(3 * f, 3)
+        nodes = points if f else p[None, :]
         m = len(nodes)
         col_joint = np.repeat(np.arange(f), 3)
         lever = nodes[:, None, :] - joints[col_joint][None, :, :]  # (m, 3f, 3)
