@@ -153,6 +153,56 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
                                settings=settings)
 
 
+def reach_map(task: str = "right", n_twist: int = 12, n_knob: int = 5, step: float = 5e-3, heart=None,
+              catheter=None) -> list[dict]:
+    """Can the catheter press each of the task's targets at all, whoever holds it? The device's
+    side of a missed target, apart from the operator's: a grid over the shaft's twist at the sheath
+    exit (``n_twist`` in a turn) and the knob (``n_knob`` in [-1, 1]), along each the rod pushed
+    out from 10 mm to all of it in ``step`` (the rod's equilibrium in the atrium, warm-started
+    along the push), and at each the tip against every target's touch test
+    (``target_contact.targets_touched``).
+
+    Returns:
+        per target: {target, reachable (some grid point touches it), touching (grid points that
+        do), closest_mm (the least distance from a touch: lateral beyond the target's circle and
+        height beyond the ball's touch, combined), at (length mm, twist deg, knob) of the closest}.
+    """
+    from ballchain.drake_models.atrium_sdf import atrium_sdf
+    from ballchain.optimization.rod_statics import RodStatics
+    from ballchain.systems.station import atrium_for
+    from ballchain.systems.target_contact import TOUCH_TOLERANCE, heart_targets, targets_touched
+
+    teleop.check_inputs(task, "world", None, None, None, 0)
+    heart = heart or atrium_for(scenario_for())
+    cat = catheter or comparison_catheter()
+    rod = RodStatics(cat, heart.p_HE, heart.sheath_axis_H, atrium_sdf(heart))
+    names, p_WT, n_W, radius = heart_targets(heart)
+    chosen = [i for i, n in enumerate(names) if n.startswith(f"{task}_")]
+    p_WT, n_W = p_WT[chosen], n_W[chosen]
+    out = [{"target": names[i], "reachable": False, "touching": 0, "closest_mm": np.inf, "at": None} for i in chosen]
+    for twist in np.linspace(0.0, 2 * np.pi, n_twist, endpoint=False):
+        for knob in np.linspace(-1.0, 1.0, n_knob):
+            q = None
+            for length in np.arange(10e-3, rod.max_length + 1e-9, step):
+                sol = rod.solve(length, twist, cat.curvature(knob), q0=q)
+                q, c = sol.q, sol.pose.tip_centre
+                rel = c - p_WT
+                h = (rel * n_W).sum(axis=1)
+                lateral = np.sqrt(np.maximum((rel * rel).sum(axis=1) - h * h, 0.0))
+                miss = np.hypot(np.maximum(lateral - radius, 0.0),
+                                np.maximum(np.abs(h) - cat.radius - TOUCH_TOLERANCE, 0.0))
+                hit = targets_touched(c, p_WT, n_W, cat.radius, radius)
+                for row, m, t in zip(out, miss, hit):
+                    row["touching"] += int(t)
+                    if m < row["closest_mm"]:
+                        row["closest_mm"] = m
+                        row["at"] = (round(length * 1e3), round(float(np.degrees(twist))), round(knob, 2))
+    for row in out:
+        row["reachable"] = row["touching"] > 0
+        row["closest_mm"] = round(float(row["closest_mm"]) * 1e3, 2)
+    return out
+
+
 # ------------------------------------------------------------------------------ the comparison
 DEVICES = ("robotic", "manual")
 PAPER_COMPARISON = {  # Sec. V-C, after learning: total times [s], the hardest manual transition
