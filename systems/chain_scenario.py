@@ -41,6 +41,7 @@ if not SCENARIOS_FILE.exists():  # installed (non-editable) layout
 
 MODES = ("quasi-static", "dynamics")
 ENGINES = ("plant", "statics")
+DEVICES = ("ball_chain", "steerable_catheter")  # the robotic chain, or the paper's manual comparison arm
 DEFAULT_TIME_STEP = {"quasi-static": 1e-3, "dynamics": 1e-4}
 
 
@@ -201,6 +202,9 @@ class ChainScenario:
             turns at most 1.5 deg and the feeder moves 1 mm in one period; larger moves are
             split by the engine's continuation).
         pin: a force-sensor pin on the tip ball (off by default; plant engine only).
+        device: "ball_chain" (the magnetic chain, the default) or "steerable_catheter" (the
+            paper's manual comparison arm: an 8 Fr steerable catheter in the same atrium and
+            sheath, ``systems/catheter_station.py``; no magnet units, quasi-static).
         random_seed: absent (null): every stochastic system (the Hall sensors' noise, a simulated
             operator's tremor) keeps its default seed, the run it always was; an integer in
             0..2**32 - 1: ``run_station`` draws their seeds from ``RandomGenerator(random_seed)``
@@ -240,6 +244,7 @@ class ChainScenario:
     statics_period: float = 0.05
     pin: PinScenario = field(default_factory=PinScenario)
     random_seed: typing.Optional[int] = None
+    device: str = "ball_chain"
 
     @property
     def effective_time_step(self) -> float:
@@ -468,6 +473,10 @@ def check_fields(s: "ChainScenario") -> None:
         raise UserInputError(f"scenario {path} must be a finite number, got {value}")
     _one_of(s.mode, MODES, "mode")
     _one_of(s.engine, ENGINES, "engine")
+    _one_of(s.device, DEVICES, "device")
+    _require(s.device == "ball_chain" or (not s.units and s.mode == "quasi-static" and (s.heart or bool(s.atrium_file))),
+             "scenario device: steerable_catheter is a manual catheter in the atrium: it needs no units "
+             "(units: []), mode: quasi-static and an atrium")
     if s.random_seed is not None:
         check_random_seed(s.random_seed, "scenario random_seed")
     check_timing(s)

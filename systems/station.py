@@ -568,7 +568,8 @@ def MakeStation(scenario: ChainScenario, meshcat=None, *, heart: Atrium | None =
             scenario cannot express (e.g. the force stand's magnets, ``experiments.forces``).
 
     Returns:
-        a Station.
+        a Station; for ``device: steerable_catheter`` the manual arm's
+        ``catheter_station.CatheterStation`` instead.
 
     Raises:
         UserInputError: a bad scenario (naming the field).
@@ -582,6 +583,12 @@ def MakeStation(scenario: ChainScenario, meshcat=None, *, heart: Atrium | None =
         require_field_source(field_source, "MakeStation field_source", allow_none=True)
     t0 = time.perf_counter()
     scenario.validate()
+    if scenario.device == "steerable_catheter":  # the paper's manual arm: its own diagram
+        if field_source is not FROM_SCENARIO:
+            raise UserInputError("MakeStation: device: steerable_catheter takes no field_source (it is not magnetic)")
+        from ballchain.systems.catheter_station import make_catheter_station
+
+        return make_catheter_station(scenario, heart=heart, add_systems=add_systems, meshcat=meshcat)
     heart = apply_atrium(scenario, heart)
     config = apply_chain_plant_config(scenario, heart)
     fields = add_field_sources(scenario, heart, field_source)

@@ -28,7 +28,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, finite_float, print_json
+from ballchain.commands._common import add_json_flag, finite_float, non_negative_int, print_json
 
 
 def _int(text: str) -> int:
@@ -41,7 +41,16 @@ def _int(text: str) -> int:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--task", default=None,
                         help="left (Task I, 20 targets) or right (Task II, 18 targets) (default: left)")
-    parser.add_argument("--mapping", default="world",
+    parser.add_argument("--device", default=None,
+                        help="ball_chain (the robotic chain) or steerable_catheter (the paper's manual "
+                             "comparison arm: the same operator on an 8 Fr steerable catheter's handle, knob and push) (default: ball_chain)")
+    parser.add_argument("--strategy", default=None,
+                        help="with --device steerable_catheter: at the handle's windup switch (the opposite tendon "
+                             "and back by half a turn) or keep (keep turning) (default: switch)")
+    parser.add_argument("--braid", type=non_negative_int, default=None,
+                        help="with --device steerable_catheter: the shaft braid's wire count, even (default 16, "
+                             "the comparison's; 0: the braid neglected in torsion)")
+    parser.add_argument("--mapping", default=None,
                         help="world (the paper's: stick = magnet angular velocity in world) or catheter "
                              "(stick swings the tip in the tip's frame)")
     parser.add_argument("--targets", type=_int, default=None,
@@ -81,6 +90,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     from ballchain.experiments import teleop
 
+    if args.device not in (None, "ball_chain", "steerable_catheter"):
+        from ballchain.drake_models.errors import UserInputError, short_repr
+
+        raise UserInputError(f"--device must be ball_chain or steerable_catheter, got {short_repr(args.device)}")
+    if args.device == "steerable_catheter":
+        return _main_manual(args)
+    _refuse("without --device steerable_catheter", (("--strategy", args.strategy), ("--braid", args.braid)),
+            "they set up the manual catheter")
+    args.mapping = "world" if args.mapping is None else args.mapping
     if args.live:
         return _main_live(args)
     _refuse("without --live", (("--units", args.units), ("--duration", args.duration),
@@ -121,6 +139,39 @@ def main(args: argparse.Namespace) -> int:
         print(f"simulation stopped: {s.failure}")
     if data.html is not None:
         print(f"replay: {data.html}")
+    return 0
+
+
+def _main_manual(args: argparse.Namespace) -> int:
+    """The simulated operator's task with the manual steerable catheter."""
+    from ballchain.experiments import manual_catheter
+
+    _refuse("to --device steerable_catheter", (("--live", args.live or None), ("--mapping", args.mapping),
+                                               ("--balls", args.balls), ("--set", args.overrides),
+                                               ("--html", args.html), ("--units", args.units),
+                                               ("--duration", args.duration), ("--realtime-rate", args.realtime_rate),
+                                               ("--no-wait", args.no_wait or None)),
+            "they set up the robotic chain or the live view")
+    strategy = "switch" if args.strategy is None else args.strategy
+    manual_catheter.check_inputs("left" if args.task is None else args.task, args.targets, args.time_limit,
+                                 0 if args.seed is None else args.seed, strategy)
+    catheter = manual_catheter.comparison_catheter(args.braid)
+    data = manual_catheter.run(task="left" if args.task is None else args.task, targets=args.targets,
+                               seed=0 if args.seed is None else args.seed, strategy=strategy,
+                               time_limit=args.time_limit, catheter=catheter)
+    if args.json:
+        print_json(data)
+        return 0
+    for r in data.rows:
+        if r["touched"]:
+            print(f"{r['target']:9s} touched after {r['time_s']:6.2f} s, {r['accuracy_mm']:.2f} mm from the centre")
+        else:
+            spent = "not reached" if r["time_s"] is None else f"missed after {r['time_s']:.2f} s"
+            print(f"{r['target']:9s} {spent} ({data.summary.missed_reasons.get(r['target'])})")
+    s = data.summary
+    print(f"{data.task} task, manual catheter ({strategy} at the windup): {s.touched}/{s.targets} touched in "
+          f"{s.total_time_s:.1f} s; tendon switches {data.settings['switches']}; operator in the paper: "
+          f"{manual_catheter.PAPER_COMPARISON[data.task]['manual_s']:.0f} s")
     return 0
 
 

@@ -210,7 +210,8 @@ def hand_over(scenario, mapping: str, n_balls: int | None, overrides: dict, unit
 
 def run(task: str = "left", mapping: str = "world", targets: int | None = None, html: Path | None = None,
         progress: bool = True, time_limit: float | None = None, n_balls: int | None = None,
-        overrides: str | None = None, operator=None, heart=None, seed: int = 0, anatomy=None) -> TeleopResult:
+        overrides: str | None = None, operator=None, heart=None, seed: int = 0, anatomy=None,
+        log_path: bool = False) -> TeleopResult:
     """Simulate the operator doing a task with a mapping.
 
     Args:
@@ -230,6 +231,8 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
         seed: the operator's seed (its hand's tremor), 0..2**32-1; ignored when ``operator`` is given.
         anatomy: an anatomy file (``drake_models.anatomy``; its surface, targets, sheath, first
             magnet unit) instead of the procedural atrium's Task I or II.
+        log_path: also return the tip's path and the operator's commands at its looks, in
+            ``settings["path"]`` ({t, tip (k, 3) [m], stick (k, 3), feed (k,) [m/s]}).
 
     Returns:
         A ``TeleopResult`` (``html`` set when the replay was written).
@@ -277,6 +280,11 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
         builder.Connect(op.GetOutputPort("joystick"), joystick)
         builder.Connect(op.GetOutputPort("v_insert_cmd"), ports.feeder_command_input)
         handles["operator"] = op
+        if log_path:
+            from pydrake.systems.primitives import LogVectorOutput
+
+            handles["logs"] = [LogVectorOutput(port, builder, params.period) for port in (
+                cp.get_ball_positions_output_port(), op.GetOutputPort("joystick"), op.GetOutputPort("v_insert_cmd"))]
         return {"operator": op}
 
     limit = time_limit if time_limit is not None else n_targets * params.timeout + params.start_time + 5.0
@@ -308,6 +316,11 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     sinkings = chain_monitor.tolerated_sinkings
     summary.rim_sinkings = len(sinkings)
     summary.rim_sinking_max_mm = round(max(e[2] for e in sinkings) * 1e3, 3) if sinkings else None
+    settings_path = {}
+    if log_path:
+        balls, stick, feed = (log.FindLog(run.context) for log in handles["logs"])
+        settings_path = {"path": {"t": balls.sample_times().tolist(), "tip": balls.data()[-3:].T.tolist(),
+                                  "stick": stick.data().T.tolist(), "feed": feed.data()[0].tolist()}}
     return TeleopResult(
         task=task, mapping=mapping, rows=rows, summary=summary,
         paper=PAPER[task] if anatomy is None or anatomy.procedural else None,
@@ -316,7 +329,7 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
                   "n_balls": scenario.n_balls, "time_step_s": scenario.effective_time_step,
                   "teleop_omega_max_rad_s": scenario.units[0].teleop_omega_max,
                   "operator_period_s": params.period, "reaction_s": params.period * params.reaction_steps,
-                  "timeout_s": params.timeout, "axes": list(params.axes), "time_limit_s": limit},
+                  "timeout_s": params.timeout, "axes": list(params.axes), "time_limit_s": limit, **settings_path},
         html=None if html is None else str(html), anatomy=None if anatomy is None else anatomy.describe())
 
 

@@ -1,0 +1,379 @@
+"""The paper's comparison arm (Sec. V-C): the simulated operator does Task I or II with the manual
+steerable catheter (``systems/catheter_station.py``) instead of the robotic chain.
+
+The same operator model as the robotic teleoperation (``systems.simulated_operator``: it sees
+only the tip, learns the input-to-tip mapping online, presses towards each target and gives up
+after its timeout), its stick's two axes now on the catheter's handle (axis 0 turns it, axis 1
+the knob) and its feeder command the hand's push and pull, within the hand's rate limits
+(``HandParams``), with the windup strategy ``switch`` (the opposite tendon and back by half a
+turn) or ``keep`` (keep turning). Per target the rows of the robotic task (time, accuracy), and
+beside them the tip's path (for the smoothness) and the handle's twist.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from ballchain.drake_models.errors import UserInputError
+from ballchain.experiments import teleop
+
+STRATEGIES = ("switch", "keep")
+
+
+def comparison_catheter(braid_wires: int | None = None):
+    """The comparison's manual arm: the catheter with its shaft's braid in torsion
+    (``SteerableCatheter.braid_GJ``: a netting calculation from the braid's construction);
+    ``braid_wires`` 0 neglects the braid (the shaft's static friction then holds the tip until the
+    handle leads it by about 140 degrees, ``torsion_lead_deg``)."""
+    from ballchain.drake_models.steerable_catheter import SteerableCatheter
+
+    return (SteerableCatheter() if braid_wires is None else SteerableCatheter(braid_wires=braid_wires)).validate()
+
+
+def torsion_lead_deg(catheter) -> dict:
+    """How far the handle leads the tip in twist before the tip turns [deg]: the twist chain's
+    static lead (every node at its static friction) and kinetic one (each just after a slip)."""
+    chain = catheter.twist_chain()
+    nodes = chain.n * (chain.n + 1) / 2
+    return {"static_deg": round(float(np.degrees(nodes * chain.static / chain.k)), 1),
+            "kinetic_deg": round(float(np.degrees(nodes * chain.kinetic / chain.k)), 1)}
+
+
+def scenario_for():
+    """The teleoperation station's atrium and sheath with the manual catheter instead of the chain."""
+    from ballchain.systems.chain_scenario import load_scenario
+
+    scenario = load_scenario(teleop.SCENARIO)
+    scenario.units = []
+    scenario.device = "steerable_catheter"
+    scenario.engine = "statics"
+    return scenario.validate()
+
+
+def check_inputs(task: str, targets, time_limit, seed, strategy: str) -> None:
+    """Raises UserInputError with a clear message on bad input."""
+    teleop.check_inputs(task, "world", targets, None, time_limit, seed)
+    if strategy not in STRATEGIES:
+        raise UserInputError(f"strategy must be one of {STRATEGIES} (at the windup: the opposite tendon and "
+                             f"back, or keep turning), got {strategy!r}")
+
+
+def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy: str = "switch",
+        time_limit: float | None = None, heart=None, hand=None, catheter=None) -> teleop.TeleopResult:
+    """The operator does ``task`` with the manual catheter (default: ``comparison_catheter()``).
+
+    Returns:
+        a ``teleop.TeleopResult`` (mapping "manual"); its settings add the catheter's and the
+        hand's, and ``path`` {t, tip (k, 3) [m], twist (k,) handle twist [rad], exit_twist (k,),
+        knob (k,), push (k,) [m]} sampled at the operator's looks, and ``switches``, ``slips``.
+    """
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.primitives import LogVectorOutput
+
+    from ballchain.systems.catheter_station import HandParams
+    from ballchain.systems.simulated_operator import OperatorParams, SimulatedOperator
+    from ballchain.systems.station import atrium_for
+
+    check_inputs(task, targets, time_limit, seed, strategy)
+    scenario = scenario_for()
+    heart = heart or atrium_for(scenario)
+    ring = heart.rings[task]
+    n_targets = len(ring.p_HT) if targets is None else min(int(targets), len(ring.p_HT))
+    hand = hand or HandParams(strategy=strategy)
+    params = OperatorParams(axes=(0, 1), seed=int(seed), feeder_speed=hand.push_speed, dead_band=hand.dead_band)
+    handles = {}
+
+    def add_operator(builder, ports):
+        names, p_WT, n_W, radius = ports.targets
+        chosen = [i for i, n in enumerate(names) if n.startswith(f"{task}_")][:n_targets]
+        cat = ports.catheter
+        seen = replace(params, ball_radius=cat.catheter.radius, target_radius=radius, p_WE=tuple(cat.rod.p_E),
+                       initial_length=cat.initial_length, max_length=cat.rod.max_length,
+                       keep_out=teleop.vein_openings(heart))
+        op = builder.AddSystem(SimulatedOperator(cat.n_bodies, cat.n_bodies - 1, [names[i] for i in chosen],
+                                                 p_WT[chosen], n_W[chosen], seen))
+        builder.Connect(ports.body_poses, op.get_body_poses_input_port())
+        builder.Connect(op.GetOutputPort("joystick"), ports.joystick_input)
+        builder.Connect(op.GetOutputPort("v_insert_cmd"), ports.feeder_command_input)
+        handles["tip"] = LogVectorOutput(cat.GetOutputPort("tip_position"), builder, params.period)
+        handles["windup"] = LogVectorOutput(cat.GetOutputPort("windup"), builder, params.period)
+        handles["operator"] = op
+        return {"operator": op}
+
+    built = time.perf_counter()
+    from ballchain.systems.catheter_station import make_catheter_station
+
+    # MakeStation's catheter diagram, with this catheter and hand.
+    station = make_catheter_station(scenario, heart=heart, add_systems=add_operator,
+                                    catheter=catheter or comparison_catheter(), hand=hand)
+    built = time.perf_counter() - built
+    op = handles["operator"]
+    limit = time_limit if time_limit is not None else n_targets * params.timeout + params.start_time + 5.0
+    simulator = Simulator(station.diagram)
+    root = simulator.get_mutable_context()
+
+    def monitor(context):
+        from pydrake.systems.framework import EventStatus
+
+        if op.is_done(op.GetMyContextFromRoot(context)):
+            return EventStatus.ReachedTermination(op, "every target touched or given up")
+        return EventStatus.DidNothing()
+
+    simulator.set_monitor(monitor)
+    wall, cpu = time.perf_counter(), time.process_time()
+    simulator.Initialize()
+    simulator.AdvanceTo(limit)
+    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    sim_time = root.get_time()
+    cat_state = station.catheter.state(station.catheter.GetMyContextFromRoot(root))
+    failure = "; ".join(sorted(set(cat_state.failures))[:3]) or None
+    rows = op.rows(op.GetMyContextFromRoot(root))
+    summary = teleop.summarize(rows, sim_time, wall, None)
+    summary.build_time_s = round(built, 2)
+    summary.realtime_factor_cpu = round(sim_time / cpu, 4) if cpu > 0 else None
+    tip_log = handles["tip"].FindLog(root)
+    wind_log = handles["windup"].FindLog(root)
+    hand_state = station.hand.GetOutputPort("state").Eval(station.hand.GetMyContextFromRoot(root))
+    path = {"t": tip_log.sample_times().tolist(), "tip": tip_log.data().T.tolist(),
+            "twist": wind_log.data()[0].tolist(), "exit_twist": wind_log.data()[1].tolist()}
+    used = catheter or comparison_catheter()
+    settings = {"device": "steerable_catheter", "seed": int(seed), "strategy": hand.strategy,
+                "braid_wires": used.braid_wires,
+                "shaft_GJ_over_plain": round(used.shaft_GJ / used.plain_GJ, 3), "torsion_lead": torsion_lead_deg(used),
+                "statics_period_s": scenario.statics_period, "operator_period_s": params.period,
+                "reaction_s": params.period * params.reaction_steps, "timeout_s": params.timeout,
+                "axes": list(params.axes), "time_limit_s": limit, "push_speed_m_s": hand.push_speed,
+                "twist_rate_deg_s": round(float(np.degrees(hand.twist_rate)), 3), "knob_rate_per_s": hand.knob_rate,
+                "switches": int(hand_state[6]), "slips": int(cat_state.slips), "rod_warnings": failure,
+                "path": path}
+    return teleop.TeleopResult(task=task, mapping="manual", rows=rows, summary=summary, paper=teleop.PAPER[task],
+                               settings=settings)
+
+
+def reach_map(task: str = "right", n_twist: int = 12, n_knob: int = 5, step: float = 5e-3, heart=None,
+              catheter=None) -> list[dict]:
+    """Can the catheter press each of the task's targets at all, whoever holds it? The device's
+    side of a missed target, apart from the operator's: a grid over the shaft's twist at the sheath
+    exit (``n_twist`` in a turn) and the knob (``n_knob`` in [-1, 1]), along each the rod pushed
+    out from 10 mm to all of it in ``step`` (the rod's equilibrium in the atrium, warm-started
+    along the push), and at each the tip against every target's touch test
+    (``target_contact.targets_touched``).
+
+    Returns:
+        per target: {target, reachable (some grid point touches it), touching (grid points that
+        do), closest_mm (the least distance from a touch: lateral beyond the target's circle and
+        height beyond the ball's touch, combined), at (length mm, twist deg, knob) of the closest}.
+    """
+    from ballchain.drake_models.atrium_sdf import atrium_sdf
+    from ballchain.optimization.rod_statics import RodStatics
+    from ballchain.systems.station import atrium_for
+    from ballchain.systems.target_contact import TOUCH_TOLERANCE, heart_targets, targets_touched
+
+    teleop.check_inputs(task, "world", None, None, None, 0)
+    heart = heart or atrium_for(scenario_for())
+    cat = catheter or comparison_catheter()
+    rod = RodStatics(cat, heart.p_HE, heart.sheath_axis_H, atrium_sdf(heart))
+    names, p_WT, n_W, radius = heart_targets(heart)
+    chosen = [i for i, n in enumerate(names) if n.startswith(f"{task}_")]
+    p_WT, n_W = p_WT[chosen], n_W[chosen]
+    out = [{"target": names[i], "reachable": False, "touching": 0, "closest_mm": np.inf, "at": None} for i in chosen]
+    for twist in np.linspace(0.0, 2 * np.pi, n_twist, endpoint=False):
+        for knob in np.linspace(-1.0, 1.0, n_knob):
+            q = None
+            for length in np.arange(10e-3, rod.max_length + 1e-9, step):
+                sol = rod.solve(length, twist, cat.curvature(knob), q0=q)
+                q, c = sol.q, sol.pose.tip_centre
+                rel = c - p_WT
+                h = (rel * n_W).sum(axis=1)
+                lateral = np.sqrt(np.maximum((rel * rel).sum(axis=1) - h * h, 0.0))
+                miss = np.hypot(np.maximum(lateral - radius, 0.0),
+                                np.maximum(np.abs(h) - cat.radius - TOUCH_TOLERANCE, 0.0))
+                hit = targets_touched(c, p_WT, n_W, cat.radius, radius)
+                for row, m, t in zip(out, miss, hit):
+                    row["touching"] += int(t)
+                    if m < row["closest_mm"]:
+                        row["closest_mm"] = m
+                        row["at"] = (round(length * 1e3), round(float(np.degrees(twist))), round(knob, 2))
+    for row in out:
+        row["reachable"] = row["touching"] > 0
+        row["closest_mm"] = round(float(row["closest_mm"]) * 1e3, 2)
+    return out
+
+
+# ------------------------------------------------------------------------------ the comparison
+DEVICES = ("robotic", "manual")
+PAPER_COMPARISON = {  # Sec. V-C, after learning: total times [s], the hardest manual transition
+    "left": {"robotic_s": 40.0, "manual_s": 40.0, "hardest_manual": ("left_13", "left_14", 5.49)},
+    "right": {"robotic_s": 26.0, "manual_s": 33.0, "hardest_manual": None},
+}
+SPARC_CUTOFF_HZ = 10.0  # the metric's recommended cut-off for reaching movements
+SPARC_THRESHOLD = 0.05  # amplitude threshold of the normalised spectrum
+SPARC_PADDING = 4  # zero padding: 2**4 times the next power of two
+
+
+def sparc(speed: np.ndarray, fs: float, cutoff: float = SPARC_CUTOFF_HZ, threshold: float = SPARC_THRESHOLD,
+          padding: int = SPARC_PADDING) -> float | None:
+    """The spectral arc length (SPARC) of a speed profile: the negative arc length of its
+    normalised Fourier magnitude spectrum up to an adaptive cut-off (the last frequency below
+    ``cutoff`` where the spectrum is still above ``threshold``); closer to 0 is smoother
+    (Balasubramanian, Melendez-Calderon, Roby-Brami, Burdet, "On the analysis of movement
+    smoothness", J. NeuroEng. Rehabil. 12:112, 2015). None for fewer than 4 samples or no motion."""
+    speed = np.asarray(speed, float)
+    if len(speed) < 4 or not np.any(speed > 0):
+        return None
+    n_fft = int(2 ** (np.ceil(np.log2(len(speed))) + padding))
+    freq = np.arange(n_fft) * fs / n_fft
+    mag = np.abs(np.fft.fft(speed, n_fft))
+    mag = mag / mag.max()
+    keep = freq <= cutoff
+    freq, mag = freq[keep], mag[keep]
+    above = np.flatnonzero(mag >= threshold)
+    freq, mag = freq[above[0]:above[-1] + 1], mag[above[0]:above[-1] + 1]
+    if len(freq) < 2:
+        return 0.0
+    return -float(np.sum(np.sqrt((np.diff(freq) / (freq[-1] - freq[0])) ** 2 + np.diff(mag) ** 2)))
+
+
+def transitions(result: teleop.TeleopResult) -> list[dict]:
+    """Target to target: {pair "k->k+1", time_s (from touching k to touching k+1; None when
+    either was missed), sparc (of the tip's speed over that movement), accuracy_mm (at k+1)}."""
+    path = result.settings["path"]
+    t, tip = np.asarray(path["t"]), np.asarray(path["tip"])
+    fs = 1.0 / float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    out = []
+    for a, b in zip(result.rows[:-1], result.rows[1:]):
+        pair = f"{a['target'].split('_')[1]}->{b['target'].split('_')[1]}"
+        if not (a["touched"] and b["touched"]):
+            out.append({"pair": pair, "time_s": None, "sparc": None, "accuracy_mm": b["accuracy_mm"]})
+            continue
+        t0, t1 = a["t_touch_s"], b["t_touch_s"]
+        inside = (t >= t0 - 1e-9) & (t <= t1 + 1e-9)
+        speed = np.linalg.norm(np.diff(tip[inside], axis=0), axis=1) * fs
+        value = sparc(speed, fs)
+        out.append({"pair": pair, "time_s": round(t1 - t0, 3), "sparc": None if value is None else round(value, 3),
+                    "accuracy_mm": b["accuracy_mm"]})
+    return out
+
+
+def effort(result: teleop.TeleopResult) -> dict:
+    """The hands' work over the run: manual: handle revolutions (|twist| travel / 2 pi), twist
+    reversals, push travel [mm]; robotic: the stick's travel (sum of |change| over its axes)
+    and reversals, feeder travel [mm]."""
+    path = result.settings["path"]
+    dt = float(np.median(np.diff(path["t"]))) if len(path["t"]) > 1 else 0.0
+
+    def reversals(x):
+        d = np.diff(np.asarray(x, float))
+        d = d[np.abs(d) > 1e-9]
+        return int(np.count_nonzero(np.diff(np.sign(d)) != 0)) if len(d) > 1 else 0
+
+    if "twist" in path:
+        twist = np.asarray(path["twist"])
+        return {"handle_revolutions": round(float(np.abs(np.diff(twist)).sum() / (2 * np.pi)), 3),
+                "reversals": reversals(twist), "switches": result.settings["switches"]}
+    stick = np.asarray(path["stick"])
+    feed = np.asarray(path["feed"])
+    return {"stick_travel": round(float(np.abs(np.diff(stick, axis=0)).sum()), 3),
+            "reversals": int(sum(reversals(stick[:, k]) for k in range(stick.shape[1]))),
+            "feed_travel_mm": round(float(np.abs(feed).sum() * dt * 1e3), 3)}
+
+
+def run_device(device: str, task: str, seed: int, targets: int | None, heart, catheter=None) -> teleop.TeleopResult:
+    """One run of a device on a task (robotic: the paper's world mapping on the quasi-static engine)."""
+    if device == "robotic":
+        return teleop.run(task=task, mapping="world", targets=targets, progress=False, heart=heart, seed=seed,
+                          log_path=True)
+    return run(task=task, targets=targets, seed=seed, heart=heart, catheter=catheter)
+
+
+def windup_at(result: teleop.TeleopResult, first: str, second: str) -> dict | None:
+    """The manual run's handle twist when it touched ``first`` and ``second`` [deg], the tendon
+    switches between (the hand's), and the twist at the sheath exit meanwhile."""
+    rows = {r["target"]: r for r in result.rows}
+    a, b = rows.get(first), rows.get(second)
+    path = result.settings["path"]
+    if a is None or b is None or not (a["touched"] and b["touched"]) or "twist" not in path:
+        return None
+    t = np.asarray(path["t"])
+    twist, exit_twist = np.degrees(path["twist"]), np.degrees(path["exit_twist"])
+    i0, i1 = int(np.searchsorted(t, a["t_touch_s"])), int(np.searchsorted(t, b["t_touch_s"]))
+    i1 = min(i1, len(t) - 1)
+    return {"twist_at_first_deg": round(float(twist[min(i0, len(t) - 1)]), 1),
+            "twist_at_second_deg": round(float(twist[i1]), 1),
+            "max_windup_deg": round(float(np.max(np.abs(twist[i0:i1 + 1] - exit_twist[i0:i1 + 1]))), 1),
+            "time_s": round(b["t_touch_s"] - a["t_touch_s"], 3)}
+
+
+def compare(tasks=teleop.TASKS, seeds=(0, 1, 2), targets: int | None = None, heart=None, catheter=None) -> dict:
+    """Both devices on the tasks over the operator seeds: a row per (task, device) with medians
+    over the seeds, the per-transition median times, and the manual windup at the left ring's
+    13 -> 14 transition. Returns {table, transitions {task: {device: [median time per pair]}},
+    pairs {task: [pair names]}, windup, runs}."""
+    from ballchain.systems.station import atrium_for
+
+    heart = heart or atrium_for(scenario_for())
+    table, trans, pairs, windups, runs = [], {}, {}, [], []
+    for task in tasks:
+        trans[task] = {}
+        for device in DEVICES:
+            results = [run_device(device, task, s, targets, heart, catheter) for s in seeds]
+            per = [transitions(r) for r in results]
+            pairs[task] = [p["pair"] for p in per[0]]
+            trans[task][device] = [_median([p[k]["time_s"] for p in per]) for k in range(len(per[0]))]
+            efforts = [effort(r) for r in results]
+            row = {"task": task, "device": device, "runs": len(results),
+                   "touched_median": _median([r.summary.touched for r in results]), "targets": results[0].summary.targets,
+                   "total_time_median_s": _median([r.summary.total_time_s for r in results]),
+                   "transition_median_s": _median([p["time_s"] for q in per for p in q]),
+                   "accuracy_median_mm": _median([r.summary.median_accuracy_mm for r in results]),
+                   "sparc_median": _median([p["sparc"] for q in per for p in q]),
+                   "reversals_median": _median([e["reversals"] for e in efforts]),
+                   "paper_total_s": PAPER_COMPARISON[task][f"{device}_s"]}
+            if device == "manual":
+                row["handle_revolutions_median"] = _median([e["handle_revolutions"] for e in efforts])
+                row["switches_median"] = _median([e["switches"] for e in efforts])
+                if task == "left":
+                    windups += [w for w in (windup_at(r, "left_13", "left_14") for r in results) if w]
+            else:
+                row["stick_travel_median"] = _median([e["stick_travel"] for e in efforts])
+            table.append(row)
+            runs += [{"task": task, "device": device, "seed": s, "summary": r.summary, "rows": r.rows,
+                      "transitions": p, "effort": e} for s, r, p, e in zip(seeds, results, per, efforts)]
+    return {"table": table, "transitions": trans, "pairs": pairs, "windup_13_14": windups, "runs": runs,
+            "seeds": list(seeds), "targets": targets}
+
+
+def _median(values):
+    values = [v for v in values if v is not None]
+    return round(float(np.median(values)), 3) if values else None
+
+
+def transition_figure(comparison: dict, path) -> None:
+    """The per-transition median times as colour maps, a row per device, a panel per task
+    (as the paper's target-to-target colour coding); grey: a transition never completed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ballchain.drake_models.safe_files import save_figure
+
+    tasks = list(comparison["transitions"])
+    fig, axes = plt.subplots(len(tasks), 1, figsize=(10, 1.6 * len(tasks) + 0.6), squeeze=False)
+    vmax = max([v for t in tasks for d in DEVICES for v in comparison["transitions"][t][d] if v is not None] or [1.0])
+    for ax, task in zip(axes[:, 0], tasks):
+        grid = np.array([[np.nan if v is None else v for v in comparison["transitions"][task][d]] for d in DEVICES])
+        cmap = matplotlib.colormaps["viridis"].copy()
+        cmap.set_bad("0.8")
+        image = ax.imshow(np.ma.masked_invalid(grid), aspect="auto", cmap=cmap, vmin=0.0, vmax=vmax)
+        ax.set_yticks(range(len(DEVICES)), DEVICES)
+        ax.set_xticks(range(grid.shape[1]), comparison["pairs"][task], rotation=90, fontsize=7)
+        ax.set_title(f"Task {'I' if task == 'left' else 'II'} ({task} ring): median time per transition [s]",
+                     fontsize=9)
+        fig.colorbar(image, ax=ax, fraction=0.02)
+    fig.tight_layout()
+    save_figure(fig, path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,285 @@
+"""The manual arm of the paper's comparison (Sec. V-C): an 8 Fr bidirectional steerable ablation
+catheter, pushed, pulled and twisted through the transseptal sheath, its distal segment deflected
+by a knob pulling one of two tendons.
+
+This module holds the catheter's constants (each with its source, or the stated estimate that
+sized it) and the law of its friction in the sheath; ``optimization.rod_statics`` solves the
+distal rod's equilibrium in the atrium.
+
+The catheter's mechanics, as modelled:
+
+* The distal rod (the part beyond the sheath exit, up to ``model_length``): a discretised
+  Kirchhoff rod, bending stiffness ``EI`` (the shaft's, the deflectable segment's) and torsional
+  stiffness ``GJ``. Pulling a tendon gives the deflectable segment an intrinsic (commanded)
+  curvature in its bending plane, one sign per tendon (a D-F catheter: a tighter curve one way than
+  the other; the knob's travel sets the fraction of the side's largest curvature).
+* The shaft from the handle to the sheath exit (``shaft_length``): in torsion and in tension a
+  chain of elastic elements with Coulomb friction against the sheath (``CoulombChain``): static
+  friction above kinetic gives stick-slip; the twist the handle puts in winds up in the shaft until
+  the friction gives way, and is released in jumps (a quasi-static incremental model).
+
+Sources of the constants (no constant was tuned to the paper's times):
+
+* Diameter: 8 Fr, the French (Charriere) scale, 1 Fr = 1/3 mm: 2.67 mm (the paper: "Tactiflex D-F,
+  Abbott; 8FR diameter").
+* Deflectable segment's EI: 4.4e4 g mm^2 = 4.3e-4 N m^2, the small-deflection value measured on a
+  commercial ablation catheter's tip by Khoshnam and Patel's large-deflection beam model (thesis,
+  Western University, Fig. 2.6 "Relation between the catheter tip deflection and the value of EI":
+  EI = (2.5 Phi^7.2 + 4.4) x 1e4 g mm^2; at 1 rad of deflection 6.9e4).
+* Shaft's EI: a Pebax tube of the 8 Fr outer diameter and an assumed 1.5 mm lumen, flexural
+  modulus 500 MPa (the top of the Pebax 33 series' 10-500 MPa range, Arkema's Pebax mechanical
+  properties page, ISO 178), the braid neglected (a lower bound): E pi (D^4 - d^4) / 64.
+* The plain tube's GJ = EI / (1 + nu) (an isotropic tube, J = 2 I), nu = 0.45 (a thermoplastic
+  elastomer); the deflectable segment's likewise from its EI.
+* The shaft's braid in torsion (``braid_GJ``, added to the plain tube's GJ): ablation-catheter
+  shafts carry a stainless-steel braid (304V wire) embedded in the polymer wall for torque
+  transmission (catheter-tubing makers' descriptions). Modelled by netting analysis: N wires, N/2
+  each way, on helices at +-alpha to the axis, on a cylinder of radius R_b, each carrying only
+  axial force (no bending of the wires, no slip at the crossings: an upper bound for the braid's
+  share). Twisting the shaft by theta' per unit length strains a wire by
+  eps = R_b theta' sin(alpha) cos(alpha) (one set stretched, the other compressed); a wire's length
+  per unit of shaft is 1 / cos(alpha), so the strain energy per unit length is
+  N E_w A_w eps^2 / (2 cos alpha) = GJ_braid theta'^2 / 2, that is
+
+      GJ_braid = N E_w A_w R_b^2 sin(alpha)^2 cos(alpha),   A_w = pi d_w^2 / 4.
+
+  Construction, assumptions at the level of typical catheter braids (no datasheet of the Tactiflex
+  shaft was found): N = 16 wires (the common 16-carrier braider; 8-32 exist), round wire
+  d_w = 0.002 in = 0.051 mm (catheter braid wire is 0.001-0.003 in), braid angle 60 degrees from
+  the axis (a fine pick: 45-70 degrees; sin^2 cos varies by under 10 % over 45-65 degrees),
+  R_b = 1.1 mm (under a jacket of about 0.2 mm of the 8 Fr wall), E_w = 193 GPa (304 stainless
+  steel). GJ_braid = 2.8e-3 N m^2, 3.7 times the plain tube's 7.7e-4: the shaft's GJ is 4.7 times
+  the braid-free value (d_w 0.001-0.003 in: 1.9-9.3 times). The braid also stiffens the shaft in
+  bending; that is not counted (the shaft's EI stays the plain tube's, as the sheath's normal
+  force, which is sized from it).
+* Deflectable segment: 55 mm long, largest curvature 180 degrees over it on the tighter (D) side
+  and 120 degrees on the wider (F) side: the size of a D-F bidirectional curve (a half turn of
+  about 35 mm reach on the D side). No curve datasheet was found in the reference material
+  available here: an assumption at datasheet level, not a measured value.
+* Shaft length 1.15 m: a typical ablation catheter's usable length (an assumption).
+* Friction in the sheath: PTFE-lined sheath, kinetic coefficient 0.1 (Schroeder 1993,
+  Cardiovasc. Intervent. Radiol. 16:93: a Teflon coating halves the sliding friction of steel,
+  about 0.2 on polymer), static 0.15 (static above kinetic: the assumption that makes stick-slip).
+  The normal force that presses the shaft on the sheath is sized by a stated estimate: the sheath's
+  bends (two of 25 mm radius, the transseptal sheath's distal curve and the turn from the
+  inferior vena cava into the septum) hold the shaft on the curve; the couple EI / R at each end of
+  a bend is carried by contact forces over a transition of order R, 2 EI / R^2 at each end: 4 EI /
+  R^2 per bend. The friction torque is mu N r (r the shaft's radius), the axial force mu N.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ballchain.drake_models.errors import UserInputError, require_finite_fields
+
+FRENCH = 1e-3 / 3.0  # [m] per Fr (the Charriere scale)
+
+
+@dataclass
+class SteerableCatheter:
+    """An 8 Fr bidirectional steerable ablation catheter (module docstring: the sources).
+
+    Attributes:
+        diameter: outer diameter [m].
+        lumen_diameter: the inner lumen assumed for the shaft's section [m].
+        flexural_modulus: of the shaft's Pebax [Pa].
+        poisson: Poisson's ratio (GJ = EI / (1 + nu)).
+        tip_EI: the deflectable segment's bending stiffness [N m^2].
+        deflectable_length: the deflectable segment's length [m].
+        max_deflection_D, max_deflection_F: the segment's total bend at full knob, each tendon [rad].
+        model_length: the distal length modelled as a rod (beyond it the shaft stays in the sheath) [m].
+        segment_length: the rod's discretisation [m].
+        shaft_length: handle to sheath exit [m].
+        mu_static, mu_kinetic: shaft on the sheath's PTFE liner.
+        sheath_bend_radius: radius of the sheath's bends [m]; sheath_bends: how many.
+        shaft_elements: elements of the shaft's friction chain.
+        braid_wires: the shaft braid's wire count (0: no braid, the plain tube's GJ).
+        braid_wire_diameter: its round wire's diameter [m].
+        braid_angle: its wires' angle from the shaft's axis [rad].
+        braid_radius: the braid's mean radius [m].
+        braid_modulus: its wire's Young's modulus [Pa].
+    """
+
+    diameter: float = 8 * FRENCH
+    lumen_diameter: float = 1.5e-3
+    flexural_modulus: float = 500e6
+    poisson: float = 0.45
+    tip_EI: float = 4.4e4 * 9.80665e-3 * 1e-6
+    deflectable_length: float = 55e-3
+    max_deflection_D: float = np.pi
+    max_deflection_F: float = np.radians(120.0)
+    model_length: float = 120e-3
+    segment_length: float = 4e-3
+    shaft_length: float = 1.15
+    mu_static: float = 0.15
+    mu_kinetic: float = 0.10
+    sheath_bend_radius: float = 25e-3
+    sheath_bends: int = 2
+    shaft_elements: int = 8
+    braid_wires: int = 16
+    braid_wire_diameter: float = 0.002 * 25.4e-3
+    braid_angle: float = np.radians(60.0)
+    braid_radius: float = 1.1e-3
+    braid_modulus: float = 193e9
+
+    def validate(self) -> "SteerableCatheter":
+        require_finite_fields(self)
+        if not 0 < self.lumen_diameter < self.diameter:
+            raise UserInputError(f"SteerableCatheter.lumen_diameter must be in (0, diameter), got {self.lumen_diameter}")
+        for name in ("flexural_modulus", "tip_EI", "deflectable_length", "segment_length", "shaft_length",
+                     "sheath_bend_radius", "max_deflection_D", "max_deflection_F"):
+            if not getattr(self, name) > 0:
+                raise UserInputError(f"SteerableCatheter.{name} must be > 0, got {getattr(self, name)}")
+        if not 0 <= self.mu_kinetic <= self.mu_static:
+            raise UserInputError("SteerableCatheter: friction needs 0 <= mu_kinetic <= mu_static, got "
+                                 f"{self.mu_kinetic}, {self.mu_static}")
+        if int(self.braid_wires) != self.braid_wires or self.braid_wires < 0 or self.braid_wires % 2:
+            raise UserInputError("SteerableCatheter.braid_wires must be an even count >= 0 (half each way; 0: no "
+                                 f"braid), got {self.braid_wires}")
+        for name in ("braid_wire_diameter", "braid_modulus"):
+            if not getattr(self, name) > 0:
+                raise UserInputError(f"SteerableCatheter.{name} must be > 0, got {getattr(self, name)}")
+        if not 0 < self.braid_angle < 0.5 * np.pi:
+            raise UserInputError(f"SteerableCatheter.braid_angle must be in (0, pi/2) rad, got {self.braid_angle}")
+        if self.braid_wires and not 0 < self.braid_radius < self.radius:
+            raise UserInputError(f"SteerableCatheter.braid_radius must be in (0, diameter / 2), got {self.braid_radius}")
+        if not self.deflectable_length <= self.model_length or self.shaft_elements < 1:
+            raise UserInputError("SteerableCatheter: deflectable_length <= model_length and shaft_elements >= 1")
+        return self
+
+    # ------------------------------------------------------------------ derived stiffnesses
+    @property
+    def radius(self) -> float:
+        return 0.5 * self.diameter
+
+    @property
+    def shaft_EI(self) -> float:
+        """E pi (D^4 - d^4) / 64 [N m^2]."""
+        return self.flexural_modulus * np.pi * (self.diameter**4 - self.lumen_diameter**4) / 64.0
+
+    @property
+    def plain_GJ(self) -> float:
+        """The plain (braid-free) tube's GJ = EI / (1 + nu) [N m^2]."""
+        return self.shaft_EI / (1.0 + self.poisson)
+
+    @property
+    def braid_GJ(self) -> float:
+        """The braid's torsional stiffness by netting analysis (module docstring) [N m^2]:
+        N E_w (pi d_w^2 / 4) R_b^2 sin(alpha)^2 cos(alpha)."""
+        area = np.pi * self.braid_wire_diameter**2 / 4.0
+        a = self.braid_angle
+        return self.braid_wires * self.braid_modulus * area * self.braid_radius**2 * np.sin(a) ** 2 * np.cos(a)
+
+    @property
+    def shaft_GJ(self) -> float:
+        """The shaft's torsional stiffness: the plain tube's and the braid's [N m^2]."""
+        return self.plain_GJ + self.braid_GJ
+
+    @property
+    def tip_GJ(self) -> float:
+        return self.tip_EI / (1.0 + self.poisson)
+
+    @property
+    def shaft_EA(self) -> float:
+        return self.flexural_modulus * np.pi * (self.diameter**2 - self.lumen_diameter**2) / 4.0
+
+    @property
+    def max_curvature(self) -> tuple[float, float]:
+        """The deflectable segment's largest curvature on the D (+) and the F (-) side [1/m]."""
+        return self.max_deflection_D / self.deflectable_length, self.max_deflection_F / self.deflectable_length
+
+    def curvature(self, knob: float) -> float:
+        """The commanded curvature [1/m] for a knob position in [-1, 1] (+: the D tendon)."""
+        knob = float(np.clip(knob, -1.0, 1.0))
+        d, f = self.max_curvature
+        return knob * (d if knob >= 0 else f)
+
+    def sheath_normal_force(self) -> float:
+        """The shaft's total normal force on the sheath [N] (module docstring: 4 EI / R^2 per bend)."""
+        return self.sheath_bends * 4.0 * self.shaft_EI / self.sheath_bend_radius**2
+
+    def twist_chain(self) -> "CoulombChain":
+        """The shaft in torsion: handle twist [rad] to the twist at the sheath exit."""
+        n = self.shaft_elements
+        N = self.sheath_normal_force() / n
+        return CoulombChain(n, n * self.shaft_GJ / self.shaft_length, self.mu_static * N * self.radius,
+                            self.mu_kinetic * N * self.radius)
+
+    def push_chain(self) -> "CoulombChain":
+        """The shaft in tension/compression: handle advance [m] to the advance at the sheath exit."""
+        n = self.shaft_elements
+        N = self.sheath_normal_force() / n
+        return CoulombChain(n, n * self.shaft_EA / self.shaft_length, self.mu_static * N, self.mu_kinetic * N)
+
+
+@dataclass
+class CoulombChain:
+    """A shaft as ``n`` elastic elements in series, each node held by Coulomb friction (quasi-static).
+
+    Node 0 is driven (the handle), nodes 1..n slide against the sheath; element k joins node k-1
+    and node k with stiffness ``k`` (per element). A node sticks while the net elastic load on it
+    (plus, at the last node, the external load ``load``) stays within ``static``; once it slips, it
+    moves to where the net load equals ``kinetic`` (the quasi-static end of a slip) and sticks there
+    again. Relaxed node by node until nothing moves (Gauss-Seidel over the nodes), which is the
+    incremental quasi-static answer for a small enough increment of the handle.
+
+    Attributes:
+        n: elements (and sliding nodes).
+        k: stiffness of one element [N/m or N m/rad].
+        static, kinetic: each sliding node's friction capacity (static >= kinetic) [N or N m].
+    """
+
+    n: int
+    k: float
+    static: float
+    kinetic: float
+
+    def initial(self, x0: float = 0.0) -> np.ndarray:
+        """Nodes 0..n at ``x0``, unloaded."""
+        return np.full(self.n + 1, float(x0))
+
+    def net_loads(self, x: np.ndarray, load: float = 0.0) -> np.ndarray:
+        """Net elastic (and external) load on nodes 1..n: positive pushes a node forward."""
+        f = np.zeros(self.n)
+        d = np.diff(x)  # element k's stretch x_k - x_{k-1}
+        f -= self.k * d  # element k pulls node k back when stretched
+        f[:-1] += self.k * d[1:]  # element k+1 pulls node k forward
+        f[-1] += load
+        return f
+
+    def step(self, x: np.ndarray, handle: float, load: float = 0.0, max_sweeps: int = 500) -> tuple[np.ndarray, int]:
+        """Nodes after the handle moves to ``handle`` (the external load ``load`` on the last node).
+
+        Returns:
+            (x (n + 1,), slips: how many node slips it took).
+        """
+        # On Python floats (the same IEEE arithmetic as numpy's scalars, without their overhead).
+        x = [float(v) for v in np.asarray(x, float)]
+        x[0] = float(handle)
+        k, n, load = float(self.k), self.n, float(load)
+        limit, kinetic = self.static * (1.0 + 1e-12), float(self.kinetic)
+        slips = 0
+        for _ in range(max_sweeps):
+            moved = False
+            for i in range(1, n + 1):
+                if i < n:
+                    f = k * (x[i - 1] - x[i]) + k * (x[i + 1] - x[i])
+                    stiffness = k * 2.0
+                else:
+                    f = k * (x[i - 1] - x[i]) + load
+                    stiffness = k
+                if abs(f) > limit:
+                    x[i] += (f - math.copysign(kinetic, f)) / stiffness
+                    slips += 1
+                    moved = True
+            if not moved:
+                break
+        return np.array(x), slips
+
+    def windup(self, x: np.ndarray) -> float:
+        """The handle's lead over the distal node (x_0 - x_n)."""
+        return float(x[0] - x[-1])

@@ -1,0 +1,345 @@
+"""The manual arm of the paper's comparison (Sec. V-C) as a station: a steerable catheter in the
+atrium, a hand on its handle, the targets.
+
+``MakeStation`` builds this diagram for a scenario with ``device: steerable_catheter`` (the one
+place the device is chosen), the sibling of the ball chain's station: the same atrium, the same
+sheath exit and axis, the same target rings and ``TargetTouchTracker``, the same ``add_systems``
+hook for an operator, but a catheter instead of the chain and the units:
+
+* ``SteerableCatheterSystem``: the catheter's quasi-static state, advanced every ``period`` from
+  the handle's position (the push past the start [m], the handle's twist [rad], the knob in
+  [-1, 1]): the shaft's friction chains in the sheath (``drake_models.steerable_catheter``:
+  stick-slip in twist and in push), then the distal rod's equilibrium in the atrium
+  (``optimization.rod_statics``), warm-started from the last one. Outputs ``body_poses`` (the
+  rod's nodes as bodies 1..n + 1, the tip sphere's centre last, for the operator's camera and
+  the touch test), ``tip_position`` (3: the tip's end) and ``windup`` (3: the handle's twist,
+  the twist at the sheath exit [rad], slips so far).
+* ``ManualHand``: the hand on the handle, driven like the robotic console (a stick with a dead
+  band and a feeder command, so that the same ``SimulatedOperator`` drives it): stick axis 0 turns
+  the handle, axis 1 the knob, the feeder command pushes or pulls, each within a human-like rate
+  limit. At the windup the paper describes (about half a turn of the handle, where the reaction
+  between catheter and sheath builds), its strategy is to ``keep`` turning or to ``switch``: turn
+  the handle back by half a turn while moving the knob to the opposite tendon (the same bend, the
+  other wire), during which it takes no other command.
+
+Exported inputs (when the hook leaves them unconnected): ``hand.joystick`` (3),
+``hand.v_insert_cmd`` (1).
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.systems.framework import BasicVector, Diagram, DiagramBuilder, EventStatus, LeafSystem
+
+from ballchain.drake_models.errors import UserInputError, require_finite_fields
+from ballchain.drake_models.steerable_catheter import SteerableCatheter
+from ballchain.optimization.rod_statics import RodStatics
+from ballchain.systems.target_contact import TargetTouchTracker, heart_targets
+from ballchain.systems.teleoperation import apply_dead_band
+
+STRATEGIES = ("keep", "switch")
+
+
+@dataclass
+class HandParams:
+    """The hand on the catheter's handle (SI). Human-like rate limits, assumptions of this model
+    (no measured source): a steady push of up to 20 mm/s, a wrist turning the handle at up to
+    90 deg/s in fine control, the thumb taking the knob across its travel in 1 s.
+
+    Attributes:
+        push_speed: [m/s] at full feeder command.
+        twist_rate: [rad/s] at full stick on axis 0.
+        knob_rate: knob travel per second at full stick on axis 1 (the travel is -1..1).
+        dead_band: the stick's dead band (the operator pushes past it).
+        windup_twist: the handle's twist from neutral beyond which the ``switch`` strategy turns
+            back [rad] (the paper: about 180 degrees).
+        strategy: "keep" (keep turning) or "switch" (the opposite tendon and back by half a turn).
+        period: the hand's update [s].
+    """
+
+    push_speed: float = 0.02
+    twist_rate: float = np.radians(90.0)
+    knob_rate: float = 1.0
+    dead_band: float = 0.1
+    windup_twist: float = np.pi
+    strategy: str = "switch"
+    period: float = 0.05
+
+    def validate(self) -> "HandParams":
+        require_finite_fields(self)
+        if self.strategy not in STRATEGIES:
+            raise UserInputError(f"HandParams.strategy must be one of {STRATEGIES}, got {self.strategy!r}")
+        for name in ("push_speed", "twist_rate", "knob_rate", "windup_twist", "period"):
+            if not getattr(self, name) > 0:
+                raise UserInputError(f"HandParams.{name} must be > 0, got {getattr(self, name)}")
+        if not 0.0 <= self.dead_band < 1.0:
+            raise UserInputError(f"HandParams.dead_band must be in [0, 1), got {self.dead_band}")
+        return self
+
+
+class ManualHand(LeafSystem):
+    """The hand on the handle (module docstring).
+
+    Input ports: joystick (3: axis 0 turns the handle, axis 1 the knob), v_insert_cmd (1) [m/s].
+    Output ports: handle (3: push past the start [m], twist [rad], knob in [-1, 1]),
+    switches (1: tendon switches so far).
+    State (discrete, 7): push, twist, knob, switching (0/1), the switch's target twist and knob,
+    switches.
+    """
+
+    def __init__(self, params: HandParams | None = None) -> None:
+        super().__init__()
+        self.params = p = (params or HandParams()).validate()
+        self.set_name("hand")
+        self._joystick = self.DeclareVectorInputPort("joystick", 3)
+        self._push = self.DeclareVectorInputPort("v_insert_cmd", 1)
+        self._state = self.DeclareDiscreteState(7)
+        self.DeclareStateOutputPort("state", self._state)
+        self.DeclareVectorOutputPort("handle", 3, self._calc_handle, prerequisites_of_calc={self.xd_ticket()})
+        self.DeclareVectorOutputPort("switches", 1, self._calc_switches, prerequisites_of_calc={self.xd_ticket()})
+        self.DeclarePeriodicDiscreteUpdateEvent(p.period, 0.0, self._update)
+
+    def _calc_handle(self, context, output):
+        output.SetFromVector(context.get_discrete_state(self._state).get_value()[:3])
+
+    def _calc_switches(self, context, output):
+        output.SetAtIndex(0, context.get_discrete_state(self._state).get_value()[6])
+
+    def _update(self, context, discrete_state):
+        p = self.params
+        push, twist, knob, switching, target, goal, switches = context.get_discrete_state(self._state).get_value()
+        u = apply_dead_band(np.nan_to_num(self._joystick.Eval(context)), p.dead_band)
+        v = float(np.clip(np.nan_to_num(self._push.Eval(context)[0]), -p.push_speed, p.push_speed))
+        dt = p.period
+        twist_rate, knob_rate = u[0] * p.twist_rate, u[1] * p.knob_rate
+        if (not switching and p.strategy == "switch" and abs(twist) >= p.windup_twist
+                and twist_rate * twist > 0 and abs(knob) > 0.2):
+            # Wound up and asked to turn further: the other tendon, and back by half a turn.
+            switching, target, goal, switches = 1.0, twist - np.sign(twist) * np.pi, -knob, switches + 1
+        if switching:
+            v = 0.0
+            twist_rate = float(np.clip((target - twist) / dt, -p.twist_rate, p.twist_rate))
+            knob_rate = float(np.clip((goal - knob) / dt, -p.knob_rate, p.knob_rate))
+            if abs(target - twist - twist_rate * dt) < 1e-9 and abs(goal - knob - knob_rate * dt) < 1e-9:
+                switching = 0.0
+        state = [push + v * dt, twist + twist_rate * dt, float(np.clip(knob + knob_rate * dt, -1.0, 1.0)),
+                 switching, target, goal, switches]
+        discrete_state.get_mutable_vector(self._state).SetFromVector(state)
+        return EventStatus.Succeeded()
+
+
+@dataclass
+class _CatheterState:
+    """The catheter's state between updates (an abstract state value)."""
+
+    q: np.ndarray
+    twist: np.ndarray  # the shaft's twist chain nodes [rad] (handle first)
+    push: np.ndarray  # the shaft's push chain nodes [m]
+    length: float  # rod beyond the sheath exit [m]
+    torque: float  # the rod's torque on the shaft at the exit [N m]
+    nodes: np.ndarray  # (n + 1, 3): every joint (those in the sheath on its axis) and the tip centre
+    R_tip: np.ndarray
+    slips: int = 0
+    failures: list = field(default_factory=list)
+
+    def __deepcopy__(self, memo):
+        new = copy.copy(self)
+        for name in ("q", "twist", "push", "nodes", "R_tip"):
+            setattr(new, name, getattr(self, name).copy())
+        new.failures = list(self.failures)
+        return new
+
+
+class SteerableCatheterSystem(LeafSystem):
+    """The steerable catheter in the atrium, quasi-static (module docstring).
+
+    Input ports: handle (3: push past the start [m], handle twist [rad], knob in [-1, 1]).
+    Output ports: body_poses (abstract list[RigidTransform]: index 0 the world, 1..n + 1 the rod's
+    nodes, the tip sphere's centre last, with the tip's frame), tip_position (3: the tip's end),
+    windup (3: handle twist, twist at the sheath exit [rad], slips so far).
+
+    Args:
+        catheter: the SteerableCatheter.
+        p_E, axis: the sheath exit [m] and its direction.
+        sdf: the atrium's signed distance (``drake_models.atrium_sdf``).
+        initial_length: rod beyond the exit at the start [m].
+        period: the update period [s].
+    """
+
+    def __init__(self, catheter: SteerableCatheter, p_E, axis, sdf, initial_length: float = 20e-3,
+                 period: float = 0.05) -> None:
+        super().__init__()
+        self.set_name("steerable_catheter")
+        self.catheter = catheter.validate()
+        self.rod = RodStatics(self.catheter, p_E, axis, sdf)
+        if not 0.0 < initial_length <= self.rod.max_length:
+            raise UserInputError(f"SteerableCatheterSystem initial_length must be in (0, "
+                                 f"{self.rod.max_length * 1e3:.0f} mm], got {initial_length}")
+        self.initial_length = float(initial_length)
+        self._twist_chain, self._push_chain = self.catheter.twist_chain(), self.catheter.push_chain()
+        self.n_bodies = self.rod.n_joints + 1
+        self._handle = self.DeclareVectorInputPort("handle", 3)
+        self._index = self.DeclareAbstractState(AbstractValue.Make(self._solve(self._start(), 0.0, 0.0, 0.0)))
+        ticket = {self.abstract_state_ticket(self._index)}
+        self.DeclareAbstractOutputPort("body_poses", lambda: AbstractValue.Make([RigidTransform()]),
+                                       self._calc_poses, prerequisites_of_calc=ticket)
+        self.DeclareVectorOutputPort("tip_position", 3, self._calc_tip, prerequisites_of_calc=ticket)
+        self.DeclareVectorOutputPort("windup", 3, self._calc_windup, prerequisites_of_calc=ticket)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(period, 0.0, self._update)
+
+    def _start(self) -> _CatheterState:
+        return _CatheterState(np.zeros(0), self._twist_chain.initial(), self._push_chain.initial(),
+                              self.initial_length, 0.0, np.zeros((self.n_bodies, 3)), np.eye(3))
+
+    def state(self, context) -> _CatheterState:
+        return context.get_abstract_state(self._index).get_value()
+
+    def _solve(self, st: _CatheterState, push: float, twist: float, knob: float) -> _CatheterState:
+        """The next state for the handle at (push, twist, knob): the shaft's chains, then the rod;
+        the twist chain sees the rod's new torque once more (the quasi-static coupling)."""
+        st = copy.deepcopy(st)
+        st.push, _ = self._push_chain.step(st.push, push)
+        length = float(np.clip(self.initial_length + st.push[-1], 2 * self.rod.h, self.rod.max_length))
+        kappa = self.catheter.curvature(knob)
+        for _ in range(2):
+            st.twist, slips = self._twist_chain.step(st.twist, twist, st.torque)
+            st.slips += slips
+            sol = self.rod.solve(length, st.twist[-1], kappa, q0=st.q if len(st.q) else None)
+            if not (np.all(np.isfinite(sol.q)) and np.isfinite(sol.base_torque)):
+                if len(st.failures) < 20:
+                    st.failures.append(f"rod statics not finite at length {length * 1e3:.1f} mm")
+                return st  # the last finite state stays
+            if not sol.converged and len(st.failures) < 20:  # the first few, for the run's warnings
+                st.failures.append(f"rod statics did not converge at length {length * 1e3:.1f} mm")
+            changed = abs(sol.base_torque - st.torque) > 0.05 * self._twist_chain.kinetic
+            st.q, st.torque, st.length = sol.q, sol.base_torque, length
+            if not changed:
+                break
+        st.R_tip = sol.pose.R_tip
+        j0 = self.rod.first_free(length)
+        inside = self.rod.p_E[None, :] + np.outer(length - self.rod.sigma[:j0], self.rod.R_E[:, 2])
+        st.nodes = np.vstack([inside, sol.pose.nodes])
+        return st
+
+    def _update(self, context, state):
+        push, twist, knob = np.nan_to_num(self._handle.Eval(context))
+        st = self._solve(self.state(context), float(push), float(twist), float(knob))
+        state.get_mutable_abstract_state(self._index).set_value(st)
+        return EventStatus.Succeeded()
+
+    def _calc_poses(self, context, output):
+        st = self.state(context)
+        poses = [RigidTransform()] + [RigidTransform(p) for p in st.nodes[:-1]]
+        poses.append(RigidTransform(RotationMatrix(st.R_tip), st.nodes[-1]))
+        output.set_value(poses)
+
+    def _calc_tip(self, context, output):
+        st = self.state(context)
+        output.SetFromVector(st.nodes[-1] + self.catheter.radius * st.R_tip[:, 2])
+
+    def _calc_windup(self, context, output):
+        st = self.state(context)
+        output.SetFromVector([st.twist[0], st.twist[-1], float(st.slips)])
+
+
+class CatheterMeshcat(LeafSystem):
+    """The catheter in Meshcat: the atrium's blood-side surface and the targets drawn once, the
+    rod's nodes (spheres of its radius) moved at every publish from ``body_poses``.
+
+    Input ports: body_poses (abstract list[RigidTransform]).
+    """
+
+    def __init__(self, meshcat, heart, n_bodies: int, radius: float, targets=None, period: float = 0.05) -> None:
+        super().__init__()
+        from pydrake.geometry import Rgba, Sphere
+
+        self.set_name("catheter_meshcat")
+        self._meshcat, self._n = meshcat, n_bodies
+        self._poses = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
+        V, F = heart.blood_surface
+        meshcat.SetTriangleMesh("catheter_view/atrium", np.asarray(V, float).T, np.asarray(F).T,
+                                Rgba(0.85, 0.45, 0.45, 0.25))
+        if targets is not None:
+            for name, p in zip(targets[0], targets[1]):
+                meshcat.SetObject(f"catheter_view/targets/{name}", Sphere(targets[3]), Rgba(0.2, 0.6, 0.9, 0.6))
+                meshcat.SetTransform(f"catheter_view/targets/{name}", RigidTransform(p))
+        for i in range(n_bodies):
+            meshcat.SetObject(f"catheter_view/rod/{i}", Sphere(radius), Rgba(0.3, 0.3, 0.3, 1.0))
+        self.DeclarePeriodicPublishEvent(period, 0.0, self._publish)
+        self.DeclareForcedPublishEvent(self._publish)
+
+    def _publish(self, context):
+        poses = self._poses.Eval(context)
+        for i in range(self._n):
+            self._meshcat.SetTransform(f"catheter_view/rod/{i}", poses[i + 1], context.get_time())
+        return EventStatus.Succeeded()
+
+
+@dataclass
+class CatheterPorts:
+    """What the ``add_systems`` hook may connect to (as ``station.StationPorts`` for the chain):
+    the catheter, its ``body_poses``, the hand's stick and push inputs, the targets."""
+
+    catheter: SteerableCatheterSystem
+    body_poses: object
+    joystick_input: object
+    feeder_command_input: object
+    heart: object
+    targets: tuple | None
+    target_touches: TargetTouchTracker | None
+
+
+@dataclass
+class CatheterStation:
+    """The built catheter station (``make_catheter_station``)."""
+
+    diagram: Diagram
+    catheter: SteerableCatheterSystem
+    hand: ManualHand
+    heart: object
+    scenario: object
+    target_touches: TargetTouchTracker | None = None
+    added: dict = field(default_factory=dict)
+
+
+def make_catheter_station(scenario, *, heart=None, add_systems=None, catheter: SteerableCatheter | None = None,
+                          hand: HandParams | None = None, initial_length: float = 20e-3,
+                          meshcat=None) -> CatheterStation:
+    """The catheter station of a ``device: steerable_catheter`` scenario (module docstring); the
+    catheter updates every ``scenario.statics_period``, the targets are checked as often; with a
+    Meshcat, ``catheter_meshcat`` draws it (``scenario.visualization.publish_period``)."""
+    from ballchain.drake_models.atrium_sdf import atrium_sdf
+    from ballchain.systems.station import atrium_for
+
+    heart = heart if heart is not None else atrium_for(scenario)
+    builder = DiagramBuilder()
+    period = scenario.statics_period
+    cat = builder.AddSystem(SteerableCatheterSystem(catheter or SteerableCatheter(), heart.p_HE,
+                                                    heart.sheath_axis_H, atrium_sdf(heart), initial_length, period))
+    hand_system = builder.AddSystem(ManualHand(hand))
+    builder.Connect(hand_system.GetOutputPort("handle"), cat.GetInputPort("handle"))
+    targets = heart_targets(heart) if hasattr(heart, "rings") else None
+    tracker = None
+    if targets is not None and targets[0]:
+        names, p_WT, n_W, radius = targets
+        tracker = builder.AddSystem(TargetTouchTracker(cat.n_bodies, names, p_WT, n_W, radius,
+                                                       ball_radius=cat.catheter.radius, period=period))
+        builder.Connect(cat.GetOutputPort("body_poses"), tracker.get_body_poses_input_port())
+    ports = CatheterPorts(cat, cat.GetOutputPort("body_poses"), hand_system.GetInputPort("joystick"),
+                          hand_system.GetInputPort("v_insert_cmd"), heart, targets, tracker)
+    if meshcat is not None:
+        view = builder.AddSystem(CatheterMeshcat(meshcat, heart, cat.n_bodies, cat.catheter.radius, targets,
+                                                 scenario.visualization.publish_period))
+        builder.Connect(cat.GetOutputPort("body_poses"), view.GetInputPort("body_poses"))
+    added = dict(add_systems(builder, ports) or {}) if add_systems is not None else {}
+    for port, name in ((ports.joystick_input, "hand.joystick"), (ports.feeder_command_input, "hand.v_insert_cmd")):
+        if not builder.IsConnectedOrExported(port):
+            builder.ExportInput(port, name)
+    diagram = builder.Build()
+    diagram.set_name("catheter_in_heart")
+    return CatheterStation(diagram, cat, hand_system, heart, scenario, tracker, added)
