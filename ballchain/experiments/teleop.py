@@ -306,21 +306,9 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
                       stop=lambda context: op.is_done(op.GetMyContextFromRoot(context)),
                       progress=f"teleop {_label(task, anatomy)}/{mapping}" if progress else None, progress_step=0.1,
                       html=html, meshcat=meshcat)
-    op_context = op.GetMyContextFromRoot(run.context)
-    failure, wall, cpu, sim_time = run.failure, run.wall_time, run.cpu_time, run.sim_time
-    rows = op.rows(op_context)
-    summary = summarize(rows, sim_time, wall, failure)
-    summary.build_time_s = round(built, 2)
-    # On a shared machine wall time counts the waits for a core: the loop's process CPU time too.
-    summary.realtime_factor_cpu = round(sim_time / cpu, 4) if cpu > 0 else None
-    sinkings = chain_monitor.tolerated_sinkings
-    summary.rim_sinkings = len(sinkings)
-    summary.rim_sinking_max_mm = round(max(e[2] for e in sinkings) * 1e3, 3) if sinkings else None
-    settings_path = {}
-    if log_path:
-        balls, stick, feed = (log.FindLog(run.context) for log in handles["logs"])
-        settings_path = {"path": {"t": balls.sample_times().tolist(), "tip": balls.data()[-3:].T.tolist(),
-                                  "stick": stick.data().T.tolist(), "feed": feed.data()[0].tolist()}}
+    rows = op.rows(op.GetMyContextFromRoot(run.context))
+    summary = _run_summary(run, rows, built, chain_monitor)
+    settings_path = _logged_path(handles["logs"], run.context) if log_path else {}
     return TeleopResult(
         task=task, mapping=mapping, rows=rows, summary=summary,
         paper=PAPER[task] if anatomy is None or anatomy.procedural else None,
@@ -331,6 +319,26 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
                   "operator_period_s": params.period, "reaction_s": params.period * params.reaction_steps,
                   "timeout_s": params.timeout, "axes": list(params.axes), "time_limit_s": limit, **settings_path},
         html=None if html is None else str(html), anatomy=None if anatomy is None else anatomy.describe())
+
+
+def _run_summary(run, rows: list, built: float, chain_monitor) -> TeleopSummary:
+    """The task's summary from the run (``run_station``'s outcome), the operator's rows, the
+    station's build time [s] and the monitor's tolerated rim sinkings."""
+    summary = summarize(rows, run.sim_time, run.wall_time, run.failure)
+    summary.build_time_s = round(built, 2)
+    # On a shared machine wall time counts the waits for a core: the loop's process CPU time too.
+    summary.realtime_factor_cpu = round(run.sim_time / run.cpu_time, 4) if run.cpu_time > 0 else None
+    sinkings = chain_monitor.tolerated_sinkings
+    summary.rim_sinkings = len(sinkings)
+    summary.rim_sinking_max_mm = round(max(e[2] for e in sinkings) * 1e3, 3) if sinkings else None
+    return summary
+
+
+def _logged_path(logs: list, context) -> dict:
+    """``{"path": {t, tip (k, 3) [m], stick (k, 3), feed (k,) [m/s]}}`` from the run's three loggers."""
+    balls, stick, feed = (log.FindLog(context) for log in logs)
+    return {"path": {"t": balls.sample_times().tolist(), "tip": balls.data()[-3:].T.tolist(),
+                     "stick": stick.data().T.tolist(), "feed": feed.data()[0].tolist()}}
 
 
 def vein_openings(heart) -> tuple:
