@@ -52,7 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "the comparison's; 0: the braid neglected in torsion)")
     parser.add_argument("--mapping", default=None,
                         help="world (the paper's: stick = magnet angular velocity in world) or catheter "
-                             "(stick swings the tip in the tip's frame)")
+                             "(stick swings the tip in the tip's frame) (default: world)")
     parser.add_argument("--targets", type=_int, default=None,
                         help="only the first N targets of the task (default: all)")
     parser.add_argument("--balls", type=_int, default=None,
