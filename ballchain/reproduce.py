@@ -553,15 +553,17 @@ def _manual_headlines(section: Section, table: list[dict]) -> None:
             continue
         r_t, h_t = robot["total_time_median_s"], hand["total_time_median_s"]
         p_r, p_h = robot["paper_total_s"], hand["paper_total_s"]
-        # The paper: similar totals (Task I), or the robot faster (Task II); "similar" is the report's 10 %.
-        agrees = abs(r_t - h_t) <= AGREES_WITHIN * max(r_t, h_t) if p_r == p_h else r_t < h_t
-        section.headline(f"{task} ring: total time robotic / manual [s]", f"{p_r:g} / {p_h:g}",
-                         f"{r_t:.1f} / {h_t:.1f}", agrees,
-                         f"the manual catheter touched {hand['touched_median']:g}/{hand['targets']} targets "
-                         "(median over seeds), driven by the robotic arm's operator model, not a trained hand")
-        section.headline(f"{task} ring: smoother tip path (SPARC, closer to 0)", "robotic",
-                         f"{robot['sparc_median']:.2f} vs {hand['sparc_median']:.2f}",
-                         robot["sparc_median"] > hand["sparc_median"], "median over transitions and seeds")
+        if r_t is not None and h_t is not None:
+            # The paper: similar totals (Task I), or the robot faster (Task II); "similar": the report's 10 %.
+            agrees = abs(r_t - h_t) <= AGREES_WITHIN * max(r_t, h_t) if p_r == p_h else r_t < h_t
+            section.headline(f"{task} ring: total time robotic / manual [s]", f"{p_r:g} / {p_h:g}",
+                             f"{r_t:.1f} / {h_t:.1f}", agrees,
+                             f"the manual catheter touched {hand['touched_median']:g}/{hand['targets']} targets "
+                             "(median over seeds), driven by the robotic arm's operator model, not a trained hand")
+        r_s, h_s = robot["sparc_median"], hand["sparc_median"]
+        if r_s is not None and h_s is not None:  # None: no transition completed (a --quick run's few targets)
+            section.headline(f"{task} ring: smoother tip path (SPARC, closer to 0)", "robotic",
+                             f"{r_s:.2f} vs {h_s:.2f}", r_s > h_s, "median over transitions and seeds")
 
 
 def ablation_section(out: Path, quick: bool) -> tuple[Section, dict]:

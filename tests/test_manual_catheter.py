@@ -178,3 +178,20 @@ def test_make_station_builds_the_catheter_with_its_meshcat_view(atrium):
     for path in ("catheter_view/atrium", "catheter_view/targets/left_1",
                  f"catheter_view/rod/{station.catheter.n_bodies - 1}"):
         assert meshcat.HasPath(path)
+
+
+def test_the_comparison_s_headlines_skip_what_a_short_run_did_not_measure():
+    from ballchain.report import Section
+    from ballchain.reproduce import _manual_headlines
+
+    def row(task, device, total, sparc, paper):
+        return {"task": task, "device": device, "total_time_median_s": total, "sparc_median": sparc,
+                "paper_total_s": paper, "touched_median": 3, "targets": 3}
+
+    section = Section("robotic vs manual")
+    _manual_headlines(section, [row("left", "robotic", 10.0, None, 40), row("left", "manual", 30.0, None, 40),
+                                row("right", "robotic", 20.0, -2.5, 26), row("right", "manual", 25.0, -4.0, 33)])
+    verdicts = {h.result: h.agrees for h in section.headlines}
+    assert verdicts == {"left ring: total time robotic / manual [s]": False,  # the paper: similar (40 / 40)
+                        "right ring: total time robotic / manual [s]": True,  # the paper: robot faster (26 / 33)
+                        "right ring: smoother tip path (SPARC, closer to 0)": True}
