@@ -1,0 +1,10 @@
+"""Test-session set-up shared by every test file."""
+
+import signal
+
+# A shell without job control starts a background command with SIGINT ignored (POSIX), and an
+# ignored signal is inherited by every process the tests start. The commands keep a signal that was
+# ignored when they started ignored (as after ``nohup``), so the Ctrl-C tests need SIGINT to be
+# delivered as from a terminal: the test process's default handler, which a child gets back on exec.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
