@@ -554,8 +554,10 @@ def _manual_headlines(section: Section, table: list[dict]) -> None:
         r_t, h_t = robot["total_time_median_s"], hand["total_time_median_s"]
         p_r, p_h = robot["paper_total_s"], hand["paper_total_s"]
         if r_t is not None and h_t is not None:
-            # The paper: similar totals (Task I), or the robot faster (Task II); "similar": the report's 10 %.
-            agrees = abs(r_t - h_t) <= AGREES_WITHIN * max(r_t, h_t) if p_r == p_h else r_t < h_t
+            # The paper: every target touched with both, and similar totals (Task I) or the robot faster
+            # (Task II); "similar": the report's 10 %. A device that missed targets does not agree.
+            every = all(r["touched_median"] == r["targets"] for r in (robot, hand))
+            agrees = every and (abs(r_t - h_t) <= AGREES_WITHIN * max(r_t, h_t) if p_r == p_h else r_t < h_t)
             section.headline(f"{task} ring: total time robotic / manual [s]", f"{p_r:g} / {p_h:g}",
                              f"{r_t:.1f} / {h_t:.1f}", agrees,
                              f"the manual catheter touched {hand['touched_median']:g}/{hand['targets']} targets "

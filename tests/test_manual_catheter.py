@@ -195,3 +195,7 @@ def test_the_comparison_s_headlines_skip_what_a_short_run_did_not_measure():
     assert verdicts == {"left ring: total time robotic / manual [s]": False,  # the paper: similar (40 / 40)
                         "right ring: total time robotic / manual [s]": True,  # the paper: robot faster (26 / 33)
                         "right ring: smoother tip path (SPARC, closer to 0)": True}
+    missed = row("right", "manual", 25.0, -4.0, 33) | {"touched_median": 2}  # faster only by giving up
+    section = Section("robotic vs manual")
+    _manual_headlines(section, [row("right", "robotic", 20.0, -2.5, 26), missed])
+    assert section.headlines[0].agrees is False
