@@ -3,8 +3,8 @@ the Meshcat page of ``run_live`` on localhost and presses keys on it, as a perso
 
 What is checked is what the person sees: the scene in the page (the tip ball's position, the
 target discs' colour, read from the page's three.js scene tree), the page's pixels (the
-readout panel), and the console lines. Screenshots go to ``LIVE_SHOTS`` (default
-/work/live_shots, else a temporary directory). Every wait is for a condition, with a deadline.
+readout panel), and the console lines. Screenshots go to the folder ``$LIVE_SHOTS`` names
+(default: a new temporary directory). Every wait is for a condition, with a deadline.
 """
 
 import os
@@ -46,12 +46,14 @@ JS_TOUCHED = """() => {
 
 
 def _shots() -> Path:
-    path = Path(os.environ.get("LIVE_SHOTS", "/work/live_shots"))
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError:
-        path = Path(tempfile.mkdtemp(prefix="live_shots_"))
-    return path
+    chosen = os.environ.get("LIVE_SHOTS")
+    if chosen:
+        try:
+            Path(chosen).mkdir(parents=True, exist_ok=True)
+            return Path(chosen)
+        except OSError:
+            pass
+    return Path(tempfile.mkdtemp(prefix="live_shots_"))
 
 
 def _wait(condition, what: str, deadline: float = DEADLINE, poll: float = 0.1):
