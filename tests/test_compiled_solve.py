@@ -136,20 +136,6 @@ def test_compiled_is_checked():
 
 
 # --- in the heart ----------------------------------------------------------------------------------
-@pytest.fixture(scope="module")
-def heart():
-    from ballchain.drake_models.heart import LeftAtrium
-
-    return LeftAtrium()
-
-
-@pytest.fixture(scope="module")
-def sdf(heart):
-    from ballchain.drake_models.atrium_sdf import atrium_sdf
-
-    return atrium_sdf(heart)
-
-
 def _constraints(heart, sdf, s, n=16, d=3.175e-3):
     k, a = sheath_split(n, s, d)
     sheath = SheathGeometry(heart.p_HE, heart.sheath_axis_H, 1.8e-3, 0.3e-3)

@@ -17,20 +17,6 @@ from ballchain.optimization.wall_constraints import (
 )
 
 
-@pytest.fixture(scope="module")
-def heart():
-    from ballchain.drake_models.heart import LeftAtrium
-
-    return LeftAtrium()
-
-
-@pytest.fixture(scope="module")
-def sdf(heart):
-    from ballchain.drake_models.atrium_sdf import atrium_sdf
-
-    return atrium_sdf(heart)
-
-
 def _left_magnet(heart):
     u = np.array([1.0, 0.0, 0.0])
     return MagnetSource.pointing(CylinderMagnet(), heart.p_HP + 0.1651 * u, [0.0, -1.0, 0.0], "dipole")
