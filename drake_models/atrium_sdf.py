@@ -32,6 +32,7 @@ costs a few microseconds.
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import os
 import zipfile
@@ -85,6 +86,14 @@ class AtriumSDF:
         if order == 0:
             return sdf
         return (sdf, grad, hess) if hessian else (sdf, grad)
+
+    def translated(self, offset) -> "AtriumSDF":
+        """The same wall moved rigidly by ``offset`` (3,) [m] (``wall_motion``): the grid's origin
+        moves, its node values are shared (no copy, no new padding)."""
+        moved = copy.copy(self)
+        moved.origin = np.asarray(self.origin, float) + np.asarray(offset, float)
+        moved.__dict__.pop("_compiled_arrays", None)  # compiled_model's view of the old origin
+        return moved
 
     def reference(self, p: np.ndarray, gradient: bool = True, hessian: bool = False):
         """Signed distance at points p (k, 3) [m], quadratic B-spline of the node values (numpy).

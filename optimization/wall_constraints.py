@@ -423,6 +423,10 @@ class PlaneSDF:
         n = np.asarray(normal, float).reshape(3)
         self.normal = n / np.linalg.norm(n)
 
+    def translated(self, offset) -> "PlaneSDF":
+        """The same wall moved rigidly by ``offset`` (3,) [m] (``wall_motion``)."""
+        return PlaneSDF(self.point + np.asarray(offset, float), self.normal)
+
     def __call__(self, p, gradient: bool = True, hessian: bool = False):
         p = np.atleast_2d(np.asarray(p, float))
         s = (p - self.point) @ self.normal

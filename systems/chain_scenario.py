@@ -22,7 +22,7 @@ from pydrake.multibody.plant import MultibodyPlantConfig
 from pydrake.systems.analysis import GetIntegrationSchemes, SimulatorConfig
 from pydrake.visualization import VisualizationConfig
 
-from ballchain.drake_models import paper
+from ballchain.drake_models import paper, wall_motion
 from ballchain.drake_models.errors import UserInputError, short_repr
 from ballchain.drake_models.safe_yaml import check_value  # noqa: F401 (the sweep's check imports it from here)
 from ballchain.drake_models.safe_yaml import (check_yaml_schema, load_typed, load_yaml, load_yaml_file,
@@ -118,6 +118,56 @@ class PinScenario:
     stiffness: float = 500.0  # [N/m]: 2.4 times below the first failure on Table I's optima (forces_dynamics)
 
 
+@dataclass
+class OscillationScenario:
+    """One sinusoidal translation of the anatomy, ``amplitude sin(2 pi frequency t) direction_W``
+    (``drake_models.wall_motion.Oscillation``).
+
+    Attributes:
+        amplitude: [m], half the peak-to-peak excursion (0: still).
+        frequency: [Hz].
+        direction_W: the direction of the motion (normalised).
+    """
+
+    amplitude: float = 0.0
+    frequency: float = 1.0
+    direction_W: list[float] = field(default_factory=lambda: [0.0, 0.0, 1.0])
+
+
+def _oscillation(amplitude: float, frequency: float, direction) -> OscillationScenario:
+    return OscillationScenario(amplitude, frequency, list(direction))
+
+
+@dataclass
+class WallMotionScenario:
+    """The moving wall (``drake_models.wall_motion``): off unless ``enabled``; the defaults are
+    the literature's (sources in ``wall_motion``'s docstring). ``engine: statics`` only.
+
+    Attributes:
+        enabled: move the anatomy.
+        respiratory: the heart's and the sheath's motion relative to the magnets (5 mm along +z
+            at 0.25 Hz).
+        cardiac: the wall's motion relative to the sheath (1 mm along the long axis, (1, 1, -1),
+            at 1.2 Hz).
+    """
+
+    enabled: bool = False
+    respiratory: OscillationScenario = field(default_factory=lambda: _oscillation(
+        wall_motion.RESPIRATORY_AMPLITUDE, wall_motion.RESPIRATORY_FREQUENCY, wall_motion.RESPIRATORY_DIRECTION))
+    cardiac: OscillationScenario = field(default_factory=lambda: _oscillation(
+        wall_motion.CARDIAC_AMPLITUDE, wall_motion.CARDIAC_FREQUENCY, wall_motion.CARDIAC_DIRECTION))
+
+    def law(self) -> "wall_motion.WallMotion | None":
+        """The motion law, or None when off or still (both amplitudes 0: nothing moves). A
+        checked scenario (``check_wall_motion``)."""
+        if not self.enabled:
+            return None
+        r, c = self.respiratory, self.cardiac
+        law = wall_motion.WallMotion(wall_motion.Oscillation(r.amplitude, r.frequency, tuple(r.direction_W)),
+                                     wall_motion.Oscillation(c.amplitude, c.frequency, tuple(c.direction_W)))
+        return None if law.still else law
+
+
 def station_visualization_config(**overrides) -> VisualizationConfig:
     """The station's VisualizationConfig: illustration only, 32 frames a second.
 
@@ -205,6 +255,8 @@ class ChainScenario:
         device: "ball_chain" (the magnetic chain, the default) or "steerable_catheter" (the
             paper's manual comparison arm: an 8 Fr steerable catheter in the same atrium and
             sheath, ``systems/catheter_station.py``; no magnet units, quasi-static).
+        wall_motion: the anatomy's periodic motion, respiration and heart beat
+            (``WallMotionScenario``; off by default; ``engine: statics`` only).
         random_seed: absent (null): every stochastic system (the Hall sensors' noise, a simulated
             operator's tremor) keeps its default seed, the run it always was; an integer in
             0..2**32 - 1: ``run_station`` draws their seeds from ``RandomGenerator(random_seed)``
@@ -245,6 +297,7 @@ class ChainScenario:
     pin: PinScenario = field(default_factory=PinScenario)
     random_seed: typing.Optional[int] = None
     device: str = "ball_chain"
+    wall_motion: WallMotionScenario = field(default_factory=WallMotionScenario)
 
     @property
     def effective_time_step(self) -> float:
@@ -321,6 +374,7 @@ MAX_DURATION = 3600.0  # [s] of simulated time
 MAX_STEPS = 5_000_000  # updates of the most frequent periodic event: hours of wall time at a few ms each
 MAX_UNIFORM_FIELD = 0.5  # [T]: clinical fields are tens of mT; 23 here means 23 T (mT typed)
 MAX_DISTANCE = 1.0  # [m]: magnets, points and walls farther away are a unit mistake (mm typed as m)
+MIN_SAMPLES_PER_CYCLE = 8  # the statics engine's updates per cycle of a moving wall's fastest motion
 
 # Contact parameters: (low, high, unit, why). The bounds keep the contact physical and the
 # discrete solver well conditioned; outside them a run fails inside Drake ("Call to Solve()
@@ -486,6 +540,7 @@ def check_fields(s: "ChainScenario") -> None:
     check_insertion(s)
     check_contact(s)
     check_drake_configs(s)
+    check_wall_motion(s)
     if s.pin.point:
         check_pin(s)
     _require(s.pin.point or s.pin.stiffness == PinScenario.stiffness,
@@ -736,6 +791,36 @@ def check_drake_configs(s: "ChainScenario") -> None:
             raise UserInputError(
                 f"scenario visualization.{f.name} = {short_repr(getattr(v, f.name))} is not supported by the station "
                 f"(it reads only {', '.join(VISUALIZATION_FIELDS_USED)}; {f.name} stays {getattr(default, f.name)!r})")
+
+
+def check_wall_motion(s: "ChainScenario") -> None:
+    """The moving wall: each oscillation's amplitude, frequency and direction
+    (``wall_motion.check_oscillation``), sampled at least ``MIN_SAMPLES_PER_CYCLE`` times a cycle
+    by the engine's updates; on only with ``engine: statics`` (the plant's wall is fixed) and
+    the magnetic chain; its fields only when it is on.
+
+    Raises:
+        UserInputError: naming the field (``wall_motion.<part>.<field>``).
+    """
+    w = s.wall_motion
+    _require(isinstance(w.enabled, bool), f"scenario wall_motion.enabled must be true or false, got {short_repr(w.enabled)}")
+    for name in ("respiratory", "cardiac"):
+        o = getattr(w, name)
+        where = f"scenario wall_motion.{name}"
+        wall_motion.check_oscillation(o.amplitude, o.frequency, o.direction_W, where, "direction_W")
+        samples = 1.0 / (o.frequency * s.statics_period)
+        _require(not w.enabled or o.amplitude == 0.0 or samples >= MIN_SAMPLES_PER_CYCLE,
+                 f"{where}.frequency {o.frequency:g} Hz is sampled {samples:.1f} times a cycle by statics_period "
+                 f"{s.statics_period:g} s: at least {MIN_SAMPLES_PER_CYCLE} (lower statics_period or the frequency)")
+    if not w.enabled:
+        _require(repr(w) == repr(WallMotionScenario()),
+                 "scenario wall_motion: its amplitudes, frequencies and directions are read only with "
+                 "wall_motion.enabled: true (add it, or leave them out)")
+        return
+    _require(s.engine == "statics", f"scenario wall_motion needs engine: statics (the quasi-static engine places the "
+                                    f"wall for each update; the plant's wall is fixed), got {s.engine!r}")
+    _require(s.device == "ball_chain", "scenario wall_motion is for the magnetic chain (device: ball_chain)")
+    _require(s.heart or bool(s.wall_plane), "scenario wall_motion moves a wall: it needs the heart or a wall_plane")
 
 
 def check_pin(s: "ChainScenario") -> None:

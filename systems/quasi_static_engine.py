@@ -28,7 +28,7 @@ their own.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -153,6 +153,10 @@ class QuasiStaticEngine(LeafSystem):
             (the tip's centre minus a radius along the push; the centre when there is none).
         ball_positions: (3 n) the ball centres [m].
         snap_throughs: (1) snap-throughs so far.
+        anatomy_offsets: (6, only with ``wall_motion``) where the last solve placed the heart and
+            the sheath (``heart_offset``) and the wall (``wall_offset``) [m]: the chain's state is
+            held between updates, and what is drawn or tested against it must be the anatomy
+            it was solved for.
 
     State (discrete, updated every ``period``): ball centres (3 n), dipoles (3 n), the tip's
     wall force and contact point (6), the insertion and magnet states of the last solve, the
@@ -178,13 +182,20 @@ class QuasiStaticEngine(LeafSystem):
         snap_distance: a ball moving further in one step marks a possible snap-through [m].
         compiled: solve with the compiled statics (``ChainStatics(compiled=True)``, default);
             False: the Python solver, the reference.
+        wall_motion: a ``drake_models.wall_motion.WallMotion``, or None (the anatomy still). Each
+            update places the heart for its time t (a moving constraint): the sheath's exit and
+            the sheath by ``heart_offset(t)`` (respiration), the wall by ``wall_offset(t)``
+            (respiration and the heart beat); the field sources stay. The continuation walks
+            the placement from the last update's time with the other inputs, at most
+            ``max_insertion_step`` of travel per step. A still motion (both amplitudes 0) is
+            None: the engine is then today's, state for state.
     """
 
     def __init__(self, chain: BallChain, ball_body_indices, p_WE, axis_W, sdf=None,
                  sheath: SheathGeometry | None = None, field_source=None, port_magnets=(), model: str = "dipole",
                  gravity: bool = True, period: float = 0.02, initial_inserted_length: float = 0.0,
                  max_angle_step: float = np.radians(1.0), max_insertion_step: float = 1e-3,
-                 snap_distance: float = 1.5e-3, compiled: bool = True):
+                 snap_distance: float = 1.5e-3, compiled: bool = True, wall_motion=None):
         super().__init__()
         require_type(chain, BallChain, "QuasiStaticEngine chain", "a BallChain")
         require_bool(compiled, "QuasiStaticEngine compiled")
@@ -194,7 +205,13 @@ class QuasiStaticEngine(LeafSystem):
             chain=chain, ball_body_indices=ball_body_indices, p_WE=p_WE, axis_W=axis_W, sdf=sdf, sheath=sheath,
             field_source=field_source, port_magnets=port_magnets, model=model, gravity=gravity, period=period,
             initial_inserted_length=initial_inserted_length, max_angle_step=max_angle_step,
-            max_insertion_step=max_insertion_step, snap_distance=snap_distance, compiled=compiled)
+            max_insertion_step=max_insertion_step, snap_distance=snap_distance, compiled=compiled,
+            wall_motion=wall_motion)
+        if wall_motion is not None:
+            from ballchain.drake_models.wall_motion import WallMotion
+
+            require_type(wall_motion, WallMotion, "QuasiStaticEngine wall_motion", "a WallMotion or None")
+        self.wall_motion = None if wall_motion is None or wall_motion.still else wall_motion
         self.compiled = compiled
         as_vector(p_WE, "QuasiStaticEngine p_WE", unit="m")
         as_vector(axis_W, "QuasiStaticEngine axis_W", nonzero=True)
@@ -243,7 +260,8 @@ class QuasiStaticEngine(LeafSystem):
         self._slices = {}
         offset = 0
         for name, size in (("p", 3 * n), ("m", 3 * n), ("tip", 6), ("s", 1), ("magnets", km), ("snaps", 1),
-                           ("failures", 1), ("dp", 3 * n), ("dm", 3 * n), ("u", 1)):
+                           ("failures", 1), ("dp", 3 * n), ("dm", 3 * n), ("u", 1),
+                           ("wall_t", 0 if self.wall_motion is None else 1)):  # the wall's time of the last solve
             self._slices[name] = slice(offset, offset + size)
             offset += size
         x0 = np.zeros(offset)
@@ -275,6 +293,10 @@ class QuasiStaticEngine(LeafSystem):
             "ball_positions", 3 * n, self._calc_positions, prerequisites_of_calc={self.xd_ticket()})
         self._snaps_port = self.DeclareVectorOutputPort(
             "snap_throughs", 1, self._calc_snaps, prerequisites_of_calc={self.xd_ticket()})
+        self._anatomy_port = None
+        if self.wall_motion is not None:
+            self._anatomy_port = self.DeclareVectorOutputPort(
+                "anatomy_offsets", 6, self._calc_anatomy_offsets, prerequisites_of_calc={self.xd_ticket()})
 
     # --- ports ----------------------------------------------------------------------------------
     def replica(self, **changes) -> QuasiStaticEngine:
@@ -312,26 +334,43 @@ class QuasiStaticEngine(LeafSystem):
     def get_snap_throughs_output_port(self):
         return self._snaps_port
 
-    # --- geometry of the insertion ------------------------------------------------------------
-    def straight(self, s: float) -> tuple[np.ndarray, np.ndarray]:
-        """Every ball on the sheath axis at inserted length s (the feeder's positions) [m]."""
-        along = s - (self._n - 0.5 - np.arange(self._n)) * self._d
-        return self._p_WE + along[:, None] * self._axis, np.tile(self._axis, (self._n, 1))
+    def get_anatomy_offsets_output_port(self):
+        """The ``anatomy_offsets`` port (None without wall motion)."""
+        return self._anatomy_port
 
-    def _constraints(self, s: float) -> tuple[int, HeartConstraints]:
-        """The held ball and the rows at inserted length s (the last ones again while s stays)."""
-        if self._last_constraints is not None and self._last_constraints[0] == s:
+    # --- geometry of the insertion ------------------------------------------------------------
+    def straight(self, s: float, t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Every ball on the sheath axis at inserted length s (the feeder's positions) [m], with
+        the sheath placed for time t (``wall_motion``)."""
+        along = s - (self._n - 0.5 - np.arange(self._n)) * self._d
+        return self._placement(t)[0] + along[:, None] * self._axis, np.tile(self._axis, (self._n, 1))
+
+    def _placement(self, t: float):
+        """(p_WE, sdf, sheath) placed for time t: the heart's offset moves the sheath, the wall's
+        the wall (``wall_motion``); the rest pose without motion."""
+        if self.wall_motion is None:
+            return self._p_WE, self._sdf, self._sheath
+        h = self.wall_motion.heart_offset(t)
+        sdf = None if self._sdf is None else self._sdf.translated(self.wall_motion.wall_offset(t))
+        sheath = None if self._sheath is None else replace(self._sheath, p_WE=self._sheath.p_WE + h)
+        return self._p_WE + h, sdf, sheath
+
+    def _constraints(self, s: float, t: float = 0.0) -> tuple[int, HeartConstraints]:
+        """The held ball and the rows at inserted length s and the wall's time t (the last ones
+        again while both stay)."""
+        if self._last_constraints is not None and self._last_constraints[0] == (s, t):
             return self._last_constraints[1]
-        self._last_constraints = (s, self._new_constraints(s))
+        self._last_constraints = ((s, t), self._new_constraints(s, t))
         return self._last_constraints[1]
 
-    def _new_constraints(self, s: float) -> tuple[int, HeartConstraints]:
-        if self._sheath is not None:
+    def _new_constraints(self, s: float, t: float = 0.0) -> tuple[int, HeartConstraints]:
+        p_WE, sdf, sheath = self._placement(t)
+        if sheath is not None:
             k, a = base_ball(self._n, s, self._d, self.free_in_bore)
-            p_WB = self._p_WE + a * self._axis
+            p_WB = p_WE + a * self._axis
         else:  # only ball 1 is held, by its slide
-            k, p_WB = 0, self.straight(s)[0][0]
-        return k, HeartConstraints(p_WB, self._R_WB, self._sdf, self._sheath, n_behind=k, gravity=self._gravity)
+            k, p_WB = 0, self.straight(s, t)[0][0]
+        return k, HeartConstraints(p_WB, self._R_WB, sdf, sheath, n_behind=k, gravity=self._gravity)
 
     def ball_positions(self, context) -> np.ndarray:
         """Ball centres (n, 3) [m] in this engine's context."""
@@ -347,10 +386,12 @@ class QuasiStaticEngine(LeafSystem):
                                      magnets, self._model)
 
     def equilibrium(self, s: float, magnets: np.ndarray | None, p_W: np.ndarray | None = None,
-                    m_W: np.ndarray | None = None, predicted=None) -> tuple[np.ndarray, np.ndarray, StaticsResult | None, int]:
+                    m_W: np.ndarray | None = None, predicted=None,
+                    t: float = 0.0) -> tuple[np.ndarray, np.ndarray, StaticsResult | None, int]:
         """The equilibrium at inserted length s and magnet states, warm-started from the world
         configuration (p_W, m_W) (None: the straight chain), or first from ``predicted``
         ((p, m), the continuation's extrapolation) when given; one cold restart on failure.
+        The wall and the sheath are placed for time t (``wall_motion``; no effect without it).
 
         Returns:
             ``(p_W (n, 3), m_W (n, 3), result or None (no free ball), k)``; raises StaticsError
@@ -358,9 +399,9 @@ class QuasiStaticEngine(LeafSystem):
         """
         from ballchain.optimization.statics import StaticsError
 
-        k, c = self._constraints(s)
+        k, c = self._constraints(s, t)
         if k >= self._n - 1:
-            p, m = self.straight(s)
+            p, m = self.straight(s, t)
             return p, m, None, k
         n_sub = self._n - k
         solver = self._solvers.get(n_sub)
@@ -405,10 +446,13 @@ class QuasiStaticEngine(LeafSystem):
                 out[3:] = p[-1] - 0.5 * self._d * f / np.linalg.norm(f)
         return out
 
-    def _step_size(self, s0, s1, mag0, mag1) -> float:
+    def _step_size(self, s0, s1, mag0, mag1, times=(0.0, 0.0)) -> float:
         """How far the inputs move, in continuation steps (the largest of the feeder's travel,
-        the magnets' turn and their travel over their per-step limits)."""
+        the magnets' turn and their travel, and the wall's and the sheath's travel between the
+        ``times`` (t0, t1), over their per-step limits)."""
         u = abs(s1 - s0) / self.max_insertion_step
+        if self.wall_motion is not None:
+            u = max(u, self._wall_travel(*times) / self.max_insertion_step)
         if mag0 is not None and len(mag0):
             a, b = mag0.reshape(-1, 6), mag1.reshape(-1, 6)
             cos = np.einsum("ij,ij->i", a[:, 3:], b[:, 3:]) / (_norms(a[:, 3:]) * _norms(b[:, 3:]))
@@ -416,8 +460,15 @@ class QuasiStaticEngine(LeafSystem):
                     float(_norms(a[:, :3] - b[:, :3]).max()) / 5e-3)
         return u
 
-    def _walk(self, t, s0, s1, mag0, mag1, p, m, depth=0, motion=None):
-        """Continuation from (s0, mag0) with equilibrium (p, m) to (s1, mag1).
+    def _wall_travel(self, t0: float, t1: float) -> float:
+        """How far the wall or the sheath moves from time t0 to t1 (the larger) [m]."""
+        w = self.wall_motion
+        return float(max(np.linalg.norm(w.heart_offset(t1) - w.heart_offset(t0)),
+                         np.linalg.norm(w.wall_offset(t1) - w.wall_offset(t0))))
+
+    def _walk(self, t, s0, s1, mag0, mag1, p, m, depth=0, motion=None, times=(0.0, 0.0)):
+        """Continuation from (s0, mag0) with equilibrium (p, m) to (s1, mag1), the wall and the
+        sheath from their places at ``times[0]`` to those at ``times[1]`` (``wall_motion``).
 
         ``motion``: (dp, dm, u) the last step's change of the equilibrium and its size
         (``_step_size``); each step starts from the linear extrapolation (a secant predictor),
@@ -426,25 +477,31 @@ class QuasiStaticEngine(LeafSystem):
         """
         # As many steps as the largest of the moves over its per-step limit asks for (the
         # ceiling of the largest ratio is the largest of the ratios' ceilings).
-        u = self._step_size(s0, s1, mag0, mag1)
+        u = self._step_size(s0, s1, mag0, mag1, times)
         steps = max(1, int(np.ceil(u)))
         result = None
         u_step = u / steps
         s_prev, f_prev = s0 + 0.0 * (s1 - s0), 0.0
+        t0, t1 = times
+        tau_prev = t0
         for j in range(1, steps + 1):
             f = j / steps
             s = s0 + f * (s1 - s0)
+            tau = t0 + f * (t1 - t0)  # the wall's time (t0 = t1 without motion)
             mag = None if mag0 is None else self._interpolate(mag0, mag1, f)
             predicted = None
             if motion is not None and motion[2] > 0 and u_step > 0:
                 ratio = min(u_step / motion[2], 2.0)
                 predicted = (p + ratio * motion[0], m + ratio * motion[1])
-            p_new, m_new, result, _ = self.equilibrium(s, mag, p, m, predicted)
+            p_new, m_new, result, _ = self.equilibrium(s, mag, p, m, predicted, t=tau)
             jump = float(_norms(p_new - p).max() - abs(s - s_prev))
+            if self.wall_motion is not None:  # the chain rides on the moving anatomy: not a jump
+                jump -= self._wall_travel(tau_prev, tau)
             if jump > self.snap_distance:
                 if depth < 4:  # refine: a smooth path moves less over a shorter step
                     mag_prev = None if mag0 is None else self._interpolate(mag0, mag1, f_prev)
-                    p_new, m_new, result, _ = self._walk(t, s_prev, s, mag_prev, mag, p, m, depth + 1)
+                    p_new, m_new, result, _ = self._walk(t, s_prev, s, mag_prev, mag, p, m, depth + 1,
+                                                         times=(tau_prev, tau))
                 elif steps == 1:
                     self.events.append(EngineEvent(t, "snap-through", jump + abs(s - s_prev),
                                                    f"inserted length {s * 1e3:.2f} mm"))
@@ -452,7 +509,7 @@ class QuasiStaticEngine(LeafSystem):
             else:
                 motion = (p_new - p, m_new - m, u_step)
             p, m = p_new, m_new
-            s_prev, f_prev = s, f
+            s_prev, f_prev, tau_prev = s, f, tau
         return p, m, result, motion
 
     @staticmethod
@@ -469,8 +526,9 @@ class QuasiStaticEngine(LeafSystem):
 
     def _initialize(self, context, discrete_state):
         s, mags = self._inputs(context)
+        t = context.get_time() if self.wall_motion is not None else 0.0
         with _one_blas_thread():
-            p, m, result, _ = self.equilibrium(s, mags)
+            p, m, result, _ = self.equilibrium(s, mags, t=t)
         self._store(discrete_state, context, p, m, result, s, mags, new_snaps=0, new_failures=0)
         return EventStatus.Succeeded()
 
@@ -482,12 +540,13 @@ class QuasiStaticEngine(LeafSystem):
         sl = self._slices
         s_last = float(x[sl["s"]][0])
         mags_last = None if mags is None else x[sl["magnets"]]
-        if s == s_last and (mags is None or np.array_equal(mags, mags_last)):
+        t = context.get_time()
+        times = (0.0, 0.0) if self.wall_motion is None else (float(x[sl["wall_t"]][0]), t)
+        if s == s_last and (mags is None or np.array_equal(mags, mags_last)) and times[0] == times[1]:
             # Nothing moved: the chain stays where it is (and the next move starts afresh).
             # discrete_state holds the current state: only the step size changes.
             discrete_state.get_mutable_vector(self._state_index).get_mutable_value()[sl["u"]] = 0.0
             return EventStatus.Succeeded()
-        t = context.get_time()
         n_events = len(self.events)
         motion = None
         if x[sl["u"]][0] > 0:
@@ -495,7 +554,7 @@ class QuasiStaticEngine(LeafSystem):
         try:
             with _one_blas_thread():
                 p, m, result, motion = self._walk(t, s_last, s, mags_last, mags, x[sl["p"]].reshape(-1, 3),
-                                                  x[sl["m"]].reshape(-1, 3), motion=motion)
+                                                  x[sl["m"]].reshape(-1, 3), motion=motion, times=times)
         except StaticsError as err:  # keep the last equilibrium, report it (the watchdog stops)
             # Not EventStatus.Failed(self, ...): formatting a Python system's failure message
             # crashes pydrake 1.51 (NiceTypeName without the GIL); the monitor fails instead.
@@ -522,6 +581,8 @@ class QuasiStaticEngine(LeafSystem):
         x[sl["s"]] = s
         if mags is not None:
             x[sl["magnets"]] = mags
+        if self.wall_motion is not None:
+            x[sl["wall_t"]] = context.get_time()
         x[sl["snaps"]] += new_snaps
         x[sl["failures"]] += new_failures
 
@@ -546,6 +607,14 @@ class QuasiStaticEngine(LeafSystem):
     def _calc_snaps(self, context, output):
         output.SetFromVector(self.state_vector(context)[self._slices["snaps"]])
 
+    def wall_time(self, context) -> float:
+        """The time the last solve placed the anatomy for [s] (0 without wall motion)."""
+        return float(self.state_vector(context)[self._slices["wall_t"]][0]) if self.wall_motion is not None else 0.0
+
+    def _calc_anatomy_offsets(self, context, output):
+        t = self.wall_time(context)
+        output.SetFromVector(np.concatenate([self.wall_motion.heart_offset(t), self.wall_motion.wall_offset(t)]))
+
 
 class EngineGeometry(LeafSystem):
     """Draws the engine's chain (and the heart's wall, targets and the sheath) through a SceneGraph.
@@ -560,10 +629,15 @@ class EngineGeometry(LeafSystem):
 
     Output ports:
         geometry_pose: FramePoseVector (connect to the SceneGraph's source pose port).
+
+    With ``moving_anatomy`` the wall and the targets sit on a frame ``heart`` and the sheath on
+    a frame ``sheath``, posed from the input port ``anatomy_offsets`` (6: the heart's and the
+    wall's offsets [m], the engine's port of that name), so that the recording moves them with
+    the chain's solves.
     """
 
     def __init__(self, scene_graph, ball_body_indices, ball_radius: float, heart=None, sheath: SheathGeometry | None = None,
-                 sheath_length: float = 0.0):
+                 sheath_length: float = 0.0, moving_anatomy: bool = False):
         super().__init__()
         self._indices = [int(i) for i in ball_body_indices]
         self.source_id = scene_graph.RegisterSource("quasi_static_engine")
@@ -582,21 +656,26 @@ class EngineGeometry(LeafSystem):
             add(f, RigidTransform(), Sphere(ball_radius), f"ball_{i + 1}", colors[i % 2])
             add(f, RigidTransform([0.6 * ball_radius, 0, 0]), Sphere(0.45 * ball_radius), f"ball_{i + 1}_north",
                 Rgba(0.8, 0.1, 0.1, 1.0))
-        world = scene_graph.world_frame_id()
+        world = wall_frame = sheath_frame = scene_graph.world_frame_id()
+        if moving_anatomy:  # frames that move with the anatomy (else anchored, as without motion)
+            wall_frame = scene_graph.RegisterFrame(self.source_id, GeometryFrame("heart"))
+            sheath_frame = scene_graph.RegisterFrame(self.source_id, GeometryFrame("sheath"))
+        self._anatomy_frames = (wall_frame, sheath_frame)
         if heart is not None:
             files = heart.write_files()
-            add(world, RigidTransform(), Mesh(str(files["obj"])), "heart_wall", Rgba(0.85, 0.35, 0.35, 0.35))
+            add(wall_frame, RigidTransform(), Mesh(str(files["obj"])), "heart_wall", Rgba(0.85, 0.35, 0.35, 0.35))
             for side, ring in heart.rings.items():
                 for k, p in enumerate(ring.p_HT):
-                    add(world, RigidTransform(p), Sphere(0.6e-3), f"target_{side}_{k + 1}", Rgba(0.1, 0.6, 0.1, 1.0))
+                    add(wall_frame, RigidTransform(p), Sphere(0.6e-3), f"target_{side}_{k + 1}", Rgba(0.1, 0.6, 0.1, 1.0))
         if sheath is not None and sheath_length > 0:
             from pydrake.geometry import Cylinder
 
             R = RotationMatrix(rotation_with_z_along(sheath.axis_W))
             centre = sheath.p_WE - 0.5 * sheath_length * sheath.axis_W
-            add(world, RigidTransform(R, centre), Cylinder(sheath.bore_radius + 2 * sheath.lip_radius, sheath_length),
+            add(sheath_frame, RigidTransform(R, centre), Cylinder(sheath.bore_radius + 2 * sheath.lip_radius, sheath_length),
                 "sheath", Rgba(0.3, 0.5, 0.9, 0.3))
         self._poses_port = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
+        self._anatomy_port = self.DeclareVectorInputPort("anatomy_offsets", 6) if moving_anatomy else None
         self._pose_output = self.DeclareAbstractOutputPort(
             "geometry_pose", lambda: AbstractValue.Make(FramePoseVector()), self._calc_geometry_pose)
 
@@ -606,11 +685,18 @@ class EngineGeometry(LeafSystem):
     def get_geometry_pose_output_port(self):
         return self._pose_output
 
+    def get_anatomy_offsets_input_port(self):
+        return self._anatomy_port
+
     def _calc_geometry_pose(self, context, output):
         poses = self._poses_port.Eval(context)
         value = output.get_mutable_value()  # the same frames every time: overwritten, not cleared
         for frame, index in zip(self._frames, self._indices):
             value.set_value(frame, poses[index])
+        if self._anatomy_port is not None:
+            offsets = self._anatomy_port.Eval(context)
+            value.set_value(self._anatomy_frames[0], RigidTransform(offsets[3:]))
+            value.set_value(self._anatomy_frames[1], RigidTransform(offsets[:3]))
 
 
 class StaticsChainModel(ChainModel):
@@ -652,7 +738,7 @@ class StaticsChainModel(ChainModel):
             config.chain, geometry.ball_body_indices, geometry.p_WE, geometry.sheath_axis_W, sdf=sdf, sheath=sheath,
             field_source=coupling.field_source, port_magnets=coupling.port_magnets, model=coupling.model,
             gravity=config.gravity, period=scenario.statics_period,
-            initial_inserted_length=config.initial_inserted_length))
+            initial_inserted_length=config.initial_inserted_length, wall_motion=scenario.wall_motion.law()))
         engine.set_name("quasi_static_engine")
         engine.warm_up()  # compiled kernels and solvers loaded at build time, not in the timed run
         return cls(geometry, engine, sheath)
@@ -683,9 +769,13 @@ class StaticsChainModel(ChainModel):
         scene_graph.set_name("scene_graph")
         geometry = builder.AddSystem(EngineGeometry(
             scene_graph, self.ball_body_indices, 0.5 * self.config.chain.ball_diameter, self.config.heart,
-            self.sheath, self.sheath_length() if self.config.sheath is not None else 0.0))
+            self.sheath, self.sheath_length() if self.config.sheath is not None else 0.0,
+            moving_anatomy=self.engine_system.wall_motion is not None))
         geometry.set_name("engine_geometry")
         builder.Connect(self.get_body_poses_output_port(), geometry.get_body_poses_input_port())
+        if self.engine_system.wall_motion is not None:
+            builder.Connect(self.engine_system.get_anatomy_offsets_output_port(),
+                            geometry.get_anatomy_offsets_input_port())
         builder.Connect(geometry.get_geometry_pose_output_port(), scene_graph.get_source_pose_port(geometry.source_id))
         return scene_graph
 

@@ -446,10 +446,13 @@ def add_target_touches(builder: DiagramBuilder, scenario: ChainScenario, heart: 
     names, p_WT, n_W, target_radius = targets
     # A chain that moves only at its updates (the engine's) shows nothing new in between.
     period = max(scenario.check_period, chain.move_period)
+    moving = scenario.wall_motion.law() is not None
     tracker = builder.AddSystem(TargetTouchTracker(
         chain.ball_body_indices[-1], names, p_WT, n_W, target_radius,
-        ball_radius=0.5 * chain.config.chain.ball_diameter, period=period))
+        ball_radius=0.5 * chain.config.chain.ball_diameter, period=period, moving_wall=moving))
     builder.Connect(chain.get_body_poses_output_port(), tracker.get_body_poses_input_port())
+    if moving:  # engine: statics (check_wall_motion): the anatomy its solves placed
+        builder.Connect(chain.engine_system.get_anatomy_offsets_output_port(), tracker.get_anatomy_offsets_input_port())
     return TargetTouches(targets, tracker)
 
 

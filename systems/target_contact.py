@@ -197,10 +197,13 @@ class TargetTouchTracker(LeafSystem):
         names, p_WT, n_W, target_radius: from ``heart_targets``.
         ball_radius: [m].
         period: [s].
+        moving_wall: the targets ride on a moving wall (``drake_models.wall_motion``): the input
+            port ``anatomy_offsets`` (6, the quasi-static engine's) gives the wall's offset
+            (its last 3) for the chain's pose on ``body_poses``; they are at p_WT + offset.
     """
 
     def __init__(self, tip_body_index, names: Sequence[str], p_WT: np.ndarray, n_W: np.ndarray,
-                 target_radius: float, ball_radius: float, period: float) -> None:
+                 target_radius: float, ball_radius: float, period: float, moving_wall: bool = False) -> None:
         super().__init__()
         self.set_name("target_touches")
         self.names = list(names)
@@ -210,6 +213,7 @@ class TargetTouchTracker(LeafSystem):
         self._target_radius = float(target_radius)
         self._ball_radius = float(ball_radius)
         self._body_poses_port = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
+        self._anatomy_port = self.DeclareVectorInputPort("anatomy_offsets", 6) if moving_wall else None
         self._state_index = self.DeclareDiscreteState(len(self.names))
         self._touched_port = self.DeclareStateOutputPort("touched", self._state_index)
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
@@ -221,9 +225,16 @@ class TargetTouchTracker(LeafSystem):
     def get_touched_output_port(self):
         return self._touched_port
 
+    def get_anatomy_offsets_input_port(self):
+        """The ``anatomy_offsets`` port (None for a fixed wall)."""
+        return self._anatomy_port
+
     def _update(self, context, discrete_state):
         p_tip = self._body_poses_port.Eval(context)[self._tip].translation()
-        now = targets_touched(p_tip, self._p_WT, self._n_W, self._ball_radius, self._target_radius)
+        p_WT = self._p_WT
+        if self._anatomy_port is not None:
+            p_WT = p_WT + self._anatomy_port.Eval(context)[3:]
+        now = targets_touched(p_tip, p_WT, self._n_W, self._ball_radius, self._target_radius)
         old = context.get_discrete_state(self._state_index).get_value()
         discrete_state.get_mutable_vector(self._state_index).SetFromVector(np.maximum(old, now))
         return EventStatus.Succeeded()
