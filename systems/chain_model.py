@@ -287,6 +287,12 @@ class ChainModel(ABC):
     def non_finite_part(self, context) -> str:
         """Which part of the state is not finite (for a failure message)."""
 
+    def anatomy_offsets(self, context) -> tuple[np.ndarray, np.ndarray] | None:
+        """Where the state's anatomy is (``drake_models.wall_motion``): (heart and sheath offset
+        (3,), wall offset (3,)) [m] from the rest pose, for ``system``'s context or the root's;
+        None: the anatomy does not move (the rest pose)."""
+        return None
+
     @property
     def failure(self) -> str | None:
         """A failure the model found itself (a failed solve), or None."""

@@ -219,8 +219,12 @@ class ChainMonitor:
             return self._check_gaps(gaps, t)
         if heart is not None:
             self._last_wall_time = t
-            in_sheath = chain.in_sheath(p)
-            outside = ~heart.contains(p) & ~in_sheath
+            p_S, p_H = p, p  # the balls seen from the sheath and from the wall (the rest poses)
+            offsets = chain.anatomy_offsets(plant_context)
+            if offsets is not None:  # a moving wall (wall_motion): where the state's solve put them
+                p_S, p_H = p - offsets[0], p - offsets[1]
+            in_sheath = chain.in_sheath(p_S)
+            outside = ~heart.contains(p_H) & ~in_sheath
             if np.any(outside):
                 i = int(np.argmax(outside))
                 where = ("entered the solid (or left the working box)" if getattr(heart, "side", "lumen") == "solid"
@@ -228,14 +232,14 @@ class ChainMonitor:
                 return f"ball {i + 1} {where} at t = {t:.4f} s: centre at {np.round(p[i] * 1e3, 2).tolist()} mm"
             free = ~in_sheath
             if np.any(free):
-                clearance = heart.wall_distance(p[free]) - 0.5 * self._d
+                clearance = heart.wall_distance(p_H[free]) - 0.5 * self._d
                 self.min_clearance = min(self.min_clearance, float(clearance.min()))
                 self.max_wall_penetration = max(self.max_wall_penetration, float(-clearance.min()))
                 self.max_penetration = max(self.max_penetration, self.max_wall_penetration)
                 half_wall = 0.5 * heart.params.wall_thickness
                 if -clearance.min() > half_wall:
                     i = int(np.flatnonzero(free)[np.argmin(clearance)])
-                    if self._tolerate_sinking is not None and self._tolerate_sinking(p[i]):
+                    if self._tolerate_sinking is not None and self._tolerate_sinking(p_H[i]):
                         last = [e for e in self.tolerated_sinkings if e[1] == i + 1]
                         if not last or t - last[-1][0] >= 0.1:
                             self.tolerated_sinkings.append((t, i + 1, float(-clearance.min())))

@@ -782,6 +782,13 @@ class StaticsChainModel(ChainModel):
     def ball_positions(self, context) -> np.ndarray:
         return self.engine_system.ball_positions(subsystem_context(self.engine_system, context))
 
+    def anatomy_offsets(self, context) -> tuple[np.ndarray, np.ndarray] | None:
+        engine = self.engine_system
+        if engine.wall_motion is None:
+            return None
+        t = engine.wall_time(subsystem_context(engine, context))
+        return engine.wall_motion.heart_offset(t), engine.wall_motion.wall_offset(t)
+
     def is_finite(self, context) -> bool:
         return bool(np.all(np.isfinite(self.engine_system.state_vector(context))))
 
