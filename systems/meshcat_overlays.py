@@ -59,6 +59,9 @@ class MeshcatOverlays(LeafSystem):
         touched: (n_targets,) only when there are targets (TargetTouchTracker's ``touched``).
         magnet_states: (6 k,) only with port magnets: as MagneticWrenchSystem's ``magnet_states``
             (per magnet p_WM [m] then its dipole direction).
+        anatomy_offsets: (6,) only with ``moving_wall``: the quasi-static engine's (the heart's
+            and the wall's offsets [m], ``drake_models.wall_motion``); ``overlays/targets`` is
+            moved by the wall's offset, so that the discs ride on the moving wall.
 
     Publishes every ``period`` seconds and at initialisation; each drawing carries the context's
     time, so that it is stored in the Meshcat recording when one is running.
@@ -71,10 +74,12 @@ class MeshcatOverlays(LeafSystem):
         field_source: the fixed external FieldSource, or None.
         port_magnets: the magnets whose states come from ``magnet_states``.
         model: "dipole" or "exact", the port magnets' field model (as the wrench system's).
+        moving_wall: the targets ride on a moving wall (input ``anatomy_offsets``).
     """
 
     def __init__(self, meshcat, tip_body_index, period: float, targets=None, field_source=None,
-                 port_magnets: Sequence[CylinderMagnet | SphereMagnet] = (), model: str = "dipole") -> None:
+                 port_magnets: Sequence[CylinderMagnet | SphereMagnet] = (), model: str = "dipole",
+                 moving_wall: bool = False) -> None:
         super().__init__()
         self.set_name("meshcat_overlays")
         self._meshcat = meshcat
@@ -91,6 +96,7 @@ class MeshcatOverlays(LeafSystem):
         self._touched_port = self.DeclareVectorInputPort("touched", len(names)) if names else None
         self._magnet_port = (self.DeclareVectorInputPort("magnet_states", 6 * len(self._port_magnets))
                              if self._port_magnets else None)
+        self._anatomy_port = self.DeclareVectorInputPort("anatomy_offsets", 6) if moving_wall else None
         # Targets: the discs sit 0.1 mm off the wall so that the semi-transparent wall does not hide them.
         self._target_paths = [f"overlays/targets/{n}" for n in names]
         for path, p, n in zip(self._target_paths, p_WT, n_W if names else []):
@@ -118,6 +124,9 @@ class MeshcatOverlays(LeafSystem):
 
     def get_magnet_states_input_port(self):
         return self._magnet_port
+
+    def get_anatomy_offsets_input_port(self):
+        return self._anatomy_port
 
     # ------------------------------------------------------------------------ quantities drawn
     def tip_field(self, context) -> np.ndarray:
@@ -154,6 +163,8 @@ class MeshcatOverlays(LeafSystem):
             return
         touched = self._touched_port.Eval(context) > 0.5
         t = context.get_time()
+        if self._anatomy_port is not None:
+            self._meshcat.SetTransform("overlays/targets", RigidTransform(self._anatomy_port.Eval(context)[3:]), t)
         for k in np.flatnonzero(touched != self._drawn_touched) if changed_only else range(len(touched)):
             self._meshcat.SetProperty(f"{self._target_paths[k]}/touched", "visible", bool(touched[k]), t)
             self._meshcat.SetProperty(f"{self._target_paths[k]}/open", "visible", not touched[k], t)

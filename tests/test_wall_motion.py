@@ -294,6 +294,28 @@ def test_the_moving_wall_scenario_runs_and_the_watchdog_follows_the_wall():
     assert np.linalg.norm(m.tip_wall_force_N) > 10 * GF
 
 
+@pytest.mark.slow
+def test_the_replay_moves_the_atrium_the_sheath_and_the_target_discs(tmp_path):
+    """A recorded run of the moving scenario: the wall and the targets are drawn on the frame
+    ``heart``, the sheath on ``sheath``, and the overlays' target discs under a moved
+    ``overlays/targets`` (each has its own animated transform in the replay)."""
+    from pydrake.geometry import Meshcat, MeshcatParams
+
+    from ballchain.systems.chain_scenario import load_scenario
+    from ballchain.systems.chain_simulation import run_simulation
+
+    html = tmp_path / "moving.html"
+    run_simulation(scenario=load_scenario("heart_wall_contact_moving", "{duration: 0.3}"), html=html,
+                   meshcat=Meshcat(MeshcatParams(host="localhost")))
+    from test_meshcat_overlays import _html_payload
+
+    payload = _html_payload(html.read_text())
+    for path in (b"visualizer/heart/heart_wall", b"visualizer/heart/target_left_1", b"visualizer/sheath/sheath"):
+        assert path in payload, path
+    for path in (rb"visualizer/heart", rb"visualizer/sheath", rb"overlays/targets"):
+        assert re.search(path + rb"(?![/A-Za-z0-9_])", payload), path  # the moving parent itself
+
+
 # --- the scenario field ---------------------------------------------------------------------------
 def _load(overrides, name="heart_wall_contact_moving"):
     from ballchain.systems.chain_scenario import load_scenario
