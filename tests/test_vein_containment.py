@@ -76,7 +76,8 @@ def _fake_station(heart, n: int):
                             config=SimpleNamespace(chain=SimpleNamespace(ball_diameter=BALL, length=n * BALL)),
                             n_balls=n, move_period=1e-3, failure=None, in_sheath=lambda p: np.zeros(len(p), bool),
                             is_finite=lambda ctx: bool(np.all(np.isfinite(state["p"]))),
-                            non_finite_part=lambda ctx: "a ball", ball_positions=lambda ctx: state["p"])
+                            non_finite_part=lambda ctx: "a ball", ball_positions=lambda ctx: state["p"],
+                            anatomy_offsets=lambda ctx: None)
     cd = SimpleNamespace(chain=chain, heart=heart, scenario=SimpleNamespace(check_period=5e-3, break_gap=1e-3))
     return cd, state
 
