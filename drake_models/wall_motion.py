@@ -42,9 +42,10 @@ no shielding between balls, the drag of a sphere at the ball's Reynolds number),
 balls of the paper's chain against the 20 gf contact force (0.196 N): with the default cardiac
 amplitude (1 mm) they are 0.07 % of the contact force at 1.2 Hz (0.14 mN, inertia 86 %) and
 reach 10 % at 15 Hz; with the respiratory amplitude (5 mm) they are 0.02 % at 0.25 Hz and reach
-10 % at 6.4 Hz (``tests/test_wall_motion.py`` recomputes these numbers). Both physiological frequencies are far below: the quasi-static engine holds for
-the wall's motion; it does not hold for motions faster than a few hertz (a tremor, a flutter
-of the valve) of this size. ``docs/guide/moving_wall.md`` lists the numbers.
+10 % at 6.4 Hz (``tests/test_wall_motion.py`` recomputes these numbers). Both physiological
+frequencies are far below: the quasi-static engine holds for the wall's motion; it does not
+hold for motions of this size faster than a few hertz (a tremor, a flutter of the valve).
+``docs/guide/moving_wall.md`` lists the numbers.
 """
 
 from __future__ import annotations
@@ -157,7 +158,8 @@ def check_oscillation(amplitude, frequency, direction, where: str, direction_nam
     except (TypeError, ValueError):
         d = None
     if d is None or d.shape != (3,) or not np.all(np.isfinite(d)) or not np.any(d):
-        raise UserInputError(f"{where}.{direction_name} must be 3 finite components, not all zero, got {short_repr(direction)}")
+        raise UserInputError(f"{where}.{direction_name} must be 3 finite components, not all zero, "
+                             f"got {short_repr(direction)}")
 
 
 def inertial_and_viscous_forces(amplitude: float, frequency: float, n_balls: int, ball_diameter: float,

@@ -803,7 +803,8 @@ def check_wall_motion(s: "ChainScenario") -> None:
         UserInputError: naming the field (``wall_motion.<part>.<field>``).
     """
     w = s.wall_motion
-    _require(isinstance(w.enabled, bool), f"scenario wall_motion.enabled must be true or false, got {short_repr(w.enabled)}")
+    _require(isinstance(w.enabled, bool),
+             f"scenario wall_motion.enabled must be true or false, got {short_repr(w.enabled)}")
     for name in ("respiratory", "cardiac"):
         o = getattr(w, name)
         where = f"scenario wall_motion.{name}"

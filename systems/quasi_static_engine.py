@@ -666,14 +666,15 @@ class EngineGeometry(LeafSystem):
             add(wall_frame, RigidTransform(), Mesh(str(files["obj"])), "heart_wall", Rgba(0.85, 0.35, 0.35, 0.35))
             for side, ring in heart.rings.items():
                 for k, p in enumerate(ring.p_HT):
-                    add(wall_frame, RigidTransform(p), Sphere(0.6e-3), f"target_{side}_{k + 1}", Rgba(0.1, 0.6, 0.1, 1.0))
+                    add(wall_frame, RigidTransform(p), Sphere(0.6e-3), f"target_{side}_{k + 1}",
+                        Rgba(0.1, 0.6, 0.1, 1.0))
         if sheath is not None and sheath_length > 0:
             from pydrake.geometry import Cylinder
 
             R = RotationMatrix(rotation_with_z_along(sheath.axis_W))
             centre = sheath.p_WE - 0.5 * sheath_length * sheath.axis_W
-            add(sheath_frame, RigidTransform(R, centre), Cylinder(sheath.bore_radius + 2 * sheath.lip_radius, sheath_length),
-                "sheath", Rgba(0.3, 0.5, 0.9, 0.3))
+            add(sheath_frame, RigidTransform(R, centre),
+                Cylinder(sheath.bore_radius + 2 * sheath.lip_radius, sheath_length), "sheath", Rgba(0.3, 0.5, 0.9, 0.3))
         self._poses_port = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
         self._anatomy_port = self.DeclareVectorInputPort("anatomy_offsets", 6) if moving_anatomy else None
         self._pose_output = self.DeclareAbstractOutputPort(

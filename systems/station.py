@@ -547,7 +547,8 @@ def add_visualization(builder: DiagramBuilder, scenario: ChainScenario, meshcat,
         moving_wall=touches is not None and touches.tracker.get_anatomy_offsets_input_port() is not None))
     builder.Connect(chain.get_tip_wall_force_output_port(), overlays.get_tip_wall_force_input_port())
     if overlays.get_anatomy_offsets_input_port() is not None:  # the statics engine's (check_wall_motion)
-        builder.Connect(chain.engine_system.get_anatomy_offsets_output_port(), overlays.get_anatomy_offsets_input_port())
+        builder.Connect(chain.engine_system.get_anatomy_offsets_output_port(),
+                        overlays.get_anatomy_offsets_input_port())
     builder.Connect(chain.get_body_poses_output_port(), overlays.get_body_poses_input_port())
     if touches is not None:
         builder.Connect(touches.tracker.get_touched_output_port(), overlays.get_touched_input_port())
