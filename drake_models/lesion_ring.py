@@ -34,7 +34,7 @@ import numpy as np
 from ballchain.drake_models import lesion_surrogate as surrogate
 from ballchain.drake_models.errors import UserInputError, short_repr
 from ballchain.drake_models.heart import HeartParams
-from ballchain.drake_models.params import magnet_grade
+from ballchain.drake_models.params import GRAVITY, magnet_grade
 
 CLOSE_MAX_DISTANCE_M = 6e-3  # the CLOSE protocol's largest inter-lesion distance (Taghji et al. 2018)
 DEFAULT_WALL_THICKNESS_M = HeartParams.wall_thickness
@@ -90,6 +90,15 @@ class Lesion:
     @property
     def magnet_ok(self) -> bool:
         return bool(self.magnet_peak_C < magnet_grade(self.grade).max_operating_C)
+
+    def to_dict(self) -> dict:
+        """The lesion and its dwell for JSON (mm, gf, W, s, C)."""
+        p = self.point
+        return {"name": p.name, "position_mm": [round(1e3 * float(v), 4) for v in p.p_W],
+                "force_gf": round(float(p.force_N) / GRAVITY * 1e3, 3), "power_W": round(float(p.power_W), 4),
+                "duration_s": round(float(p.duration_s), 4), "width_mm": round(1e3 * self.width_m, 4),
+                "depth_mm": round(1e3 * self.depth_m, 4), "magnet_peak_C": round(float(self.magnet_peak_C), 3),
+                "transmural": bool(self.transmural), "grade": self.grade, "magnet_ok": self.magnet_ok}
 
 
 def _check_point(k: int, p: AblationPoint) -> None:
@@ -293,7 +302,7 @@ def ring_figure(verdict: RingVerdict, lesions: list[Lesion], path, *, title: str
 
     plt = agg_pyplot()
     s, total = _unrolled(lesions, verdict)
-    fig, (ax, ax_d, ax_z) = plt.subplots(3, 1, figsize=(13, 8.5), gridspec_kw={"height_ratios": [1.3, 1, 1]})
+    fig, (ax, ax_d, ax_z) = plt.subplots(3, 1, figsize=(13, 8), gridspec_kw={"height_ratios": [1.0, 1, 1]})
     for q, k in enumerate(verdict.slots):
         x = 1e3 * s[q]
         if k is None:
@@ -307,8 +316,10 @@ def ring_figure(verdict: RingVerdict, lesions: list[Lesion], path, *, title: str
             ax.add_patch(plt.Circle((xc, 0), 0.5e3 * les.width_m, color=colour, alpha=0.45 if c == 0 else 0.2, lw=0))
             ax.plot(xc, 0, ".", color="k", ms=3)
     names = [n for n, _ in _slots(lesions, verdict.order)]
-    for q, name in enumerate(names):
-        ax.text(1e3 * s[q], -6.5, name, rotation=90, ha="center", va="top", fontsize=6)
+    first = next((q for q, k in enumerate(verdict.slots) if k is not None), None)
+    labels = list(zip(s, names)) + ([(total, f"{names[first]} again")] if first is not None else [])
+    for x, name in labels:
+        ax.text(1e3 * x, -5.0, name, rotation=90, ha="center", va="top", fontsize=6)
     for p in verdict.pairs:
         if not p["overlap"]:
             qa = verdict.slots.index(p["ia"])
@@ -317,7 +328,7 @@ def ring_figure(verdict: RingVerdict, lesions: list[Lesion], path, *, title: str
                         arrowprops={"arrowstyle": "<->", "color": GAP_RGB})
             ax.text(xa + 0.5e3 * p["distance_m"], 5.3, "gap", color=GAP_RGB, ha="center", fontsize=7)
     ax.set_xlim(-6, 1e3 * total + 6)
-    ax.set_ylim(-14, 7)
+    ax.set_ylim(-12.5, 6.5)
     ax.set_aspect("equal")
     ax.set_yticks([])
     ax.set_xlabel("distance along the ring [mm] (centre to centre)")
@@ -346,7 +357,8 @@ def _distance_panel(ax, verdict: RingVerdict) -> None:
     ax.set_xticks(x, labels, rotation=90, fontsize=6)
     ax.set_ylabel("inter-lesion\ndistance [mm]")
     ax.set_xlim(-0.6, max(len(labels), 1) - 0.4)
-    ax.legend(fontsize=7, loc="upper right")
+    ax.set_ylim(0, 1.45 * max(dist + [1e3 * verdict.spacing_rule_m]))
+    ax.legend(fontsize=7, loc="upper right", ncol=3)
 
 
 def _depth_panel(ax, lesions: list[Lesion], verdict: RingVerdict) -> None:
@@ -359,6 +371,7 @@ def _depth_panel(ax, lesions: list[Lesion], verdict: RingVerdict) -> None:
     ax.set_xticks(x, [les.name for les in lesions], rotation=90, fontsize=6)
     ax.set_ylabel("lesion depth [mm]")
     ax.set_xlim(-0.6, max(len(lesions), 1) - 0.4)
+    ax.set_ylim(0, 1.35 * max([1e3 * les.depth_m for les in lesions] + [1e3 * verdict.wall_thickness_m]))
     ax.legend(fontsize=7, loc="upper right")
 
 
@@ -396,6 +409,8 @@ def draw_lesions(meshcat, lesions: list[Lesion], verdict: RingVerdict, prefix: s
         a, b = lesions[p["ia"]], lesions[p["ib"]]
         pa = np.asarray(a.point.p_W, float) + 0.6e-3 * np.asarray(a.point.n_W, float)
         pb = np.asarray(b.point.p_W, float) + 0.6e-3 * np.asarray(b.point.n_W, float)
+        u = (pb - pa) / max(float(np.linalg.norm(pb - pa)), 1e-12)
+        pa, pb = pa + 0.5 * a.width_m * u, pb - 0.5 * b.width_m * u  # the bar spans the gap itself
         path = f"{prefix}/gaps/{p['a']}__{p['b']}"
         meshcat.SetObject(path, Cylinder(0.35e-3, max(float(np.linalg.norm(pb - pa)), 1e-5)), red)
         meshcat.SetTransform(path, RigidTransform(RotationMatrix(rotation_with_z_along(pb - pa)), 0.5 * (pa + pb)))

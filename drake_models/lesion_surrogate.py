@@ -108,8 +108,8 @@ class TableSpec:
         tissue: the FEM's tissue name.
     """
 
-    indentations_m: tuple = (0.3e-3, 0.6e-3, 0.9e-3, 1.2e-3, 1.5e-3)
-    powers_W: tuple = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 6.0, 10.0, 15.0)
+    indentations_m: tuple = (0.3e-3, 0.5e-3, 0.7e-3, 0.9e-3, 1.1e-3, 1.3e-3, 1.5e-3)
+    powers_W: tuple = (0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0, 4.0, 6.0, 10.0, 15.0)
     duration_s: float = 90.0
     output_every_s: float = 2.0
     h_m: float = 0.2e-3
@@ -311,9 +311,9 @@ def predict(force_N: float, power_W: float, duration_s: float) -> LesionPredicti
 
 
 # ------------------------------------------------------------------------------------- validation
-HELD_OUT = ((0.45e-3, 5.0), (0.75e-3, 1.25), (1.05e-3, 2.25), (1.35e-3, 3.5), (1.05e-3, 8.0))
+HELD_OUT = ((0.4e-3, 5.0), (0.8e-3, 1.125), (1.0e-3, 1.625), (1.2e-3, 2.25), (1.4e-3, 0.875), (1.0e-3, 12.5))
 """(indentation [m], power [W]) between the default table's nodes, for ``validation_table``."""
-HELD_OUT_DURATIONS_S = (9.0, 31.0, 61.0)  # between the 2 s duration nodes
+HELD_OUT_DURATIONS_S = (9.0, 31.0, 61.0, 89.0)  # between the 2 s duration nodes
 
 
 def validation_table(model: LesionSurrogate | None = None, points=HELD_OUT, durations_s=HELD_OUT_DURATIONS_S,

@@ -112,6 +112,9 @@ def test_to_dict_is_json_in_mm():
     assert data["isolated"] is False and data["missing"] == ["t7"]
     assert data["wall_thickness_mm"] == 2.5 and data["spacing_rule_mm"] == 6.0
     assert data["pairs"][0]["distance_mm"] == pytest.approx(1e3 * chord(8e-3, 8), abs=1e-4)
+    les = json.loads(json.dumps(lesion(pts[0], 6.5e-3).to_dict()))
+    assert les["width_mm"] == 6.5 and les["force_gf"] == pytest.approx(0.2 / 9.80665e-3, abs=1e-3)
+    assert les["transmural"] is True and les["magnet_ok"] is True  # 60 C < N52's 80 C
     kinds = sorted(g["kind"] for g in data["gaps"])
     assert kinds == ["missing", "no_overlap"]  # t6 -> t0 across t7: 11.3 mm apart, 6.5 mm wide
 
@@ -155,7 +158,7 @@ def test_draw_lesions_puts_patches_gaps_and_missing_targets_in_meshcat():
 
 def test_lesions_for_reads_the_surrogate(tiny_surrogate, monkeypatch):
     monkeypatch.setattr(ls, "default_surrogate", lambda: tiny_surrogate)
-    dwells = [(0.15, 5.0, 2.0), (0.0, 4.0, 3.0), (0.5, 3.0, 1.5)]  # (force, duration, power); no contact; past the table
+    dwells = [(0.15, 3.0, 2.0), (0.0, 4.0, 3.0), (0.5, 1.0, 1.5)]  # (force, duration, power); no contact; past the table
     pts = [lr.AblationPoint(p.name, p.p_W, p.n_W, force_N=f, duration_s=t, power_W=w)
            for p, (f, t, w) in zip(ring_points(3), dwells)]
     lesions = lr.lesions_for(pts, wall_thickness_m=1e-3)

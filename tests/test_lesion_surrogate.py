@@ -52,7 +52,7 @@ def test_surrogate_equals_the_fem_at_the_table_nodes(tiny_surrogate):
 
 
 def test_no_force_no_power_no_time_no_lesion(tiny_surrogate):
-    for args in ((0.0, 3.0, 6.0), (0.2, 0.0, 6.0), (0.2, 3.0, 0.0)):
+    for args in ((0.0, 3.0, 4.0), (0.2, 0.0, 4.0), (0.2, 3.0, 0.0)):
         got = tiny_surrogate.predict(*args)
         assert (got.width_m, got.depth_m) == (0.0, 0.0)
         assert got.magnet_peak_C == pytest.approx(ls.BODY_TEMPERATURE_C, abs=1e-12)
@@ -69,23 +69,23 @@ def check_monotone(table):
 def test_monotone_in_power_and_duration(tiny_surrogate):
     check_monotone(tiny_surrogate.table)
     force = float(ls.hertz_force(1e-3))  # between the nodes
-    powers = np.linspace(0.0, 3.0, 13)
-    widths = [tiny_surrogate.predict(force, p, 5.0).width_m for p in powers]
-    peaks = [tiny_surrogate.predict(force, p, 5.0).magnet_peak_C for p in powers]
-    assert np.all(np.diff(widths) >= 0) and np.all(np.diff(peaks) > 0)
-    times = np.linspace(0.0, 6.0, 13)
+    powers = np.linspace(0.0, 6.0, 13)
+    widths = [tiny_surrogate.predict(force, p, 3.0).width_m for p in powers]
+    peaks = [tiny_surrogate.predict(force, p, 3.0).magnet_peak_C for p in powers]
+    assert np.all(np.diff(widths) >= 0) and np.all(np.diff(peaks) > 0) and widths[-1] > 2e-3
+    times = np.linspace(0.0, 4.0, 9)
     assert np.all(np.diff([tiny_surrogate.predict(force, 2.0, t).depth_m for t in times]) >= 0)
 
 
 def test_choose_power_on_the_tiny_table(tiny_surrogate):
-    force, t = float(ls.hertz_force(1e-3)), 5.0
+    force, t = float(ls.hertz_force(1e-3)), 3.0
     p = tiny_surrogate.choose_power(force, t, grade="N52", margin_C=3.0)
     limit = MAGNET_GRADES["N52"].max_operating_C - 3.0
-    assert 0.0 < p < 3.0
+    assert 0.0 < p < 6.0
     assert tiny_surrogate.predict(force, p, t).magnet_peak_C <= limit
     assert tiny_surrogate.predict(force, p + 2e-3, t).magnet_peak_C > limit
     # N42SH's 150 C is never reached (the 100 C cut-off): the table's largest power.
-    assert tiny_surrogate.choose_power(force, t, grade="N42SH") == 3.0
+    assert tiny_surrogate.choose_power(force, t, grade="N42SH") == 6.0
 
 
 def test_cached_table_is_reused_and_a_damaged_one_rebuilt(tiny_surrogate, capsys):
@@ -117,8 +117,8 @@ def test_table_key_changes_with_every_input():
 
 
 def test_bad_arguments_are_user_errors(tiny_surrogate):
-    for args, name in (((float("nan"), 1.0, 2.0), "force_N"), ((0.1, 4.0, 2.0), "power_W"),
-                       ((0.1, 1.0, -1.0), "duration_s"), ((0.1, 1.0, 7.0), "duration_s"), ((True, 1.0, 2.0), "force_N")):
+    for args, name in (((float("nan"), 1.0, 2.0), "force_N"), ((0.1, 7.0, 2.0), "power_W"),
+                       ((0.1, 1.0, -1.0), "duration_s"), ((0.1, 1.0, 5.0), "duration_s"), ((True, 1.0, 2.0), "force_N")):
         with pytest.raises(UserInputError, match=name):
             tiny_surrogate.predict(*args)
     with pytest.raises(UserInputError, match="grade"):
@@ -141,13 +141,17 @@ def test_surrogate_matches_the_fem_at_held_out_points():
     """Within 0.25 mm (width, depth) and 3 C (magnet) of direct FEM runs between the nodes.
 
     0.25 mm: the FEM's own discretisation moves the lesion by about 0.1 mm (mesh and time-step
-    convergence, test_ablation.py), the 2.5 mm wall and the lesions' 5-8 mm widths are judged to
-    a few tenths of a mm; 3 C is choose_power's margin below the magnet's limit.
+    convergence, test_ablation.py), and the verdicts compare 4-8 mm widths with 6 mm spacings and
+    1-4 mm depths with a 2.5 mm wall, to a few tenths of a mm; 3 C is choose_power's margin below
+    the magnet's limit. Where the lesion is just forming (FEM depth < 0.5 mm) the Omega = 1 region
+    appears with a finite width between two nodes and the width is not held to 0.25 mm.
     """
     rows = ls.validation_table(progress=False)
     print("\n" + ls.format_error_table(rows))
+    assert sum(r["fem_depth_mm"] >= 0.5 for r in rows) >= 0.8 * len(rows)
     for r in rows:
-        assert abs(r["error_width_mm"]) <= WIDTH_TOL_MM, r
+        if r["fem_depth_mm"] >= 0.5:
+            assert abs(r["error_width_mm"]) <= WIDTH_TOL_MM, r
         assert abs(r["error_depth_mm"]) <= DEPTH_TOL_MM, r
         assert abs(r["error_magnet_peak_C"]) <= MAGNET_TOL_C, r
 
