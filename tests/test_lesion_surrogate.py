@@ -182,3 +182,29 @@ def test_choose_power_keeps_the_magnet_below_its_limit_in_a_direct_fem_run(gf, d
     fine = ls.TableSpec(h_m=0.5 * spec.h_m)
     _, _, peak_fine = fem_reading(fine, d, power, duration)
     assert peak < peak_fine < limit
+
+
+def test_the_shipped_table_is_the_default_specs_and_intact():
+    """The package ships the default table under its key: when the FEM, the tissue laws or the
+    builder change, the key changes and this fails (rebuild it with ``build_table`` and ship the new
+    one) instead of every first run silently paying the FEM runs."""
+    spec = ls.TableSpec()
+    shipped = ls._shipped_table(spec)
+    assert shipped is not None, f"no shipped table for key {spec.key()} in {ls.SHIPPED}"
+    table = ls.cached_table(spec, progress=False)
+    assert table["width_mm"].shape == (len(spec.indentations_m), len(spec.powers_W) + 1, len(spec.durations_s))
+    np.testing.assert_array_equal(table["power_W"][1:], spec.powers_W)
+    np.testing.assert_array_equal(table["duration_s"], spec.durations_s)
+
+
+@pytest.mark.slow
+def test_the_shipped_table_equals_a_fresh_fem_run_at_a_node():
+    """One node of the shipped table recomputed by the FEM now (same mesh, same steps)."""
+    spec = ls.TableSpec()
+    table = ls.cached_table(spec, progress=False)
+    i, j = 3, 3  # 0.9 mm indentation, 1.25 W
+    mesh = ls.fem.build_mesh(ls.fem.ball_chain_tip(indentation=spec.indentations_m[i]), h=spec.h_m)
+    width, depth, peak = ls._node_run(spec, spec.indentations_m[i], spec.powers_W[j - 1], mesh)
+    np.testing.assert_allclose(table["width_mm"][i, j, 1:], width, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(table["depth_mm"][i, j, 1:], depth, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(table["magnet_peak_C"][i, j, 1:], peak, rtol=0, atol=1e-9)
