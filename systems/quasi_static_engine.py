@@ -405,7 +405,7 @@ class QuasiStaticEngine(LeafSystem):
             if p is None:
                 return None
             pB, mB = c.to_base(p[k:], m[k:])
-            return StaticsResult(pB, mB / np.linalg.norm(mB, axis=1, keepdims=True), 0.0, None, True,
+            return StaticsResult(pB, mB / _norms(mB)[:, None], 0.0, None, True,
                                  "warm start", "", 0, 0.0, multipliers=self._multipliers.get(n_sub, {}))
 
         field = self._field(magnets)
@@ -430,9 +430,10 @@ class QuasiStaticEngine(LeafSystem):
         out[3:] = p[-1]
         if result is not None:
             f = result.wall_forces_W.get(result.positions.shape[0] - 1)
-            if f is not None and np.linalg.norm(f) > 0:
+            size = 0.0 if f is None else np.linalg.norm(f)
+            if size > 0:
                 out[:3] = f
-                out[3:] = p[-1] - 0.5 * self._d * f / np.linalg.norm(f)
+                out[3:] = p[-1] - 0.5 * self._d * f / size
         return out
 
     def _step_size(self, s0, s1, mag0, mag1) -> float:
