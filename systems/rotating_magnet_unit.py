@@ -112,8 +112,6 @@ class RotatingMagnetUnit(LeafSystem):
         if update_period is not None and not (np.isfinite(update_period) and update_period > 0):
             raise ValueError(f"update_period must be None or a positive number of seconds, got {update_period!r}")
         self._period = update_period
-        self._last_q = None  # ((time, state, wheel speeds), quaternion) of the last ``quaternion``
-        self._last_R = None  # (quaternion, R_WM) of the last ``R_WM``
         if update_period is None:
             self._q_index = self.DeclareContinuousState(BasicVector(q0))
             self._q_port = self.DeclareStateOutputPort("q_WM", self._q_index)
@@ -149,22 +147,11 @@ class RotatingMagnetUnit(LeafSystem):
         if self._period is None:
             return context.get_continuous_state_vector().CopyToVector()
         x = context.get_discrete_state(self._q_index).get_value()
-        # Several outputs (pose, moment, quaternion) read it at the same instant: the last one
-        # is kept for the same time, state and wheel speeds (a function of those alone).
-        key = (context.get_time(), x.tobytes(), self._omega_wheels_port.Eval(context).tobytes())
-        if self._last_q is not None and self._last_q[0] == key:
-            return self._last_q[1].copy()
-        q = np.array(_turned(x[:4], self._omega_W(context), key[0] - x[4]))  # not a view of the state
-        self._last_q = (key, q)
-        return q.copy()
+        return _turned(x[:4], self._omega_W(context), context.get_time() - x[4])
 
     def R_WM(self, context: Context) -> np.ndarray:
         """(3, 3) orientation of the magnet in this context."""
-        q = self.quaternion(context)
-        key = q.tobytes()
-        if self._last_R is None or self._last_R[0] != key:
-            self._last_R = (key, rotation_from_quaternion(q))
-        return self._last_R[1].copy()
+        return rotation_from_quaternion(self.quaternion(context))
 
     def set_orientation(self, context: Context, R_WM: np.ndarray) -> None:
         """Set the orientation state from a rotation matrix (3, 3)."""
