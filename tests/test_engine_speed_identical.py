@@ -1,17 +1,8 @@
-"""The engine's and the actuation units' shortcuts give the very same numbers as the work they
-skip: the initial equilibrium taken from the warm-up, the watchdog's finiteness test, the
-one-thread BLAS context, and the magnet unit's orientation kept for the outputs
-read at the same instant."""
+"""The engine's shortcuts give the very same numbers as the work they skip: the initial
+equilibrium taken from the warm-up, the watchdog's finiteness test and the one-thread BLAS
+context."""
 
 import numpy as np
-import pytest
-from pydrake.systems.analysis import Simulator
-
-from ballchain.drake_models.errors import NonFiniteSignal
-from ballchain.drake_models.field_sources import rotation_with_z_along
-from ballchain.drake_models.omniwheel import OmniWheelGeometry
-from ballchain.systems.rotating_magnet_unit import RotatingMagnetUnit, _turned, rotation_from_quaternion
-from ballchain.systems.unit_config import right_unit
 
 
 def _station(overrides: str = ""):
@@ -107,39 +98,3 @@ def test_one_blas_thread_context_restores_the_thread_counts():
         with _one_blas_thread():
             assert all(n == 1 for n in counts())
         assert all(n == 1 for n in counts())
-
-
-def test_magnet_unit_outputs_at_one_instant_are_those_computed_afresh():
-    """The orientation kept for (time, state, wheel speeds): every output equals the direct
-    computation, also after the wheel speeds or the state change at the same time."""
-    unit = RotatingMagnetUnit(right_unit(slip=0.05), R_WM=rotation_with_z_along([1.0, 0.2, 0.3]),
-                              update_period=5e-3)
-    ctx = unit.CreateDefaultContext()
-    port = unit.get_input_port(0)
-    geometry = OmniWheelGeometry()
-
-    def direct():
-        x = ctx.get_discrete_state(0).get_value()
-        omega = 0.95 * geometry.sphere_angular_velocity(port.Eval(ctx))
-        return rotation_from_quaternion(_turned(x[:4], omega, ctx.get_time() - x[4]))
-
-    simulator = Simulator(unit, ctx)
-    for t, w in ((0.0123, [0.0, 0.0, 1.5]), (0.0123, [0.3, -0.2, 0.0]), (0.02, [0.3, -0.2, 0.0]),
-                 (0.031, [0.0, 0.0, 0.0])):
-        port.FixValue(ctx, geometry.wheel_speeds(w))
-        simulator.AdvanceTo(t)
-        for _ in range(2):  # the second read is the kept one
-            R = unit.GetOutputPort("X_WM").Eval(ctx).rotation().matrix()
-            assert np.array_equal(R, direct())
-            assert np.array_equal(unit.GetOutputPort("m_W").Eval(ctx),
-                                  unit.config.magnet.dipole_moment * direct()[:, 2])
-        q = unit.quaternion(ctx)
-        q[:] = 0.0  # a caller's copy: the kept one is not changed
-        assert np.array_equal(unit.R_WM(ctx), direct())
-    x = ctx.get_discrete_state(0).get_value().copy()
-    x[:4] = [0.0, 1.0, 0.0, 0.0]
-    ctx.SetDiscreteState(0, x)  # a new state at the same time and speeds
-    assert np.array_equal(unit.R_WM(ctx), direct())
-    port.FixValue(ctx, [np.nan, 0.0, 0.0])
-    with pytest.raises(NonFiniteSignal, match="omega_wheels"):
-        unit.R_WM(ctx)
