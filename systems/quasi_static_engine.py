@@ -308,7 +308,8 @@ class QuasiStaticEngine(LeafSystem):
 
     def warm_up(self) -> None:
         """One untimed solve (the initial insertion, the fixed field only): loads the compiled
-        kernels' caches and the solvers before a timed run. Leaves no trace in the reports."""
+        kernels' caches and the solvers before a timed run. Leaves no trace in the reports; its
+        answer is kept for the initialisation (``_initial_equilibrium``)."""
         n_solves, events = len(self.solve_times), list(self.events)
         self._warm = None
         try:
