@@ -32,6 +32,7 @@ All rows are dimensionless like the rigidity rows, so the solver's margins and t
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -195,6 +196,16 @@ def _point_dipoles_W(source) -> tuple[list, list, np.ndarray] | None:
     return None
 
 
+@functools.lru_cache(maxsize=64)
+def _behind_B(n_behind: int, d: float, moment: float) -> tuple[np.ndarray, np.ndarray]:
+    """The balls behind the held ball in frame B (straight along -x, d apart): centres and
+    moments (n_behind, 3), read-only (shared by every solve with these values)."""
+    p = -d * np.arange(1, n_behind + 1)[:, None] * np.array([1.0, 0.0, 0.0])
+    m = np.tile([moment, 0.0, 0.0], (n_behind, 1))
+    p.flags.writeable = m.flags.writeable = False
+    return p, m
+
+
 @dataclass
 class HeartConstraints:
     """Where the sub-chain is and what holds it (one solve's worth).
@@ -223,27 +234,25 @@ class HeartConstraints:
         p_W, m_W = self.to_world(positions_B, dipoles_B)
         axis = self.R_WB[:, 0]
         behind = self.p_WB - np.arange(self.n_behind, 0, -1)[:, None] * d * axis
-        return np.vstack([behind, p_W]), np.vstack([np.tile(axis, (self.n_behind, 1)), m_W])
+        return np.concatenate([behind, p_W]), np.concatenate([np.tile(axis, (self.n_behind, 1)), m_W])
 
     def to_base(self, positions_W: np.ndarray, dipoles_W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return (positions_W - self.p_WB) @ self.R_WB, dipoles_W @ self.R_WB
 
     def external_in_base(self, external_W: FieldSource | None, chain: BallChain) -> FieldSource | None:
         """The field on the sub-chain in frame B: the external source and the balls behind."""
-        d = chain.ball_diameter
-        p_behind = -d * np.arange(1, self.n_behind + 1)[:, None] * np.array([1.0, 0.0, 0.0])
-        m_behind = np.tile([chain.dipole_moment, 0.0, 0.0], (self.n_behind, 1))
+        p_behind, m_behind = _behind_B(self.n_behind, chain.ball_diameter, chain.dipole_moment)
         parts = ([], [], np.zeros(3)) if external_W is None else _point_dipoles_W(external_W)
         if parts is not None:  # one evaluation for everything
             p_W, m_W, B_W = parts
-            p = np.vstack([p_behind] + [((np.asarray(x) - self.p_WB) @ self.R_WB)[None] for x in p_W])
-            m = np.vstack([m_behind] + [(np.asarray(x) @ self.R_WB)[None] for x in m_W])
+            p = np.concatenate([p_behind] + [((np.asarray(x) - self.p_WB) @ self.R_WB)[None] for x in p_W])
+            m = np.concatenate([m_behind] + [(np.asarray(x) @ self.R_WB)[None] for x in m_W])
             if len(p) == 0 and not np.any(B_W):
                 return None
             return PointDipoles(p, m, B_W @ self.R_WB)
         sources = [FieldInFrame(external_W, self.p_WB, self.R_WB)]
         if self.n_behind:
-            sources.append(PointDipoles(p_behind, m_behind))
+            sources.append(PointDipoles(p_behind.copy(), m_behind.copy()))
         return sources[0] if len(sources) == 1 else FieldSources(sources)
 
 
