@@ -12,15 +12,17 @@ if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
-# The procedural atrium and its signed-distance grid, shared by the statics and engine tests in the heart.
-@pytest.fixture(scope="module")
+# The procedural atrium and its signed-distance grid, built once per session and shared by every
+# test in the default heart (each LeftAtrium() is about half a second of mesh generation; no test
+# changes it).
+@pytest.fixture(scope="session")
 def heart():
     from ballchain.drake_models.heart import LeftAtrium
 
     return LeftAtrium()
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def sdf(heart):
     from ballchain.drake_models.atrium_sdf import atrium_sdf
 

@@ -11,7 +11,7 @@ from ballchain.drake_models import mesh_tools as mt
 from ballchain.drake_models.anatomy import (DEFAULT_MAGNET_DISTANCE, DEFAULT_TOUCH_RADIUS, MAX_TARGET_GAP,
                                             PROCEDURAL_FILE, load_anatomy, procedural_anatomy_text)
 from ballchain.drake_models.errors import UserInputError
-from ballchain.drake_models.heart import HeartParams, LeftAtrium
+from ballchain.drake_models.heart import HeartParams
 
 
 def refused(path) -> str:
@@ -57,10 +57,10 @@ def test_the_shipped_procedural_files_are_the_generator_s_output():
     assert PROCEDURAL_FILE.with_suffix(".csv").read_text() == csv_text
 
 
-def test_the_planner_s_stand_on_the_procedural_file_is_the_paper_task_s_bit_for_bit(procedural):
+def test_the_planner_s_stand_on_the_procedural_file_is_the_paper_task_s_bit_for_bit(procedural, heart):
     from ballchain.experiments import planner
 
-    (anatomy, _), heart, d = procedural, LeftAtrium(), 3.175e-3
+    (anatomy, _), d = procedural, 3.175e-3
     for task in ("left", "right"):
         paper = planner.teleop_stand(heart, task, d)
         _, _, chosen = planner.anatomy_targets(anatomy, task)

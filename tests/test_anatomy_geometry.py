@@ -104,7 +104,7 @@ def test_solid_inside_test_and_signed_distance_match_trimesh(plate, tmp_path):
     assert 0.1 < truth_solid.mean() < 0.9
     free = plate._tree.winding_numbers(P) <= 0.5
     np.testing.assert_array_equal(free[clear], ~truth_solid[clear])
-    sdf = atrium_sdf(plate, spacing=1e-3, directory=tmp_path)
+    sdf = atrium_sdf(plate, spacing=2e-3, directory=tmp_path)  # node values are exact at any spacing
     nodes, values = _grid_sample(sdf, 1000, seed=2)
     _check_node_values(mesh, nodes, values, sdf.band, sign=-1.0)
     assert sdf(np.array(PLATE_TIP_MM) * 1e-3, gradient=False)[0] > 0  # the sheath tip is in free space
@@ -135,7 +135,7 @@ def test_lumen_with_an_appendage_matches_trimesh(appendage, tmp_path):
     inside = appendage._tree.winding_numbers(P) > 0.5
     np.testing.assert_array_equal(inside[clear], (d > 0)[clear])
     assert inside[np.linalg.norm(P - [27e-3, 15e-3, 10e-3], axis=1) < 3e-3].all()  # deep in the appendage
-    sdf = atrium_sdf(appendage, spacing=1e-3, directory=tmp_path)
+    sdf = atrium_sdf(appendage, spacing=2e-3, directory=tmp_path)
     nodes, values = _grid_sample(sdf, 1000, seed=5)
     _check_node_values(mesh, nodes, values, sdf.band, sign=1.0)
 

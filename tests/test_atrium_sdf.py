@@ -6,17 +6,6 @@ import pytest
 
 from ballchain.drake_models import mesh_tools as mt
 from ballchain.drake_models.atrium_sdf import atrium_sdf, build_atrium_sdf
-from ballchain.drake_models.heart import LeftAtrium
-
-
-@pytest.fixture(scope="module")
-def heart():
-    return LeftAtrium()
-
-
-@pytest.fixture(scope="module")
-def sdf(heart):
-    return atrium_sdf(heart)  # built once (about 20-40 s) and cached next to the heart's files
 
 
 def _relevant_points(heart, n, rng):

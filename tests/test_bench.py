@@ -42,6 +42,9 @@ def test_bench_statics_json(capsys):
     assert out["speedup_cold"] == pytest.approx(out["baseline_median_ms"] / out["cold_median_ms"], rel=1e-12)
 
 
+# The same benchmark run as the JSON test above, through the text report and the script: the
+# quick tier keeps the JSON run (every correctness field), these two run in the slow tier.
+@pytest.mark.slow
 def test_bench_statics_text(capsys):
     assert cli_main(["bench", "statics", "--balls", "3", "--repeats", "1", "--no-progress"]) == 0
     text = capsys.readouterr().out
@@ -84,6 +87,7 @@ def test_bad_argument_in_a_fresh_process_has_no_traceback():
     assert "Traceback" not in proc.stderr and "--balls must be an integer >= 2" in proc.stderr
 
 
+@pytest.mark.slow
 def test_benchmark_script_runs():
     spec = importlib.util.spec_from_file_location("bench_statics", REPO / "benchmarks" / "bench_statics.py")
     script = importlib.util.module_from_spec(spec)

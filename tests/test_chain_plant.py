@@ -197,6 +197,9 @@ def test_short_quasi_static_run_in_the_heart_keeps_the_chain_intact(coarse_heart
     assert np.linalg.norm(np.cross(p1[-1] - p1[0], cd.chain.sheath_axis_W)) < 0.2e-3
 
 
+# A 2.5 s settling run: the quick tier compares the plant with the statics in
+# test_simulate (a unit steering 8 balls) and test_forces (the pinned tip's force).
+@pytest.mark.slow
 def test_free_space_quasi_static_settles_on_the_statics_solution():
     """Ball 1 clamped, 23 mT at 90 deg, 8 balls: the tip within 0.5 mm of solve_statics."""
     from ballchain.optimization.statics import solve_statics

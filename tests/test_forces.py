@@ -2,13 +2,12 @@
 
 import numpy as np
 
-from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import BallChain
 from ballchain.experiments import forces
 
 
-def test_stand_geometry():
-    atrium = LeftAtrium()
+def test_stand_geometry(heart):
+    atrium = heart
     stand = forces.build_stand(atrium)
     # The statics frame: sheath axis along +x, rotation proper.
     np.testing.assert_allclose(stand.R_HS @ [1.0, 0, 0], atrium.sheath_axis_H, atol=1e-12)

@@ -18,11 +18,6 @@ PAPER_RING_MM = {k: v["path_mm"] for k, v in paper.TELEOP_TASKS.items()}
 
 
 @pytest.fixture(scope="module")
-def heart():
-    return LeftAtrium()
-
-
-@pytest.fixture(scope="module")
 def heart_files(heart, tmp_path_factory):
     return heart.write_files(tmp_path_factory.mktemp("heart"))
 

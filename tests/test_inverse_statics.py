@@ -3,7 +3,6 @@
 import numpy as np
 import pytest
 
-from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import BallChain, newtons_from_gram_force
 from ballchain.experiments import planner
 from ballchain.optimization.inverse_statics import HeldTip, min_turn_orientation, pin_tip
@@ -14,9 +13,9 @@ R = 2.5e-3
 
 
 @pytest.fixture(scope="module")
-def setup():
+def setup(heart):
     chain = BallChain(n_balls=12)
-    stand = planner.teleop_stand(LeftAtrium(), "right", chain.ball_diameter)
+    stand = planner.teleop_stand(heart, "right", chain.ball_diameter)
     m0 = planner.neutral_dipole(stand)[None, :]
     centre, axis = stand.targets["right_1"]
     solver = ChainStatics(chain, max_iterations=25)

@@ -17,18 +17,12 @@ from pydrake.math import RigidTransform
 from pydrake.systems.analysis import Simulator
 
 from ballchain.cli import main as cli_main
-from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import BallChain
 from ballchain.systems.chain_scenario import load_scenario
 from ballchain.systems.chain_simulation import MakeStation, run_simulation
 from ballchain.systems.target_contact import TOUCH_TOLERANCE, TargetTouchTracker, heart_targets, targets_touched
 
 R_BALL = 0.5 * BallChain().ball_diameter  # 1.5875 mm
-
-
-@pytest.fixture(scope="module")
-def heart():
-    return LeftAtrium()
 
 
 @pytest.fixture(scope="module")

@@ -3,13 +3,12 @@
 import numpy as np
 import pytest
 
-from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import BallChain
 from ballchain.experiments import planner
 
 
-def test_teleop_stand_targets_lie_a_ball_radius_inside_the_wall():
-    atrium = LeftAtrium()
+def test_teleop_stand_targets_lie_a_ball_radius_inside_the_wall(heart):
+    atrium = heart
     d = BallChain().ball_diameter
     stand = planner.teleop_stand(atrium, "right", d)
     assert len(stand.targets) == 18

@@ -1,6 +1,7 @@
 """The closed-loop reconfiguration study, small: noise, 5 % slip, exact field, antiparallel start."""
 
 import numpy as np
+import pytest
 
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.experiments.wheels import wheel_map_report
@@ -10,6 +11,9 @@ from ballchain.systems.reconfiguration import ReconfigurationController
 from ballchain.experiments.reconfiguration import run_reconfiguration, run_reconfiguration_study
 
 
+# Three closed-loop runs with noise and the exact field: the quick tier runs one closed loop
+# (the antiparallel start, below) and the paper's wheel map.
+@pytest.mark.slow
 def test_small_study_converges_every_run_including_antiparallel():
     result = run_reconfiguration_study(runs=3, seed=3, slip=0.05, noise=True, field_model="exact")
     assert result.runs == 3

@@ -8,17 +8,11 @@ import pytest
 
 from ballchain.cli import main as cli_main
 from ballchain.drake_models.errors import UserInputError
-from ballchain.drake_models.heart import LeftAtrium
 from ballchain.systems.chain_scenario import ChainScenario, load_scenario, scenario_names
 from ballchain.systems.chain_simulation import MakeStation, run_simulation
 
 KEYS = {"realtime_factor", "sim_time_s", "tip_position_mm", "min_wall_clearance_mm",
         "max_neighbor_gap_um", "max_penetration_um", "targets_touched", "peak_memory_MB"}
-
-
-@pytest.fixture(scope="module")
-def heart():
-    return LeftAtrium()  # the scenarios' default atrium, built once
 
 
 def test_scenario_file_and_defaults():
@@ -284,6 +278,9 @@ def test_rotating_unit_steers_the_chain_to_the_statics_equilibrium():
     assert np.abs(p - statics.positions).max() < 0.1e-3
 
 
+# A 1.3 s station run: the quick tier checks the controller's law, latch and station wiring in
+# test_systems_actuation and a closed-loop run in test_reconfiguration_study.
+@pytest.mark.slow
 def test_reconfiguration_mode_returns_the_magnet_to_neutral():
     """Mode 1 from t = 0: the Hall-sensor loop turns a magnet started 30 deg off neutral back
     (K = 4 1/s: 30 deg e^(-4 t), 0.5 deg latch near 1.0 s), with the chain attached. The unit is

@@ -11,15 +11,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from ballchain.drake_models.heart import LeftAtrium
 from ballchain.systems.chain_simulation import ChainMonitor
 
 BALL = 2.5e-3  # [m] the fake chain's ball diameter (only the spacing of its balls)
-
-
-@pytest.fixture(scope="module")
-def heart():
-    return LeftAtrium()
 
 
 def _frame(o):
