@@ -64,9 +64,13 @@ class NavigatorParams:
         settle: looks on the target inside the window before the dwell starts.
         gain: fraction of the Newton rotation taken per look.
         max_step: cap on the desired dipoles' turn per look [rad].
+        max_deviation: the desired dipoles stay within this of the plan's [rad] (the model is
+            trusted near its plan only).
         damping: damped least squares, as a fraction of the Jacobian's largest singular value.
         magnet_gain: joystick per radian of dipole error [1/rad] (then saturated).
         aligned: the move phase ends when every dipole is within this of its plan [rad].
+        feed_after: in the move phase the feeder inserts only once every dipole is within
+            this of its plan (the magnets turn first) [rad].
         feeder_gain: feeder speed per metre of length error [1/s]; feeder_speed: its cap [m/s].
         seek_timeout: seconds seeking one target before a retry.
         retries: retries before giving up a target.
@@ -81,11 +85,13 @@ class NavigatorParams:
     dwell: float = 10.0
     touch_radius: float = 1.5e-3
     settle: int = 3
-    gain: float = 0.5
-    max_step: float = np.radians(3.0)
+    gain: float = 0.2
+    max_step: float = np.radians(1.0)
+    max_deviation: float = np.radians(15.0)
     damping: float = 0.05
     magnet_gain: float = 8.0
     aligned: float = np.radians(1.0)
+    feed_after: float = np.radians(5.0)
     feeder_gain: float = 4.0
     feeder_speed: float = 0.02
     seek_timeout: float = 6.0
@@ -318,6 +324,8 @@ class AutonomousNavigator(LeafSystem):
         else:
             mem.stick = self._sticks(m, mem.m_des)
             mem.v_feed = float(np.clip(p.feeder_gain * (mem.s_des - s), -p.feeder_speed, p.feeder_speed))
+            if mem.phase == "move" and self._misalignment(m, mem.m_des) > p.feed_after:
+                mem.v_feed = min(mem.v_feed, 0.0)  # the magnets turn first, then the chain goes in
         state.get_mutable_abstract_state(self._memory_index).set_value(mem)
         return EventStatus.Succeeded()
 
@@ -345,7 +353,7 @@ class AutonomousNavigator(LeafSystem):
                 self._start_target(mem, t, retry=True)
             return
         if mem.phase == "move":
-            angle = max(float(np.arccos(np.clip(a @ b, -1.0, 1.0))) for a, b in zip(m, mem.m_des))
+            angle = self._misalignment(m, mem.m_des)
             if angle < p.aligned and abs(s - mem.s_des) < 0.5e-3:
                 mem.phase, mem.phase_start = "seek", t
             return
@@ -391,8 +399,15 @@ class AutonomousNavigator(LeafSystem):
             big = float(np.max(np.linalg.norm(omega.reshape(-1, 3), axis=1)))
             if big > p.max_step:
                 omega *= p.max_step / big
-            mem.m_des = np.array([_rotate(md, w) for md, w in zip(mem.m_des, omega.reshape(-1, 3))])
+            m_new = np.array([_rotate(md, w) for md, w in zip(mem.m_des, omega.reshape(-1, 3))])
+            if self._misalignment(m_new, plan.dipoles_W) <= p.max_deviation:
+                mem.m_des = m_new
         return f_est, float(np.linalg.norm(o))
+
+    @staticmethod
+    def _misalignment(m: np.ndarray, m_des: np.ndarray) -> float:
+        """The largest angle between a measured dipole and its desired one [rad]."""
+        return max(float(np.arccos(np.clip(a @ b, -1.0, 1.0))) for a, b in zip(m, m_des))
 
     def _sticks(self, m: np.ndarray, m_des: np.ndarray) -> np.ndarray:
         """Joystick axes turning each measured dipole towards its desired one (world mapping:

@@ -2,7 +2,7 @@
 
 The station is the teleoperation set-up (``teleop.scenario_for``: the 16-ball chain in the
 atrium, the unit 10 cm beyond the right carina, the stepper feeder, the quasi-static engine
-unless the overrides name the plant). Two navigators:
+unless the overrides name the plant). The navigator:
 
 * ``"auto"``: ``systems.autonomous_navigator.AutonomousNavigator``. Ahead of the run, for each
   target in order (warm-started target to target), inverse statics
@@ -12,9 +12,6 @@ unless the overrides name the plant). Two navigators:
   the localisation sensor's tip (``systems.localisation_sensor``, NDI-Aurora-like noise, rate
   and latency), the magnets' measured dipoles and the feeder's length; it estimates the contact
   force from the model (no force sensor) and holds the commanded force for the dwell.
-* ``"operator"``: the simulated operator (``systems.simulated_operator``): it touches each
-  target as in the teleoperation tasks and then holds still for the dwell (it has no force
-  estimate).
 
 Per target: reached, the time spent, and over its dwell the true contact force
 (``Station.tip_wall_force``) and the estimate (auto only): their mean error and worst case, and
@@ -42,7 +39,7 @@ from ballchain.experiments._result import Result, optional
 from ballchain.experiments.teleop import check_seed
 
 TASKS = ("left", "right")
-NAVIGATORS = ("auto", "operator")
+NAVIGATORS = ("auto",)  # the simulated operator's dwell is not wired in yet
 FORCE_GF = 20.0
 WINDOW_GF = (10.0, 40.0)
 DWELL_S = 10.0
@@ -54,8 +51,7 @@ class ProcedureResult(Result):
     """What ``run`` returns (edge units: gf, mm, s).
 
     Attributes:
-        task: "left" or "right" (None: a user anatomy's every target); navigator: "auto" or
-            "operator".
+        task: "left" or "right" (None: a user anatomy's every target); navigator: "auto".
         rows: one per target: {target, reached, time_s, t_touch_s, dwell_s, force_true_mean_gf,
             force_true_min_gf, force_true_max_gf, in_window_fraction, estimate_mean_error_gf,
             estimate_worst_error_gf (auto only), retries, point: the ablation point {name, p_W,
@@ -239,9 +235,9 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
     Args:
         task: "left" (20 targets) or "right" (18) on the procedural atrium; with ``anatomy``,
             its targets named "{task}_..." (None: all, in file order).
-        navigator: "auto" (the autonomous navigator) or "operator" (the simulated operator).
+        navigator: "auto" (the autonomous navigator).
         anatomy: an anatomy file (``drake_models.anatomy``) instead of the procedural atrium.
-        seed: the localisation noise's seed (auto) or the operator's tremor's, 0..2**32-1.
+        seed: the localisation noise's seed, 0..2**32-1.
         targets: only the first N targets (None: all).
         force_gf, window_gf: the commanded contact force and its window [gf].
         dwell_s: the RF time per target [s].
@@ -260,8 +256,6 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
     localisation = localisation if localisation is not None else LocalisationParams()
     if not isinstance(localisation, LocalisationParams):
         raise UserInputError(f"localisation must be a LocalisationParams, got {short_repr(localisation)}")
-    if navigator == "operator":
-        raise UserInputError("navigator 'operator' is not available in this version of the procedure")
     if html is not None:
         from ballchain.drake_models.safe_files import check_output_file
 
