@@ -66,6 +66,10 @@ class NavigatorParams:
         max_step: cap on the desired dipoles' turn per look [rad].
         max_deviation: the desired dipoles stay within this of the plan's [rad] (the model is
             trusted near its plan only).
+        force_weight: weight of the force row against the position rows of the Newton step
+            (position first: a frictionless wall lets a tip pushed too hard slide away).
+        slip: in the dwell, a measured tip this far from the target's centre laterally has
+            slipped off: back to seeking from the plan (the dwell's clock stops meanwhile) [m].
         damping: damped least squares, as a fraction of the Jacobian's largest singular value.
         magnet_gain: joystick per radian of dipole error [1/rad] (then saturated).
         aligned: the move phase ends when every dipole is within this of its plan [rad].
@@ -87,7 +91,9 @@ class NavigatorParams:
     settle: int = 3
     gain: float = 0.2
     max_step: float = np.radians(1.0)
-    max_deviation: float = np.radians(15.0)
+    max_deviation: float = np.radians(8.0)
+    force_weight: float = 0.3
+    slip: float = 3.0e-3
     damping: float = 0.05
     magnet_gain: float = 8.0
     aligned: float = np.radians(1.0)
@@ -203,7 +209,9 @@ class DwellRecord:
     t_touch: float | None = None
     t_end: float | None = None
     retries: int = 0
+    slips: int = 0
     reached: bool = False
+    dwell_time: float = 0.0  # [s] spent in the dwell (on the target)
     estimates: list = field(default_factory=list)  # [(t, F_est [N])] over the dwell
     p_measured: list = field(default_factory=list)  # measured tip over the dwell [m]
 
@@ -374,9 +382,15 @@ class AutonomousNavigator(LeafSystem):
                 else:
                     self._finish_target(mem, t)
             return
+        if lateral > p.slip:  # slipped off: seek again from the plan
+            record.slips += 1
+            mem.phase, mem.phase_start, mem.on_target = "seek", t, 0
+            mem.m_des = plan.dipoles_W.copy()
+            return
         record.estimates.append((t, f_est))  # dwell
         record.p_measured.append(tip.copy())
-        if t - mem.phase_start >= p.dwell - 1e-9:
+        record.dwell_time += p.period
+        if record.dwell_time >= p.dwell - 1e-9:
             self._finish_target(mem, t)
 
     def _newton(self, mem: _Memory, plan: TargetPlan, tip: np.ndarray, m: np.ndarray, s: float) -> tuple[float, float]:
@@ -389,9 +403,10 @@ class AutonomousNavigator(LeafSystem):
         o = B[:, 1:].T @ (tip - centre)
         f_est, r = self.estimator.force(tip, m, s, plan.n_W)
         f_t = B[:, 1:].T @ (-r)  # tangential pressing force the model says the wall must hold
-        rhs = np.concatenate([[p.force_command - f_est + plan.J_o[0] @ o], plan.J_o[1:] @ o - f_t])
+        w = np.array([p.force_weight, 1.0, 1.0])
+        rhs = w * np.concatenate([[p.force_command - f_est + plan.J_o[0] @ o], plan.J_o[1:] @ o - f_t])
         # dm_j = omega_j x m_j: J_m's columns of unit j times -skew(m_j).
-        J = np.hstack([plan.J_m[:, 3 * j:3 * j + 3] @ (-_skew(m_j)) for j, m_j in enumerate(m)])
+        J = w[:, None] * np.hstack([plan.J_m[:, 3 * j:3 * j + 3] @ (-_skew(m_j)) for j, m_j in enumerate(m)])
         s_max = np.linalg.norm(J, 2)
         if s_max > 1e-12 and np.all(np.isfinite(rhs)):
             mu = (p.damping * s_max) ** 2

@@ -113,7 +113,7 @@ def target_plans(anatomy, chosen: list[int], force_N: float, n_balls: int, inser
     plans, missing = [], []
     for k, name in zip(tqdm(chosen, desc="plan", unit="target", disable=not progress), stand.targets):
         out = {}
-        for f in (force_N, 0.5 * force_N):
+        for f in (force_N, 0.75 * force_N, 0.5 * force_N):  # the most it can press, down to half
             out = plan_target(chain, stand, name, m_now, held, f, anatomy.touch_radius, 0.0, 4, 15)
             if out.get("feasible"):
                 break
@@ -177,7 +177,7 @@ def _dwell_row(record, logs, context, plan, window_N, ball_radius: float) -> dic
     """One target's row from the navigator's record and the run's logs."""
     force, balls, estimate, _ = (log.FindLog(context) for log in logs)
     t = force.sample_times()
-    row = {"target": record.target, "reached": record.reached, "retries": record.retries,
+    row = {"target": record.target, "reached": record.reached, "retries": record.retries, "slips": record.slips,
            "time_s": None if record.t_end is None else round(record.t_end - record.t_start, 3),
            "t_touch_s": None if record.t_touch is None else round(record.t_touch, 3), "dwell_s": 0.0,
            "force_true_mean_gf": None, "force_true_min_gf": None, "force_true_max_gf": None,
@@ -185,8 +185,9 @@ def _dwell_row(record, logs, context, plan, window_N, ball_radius: float) -> dic
            "point": None}
     if not record.reached:
         return row
-    end = record.t_end if record.t_end is not None else t[-1]
-    mask = (t > record.t_touch + 1e-9) & (t <= end + 1e-9)
+    # The dwell's looks (on the target; a slip off it and the seek back are not RF time).
+    looks = np.array([e[0] for e in record.estimates])
+    mask = np.isin(np.round(t, 6), np.round(looks, 6)) if looks.size else np.zeros(len(t), bool)
     if not mask.any():
         return row
     f_W = force.data()[:3, mask].T
@@ -197,7 +198,7 @@ def _dwell_row(record, logs, context, plan, window_N, ball_radius: float) -> dic
     tip = balls.data()[-3:, mask].T
     mean_f = f_W.mean(axis=0)
     n_out = mean_f / np.linalg.norm(mean_f) if np.linalg.norm(mean_f) > 1e-9 else plan.n_W
-    row.update(dwell_s=round(float(t[mask][-1] - t[mask][0]) + float(t[1] - t[0]) if len(t) > 1 else 0.0, 3),
+    row.update(dwell_s=round(record.dwell_time, 3),
                force_true_mean_gf=round(gram_force(float(true.mean())), 3),
                force_true_min_gf=round(gram_force(float(true.min())), 3),
                force_true_max_gf=round(gram_force(float(true.max())), 3),
