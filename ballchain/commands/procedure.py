@@ -1,4 +1,5 @@
-"""A simulated ablation procedure (beyond the paper): an autonomous navigator brings the tip to every target of a ring, presses it with a force estimated without a
+"""A simulated ablation procedure (beyond the paper): an autonomous navigator (or the simulated
+operator) brings the tip to every target of a ring, presses it with a force estimated without a
 force sensor, and holds it for the dwell (``experiments/procedure.py``).
 
 Prints per target whether it was reached, the time, the true force over the dwell and the
@@ -23,8 +24,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--anatomy", type=Path, default=None, metavar="FILE",
                         help="an anatomy file (YAML: mesh, targets, sheath, magnets) instead of the procedural atrium")
     parser.add_argument("--navigator", choices=procedure.NAVIGATORS, default="auto",
-                        help="auto: the model-based navigator")
-    parser.add_argument("--seed", type=int_in(0, 2**32 - 1), default=0, help="the localisation noise's seed")
+                        help="auto (the model-based navigator) or operator (the simulated operator, no force estimate)")
+    parser.add_argument("--seed", type=int_in(0, 2**32 - 1), default=0,
+                        help="the localisation noise's seed (auto) or the operator's tremor's (operator)")
     parser.add_argument("--targets", type=positive_int, default=None, help="only the first N targets (default: all)")
     parser.add_argument("--force", type=float_in(0.0, 200.0, lo_open=True), default=procedure.FORCE_GF,
                         help="the contact force to hold [gf]")
@@ -61,10 +63,11 @@ def main(args: argparse.Namespace) -> int:
         if not r["reached"]:
             print(f"{r['target']:9s} missed ({r.get('reason') or 'gave up'})")
             continue
+        estimate = ("" if r["estimate_mean_error_gf"] is None else f", estimate error "
+                    f"{r['estimate_mean_error_gf']} gf mean, {r['estimate_worst_error_gf']} gf worst")
         print(f"{r['target']:9s} reached in {r['time_s']} s; dwell {r['dwell_s']} s, true force "
               f"{r['force_true_mean_gf']} gf ({r['force_true_min_gf']}..{r['force_true_max_gf']}), in window "
-              f"{100 * r['in_window_fraction']:.0f}%, estimate error {r['estimate_mean_error_gf']} gf mean, "
-              f"{r['estimate_worst_error_gf']} gf worst")
+              f"{100 * (r['in_window_fraction'] or 0):.0f}%{estimate}")
     s = data.summary
     print(f"{s['reached']}/{s['targets']} reached in {s['total_time_s']} s; force in window "
           f"{s['in_window_fraction']}; estimate error {s['estimate_mean_abs_error_gf']} gf mean |.|, "

@@ -2,7 +2,7 @@
 
 The station is the teleoperation set-up (``teleop.scenario_for``: the 16-ball chain in the
 atrium, the unit 10 cm beyond the right carina, the stepper feeder, the quasi-static engine
-unless the overrides name the plant). The navigator:
+unless the overrides name the plant). Two navigators:
 
 * ``"auto"``: ``systems.autonomous_navigator.AutonomousNavigator``. Ahead of the run, for each
   target in order (warm-started target to target), inverse statics
@@ -12,6 +12,9 @@ unless the overrides name the plant). The navigator:
   the localisation sensor's tip (``systems.localisation_sensor``, NDI-Aurora-like noise, rate
   and latency), the magnets' measured dipoles and the feeder's length; it estimates the contact
   force from the model (no force sensor) and holds the commanded force for the dwell.
+* ``"operator"``: the simulated operator (``systems.simulated_operator``, world mapping): it
+  touches each target as in the teleoperation tasks, then holds still for the dwell
+  (``OperatorParams.dwell``); it has no force estimate.
 
 Per target: reached, the time spent, and over its dwell the true contact force
 (``Station.tip_wall_force``) and the estimate (auto only): their mean error and worst case, and
@@ -39,7 +42,7 @@ from ballchain.experiments._result import Result, optional
 from ballchain.experiments.teleop import check_seed
 
 TASKS = ("left", "right")
-NAVIGATORS = ("auto",)  # the simulated operator's dwell is not wired in yet
+NAVIGATORS = ("auto", "operator")
 FORCE_GF = 20.0
 WINDOW_GF = (10.0, 40.0)
 DWELL_S = 10.0
@@ -51,7 +54,8 @@ class ProcedureResult(Result):
     """What ``run`` returns (edge units: gf, mm, s).
 
     Attributes:
-        task: "left" or "right" (None: a user anatomy's every target); navigator: "auto".
+        task: "left" or "right" (None: a user anatomy's every target); navigator: "auto" or
+            "operator".
         rows: one per target: {target, reached, time_s, t_touch_s, dwell_s, force_true_mean_gf,
             force_true_min_gf, force_true_max_gf, in_window_fraction, estimate_mean_error_gf,
             estimate_worst_error_gf (auto only), retries, point: the ablation point {name, p_W,
@@ -236,9 +240,9 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
     Args:
         task: "left" (20 targets) or "right" (18) on the procedural atrium; with ``anatomy``,
             its targets named "{task}_..." (None: all, in file order).
-        navigator: "auto" (the autonomous navigator).
+        navigator: "auto" (the autonomous navigator) or "operator" (the simulated operator).
         anatomy: an anatomy file (``drake_models.anatomy``) instead of the procedural atrium.
-        seed: the localisation noise's seed, 0..2**32-1.
+        seed: the localisation noise's seed (auto) or the operator's tremor's, 0..2**32-1.
         targets: only the first N targets (None: all).
         force_gf, window_gf: the commanded contact force and its window [gf].
         dwell_s: the RF time per target [s].
@@ -267,6 +271,10 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
 
     scenario = scenario_for("world", None, overrides, None if anatomy.procedural else anatomy)
     scenario.visualization.publish_period = 0.1
+    params = NavigatorParams(force_command=newtons_from_gram_force(force_gf),
+                             force_window=tuple(newtons_from_gram_force(v) for v in window_gf), dwell=dwell_s)
+    if navigator == "operator":
+        return _simulate_operator(task, anatomy, chosen, scenario, params, seed, progress, html, overrides)
     cpu0 = time.process_time()
     n = scenario.n_balls
     from ballchain.drake_models.params import BallChain
@@ -274,8 +282,6 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
     s_full = (n - 1.0) * BallChain().ball_diameter  # every ball but ball 1 beyond the sheath: the plan's chain
     plans, missing = target_plans(anatomy, chosen, newtons_from_gram_force(force_gf), n, s_full, progress)
     plan_cpu = time.process_time() - cpu0
-    params = NavigatorParams(force_command=newtons_from_gram_force(force_gf),
-                             force_window=tuple(newtons_from_gram_force(v) for v in window_gf), dwell=dwell_s)
     return _simulate(task, anatomy, scenario, plans, missing, params, localisation, seed, plan_cpu, progress,
                      html, overrides)
 
@@ -314,11 +320,111 @@ def _simulate(task, anatomy, scenario, plans, missing, params, localisation, see
         rows.append(_dwell_row(rec, handles["logs"], run.context, plan, window, ball_r))
     rows += [{"target": name, "reached": False, "time_s": None, "reason": "no plan"} for name in missing]
     summary = _summary(rows, run, plan_cpu, missing)
-    settings = {"force_gf": gram_force(params.force_command), "window_gf": [gram_force(v) for v in window],
-                "dwell_s": params.dwell, "seed": seed, "engine": scenario.engine, "overrides": overrides,
-                "localisation": {"noise_std_mm": localisation.noise_std * 1e3, "rate_hz": localisation.rate,
-                                 "latency_s": localisation.latency},
-                "navigator_period_s": params.period, "time_limit_s": limit,
-                "anatomy": None if anatomy.procedural else str(anatomy.path)}
+    settings = _settings(params, seed, scenario, overrides, limit, anatomy, localisation)
     return ProcedureResult(task=task, navigator="auto", rows=rows, summary=summary, settings=settings,
+                           html=None if html is None else str(html))
+
+
+def _settings(params, seed, scenario, overrides, limit, anatomy, localisation=None) -> dict:
+    return {"force_gf": gram_force(params.force_command), "window_gf": [gram_force(v) for v in params.force_window],
+            "dwell_s": params.dwell, "seed": seed, "engine": scenario.engine, "overrides": overrides,
+            "localisation": None if localisation is None else {
+                "noise_std_mm": localisation.noise_std * 1e3, "rate_hz": localisation.rate,
+                "latency_s": localisation.latency},
+            "navigator_period_s": params.period, "time_limit_s": limit,
+            "anatomy": None if anatomy.procedural else str(anatomy.path)}
+
+
+def _add_operator(handles: dict, scenario, heart, chosen_names: list, seed: int, dwell: float):
+    """The ``add_systems`` hook of the operator's run: the simulated operator (world mapping,
+    holding still for ``dwell`` on each touched target) and the force and tip loggers."""
+    from pydrake.systems.primitives import LogVectorOutput
+
+    from ballchain.experiments.teleop import vein_openings
+    from ballchain.systems.simulated_operator import OperatorParams, SimulatedOperator
+
+    def add(builder, ports):
+        names, p_WT, n_W, radius = ports.targets
+        chosen = [names.index(name) for name in chosen_names]
+        cp = ports.chain
+        params = OperatorParams(seed=seed, dwell=dwell, ball_radius=0.5 * cp.config.chain.ball_diameter,
+                                target_radius=radius, p_WE=tuple(cp.p_WE), initial_length=scenario.insertion.initial,
+                                max_length=cp.max_inserted_length(), keep_out=vein_openings(heart))
+        op = builder.AddSystem(SimulatedOperator(cp.ball_body_indices[-1], cp.ball_body_indices[-2],
+                                                 chosen_names, p_WT[chosen], n_W[chosen], params))
+        builder.Connect(ports.body_poses, op.get_body_poses_input_port())
+        (joystick,) = ports.joystick_inputs.values()
+        builder.Connect(op.GetOutputPort("joystick"), joystick)
+        builder.Connect(op.GetOutputPort("v_insert_cmd"), ports.feeder_command_input)
+        handles["logs"] = [LogVectorOutput(port, builder, params.period) for port in (
+            cp.get_tip_wall_force_output_port(), cp.get_ball_positions_output_port())]
+        handles["operator"], handles["n_W"] = op, dict(zip(names, n_W))
+        return {"operator": op}
+
+    return add
+
+
+def _operator_row(record, logs, context, n_W, params, ball_radius: float) -> dict:
+    """One target's row of the operator's run: over its dwell (touch to the end of the hold)."""
+    force, balls = (log.FindLog(context) for log in logs)
+    t = force.sample_times()
+    reached = record.t_touch is not None
+    row = {"target": record.target, "reached": reached,
+           "time_s": None if record.t_end is None else round(record.t_end - record.t_start, 3),
+           "t_touch_s": None if not reached else round(record.t_touch, 3), "dwell_s": 0.0,
+           "force_true_mean_gf": None, "force_true_min_gf": None, "force_true_max_gf": None,
+           "in_window_fraction": None, "estimate_mean_error_gf": None, "estimate_worst_error_gf": None,
+           "point": None}
+    if not reached:
+        return row
+    end = record.t_end if record.t_end is not None else t[-1]
+    mask = (t > record.t_touch + 1e-9) & (t <= end + 1e-9)
+    if not mask.any():
+        return row
+    f_W = force.data()[:3, mask].T
+    true = f_W @ n_W
+    lo, hi = params.force_window
+    inside = (true >= lo) & (true <= hi)
+    tip = balls.data()[-3:, mask].T
+    mean_f = f_W.mean(axis=0)
+    n_out = mean_f / np.linalg.norm(mean_f) if np.linalg.norm(mean_f) > 1e-9 else n_W
+    row.update(dwell_s=round(float(end - record.t_touch), 3),
+               force_true_mean_gf=round(gram_force(float(true.mean())), 3),
+               force_true_min_gf=round(gram_force(float(true.min())), 3),
+               force_true_max_gf=round(gram_force(float(true.max())), 3),
+               in_window_fraction=round(float(np.mean(inside)), 4))
+    row["point"] = {"name": record.target, "p_W": (tip.mean(axis=0) - ball_radius * n_out).tolist(),
+                    "n_W": n_out.tolist(), "force_N": float(true.mean()), "duration_s": row["dwell_s"]}
+    row["_in_window"] = inside
+    return row
+
+
+def _simulate_operator(task, anatomy, chosen, scenario, params, seed, progress, html, overrides) -> ProcedureResult:
+    """The simulated operator's run on the targets ``chosen`` (indices in the anatomy's file order)."""
+    from ballchain.systems.chain_simulation import ChainMonitor, MakeStation, near_ostium_rim, run_station
+
+    heart = anatomy.atrium()
+    names = [anatomy.target_names[k] for k in chosen]
+    handles: dict = {}
+    meshcat = None
+    if html is not None:
+        from ballchain.systems.chain_simulation import replay_meshcat
+
+        meshcat = replay_meshcat()
+    cd = MakeStation(scenario, meshcat=meshcat, heart=heart,
+                     add_systems=_add_operator(handles, scenario, heart, names, seed, params.dwell))
+    op = handles["operator"]
+    limit = len(names) * (op.params.timeout + params.dwell) + 5.0
+    monitor = ChainMonitor(cd, tolerate_sinking=lambda p: near_ostium_rim(heart, p))
+    run = run_station(cd, duration=limit, monitor=monitor, stop=lambda c: op.is_done(op.GetMyContextFromRoot(c)),
+                      progress=f"procedure {task or anatomy.name}/operator" if progress else None,
+                      progress_step=0.5, html=html, meshcat=meshcat)
+    records = {r.target: r for r in op.records(op.GetMyContextFromRoot(run.context))}
+    ball_r = 0.5 * cd.chain.config.chain.ball_diameter
+    rows = [_operator_row(records[name], handles["logs"], run.context, handles["n_W"][name], params, ball_r)
+            if name in records else {"target": name, "reached": False, "time_s": None, "reason": "not reached"}
+            for name in names]
+    summary = _summary(rows, run, 0.0, [])
+    return ProcedureResult(task=task, navigator="operator", rows=rows, summary=summary,
+                           settings=_settings(params, seed, scenario, overrides, limit, anatomy),
                            html=None if html is None else str(html))
