@@ -47,6 +47,34 @@ FORCE_GF = 20.0
 WINDOW_GF = (10.0, 40.0)
 DWELL_S = 10.0
 MAX_DWELL_S = 120.0
+UNITS = ("one", "two")
+
+
+def default_units(task: str | None, anatomy) -> str:
+    """The right ring with the unit beyond the right carina alone (the paper's set-up); the left
+    ring, and a user anatomy with two magnet places, with both units (the right unit alone
+    cannot press the left ring's targets: no feasible inverse statics)."""
+    if anatomy is not None and not anatomy.procedural:
+        return "two" if len(anatomy.magnets) >= 2 else "one"
+    return "one" if task == "right" else "two"
+
+
+def scenario_for(units: str, overrides: str | None, anatomy):
+    """The teleoperation station (world mapping) with one or both units and the feeder left to
+    the navigator; on a user anatomy the units stand at its magnets."""
+    from ballchain.experiments import teleop
+    from ballchain.systems.chain_scenario import load_scenario, parse_overrides
+    from ballchain.systems.station import apply_anatomy
+
+    if units == "one":
+        scenario = teleop.scenario_for("world", None, overrides, None if anatomy.procedural else anatomy)
+    else:
+        scenario = load_scenario("teleop_two_units", overrides)
+        if not anatomy.procedural:
+            apply_anatomy(scenario, anatomy)
+        teleop.hand_over(scenario, "world", None, parse_overrides(overrides))
+    scenario.visualization.publish_period = 0.1  # a procedure lasts minutes: a small replay
+    return scenario
 
 
 @dataclass
@@ -94,31 +122,81 @@ def check_inputs(task, navigator, seed, targets, force_gf, window_gf, dwell_s) -
         raise UserInputError(f"dwell must be in 0..{MAX_DWELL_S:g} s, got {short_repr(dwell_s)}")
 
 
+def _plan_step(chain, stand, name: str, m_prev: np.ndarray, previous, force_N: float, radius: float) -> dict:
+    """One target's inverse statics with every magnet of ``stand`` (k = 1: ``planner.plan_target``,
+    frictionless; k > 1: the same steps with k magnets: from the magnets where they are, else
+    from the hardest-pressing orientation ``forces.max_normal_force``)."""
+    from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
+    from ballchain.drake_models.params import CylinderMagnet
+    from ballchain.experiments.forces import max_normal_force
+    from ballchain.experiments.planner import plan_target
+    from ballchain.optimization.inverse_statics import HeldTip, min_turn_orientation, pin_tip
+    from ballchain.optimization.statics import ChainStatics
+
+    keys = sorted(stand.magnets)
+    if len(keys) == 1:
+        return plan_target(chain, stand, name, m_prev, previous, force_N, radius, 0.0, 4, 15)
+    centres = [stand.magnets[key] for key in keys]
+
+    def field_for(m):
+        m = np.asarray(m, float).reshape(-1, 3)
+        return FieldSources([MagnetSource(CylinderMagnet(), p, rotation_with_z_along(mj)) for p, mj in zip(centres, m)])
+
+    centre, axis = stand.targets[name]
+    solver = ChainStatics(chain, max_iterations=25)
+    starts = []
+    home = pin_tip(solver, field_for(m_prev), centre, previous)
+    if home is not None:
+        starts.append((m_prev, home))
+    best = max_normal_force(chain, stand, name, tuple(keys), 4, 15)
+    if best.get("force_N") is not None and best["force_N"] >= force_N:
+        starts.append((np.asarray(best["dipoles"]).reshape(-1, 3), best["result"]))
+    for m_start, home_k in starts:
+        plan = min_turn_orientation(HeldTip(solver, field_for, centre, axis, home_k, len(keys)), m_start, m_prev,
+                                    force_N, radius, 0.0)
+        if plan.feasible:
+            return {"feasible": True, "plan": plan}
+    return {"feasible": False}
+
+
 def target_plans(anatomy, chosen: list[int], force_N: float, n_balls: int, inserted_length: float,
-                 progress: bool = False) -> tuple[list, list]:
+                 magnets_W: list, progress: bool = False) -> tuple[list, list]:
     """The feed-forward of every target, in order (``TargetPlan``s) and the names not planned.
 
-    Each target: ``planner.plan_target`` (frictionless: the engine's contact) from the previous
-    target's dipole and held equilibrium, asking for ``force_N`` (then half of it when that has
-    no answer), and the held equilibrium's force sensitivities there.
+    Each target: inverse statics (``_plan_step``: frictionless, the engine's contact) from the
+    previous target's dipoles and held equilibrium, asking for ``force_N`` (then 3/4 and half of
+    it when that has no answer: the most the model can press), with the units at ``magnets_W``
+    ((k, 3) centres [m]), and the held equilibrium's force sensitivities there.
     """
     from tqdm import tqdm
 
+    from ballchain.drake_models.dipole_inversion import neutral_direction
     from ballchain.drake_models.params import BallChain
-    from ballchain.experiments.planner import _field_for, anatomy_stand, neutral_dipole, plan_target
+    from ballchain.experiments.forces import Stand
+    from ballchain.experiments.planner import anatomy_stand
+    from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
+    from ballchain.drake_models.params import CylinderMagnet
     from ballchain.optimization.inverse_statics import HeldTip
     from ballchain.optimization.statics import ChainStatics
     from ballchain.systems.autonomous_navigator import TargetPlan
 
     chain = BallChain(n_balls=n_balls)
-    stand = anatomy_stand(anatomy, chosen, chain.ball_diameter)
-    R = stand.R_HS
-    m_now, held = neutral_dipole(stand), None
-    plans, missing = [], []
+    base = anatomy_stand(anatomy, chosen, chain.ball_diameter)
+    R = base.R_HS
+    centres = [R.T @ (np.asarray(p, float) - base.p_HE) for p in magnets_W]
+    stand = Stand(base.targets, {str(j + 1): c for j, c in enumerate(centres)}, R, base.p_HE)
+    m_now = np.array([neutral_direction(c, np.zeros(3), np.array([1.0, 0.0, 0.0])) for c in centres])
+    m_now /= np.linalg.norm(m_now, axis=1, keepdims=True)
+
+    def field_for(m):
+        m = np.asarray(m, float).reshape(-1, 3)
+        return FieldSources([MagnetSource(CylinderMagnet(), p, rotation_with_z_along(mj)) for p, mj in zip(centres, m)])
+
+    held, plans, missing = None, [], []
     for k, name in zip(tqdm(chosen, desc="plan", unit="target", disable=not progress), stand.targets):
         out = {}
         for f in (force_N, 0.75 * force_N, 0.5 * force_N):  # the most it can press, down to half
-            out = plan_target(chain, stand, name, m_now, held, f, anatomy.touch_radius, 0.0, 4, 15)
+            out = _plan_step(chain, stand, name, m_now, held, f, anatomy.touch_radius)
             if out.get("feasible"):
                 break
         if not out.get("feasible"):
@@ -126,11 +204,12 @@ def target_plans(anatomy, chosen: list[int], force_N: float, n_balls: int, inser
             continue
         plan = out["plan"]
         centre, axis = stand.targets[name]
-        held_tip = HeldTip(ChainStatics(chain, max_iterations=25), _field_for(stand), centre, axis, plan.result)
+        held_tip = HeldTip(ChainStatics(chain, max_iterations=25), field_for, centre, axis, plan.result, len(centres))
         _, J = held_tip.value_and_jacobian(np.concatenate([plan.dipoles.reshape(-1), plan.offset]))
-        m_now, held = plan.dipoles[0], plan.result
-        plans.append(TargetPlan(name, anatomy.p_WT[k], anatomy.n_W[k], (R @ plan.dipoles.T).T, inserted_length,
-                                R @ held_tip.basis, J[:, :3] @ R.T, J[:, 3:], float(plan.force_N)))
+        m_now, held = plan.dipoles.reshape(-1, 3), plan.result
+        J_m = np.hstack([J[:, 3 * j:3 * j + 3] @ R.T for j in range(len(centres))])
+        plans.append(TargetPlan(name, anatomy.p_WT[k], anatomy.n_W[k], (R @ m_now.T).T, inserted_length,
+                                R @ held_tip.basis, J_m, J[:, 3 * len(centres):], float(plan.force_N)))
     return plans, missing
 
 
@@ -234,7 +313,7 @@ def _summary(rows: list, run, plan_cpu: float, missing: list) -> dict:
 def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed: int = 0, *,
         targets: int | None = None, force_gf: float = FORCE_GF, window_gf=WINDOW_GF, dwell_s: float = DWELL_S,
         localisation: LocalisationParams | None = None, overrides: str | None = None, progress: bool = True,
-        html: Path | None = None) -> ProcedureResult:
+        html: Path | None = None, units: str | None = None) -> ProcedureResult:
     """Simulate the procedure on a ring: every target reached, pressed and held for the dwell.
 
     Args:
@@ -250,6 +329,8 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
         overrides: inline YAML overrides of the station's scenario.
         progress: progress bars on stderr.
         html: write a Meshcat replay here.
+        units: "one" (the unit beyond the right carina) or "two" (both carinas' units); None:
+            ``default_units``.
 
     Returns:
         A ``ProcedureResult``.
@@ -258,6 +339,8 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
     from ballchain.systems.autonomous_navigator import NavigatorParams
 
     check_inputs(task, navigator, seed, targets, force_gf, tuple(window_gf), dwell_s)
+    if units not in (None, *UNITS):
+        raise UserInputError(f"units must be one of {UNITS} (or None: by the ring), got {short_repr(units)}")
     localisation = localisation if localisation is not None else LocalisationParams()
     if not isinstance(localisation, LocalisationParams):
         raise UserInputError(f"localisation must be a LocalisationParams, got {short_repr(localisation)}")
@@ -267,20 +350,22 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
         check_output_file(html, "--html")
     anatomy, task, chosen = anatomy_targets(anatomy, task)
     chosen = chosen[:targets] if targets else chosen
-    from ballchain.experiments.teleop import scenario_for
-
-    scenario = scenario_for("world", None, overrides, None if anatomy.procedural else anatomy)
-    scenario.visualization.publish_period = 0.1
+    if navigator == "operator" and units == "two":
+        raise UserInputError("units 'two' needs navigator 'auto': the simulated operator steers one unit")
+    units = units if units is not None else "one" if navigator == "operator" else default_units(task, anatomy)
+    scenario = scenario_for(units, overrides, anatomy)
     params = NavigatorParams(force_command=newtons_from_gram_force(force_gf),
                              force_window=tuple(newtons_from_gram_force(v) for v in window_gf), dwell=dwell_s)
     if navigator == "operator":
         return _simulate_operator(task, anatomy, chosen, scenario, params, seed, progress, html, overrides)
+    from ballchain.drake_models.params import BallChain
+    from ballchain.systems.station import add_field_sources
+
     cpu0 = time.process_time()
     n = scenario.n_balls
-    from ballchain.drake_models.params import BallChain
-
     s_full = (n - 1.0) * BallChain().ball_diameter  # every ball but ball 1 beyond the sheath: the plan's chain
-    plans, missing = target_plans(anatomy, chosen, newtons_from_gram_force(force_gf), n, s_full, progress)
+    magnets_W = [c.p_WM for c in add_field_sources(scenario, anatomy.atrium()).unit_configs]
+    plans, missing = target_plans(anatomy, chosen, newtons_from_gram_force(force_gf), n, s_full, magnets_W, progress)
     plan_cpu = time.process_time() - cpu0
     return _simulate(task, anatomy, scenario, plans, missing, params, localisation, seed, plan_cpu, progress,
                      html, overrides)
@@ -293,6 +378,12 @@ def _simulate(task, anatomy, scenario, plans, missing, params, localisation, see
 
     heart = anatomy.atrium()
     handles: dict = {}
+    if not plans:  # nothing the model can press: nothing to run
+        rows = [{"target": name, "reached": False, "time_s": None, "reason": "no plan"} for name in missing]
+        summary = {"reached": 0, "targets": len(rows), "total_time_s": 0.0, "not_planned": missing,
+                   "plan_cpu_time_s": round(plan_cpu, 2), "failure": None}
+        return ProcedureResult(task=task, navigator="auto", rows=rows, summary=summary,
+                               settings=_settings(params, seed, scenario, overrides, 0.0, anatomy, localisation))
     meshcat = None
     if html is not None:
         from ballchain.systems.chain_simulation import replay_meshcat
@@ -326,7 +417,7 @@ def _simulate(task, anatomy, scenario, plans, missing, params, localisation, see
 
 
 def _settings(params, seed, scenario, overrides, limit, anatomy, localisation=None) -> dict:
-    return {"force_gf": gram_force(params.force_command), "window_gf": [gram_force(v) for v in params.force_window],
+    return {"units": [u.name for u in scenario.units], "force_gf": gram_force(params.force_command), "window_gf": [gram_force(v) for v in params.force_window],
             "dwell_s": params.dwell, "seed": seed, "engine": scenario.engine, "overrides": overrides,
             "localisation": None if localisation is None else {
                 "noise_std_mm": localisation.noise_std * 1e3, "rate_hz": localisation.rate,
