@@ -14,6 +14,7 @@ import numpy as np
 
 from ballchain.drake_models.dipole import MU0
 from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.drake_models.tissue import N52_IRREVERSIBLE_LOSS_C
 
 GRAVITY = 9.80665  # standard gravity [m/s^2]; also the grams-force conversion
 
@@ -205,6 +206,44 @@ class SphereMagnet(_UniformMagnet):
     def contains(self, p_M):
         p_M = np.asarray(p_M, dtype=float)
         return np.linalg.norm(p_M, axis=-1) < self.diameter / 2.0
+
+
+@dataclass(frozen=True)
+class MagnetGrade:
+    """A permanent-magnet grade the chain's balls can be made of.
+
+    Attributes:
+        name: the grade ("N52", "N42SH").
+        remanence: typical Br at 20 C [T].
+        max_operating_C: the highest temperature without irreversible loss of magnetisation [C].
+        source: where the numbers come from.
+    """
+
+    name: str
+    remanence: float
+    max_operating_C: float
+    source: str = ""
+
+
+MAGNET_GRADES = {
+    "N52": MagnetGrade(
+        name="N52", remanence=BallChain.remanence, max_operating_C=N52_IRREVERSIBLE_LOSS_C,
+        source="the prototype's balls (BallChain.remanence; tissue.N52_IRREVERSIBLE_LOSS_C)"),
+    "N42SH": MagnetGrade(
+        name="N42SH", remanence=1.30, max_operating_C=150.0,
+        source=("sintered NdFeB, 'SH' (HcJ >= 20 kOe) grade: Br 1.29-1.33 T, maximum operating temperature "
+                "150 C (Arnold Magnetic Technologies, Neodymium-Iron-Boron Magnet Grades catalogue; "
+                "K&J Magnetics specifications table); Br -0.12 %/C as N52")),
+}
+"""Grades of the balls by name: N52 (the prototype) and a high-temperature option. A weaker
+grade's balls have a proportionally smaller moment (``BallChain(remanence=...)``)."""
+
+
+def magnet_grade(name: str) -> MagnetGrade:
+    """The grade ``name`` (a UserInputError naming the allowed ones otherwise)."""
+    if not isinstance(name, str) or name not in MAGNET_GRADES:
+        raise UserInputError(f"magnet grade must be one of {sorted(MAGNET_GRADES)}, got {short_repr(name)}")
+    return MAGNET_GRADES[name]
 
 
 def gram_force(newtons: float) -> float:
