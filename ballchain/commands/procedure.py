@@ -4,7 +4,9 @@ force sensor, and holds it for the dwell (``experiments/procedure.py``).
 
 Prints per target whether it was reached, the time, the true force over the dwell and the
 estimate's error; ``--json`` the whole result; ``--out DIR`` writes ``procedure.json`` there
-(atomically); ``--html FILE`` a Meshcat replay.
+and the ring's map ``ring.png`` (atomically); ``--html FILE`` a Meshcat replay with the lesion
+patches on the wall. Each dwell leaves a lesion (``drake_models.lesion_ring``), and the ring is
+checked for gaps.
 """
 
 from __future__ import annotations
@@ -45,17 +47,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from ballchain.drake_models.safe_files import atomic_write_text, check_output_dir
+    from ballchain.drake_models.safe_files import check_output_dir
 
     if args.anatomy is None and args.task not in procedure.TASKS:
         raise UserInputError(f"--task must be left or right, got {args.task!r}")
     localisation = LocalisationParams(noise_std=args.noise * 1e-3, rate=args.rate, latency=args.latency)
     if args.out is not None:
-        check_output_dir(args.out, "--out", names=("procedure.json",))
+        check_output_dir(args.out, "--out", names=("procedure.json", "ring.png"))
     data = procedure.run(args.task, args.navigator, args.anatomy, args.seed, targets=args.targets,
                          force_gf=args.force, dwell_s=args.dwell, localisation=localisation, html=args.html)
     if args.out is not None:
-        atomic_write_text(Path(args.out) / "procedure.json", data.to_json())
+        procedure.write_outputs(data, args.out)
     if args.json:
         print_json(data)
         return 0
@@ -70,6 +72,11 @@ def main(args: argparse.Namespace) -> int:
               f"{100 * (r['in_window_fraction'] or 0):.0f}%{estimate}")
     s = data.summary
     print(f"{s['reached']}/{s['targets']} reached in {s['total_time_s']} s; force in window "
-          f"{s['in_window_fraction']}; estimate error {s['estimate_mean_abs_error_gf']} gf mean |.|, "
-          f"{s['estimate_worst_error_gf']} gf worst" + (f"; stopped: {s['failure']}" if s["failure"] else ""))
+          f"{s.get('in_window_fraction')}; estimate error {s.get('estimate_mean_abs_error_gf')} gf mean |.|, "
+          f"{s.get('estimate_worst_error_gf')} gf worst" + (f"; stopped: {s['failure']}" if s["failure"] else ""))
+    if data.ring is not None:
+        ring = data.ring
+        print(f"ring: {'isolated' if ring['isolated'] else 'NOT isolated'}, {ring['n_lesions']}/{ring['n_targets']} "
+              f"lesions, {len(ring['gaps'])} gap(s), transmural {100 * ring['transmural_fraction']:.0f}%, "
+              f"largest spacing {ring['max_distance_mm']} mm")
     return 0

@@ -38,7 +38,7 @@ import numpy as np
 from ballchain.drake_models.errors import UserInputError, short_repr
 from ballchain.drake_models.localisation import LocalisationParams
 from ballchain.drake_models.params import gram_force, newtons_from_gram_force
-from ballchain.experiments._result import Result, optional
+from ballchain.experiments._result import Result, not_in_json, optional
 from ballchain.experiments.teleop import check_seed
 
 TASKS = ("left", "right")
@@ -92,7 +92,15 @@ class ProcedureResult(Result):
             estimate_mean_abs_error_gf, estimate_worst_error_gf, sim_time_s, cpu_time_s,
             plan_cpu_time_s, failure}.
         settings: the run's settings (force, window, dwell, localisation, seed, engine).
-        html: the Meshcat replay (only with ``html``).
+        lesions: per reached target its lesion (``lesion_ring.Lesion.to_dict``: the FEM
+            surrogate's width and depth at the dwell's mean true force, its duration and the
+            highest power keeping the tip magnet below its grade's limit), or {name, reason}
+            when the dwell lies outside the surrogate's range.
+        ring: the ring's verdict (``lesion_ring.analyse_ring``: gaps, spacing, transmurality,
+            isolated), the targets in ring order, the unreached ones gaps.
+        html: the Meshcat replay (only with ``html``), the lesion patches on the wall.
+        files: {"json", "ring_png"} written (only with ``out``).
+        lesion_objects, verdict: the Lesions and the RingVerdict (not in the JSON).
     """
 
     task: str | None
@@ -100,7 +108,12 @@ class ProcedureResult(Result):
     rows: list
     summary: dict
     settings: dict
+    lesions: list | None = optional()
+    ring: dict | None = optional()
     html: str | None = optional()
+    files: dict | None = optional()
+    lesion_objects: list | None = not_in_json()
+    verdict: object = not_in_json()
 
 
 def check_inputs(task, navigator, seed, targets, force_gf, window_gf, dwell_s) -> None:
@@ -313,7 +326,7 @@ def _summary(rows: list, run, plan_cpu: float, missing: list) -> dict:
 def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed: int = 0, *,
         targets: int | None = None, force_gf: float = FORCE_GF, window_gf=WINDOW_GF, dwell_s: float = DWELL_S,
         localisation: LocalisationParams | None = None, overrides: str | None = None, progress: bool = True,
-        html: Path | None = None, units: str | None = None) -> ProcedureResult:
+        html: Path | None = None, units: str | None = None, lesions: bool = True) -> ProcedureResult:
     """Simulate the procedure on a ring: every target reached, pressed and held for the dwell.
 
     Args:
@@ -331,6 +344,7 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
         html: write a Meshcat replay here.
         units: "one" (the unit beyond the right carina) or "two" (both carinas' units); None:
             ``default_units``.
+        lesions: each dwell's lesion and the ring's verdict (``with_lesions``).
 
     Returns:
         A ``ProcedureResult``.
@@ -356,8 +370,10 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
     scenario = scenario_for(units, overrides, anatomy)
     params = NavigatorParams(force_command=newtons_from_gram_force(force_gf),
                              force_window=tuple(newtons_from_gram_force(v) for v in window_gf), dwell=dwell_s)
+    ring_order = [anatomy.target_names[k] for k in chosen]
+    finish = _finisher(lesions, ring_order, html)
     if navigator == "operator":
-        return _simulate_operator(task, anatomy, chosen, scenario, params, seed, progress, html, overrides)
+        return finish(*_simulate_operator(task, anatomy, chosen, scenario, params, seed, progress, html, overrides))
     from ballchain.drake_models.params import BallChain
     from ballchain.systems.station import add_field_sources
 
@@ -367,8 +383,27 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
     magnets_W = [c.p_WM for c in add_field_sources(scenario, anatomy.atrium()).unit_configs]
     plans, missing = target_plans(anatomy, chosen, newtons_from_gram_force(force_gf), n, s_full, magnets_W, progress)
     plan_cpu = time.process_time() - cpu0
-    return _simulate(task, anatomy, scenario, plans, missing, params, localisation, seed, plan_cpu, progress,
-                     html, overrides)
+    return finish(*_simulate(task, anatomy, scenario, plans, missing, params, localisation, seed, plan_cpu,
+                             progress, html, overrides))
+
+
+def _finisher(lesions: bool, ring_order: list[str], html):
+    """What follows a run: the lesions and the ring (``with_lesions``), and their patches drawn
+    into the replay (rewritten with them)."""
+
+    def finish(result: ProcedureResult, cd, meshcat) -> ProcedureResult:
+        if lesions:
+            with_lesions(result, ring_order)
+        if html is not None and meshcat is not None and result.verdict is not None:
+            from ballchain.drake_models.lesion_ring import draw_lesions
+            from ballchain.drake_models.safe_files import atomic_write_text
+            from ballchain.systems.chain_simulation import captioned_replay, replay_caption
+
+            draw_lesions(meshcat, result.lesion_objects, result.verdict)
+            atomic_write_text(html, captioned_replay(meshcat.StaticHtml(), replay_caption(cd.scenario)))
+        return result
+
+    return finish
 
 
 def _simulate(task, anatomy, scenario, plans, missing, params, localisation, seed, plan_cpu, progress, html,
@@ -383,7 +418,7 @@ def _simulate(task, anatomy, scenario, plans, missing, params, localisation, see
         summary = {"reached": 0, "targets": len(rows), "total_time_s": 0.0, "not_planned": missing,
                    "plan_cpu_time_s": round(plan_cpu, 2), "failure": None}
         return ProcedureResult(task=task, navigator="auto", rows=rows, summary=summary,
-                               settings=_settings(params, seed, scenario, overrides, 0.0, anatomy, localisation))
+                               settings=_settings(params, seed, scenario, overrides, 0.0, anatomy, localisation)), None, None
     meshcat = None
     if html is not None:
         from ballchain.systems.chain_simulation import replay_meshcat
@@ -413,7 +448,7 @@ def _simulate(task, anatomy, scenario, plans, missing, params, localisation, see
     summary = _summary(rows, run, plan_cpu, missing)
     settings = _settings(params, seed, scenario, overrides, limit, anatomy, localisation)
     return ProcedureResult(task=task, navigator="auto", rows=rows, summary=summary, settings=settings,
-                           html=None if html is None else str(html))
+                           html=None if html is None else str(html)), cd, meshcat
 
 
 def _settings(params, seed, scenario, overrides, limit, anatomy, localisation=None) -> dict:
@@ -518,4 +553,51 @@ def _simulate_operator(task, anatomy, chosen, scenario, params, seed, progress, 
     summary = _summary(rows, run, 0.0, [])
     return ProcedureResult(task=task, navigator="operator", rows=rows, summary=summary,
                            settings=_settings(params, seed, scenario, overrides, limit, anatomy),
-                           html=None if html is None else str(html))
+                           html=None if html is None else str(html)), cd, meshcat
+
+
+def with_lesions(result: ProcedureResult, ring_order: list[str]) -> ProcedureResult:
+    """The result with each dwell's lesion and the ring's verdict (``drake_models.lesion_ring``):
+    the generator power of a dwell is the highest that keeps the tip magnet below its grade's
+    limit at the dwell's mean true force and duration (``choose_power``); a dwell outside the
+    surrogate's range leaves no lesion (a gap, its reason in ``lesions``)."""
+    from ballchain.drake_models.lesion_ring import AblationPoint, analyse_ring, choose_power, lesions_for
+
+    lesions, listed = [], []
+    for row in result.rows:
+        pt = row.get("point")
+        if pt is None:
+            continue
+        try:
+            power = choose_power(pt["force_N"], pt["duration_s"])
+            point = AblationPoint(pt["name"], np.asarray(pt["p_W"], float), np.asarray(pt["n_W"], float),
+                                  float(pt["force_N"]), float(pt["duration_s"]), float(power))
+            (lesion,) = lesions_for([point])
+        except UserInputError as err:
+            listed.append({"name": pt["name"], "reason": f"no lesion: {err}"})
+            continue
+        pt["power_W"] = float(power)
+        lesions.append(lesion)
+        listed.append(lesion.to_dict())
+    verdict = analyse_ring(lesions, ring_order=list(ring_order))
+    result.lesions, result.ring = listed, verdict.to_dict()
+    result.lesion_objects, result.verdict = lesions, verdict
+    result.summary["isolated"] = verdict.isolated
+    result.summary["ring_gaps"] = len(verdict.gaps)
+    return result
+
+
+def write_outputs(result: ProcedureResult, out: Path) -> dict:
+    """``procedure.json`` and ``ring.png`` (``lesion_ring.ring_figure``) in ``out`` (atomically)."""
+    from ballchain.drake_models.lesion_ring import ring_figure
+    from ballchain.drake_models.safe_files import atomic_write_text
+
+    out = Path(out)
+    files = {"json": str(out / "procedure.json")}
+    if result.verdict is not None:
+        ring_figure(result.verdict, result.lesion_objects, out / "ring.png",  # written atomically
+                    title=f"Lesion ring: {result.task or 'anatomy'} ({result.navigator})")
+        files["ring_png"] = str(out / "ring.png")
+    result.files = files
+    atomic_write_text(out / "procedure.json", result.to_json())
+    return files
