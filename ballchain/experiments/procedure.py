@@ -278,8 +278,9 @@ def _dwell_row(record, logs, context, plan, window_N, ball_radius: float) -> dic
            "t_touch_s": None if record.t_touch is None else round(record.t_touch, 3), "dwell_s": 0.0,
            "force_true_mean_gf": None, "force_true_min_gf": None, "force_true_max_gf": None,
            "in_window_fraction": None, "estimate_mean_error_gf": None, "estimate_worst_error_gf": None,
-           "point": None}
+           "point": None, "reason": None}
     if not record.reached:
+        row["reason"] = "gave up" if record.t_end is not None else "run ended"
         return row
     # The dwell's looks (on the target; a slip off it and the seek back are not RF time).
     looks = np.array([e[0] for e in record.estimates])
@@ -500,8 +501,9 @@ def _operator_row(record, logs, context, n_W, params, ball_radius: float) -> dic
            "t_touch_s": None if not reached else round(record.t_touch, 3), "dwell_s": 0.0,
            "force_true_mean_gf": None, "force_true_min_gf": None, "force_true_max_gf": None,
            "in_window_fraction": None, "estimate_mean_error_gf": None, "estimate_worst_error_gf": None,
-           "point": None}
+           "point": None, "reason": None}
     if not reached:
+        row["reason"] = "gave up" if record.t_end is not None else "run ended"
         return row
     end = record.t_end if record.t_end is not None else t[-1]
     mask = (t > record.t_touch + 1e-9) & (t <= end + 1e-9)
