@@ -276,21 +276,23 @@ def _unrolled(lesions: list[Lesion], verdict: RingVerdict) -> tuple[list, float]
     n = len(verdict.slots)
     s = [None] * n
     placed = [q for q, k in enumerate(verdict.slots) if k is not None]
-    if not placed:
-        return [float(q) * CLOSE_MAX_DISTANCE_M for q in range(n)], n * CLOSE_MAX_DISTANCE_M
+    if not verdict.pairs:  # fewer than two lesions: the slots at the spacing rule's distance
+        q0 = placed[0] if placed else 0
+        return [((q - q0) % n) * CLOSE_MAX_DISTANCE_M for q in range(n)], n * CLOSE_MAX_DISTANCE_M
     s[placed[0]] = 0.0
     total = 0.0
     for p in verdict.pairs:
         pos = next(q for q in placed if verdict.slots[q] == p["ia"])
         nxt = next(q for q in placed if verdict.slots[q] == p["ib"])
         end = nxt if nxt > pos else nxt + n
-        for step, q in enumerate(range(pos + 1, end + 1), start=1):
-            if q < n and s[q] is None:
-                s[q] = total + p["distance_m"] * step / (end - pos)
+        for step, q in enumerate(range(pos + 1, end), start=1):  # targets without lesion between
+            s[q % n] = total + p["distance_m"] * step / (end - pos)
+        if nxt != placed[0]:
+            s[nxt] = total + p["distance_m"]
         total += p["distance_m"]
     if len(verdict.pairs) == 1:  # two lesions: back to the first along the same chord
         total *= 2.0
-    return [x if x is not None else 0.0 for x in s], total if verdict.pairs else CLOSE_MAX_DISTANCE_M
+    return s, total
 
 
 def ring_figure(verdict: RingVerdict, lesions: list[Lesion], path, *, title: str = "Lesion ring") -> None:

@@ -167,3 +167,16 @@ def test_lesions_for_reads_the_surrogate(tiny_surrogate, monkeypatch):
         assert (les.width_m, les.depth_m, les.magnet_peak_C) == (e.width_m, e.depth_m, e.magnet_peak_C)
         assert les.transmural == (e.depth_m >= 1e-3)
     assert lesions[1].width_m == 0.0 and lesions[1].magnet_peak_C == ls.BODY_TEMPERATURE_C  # no contact
+
+
+def test_unrolled_ring_puts_missing_targets_between_their_neighbours():
+    pts = ring_points(6, radius=6e-3)  # 6 mm apart
+    lesions = [lesion(p, 6.5e-3) for p in pts if p.name not in ("t0", "t3")]
+    verdict = lr.analyse_ring(lesions, [p.name for p in pts])
+    s, total = lr._unrolled(lesions, verdict)
+    # From t1: t2 at 6 mm, t3 (missing) half way along the 10.4 mm chord t2-t4, t4, t5, then t0
+    # (missing) half way back to t1; the whole ring is the sum of the four pairs' chords.
+    long = 2 * 6e-3 * np.sin(np.pi / 3)
+    np.testing.assert_allclose(s, [2 * 6e-3 + 1.5 * long, 0, 6e-3, 6e-3 + 0.5 * long, 6e-3 + long,
+                                   2 * 6e-3 + long], rtol=1e-12)
+    assert total == pytest.approx(2 * 6e-3 + 2 * long, rel=1e-12)

@@ -7,13 +7,13 @@ import pytest
 from ballchain.drake_models import lesion_fem as fem
 from ballchain.drake_models import lesion_surrogate as ls
 from ballchain.drake_models.errors import UserInputError
-from ballchain.drake_models.params import GRAVITY, MAGNET_GRADES, newtons_from_gram_force
+from ballchain.drake_models.params import MAGNET_GRADES, newtons_from_gram_force
 from lesion_helpers import TINY_SPEC, tiny_surrogate  # noqa: F401 (a fixture)
 
 # Surrogate vs FEM at held-out points (see test_surrogate_matches_the_fem_at_held_out_points).
 WIDTH_TOL_MM = 0.25
 DEPTH_TOL_MM = 0.25
-MAGNET_TOL_C = ls.MAGNET_MARGIN_C
+MAGNET_TOL_C = 2.0  # the interpolation's share of choose_power's 5 C margin (the mesh's is 2.3 C)
 
 
 def fem_reading(spec, indentation, power, duration):
@@ -79,8 +79,8 @@ def test_monotone_in_power_and_duration(tiny_surrogate):
 
 def test_choose_power_on_the_tiny_table(tiny_surrogate):
     force, t = float(ls.hertz_force(1e-3)), 3.0
-    p = tiny_surrogate.choose_power(force, t, grade="N52", margin_C=3.0)
-    limit = MAGNET_GRADES["N52"].max_operating_C - 3.0
+    p = tiny_surrogate.choose_power(force, t, grade="N52", margin_C=5.0)
+    limit = MAGNET_GRADES["N52"].max_operating_C - 5.0
     assert 0.0 < p < 6.0
     assert tiny_surrogate.predict(force, p, t).magnet_peak_C <= limit
     assert tiny_surrogate.predict(force, p + 2e-3, t).magnet_peak_C > limit
@@ -138,35 +138,47 @@ def test_default_table_is_monotone_and_covers_the_procedure():
 
 @pytest.mark.slow
 def test_surrogate_matches_the_fem_at_held_out_points():
-    """Within 0.25 mm (width, depth) and 3 C (magnet) of direct FEM runs between the nodes.
+    """Within 0.25 mm (width, depth) and 2 C (magnet) of direct FEM runs between the nodes.
 
-    0.25 mm: the FEM's own discretisation moves the lesion by about 0.1 mm (mesh and time-step
-    convergence, test_ablation.py), and the verdicts compare 4-8 mm widths with 6 mm spacings and
-    1-4 mm depths with a 2.5 mm wall, to a few tenths of a mm; 3 C is choose_power's margin below
-    the magnet's limit. Where the lesion is just forming (FEM depth < 0.5 mm) the Omega = 1 region
-    appears with a finite width between two nodes and the width is not held to 0.25 mm.
+    0.25 mm: the FEM's own discretisation moves the lesion by about 0.1-0.2 mm (mesh and
+    time-step convergence, test_ablation.py and lesion_surrogate's docstring), and the verdicts
+    compare 4-8 mm widths with 6 mm spacings and 1-4 mm depths with a 2.5 mm wall, to a few tenths
+    of a mm; 2 C is the interpolation's share of choose_power's 5 C margin below the magnet's
+    limit (the coarse mesh's is 2.3 C). Across the lesion's onset (a table cell with and without
+    lesion at its corners) the Omega = 1 region appears with a finite size between two nodes: there
+    the lesion is only held between the cell's corners.
     """
-    rows = ls.validation_table(progress=False)
+    model = ls.default_surrogate()
+    rows = ls.validation_table(model, progress=False)
     print("\n" + ls.format_error_table(rows))
-    assert sum(r["fem_depth_mm"] >= 0.5 for r in rows) >= 0.8 * len(rows)
+    assert sum(not r["across_onset"] for r in rows) >= 0.75 * len(rows)
     for r in rows:
-        if r["fem_depth_mm"] >= 0.5:
-            assert abs(r["error_width_mm"]) <= WIDTH_TOL_MM, r
-        assert abs(r["error_depth_mm"]) <= DEPTH_TOL_MM, r
         assert abs(r["error_magnet_peak_C"]) <= MAGNET_TOL_C, r
+        if not r["across_onset"]:
+            assert abs(r["error_width_mm"]) <= WIDTH_TOL_MM, r
+            assert abs(r["error_depth_mm"]) <= DEPTH_TOL_MM, r
+            continue
+        for key in ("width_mm", "depth_mm"):  # between the cell's corners
+            grid = (model.table["indentation_m"], model.table["power_W"], model.table["duration_s"])
+            x = (r["indentation_mm"] * 1e-3, r["power_W"], r["duration_s"])
+            cell = tuple(slice(np.searchsorted(a, v) - 1, np.searchsorted(a, v) + 1) for a, v in zip(grid, x))
+            assert model.table[key][cell].min() <= r[f"fem_{key}"] <= model.table[key][cell].max(), r
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("gf, duration", [(20.0, 10.0), (20.0, 30.0), (12.0, 45.0)])
 def test_choose_power_keeps_the_magnet_below_its_limit_in_a_direct_fem_run(gf, duration):
+    """A direct FEM run at the chosen power: on the table's mesh the peak is the limit less the
+    margin (within the interpolation's 2 C: the highest such power); on a mesh twice as fine
+    (hotter at the cap's edge) it is still below N52's 80 C."""
     force = newtons_from_gram_force(gf)
     power = ls.choose_power(force, duration)
+    limit = MAGNET_GRADES["N52"].max_operating_C
     assert power > 0.0
     spec = ls.TableSpec()
     d = float(ls.indentation_for_force(force))
     _, _, peak = fem_reading(spec, d, power, duration)
-    assert peak < MAGNET_GRADES["N52"].max_operating_C
-    # ... and it is the highest such power: 10 % more would pass the limit less the margin.
-    _, _, hotter = fem_reading(spec, d, 1.1 * power, duration)
-    assert hotter > MAGNET_GRADES["N52"].max_operating_C - 2 * ls.MAGNET_MARGIN_C
-    assert gf / 1e3 * GRAVITY == pytest.approx(force)
+    assert abs(peak - (limit - ls.MAGNET_MARGIN_C)) <= MAGNET_TOL_C
+    fine = ls.TableSpec(h_m=0.5 * spec.h_m)
+    _, _, peak_fine = fem_reading(fine, d, power, duration)
+    assert peak < peak_fine < limit
