@@ -40,7 +40,7 @@ def test_bad_arguments_name_the_argument():
 
 def test_smoke_one_target(tmp_path, capsys):
     """The command on the right ring's first target with a 1 s dwell: reached, the dwell recorded,
-    the true force inside the window and the estimate near it, the result file written."""
+    the true force inside the window, its lesion, the result file and the ring map written."""
     assert cli_main(["procedure", "--task", "right", "--targets", "1", "--dwell", "1", "--json",
                      "--out", str(tmp_path)]) == 0
     data = json.loads(capsys.readouterr().out)
@@ -52,6 +52,11 @@ def test_smoke_one_target(tmp_path, capsys):
     assert point["name"] == "right_1" and np.linalg.norm(point["n_W"]) == pytest.approx(1.0)
     assert point["force_N"] > 0 and point["duration_s"] == row["dwell_s"]
     assert data["summary"]["reached"] == 1 and data["summary"]["failure"] is None
+    # Its lesion (the surrogate at the dwell's force and duration) and the one-lesion ring.
+    (lesion,) = data["lesions"]
+    assert lesion["name"] == "right_1" and lesion["duration_s"] == row["dwell_s"] and lesion["width_mm"] > 0
+    assert lesion["power_W"] == pytest.approx(point["power_W"], abs=1e-4) and lesion["magnet_ok"]
+    assert data["ring"]["order"] == ["right_1"] and (tmp_path / "ring.png").stat().st_size > 0
 
 
 @pytest.mark.slow
@@ -61,3 +66,14 @@ def test_whole_right_ring_every_target_reached():
     assert s["failure"] is None
     assert s["reached"] == s["targets"] == 18, [r["target"] for r in result.rows if not r["reached"]]
     assert s["in_window_fraction"] > 0.95
+
+
+def test_operator_dwell_is_checked_and_units_two_needs_auto():
+    from ballchain.systems.simulated_operator import OperatorParams
+
+    with pytest.raises(UserInputError, match="dwell"):
+        OperatorParams(dwell=-1.0).validate()
+    with pytest.raises(UserInputError, match="units 'two'"):
+        procedure.run("left", "operator", units="two")
+    with pytest.raises(UserInputError, match="units"):
+        procedure.run("left", units="three")
