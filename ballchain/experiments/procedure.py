@@ -389,10 +389,12 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
 
 
 def _finisher(lesions: bool, ring_order: list[str], html):
-    """What follows a run: the lesions and the ring (``with_lesions``), and their patches drawn
-    into the replay (rewritten with them)."""
+    """What follows a run: the rows in ring order, the lesions and the ring (``with_lesions``),
+    and their patches drawn into the replay (rewritten with them)."""
 
     def finish(result: ProcedureResult, cd, meshcat) -> ProcedureResult:
+        place = {name: k for k, name in enumerate(ring_order)}  # the rows in ring order (unplanned ones too)
+        result.rows.sort(key=lambda row: place.get(row["target"], len(place)))
         if lesions:
             with_lesions(result, ring_order)
         if html is not None and meshcat is not None and result.verdict is not None:
