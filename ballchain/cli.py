@@ -40,6 +40,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("bench", "benchmarks (statics solve against an SLSQP baseline)"),
     "forces": ("forces", "tip forces on the pulmonary veins, both configurations (paper Table I)"),
     "plan": ("plan", "inverse statics for every ablation target and a visiting plan (beyond the paper)"),
+    "procedure": ("procedure", "simulated ablation procedure: autonomous navigation, sensorless force hold (beyond the paper)"),
     "workspace": ("workspace", "workspace with one rotating magnet 16.51 cm away (paper Fig. workspace)"),
     "validation": ("validation", "model validation: uniform vs dipole vs exact field, 5..10 balls"),
     "reproduce": ("reproduce", "run the paper checks and write a report (the main job)"),

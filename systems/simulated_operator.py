@@ -104,6 +104,8 @@ class OperatorParams:
             (centres (3,) and radii [m], outward axes (3,)).
         keep_out_margin: it steers away from the openings when the tip is this close to them [m].
         timeout: seconds on one target before giving up.
+        dwell: after touching a target it holds still this long (stick and feeder at rest: an
+            RF application) before the next [s]; 0: it moves on at once (the teleoperation tasks).
         start_time: when it starts [s].
         ball_radius: the tip ball's radius [m] (for the touch test and the aim).
         target_radius: [m] (half the target's diameter).
@@ -143,6 +145,7 @@ class OperatorParams:
     keep_out: tuple = ()
     keep_out_margin: float = 2e-3
     timeout: float = 20.0
+    dwell: float = 0.0
     start_time: float = 0.0
     ball_radius: float = 0.5 * 3.175e-3
     target_radius: float = 2.5e-3
@@ -157,6 +160,8 @@ class OperatorParams:
             raise UserInputError("OperatorParams: dead_band in [0, 1) and forgetting in (0, 1]")
         if not self.timeout > 0 or not self.feeder_speed > 0 or not self.max_speed > 0:
             raise UserInputError("OperatorParams: timeout, feeder_speed and max_speed must be > 0")
+        if self.dwell < 0:
+            raise UserInputError(f"OperatorParams.dwell must be >= 0 s, got {self.dwell}")
         return self
 
 
@@ -371,7 +376,7 @@ class SimulatedOperator(SeededLeafSystem):
         mem.p_last, mem.d_last = tip, d
         if mem.phase not in ("wait", "done"):
             self._check_target(mem, t, tip)
-        u = np.zeros(self._n + 1) if mem.phase in ("wait", "done") else self._decide(mem, t, tip, d)
+        u = np.zeros(self._n + 1) if mem.phase in ("wait", "done", "hold") else self._decide(mem, t, tip, d)
         mem.queue.append(u)
         mem.applied = mem.queue.pop(0)
         state.get_mutable_abstract_state(self._memory_index).set_value(mem)
@@ -432,13 +437,26 @@ class SimulatedOperator(SeededLeafSystem):
         p = self.params
         k = mem.k
         record = mem.records[-1]
+        if mem.phase == "hold":  # the dwell on a touched target
+            if t >= mem.phase_end - 1e-9:
+                mem.phase = "pursue"
+                self._next_target(mem, t)
+            return
         record.closest = min(record.closest, float(np.linalg.norm(tip - p.ball_radius * self._n_W[k] - self._p_WT[k])))
         touched = targets_touched(tip, self._p_WT[k:k + 1], self._n_W[k:k + 1], p.ball_radius, p.target_radius)[0]
         if touched:
             record.t_touch = t
             record.accuracy = float(np.linalg.norm(tip - p.ball_radius * self._n_W[k] - self._p_WT[k]))
+            if p.dwell > 0:
+                mem.phase, mem.phase_end = "hold", t + p.dwell
+                return
         elif t - record.t_start < p.timeout - 1e-9:
             return
+        self._next_target(mem, t)
+
+    def _next_target(self, mem: _Memory, t: float) -> None:
+        """The current target ends now (touched, held, or given up): on to the next one."""
+        record = mem.records[-1]
         record.t_end = t
         mem.k += 1
         if mem.k == len(self.names):

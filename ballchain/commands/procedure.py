@@ -1,0 +1,82 @@
+"""A simulated ablation procedure (beyond the paper): an autonomous navigator (or the simulated
+operator) brings the tip to every target of a ring, presses it with a force estimated without a
+force sensor, and holds it for the dwell (``experiments/procedure.py``).
+
+Prints per target whether it was reached, the time, the true force over the dwell and the
+estimate's error; ``--json`` the whole result; ``--out DIR`` writes ``procedure.json`` there
+and the ring's map ``ring.png`` (atomically); ``--html FILE`` a Meshcat replay with the lesion
+patches on the wall. Each dwell leaves a lesion (``drake_models.lesion_ring``), and the ring is
+checked for gaps.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ballchain.commands._common import add_json_flag, float_in, int_in, positive_int, print_json
+from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.localisation import LATENCY_RANGE_S, NOISE_RANGE_M, RATE_RANGE_HZ, LocalisationParams
+from ballchain.experiments import procedure
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--task", default="right",
+                        help="the ring: left (20 targets) or right (18); with --anatomy, the targets named TASK_...")
+    parser.add_argument("--anatomy", type=Path, default=None, metavar="FILE",
+                        help="an anatomy file (YAML: mesh, targets, sheath, magnets) instead of the procedural atrium")
+    parser.add_argument("--navigator", choices=procedure.NAVIGATORS, default="auto",
+                        help="auto (the model-based navigator) or operator (the simulated operator, no force estimate)")
+    parser.add_argument("--seed", type=int_in(0, 2**32 - 1), default=0,
+                        help="the localisation noise's seed (auto) or the operator's tremor's (operator)")
+    parser.add_argument("--targets", type=positive_int, default=None, help="only the first N targets (default: all)")
+    parser.add_argument("--force", type=float_in(0.0, 200.0, lo_open=True), default=procedure.FORCE_GF,
+                        help="the contact force to hold [gf]")
+    parser.add_argument("--dwell", type=float_in(0.0, procedure.MAX_DWELL_S), default=procedure.DWELL_S,
+                        help="the RF time at each target [s]")
+    defaults = LocalisationParams()
+    parser.add_argument("--noise", type=float_in(NOISE_RANGE_M[0] * 1e3, NOISE_RANGE_M[1] * 1e3),
+                        default=defaults.noise_std * 1e3, help="localisation noise, per-axis std [mm]")
+    parser.add_argument("--rate", type=float_in(*RATE_RANGE_HZ), default=defaults.rate,
+                        help="localisation update rate [Hz]")
+    parser.add_argument("--latency", type=float_in(*LATENCY_RANGE_S), default=defaults.latency,
+                        help="localisation latency [s] (a whole number of samples)")
+    parser.add_argument("--out", type=Path, default=None, metavar="DIR", help="write procedure.json here")
+    parser.add_argument("--html", type=Path, default=None, metavar="FILE", help="write a Meshcat replay here")
+    add_json_flag(parser)
+
+
+def main(args: argparse.Namespace) -> int:
+    from ballchain.drake_models.safe_files import check_output_dir
+
+    if args.anatomy is None and args.task not in procedure.TASKS:
+        raise UserInputError(f"--task must be left or right, got {args.task!r}")
+    localisation = LocalisationParams(noise_std=args.noise * 1e-3, rate=args.rate, latency=args.latency)
+    if args.out is not None:
+        check_output_dir(args.out, "--out", names=("procedure.json", "ring.png"))
+    data = procedure.run(args.task, args.navigator, args.anatomy, args.seed, targets=args.targets,
+                         force_gf=args.force, dwell_s=args.dwell, localisation=localisation, html=args.html)
+    if args.out is not None:
+        procedure.write_outputs(data, args.out)
+    if args.json:
+        print_json(data)
+        return 0
+    for r in data.rows:
+        if not r["reached"]:
+            print(f"{r['target']:9s} missed ({r.get('reason') or 'gave up'})")
+            continue
+        estimate = ("" if r["estimate_mean_error_gf"] is None else f", estimate error "
+                    f"{r['estimate_mean_error_gf']} gf mean, {r['estimate_worst_error_gf']} gf worst")
+        print(f"{r['target']:9s} reached in {r['time_s']} s; dwell {r['dwell_s']} s, true force "
+              f"{r['force_true_mean_gf']} gf ({r['force_true_min_gf']}..{r['force_true_max_gf']}), in window "
+              f"{100 * (r['in_window_fraction'] or 0):.0f}%{estimate}")
+    s = data.summary
+    print(f"{s['reached']}/{s['targets']} reached in {s['total_time_s']} s; force in window "
+          f"{s.get('in_window_fraction')}; estimate error {s.get('estimate_mean_abs_error_gf')} gf mean |.|, "
+          f"{s.get('estimate_worst_error_gf')} gf worst" + (f"; stopped: {s['failure']}" if s["failure"] else ""))
+    if data.ring is not None:
+        ring = data.ring
+        print(f"ring: {'isolated' if ring['isolated'] else 'NOT isolated'}, {ring['n_lesions']}/{ring['n_targets']} "
+              f"lesions, {len(ring['gaps'])} gap(s), transmural {100 * ring['transmural_fraction']:.0f}%, "
+              f"largest spacing {ring['max_distance_mm']} mm")
+    return 0

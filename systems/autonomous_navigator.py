@@ -1,0 +1,442 @@
+"""An autonomous, model-based navigator: every ablation target of a ring, pressed and held.
+
+``AutonomousNavigator`` is a LeafSystem that sees what a clinical magnetic navigation system
+sees: the localisation sensor's measured tip (``localisation_sensor``; never the chain's true
+state), the magnets' measured dipole directions (the units' encoders: each magnet's ``m_W``)
+and the feeder's inserted length. It drives each unit's joystick input (world mapping: magnet
+angular velocity) and the feeder's speed command.
+
+Feed-forward: for every target the experiment has computed ahead, by inverse statics
+(``optimization.inverse_statics``, warm-started target to target), the magnets' dipole
+directions that hold the tip on the target's centre pressing it with the commanded force, the
+inserted length, and the held equilibrium's sensitivities (``TargetPlan``): J_m, the pressing
+force (normal, two tangential components, in the target's frame) per change of the dipoles,
+and J_o per offset of the touch point along the wall. These are data: the navigator does not
+plan.
+
+Feedback, every ``period``: with the force model (``TipForceEstimator``: the chain's statics
+with the tip held at the measured point, under the measured magnets, at the measured
+insertion) it estimates the contact force F (the reaction that holds the tip there, on the
+wall's outward normal: no force sensor). A Newton step on the magnets' orientation then asks
+for the held equilibrium at the target's centre (lateral offset o measured -> 0) with F at the
+commanded force::
+
+    [J_m,n; J_m,t] dm = [F_cmd - F_est + J_o,n o; J_o,t o - F_t,est]
+
+with dm = omega x m per unit (a rotation), solved by damped least squares; the desired dipoles
+turn by ``gain`` times that rotation (capped at ``max_step``) and the joysticks drive the
+measured dipoles to them (proportional, at most the mapper's full speed).
+
+Sequencing, per target: ``move`` (the magnets to the plan's dipoles, the feeder to its length),
+``seek`` (the Newton steps until the measured tip is within ``touch_radius`` of the target's
+centre laterally and the estimate inside the force window for ``settle`` looks), ``dwell``
+(``dwell`` seconds of the same loop holding the force: the RF application), then the next
+target. A target not touched within ``seek_timeout`` is retried from its plan's dipoles after
+backing the chain off (``retries`` times); then it is given up (missed).
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import EventStatus, LeafSystem
+
+from ballchain.drake_models.errors import UserInputError, require_finite_fields
+from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
+from ballchain.drake_models.params import BallChain, gram_force, newtons_from_gram_force
+from ballchain.optimization.statics import ChainStatics
+
+
+@dataclass
+class NavigatorParams:
+    """The navigator's settings (SI; forces in N).
+
+    Attributes:
+        period: how often it reads the sensors and decides [s].
+        force_command: the contact force it holds [N] (20 gf).
+        force_window: (low, high) the acceptable contact force [N] (10-40 gf).
+        dwell: the RF application at each target [s] (the force is held and recorded over it).
+        touch_radius: the tip counts as on the target within this lateral distance of its
+            centre (measured) [m].
+        settle: looks on the target inside the window before the dwell starts.
+        gain: fraction of the Newton rotation taken per look.
+        max_step: cap on the desired dipoles' turn per look [rad].
+        max_deviation: the desired dipoles stay within this of the plan's [rad] (the model is
+            trusted near its plan only).
+        force_weight: weight of the force row against the position rows of the Newton step
+            (position first: a frictionless wall lets a tip pushed too hard slide away).
+        slip: in the dwell, a measured tip this far from the target's centre laterally has
+            slipped off: back to seeking from the plan (the dwell's clock stops meanwhile) [m].
+        damping: damped least squares, as a fraction of the Jacobian's largest singular value.
+        magnet_gain: joystick per radian of dipole error [1/rad] (then saturated).
+        aligned: the move phase ends when every dipole is within this of its plan [rad].
+        feed_after: in the move phase the feeder inserts only once every dipole is within
+            this of its plan (the magnets turn first) [rad].
+        feeder_gain: feeder speed per metre of length error [1/s]; feeder_speed: its cap [m/s].
+        seek_timeout: seconds seeking one target before a retry.
+        retries: retries before giving up a target.
+        back_off: chain retracted before a retry [m].
+        omega_max: the mapper's magnet speed at full stick [rad/s]; dead_band: its dead band.
+        start_time: when it starts [s].
+    """
+
+    period: float = 0.05
+    force_command: float = newtons_from_gram_force(20.0)
+    force_window: tuple = (newtons_from_gram_force(10.0), newtons_from_gram_force(40.0))
+    dwell: float = 10.0
+    touch_radius: float = 1.5e-3
+    settle: int = 3
+    gain: float = 0.2
+    max_step: float = np.radians(1.0)
+    max_deviation: float = np.radians(8.0)
+    force_weight: float = 0.3
+    slip: float = 3.0e-3
+    damping: float = 0.05
+    magnet_gain: float = 8.0
+    aligned: float = np.radians(1.0)
+    feed_after: float = np.radians(5.0)
+    feeder_gain: float = 4.0
+    feeder_speed: float = 0.02
+    seek_timeout: float = 6.0
+    retries: int = 1
+    back_off: float = 5e-3
+    omega_max: float = 0.5
+    dead_band: float = 0.1
+    start_time: float = 0.1
+
+    def validate(self) -> "NavigatorParams":
+        require_finite_fields(self)
+        lo, hi = self.force_window
+        if not 0.0 < lo <= self.force_command <= hi:
+            raise UserInputError(f"navigator force_command {gram_force(self.force_command):.3g} gf must lie in its "
+                                 f"window {gram_force(lo):.3g}..{gram_force(hi):.3g} gf (low > 0)")
+        if not self.period > 0 or not self.dwell >= 0 or not self.seek_timeout > 0 or self.retries < 0:
+            raise UserInputError("NavigatorParams: period and seek_timeout must be > 0, dwell and retries >= 0")
+        return self
+
+
+@dataclass(frozen=True)
+class TargetPlan:
+    """What the experiment computed ahead for one target (world frame).
+
+    Attributes:
+        name: the target's name; p_WT (3,) its centre on the wall; n_W (3,) the wall's normal
+            into the chamber.
+        dipoles_W: (k, 3) unit dipole directions of the k units that press it.
+        inserted_length: the feeder's length [m].
+        basis_W: (3, 3) columns: the direction the tip presses (into the wall), two along it.
+        J_m: (3, 3 k) pressing force (normal, tangential u, v) [N] per dipole component.
+        J_o: (3, 2) the same per touch-point offset along basis_W[:, 1:] [N/m].
+        force_N: the planned pressing force [N].
+    """
+
+    name: str
+    p_WT: np.ndarray
+    n_W: np.ndarray
+    dipoles_W: np.ndarray
+    inserted_length: float
+    basis_W: np.ndarray
+    J_m: np.ndarray
+    J_o: np.ndarray
+    force_N: float
+
+
+class TipForceEstimator:
+    """The contact force estimated from the model, without a force sensor.
+
+    The statics of the chain beyond the sheath (``ChainStatics``, the planner's model: the
+    first free ball at the sheath exit) under the measured magnets, with the tip ball's centre
+    held at the measured point: the reaction that holds it there is what the wall supplies;
+    its component on the wall's outward normal is the estimated contact force.
+
+    Args:
+        chain: the ball chain (its ball diameter; the number of free balls follows the insertion).
+        p_WE, R_WS: the sheath exit [m] and the statics frame's rotation (x along the sheath).
+        magnets: [(magnet, p_WM (3,))] the units' magnets (``params`` shapes) and centres.
+        model: the field model of the magnets ("dipole", ...).
+        n_max: the most free balls.
+    """
+
+    def __init__(self, chain: BallChain, p_WE, R_WS, magnets: list, model: str, n_max: int) -> None:
+        self.chain, self.model, self.n_max = chain, model, int(n_max)
+        self.p_WE, self.R_WS = np.asarray(p_WE, float), np.asarray(R_WS, float)
+        self.magnets = [(mag, self.R_WS.T @ (np.asarray(p, float) - self.p_WE)) for mag, p in magnets]
+        self._solvers: dict[int, ChainStatics] = {}
+        self._last: dict[int, object] = {}
+
+    def free_balls(self, inserted_length: float) -> int:
+        """Balls beyond the sheath exit at an inserted length (ball 1 included, at least 2)."""
+        return int(np.clip(round(inserted_length / self.chain.ball_diameter) + 1, 2, self.n_max))
+
+    def field_S(self, dipoles_W: np.ndarray) -> FieldSources:
+        m_S = (self.R_WS.T @ np.asarray(dipoles_W, float).reshape(-1, 3).T).T
+        return FieldSources([MagnetSource(mag, p, rotation_with_z_along(m), self.model)
+                             for (mag, p), m in zip(self.magnets, m_S)])
+
+    def reaction_W(self, p_W: np.ndarray, dipoles_W: np.ndarray, inserted_length: float) -> np.ndarray | None:
+        """The reaction (3,) [N] holding the tip ball's centre at p_W (None: no held equilibrium)."""
+        n = self.free_balls(inserted_length)
+        solver = self._solvers.get(n)
+        if solver is None:
+            solver = self._solvers[n] = ChainStatics(self.chain.with_balls(n), max_iterations=25)
+        target = self.R_WS.T @ (np.asarray(p_W, float) - self.p_WE)
+        field_S = self.field_S(dipoles_W)
+        for start in (self._last.get(n), None):
+            result = solver.solve(field_S, start, tip_target=target)
+            if result.converged:
+                self._last[n] = result
+                return self.R_WS @ result.tip_reaction
+        return None
+
+    def force(self, p_W, dipoles_W, inserted_length, n_out_W) -> tuple[float, np.ndarray]:
+        """(F, r_W): the estimated contact force [N] (the reaction on the outward normal
+        ``n_out_W``, at least 0) and the whole reaction (zeros without an equilibrium)."""
+        r = self.reaction_W(p_W, dipoles_W, inserted_length)
+        if r is None:
+            return 0.0, np.zeros(3)
+        return max(float(r @ np.asarray(n_out_W, float)), 0.0), r
+
+
+@dataclass
+class DwellRecord:
+    """One target's outcome as the navigator saw it."""
+
+    target: str
+    t_start: float
+    t_touch: float | None = None
+    t_end: float | None = None
+    retries: int = 0
+    slips: int = 0
+    reached: bool = False
+    dwell_time: float = 0.0  # [s] spent in the dwell (on the target)
+    estimates: list = field(default_factory=list)  # [(t, F_est [N])] over the dwell
+    p_measured: list = field(default_factory=list)  # measured tip over the dwell [m]
+
+
+@dataclass
+class _Memory:
+    k: int = 0
+    phase: str = "wait"  # wait, move, seek, back, dwell, done
+    phase_start: float = 0.0
+    m_des: np.ndarray | None = None  # (k, 3) desired dipoles
+    s_des: float = 0.0
+    on_target: int = 0
+    records: list = field(default_factory=list)
+    stick: np.ndarray | None = None  # (k, 3)
+    v_feed: float = 0.0
+    f_est: float = 0.0
+    done: bool = False
+
+    def __deepcopy__(self, memo):
+        new = copy.copy(self)
+        new.m_des = None if self.m_des is None else self.m_des.copy()
+        new.stick = None if self.stick is None else self.stick.copy()
+        new.records = [copy.copy(r) for r in self.records]
+        if self.records:  # only the open record changes
+            last = new.records[-1]
+            last.estimates, last.p_measured = list(last.estimates), list(last.p_measured)
+        return new
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _rotate(m: np.ndarray, omega: np.ndarray) -> np.ndarray:
+    """Unit vector m turned by the rotation vector omega (Rodrigues)."""
+    angle = float(np.linalg.norm(omega))
+    if angle < 1e-12:
+        return m
+    a = omega / angle
+    out = m * np.cos(angle) + np.cross(a, m) * np.sin(angle) + a * (a @ m) * (1.0 - np.cos(angle))
+    return out / np.linalg.norm(out)
+
+
+class AutonomousNavigator(LeafSystem):
+    """Visits the targets of ``plans`` in order, pressing and holding each (module docstring).
+
+    Input ports:
+        p_WT_measured: (3,) the localisation sensor's tip [m].
+        m_W_<unit>: (3,) each unit's measured dipole (any length).
+        inserted_length: (1,) the feeder's [m].
+
+    Output ports:
+        joystick_<unit>: (3,) stick axes (world mapping) for each unit.
+        v_insert_cmd: (1,) feeder speed command [m/s].
+        force_estimate: (1,) the estimated contact force [N] (0 when not pressing a target).
+        done: (1,) 1 once every target is pressed or given up.
+
+    Args:
+        unit_names: the units, in the order of the plans' dipoles.
+        plans: the targets' TargetPlans, in the order to visit them.
+        estimator: the TipForceEstimator.
+        params: NavigatorParams.
+    """
+
+    def __init__(self, unit_names, plans: list[TargetPlan], estimator: TipForceEstimator,
+                 params: NavigatorParams | None = None, name: str = "navigator") -> None:
+        super().__init__()
+        self.params = p = (params or NavigatorParams()).validate()
+        self.set_name(name)
+        if not plans:
+            raise UserInputError("AutonomousNavigator needs at least one target plan")
+        self.units, self.plans, self.estimator = list(unit_names), list(plans), estimator
+        self.names = [q.name for q in self.plans]
+        self._tip = self.DeclareVectorInputPort("p_WT_measured", 3)
+        self._m = [self.DeclareVectorInputPort(f"m_W_{u}", 3) for u in self.units]
+        self._s = self.DeclareVectorInputPort("inserted_length", 1)
+        self._memory_index = self.DeclareAbstractState(AbstractValue.Make(_Memory()))
+        ticket = {self.abstract_state_ticket(self._memory_index)}
+        for j, u in enumerate(self.units):
+            self.DeclareVectorOutputPort(f"joystick_{u}", 3, lambda c, o, j=j: self._calc_stick(c, o, j),
+                                         prerequisites_of_calc=ticket)
+        self.DeclareVectorOutputPort("v_insert_cmd", 1, lambda c, o: o.SetAtIndex(0, self._memory(c).v_feed),
+                                     prerequisites_of_calc=ticket)
+        self.DeclareVectorOutputPort("force_estimate", 1, lambda c, o: o.SetAtIndex(0, self._memory(c).f_est),
+                                     prerequisites_of_calc=ticket)
+        self.DeclareVectorOutputPort("done", 1, lambda c, o: o.SetAtIndex(0, float(self._memory(c).done)),
+                                     prerequisites_of_calc=ticket)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(p.period, 0.0, self._update)
+
+    def _memory(self, context) -> _Memory:
+        return context.get_abstract_state(self._memory_index).get_value()
+
+    def _calc_stick(self, context, output, j: int) -> None:
+        stick = self._memory(context).stick
+        output.SetFromVector(np.zeros(3) if stick is None else stick[j])
+
+    def records(self, context) -> list[DwellRecord]:
+        return list(self._memory(context).records)
+
+    def is_done(self, context) -> bool:
+        return self._memory(context).done
+
+    # ------------------------------------------------------------------------------- policy
+    def _update(self, context, state):
+        p = self.params
+        t = context.get_time()
+        mem = copy.deepcopy(self._memory(context))
+        tip = np.asarray(self._tip.Eval(context), float)
+        m = np.array([np.asarray(port.Eval(context), float) for port in self._m])
+        m /= np.maximum(np.linalg.norm(m, axis=1, keepdims=True), 1e-12)
+        s = float(self._s.Eval(context)[0])
+        if mem.phase == "wait" and t + 1e-9 >= p.start_time:
+            self._start_target(mem, t)
+        if mem.phase not in ("wait", "done"):
+            self._step(mem, t, tip, m, s)
+        if mem.phase in ("wait", "done"):
+            mem.stick, mem.v_feed = np.zeros((len(self.units), 3)), 0.0
+        else:
+            mem.stick = self._sticks(m, mem.m_des)
+            mem.v_feed = float(np.clip(p.feeder_gain * (mem.s_des - s), -p.feeder_speed, p.feeder_speed))
+            if mem.phase == "move" and self._misalignment(m, mem.m_des) > p.feed_after:
+                mem.v_feed = min(mem.v_feed, 0.0)  # the magnets turn first, then the chain goes in
+        state.get_mutable_abstract_state(self._memory_index).set_value(mem)
+        return EventStatus.Succeeded()
+
+    def _start_target(self, mem: _Memory, t: float, retry: bool = False) -> None:
+        plan = self.plans[mem.k]
+        if not retry:
+            mem.records.append(DwellRecord(plan.name, t))
+        mem.phase, mem.phase_start, mem.on_target = "move", t, 0
+        mem.m_des, mem.s_des = plan.dipoles_W.copy(), plan.inserted_length
+
+    def _finish_target(self, mem: _Memory, t: float) -> None:
+        mem.records[-1].t_end = t
+        mem.f_est = 0.0
+        mem.k += 1
+        if mem.k == len(self.plans):
+            mem.phase, mem.done = "done", True
+        else:
+            self._start_target(mem, t)
+
+    def _step(self, mem: _Memory, t: float, tip: np.ndarray, m: np.ndarray, s: float) -> None:
+        p = self.params
+        plan, record = self.plans[mem.k], mem.records[-1]
+        if mem.phase == "back":
+            if s <= mem.s_des + 0.5e-3 or t - mem.phase_start > 2.0:
+                self._start_target(mem, t, retry=True)
+            return
+        if mem.phase == "move":
+            angle = self._misalignment(m, mem.m_des)
+            if angle < p.aligned and abs(s - mem.s_des) < 0.5e-3:
+                mem.phase, mem.phase_start = "seek", t
+            return
+        f_est, lateral = self._newton(mem, plan, tip, m, s)
+        mem.f_est = f_est
+        lo, hi = p.force_window
+        if mem.phase == "seek":
+            inside = lateral < p.touch_radius and lo <= f_est <= hi
+            mem.on_target = mem.on_target + 1 if inside else 0
+            if mem.on_target >= p.settle:
+                mem.phase, mem.phase_start = "dwell", t
+                record.t_touch, record.reached = t, True
+            elif t - mem.phase_start > p.seek_timeout:
+                if record.retries < p.retries:
+                    record.retries += 1
+                    mem.phase, mem.phase_start = "back", t
+                    mem.s_des = max(s - p.back_off, 0.0)
+                else:
+                    self._finish_target(mem, t)
+            return
+        if lateral > p.slip:  # slipped off: seek again from the plan
+            record.slips += 1
+            mem.phase, mem.phase_start, mem.on_target = "seek", t, 0
+            mem.m_des = plan.dipoles_W.copy()
+            return
+        record.estimates.append((t, f_est))  # dwell
+        record.p_measured.append(tip.copy())
+        record.dwell_time += p.period
+        if record.dwell_time >= p.dwell - 1e-9:
+            self._finish_target(mem, t)
+
+    def _newton(self, mem: _Memory, plan: TargetPlan, tip: np.ndarray, m: np.ndarray, s: float) -> tuple[float, float]:
+        """One Newton step on the desired dipoles (module docstring); returns (F_est [N], the
+        measured tip's lateral distance from the target's centre [m])."""
+        p = self.params
+        B = plan.basis_W
+        ball_r = 0.5 * self.estimator.chain.ball_diameter
+        centre = plan.p_WT + ball_r * plan.n_W
+        o = B[:, 1:].T @ (tip - centre)
+        f_est, r = self.estimator.force(tip, m, s, plan.n_W)
+        f_t = B[:, 1:].T @ (-r)  # tangential pressing force the model says the wall must hold
+        w = np.array([p.force_weight, 1.0, 1.0])
+        rhs = w * np.concatenate([[p.force_command - f_est + plan.J_o[0] @ o], plan.J_o[1:] @ o - f_t])
+        # dm_j = omega_j x m_j: J_m's columns of unit j times -skew(m_j).
+        J = w[:, None] * np.hstack([plan.J_m[:, 3 * j:3 * j + 3] @ (-_skew(m_j)) for j, m_j in enumerate(m)])
+        s_max = np.linalg.norm(J, 2)
+        if s_max > 1e-12 and np.all(np.isfinite(rhs)):
+            mu = (p.damping * s_max) ** 2
+            omega = np.linalg.solve(J.T @ J + mu * np.eye(J.shape[1]), J.T @ rhs) * p.gain
+            big = float(np.max(np.linalg.norm(omega.reshape(-1, 3), axis=1)))
+            if big > p.max_step:
+                omega *= p.max_step / big
+            m_new = np.array([_rotate(md, w) for md, w in zip(mem.m_des, omega.reshape(-1, 3))])
+            if self._misalignment(m_new, plan.dipoles_W) <= p.max_deviation:
+                mem.m_des = m_new
+        return f_est, float(np.linalg.norm(o))
+
+    @staticmethod
+    def _misalignment(m: np.ndarray, m_des: np.ndarray) -> float:
+        """The largest angle between a measured dipole and its desired one [rad]."""
+        return max(float(np.arccos(np.clip(a @ b, -1.0, 1.0))) for a, b in zip(m, m_des))
+
+    def _sticks(self, m: np.ndarray, m_des: np.ndarray) -> np.ndarray:
+        """Joystick axes turning each measured dipole towards its desired one (world mapping:
+        axes = magnet angular velocity / omega_max, past the dead band)."""
+        p = self.params
+        sticks = np.zeros((len(m), 3))
+        for j, (a, b) in enumerate(zip(m, m_des)):
+            axis = np.cross(a, b)
+            sin = float(np.linalg.norm(axis))
+            angle = float(np.arctan2(sin, a @ b))
+            if angle < 1e-4:
+                continue
+            u = min(p.magnet_gain * angle, 1.0) * axis / max(sin, 1e-12)
+            u /= max(float(np.abs(u).max()), 1.0)  # no axis beyond full speed
+            # Past the mapper's dead band, axis by axis (it subtracts it and rescales).
+            sticks[j] = np.where(np.abs(u) > 1e-6, np.sign(u) * (p.dead_band + (1.0 - p.dead_band) * np.abs(u)), 0.0)
+        return sticks

@@ -1,0 +1,79 @@
+"""The procedure experiment and command: bad input before any work, a quick smoke run, and (slow)
+the whole right ring with every target reached and pressed inside the force window."""
+
+import json
+
+import numpy as np
+import pytest
+
+from ballchain.cli import main as cli_main
+from ballchain.drake_models.errors import UserInputError
+from ballchain.experiments import procedure
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--task", "middle"], "--task must be left or right"),
+    (["--navigator", "joystick"], "invalid choice"),
+    (["--latency", "0.03"], "whole number of samples"),
+    (["--rate", "0"], "--rate"),
+    (["--noise", "-1"], "--noise"),
+    (["--force", "50"], "window"),
+    (["--dwell", "nan"], "--dwell"),
+])
+def test_bad_flags_fail_before_any_work(argv, message, capsys):
+    try:
+        code = cli_main(["procedure", *argv, "--json"])
+    except SystemExit as stop:  # argparse's own checks
+        code = stop.code
+    assert code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_bad_arguments_name_the_argument():
+    with pytest.raises(UserInputError, match="navigator"):
+        procedure.run("right", navigator="robot")
+    with pytest.raises(UserInputError, match="targets"):
+        procedure.run("right", targets=0)
+    with pytest.raises(UserInputError, match="seed"):
+        procedure.run("right", seed=-1)
+
+
+def test_smoke_one_target(tmp_path, capsys):
+    """The command on the right ring's first target with a 1 s dwell: reached, the dwell recorded,
+    the true force inside the window, its lesion, the result file and the ring map written."""
+    assert cli_main(["procedure", "--task", "right", "--targets", "1", "--dwell", "1", "--json",
+                     "--out", str(tmp_path)]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data == json.loads((tmp_path / "procedure.json").read_text())
+    (row,) = data["rows"]
+    assert row["reached"] and row["dwell_s"] == pytest.approx(1.0, abs=0.051)
+    assert 10.0 <= row["force_true_min_gf"] and row["force_true_max_gf"] <= 40.0
+    point = row["point"]
+    assert point["name"] == "right_1" and np.linalg.norm(point["n_W"]) == pytest.approx(1.0)
+    assert point["force_N"] > 0 and point["duration_s"] == row["dwell_s"]
+    assert data["summary"]["reached"] == 1 and data["summary"]["failure"] is None
+    # Its lesion (the surrogate at the dwell's force and duration) and the one-lesion ring.
+    (lesion,) = data["lesions"]
+    assert lesion["name"] == "right_1" and lesion["duration_s"] == row["dwell_s"] and lesion["width_mm"] > 0
+    assert lesion["power_W"] == pytest.approx(point["power_W"], abs=1e-4) and lesion["magnet_ok"]
+    assert data["ring"]["order"] == ["right_1"] and (tmp_path / "ring.png").stat().st_size > 0
+
+
+@pytest.mark.slow
+def test_whole_right_ring_every_target_reached():
+    result = procedure.run("right", progress=False)
+    s = result.summary
+    assert s["failure"] is None
+    assert s["reached"] == s["targets"] == 18, [r["target"] for r in result.rows if not r["reached"]]
+    assert s["in_window_fraction"] > 0.95
+
+
+def test_operator_dwell_is_checked_and_units_two_needs_auto():
+    from ballchain.systems.simulated_operator import OperatorParams
+
+    with pytest.raises(UserInputError, match="dwell"):
+        OperatorParams(dwell=-1.0).validate()
+    with pytest.raises(UserInputError, match="units 'two'"):
+        procedure.run("left", "operator", units="two")
+    with pytest.raises(UserInputError, match="units"):
+        procedure.run("left", units="three")
