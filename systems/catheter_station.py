@@ -249,7 +249,8 @@ class SteerableCatheterSystem(LeafSystem):
 
 class CatheterMeshcat(LeafSystem):
     """The catheter in Meshcat: the atrium's blood-side surface and the targets drawn once, the
-    rod's nodes (spheres of its radius) moved at every publish from ``body_poses``.
+    rod's nodes (spheres of its radius) moved at every publish from ``body_poses``, at the
+    publish's time (while the Meshcat records, these are the replay's frames).
 
     Input ports: body_poses (abstract list[RigidTransform]).
     """
@@ -261,6 +262,9 @@ class CatheterMeshcat(LeafSystem):
         self.set_name("catheter_meshcat")
         self._meshcat, self._n = meshcat, n_bodies
         self._poses = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
+        from ballchain.systems.meshcat_view import frame_scene
+
+        frame_scene(meshcat, heart)  # the camera on the atrium (and a replay opens on the same view)
         V, F = heart.blood_surface
         meshcat.SetTriangleMesh("catheter_view/atrium", np.asarray(V, float).T, np.asarray(F).T,
                                 Rgba(0.85, 0.45, 0.45, 0.25))

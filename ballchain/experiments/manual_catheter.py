@@ -61,9 +61,17 @@ def check_inputs(task: str, targets, time_limit, seed, strategy: str) -> None:
                              f"back, or keep turning), got {strategy!r}")
 
 
+# A catheter replay's size (``Meshcat.StaticHtml``): the page with the atrium's mesh, plus one pose
+# per rod node per frame (the chain's replay's figures, ``chain_simulation.replay_bytes``).
+REPLAY_BODY_FRAME_BYTES = 200.0
+REPLAY_BASE_BYTES = 2.5e6
+
+
 def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy: str = "switch",
-        time_limit: float | None = None, heart=None, hand=None, catheter=None) -> teleop.TeleopResult:
-    """The operator does ``task`` with the manual catheter (default: ``comparison_catheter()``).
+        time_limit: float | None = None, heart=None, hand=None, catheter=None, html=None) -> teleop.TeleopResult:
+    """The operator does ``task`` with the manual catheter (default: ``comparison_catheter()``);
+    with ``html`` (a path) a Meshcat replay of the rod in the atrium is written there (frames every
+    ``teleop.REPLAY_PERIOD``).
 
     Returns:
         a ``teleop.TeleopResult`` (mapping "manual"); its settings add the catheter's and the
@@ -78,6 +86,10 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
     from ballchain.systems.station import atrium_for
 
     check_inputs(task, targets, time_limit, seed, strategy)
+    if html is not None:  # before the run: an unwritable replay path must not cost the results
+        from ballchain.drake_models.safe_files import check_output_file
+
+        check_output_file(html, "--html")
     scenario = scenario_for()
     heart = heart or atrium_for(scenario)
     ring = heart.rings[task]
@@ -103,15 +115,16 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
         handles["operator"] = op
         return {"operator": op}
 
+    limit = time_limit if time_limit is not None else n_targets * params.timeout + params.start_time + 5.0
+    meshcat = _replay_meshcat(html, scenario, limit, catheter or comparison_catheter())
     built = time.perf_counter()
     from ballchain.systems.catheter_station import make_catheter_station
 
     # MakeStation's catheter diagram, with this catheter and hand.
     station = make_catheter_station(scenario, heart=heart, add_systems=add_operator,
-                                    catheter=catheter or comparison_catheter(), hand=hand)
+                                    catheter=catheter or comparison_catheter(), hand=hand, meshcat=meshcat)
     built = time.perf_counter() - built
     op = handles["operator"]
-    limit = time_limit if time_limit is not None else n_targets * params.timeout + params.start_time + 5.0
     simulator = Simulator(station.diagram)
     root = simulator.get_mutable_context()
 
@@ -124,9 +137,13 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
 
     simulator.set_monitor(monitor)
     wall, cpu = time.perf_counter(), time.process_time()
+    if meshcat is not None:
+        meshcat.StartRecording(1.0 / scenario.visualization.publish_period, False)
     simulator.Initialize()
     simulator.AdvanceTo(limit)
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    if meshcat is not None:
+        _write_replay(meshcat, html)
     sim_time = root.get_time()
     cat_state = station.catheter.state(station.catheter.GetMyContextFromRoot(root))
     failure = "; ".join(sorted(set(cat_state.failures))[:3]) or None
@@ -150,7 +167,31 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
                 "switches": int(hand_state[6]), "slips": int(cat_state.slips), "rod_warnings": failure,
                 "path": path}
     return teleop.TeleopResult(task=task, mapping="manual", rows=rows, summary=summary, paper=teleop.PAPER[task],
-                               settings=settings)
+                               settings=settings, html=None if html is None else str(html))
+
+
+def _replay_meshcat(html, scenario, duration: float, catheter):
+    """A recording Meshcat for a replay at ``html`` (None: no replay), once the replay's room on
+    the disk is checked; the scenario's publish period becomes the replay's frame period."""
+    if html is None:
+        return None
+    from ballchain.drake_models.safe_files import check_output_file
+    from ballchain.systems.chain_simulation import replay_meshcat
+
+    scenario.visualization.publish_period = teleop.REPLAY_PERIOD
+    nodes = int(round(catheter.model_length / catheter.segment_length)) + 1
+    check_output_file(html, "--html", expected_bytes=REPLAY_BASE_BYTES + duration / teleop.REPLAY_PERIOD * nodes
+                      * REPLAY_BODY_FRAME_BYTES)
+    return replay_meshcat()
+
+
+def _write_replay(meshcat, html) -> None:
+    """The recording as a self-contained page at ``html``, written atomically."""
+    from ballchain.drake_models.safe_files import atomic_write_text
+
+    meshcat.StopRecording()
+    meshcat.PublishRecording()
+    atomic_write_text(html, meshcat.StaticHtml())
 
 
 def reach_map(task: str = "right", n_twist: int = 12, n_knob: int = 5, step: float = 5e-3, heart=None,
