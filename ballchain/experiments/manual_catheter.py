@@ -211,7 +211,7 @@ def reach_map(task: str = "right", n_twist: int = 12, n_knob: int = 5, step: flo
     from ballchain.drake_models.atrium_sdf import atrium_sdf
     from ballchain.optimization.rod_statics import RodStatics
     from ballchain.systems.station import atrium_for
-    from ballchain.systems.target_contact import TOUCH_TOLERANCE, heart_targets, targets_touched
+    from ballchain.systems.target_contact import heart_targets, targets_touched
 
     teleop.check_inputs(task, "world", None, None, None, 0)
     heart = heart or atrium_for(scenario_for())
@@ -227,11 +227,7 @@ def reach_map(task: str = "right", n_twist: int = 12, n_knob: int = 5, step: flo
             for length in np.arange(10e-3, rod.max_length + 1e-9, step):
                 sol = rod.solve(length, twist, cat.curvature(knob), q0=q)
                 q, c = sol.q, sol.pose.tip_centre
-                rel = c - p_WT
-                h = (rel * n_W).sum(axis=1)
-                lateral = np.sqrt(np.maximum((rel * rel).sum(axis=1) - h * h, 0.0))
-                miss = np.hypot(np.maximum(lateral - radius, 0.0),
-                                np.maximum(np.abs(h) - cat.radius - TOUCH_TOLERANCE, 0.0))
+                miss = touch_miss(c, p_WT, n_W, cat.radius, radius)
                 hit = targets_touched(c, p_WT, n_W, cat.radius, radius)
                 for row, m, t in zip(out, miss, hit):
                     row["touching"] += int(t)
@@ -242,6 +238,96 @@ def reach_map(task: str = "right", n_twist: int = 12, n_knob: int = 5, step: flo
         row["reachable"] = row["touching"] > 0
         row["closest_mm"] = round(float(row["closest_mm"]) * 1e3, 2)
     return out
+
+
+def touch_miss(centre, p_WT, n_W, ball_radius: float, target_radius: float) -> np.ndarray:
+    """How far a tip sphere centred at ``centre`` is from touching each target [m] (0: it
+    touches, as ``target_contact.targets_touched`` tests): its lateral distance beyond the
+    target's circle and its height beyond the ball's touch, combined."""
+    from ballchain.systems.target_contact import TOUCH_TOLERANCE
+
+    rel = np.asarray(centre, float) - p_WT
+    h = (rel * n_W).sum(axis=1)
+    lateral = np.sqrt(np.maximum((rel * rel).sum(axis=1) - h * h, 0.0))
+    return np.hypot(np.maximum(lateral - target_radius, 0.0),
+                    np.maximum(np.abs(h) - ball_radius - TOUCH_TOLERANCE, 0.0))
+
+
+SEARCH_STEPS = (np.radians(15.0), 0.15, 5e-3)  # the search's first steps: twist [rad], knob, push [m]
+
+
+def reach_search(grid: list[dict], task: str = "right", only=None, max_solves: int = 120, step: float = 5e-3,
+                 heart=None, catheter=None) -> list[dict]:
+    """Can the catheter touch the targets the grid (``reach_map``) misses? A local search per
+    target from the grid's closest point: minimise the tip's distance from a touch
+    (``touch_miss``) over the shaft's twist at the sheath exit, the knob and the push, by
+    Nelder-Mead (first steps ``SEARCH_STEPS``: half the default grid's), every rod equilibrium
+    warm-started from the grid point's (reached as the grid reached it: pushed out from 10 mm in
+    ``step`` at the grid point's twist and knob); it stops at a touch or after ``max_solves``.
+
+    Args:
+        grid: ``reach_map``'s rows (on the same catheter and atrium).
+        only: the target names to search (default: every row the grid did not reach).
+
+    Returns:
+        per searched target: {target, grid_closest_mm, closest_mm, reachable (the search touched
+        it), at (length mm, twist deg, knob) of the closest, solves}.
+    """
+    from ballchain.drake_models.atrium_sdf import atrium_sdf
+    from ballchain.optimization.rod_statics import RodStatics
+    from ballchain.systems.station import atrium_for
+    from ballchain.systems.target_contact import heart_targets
+
+    teleop.check_inputs(task, "world", None, None, None, 0)
+    heart = heart or atrium_for(scenario_for())
+    cat = catheter or comparison_catheter()
+    rod = RodStatics(cat, heart.p_HE, heart.sheath_axis_H, atrium_sdf(heart))
+    names, p_WT, n_W, radius = heart_targets(heart)
+    wanted = set(only) if only is not None else {r["target"] for r in grid if not r["reachable"]}
+    out = []
+    for row in grid:
+        if row["target"] not in wanted or row["at"] is None:
+            continue
+        k = names.index(row["target"])
+        x0 = np.array([np.radians(row["at"][1]), row["at"][2], row["at"][0] * 1e-3])  # twist, knob, push
+        q0 = None
+        for length in np.arange(10e-3, x0[2] + 1e-9, step):  # the grid's continuation to its point
+            q0 = rod.solve(length, x0[0], cat.curvature(x0[1]), q0=q0).q
+        best = _search_target(rod, p_WT[k:k + 1], n_W[k:k + 1], radius, x0, q0, max_solves)
+        length, twist, knob = best["x"]
+        out.append({"target": row["target"], "grid_closest_mm": row["closest_mm"],
+                    "closest_mm": round(best["miss"] * 1e3, 2), "reachable": best["miss"] == 0.0,
+                    "at": (round(length * 1e3, 1), round(float(np.degrees(twist)), 1), round(knob, 3)),
+                    "solves": best["solves"]})
+    return out
+
+
+def _search_target(rod, p_WT, n_W, radius: float, x0: np.ndarray, q0, max_solves: int) -> dict:
+    """``reach_search`` on one target (p_WT, n_W (1, 3)) from x0 = (twist [rad], knob, push [m])
+    with the rod's equilibrium there, q0: Nelder-Mead on ``touch_miss``, its first simplex
+    ``SEARCH_STEPS`` from x0 (into the knob's and the push's ranges). Returns {miss [m], x (push,
+    twist, knob) of the least, solves}."""
+    from scipy.optimize import minimize
+
+    cat = rod.catheter
+    best = {"miss": np.inf, "x": None, "solves": 0}
+
+    def miss(x):
+        if best["miss"] == 0.0 or best["solves"] >= max_solves:
+            return best["miss"] + 1.0  # done: the search only winds down
+        best["solves"] += 1
+        length = float(np.clip(x[2], 10e-3, rod.max_length))
+        sol = rod.solve(length, x[0], cat.curvature(x[1]), q0=q0)
+        m = float(touch_miss(sol.pose.tip_centre, p_WT, n_W, cat.radius, radius)[0])
+        if m < best["miss"]:
+            best.update(miss=m, x=(length, float(x[0]), float(np.clip(x[1], -1.0, 1.0))))
+        return m
+
+    direction = np.array([1.0, -1.0 if x0[1] > 0 else 1.0, -1.0 if x0[2] + SEARCH_STEPS[2] > rod.max_length else 1.0])
+    simplex = np.vstack([x0, x0 + np.diag(np.array(SEARCH_STEPS) * direction)])
+    minimize(miss, x0, method="Nelder-Mead",
+             options={"initial_simplex": simplex, "maxfev": max_solves + 4, "xatol": 1e-5, "fatol": 1e-7})
+    return best
 
 
 # ------------------------------------------------------------------------------ the comparison
