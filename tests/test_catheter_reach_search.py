@@ -67,3 +67,19 @@ def test_reach_search_improves_on_the_grid_and_its_touch_is_real():
         k = names.index(row["target"])
         # The reported inputs are rounded (0.1 mm, 0.1 deg, 1e-3): the touch within that.
         assert mc.touch_miss(sol.pose.tip_centre, p_WT[k:k + 1], n_W[k:k + 1], cat.radius, radius)[0] < 0.3e-3
+
+
+@pytest.mark.slow
+def test_reach_map_parts_combine_to_the_whole():
+    """The map in two parts (a twist each), combined by the least distance and the summed
+    touches, is the whole map (coarse: two twists, the knob at both ends, 40 mm pushes)."""
+    from ballchain.systems.station import atrium_for
+
+    heart = atrium_for(mc.scenario_for())
+    kwargs = dict(n_twist=2, n_knob=2, step=40e-3, heart=heart)
+    whole = mc.reach_map("left", **kwargs)
+    parts = [mc.reach_map("left", twist_indices=[i], **kwargs) for i in (0, 1)]
+    for row, a, b in zip(whole, *parts):
+        assert row["closest_mm"] == min(a["closest_mm"], b["closest_mm"])
+        assert row["touching"] == a["touching"] + b["touching"]
+        assert row["at"] == min((a, b), key=lambda r: r["closest_mm"])["at"]

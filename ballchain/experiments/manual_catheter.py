@@ -195,13 +195,15 @@ def _write_replay(meshcat, html) -> None:
 
 
 def reach_map(task: str = "right", n_twist: int = 12, n_knob: int = 5, step: float = 5e-3, heart=None,
-              catheter=None) -> list[dict]:
+              catheter=None, twist_indices=None) -> list[dict]:
     """Can the catheter press each of the task's targets at all, whoever holds it? The device's
     side of a missed target, apart from the operator's: a grid over the shaft's twist at the sheath
     exit (``n_twist`` in a turn) and the knob (``n_knob`` in [-1, 1]), along each the rod pushed
     out from 10 mm to all of it in ``step`` (the rod's equilibrium in the atrium, warm-started
     along the push), and at each the tip against every target's touch test
-    (``target_contact.targets_touched``).
+    (``target_contact.targets_touched``). ``twist_indices`` maps only those of the ``n_twist``
+    twists (a part of the map, e.g. for separate processes; their rows combine by the least
+    ``closest_mm`` and the sum of ``touching``).
 
     Returns:
         per target: {target, reachable (some grid point touches it), touching (grid points that
@@ -221,7 +223,8 @@ def reach_map(task: str = "right", n_twist: int = 12, n_knob: int = 5, step: flo
     chosen = [i for i, n in enumerate(names) if n.startswith(f"{task}_")]
     p_WT, n_W = p_WT[chosen], n_W[chosen]
     out = [{"target": names[i], "reachable": False, "touching": 0, "closest_mm": np.inf, "at": None} for i in chosen]
-    for twist in np.linspace(0.0, 2 * np.pi, n_twist, endpoint=False):
+    twists = np.linspace(0.0, 2 * np.pi, n_twist, endpoint=False)
+    for twist in twists if twist_indices is None else twists[list(twist_indices)]:
         for knob in np.linspace(-1.0, 1.0, n_knob):
             q = None
             for length in np.arange(10e-3, rod.max_length + 1e-9, step):
