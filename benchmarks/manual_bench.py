@@ -2,9 +2,10 @@
 commit, in alternating processes (``ab_compare``'s machinery: the earlier commit exported with
 ``git archive`` and imported as ``ballchain``; every timer in the children is CPU time).
 
-Each child runs, after an untimed one-target warm-up of each (imports, compiled kernels), the
-manual catheter (``manual_catheter.run``) and the robotic chain (``teleop.run``, world mapping,
-quasi-static engine) on ``--task`` for the first ``--targets`` targets with operator ``--seed``,
+Each child runs, after an untimed 0.2 s warm-up of each (imports, compiled kernels), the manual
+catheter (``manual_catheter.run``) and the robotic chain (``teleop.run``, world mapping,
+quasi-static engine) on ``--task`` for the first ``--targets`` targets with operator ``--seed``
+(for ``--time-limit`` simulated seconds, or until the targets are done),
 and reports each run's process CPU time and its results (the operator's rows and the logged tip
 path). Prints JSON: the median CPU seconds per side and device, their ratio (base / head), and
 whether the results are bit-identical between the sides.
@@ -30,31 +31,43 @@ import json, sys, time
 from ballchain.experiments import manual_catheter as mc, teleop
 from ballchain.systems.station import atrium_for
 task, targets, seed = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+limit = None if sys.argv[4] == "none" else float(sys.argv[4])
 heart = atrium_for(mc.scenario_for())
-mc.run_device("manual", task, seed, 1, heart, None)  # warm-up: imports, compiled kernels
-mc.run_device("robotic", task, seed, 1, heart, None)
+
+
+def run(device, targets, limit):
+    if device == "robotic":
+        return teleop.run(task=task, mapping="world", targets=targets, progress=False, heart=heart, seed=seed,
+                          log_path=True, time_limit=limit)
+    return mc.run(task=task, targets=targets, seed=seed, heart=heart, time_limit=limit)
+
+
+run("manual", 1, 0.2)  # warm-up: imports, compiled kernels
+run("robotic", 1, 0.2)
 out = {"file": mc.__file__}
 for device in ("manual", "robotic"):
     cpu = time.process_time()
-    r = mc.run_device(device, task, seed, targets, heart, None)
+    r = run(device, targets, limit)
     out[device] = {"cpu_s": time.process_time() - cpu, "rows": r.rows,
                    "path": {k: v for k, v in r.settings.get("path", {}).items()}}
 print(json.dumps(out))
 """
 
 
-def run(base: str, task: str = "left", targets: int = 6, seed: int = 0, rounds: int = 2) -> dict:
+def run(base: str, task: str = "left", targets: int = 6, seed: int = 0, rounds: int = 2,
+        time_limit: float | None = None) -> dict:
     import subprocess
 
     sides = {"base": [], "head": []}
     with tempfile.TemporaryDirectory(prefix="ballchain-ab-") as tmp:
         archive = subprocess.run(["git", "-C", str(REPO), "archive", base], capture_output=True, check=True).stdout
         subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
-        args = [task, str(targets), str(seed)]
+        args = [task, str(targets), str(seed), "none" if time_limit is None else str(time_limit)]
         for _ in range(rounds):
             sides["base"].append(_child(Path(tmp), _CODE, args))
             sides["head"].append(_child(None, _CODE, args))
-    out = {"base": base, "task": task, "targets": targets, "seed": seed, "rounds": rounds, "clock": "cpu"}
+    out = {"base": base, "task": task, "targets": targets, "seed": seed, "time_limit_s": time_limit,
+           "rounds": rounds, "clock": "cpu"}
     for device in ("manual", "robotic"):
         cpu = {k: float(np.median([r[device]["cpu_s"] for r in v])) for k, v in sides.items()}
         b, h = sides["base"][0][device], sides["head"][0][device]
@@ -71,8 +84,10 @@ def main() -> None:
     parser.add_argument("--targets", type=int, default=6, help="the first N targets of the task")
     parser.add_argument("--seed", type=int, default=0, help="the operator's seed")
     parser.add_argument("--rounds", type=int, default=2, help="runs of each side, alternating")
+    parser.add_argument("--time-limit", type=float, default=None, help="simulated seconds of each run (default: "
+                        "until the targets are done)")
     a = parser.parse_args()
-    print(json.dumps(run(a.base, a.task, a.targets, a.seed, a.rounds), indent=1))
+    print(json.dumps(run(a.base, a.task, a.targets, a.seed, a.rounds, a.time_limit), indent=1))
 
 
 if __name__ == "__main__":
