@@ -55,7 +55,7 @@ print(json.dumps(out))
 
 
 def run(base: str, task: str = "left", targets: int = 6, seed: int = 0, rounds: int = 2,
-        time_limit: float | None = None) -> dict:
+        time_limit: float | None = None, together: bool = False) -> dict:
     import subprocess
 
     sides = {"base": [], "head": []}
@@ -64,6 +64,14 @@ def run(base: str, task: str = "left", targets: int = 6, seed: int = 0, rounds: 
         subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
         args = [task, str(targets), str(seed), "none" if time_limit is None else str(time_limit)]
         for _ in range(rounds):
+            if together:  # both sides at once, in two processes: the same load on both
+                from concurrent.futures import ThreadPoolExecutor
+
+                with ThreadPoolExecutor(2) as pool:
+                    pair = [pool.submit(_child, root, _CODE, args) for root in (Path(tmp), None)]
+                    sides["base"].append(pair[0].result())
+                    sides["head"].append(pair[1].result())
+                continue
             sides["base"].append(_child(Path(tmp), _CODE, args))
             sides["head"].append(_child(None, _CODE, args))
     out = {"base": base, "task": task, "targets": targets, "seed": seed, "time_limit_s": time_limit,
@@ -86,8 +94,10 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=2, help="runs of each side, alternating")
     parser.add_argument("--time-limit", type=float, default=None, help="simulated seconds of each run (default: "
                         "until the targets are done)")
+    parser.add_argument("--together", action="store_true", help="run the two sides of a round at once (two "
+                        "processes) instead of one after the other")
     a = parser.parse_args()
-    print(json.dumps(run(a.base, a.task, a.targets, a.seed, a.rounds, a.time_limit), indent=1))
+    print(json.dumps(run(a.base, a.task, a.targets, a.seed, a.rounds, a.time_limit, a.together), indent=1))
 
 
 if __name__ == "__main__":
