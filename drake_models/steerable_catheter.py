@@ -54,9 +54,15 @@ Sources of the constants (no constant was tuned to the paper's times):
   force, which is sized from it).
 * Deflectable segment: 55 mm long, largest curvature 180 degrees over it on the tighter (D) side
   and 120 degrees on the wider (F) side: the size of a D-F bidirectional curve (a half turn of
-  about 35 mm reach on the D side). No curve datasheet was found in the reference material
-  available here: an assumption at datasheet level, not a measured value.
-* Shaft length 1.15 m: a typical ablation catheter's usable length (an assumption).
+  about 35 mm reach on the D side). No curve chart (the manufacturers' D-F curve sheets, an IFU's
+  curve table, a paper measuring catheter curves) was found in the reference material available
+  here (searched: TactiFlex, TactiCath, FlexAbility, Biosense Webster D/F/J curves): an assumption
+  at datasheet level, not a measured value. ``reach_search`` (``experiments.manual_catheter``)
+  says which right-ring targets it decides.
+* Shaft length 1.15 m: the overall length of the TactiCath Quartz (NICE medtech innovation
+  briefing MIB60, "Technology overview": "a single-use device with an overall length of 115 cm"),
+  the contact-force catheter of the same maker that the TactiFlex succeeds; the handle's share of
+  it is not subtracted (the friction chain's stiffness changes by a few per cent).
 * Friction in the sheath: PTFE-lined sheath, kinetic coefficient 0.1 (Schroeder 1993,
   Cardiovasc. Intervent. Radiol. 16:93: a Teflon coating halves the sliding friction of steel,
   about 0.2 on polymer), static 0.15 (static above kinetic: the assumption that makes stick-slip).

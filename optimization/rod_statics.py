@@ -51,6 +51,15 @@ def _rz(t: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a x b over the last axis (length 3), broadcast: ``np.cross``'s products and differences in
+    its order (the same floats), without its axis handling, which cost more than the arithmetic
+    on the rod's small arrays."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
 def _convex(K: np.ndarray, W: np.ndarray) -> np.ndarray:
     """K - t W for the largest t in (1, 1/2, 1/4, ...) that keeps it positive definite (t = 0:
     K, the elastic Hessian, always is): the wall's curvature where it helps, without the cost
@@ -93,6 +102,7 @@ class RodPose:
     J_rot: np.ndarray
     R_tip: np.ndarray
     base: np.ndarray
+    wall: tuple | None = None  # the wall's (sdf, gradients) at the nodes, once asked (``RodStatics.wall_at``)
 
     @property
     def tip_centre(self) -> np.ndarray:
@@ -208,7 +218,7 @@ class RodStatics:
         m = len(nodes)
         col_joint = np.repeat(np.arange(f), 3)
         lever = nodes[:, None, :] - joints[col_joint][None, :, :]  # (m, 3f, 3)
-        J = np.cross(axes[None, :, :], lever)
+        J = _cross(axes[None, :, :], lever)
         J[np.arange(m)[:, None] <= col_joint[None, :]] = 0.0  # a joint moves only the nodes after it
         return RodPose(nodes, np.transpose(J, (0, 2, 1)), axes.T.copy(), R, joints[0] if f else p)
 
@@ -225,9 +235,16 @@ class RodStatics:
                 g = g - pose.J_rot.T @ np.asarray(torque, float)
         return g
 
+    def wall_at(self, pose: RodPose) -> tuple:
+        """The atrium's signed distance and its gradients at the pose's nodes (kept with the pose:
+        the SQP's rows, its merit and the wall forces ask at the same iterate)."""
+        if pose.wall is None:
+            pose.wall = self.sdf(pose.nodes, gradient=True)
+        return pose.wall
+
     def _wall_rows(self, pose: RodPose):
         """Linearised wall rows A dq + b >= 0 (sdf - r, in metres), and the sdf gradients."""
-        values, grads = self.sdf(pose.nodes, gradient=True)
+        values, grads = self.wall_at(pose)
         A = np.einsum("mi,mij->mj", grads, pose.J)
         return A, values - self.catheter.radius, grads
 
@@ -240,7 +257,7 @@ class RodStatics:
             if force is not None:
                 value -= float(np.asarray(force, float) @ pose.tip_centre)
             if self.sdf is not None:
-                gaps = self.sdf(pose.nodes, gradient=True)[0] - self.catheter.radius
+                gaps = self.wall_at(pose)[0] - self.catheter.radius
                 value += rho * float(np.maximum(-gaps, 0.0).sum())
         return value
 
@@ -262,9 +279,9 @@ class RodStatics:
             out += w * (Jm.T @ He @ Jm)
             lever = pose.nodes[m] - joints[col_joint]  # (3f, 3)
             moving = np.flatnonzero(col_joint < m)  # the joints before node m move it
-            inner = np.cross(axes[moving], lever[moving])  # w_j x (p - p_j)
+            inner = _cross(axes[moving], lever[moving])  # w_j x (p - p_j)
             # d2[i, j] = gr . (w_i x inner_j) = inner_j . (gr x w_i), for i <= j.
-            d2 = np.cross(gr, axes[moving]) @ inner.T
+            d2 = _cross(gr, axes[moving]) @ inner.T
             d2 = np.triu(d2)
             d2 = d2 + np.triu(d2, 1).T
             out[np.ix_(moving, moving)] += w * d2
@@ -327,7 +344,7 @@ class RodStatics:
         forces = lam if len(lam) == len(pose.nodes) else np.zeros(len(pose.nodes))
         torque_E = 0.0
         if forces.any():
-            _, grads = self.sdf(pose.nodes, gradient=True)
+            _, grads = self.wall_at(pose)
             moments = np.cross(pose.nodes - self.p_E, forces[:, None] * grads)
             torque_E = float(moments.sum(axis=0) @ self.R_E[:, 2])
         return RodSolution(q, pose, forces, torque_E, it, converged)

@@ -45,11 +45,23 @@ from ballchain.systems.teleoperation import apply_dead_band
 STRATEGIES = ("keep", "switch")
 
 
+def _finite(x) -> np.ndarray:
+    """A copy of the input ``x`` with NaN as 0 and infinities as the largest floats (``np.nan_to_num``,
+    called only when needed: it costs a hundred times the check)."""
+    x = np.array(x, dtype=float)
+    return x if np.isfinite(x).all() else np.nan_to_num(x)
+
+
 @dataclass
 class HandParams:
-    """The hand on the catheter's handle (SI). Human-like rate limits, assumptions of this model
-    (no measured source): a steady push of up to 20 mm/s, a wrist turning the handle at up to
-    90 deg/s in fine control, the thumb taking the knob across its travel in 1 s.
+    """The hand on the catheter's handle (SI). Human-like rate limits, assumptions of this model:
+    a steady push of up to 20 mm/s, a wrist turning the handle at up to 90 deg/s in fine control,
+    the thumb taking the knob across its travel in 1 s. No study measuring an
+    electrophysiologist's push, twist or knob rates on an ablation catheter was found; the
+    nearest, electromagnetic tracking of interventional radiologists' hands in a sheath-and-wire
+    task (Palmer et al., J. Vasc. Interv. Radiol. 32:226, 2021: experts 1.1 m of hand path in
+    11.7 s, about 94 mm/s on average), bounds the push from above: 20 mm/s is a fine-control
+    speed well below the hand's mean.
 
     Attributes:
         push_speed: [m/s] at full feeder command.
@@ -113,8 +125,8 @@ class ManualHand(LeafSystem):
     def _update(self, context, discrete_state):
         p = self.params
         push, twist, knob, switching, target, goal, switches = context.get_discrete_state(self._state).get_value()
-        u = apply_dead_band(np.nan_to_num(self._joystick.Eval(context)), p.dead_band)
-        v = float(np.clip(np.nan_to_num(self._push.Eval(context)[0]), -p.push_speed, p.push_speed))
+        u = apply_dead_band(_finite(self._joystick.Eval(context)), p.dead_band)
+        v = float(np.clip(_finite(self._push.Eval(context))[0], -p.push_speed, p.push_speed))
         dt = p.period
         twist_rate, knob_rate = u[0] * p.twist_rate, u[1] * p.knob_rate
         if (not switching and p.strategy == "switch" and abs(twist) >= p.windup_twist
@@ -200,9 +212,9 @@ class SteerableCatheterSystem(LeafSystem):
         return context.get_abstract_state(self._index).get_value()
 
     def _solve(self, st: _CatheterState, push: float, twist: float, knob: float) -> _CatheterState:
-        """The next state for the handle at (push, twist, knob): the shaft's chains, then the rod;
-        the twist chain sees the rod's new torque once more (the quasi-static coupling)."""
-        st = copy.deepcopy(st)
+        """``st`` advanced (in place, and returned) to the handle at (push, twist, knob): the shaft's
+        chains, then the rod; the twist chain sees the rod's new torque once more (the quasi-static
+        coupling)."""
         st.push, _ = self._push_chain.step(st.push, push)
         length = float(np.clip(self.initial_length + st.push[-1], 2 * self.rod.h, self.rod.max_length))
         kappa = self.catheter.curvature(knob)
@@ -227,9 +239,10 @@ class SteerableCatheterSystem(LeafSystem):
         return st
 
     def _update(self, context, state):
-        push, twist, knob = np.nan_to_num(self._handle.Eval(context))
-        st = self._solve(self.state(context), float(push), float(twist), float(knob))
-        state.get_mutable_abstract_state(self._index).set_value(st)
+        push, twist, knob = _finite(self._handle.Eval(context))
+        # Drake hands the update a copy of the state: the catheter's is advanced in place there.
+        self._solve(state.get_mutable_abstract_state(self._index).get_mutable_value(), float(push), float(twist),
+                    float(knob))
         return EventStatus.Succeeded()
 
     def _calc_poses(self, context, output):
@@ -249,7 +262,8 @@ class SteerableCatheterSystem(LeafSystem):
 
 class CatheterMeshcat(LeafSystem):
     """The catheter in Meshcat: the atrium's blood-side surface and the targets drawn once, the
-    rod's nodes (spheres of its radius) moved at every publish from ``body_poses``.
+    rod's nodes (spheres of its radius) moved at every publish from ``body_poses``, at the
+    publish's time (while the Meshcat records, these are the replay's frames).
 
     Input ports: body_poses (abstract list[RigidTransform]).
     """
@@ -261,6 +275,9 @@ class CatheterMeshcat(LeafSystem):
         self.set_name("catheter_meshcat")
         self._meshcat, self._n = meshcat, n_bodies
         self._poses = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
+        from ballchain.systems.meshcat_view import frame_scene
+
+        frame_scene(meshcat, heart)  # the camera on the atrium (and a replay opens on the same view)
         V, F = heart.blood_surface
         meshcat.SetTriangleMesh("catheter_view/atrium", np.asarray(V, float).T, np.asarray(F).T,
                                 Rgba(0.85, 0.45, 0.45, 0.25))

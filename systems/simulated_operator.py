@@ -238,17 +238,18 @@ class _Memory:
     descending: bool = False  # pressing down on the target (else hovering towards it)
 
     def __deepcopy__(self, memo) -> "_Memory":
-        """An independent copy, field by field: the arrays and the open records copied, the
-        generator by its state. Drake clones the abstract state (Value[object] deep-copies) for
-        every update, and the generic deepcopy of this memory took about a tenth of a whole
-        task's wall time on the quasi-static engine."""
+        """An independent copy, field by field: the arrays and the open record copied (a closed
+        one, ``t_end`` set, is never changed again: the copies share it), the generator by its
+        state. Drake clones the abstract state (Value[object] deep-copies) twice per update, and
+        the generic deepcopy of this memory took about a tenth of a whole task's wall time on
+        the quasi-static engine."""
         new = copy.copy(self)
         for name in ("J", "P", "applied", "p_last", "d_last"):
             value = getattr(self, name)
             if value is not None:
                 setattr(new, name, value.copy())
         new.queue = [u.copy() for u in self.queue]
-        new.records = [copy.copy(r) for r in self.records]
+        new.records = [r if r.t_end is not None else copy.copy(r) for r in self.records]
         if self.rng is not None:
             new.rng = np.random.Generator(type(self.rng.bit_generator)())
             new.rng.bit_generator.state = self.rng.bit_generator.state
@@ -361,7 +362,8 @@ class SimulatedOperator(SeededLeafSystem):
     def _update(self, context, state):
         p = self.params
         t = context.get_time()
-        mem = copy.deepcopy(self._memory(context))
+        # Drake hands the update a copy of the state: the memory is changed in place there.
+        mem = state.get_mutable_abstract_state(self._memory_index).get_mutable_value()
         if mem.rng is None:
             mem.rng = np.random.default_rng(self.seed(context))
         poses = self._poses.Eval(context)
@@ -379,7 +381,6 @@ class SimulatedOperator(SeededLeafSystem):
         u = np.zeros(self._n + 1) if mem.phase in ("wait", "done", "hold") else self._decide(mem, t, tip, d)
         mem.queue.append(u)
         mem.applied = mem.queue.pop(0)
-        state.get_mutable_abstract_state(self._memory_index).set_value(mem)
         return EventStatus.Succeeded()
 
     def _start_probe(self, mem: _Memory, t: float) -> None:

@@ -148,7 +148,7 @@ def _main_manual(args: argparse.Namespace) -> int:
 
     _refuse("to --device steerable_catheter", (("--live", args.live or None), ("--mapping", args.mapping),
                                                ("--balls", args.balls), ("--set", args.overrides),
-                                               ("--html", args.html), ("--units", args.units),
+                                               ("--units", args.units),
                                                ("--duration", args.duration), ("--realtime-rate", args.realtime_rate),
                                                ("--no-wait", args.no_wait or None)),
             "they set up the robotic chain or the live view")
@@ -158,7 +158,7 @@ def _main_manual(args: argparse.Namespace) -> int:
     catheter = manual_catheter.comparison_catheter(args.braid)
     data = manual_catheter.run(task="left" if args.task is None else args.task, targets=args.targets,
                                seed=0 if args.seed is None else args.seed, strategy=strategy,
-                               time_limit=args.time_limit, catheter=catheter)
+                               time_limit=args.time_limit, catheter=catheter, html=args.html)
     if args.json:
         print_json(data)
         return 0
@@ -172,6 +172,8 @@ def _main_manual(args: argparse.Namespace) -> int:
     print(f"{data.task} task, manual catheter ({strategy} at the windup): {s.touched}/{s.targets} touched in "
           f"{s.total_time_s:.1f} s; tendon switches {data.settings['switches']}; operator in the paper: "
           f"{manual_catheter.PAPER_COMPARISON[data.task]['manual_s']:.0f} s")
+    if data.html is not None:
+        print(f"replay: {data.html}")
     return 0
 
 

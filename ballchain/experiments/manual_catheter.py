@@ -61,9 +61,17 @@ def check_inputs(task: str, targets, time_limit, seed, strategy: str) -> None:
                              f"back, or keep turning), got {strategy!r}")
 
 
+# A catheter replay's size (``Meshcat.StaticHtml``): the page with the atrium's mesh, plus one pose
+# per rod node per frame (the chain's replay's figures, ``chain_simulation.replay_bytes``).
+REPLAY_BODY_FRAME_BYTES = 200.0
+REPLAY_BASE_BYTES = 2.5e6
+
+
 def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy: str = "switch",
-        time_limit: float | None = None, heart=None, hand=None, catheter=None) -> teleop.TeleopResult:
-    """The operator does ``task`` with the manual catheter (default: ``comparison_catheter()``).
+        time_limit: float | None = None, heart=None, hand=None, catheter=None, html=None) -> teleop.TeleopResult:
+    """The operator does ``task`` with the manual catheter (default: ``comparison_catheter()``);
+    with ``html`` (a path) a Meshcat replay of the rod in the atrium is written there (frames every
+    ``teleop.REPLAY_PERIOD``).
 
     Returns:
         a ``teleop.TeleopResult`` (mapping "manual"); its settings add the catheter's and the
@@ -78,6 +86,10 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
     from ballchain.systems.station import atrium_for
 
     check_inputs(task, targets, time_limit, seed, strategy)
+    if html is not None:  # before the run: an unwritable replay path must not cost the results
+        from ballchain.drake_models.safe_files import check_output_file
+
+        check_output_file(html, "--html")
     scenario = scenario_for()
     heart = heart or atrium_for(scenario)
     ring = heart.rings[task]
@@ -103,15 +115,16 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
         handles["operator"] = op
         return {"operator": op}
 
+    limit = time_limit if time_limit is not None else n_targets * params.timeout + params.start_time + 5.0
+    meshcat = _replay_meshcat(html, scenario, limit, catheter or comparison_catheter())
     built = time.perf_counter()
     from ballchain.systems.catheter_station import make_catheter_station
 
     # MakeStation's catheter diagram, with this catheter and hand.
     station = make_catheter_station(scenario, heart=heart, add_systems=add_operator,
-                                    catheter=catheter or comparison_catheter(), hand=hand)
+                                    catheter=catheter or comparison_catheter(), hand=hand, meshcat=meshcat)
     built = time.perf_counter() - built
     op = handles["operator"]
-    limit = time_limit if time_limit is not None else n_targets * params.timeout + params.start_time + 5.0
     simulator = Simulator(station.diagram)
     root = simulator.get_mutable_context()
 
@@ -124,9 +137,13 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
 
     simulator.set_monitor(monitor)
     wall, cpu = time.perf_counter(), time.process_time()
+    if meshcat is not None:
+        meshcat.StartRecording(1.0 / scenario.visualization.publish_period, False)
     simulator.Initialize()
     simulator.AdvanceTo(limit)
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    if meshcat is not None:
+        _write_replay(meshcat, html)
     sim_time = root.get_time()
     cat_state = station.catheter.state(station.catheter.GetMyContextFromRoot(root))
     failure = "; ".join(sorted(set(cat_state.failures))[:3]) or None
@@ -150,17 +167,43 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
                 "switches": int(hand_state[6]), "slips": int(cat_state.slips), "rod_warnings": failure,
                 "path": path}
     return teleop.TeleopResult(task=task, mapping="manual", rows=rows, summary=summary, paper=teleop.PAPER[task],
-                               settings=settings)
+                               settings=settings, html=None if html is None else str(html))
+
+
+def _replay_meshcat(html, scenario, duration: float, catheter):
+    """A recording Meshcat for a replay at ``html`` (None: no replay), once the replay's room on
+    the disk is checked; the scenario's publish period becomes the replay's frame period."""
+    if html is None:
+        return None
+    from ballchain.drake_models.safe_files import check_output_file
+    from ballchain.systems.chain_simulation import replay_meshcat
+
+    scenario.visualization.publish_period = teleop.REPLAY_PERIOD
+    nodes = int(round(catheter.model_length / catheter.segment_length)) + 1
+    check_output_file(html, "--html", expected_bytes=REPLAY_BASE_BYTES + duration / teleop.REPLAY_PERIOD * nodes
+                      * REPLAY_BODY_FRAME_BYTES)
+    return replay_meshcat()
+
+
+def _write_replay(meshcat, html) -> None:
+    """The recording as a self-contained page at ``html``, written atomically."""
+    from ballchain.drake_models.safe_files import atomic_write_text
+
+    meshcat.StopRecording()
+    meshcat.PublishRecording()
+    atomic_write_text(html, meshcat.StaticHtml())
 
 
 def reach_map(task: str = "right", n_twist: int = 12, n_knob: int = 5, step: float = 5e-3, heart=None,
-              catheter=None) -> list[dict]:
+              catheter=None, twist_indices=None) -> list[dict]:
     """Can the catheter press each of the task's targets at all, whoever holds it? The device's
     side of a missed target, apart from the operator's: a grid over the shaft's twist at the sheath
     exit (``n_twist`` in a turn) and the knob (``n_knob`` in [-1, 1]), along each the rod pushed
     out from 10 mm to all of it in ``step`` (the rod's equilibrium in the atrium, warm-started
     along the push), and at each the tip against every target's touch test
-    (``target_contact.targets_touched``).
+    (``target_contact.targets_touched``). ``twist_indices`` maps only those of the ``n_twist``
+    twists (a part of the map, e.g. for separate processes; their rows combine by the least
+    ``closest_mm`` and the sum of ``touching``).
 
     Returns:
         per target: {target, reachable (some grid point touches it), touching (grid points that
@@ -170,7 +213,7 @@ def reach_map(task: str = "right", n_twist: int = 12, n_knob: int = 5, step: flo
     from ballchain.drake_models.atrium_sdf import atrium_sdf
     from ballchain.optimization.rod_statics import RodStatics
     from ballchain.systems.station import atrium_for
-    from ballchain.systems.target_contact import TOUCH_TOLERANCE, heart_targets, targets_touched
+    from ballchain.systems.target_contact import heart_targets, targets_touched
 
     teleop.check_inputs(task, "world", None, None, None, 0)
     heart = heart or atrium_for(scenario_for())
@@ -180,17 +223,14 @@ def reach_map(task: str = "right", n_twist: int = 12, n_knob: int = 5, step: flo
     chosen = [i for i, n in enumerate(names) if n.startswith(f"{task}_")]
     p_WT, n_W = p_WT[chosen], n_W[chosen]
     out = [{"target": names[i], "reachable": False, "touching": 0, "closest_mm": np.inf, "at": None} for i in chosen]
-    for twist in np.linspace(0.0, 2 * np.pi, n_twist, endpoint=False):
+    twists = np.linspace(0.0, 2 * np.pi, n_twist, endpoint=False)
+    for twist in twists if twist_indices is None else twists[list(twist_indices)]:
         for knob in np.linspace(-1.0, 1.0, n_knob):
             q = None
             for length in np.arange(10e-3, rod.max_length + 1e-9, step):
                 sol = rod.solve(length, twist, cat.curvature(knob), q0=q)
                 q, c = sol.q, sol.pose.tip_centre
-                rel = c - p_WT
-                h = (rel * n_W).sum(axis=1)
-                lateral = np.sqrt(np.maximum((rel * rel).sum(axis=1) - h * h, 0.0))
-                miss = np.hypot(np.maximum(lateral - radius, 0.0),
-                                np.maximum(np.abs(h) - cat.radius - TOUCH_TOLERANCE, 0.0))
+                miss = touch_miss(c, p_WT, n_W, cat.radius, radius)
                 hit = targets_touched(c, p_WT, n_W, cat.radius, radius)
                 for row, m, t in zip(out, miss, hit):
                     row["touching"] += int(t)
@@ -201,6 +241,96 @@ def reach_map(task: str = "right", n_twist: int = 12, n_knob: int = 5, step: flo
         row["reachable"] = row["touching"] > 0
         row["closest_mm"] = round(float(row["closest_mm"]) * 1e3, 2)
     return out
+
+
+def touch_miss(centre, p_WT, n_W, ball_radius: float, target_radius: float) -> np.ndarray:
+    """How far a tip sphere centred at ``centre`` is from touching each target [m] (0: it
+    touches, as ``target_contact.targets_touched`` tests): its lateral distance beyond the
+    target's circle and its height beyond the ball's touch, combined."""
+    from ballchain.systems.target_contact import TOUCH_TOLERANCE
+
+    rel = np.asarray(centre, float) - p_WT
+    h = (rel * n_W).sum(axis=1)
+    lateral = np.sqrt(np.maximum((rel * rel).sum(axis=1) - h * h, 0.0))
+    return np.hypot(np.maximum(lateral - target_radius, 0.0),
+                    np.maximum(np.abs(h) - ball_radius - TOUCH_TOLERANCE, 0.0))
+
+
+SEARCH_STEPS = (np.radians(15.0), 0.15, 5e-3)  # the search's first steps: twist [rad], knob, push [m]
+
+
+def reach_search(grid: list[dict], task: str = "right", only=None, max_solves: int = 120, step: float = 5e-3,
+                 heart=None, catheter=None) -> list[dict]:
+    """Can the catheter touch the targets the grid (``reach_map``) misses? A local search per
+    target from the grid's closest point: minimise the tip's distance from a touch
+    (``touch_miss``) over the shaft's twist at the sheath exit, the knob and the push, by
+    Nelder-Mead (first steps ``SEARCH_STEPS``: half the default grid's), every rod equilibrium
+    warm-started from the grid point's (reached as the grid reached it: pushed out from 10 mm in
+    ``step`` at the grid point's twist and knob); it stops at a touch or after ``max_solves``.
+
+    Args:
+        grid: ``reach_map``'s rows (on the same catheter and atrium).
+        only: the target names to search (default: every row the grid did not reach).
+
+    Returns:
+        per searched target: {target, grid_closest_mm, closest_mm, reachable (the search touched
+        it), at (length mm, twist deg, knob) of the closest, solves}.
+    """
+    from ballchain.drake_models.atrium_sdf import atrium_sdf
+    from ballchain.optimization.rod_statics import RodStatics
+    from ballchain.systems.station import atrium_for
+    from ballchain.systems.target_contact import heart_targets
+
+    teleop.check_inputs(task, "world", None, None, None, 0)
+    heart = heart or atrium_for(scenario_for())
+    cat = catheter or comparison_catheter()
+    rod = RodStatics(cat, heart.p_HE, heart.sheath_axis_H, atrium_sdf(heart))
+    names, p_WT, n_W, radius = heart_targets(heart)
+    wanted = set(only) if only is not None else {r["target"] for r in grid if not r["reachable"]}
+    out = []
+    for row in grid:
+        if row["target"] not in wanted or row["at"] is None:
+            continue
+        k = names.index(row["target"])
+        x0 = np.array([np.radians(row["at"][1]), row["at"][2], row["at"][0] * 1e-3])  # twist, knob, push
+        q0 = None
+        for length in np.arange(10e-3, x0[2] + 1e-9, step):  # the grid's continuation to its point
+            q0 = rod.solve(length, x0[0], cat.curvature(x0[1]), q0=q0).q
+        best = _search_target(rod, p_WT[k:k + 1], n_W[k:k + 1], radius, x0, q0, max_solves)
+        length, twist, knob = best["x"]
+        out.append({"target": row["target"], "grid_closest_mm": row["closest_mm"],
+                    "closest_mm": round(best["miss"] * 1e3, 2), "reachable": best["miss"] == 0.0,
+                    "at": (round(length * 1e3, 1), round(float(np.degrees(twist)), 1), round(knob, 3)),
+                    "solves": best["solves"]})
+    return out
+
+
+def _search_target(rod, p_WT, n_W, radius: float, x0: np.ndarray, q0, max_solves: int) -> dict:
+    """``reach_search`` on one target (p_WT, n_W (1, 3)) from x0 = (twist [rad], knob, push [m])
+    with the rod's equilibrium there, q0: Nelder-Mead on ``touch_miss``, its first simplex
+    ``SEARCH_STEPS`` from x0 (into the knob's and the push's ranges). Returns {miss [m], x (push,
+    twist, knob) of the least, solves}."""
+    from scipy.optimize import minimize
+
+    cat = rod.catheter
+    best = {"miss": np.inf, "x": None, "solves": 0}
+
+    def miss(x):
+        if best["miss"] == 0.0 or best["solves"] >= max_solves:
+            return best["miss"] + 1.0  # done: the search only winds down
+        best["solves"] += 1
+        length = float(np.clip(x[2], 10e-3, rod.max_length))
+        sol = rod.solve(length, x[0], cat.curvature(x[1]), q0=q0)
+        m = float(touch_miss(sol.pose.tip_centre, p_WT, n_W, cat.radius, radius)[0])
+        if m < best["miss"]:
+            best.update(miss=m, x=(length, float(x[0]), float(np.clip(x[1], -1.0, 1.0))))
+        return m
+
+    direction = np.array([1.0, -1.0 if x0[1] > 0 else 1.0, -1.0 if x0[2] + SEARCH_STEPS[2] > rod.max_length else 1.0])
+    simplex = np.vstack([x0, x0 + np.diag(np.array(SEARCH_STEPS) * direction)])
+    minimize(miss, x0, method="Nelder-Mead",
+             options={"initial_simplex": simplex, "maxfev": max_solves + 4, "xatol": 1e-5, "fatol": 1e-7})
+    return best
 
 
 # ------------------------------------------------------------------------------ the comparison
