@@ -172,7 +172,7 @@ def test_a_full_disk_at_write_time_is_one_error_naming_the_file_and_keeps_the_ol
     path = tmp_path / "table.csv"
     path.write_text("old\n")
     # The path is quoted whole, or cut with its length when long (a deep temporary folder).
-    with pytest.raises(OutputError, match=r"cannot write '.*(table\.csv|\.\.\. \(\d+ characters\))': No space left on "
+    with pytest.raises(OutputError, match=r"cannot write '.*(table\.csv'|\.\.\. \(\d+ characters\)): No space left on "
                                           r"device .*free.*nothing was replaced"):
         with atomic_path(path) as tmp:
             tmp.write_text("partial")
