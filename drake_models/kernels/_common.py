@@ -15,7 +15,7 @@ import functools
 import hashlib
 from pathlib import Path
 
-from numba import njit
+from numba import njit, types
 from numba.core.caching import (
     CompileResultCacheImpl,
     FunctionCache,
@@ -67,7 +67,10 @@ def _hash_files(files: tuple) -> str:
 
 
 class _PackageStamp:
-    """A cache locator whose freshness stamp is the package's, not the function's file's."""
+    """A cache locator whose freshness stamp is the package's, not the function's file's. numba
+    reads it once, when the kernel is defined (its module imported): a process that keeps running
+    after a kernel file was edited saves what it compiled under the stamp of the code it
+    imported, which a process importing the edited files does not load."""
 
     def get_source_stamp(self):
         return _package_stamp(getattr(self, "_py_file", None))
@@ -94,9 +97,31 @@ class _PackageCache(FunctionCache):
     _impl_class = _PackageCacheImpl
 
 
+def _without_literals(dispatcher):
+    """Make the kernels that call ``dispatcher`` type their calls with the arguments' plain types.
+
+    numba types a constant argument of a compiled caller (``evaluate(q, 2, ...)``,
+    ``heart_rows(..., False)``) as a literal and compiles the callee once per literal value seen,
+    each specialisation with its own copy of everything the callee calls: the solve's ``evaluate``
+    would be compiled three times (orders 0, 2 and a variable), ``_answer`` six (one per reason).
+    Typed as int64 and bool, each kernel is compiled once, for every caller; the constants are
+    converted at the call, and the code run is the same (the literal only let numba drop branches).
+    """
+    get_call_template = dispatcher.get_call_template
+
+    def plain_call_template(args, kws):
+        return get_call_template(tuple(types.unliteral(a) for a in args),
+                                 {k: types.unliteral(v) for k, v in kws.items()})
+
+    dispatcher.get_call_template = plain_call_template
+    return dispatcher
+
+
 def kernel(py_func):
-    """``numba.njit`` with the on-disk cache stamped by the whole package's sources, and healed
-    when a cache file is damaged (``numba_cache.guard_kernel``)."""
+    """``numba.njit`` with the on-disk cache stamped by the whole package's sources, healed when a
+    cache file is damaged (``numba_cache.guard_kernel``), and compiled once whatever constants its
+    compiled callers pass (``_without_literals``)."""
     dispatcher = njit(cache=True)(py_func)
     dispatcher._cache = _PackageCache(py_func)  # what ``cache=True`` set, with the package stamp
+    _without_literals(dispatcher)
     return guard_kernel(dispatcher)  # a damaged cache file is recompiled, not a traceback on every run
