@@ -67,6 +67,20 @@ REPLAY_BODY_FRAME_BYTES = 200.0
 REPLAY_BASE_BYTES = 2.5e6
 
 
+def _run_settings(used, seed: int, hand, scenario, params, limit: float, hand_state, cat_state, failure,
+                  path: dict) -> dict:
+    """A manual run's settings: the catheter's, the hand's and the operator's, and what the run did."""
+    return {"device": "steerable_catheter", "seed": seed, "strategy": hand.strategy,
+            "braid_wires": used.braid_wires,
+            "shaft_GJ_over_plain": round(used.shaft_GJ / used.plain_GJ, 3), "torsion_lead": torsion_lead_deg(used),
+            "statics_period_s": scenario.statics_period, "operator_period_s": params.period,
+            "reaction_s": params.period * params.reaction_steps, "timeout_s": params.timeout,
+            "axes": list(params.axes), "time_limit_s": limit, "push_speed_m_s": hand.push_speed,
+            "twist_rate_deg_s": round(float(np.degrees(hand.twist_rate)), 3), "knob_rate_per_s": hand.knob_rate,
+            "switches": int(hand_state[6]), "slips": int(cat_state.slips), "rod_warnings": failure,
+            "path": path}
+
+
 def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy: str = "switch",
         time_limit: float | None = None, heart=None, hand=None, catheter=None, html=None) -> teleop.TeleopResult:
     """The operator does ``task`` with the manual catheter (default: ``comparison_catheter()``);
@@ -156,16 +170,8 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
     hand_state = station.hand.GetOutputPort("state").Eval(station.hand.GetMyContextFromRoot(root))
     path = {"t": tip_log.sample_times().tolist(), "tip": tip_log.data().T.tolist(),
             "twist": wind_log.data()[0].tolist(), "exit_twist": wind_log.data()[1].tolist()}
-    used = catheter or comparison_catheter()
-    settings = {"device": "steerable_catheter", "seed": int(seed), "strategy": hand.strategy,
-                "braid_wires": used.braid_wires,
-                "shaft_GJ_over_plain": round(used.shaft_GJ / used.plain_GJ, 3), "torsion_lead": torsion_lead_deg(used),
-                "statics_period_s": scenario.statics_period, "operator_period_s": params.period,
-                "reaction_s": params.period * params.reaction_steps, "timeout_s": params.timeout,
-                "axes": list(params.axes), "time_limit_s": limit, "push_speed_m_s": hand.push_speed,
-                "twist_rate_deg_s": round(float(np.degrees(hand.twist_rate)), 3), "knob_rate_per_s": hand.knob_rate,
-                "switches": int(hand_state[6]), "slips": int(cat_state.slips), "rod_warnings": failure,
-                "path": path}
+    settings = _run_settings(catheter or comparison_catheter(), int(seed), hand, scenario, params, limit,
+                             hand_state, cat_state, failure, path)
     return teleop.TeleopResult(task=task, mapping="manual", rows=rows, summary=summary, paper=teleop.PAPER[task],
                                settings=settings, html=None if html is None else str(html))
 
