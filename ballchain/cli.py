@@ -121,12 +121,22 @@ class StopSignals:
     exit status (SIGKILL stops at once). A signal that was ignored when the command started
     (``nohup``, a background job) stays ignored. Only the main thread can install handlers;
     elsewhere this does nothing.
+
+    Python runs a signal's handler wherever the main thread happens to be, and an exception raised
+    inside a finaliser (an object's ``__del__``, a weakref callback: a progress bar closed by the
+    garbage collector) is printed and dropped, never propagated. Such a swallowed stop is caught by
+    ``sys.unraisablehook`` and delivered again a moment later (``REDELIVER_S``), until it reaches
+    the command's own code.
     """
+
+    REDELIVER_S = 0.02  # after a stop swallowed by a finaliser: long enough for the finaliser to end
 
     def __init__(self):
         self.signum: int | None = None
         self.later: list[int] = []
         self._previous: dict[int, object] = {}
+        self._swallowed = False
+        self._hook = None
 
     def install(self) -> None:
         if threading.current_thread() is threading.main_thread():
@@ -135,11 +145,13 @@ class StopSignals:
                 if previous is not signal.SIG_IGN:
                     self._previous[signum] = previous
                     signal.signal(signum, self._handle)
+            self._hook, sys.unraisablehook = sys.unraisablehook, self._unraisable
 
     def _handle(self, signum, frame):
-        if self.signum is None:
-            self.signum = signum
-            raise StopRequest(signum)
+        if self.signum is None or self._swallowed:
+            self._swallowed = False
+            self.signum = self.signum or signum
+            raise StopRequest(self.signum)
         self.later.append(signum)
         if len(self.later) == 1:  # os.write: a print here could land inside another print
             try:
@@ -148,16 +160,37 @@ class StopSignals:
             except OSError:
                 pass
 
+    def _unraisable(self, unraisable) -> None:
+        """``sys.unraisablehook`` while installed: a stop dropped by a finaliser is sent again."""
+        if isinstance(unraisable.exc_value, StopRequest) and self._previous:
+            self._swallowed = True
+            threading.Timer(self.REDELIVER_S, self._redeliver).start()
+            return
+        (self._hook or sys.__unraisablehook__)(unraisable)
+
+    def _redeliver(self) -> None:
+        if self._swallowed and self._previous:  # still installed, and not raised meanwhile
+            os.kill(os.getpid(), self.signum)
+
+    def _unhook(self) -> None:
+        if self._hook is not None and sys.unraisablehook == self._unraisable:
+            sys.unraisablehook = self._hook
+        self._hook = None
+
     def ignore(self) -> None:
         """From now on the stop signals are ignored: nothing can raise or kill any more."""
         for signum in self._previous:
             signal.signal(signum, signal.SIG_IGN)
+        self._swallowed = False
+        self._unhook()
 
     def restore(self) -> None:
         """The handlers from before (when the command ran inside another program, e.g. a test)."""
         for signum, previous in self._previous.items():
             signal.signal(signum, previous)
         self._previous = {}
+        self._swallowed = False
+        self._unhook()
 
     def settle(self, program: bool) -> None:
         """End of the command: ignore the stop signals (``program``) or restore the handlers from

@@ -59,6 +59,48 @@ def test_the_first_signal_raises_a_stop_request_and_later_ones_are_recorded(capf
     assert capfd.readouterr().err.count("SIGINT received while saving what finished") == 1  # one note
 
 
+class _ClosedByTheCollector:
+    """An object whose finaliser runs bytecode after a signal: the handler runs inside ``__del__``,
+    where Python prints and drops any exception (a progress bar closed by the garbage collector)."""
+
+    def __del__(self):
+        signal.raise_signal(signal.SIGTERM)
+        sum(range(1000))  # the pending handler runs here, inside the finaliser
+
+
+def test_a_stop_dropped_by_a_finaliser_is_delivered_again(capfd):
+    previous = {s: signal.getsignal(s) for s in STOPS}
+    hook = sys.unraisablehook
+    stop = StopSignals()
+    stop.install()
+    try:
+        with pytest.raises(StopRequest) as err:
+            _ClosedByTheCollector()  # dropped at once: its __del__ swallows the first StopRequest
+            _busy_until_signal(seconds=10.0)  # without the second delivery: "no signal arrived"
+        assert err.value.signum == signal.SIGTERM and stop.signum == signal.SIGTERM and stop.later == []
+        assert stop.status() == 143
+    finally:
+        stop.settle(program=False)
+    assert {s: signal.getsignal(s) for s in STOPS} == previous and sys.unraisablehook is hook
+    assert "Exception ignored" not in capfd.readouterr().err  # the dropped stop is not printed as an error
+
+
+def test_an_unrelated_exception_in_a_finaliser_still_reaches_the_previous_hook(monkeypatch):
+    seen = []
+    monkeypatch.setattr(sys, "unraisablehook", lambda u: seen.append(type(u.exc_value)))
+    stop = StopSignals()
+    stop.install()
+    try:
+        class Broken:
+            def __del__(self):
+                raise ValueError("a finaliser's own bug")
+
+        Broken()
+    finally:
+        stop.settle(program=False)
+    assert seen == [ValueError]
+
+
 def test_a_signal_ignored_at_the_start_stays_ignored():
     before = signal.signal(signal.SIGHUP, signal.SIG_IGN)  # as under nohup
     try:
