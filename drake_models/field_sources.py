@@ -116,6 +116,18 @@ class MagnetSource:
         if self.model not in ("dipole", "exact"):
             raise UserInputError(f"MagnetSource.model must be 'dipole' or 'exact', got {self.model!r}")
 
+    @classmethod
+    def at_checked_pose(cls, magnet, p_WM: np.ndarray, R_WM: np.ndarray, model: FieldModel) -> "MagnetSource":
+        """The source at a pose already checked, without ``__post_init__``'s checks.
+
+        For a magnet unit's pose at every Hall sample: its centre and model were checked once
+        (its ``MagnetUnitConfig``) and its rotation comes from its unit quaternion. The arrays
+        are used as given (float, (3,) and (3, 3)): the same fields as the checked source's.
+        """
+        source = cls.__new__(cls)
+        source.magnet, source.p_WM, source.R_WM, source.model, source.fd_step = magnet, p_WM, R_WM, model, cls.fd_step
+        return source
+
     @staticmethod
     def pointing(magnet, p_WM, m_hat_W, model: FieldModel = "dipole") -> "MagnetSource":
         """A magnet at p_WM whose dipole points along m_hat_W."""

@@ -141,7 +141,7 @@ class HallSensor(SeededLeafSystem):
         key = R_WM.tobytes()
         last = self._last_fields[k]
         if last is None or last[0] != key:
-            last = self._last_fields[k] = (key, unit.source(R_WM).field(self._p_WS)[0])
+            last = self._last_fields[k] = (key, unit.source_of_rotation(R_WM).field(self._p_WS)[0])
         return last[1].copy()
 
     def true_field(self, context) -> np.ndarray:
@@ -207,8 +207,10 @@ class DipoleDirectionEstimator(LeafSystem):
         self._model = model
         # The other magnets are a third of a metre away, where their dipole field is within
         # about 1 % of the exact one (and 100 times cheaper than magpylib at every evaluation).
-        self._others = tuple(replace(o, model="dipole") for o in compensate_units)
+        self._others = tuple(replace(o, model="dipole").check_placed() for o in compensate_units)
         self._r = np.array([0.0, 0.0, -unit.sensor_distance])  # magnet centre -> sensor
+        self._p_WS = self._unit.p_WS[None, :]
+        self._last_fields: list[tuple[bytes, np.ndarray] | None] = [None] * len(self._others)
         self.set_name(f"{unit.name}.estimator")
         self._B_port = self.DeclareVectorInputPort("B_sensor_T", 3)
         self._other_ports = [
@@ -232,10 +234,18 @@ class DipoleDirectionEstimator(LeafSystem):
             m = refine_direction(B, model, m)
         return m
 
+    def _other_field(self, k: int, R_WM: np.ndarray) -> np.ndarray:
+        """(3,) predicted field of compensated unit k at the sensor [T], remembered for its last
+        orientation (as ``HallSensor._magnet_field``: a function of the orientation alone)."""
+        key = R_WM.tobytes()
+        last = self._last_fields[k]
+        if last is None or last[0] != key:
+            last = self._last_fields[k] = (key, self._others[k].source_of_rotation(R_WM).field(self._p_WS)[0])
+        return last[1]
+
     def _calc(self, context, output):
         B = self._B_port.Eval(context)
         if np.any(B):
-            p_WS = self._unit.p_WS[None, :]
-            for unit, port in zip(self._others, self._other_ports):
-                B = B - unit.source(port.Eval(context).rotation().matrix()).field(p_WS)[0]
+            for k, port in enumerate(self._other_ports):
+                B = B - self._other_field(k, port.Eval(context).rotation().matrix())
         output.SetFromVector(self.estimate(B))

@@ -138,6 +138,9 @@ class ReconfigurationController(LeafSystem):
         return bool(context.get_discrete_state(self._done_index).GetAtIndex(0) > 0.5)
 
     def _update_done(self, context, discrete_state):
+        if self._is_done(context):  # latched: the measurement is not needed (nor evaluated)
+            discrete_state.get_mutable_vector(self._done_index).SetAtIndex(0, 1.0)
+            return
         m = self._m_port.Eval(context)
         converged = np.any(m) and angle_between(m, self._m_c) < self._tol
         discrete_state.get_mutable_vector(self._done_index).SetAtIndex(

@@ -40,8 +40,13 @@ def quaternion_from_rotation(R: np.ndarray) -> np.ndarray:
 
 def rotation_from_quaternion(q: np.ndarray) -> np.ndarray:
     """(3, 3) rotation matrix of a (not necessarily unit) quaternion (w, x, y, z)."""
+    return _rotation_matrix(q).matrix()
+
+
+def _rotation_matrix(q: np.ndarray) -> RotationMatrix:
+    """The RotationMatrix of a (not necessarily unit) quaternion (w, x, y, z)."""
     q = np.asarray(q, dtype=float)
-    return RotationMatrix(Quaternion(q / np.linalg.norm(q))).matrix()
+    return RotationMatrix(Quaternion(q / np.linalg.norm(q)))
 
 
 def _turned(q: np.ndarray, omega_W: np.ndarray, dt: float) -> np.ndarray:
@@ -105,6 +110,7 @@ class RotatingMagnetUnit(LeafSystem):
             as_array(R_WM, "RotatingMagnetUnit R_WM", (3, 3))
         self._config = (config or right_unit()).check_placed()
         self._slip = float(self._config.slip)
+        self._p_WM = np.asarray(self._config.p_WM, dtype=float)
         self.set_name(f"{self._config.name}.magnet")
 
         self._omega_wheels_port = self.DeclareVectorInputPort("omega_wheels", 3)
@@ -202,7 +208,7 @@ class RotatingMagnetUnit(LeafSystem):
         derivatives.get_mutable_vector().SetFromVector(qdot)
 
     def _calc_X_WM(self, context, output):
-        output.set_value(RigidTransform(RotationMatrix(self.R_WM(context)), np.asarray(self._config.p_WM)))
+        output.set_value(RigidTransform(_rotation_matrix(self.quaternion(context)), self._p_WM))
 
     def _calc_m_W(self, context, output):
         output.SetFromVector(self._config.magnet.dipole_moment * self.R_WM(context)[:, 2])
