@@ -403,7 +403,10 @@ class ChainStatics:
             p0, m0 = warm_start.positions, warm_start.dipoles
             if p0.shape != (chain.n_balls, 3):
                 raise UserInputError(f"warm start has {p0.shape[0]} balls, the chain has {chain.n_balls}")
-        bad_field = _non_finite_field(external, p0)
+        # The field where the balls are: the constraints' external field is given in world and
+        # the warm start in the base frame.
+        p_field = p0 if constraints is None else constraints.to_world(p0, m0)[0]
+        bad_field = _non_finite_field(external, p_field)
         if bad_field is not None:  # never solve on a NaN field: it used to "converge" to NaN energy
             U, _, _, terms = chain_energy(chain, p0, m0, None, self.gravity)
             return StaticsResult(p0.copy(), m0.copy(), float("nan"), terms, False, bad_field,

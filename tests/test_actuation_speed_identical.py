@@ -1,0 +1,181 @@
+"""The actuation units' shortcuts give the very same numbers as the work they skip, and the
+statics' field check looks where the balls are.
+
+The shortcuts (each a function the test can put back to the checked path): the Hall sensor's and
+the estimator's magnet sources built without re-checking a pose from a unit quaternion
+(``MagnetUnitConfig.source_of_rotation``), the estimator's compensated fields remembered per
+orientation, the latched controller skipping its measurement, the magnet's pose from one
+RotationMatrix. A teleoperation run with them and one with the checked path must agree bit for
+bit: every unit's magnet, Hall reading, estimate and wheel state, and the engine's state.
+"""
+
+import numpy as np
+import pytest
+
+
+class _Recorder:
+    """The unit and engine states every 10 ms of a run (the Hall sensors' samples)."""
+
+    def __init__(self, station):
+        self.station, self.rows = station, []
+
+    def __call__(self, root):
+        t = root.get_time()
+        if abs(t * 100 - round(t * 100)) > 1e-9:
+            return
+        row = [np.array([t])]
+        for h in self.station.units.values():
+            for system in (h.magnet, h.drive, h.sensor, h.controller):
+                context = system.GetMyContextFromRoot(root)
+                row += [context.get_discrete_state(i).get_value().copy()
+                        for i in range(context.num_discrete_state_groups())]
+            row.append(h.estimator.GetOutputPort("m_hat_W").Eval(h.estimator.GetMyContextFromRoot(root)).copy())
+            row.append(h.magnet.GetOutputPort("m_W").Eval(h.magnet.GetMyContextFromRoot(root)).copy())
+        engine = self.station.chain.engine_system
+        row.append(engine.state_vector(engine.GetMyContextFromRoot(root)).copy())
+        self.rows.append(np.concatenate(row))
+
+
+def _record(name: str, duration: float, overrides: str = "") -> np.ndarray:
+    from pydrake.systems.analysis import Simulator
+
+    from ballchain.systems.chain_scenario import load_scenario
+    from ballchain.systems.chain_simulation import MakeStation
+
+    station = MakeStation(load_scenario(name, "{engine: statics, mode: quasi-static" + overrides + "}"))
+    simulator = Simulator(station.diagram)
+    recorder = _Recorder(station)
+    simulator.set_monitor(recorder)
+    simulator.Initialize()
+    simulator.AdvanceTo(duration)
+    return np.array(recorder.rows)
+
+
+def _checked_path(monkeypatch) -> None:
+    """Put every shortcut back to the work it skips."""
+    from ballchain.systems import hall_sensor, reconfiguration, rotating_magnet_unit
+    from ballchain.systems.unit_config import MagnetUnitConfig
+
+    monkeypatch.setattr(MagnetUnitConfig, "source_of_rotation", MagnetUnitConfig.source)
+
+    def estimator_field(self, k, R_WM):  # the field afresh at every evaluation
+        return self._others[k].source(R_WM).field(self._p_WS)[0]
+
+    monkeypatch.setattr(hall_sensor.DipoleDirectionEstimator, "_other_field", estimator_field)
+
+    def update_done(self, context, discrete_state):  # the measurement evaluated also when latched
+        m = self._m_port.Eval(context)
+        converged = np.any(m) and reconfiguration.angle_between(m, self._m_c) < self._tol
+        discrete_state.get_mutable_vector(self._done_index).SetAtIndex(
+            0, 1.0 if (self._is_done(context) or converged) else 0.0)
+
+    monkeypatch.setattr(reconfiguration.ReconfigurationController, "_update_done", update_done)
+
+    def pose(self, context, output):
+        from pydrake.math import RigidTransform, RotationMatrix
+
+        output.set_value(RigidTransform(RotationMatrix(self.R_WM(context)), np.asarray(self._config.p_WM)))
+
+    monkeypatch.setattr(rotating_magnet_unit.RotatingMagnetUnit, "_calc_X_WM", pose)
+
+
+# Both cases have two units, each sensor seeing the other's magnet and each estimator
+# subtracting it. As named, the magnets start neutral (the controllers latch at the first sample);
+# turned away from neutral, the controllers measure at every sample and the left unit
+# reconfigures from 0.05 s.
+_UNITS_OFF_NEUTRAL = (
+    ", units: [{name: right_unit, anchor: carina_right, distance: 0.10, direction_W: [-0.45, -0.8, 0.0], "
+    "m_hat_W: [0.0, 1.0, 0.2], joystick: [{time: 0.02, axes: [0.3, 0.0, 1.0]}]}, "
+    "{name: left_unit, anchor: carina_left, distance: 0.10, direction_W: [0.8, -0.5, 0.0], m_hat_W: [1.0, 0.0, 0.0], "
+    "joystick: [{time: 0.05, axes: [0.0, 0.0, 0.0], mode: 1}]}]")
+
+
+@pytest.mark.parametrize("overrides, duration", [("", 0.6), (_UNITS_OFF_NEUTRAL, 0.15)])
+def test_teleop_run_is_the_same_with_and_without_the_shortcuts(overrides, duration, monkeypatch):
+    from ballchain.systems.hall_sensor import DipoleDirectionEstimator
+
+    compensations = []
+    remembered = DipoleDirectionEstimator._other_field
+
+    def counted(self, k, R_WM):
+        compensations.append(k)
+        return remembered(self, k, R_WM)
+
+    with monkeypatch.context() as patch:
+        patch.setattr(DipoleDirectionEstimator, "_other_field", counted)
+        fast = _record("teleop_two_units", duration, overrides)
+    # Off neutral the estimators run (and subtract the other unit) at every sample.
+    assert len(compensations) >= (2 * 100 * duration if overrides else 0)
+    with monkeypatch.context() as patch:
+        _checked_path(patch)
+        checked = _record("teleop_two_units", duration, overrides)
+    assert fast.shape == checked.shape and len(fast) >= 100 * duration
+    assert np.array_equal(fast, checked)  # bit for bit, every sample
+    magnets = fast[:, 1:5]
+    assert np.ptp(magnets, axis=0).max() > 1e-3, "the magnets should turn during the run"
+
+
+def test_source_of_rotation_is_the_checked_source():
+    from ballchain.systems.unit_config import right_unit
+    from pydrake.math import RotationMatrix
+
+    unit = right_unit().check_placed()
+    R = RotationMatrix.MakeXRotation(0.3).multiply(RotationMatrix.MakeZRotation(-1.1)).matrix()
+    p = np.array([[0.01, 0.02, -0.03], unit.p_WS])
+    for model in ("dipole", "exact"):
+        unit.model = model
+        fast, checked = unit.source_of_rotation(R), unit.source(R)
+        assert fast.magnet == checked.magnet and (fast.model, fast.fd_step) == (checked.model, checked.fd_step)
+        assert np.array_equal(fast.p_WM, checked.p_WM) and np.array_equal(fast.R_WM, checked.R_WM)
+        assert np.array_equal(fast.field(p), checked.field(p))
+        for a, b in zip(fast.field_and_gradient(p), checked.field_and_gradient(p)):
+            assert np.array_equal(a, b)
+
+
+# --- the statics' field check: at the balls, in world ---------------------------------------------
+class _NaNNear:
+    """A field that is NaN within 0.5 mm of some points and zero elsewhere (a broken source)."""
+
+    def __init__(self, points):
+        self.points = np.asarray(points, float)
+
+    def field_and_gradient(self, p_W):
+        p = np.asarray(p_W, float).reshape(-1, 3)
+        near = np.linalg.norm(p[:, None, :] - self.points[None], axis=2).min(axis=1) < 0.5e-3
+        B, G = np.zeros((len(p), 3)), np.zeros((len(p), 3, 3))
+        B[near], G[near] = np.nan, np.nan
+        return B, G
+
+
+def test_statics_field_check_looks_at_the_balls_in_world(heart, sdf):
+    """In the heart the external field is given in world and the warm start in the base frame:
+    a field that is NaN where the balls are (in world) is refused before the solve, and one that
+    is NaN only at the base-frame coordinates (where no ball is) is not."""
+    from ballchain.drake_models.params import BallChain
+    from ballchain.optimization.statics import ChainStatics, straight_chain
+    from ballchain.optimization.wall_constraints import HeartConstraints, SheathGeometry, base_rotation, sheath_split
+
+    n, d, s = 16, 3.175e-3, 0.012  # the tip 12 mm inside: the balls away from the base-frame coordinates
+    k, a = sheath_split(n, s, d)
+    sheath = SheathGeometry(heart.p_HE, heart.sheath_axis_H, 1.8e-3, 0.3e-3)
+    constraints = HeartConstraints(heart.p_HE + a * heart.sheath_axis_H, base_rotation(heart.sheath_axis_H), sdf,
+                                   sheath, n_behind=k, gravity=True)
+    chain = BallChain(n_balls=n - k)
+    p_B, m_B = straight_chain(chain)
+    p_W = constraints.to_world(p_B, m_B)[0]
+    assert np.linalg.norm(p_W[:, None] - p_B[None], axis=2).min() > 5e-3  # the two sets apart
+    statics = ChainStatics(chain, gravity=True)
+
+    at_balls = statics.solve(_NaNNear(p_W), None, constraints=constraints)
+    assert not at_balls.converged and "not finite" in at_balls.reason and at_balls.iterations == 0
+
+    at_base_coordinates = statics.solve(_NaNNear(p_B), None, constraints=constraints)
+    assert "not finite" not in at_base_coordinates.reason and at_base_coordinates.iterations > 0
+
+
+def test_station_builds_the_watchdog_wall_distance_before_the_run():
+    from ballchain.systems.chain_scenario import load_scenario
+    from ballchain.systems.chain_simulation import MakeStation
+
+    station = MakeStation(load_scenario("heart_wall_contact", "{engine: statics}"))
+    assert "wall_distance" in vars(station.heart)  # the cached k-d tree exists already
