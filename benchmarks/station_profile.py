@@ -112,8 +112,9 @@ def _build(scenario_name: str, overrides: str | None):
 
 
 def run(*, scenario: str = "teleop_right_unit", overrides: str | None = None, duration: float = 1.0,
-        top: int = 15) -> dict:
-    """Profile ``duration`` simulated seconds of a scenario; returns the breakdown (see module)."""
+        top: int = 15, by_system: bool = False) -> dict:
+    """Profile ``duration`` simulated seconds of a scenario; returns the breakdown (see module).
+    With ``by_system`` the actuation units' systems are a group each (by class name)."""
     # 1. Un-profiled real-time factor.
     sc, simulator = _build(scenario, overrides)
     start = time.perf_counter()
@@ -127,7 +128,7 @@ def run(*, scenario: str = "teleop_right_unit", overrides: str | None = None, du
         timer.wrap(cls, "wrench")
     for module, names in ACTUATION.items():
         for cls in _classes(module, names):
-            timer.wrap(cls, "actuation")
+            timer.wrap(cls, cls.__name__ if by_system else "actuation")
     for cls in _classes(*GROUPS["monitor"]):
         timer.wrap(cls, "monitor")
     for cls in _classes(*GROUPS["engine"]):
@@ -184,9 +185,16 @@ def main() -> None:
     parser.add_argument("--set", dest="overrides", default=None, help="inline YAML overrides")
     parser.add_argument("--duration", type=float, default=1.0, help="simulated time [s]")
     parser.add_argument("--top", type=int, default=15, help="cProfile functions to list")
+    parser.add_argument("--by-system", action="store_true",
+                        help="each actuation system (magnet, drive, Hall sensor, ...) a group of its own")
+    parser.add_argument("--clock", choices=("wall", "cpu"), default="wall",
+                        help="cpu: every timer counts the process's CPU time (time.process_time)")
     args = parser.parse_args()
+    if args.clock == "cpu":  # as ab_compare's children: on a shared machine wall time measures the others
+        time.perf_counter = time.process_time
     with threadpool_limits(limits=1, user_api="blas"):  # as the CLI does
-        result = run(scenario=args.scenario, overrides=args.overrides, duration=args.duration, top=args.top)
+        result = run(scenario=args.scenario, overrides=args.overrides, duration=args.duration, top=args.top,
+                     by_system=args.by_system)
     print(json.dumps(result, indent=1))
 
 
