@@ -90,7 +90,11 @@ _UNITS_OFF_NEUTRAL = (
     "joystick: [{time: 0.05, axes: [0.0, 0.0, 0.0], mode: 1}]}]")
 
 
-@pytest.mark.parametrize("overrides, duration", [("", 0.6), (_UNITS_OFF_NEUTRAL, 0.15)])
+@pytest.mark.parametrize("overrides, duration", [
+    ("", 0.3),  # latched from 0.01 s, both magnets turning from 0.1 s
+    pytest.param("", 1.0, marks=pytest.mark.slow),  # the whole scenario: the left unit's mode 1 from 0.5 s
+    (_UNITS_OFF_NEUTRAL, 0.15),
+])
 def test_teleop_run_is_the_same_with_and_without_the_shortcuts(overrides, duration, monkeypatch):
     from ballchain.systems.hall_sensor import DipoleDirectionEstimator
 
