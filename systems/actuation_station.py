@@ -112,8 +112,10 @@ def add_unit(
 
     mode switch -> omni-wheel drive -> magnet -> Hall sensor -> estimator -> reconfiguration
     controller -> mode switch (and teleoperation -> mode switch). Left to the caller: the
-    joystick and mode inputs, the other units' poses into the sensor and estimator
-    (``X_WM_<name>`` ports for each of ``others``), and what is exported.
+    joystick and mode inputs (one mode source into both the switch's and the controller's
+    ``mode``: the controller starts a new reconfiguration when it goes to 1), the other units'
+    poses into the sensor and estimator (``X_WM_<name>`` ports for each of ``others``), and what
+    is exported.
 
     Args:
         builder: the diagram builder.
@@ -261,6 +263,7 @@ def make_actuation_station(
         controller, teleop, switch = systems.controller, systems.teleop, systems.switch
         builder.ExportInput(teleop.GetInputPort("joystick"), f"{n}.joystick")
         builder.ExportInput(switch.GetInputPort("mode"), f"{n}.mode")
+        builder.ConnectInput(f"{n}.mode", controller.GetInputPort("mode"))
         if unit.teleop_frame == "tip":
             builder.ExportInput(teleop.GetInputPort("p_WT"), f"{n}.p_WT")
             builder.ExportInput(teleop.GetInputPort("tip_direction_W"), f"{n}.tip_direction_W")

@@ -18,6 +18,10 @@ What the paper leaves open and this controller decides:
 * Wheel-speed saturation: the wheel vector is scaled as a whole, so the rotation axis is kept.
 * Termination: ``done`` latches once the measured error is below ``tolerance_deg``; the wheel
   command is then zero (the paper runs the law "until convergence").
+* Requests: the latch belongs to one reconfiguration. Each time the unit's mode goes to 1
+  (reconfiguration) a new one starts: ``done`` clears at that sample and the error is measured
+  afresh, so a unit that started neutral, or finished an earlier reconfiguration, and was then
+  turned by teleoperation goes back to neutral when asked again.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.omniwheel import OmniWheelGeometry, paper_wheel_speeds
 from ballchain.drake_models.vectors import angle_between, perpendicular_axis
 from ballchain.systems.omni_wheel_drive import saturate_uniformly
+from ballchain.systems.teleoperation import ModeSwitch
 from ballchain.systems.unit_config import MagnetUnitConfig
 
 
@@ -38,15 +43,19 @@ class ReconfigurationController(LeafSystem):
 
     Input ports:
         m_hat_measured_W: (3,) estimated dipole direction (zeros = no reading: command zero).
+        mode: (1,) the unit's mode, from the same source as its mode switch's (0 teleoperation,
+            1 reconfiguration, rounded): its going to 1 is a reconfiguration request.
 
     Output ports:
         omega_wheels_cmd: (3,) wheel speeds by the law, saturated [rad/s].
         omega_desired_W: (3,) magnet angular velocity those wheel speeds make without slip
             [rad/s] (the drive's input).
-        done: (1,) 1.0 once converged (latched), else 0.0.
+        done: (1,) 1.0 once converged (latched until the next request), else 0.0.
         angle_error: (1,) measured angle between m_hat and m_c [rad].
 
-    State: discrete ``done`` (1), updated every ``period`` seconds (the sensor's sample period).
+    State: discrete ``done`` (1) and the mode seen at the last update (1: 1.0 reconfiguration,
+    else 0.0; 0.0 before the first), both updated every ``period`` seconds (the sensor's sample
+    period).
     """
 
     def __init__(
@@ -100,7 +109,9 @@ class ReconfigurationController(LeafSystem):
         self.set_name(f"{name}.controller")
 
         self._m_port = self.DeclareVectorInputPort("m_hat_measured_W", 3)
+        self._mode_port = self.DeclareVectorInputPort("mode", 1)
         self._done_index = self.DeclareDiscreteState(1)
+        self._mode_index = self.DeclareDiscreteState(1)
         self._wheels_port = self.DeclareVectorOutputPort("omega_wheels_cmd", 3, self._calc_wheels)
         self._omega_port = self.DeclareVectorOutputPort("omega_desired_W", 3, self._calc_omega)
         self._done_port = self.DeclareStateOutputPort("done", self._done_index)
@@ -110,10 +121,6 @@ class ReconfigurationController(LeafSystem):
     @property
     def m_c_W(self) -> np.ndarray:
         return self._m_c.copy()
-
-    def reset(self, context) -> None:
-        """Clear the latched ``done`` (start a new reconfiguration); ``context`` is this system's."""
-        context.get_mutable_discrete_state(self._done_index).SetAtIndex(0, 0.0)
 
     def desired_angular_velocity(self, m_hat: np.ndarray) -> np.ndarray:
         """The law ``K (m x m_c)`` [rad/s] with the antiparallel fix (before saturation)."""
@@ -138,14 +145,20 @@ class ReconfigurationController(LeafSystem):
         return bool(context.get_discrete_state(self._done_index).GetAtIndex(0) > 0.5)
 
     def _update_done(self, context, discrete_state):
-        if self._is_done(context):  # latched: the measurement is not needed (nor evaluated)
-            discrete_state.get_mutable_vector(self._done_index).SetAtIndex(0, 1.0)
-            return
-        m = self._m_port.Eval(context)
-        converged = np.any(m) and angle_between(m, self._m_c) < self._tol
+        reconfiguring = round(float(self._mode_port.Eval(context)[0])) == ModeSwitch.RECONFIGURATION
+        was_reconfiguring = context.get_discrete_state(self._mode_index).GetAtIndex(0) > 0.5
+        requested = reconfiguring and not was_reconfiguring  # a new reconfiguration starts here
+        latched = self._is_done(context) and not requested
+        discrete_state.get_mutable_vector(self._mode_index).SetAtIndex(0, 1.0 if reconfiguring else 0.0)
         discrete_state.get_mutable_vector(self._done_index).SetAtIndex(
-            0, 1.0 if (self._is_done(context) or converged) else 0.0
-        )
+            0, 1.0 if self._done_after(context, latched) else 0.0)
+
+    def _done_after(self, context, latched: bool) -> bool:
+        """Whether ``done`` holds after this update, given whether it stays latched."""
+        if latched:  # the measurement is not needed (nor evaluated)
+            return True
+        m = self._m_port.Eval(context)
+        return bool(np.any(m) and angle_between(m, self._m_c) < self._tol)
 
     def _wheels(self, context) -> np.ndarray:
         if self._is_done(context):

@@ -6,6 +6,7 @@
     ``<u>.joystick`` (scripted stick, zero-order hold) -> ``<u>.teleoperation`` ->
     ``<u>.mode_switch`` (``<u>.mode_command``) -> ``<u>.drive`` -> ``<u>.magnet`` ->
     ``<u>.hall_sensor`` -> ``<u>.estimator`` -> ``<u>.controller`` -> ``<u>.mode_switch``;
+    ``<u>.mode_command`` also feeds ``<u>.controller`` (its going to 1 starts a reconfiguration);
 
 with ``joystick_source: external`` there is no ``<u>.joystick``: the mapper's ``joystick`` input
 is returned (``UnitHandles.joystick_input``) for another system (a simulated operator) to drive.
@@ -196,6 +197,7 @@ def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig],
         mode = _zoh_source([q.time for q in keys], np.array([[float(q.mode) for q in keys]]).reshape(1, -1),
                            f"{n}.mode_command", builder)
         builder.Connect(mode.get_output_port(), switch.GetInputPort("mode"))
+        builder.Connect(mode.get_output_port(), systems.controller.GetInputPort("mode"))
         handles[n] = UnitHandles(u, systems.magnet, systems.drive, systems.sensor, systems.estimator,
                                  systems.controller, teleop, stick, m_c, m0, teleop.GetInputPort("joystick"))
     mux = builder.AddSystem(Multiplexer([3] * (2 * len(handles))))

@@ -63,13 +63,12 @@ def _checked_path(monkeypatch) -> None:
 
     monkeypatch.setattr(hall_sensor.DipoleDirectionEstimator, "_other_field", estimator_field)
 
-    def update_done(self, context, discrete_state):  # the measurement evaluated also when latched
+    def done_after(self, context, latched):  # the measurement evaluated also when latched
         m = self._m_port.Eval(context)
         converged = np.any(m) and reconfiguration.angle_between(m, self._m_c) < self._tol
-        discrete_state.get_mutable_vector(self._done_index).SetAtIndex(
-            0, 1.0 if (self._is_done(context) or converged) else 0.0)
+        return bool(latched or converged)
 
-    monkeypatch.setattr(reconfiguration.ReconfigurationController, "_update_done", update_done)
+    monkeypatch.setattr(reconfiguration.ReconfigurationController, "_done_after", done_after)
 
     def pose(self, context, output):
         from pydrake.math import RigidTransform, RotationMatrix
