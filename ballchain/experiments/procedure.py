@@ -48,6 +48,7 @@ WINDOW_GF = (10.0, 40.0)
 DWELL_S = 10.0
 MAX_DWELL_S = 120.0
 UNITS = ("one", "two")
+WALL_MOTIONS = ("off", "on", "respiration", "beat")
 
 
 def default_units(task: str | None, anatomy) -> str:
@@ -63,13 +64,13 @@ def scenario_for(units: str, overrides: str | None, anatomy):
     """The teleoperation station (world mapping) with one or both units and the feeder left to
     the navigator; on a user anatomy the units stand at its magnets."""
     from ballchain.experiments import teleop
-    from ballchain.systems.chain_scenario import load_scenario, parse_overrides
+    from ballchain.systems.chain_scenario import parse_overrides
     from ballchain.systems.station import apply_anatomy
 
     if units == "one":
         scenario = teleop.scenario_for("world", None, overrides, None if anatomy.procedural else anatomy)
-    else:
-        scenario = load_scenario("teleop_two_units", overrides)
+    else:  # checked with the engine the hand-over gives it (a wall_motion needs no engine: statics)
+        scenario = teleop.load_for_hand_over("teleop_two_units", overrides)
         if not anatomy.procedural:
             apply_anatomy(scenario, anatomy)
         teleop.hand_over(scenario, "world", None, parse_overrides(overrides))
@@ -133,6 +134,38 @@ def check_inputs(task, navigator, seed, targets, force_gf, window_gf, dwell_s) -
         raise UserInputError(f"force {force_gf:g} gf must lie in its window {lo:g}..{hi:g} gf (0 < low, high <= 200)")
     if not 0 <= dwell_s <= MAX_DWELL_S:
         raise UserInputError(f"dwell must be in 0..{MAX_DWELL_S:g} s, got {short_repr(dwell_s)}")
+
+
+def with_wall_motion(overrides: str | None, wall_motion: str) -> str | None:
+    """The scenario overrides with the moving wall ``wall_motion`` added (``drake_models.wall_motion``
+    at its literature defaults, through the scenario's): "off" adds nothing (the still wall), "on"
+    respiration and the heart beat, "respiration" or "beat" only that one (the other's amplitude 0).
+    The quasi-static engine the hand-over gives the run follows the wall (``teleop.load_for_hand_over``).
+
+    Returns:
+        The overrides (a YAML flow mapping) or ``overrides`` itself for "off".
+
+    Raises:
+        UserInputError: another choice, or overrides that name ``wall_motion`` too.
+    """
+    import json
+
+    from ballchain.systems.chain_scenario import parse_overrides
+
+    if wall_motion not in WALL_MOTIONS:
+        raise UserInputError(f"--wall-motion must be one of {', '.join(WALL_MOTIONS)}, got {short_repr(wall_motion)}")
+    if wall_motion == "off":
+        return overrides
+    changes = parse_overrides(overrides)
+    if "wall_motion" in changes:
+        raise UserInputError(f"--wall-motion {wall_motion} and --set wall_motion: "
+                             f"{short_repr(changes['wall_motion'])} both set the moving wall; give only one of them")
+    motion: dict = {"enabled": True}
+    if wall_motion == "respiration":
+        motion["cardiac"] = {"amplitude": 0.0}
+    elif wall_motion == "beat":
+        motion["respiratory"] = {"amplitude": 0.0}
+    return json.dumps({**changes, "wall_motion": motion})
 
 
 def _plan_step(chain, stand, name: str, m_prev: np.ndarray, previous, force_N: float, radius: float) -> dict:
@@ -327,7 +360,8 @@ def _summary(rows: list, run, plan_cpu: float, missing: list) -> dict:
 def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed: int = 0, *,
         targets: int | None = None, force_gf: float = FORCE_GF, window_gf=WINDOW_GF, dwell_s: float = DWELL_S,
         localisation: LocalisationParams | None = None, overrides: str | None = None, progress: bool = True,
-        html: Path | None = None, units: str | None = None, lesions: bool = True) -> ProcedureResult:
+        html: Path | None = None, units: str | None = None, lesions: bool = True,
+        wall_motion: str = "off") -> ProcedureResult:
     """Simulate the procedure on a ring: every target reached, pressed and held for the dwell.
 
     Args:
@@ -346,6 +380,8 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
         units: "one" (the unit beyond the right carina) or "two" (both carinas' units); None:
             ``default_units``.
         lesions: each dwell's lesion and the ring's verdict (``with_lesions``).
+        wall_motion: the moving wall, one of ``WALL_MOTIONS`` (``with_wall_motion``); the motion
+            the run used is in ``settings["wall_motion"]``.
 
     Returns:
         A ``ProcedureResult``.
@@ -354,6 +390,7 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
     from ballchain.systems.autonomous_navigator import NavigatorParams
 
     check_inputs(task, navigator, seed, targets, force_gf, tuple(window_gf), dwell_s)
+    overrides = with_wall_motion(overrides, wall_motion)
     if units not in (None, *UNITS):
         raise UserInputError(f"units must be one of {UNITS} (or None: by the ring), got {short_repr(units)}")
     localisation = localisation if localisation is not None else LocalisationParams()
@@ -461,6 +498,7 @@ def _settings(params, seed, scenario, overrides, limit, anatomy, localisation=No
                 "noise_std_mm": localisation.noise_std * 1e3, "rate_hz": localisation.rate,
                 "latency_s": localisation.latency},
             "navigator_period_s": params.period, "time_limit_s": limit,
+            "wall_motion": None if (law := scenario.wall_motion.law()) is None else law.to_dict(),
             "anatomy": None if anatomy.procedural else str(anatomy.path)}
 
 
