@@ -154,9 +154,9 @@ def with_wall_motion(overrides: str | None, wall_motion: str) -> str | None:
 
     if wall_motion not in WALL_MOTIONS:
         raise UserInputError(f"--wall-motion must be one of {', '.join(WALL_MOTIONS)}, got {short_repr(wall_motion)}")
+    changes = parse_overrides(overrides)  # its YAML and fields checked here, before the atrium is built
     if wall_motion == "off":
         return overrides
-    changes = parse_overrides(overrides)
     if "wall_motion" in changes:
         raise UserInputError(f"--wall-motion {wall_motion} and --set wall_motion: "
                              f"{short_repr(changes['wall_motion'])} both set the moving wall; give only one of them")
