@@ -5,12 +5,15 @@ a short stretch of the right ring under respiration and the heart beat through t
 
 import json
 
+import numpy as np
 import pytest
 
 from ballchain.cli import main as cli_main
 from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.params import BallChain, CylinderMagnet
 from ballchain.drake_models.wall_motion import WallMotion
 from ballchain.experiments import procedure, teleop
+from ballchain.systems.autonomous_navigator import TipForceEstimator
 from ballchain.systems.chain_scenario import load_scenario, parse_overrides
 
 MOVING = "{wall_motion: {enabled: true}}"
@@ -24,6 +27,7 @@ MOVING = "{wall_motion: {enabled: true}}"
     (["--set", "{wall_motion: {enabled: true, cardiac: {amplitude: 0.5}}}"], "wall_motion.cardiac.amplitude"),
     (["--set", "{wall_motion: {enable: true}}"], "enable"),
     (["--set", "[1"], "--set is not valid YAML"),
+    (["--navigator", "operator", "--track-sheath"], "--track-sheath needs navigator auto"),
 ])
 def test_bad_motion_flags_fail_in_one_line_before_any_work(argv, message, capsys, monkeypatch):
     def no_work(*args, **kwargs):
@@ -89,17 +93,45 @@ def test_the_motion_is_recorded_in_results_units():
     assert sum(x * x for x in d["cardiac"]["direction"]) == pytest.approx(1.0, abs=1e-12)
 
 
+def _estimator(p_WE, p_WM) -> TipForceEstimator:
+    """A force model with its sheath's exit at p_WE (along x) and one magnet at p_WM [m]."""
+    return TipForceEstimator(BallChain(), p_WE, np.eye(3), [(CylinderMagnet(), p_WM)], "dipole", 16)
+
+
+def test_the_tracked_sheath_moves_the_model_s_sheath_not_the_magnets():
+    """The estimator given the sheath's offset h holds the tip with the sheath's exit at p_WE + h
+    and the magnets where they stand (the cart does not breathe): it is the model built with its
+    sheath there. Moving the magnets by h as well changes nothing (the physics is translation
+    invariant), and the motion-blind model (sheath at rest) answers differently."""
+    p_WE, p_WM = np.array([0.01, -0.02, 0.03]), np.array([0.03, 0.0, 0.12])
+    m = np.array([[0.0, 0.2, 1.0]]) / np.hypot(0.2, 1.0)
+    s = 15 * BallChain().ball_diameter
+    tip = p_WE + np.array([0.036, 0.012, 0.008])  # a point the 16 free balls reach
+    h = np.array([0.0, 0.0, 5e-3])  # respiration's amplitude, supero-inferior
+    tracked = _estimator(p_WE, p_WM).reaction_W(tip + h, m, s, h)
+    built_there = _estimator(p_WE + h, p_WM).reaction_W(tip + h, m, s)
+    at_rest = _estimator(p_WE, p_WM).reaction_W(tip, m, s)
+    all_moved = _estimator(p_WE + h, p_WM + h).reaction_W(tip + h, m, s)
+    blind = _estimator(p_WE, p_WM).reaction_W(tip + h, m, s)
+    np.testing.assert_allclose(tracked, built_there, rtol=0, atol=1e-9)  # [N]
+    np.testing.assert_allclose(all_moved, at_rest, rtol=0, atol=1e-9)
+    assert np.linalg.norm(blind - tracked) > 0.01 * np.linalg.norm(tracked)
+    assert np.array_equal(_estimator(p_WE, p_WM).reaction_W(tip, m, s, None),
+                          _estimator(p_WE, p_WM).reaction_W(tip, m, s, np.zeros(3)))
+
+
 @pytest.mark.slow
-def test_a_stretch_of_the_right_ring_under_motion_through_the_command(capsys):
+@pytest.mark.parametrize("track", [[], ["--track-sheath"]], ids=["blind", "tracked"])
+def test_a_stretch_of_the_right_ring_under_motion_through_the_command(track, capsys):
     """Three right-ring targets, 2 s dwells, respiration and the heart beat at their defaults,
-    no ``engine: statics`` given: every target reached, every dwell sample inside the 10-40 gf
-    window, the motion recorded, and the motion-blind estimate within 2.5 gf (a quarter of the
-    10 gf margin between the command and the window's floor)."""
-    code = cli_main(["procedure", "--targets", "3", "--dwell", "2", "--wall-motion", "on", "--json"])
+    no ``engine: statics`` given, the navigator motion-blind or tracking the sheath: every target
+    reached, every dwell sample inside the 10-40 gf window, the motion recorded, and the estimate
+    within 2.5 gf (a quarter of the 10 gf margin between the command and the window's floor)."""
+    code = cli_main(["procedure", "--targets", "3", "--dwell", "2", "--wall-motion", "on", *track, "--json"])
     data = json.loads(capsys.readouterr().out)
     assert code == 0
     s, settings = data["summary"], data["settings"]
-    assert settings["engine"] == "statics"
+    assert settings["engine"] == "statics" and settings["navigator_tracks_sheath"] == bool(track)
     assert settings["wall_motion"] == WallMotion.default().to_dict()
     assert s["failure"] is None and s["reached"] == s["targets"] == 3
     assert s["in_window_fraction"] == 1.0

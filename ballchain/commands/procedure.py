@@ -7,7 +7,8 @@ estimate's error; ``--json`` the whole result; ``--out DIR`` writes ``procedure.
 and the ring's map ``ring.png`` (atomically); ``--html FILE`` a Meshcat replay with the lesion
 patches on the wall. Each dwell leaves a lesion (``drake_models.lesion_ring``), and the ring is
 checked for gaps. ``--wall-motion`` moves the atrium (respiration, the heart beat or both, at the
-defaults of ``drake_models.wall_motion``); ``--set`` overrides the station's scenario fields.
+defaults of ``drake_models.wall_motion``), ``--track-sheath`` gives the navigator the sheath's
+tracked position (respiratory compensation); ``--set`` overrides the station's scenario fields.
 """
 
 from __future__ import annotations
@@ -45,6 +46,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--wall-motion", choices=procedure.WALL_MOTIONS, default="off",
                         help="move the atrium: on (respiration, 5 mm at 0.25 Hz, and the heart beat, 1 mm at 1.2 Hz), "
                              "respiration or beat alone, or off (the still wall); the quasi-static engine follows it")
+    parser.add_argument("--track-sheath", action="store_true",
+                        help="respiratory compensation: the navigator tracks the sheath (a localisation sensor on it, "
+                             "the tip's noise, rate and latency) and moves its force model's sheath and its targets "
+                             "with it (default: both held at rest, motion-blind)")
     parser.add_argument("--set", dest="overrides", default=None, metavar="YAML",
                         help="inline YAML overriding the station scenario's fields, e.g. "
                              "'{wall_motion: {enabled: true, cardiac: {amplitude: 0.002}}}' (not with --wall-motion)")
@@ -63,7 +68,7 @@ def main(args: argparse.Namespace) -> int:
         check_output_dir(args.out, "--out", names=("procedure.json", "ring.png"))
     data = procedure.run(args.task, args.navigator, args.anatomy, args.seed, targets=args.targets,
                          force_gf=args.force, dwell_s=args.dwell, localisation=localisation, html=args.html,
-                         overrides=args.overrides, wall_motion=args.wall_motion)
+                         overrides=args.overrides, wall_motion=args.wall_motion, track_sheath=args.track_sheath)
     if args.out is not None:
         procedure.write_outputs(data, args.out)
     if args.json:

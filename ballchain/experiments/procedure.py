@@ -270,8 +270,32 @@ def _estimator(ports, chain, n_balls: int):
     return TipForceEstimator(chain, heart.p_HE, R_WS, magnets, units[0].config.model, n_balls)
 
 
-def _add_auto(handles: dict, plans: list, localisation: LocalisationParams, params, seed: int):
-    """The ``add_systems`` hook of the autonomous run: sensor, navigator, loggers."""
+def _add_sheath_tracker(builder, ports, localisation: LocalisationParams, seed: int):
+    """A localisation sensor on the sheath (respiratory compensation): the tracked sheath's
+    displacement from its rest pose, i.e. the heart's (the quasi-static engine's
+    ``anatomy_offsets``; zero on a still wall), with the tip sensor's noise, rate and latency and
+    a noise stream of its own. Returns its ``p_WT_measured`` output."""
+    from pydrake.systems.primitives import ConstantVectorSource, MatrixGain
+
+    from ballchain.systems.localisation_sensor import LocalisationSensor
+
+    sensor = builder.AddSystem(LocalisationSensor(1, localisation, int(np.random.SeedSequence((seed, 1)).generate_state(1)[0]),
+                                                  name="sheath_localisation"))
+    engine = getattr(ports.chain, "engine_system", None)
+    offsets = None if engine is None else engine.get_anatomy_offsets_output_port()
+    if offsets is None:  # a still wall: the sheath stays at rest
+        source = builder.AddSystem(ConstantVectorSource(np.zeros(3))).get_output_port()
+    else:  # the first three: the heart's (and the sheath's) offset
+        source = builder.AddSystem(MatrixGain(np.hstack([np.eye(3), np.zeros((3, 3))]))).get_output_port()
+        builder.Connect(offsets, source.get_system().get_input_port())
+    builder.Connect(source, sensor.get_ball_positions_input_port())
+    return sensor.GetOutputPort("p_WT_measured")
+
+
+def _add_auto(handles: dict, plans: list, localisation: LocalisationParams, params, seed: int,
+              track_sheath: bool = False):
+    """The ``add_systems`` hook of the autonomous run: sensor, navigator, loggers (and with
+    ``track_sheath`` the sheath's sensor, ``_add_sheath_tracker``)."""
     from pydrake.systems.primitives import LogVectorOutput
 
     from ballchain.drake_models.params import BallChain
@@ -284,8 +308,12 @@ def _add_auto(handles: dict, plans: list, localisation: LocalisationParams, para
         sensor = builder.AddSystem(LocalisationSensor(n, localisation, seed))
         builder.Connect(cp.get_ball_positions_output_port(), sensor.get_ball_positions_input_port())
         units = list(ports.joystick_inputs)
-        nav = builder.AddSystem(AutonomousNavigator(units, plans, _estimator(ports, BallChain(), n), params))
+        nav = builder.AddSystem(AutonomousNavigator(units, plans, _estimator(ports, BallChain(), n), params,
+                                                    tracks_sheath=track_sheath))
         builder.Connect(sensor.GetOutputPort("p_WT_measured"), nav.GetInputPort("p_WT_measured"))
+        if track_sheath:
+            builder.Connect(_add_sheath_tracker(builder, ports, localisation, seed),
+                            nav.GetInputPort("sheath_offset_measured"))
         for u in units:
             builder.Connect(ports.units[u].magnet.GetOutputPort("m_W"), nav.GetInputPort(f"m_W_{u}"))
             builder.Connect(nav.GetOutputPort(f"joystick_{u}"), ports.joystick_inputs[u])
@@ -361,7 +389,7 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
         targets: int | None = None, force_gf: float = FORCE_GF, window_gf=WINDOW_GF, dwell_s: float = DWELL_S,
         localisation: LocalisationParams | None = None, overrides: str | None = None, progress: bool = True,
         html: Path | None = None, units: str | None = None, lesions: bool = True,
-        wall_motion: str = "off") -> ProcedureResult:
+        wall_motion: str = "off", track_sheath: bool = False) -> ProcedureResult:
     """Simulate the procedure on a ring: every target reached, pressed and held for the dwell.
 
     Args:
@@ -382,6 +410,9 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
         lesions: each dwell's lesion and the ring's verdict (``with_lesions``).
         wall_motion: the moving wall, one of ``WALL_MOTIONS`` (``with_wall_motion``); the motion
             the run used is in ``settings["wall_motion"]``.
+        track_sheath: the autonomous navigator tracks the sheath (a localisation sensor on it,
+            ``_add_sheath_tracker``) and moves its force model's sheath and its targets with it:
+            respiratory compensation; off, it holds them at rest (motion-blind).
 
     Returns:
         A ``ProcedureResult``.
@@ -391,6 +422,11 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
 
     check_inputs(task, navigator, seed, targets, force_gf, tuple(window_gf), dwell_s)
     overrides = with_wall_motion(overrides, wall_motion)
+    if not isinstance(track_sheath, bool):
+        raise UserInputError(f"track_sheath must be true or false, got {short_repr(track_sheath)}")
+    if track_sheath and navigator != "auto":
+        raise UserInputError(f"--track-sheath needs navigator auto (the simulated operator has no force model "
+                             f"and no targets to move), got navigator {short_repr(navigator)}")
     if units not in (None, *UNITS):
         raise UserInputError(f"units must be one of {UNITS} (or None: by the ring), got {short_repr(units)}")
     localisation = localisation if localisation is not None else LocalisationParams()
@@ -422,7 +458,7 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
     plans, missing = target_plans(anatomy, chosen, newtons_from_gram_force(force_gf), n, s_full, magnets_W, progress)
     plan_cpu = time.process_time() - cpu0
     return finish(*_simulate(task, anatomy, scenario, plans, missing, params, localisation, seed, plan_cpu,
-                             progress, html, overrides))
+                             progress, html, overrides, track_sheath))
 
 
 def _finisher(lesions: bool, ring_order: list[str], html):
@@ -447,7 +483,7 @@ def _finisher(lesions: bool, ring_order: list[str], html):
 
 
 def _simulate(task, anatomy, scenario, plans, missing, params, localisation, seed, plan_cpu, progress, html,
-              overrides) -> ProcedureResult:
+              overrides, track_sheath: bool = False) -> ProcedureResult:
     """Build the station with the navigator, run it, and tabulate."""
     from ballchain.systems.chain_simulation import ChainMonitor, MakeStation, near_ostium_rim, run_station
 
@@ -467,7 +503,7 @@ def _simulate(task, anatomy, scenario, plans, missing, params, localisation, see
     per_target = 15.0 + params.seek_timeout * (params.retries + 1) + params.dwell
     limit = params.start_time + per_target * max(len(plans), 1)
     cd = MakeStation(scenario, meshcat=meshcat, heart=heart,
-                     add_systems=_add_auto(handles, plans, localisation, params, seed))
+                     add_systems=_add_auto(handles, plans, localisation, params, seed, track_sheath))
     nav = handles["navigator"]
     monitor = ChainMonitor(cd, tolerate_sinking=lambda p: near_ostium_rim(heart, p))
     run = run_station(cd, duration=limit, monitor=monitor,
@@ -486,7 +522,8 @@ def _simulate(task, anatomy, scenario, plans, missing, params, localisation, see
         rows.append(_dwell_row(rec, handles["logs"], run.context, plan, window, ball_r))
     rows += [{"target": name, "reached": False, "time_s": None, "reason": "no plan"} for name in missing]
     summary = _summary(rows, run, plan_cpu, missing)
-    settings = _settings(params, seed, scenario, overrides, limit, anatomy, localisation)
+    settings = {**_settings(params, seed, scenario, overrides, limit, anatomy, localisation),
+                "navigator_tracks_sheath": track_sheath}
     return ProcedureResult(task=task, navigator="auto", rows=rows, summary=summary, settings=settings,
                            html=None if html is None else str(html)), cd, meshcat
 
