@@ -279,8 +279,8 @@ def _add_sheath_tracker(builder, ports, localisation: LocalisationParams, seed: 
 
     from ballchain.systems.localisation_sensor import LocalisationSensor
 
-    sensor = builder.AddSystem(LocalisationSensor(1, localisation, int(np.random.SeedSequence((seed, 1)).generate_state(1)[0]),
-                                                  name="sheath_localisation"))
+    own_seed = int(np.random.SeedSequence((seed, 1)).generate_state(1)[0])  # not the tip sensor's stream
+    sensor = builder.AddSystem(LocalisationSensor(1, localisation, own_seed, name="sheath_localisation"))
     engine = getattr(ports.chain, "engine_system", None)
     offsets = None if engine is None else engine.get_anatomy_offsets_output_port()
     if offsets is None:  # a still wall: the sheath stays at rest
