@@ -130,6 +130,13 @@ class WallMotion:
         """Both amplitudes zero: nothing moves (the engine then runs exactly as without motion)."""
         return self.respiratory.amplitude == 0.0 and self.cardiac.amplitude == 0.0
 
+    def to_dict(self) -> dict:
+        """The motion in a results file's units: per part its amplitude [mm], frequency [Hz] and
+        direction (unit vector; respiratory: the heart's in the world, cardiac: the wall's
+        relative to the sheath)."""
+        return {name: {"amplitude_mm": o.amplitude * 1e3, "frequency_hz": o.frequency, "direction": list(o.direction)}
+                for name, o in (("respiratory", self.respiratory), ("cardiac", self.cardiac))}
+
     def heart_offset(self, t: float) -> np.ndarray:
         """(3,) where the heart and the sheath are at time t, from their rest pose [m]."""
         return self.respiratory.offset(t)

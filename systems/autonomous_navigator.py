@@ -171,19 +171,24 @@ class TipForceEstimator:
         """Balls beyond the sheath exit at an inserted length (ball 1 included, at least 2)."""
         return int(np.clip(round(inserted_length / self.chain.ball_diameter) + 1, 2, self.n_max))
 
-    def field_S(self, dipoles_W: np.ndarray) -> FieldSources:
+    def field_S(self, dipoles_W: np.ndarray, sheath_offset_W: np.ndarray | None = None) -> FieldSources:
         m_S = (self.R_WS.T @ np.asarray(dipoles_W, float).reshape(-1, 3).T).T
+        magnets = self.magnets if sheath_offset_W is None else [  # the magnets stay; the sheath moved
+            (mag, p - self.R_WS.T @ np.asarray(sheath_offset_W, float)) for mag, p in self.magnets]
         return FieldSources([MagnetSource(mag, p, rotation_with_z_along(m), self.model)
-                             for (mag, p), m in zip(self.magnets, m_S)])
+                             for (mag, p), m in zip(magnets, m_S)])
 
-    def reaction_W(self, p_W: np.ndarray, dipoles_W: np.ndarray, inserted_length: float) -> np.ndarray | None:
-        """The reaction (3,) [N] holding the tip ball's centre at p_W (None: no held equilibrium)."""
+    def reaction_W(self, p_W: np.ndarray, dipoles_W: np.ndarray, inserted_length: float,
+                   sheath_offset_W: np.ndarray | None = None) -> np.ndarray | None:
+        """The reaction (3,) [N] holding the tip ball's centre at p_W (None: no held equilibrium),
+        with the sheath's exit at ``p_WE`` moved by ``sheath_offset_W`` (3,) [m] (None: at rest)."""
         n = self.free_balls(inserted_length)
         solver = self._solvers.get(n)
         if solver is None:
             solver = self._solvers[n] = ChainStatics(self.chain.with_balls(n), max_iterations=25)
-        target = self.R_WS.T @ (np.asarray(p_W, float) - self.p_WE)
-        field_S = self.field_S(dipoles_W)
+        p_WE = self.p_WE if sheath_offset_W is None else self.p_WE + np.asarray(sheath_offset_W, float)
+        target = self.R_WS.T @ (np.asarray(p_W, float) - p_WE)
+        field_S = self.field_S(dipoles_W, sheath_offset_W)
         for start in (self._last.get(n), None):
             result = solver.solve(field_S, start, tip_target=target)
             if result.converged:
@@ -191,10 +196,10 @@ class TipForceEstimator:
                 return self.R_WS @ result.tip_reaction
         return None
 
-    def force(self, p_W, dipoles_W, inserted_length, n_out_W) -> tuple[float, np.ndarray]:
+    def force(self, p_W, dipoles_W, inserted_length, n_out_W, sheath_offset_W=None) -> tuple[float, np.ndarray]:
         """(F, r_W): the estimated contact force [N] (the reaction on the outward normal
         ``n_out_W``, at least 0) and the whole reaction (zeros without an equilibrium)."""
-        r = self.reaction_W(p_W, dipoles_W, inserted_length)
+        r = self.reaction_W(p_W, dipoles_W, inserted_length, sheath_offset_W)
         if r is None:
             return 0.0, np.zeros(3)
         return max(float(r @ np.asarray(n_out_W, float)), 0.0), r
@@ -262,6 +267,9 @@ class AutonomousNavigator(LeafSystem):
         p_WT_measured: (3,) the localisation sensor's tip [m].
         m_W_<unit>: (3,) each unit's measured dipole (any length).
         inserted_length: (1,) the feeder's [m].
+        sheath_offset_measured: (3,) only with ``tracks_sheath``: the tracked sheath's displacement
+            from its rest pose [m] (respiration moves the heart and the sheath with it,
+            ``drake_models.wall_motion``): the force model's sheath and the targets move with it.
 
     Output ports:
         joystick_<unit>: (3,) stick axes (world mapping) for each unit.
@@ -274,10 +282,11 @@ class AutonomousNavigator(LeafSystem):
         plans: the targets' TargetPlans, in the order to visit them.
         estimator: the TipForceEstimator.
         params: NavigatorParams.
+        tracks_sheath: read ``sheath_offset_measured`` (else the sheath and the targets are at rest).
     """
 
     def __init__(self, unit_names, plans: list[TargetPlan], estimator: TipForceEstimator,
-                 params: NavigatorParams | None = None, name: str = "navigator") -> None:
+                 params: NavigatorParams | None = None, name: str = "navigator", tracks_sheath: bool = False) -> None:
         super().__init__()
         self.params = p = (params or NavigatorParams()).validate()
         self.set_name(name)
@@ -288,6 +297,7 @@ class AutonomousNavigator(LeafSystem):
         self._tip = self.DeclareVectorInputPort("p_WT_measured", 3)
         self._m = [self.DeclareVectorInputPort(f"m_W_{u}", 3) for u in self.units]
         self._s = self.DeclareVectorInputPort("inserted_length", 1)
+        self._sheath = self.DeclareVectorInputPort("sheath_offset_measured", 3) if tracks_sheath else None
         self._memory_index = self.DeclareAbstractState(AbstractValue.Make(_Memory()))
         ticket = {self.abstract_state_ticket(self._memory_index)}
         for j, u in enumerate(self.units):
@@ -323,10 +333,11 @@ class AutonomousNavigator(LeafSystem):
         m = np.array([np.asarray(port.Eval(context), float) for port in self._m])
         m /= np.maximum(np.linalg.norm(m, axis=1, keepdims=True), 1e-12)
         s = float(self._s.Eval(context)[0])
+        h = None if self._sheath is None else np.asarray(self._sheath.Eval(context), float)
         if mem.phase == "wait" and t + 1e-9 >= p.start_time:
             self._start_target(mem, t)
         if mem.phase not in ("wait", "done"):
-            self._step(mem, t, tip, m, s)
+            self._step(mem, t, tip, m, s, h)
         if mem.phase in ("wait", "done"):
             mem.stick, mem.v_feed = np.zeros((len(self.units), 3)), 0.0
         else:
@@ -353,7 +364,7 @@ class AutonomousNavigator(LeafSystem):
         else:
             self._start_target(mem, t)
 
-    def _step(self, mem: _Memory, t: float, tip: np.ndarray, m: np.ndarray, s: float) -> None:
+    def _step(self, mem: _Memory, t: float, tip: np.ndarray, m: np.ndarray, s: float, h=None) -> None:
         p = self.params
         plan, record = self.plans[mem.k], mem.records[-1]
         if mem.phase == "back":
@@ -365,7 +376,7 @@ class AutonomousNavigator(LeafSystem):
             if angle < p.aligned and abs(s - mem.s_des) < 0.5e-3:
                 mem.phase, mem.phase_start = "seek", t
             return
-        f_est, lateral = self._newton(mem, plan, tip, m, s)
+        f_est, lateral = self._newton(mem, plan, tip, m, s, h)
         mem.f_est = f_est
         lo, hi = p.force_window
         if mem.phase == "seek":
@@ -393,15 +404,19 @@ class AutonomousNavigator(LeafSystem):
         if record.dwell_time >= p.dwell - 1e-9:
             self._finish_target(mem, t)
 
-    def _newton(self, mem: _Memory, plan: TargetPlan, tip: np.ndarray, m: np.ndarray, s: float) -> tuple[float, float]:
+    def _newton(self, mem: _Memory, plan: TargetPlan, tip: np.ndarray, m: np.ndarray, s: float,
+                h: np.ndarray | None = None) -> tuple[float, float]:
         """One Newton step on the desired dipoles (module docstring); returns (F_est [N], the
-        measured tip's lateral distance from the target's centre [m])."""
+        measured tip's lateral distance from the target's centre [m]); ``h``: the tracked
+        sheath's offset (the target and the model's sheath moved by it), None: at rest."""
         p = self.params
         B = plan.basis_W
         ball_r = 0.5 * self.estimator.chain.ball_diameter
         centre = plan.p_WT + ball_r * plan.n_W
+        if h is not None:
+            centre = centre + h
         o = B[:, 1:].T @ (tip - centre)
-        f_est, r = self.estimator.force(tip, m, s, plan.n_W)
+        f_est, r = self.estimator.force(tip, m, s, plan.n_W, h)
         f_t = B[:, 1:].T @ (-r)  # tangential pressing force the model says the wall must hold
         w = np.array([p.force_weight, 1.0, 1.0])
         rhs = w * np.concatenate([[p.force_command - f_est + plan.J_o[0] @ o], plan.J_o[1:] @ o - f_t])

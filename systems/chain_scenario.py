@@ -819,7 +819,8 @@ def check_wall_motion(s: "ChainScenario") -> None:
                  "wall_motion.enabled: true (add it, or leave them out)")
         return
     _require(s.engine == "statics", f"scenario wall_motion needs engine: statics (the quasi-static engine places the "
-                                    f"wall for each update; the plant's wall is fixed), got {s.engine!r}")
+                                    f"wall for each update; the plant's wall is fixed), got {s.engine!r}"
+                                    + ("" if s.mode == "quasi-static" else f" (mode {s.mode} runs only on the plant)"))
     _require(s.device == "ball_chain", "scenario wall_motion is for the magnetic chain (device: ball_chain)")
     _require(s.heart or bool(s.wall_plane), "scenario wall_motion moves a wall: it needs the heart or a wall_plane")
 

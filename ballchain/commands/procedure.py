@@ -6,7 +6,9 @@ Prints per target whether it was reached, the time, the true force over the dwel
 estimate's error; ``--json`` the whole result; ``--out DIR`` writes ``procedure.json`` there
 and the ring's map ``ring.png`` (atomically); ``--html FILE`` a Meshcat replay with the lesion
 patches on the wall. Each dwell leaves a lesion (``drake_models.lesion_ring``), and the ring is
-checked for gaps.
+checked for gaps. ``--wall-motion`` moves the atrium (respiration, the heart beat or both, at the
+defaults of ``drake_models.wall_motion``), ``--track-sheath`` gives the navigator the sheath's
+tracked position (respiratory compensation); ``--set`` overrides the station's scenario fields.
 """
 
 from __future__ import annotations
@@ -41,6 +43,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="localisation update rate [Hz]")
     parser.add_argument("--latency", type=float_in(*LATENCY_RANGE_S), default=defaults.latency,
                         help="localisation latency [s] (a whole number of samples)")
+    parser.add_argument("--wall-motion", choices=procedure.WALL_MOTIONS, default="off",
+                        help="move the atrium: on (respiration, 5 mm at 0.25 Hz, and the heart beat, 1 mm at 1.2 Hz), "
+                             "respiration or beat alone, or off (the still wall); the quasi-static engine follows it")
+    parser.add_argument("--track-sheath", action="store_true",
+                        help="respiratory compensation: the navigator tracks the sheath (a localisation sensor on it, "
+                             "the tip's noise, rate and latency) and moves its force model's sheath and its targets "
+                             "with it (default: both held at rest, motion-blind)")
+    parser.add_argument("--set", dest="overrides", default=None, metavar="YAML",
+                        help="inline YAML overriding the station scenario's fields, e.g. "
+                             "'{wall_motion: {enabled: true, cardiac: {amplitude: 0.002}}}' (not with --wall-motion)")
     parser.add_argument("--out", type=Path, default=None, metavar="DIR", help="write procedure.json here")
     parser.add_argument("--html", type=Path, default=None, metavar="FILE", help="write a Meshcat replay here")
     add_json_flag(parser)
@@ -55,7 +67,8 @@ def main(args: argparse.Namespace) -> int:
     if args.out is not None:
         check_output_dir(args.out, "--out", names=("procedure.json", "ring.png"))
     data = procedure.run(args.task, args.navigator, args.anatomy, args.seed, targets=args.targets,
-                         force_gf=args.force, dwell_s=args.dwell, localisation=localisation, html=args.html)
+                         force_gf=args.force, dwell_s=args.dwell, localisation=localisation, html=args.html,
+                         overrides=args.overrides, wall_motion=args.wall_motion, track_sheath=args.track_sheath)
     if args.out is not None:
         procedure.write_outputs(data, args.out)
     if args.json:
@@ -71,6 +84,9 @@ def main(args: argparse.Namespace) -> int:
               f"{r['force_true_mean_gf']} gf ({r['force_true_min_gf']}..{r['force_true_max_gf']}), in window "
               f"{100 * (r['in_window_fraction'] or 0):.0f}%{estimate}")
     s = data.summary
+    if data.settings.get("wall_motion"):
+        print("wall moving: " + ", ".join(f"{name} {m['amplitude_mm']:g} mm at {m['frequency_hz']:g} Hz" for name, m in
+                                          data.settings["wall_motion"].items() if m["amplitude_mm"] > 0))
     print(f"{s['reached']}/{s['targets']} reached in {s['total_time_s']} s; force in window "
           f"{s.get('in_window_fraction')}; estimate error {s.get('estimate_mean_abs_error_gf')} gf mean |.|, "
           f"{s.get('estimate_worst_error_gf')} gf worst" + (f"; stopped: {s['failure']}" if s["failure"] else ""))

@@ -48,6 +48,7 @@ WINDOW_GF = (10.0, 40.0)
 DWELL_S = 10.0
 MAX_DWELL_S = 120.0
 UNITS = ("one", "two")
+WALL_MOTIONS = ("off", "on", "respiration", "beat")
 
 
 def default_units(task: str | None, anatomy) -> str:
@@ -63,13 +64,13 @@ def scenario_for(units: str, overrides: str | None, anatomy):
     """The teleoperation station (world mapping) with one or both units and the feeder left to
     the navigator; on a user anatomy the units stand at its magnets."""
     from ballchain.experiments import teleop
-    from ballchain.systems.chain_scenario import load_scenario, parse_overrides
+    from ballchain.systems.chain_scenario import parse_overrides
     from ballchain.systems.station import apply_anatomy
 
     if units == "one":
         scenario = teleop.scenario_for("world", None, overrides, None if anatomy.procedural else anatomy)
-    else:
-        scenario = load_scenario("teleop_two_units", overrides)
+    else:  # checked with the engine the hand-over gives it (a wall_motion needs no engine: statics)
+        scenario = teleop.load_for_hand_over("teleop_two_units", overrides)
         if not anatomy.procedural:
             apply_anatomy(scenario, anatomy)
         teleop.hand_over(scenario, "world", None, parse_overrides(overrides))
@@ -133,6 +134,38 @@ def check_inputs(task, navigator, seed, targets, force_gf, window_gf, dwell_s) -
         raise UserInputError(f"force {force_gf:g} gf must lie in its window {lo:g}..{hi:g} gf (0 < low, high <= 200)")
     if not 0 <= dwell_s <= MAX_DWELL_S:
         raise UserInputError(f"dwell must be in 0..{MAX_DWELL_S:g} s, got {short_repr(dwell_s)}")
+
+
+def with_wall_motion(overrides: str | None, wall_motion: str) -> str | None:
+    """The scenario overrides with the moving wall ``wall_motion`` added (``drake_models.wall_motion``
+    at its literature defaults, through the scenario's): "off" adds nothing (the still wall), "on"
+    respiration and the heart beat, "respiration" or "beat" only that one (the other's amplitude 0).
+    The quasi-static engine the hand-over gives the run follows the wall (``teleop.load_for_hand_over``).
+
+    Returns:
+        The overrides (a YAML flow mapping) or ``overrides`` itself for "off".
+
+    Raises:
+        UserInputError: another choice, or overrides that name ``wall_motion`` too.
+    """
+    import json
+
+    from ballchain.systems.chain_scenario import parse_overrides
+
+    if wall_motion not in WALL_MOTIONS:
+        raise UserInputError(f"--wall-motion must be one of {', '.join(WALL_MOTIONS)}, got {short_repr(wall_motion)}")
+    changes = parse_overrides(overrides)  # its YAML and fields checked here, before the atrium is built
+    if wall_motion == "off":
+        return overrides
+    if "wall_motion" in changes:
+        raise UserInputError(f"--wall-motion {wall_motion} and --set wall_motion: "
+                             f"{short_repr(changes['wall_motion'])} both set the moving wall; give only one of them")
+    motion: dict = {"enabled": True}
+    if wall_motion == "respiration":
+        motion["cardiac"] = {"amplitude": 0.0}
+    elif wall_motion == "beat":
+        motion["respiratory"] = {"amplitude": 0.0}
+    return json.dumps({**changes, "wall_motion": motion})
 
 
 def _plan_step(chain, stand, name: str, m_prev: np.ndarray, previous, force_N: float, radius: float) -> dict:
@@ -237,8 +270,32 @@ def _estimator(ports, chain, n_balls: int):
     return TipForceEstimator(chain, heart.p_HE, R_WS, magnets, units[0].config.model, n_balls)
 
 
-def _add_auto(handles: dict, plans: list, localisation: LocalisationParams, params, seed: int):
-    """The ``add_systems`` hook of the autonomous run: sensor, navigator, loggers."""
+def _add_sheath_tracker(builder, ports, localisation: LocalisationParams, seed: int):
+    """A localisation sensor on the sheath (respiratory compensation): the tracked sheath's
+    displacement from its rest pose, i.e. the heart's (the quasi-static engine's
+    ``anatomy_offsets``; zero on a still wall), with the tip sensor's noise, rate and latency and
+    a noise stream of its own. Returns its ``p_WT_measured`` output."""
+    from pydrake.systems.primitives import ConstantVectorSource, MatrixGain
+
+    from ballchain.systems.localisation_sensor import LocalisationSensor
+
+    own_seed = int(np.random.SeedSequence((seed, 1)).generate_state(1)[0])  # not the tip sensor's stream
+    sensor = builder.AddSystem(LocalisationSensor(1, localisation, own_seed, name="sheath_localisation"))
+    engine = getattr(ports.chain, "engine_system", None)
+    offsets = None if engine is None else engine.get_anatomy_offsets_output_port()
+    if offsets is None:  # a still wall: the sheath stays at rest
+        source = builder.AddSystem(ConstantVectorSource(np.zeros(3))).get_output_port()
+    else:  # the first three: the heart's (and the sheath's) offset
+        source = builder.AddSystem(MatrixGain(np.hstack([np.eye(3), np.zeros((3, 3))]))).get_output_port()
+        builder.Connect(offsets, source.get_system().get_input_port())
+    builder.Connect(source, sensor.get_ball_positions_input_port())
+    return sensor.GetOutputPort("p_WT_measured")
+
+
+def _add_auto(handles: dict, plans: list, localisation: LocalisationParams, params, seed: int,
+              track_sheath: bool = False):
+    """The ``add_systems`` hook of the autonomous run: sensor, navigator, loggers (and with
+    ``track_sheath`` the sheath's sensor, ``_add_sheath_tracker``)."""
     from pydrake.systems.primitives import LogVectorOutput
 
     from ballchain.drake_models.params import BallChain
@@ -251,8 +308,12 @@ def _add_auto(handles: dict, plans: list, localisation: LocalisationParams, para
         sensor = builder.AddSystem(LocalisationSensor(n, localisation, seed))
         builder.Connect(cp.get_ball_positions_output_port(), sensor.get_ball_positions_input_port())
         units = list(ports.joystick_inputs)
-        nav = builder.AddSystem(AutonomousNavigator(units, plans, _estimator(ports, BallChain(), n), params))
+        nav = builder.AddSystem(AutonomousNavigator(units, plans, _estimator(ports, BallChain(), n), params,
+                                                    tracks_sheath=track_sheath))
         builder.Connect(sensor.GetOutputPort("p_WT_measured"), nav.GetInputPort("p_WT_measured"))
+        if track_sheath:
+            builder.Connect(_add_sheath_tracker(builder, ports, localisation, seed),
+                            nav.GetInputPort("sheath_offset_measured"))
         for u in units:
             builder.Connect(ports.units[u].magnet.GetOutputPort("m_W"), nav.GetInputPort(f"m_W_{u}"))
             builder.Connect(nav.GetOutputPort(f"joystick_{u}"), ports.joystick_inputs[u])
@@ -327,7 +388,8 @@ def _summary(rows: list, run, plan_cpu: float, missing: list) -> dict:
 def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed: int = 0, *,
         targets: int | None = None, force_gf: float = FORCE_GF, window_gf=WINDOW_GF, dwell_s: float = DWELL_S,
         localisation: LocalisationParams | None = None, overrides: str | None = None, progress: bool = True,
-        html: Path | None = None, units: str | None = None, lesions: bool = True) -> ProcedureResult:
+        html: Path | None = None, units: str | None = None, lesions: bool = True,
+        wall_motion: str = "off", track_sheath: bool = False) -> ProcedureResult:
     """Simulate the procedure on a ring: every target reached, pressed and held for the dwell.
 
     Args:
@@ -346,6 +408,11 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
         units: "one" (the unit beyond the right carina) or "two" (both carinas' units); None:
             ``default_units``.
         lesions: each dwell's lesion and the ring's verdict (``with_lesions``).
+        wall_motion: the moving wall, one of ``WALL_MOTIONS`` (``with_wall_motion``); the motion
+            the run used is in ``settings["wall_motion"]``.
+        track_sheath: the autonomous navigator tracks the sheath (a localisation sensor on it,
+            ``_add_sheath_tracker``) and moves its force model's sheath and its targets with it:
+            respiratory compensation; off, it holds them at rest (motion-blind).
 
     Returns:
         A ``ProcedureResult``.
@@ -354,6 +421,12 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
     from ballchain.systems.autonomous_navigator import NavigatorParams
 
     check_inputs(task, navigator, seed, targets, force_gf, tuple(window_gf), dwell_s)
+    overrides = with_wall_motion(overrides, wall_motion)
+    if not isinstance(track_sheath, bool):
+        raise UserInputError(f"track_sheath must be true or false, got {short_repr(track_sheath)}")
+    if track_sheath and navigator != "auto":
+        raise UserInputError(f"--track-sheath needs navigator auto (the simulated operator has no force model "
+                             f"and no targets to move), got navigator {short_repr(navigator)}")
     if units not in (None, *UNITS):
         raise UserInputError(f"units must be one of {UNITS} (or None: by the ring), got {short_repr(units)}")
     localisation = localisation if localisation is not None else LocalisationParams()
@@ -385,7 +458,7 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
     plans, missing = target_plans(anatomy, chosen, newtons_from_gram_force(force_gf), n, s_full, magnets_W, progress)
     plan_cpu = time.process_time() - cpu0
     return finish(*_simulate(task, anatomy, scenario, plans, missing, params, localisation, seed, plan_cpu,
-                             progress, html, overrides))
+                             progress, html, overrides, track_sheath))
 
 
 def _finisher(lesions: bool, ring_order: list[str], html):
@@ -410,7 +483,7 @@ def _finisher(lesions: bool, ring_order: list[str], html):
 
 
 def _simulate(task, anatomy, scenario, plans, missing, params, localisation, seed, plan_cpu, progress, html,
-              overrides) -> ProcedureResult:
+              overrides, track_sheath: bool = False) -> ProcedureResult:
     """Build the station with the navigator, run it, and tabulate."""
     from ballchain.systems.chain_simulation import ChainMonitor, MakeStation, near_ostium_rim, run_station
 
@@ -430,7 +503,7 @@ def _simulate(task, anatomy, scenario, plans, missing, params, localisation, see
     per_target = 15.0 + params.seek_timeout * (params.retries + 1) + params.dwell
     limit = params.start_time + per_target * max(len(plans), 1)
     cd = MakeStation(scenario, meshcat=meshcat, heart=heart,
-                     add_systems=_add_auto(handles, plans, localisation, params, seed))
+                     add_systems=_add_auto(handles, plans, localisation, params, seed, track_sheath))
     nav = handles["navigator"]
     monitor = ChainMonitor(cd, tolerate_sinking=lambda p: near_ostium_rim(heart, p))
     run = run_station(cd, duration=limit, monitor=monitor,
@@ -449,7 +522,8 @@ def _simulate(task, anatomy, scenario, plans, missing, params, localisation, see
         rows.append(_dwell_row(rec, handles["logs"], run.context, plan, window, ball_r))
     rows += [{"target": name, "reached": False, "time_s": None, "reason": "no plan"} for name in missing]
     summary = _summary(rows, run, plan_cpu, missing)
-    settings = _settings(params, seed, scenario, overrides, limit, anatomy, localisation)
+    settings = {**_settings(params, seed, scenario, overrides, limit, anatomy, localisation),
+                "navigator_tracks_sheath": track_sheath}
     return ProcedureResult(task=task, navigator="auto", rows=rows, summary=summary, settings=settings,
                            html=None if html is None else str(html)), cd, meshcat
 
@@ -461,6 +535,7 @@ def _settings(params, seed, scenario, overrides, limit, anatomy, localisation=No
                 "noise_std_mm": localisation.noise_std * 1e3, "rate_hz": localisation.rate,
                 "latency_s": localisation.latency},
             "navigator_period_s": params.period, "time_limit_s": limit,
+            "wall_motion": None if (law := scenario.wall_motion.law()) is None else law.to_dict(),
             "anatomy": None if anatomy.procedural else str(anatomy.path)}
 
 

@@ -180,9 +180,9 @@ def scenario_for(mapping: str, n_balls: int | None = None, overrides: str | None
     engine, or a mode other than quasi-static (then the plant: the only one for dynamics); the
     overrides' other fields apply either way.
     """
-    from ballchain.systems.chain_scenario import load_scenario, parse_overrides
+    from ballchain.systems.chain_scenario import parse_overrides
 
-    scenario = load_scenario(SCENARIO, overrides)
+    scenario = load_for_hand_over(SCENARIO, overrides)
     if anatomy is not None:
         from ballchain.systems.station import apply_anatomy
 
@@ -190,12 +190,38 @@ def scenario_for(mapping: str, n_balls: int | None = None, overrides: str | None
     return hand_over(scenario, mapping, n_balls, parse_overrides(overrides), units=scenario.units[:1])
 
 
+def handed_over_engine(mode: str, overrides: dict) -> str | None:
+    """The engine ``hand_over`` gives a scenario of ``mode``: ``DEFAULT_ENGINE`` unless
+    ``overrides`` (the parsed ``--set`` mapping) name one or the mode is not quasi-static (None:
+    the scenario keeps its own)."""
+    return DEFAULT_ENGINE if "engine" not in overrides and mode == "quasi-static" else None
+
+
+def load_for_hand_over(name: str, overrides: str | None):
+    """The named scenario with ``overrides`` applied, checked with the engine the hand-over will
+    give it (``handed_over_engine``) rather than the file's: a field that needs the quasi-static
+    engine (``wall_motion``) needs no ``engine: statics`` of its own, and one the run's engine
+    would ignore is refused before the build.
+
+    Raises:
+        UserInputError: as ``chain_scenario.load_scenario``.
+    """
+    from ballchain.systems.chain_scenario import apply_overrides, load_scenario, parse_overrides
+
+    changes = parse_overrides(overrides)
+    scenario = load_scenario(name)
+    engine = handed_over_engine(changes.get("mode", scenario.mode), changes)
+    changes = changes if engine is None else {**changes, "engine": engine}
+    return apply_overrides(scenario, changes).validate() if changes else scenario
+
+
 def hand_over(scenario, mapping: str, n_balls: int | None, overrides: dict, units=None):
     """The station with the sticks of ``units`` (default: all) and the feeder left to an operator
     or a person: their scripted joysticks removed, the mapping set, the engine ``DEFAULT_ENGINE``
     unless ``overrides`` (the parsed ``--set`` mapping) name one or the mode is not quasi-static."""
-    if "engine" not in overrides and scenario.mode == "quasi-static":
-        scenario.engine = DEFAULT_ENGINE
+    engine = handed_over_engine(scenario.mode, overrides)
+    if engine is not None:
+        scenario.engine = engine
     if n_balls is not None:
         scenario.n_balls = n_balls
     for unit in scenario.units if units is None else units:
@@ -591,10 +617,10 @@ def live_scenario_for(mapping: str, units: str = "one", n_balls: int | None = No
         anatomy: a loaded ``Anatomy``: the station on it, the units at its magnets (in order).
     """
     from ballchain.drake_models.errors import UserInputError
-    from ballchain.systems.chain_scenario import load_scenario, parse_overrides
+    from ballchain.systems.chain_scenario import parse_overrides
 
     try:
-        scenario = load_scenario(LIVE_SCENARIOS[units], overrides)
+        scenario = load_for_hand_over(LIVE_SCENARIOS[units], overrides)
     except UserInputError:
         raise
     except ValueError as err:
