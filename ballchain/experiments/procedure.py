@@ -135,10 +135,22 @@ def check_inputs(task, navigator, seed, targets, force_gf, window_gf, dwell_s) -
         raise UserInputError(f"dwell must be in 0..{MAX_DWELL_S:g} s, got {short_repr(dwell_s)}")
 
 
-def _plan_step(chain, stand, name: str, m_prev: np.ndarray, previous, force_N: float, radius: float) -> dict:
-    """One target's inverse statics with every magnet of ``stand`` (k = 1: ``planner.plan_target``,
-    frictionless; k > 1: the same steps with k magnets: from the magnets where they are, else
-    from the hardest-pressing orientation ``forces.max_normal_force``)."""
+def _plan_step(chain, stand, name: str, m_prev: np.ndarray, previous, forces_N, radius: float) -> dict:
+    """One target's inverse statics with every magnet of ``stand``, asking for each force of
+    ``forces_N`` in turn (the first answered is kept).
+
+    k = 1: ``planner.plan_target`` (frictionless). k > 1: ``min_turn_orientation`` with k magnets
+    from each of two warm starts, every start at a force before the next force: the magnets
+    where they are (the tip slid onto the target from the previous held equilibrium), then the
+    orientation that presses hardest with the tip held on the centre (``forces.max_normal_force``).
+    The second start is tried whatever that hardest press is: it is a press held by the wall's
+    tangential reaction too, no bound on the frictionless press the program asks for (on the
+    left ring's far targets it is below the asked force while the program from it answers).
+
+    Returns:
+        {"feasible", "plan" (the OrientationPlan), "start" (which warm start answered),
+        "asked_N" (the force asked for)}, or {"feasible": False, "reason"}.
+    """
     from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
     from ballchain.drake_models.params import CylinderMagnet
     from ballchain.experiments.forces import max_normal_force
@@ -148,7 +160,12 @@ def _plan_step(chain, stand, name: str, m_prev: np.ndarray, previous, force_N: f
 
     keys = sorted(stand.magnets)
     if len(keys) == 1:
-        return plan_target(chain, stand, name, m_prev, previous, force_N, radius, 0.0, 4, 15)
+        out = {}
+        for f in forces_N:
+            out = plan_target(chain, stand, name, m_prev, previous, f, radius, 0.0, 4, 15)
+            if out.get("feasible"):
+                return {**out, "start": out.get("how"), "asked_N": f}
+        return {**out, "feasible": False}
     centres = [stand.magnets[key] for key in keys]
 
     def field_for(m):
@@ -160,16 +177,21 @@ def _plan_step(chain, stand, name: str, m_prev: np.ndarray, previous, force_N: f
     starts = []
     home = pin_tip(solver, field_for(m_prev), centre, previous)
     if home is not None:
-        starts.append((m_prev, home))
+        starts.append(("previous target", m_prev, home))
     best = max_normal_force(chain, stand, name, tuple(keys), 4, 15)
-    if best.get("force_N") is not None and best["force_N"] >= force_N:
-        starts.append((np.asarray(best["dipoles"]).reshape(-1, 3), best["result"]))
-    for m_start, home_k in starts:
-        plan = min_turn_orientation(HeldTip(solver, field_for, centre, axis, home_k, len(keys)), m_start, m_prev,
-                                    force_N, radius, 0.0)
-        if plan.feasible:
-            return {"feasible": True, "plan": plan}
-    return {"feasible": False}
+    if best.get("force_N") is not None:
+        starts.append(("hardest press", np.asarray(best["dipoles"]).reshape(-1, 3), best["result"]))
+    if not starts:
+        return {"feasible": False, "reason": best.get("reason", "no held equilibrium on the target")}
+    statuses = []
+    for f in forces_N:
+        for how, m_start, home_k in starts:
+            plan = min_turn_orientation(HeldTip(solver, field_for, centre, axis, home_k, len(keys)), m_start, m_prev,
+                                        f, radius, 0.0)
+            if plan.feasible:
+                return {"feasible": True, "plan": plan, "start": how, "asked_N": f}
+            statuses.append(f"{gram_force(f):.3g} gf from the {how}: {plan.solver_status}")
+    return {"feasible": False, "reason": "; ".join(statuses)}
 
 
 def target_plans(anatomy, chosen: list[int], force_N: float, n_balls: int, inserted_length: float,
@@ -207,11 +229,8 @@ def target_plans(anatomy, chosen: list[int], force_N: float, n_balls: int, inser
 
     held, plans, missing = None, [], []
     for k, name in zip(tqdm(chosen, desc="plan", unit="target", disable=not progress), stand.targets):
-        out = {}
-        for f in (force_N, 0.75 * force_N, 0.5 * force_N):  # the most it can press, down to half
-            out = _plan_step(chain, stand, name, m_now, held, f, anatomy.touch_radius)
-            if out.get("feasible"):
-                break
+        out = _plan_step(chain, stand, name, m_now, held, (force_N, 0.75 * force_N, 0.5 * force_N),
+                         anatomy.touch_radius)  # the most it can press, down to half
         if not out.get("feasible"):
             missing.append(name)
             continue
