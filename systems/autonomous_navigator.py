@@ -123,14 +123,16 @@ class TargetPlan:
     """What the experiment computed ahead for one target (world frame).
 
     Attributes:
-        name: the target's name; p_WT (3,) its centre on the wall; n_W (3,) the wall's normal
-            into the chamber.
+        name: the target's name; p_WT (3,) the point on the wall the tip is aimed at (the
+            target's centre unless ``aim_offset``); n_W (3,) the wall's normal into the chamber.
         dipoles_W: (k, 3) unit dipole directions of the k units that press it.
         inserted_length: the feeder's length [m].
         basis_W: (3, 3) columns: the direction the tip presses (into the wall), two along it.
         J_m: (3, 3 k) pressing force (normal, tangential u, v) [N] per dipole component.
         J_o: (3, 2) the same per touch-point offset along basis_W[:, 1:] [N/m].
         force_N: the planned pressing force [N].
+        aim_offset: how far ``p_WT`` lies from the target's centre along the wall [m] (0: on
+            it; > 0: a target beyond the straight chain's reach, aimed inside its circle).
     """
 
     name: str
@@ -142,6 +144,7 @@ class TargetPlan:
     J_m: np.ndarray
     J_o: np.ndarray
     force_N: float
+    aim_offset: float = 0.0
 
 
 class TipForceEstimator:
