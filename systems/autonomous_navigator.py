@@ -17,7 +17,9 @@ plan.
 Feedback, every ``period``: with the force model (``TipForceEstimator``: the chain's statics
 with the tip held at the measured point, under the measured magnets, at the measured
 insertion) it estimates the contact force F (the reaction that holds the tip there, on the
-wall's outward normal: no force sensor). A Newton step on the magnets' orientation then asks
+wall's outward normal: no force sensor). A look with no held equilibrium (near the chain's
+reach the sensor's noise can put the measured tip beyond it) keeps the last look's reaction
+on this target (none yet: no force). A Newton step on the magnets' orientation then asks
 for the held equilibrium at the target's centre (lateral offset o measured -> 0) with F at the
 commanded force::
 
@@ -231,6 +233,7 @@ class _Memory:
     stick: np.ndarray | None = None  # (k, 3)
     v_feed: float = 0.0
     f_est: float = 0.0
+    r_est: np.ndarray | None = None  # the last look's reaction on the tip (W) [N]
     done: bool = False
 
     def __deepcopy__(self, memo):
@@ -344,7 +347,7 @@ class AutonomousNavigator(LeafSystem):
         plan = self.plans[mem.k]
         if not retry:
             mem.records.append(DwellRecord(plan.name, t))
-        mem.phase, mem.phase_start, mem.on_target = "move", t, 0
+        mem.phase, mem.phase_start, mem.on_target, mem.r_est = "move", t, 0, None
         mem.m_des, mem.s_des = plan.dipoles_W.copy(), plan.inserted_length
 
     def _finish_target(self, mem: _Memory, t: float) -> None:
@@ -404,7 +407,12 @@ class AutonomousNavigator(LeafSystem):
         ball_r = 0.5 * self.estimator.chain.ball_diameter
         centre = plan.p_WT + ball_r * plan.n_W
         o = B[:, 1:].T @ (tip - centre)
-        f_est, r = self.estimator.force(tip, m, s, plan.n_W)
+        r = self.estimator.reaction_W(tip, m, s)
+        if r is None:  # no held equilibrium at this look (a noisy tip beyond the chain's reach):
+            r = mem.r_est  # the last look's reaction (none yet: no force)
+        mem.r_est = r
+        r = np.zeros(3) if r is None else r
+        f_est = max(float(r @ plan.n_W), 0.0)
         f_t = B[:, 1:].T @ (-r)  # tangential pressing force the model says the wall must hold
         w = np.array([p.force_weight, 1.0, 1.0])
         rhs = w * np.concatenate([[p.force_command - f_est + plan.J_o[0] @ o], plan.J_o[1:] @ o - f_t])
