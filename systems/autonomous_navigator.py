@@ -34,7 +34,8 @@ Sequencing, per target: ``move`` (the magnets to the plan's dipoles, the feeder 
 centre laterally and the estimate inside the force window for ``settle`` looks), ``dwell``
 (``dwell`` seconds of the same loop holding the force: the RF application), then the next
 target. A target not touched within ``seek_timeout`` is retried from its plan's dipoles after
-backing the chain off (``retries`` times); then it is given up (missed).
+retracting part of the chain (``back_off``: it re-forms under the plan's field, off a branch
+the plan did not foresee), ``retries`` times; then it is given up (missed).
 """
 
 from __future__ import annotations
@@ -80,7 +81,9 @@ class NavigatorParams:
         feeder_gain: feeder speed per metre of length error [1/s]; feeder_speed: its cap [m/s].
         seek_timeout: seconds seeking one target before a retry.
         retries: retries before giving up a target.
-        back_off: chain retracted before a retry [m].
+        back_off: the fraction of the inserted length retracted before a retry: the chain
+            re-forms from a short stub under the plan's field (a chain held on another
+            equilibrium branch than the plan's leaves it; a few millimetres back does not).
         omega_max: the mapper's magnet speed at full stick [rad/s]; dead_band: its dead band.
         start_time: when it starts [s].
     """
@@ -104,7 +107,7 @@ class NavigatorParams:
     feeder_speed: float = 0.02
     seek_timeout: float = 6.0
     retries: int = 1
-    back_off: float = 5e-3
+    back_off: float = 0.5
     omega_max: float = 0.5
     dead_band: float = 0.1
     start_time: float = 0.1
@@ -117,6 +120,8 @@ class NavigatorParams:
                                  f"window {gram_force(lo):.3g}..{gram_force(hi):.3g} gf (low > 0)")
         if not self.period > 0 or not self.dwell >= 0 or not self.seek_timeout > 0 or self.retries < 0:
             raise UserInputError("NavigatorParams: period and seek_timeout must be > 0, dwell and retries >= 0")
+        if not 0.0 <= self.back_off <= 1.0:
+            raise UserInputError(f"NavigatorParams back_off must be a fraction in 0..1, got {self.back_off!r}")
         return self
 
 
@@ -363,7 +368,7 @@ class AutonomousNavigator(LeafSystem):
         p = self.params
         plan, record = self.plans[mem.k], mem.records[-1]
         if mem.phase == "back":
-            if s <= mem.s_des + 0.5e-3 or t - mem.phase_start > 2.0:
+            if s <= mem.s_des + 0.5e-3 or t - mem.phase_start > 1.0 + p.back_off * plan.inserted_length / p.feeder_speed:
                 self._start_target(mem, t, retry=True)
             return
         if mem.phase == "move":
@@ -384,7 +389,7 @@ class AutonomousNavigator(LeafSystem):
                 if record.retries < p.retries:
                     record.retries += 1
                     mem.phase, mem.phase_start = "back", t
-                    mem.s_des = max(s - p.back_off, 0.0)
+                    mem.s_des = (1.0 - p.back_off) * s
                 else:
                     self._finish_target(mem, t)
             return

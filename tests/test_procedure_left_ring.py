@@ -100,6 +100,51 @@ def test_a_look_without_an_equilibrium_keeps_the_last_estimate():
     assert nav.GetOutputPort("force_estimate").Eval(context)[0] == pytest.approx(f_first, rel=1e-12)
 
 
+class _NoContact:
+    """A force model that always finds the tip held without any force: the seek never settles."""
+
+    chain = BallChain()
+
+    def reaction_W(self, p_W, dipoles_W, inserted_length):
+        return np.zeros(3)
+
+
+def test_a_retry_retracts_half_the_chain_then_the_target_is_given_up():
+    """A target whose seek times out: the navigator retracts half the inserted length (the
+    feeder's command backwards), comes back to the plan once, and then gives the target up."""
+    from pydrake.systems.analysis import Simulator
+
+    from ballchain.drake_models.errors import UserInputError
+    from ballchain.systems.autonomous_navigator import AutonomousNavigator, NavigatorParams, TargetPlan
+
+    n_W = np.array([0.0, 0.0, 1.0])
+    plan = TargetPlan("t", np.zeros(3), n_W, np.array([[1.0, 0.0, 0.0]]), 0.03,
+                      np.column_stack([-n_W, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]),
+                      np.eye(3), np.zeros((3, 2)), newtons_from_gram_force(20.0))
+    params = NavigatorParams(start_time=0.0, seek_timeout=0.5)
+    nav = AutonomousNavigator(["u"], [plan], _NoContact(), params)
+    context = nav.CreateDefaultContext()
+    nav.GetInputPort("p_WT_measured").FixValue(context, 0.5 * BallChain().ball_diameter * n_W)
+    nav.GetInputPort("m_W_u").FixValue(context, np.array([1.0, 0.0, 0.0]))
+    nav.GetInputPort("inserted_length").FixValue(context, [0.03])
+    simulator = Simulator(nav, context)
+    simulator.AdvanceTo(0.75)  # past the first seek's timeout: backing off
+    assert nav.GetOutputPort("v_insert_cmd").Eval(context)[0] == pytest.approx(-params.feeder_speed)
+    (record,) = nav.records(context)
+    assert record.retries == 1 and not nav.is_done(context)
+    nav.GetInputPort("inserted_length").FixValue(context, [0.024])  # 6 mm back: not yet half
+    simulator.AdvanceTo(0.85)
+    assert nav.GetOutputPort("v_insert_cmd").Eval(context)[0] == pytest.approx(-params.feeder_speed)
+    nav.GetInputPort("inserted_length").FixValue(context, [0.03])
+    # The back phase ends when the feeder is back (here it never moves: after its time limit,
+    # half the chain at the feeder's speed plus a second), then one more seek, then given up.
+    simulator.AdvanceTo(0.75 + 1.0 + 0.5 * 0.03 / params.feeder_speed + 1.0)
+    (record,) = nav.records(context)
+    assert nav.is_done(context) and not record.reached and record.retries == 1 and record.t_end is not None
+    with pytest.raises(UserInputError, match="back_off"):
+        NavigatorParams(back_off=1.5).validate()
+
+
 def test_noise_help_prints_a_rounded_default(capsys):
     """``procedure --help`` shows --noise's default rounded (0.404 mm); the default itself is the
     exact 0.70 mm / sqrt(3)."""
