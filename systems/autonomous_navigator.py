@@ -17,7 +17,9 @@ plan.
 Feedback, every ``period``: with the force model (``TipForceEstimator``: the chain's statics
 with the tip held at the measured point, under the measured magnets, at the measured
 insertion) it estimates the contact force F (the reaction that holds the tip there, on the
-wall's outward normal: no force sensor). A Newton step on the magnets' orientation then asks
+wall's outward normal: no force sensor). A look with no held equilibrium (near the chain's
+reach the sensor's noise can put the measured tip beyond it) keeps the last look's reaction
+on this target (none yet: no force). A Newton step on the magnets' orientation then asks
 for the held equilibrium at the target's centre (lateral offset o measured -> 0) with F at the
 commanded force::
 
@@ -32,7 +34,8 @@ Sequencing, per target: ``move`` (the magnets to the plan's dipoles, the feeder 
 centre laterally and the estimate inside the force window for ``settle`` looks), ``dwell``
 (``dwell`` seconds of the same loop holding the force: the RF application), then the next
 target. A target not touched within ``seek_timeout`` is retried from its plan's dipoles after
-backing the chain off (``retries`` times); then it is given up (missed).
+retracting part of the chain (``back_off``: it re-forms under the plan's field, off a branch
+the plan did not foresee), ``retries`` times; then it is given up (missed).
 """
 
 from __future__ import annotations
@@ -78,7 +81,9 @@ class NavigatorParams:
         feeder_gain: feeder speed per metre of length error [1/s]; feeder_speed: its cap [m/s].
         seek_timeout: seconds seeking one target before a retry.
         retries: retries before giving up a target.
-        back_off: chain retracted before a retry [m].
+        back_off: the fraction of the inserted length retracted before a retry: the chain
+            re-forms from a short stub under the plan's field (a chain held on another
+            equilibrium branch than the plan's leaves it; a few millimetres back does not).
         omega_max: the mapper's magnet speed at full stick [rad/s]; dead_band: its dead band.
         start_time: when it starts [s].
     """
@@ -102,7 +107,7 @@ class NavigatorParams:
     feeder_speed: float = 0.02
     seek_timeout: float = 6.0
     retries: int = 1
-    back_off: float = 5e-3
+    back_off: float = 0.5
     omega_max: float = 0.5
     dead_band: float = 0.1
     start_time: float = 0.1
@@ -115,6 +120,8 @@ class NavigatorParams:
                                  f"window {gram_force(lo):.3g}..{gram_force(hi):.3g} gf (low > 0)")
         if not self.period > 0 or not self.dwell >= 0 or not self.seek_timeout > 0 or self.retries < 0:
             raise UserInputError("NavigatorParams: period and seek_timeout must be > 0, dwell and retries >= 0")
+        if not 0.0 <= self.back_off <= 1.0:
+            raise UserInputError(f"NavigatorParams back_off must be a fraction in 0..1, got {self.back_off!r}")
         return self
 
 
@@ -123,14 +130,16 @@ class TargetPlan:
     """What the experiment computed ahead for one target (world frame).
 
     Attributes:
-        name: the target's name; p_WT (3,) its centre on the wall; n_W (3,) the wall's normal
-            into the chamber.
+        name: the target's name; p_WT (3,) the point on the wall the tip is aimed at (the
+            target's centre unless ``aim_offset``); n_W (3,) the wall's normal into the chamber.
         dipoles_W: (k, 3) unit dipole directions of the k units that press it.
         inserted_length: the feeder's length [m].
         basis_W: (3, 3) columns: the direction the tip presses (into the wall), two along it.
         J_m: (3, 3 k) pressing force (normal, tangential u, v) [N] per dipole component.
         J_o: (3, 2) the same per touch-point offset along basis_W[:, 1:] [N/m].
         force_N: the planned pressing force [N].
+        aim_offset: how far ``p_WT`` lies from the target's centre along the wall [m] (0: on
+            it; > 0: a target beyond the straight chain's reach, aimed inside its circle).
     """
 
     name: str
@@ -142,6 +151,7 @@ class TargetPlan:
     J_m: np.ndarray
     J_o: np.ndarray
     force_N: float
+    aim_offset: float = 0.0
 
 
 class TipForceEstimator:
@@ -233,6 +243,7 @@ class _Memory:
     stick: np.ndarray | None = None  # (k, 3)
     v_feed: float = 0.0
     f_est: float = 0.0
+    r_est: np.ndarray | None = None  # the last look's reaction on the tip (W) [N]
     done: bool = False
 
     def __deepcopy__(self, memo):
@@ -352,7 +363,7 @@ class AutonomousNavigator(LeafSystem):
         plan = self.plans[mem.k]
         if not retry:
             mem.records.append(DwellRecord(plan.name, t))
-        mem.phase, mem.phase_start, mem.on_target = "move", t, 0
+        mem.phase, mem.phase_start, mem.on_target, mem.r_est = "move", t, 0, None
         mem.m_des, mem.s_des = plan.dipoles_W.copy(), plan.inserted_length
 
     def _finish_target(self, mem: _Memory, t: float) -> None:
@@ -368,7 +379,7 @@ class AutonomousNavigator(LeafSystem):
         p = self.params
         plan, record = self.plans[mem.k], mem.records[-1]
         if mem.phase == "back":
-            if s <= mem.s_des + 0.5e-3 or t - mem.phase_start > 2.0:
+            if s <= mem.s_des + 0.5e-3 or t - mem.phase_start > 1.0 + p.back_off * plan.inserted_length / p.feeder_speed:
                 self._start_target(mem, t, retry=True)
             return
         if mem.phase == "move":
@@ -389,7 +400,7 @@ class AutonomousNavigator(LeafSystem):
                 if record.retries < p.retries:
                     record.retries += 1
                     mem.phase, mem.phase_start = "back", t
-                    mem.s_des = max(s - p.back_off, 0.0)
+                    mem.s_des = (1.0 - p.back_off) * s
                 else:
                     self._finish_target(mem, t)
             return
@@ -416,7 +427,12 @@ class AutonomousNavigator(LeafSystem):
         if h is not None:
             centre = centre + h
         o = B[:, 1:].T @ (tip - centre)
-        f_est, r = self.estimator.force(tip, m, s, plan.n_W, h)
+        r = self.estimator.reaction_W(tip, m, s, h)
+        if r is None:  # no held equilibrium at this look (a noisy tip beyond the chain's reach):
+            r = mem.r_est  # the last look's reaction (none yet: no force)
+        mem.r_est = r
+        r = np.zeros(3) if r is None else r
+        f_est = max(float(r @ plan.n_W), 0.0)
         f_t = B[:, 1:].T @ (-r)  # tangential pressing force the model says the wall must hold
         w = np.array([p.force_weight, 1.0, 1.0])
         rhs = w * np.concatenate([[p.force_command - f_est + plan.J_o[0] @ o], plan.J_o[1:] @ o - f_t])

@@ -88,7 +88,9 @@ class ProcedureResult(Result):
         rows: one per target: {target, reached, time_s, t_touch_s, dwell_s, force_true_mean_gf,
             force_true_min_gf, force_true_max_gf, in_window_fraction, estimate_mean_error_gf,
             estimate_worst_error_gf (auto only), retries, point: the ablation point {name, p_W,
-            n_W, force_N, duration_s} (None when not reached)}.
+            n_W, force_N, duration_s} (None when not reached); auto only: plan_force_gf (the
+            planned press) and aim_offset_mm (the aim's distance from the target's centre, > 0
+            for a target beyond the straight chain's reach: ``aim_point``)}.
         summary: {reached, targets, total_time_s, in_window_fraction (over every dwell),
             estimate_mean_abs_error_gf, estimate_worst_error_gf, sim_time_s, cpu_time_s,
             plan_cpu_time_s, failure}.
@@ -168,10 +170,22 @@ def with_wall_motion(overrides: str | None, wall_motion: str) -> str | None:
     return json.dumps({**changes, "wall_motion": motion})
 
 
-def _plan_step(chain, stand, name: str, m_prev: np.ndarray, previous, force_N: float, radius: float) -> dict:
-    """One target's inverse statics with every magnet of ``stand`` (k = 1: ``planner.plan_target``,
-    frictionless; k > 1: the same steps with k magnets: from the magnets where they are, else
-    from the hardest-pressing orientation ``forces.max_normal_force``)."""
+def _plan_step(chain, stand, name: str, m_prev: np.ndarray, previous, forces_N, radius: float) -> dict:
+    """One target's inverse statics with every magnet of ``stand``, asking for each force of
+    ``forces_N`` in turn (the first answered is kept).
+
+    k = 1: ``planner.plan_target`` (frictionless). k > 1: ``min_turn_orientation`` with k magnets
+    from each of two warm starts, every start at a force before the next force: the magnets
+    where they are (the tip slid onto the target from the previous held equilibrium), then the
+    orientation that presses hardest with the tip held on the centre (``forces.max_normal_force``).
+    The second start is tried whatever that hardest press is: it is a press held by the wall's
+    tangential reaction too, no bound on the frictionless press the program asks for (on the
+    left ring's far targets it is below the asked force while the program from it answers).
+
+    Returns:
+        {"feasible", "plan" (the OrientationPlan), "start" (which warm start answered),
+        "asked_N" (the force asked for)}, or {"feasible": False, "reason"}.
+    """
     from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
     from ballchain.drake_models.params import CylinderMagnet
     from ballchain.experiments.forces import max_normal_force
@@ -181,7 +195,12 @@ def _plan_step(chain, stand, name: str, m_prev: np.ndarray, previous, force_N: f
 
     keys = sorted(stand.magnets)
     if len(keys) == 1:
-        return plan_target(chain, stand, name, m_prev, previous, force_N, radius, 0.0, 4, 15)
+        out = {}
+        for f in forces_N:
+            out = plan_target(chain, stand, name, m_prev, previous, f, radius, 0.0, 4, 15)
+            if out.get("feasible"):
+                return {**out, "start": out.get("how"), "asked_N": f}
+        return {**out, "feasible": False}
     centres = [stand.magnets[key] for key in keys]
 
     def field_for(m):
@@ -193,26 +212,52 @@ def _plan_step(chain, stand, name: str, m_prev: np.ndarray, previous, force_N: f
     starts = []
     home = pin_tip(solver, field_for(m_prev), centre, previous)
     if home is not None:
-        starts.append((m_prev, home))
+        starts.append(("previous target", m_prev, home))
     best = max_normal_force(chain, stand, name, tuple(keys), 4, 15)
-    if best.get("force_N") is not None and best["force_N"] >= force_N:
-        starts.append((np.asarray(best["dipoles"]).reshape(-1, 3), best["result"]))
-    for m_start, home_k in starts:
-        plan = min_turn_orientation(HeldTip(solver, field_for, centre, axis, home_k, len(keys)), m_start, m_prev,
-                                    force_N, radius, 0.0)
-        if plan.feasible:
-            return {"feasible": True, "plan": plan}
-    return {"feasible": False}
+    if best.get("force_N") is not None:
+        starts.append(("hardest press", np.asarray(best["dipoles"]).reshape(-1, 3), best["result"]))
+    if not starts:
+        return {"feasible": False, "reason": best.get("reason", "no held equilibrium on the target")}
+    statuses = []
+    for f in forces_N:
+        for how, m_start, home_k in starts:
+            plan = min_turn_orientation(HeldTip(solver, field_for, centre, axis, home_k, len(keys)), m_start, m_prev,
+                                        f, radius, 0.0)
+            if plan.feasible:
+                return {"feasible": True, "plan": plan, "start": how, "asked_N": f}
+            statuses.append(f"{gram_force(f):.3g} gf from the {how}: {plan.solver_status}")
+    return {"feasible": False, "reason": "; ".join(statuses)}
+
+
+def aim_point(centre: np.ndarray, axis: np.ndarray, reach: float, radius: float, tolerance: float):
+    """(the tip's aim (3,), its distance from the target's centre [m]) in the statics frame.
+
+    A target whose centre (``centre``: the tip ball's centre touching it, ball 1 at the origin)
+    lies beyond ``reach`` (the straight chain's) is aimed at the point of its circle nearest
+    ball 1 that keeps every tip within ``tolerance`` of the aim inside the target's circle
+    (``radius``): moved ``radius - tolerance`` along the wall towards the origin. Any other
+    target is aimed at its centre (distance 0).
+    """
+    centre = np.asarray(centre, float)
+    n = np.asarray(axis, float) / np.linalg.norm(axis)
+    towards = -(centre - (centre @ n) * n)  # along the wall, towards ball 1
+    shift = radius - tolerance
+    if np.linalg.norm(centre) < reach or shift <= 0.0 or np.linalg.norm(towards) < 1e-12:
+        return centre, 0.0
+    return centre + shift * towards / np.linalg.norm(towards), float(shift)
 
 
 def target_plans(anatomy, chosen: list[int], force_N: float, n_balls: int, inserted_length: float,
-                 magnets_W: list, progress: bool = False) -> tuple[list, list]:
+                 magnets_W: list, progress: bool = False, tolerance: float = 0.0) -> tuple[list, list]:
     """The feed-forward of every target, in order (``TargetPlan``s) and the names not planned.
 
     Each target: inverse statics (``_plan_step``: frictionless, the engine's contact) from the
     previous target's dipoles and held equilibrium, asking for ``force_N`` (then 3/4 and half of
     it when that has no answer: the most the model can press), with the units at ``magnets_W``
-    ((k, 3) centres [m]), and the held equilibrium's force sensitivities there.
+    ((k, 3) centres [m]), and the held equilibrium's force sensitivities there. A target beyond
+    the straight chain's reach is aimed inside its circle (``aim_point``; ``tolerance``: how far
+    from the aim the navigator counts the tip on it [m]), the touch point then free within the
+    circle around the aim that stays inside the target's.
     """
     from tqdm import tqdm
 
@@ -230,7 +275,7 @@ def target_plans(anatomy, chosen: list[int], force_N: float, n_balls: int, inser
     base = anatomy_stand(anatomy, chosen, chain.ball_diameter)
     R = base.R_HS
     centres = [R.T @ (np.asarray(p, float) - base.p_HE) for p in magnets_W]
-    stand = Stand(base.targets, {str(j + 1): c for j, c in enumerate(centres)}, R, base.p_HE)
+    stand = Stand(dict(base.targets), {str(j + 1): c for j, c in enumerate(centres)}, R, base.p_HE)
     m_now = np.array([neutral_direction(c, np.zeros(3), np.array([1.0, 0.0, 0.0])) for c in centres])
     m_now /= np.linalg.norm(m_now, axis=1, keepdims=True)
 
@@ -240,22 +285,22 @@ def target_plans(anatomy, chosen: list[int], force_N: float, n_balls: int, inser
 
     held, plans, missing = None, [], []
     for k, name in zip(tqdm(chosen, desc="plan", unit="target", disable=not progress), stand.targets):
-        out = {}
-        for f in (force_N, 0.75 * force_N, 0.5 * force_N):  # the most it can press, down to half
-            out = _plan_step(chain, stand, name, m_now, held, f, anatomy.touch_radius)
-            if out.get("feasible"):
-                break
+        centre, axis = stand.targets[name]
+        aim, shift = aim_point(centre, axis, (n_balls - 1) * chain.ball_diameter, anatomy.touch_radius, tolerance)
+        stand.targets[name] = (aim, axis)
+        out = _plan_step(chain, stand, name, m_now, held, (force_N, 0.75 * force_N, 0.5 * force_N),
+                         anatomy.touch_radius - shift)  # the most it can press, down to half
         if not out.get("feasible"):
             missing.append(name)
             continue
-        plan = out["plan"]
-        centre, axis = stand.targets[name]
+        plan, centre = out["plan"], aim
         held_tip = HeldTip(ChainStatics(chain, max_iterations=25), field_for, centre, axis, plan.result, len(centres))
         _, J = held_tip.value_and_jacobian(np.concatenate([plan.dipoles.reshape(-1), plan.offset]))
         m_now, held = plan.dipoles.reshape(-1, 3), plan.result
         J_m = np.hstack([J[:, 3 * j:3 * j + 3] @ R.T for j in range(len(centres))])
-        plans.append(TargetPlan(name, anatomy.p_WT[k], anatomy.n_W[k], (R @ m_now.T).T, inserted_length,
-                                R @ held_tip.basis, J_m, J[:, 3 * len(centres):], float(plan.force_N)))
+        p_aim = anatomy.p_WT[k] + R @ (aim - base.targets[name][0])
+        plans.append(TargetPlan(name, p_aim, anatomy.n_W[k], (R @ m_now.T).T, inserted_length,
+                                R @ held_tip.basis, J_m, J[:, 3 * len(centres):], float(plan.force_N), shift))
     return plans, missing
 
 
@@ -335,6 +380,7 @@ def _dwell_row(record, logs, context, plan, window_N, ball_radius: float) -> dic
     force, balls, estimate, _ = (log.FindLog(context) for log in logs)
     t = force.sample_times()
     row = {"target": record.target, "reached": record.reached, "retries": record.retries, "slips": record.slips,
+           "plan_force_gf": round(gram_force(plan.force_N), 3), "aim_offset_mm": round(plan.aim_offset * 1e3, 3),
            "time_s": None if record.t_end is None else round(record.t_end - record.t_start, 3),
            "t_touch_s": None if record.t_touch is None else round(record.t_touch, 3), "dwell_s": 0.0,
            "force_true_mean_gf": None, "force_true_min_gf": None, "force_true_max_gf": None,
@@ -453,9 +499,13 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
 
     cpu0 = time.process_time()
     n = scenario.n_balls
-    s_full = (n - 1.0) * BallChain().ball_diameter  # every ball but ball 1 beyond the sheath: the plan's chain
+    # The plan's statics clamps ball 1 at the sheath exit; the station puts ball 1's centre at
+    # p_WE + (s - (n - 1/2) d) u (``chain_plant``): that is s = (n - 1/2) d, not (n - 1) d (ball 1
+    # half a ball inside, the chain 1.6 mm short of the plan's reach).
+    s_full = (n - 0.5) * BallChain().ball_diameter
     magnets_W = [c.p_WM for c in add_field_sources(scenario, anatomy.atrium()).unit_configs]
-    plans, missing = target_plans(anatomy, chosen, newtons_from_gram_force(force_gf), n, s_full, magnets_W, progress)
+    plans, missing = target_plans(anatomy, chosen, newtons_from_gram_force(force_gf), n, s_full, magnets_W, progress,
+                                  params.touch_radius)
     plan_cpu = time.process_time() - cpu0
     return finish(*_simulate(task, anatomy, scenario, plans, missing, params, localisation, seed, plan_cpu,
                              progress, html, overrides, track_sheath))
