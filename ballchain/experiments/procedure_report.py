@@ -6,7 +6,7 @@ seed draws the localisation noise for the navigator and the hand's tremor for th
 navigator's feed-forward (inverse statics, ``procedure.plan_ring``) does not depend on the seed:
 it is made once per ring and given to every seed's run, which gives the same result as planning
 in each run. The runs are independent and run side by side on worker processes
-(``sweep.run_sections``): first the plans and the operator's runs, then the navigator's.
+(``sweep.run_sections``): first the rings' plans, then every run, seed by seed.
 
 Per ring and navigator, over the seeds: the median and the range of the total simulated time,
 the targets reached, the fraction of the dwells with the true force in the window, the true
@@ -141,14 +141,13 @@ def run(seeds=SEEDS, *, rings=RINGS, targets: int | None = None, dwell_s: float 
         out = check_output_dir(out, "out")
         folder = out / "runs"
     base = Path(out) if out is not None else Path(".")
-    first = [(f"plan {r}", functools.partial(_plan_job, r, targets)) for r in rings]
-    first += [(f"{r} operator {s}", functools.partial(_run_job, r, "operator", s, targets, dwell_s, None, folder))
-              for r in rings for s in seeds]
-    done = _map(first, base, workers)
-    plans = dict(zip(rings, done[:len(rings)]))
-    second = [(f"{r} auto {s}", functools.partial(_run_job, r, "auto", s, targets, dwell_s, plans[r][0], folder))
-              for r in rings for s in seeds]
-    runs = done[len(rings):] + _map(second, base, workers)
+    done = _map([(f"plan {r}", functools.partial(_plan_job, r, targets)) for r in rings], base, workers)
+    plans = dict(zip(rings, done))
+    # Seed by seed (the costliest run first in each), so that an interrupted run has whole seeds.
+    jobs = [(f"{r} {n} {s}", functools.partial(_run_job, r, n, s, targets, dwell_s,
+                                               plans[r][0] if n == "auto" else None, folder))
+            for s in seeds for r in rings for n in procedure.NAVIGATORS]
+    runs = _map(jobs, base, workers)
     runs.sort(key=lambda x: (rings.index(x["ring"]), procedure.NAVIGATORS.index(x["navigator"]), seeds.index(x["seed"])))
     table = [_aggregate([x for x in runs if x["ring"] == r and x["navigator"] == n])
              for r in rings for n in procedure.NAVIGATORS]
@@ -178,7 +177,8 @@ def _spread(values: list) -> dict:
 def _aggregate(runs: list) -> dict:
     """One (ring, navigator)'s row over its seeds."""
     first = runs[0]
-    reached_rows = [row for x in runs for row in x["rows"] if row.get("reached") and row.get("force_true_min_gf")]
+    reached_rows = [row for x in runs for row in x["rows"]
+                    if row.get("reached") and row.get("force_true_min_gf") is not None]
     rings = [x["ring_verdict"] for x in runs if x["ring_verdict"] is not None]
     failures = sorted({x["summary"]["failure"] for x in runs if x["summary"].get("failure")})
     return {
