@@ -670,7 +670,9 @@ def procedure_section(out: Path, quick: bool) -> tuple[Section, dict]:
         "`localisation`), estimates the contact force from the model (no force sensor) and holds 20 gf; "
         "the left ring with both units, the right with the unit beyond the right carina. The simulated "
         "operator of the teleoperation tasks steers the one unit beyond the right carina on both rings, "
-        "touches each target and holds still for the dwell; it has no force estimate. Each dwell leaves a "
+        "touches each target and holds still for the dwell; a target counts when the tip touches it (the "
+        "teleoperation rule), and with no force estimate the operator does not press it (the true force "
+        "column). Each dwell leaves a "
         "lesion (FEM surrogate, N52 tip magnet below its limit) and the ring is checked for gaps "
         "(`drake_models/lesion_ring.py`). "
         + (f"Quick report: the first {targets} targets of each ring, seed 0. " if quick else

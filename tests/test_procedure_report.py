@@ -92,7 +92,9 @@ def test_report_bad_arguments_refused_before_any_run(kwargs, field):
 
 def _fake_run(seed: int, reached: int, time_s: float, window, worst) -> dict:
     rows = [{"reached": True, "force_true_min_gf": 10.0 + seed, "force_true_max_gf": 30.0 - seed,
-             "force_true_mean_gf": 20.0}]
+             "force_true_mean_gf": 20.0},
+            {"reached": True, "force_true_min_gf": 0.0, "force_true_max_gf": 0.5, "force_true_mean_gf": 0.2},
+            {"reached": False, "force_true_min_gf": None, "force_true_max_gf": None, "force_true_mean_gf": None}]
     return {"ring": "right", "navigator": "auto", "seed": seed, "units": ["right_unit"], "rows": rows,
             "summary": {"targets": 18, "reached": reached, "total_time_s": time_s, "in_window_fraction": window,
                         "estimate_mean_abs_error_gf": worst / 2, "estimate_worst_error_gf": worst, "failure": None},
@@ -106,7 +108,7 @@ def test_aggregate_medians_and_ranges_over_seeds():
     assert row["reached"]["median"] == float(np.median(reached))
     assert row["in_window_fraction"] == {"median": 0.95, "min": 0.9, "max": 1.0}  # a run without a dwell left out
     assert row["estimate_worst_error_gf"] == max(worst)
-    assert (row["force_true_min_gf"], row["force_true_max_gf"]) == (10.0, 30.0)
+    assert (row["force_true_min_gf"], row["force_true_max_gf"]) == (0.0, 30.0)  # a touch without force counts
     assert row["ring_gaps"] == {"median": 1.0, "min": 0.0, "max": 2.0} and row["isolated_runs"] == 1
 
 
