@@ -655,6 +655,77 @@ def _ablation_headlines(section: Section, rows: list[list]) -> None:
                          "shift it (see the section)")
 
 
+def procedure_section(out: Path, quick: bool) -> tuple[Section, dict]:
+    from ballchain.experiments import procedure_report as pr
+
+    seeds, targets = ((0,), pr.QUICK_TARGETS) if quick else (pr.SEEDS, None)
+    report = pr.run(seeds=seeds, targets=targets, out=out / "procedure")
+    st = report.settings
+    plan_cost = ", ".join(f"{r}: {v['cpu_time_s']:.0f} CPU-s" for r, v in report.plans.items())
+    section = Section("Simulated ablation procedure: autonomous navigator vs simulated operator (beyond the paper)")
+    section.text(
+        "Each ring pressed target by target and held for a 10 s dwell (`ballchain procedure`, "
+        "`experiments/procedure.py`; quasi-static engine). The autonomous navigator sees the tip as an "
+        "electromagnetic tracker reports it (0.40 mm per axis, 40 Hz, 50 ms latency: the scenario's "
+        "`localisation`), estimates the contact force from the model (no force sensor) and holds 20 gf; "
+        "the left ring with both units, the right with the unit beyond the right carina. The simulated "
+        "operator of the teleoperation tasks steers the one unit beyond the right carina on both rings, "
+        "touches each target and holds still for the dwell; a target counts when the tip touches it (the "
+        "teleoperation rule), and with no force estimate the operator does not press it (the true force "
+        "column). Each dwell leaves a "
+        "lesion (FEM surrogate, N52 tip magnet below its limit) and the ring is checked for gaps "
+        "(`drake_models/lesion_ring.py`). "
+        + (f"Quick report: the first {targets} targets of each ring, seed 0. " if quick else
+           f"Whole rings, seeds {', '.join(map(str, seeds))} for both navigators (the localisation noise's "
+           "for the navigator, the hand's tremor's for the operator); medians over the seeds with the range. ")
+        + "The navigator's plans (inverse statics) do not depend on the seed: made once per ring "
+        f"({plan_cost}) and given to "
+        f"every seed's run. The runs ran on {st['workers']} worker process(es): {st['cpu_time_s'] / 60:.1f} "
+        "CPU-min in all (each run's process time, summed).")
+    rows = []
+    span = _median_range
+    for r in report.table:
+        rows.append([r["ring"], r["navigator"], span(r["reached"]) + f" / {r['targets']}", span(r["total_time_s"]),
+                     span(r["in_window_fraction"], "{:.2f}"),
+                     "-" if r["force_true_min_gf"] is None else f"{r['force_true_min_gf']:.1f}-{r['force_true_max_gf']:.1f}",
+                     span(r["estimate_mean_abs_error_gf"], "{:.2f}"),
+                     "-" if r["estimate_worst_error_gf"] is None else r["estimate_worst_error_gf"],
+                     span(r["ring_gaps"]), f"{r['isolated_runs']}/{r['runs']}", ", ".join(r["failures"]) or "-"])
+    section.table(["ring", "navigator", "targets reached", "total time [s]", "dwell in 10-40 gf",
+                   "true force range [gf]", "estimate error, mean |.| [gf]", "estimate error, worst [gf]",
+                   "ring gaps", "ring isolated (runs)", "stopped by"], rows,
+                  caption="medians over the seeds (min-max)")
+    section.figure(out / "procedure" / "procedure_forces.png", "the navigator's force estimate against the true "
+                   "force per dwell (left) and the operator's true force per dwell (right), every seed")
+    for key, path in report.files["rings"].items():
+        section.figure(path, f"lesion ring, {key}, seed {seeds[0]}")
+    _procedure_headlines(section, report.table)
+    return section, report.to_dict()
+
+
+def _median_range(v: dict, fmt: str = "{:.3g}") -> str:
+    """A {median, min, max} as "median (min-max)" ("-" when there is none)."""
+    if v["median"] is None:
+        return "-"
+    lo, hi = fmt.format(v["min"]), fmt.format(v["max"])
+    return fmt.format(v["median"]) + ("" if lo == hi else f" ({lo}-{hi})")
+
+
+def _procedure_headlines(section: Section, table: list[dict]) -> None:
+    """Per ring: targets reached and force in window, navigator vs operator (no paper value)."""
+    by = {(r["ring"], r["navigator"]): r for r in table}
+    for ring in dict.fromkeys(r["ring"] for r in table):
+        auto, op = by[(ring, "auto")], by[(ring, "operator")]
+        n = auto["targets"]
+        reached = f"{auto['reached']['median']:g}/{n} vs {op['reached']['median']:g}/{n}"
+        window = [("-" if v["in_window_fraction"]["median"] is None else f"{100 * v['in_window_fraction']['median']:.0f}%")
+                  for v in (auto, op)]
+        section.headline(f"{ring} ring: targets reached, autonomous navigator vs simulated operator "
+                         f"(median of {auto['runs']} seeds)", None, reached, None,
+                         f"dwell in the 10-40 gf window {window[0]} vs {window[1]}; ring isolated in "
+                         f"{auto['isolated_runs']}/{auto['runs']} vs {op['isolated_runs']}/{op['runs']} runs")
+
+
 EXPERIMENTS = [
     ("alignment", alignment_section),
     ("sizing", sizing_section),
@@ -667,6 +738,7 @@ EXPERIMENTS = [
     ("teleoperation", teleop_section),
     ("robotic vs manual", manual_section),
     ("ablation", ablation_section),
+    ("ablation procedure", procedure_section),
 ]
 
 
@@ -870,6 +942,7 @@ SECTION_COST_S = {  # name: (wall seconds of a full run, of a --quick run)
     "model validation": (17.3, 14.2), "tip forces": (219.0, 41.8), "Table I effects and clinical design": (64.3, 57.9),
     "model-based steering": (171.0, 59.0), "teleoperation": (655.0, 148.1), "ablation": (76.6, 56.5),
     "robotic vs manual": (264.0, 17.0),  # the comparison alone, CPU seconds (measured separately)
+    "ablation procedure": (2868.0, 290.6),  # alone, 2 worker processes, the machine at a load of 7-9
 }
 """Each section's cost, measured once: the wall time of a full run (21.6 min) and of a --quick run
 (6.7 min), each ``ballchain reproduce`` in a new process (the first section pays for the imports

@@ -32,6 +32,26 @@ RATE_RANGE_HZ = (1.0, 1000.0)
 LATENCY_RANGE_S = (0.0, 1.0)
 
 
+def check_figures(noise_std, rate, latency, where: str) -> None:
+    """The tracker's three figures: numbers (not bools) in their ranges, the latency a whole
+    number of samples. ``where`` prefixes each field's name in the message ("localisation ",
+    or "scenario localisation." for a scenario's fields).
+
+    Raises:
+        UserInputError: naming the field, the value and what is allowed.
+    """
+    values = {"noise_std": noise_std, "rate": rate, "latency": latency}
+    for name, (lo, hi), unit in (("noise_std", NOISE_RANGE_M, "m"), ("rate", RATE_RANGE_HZ, "Hz"),
+                                 ("latency", LATENCY_RANGE_S, "s")):
+        value = values[name]
+        if isinstance(value, bool) or not isinstance(value, numbers.Real) or not lo <= value <= hi:
+            raise UserInputError(f"{where}{name} must be a number in {lo:g}..{hi:g} {unit}, got {short_repr(value)}")
+    samples = latency * rate
+    if abs(samples - round(samples)) > 1e-6:
+        raise UserInputError(f"{where}latency must be a whole number of samples (1/rate = {1.0 / rate:g} s), "
+                             f"got {short_repr(latency)} s at {rate:g} Hz")
+
+
 @dataclass(frozen=True)
 class LocalisationParams:
     """The tip tracker's figures (SI; module docstring for the defaults' sources).
@@ -48,16 +68,7 @@ class LocalisationParams:
     latency: float = 0.05
 
     def __post_init__(self) -> None:
-        for name, (lo, hi), unit in (("noise_std", NOISE_RANGE_M, "m"), ("rate", RATE_RANGE_HZ, "Hz"),
-                                     ("latency", LATENCY_RANGE_S, "s")):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, numbers.Real) or not lo <= value <= hi:
-                raise UserInputError(f"localisation {name} must be a number in {lo:g}..{hi:g} {unit}, "
-                                     f"got {short_repr(value)}")
-        samples = self.latency * self.rate
-        if abs(samples - round(samples)) > 1e-6:
-            raise UserInputError(f"localisation latency must be a whole number of samples (1/rate = "
-                                 f"{1.0 / self.rate:g} s), got {short_repr(self.latency)} s at {self.rate:g} Hz")
+        check_figures(self.noise_std, self.rate, self.latency, "localisation ")
 
     @property
     def period(self) -> float:

@@ -24,6 +24,7 @@ from pydrake.visualization import VisualizationConfig
 
 from ballchain.drake_models import paper, wall_motion
 from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.drake_models.localisation import LocalisationParams, check_figures
 from ballchain.drake_models.safe_yaml import check_value  # noqa: F401 (the sweep's check imports it from here)
 from ballchain.drake_models.safe_yaml import (check_yaml_schema, load_typed, load_yaml, load_yaml_file,
                                              schema_fields as _schema_fields)
@@ -168,6 +169,27 @@ class WallMotionScenario:
         return None if law.still else law
 
 
+@dataclass
+class LocalisationScenario:
+    """The tip tracker an autonomous navigator reads (``drake_models.localisation``: the
+    defaults are the NDI Aurora's, their sources there). Read by the simulated procedure
+    (``ballchain procedure``, ``experiments/procedure.py``) when its run is not given figures.
+
+    Attributes:
+        noise_std: per-axis standard deviation of the position error [m] (0.40 mm).
+        rate: samples per second [Hz] (40).
+        latency: delay from sampling to the reading [s] (50 ms), a whole number of samples.
+    """
+
+    noise_std: float = LocalisationParams.noise_std
+    rate: float = LocalisationParams.rate
+    latency: float = LocalisationParams.latency
+
+    def params(self) -> LocalisationParams:
+        """The figures as ``LocalisationParams`` (a checked scenario)."""
+        return LocalisationParams(self.noise_std, self.rate, self.latency)
+
+
 def station_visualization_config(**overrides) -> VisualizationConfig:
     """The station's VisualizationConfig: illustration only, 32 frames a second.
 
@@ -261,6 +283,8 @@ class ChainScenario:
             operator's tremor) keeps its default seed, the run it always was; an integer in
             0..2**32 - 1: ``run_station`` draws their seeds from ``RandomGenerator(random_seed)``
             (``randomness.set_random_context``, Drake's SetRandomContext).
+        localisation: the tip tracker's noise, rate and latency (``LocalisationScenario``), read
+            by the simulated procedure's navigator.
     """
 
     description: str = ""
@@ -298,6 +322,7 @@ class ChainScenario:
     random_seed: typing.Optional[int] = None
     device: str = "ball_chain"
     wall_motion: WallMotionScenario = field(default_factory=WallMotionScenario)
+    localisation: LocalisationScenario = field(default_factory=LocalisationScenario)
 
     @property
     def effective_time_step(self) -> float:
@@ -541,6 +566,8 @@ def check_fields(s: "ChainScenario") -> None:
     check_contact(s)
     check_drake_configs(s)
     check_wall_motion(s)
+    loc = s.localisation
+    check_figures(loc.noise_std, loc.rate, loc.latency, "scenario localisation.")
     if s.pin.point:
         check_pin(s)
     _require(s.pin.point or s.pin.stiffness == PinScenario.stiffness,

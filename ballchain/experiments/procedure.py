@@ -435,7 +435,8 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
         targets: int | None = None, force_gf: float = FORCE_GF, window_gf=WINDOW_GF, dwell_s: float = DWELL_S,
         localisation: LocalisationParams | None = None, overrides: str | None = None, progress: bool = True,
         html: Path | None = None, units: str | None = None, lesions: bool = True,
-        wall_motion: str = "off", track_sheath: bool = False) -> ProcedureResult:
+        wall_motion: str = "off", track_sheath: bool = False,
+        plans: "RingPlans | None" = None) -> ProcedureResult:
     """Simulate the procedure on a ring: every target reached, pressed and held for the dwell.
 
     Args:
@@ -447,7 +448,8 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
         targets: only the first N targets (None: all).
         force_gf, window_gf: the commanded contact force and its window [gf].
         dwell_s: the RF time per target [s].
-        localisation: the tip tracker's figures (default: ``LocalisationParams()``).
+        localisation: the tip tracker's figures (default: the scenario's ``localisation``, whose
+            defaults are ``LocalisationParams()``'s).
         overrides: inline YAML overrides of the station's scenario.
         progress: progress bars on stderr.
         html: write a Meshcat replay here.
@@ -459,6 +461,8 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
         track_sheath: the autonomous navigator tracks the sheath (a localisation sensor on it,
             ``_add_sheath_tracker``) and moves its force model's sheath and its targets with it:
             respiratory compensation; off, it holds them at rest (motion-blind).
+        plans: the ring's plans made ahead (``plan_ring``, same task, targets, force, units and
+            overrides; auto only): the run skips its planning (same result as planning it).
 
     Returns:
         A ``ProcedureResult``.
@@ -475,9 +479,10 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
                              f"and no targets to move), got navigator {short_repr(navigator)}")
     if units not in (None, *UNITS):
         raise UserInputError(f"units must be one of {UNITS} (or None: by the ring), got {short_repr(units)}")
-    localisation = localisation if localisation is not None else LocalisationParams()
-    if not isinstance(localisation, LocalisationParams):
+    if localisation is not None and not isinstance(localisation, LocalisationParams):
         raise UserInputError(f"localisation must be a LocalisationParams, got {short_repr(localisation)}")
+    if plans is not None and not isinstance(plans, RingPlans):
+        raise UserInputError(f"plans must be a RingPlans (``plan_ring``), got {short_repr(plans)}")
     if html is not None:
         from ballchain.drake_models.safe_files import check_output_file
 
@@ -488,14 +493,60 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
         raise UserInputError("units 'two' needs navigator 'auto': the simulated operator steers one unit")
     units = units if units is not None else "one" if navigator == "operator" else default_units(task, anatomy)
     scenario = scenario_for(units, overrides, anatomy)
+    localisation = localisation if localisation is not None else scenario.localisation.params()
     params = NavigatorParams(force_command=newtons_from_gram_force(force_gf),
                              force_window=tuple(newtons_from_gram_force(v) for v in window_gf), dwell=dwell_s)
     ring_order = [anatomy.target_names[k] for k in chosen]
     finish = _finisher(lesions, ring_order, html)
     if navigator == "operator":
         return finish(*_simulate_operator(task, anatomy, chosen, scenario, params, seed, progress, html, overrides))
-    from ballchain.drake_models.params import BallChain
+    key = _plans_key(anatomy, chosen, scenario, force_gf)
+    if plans is not None and plans.key != key:
+        raise UserInputError(f"plans were made for another ring, force or station ({plans.key[0]}); these runs "
+                             f"need {key[0]}: make them with plan_ring and the same task, targets, force, "
+                             "units and overrides")
+    if plans is None:
+        plans = _plan_ring(anatomy, chosen, scenario, force_gf, key, progress)
+        plan_cpu = plans.cpu_time_s
+    else:
+        plan_cpu = 0.0  # made once ahead, for every seed
+    return finish(*_simulate(task, anatomy, scenario, list(plans.plans), list(plans.missing), params, localisation,
+                             seed, plan_cpu, progress, html, overrides, track_sheath))
+
+
+@dataclass(frozen=True)
+class RingPlans:
+    """The autonomous navigator's feed-forward of a ring (``target_plans``), made once
+    (``plan_ring``) and given to every run that differs only in its seed: the plans do not
+    depend on the seed (the localisation noise's).
+
+    Attributes:
+        plans: the ``TargetPlan``s in order; missing: the targets with no plan.
+        cpu_time_s: the CPU time the planning took [s].
+        key: what they were made for: (a one-line description, the targets, the force [gf],
+            the chain's length, the units' centres [m]); ``run`` refuses plans of another key.
+    """
+
+    plans: tuple
+    missing: tuple
+    cpu_time_s: float
+    key: tuple
+
+
+def _plans_key(anatomy, chosen: list[int], scenario, force_gf: float) -> tuple:
     from ballchain.systems.station import add_field_sources
+
+    names = tuple(anatomy.target_names[k] for k in chosen)
+    configs = add_field_sources(scenario, anatomy.atrium()).unit_configs
+    magnets_W = tuple(tuple(float(v) for v in c.p_WM) for c in configs)
+    said = f"{len(names)} targets from {names[0]}, {force_gf:g} gf, {len(magnets_W)} unit(s)"
+    return said, names, float(force_gf), int(scenario.n_balls), magnets_W
+
+
+def _plan_ring(anatomy, chosen: list[int], scenario, force_gf: float, key: tuple, progress: bool) -> RingPlans:
+    """``target_plans`` for the station of ``scenario``: its chain beyond the sheath, its units."""
+    from ballchain.drake_models.params import BallChain
+    from ballchain.systems.autonomous_navigator import NavigatorParams
 
     cpu0 = time.process_time()
     n = scenario.n_balls
@@ -503,12 +554,25 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
     # p_WE + (s - (n - 1/2) d) u (``chain_plant``): that is s = (n - 1/2) d, not (n - 1) d (ball 1
     # half a ball inside, the chain 1.6 mm short of the plan's reach).
     s_full = (n - 0.5) * BallChain().ball_diameter
-    magnets_W = [c.p_WM for c in add_field_sources(scenario, anatomy.atrium()).unit_configs]
-    plans, missing = target_plans(anatomy, chosen, newtons_from_gram_force(force_gf), n, s_full, magnets_W, progress,
-                                  params.touch_radius)
-    plan_cpu = time.process_time() - cpu0
-    return finish(*_simulate(task, anatomy, scenario, plans, missing, params, localisation, seed, plan_cpu,
-                             progress, html, overrides, track_sheath))
+    plans, missing = target_plans(anatomy, chosen, newtons_from_gram_force(force_gf), n, s_full,
+                                  [np.array(p) for p in key[4]], progress, NavigatorParams().touch_radius)
+    return RingPlans(tuple(plans), tuple(missing), time.process_time() - cpu0, key)
+
+
+def plan_ring(task: str | None = "right", anatomy=None, *, targets: int | None = None,
+              force_gf: float = FORCE_GF, units: str | None = None, overrides: str | None = None,
+              progress: bool = False) -> RingPlans:
+    """The autonomous navigator's plans for a ring, to give to ``run(..., plans=)`` for each seed
+    (arguments as ``run``'s; the planning is about half of an autonomous run's cost)."""
+    from ballchain.experiments.planner import anatomy_targets
+
+    check_inputs(task, "auto", 0, targets, force_gf, (force_gf, force_gf), DWELL_S)  # the force alone
+    if units not in (None, *UNITS):
+        raise UserInputError(f"units must be one of {UNITS} (or None: by the ring), got {short_repr(units)}")
+    anatomy, task, chosen = anatomy_targets(anatomy, task)
+    chosen = chosen[:targets] if targets else chosen
+    scenario = scenario_for(units if units is not None else default_units(task, anatomy), overrides, anatomy)
+    return _plan_ring(anatomy, chosen, scenario, force_gf, _plans_key(anatomy, chosen, scenario, force_gf), progress)
 
 
 def _finisher(lesions: bool, ring_order: list[str], html):
