@@ -80,6 +80,7 @@ class HandParams:
     dead_band: float = 0.1
     windup_twist: float = np.pi
     strategy: str = "switch"
+    knob_end_switch: bool = True
     period: float = 0.05
 
     def validate(self) -> "HandParams":
@@ -133,6 +134,11 @@ class ManualHand(LeafSystem):
                 and twist_rate * twist > 0 and abs(knob) > 0.2):
             # Wound up and asked to turn further: the other tendon, and back by half a turn.
             switching, target, goal, switches = 1.0, twist - np.sign(twist) * np.pi, -knob, switches + 1
+        elif (not switching and p.strategy == "switch" and p.knob_end_switch and knob <= -1.0 + 1e-9
+              and knob_rate < 0.0):
+            # The F tendon at its end and asked for more bend: the D tendon (the tighter curve), the
+            # handle turned by half a turn towards neutral (the same bending plane, the other side).
+            switching, target, goal, switches = 1.0, twist - (np.pi if twist > 0 else -np.pi), -knob, switches + 1
         if switching:
             v = 0.0
             twist_rate = float(np.clip((target - twist) / dt, -p.twist_rate, p.twist_rate))

@@ -117,7 +117,7 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
         chosen = [i for i, n in enumerate(names) if n.startswith(f"{task}_")][:n_targets]
         cat = ports.catheter
         seen = replace(params, ball_radius=cat.catheter.radius, target_radius=radius, p_WE=tuple(cat.rod.p_E),
-                       initial_length=cat.initial_length, max_length=cat.rod.max_length,
+                       initial_length=cat.initial_length, min_length=cat.initial_length, max_length=cat.rod.max_length,
                        keep_out=teleop.vein_openings(heart))
         op = builder.AddSystem(SimulatedOperator(cat.n_bodies, cat.n_bodies - 1, [names[i] for i in chosen],
                                                  p_WT[chosen], n_W[chosen], seen))
