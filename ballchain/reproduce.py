@@ -517,7 +517,7 @@ def manual_section(out: Path, quick: bool) -> tuple[Section, dict]:
         "on the robotic chain (world mapping, quasi-static engine) and on an 8 Fr steerable catheter "
         "(`systems/catheter_station.py`: a Kirchhoff rod in the atrium, tendon curvature both ways, stick-slip "
         "friction of the shaft in the sheath; the hand turns the handle, the knob and pushes at human rates and, "
-        "wound past half a turn, switches tendon and turns back). "
+        "wound past half a turn or at the F tendon's end, switches tendon and turns back). "
         + (f"Quick report: the first {targets} targets, seed 0. " if quick else
            f"Whole tasks, operator seeds {', '.join(map(str, seeds))}; medians over the seeds. ")
         + "Smoothness: SPARC of the tip's speed per transition (Balasubramanian et al. 2015; closer to 0 is "

@@ -20,7 +20,9 @@ hook for an operator, but a catheter instead of the chain and the units:
   limit. At the windup the paper describes (about half a turn of the handle, where the reaction
   between catheter and sheath builds), its strategy is to ``keep`` turning or to ``switch``: turn
   the handle back by half a turn while moving the knob to the opposite tendon (the same bend, the
-  other wire), during which it takes no other command.
+  other wire), during which it takes no other command. The ``switch`` hand does the same when the
+  knob is at the F tendon's end and asked for more bend: the D tendon (the tighter curve) and the
+  handle half a turn towards neutral.
 
 Exported inputs (when the hook leaves them unconnected): ``hand.joystick`` (3),
 ``hand.v_insert_cmd`` (1).
@@ -54,14 +56,25 @@ def _finite(x) -> np.ndarray:
 
 @dataclass
 class HandParams:
-    """The hand on the catheter's handle (SI). Human-like rate limits, assumptions of this model:
-    a steady push of up to 20 mm/s, a wrist turning the handle at up to 90 deg/s in fine control,
-    the thumb taking the knob across its travel in 1 s. No study measuring an
-    electrophysiologist's push, twist or knob rates on an ablation catheter was found; the
-    nearest, electromagnetic tracking of interventional radiologists' hands in a sheath-and-wire
-    task (Palmer et al., J. Vasc. Interv. Radiol. 32:226, 2021: experts 1.1 m of hand path in
-    11.7 s, about 94 mm/s on average), bounds the push from above: 20 mm/s is a fine-control
-    speed well below the hand's mean.
+    """The hand on the catheter's handle (SI). Human-like rate limits: a steady push of up to
+    20 mm/s, a wrist turning the handle at up to 90 deg/s in fine control, the thumb taking the
+    knob across its travel in 1 s. No study measuring an electrophysiologist's push, twist or
+    knob rates on an ablation catheter was found. Sources and sizing:
+
+    * Push: 20 mm/s is the top of the translation speeds of robotic catheter drivers, which are
+      built to move catheters as hands do (2-20 mm/s; the review "Evolution and current state of
+      robotic catheters for endovascular surgery: A comprehensive review", Engineering Science
+      and Technology, an International Journal, Sep 2024), and well below the hand's mean speed in
+      a sheath-and-wire task (electromagnetic tracking of interventional radiologists, Palmer et
+      al., J. Vasc. Interv. Radiol. 32:226, 2021: experts 1.1 m of hand path in 11.7 s, about
+      94 mm/s): an upper bound only.
+    * Twist: 90 deg/s is above the same drivers' rotation speeds (8-20 or 50-70 deg/s, the
+      review): an assumption, sized by a sensitivity sweep (``docs/guide/manual_catheter.md``:
+      the manual right ring at 60, 90 and 120 deg/s).
+    * Knob: its travel in 1 s: an assumption, sized by the same sweep (0.5, 1 and 2 per s); no
+      source found.
+
+    The paper's operator times were not used to size any of them.
 
     Attributes:
         push_speed: [m/s] at full feeder command.
@@ -71,6 +84,8 @@ class HandParams:
         windup_twist: the handle's twist from neutral beyond which the ``switch`` strategy turns
             back [rad] (the paper: about 180 degrees).
         strategy: "keep" (keep turning) or "switch" (the opposite tendon and back by half a turn).
+        knob_end_switch: the ``switch`` hand also switches at the F tendon's end when asked for
+            more bend (to the D tendon, the handle half a turn towards neutral).
         period: the hand's update [s].
     """
 

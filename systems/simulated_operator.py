@@ -13,16 +13,20 @@ The policy, an honest model of a person learning an unfamiliar mapping by watchi
 * What it knows beforehand: feeding pushes the tip forward along its direction (that is what a
   feeder does), and the stick swings it somehow. What it learns: an estimate ``J`` (3 x n) of the
   tip velocity per unit of each stick axis it uses (three for the paper's world-frame mapping, two
-  for the catheter-frame mapping), by recursive least squares with forgetting on what it sees:
-  after each look, the tip's displacement over the period (less the feeder's expected share)
-  against the stick deflections that were in effect. It starts by probing: it wiggles each axis
-  back and forth once (the estimate starts at zero). Its hand is not perfectly steady: a small
-  random tremor (``tremor``) on the stick, which also keeps the estimate informed.
+  for the catheter-frame mapping, handle and knob for the manual catheter), and ``F`` (3,) of the
+  feeder's effect beyond that expected share (a catheter bent past a right angle does not go where
+  its tip points when pushed; ``learn_feeder``), by recursive least squares with forgetting on
+  what it sees: after each look, the tip's displacement over the period (less the feeder's
+  expected share) against the stick deflections and the feeder command that were in effect. It
+  starts by probing: it wiggles each axis back and forth once (the estimate starts at zero). Its
+  hand is not perfectly steady: a small random tremor (``tremor``) on the stick, which also keeps
+  the estimate informed.
 * Steering: first to a point ``hover`` above the target (off the wall: no dragging the tip along
   the tissue), then, once over it, down onto its centre, aimed slightly inside the wall (``press``)
   so that the tip presses on it; desired tip velocity ``gain * error`` (capped at ``max_speed``);
-  the part along the tip's direction by the feeder, the rest by the stick through ``J`` (damped
-  least squares), no axis beyond full deflection.
+  the feeder's command from the whole learned map (stick and feeder together, damped least
+  squares), within the feeder's limits, and the rest by the stick through ``J``, no axis beyond
+  full deflection (with ``learn_feeder`` off: the part along the tip's direction by the feeder).
 * It keeps the tip out of the vein openings it sees (``keep_out``, the ipsilateral pairs with the
   carina between them): within ``keep_out_margin`` of their outline it adds a velocity away.
 * Feeding has limits a person at the console sees: never forward while the tip is at the wall near
@@ -35,9 +39,12 @@ The policy, an honest model of a person learning an unfamiliar mapping by watchi
   between predicted and seen stick-driven motion over about ``confusion_window`` below zero),
   it stops and probes again (a re-learning wiggle; counted per target).
 * No progress: if the distance to the target has not shrunk by ``stall_progress`` in
-  ``stall_window`` seconds, it feeds more chain for ``burst`` seconds when the target lies ahead
-  of the tip (within 60 degrees of its direction: out of reach) and feeding is allowed, and
-  retracts otherwise (stuck against the wall), steering meanwhile; then it resumes.
+  ``stall_window`` seconds, it feeds more chain for ``burst`` seconds when feeding takes the tip
+  towards the target (the learned feeder direction within 60 degrees of the target's: out of
+  reach) and feeding is allowed, and retracts otherwise (stuck against the wall), steering
+  meanwhile; then it resumes. A burst that brought the tip no closer is followed, on the same
+  target, by one the other way (a local probe of the feeder). It never retracts below
+  ``min_length``.
 * Touch: the target counts as touched when ``targets_touched`` (``target_contact``: the tip
   ball within 0.5 mm of the wall inside the target's 5 mm circle) says so at one of its looks;
   it records the time and the accuracy (distance from the ball's wall-side point, its centre
@@ -99,11 +106,14 @@ class OperatorParams:
         p_WE: (3,) the sheath exit [m] (seen in the camera), or None: no cap on the feeding.
         initial_length, max_length: chain fed out at the start, and all of it [m] (the feeder's
             readout: it keeps its own count from its commands).
+        min_length: it never retracts below this length [m] (0: all the way).
         reach_factor: it feeds at most this times the sheath exit's distance to the target.
         keep_out: the vein openings it sees, by neighbouring pairs: ((c1, c2, r1, r2, a1, a2), ...)
             (centres (3,) and radii [m], outward axes (3,)).
         keep_out_margin: it steers away from the openings when the tip is this close to them [m].
         timeout: seconds on one target before giving up.
+        learn_feeder: it learns the feeder's effect beyond its expected share along the tip (off:
+            the prior alone).
         dwell: after touching a target it holds still this long (stick and feeder at rest: an
             RF application) before the next [s]; 0: it moves on at once (the teleoperation tasks).
         start_time: when it starts [s].
@@ -164,6 +174,8 @@ class OperatorParams:
             raise UserInputError("OperatorParams: timeout, feeder_speed and max_speed must be > 0")
         if self.dwell < 0:
             raise UserInputError(f"OperatorParams.dwell must be >= 0 s, got {self.dwell}")
+        if not 0.0 <= self.min_length <= self.max_length:
+            raise UserInputError(f"OperatorParams.min_length must be in [0, max_length] m, got {self.min_length}")
         return self
 
 

@@ -6,8 +6,12 @@ only the tip, learns the input-to-tip mapping online, presses towards each targe
 after its timeout), its stick's two axes now on the catheter's handle (axis 0 turns it, axis 1
 the knob) and its feeder command the hand's push and pull, within the hand's rate limits
 (``HandParams``), with the windup strategy ``switch`` (the opposite tendon and back by half a
-turn) or ``keep`` (keep turning). Per target the rows of the robotic task (time, accuracy), and
-beside them the tip's path (for the smoothness) and the handle's twist.
+turn, also at the F tendon's end) or ``keep`` (keep turning). The operator keeps at least the
+catheter's starting length (20 mm) out of the sheath (``min_length``): with less out the knob
+and the handle move the tip less (the 55 mm deflectable segment mostly in the sheath), and
+without the floor its retraction bursts drew the catheter back to 0-5 mm, where it stayed for
+the right ring's last six targets (seed 0). Per target the rows of the robotic task (time,
+accuracy), and beside them the tip's path (for the smoothness) and the handle's twist.
 """
 
 from __future__ import annotations
