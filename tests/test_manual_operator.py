@@ -96,3 +96,20 @@ def test_manual_right_ring_touches_more_than_the_fixed_prior_operator():
     r = mc.run(task="right", seed=0)
     touched = sum(row["touched"] for row in r.rows)
     assert touched >= 9, [(row["target"], row["touched"], row["reason"]) for row in r.rows]
+
+
+def test_the_hand_s_rates_and_the_curve_name_their_sources():
+    """Each of the hand's rates and the D-F curve says where it comes from, in the docstrings and
+    in the guide's table (a source, or the sweep that sized it)."""
+    from pathlib import Path
+
+    from ballchain.drake_models import steerable_catheter
+
+    hand = " ".join(HandParams.__doc__.split())
+    assert "2-20 mm/s" in hand and "Palmer" in hand and "sensitivity sweep" in hand
+    curve = " ".join(steerable_catheter.__doc__.split())
+    assert "PMC4209906" in curve and "No curve chart" in curve
+    page = (Path(__file__).parents[1] / "docs" / "guide" / "manual_catheter.md").read_text()
+    rows = {line.split("|")[1].strip(): line for line in page.splitlines() if line.startswith("| ")}
+    for name in ("push speed", "twist rate", "knob rate", "D-F curve", "operator's least length out"):
+        assert name in rows and len(rows[name].split("|")[3].strip()) > 20, name
