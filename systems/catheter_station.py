@@ -86,6 +86,8 @@ class HandParams:
         strategy: "keep" (keep turning) or "switch" (the opposite tendon and back by half a turn).
         knob_end_switch: the ``switch`` hand also switches at the F tendon's end when asked for
             more bend (to the D tendon, the handle half a turn towards neutral).
+        f_over_d: the F curve's largest bend over the D curve's (the hand knows its handle's two
+            curves): a switch puts the knob where the other tendon gives the same bend.
         period: the hand's update [s].
     """
 
@@ -96,13 +98,14 @@ class HandParams:
     windup_twist: float = np.pi
     strategy: str = "switch"
     knob_end_switch: bool = True
+    f_over_d: float = 1.0
     period: float = 0.05
 
     def validate(self) -> "HandParams":
         require_finite_fields(self)
         if self.strategy not in STRATEGIES:
             raise UserInputError(f"HandParams.strategy must be one of {STRATEGIES}, got {self.strategy!r}")
-        for name in ("push_speed", "twist_rate", "knob_rate", "windup_twist", "period"):
+        for name in ("push_speed", "twist_rate", "knob_rate", "windup_twist", "period", "f_over_d"):
             if not getattr(self, name) > 0:
                 raise UserInputError(f"HandParams.{name} must be > 0, got {getattr(self, name)}")
         if not 0.0 <= self.dead_band < 1.0:
@@ -138,6 +141,12 @@ class ManualHand(LeafSystem):
     def _calc_switches(self, context, output):
         output.SetAtIndex(0, context.get_discrete_state(self._state).get_value()[6])
 
+    def _other_tendon(self, knob: float) -> float:
+        """The knob on the other tendon for the same bend (``f_over_d``: the F curve's largest bend
+        over the D curve's), within the knob's travel."""
+        ratio = self.params.f_over_d
+        return float(np.clip(-knob * (ratio if knob < 0 else 1.0 / ratio), -1.0, 1.0))
+
     def _update(self, context, discrete_state):
         p = self.params
         push, twist, knob, switching, target, goal, switches = context.get_discrete_state(self._state).get_value()
@@ -148,12 +157,13 @@ class ManualHand(LeafSystem):
         if (not switching and p.strategy == "switch" and abs(twist) >= p.windup_twist
                 and twist_rate * twist > 0 and abs(knob) > 0.2):
             # Wound up and asked to turn further: the other tendon, and back by half a turn.
-            switching, target, goal, switches = 1.0, twist - np.sign(twist) * np.pi, -knob, switches + 1
+            switching, target, goal, switches = 1.0, twist - np.sign(twist) * np.pi, self._other_tendon(knob), switches + 1
         elif (not switching and p.strategy == "switch" and p.knob_end_switch and knob <= -1.0 + 1e-9
               and knob_rate < 0.0):
             # The F tendon at its end and asked for more bend: the D tendon (the tighter curve), the
             # handle turned by half a turn towards neutral (the same bending plane, the other side).
-            switching, target, goal, switches = 1.0, twist - (np.pi if twist > 0 else -np.pi), -knob, switches + 1
+            switching, target = 1.0, twist - (np.pi if twist > 0 else -np.pi)
+            goal, switches = self._other_tendon(knob), switches + 1
         if switching:
             v = 0.0
             twist_rate = float(np.clip((target - twist) / dt, -p.twist_rate, p.twist_rate))

@@ -67,7 +67,7 @@ def _hand(stick, params, t, initial):
 
 def test_hand_switches_to_the_tighter_tendon_at_the_knob_s_end():
     """The knob at the F tendon's end (-1) and asked for more bend: the ``switch`` hand moves the
-    knob to the D tendon's end (+1) and turns the handle half a turn towards neutral (from +60 deg
+    knob to the D tendon (to its end, +1, with curves alike; to the same bend with ``f_over_d``) and turns the handle half a turn towards neutral (from +60 deg
     to -120 deg), 2 s at 90 deg/s and the knob's 2 of travel at 1 per s, taking no command
     meanwhile; without the knob-end switch, or with the ``keep`` hand, the knob stays at its end
     and the handle where it was."""
@@ -79,6 +79,10 @@ def test_hand_switches_to_the_tighter_tendon_at_the_knob_s_end():
     state = _hand([0.0, -1.0, 0.0], p, 2.0, start)  # 40 updates: the switch's end
     assert state[6] == 1.0 and state[3] == 0.0 and state[2] == pytest.approx(1.0)
     assert state[1] == pytest.approx(np.radians(60.0 - 180.0))
+    # Knowing its handle's curves (F 120 deg, D 180 deg at full knob), the hand keeps the bend: the
+    # F tendon's full 120 deg is two thirds of the D tendon's travel.
+    kept_bend = _hand([0.0, -1.0, 0.0], HandParams(strategy="switch", f_over_d=120.0 / 180.0), 2.0, start)
+    assert kept_bend[6] == 1.0 and kept_bend[2] == pytest.approx(2.0 / 3.0)
     for other in (HandParams(strategy="switch", knob_end_switch=False), HandParams(strategy="keep")):
         kept = _hand([0.0, -1.0, 0.0], other, 2.0, start)
         assert kept[6] == 0.0 and kept[2] == -1.0 and kept[1] == pytest.approx(np.radians(60.0))

@@ -112,7 +112,8 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
     heart = heart or atrium_for(scenario)
     ring = heart.rings[task]
     n_targets = len(ring.p_HT) if targets is None else min(int(targets), len(ring.p_HT))
-    hand = hand or HandParams(strategy=strategy)
+    used = catheter or comparison_catheter()
+    hand = hand or HandParams(strategy=strategy, f_over_d=used.max_deflection_F / used.max_deflection_D)
     params = OperatorParams(axes=(0, 1), seed=int(seed), feeder_speed=hand.push_speed, dead_band=hand.dead_band)
     handles = {}
 
@@ -134,13 +135,13 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
         return {"operator": op}
 
     limit = time_limit if time_limit is not None else n_targets * params.timeout + params.start_time + 5.0
-    meshcat = _replay_meshcat(html, scenario, limit, catheter or comparison_catheter())
+    meshcat = _replay_meshcat(html, scenario, limit, used)
     built = time.perf_counter()
     from ballchain.systems.catheter_station import make_catheter_station
 
     # MakeStation's catheter diagram, with this catheter and hand.
     station = make_catheter_station(scenario, heart=heart, add_systems=add_operator,
-                                    catheter=catheter or comparison_catheter(), hand=hand, meshcat=meshcat)
+                                    catheter=used, hand=hand, meshcat=meshcat)
     built = time.perf_counter() - built
     op = handles["operator"]
     simulator = Simulator(station.diagram)
@@ -174,7 +175,7 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
     hand_state = station.hand.GetOutputPort("state").Eval(station.hand.GetMyContextFromRoot(root))
     path = {"t": tip_log.sample_times().tolist(), "tip": tip_log.data().T.tolist(),
             "twist": wind_log.data()[0].tolist(), "exit_twist": wind_log.data()[1].tolist()}
-    settings = _run_settings(catheter or comparison_catheter(), int(seed), hand, scenario, params, limit,
+    settings = _run_settings(used, int(seed), hand, scenario, params, limit,
                              hand_state, cat_state, failure, path)
     return teleop.TeleopResult(task=task, mapping="manual", rows=rows, summary=summary, paper=teleop.PAPER[task],
                                settings=settings, html=None if html is None else str(html))
