@@ -157,7 +157,8 @@ class ManualHand(LeafSystem):
         if (not switching and p.strategy == "switch" and abs(twist) >= p.windup_twist
                 and twist_rate * twist > 0 and abs(knob) > 0.2):
             # Wound up and asked to turn further: the other tendon, and back by half a turn.
-            switching, target, goal, switches = 1.0, twist - np.sign(twist) * np.pi, self._other_tendon(knob), switches + 1
+            switching, target = 1.0, twist - np.sign(twist) * np.pi
+            goal, switches = self._other_tendon(knob), switches + 1
         elif (not switching and p.strategy == "switch" and p.knob_end_switch and knob <= -1.0 + 1e-9
               and knob_rate < 0.0):
             # The F tendon at its end and asked for more bend: the D tendon (the tighter curve), the

@@ -67,9 +67,9 @@ def _hand(stick, params, t, initial):
 
 def test_hand_switches_to_the_tighter_tendon_at_the_knob_s_end():
     """The knob at the F tendon's end (-1) and asked for more bend: the ``switch`` hand moves the
-    knob to the D tendon (to its end, +1, with curves alike; to the same bend with ``f_over_d``) and turns the handle half a turn towards neutral (from +60 deg
-    to -120 deg), 2 s at 90 deg/s and the knob's 2 of travel at 1 per s, taking no command
-    meanwhile; without the knob-end switch, or with the ``keep`` hand, the knob stays at its end
+    knob to the D tendon (to its end, +1, with curves alike; to the same bend with ``f_over_d``)
+    and turns the handle half a turn towards neutral (from +60 deg to -120 deg), 2 s at 90 deg/s
+    and the knob's 2 of travel at 1 per s, taking no command meanwhile; without the knob-end switch, or with the ``keep`` hand, the knob stays at its end
     and the handle where it was."""
     start = [0.0, np.radians(60.0), -1.0, 0.0, 0.0, 0.0, 0.0]
     p = HandParams(strategy="switch")
