@@ -90,16 +90,18 @@ def test_hand_switches_to_the_tighter_tendon_at_the_knob_s_end():
 
 @pytest.mark.slow
 def test_manual_right_ring_touches_more_than_the_fixed_prior_operator():
-    """The manual catheter's right ring, operator seed 0: before the feeder learning and the
-    knob-end switch the operator touched 7 of the 18 targets (seeds 0, 1, 2: 7 each); with them
-    10 (seeds 0, 1, 2: 10, 9, 5, measured). The floor, 9, leaves one target of margin: the run is
-    deterministic for its seed, but a touch decided within a look on another machine's floating
-    point may go either way; 9 is still above every seed's count before."""
+    """The manual catheter's right ring, operator seed 0: before the feeder learning, the burst the
+    other way and the bend-keeping tendon switches the operator touched 7 of the 18 targets (seeds
+    0, 1, 2: 7 each, right_3 to right_9); with them 11 (seeds 0, 1, 2: 11, 8, 11, measured; the
+    misses right_12 to right_18, three out of the catheter's reach, four only with a 100-120 mm
+    loop). The floor, 10, leaves one target of margin: the run is deterministic for its seed, but
+    a touch decided within one look may go the other way on another machine's floating point;
+    10 is still above every seed's count before."""
     from ballchain.experiments import manual_catheter as mc
 
     r = mc.run(task="right", seed=0)
     touched = sum(row["touched"] for row in r.rows)
-    assert touched >= 9, [(row["target"], row["touched"], row["reason"]) for row in r.rows]
+    assert touched >= 10, [(row["target"], row["touched"], row["reason"]) for row in r.rows]
 
 
 def test_the_hand_s_rates_and_the_curve_name_their_sources():
