@@ -116,6 +116,7 @@ def test_the_hand_s_rates_and_the_curve_name_their_sources():
     curve = " ".join(steerable_catheter.__doc__.split())
     assert "PMC4209906" in curve and "No curve chart" in curve
     page = (Path(__file__).parents[1] / "docs" / "guide" / "manual_catheter.md").read_text()
-    rows = {line.split("|")[1].strip(): line for line in page.splitlines() if line.startswith("| ")}
+    sources = page.split("## Where each constant comes from")[1].split("\n## ")[0]
+    rows = {line.split("|")[1].strip(): line for line in sources.splitlines() if line.startswith("| ")}
     for name in ("push speed", "twist rate", "knob rate", "D-F curve", "operator's least length out"):
         assert name in rows and len(rows[name].split("|")[3].strip()) > 20, name
