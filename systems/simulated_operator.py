@@ -230,7 +230,7 @@ class _Memory:
     """The operator's state (an abstract state value, replaced at every look)."""
 
     J: np.ndarray  # (3, n) tip velocity [mm/s] per unit of each stick axis (after the dead band)
-    P: np.ndarray  # (n + 1, n + 1): the stick axes' and the feeder's
+    P: np.ndarray  # (n + 1, n + 1): the stick axes' and the feeder's (n, n: the feeder not learned)
     queue: list  # decided controls (n + 1: stick axes, feeder) waiting for the reaction delay
     applied: np.ndarray  # (n + 1,) controls in effect since the last look
     rng: np.random.Generator | None = None  # the tremor's; made from the seed parameter at the first look
@@ -310,7 +310,7 @@ class SimulatedOperator(SeededLeafSystem):
             raise UserInputError("SimulatedOperator needs at least one target, with as many names, centres and normals")
         self._tip, self._previous = int(tip_body_index), int(previous_body_index)
         self._n = n = len(p.axes)
-        memory = _Memory(J=np.zeros((3, n)), P=p.initial_covariance * np.eye(n + 1),
+        memory = _Memory(J=np.zeros((3, n)), P=p.initial_covariance * np.eye(n + 1 if p.learn_feeder else n),
                          queue=[np.zeros(n + 1)] * p.reaction_steps, applied=np.zeros(n + 1),
                          length=p.initial_length, F=np.zeros(3))
         self.DeclareSeedParameter(p.seed)
@@ -413,17 +413,20 @@ class SimulatedOperator(SeededLeafSystem):
         # The feeder's expected share: forward along the tip's direction at the fed speed.
         v_stick = v - feed * p.feeder_speed * 1e3 * mem.d_last
         # The regressor: the stick axes and (learning the feeder's effect beyond that share) the feeder.
-        x = mem.applied if p.learn_feeder else np.append(stick, 0.0)
+        x = mem.applied if p.learn_feeder else stick
         if np.linalg.norm(x) > 0.05:  # excitation: learn (and no wind-up without it)
-            predicted = mem.J @ stick + mem.F * x[-1]
+            predicted = mem.J @ stick + mem.F * feed
             norms = np.linalg.norm(predicted) * np.linalg.norm(v_stick)
             if mem.phase == "pursue" and norms > 1.0:  # both above about 1 mm/s
                 w = p.period / p.confusion_window
                 mem.agreement = (1.0 - w) * mem.agreement + w * float(predicted @ v_stick) / norms
             Px = mem.P @ x
             k = Px / (p.forgetting + x @ Px)
-            JF = np.column_stack([mem.J, mem.F]) + np.outer(v_stick - predicted, k)
-            mem.J, mem.F = JF[:, :-1], JF[:, -1] if p.learn_feeder else mem.F
+            if p.learn_feeder:
+                JF = np.column_stack([mem.J, mem.F]) + np.outer(v_stick - predicted, k)
+                mem.J, mem.F = JF[:, :-1], JF[:, -1]
+            else:
+                mem.J = mem.J + np.outer(v_stick - predicted, k)
             P = (mem.P - np.outer(k, Px)) / p.forgetting
             P = 0.5 * (P + P.T)
             tr = np.trace(P)
