@@ -10,7 +10,7 @@ turn, also at the F tendon's end) or ``keep`` (keep turning). The operator keeps
 catheter's starting length (20 mm) out of the sheath (``min_length``): with less out the knob
 and the handle move the tip less (the 55 mm deflectable segment mostly in the sheath), and
 without the floor its retraction bursts drew the catheter back to 0-5 mm, where it stayed for
-the right ring's last six targets (seed 0). Per target the rows of the robotic task (time,
+the right ring's last five targets (seed 0). Per target the rows of the robotic task (time,
 accuracy), and beside them the tip's path (for the smoothness) and the handle's twist.
 """
 
