@@ -517,7 +517,7 @@ def manual_section(out: Path, quick: bool) -> tuple[Section, dict]:
         "on the robotic chain (world mapping, quasi-static engine) and on an 8 Fr steerable catheter "
         "(`systems/catheter_station.py`: a Kirchhoff rod in the atrium, tendon curvature both ways, stick-slip "
         "friction of the shaft in the sheath; the hand turns the handle, the knob and pushes at human rates and, "
-        "wound past half a turn, switches tendon and turns back). "
+        "wound past half a turn or at the F tendon's end, switches tendon and turns back). "
         + (f"Quick report: the first {targets} targets, seed 0. " if quick else
            f"Whole tasks, operator seeds {', '.join(map(str, seeds))}; medians over the seeds. ")
         + "Smoothness: SPARC of the tip's speed per transition (Balasubramanian et al. 2015; closer to 0 is "
@@ -941,7 +941,7 @@ SECTION_COST_S = {  # name: (wall seconds of a full run, of a --quick run)
     "alignment": (80.0, 15.5), "sizing": (1.2, 2.8), "field models": (3.8, 0.3), "workspace": (7.0, 6.7),
     "model validation": (17.3, 14.2), "tip forces": (219.0, 41.8), "Table I effects and clinical design": (64.3, 57.9),
     "model-based steering": (171.0, 59.0), "teleoperation": (655.0, 148.1), "ablation": (76.6, 56.5),
-    "robotic vs manual": (264.0, 17.0),  # the comparison alone, CPU seconds (measured separately)
+    "robotic vs manual": (133.0, 8.8),  # the comparison alone, CPU seconds (measured separately)
     "ablation procedure": (2868.0, 290.6),  # alone, 2 worker processes, the machine at a load of 7-9
 }
 """Each section's cost, measured once: the wall time of a full run (21.6 min) and of a --quick run

@@ -56,9 +56,14 @@ Sources of the constants (no constant was tuned to the paper's times):
   and 120 degrees on the wider (F) side: the size of a D-F bidirectional curve (a half turn of
   about 35 mm reach on the D side). No curve chart (the manufacturers' D-F curve sheets, an IFU's
   curve table, a paper measuring catheter curves) was found in the reference material available
-  here (searched: TactiFlex, TactiCath, FlexAbility, Biosense Webster D/F/J curves): an assumption
-  at datasheet level, not a measured value. ``reach_search`` (``experiments.manual_catheter``)
-  says which right-ring targets it decides.
+  here (searched again: TactiFlex, TactiCath, FlexAbility, Safire, "D-F curve", "curve reach",
+  bidirectional deflection studies, openFDA's device records): an assumption at datasheet level,
+  not a measured value. The one bend angle found for a cardiac ablation catheter's tendon-driven
+  tip, a four-wire robotic prototype compared with manual catheters (184.7 and 170.4 degrees at
+  11 mm of wire pull, its two planes; PubMed Central PMC4209906), puts a half turn within this
+  class of device. ``reach_search`` (``experiments.manual_catheter``) says which right-ring
+  targets the geometry decides (14, 15 and 16 out of reach; 1, 12, 13, 17 and 18 only with
+  100-120 mm out, a loop around the atrium).
 * Shaft length 1.15 m: the overall length of the TactiCath Quartz (NICE medtech innovation
   briefing MIB60, "Technology overview": "a single-use device with an overall length of 115 cm"),
   the contact-force catheter of the same maker that the TactiFlex succeeds; the handle's share of

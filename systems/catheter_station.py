@@ -20,7 +20,9 @@ hook for an operator, but a catheter instead of the chain and the units:
   limit. At the windup the paper describes (about half a turn of the handle, where the reaction
   between catheter and sheath builds), its strategy is to ``keep`` turning or to ``switch``: turn
   the handle back by half a turn while moving the knob to the opposite tendon (the same bend, the
-  other wire), during which it takes no other command.
+  other wire), during which it takes no other command. The ``switch`` hand does the same when the
+  knob is at the F tendon's end and asked for more bend: the D tendon (the tighter curve) and the
+  handle half a turn towards neutral.
 
 Exported inputs (when the hook leaves them unconnected): ``hand.joystick`` (3),
 ``hand.v_insert_cmd`` (1).
@@ -54,14 +56,25 @@ def _finite(x) -> np.ndarray:
 
 @dataclass
 class HandParams:
-    """The hand on the catheter's handle (SI). Human-like rate limits, assumptions of this model:
-    a steady push of up to 20 mm/s, a wrist turning the handle at up to 90 deg/s in fine control,
-    the thumb taking the knob across its travel in 1 s. No study measuring an
-    electrophysiologist's push, twist or knob rates on an ablation catheter was found; the
-    nearest, electromagnetic tracking of interventional radiologists' hands in a sheath-and-wire
-    task (Palmer et al., J. Vasc. Interv. Radiol. 32:226, 2021: experts 1.1 m of hand path in
-    11.7 s, about 94 mm/s on average), bounds the push from above: 20 mm/s is a fine-control
-    speed well below the hand's mean.
+    """The hand on the catheter's handle (SI). Human-like rate limits: a steady push of up to
+    20 mm/s, a wrist turning the handle at up to 90 deg/s in fine control, the thumb taking the
+    knob across its travel in 1 s. No study measuring an electrophysiologist's push, twist or
+    knob rates on an ablation catheter was found. Sources and sizing:
+
+    * Push: 20 mm/s is the top of the translation speeds of robotic catheter drivers, which are
+      built to move catheters as hands do (2-20 mm/s; the review "Evolution and current state of
+      robotic catheters for endovascular surgery: A comprehensive review", Engineering Science
+      and Technology, an International Journal, Sep 2024), and well below the hand's mean speed in
+      a sheath-and-wire task (electromagnetic tracking of interventional radiologists, Palmer et
+      al., J. Vasc. Interv. Radiol. 32:226, 2021: experts 1.1 m of hand path in 11.7 s, about
+      94 mm/s): an upper bound only.
+    * Twist: 90 deg/s is above the same drivers' rotation speeds (8-20 or 50-70 deg/s, the
+      review): an assumption, sized by a sensitivity sweep (``docs/guide/manual_catheter.md``:
+      the manual right ring at 60, 90 and 120 deg/s).
+    * Knob: its travel in 1 s: an assumption, sized by the same sweep (0.5, 1 and 2 per s); no
+      source found.
+
+    The paper's operator times were not used to size any of them.
 
     Attributes:
         push_speed: [m/s] at full feeder command.
@@ -71,6 +84,10 @@ class HandParams:
         windup_twist: the handle's twist from neutral beyond which the ``switch`` strategy turns
             back [rad] (the paper: about 180 degrees).
         strategy: "keep" (keep turning) or "switch" (the opposite tendon and back by half a turn).
+        knob_end_switch: the ``switch`` hand also switches at the F tendon's end when asked for
+            more bend (to the D tendon, the handle half a turn towards neutral).
+        f_over_d: the F curve's largest bend over the D curve's (the hand knows its handle's two
+            curves): a switch puts the knob where the other tendon gives the same bend.
         period: the hand's update [s].
     """
 
@@ -80,13 +97,15 @@ class HandParams:
     dead_band: float = 0.1
     windup_twist: float = np.pi
     strategy: str = "switch"
+    knob_end_switch: bool = True
+    f_over_d: float = 1.0
     period: float = 0.05
 
     def validate(self) -> "HandParams":
         require_finite_fields(self)
         if self.strategy not in STRATEGIES:
             raise UserInputError(f"HandParams.strategy must be one of {STRATEGIES}, got {self.strategy!r}")
-        for name in ("push_speed", "twist_rate", "knob_rate", "windup_twist", "period"):
+        for name in ("push_speed", "twist_rate", "knob_rate", "windup_twist", "period", "f_over_d"):
             if not getattr(self, name) > 0:
                 raise UserInputError(f"HandParams.{name} must be > 0, got {getattr(self, name)}")
         if not 0.0 <= self.dead_band < 1.0:
@@ -122,6 +141,12 @@ class ManualHand(LeafSystem):
     def _calc_switches(self, context, output):
         output.SetAtIndex(0, context.get_discrete_state(self._state).get_value()[6])
 
+    def _other_tendon(self, knob: float) -> float:
+        """The knob on the other tendon for the same bend (``f_over_d``: the F curve's largest bend
+        over the D curve's), within the knob's travel."""
+        ratio = self.params.f_over_d
+        return float(np.clip(-knob * (ratio if knob < 0 else 1.0 / ratio), -1.0, 1.0))
+
     def _update(self, context, discrete_state):
         p = self.params
         push, twist, knob, switching, target, goal, switches = context.get_discrete_state(self._state).get_value()
@@ -132,7 +157,14 @@ class ManualHand(LeafSystem):
         if (not switching and p.strategy == "switch" and abs(twist) >= p.windup_twist
                 and twist_rate * twist > 0 and abs(knob) > 0.2):
             # Wound up and asked to turn further: the other tendon, and back by half a turn.
-            switching, target, goal, switches = 1.0, twist - np.sign(twist) * np.pi, -knob, switches + 1
+            switching, target = 1.0, twist - np.sign(twist) * np.pi
+            goal, switches = self._other_tendon(knob), switches + 1
+        elif (not switching and p.strategy == "switch" and p.knob_end_switch and knob <= -1.0 + 1e-9
+              and knob_rate < 0.0):
+            # The F tendon at its end and asked for more bend: the D tendon (the tighter curve), the
+            # handle turned by half a turn towards neutral (the same bending plane, the other side).
+            switching, target = 1.0, twist - (np.pi if twist > 0 else -np.pi)
+            goal, switches = self._other_tendon(knob), switches + 1
         if switching:
             v = 0.0
             twist_rate = float(np.clip((target - twist) / dt, -p.twist_rate, p.twist_rate))

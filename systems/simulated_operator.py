@@ -13,16 +13,20 @@ The policy, an honest model of a person learning an unfamiliar mapping by watchi
 * What it knows beforehand: feeding pushes the tip forward along its direction (that is what a
   feeder does), and the stick swings it somehow. What it learns: an estimate ``J`` (3 x n) of the
   tip velocity per unit of each stick axis it uses (three for the paper's world-frame mapping, two
-  for the catheter-frame mapping), by recursive least squares with forgetting on what it sees:
-  after each look, the tip's displacement over the period (less the feeder's expected share)
-  against the stick deflections that were in effect. It starts by probing: it wiggles each axis
-  back and forth once (the estimate starts at zero). Its hand is not perfectly steady: a small
-  random tremor (``tremor``) on the stick, which also keeps the estimate informed.
+  for the catheter-frame mapping, handle and knob for the manual catheter), and ``F`` (3,) of the
+  feeder's effect beyond that expected share (a catheter bent past a right angle does not go where
+  its tip points when pushed; ``learn_feeder``), by recursive least squares with forgetting on
+  what it sees: after each look, the tip's displacement over the period (less the feeder's
+  expected share) against the stick deflections and the feeder command that were in effect. It
+  starts by probing: it wiggles each axis back and forth once (the estimate starts at zero). Its
+  hand is not perfectly steady: a small random tremor (``tremor``) on the stick, which also keeps
+  the estimate informed.
 * Steering: first to a point ``hover`` above the target (off the wall: no dragging the tip along
   the tissue), then, once over it, down onto its centre, aimed slightly inside the wall (``press``)
   so that the tip presses on it; desired tip velocity ``gain * error`` (capped at ``max_speed``);
-  the part along the tip's direction by the feeder, the rest by the stick through ``J`` (damped
-  least squares), no axis beyond full deflection.
+  the feeder's command from the whole learned map (stick and feeder together, damped least
+  squares), within the feeder's limits, and the rest by the stick through ``J``, no axis beyond
+  full deflection (with ``learn_feeder`` off: the part along the tip's direction by the feeder).
 * It keeps the tip out of the vein openings it sees (``keep_out``, the ipsilateral pairs with the
   carina between them): within ``keep_out_margin`` of their outline it adds a velocity away.
 * Feeding has limits a person at the console sees: never forward while the tip is at the wall near
@@ -35,9 +39,12 @@ The policy, an honest model of a person learning an unfamiliar mapping by watchi
   between predicted and seen stick-driven motion over about ``confusion_window`` below zero),
   it stops and probes again (a re-learning wiggle; counted per target).
 * No progress: if the distance to the target has not shrunk by ``stall_progress`` in
-  ``stall_window`` seconds, it feeds more chain for ``burst`` seconds when the target lies ahead
-  of the tip (within 60 degrees of its direction: out of reach) and feeding is allowed, and
-  retracts otherwise (stuck against the wall), steering meanwhile; then it resumes.
+  ``stall_window`` seconds, it feeds more chain for ``burst`` seconds when feeding takes the tip
+  towards the target (the learned feeder direction within 60 degrees of the target's: out of
+  reach) and feeding is allowed, and retracts otherwise (stuck against the wall), steering
+  meanwhile; then it resumes. A burst that brought the tip no closer is followed, on the same
+  target, by one the other way (a local probe of the feeder). It never retracts below
+  ``min_length``.
 * Touch: the target counts as touched when ``targets_touched`` (``target_contact``: the tip
   ball within 0.5 mm of the wall inside the target's 5 mm circle) says so at one of its looks;
   it records the time and the accuracy (distance from the ball's wall-side point, its centre
@@ -99,11 +106,14 @@ class OperatorParams:
         p_WE: (3,) the sheath exit [m] (seen in the camera), or None: no cap on the feeding.
         initial_length, max_length: chain fed out at the start, and all of it [m] (the feeder's
             readout: it keeps its own count from its commands).
+        min_length: it never retracts below this length [m] (0: all the way).
         reach_factor: it feeds at most this times the sheath exit's distance to the target.
         keep_out: the vein openings it sees, by neighbouring pairs: ((c1, c2, r1, r2, a1, a2), ...)
             (centres (3,) and radii [m], outward axes (3,)).
         keep_out_margin: it steers away from the openings when the tip is this close to them [m].
         timeout: seconds on one target before giving up.
+        learn_feeder: it learns the feeder's effect beyond its expected share along the tip (off:
+            the prior alone).
         dwell: after touching a target it holds still this long (stick and feeder at rest: an
             RF application) before the next [s]; 0: it moves on at once (the teleoperation tasks).
         start_time: when it starts [s].
@@ -140,11 +150,13 @@ class OperatorParams:
     jam_ratio: float = 0.3
     p_WE: tuple | None = None
     initial_length: float = 0.0
+    min_length: float = 0.0
     max_length: float = np.inf
     reach_factor: float = 1.6
     keep_out: tuple = ()
     keep_out_margin: float = 2e-3
     timeout: float = 20.0
+    learn_feeder: bool = True
     dwell: float = 0.0
     start_time: float = 0.0
     ball_radius: float = 0.5 * 3.175e-3
@@ -162,6 +174,8 @@ class OperatorParams:
             raise UserInputError("OperatorParams: timeout, feeder_speed and max_speed must be > 0")
         if self.dwell < 0:
             raise UserInputError(f"OperatorParams.dwell must be >= 0 s, got {self.dwell}")
+        if not 0.0 <= self.min_length <= self.max_length:
+            raise UserInputError(f"OperatorParams.min_length must be in [0, max_length] m, got {self.min_length}")
         return self
 
 
@@ -216,7 +230,7 @@ class _Memory:
     """The operator's state (an abstract state value, replaced at every look)."""
 
     J: np.ndarray  # (3, n) tip velocity [mm/s] per unit of each stick axis (after the dead band)
-    P: np.ndarray  # (n, n)
+    P: np.ndarray  # (n + 1, n + 1): the stick axes' and the feeder's (n, n: the feeder not learned)
     queue: list  # decided controls (n + 1: stick axes, feeder) waiting for the reaction delay
     applied: np.ndarray  # (n + 1,) controls in effect since the last look
     rng: np.random.Generator | None = None  # the tremor's; made from the seed parameter at the first look
@@ -236,6 +250,9 @@ class _Memory:
     advanced_recent: float = 0.0  # forward tip motion meanwhile [m]
     agreement: float = 1.0  # running mean cosine between predicted and seen stick-driven motion
     descending: bool = False  # pressing down on the target (else hovering towards it)
+    F: np.ndarray | None = None  # (3,) the feeder's effect beyond its expected share [mm/s per unit command]
+    burst_start: float = np.inf  # distance to the aim when the current burst began [m]
+    burst_failed: float = 0.0  # sign of this target's last burst that brought the tip no closer (0: none)
 
     def __deepcopy__(self, memo) -> "_Memory":
         """An independent copy, field by field: the arrays and the open record copied (a closed
@@ -244,7 +261,7 @@ class _Memory:
         the generic deepcopy of this memory took about a tenth of a whole task's wall time on
         the quasi-static engine."""
         new = copy.copy(self)
-        for name in ("J", "P", "applied", "p_last", "d_last"):
+        for name in ("J", "P", "applied", "p_last", "d_last", "F"):
             value = getattr(self, name)
             if value is not None:
                 setattr(new, name, value.copy())
@@ -293,9 +310,9 @@ class SimulatedOperator(SeededLeafSystem):
             raise UserInputError("SimulatedOperator needs at least one target, with as many names, centres and normals")
         self._tip, self._previous = int(tip_body_index), int(previous_body_index)
         self._n = n = len(p.axes)
-        memory = _Memory(J=np.zeros((3, n)), P=p.initial_covariance * np.eye(n),
+        memory = _Memory(J=np.zeros((3, n)), P=p.initial_covariance * np.eye(n + 1 if p.learn_feeder else n),
                          queue=[np.zeros(n + 1)] * p.reaction_steps, applied=np.zeros(n + 1),
-                         length=p.initial_length)
+                         length=p.initial_length, F=np.zeros(3))
         self.DeclareSeedParameter(p.seed)
         self._poses = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
         self._memory_index = self.DeclareAbstractState(AbstractValue.Make(memory))
@@ -395,15 +412,21 @@ class SimulatedOperator(SeededLeafSystem):
         fed = feed * p.feeder_speed * p.period
         # The feeder's expected share: forward along the tip's direction at the fed speed.
         v_stick = v - feed * p.feeder_speed * 1e3 * mem.d_last
-        if np.linalg.norm(stick) > 0.05:  # excitation: learn (and no wind-up without it)
-            predicted = mem.J @ stick
+        # The regressor: the stick axes and (learning the feeder's effect beyond that share) the feeder.
+        x = mem.applied if p.learn_feeder else stick
+        if np.linalg.norm(x) > 0.05:  # excitation: learn (and no wind-up without it)
+            predicted = mem.J @ stick + mem.F * feed
             norms = np.linalg.norm(predicted) * np.linalg.norm(v_stick)
             if mem.phase == "pursue" and norms > 1.0:  # both above about 1 mm/s
                 w = p.period / p.confusion_window
                 mem.agreement = (1.0 - w) * mem.agreement + w * float(predicted @ v_stick) / norms
-            Px = mem.P @ stick
-            k = Px / (p.forgetting + stick @ Px)
-            mem.J = mem.J + np.outer(v_stick - predicted, k)
+            Px = mem.P @ x
+            k = Px / (p.forgetting + x @ Px)
+            if p.learn_feeder:
+                JF = np.column_stack([mem.J, mem.F]) + np.outer(v_stick - predicted, k)
+                mem.J, mem.F = JF[:, :-1], JF[:, -1]
+            else:
+                mem.J = mem.J + np.outer(v_stick - predicted, k)
             P = (mem.P - np.outer(k, Px)) / p.forgetting
             P = 0.5 * (P + P.T)
             tr = np.trace(P)
@@ -464,7 +487,7 @@ class SimulatedOperator(SeededLeafSystem):
             mem.phase, mem.done = "done", True
             return
         mem.records.append(TargetRecord(self.names[mem.k], t))
-        mem.best, mem.t_best = np.inf, t
+        mem.best, mem.t_best, mem.burst_failed = np.inf, t, 0.0
         if mem.phase == "burst":
             mem.phase = "pursue"
 
@@ -486,6 +509,8 @@ class SimulatedOperator(SeededLeafSystem):
         if dist < mem.best - p.stall_progress:
             mem.best, mem.t_best = dist, t
         if mem.phase == "burst" and t >= mem.phase_end - 1e-9:
+            # A burst that brought the tip no closer: the next one on this target goes the other way.
+            mem.burst_failed = mem.burst_sign if dist > mem.burst_start - p.stall_progress else 0.0
             mem.phase, mem.t_best, mem.best = "pursue", t, dist
         if mem.phase == "pursue" and mem.agreement < 0.0:
             # The tip keeps going the wrong way: stop and find out again.
@@ -498,14 +523,21 @@ class SimulatedOperator(SeededLeafSystem):
         jammed = mem.fed_recent > p.jam_feed and mem.advanced_recent < p.jam_ratio * mem.fed_recent
         capped = mem.length >= self._length_cap(k)
         may_feed = not at_wall and not jammed and not capped
+        may_retract = mem.length > p.min_length + 1e-9  # it keeps at least min_length out
+        f = p.feeder_speed * 1e3 * d + mem.F  # [mm/s] per unit feeder command: along the tip, and as learned
+        ahead = f @ e > 0.5 * np.linalg.norm(f) * dist  # feeding takes the tip towards the target
         record = mem.records[-1]  # what it notes for the reason of a miss
         record.looks += 1
         record.jammed_looks += int(jammed)
-        record.capped_looks += int(capped and e @ d > 0.5 * dist)
+        record.capped_looks += int(capped and ahead)
         if mem.phase == "pursue" and (t - mem.t_best > p.stall_window or jammed):
-            # No progress: feed when the target is ahead of the tip (out of reach), else pull back.
+            # No progress: feed when feeding takes the tip towards the target (out of reach), else
+            # pull back; the other way when the last burst on this target brought it no closer.
             mem.records[-1].bursts += 1
-            mem.burst_sign = 1.0 if e @ d > 0.5 * dist and may_feed else -1.0
+            sign = 1.0 if ahead and may_feed else -1.0
+            if (sign == mem.burst_failed or sign < 0 and not may_retract) and not jammed and (sign > 0 or may_feed):
+                sign = -sign
+            mem.burst_sign, mem.burst_start = sign, dist
             mem.phase, mem.phase_end = "burst", t + p.burst
             mem.fed_recent = mem.advanced_recent = 0.0
         v = p.gain * e
@@ -516,9 +548,12 @@ class SimulatedOperator(SeededLeafSystem):
         # The feeder takes the part along the tip's direction, the stick the rest.
         if mem.phase == "burst":
             u_f = mem.burst_sign * p.burst_command
+        elif p.learn_feeder:  # the feeder and the stick together, through what it has learned of both
+            u_f = float(_damped_solve(np.column_stack([mem.J, f]), v * 1e3, p.damping)[-1])
+            u_f = float(np.clip(u_f, -1.0 if may_retract else 0.0, 1.0 if may_feed else 0.0))
         else:
             u_f = float(np.clip(v @ d / p.feeder_speed, -1.0, 1.0 if may_feed else 0.0))
-        v_stick = (v - u_f * p.feeder_speed * d) * 1e3  # mm/s, as J
+        v_stick = v * 1e3 - u_f * f  # mm/s, as J
         u_s = _saturate(_damped_solve(mem.J, v_stick, p.damping))
         u_s = np.clip(u_s + p.tremor * mem.rng.uniform(-1.0, 1.0, n), -1.0, 1.0)
         return np.append(u_s, u_f)

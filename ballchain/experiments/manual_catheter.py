@@ -6,8 +6,12 @@ only the tip, learns the input-to-tip mapping online, presses towards each targe
 after its timeout), its stick's two axes now on the catheter's handle (axis 0 turns it, axis 1
 the knob) and its feeder command the hand's push and pull, within the hand's rate limits
 (``HandParams``), with the windup strategy ``switch`` (the opposite tendon and back by half a
-turn) or ``keep`` (keep turning). Per target the rows of the robotic task (time, accuracy), and
-beside them the tip's path (for the smoothness) and the handle's twist.
+turn, also at the F tendon's end) or ``keep`` (keep turning). The operator keeps at least the
+catheter's starting length (20 mm) out of the sheath (``min_length``): with less out the knob
+and the handle move the tip less (the 55 mm deflectable segment mostly in the sheath), and
+without the floor its retraction bursts drew the catheter back to 0-5 mm, where it stayed for
+the right ring's last five targets (seed 0). Per target the rows of the robotic task (time,
+accuracy), and beside them the tip's path (for the smoothness) and the handle's twist.
 """
 
 from __future__ import annotations
@@ -108,7 +112,8 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
     heart = heart or atrium_for(scenario)
     ring = heart.rings[task]
     n_targets = len(ring.p_HT) if targets is None else min(int(targets), len(ring.p_HT))
-    hand = hand or HandParams(strategy=strategy)
+    used = catheter or comparison_catheter()
+    hand = hand or HandParams(strategy=strategy, f_over_d=used.max_deflection_F / used.max_deflection_D)
     params = OperatorParams(axes=(0, 1), seed=int(seed), feeder_speed=hand.push_speed, dead_band=hand.dead_band)
     handles = {}
 
@@ -117,7 +122,7 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
         chosen = [i for i, n in enumerate(names) if n.startswith(f"{task}_")][:n_targets]
         cat = ports.catheter
         seen = replace(params, ball_radius=cat.catheter.radius, target_radius=radius, p_WE=tuple(cat.rod.p_E),
-                       initial_length=cat.initial_length, max_length=cat.rod.max_length,
+                       initial_length=cat.initial_length, min_length=cat.initial_length, max_length=cat.rod.max_length,
                        keep_out=teleop.vein_openings(heart))
         op = builder.AddSystem(SimulatedOperator(cat.n_bodies, cat.n_bodies - 1, [names[i] for i in chosen],
                                                  p_WT[chosen], n_W[chosen], seen))
@@ -130,13 +135,13 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
         return {"operator": op}
 
     limit = time_limit if time_limit is not None else n_targets * params.timeout + params.start_time + 5.0
-    meshcat = _replay_meshcat(html, scenario, limit, catheter or comparison_catheter())
+    meshcat = _replay_meshcat(html, scenario, limit, used)
     built = time.perf_counter()
     from ballchain.systems.catheter_station import make_catheter_station
 
     # MakeStation's catheter diagram, with this catheter and hand.
     station = make_catheter_station(scenario, heart=heart, add_systems=add_operator,
-                                    catheter=catheter or comparison_catheter(), hand=hand, meshcat=meshcat)
+                                    catheter=used, hand=hand, meshcat=meshcat)
     built = time.perf_counter() - built
     op = handles["operator"]
     simulator = Simulator(station.diagram)
@@ -170,7 +175,7 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
     hand_state = station.hand.GetOutputPort("state").Eval(station.hand.GetMyContextFromRoot(root))
     path = {"t": tip_log.sample_times().tolist(), "tip": tip_log.data().T.tolist(),
             "twist": wind_log.data()[0].tolist(), "exit_twist": wind_log.data()[1].tolist()}
-    settings = _run_settings(catheter or comparison_catheter(), int(seed), hand, scenario, params, limit,
+    settings = _run_settings(used, int(seed), hand, scenario, params, limit,
                              hand_state, cat_state, failure, path)
     return teleop.TeleopResult(task=task, mapping="manual", rows=rows, summary=summary, paper=teleop.PAPER[task],
                                settings=settings, html=None if html is None else str(html))
