@@ -20,6 +20,7 @@ from ballchain.commands._common import add_json_flag, float_in, int_in, positive
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.localisation import LATENCY_RANGE_S, NOISE_RANGE_M, RATE_RANGE_HZ, LocalisationParams
 from ballchain.experiments import procedure
+from ballchain.systems.chain_scenario import parse_overrides
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -37,13 +38,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dwell", type=float_in(0.0, procedure.MAX_DWELL_S), default=procedure.DWELL_S,
                         help="the RF time at each target [s]")
     defaults = LocalisationParams()
+    scenario_note = "; not given: the scenario's localisation (--set), else "
     parser.add_argument("--noise", type=float_in(NOISE_RANGE_M[0] * 1e3, NOISE_RANGE_M[1] * 1e3),
-                        default=defaults.noise_std * 1e3, help="localisation noise, per-axis std [mm] (default: "
-                        f"{defaults.noise_std * 1e3:.3g}: the NDI Aurora's 0.70 mm RMS over three axes)")
-    parser.add_argument("--rate", type=float_in(*RATE_RANGE_HZ), default=defaults.rate,
-                        help="localisation update rate [Hz]")
-    parser.add_argument("--latency", type=float_in(*LATENCY_RANGE_S), default=defaults.latency,
-                        help="localisation latency [s] (a whole number of samples)")
+                        default=None, help="localisation noise, per-axis std [mm]" + scenario_note +
+                        f"{defaults.noise_std * 1e3:.3g}: the NDI Aurora's 0.70 mm RMS over three axes")
+    parser.add_argument("--rate", type=float_in(*RATE_RANGE_HZ), default=None,
+                        help=f"localisation update rate [Hz]{scenario_note}{defaults.rate:g}")
+    parser.add_argument("--latency", type=float_in(*LATENCY_RANGE_S), default=None,
+                        help=f"localisation latency [s] (a whole number of samples){scenario_note}{defaults.latency:g}")
     parser.add_argument("--wall-motion", choices=procedure.WALL_MOTIONS, default="off",
                         help="move the atrium: on (respiration, 5 mm at 0.25 Hz, and the heart beat, 1 mm at 1.2 Hz), "
                              "respiration or beat alone, or off (the still wall); the quasi-static engine follows it")
@@ -64,7 +66,7 @@ def main(args: argparse.Namespace) -> int:
 
     if args.anatomy is None and args.task not in procedure.TASKS:
         raise UserInputError(f"--task must be left or right, got {args.task!r}")
-    localisation = LocalisationParams(noise_std=args.noise * 1e-3, rate=args.rate, latency=args.latency)
+    localisation = _localisation(args)
     if args.out is not None:
         check_output_dir(args.out, "--out", names=("procedure.json", "ring.png"))
     data = procedure.run(args.task, args.navigator, args.anatomy, args.seed, targets=args.targets,
@@ -97,3 +99,16 @@ def main(args: argparse.Namespace) -> int:
               f"lesions, {len(ring['gaps'])} gap(s), transmural {100 * ring['transmural_fraction']:.0f}%, "
               f"largest spacing {ring['max_distance_mm']} mm")
     return 0
+
+
+def _localisation(args: argparse.Namespace) -> LocalisationParams | None:
+    """The tip tracker's figures from ``--noise --rate --latency`` (the others at their defaults),
+    or None when none is given: the run then takes the scenario's ``localisation``."""
+    given = {"noise_std": None if args.noise is None else args.noise * 1e-3, "rate": args.rate, "latency": args.latency}
+    given = {k: v for k, v in given.items() if v is not None}
+    if not given:
+        return None
+    if args.overrides is not None and "localisation" in parse_overrides(args.overrides):
+        flags = ", ".join(f"--{'noise' if k == 'noise_std' else k}" for k in given)
+        raise UserInputError(f"{flags} and --set localisation both set the tip tracker; give only one of them")
+    return LocalisationParams(**given)
