@@ -146,8 +146,8 @@ def test_a_retry_retracts_half_the_chain_then_the_target_is_given_up():
 
 
 def test_noise_help_prints_a_rounded_default(capsys):
-    """``procedure --help`` shows --noise's default rounded (0.404 mm); the default itself is the
-    exact 0.70 mm / sqrt(3)."""
+    """``procedure --help`` shows --noise's default rounded (0.404 mm); not given, the run takes the
+    scenario's figure, whose default is the exact 0.70 mm / sqrt(3)."""
     import argparse
 
     from ballchain.cli import main as cli_main
@@ -157,10 +157,13 @@ def test_noise_help_prints_a_rounded_default(capsys):
     with pytest.raises(SystemExit):
         cli_main(["procedure", "--help"])
     text = " ".join(capsys.readouterr().out.split())
-    assert "(default: 0.404:" in text and "0.4041451884" not in text
+    assert "else 0.404: the NDI Aurora" in text and "0.4041451884" not in text
     parser = argparse.ArgumentParser()
     command.add_arguments(parser)
-    assert parser.parse_args([]).noise == LocalisationParams().noise_std * 1e3
+    assert parser.parse_args([]).noise is None
+    from ballchain.systems.chain_scenario import LocalisationScenario
+
+    assert LocalisationScenario().params().noise_std == LocalisationParams().noise_std == 0.7e-3 / np.sqrt(3)
 
 
 @pytest.mark.slow
