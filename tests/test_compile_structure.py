@@ -11,6 +11,7 @@ import sys
 import textwrap
 
 import pytest
+from numba.core.caching import NullCache
 
 from ballchain.drake_models.kernels._common import kernel
 
@@ -23,6 +24,12 @@ def _scaled(x, order):
 @kernel
 def _with_constants(x):
     return _scaled(x, 0) + _scaled(x, 2) + _scaled(x, int(x))
+
+
+# Compiled in this process every time: loaded from the disk cache (a second run in the same
+# checkout), ``_with_constants`` would hold ``_scaled`` inside its cached code and ``_scaled``
+# would show no specialisation at all.
+_scaled._cache = _with_constants._cache = NullCache()
 
 
 def test_constant_arguments_compile_one_specialisation():
