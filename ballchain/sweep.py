@@ -873,7 +873,7 @@ def _run_section(fn: Callable, out: str, quick: bool):
 
 
 def run_sections(sections: Sequence[tuple[str, Callable]], out: str | Path, quick: bool,
-                 workers: int | None = None, client=None) -> list[SectionRun]:
+                 workers: int | None = None, client=None, progress: str | None = None) -> list[SectionRun]:
     """Run independent report sections ``fn(out, quick)`` in parallel; results in the given order.
 
     Args:
@@ -886,6 +886,8 @@ def run_sections(sections: Sequence[tuple[str, Callable]], out: str | Path, quic
         workers: LocalCluster worker processes (default: one per core); 0 or 1 runs them
             serially in this process (the reference).
         client: an existing ``distributed.Client`` instead of a new LocalCluster.
+        progress: a progress bar on stderr with this description, one step per finished
+            section (None: no bar).
 
     Returns:
         one SectionRun per section, in the order of ``sections``.
@@ -896,11 +898,18 @@ def run_sections(sections: Sequence[tuple[str, Callable]], out: str | Path, quic
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    import sys
+
+    from tqdm import tqdm
+
+    bar = tqdm(total=len(sections), desc=progress, unit="run", disable=progress is None, file=sys.stderr)
     if client is None and workers in (0, 1):
         runs = []
-        for name, fn in sections:
-            value, seconds, worker = _run_section(fn, str(out), quick)
-            runs.append(SectionRun(name, value, seconds, worker))
+        with bar:
+            for name, fn in sections:
+                value, seconds, worker = _run_section(fn, str(out), quick)
+                runs.append(SectionRun(name, value, seconds, worker))
+                bar.update()
         return runs
     with Executor(workers=workers, client=client) as ex:
         # Longest first would balance better, but the caller knows the order; the scheduler
@@ -910,9 +919,11 @@ def run_sections(sections: Sequence[tuple[str, Callable]], out: str | Path, quic
         run_id = uuid.uuid4().hex[:8]  # fresh keys: never an earlier run's result (see _run_on_client)
         futures = [ex.client.submit(_run_section, fn, str(out), quick, key=f"section-{k}-{run_id}", pure=False)
                    for k, (name, fn) in enumerate(sections)]
-        from distributed import wait
+        from distributed import as_completed
 
-        wait(futures)
+        with bar:
+            for _ in as_completed(futures):
+                bar.update()
         runs, first_error = [], None
         for (name, _), future in zip(sections, futures):
             if future.status == "error":

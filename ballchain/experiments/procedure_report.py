@@ -107,10 +107,10 @@ def default_workers() -> int:
         return max(1, min(2, os.cpu_count() or 1))
 
 
-def _map(jobs: list, out: Path, workers: int) -> list:
+def _map(jobs: list, out: Path, workers: int, what: str) -> list:
     from ballchain.sweep import run_sections
 
-    return [r.value for r in run_sections(jobs, out, False, workers=workers)]
+    return [r.value for r in run_sections(jobs, out, False, workers=workers, progress=what)]
 
 
 def run(seeds=SEEDS, *, rings=RINGS, targets: int | None = None, dwell_s: float = procedure.DWELL_S,
@@ -141,13 +141,13 @@ def run(seeds=SEEDS, *, rings=RINGS, targets: int | None = None, dwell_s: float 
         out = check_output_dir(out, "out")
         folder = out / "runs"
     base = Path(out) if out is not None else Path(".")
-    done = _map([(f"plan {r}", functools.partial(_plan_job, r, targets)) for r in rings], base, workers)
+    done = _map([(f"plan {r}", functools.partial(_plan_job, r, targets)) for r in rings], base, workers, "procedure plans")
     plans = dict(zip(rings, done))
     # Seed by seed (the costliest run first in each), so that an interrupted run has whole seeds.
     jobs = [(f"{r} {n} {s}", functools.partial(_run_job, r, n, s, targets, dwell_s,
                                                plans[r][0] if n == "auto" else None, folder))
             for s in seeds for r in rings for n in procedure.NAVIGATORS]
-    runs = _map(jobs, base, workers)
+    runs = _map(jobs, base, workers, "procedure runs")
     runs.sort(key=lambda x: (rings.index(x["ring"]), procedure.NAVIGATORS.index(x["navigator"]), seeds.index(x["seed"])))
     table = [_aggregate([x for x in runs if x["ring"] == r and x["navigator"] == n])
              for r in rings for n in procedure.NAVIGATORS]
