@@ -58,7 +58,9 @@ Sources of the constants (no constant was tuned to the paper's times):
   curve table, a paper measuring catheter curves) was found in the reference material available
   here (searched again: TactiFlex, TactiCath, FlexAbility, Safire, "D-F curve", "curve reach",
   bidirectional deflection studies, openFDA's device records): an assumption at datasheet level,
-  not a measured value. The one bend angle found for a cardiac ablation catheter's tendon-driven
+  not a measured value, sized by a sensitivity sweep (``docs/guide/manual_catheter.md``: the
+  manual right ring with a 45 or 65 mm segment, or 160 or 200 degrees on the D side; a wider
+  curve touched 3-4 targets fewer, a tighter one about as many). The one bend angle found for a cardiac ablation catheter's tendon-driven
   tip, a four-wire robotic prototype compared with manual catheters (184.7 and 170.4 degrees at
   11 mm of wire pull, its two planes; PubMed Central PMC4209906), puts a half turn within this
   class of device. ``reach_search`` (``experiments.manual_catheter``) says which right-ring
