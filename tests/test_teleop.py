@@ -294,7 +294,7 @@ def test_engine_and_plant_touch_the_same_first_target(heart):
 def test_run_seeds_aggregates_its_runs(tmp_path, heart):
     """A tiny spread (right ring, world mapping, first target, seeds 3 and 7): the table's row is
     the aggregate of the runs it returns, the CSV and JSON are written, the seeds differ in the
-    operator's tremor (different times)."""
+    operator's tremor (different rows)."""
     import csv
 
     result = teleop.run_seeds(tasks=("right",), mappings=("world",), seeds=(3, 7), targets=1, out=tmp_path,
@@ -308,7 +308,9 @@ def test_run_seeds_aggregates_its_runs(tmp_path, heart):
     assert row == expected
     times = [r["summary"].total_time_s for r in runs]
     assert row["total_time_min_s"] == min(times) and row["total_time_max_s"] == max(times)
-    assert times[0] != times[1]  # another tremor, another run
+    # another tremor, another run: the total times are kept to 0.05 s, and the learned operator
+    # can reach the first target in the same step count; the path's rows (accuracy, approach) differ
+    assert runs[0]["rows"] != runs[1]["rows"]
     with open(tmp_path / "teleop_seeds.csv") as f:
         (line,) = list(csv.DictReader(f))
     assert line["task"] == "right" and float(line["total_time_median_s"]) == row["total_time_median_s"]
