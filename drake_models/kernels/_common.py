@@ -121,7 +121,18 @@ def kernel(py_func):
     """``numba.njit`` with the on-disk cache stamped by the whole package's sources, healed when a
     cache file is damaged (``numba_cache.guard_kernel``), and compiled once whatever constants its
     compiled callers pass (``_without_literals``)."""
-    dispatcher = njit(cache=True)(py_func)
+    return _compiled(py_func)
+
+
+def inline_kernel(py_func):
+    """``kernel`` whose body numba inlines into its compiled callers (``inline="always"``): the
+    few scalar lines a pair loop runs per entry, where a call costs more than the arithmetic and
+    hides the shared subexpressions from the compiler. Called from Python it runs as ``kernel``."""
+    return _compiled(py_func, inline="always")
+
+
+def _compiled(py_func, **options):
+    dispatcher = njit(cache=True, **options)(py_func)
     dispatcher._cache = _PackageCache(py_func)  # what ``cache=True`` set, with the package stamp
     _without_literals(dispatcher)
     return guard_kernel(dispatcher)  # a damaged cache file is recompiled, not a traceback on every run

@@ -22,7 +22,7 @@ from ballchain.drake_models.kernels._common import (
 )
 from ballchain.drake_models.kernels.external import add_external
 from ballchain.drake_models.kernels.gravity import add_gravity
-from ballchain.drake_models.kernels.pair import _pair_first, _pair_second
+from ballchain.drake_models.kernels.pair import pair_energy, pair_gradient_entry, pair_hessian_entry, pair_scalars
 from ballchain.drake_models.kernels.sleeve import sleeve_energy
 
 # Layout of ``reduced_energy``'s ``params`` (one array: fewer arguments to dispatch).
@@ -106,51 +106,47 @@ def reduced_energy(V, p, m_hat, B, G, dG, params, has_external, order):
 @kernel
 def _pairs_into_slots(p, m_hat, kk, order, dU_dp, dU_dm, Hw):
     """The pair energy (pair constant kk = k M^2); its gradient added to ``dU_dp``, ``dU_dm``
-    (``order >= 1``) and its Hessian blocks to the slots of ``Hw`` (``order >= 2``).
+    (``order >= 1``) and its Hessian blocks to the slots of ``Hw`` (``order >= 2``), each entry
+    added where it lands as it is computed (``pair``'s per-entry law, inlined: no 3x3 blocks).
 
     Returns:
         ``(status, U_b)``: status OK or COINCIDENT; U_b [J].
     """
     n = p.shape[0]
     L = n - 1
-    r = np.empty(3)
-    gr = np.empty(3)
-    gx = np.empty(3)
-    gy = np.empty(3)
-    E = np.empty((3, 3))
-    Ax = np.empty((3, 3))
-    Ay = np.empty((3, 3))
-    D = np.empty((3, 3))
     U_b = 0.0
     for i in range(n):
+        x = (m_hat[i, 0], m_hat[i, 1], m_hat[i, 2])
         for j in range(i + 1, n):
-            for c in range(3):
-                r[c] = p[i, c] - p[j, c]
+            r = (p[i, 0] - p[j, 0], p[i, 1] - p[j, 1], p[i, 2] - p[j, 2])
             if r[0] * r[0] + r[1] * r[1] + r[2] * r[2] <= 0.0:
                 return COINCIDENT, 0.0
-            U_b += _pair_first(r, m_hat[i], m_hat[j], kk, gr, gx, gy)
+            y = (m_hat[j, 0], m_hat[j, 1], m_hat[j, 2])
+            sc = pair_scalars(r, x, y)
+            U_b += pair_energy(kk, sc)
             if order >= 1:
                 for c in range(3):
-                    dU_dp[i, c] += gr[c]
-                    dU_dp[j, c] -= gr[c]
-                    dU_dm[i, c] += gx[c]
-                    dU_dm[j, c] += gy[c]
+                    gr, gx, gy = pair_gradient_entry(c, r, x, y, kk, sc)
+                    dU_dp[i, c] += gr
+                    dU_dp[j, c] -= gr
+                    dU_dm[i, c] += gx
+                    dU_dm[j, c] += gy
             if order >= 2:
-                _pair_second(r, m_hat[i], m_hat[j], kk, E, Ax, Ay, D)
                 pi, pj, mi, mj = i - 1, j - 1, L + i - 1, L + j - 1  # j >= 1 always
                 for a in range(3):
                     for b in range(3):
-                        Hw[pj, pj, a, b] += E[a, b]
-                        Hw[pj, mj, a, b] -= Ay[a, b]
+                        E, Ax, Ay, D = pair_hessian_entry(a, b, r, x, y, kk, sc)
+                        Hw[pj, pj, a, b] += E
+                        Hw[pj, mj, a, b] -= Ay
                         if i > 0:
-                            Hw[pi, pi, a, b] += E[a, b]
-                            Hw[pi, pj, a, b] -= E[a, b]
-                            Hw[pj, pi, a, b] -= E[a, b]
-                            Hw[pi, mi, a, b] += Ax[a, b]
-                            Hw[pj, mi, a, b] -= Ax[a, b]
-                            Hw[pi, mj, a, b] += Ay[a, b]
-                            Hw[mi, mj, a, b] += D[a, b]
-                            Hw[mj, mi, b, a] += D[a, b]
+                            Hw[pi, pi, a, b] += E
+                            Hw[pi, pj, a, b] -= E
+                            Hw[pj, pi, a, b] -= E
+                            Hw[pi, mi, a, b] += Ax
+                            Hw[pj, mi, a, b] -= Ax
+                            Hw[pi, mj, a, b] += Ay
+                            Hw[mi, mj, a, b] += D
+                            Hw[mj, mi, b, a] += D
     return OK, U_b
 
 
