@@ -942,7 +942,7 @@ SECTION_COST_S = {  # name: (wall seconds of a full run, of a --quick run)
     "model validation": (17.3, 14.2), "tip forces": (219.0, 41.8), "Table I effects and clinical design": (64.3, 57.9),
     "model-based steering": (171.0, 59.0), "teleoperation": (655.0, 148.1), "ablation": (76.6, 56.5),
     "robotic vs manual": (133.0, 8.8),  # the comparison alone, CPU seconds (measured separately)
-    "ablation procedure": (1045.0, 290.6),  # alone, 2 worker processes (load 3-6; quick: load 7-9)
+    "ablation procedure": (370.0, 290.6),  # alone, 2 worker processes (load 2; quick: load 7-9, before issue 22)
 }
 """Each section's cost, measured once: the wall time of a full run (21.6 min) and of a --quick run
 (6.7 min), each ``ballchain reproduce`` in a new process (the first section pays for the imports

@@ -179,7 +179,9 @@ class TipForceEstimator:
 
     def free_balls(self, inserted_length: float) -> int:
         """Balls beyond the sheath exit at an inserted length (ball 1 included, at least 2)."""
-        return int(np.clip(round(inserted_length / self.chain.ball_diameter) + 1, 2, self.n_max))
+        # (n - 1/2) diameters put ball 1's centre at the exit with n balls out (the plans' rule);
+        # rounded, so that a feeder within half a diameter of the plan's length counts n.
+        return int(np.clip(round(inserted_length / self.chain.ball_diameter + 0.5), 2, self.n_max))
 
     def field_S(self, dipoles_W: np.ndarray, sheath_offset_W: np.ndarray | None = None) -> FieldSources:
         m_S = (self.R_WS.T @ np.asarray(dipoles_W, float).reshape(-1, 3).T).T

@@ -93,3 +93,21 @@ def test_the_navigator_holds_the_force_on_a_moving_wall():
     assert s["reached"] == s["targets"] == 3
     assert s["in_window_fraction"] == 1.0
     assert s["estimate_worst_error_gf"] < 2.5
+
+
+@pytest.mark.slow
+def test_a_user_anatomy_with_two_units_every_target_reached(tmp_path, capsys):
+    """``procedure --anatomy FILE`` without --task takes all the file's targets in file order: a
+    faceted ellipsoid (binary STL, millimetres) with four targets near the procedural left ring's
+    left_1, left_6, left_11 and left_16, two magnet places (the two-unit station's): each target
+    planned with both units and reached, the force held inside the window."""
+    from anatomy_helpers import lumen_anatomy
+
+    path = lumen_anatomy(tmp_path, magnets="[[-58.96, -104.82, 0.0], [104.99, -65.62, 0.0]]")
+    assert cli_main(["procedure", "--anatomy", str(path), "--dwell", "1", "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["task"] is None and len(data["settings"]["units"]) == 2
+    assert [r["target"] for r in data["rows"]] == ["L1", "L2", "L3", "L4"]
+    assert data["summary"]["not_planned"] == [] and data["summary"]["failure"] is None
+    assert data["summary"]["reached"] == 4, [(r["target"], r["reason"]) for r in data["rows"]]
+    assert data["summary"]["in_window_fraction"] >= 0.95

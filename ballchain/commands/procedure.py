@@ -24,8 +24,9 @@ from ballchain.systems.chain_scenario import parse_overrides
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--task", default="right",
-                        help="the ring: left (20 targets) or right (18); with --anatomy, the targets named TASK_...")
+    parser.add_argument("--task", default=None,
+                        help="the ring: left (20 targets) or right (18; the default); with --anatomy, the targets "
+                             "named TASK_... (default: all, in file order)")
     parser.add_argument("--anatomy", type=Path, default=None, metavar="FILE",
                         help="an anatomy file (YAML: mesh, targets, sheath, magnets) instead of the procedural atrium")
     parser.add_argument("--navigator", choices=procedure.NAVIGATORS, default="auto",
@@ -64,6 +65,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     from ballchain.drake_models.safe_files import check_output_dir
 
+    if args.anatomy is None and args.task is None:
+        args.task = "right"
     if args.anatomy is None and args.task not in procedure.TASKS:
         raise UserInputError(f"--task must be left or right, got {args.task!r}")
     localisation = _localisation(args)

@@ -48,6 +48,12 @@ WINDOW_GF = (10.0, 40.0)
 DWELL_S = 10.0
 MAX_DWELL_S = 120.0
 UNITS = ("one", "two")
+# The plans' chain length by the number of units (``target_plans``'s ``slack``): with two units,
+# the fewest balls whose straight chain reaches 2 diameters beyond the target (the whole chain left
+# 4-5 diameters of slack at left_16-left_20, and on the way to left_18 its bend carried the tip
+# over a vein's rim into the vein: left_18 missed in 2 of 5 seeds); with one unit the whole chain (with
+# the fewest balls right_17 had no press it could hold in seeds 0 and 1). docs/guide/procedure.md.
+PLAN_SLACK_BALLS = {1: None, 2: 2.0}
 WALL_MOTIONS = ("off", "on", "respiration", "beat")
 
 
@@ -248,7 +254,8 @@ def aim_point(centre: np.ndarray, axis: np.ndarray, reach: float, radius: float,
 
 
 def target_plans(anatomy, chosen: list[int], force_N: float, n_balls: int, inserted_length: float,
-                 magnets_W: list, progress: bool = False, tolerance: float = 0.0) -> tuple[list, list]:
+                 magnets_W: list, progress: bool = False, tolerance: float = 0.0,
+                 slack: float | None = None) -> tuple[list, list]:
     """The feed-forward of every target, in order (``TargetPlan``s) and the names not planned.
 
     Each target: inverse statics (``_plan_step``: frictionless, the engine's contact) from the
@@ -258,6 +265,10 @@ def target_plans(anatomy, chosen: list[int], force_N: float, n_balls: int, inser
     the straight chain's reach is aimed inside its circle (``aim_point``; ``tolerance``: how far
     from the aim the navigator counts the tip on it [m]), the touch point then free within the
     circle around the aim that stays inside the target's.
+
+    ``slack`` (None: every target with ``n_balls`` and ``inserted_length``): each target with
+    the fewest balls whose straight chain reaches ``slack`` ball diameters beyond its centre
+    (at most ``n_balls``), inserted (n - 1/2) diameters (ball 1 at the sheath exit).
     """
     from tqdm import tqdm
 
@@ -284,12 +295,23 @@ def target_plans(anatomy, chosen: list[int], force_N: float, n_balls: int, inser
         return FieldSources([MagnetSource(CylinderMagnet(), p, rotation_with_z_along(mj)) for p, mj in zip(centres, m)])
 
     held, plans, missing = None, [], []
+    d = chain.ball_diameter
     for k, name in zip(tqdm(chosen, desc="plan", unit="target", disable=not progress), stand.targets):
         centre, axis = stand.targets[name]
-        aim, shift = aim_point(centre, axis, (n_balls - 1) * chain.ball_diameter, anatomy.touch_radius, tolerance)
-        stand.targets[name] = (aim, axis)
-        out = _plan_step(chain, stand, name, m_now, held, (force_N, 0.75 * force_N, 0.5 * force_N),
-                         anatomy.touch_radius - shift)  # the most it can press, down to half
+        lengths = [n_balls]
+        if slack is not None:  # the fewest balls first, then one more until a plan answers
+            n_few = int(min(n_balls, max(2, np.ceil(np.linalg.norm(centre) / d + slack) + 1)))
+            lengths = list(range(n_few, n_balls + 1))
+        for n_k in lengths:
+            s_k = inserted_length if slack is None else (n_k - 0.5) * d
+            chain = BallChain(n_balls=n_k)
+            start = held if held is not None and len(held.positions) == n_k else None  # warm: same length only
+            aim, shift = aim_point(centre, axis, (n_k - 1) * d, anatomy.touch_radius, tolerance)
+            stand.targets[name] = (aim, axis)
+            out = _plan_step(chain, stand, name, m_now, start, (force_N, 0.75 * force_N, 0.5 * force_N),
+                             anatomy.touch_radius - shift)  # the most it can press, down to half
+            if out.get("feasible"):
+                break
         if not out.get("feasible"):
             missing.append(name)
             continue
@@ -299,7 +321,7 @@ def target_plans(anatomy, chosen: list[int], force_N: float, n_balls: int, inser
         m_now, held = plan.dipoles.reshape(-1, 3), plan.result
         J_m = np.hstack([J[:, 3 * j:3 * j + 3] @ R.T for j in range(len(centres))])
         p_aim = anatomy.p_WT[k] + R @ (aim - base.targets[name][0])
-        plans.append(TargetPlan(name, p_aim, anatomy.n_W[k], (R @ m_now.T).T, inserted_length,
+        plans.append(TargetPlan(name, p_aim, anatomy.n_W[k], (R @ m_now.T).T, s_k,
                                 R @ held_tip.basis, J_m, J[:, 3 * len(centres):], float(plan.force_N), shift))
     return plans, missing
 
@@ -554,8 +576,9 @@ def _plan_ring(anatomy, chosen: list[int], scenario, force_gf: float, key: tuple
     # p_WE + (s - (n - 1/2) d) u (``chain_plant``): that is s = (n - 1/2) d, not (n - 1) d (ball 1
     # half a ball inside, the chain 1.6 mm short of the plan's reach).
     s_full = (n - 0.5) * BallChain().ball_diameter
+    slack = PLAN_SLACK_BALLS[min(len(key[4]), 2)]
     plans, missing = target_plans(anatomy, chosen, newtons_from_gram_force(force_gf), n, s_full,
-                                  [np.array(p) for p in key[4]], progress, NavigatorParams().touch_radius)
+                                  [np.array(p) for p in key[4]], progress, NavigatorParams().touch_radius, slack)
     return RingPlans(tuple(plans), tuple(missing), time.process_time() - cpu0, key)
 
 
