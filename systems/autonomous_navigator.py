@@ -17,7 +17,8 @@ plan.
 Feedback, every ``period``: with the force model (``TipForceEstimator``: the chain's statics
 with the tip held at the measured point, under the measured magnets, at the measured
 insertion) it estimates the contact force F (the reaction that holds the tip there, on the
-wall's outward normal: no force sensor). A look with no held equilibrium (near the chain's
+wall's outward normal: no force sensor), the tip taken as the measured one (or the mean of
+the last ``average`` looks on this target). A look with no held equilibrium (near the chain's
 reach the sensor's noise can put the measured tip beyond it) keeps the last look's reaction
 on this target (none yet: no force). A Newton step on the magnets' orientation then asks
 for the held equilibrium at the target's centre (lateral offset o measured -> 0) with F at the
@@ -71,6 +72,13 @@ class NavigatorParams:
             trusted near its plan only).
         force_weight: weight of the force row against the position rows of the Newton step
             (position first: a frictionless wall lets a tip pushed too hard slide away).
+        average: the force model holds the tip at the mean of the last ``average`` measured
+            tips on this target (relative to the tracked sheath when it moves), reset at each
+            target, retry and slip: the sensor's noise (0.4 mm per axis) at the chain's full
+            reach puts half the looks beyond it (no held equilibrium) and the other half nearer
+            the sheath than the tip is (a force model pressed too hard); the mean of 8 looks
+            (0.4 s at 20 Hz) has a third of the noise. 1 (the default): each look alone
+            (docs/guide/procedure.md: what 8 changed).
         slip: in the dwell, a measured tip this far from the target's centre laterally has
             slipped off: back to seeking from the plan (the dwell's clock stops meanwhile) [m].
         damping: damped least squares, as a fraction of the Jacobian's largest singular value.
@@ -98,6 +106,7 @@ class NavigatorParams:
     max_step: float = np.radians(1.0)
     max_deviation: float = np.radians(8.0)
     force_weight: float = 0.3
+    average: int = 1
     slip: float = 3.0e-3
     damping: float = 0.05
     magnet_gain: float = 8.0
@@ -120,6 +129,8 @@ class NavigatorParams:
                                  f"window {gram_force(lo):.3g}..{gram_force(hi):.3g} gf (low > 0)")
         if not self.period > 0 or not self.dwell >= 0 or not self.seek_timeout > 0 or self.retries < 0:
             raise UserInputError("NavigatorParams: period and seek_timeout must be > 0, dwell and retries >= 0")
+        if isinstance(self.average, bool) or not isinstance(self.average, (int, np.integer)) or self.average < 1:
+            raise UserInputError(f"NavigatorParams average must be a whole number of looks >= 1, got {self.average!r}")
         if not 0.0 <= self.back_off <= 1.0:
             raise UserInputError(f"NavigatorParams back_off must be a fraction in 0..1, got {self.back_off!r}")
         return self
@@ -246,6 +257,7 @@ class _Memory:
     v_feed: float = 0.0
     f_est: float = 0.0
     r_est: np.ndarray | None = None  # the last look's reaction on the tip (W) [N]
+    looks: tuple = ()  # the last measured tips on this target (relative to the sheath's offset) [m]
     done: bool = False
 
     def __deepcopy__(self, memo):
@@ -365,7 +377,7 @@ class AutonomousNavigator(LeafSystem):
         plan = self.plans[mem.k]
         if not retry:
             mem.records.append(DwellRecord(plan.name, t))
-        mem.phase, mem.phase_start, mem.on_target, mem.r_est = "move", t, 0, None
+        mem.phase, mem.phase_start, mem.on_target, mem.r_est, mem.looks = "move", t, 0, None, ()
         mem.m_des, mem.s_des = plan.dipoles_W.copy(), plan.inserted_length
 
     def _finish_target(self, mem: _Memory, t: float) -> None:
@@ -408,7 +420,7 @@ class AutonomousNavigator(LeafSystem):
             return
         if lateral > p.slip:  # slipped off: seek again from the plan
             record.slips += 1
-            mem.phase, mem.phase_start, mem.on_target = "seek", t, 0
+            mem.phase, mem.phase_start, mem.on_target, mem.looks = "seek", t, 0, ()
             mem.m_des = plan.dipoles_W.copy()
             return
         record.estimates.append((t, f_est))  # dwell
@@ -429,7 +441,12 @@ class AutonomousNavigator(LeafSystem):
         if h is not None:
             centre = centre + h
         o = B[:, 1:].T @ (tip - centre)
-        r = self.estimator.reaction_W(tip, m, s, h)
+        p_est = tip
+        if p.average > 1:
+            offset = np.zeros(3) if h is None else h
+            mem.looks = (mem.looks + (tip - offset,))[-p.average:]
+            p_est = np.mean(mem.looks, axis=0) + offset
+        r = self.estimator.reaction_W(p_est, m, s, h)
         if r is None:  # no held equilibrium at this look (a noisy tip beyond the chain's reach):
             r = mem.r_est  # the last look's reaction (none yet: no force)
         mem.r_est = r

@@ -85,3 +85,49 @@ def test_navigator_params_are_checked():
         NavigatorParams(force_command=newtons_from_gram_force(50.0)).validate()
     with pytest.raises(UserInputError, match="dwell"):
         NavigatorParams(dwell=-1.0).validate()
+
+
+def test_the_force_model_holds_the_mean_of_the_last_looks():
+    """``NavigatorParams.average``: the force model is asked for the tip at the mean of the last
+    ``average`` measured tips on this target, the newest included; 0 or a fraction is refused."""
+    from pydrake.systems.analysis import Simulator
+
+    from ballchain.drake_models.params import BallChain
+    from ballchain.systems.autonomous_navigator import AutonomousNavigator, TargetPlan
+
+    asked = []
+
+    class Recorder:
+        chain = BallChain()
+
+        def reaction_W(self, p_W, dipoles_W, inserted_length, sheath_offset_W=None):
+            asked.append(np.array(p_W, float))
+            return np.zeros(3)
+
+    n_W = np.array([0.0, 0.0, 1.0])
+    plan = TargetPlan("t", np.zeros(3), n_W, np.array([[1.0, 0.0, 0.0]]), 0.03,
+                      np.column_stack([-n_W, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]),
+                      np.eye(3), np.zeros((3, 2)), newtons_from_gram_force(20.0))
+    tips = [np.array([0.0, 0.0, 1e-3 * k]) for k in range(6)]
+
+    def looks_of(params):
+        asked.clear()
+        nav = AutonomousNavigator(["u"], [plan], Recorder(), params)
+        context = nav.CreateDefaultContext()
+        nav.GetInputPort("m_W_u").FixValue(context, np.array([1.0, 0.0, 0.0]))
+        nav.GetInputPort("inserted_length").FixValue(context, [0.03])
+        simulator = Simulator(nav, context)
+        for k, tip in enumerate(tips):
+            nav.GetInputPort("p_WT_measured").FixValue(context, tip)
+            simulator.AdvanceTo(params.period * (k + 1) + 1e-6)
+        assert len(asked) >= 4  # the move ended at the first look (aligned, at length): seeking since
+        return list(asked), tips[len(tips) - len(asked):]  # the tips the seek looked at, in order
+
+    asked_3, seen = looks_of(NavigatorParams(start_time=0.0, average=3))
+    for j in range(len(asked_3)):
+        np.testing.assert_allclose(asked_3[j], np.mean(seen[max(0, j - 2):j + 1], axis=0), atol=1e-15)
+    asked_1, seen = looks_of(NavigatorParams(start_time=0.0))  # the default: each look alone, exactly
+    assert all(np.array_equal(a, b) for a, b in zip(asked_1, seen, strict=True))
+    for bad in (0, 2.5, True):
+        with pytest.raises(UserInputError, match="average"):
+            NavigatorParams(average=bad).validate()
