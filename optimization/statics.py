@@ -157,7 +157,10 @@ def dense_qp(H: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarray, E: np.n
     Solved in the dual: with x = H^-1 (A' lam + E' mu - g) the multipliers minimise
     1/2 y' M y + y' (c - N H^-1 g) over y = (lam >= 0, mu free), N = [A; E], M = N H^-1 N',
     c = (b, e): a small bound-constrained QP (as many unknowns as rows near contact) solved by
-    a Lawson-Hanson active set (exact, finite). One Cholesky factorisation of H.
+    a Lawson-Hanson active set (exact, finite). One Cholesky factorisation of H. The dual is
+    regularised by delta = 1e-13 trace(M) (dependent rows); when that alone leaves a row below
+    the tolerance (H nearly singular: trace(M) huge), the dual is refined on the free set
+    (``_refined``) before the rows are called infeasible.
 
     Returns:
         ``(x, lam, mu)``, or ``(None, None, None)`` when the constraints are infeasible (the
@@ -175,7 +178,8 @@ def dense_qp(H: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarray, E: np.n
         return -Hinv_g, np.zeros(0), np.zeros(0)
     Y = np.linalg.solve(Lc, N.T)  # L^-1 N'
     M = Y.T @ Y
-    M += 1e-13 * max(1.0, float(np.trace(M))) * np.eye(len(M))  # dependent rows: a unique dual
+    delta = 1e-13 * max(1.0, float(np.trace(M)))
+    M += delta * np.eye(len(M))  # dependent rows: a unique dual
     r = c - N @ Hinv_g
     m = len(c)
     y = np.zeros(m)
@@ -206,11 +210,38 @@ def dense_qp(H: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarray, E: np.n
             if not np.all(np.isfinite(y)) or np.abs(y).max() > 1e12:
                 return None, None, None
             x = np.linalg.solve(Lc.T, np.linalg.solve(Lc, N.T @ y - g))
-            if n_in and (A @ x + b).min() < -1e-8 * max(1.0, np.abs(b).max()):
-                return None, None, None  # infeasible: the regularised dual stops at a violation
+            floor = -1e-8 * max(1.0, np.abs(b).max())
+            if n_in and (A @ x + b).min() < floor:
+                # The regularisation leaves each free row at -delta y_i, not 0: more than the
+                # tolerance when H is nearly singular (a soft mode makes trace(M) huge). Refined
+                # against the unregularised dual on the free set, a feasible set's rows close
+                # (an infeasible one's stay violated); only then infeasible.
+                y = _refined(M, r, y, free, n_in, delta)
+                if y is None:
+                    return None, None, None
+                x = np.linalg.solve(Lc.T, np.linalg.solve(Lc, N.T @ y - g))
+                if (A @ x + b).min() < floor:
+                    return None, None, None  # infeasible: the regularised dual stops at a violation
             return x, y[:n_in], y[n_in:]
         free[j] = True
     return None, None, None
+
+
+def _refined(M: np.ndarray, r: np.ndarray, y: np.ndarray, free: np.ndarray, n_in: int,
+             delta: float) -> np.ndarray | None:
+    """``dense_qp``'s dual y refined on the free set F towards the unregularised system
+    (M - delta I)_FF y_F = -r_F (M regularised by delta): three rounds of iterative
+    refinement with the regularised matrix, each shrinking the error by about
+    delta / (delta + the eigenvalue). None when a refined inequality multiplier (the first
+    ``n_in``) turns negative or y is not finite."""
+    F = np.flatnonzero(free)
+    y = y.copy()
+    MF = M[np.ix_(F, F)]
+    for _ in range(3):
+        y[F] += np.linalg.solve(MF, -(r[F] + MF @ y[F] - delta * y[F]))
+    if not np.all(np.isfinite(y)) or np.any(y[:n_in] < 0.0):
+        return None
+    return y
 
 
 def _positive_definite(H: np.ndarray, floor: float = 1e-10) -> np.ndarray:

@@ -1,6 +1,8 @@
 """The statics in the heart (wall and sheath rows, frictionless multipliers) and the quasi-static
 engine against the MultibodyPlant."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -59,6 +61,31 @@ def test_dense_qp_matches_the_kkt_conditions():
     assert dense_qp(H, g, A2, np.array([-1.0, -1.0]))[0] is None
 
 
+def test_dense_qp_steps_along_a_soft_mode():
+    """A step's QP the engine reported infeasible (the right ring with the navigator's
+    ``average`` 8, seed 1, t = 173.6 s: the whole chain out, the tip on the wall; Python and
+    compiled alike): one wall row (|A| = 3.06) and H nearly singular (eigenvalues 2.1e-6 to 7.5),
+    so the dual's regularisation 1e-13 trace(M) = 1.5e-7 left the row at -3.8e-8, below the
+    1e-8 tolerance. Feasible (one non-zero row always is): solved to the KKT conditions, by the
+    reference and by the compiled kernel alike."""
+    from ballchain.drake_models.kernels.dense_qp import cholesky
+    from ballchain.drake_models.kernels.dense_qp import dense_qp as compiled_qp
+
+    data = np.load(Path(__file__).parent / "data" / "qp_soft_mode.npz")
+    H, g, A, b = data["H"], data["g"], data["A"], data["b"]
+    x, lam, _ = dense_qp(H, g, A, b)
+    assert x is not None
+    np.testing.assert_allclose(H @ x + g - A.T @ lam, 0.0, atol=1e-9)
+    assert np.all(A @ x + b >= -1e-9) and np.all(lam > 0)  # the row active, met
+    ok, L = cholesky(H)
+    assert ok
+    ok, x_c, y_c = compiled_qp(L, g, A, b, 1, 200)
+    assert ok
+    # Different solves of H: round-off along the soft mode is about eps |g| / 2.1e-6 = 4e-11.
+    np.testing.assert_allclose(x_c, x, rtol=0, atol=2e-10)
+    np.testing.assert_allclose(y_c, lam, rtol=1e-9)
+
+
 @pytest.mark.slow  # the atrium's SDF: about 30 s to build when it is not cached yet
 def test_row_derivatives_match_finite_differences(heart, sdf):
     chain = BallChain(n_balls=16)
@@ -114,6 +141,28 @@ def test_heart_statics_multipliers_balance_every_sub_chain(heart, sdf):
     for j in range(k, 15):
         moment = np.sum(np.cross(p[j + 1:] - p[j], F[j + 1:]) + tau[j + 1:], axis=0)
         np.testing.assert_allclose(moment, 0.0, atol=1e-6 * scale)
+
+
+def test_engine_solves_the_tip_on_the_wall_along_a_soft_mode(heart, sdf):
+    """The failing solve of ``test_dense_qp_steps_along_a_soft_mode`` in its engine: the right
+    ring (navigator ``average`` 8, seed 1) stopped at t = 173.6 s, s = 49.21 mm, on "QP step
+    infeasible" from the prediction, the last equilibrium and the straight chain, compiled and
+    Python alike. Now both reach the same local minimum, the tip on the wall."""
+    from ballchain.systems.quasi_static_engine import QuasiStaticEngine
+
+    data = np.load(Path(__file__).parent / "data" / "engine_soft_mode.npz")
+    sheath = SheathGeometry(heart.p_HE, heart.sheath_axis_H, 1.8e-3, 0.3e-3)
+    answers = []
+    for compiled in (True, False):
+        engine = QuasiStaticEngine(BallChain(n_balls=16), range(1, 17), heart.p_HE, heart.sheath_axis_H, sdf=sdf,
+                                   sheath=sheath, port_magnets=[CylinderMagnet()], period=0.05,
+                                   initial_inserted_length=0.02, compiled=compiled)
+        p, m, result, k = engine.equilibrium(float(data["s"]), data["magnets"], data["p_W"], data["m_W"],
+                                             (data["predicted_p"], data["predicted_m"]))
+        assert k == 0 and result.converged and result.reason.startswith("local minimum")
+        assert result.positions.shape[0] - 1 in result.wall_forces_W  # the tip on the wall
+        answers.append(p)
+    np.testing.assert_allclose(answers[0], answers[1], rtol=0, atol=1e-9)
 
 
 # --- the engine as a system -----------------------------------------------------------------------

@@ -85,8 +85,9 @@ def dense_qp(Lc, g, N, c, n_in, max_iterations):
     tr = 0.0
     for i in range(m):
         tr += M[i, i]
+    delta = 1e-13 * max(1.0, tr)
     for i in range(m):
-        M[i, i] += 1e-13 * max(1.0, tr)  # dependent rows: a unique dual
+        M[i, i] += delta  # dependent rows: a unique dual
     r = c - N @ Hinv_g
     y = np.zeros(m)
     free = np.zeros(m, np.bool_)
@@ -104,13 +105,16 @@ def dense_qp(Lc, g, N, c, n_in, max_iterations):
             if not np.all(np.isfinite(y)) or np.abs(y).max() > 1e12:
                 return False, Hinv_g, y
             x = cho_solve(Lc, N.T @ y - g)
-            if n_in > 0:
-                viol = np.inf
-                b_max = 1.0
-                for i in range(n_in):
-                    viol = min(viol, N[i] @ x + c[i])
-                    b_max = max(b_max, abs(c[i]))
-                if viol < -1e-8 * b_max:
+            if n_in > 0 and _violation(N, c, x, n_in):
+                # The regularisation leaves each free row at -delta y_i, not 0: more than the
+                # tolerance when H is nearly singular (a soft mode makes trace(M) huge). Refined
+                # against the unregularised dual on the free set, a feasible set's rows close
+                # (an infeasible one's stay violated); only then infeasible.
+                ok, y = _refined(M, r, y, free, n_in, delta)
+                if not ok:
+                    return False, x, y
+                x = cho_solve(Lc, N.T @ y - g)
+                if _violation(N, c, x, n_in):
                     return False, x, y  # infeasible: the regularised dual stops at a violation
             return True, x, y
         free[j] = True
@@ -148,3 +152,44 @@ def _free_minimum(M, r, y, free, n_in):
                 free[i] = False
             if not free[i]:
                 y[i] = 0.0
+
+
+@kernel
+def _violation(N, c, x, n_in):
+    """Whether an inequality row of the step x is below -1e-8 max(1, |c|) (``dense_qp``'s test)."""
+    viol = np.inf
+    b_max = 1.0
+    for i in range(n_in):
+        viol = min(viol, N[i] @ x + c[i])
+        b_max = max(b_max, abs(c[i]))
+    return viol < -1e-8 * b_max
+
+
+@kernel
+def _refined(M, r, y, free, n_in, delta):
+    """``(ok, y)``: the dual y refined on the free set towards the unregularised system
+    (``statics._refined``: three rounds of iterative refinement with the regularised M_FF); ok
+    False when a refined inequality multiplier turns negative or y is not finite."""
+    F = np.flatnonzero(free)
+    y = y.copy()
+    MF = np.empty((F.size, F.size))
+    for a in range(F.size):
+        for b in range(F.size):
+            MF[a, b] = M[F[a], F[b]]
+    yF = np.empty(F.size)
+    for a in range(F.size):
+        yF[a] = y[F[a]]
+    for _ in range(3):
+        res = np.empty(F.size)
+        MyF = MF @ yF
+        for a in range(F.size):
+            res[a] = -(r[F[a]] + MyF[a] - delta * yF[a])
+        yF = yF + np.linalg.solve(MF, res)
+    for a in range(F.size):
+        y[F[a]] = yF[a]
+    if not np.all(np.isfinite(y)):
+        return False, y
+    for i in range(n_in):
+        if y[i] < 0.0:
+            return False, y
+    return True, y
