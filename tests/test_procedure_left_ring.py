@@ -70,6 +70,16 @@ def test_slack_plans_the_fewest_balls_that_reach_past_the_target(left_station):
         assert [estimator.free_balls((j - 0.5) * d + error) for j in range(2, n + 1)] == list(range(2, n + 1))
 
 
+@pytest.mark.parametrize("slack", [float("nan"), -1.0, "2", True])
+def test_slack_is_checked_before_any_plan(left_station, slack):
+    from ballchain.drake_models.errors import UserInputError
+
+    anatomy, chosen, magnets_W, n = left_station
+    with pytest.raises(UserInputError, match="slack"):
+        procedure.target_plans(anatomy, chosen[:1], newtons_from_gram_force(20.0), n, (n - 0.5) * 3.175e-3,
+                               magnets_W, slack=slack)
+
+
 def test_slack_takes_one_more_ball_until_a_plan_answers(left_station, monkeypatch):
     """A target with no plan at the fewest balls is planned again with one more ball at a time;
     the warm start from the previous plan's equilibrium is given only at that plan's length."""

@@ -272,6 +272,10 @@ def target_plans(anatomy, chosen: list[int], force_N: float, n_balls: int, inser
     """
     from tqdm import tqdm
 
+    if slack is not None and (isinstance(slack, bool) or not isinstance(slack, (int, float))
+                              or not math.isfinite(slack) or slack < 0.0):
+        raise UserInputError(f"target_plans slack must be None or a finite number of ball diameters >= 0, "
+                             f"got {short_repr(slack)}")
     from ballchain.drake_models.dipole_inversion import neutral_direction
     from ballchain.drake_models.params import BallChain
     from ballchain.experiments.forces import Stand
