@@ -14,8 +14,8 @@ from ballchain.drake_models.field_sources import FieldSources, MagnetSource, Uni
 from ballchain.drake_models.kernels import check_status
 from ballchain.drake_models.params import GRAVITY
 from ballchain.optimization.wall_constraints import RHO_SMOOTHING, PointDipoles
-from ballchain.optimization.compiled_newton import (R_FIELD, R_LIMIT, R_LINE, R_MINIMUM, R_MINIMUM_LINE,
-                                                    R_QP, R_SADDLE, R_ENERGY, S_HEART_WEIGHT, newton)
+from ballchain.optimization.compiled_newton import (F_EXTERNAL, R_FIELD, R_LIMIT, R_LINE, R_MINIMUM,
+                                                    R_MINIMUM_LINE, R_QP, R_SADDLE, R_ENERGY, S_HEART_WEIGHT, newton)
 from ballchain.drake_models.kernels import chart_frames, configuration_vectors
 
 _EMPTY3 = np.zeros((0, 3))
@@ -56,11 +56,30 @@ def model_tuple(statics, model, external, constraints):
     and wall set, or ``ConstrainedChain`` with its constraints), or None when the external field
     is not one the kernels evaluate (``field_arrays``)."""
     if external is None:
-        field, has_external = (_EMPTY3, _EMPTY3, np.zeros(3), np.zeros(0)), 0
+        field = None
     else:
-        field, has_external = field_arrays(external), 1
+        field = field_arrays(external)
         if field is None:
             return None
+    return with_field(model_parts(statics, model, constraints), field)
+
+
+def with_field(parts, field):
+    """The model tuple of ``model_parts`` with the external field's ``field_arrays`` (None: no field)."""
+    params, tip, wall, p_WB, R_WB, grid, frame, sheath, settings, flags = parts
+    if field is None:
+        field = (_EMPTY3, _EMPTY3, np.zeros(3), np.zeros(0))
+        if flags[F_EXTERNAL] != 0:
+            flags = flags.copy()
+            flags[F_EXTERNAL] = 0
+    centres, moments, B0, r2 = (np.ascontiguousarray(a, float) for a in field)
+    return (params, centres, moments, B0, r2, tip, wall, p_WB, R_WB, grid, frame, sheath, settings, flags)
+
+
+def model_parts(statics, model, constraints):
+    """Everything of the model tuple but the external field (``with_field`` adds it): the chain's
+    parameters, tip target, wall, the heart's frame, SDF grid and sheath, the solver's settings
+    and flags (the field's flag set)."""
     tip = _ZERO3 if model.tip_target is None else np.asarray(model.tip_target, float)
     wall = _ZERO6 if model.wall is None else np.concatenate(model.wall).astype(float)
     settings = np.array([statics.tolerance, statics.feasibility_tolerance, statics.contact_margin,
@@ -77,10 +96,9 @@ def model_tuple(statics, model, external, constraints):
             sh = constraints.sheath
             a_E = float((sh.p_WE - p_WB) @ R_WB[:, 0])
             sheath = np.array([1.0, a_E, sh.bore_radius + sh.lip_radius, model.r + sh.lip_radius, RHO_SMOOTHING])
-    flags = np.array([statics.max_iterations, has_external, model.tip_target is not None, model.wall is not None,
+    flags = np.array([statics.max_iterations, 1, model.tip_target is not None, model.wall is not None,
                       constraints is not None], dtype=np.int64)
-    centres, moments, B0, r2 = (np.ascontiguousarray(a, float) for a in field)
-    return (model._params, centres, moments, B0, r2, tip, wall, p_WB, R_WB, grid, frame, sheath, settings, flags)
+    return model._params, tip, wall, p_WB, R_WB, grid, frame, sheath, settings, flags
 
 
 def _sdf_arrays(sdf):
@@ -155,3 +173,153 @@ def _singular(model, chart, err) -> tuple:
     terms = np.array([ev.terms.balls, ev.terms.external, ev.terms.sleeve, ev.terms.gravity])
     return (False, f"Newton step: {err} (a singular Hessian or constraint system)", 0, {}, np.zeros(3), p, m_hat,
             terms, ev.gaps, v)
+
+
+class HeartSolve:
+    """``ChainStatics.solve(field, warm_start, constraints=c)`` of a sub-chain in the heart with
+    the least Python around the compiled call: the quasi-static engine's inner loop.
+
+    The kernel gets the very inputs ``ChainStatics.solve`` gives it (the field turned into the
+    base frame by ``HeartConstraints.external_in_base``, the chart of the warm start, the last
+    multipliers), so the equilibrium is the same, bit for bit; what is skipped is the work whose
+    answer the engine does not read: the field evaluated at the balls for its finiteness (here
+    the field's arrays are checked instead), the argument checks of a user's call, the model
+    tuple rebuilt (its parts are kept per constraints), and the ``StaticsResult`` with its
+    force dictionaries (``result`` builds it when asked).
+
+    ``solve`` returns None wherever ``ChainStatics.solve`` must decide: a field the kernels do
+    not evaluate, a non-finite field, a ball inside a port magnet's bounding sphere, a singular
+    step, the kernel's field or energy failures; the caller then calls ``ChainStatics.solve``,
+    which reports them as it always has.
+    """
+
+    def __init__(self, statics):
+        from ballchain.optimization.wall_constraints import ConstrainedChain
+
+        self.statics = statics
+        if statics._constrained is None:
+            statics._constrained = ConstrainedChain(statics.chain)
+        self.model = statics._constrained
+        self._parts = None  # (constraints, model_parts) of the last constraints
+
+    def usable(self) -> bool:
+        """Whether the solver's settings are those of the compiled path."""
+        s = self.statics
+        return s.compiled and s.method == "newton" and s.qp == "dense" and self.model.backend == "kernel"
+
+    def solve(self, field_W, constraints, p0_B, m0_B, lam0: dict | None, clock):
+        """The equilibrium from (p0_B, m0_B) (base frame, unit dipoles) in the world field
+        ``field_W`` (None, a ``UniformField``, the engine's ``PortDipoles`` or a ``FieldSources``
+        of those): a ``HeartAnswer``, or None (see the class)."""
+        if not _plain_dipoles(field_W) or not compilable_constraints(constraints):
+            return None
+        start = clock()
+        if field_W is not None and not _outside_bounding_spheres(field_W, constraints, p0_B):
+            return None
+        statics, model = self.statics, self.model
+        external = constraints.external_in_base(field_W, statics.chain)
+        field = None if external is None else field_arrays(external)
+        if field is not None and not (np.isfinite(field[0]).all() and np.isfinite(field[1]).all()
+                                      and np.isfinite(field[2]).all()):
+            return None
+        if self._parts is None or self._parts[0] is not constraints:
+            self._parts = (constraints, model_parts(statics, model, constraints))
+        tup = with_field(self._parts[1], field)
+        rows0 = np.fromiter(lam0.keys(), np.int64, len(lam0)) if lam0 else _NO_ROWS
+        weights0 = np.fromiter(lam0.values(), float, len(lam0)) if lam0 else _NO_WEIGHTS
+        chart = chart_frames(configuration_vectors(np.ascontiguousarray(p0_B, float), np.ascontiguousarray(m0_B, float)))
+        try:
+            reason, status, iterations, rows, lam, lam_tip, p, m_hat, terms, gaps, v = newton(chart, tup, rows0, weights0)
+        except np.linalg.LinAlgError:
+            return None
+        if reason in (R_FIELD, R_ENERGY):
+            return None
+        return HeartAnswer(self, constraints, reason, int(iterations), rows, lam, lam_tip, p, m_hat, terms, gaps, v,
+                           clock() - start)
+
+
+def _plain_dipoles(source) -> bool:
+    """Whether a world source is None, a UniformField, a MagnetSource with the "dipole" model and a
+    bounding sphere, point dipoles with bounding radii (``p_WM``, ``m_W``, ``_r2_min``: the
+    engine's PortDipoles) or a FieldSources of those."""
+    if source is None or isinstance(source, UniformField):
+        return True
+    if isinstance(source, FieldSources):
+        return all(_plain_dipoles(s) for s in source.sources)
+    if isinstance(source, MagnetSource):
+        return source.model == "dipole" and hasattr(source.magnet, "bounding_radius")
+    return hasattr(source, "p_WM") and hasattr(source, "m_W") and hasattr(source, "_r2_min")
+
+
+def _outside_bounding_spheres(source, constraints, p0_B) -> bool:
+    """Whether the warm start's balls are outside every magnet's bounding sphere, where
+    ``ChainStatics.solve``'s check of the field at the balls passes (inside one, that check
+    decides: a ball inside a magnet is refused with the reason)."""
+    if isinstance(source, FieldSources):
+        return all(_outside_bounding_spheres(s, constraints, p0_B) for s in source.sources)
+    if isinstance(source, UniformField):
+        return True
+    if isinstance(source, MagnetSource):
+        centres, r2_min = np.asarray(source.p_WM, float).reshape(1, 3), np.array([source.magnet.bounding_radius**2])
+    else:
+        centres, r2_min = source.p_WM, source._r2_min
+    p_W = constraints.p_WB + p0_B @ constraints.R_WB.T
+    r = p_W[:, None, :] - centres[None]
+    return bool(np.all(np.einsum("kij,kij->ki", r, r) > r2_min[None]))
+
+
+class HeartAnswer:
+    """What ``HeartSolve.solve`` found: ``converged``, ``positions``/``dipoles`` (base frame),
+    ``multipliers`` and ``iterations`` as a ``StaticsResult`` has them, the tip's wall push
+    (``tip_wall_force_W``) and the whole ``StaticsResult`` on demand (``result()``)."""
+
+    def __init__(self, solve: HeartSolve, constraints, reason, iterations, rows, lam, lam_tip, p, m_hat, terms, gaps,
+                 v, elapsed):
+        self._solve, self._constraints = solve, constraints
+        self._raw = (reason, rows, lam, lam_tip, terms, gaps, v)
+        self.positions, self.dipoles, self.iterations, self.solve_time = p, m_hat, iterations, elapsed
+        model = solve.model
+        P, d = model.n_pairs, model.d
+        # ChainStatics._assemble's verdict, the same tests on the same numbers.
+        smallest = [float(np.sqrt(max(gaps[:P].min() + 1.0, 0.0)) * d - d)] if P else []
+        if len(gaps) > P:
+            smallest.append(float(gaps[P:].min() * d))
+        max_violation = max(0.0, -min(smallest)) if smallest else 0.0
+        total = float(terms[0]) + float(terms[1]) + float(terms[2]) + float(terms[3])
+        self.converged = bool(reason in (R_MINIMUM, R_MINIMUM_LINE) and np.isfinite(p).all()
+                              and np.isfinite(m_hat).all() and np.isfinite(total) and max_violation <= 1e-7 * d)
+        self.multipliers = dict(zip(rows.tolist(), lam.tolist()))
+        self._result = None
+
+    @property
+    def reason(self) -> str:
+        """Why the solve stopped (``StaticsResult.reason``)."""
+        return self.result().reason
+
+    def tip_wall_force_W(self) -> np.ndarray | None:
+        """The wall's push on the sub-chain's tip ball [N] (``StaticsResult.wall_forces_W``'s
+        entry, the same arithmetic), or None when it does not touch."""
+        model = self._solve.model
+        L = model.n_links
+        lam = self.multipliers.get(model.n_pairs + L - 1)
+        if lam is None or lam <= 1e-12:
+            return None
+        v = self._raw[6]
+        return self._constraints.R_WB @ (lam * model.energy_scale * v[L - 1] / model.d)
+
+    def result(self):
+        """The ``StaticsResult`` ``ChainStatics.solve`` returns for this answer."""
+        if self._result is None:
+            from dataclasses import replace
+
+            from ballchain.drake_models.chain_energy import EnergyTerms
+
+            reason, rows, lam, lam_tip, terms, gaps, v = self._raw
+            statics, model = self._solve.statics, self._solve.model
+            model.set_constraints(self._constraints)
+            text = f"iteration limit ({statics.max_iterations}) reached" if reason == R_LIMIT else REASONS[reason]
+            result = statics._assemble(model, self.positions, self.dipoles, EnergyTerms(*terms.tolist()), gaps,
+                                       reason in (R_MINIMUM, R_MINIMUM_LINE), text, self.iterations,
+                                       dict(self.multipliers), lam_tip, self._constraints, 0.0, v)
+            self._result = replace(result, solve_time=self.solve_time)
+        return self._result

@@ -48,7 +48,8 @@ from ballchain.drake_models.arg_checks import as_vector, require_bool, require_t
 from ballchain.drake_models.errors import UserInputError, caused_by_interrupt
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import BallChain
-from ballchain.optimization.statics import ChainStatics, StaticsResult
+from ballchain.optimization.compiled_model import HeartAnswer, HeartSolve
+from ballchain.optimization.statics import ChainStatics, StaticsResult, straight_chain
 from ballchain.optimization.wall_constraints import HeartConstraints, SheathGeometry, base_ball, base_rotation
 from ballchain.systems.chain_model import (
     ChainGeometry,
@@ -59,6 +60,7 @@ from ballchain.systems.chain_model import (
     chain_geometry,
     subsystem_context,
 )
+from ballchain.systems.engine_kernels import ball_frames as _ball_frames
 from ballchain.systems.magnetic_wrench import external_field_source
 
 
@@ -129,26 +131,9 @@ def rotations_with_x_along(directions: np.ndarray) -> np.ndarray:
 def ball_frames(directions: np.ndarray, centres: np.ndarray) -> np.ndarray:
     """(k, 3, 4) poses [R_WB | p_WB] of balls at ``centres`` (k, 3) [m] with x along
     ``directions`` (k, 3): one array for all balls (``RigidTransform.MakeUnchecked`` of each row
-    is its pose)."""
-    d = np.asarray(directions, float)
-    x = d / np.sqrt(np.add.reduce(d * d, axis=1))[:, None]
-    x0, x1, x2 = x[:, 0], x[:, 1], x[:, 2]
-    along_x = np.abs(x0) < 0.9  # helper e_x (else e_y), as rotation_with_z_along
-    y = np.empty_like(x)
-    # y = helper x x: e_x x x = (0, -x2, x1), e_y x x = (x2, 0, -x0), as numpy's cross computes them
-    y[:, 0] = np.where(along_x, 0.0 * x2 - 0.0 * x1, 1.0 * x2 - 0.0 * x1)
-    y[:, 1] = np.where(along_x, 0.0 * x0 - 1.0 * x2, 0.0 * x0 - 0.0 * x2)
-    y[:, 2] = np.where(along_x, 1.0 * x1 - 0.0 * x0, 0.0 * x1 - 1.0 * x0)
-    y /= np.sqrt(np.add.reduce(y * y, axis=1))[:, None]
-    y0, y1, y2 = y[:, 0], y[:, 1], y[:, 2]
-    out = np.empty((len(x), 3, 4))
-    out[:, :, 0] = x
-    out[:, :, 1] = y
-    out[:, 0, 2] = x1 * y2 - x2 * y1
-    out[:, 1, 2] = x2 * y0 - x0 * y2
-    out[:, 2, 2] = x0 * y1 - x1 * y0
-    out[:, :, 3] = centres
-    return out
+    is its pose). Compiled (``engine_kernels.ball_frames``): the floats of ``rotation_with_x_along``
+    per ball, in one call per update."""
+    return _ball_frames(np.ascontiguousarray(directions, float), np.ascontiguousarray(centres, float))
 
 
 @dataclass
@@ -279,7 +264,8 @@ class QuasiStaticEngine(LeafSystem):
         self.solve_times: list[float] = []  # time of every statics solve [s], by ``clock``
         self.clock = time.perf_counter  # wall time; a benchmark may set time.process_time
         self.iterations: list[int] = []
-        self.last_result: StaticsResult | None = None  # the last solve's (wall contacts, multipliers)
+        self.last_result = None  # the last solve's StaticsResult (wall contacts, multipliers)
+        self._lean: dict[int, HeartSolve] = {}  # per sub-chain size: the compiled solve's short path
         self._warm = None  # the warm-up's (field source, s, equilibrium, solve times, iterations)
         km = 6 * len(self._port_magnets)
         self._slices = {}
@@ -336,7 +322,7 @@ class QuasiStaticEngine(LeafSystem):
         self._warm = None
         try:
             with _one_blas_thread():
-                answer = self.equilibrium(self._s0, None)
+                answer = self._equilibrium(self._s0, None)
             # Kept for the initialisation, which solves the same problem when no magnet is on a
             # port (``_initial_equilibrium``): the solve is deterministic, its answer the same.
             self._warm = (self._field_source, self._s0, answer, self.solve_times[n_solves:],
@@ -419,14 +405,22 @@ class QuasiStaticEngine(LeafSystem):
     def equilibrium(self, s: float, magnets: np.ndarray | None, p_W: np.ndarray | None = None,
                     m_W: np.ndarray | None = None, predicted=None,
                     t: float = 0.0) -> tuple[np.ndarray, np.ndarray, StaticsResult | None, int]:
+        """The equilibrium at inserted length s and magnet states (``_equilibrium``), its result a
+        ``StaticsResult``."""
+        p, m, result, k = self._equilibrium(s, magnets, p_W, m_W, predicted, t)
+        return p, m, (result.result() if isinstance(result, HeartAnswer) else result), k
+
+    def _equilibrium(self, s: float, magnets: np.ndarray | None, p_W: np.ndarray | None = None,
+                     m_W: np.ndarray | None = None, predicted=None, t: float = 0.0):
         """The equilibrium at inserted length s and magnet states, warm-started from the world
         configuration (p_W, m_W) (None: the straight chain), or first from ``predicted``
         ((p, m), the continuation's extrapolation) when given; one cold restart on failure.
         The wall and the sheath are placed for time t (``wall_motion``; no effect without it).
 
         Returns:
-            ``(p_W (n, 3), m_W (n, 3), result or None (no free ball), k)``; raises StaticsError
-            when the restart fails too.
+            ``(p_W (n, 3), m_W (n, 3), result or None (no free ball), k)``: the result a
+            ``StaticsResult`` or the compiled path's ``HeartAnswer`` (its ``result()`` the
+            former); raises StaticsError when the restart fails too.
         """
         from ballchain.optimization.statics import StaticsError
 
@@ -442,6 +436,11 @@ class QuasiStaticEngine(LeafSystem):
             # Rows met to 1e-9 of a ball diameter (3 pm) rather than 1e-12: one Newton
             # iteration less (the last one only certifies round-off).
             solver.feasibility_tolerance = 1e-9
+            if self.compiled:
+                self._lean[n_sub] = HeartSolve(solver)
+        lean = self._lean.get(n_sub)
+        if lean is not None and not lean.usable():
+            lean = None
 
         def warm_from(p, m):
             if p is None:
@@ -454,7 +453,17 @@ class QuasiStaticEngine(LeafSystem):
         start = self.clock()
         starts = ([] if predicted is None else [predicted]) + [(p_W, m_W)] + ([(None, None)] if p_W is not None else [])
         for p0, m0 in starts:  # the prediction, the last equilibrium, then one cold restart
-            result = solver.solve(field, warm_from(p0, m0), constraints=c)
+            result = None
+            if lean is not None:  # the same solve with less around it (HeartSolve), where it applies
+                if p0 is None:
+                    pB, mB = straight_chain(solver.chain)
+                else:
+                    pB, mB = c.to_base(p0[k:], m0[k:])
+                    mB = mB / _norms(mB)[:, None]
+                lam0 = None if p0 is None else self._multipliers.get(n_sub, {})
+                result = lean.solve(field, c, pB, mB, lam0, self.clock)
+            if result is None:
+                result = solver.solve(field, warm_from(p0, m0), constraints=c)
             if result.converged:
                 break
         self.solve_times.append(self.clock() - start)
@@ -467,11 +476,24 @@ class QuasiStaticEngine(LeafSystem):
         p, m = c.full_configuration(result.positions, result.dipoles, self._d)
         return p, m, result, k
 
-    def _tip_force(self, p: np.ndarray, result: StaticsResult | None) -> np.ndarray:
+    @property
+    def last_result(self) -> StaticsResult | None:
+        """The last solve's ``StaticsResult`` (wall contacts, multipliers)."""
+        result = self._last_result
+        return result.result() if isinstance(result, HeartAnswer) else result
+
+    @last_result.setter
+    def last_result(self, result) -> None:
+        self._last_result = result
+
+    def _tip_force(self, p: np.ndarray, result) -> np.ndarray:
         out = np.zeros(6)
         out[3:] = p[-1]
         if result is not None:
-            f = result.wall_forces_W.get(result.positions.shape[0] - 1)
+            if isinstance(result, HeartAnswer):
+                f = result.tip_wall_force_W()
+            else:
+                f = result.wall_forces_W.get(result.positions.shape[0] - 1)
             size = 0.0 if f is None else np.linalg.norm(f)
             if size > 0:
                 out[:3] = f
@@ -525,7 +547,7 @@ class QuasiStaticEngine(LeafSystem):
             if motion is not None and motion[2] > 0 and u_step > 0:
                 ratio = min(u_step / motion[2], 2.0)
                 predicted = (p + ratio * motion[0], m + ratio * motion[1])
-            p_new, m_new, result, _ = self.equilibrium(s, mag, p, m, predicted, t=tau)
+            p_new, m_new, result, _ = self._equilibrium(s, mag, p, m, predicted, t=tau)
             jump = float(_norms(p_new - p).max() - abs(s - s_prev))
             if self.wall_motion is not None:  # the chain rides on the moving anatomy: not a jump
                 jump -= self._wall_travel(tau_prev, tau)
@@ -580,7 +602,7 @@ class QuasiStaticEngine(LeafSystem):
                 self.last_result = result
             return p, m, result
         with _one_blas_thread():
-            p, m, result, _ = self.equilibrium(s, mags, t=t)
+            p, m, result, _ = self._equilibrium(s, mags, t=t)
         return p, m, result
 
     def _update(self, context, discrete_state):

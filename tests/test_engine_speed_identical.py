@@ -1,8 +1,9 @@
 """The engine's shortcuts give the very same numbers as the work they skip: the initial
-equilibrium taken from the warm-up, the watchdog's finiteness test and the one-thread BLAS
-context."""
+equilibrium taken from the warm-up, the compiled solve's short path (``HeartSolve``), the
+watchdog's finiteness test and the one-thread BLAS context."""
 
 import numpy as np
+import pytest
 
 
 def _station(overrides: str = ""):
@@ -45,13 +46,13 @@ def test_initial_equilibrium_is_solved_when_the_problem_differs():
     engine = cd.chain.engine_system
     field, s0, answer, times, iterations = engine._warm
     calls = []
-    original = engine.equilibrium
+    original = engine._equilibrium
 
     def counting(*args, **kwargs):
         calls.append(args[0])
         return original(*args, **kwargs)
 
-    engine.equilibrium = counting
+    engine._equilibrium = counting
     p, _, _ = engine._initial_equilibrium(s0, None)
     assert calls == [] and np.array_equal(p, answer[0])
     p_other, _, _ = engine._initial_equilibrium(s0 + 1e-3, None)
@@ -98,3 +99,82 @@ def test_one_blas_thread_context_restores_the_thread_counts():
         with _one_blas_thread():
             assert all(n == 1 for n in counts())
         assert all(n == 1 for n in counts())
+
+
+def _without_short_path(monkeypatch):
+    """``HeartSolve.solve`` declining every solve: the engine calls ``ChainStatics.solve``."""
+    from ballchain.optimization.compiled_model import HeartSolve
+
+    monkeypatch.setattr(HeartSolve, "solve", lambda self, *args, **kwargs: None)
+
+
+def _short_path_run(name: str, duration: float):
+    """A named scenario on the engine for ``duration``: (the engine's state, the engine, the short
+    path's answers and declines)."""
+    from ballchain.optimization.compiled_model import HeartSolve
+    from ballchain.systems.chain_scenario import load_scenario
+    from ballchain.systems.chain_simulation import MakeStation, run_station
+
+    counts = [0, 0]
+    solve = HeartSolve.solve
+
+    def counting(self, *args, **kwargs):
+        answer = solve(self, *args, **kwargs)
+        counts[answer is None] += 1
+        return answer
+
+    cd = MakeStation(load_scenario(name, "{engine: statics, mode: quasi-static}"))
+    HeartSolve.solve = counting
+    try:
+        run = run_station(cd, duration=duration)
+    finally:
+        HeartSolve.solve = solve
+    assert run.failure is None
+    engine = cd.chain.engine_system
+    return engine.state_vector(engine.GetMyContextFromRoot(run.context)).copy(), engine, counts
+
+
+@pytest.mark.parametrize("name", ["teleop_right_unit", "heart_left_quasi_static"])
+def test_short_path_of_the_compiled_solve_is_chain_statics_solve(monkeypatch, name):
+    """The engine's solves through ``HeartSolve`` (the kernel called with what ChainStatics.solve
+    gives it, without the rest) and through ``ChainStatics.solve``: the same states bit for bit,
+    the same solves, iterations, multipliers, and the same last StaticsResult. teleop_right_unit's
+    magnet is on a port (point dipoles), heart_left_quasi_static's a fixed MagnetSource."""
+    x_short, e_short, counts = _short_path_run(name, 0.3)
+    assert counts[0] >= 5 and counts[1] == 0  # the short path answered every solve
+    with monkeypatch.context() as m:
+        _without_short_path(m)
+        x_full, e_full, _ = _short_path_run(name, 0.3)
+    assert np.array_equal(x_short, x_full)
+    assert len(e_short.solve_times) == len(e_full.solve_times)
+    assert e_short.iterations == e_full.iterations
+    assert e_short._multipliers == e_full._multipliers
+    a, b = e_short.last_result, e_full.last_result
+    assert a.converged and a.reason == b.reason and a.iterations == b.iterations
+    assert np.array_equal(a.positions, b.positions) and np.array_equal(a.positions_W, b.positions_W)
+    assert a.multipliers == b.multipliers and a.pair_forces == b.pair_forces
+    for forces_a, forces_b in ((a.wall_forces_W, b.wall_forces_W), (a.sheath_forces_W, b.sheath_forces_W)):
+        assert forces_a.keys() == forces_b.keys()
+        assert all(np.array_equal(forces_a[k], forces_b[k]) for k in forces_a)
+
+
+def test_short_path_leaves_a_non_finite_field_to_chain_statics():
+    """A NaN in the magnets' states: the short path declines, and ChainStatics.solve reports the
+    field (the engine's error names it), as without the short path."""
+    from ballchain.optimization.statics import StaticsError
+    from ballchain.systems.chain_scenario import load_scenario
+    from ballchain.systems.chain_simulation import MakeStation
+
+    cd = MakeStation(load_scenario("teleop_right_unit", "{engine: statics, mode: quasi-static}"))
+    engine = cd.chain.engine_system
+    from pydrake.systems.analysis import Simulator
+
+    sim = Simulator(cd.diagram)
+    sim.Initialize()
+    s, mags = engine._inputs(engine.GetMyContextFromRoot(sim.get_context()))
+    p, m, result, k = engine.equilibrium(s, mags)
+    assert result.converged and engine._lean[engine._n - k].usable()
+    bad = mags.copy()
+    bad[3] = np.nan
+    with pytest.raises(StaticsError, match="not finite"):
+        engine.equilibrium(s, bad, p, m)
