@@ -7,6 +7,9 @@ editing this glue does not recompile them.
 
 from __future__ import annotations
 
+import math
+import time
+
 import numpy as np
 
 from ballchain.drake_models.atrium_sdf import AtriumSDF
@@ -207,13 +210,13 @@ class HeartSolve:
         s = self.statics
         return s.compiled and s.method == "newton" and s.qp == "dense" and self.model.backend == "kernel"
 
-    def solve(self, field_W, constraints, p0_B, m0_B, lam0: dict | None, clock):
+    def solve(self, field_W, constraints, p0_B, m0_B, lam0: dict | None):
         """The equilibrium from (p0_B, m0_B) (base frame, unit dipoles) in the world field
         ``field_W`` (None, a ``UniformField``, the engine's ``PortDipoles`` or a ``FieldSources``
         of those): a ``HeartAnswer``, or None (see the class)."""
         if not _plain_dipoles(field_W) or not compilable_constraints(constraints):
             return None
-        start = clock()
+        start = time.perf_counter()  # the result's solve_time, as ChainStatics.solve's
         if field_W is not None and not _outside_bounding_spheres(field_W, constraints, p0_B):
             return None
         statics, model = self.statics, self.model
@@ -235,7 +238,7 @@ class HeartSolve:
         if reason in (R_FIELD, R_ENERGY):
             return None
         return HeartAnswer(self, constraints, reason, int(iterations), rows, lam, lam_tip, p, m_hat, terms, gaps, v,
-                           clock() - start)
+                           time.perf_counter() - start)
 
 
 def _plain_dipoles(source) -> bool:
@@ -255,15 +258,27 @@ def _outside_bounding_spheres(source, constraints, p0_B) -> bool:
     """Whether the warm start's balls are outside every magnet's bounding sphere, where
     ``ChainStatics.solve``'s check of the field at the balls passes (inside one, that check
     decides: a ball inside a magnet is refused with the reason)."""
+    reach = float(np.sqrt(np.add.reduce(p0_B * p0_B, axis=1).max()))  # the balls' distance from p_WB
+    return _outside(source, constraints, p0_B, reach)
+
+
+def _outside(source, constraints, p0_B, reach: float) -> bool:
     if isinstance(source, FieldSources):
-        return all(_outside_bounding_spheres(s, constraints, p0_B) for s in source.sources)
+        return all(_outside(s, constraints, p0_B, reach) for s in source.sources)
     if isinstance(source, UniformField):
         return True
     if isinstance(source, MagnetSource):
         centres, r2_min = np.asarray(source.p_WM, float).reshape(1, 3), np.array([source.magnet.bounding_radius**2])
     else:
         centres, r2_min = source.p_WM, source._r2_min
-    p_W = constraints.p_WB + p0_B @ constraints.R_WB.T
+    p_WB = constraints.p_WB
+    for c, r2 in zip(centres.tolist(), r2_min.tolist()):  # far: every ball is within ``reach`` of p_WB
+        far = math.sqrt((c[0] - p_WB[0]) ** 2 + (c[1] - p_WB[1]) ** 2 + (c[2] - p_WB[2]) ** 2) - reach
+        if not (far > 0.0 and far * far > 2.0 * r2):
+            break
+    else:
+        return True
+    p_W = p_WB + p0_B @ constraints.R_WB.T
     r = p_W[:, None, :] - centres[None]
     return bool(np.all(np.einsum("kij,kij->ki", r, r) > r2_min[None]))
 

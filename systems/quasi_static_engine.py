@@ -461,7 +461,7 @@ class QuasiStaticEngine(LeafSystem):
                     pB, mB = c.to_base(p0[k:], m0[k:])
                     mB = mB / _norms(mB)[:, None]
                 lam0 = None if p0 is None else self._multipliers.get(n_sub, {})
-                result = lean.solve(field, c, pB, mB, lam0, self.clock)
+                result = lean.solve(field, c, pB, mB, lam0)
             if result is None:
                 result = solver.solve(field, warm_from(p0, m0), constraints=c)
             if result.converged:

@@ -178,3 +178,30 @@ def test_short_path_leaves_a_non_finite_field_to_chain_statics():
     bad[3] = np.nan
     with pytest.raises(StaticsError, match="not finite"):
         engine.equilibrium(s, bad, p, m)
+
+
+def test_short_path_declines_a_ball_inside_a_magnets_bounding_sphere():
+    """A port magnet whose bounding sphere holds a ball of the warm start: the short path declines
+    (ChainStatics.solve refuses such a field, naming the magnet); one just outside it: answered."""
+    from ballchain.drake_models.errors import UserInputError
+    from ballchain.optimization.statics import StaticsResult
+    from ballchain.systems.chain_scenario import load_scenario
+    from ballchain.systems.chain_simulation import MakeStation
+    from ballchain.systems.magnetic_wrench import PortDipoles
+
+    cd = MakeStation(load_scenario("teleop_right_unit", "{engine: statics, mode: quasi-static}"))
+    engine = cd.chain.engine_system
+    p_W, m_W = engine.straight(engine._s0)
+    k, c = engine._constraints(engine._s0)
+    engine.equilibrium(engine._s0, None)  # builds the solver of this sub-chain
+    lean = engine._lean[engine._n - k]
+    p_B, m_B = c.to_base(p_W[k:], m_W[k:])
+    radius = 0.05
+    tip = p_W[-1]
+    for offset, inside in ((0.9 * radius, True), (1.1 * radius, False)):
+        magnet = PortDipoles(np.array([tip + [0.0, 0.0, offset]]), np.array([[0.0, 0.0, 1.0]]), np.array([radius]))
+        answer = lean.solve(magnet, c, p_B, m_B, None)
+        assert (answer is None) == inside
+        if inside:
+            with pytest.raises(UserInputError, match="bounding sphere"):
+                lean.statics.solve(magnet, StaticsResult(p_B, m_B, 0.0, None, True, "", "", 0, 0.0), constraints=c)
