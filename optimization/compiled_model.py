@@ -16,6 +16,7 @@ from ballchain.drake_models.atrium_sdf import AtriumSDF
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, UniformField
 from ballchain.drake_models.kernels import check_status
 from ballchain.drake_models.params import GRAVITY
+from ballchain.optimization.blas_threads import one_blas_thread
 from ballchain.optimization.wall_constraints import RHO_SMOOTHING, PointDipoles
 from ballchain.optimization.compiled_newton import (F_EXTERNAL, R_FIELD, R_LIMIT, R_LINE, R_MINIMUM,
                                                     R_MINIMUM_LINE, R_QP, R_SADDLE, R_ENERGY, S_HEART_WEIGHT, newton)
@@ -145,7 +146,9 @@ def run(statics, model, external, p0, m0, lam0, constraints):
     weights0 = np.fromiter(lam0.values(), float, len(lam0)) if lam0 else _NO_WEIGHTS
     chart = chart_frames(configuration_vectors(np.ascontiguousarray(p0, float), np.ascontiguousarray(m0, float)))
     try:
-        reason, status, iterations, rows, lam, lam_tip, p, m_hat, terms, gaps, v = newton(chart, tup, rows0, weights0)
+        with one_blas_thread():  # LAPACK's threads only slow these small systems (blas_threads)
+            reason, status, iterations, rows, lam, lam_tip, p, m_hat, terms, gaps, v = newton(chart, tup, rows0,
+                                                                                               weights0)
     except np.linalg.LinAlgError as err:  # a step's system singular in floating point
         return _singular(model, chart, err)
     if reason == R_FIELD:
@@ -232,7 +235,9 @@ class HeartSolve:
         weights0 = np.fromiter(lam0.values(), float, len(lam0)) if lam0 else _NO_WEIGHTS
         chart = chart_frames(configuration_vectors(np.ascontiguousarray(p0_B, float), np.ascontiguousarray(m0_B, float)))
         try:
-            reason, status, iterations, rows, lam, lam_tip, p, m_hat, terms, gaps, v = newton(chart, tup, rows0, weights0)
+            with one_blas_thread():
+                reason, status, iterations, rows, lam, lam_tip, p, m_hat, terms, gaps, v = newton(chart, tup, rows0,
+                                                                                                   weights0)
         except np.linalg.LinAlgError:
             return None
         if reason in (R_FIELD, R_ENERGY):

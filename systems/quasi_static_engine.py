@@ -48,6 +48,7 @@ from ballchain.drake_models.arg_checks import as_vector, require_bool, require_t
 from ballchain.drake_models.errors import UserInputError, caused_by_interrupt
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import BallChain
+from ballchain.optimization.blas_threads import one_blas_thread as _one_blas_thread
 from ballchain.optimization.compiled_model import HeartAnswer, HeartSolve
 from ballchain.optimization.statics import ChainStatics, StaticsResult, straight_chain
 from ballchain.optimization.wall_constraints import HeartConstraints, SheathGeometry, base_ball, base_rotation
@@ -62,51 +63,6 @@ from ballchain.systems.chain_model import (
 )
 from ballchain.systems.engine_kernels import ball_frames as _ball_frames
 from ballchain.systems.magnetic_wrench import external_field_source
-
-
-_BLAS = None
-
-
-class _OneThread:
-    """The context of ``_one_blas_thread``: each BLAS library not on one thread already is set to
-    one on entry and back on exit (the engine enters it once per update: two ctypes calls per
-    library when nothing needs changing, instead of threadpoolctl's limiter and its queries)."""
-
-    def __init__(self, libraries):
-        self._libraries = libraries
-        self._restore: list = []
-
-    def __enter__(self):
-        for lib in self._libraries:
-            threads = lib.get_num_threads()
-            if threads != 1:
-                lib.set_num_threads(1)
-                self._restore.append((lib, threads))
-        return self
-
-    def __exit__(self, *exc):
-        while self._restore:
-            lib, threads = self._restore.pop()
-            lib.set_num_threads(threads)
-        return False
-
-
-def _one_blas_thread():
-    """A context in which BLAS/LAPACK run on one thread (threadpoolctl). The statics' matrices
-    are 60 x 60: threads only add overhead, and on a shared machine they wait for each other
-    (measured here: numpy's eigh of 56 x 56 took 44 ms with OpenBLAS's threads, 0.3 ms on one;
-    its Cholesky 0.26 ms against 0.05 ms)."""
-    global _BLAS
-    if _BLAS is None:
-        # numba's compiled np.linalg (the compiled statics' Cholesky and solves) calls LAPACK
-        # through scipy's OpenBLAS, a second library that numpy's does not load: loaded here, so
-        # that the controller (a snapshot of the libraries loaded) limits it too. Unlimited, its
-        # threads take over from 32 balls on (measured: a 32-ball solve 10 times slower in CPU time).
-        import scipy.linalg.cython_lapack  # noqa: F401
-        from threadpoolctl import ThreadpoolController
-
-        _BLAS = [lib for lib in ThreadpoolController().lib_controllers if lib.user_api == "blas"]
-    return _OneThread(_BLAS)
 
 
 def _norms(rows: np.ndarray) -> np.ndarray:

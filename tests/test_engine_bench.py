@@ -248,3 +248,29 @@ def test_one_blas_thread_limits_the_compiled_solves_lapack_too():
                      if i["user_api"] == "blas"}
     assert any(name.startswith("libscipy_openblas") and "64" not in name for name in libraries), libraries
     assert all(threads == 1 for threads in libraries.values()), libraries
+
+
+def test_a_users_compiled_solve_runs_blas_on_one_thread(monkeypatch):
+    """ChainStatics.solve's compiled call limits every BLAS library to one thread (a 64-ball solve
+    from a script took ten times the CPU time on OpenBLAS's threads) and restores them after."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from ballchain.optimization import compiled_model
+
+    def blas_threads():
+        return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+    seen = []
+    newton = compiled_model.newton
+
+    def recording(*args):
+        seen.append(blas_threads())
+        return newton(*args)
+
+    monkeypatch.setattr(compiled_model, "newton", recording)
+    compiled_model.one_blas_thread()  # loads scipy's OpenBLAS
+    with threadpool_limits(limits=2, user_api="blas"):
+        before = blas_threads()
+        result = ChainStatics(BallChain(n_balls=8)).solve(FIELD)
+        assert blas_threads() == before
+    assert result.converged and seen and all(n == 1 for counts in seen for n in counts), seen
