@@ -188,7 +188,7 @@ def build_atrium_sdf(heart, spacing: float = 0.5e-3, band: float = 5e-3, margin:
     d_centroid, _ = cKDTree(centroids).query(P, k=1)
     dist = np.full(len(P), band)
     near = np.flatnonzero(d_centroid - reach < band)
-    surface = mt.SurfaceDistance(V, F)
+    surface = mt.SurfaceDistance(V, F, compiled=False)  # numpy: the grids stay bit for bit
     chunks = np.array_split(near, max(1, len(near) // 20000))
     iterator = chunks
     if progress:

@@ -133,3 +133,25 @@ def test_compiled_spline_matches_the_numpy_reference(sdf):
     for got, ref in zip(sdf(P, hessian=True), sdf.reference(P, hessian=True)):
         np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(sdf(P, gradient=False), sdf.reference(P, gradient=False), rtol=1e-12, atol=1e-15)
+
+
+def test_compiled_surface_distance_matches_the_numpy_reference():
+    """``nearest_triangle_distances`` (the watchdog's wall check) against ``point_triangle_distances``
+    on random triangles near the points: projections inside the triangles and onto every edge and
+    vertex, nearly flat triangles; and ``SurfaceDistance`` compiled against numpy on a surface."""
+    rng = np.random.default_rng(11)
+    k, c = 200, 24
+    P = rng.normal(size=(k, 3)) * 0.02
+    T = P[:, None, None, :] + rng.normal(size=(k, c, 3, 3)) * rng.uniform(1e-4, 0.03, size=(k, c, 1, 1))
+    T[:, :4, 2] = T[:, :4, 0] + 1e-7 * (T[:, :4, 1] - T[:, :4, 0]) + 1e-9  # slivers
+    ref = mt.point_triangle_distances(P, T)
+    assert (ref == ref.min(axis=1, keepdims=True)).any(axis=1).all()
+    got = mt.nearest_triangle_distances(P, T)
+    # A distance is a difference of coordinates of ~20 mm: rounding of 1e-16 m is 5e-15 of them.
+    np.testing.assert_allclose(got, ref.min(axis=1), rtol=1e-13, atol=1e-16)
+    V = rng.normal(size=(300, 3)) * 0.02
+    F = rng.integers(0, 300, size=(500, 3))
+    F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 0] != F[:, 2])]
+    Q = rng.normal(size=(100, 3)) * 0.02
+    np.testing.assert_allclose(mt.SurfaceDistance(V, F)(Q), mt.SurfaceDistance(V, F, compiled=False)(Q),
+                               rtol=1e-13, atol=1e-16)
