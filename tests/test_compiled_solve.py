@@ -21,8 +21,15 @@ def field(deg, magnitude=B23):
 
 def assert_same(compiled, reference, positions_atol=1e-9, iterations=True):
     """The compiled result is the reference's: converged or not for the same reason, the same
-    configuration (1e-9 m) and multipliers (1e-6 relative to the largest)."""
+    configuration (1e-9 m) and multipliers (1e-6 relative to the largest).
+
+    A failure is compared by its verdict and reason only: where a failing solve stops is not an
+    answer, and the two solvers' rounding can end it elsewhere (on one machine the engine's
+    warm start after a sub-chain change in heart_wall_contact fails with an infeasible QP step in
+    both, after 8 iterations in one and 7 in the other, 4 mm apart)."""
     assert (compiled.converged, compiled.reason) == (reference.converged, reference.reason)
+    if not reference.converged:
+        return
     if iterations:
         assert compiled.iterations == reference.iterations
     np.testing.assert_allclose(compiled.positions, reference.positions, rtol=0, atol=positions_atol)
@@ -179,18 +186,32 @@ def test_engine_paths_match_the_reference(name, monkeypatch):
     from ballchain.systems.chain_scenario import load_scenario
     from ballchain.systems.chain_simulation import run_simulation
 
+    from ballchain.optimization.compiled_model import HeartSolve
+    from ballchain.optimization.statics import StaticsResult
+
     calls = []
-    original = ChainStatics.solve
+    original, short = ChainStatics.solve, HeartSolve.solve
 
     def recording(self, external, warm_start=None, tip_target=None, wall=None, constraints=None):
         calls.append((self.chain, self.gravity, self.tolerance, self.feasibility_tolerance, external, warm_start,
                       constraints))
         return original(self, external, warm_start, tip_target, wall, constraints)
 
+    def recording_short(self, field_W, constraints, p0_B, m0_B, lam0):
+        # The engine's short path (HeartSolve: ChainStatics.solve's kernel call): the same problem
+        # as ChainStatics.solve from this warm start (a cold start's straight chain with no
+        # multipliers is the warm start None).
+        s = self.statics
+        warm = StaticsResult(p0_B, m0_B, 0.0, None, True, "warm start", "", 0, 0.0, multipliers=lam0 or {})
+        calls.append((s.chain, s.gravity, s.tolerance, s.feasibility_tolerance, field_W, warm, constraints))
+        return short(self, field_W, constraints, p0_B, m0_B, lam0)
+
     monkeypatch.setattr(ChainStatics, "solve", recording)
+    monkeypatch.setattr(HeartSolve, "solve", recording_short)
     # 0.3 s: at least five solves after the start-up (which reuses the warm-up's equilibrium).
     run_simulation(scenario=load_scenario(name, "{engine: statics, duration: 0.3}"))
     monkeypatch.setattr(ChainStatics, "solve", original)
+    monkeypatch.setattr(HeartSolve, "solve", short)
     assert len(calls) >= 5
     for chain, gravity, tolerance, feasibility, external, warm, constraints in calls:
         fast, slow = both(chain, gravity=gravity, tolerance=tolerance)
