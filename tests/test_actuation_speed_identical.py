@@ -240,3 +240,18 @@ def test_station_builds_the_watchdog_wall_distance_before_the_run():
 
     station = MakeStation(load_scenario("heart_wall_contact", "{engine: statics}"))
     assert "wall_distance" in vars(station.heart)  # the cached k-d tree exists already
+
+
+def test_callback_benchmark_times_every_callback():
+    """``benchmarks/unit_callbacks.py`` calls each unit callback on a running station's context."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "unit_callbacks.py"
+    spec = importlib.util.spec_from_file_location("unit_callbacks", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    times = module.run("teleop_right_unit", at=0.05, number=3)
+    assert {"Hall sample, turned", "magnet update", "drive update", "feeder update",
+            "watchdog (a step between checks)"} <= set(times)
+    assert all(np.isfinite(t) and t > 0 for t in times.values())
