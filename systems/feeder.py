@@ -90,6 +90,9 @@ class Feeder(LeafSystem):
         self._chain_length = float(self._chain.length)
         self._step_length = float(self._spec.step_length)
         self._max_steps = float(np.floor(self._chain_length / self._step_length))
+        self._dt = float(self._spec.update_period)
+        self._max_speed = float(self._spec.max_speed)
+        self._dv = float(self._spec.max_acceleration * self._spec.update_period)
         self._v_port = self.DeclareVectorInputPort("v_insert_cmd", 1)
         self._speed_index = self.DeclareDiscreteState(1)
         self._length_index = self.DeclareDiscreteState(BasicVector([float(initial_length)]))
@@ -106,23 +109,23 @@ class Feeder(LeafSystem):
     def _update(self, context, discrete_state):
         # Plain floats throughout (500 updates a second): min/max clip a finite number as
         # np.clip does, and round() rounds half to even as np.round does.
-        s = self._spec
-        dt = s.update_period
+        dt = self._dt
         # np.clip keeps a NaN: refuse it here, naming the feeder, the port and the time.
         command = float(check_finite_input(self, self._v_port, context)[0])
-        target = min(max(command, -s.max_speed), s.max_speed)
-        dv = s.max_acceleration * dt
-        v = context.get_discrete_state(self._speed_index).GetAtIndex(0)
+        target = min(max(command, -self._max_speed), self._max_speed)
+        dv = self._dv
+        state = context.get_discrete_state()
+        v = state.value(self._speed_index).item()
         v += min(max(target - v, -dv), dv)
-        x = context.get_discrete_state(self._length_index).GetAtIndex(0) + v * dt
+        x = state.value(self._length_index).item() + v * dt
         if x <= 0.0 or x >= self._chain_length:  # end stops: stop there, no wind-up
             x = min(max(x, 0.0), self._chain_length)
             v = 0.0
-        discrete_state.get_mutable_vector(self._speed_index).SetAtIndex(0, v)
-        discrete_state.get_mutable_vector(self._length_index).SetAtIndex(0, x)
+        discrete_state.get_mutable_value(self._speed_index)[0] = v
+        discrete_state.get_mutable_value(self._length_index)[0] = x
         # Whole microsteps, never past the end stops.
         steps = min(float(round(x / self._step_length)), self._max_steps)
-        discrete_state.get_mutable_vector(self._steps_index).SetAtIndex(0, steps)
+        discrete_state.get_mutable_value(self._steps_index)[0] = steps
 
     def _length(self, context) -> float:
         return context.get_discrete_state(self._steps_index).GetAtIndex(0) * self._spec.step_length

@@ -55,6 +55,8 @@ def quantise_reading(B: np.ndarray, spec: HallSensorSpec) -> np.ndarray:
     """Saturate (3,) field [T] at the range and round to the LSB, as the ADC does."""
     B = np.clip(np.asarray(B, dtype=float), -spec.range_T, spec.range_T)
     lsb = np.asarray(spec.lsb_T, dtype=float)
+    if lsb.min() > 0:  # every axis rounded (np.round to 0 decimals is np.rint)
+        return np.rint(B / lsb) * lsb
     out = B.copy()
     nz = lsb > 0
     out[nz] = np.round(B[nz] / lsb[nz]) * lsb[nz]
@@ -112,6 +114,11 @@ class HallSensor(SeededLeafSystem):
         self._noise = bool(unit.sensor_noise)
         self._p_WS = unit.p_WS[None, :]
         self._last_fields: list[tuple[bytes, np.ndarray] | None] = [None] * (1 + len(self._others))
+        # Whether each magnet's field at the sensor may skip the field points' checks (the
+        # sensor beyond the magnet's reach at every orientation: checked here, once).
+        self._beyond_reach = [u.source_of_rotation(np.eye(3)).beyond_reach(self._p_WS)
+                              for u in (self._unit, *self._others)]
+        self._noise_std = float(self._spec.noise_std_T) if self._noise and self._spec.noise_std_T > 0 else 0.0
         self.set_name(f"{unit.name}.hall_sensor")
         self.DeclareSeedParameter(seed)
 
@@ -141,13 +148,15 @@ class HallSensor(SeededLeafSystem):
         key = R_WM.tobytes()
         last = self._last_fields[k]
         if last is None or last[0] != key:
-            last = self._last_fields[k] = (key, unit.source_of_rotation(R_WM).field(self._p_WS)[0])
-        return last[1].copy()
+            source = unit.source_of_rotation(R_WM)
+            B = source.field_beyond_reach(self._p_WS) if self._beyond_reach[k] else source.field(self._p_WS)
+            last = self._last_fields[k] = (key, B[0])
+        return last[1]
 
     def true_field(self, context) -> np.ndarray:
         """(3,) noise-free total field at the sensor [T]."""
         X = self._X_port.Eval(context)
-        B = self._magnet_field(0, self._unit, X.rotation().matrix())
+        B = self._magnet_field(0, self._unit, X.rotation().matrix()).copy()
         for k, (unit, port) in enumerate(zip(self._others, self._other_ports), start=1):
             B = B + self._magnet_field(k, unit, port.Eval(context).rotation().matrix())
         if self._extra.sources:
@@ -155,12 +164,12 @@ class HallSensor(SeededLeafSystem):
         return B
 
     def _sample(self, context, discrete_state):
-        k = int(context.get_discrete_state(self._k_index).GetAtIndex(0))
+        k = int(context.get_discrete_state().value(self._k_index).item())
         B = self.true_field(context)
-        if self._noise and self._spec.noise_std_T > 0:
-            B = B + np.random.default_rng((self.seed(context), k)).normal(scale=self._spec.noise_std_T, size=3)
-        discrete_state.get_mutable_vector(self._B_index).SetFromVector(quantise_reading(B, self._spec))
-        discrete_state.get_mutable_vector(self._k_index).SetAtIndex(0, k + 1)
+        if self._noise_std:
+            B = B + np.random.default_rng((self.seed(context), k)).normal(scale=self._noise_std, size=3)
+        discrete_state.set_value(self._B_index, quantise_reading(B, self._spec))
+        discrete_state.get_mutable_value(self._k_index)[0] = k + 1
 
     def get_B_output_port(self):
         return self._B_port
@@ -211,6 +220,8 @@ class DipoleDirectionEstimator(LeafSystem):
         self._r = np.array([0.0, 0.0, -unit.sensor_distance])  # magnet centre -> sensor
         self._p_WS = self._unit.p_WS[None, :]
         self._last_fields: list[tuple[bytes, np.ndarray] | None] = [None] * len(self._others)
+        self._beyond_reach = [o.source_of_rotation(np.eye(3)).beyond_reach(self._p_WS) for o in self._others]
+        self._last_estimate: tuple[bytes, np.ndarray] | None = None  # (B.tobytes(), estimate(B))
         self.set_name(f"{unit.name}.estimator")
         self._B_port = self.DeclareVectorInputPort("B_sensor_T", 3)
         self._other_ports = [
@@ -240,7 +251,18 @@ class DipoleDirectionEstimator(LeafSystem):
         key = R_WM.tobytes()
         last = self._last_fields[k]
         if last is None or last[0] != key:
-            last = self._last_fields[k] = (key, self._others[k].source_of_rotation(R_WM).field(self._p_WS)[0])
+            source = self._others[k].source_of_rotation(R_WM)
+            B = source.field_beyond_reach(self._p_WS) if self._beyond_reach[k] else source.field(self._p_WS)
+            last = self._last_fields[k] = (key, B[0])
+        return last[1]
+
+    def _estimate_of(self, B: np.ndarray) -> np.ndarray:
+        """``estimate(B)``, remembered for the last field (the controller asks at every drive
+        update, the sensor samples at half that rate). The array returned is shared: read it."""
+        key = B.tobytes()
+        last = self._last_estimate
+        if last is None or last[0] != key:
+            last = self._last_estimate = (key, self.estimate(B))
         return last[1]
 
     def _calc(self, context, output):
@@ -248,4 +270,4 @@ class DipoleDirectionEstimator(LeafSystem):
         if np.any(B):
             for k, port in enumerate(self._other_ports):
                 B = B - self._other_field(k, port.Eval(context).rotation().matrix())
-        output.SetFromVector(self.estimate(B))
+        output.SetFromVector(self._estimate_of(B))

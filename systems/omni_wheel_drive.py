@@ -92,6 +92,11 @@ class OmniWheelDrive(LeafSystem):
         self._spec = spec or StepperSpec()
         self.set_name(f"{name}.drive")
         self._microstep_angle = float(self._spec.microstep_angle)
+        self._dt = float(self._spec.update_period)
+        self._dv = float(self._spec.max_acceleration * self._spec.update_period)
+        # The wheel command of the last desired angular velocity (a teleoperation command holds
+        # for many updates): (omega_desired_W.tobytes(), target list), see ``_target``.
+        self._last_target: tuple[bytes, list[float]] | None = None
 
         self._omega_port = self.DeclareVectorInputPort("omega_desired_W", 3)
         self._speed_index = self.DeclareDiscreteState(3)
@@ -111,27 +116,41 @@ class OmniWheelDrive(LeafSystem):
         """(3,) wheel speeds [rad/s] for a desired magnet angular velocity, speed-limited."""
         return saturate_uniformly(self._geometry.wheel_speeds(omega_desired_W), self._spec.max_speed)
 
+    def _target_checked(self, context, omega_desired=None) -> list[float]:
+        """The speed-limited wheel command of the desired angular velocity on the input (or of
+        its value ``omega_desired``, already evaluated)."""
+        # A NaN command would pass the speed limit (max |NaN| is NaN) and reach the magnet.
+        return self.wheel_command(check_finite_input(self, self._omega_port, context, omega_desired)).tolist()
+
+    def _target(self, context) -> list[float]:
+        """``_target_checked``, remembered for the last input value (a NaN input is never
+        remembered, so it is refused at every update). The list returned is shared: read it."""
+        omega_desired = self._omega_port.Eval(context)
+        key = omega_desired.tobytes()
+        last = self._last_target
+        if last is None or last[0] != key:
+            last = self._last_target = (key, self._target_checked(context, omega_desired))
+        return last[1]
+
     def _update(self, context, discrete_state):
         # Element by element on plain floats (200 updates a second, three wheels): min/max clip
         # as np.clip does and round() rounds half to even as np.round does.
-        s = self._spec
-        dt = s.update_period
+        dt = self._dt
         step = self._microstep_angle
-        # A NaN command would pass the speed limit (max |NaN| is NaN) and reach the magnet.
-        target = self.wheel_command(check_finite_input(self, self._omega_port, context)).tolist()
+        target = self._target(context)
         state = context.get_discrete_state()
-        dv = s.max_acceleration * dt
-        speed_old, angle_old, steps_old = (state.get_vector(i).value().tolist()
-                                           for i in (self._speed_index, self._angle_index, self._steps_index))
+        dv = self._dv
+        speed_old = state.value(self._speed_index).tolist()
+        angle_old = state.value(self._angle_index).tolist()
+        steps_old = state.value(self._steps_index).tolist()
         speed = [v + min(max(t - v, -dv), dv) for t, v in zip(target, speed_old)]
         angle = [a + v * dt for a, v in zip(angle_old, speed)]
         steps = [float(round(a / step)) for a in angle]
-        discrete_state.get_mutable_vector(self._speed_index).SetFromVector(speed)
-        discrete_state.get_mutable_vector(self._angle_index).SetFromVector(angle)
-        discrete_state.get_mutable_vector(self._steps_index).SetFromVector(steps)
-        discrete_state.get_mutable_vector(self._applied_index).SetFromVector(
-            [(n - n_old) * step / dt for n, n_old in zip(steps, steps_old)]
-        )
+        discrete_state.set_value(self._speed_index, np.array(speed))
+        discrete_state.set_value(self._angle_index, np.array(angle))
+        discrete_state.set_value(self._steps_index, np.array(steps))
+        discrete_state.set_value(self._applied_index,
+                                 np.array([(n - n_old) * step / dt for n, n_old in zip(steps, steps_old)]))
 
     def _calc_angles(self, context, output):
         output.SetFromVector(

@@ -106,6 +106,8 @@ class ReconfigurationController(LeafSystem):
         else:
             raise UserInputError(f"wheel_map must be 'derived' or 'paper', got {wheel_map!r}")
         self._fallback_axis = perpendicular_axis(self._m_c)
+        self._zero_command = (np.zeros(3), self._g.sphere_angular_velocity(np.zeros(3)))
+        self._last_command: tuple[bytes, tuple[np.ndarray, np.ndarray]] | None = None
         self.set_name(f"{name}.controller")
 
         self._m_port = self.DeclareVectorInputPort("m_hat_measured_W", 3)
@@ -146,12 +148,12 @@ class ReconfigurationController(LeafSystem):
 
     def _update_done(self, context, discrete_state):
         reconfiguring = round(float(self._mode_port.Eval(context)[0])) == ModeSwitch.RECONFIGURATION
-        was_reconfiguring = context.get_discrete_state(self._mode_index).GetAtIndex(0) > 0.5
+        state = context.get_discrete_state()
+        was_reconfiguring = state.value(self._mode_index).item() > 0.5
         requested = reconfiguring and not was_reconfiguring  # a new reconfiguration starts here
-        latched = self._is_done(context) and not requested
-        discrete_state.get_mutable_vector(self._mode_index).SetAtIndex(0, 1.0 if reconfiguring else 0.0)
-        discrete_state.get_mutable_vector(self._done_index).SetAtIndex(
-            0, 1.0 if self._done_after(context, latched) else 0.0)
+        latched = state.value(self._done_index).item() > 0.5 and not requested  # done, as _is_done
+        discrete_state.get_mutable_value(self._mode_index)[0] = 1.0 if reconfiguring else 0.0
+        discrete_state.get_mutable_value(self._done_index)[0] = 1.0 if self._done_after(context, latched) else 0.0
 
     def _done_after(self, context, latched: bool) -> bool:
         """Whether ``done`` holds after this update, given whether it stays latched."""
@@ -160,16 +162,24 @@ class ReconfigurationController(LeafSystem):
         m = self._m_port.Eval(context)
         return bool(np.any(m) and angle_between(m, self._m_c) < self._tol)
 
-    def _wheels(self, context) -> np.ndarray:
+    def _command(self, context) -> tuple[np.ndarray, np.ndarray]:
+        """(wheel speeds, the angular velocity they make) for the measurement on the input,
+        remembered for the last measurement; zeros once done. The arrays are shared: read them."""
         if self._is_done(context):
-            return np.zeros(3)
-        return self.wheel_command(self._m_port.Eval(context))
+            return self._zero_command
+        m = self._m_port.Eval(context)
+        key = m.tobytes()
+        last = self._last_command
+        if last is None or last[0] != key:
+            wheels = self.wheel_command(m)
+            last = self._last_command = (key, (wheels, self._g.sphere_angular_velocity(wheels)))  # the true forward map
+        return last[1]
 
     def _calc_wheels(self, context, output):
-        output.SetFromVector(self._wheels(context))
+        output.SetFromVector(self._command(context)[0])
 
     def _calc_omega(self, context, output):
-        output.SetFromVector(self._g.sphere_angular_velocity(self._wheels(context)))  # the true forward map
+        output.SetFromVector(self._command(context)[1])
 
     def _calc_angle(self, context, output):
         m = self._m_port.Eval(context)

@@ -17,6 +17,8 @@ derivatives.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from pydrake.common.eigen_geometry import Quaternion
 from pydrake.common.value import AbstractValue
@@ -43,23 +45,32 @@ def rotation_from_quaternion(q: np.ndarray) -> np.ndarray:
     return _rotation_matrix(q).matrix()
 
 
+def _norm(q: np.ndarray) -> float:
+    """``np.linalg.norm`` of a float vector, as it computes it (``sqrt(q.dot(q))``), without its
+    argument handling (a quarter of the magnet's update)."""
+    return math.sqrt(q.dot(q))
+
+
 def _rotation_matrix(q: np.ndarray) -> RotationMatrix:
     """The RotationMatrix of a (not necessarily unit) quaternion (w, x, y, z)."""
     q = np.asarray(q, dtype=float)
-    return RotationMatrix(Quaternion(q / np.linalg.norm(q)))
+    return RotationMatrix(Quaternion(q / _norm(q)))
 
 
 def _turned(q: np.ndarray, omega_W: np.ndarray, dt: float) -> np.ndarray:
     """The quaternion q (w, x, y, z) turned for dt [s] at the constant world angular velocity
-    omega_W (3,) [rad/s]: ``(cos(phi/2), sin(phi/2) axis) (x) q``, phi = |omega| dt."""
-    wx, wy, wz = omega_W
-    speed = float(np.sqrt(wx * wx + wy * wy + wz * wz))
+    omega_W (3,) [rad/s]: ``(cos(phi/2), sin(phi/2) axis) (x) q``, phi = |omega| dt.
+
+    On plain floats (IEEE arithmetic, the same numbers as numpy's scalars); the cosine and sine
+    are numpy's."""
+    wx, wy, wz = omega_W.tolist()
+    speed = math.sqrt(wx * wx + wy * wy + wz * wz)
     if speed * dt == 0.0:
         return q
     half = 0.5 * speed * dt
-    c, k = np.cos(half), np.sin(half) / speed
+    c, k = float(np.cos(half)), float(np.sin(half)) / speed
     ax, ay, az = k * wx, k * wy, k * wz
-    w, x, y, z = q
+    w, x, y, z = q.tolist()
     return np.array([
         c * w - ax * x - ay * y - az * z,
         c * x + ax * w + ay * z - az * y,
@@ -111,6 +122,10 @@ class RotatingMagnetUnit(LeafSystem):
         self._config = (config or right_unit()).check_placed()
         self._slip = float(self._config.slip)
         self._p_WM = np.asarray(self._config.p_WM, dtype=float)
+        self._moment = float(self._config.magnet.dipole_moment)
+        # omega_W of the wheel speeds seen last (the drive's applied speeds: whole microsteps per
+        # period, so a few values recur): {omega_wheels.tobytes(): omega_W}, see ``_omega_W``.
+        self._omega_of_wheels: dict[bytes, np.ndarray] = {}
         self.set_name(f"{self._config.name}.magnet")
 
         self._omega_wheels_port = self.DeclareVectorInputPort("omega_wheels", 3)
@@ -152,7 +167,7 @@ class RotatingMagnetUnit(LeafSystem):
         """(4,) orientation quaternion (w, x, y, z) at the context's time."""
         if self._period is None:
             return context.get_continuous_state_vector().CopyToVector()
-        x = context.get_discrete_state(self._q_index).get_value()
+        x = context.get_discrete_state().value(self._q_index)
         return _turned(x[:4], self._omega_W(context), context.get_time() - x[4])
 
     def R_WM(self, context: Context) -> np.ndarray:
@@ -171,20 +186,35 @@ class RotatingMagnetUnit(LeafSystem):
         """The shared MagnetSource at the current pose (use it for the field anywhere)."""
         return self._config.source(self.R_WM(context))
 
-    def _omega_W(self, context: Context) -> np.ndarray:
+    def _omega_W_checked(self, context: Context, omega_wheels=None) -> np.ndarray:
         # A NaN wheel speed must stop the simulation at once, naming this unit, the port and the
         # time: on a NaN derivative the error-controlled integrator would retry forever.
         # omega_W = (1 - slip) (rho_w/rho_a) A^-1 omega_wheels (docs/design.md, 4.2).
-        omega_wheels = check_finite_input(self, self._omega_wheels_port, context)
+        omega_wheels = check_finite_input(self, self._omega_wheels_port, context, omega_wheels)
         return (1.0 - self._slip) * self._config.geometry.sphere_angular_velocity(omega_wheels)
+
+    def _omega_W(self, context: Context) -> np.ndarray:
+        """``_omega_W_checked``, remembered per wheel-speed input (the update, the pose and the
+        dipole of one period all ask; a NaN input is never remembered, so it is refused at every
+        call). The array returned is shared: read it, do not change it."""
+        omega_wheels = self._omega_wheels_port.Eval(context)
+        key = omega_wheels.tobytes()
+        omega_W = self._omega_of_wheels.get(key)
+        if omega_W is None:
+            omega_W = self._omega_W_checked(context, omega_wheels)
+            if len(self._omega_of_wheels) >= 64:
+                self._omega_of_wheels.clear()
+            self._omega_of_wheels[key] = omega_W
+        return omega_W
 
     def _update(self, context, discrete_state):
         # The speed on the input now is the one applied since the last update (the drive's
         # simultaneous update has not changed it yet): turn by it, exactly.
-        x = context.get_discrete_state(self._q_index).get_value()
+        x = context.get_discrete_state().value(self._q_index)
         t = context.get_time()
         q = _turned(x[:4], self._omega_W(context), t - x[4])
-        discrete_state.get_mutable_vector(self._q_index).SetFromVector(np.concatenate([q / np.linalg.norm(q), [t]]))
+        q = q / _norm(q)
+        discrete_state.set_value(self._q_index, np.array([*q.tolist(), t]))
 
     def _calc_q(self, context, output):
         output.SetFromVector(self.quaternion(context))
@@ -208,10 +238,10 @@ class RotatingMagnetUnit(LeafSystem):
         derivatives.get_mutable_vector().SetFromVector(qdot)
 
     def _calc_X_WM(self, context, output):
-        output.set_value(RigidTransform(_rotation_matrix(self.quaternion(context)), self._p_WM))
+        output.get_mutable_value().set(_rotation_matrix(self.quaternion(context)), self._p_WM)
 
     def _calc_m_W(self, context, output):
-        output.SetFromVector(self._config.magnet.dipole_moment * self.R_WM(context)[:, 2])
+        output.SetFromVector(self._moment * self.R_WM(context)[:, 2])
 
     def _calc_omega(self, context, output):
         output.SetFromVector(self._omega_W(context))

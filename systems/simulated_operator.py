@@ -60,6 +60,7 @@ import copy
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.random.bit_generator import ISeedSequence
 from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import EventStatus
@@ -267,10 +268,21 @@ class _Memory:
                 setattr(new, name, value.copy())
         new.queue = [u.copy() for u in self.queue]
         new.records = [r if r.t_end is not None else copy.copy(r) for r in self.records]
-        if self.rng is not None:
-            new.rng = np.random.Generator(type(self.rng.bit_generator)())
+        if self.rng is not None:  # a bit generator of the same kind (seeded with no entropy), then the state
+            new.rng = np.random.Generator(type(self.rng.bit_generator)(_NO_ENTROPY))
             new.rng.bit_generator.state = self.rng.bit_generator.state
         return new
+
+
+class _NoEntropy(ISeedSequence):
+    """A seed sequence of zeros: a bit generator made only to receive another's state (a seedless
+    one reads the operating system's entropy, a fifth of the copy's time)."""
+
+    def generate_state(self, n_words, dtype=np.uint32):
+        return np.zeros(n_words, dtype=dtype)
+
+
+_NO_ENTROPY = _NoEntropy()
 
 
 class SimulatedOperator(SeededLeafSystem):

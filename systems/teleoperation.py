@@ -116,6 +116,9 @@ class TeleoperationMapper(LeafSystem):
         self._dead_band = float(dead_band)
         self._p_WM = None if p_WM is None else np.asarray(p_WM, dtype=float).reshape(3)
         self.set_name(f"{name}.teleoperation")
+        # frame "world": the command of the last stick position (held for many drive updates):
+        # (joystick.tobytes(), omega_desired_W), see ``_calc``.
+        self._last_world: tuple[bytes, np.ndarray] | None = None
         self._joy_port = self.DeclareVectorInputPort("joystick", 3)
         if frame == "tip":
             self._m_port = self.DeclareVectorInputPort("m_W", 3)
@@ -123,11 +126,20 @@ class TeleoperationMapper(LeafSystem):
             self._t_port = self.DeclareVectorInputPort("tip_direction_W", 3)
         self._omega_port = self.DeclareVectorOutputPort("omega_desired_W", 3, self._calc)
 
+    def _world_command(self, joystick: np.ndarray) -> np.ndarray:
+        """frame "world": ``omega_max`` times the stick after the dead band."""
+        return self._omega_max * apply_dead_band(joystick, self._dead_band)
+
     def _calc(self, context, output):
-        u = apply_dead_band(self._joy_port.Eval(context), self._dead_band)
-        if self._frame == "world":
-            output.SetFromVector(self._omega_max * u)
+        joystick = self._joy_port.Eval(context)
+        if self._frame == "world":  # remembered for the last stick position
+            key = joystick.tobytes()
+            last = self._last_world
+            if last is None or last[0] != key:
+                last = self._last_world = (key, self._world_command(joystick))
+            output.SetFromVector(last[1])
             return
+        u = apply_dead_band(joystick, self._dead_band)
         R_WT = tip_frame(self._t_port.Eval(context))
         omega_B = self._omega_max * (u[0] * R_WT[:, 2] - u[1] * R_WT[:, 1])
         output.SetFromVector(

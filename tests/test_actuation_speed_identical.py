@@ -5,7 +5,11 @@ The shortcuts (each a function the test can put back to the checked path): the H
 the estimator's magnet sources built without re-checking a pose from a unit quaternion
 (``MagnetUnitConfig.source_of_rotation``), the estimator's compensated fields remembered per
 orientation, the latched controller skipping its measurement, the magnet's pose from one
-RotationMatrix. A teleoperation run with them and one with the checked path must agree bit for
+RotationMatrix; the field at a sensor beyond the magnet's reach without the field points' checks
+(``MagnetSource.field_beyond_reach``), the magnet's angular velocity remembered per wheel-speed
+input, its quaternion turned on plain floats, the drive's wheel command, the mapper's command, the
+estimate and the controller's command remembered for their last input, the ADC's rounding as one
+``np.rint``. A teleoperation run with them and one with the checked path must agree bit for
 bit: every unit's magnet, Hall reading, estimate and wheel state, and the engine's state.
 """
 
@@ -76,6 +80,60 @@ def _checked_path(monkeypatch) -> None:
         output.set_value(RigidTransform(RotationMatrix(self.R_WM(context)), np.asarray(self._config.p_WM)))
 
     monkeypatch.setattr(rotating_magnet_unit.RotatingMagnetUnit, "_calc_X_WM", pose)
+
+    from ballchain.drake_models.field_sources import MagnetSource
+    from ballchain.systems import omni_wheel_drive, teleoperation
+
+    monkeypatch.setattr(MagnetSource, "field_beyond_reach", MagnetSource.field)
+    monkeypatch.setattr(rotating_magnet_unit.RotatingMagnetUnit, "_omega_W",
+                        rotating_magnet_unit.RotatingMagnetUnit._omega_W_checked)
+    monkeypatch.setattr(rotating_magnet_unit, "_turned", _turned_numpy)
+    monkeypatch.setattr(rotating_magnet_unit, "_norm", np.linalg.norm)
+    monkeypatch.setattr(omni_wheel_drive.OmniWheelDrive, "_target", omni_wheel_drive.OmniWheelDrive._target_checked)
+
+    def mapper(self, context, output):  # the command afresh at every evaluation
+        u = teleoperation.apply_dead_band(self._joy_port.Eval(context), self._dead_band)
+        assert self._frame == "world"
+        output.SetFromVector(self._omega_max * u)
+
+    monkeypatch.setattr(teleoperation.TeleoperationMapper, "_calc", mapper)
+    monkeypatch.setattr(hall_sensor.DipoleDirectionEstimator, "_estimate_of",
+                        hall_sensor.DipoleDirectionEstimator.estimate)
+
+    def command(self, context):  # the wheel command and its angular velocity afresh
+        wheels = np.zeros(3) if self._is_done(context) else self.wheel_command(self._m_port.Eval(context))
+        return wheels, self._g.sphere_angular_velocity(wheels)
+
+    monkeypatch.setattr(reconfiguration.ReconfigurationController, "_command", command)
+
+    def quantise(B, spec):  # the ADC's rounding axis by axis
+        B = np.clip(np.asarray(B, dtype=float), -spec.range_T, spec.range_T)
+        lsb = np.asarray(spec.lsb_T, dtype=float)
+        out = B.copy()
+        nz = lsb > 0
+        out[nz] = np.round(B[nz] / lsb[nz]) * lsb[nz]
+        return out
+
+    monkeypatch.setattr(hall_sensor, "quantise_reading", quantise)
+
+
+def _turned_numpy(q, omega_W, dt):
+    """The quaternion's turn on numpy scalars (``rotating_magnet_unit._turned`` before it ran on
+    plain floats)."""
+    wx, wy, wz = omega_W
+    speed = float(np.sqrt(wx * wx + wy * wy + wz * wz))
+    if speed * dt == 0.0:
+        return q
+    half = 0.5 * speed * dt
+    c, k = np.cos(half), np.sin(half) / speed
+    ax, ay, az = k * wx, k * wy, k * wz
+    w, x, y, z = q
+    return np.array([
+        c * w - ax * x - ay * y - az * z,
+        c * x + ax * w + ay * z - az * y,
+        c * y - ax * z + ay * w + az * x,
+        c * z + ax * y - ay * x + az * w,
+    ])
 
 
 # Both cases have two units, each sensor seeing the other's magnet and each estimator
@@ -182,3 +240,18 @@ def test_station_builds_the_watchdog_wall_distance_before_the_run():
 
     station = MakeStation(load_scenario("heart_wall_contact", "{engine: statics}"))
     assert "wall_distance" in vars(station.heart)  # the cached k-d tree exists already
+
+
+def test_callback_benchmark_times_every_callback():
+    """``benchmarks/unit_callbacks.py`` calls each unit callback on a running station's context."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "unit_callbacks.py"
+    spec = importlib.util.spec_from_file_location("unit_callbacks", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    times = module.run("teleop_right_unit", at=0.05, number=3)
+    assert {"Hall sample, turned", "magnet update", "drive update", "feeder update",
+            "watchdog (a step between checks)"} <= set(times)
+    assert all(np.isfinite(t) and t > 0 for t in times.values())
