@@ -113,7 +113,8 @@ def _pairs_into_slots(p, m_hat, kk, order, dU_dp, dU_dm, H_ll, H_lm, H_mm):
     """The pair energy (pair constant kk = k M^2); its gradient added to ``dU_dp``, ``dU_dm``
     (``order >= 1``) and its Hessian blocks to ``H_ll``, ``H_lm``, ``H_mm`` (``order >= 2``),
     each entry added where it lands as it is computed (``pair``'s per-entry law, inlined: no
-    3x3 blocks).
+    3x3 blocks). One loop per order (``_pair_energies``, ``_pair_gradients``,
+    ``_pair_hessians``): the lower orders' loops carry none of the higher orders' code.
 
     Pair (i, j), i < j, moves r = p_i - p_j by -d w_l for the links i <= l < j: its block
     d2e/dr2 lands on the link-link box [i, j)^2, kept as one block at ``H_ll[i, j - 1]``
@@ -123,6 +124,32 @@ def _pairs_into_slots(p, m_hat, kk, order, dU_dp, dU_dm, H_ll, H_lm, H_mm):
     Returns:
         ``(status, U_b)``: status OK or COINCIDENT; U_b [J].
     """
+    if order >= 2:
+        return _pair_hessians(p, m_hat, kk, dU_dp, dU_dm, H_ll, H_lm, H_mm)
+    if order == 1:
+        return _pair_gradients(p, m_hat, kk, dU_dp, dU_dm)
+    return _pair_energies(p, m_hat, kk)
+
+
+@kernel
+def _pair_energies(p, m_hat, kk):
+    """``_pairs_into_slots`` of order 0."""
+    n = p.shape[0]
+    U_b = 0.0
+    for i in range(n):
+        x = (m_hat[i, 0], m_hat[i, 1], m_hat[i, 2])
+        for j in range(i + 1, n):
+            r = (p[i, 0] - p[j, 0], p[i, 1] - p[j, 1], p[i, 2] - p[j, 2])
+            if r[0] * r[0] + r[1] * r[1] + r[2] * r[2] <= 0.0:
+                return COINCIDENT, 0.0
+            y = (m_hat[j, 0], m_hat[j, 1], m_hat[j, 2])
+            U_b += pair_energy(kk, pair_scalars(r, x, y))
+    return OK, U_b
+
+
+@kernel
+def _pair_gradients(p, m_hat, kk, dU_dp, dU_dm):
+    """``_pairs_into_slots`` of order 1."""
     n = p.shape[0]
     U_b = 0.0
     for i in range(n):
@@ -134,34 +161,55 @@ def _pairs_into_slots(p, m_hat, kk, order, dU_dp, dU_dm, H_ll, H_lm, H_mm):
             y = (m_hat[j, 0], m_hat[j, 1], m_hat[j, 2])
             sc = pair_scalars(r, x, y)
             U_b += pair_energy(kk, sc)
-            if order >= 1:
-                for c in range(3):
-                    gr, gx, gy = pair_gradient_entry(c, r, x, y, kk, sc)
-                    dU_dp[i, c] += gr
-                    dU_dp[j, c] -= gr
-                    dU_dm[i, c] += gx
-                    dU_dm[j, c] += gy
-            if order >= 2:
-                pj = j - 1  # j >= 1 always
-                box, jj = H_ll[i, pj], H_lm[pj, pj]
-                if i == 0:  # ball 0's dipole is fixed
-                    for a in range(3):
-                        for b in range(3):
-                            E, _, Ay, _ = pair_hessian_entry(a, b, r, x, y, kk, sc)
-                            box[a, b] += E
-                            jj[a, b] -= Ay
-                    continue
-                pi = i - 1
-                ji, ii, ij, mm = H_lm[pj, pi], H_lm[pi, pi], H_lm[pi, pj], H_mm[pi, pj]
+            for c in range(3):
+                gr, gx, gy = pair_gradient_entry(c, r, x, y, kk, sc)
+                dU_dp[i, c] += gr
+                dU_dp[j, c] -= gr
+                dU_dm[i, c] += gx
+                dU_dm[j, c] += gy
+    return OK, U_b
+
+
+@kernel
+def _pair_hessians(p, m_hat, kk, dU_dp, dU_dm, H_ll, H_lm, H_mm):
+    """``_pairs_into_slots`` of order 2."""
+    n = p.shape[0]
+    U_b = 0.0
+    for i in range(n):
+        x = (m_hat[i, 0], m_hat[i, 1], m_hat[i, 2])
+        for j in range(i + 1, n):
+            r = (p[i, 0] - p[j, 0], p[i, 1] - p[j, 1], p[i, 2] - p[j, 2])
+            if r[0] * r[0] + r[1] * r[1] + r[2] * r[2] <= 0.0:
+                return COINCIDENT, 0.0
+            y = (m_hat[j, 0], m_hat[j, 1], m_hat[j, 2])
+            sc = pair_scalars(r, x, y)
+            U_b += pair_energy(kk, sc)
+            for c in range(3):
+                gr, gx, gy = pair_gradient_entry(c, r, x, y, kk, sc)
+                dU_dp[i, c] += gr
+                dU_dp[j, c] -= gr
+                dU_dm[i, c] += gx
+                dU_dm[j, c] += gy
+            pj = j - 1  # j >= 1 always
+            box, jj = H_ll[i, pj], H_lm[pj, pj]
+            if i == 0:  # ball 0's dipole is fixed
                 for a in range(3):
                     for b in range(3):
-                        E, Ax, Ay, D = pair_hessian_entry(a, b, r, x, y, kk, sc)
+                        E, _, Ay, _ = pair_hessian_entry(a, b, r, x, y, kk, sc)
                         box[a, b] += E
                         jj[a, b] -= Ay
-                        ji[a, b] -= Ax
-                        ii[a, b] += Ax
-                        ij[a, b] += Ay
-                        mm[a, b] += D
+                continue
+            pi = i - 1
+            ji, ii, ij, mm = H_lm[pj, pi], H_lm[pi, pi], H_lm[pi, pj], H_mm[pi, pj]
+            for a in range(3):
+                for b in range(3):
+                    E, Ax, Ay, D = pair_hessian_entry(a, b, r, x, y, kk, sc)
+                    box[a, b] += E
+                    jj[a, b] -= Ay
+                    ji[a, b] -= Ax
+                    ii[a, b] += Ax
+                    ij[a, b] += Ay
+                    mm[a, b] += D
     return OK, U_b
 
 
