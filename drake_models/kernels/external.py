@@ -87,21 +87,55 @@ def dipole_arrays(points, centres, moments, B0, r2_min, hessian):
         for a in range(3):
             B[i, a] += B0[a]
     dG = np.zeros((n, 3, 3, 3))
-    if violation >= 0 or not hessian:
+    if violation >= 0 or not hessian or centres.shape[0] == 0:  # (no dipole: dG = 0)
         return violation, B, G, dG
-    stencil = np.empty((6 * n, 3))
-    for i in range(n):
-        for s in range(6):
-            for c in range(3):
-                stencil[6 * i + s, c] = points[i, c]
-            stencil[6 * i + s, s % 3] += GRADIENT_STEP if s < 3 else -GRADIENT_STEP
-    violation, _, Gs = dipole_field_and_gradient(stencil, centres, moments, r2_min)
+    # The stencil's gradients one point at a time (no flux density, no stencil arrays), each summed
+    # over the dipoles in order as ``dipole_field_and_gradient`` sums them.
+    k = centres.shape[0]
+    point = np.empty(3)
+    G_plus = np.empty((3, 3))
+    G_minus = np.empty((3, 3))
     for i in range(n):
         for c in range(3):
+            for s in range(2):
+                for e in range(3):
+                    point[e] = points[i, e]
+                point[c] += GRADIENT_STEP if s == 0 else -GRADIENT_STEP
+                out = G_plus if s == 0 else G_minus
+                j = _point_gradient(point, centres, moments, r2_min, out)
+                if j >= 0:  # the stencil point 6 i + c (+ 3 for the step back) too close to dipole j
+                    return (6 * i + c + 3 * s) * k + j, B, G, dG
             for a in range(3):
                 for b in range(3):
-                    dG[i, a, b, c] = (Gs[6 * i + c, a, b] - Gs[6 * i + 3 + c, a, b]) / (2 * GRADIENT_STEP)
+                    dG[i, a, b, c] = (G_plus[a, b] - G_minus[a, b]) / (2 * GRADIENT_STEP)
     return violation, B, G, dG
+
+
+@kernel
+def _point_gradient(point, centres, moments, r2_min, out):
+    """The dipoles' field gradient at one point (3,), written into ``out`` (3, 3) (the law and the
+    order of the sums of ``dipole_field_and_gradient``); returns -1, or the first dipole the point
+    is too close to (out then incomplete)."""
+    for a in range(3):
+        for b in range(3):
+            out[a, b] = 0.0
+    for j in range(centres.shape[0]):
+        r = (point[0] - centres[j, 0], point[1] - centres[j, 1], point[2] - centres[j, 2])
+        r2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2]
+        mr = moments[j, 0] * r[0] + moments[j, 1] * r[1] + moments[j, 2] * r[2]
+        if r2 <= r2_min[j] or r2 <= 0.0:
+            return j
+        inv_r2 = 1.0 / r2
+        inv_r = math.sqrt(inv_r2)
+        inv_r3 = inv_r2 * inv_r
+        inv_r5 = inv_r3 * inv_r2
+        for a in range(3):
+            for b in range(3):
+                g = moments[j, a] * r[b] + r[a] * moments[j, b] - 5.0 * mr * inv_r2 * r[a] * r[b]
+                if a == b:
+                    g += mr
+                out[a, b] += 3.0 * K_DIPOLE * inv_r5 * g
+    return -1
 
 
 @kernel

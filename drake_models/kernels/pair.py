@@ -3,8 +3,9 @@ and the sums over all pairs of a chain in Cartesian coordinates.
 
 The law's one home is its per-entry functions (``pair_scalars``, ``pair_energy``,
 ``pair_gradient_entry``, ``pair_hessian_entry``), inlined where they are called: the reduced
-energy's pair loop (``reduced._pairs_into_slots``) adds each entry where it lands, and
-``_pair_first``/``_pair_second`` write them into 3-vectors and 3 x 3 blocks for the sums here.
+energy's pair loops (``reduced._pairs_into_slots``, one per order) add each entry where it
+lands, and ``_pair_first``/``_pair_second`` write them into 3-vectors and 3 x 3 blocks for
+the sums here.
 
 The law of ``dipole.py`` (``chain_interactions``, ``chain_interaction_hessian``), compiled.
 """
