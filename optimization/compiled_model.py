@@ -206,7 +206,7 @@ class HeartSolve:
         if statics._constrained is None:
             statics._constrained = ConstrainedChain(statics.chain)
         self.model = statics._constrained
-        self._parts = None  # (constraints, model_parts) of the last constraints
+        self._parts = None  # (constraints, settings, model_parts) of the last solve
 
     def usable(self) -> bool:
         """Whether the solver's settings are those of the compiled path."""
@@ -228,9 +228,12 @@ class HeartSolve:
         if field is not None and not (np.isfinite(field[0]).all() and np.isfinite(field[1]).all()
                                       and np.isfinite(field[2]).all()):
             return None
-        if self._parts is None or self._parts[0] is not constraints:
-            self._parts = (constraints, model_parts(statics, model, constraints))
-        tup = with_field(self._parts[1], field)
+        # The parts depend on the constraints and the solver's settings (a caller may change those).
+        key = (statics.tolerance, statics.feasibility_tolerance, statics.contact_margin, statics.max_step,
+               statics.max_iterations)
+        if self._parts is None or self._parts[0] is not constraints or self._parts[1] != key:
+            self._parts = (constraints, key, model_parts(statics, model, constraints))
+        tup = with_field(self._parts[2], field)
         rows0 = np.fromiter(lam0.keys(), np.int64, len(lam0)) if lam0 else _NO_ROWS
         weights0 = np.fromiter(lam0.values(), float, len(lam0)) if lam0 else _NO_WEIGHTS
         chart = chart_frames(configuration_vectors(np.ascontiguousarray(p0_B, float), np.ascontiguousarray(m0_B, float)))

@@ -205,3 +205,28 @@ def test_short_path_declines_a_ball_inside_a_magnets_bounding_sphere():
         if inside:
             with pytest.raises(UserInputError, match="bounding sphere"):
                 lean.statics.solve(magnet, StaticsResult(p_B, m_B, 0.0, None, True, "", "", 0, 0.0), constraints=c)
+
+
+def test_short_path_follows_the_solvers_settings():
+    """The short path keeps the model's parts per constraints; a solver setting changed between two
+    solves on the same constraints is used (the same answer as ChainStatics.solve with it)."""
+    from ballchain.optimization.statics import StaticsResult
+    from ballchain.systems.chain_scenario import load_scenario
+    from ballchain.systems.chain_simulation import MakeStation
+
+    cd = MakeStation(load_scenario("heart_wall_contact", "{engine: statics, mode: quasi-static}"))
+    engine = cd.chain.engine_system
+    s = engine._s0 + 0.01
+    p, m, _, k = engine.equilibrium(s, None)
+    c = engine._constraints(s)[1]
+    lean = engine._lean[engine._n - k]
+    field = engine._field(None)
+    p_B, m_B = c.to_base(engine.straight(s)[0][k:], engine.straight(s)[1][k:])
+    for max_iterations in (50, 2):
+        lean.statics.max_iterations = max_iterations
+        answer = lean.solve(field, c, p_B, m_B, None)
+        reference = lean.statics.solve(field, StaticsResult(p_B, m_B, 0.0, None, True, "", "", 0, 0.0), constraints=c)
+        assert answer.iterations == reference.iterations <= max_iterations
+        assert answer.converged == reference.converged and answer.reason == reference.reason
+        assert np.array_equal(answer.positions, reference.positions)
+    assert not answer.converged and "iteration limit (2)" in answer.reason
