@@ -17,7 +17,7 @@ from ballchain.drake_models.field_sources import FieldSources, MagnetSource, Uni
 from ballchain.drake_models.kernels import check_status
 from ballchain.drake_models.params import GRAVITY
 from ballchain.optimization.blas_threads import one_blas_thread
-from ballchain.optimization.wall_constraints import RHO_SMOOTHING, PointDipoles
+from ballchain.optimization.wall_constraints import RHO_SMOOTHING, PointDipoles, row_force_W
 from ballchain.optimization.compiled_newton import (F_EXTERNAL, R_FIELD, R_LIMIT, R_LINE, R_MINIMUM,
                                                     R_MINIMUM_LINE, R_QP, R_SADDLE, R_ENERGY, S_HEART_WEIGHT, newton)
 from ballchain.drake_models.kernels import chart_frames, configuration_vectors
@@ -131,6 +131,11 @@ REASONS = {
 }
 
 
+def reason_text(statics, reason: int) -> str:
+    """``StaticsResult.reason`` of the kernel's reason code."""
+    return f"iteration limit ({statics.max_iterations}) reached" if reason == R_LIMIT else REASONS[reason]
+
+
 def run(statics, model, external, p0, m0, lam0, constraints):
     """The compiled solve of a ChainStatics' model from (p0, m0): ``(converged, reason,
     iterations, lam_near dict, lam_tip, p, m_hat, terms (4,), gaps, v)``, or None when the
@@ -155,10 +160,7 @@ def run(statics, model, external, p0, m0, lam0, constraints):
         return None
     if reason == R_ENERGY:
         check_status(status, "ReducedChain.evaluate")
-    if reason == R_LIMIT:
-        text = f"iteration limit ({statics.max_iterations}) reached"
-    else:
-        text = REASONS[reason]
+    text = reason_text(statics, reason)
     lam_near = dict(zip(rows.tolist(), lam.tolist()))
     return (reason in (R_MINIMUM, R_MINIMUM_LINE), text, int(iterations), lam_near, lam_tip, p, m_hat, terms,
             gaps, v)
@@ -301,16 +303,12 @@ class HeartAnswer:
         self._solve, self._constraints = solve, constraints
         self._raw = (reason, rows, lam, lam_tip, terms, gaps, v)
         self.positions, self.dipoles, self.iterations, self.solve_time = p, m_hat, iterations, elapsed
-        model = solve.model
-        P, d = model.n_pairs, model.d
-        # ChainStatics._assemble's verdict, the same tests on the same numbers.
-        smallest = [float(np.sqrt(max(gaps[:P].min() + 1.0, 0.0)) * d - d)] if P else []
-        if len(gaps) > P:
-            smallest.append(float(gaps[P:].min() * d))
-        max_violation = max(0.0, -min(smallest)) if smallest else 0.0
-        total = float(terms[0]) + float(terms[1]) + float(terms[2]) + float(terms[3])
-        self.converged = bool(reason in (R_MINIMUM, R_MINIMUM_LINE) and np.isfinite(p).all()
-                              and np.isfinite(m_hat).all() and np.isfinite(total) and max_violation <= 1e-7 * d)
+        from ballchain.optimization.statics import answer_verdict  # statics imports this module
+
+        # ChainStatics._assemble's verdict (its reason text is built when asked, ``result``).
+        total = float(terms[0]) + float(terms[1]) + float(terms[2]) + float(terms[3])  # EnergyTerms.total
+        self.converged = answer_verdict(solve.model, p, m_hat, total, gaps, reason in (R_MINIMUM, R_MINIMUM_LINE),
+                                        "")[0]
         self.multipliers = dict(zip(rows.tolist(), lam.tolist()))
         self._result = None
 
@@ -327,8 +325,7 @@ class HeartAnswer:
         lam = self.multipliers.get(model.n_pairs + L - 1)
         if lam is None or lam <= 1e-12:
             return None
-        v = self._raw[6]
-        return self._constraints.R_WB @ (lam * model.energy_scale * v[L - 1] / model.d)
+        return row_force_W(self._constraints.R_WB, self._raw[6][L - 1], lam, model.energy_scale, model.d)
 
     def result(self):
         """The ``StaticsResult`` ``ChainStatics.solve`` returns for this answer."""
@@ -340,9 +337,9 @@ class HeartAnswer:
             reason, rows, lam, lam_tip, terms, gaps, v = self._raw
             statics, model = self._solve.statics, self._solve.model
             model.set_constraints(self._constraints)
-            text = f"iteration limit ({statics.max_iterations}) reached" if reason == R_LIMIT else REASONS[reason]
             result = statics._assemble(model, self.positions, self.dipoles, EnergyTerms(*terms.tolist()), gaps,
-                                       reason in (R_MINIMUM, R_MINIMUM_LINE), text, self.iterations,
+                                       reason in (R_MINIMUM, R_MINIMUM_LINE), reason_text(statics, reason),
+                                       self.iterations,
                                        dict(self.multipliers), lam_tip, self._constraints, 0.0, v)
             self._result = replace(result, solve_time=self.solve_time)
         return self._result

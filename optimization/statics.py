@@ -497,19 +497,8 @@ class ChainStatics:
         """The StaticsResult of an answer's configuration (p, m_hat), energy terms and rows' values
         (``Evaluation.gaps``); ``rows_at`` the heart rows' gradients v (2L, 3) or the chart
         coordinates to find them at (with ``constraints``)."""
-        P, d = model.n_pairs, model.d
-        # The smallest gap [m]: rigidity rows |p_j - p_i| - d (monotone in c_ij: its smallest),
-        # then wall rows n . (p - p0) - d/2.
-        smallest = [float(np.sqrt(max(row_gaps[:P].min() + 1.0, 0.0)) * d - d)] if P else []
-        if len(row_gaps) > P:
-            smallest.append(float(row_gaps[P:].min() * d))
-        max_violation = max(0.0, -min(smallest)) if smallest else 0.0
-        if not (np.isfinite(p).all() and np.isfinite(m_hat).all()):
-            converged, reason = False, "non-finite configuration"
-        elif not np.isfinite(terms.total):
-            converged, reason = False, f"non-finite energy ({terms.total}) at the solver's answer"
-        elif converged and max_violation > 1e-7 * model.d:
-            converged, reason = False, f"rigidity or wall violated by {max_violation:.3g} m"
+        P = model.n_pairs
+        converged, reason, max_violation = answer_verdict(model, p, m_hat, terms.total, row_gaps, converged, reason)
         pair_forces = {
             (int(model.pair_i[k]), int(model.pair_j[k])): 2.0 * lam * model.energy_scale / model.d
             for k, lam in lam_near.items()
@@ -760,6 +749,30 @@ def solve_statics(
 
 
 MAX_CONTINUATION_STEPS = 10_000
+
+
+def answer_verdict(model, p: np.ndarray, m_hat: np.ndarray, total: float, row_gaps, converged: bool,
+                   reason: str) -> tuple[bool, str, float]:
+    """A solver's answer judged on its own numbers: ``(converged, reason, max_violation [m])``,
+    converged overruled (with the reason) by a non-finite configuration or energy, or by a
+    rigidity or wall row violated by more than 1e-7 of a ball diameter.
+
+    ``row_gaps``: the rows' values (``Evaluation.gaps``): rigidity rows first (``model.n_pairs``),
+    then wall rows."""
+    P, d = model.n_pairs, model.d
+    # The smallest gap [m]: rigidity rows |p_j - p_i| - d (monotone in c_ij: its smallest),
+    # then wall rows n . (p - p0) - d/2.
+    smallest = [float(np.sqrt(max(row_gaps[:P].min() + 1.0, 0.0)) * d - d)] if P else []
+    if len(row_gaps) > P:
+        smallest.append(float(row_gaps[P:].min() * d))
+    max_violation = max(0.0, -min(smallest)) if smallest else 0.0
+    if not (np.isfinite(p).all() and np.isfinite(m_hat).all()):
+        converged, reason = False, "non-finite configuration"
+    elif not np.isfinite(total):
+        converged, reason = False, f"non-finite energy ({total}) at the solver's answer"
+    elif converged and max_violation > 1e-7 * d:
+        converged, reason = False, f"rigidity or wall violated by {max_violation:.3g} m"
+    return converged, reason, max_violation
 
 
 def _non_finite_field(external, p: np.ndarray) -> str | None:

@@ -416,10 +416,15 @@ class ConstrainedChain(ReducedChain):
             if k < self.n_pairs or lam <= 1e-12:
                 continue
             row = k - self.n_pairs
-            # Force on the ball = lambda E0 dc/dp; dc/dp = v / d (both row kinds, see _rows).
-            f_W = R @ (lam * E0 * v[row] / d)
-            (wall if row < L else sheath)[row % L + 1] = f_W
+            (wall if row < L else sheath)[row % L + 1] = row_force_W(R, v[row], lam, E0, d)
         return wall, sheath
+
+
+def row_force_W(R_WB: np.ndarray, v_row: np.ndarray, lam: float, E0: float, d: float) -> np.ndarray:
+    """A wall or sheath row's push on its ball in world [N] from its multiplier lam (scaled by the
+    energy scale E0): lambda E0 dc/dp with dc/dp = v / d (both row kinds, see ``_rows``), turned
+    from frame B by R_WB."""
+    return R_WB @ (lam * E0 * v_row / d)
 
 
 class PlaneSDF:

@@ -398,11 +398,15 @@ class QuasiStaticEngine(LeafSystem):
         if lean is not None and not lean.usable():
             lean = None
 
+        def warm_base(p, m):
+            """(p_B, unit m_B) of the sub-chain from a world configuration."""
+            pB, mB = c.to_base(p[k:], m[k:])
+            return pB, mB / _norms(mB)[:, None]
+
         def warm_from(p, m):
             if p is None:
                 return None
-            pB, mB = c.to_base(p[k:], m[k:])
-            return StaticsResult(pB, mB / _norms(mB)[:, None], 0.0, None, True,
+            return StaticsResult(*warm_base(p, m), 0.0, None, True,
                                  "warm start", "", 0, 0.0, multipliers=self._multipliers.get(n_sub, {}))
 
         field = self._field(magnets)
@@ -411,11 +415,8 @@ class QuasiStaticEngine(LeafSystem):
         for p0, m0 in starts:  # the prediction, the last equilibrium, then one cold restart
             result = None
             if lean is not None:  # the same solve with less around it (HeartSolve), where it applies
-                if p0 is None:
-                    pB, mB = straight_chain(solver.chain)
-                else:
-                    pB, mB = c.to_base(p0[k:], m0[k:])
-                    mB = mB / _norms(mB)[:, None]
+                # ChainStatics.solve's start: the straight chain without multipliers (a cold restart)
+                pB, mB = straight_chain(solver.chain) if p0 is None else warm_base(p0, m0)
                 lam0 = None if p0 is None else self._multipliers.get(n_sub, {})
                 result = lean.solve(field, c, pB, mB, lam0)
             if result is None:
