@@ -24,6 +24,7 @@ import errno
 import json
 import math
 import os
+import secrets
 import shutil
 import stat
 import tempfile
@@ -35,7 +36,7 @@ from ballchain.drake_models.errors import OutputError, UserInputError, short_rep
 
 TEMP_SUFFIX = ".partial"
 _UMASK = os.umask(0o022)
-os.umask(_UMASK)  # read once: mkstemp makes 0600 files, results get the usual 0666 & ~umask
+os.umask(_UMASK)  # read once: temporary files are made 0600, results get the usual 0666 & ~umask
 
 NAME_MAX = 255  # bytes per name, when the file system does not say (Linux, macOS)
 PATH_MAX = 4096  # bytes per path, when the file system does not say (Linux)
@@ -132,20 +133,26 @@ def atomic_path(path):
     if kind not in ("absent", "file", "fifo"):
         raise OutputError(f"cannot write {short_repr(str(path))}: it is {_phrase(kind)}, not a regular file "
                           f"({_ONLY_FILES})")
+    # The temporary file's name is chosen before the file exists, and the clean-up below covers its
+    # creation: a stop (Ctrl-C, SIGTERM or SIGHUP, raised as KeyboardInterrupt between two
+    # bytecodes) landing right after the file was made cannot leave it behind. With
+    # tempfile.mkstemp it could (its name is known only once mkstemp has returned): a SIGHUP in a
+    # CI run of tests/test_faults.py once did.
+    if kind == "fifo":  # the temporary file goes to the temporary folder (a pipe's folder may be /dev/fd)
+        folder, prefix = Path(tempfile.gettempdir()), ".ballchain."
+    else:
+        folder, prefix = target.parent, f".{target.name[:TEMP_NAME_KEPT]}."
+    tmp = None
     try:
-        if kind == "fifo":  # the temporary file goes to the temporary folder (a pipe's folder may be /dev/fd)
-            fd, tmp = tempfile.mkstemp(prefix=".ballchain.", suffix=TEMP_SUFFIX)
-        else:
-            target.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=f".{target.name[:TEMP_NAME_KEPT]}.", suffix=TEMP_SUFFIX,
-                                       dir=target.parent)
-        os.close(fd)
-    except OSError as err:
-        if err.errno not in WRITE_ERRNOS:
-            raise
-        raise output_error(path, err) from None
-    tmp = Path(tmp)
-    try:
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            tmp = folder / f"{prefix}{secrets.token_hex(4)}{TEMP_SUFFIX}"
+            while not _created(tmp):  # taken (one chance in 4e9): another name
+                tmp = folder / f"{prefix}{secrets.token_hex(4)}{TEMP_SUFFIX}"
+        except OSError as err:
+            if err.errno not in WRITE_ERRNOS:
+                raise
+            raise output_error(path, err) from None
         yield tmp
         if kind == "fifo":
             with open(tmp, "rb") as source, open(target, "wb") as pipe:
@@ -155,10 +162,20 @@ def atomic_path(path):
             os.chmod(tmp, 0o666 & ~_UMASK)
             os.replace(tmp, target)
     except BaseException as err:
-        tmp.unlink(missing_ok=True)
+        if tmp is not None:
+            tmp.unlink(missing_ok=True)
         if isinstance(err, OSError) and err.errno in WRITE_ERRNOS:
             raise output_error(path, err) from err
         raise
+
+
+def _created(path: Path) -> bool:
+    """Create ``path`` as a new empty file (mode 0600); False when the name is taken."""
+    try:
+        os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o600))
+    except FileExistsError:
+        return False
+    return True
 
 
 def atomic_write_text(path, text: str) -> Path:

@@ -202,6 +202,49 @@ def test_signals_while_saving_do_not_cut_the_saving_short(monkeypatch, capfd, tm
     err = capfd.readouterr().err
     assert "SIGINT received while saving" in err and "interrupted by SIGTERM" in err
 
+@pytest.mark.parametrize("existing", [False, True])
+def test_a_stop_anywhere_in_an_atomic_write_leaves_no_temporary_file(tmp_path, existing):
+    """A stop raised between any two lines of Python while a result is written atomically (a signal's
+    handler runs there): the destination holds its old content or the new one, whole, and no
+    temporary file is left. The stop is simulated by a trace function raising KeyboardInterrupt at
+    the n-th line or call, for every n until the write finishes uninterrupted. (With
+    tempfile.mkstemp a stop right after the file was made left it behind: a CI run's SIGHUP.)"""
+    from ballchain.drake_models.safe_files import TEMP_SUFFIX, atomic_write_text
+
+    dest = tmp_path / "out" / "report.html"
+    old, new = "old report\n", "new report, whole\n" * 50
+    stopped_at = []
+    for n in range(1, 5000):
+        if existing:
+            dest.parent.mkdir(exist_ok=True)
+            dest.write_text(old)
+        events = [0]
+
+        def tracer(frame, event, arg):
+            if event in ("call", "line"):
+                events[0] += 1
+                if events[0] == n:
+                    sys.settrace(None)
+                    raise KeyboardInterrupt
+            return tracer
+
+        sys.settrace(tracer)
+        try:
+            atomic_write_text(dest, new)
+        except KeyboardInterrupt:
+            stopped_at.append(n)
+        finally:
+            sys.settrace(None)
+        left = sorted(p.name for p in tmp_path.rglob(f"*{TEMP_SUFFIX}"))
+        assert not left, f"stopped at event {n}: temporary file left behind: {left}"
+        if dest.exists():
+            assert dest.read_text() in ((old, new) if existing else (new,)), f"stopped at event {n}"
+        if not stopped_at or stopped_at[-1] != n:  # the write finished: every point was tried
+            assert dest.read_text() == new
+            break
+        dest.unlink(missing_ok=True)
+    assert len(stopped_at) > 20  # the write's own lines and calls were all visited
+
 
 # ------------------------------------------------------------------ the process's exit status
 
