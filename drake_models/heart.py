@@ -44,6 +44,7 @@ contact, and a finer closed visual surface (OBJ).
 
 from __future__ import annotations
 
+import functools
 import hashlib
 from dataclasses import asdict, dataclass, field, replace
 from functools import cached_property
@@ -159,6 +160,35 @@ class TargetRing:
     curve_length: float  # length of the smooth ring curve [m]
     polygon_length: float  # sum of the straight segments between consecutive targets [m]
     spacing: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (n,) centre-to-centre [m]
+
+
+HULL_BALLS = 101  # balls along the segment between two ostia whose union is a target ring's hull
+HULL_WINDOW = 8  # balls on each side of the nearest point of the continuous hull that are measured
+
+
+def _hull_distance(centres: np.ndarray, radii: np.ndarray, x: np.ndarray, window: int = HULL_WINDOW) -> np.ndarray:
+    """min over the balls (centres (k, 3), radii (k,)) of |x - c| - r for points x (n, 3): < 0
+    inside their union. The balls are sampled along a segment with linearly varying radius, where
+    f(s) = |x - c(s)| - r(s) is convex in the arc length s: the smallest sample lies next to f's
+    continuous minimiser s* = a + kappa b / sqrt(1 - kappa^2) (a, b: x's coordinates along and
+    across the segment, kappa = dr/ds), so only the ``window`` balls on each side of s* are
+    measured, with the very arithmetic of measuring them all (the same floats:
+    tests/test_heart.py). Without a window (0), or when one ball holds another (|kappa| >= 1),
+    every ball is measured."""
+    n_balls = len(centres)
+    axis = centres[-1] - centres[0]
+    length = float(np.sqrt(axis @ axis))
+    kappa = (radii[-1] - radii[0]) / length if length > 0 else np.inf
+    if window <= 0 or not abs(kappa) < 1.0 or 2 * window + 1 >= n_balls:
+        return (np.linalg.norm(x[:, None, :] - centres[None], axis=2) - radii).min(axis=1)
+    e = axis / length
+    u = x - centres[0]
+    a = u @ e
+    b = np.sqrt(np.maximum((u * u).sum(axis=1) - a * a, 0.0))
+    nearest = np.rint((a + kappa * b / np.sqrt(1.0 - kappa * kappa)) / length * (n_balls - 1))
+    first = np.clip(nearest.astype(np.int64) - window, 0, n_balls - 1 - 2 * window)
+    idx = first[:, None] + np.arange(2 * window + 1)
+    return (np.linalg.norm(x[:, None, :] - centres[idx], axis=2) - radii[idx]).min(axis=1)
 
 
 def _ellipsoid_radial_hit(directions: np.ndarray, semi_axes: np.ndarray) -> np.ndarray:
@@ -286,12 +316,10 @@ class LeftAtrium:
         margin = self.params.ring_margin
         c1, c2 = o1.p_HO, o2.p_HO
         r1, r2 = 0.5 * o1.diameter + margin, 0.5 * o2.diameter + margin
-        t = np.linspace(0.0, 1.0, 101)
+        t = np.linspace(0.0, 1.0, HULL_BALLS)
         centres = c1 + t[:, None] * (c2 - c1)  # union of these balls = the hull of the end balls
         radii = r1 + t * (r2 - r1)
-
-        def inside_hull(x):  # (k, 3) -> (k,) signed distance-like (< 0 inside the hull)
-            return (np.linalg.norm(x[:, None, :] - centres[None], axis=2) - radii).min(axis=1)
+        inside_hull = functools.partial(_hull_distance, centres, radii)
 
         mid = _ellipsoid_radial_hit(0.5 * (c1 + c2), ax)[0]
         nrm = _ellipsoid_normals(mid, ax)[0]

@@ -212,3 +212,37 @@ def test_both_atria_implement_the_atrium_protocol(heart, tmp_path):
     user = UserAtrium(load_atrium_surface(path), heart.p_HP)
     assert isinstance(user, Atrium)
     assert user.rings == {} and user.ostia == [] and user.carinas == {}
+
+
+@pytest.mark.parametrize("params", [HeartParams(), HeartParams(scale=0.8, ring_margin=4e-3)])
+def test_the_ring_hull_measured_near_its_nearest_ball_gives_the_floats_of_every_ball(params, monkeypatch):
+    """``_hull_distance`` measures only the balls around the continuous hull's nearest point: the
+    same floats as measuring all of them, at random points around the hull and at every point
+    the rings' bisection visits, and the same rings bit for bit."""
+    from ballchain.drake_models import heart as h
+
+    rng = np.random.default_rng(7)
+    c1, c2 = np.array([0.01, -0.02, 0.015]), np.array([0.035, 0.0, 0.02])
+    for r1, r2 in ((0.009, 0.011), (0.012, 0.006), (0.008, 0.008)):
+        t = np.linspace(0.0, 1.0, h.HULL_BALLS)
+        centres, radii = c1 + t[:, None] * (c2 - c1), r1 + t * (r2 - r1)
+        x = c1 + rng.normal(scale=0.03, size=(5000, 3))
+        x[:50] = centres[rng.integers(0, h.HULL_BALLS, 50)]  # on the axis (b = 0)
+        windowed = h._hull_distance(centres, radii, x)
+        assert np.array_equal(windowed, h._hull_distance(centres, radii, x, window=0))
+    visited, reference = [], h._hull_distance
+
+    def both(centres, radii, x, window=h.HULL_WINDOW):
+        visited.append(x.copy())
+        out = reference(centres, radii, x, window)
+        assert np.array_equal(out, reference(centres, radii, x, 0))
+        return out
+
+    monkeypatch.setattr(h, "_hull_distance", both)
+    fast = LeftAtrium(params)
+    assert len(visited) == 2 * 51  # the check of each ring's outer bound and its 50 bisection steps
+    monkeypatch.setattr(h, "_hull_distance", lambda c, r, x, window=0: reference(c, r, x, 0))
+    full = LeftAtrium(params)
+    for side in ("left", "right"):
+        assert np.array_equal(fast.rings[side].p_HT, full.rings[side].p_HT)
+        assert np.array_equal(fast.rings[side].spacing, full.rings[side].spacing)
