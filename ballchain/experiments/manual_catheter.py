@@ -507,8 +507,7 @@ def transition_figure(comparison: dict, path) -> None:
     vmax = max([v for t in tasks for d in DEVICES for v in comparison["transitions"][t][d] if v is not None] or [1.0])
     for ax, task in zip(axes[:, 0], tasks):
         grid = np.array([[np.nan if v is None else v for v in comparison["transitions"][task][d]] for d in DEVICES])
-        cmap = matplotlib.colormaps["viridis"].copy()
-        cmap.set_bad("0.8")
+        cmap = matplotlib.colormaps["viridis"].with_extremes(bad="0.8")
         image = ax.imshow(np.ma.masked_invalid(grid), aspect="auto", cmap=cmap, vmin=0.0, vmax=vmax)
         ax.set_yticks(range(len(DEVICES)), DEVICES)
         ax.set_xticks(range(grid.shape[1]), comparison["pairs"][task], rotation=90, fontsize=7)
