@@ -192,6 +192,8 @@ class ChainModel(ABC):
         time_step: the chain's step [s] (the plant's step, or the engine's period).
         move_period: the chain moves only at updates this far apart [s] (the engine's period),
             or 0 when it moves at every step (the plant): checking more often finds nothing new.
+            A model with a period reports an update that leaves its state non-finite through
+            ``failure`` at once: the watchdog reads its state only at its checks.
     """
 
     engine: str  # the scenario's ``engine`` this model is

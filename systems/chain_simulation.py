@@ -16,6 +16,7 @@ or the chain breaking apart, and returns the typed ``SimulationMetrics`` otherwi
 from __future__ import annotations
 
 import gc
+import math
 import resource
 import sys
 import time
@@ -116,7 +117,7 @@ class SimulationFailure(RuntimeError):
 __all__ = [
     "ChainMonitor", "MakeStation", "RunOutcome", "SimulationFailure", "SimulationMetrics", "SnapThrough",
     "StaticsEngineStats", "Station", "StationPorts", "StationRunner",
-    "atrium_for", "chain_for", "field_source_for", "frozen_gc", "replay_bytes", "run_simulation",
+    "after_updates", "atrium_for", "chain_for", "field_source_for", "frozen_gc", "replay_bytes", "run_simulation",
     "run_station", "station_monitor",
 ]
 
@@ -142,11 +143,16 @@ def near_ostium_rim(heart, p_W: np.ndarray) -> bool:
     return False
 
 
+_SUCCEEDED = EventStatus.Succeeded()  # the watchdog's answer between its checks (returned by value)
+_FAILED = EventStatus.Severity.kFailed
+
+
 class ChainMonitor:
     """Per-step watchdog and metrics of a Station (install with ``simulator.set_monitor``).
 
     Every ``scenario.check_period`` it checks the state for NaN, the chain for breaks and ball
-    overlaps (cheap); every ``wall_check_every``-th of those checks it also checks escapes from
+    overlaps (cheap; between those checks, the state for NaN at every step, unless the chain
+    moves only at its updates and reports a non-finite one as its ``failure``: the engine); every ``wall_check_every``-th of those checks it also checks escapes from
     the heart and the wall clearance (mesh queries, about 2 ms for 16 balls: checked every
     period they cost about 0.4 ms a step). The simulated trajectory does not depend on either;
     the clearance and penetration metrics are samples at the coarser period (plus one at the
@@ -171,6 +177,7 @@ class ChainMonitor:
         self._d = cd.chain.config.chain.ball_diameter
         # A chain that moves only at its updates (the engine's) shows nothing new in between.
         self._period = max(cd.scenario.check_period, cd.chain.move_period)
+        self._quiet_between = cd.chain.move_period > 0
         self._next_check = 0.0
         self._wall_every = int(wall_check_every)
         self._since_wall = self._wall_every - 1  # the first periodic check includes the wall
@@ -260,11 +267,13 @@ class ChainMonitor:
         return None
 
     def __call__(self, root_context):
-        plant_context = self._system.GetMyContextFromRoot(root_context)
         t = root_context.get_time()
         if t + 1e-12 < self._next_check and not self._chain.failure:
-            if self._chain.is_finite(plant_context):
-                return EventStatus.Succeeded()
+            # A chain that moves only at its updates (the engine) reports a non-finite update as
+            # its failure (above): between the checks its state holds nothing new to look at.
+            if self._quiet_between or self._chain.is_finite(self._system.GetMyContextFromRoot(root_context)):
+                return _SUCCEEDED
+        plant_context = self._system.GetMyContextFromRoot(root_context)
         self._next_check = t + self._period
         self._since_wall += 1
         wall = self._since_wall >= self._wall_every
@@ -409,6 +418,36 @@ def captioned_replay(page: str, caption: str | None) -> str:
     return page + label if at < 0 else page[:at] + label + page[at:]
 
 
+def after_updates(condition, period: float):
+    """``condition(root_context) -> bool`` asked only where its answer can have changed: a
+    condition on one system's state that only its periodic updates (``period`` [s], offset 0)
+    change, e.g. ``SimulatedOperator.is_done``. As a ``stop`` of ``station_monitor``.
+
+    Drake applies the updates at time t in the step that starts at t: the monitor sees them at
+    that step's end. The condition is asked at the first monitor call after each update time
+    (and at the first call of a run, or of a run started over at an earlier time); in between,
+    its last answer is returned. The same steps end the run as asking at every step, without
+    the context lookups at the other steps (the steps of the faster units, the feeder's).
+    """
+    if not (isinstance(period, (int, float)) and math.isfinite(period) and period > 0):
+        raise ValueError(f"after_updates: period must be a positive number of seconds, got {period!r}")
+    tolerance = 1e-9 * period  # far below any step, far above the event times' round-off
+    seen = {"next": -math.inf, "last": -math.inf, "answer": False}
+
+    def ask(root_context):
+        t = root_context.get_time()
+        if t < seen["last"]:  # the run started over
+            seen["next"] = -math.inf
+        seen["last"] = t
+        if t <= seen["next"] + tolerance:  # no update applied since the last answer
+            return seen["answer"]
+        seen["answer"] = bool(condition(root_context))
+        seen["next"] = math.ceil(t / period - 1e-9) * period  # the first update at or after t
+        return seen["answer"]
+
+    return ask
+
+
 def station_monitor(cd: Station, monitor: ChainMonitor, stop=None, on_time=None, check=None):
     """The Simulator monitor of a station run: ``check``, the watchdog, then ``on_time``, then ``stop``.
 
@@ -424,13 +463,16 @@ def station_monitor(cd: Station, monitor: ChainMonitor, stop=None, on_time=None,
         ``monitor(root_context) -> EventStatus`` for ``Simulator.set_monitor``.
     """
 
+    if check is None and on_time is None and stop is None:
+        return monitor
+
     def watch(root_context):
         if check is not None:
             message = check(root_context)
             if message:
                 return EventStatus.Failed(cd.diagram, message)
         status = monitor(root_context)
-        if status.severity() == EventStatus.Severity.kFailed:
+        if status is not _SUCCEEDED and status.severity() == _FAILED:
             return status
         if on_time is not None:
             on_time(root_context.get_time())

@@ -615,6 +615,10 @@ class QuasiStaticEngine(LeafSystem):
             x[sl["wall_t"]] = context.get_time()
         x[sl["snaps"]] += new_snaps
         x[sl["failures"]] += new_failures
+        if not np.isfinite(x).all() and self.failure is None:
+            # The watchdog looks at the state only at its checks (the chain moves only here):
+            # a non-finite update is reported at once, as a failure (ChainModel.move_period).
+            self.failure = f"quasi-static engine at t = {context.get_time():.4f} s: a non-finite state"
 
     # --- outputs ---------------------------------------------------------------------------------
     def _calc_body_poses(self, context, output):

@@ -114,6 +114,41 @@ def test_watchdog_names_the_ball_whose_state_is_not_finite():
     message = ChainMonitor(cd).check(pc)
     assert "NaN or inf" in message and "ball 3 (position)" in message
 
+def test_an_engine_update_to_a_non_finite_state_stops_the_run_at_that_update():
+    """The watchdog reads the engine's state only at its checks (the chain moves only at the
+    engine's updates): an update that leaves a NaN is reported by the engine, and the run stops
+    at the end of that very step, even between two checks."""
+    from ballchain.systems.chain_scenario import load_scenario
+    from ballchain.systems.chain_simulation import ChainMonitor, MakeStation
+
+    cd = MakeStation(load_scenario("heart_left_quasi_static", "{engine: statics, duration: 0.3}"))
+    engine = cd.chain.engine_system
+    walk = engine._walk
+    poisoned_at = []
+
+    def poisoned(t, *args, **kwargs):
+        p, m, result, motion = walk(t, *args, **kwargs)
+        if t >= 0.1 - 1e-9:
+            poisoned_at.append(t)
+            p = p.copy()
+            p[4, 1] = np.nan
+        return p, m, result, motion
+
+    engine._walk = poisoned
+    simulator = Simulator(cd.diagram)
+    monitor = ChainMonitor(cd)
+    simulator.set_monitor(monitor)
+    simulator.Initialize()
+    monitor._next_check = 1.0  # no periodic check before the end: only the engine's report stops it
+    with pytest.raises(RuntimeError, match=r"NaN or inf in the state at t = (\d\.\d+) s: ball 5 .position.") as err:
+        simulator.AdvanceTo(0.3)
+    # Drake applies the update made at t during the step from t: the monitor, called at that
+    # step's end (the engine's next update time, the only events), stops the run there.
+    stop = poisoned_at[0] + engine.period
+    assert len(poisoned_at) == 1 and simulator.get_context().get_time() == pytest.approx(stop)
+    assert f"t = {stop:.4f} s" in str(err.value)
+
+
 
 def test_nan_joystick_in_the_station_stops_at_once_naming_the_unit():
     """The old hang on a NaN stick axis: now the first derivative evaluation refuses it."""

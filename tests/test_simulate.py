@@ -405,3 +405,71 @@ def test_the_metrics_serialise_to_the_keys_of_the_simulate_json():
     assert full["statics"] == {"solves": 2, "median_solve_ms": 4.0, "max_solve_ms": 5.0, "median_iterations": 7.0,
                                "snap_throughs": [{"t_s": 0.05, "jump_mm": None, "detail": "branch ended"}],
                                "failures": []}
+
+
+class _Flips(__import__("pydrake.systems.framework", fromlist=["LeafSystem"]).LeafSystem):
+    """A counter updated every ``period`` (offset 0) among faster events (every ``fast``): its
+    condition (the count reached ``at``) changes only at its updates."""
+
+    def __init__(self, period: float, fast: float, at: int):
+        super().__init__()
+        self.at = at
+        self.count = self.DeclareDiscreteState(1)
+        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
+        self.DeclarePeriodicDiscreteUpdateEvent(fast, 0.0, lambda context, state: None)
+
+    def _update(self, context, state):
+        state.get_mutable_vector(self.count).SetAtIndex(0, context.get_discrete_state(self.count).GetAtIndex(0) + 1)
+
+    def reached(self, context) -> bool:
+        return context.get_discrete_state(self.count).GetAtIndex(0) >= self.at
+
+
+@pytest.mark.parametrize("period, fast, at", [(0.05, 0.002, 7), (0.05, 0.005, 1), (0.02, 0.003, 13), (0.1, 0.1, 4)])
+def test_a_stop_asked_only_after_its_updates_ends_the_run_where_asking_every_step_does(period, fast, at):
+    """``after_updates``: the same end time as the condition asked at every step, including a run
+    started over from an earlier time, and it asks far less often than every step."""
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.framework import EventStatus
+
+    from ballchain.systems.chain_simulation import after_updates
+
+    def end_time(gated: bool, restart: bool = False):
+        system = _Flips(period, fast, at)
+        asked = [0]
+
+        def condition(context):
+            asked[0] += 1
+            return system.reached(context)
+
+        stop = after_updates(condition, period) if gated else condition
+        simulator = Simulator(system)
+
+        def monitor(context):
+            if stop(context):
+                return EventStatus.ReachedTermination(None, "reached")
+            return EventStatus.Succeeded()
+
+        simulator.set_monitor(monitor)
+        simulator.Initialize()
+        if restart:  # half-way, then from the start again (StationRunner.restart)
+            simulator.AdvanceTo(0.5 * period * at)
+            simulator.get_mutable_context().SetTime(0.0)
+            simulator.get_mutable_context().SetDiscreteState(0, [0.0])
+            simulator.Initialize()
+        simulator.AdvanceTo(10.0)
+        return simulator.get_context().get_time(), asked[0], simulator.get_num_steps_taken()
+
+    t_every, asked_every, steps = end_time(False)
+    t_gated, asked_gated, _ = end_time(True)
+    assert t_every < 9.0 and t_gated == t_every
+    assert asked_every >= steps and asked_gated <= at + 1  # every step (and the initialisation)
+    assert end_time(True, restart=True)[0] == t_every
+
+
+def test_after_updates_refuses_a_period_that_is_not_positive():
+    from ballchain.systems.chain_simulation import after_updates
+
+    for bad in (0.0, -1.0, float("nan"), "0.05"):
+        with pytest.raises(ValueError, match="period must be a positive"):
+            after_updates(lambda context: False, bad)

@@ -324,3 +324,19 @@ def test_mapper_cross_product_is_numpys_bit_for_bit():
     rng = np.random.default_rng(11)
     for a, b in rng.normal(size=(2000, 2, 3)) * rng.choice([1e-9, 1.0, 1e9], size=(2000, 2, 1)):
         assert np.array_equal(_cross(a, b), np.cross(a, b))
+
+
+def test_the_run_ends_where_asking_the_operator_at_every_step_would_end_it(heart, monkeypatch):
+    """The run's stop (the operator done) is asked only after the operator's updates
+    (``after_updates``): the same rows, simulated time and final engine state as asking at
+    every step (three targets, right ring, world mapping)."""
+    import ballchain.systems.chain_simulation as chain_simulation
+
+    def run():
+        data = teleop.run(task="right", mapping="world", targets=3, progress=False, heart=heart)
+        return data.rows, data.summary.sim_time_s
+
+    gated = run()
+    monkeypatch.setattr(chain_simulation, "after_updates", lambda condition, period: condition)
+    every_step = run()
+    assert gated == every_step and len(gated[0]) == 3 and gated[1] > 1.0

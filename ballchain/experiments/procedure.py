@@ -626,7 +626,8 @@ def _finisher(lesions: bool, ring_order: list[str], html):
 def _simulate(task, anatomy, scenario, plans, missing, params, localisation, seed, plan_cpu, progress, html,
               overrides, track_sheath: bool = False) -> ProcedureResult:
     """Build the station with the navigator, run it, and tabulate."""
-    from ballchain.systems.chain_simulation import ChainMonitor, MakeStation, near_ostium_rim, run_station
+    from ballchain.systems.chain_simulation import (ChainMonitor, MakeStation, after_updates, near_ostium_rim,
+                                                    run_station)
 
     heart = anatomy.atrium()
     handles: dict = {}
@@ -648,7 +649,7 @@ def _simulate(task, anatomy, scenario, plans, missing, params, localisation, see
     nav = handles["navigator"]
     monitor = ChainMonitor(cd, tolerate_sinking=lambda p: near_ostium_rim(heart, p))
     run = run_station(cd, duration=limit, monitor=monitor,
-                      stop=lambda c: nav.is_done(nav.GetMyContextFromRoot(c)),
+                      stop=after_updates(lambda c: nav.is_done(nav.GetMyContextFromRoot(c)), nav.params.period),
                       progress=f"procedure {task or anatomy.name}/auto" if progress else None, progress_step=0.5,
                       html=html, meshcat=meshcat)
     records = {r.target: r for r in nav.records(nav.GetMyContextFromRoot(run.context))}
@@ -747,7 +748,8 @@ def _operator_row(record, logs, context, n_W, params, ball_radius: float) -> dic
 
 def _simulate_operator(task, anatomy, chosen, scenario, params, seed, progress, html, overrides) -> ProcedureResult:
     """The simulated operator's run on the targets ``chosen`` (indices in the anatomy's file order)."""
-    from ballchain.systems.chain_simulation import ChainMonitor, MakeStation, near_ostium_rim, run_station
+    from ballchain.systems.chain_simulation import (ChainMonitor, MakeStation, after_updates, near_ostium_rim,
+                                                    run_station)
 
     heart = anatomy.atrium()
     names = [anatomy.target_names[k] for k in chosen]
@@ -762,7 +764,8 @@ def _simulate_operator(task, anatomy, chosen, scenario, params, seed, progress, 
     op = handles["operator"]
     limit = len(names) * (op.params.timeout + params.dwell) + 5.0
     monitor = ChainMonitor(cd, tolerate_sinking=lambda p: near_ostium_rim(heart, p))
-    run = run_station(cd, duration=limit, monitor=monitor, stop=lambda c: op.is_done(op.GetMyContextFromRoot(c)),
+    run = run_station(cd, duration=limit, monitor=monitor,
+                      stop=after_updates(lambda c: op.is_done(op.GetMyContextFromRoot(c)), op.params.period),
                       progress=f"procedure {task or anatomy.name}/operator" if progress else None,
                       progress_step=0.5, html=html, meshcat=meshcat)
     records = {r.target: r for r in op.records(op.GetMyContextFromRoot(run.context))}

@@ -265,8 +265,8 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     """
     from dataclasses import replace
 
-    from ballchain.systems.chain_simulation import (ChainMonitor, MakeStation, atrium_for, near_ostium_rim,
-                                                    run_station)
+    from ballchain.systems.chain_simulation import (ChainMonitor, MakeStation, after_updates, atrium_for,
+                                                    near_ostium_rim, run_station)
     from ballchain.systems.simulated_operator import OperatorParams, SimulatedOperator
     from ballchain.systems.target_contact import heart_targets
 
@@ -329,7 +329,7 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     chain_monitor = ChainMonitor(cd, tolerate_sinking=lambda p: near_ostium_rim(heart, p))
     # The run ends when the operator has touched or given up every target.
     run = run_station(cd, duration=limit, monitor=chain_monitor,
-                      stop=lambda context: op.is_done(op.GetMyContextFromRoot(context)),
+                      stop=after_updates(lambda c: op.is_done(op.GetMyContextFromRoot(c)), op.params.period),
                       progress=f"teleop {_label(task, anatomy)}/{mapping}" if progress else None, progress_step=0.1,
                       html=html, meshcat=meshcat)
     rows = op.rows(op.GetMyContextFromRoot(run.context))
