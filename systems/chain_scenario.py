@@ -30,6 +30,7 @@ from ballchain.drake_models.safe_yaml import (check_yaml_schema, load_typed, loa
                                              schema_fields as _schema_fields)
 from ballchain.drake_models.params import BallChain
 from ballchain.systems.chain_plant import ChainPlantConfig, ContactConfig, chain_multibody_plant_config
+from ballchain.systems.feeder import FeederSpec, batch_steps
 from ballchain.systems.force_sensor_pin import stability_bound
 from ballchain.systems.randomness import check_random_seed
 from ballchain.systems.unit_config import MagnetUnitConfig
@@ -87,6 +88,11 @@ class InsertionScenario:
             system ``feeder_command``) or "external" (another system, e.g. a simulated operator:
             the feeder's ``v_insert_cmd`` input (1) [m/s] is left to ``MakeStation``'s
             ``add_systems`` hook, or exported as the diagram input ``feeder.v_insert_cmd``).
+        feeder_command_period: with ``feeder_command: external``, 0 (the command may change at
+            any time), or the period [s] of the system that sets the command in its periodic
+            updates (offset 0: a simulated operator's looks, 0.05 s): the feeder then makes its
+            2 ms steps in batches at those updates, with the same numbers and a fifth of the
+            simulator steps (``Feeder(command_period=)``; a whole multiple of the 2 ms step).
         slide_gains: (kp [N/m], kd [N s/m]) of the PD actuator that holds ball 1's slide on the
             commanded inserted length (implicit in the discrete solver; the plant engine only).
     """
@@ -98,6 +104,7 @@ class InsertionScenario:
     external: bool = False
     feeder: bool = False
     feeder_command: str = "ramp"
+    feeder_command_period: float = 0.0
     slide_gains: list[float] = field(default_factory=lambda: list(ChainPlantConfig.feeder_gains))
 
 
@@ -740,6 +747,14 @@ def _check_unit_numbers(u: "MagnetUnitConfig", where: str) -> None:
                                      f"1 (reconfiguration), got {key.mode!r}")
 
 
+def _whole_steps(period: float) -> bool:
+    try:
+        batch_steps(period, FeederSpec().update_period)
+    except UserInputError:
+        return False
+    return True
+
+
 def check_insertion(s: "ChainScenario") -> None:
     """The feeder's ramp (lengths within MAX_DISTANCE, a positive speed), its command, and the
     slide actuator's gains."""
@@ -754,6 +769,11 @@ def check_insertion(s: "ChainScenario") -> None:
     _one_of(ins.feeder_command, FEEDER_COMMANDS, "insertion.feeder_command")
     _require(ins.feeder_command != "external" or ins.feeder,
              "scenario insertion.feeder_command: external needs the feeder (insertion.feeder: true)")
+    period = ins.feeder_command_period
+    _require(period == 0.0 or (ins.feeder_command == "external" and 0.0 < period <= 1.0
+                               and _whole_steps(period)),
+             "scenario insertion.feeder_command_period must be 0, or with feeder_command: external a whole "
+             f"multiple of the feeder's {FeederSpec().update_period:g} s step up to 1 s, got {period:g}")
     kp_kd = ins.slide_gains
     _require(len(kp_kd) == 2 and all(math.isfinite(g) and g >= 0.0 for g in kp_kd) and 0.0 < kp_kd[0] <= MAX_SLIDE_KP,
              f"scenario insertion.slide_gains must be [kp in (0, {MAX_SLIDE_KP:g}] N/m, kd >= 0 N s/m], "

@@ -8,6 +8,7 @@ and is limited to 0..chain length.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -64,10 +65,20 @@ class Feeder(LeafSystem):
 
     State (discrete, period ``spec.update_period``): ``speed`` (1) [m/s], ``length_command``
     (1) [m], ``microsteps`` (1) [count].
+
+    With a ``command_period`` (a multiple of ``spec.update_period``), for a command that changes
+    only at multiples of it (an operator's looks): the steps of a period are computed together,
+    at its end, with the same arithmetic one by one, and the outputs in between add the steps
+    already due (the same numbers as stepping every ``update_period``, for a fifth or less of
+    the simulator steps). Two more states: ``next_step`` (1), the index k of the next step due
+    (at k ``update_period``), and ``held_command`` (1), the command of the steps since the last
+    batch [m/s]; both set at initialisation. The command must be set in periodic unrestricted
+    updates at multiples of ``command_period`` (a simulated operator's or navigator's looks):
+    the steps at a look's time already move under its new command, as when stepping alone.
     """
 
     def __init__(self, chain: BallChain | None = None, spec: FeederSpec | None = None, name: str = "feeder",
-                 initial_length: float = 0.0) -> None:
+                 initial_length: float = 0.0, command_period: float | None = None) -> None:
         """
         Args:
             chain: the chain being fed (its length is the end stop).
@@ -75,6 +86,9 @@ class Feeder(LeafSystem):
             name: system name.
             initial_length: inserted length in the default state [m], in 0..chain length
                 (rounded to whole microsteps).
+            command_period: None (every step on its own), or a whole multiple of
+                ``spec.update_period`` [s] at whose multiples alone ``v_insert_cmd`` changes
+                (the class docstring; a command that changes in between would be applied late).
         """
         super().__init__()
         if chain is not None:
@@ -98,36 +112,112 @@ class Feeder(LeafSystem):
         self._length_index = self.DeclareDiscreteState(BasicVector([float(initial_length)]))
         self._steps_index = self.DeclareDiscreteState(
             BasicVector([float(np.round(initial_length / self._spec.step_length))]))
+        self._batch = batch_steps(command_period, self._dt)
+        self._command_period = None if command_period is None else float(command_period)
         self._length_port = self.DeclareVectorOutputPort("inserted_length", 1, self._calc_length)
         self._balls_port = self.DeclareVectorOutputPort("balls_out", 1, self._calc_balls)
-        self.DeclarePeriodicDiscreteUpdateEvent(self._spec.update_period, 0.0, self._update)
+        if self._batch == 1:
+            self.DeclarePeriodicDiscreteUpdateEvent(self._spec.update_period, 0.0, self._update)
+        else:
+            self._next_index = self.DeclareDiscreteState(1)
+            self._held_index = self.DeclareDiscreteState(1)
+            # The command's own period (the very event times of the system that sets it).
+            self.DeclarePeriodicDiscreteUpdateEvent(float(command_period), 0.0, self._update_batch)
+            self.DeclareInitializationDiscreteUpdateEvent(self._start)
 
     @property
     def spec(self) -> FeederSpec:
         return self._spec
 
-    def _update(self, context, discrete_state):
-        # Plain floats throughout (500 updates a second): min/max clip a finite number as
-        # np.clip does, and round() rounds half to even as np.round does.
-        dt = self._dt
-        # np.clip keeps a NaN: refuse it here, naming the feeder, the port and the time.
-        command = float(check_finite_input(self, self._v_port, context)[0])
+    @property
+    def command_period(self) -> float | None:
+        """The period [s] at whose multiples alone the command changes (None: any step)."""
+        return None if self._batch == 1 else self._command_period
+
+    def _steps(self, v: float, x: float, command: float, n: int) -> tuple[float, float]:
+        """(speed, length) after n steps at the speed command ``command`` [m/s], one by one."""
+        # Plain floats throughout (500 steps a second): min/max clip a finite number as np.clip
+        # does.
         target = min(max(command, -self._max_speed), self._max_speed)
-        dv = self._dv
-        state = context.get_discrete_state()
-        v = state.value(self._speed_index).item()
-        v += min(max(target - v, -dv), dv)
-        x = state.value(self._length_index).item() + v * dt
-        if x <= 0.0 or x >= self._chain_length:  # end stops: stop there, no wind-up
-            x = min(max(x, 0.0), self._chain_length)
-            v = 0.0
+        dv, dt, end = self._dv, self._dt, self._chain_length
+        for _ in range(n):
+            v += min(max(target - v, -dv), dv)
+            x = x + v * dt
+            if x <= 0.0 or x >= end:  # end stops: stop there, no wind-up
+                x = min(max(x, 0.0), end)
+                v = 0.0
+        return v, x
+
+    def _microsteps(self, x: float) -> float:
+        # Whole microsteps, never past the end stops; round() rounds half to even as np.round.
+        return min(float(round(x / self._step_length)), self._max_steps)
+
+    def _command(self, context) -> float:
+        # np.clip keeps a NaN: refuse it here, naming the feeder, the port and the time.
+        return float(check_finite_input(self, self._v_port, context)[0])
+
+    def _write(self, discrete_state, v: float, x: float) -> None:
         discrete_state.get_mutable_value(self._speed_index)[0] = v
         discrete_state.get_mutable_value(self._length_index)[0] = x
-        # Whole microsteps, never past the end stops.
-        steps = min(float(round(x / self._step_length)), self._max_steps)
-        discrete_state.get_mutable_value(self._steps_index)[0] = steps
+        discrete_state.get_mutable_value(self._steps_index)[0] = self._microsteps(x)
+
+    def _update(self, context, discrete_state):
+        state = context.get_discrete_state()
+        v, x = self._steps(state.value(self._speed_index).item(), state.value(self._length_index).item(),
+                           self._command(context), 1)
+        self._write(discrete_state, v, x)
+
+    # --- steps in batches (command_period) ------------------------------------------------------
+    # Drake makes a step's unrestricted updates first (an operator's look sets the command), then
+    # its discrete ones: a feeder step at the look's very time moves under the new command, one
+    # whose time k dt falls just before the look's (round-off: k dt < j T) under the old one, as
+    # do the steps since the last look. A batch, at the look's time (the command's own period,
+    # the very same event times), makes the steps since the last batch under the command held
+    # from it, the step at its time under the command seen now when that step is not earlier,
+    # and holds the command seen now for the steps to come.
+    def _first_due(self, t: float) -> int:
+        """The index of the first step at or after time t (Drake's periodic event times k dt)."""
+        k = round(t / self._dt)
+        return k if k * self._dt >= t else k + 1
+
+    def _start(self, context, discrete_state):
+        """The first step due (at or after the start: Drake's periodic events fire at the start
+        itself when it is one of their times), and the command held until the first batch."""
+        discrete_state.get_mutable_value(self._next_index)[0] = float(self._first_due(context.get_time()))
+        discrete_state.get_mutable_value(self._held_index)[0] = self._command(context)
+
+    def _update_batch(self, context, discrete_state):
+        state = context.get_discrete_state()
+        t = context.get_time()
+        k = round(t / self._dt)  # the step at this batch's time, give or take round-off
+        v, x = state.value(self._speed_index).item(), state.value(self._length_index).item()
+        held, command = state.value(self._held_index).item(), self._command(context)
+        n = k + 1 - int(state.value(self._next_index).item())
+        if n > 0:
+            earlier = k * self._dt < t  # step k fell just before the look: the old command
+            v, x = self._steps(v, x, held, n if earlier else n - 1)
+            if not earlier:
+                v, x = self._steps(v, x, command, 1)
+            self._write(discrete_state, v, x)
+            discrete_state.get_mutable_value(self._next_index)[0] = float(k + 1)
+        discrete_state.get_mutable_value(self._held_index)[0] = command
+
+    def _due(self, context) -> int:
+        """Steps due before this context's time t and not yet made (batches only): at time t,
+        stepping every period has made the steps before t (those at t come with t's updates),
+        each under the command held since the last batch."""
+        if self._batch == 1:
+            return 0
+        return max(self._first_due(context.get_time())
+                   - int(context.get_discrete_state(self._next_index).GetAtIndex(0)), 0)
 
     def _length(self, context) -> float:
+        due = self._due(context)
+        if due:
+            state = context.get_discrete_state()
+            x = self._steps(state.value(self._speed_index).item(), state.value(self._length_index).item(),
+                            state.value(self._held_index).item(), due)[1]
+            return self._microsteps(x) * self._spec.step_length
         return context.get_discrete_state(self._steps_index).GetAtIndex(0) * self._spec.step_length
 
     def _calc_length(self, context, output):
@@ -136,3 +226,16 @@ class Feeder(LeafSystem):
     def _calc_balls(self, context, output):
         # A ball counts once its far side has cleared the tip; the tolerance absorbs round-off.
         output.SetAtIndex(0, float(np.floor(self._length(context) / self._chain.ball_diameter + 1e-9)))
+
+
+def batch_steps(command_period: float | None, update_period: float) -> int:
+    """How many feeder steps (``update_period`` [s]) one ``command_period`` [s] holds: 1 for None;
+    UserInputError unless it is a finite whole multiple (>= 1) of the step period."""
+    if command_period is None:
+        return 1
+    ratio = command_period / update_period if isinstance(command_period, (int, float)) else math.nan
+    n = round(ratio) if math.isfinite(ratio) else 0
+    if n < 1 or abs(ratio - n) > 1e-9 * n:
+        raise UserInputError(f"feeder command_period must be a whole multiple of the step period "
+                             f"{update_period:g} s, got {command_period!r}")
+    return n

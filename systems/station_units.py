@@ -226,7 +226,8 @@ def add_feeder(builder, chain: BallChain, insertion: InsertionScenario, desired_
     external = getattr(ins, "feeder_command", "ramp") == "external"
     if ins.speed > spec.max_speed and ins.final != ins.initial and not external:
         raise UserInputError(f"insertion.speed {ins.speed} m/s exceeds the feeder's limit {spec.max_speed} m/s")
-    feeder = builder.AddSystem(Feeder(chain, spec, initial_length=ins.initial))
+    feeder = builder.AddSystem(Feeder(chain, spec, initial_length=ins.initial,
+                                      command_period=getattr(ins, "feeder_command_period", 0.0) or None))
     ramp = abs(ins.final - ins.initial) / ins.speed if ins.speed > 0 else 0.0
     t1 = max(ins.start_time, 0.0)
     v = np.sign(ins.final - ins.initial) * ins.speed

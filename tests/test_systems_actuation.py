@@ -313,6 +313,95 @@ def test_feeder_ports_insertion_quantisation_and_limits():
     assert feeder.GetOutputPort("balls_out").Eval(ctx)[0] == 0.0
 
 
+class _Looks(__import__("pydrake.systems.framework", fromlist=["LeafSystem"]).LeafSystem):
+    """A command set in periodic unrestricted updates (a simulated operator's looks): 1.4 x the
+    feeder's speed limit out, then back, then random speeds within +-1.4 x the limit."""
+
+    def __init__(self, period: float, seed: int):
+        from pydrake.common.value import AbstractValue
+
+        super().__init__()
+        self._rng = np.random.default_rng(seed)
+        self._index = self.DeclareAbstractState(AbstractValue.Make(0.0))
+        self.DeclareVectorOutputPort("v", 1, lambda c, o: o.SetAtIndex(0, c.get_abstract_state(0).get_value()),
+                                     prerequisites_of_calc={self.abstract_state_ticket(self._index)})
+        self.DeclarePeriodicUnrestrictedUpdateEvent(period, 0.0, self._look)
+
+    def _look(self, context, state):
+        t, fast = context.get_time(), 1.4 * FeederSpec().max_speed
+        # Out to the far end stop, back to the near one, then random commands.
+        v = fast if t < 3.0 else -fast if t < 6.5 else float(self._rng.uniform(-fast, fast))
+        state.get_mutable_abstract_state(0).set_value(v)
+
+
+class _Reader(__import__("pydrake.systems.framework", fromlist=["LeafSystem"]).LeafSystem):
+    """Reads the inserted length in periodic discrete updates (the engine's) into its state."""
+
+    def __init__(self, period: float):
+        super().__init__()
+        self._u = self.DeclareVectorInputPort("length", 1)
+        self.DeclareDiscreteState(1)
+        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, lambda c, d: d.get_mutable_vector(0).SetAtIndex(
+            0, self._u.Eval(c)[0]))
+
+
+@pytest.mark.parametrize("period, start, initial, seed", [(0.05, 0.0, 0.02, 1), (0.05, 0.0, 0.0, 2),
+                                                         (0.01, 0.0, 0.045, 3), (0.05, 0.0131, 0.02, 4)])
+def test_feeder_steps_in_batches_give_the_numbers_of_stepping_alone(period, start, initial, seed):
+    """``Feeder(command_period=)``: driven by a command set at a system's looks every ``period``,
+    the batched feeder's outputs equal the feeder stepping every 2 ms at every simulator step
+    (its own and a fast reader's), an engine-like reader at the looks reads the same lengths, and
+    the end stops and the acceleration limit are crossed (random commands up to 1.4 x the limit).
+    0.05 s against 2 ms steps puts some steps an ulp before a look (they move under the old
+    command); a start between looks too."""
+    from pydrake.systems.framework import DiagramBuilder, EventStatus
+
+    chain = BallChain(n_balls=16)
+    trace = {}
+    for batched in (False, True):
+        builder = DiagramBuilder()
+        looks = builder.AddSystem(_Looks(period, seed))
+        feeder = builder.AddSystem(Feeder(chain, initial_length=initial,
+                                          command_period=period if batched else None))
+        reader = builder.AddSystem(_Reader(period))
+        fast = builder.AddSystem(_Reader(0.005))
+        builder.Connect(looks.get_output_port(), feeder.GetInputPort("v_insert_cmd"))
+        for r in (reader, fast):
+            builder.Connect(feeder.GetOutputPort("inserted_length"), r.get_input_port())
+        diagram = builder.Build()
+        simulator = Simulator(diagram)
+        simulator.get_mutable_context().SetTime(start)
+        seen = trace[batched] = {}
+
+        def monitor(root, diagram=diagram, feeder=feeder, reader=reader, fast=fast, seen=seen):
+            context = feeder.GetMyContextFromRoot(root)
+            seen[root.get_time()] = (feeder.GetOutputPort("inserted_length").Eval(context)[0],
+                                     feeder.GetOutputPort("balls_out").Eval(context)[0],
+                                     reader.GetMyContextFromRoot(root).get_discrete_state_vector()[0],
+                                     fast.GetMyContextFromRoot(root).get_discrete_state_vector()[0])
+            return EventStatus.Succeeded()
+
+        simulator.set_monitor(monitor)
+        simulator.Initialize()
+        simulator.AdvanceTo(9.0)
+        assert batched == (feeder.command_period == period)
+    fine, batch = trace[False], trace[True]
+    common = sorted(set(fine) & set(batch))
+    assert len(batch) < 0.5 * len(fine) and len(common) > 0.9 * len(batch)
+    assert [batch[t] for t in common] == [fine[t] for t in common]
+    lengths = [v[0] for v in fine.values()]
+    assert min(lengths) == 0.0 and max(lengths) > chain.length - 1e-4  # both end stops
+
+
+def test_feeder_command_period_must_be_whole_steps():
+    from ballchain.drake_models.errors import UserInputError
+
+    for bad in (0.003, 0.0, -0.05, float("nan"), "0.05"):
+        with pytest.raises(UserInputError, match="whole multiple of the step period"):
+            Feeder(BallChain(), command_period=bad)
+    assert Feeder(BallChain(), command_period=0.002).command_period is None  # one step: on its own
+
+
 # --- Station -----------------------------------------------------------------------------
 
 

@@ -340,3 +340,44 @@ def test_the_run_ends_where_asking_the_operator_at_every_step_would_end_it(heart
     monkeypatch.setattr(chain_simulation, "after_updates", lambda condition, period: condition)
     every_step = run()
     assert gated == every_step and len(gated[0]) == 3 and gated[1] > 1.0
+
+
+def test_feeder_command_period_is_checked_in_the_scenario():
+    """``insertion.feeder_command_period``: only for a command from another system's looks, a
+    whole number of the feeder's 2 ms steps, up to 1 s; the teleoperation scenario gets the
+    operator's period."""
+    from ballchain.drake_models.errors import UserInputError
+    from ballchain.systems.chain_scenario import load_scenario
+
+    external = "feeder: true, feeder_command: external, final: 0.02"
+    for overrides in ("{insertion: {feeder_command_period: 0.05}}",  # the ramp changes at any time
+                      "{insertion: {%s, feeder_command_period: 0.003}}" % external,
+                      "{insertion: {%s, feeder_command_period: -0.05}}" % external,
+                      "{insertion: {%s, feeder_command_period: 2.0}}" % external,
+                      "{insertion: {%s, feeder_command_period: .nan}}" % external):
+        with pytest.raises(UserInputError, match="insertion.feeder_command_period must be"):
+            load_scenario("teleop_right_unit", overrides)
+    assert load_scenario("teleop_right_unit", "{insertion: {%s, feeder_command_period: 0.05}}"
+                         % external).insertion.feeder_command_period == 0.05
+    scenario = teleop.scenario_for("world")
+    teleop.command_period(scenario, OperatorParams().period)
+    assert scenario.insertion.feeder_command_period == OperatorParams().period == 0.05
+    teleop.command_period(scenario, 0.0333)  # not whole steps: left as it was
+    assert scenario.insertion.feeder_command_period == 0.05
+
+
+def test_a_feeder_stepping_at_the_looks_gives_the_run_of_a_feeder_stepping_alone(heart, monkeypatch):
+    """The feeder steps in batches at the operator's looks (``teleop.command_period``): the
+    same rows as a feeder stepping every 2 ms (three targets, right ring, world mapping); the
+    run ends at the first simulator step after the operator is done, which without the
+    feeder's own steps comes up to 3 ms later (the drives' 5 ms steps)."""
+
+    def run():
+        data = teleop.run(task="right", mapping="world", targets=3, progress=False, heart=heart)
+        return data.rows, data.summary.sim_time_s
+
+    batched = run()
+    monkeypatch.setattr(teleop, "command_period", lambda scenario, period: None)
+    alone = run()
+    assert batched[0] == alone[0] and len(alone[0]) == 3
+    assert 0.0 <= batched[1] - alone[1] < 0.005

@@ -602,6 +602,18 @@ def plan_ring(task: str | None = "right", anatomy=None, *, targets: int | None =
     return _plan_ring(anatomy, chosen, scenario, force_gf, _plans_key(anatomy, chosen, scenario, force_gf), progress)
 
 
+def _fed_every(scenario, period: float):
+    """A copy of the scenario whose feeder steps in batches at the looks, every ``period`` [s],
+    of the system that commands it (``teleop.command_period``: the same numbers)."""
+    from dataclasses import replace
+
+    from ballchain.experiments import teleop
+
+    scenario = replace(scenario, insertion=replace(scenario.insertion))
+    teleop.command_period(scenario, period)
+    return scenario
+
+
 def _finisher(lesions: bool, ring_order: list[str], html):
     """What follows a run: the rows in ring order, the lesions and the ring (``with_lesions``),
     and their patches drawn into the replay (rewritten with them)."""
@@ -644,7 +656,7 @@ def _simulate(task, anatomy, scenario, plans, missing, params, localisation, see
         meshcat = replay_meshcat()
     per_target = 15.0 + params.seek_timeout * (params.retries + 1) + params.dwell
     limit = params.start_time + per_target * max(len(plans), 1)
-    cd = MakeStation(scenario, meshcat=meshcat, heart=heart,
+    cd = MakeStation(_fed_every(scenario, params.period), meshcat=meshcat, heart=heart,
                      add_systems=_add_auto(handles, plans, localisation, params, seed, track_sheath))
     nav = handles["navigator"]
     monitor = ChainMonitor(cd, tolerate_sinking=lambda p: near_ostium_rim(heart, p))
@@ -759,7 +771,9 @@ def _simulate_operator(task, anatomy, chosen, scenario, params, seed, progress, 
         from ballchain.systems.chain_simulation import replay_meshcat
 
         meshcat = replay_meshcat()
-    cd = MakeStation(scenario, meshcat=meshcat, heart=heart,
+    from ballchain.systems.simulated_operator import OperatorParams
+
+    cd = MakeStation(_fed_every(scenario, OperatorParams().period), meshcat=meshcat, heart=heart,
                      add_systems=_add_operator(handles, scenario, heart, names, seed, params.dwell))
     op = handles["operator"]
     limit = len(names) * (op.params.timeout + params.dwell) + 5.0

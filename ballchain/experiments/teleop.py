@@ -234,6 +234,24 @@ def hand_over(scenario, mapping: str, n_balls: int | None, overrides: dict, unit
     return scenario.validate()
 
 
+def command_period(scenario, period: float) -> None:
+    """The feeder's command comes from a system's periodic updates (an operator's, a navigator's
+    looks every ``period`` [s]): the feeder steps in batches at them
+    (``insertion.feeder_command_period``), when the period is a whole number of its 2 ms steps
+    (else it steps on its own, as for any command)."""
+    from ballchain.systems.feeder import FeederSpec, batch_steps
+
+    ins = scenario.insertion
+    if not (ins.feeder and ins.feeder_command == "external"):
+        return
+    try:
+        batch_steps(period, FeederSpec().update_period)
+    except UserInputError:
+        return
+    if period <= 1.0:
+        ins.feeder_command_period = float(period)
+
+
 def run(task: str = "left", mapping: str = "world", targets: int | None = None, html: Path | None = None,
         progress: bool = True, time_limit: float | None = None, n_balls: int | None = None,
         overrides: str | None = None, operator=None, heart=None, seed: int = 0, anatomy=None,
@@ -287,6 +305,7 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     task_names = [n for n in heart_targets(heart)[0] if task is None or n.startswith(f"{task}_")]
     n_targets = len(task_names) if targets is None else min(int(targets), len(task_names))
     params = operator or OperatorParams(axes=(0, 1, 2) if mapping == "world" else (0, 1), seed=int(seed))
+    command_period(scenario, params.period)
     handles = {}
 
     def add_operator(builder, ports):
