@@ -390,9 +390,29 @@ def replay_meshcat():
     level = drake_logger.level
     drake_logger.setLevel(max(logging.WARNING, drake_logger.getEffectiveLevel()))
     try:
-        return Meshcat(MeshcatParams(host="localhost"))
+        return without_stop_signals(lambda: Meshcat(MeshcatParams(host="localhost")))
     finally:
         drake_logger.setLevel(level)
+
+
+STOP_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
+
+
+def without_stop_signals(make):
+    """``make()`` with the stop signals (SIGINT, SIGTERM, SIGHUP) blocked in this thread, so that
+    the threads it starts (Meshcat's server) inherit the block: a stop signal then reaches the
+    main thread only, where Python handles it (``cli.StopSignals``), never a server thread in
+    the middle of a system call. Signals that arrive meanwhile wait, and come after."""
+    import signal
+
+    if not hasattr(signal, "pthread_sigmask"):
+        return make()
+    blocked = {getattr(signal, name) for name in STOP_SIGNALS if hasattr(signal, name)}
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, blocked)
+    try:
+        return make()
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, before)
 
 
 def _export_recording(cd: Station, meshcat, html: Path) -> None:

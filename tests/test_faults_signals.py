@@ -26,7 +26,7 @@ from ballchain.cli import StopSignals, main as cli_main
 from ballchain.drake_models.errors import StopRequest
 
 STOPS = [signal.SIGINT, signal.SIGTERM, signal.SIGHUP]
-ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
+ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONFAULTHANDLER": "1"}  # a crash prints its stacks
 
 
 def _busy_until_signal(seconds: float = 60.0) -> None:
@@ -406,3 +406,32 @@ def test_a_stopped_sweep_keeps_every_finished_point_in_its_table(tmp_path, worke
     rows = read_table(out)
     assert 3 <= finished < 11 and len(rows) == finished
     assert all(r["error"] is None for r in rows)
+
+
+def _blocked_signals(tid: int) -> int:
+    for line in Path(f"/proc/self/task/{tid}/status").read_text().splitlines():
+        if line.startswith("SigBlk:"):
+            return int(line.split()[1], 16)
+    raise AssertionError("no SigBlk line")
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="Linux /proc")
+def test_the_replay_meshcat_server_threads_leave_the_stop_signals_to_the_main_thread():
+    """The threads Meshcat starts for a replay block SIGINT, SIGTERM and SIGHUP (a stop reaches
+    the main thread only, where Python handles it), and this thread's mask is as before."""
+    import threading
+
+    from ballchain.systems.chain_simulation import replay_meshcat
+
+    before_tids = {int(t) for t in os.listdir("/proc/self/task")}
+    main_mask = _blocked_signals(threading.get_native_id())
+    meshcat = replay_meshcat()
+    try:
+        started = {int(t) for t in os.listdir("/proc/self/task")} - before_tids
+        assert started, "Meshcat started no thread"
+        stops = sum(1 << (int(s) - 1) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP))
+        for tid in started:
+            assert _blocked_signals(tid) & stops == stops, tid
+        assert _blocked_signals(threading.get_native_id()) == main_mask
+    finally:
+        del meshcat

@@ -735,7 +735,7 @@ def build_live(*, mapping: str = "world", units: str = "one", n_balls: int | Non
     from pydrake.geometry import Meshcat, MeshcatParams
 
     from ballchain.systems.chain_simulation import (ChainMonitor, MakeStation, StationRunner, atrium_for,
-                                                    near_ostium_rim)
+                                                    near_ostium_rim, without_stop_signals)
     from ballchain.systems.meshcat_joystick import MeshcatJoystick
 
     check_live_inputs(mapping, units, n_balls, None, realtime_rate)
@@ -745,7 +745,8 @@ def build_live(*, mapping: str = "world", units: str = "one", n_balls: int | Non
         anatomy = anatomy if isinstance(anatomy, Anatomy) else load_anatomy(anatomy)
         heart = anatomy.atrium()
     scenario = live_scenario_for(mapping, units, n_balls, overrides, anatomy)
-    meshcat = meshcat if meshcat is not None else Meshcat(MeshcatParams(host="localhost"))
+    meshcat = meshcat if meshcat is not None else without_stop_signals(
+        lambda: Meshcat(MeshcatParams(host="localhost")))
     heart = heart or atrium_for(scenario)
 
     def add_joystick(builder, ports):
