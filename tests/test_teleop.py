@@ -326,19 +326,21 @@ def test_mapper_cross_product_is_numpys_bit_for_bit():
         assert np.array_equal(_cross(a, b), np.cross(a, b))
 
 
+def _three_right_targets(heart) -> tuple[list[dict], float]:
+    """Rows and simulated time of the operator on the right ring's first three targets."""
+    data = teleop.run(task="right", mapping="world", targets=3, progress=False, heart=heart)
+    return data.rows, data.summary.sim_time_s
+
+
 def test_the_run_ends_where_asking_the_operator_at_every_step_would_end_it(heart, monkeypatch):
     """The run's stop (the operator done) is asked only after the operator's updates
-    (``after_updates``): the same rows, simulated time and final engine state as asking at
-    every step (three targets, right ring, world mapping)."""
+    (``after_updates``): the same rows and simulated time as asking at every step (three
+    targets, right ring, world mapping)."""
     import ballchain.systems.chain_simulation as chain_simulation
 
-    def run():
-        data = teleop.run(task="right", mapping="world", targets=3, progress=False, heart=heart)
-        return data.rows, data.summary.sim_time_s
-
-    gated = run()
+    gated = _three_right_targets(heart)
     monkeypatch.setattr(chain_simulation, "after_updates", lambda condition, period: condition)
-    every_step = run()
+    every_step = _three_right_targets(heart)
     assert gated == every_step and len(gated[0]) == 3 and gated[1] > 1.0
 
 
@@ -371,13 +373,8 @@ def test_a_feeder_stepping_at_the_looks_gives_the_run_of_a_feeder_stepping_alone
     same rows as a feeder stepping every 2 ms (three targets, right ring, world mapping); the
     run ends at the first simulator step after the operator is done, which without the
     feeder's own steps comes up to 3 ms later (the drives' 5 ms steps)."""
-
-    def run():
-        data = teleop.run(task="right", mapping="world", targets=3, progress=False, heart=heart)
-        return data.rows, data.summary.sim_time_s
-
-    batched = run()
+    batched = _three_right_targets(heart)
     monkeypatch.setattr(teleop, "command_period", lambda scenario, period: None)
-    alone = run()
+    alone = _three_right_targets(heart)
     assert batched[0] == alone[0] and len(alone[0]) == 3
     assert 0.0 <= batched[1] - alone[1] < 0.005
