@@ -152,8 +152,9 @@ class ChainMonitor:
 
     Every ``scenario.check_period`` it checks the state for NaN, the chain for breaks and ball
     overlaps (cheap; between those checks, the state for NaN at every step, unless the chain
-    moves only at its updates and reports a non-finite one as its ``failure``: the engine); every ``wall_check_every``-th of those checks it also checks escapes from
-    the heart and the wall clearance (mesh queries, about 2 ms for 16 balls: checked every
+    moves only at its updates and reports a non-finite one as its ``failure``: the engine);
+    every ``wall_check_every``-th of those checks it also checks escapes from the heart and the
+    wall clearance (mesh queries, about 2 ms for 16 balls: checked every
     period they cost about 0.4 ms a step). The simulated trajectory does not depend on either;
     the clearance and penetration metrics are samples at the coarser period (plus one at the
     end, in ``metrics``).

@@ -614,6 +614,14 @@ def _fed_every(scenario, period: float):
     return scenario
 
 
+def _check_batches(cd, period: float) -> None:
+    """The feeder batches its steps at the looks of the system that commands it, or steps alone
+    (a mismatch would apply commands late: a bug, not an input)."""
+    batches = None if cd.feeder is None else cd.feeder.command_period
+    if batches not in (None, period):
+        raise RuntimeError(f"the feeder batches its steps every {batches} s, its commander looks every {period} s")
+
+
 def _finisher(lesions: bool, ring_order: list[str], html):
     """What follows a run: the rows in ring order, the lesions and the ring (``with_lesions``),
     and their patches drawn into the replay (rewritten with them)."""
@@ -659,6 +667,7 @@ def _simulate(task, anatomy, scenario, plans, missing, params, localisation, see
     cd = MakeStation(_fed_every(scenario, params.period), meshcat=meshcat, heart=heart,
                      add_systems=_add_auto(handles, plans, localisation, params, seed, track_sheath))
     nav = handles["navigator"]
+    _check_batches(cd, nav.params.period)
     monitor = ChainMonitor(cd, tolerate_sinking=lambda p: near_ostium_rim(heart, p))
     run = run_station(cd, duration=limit, monitor=monitor,
                       stop=after_updates(lambda c: nav.is_done(nav.GetMyContextFromRoot(c)), nav.params.period),
@@ -776,6 +785,7 @@ def _simulate_operator(task, anatomy, chosen, scenario, params, seed, progress, 
     cd = MakeStation(_fed_every(scenario, OperatorParams().period), meshcat=meshcat, heart=heart,
                      add_systems=_add_operator(handles, scenario, heart, names, seed, params.dwell))
     op = handles["operator"]
+    _check_batches(cd, op.params.period)
     limit = len(names) * (op.params.timeout + params.dwell) + 5.0
     monitor = ChainMonitor(cd, tolerate_sinking=lambda p: near_ostium_rim(heart, p))
     run = run_station(cd, duration=limit, monitor=monitor,
