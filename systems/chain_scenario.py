@@ -84,8 +84,10 @@ class InsertionScenario:
             ramp as a speed command (its acceleration limit turns it into a trapezoid that
             covers the same distance, about speed / 0.1 m/s^2 later) and its quantised
             ``inserted_length`` drives the slide. ``speed`` must not exceed the feeder's limit.
-        feeder_command: with ``feeder``, who commands its speed: "ramp" (the ramp above, the
-            system ``feeder_command``) or "external" (another system, e.g. a simulated operator:
+        feeder_command: with ``feeder``, who commands its speed: "ramp" (the ramp above, played
+            by the feeder as its speed schedule; with the quasi-static engine its 2 ms steps are
+            made in batches at the engine's updates, with the same numbers: ``Feeder(schedule=,
+            batch_period=)``) or "external" (another system, e.g. a simulated operator:
             the feeder's ``v_insert_cmd`` input (1) [m/s] is left to ``MakeStation``'s
             ``add_systems`` hook, or exported as the diagram input ``feeder.v_insert_cmd``).
         feeder_command_period: with ``feeder_command: external``, 0 (the command may change at

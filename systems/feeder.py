@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from pydrake.systems.framework import BasicVector, LeafSystem
+from pydrake.trajectories import PiecewisePolynomial
 
 from ballchain.drake_models.arg_checks import require_positive, require_type
 from ballchain.drake_models.errors import UserInputError, check_finite_input, require_finite_fields
@@ -57,7 +58,8 @@ class Feeder(LeafSystem):
     """Insertion/retraction of the ball chain.
 
     Input ports:
-        v_insert_cmd: (1,) commanded insertion speed [m/s] (negative retracts).
+        v_insert_cmd: (1,) commanded insertion speed [m/s] (negative retracts); absent with a
+            ``schedule``.
 
     Output ports:
         inserted_length: (1,) length beyond the sheath tip, whole microsteps [m].
@@ -75,10 +77,19 @@ class Feeder(LeafSystem):
     batch [m/s]; both set at initialisation. The command must be set in periodic unrestricted
     updates at multiples of ``command_period`` (a simulated operator's or navigator's looks):
     the steps at a look's time already move under its new command, as when stepping alone.
+
+    With a ``schedule`` (the speed command as a known function of time: a scenario's ramp) the
+    feeder plays it itself and has no input port: step k moves under the schedule's value at
+    its time k ``update_period``, what a ``TrajectorySource`` of the schedule would give it
+    there. With a ``batch_period`` too, the steps are made in batches at its multiples (the
+    steps at or before the batch's time) and the outputs in between add the steps due, each
+    under the schedule at its own time: the same numbers as stepping alone, at any batch time,
+    because the command of a past step is known. State ``next_step`` (1) as above.
     """
 
     def __init__(self, chain: BallChain | None = None, spec: FeederSpec | None = None, name: str = "feeder",
-                 initial_length: float = 0.0, command_period: float | None = None) -> None:
+                 initial_length: float = 0.0, command_period: float | None = None,
+                 schedule: PiecewisePolynomial | None = None, batch_period: float | None = None) -> None:
         """
         Args:
             chain: the chain being fed (its length is the end stop).
@@ -89,6 +100,12 @@ class Feeder(LeafSystem):
             command_period: None (every step on its own), or a whole multiple of
                 ``spec.update_period`` [s] at whose multiples alone ``v_insert_cmd`` changes
                 (the class docstring; a command that changes in between would be applied late).
+            schedule: None (the command comes in ``v_insert_cmd``), or the speed command [m/s]
+                as a (1 x 1) zero-order-hold ``PiecewisePolynomial`` of time, finite, played by
+                the feeder itself (no input port; not with ``command_period``).
+            batch_period: with a ``schedule``, None (every step on its own) or a whole multiple
+                of ``spec.update_period`` [s]: the steps made in batches at its multiples (for
+                readers at those times, e.g. the quasi-static engine's updates).
         """
         super().__init__()
         if chain is not None:
@@ -107,17 +124,29 @@ class Feeder(LeafSystem):
         self._dt = float(self._spec.update_period)
         self._max_speed = float(self._spec.max_speed)
         self._dv = float(self._spec.max_acceleration * self._spec.update_period)
-        self._v_port = self.DeclareVectorInputPort("v_insert_cmd", 1)
+        self._schedule = _checked_schedule(schedule)
+        if schedule is not None and command_period is not None:
+            raise UserInputError("Feeder: a schedule is its own command; command_period is for a command "
+                                 "that comes in v_insert_cmd (give one or the other)")
+        if schedule is None and batch_period is not None:
+            raise UserInputError("Feeder batch_period needs a schedule (a command in v_insert_cmd is batched "
+                                 "with command_period)")
+        self._v_port = None if schedule is not None else self.DeclareVectorInputPort("v_insert_cmd", 1)
         self._speed_index = self.DeclareDiscreteState(1)
         self._length_index = self.DeclareDiscreteState(BasicVector([float(initial_length)]))
         self._steps_index = self.DeclareDiscreteState(
             BasicVector([float(np.round(initial_length / self._spec.step_length))]))
-        self._batch = batch_steps(command_period, self._dt)
+        period = batch_period if schedule is not None else command_period
+        self._batch = batch_steps(period, self._dt, "batch_period" if schedule is not None else "command_period")
         self._command_period = None if command_period is None else float(command_period)
         self._length_port = self.DeclareVectorOutputPort("inserted_length", 1, self._calc_length)
         self._balls_port = self.DeclareVectorOutputPort("balls_out", 1, self._calc_balls)
         if self._batch == 1:
             self.DeclarePeriodicDiscreteUpdateEvent(self._spec.update_period, 0.0, self._update)
+        elif schedule is not None:
+            self._next_index = self.DeclareDiscreteState(1)
+            self.DeclarePeriodicDiscreteUpdateEvent(float(batch_period), 0.0, self._update_played)
+            self.DeclareInitializationDiscreteUpdateEvent(self._start)
         else:
             self._next_index = self.DeclareDiscreteState(1)
             self._held_index = self.DeclareDiscreteState(1)
@@ -132,7 +161,12 @@ class Feeder(LeafSystem):
     @property
     def command_period(self) -> float | None:
         """The period [s] at whose multiples alone the command changes (None: any step)."""
-        return None if self._batch == 1 else self._command_period
+        return None if self._batch == 1 or self._schedule is not None else self._command_period
+
+    @property
+    def batch_period(self) -> float | None:
+        """With a schedule, the period [s] of the batches (None: every step on its own)."""
+        return self._batch * self._dt if self._schedule is not None and self._batch > 1 else None
 
     def _steps(self, v: float, x: float, command: float, n: int) -> tuple[float, float]:
         """(speed, length) after n steps at the speed command ``command`` [m/s], one by one."""
@@ -153,8 +187,25 @@ class Feeder(LeafSystem):
         return min(float(round(x / self._step_length)), self._max_steps)
 
     def _command(self, context) -> float:
+        if self._schedule is not None:
+            return self._scheduled(context.get_time())
         # np.clip keeps a NaN: refuse it here, naming the feeder, the port and the time.
         return float(check_finite_input(self, self._v_port, context)[0])
+
+    def _scheduled(self, t: float) -> float:
+        """The schedule's command at time t [m/s] (a TrajectorySource's output there)."""
+        return float(self._schedule.value(t)[0, 0])
+
+    def _play(self, v: float, x: float, first: int, end: int) -> tuple[float, float]:
+        """(speed, length) after the steps first..end-1, step k under the schedule at k dt."""
+        if end <= first:
+            return v, x
+        dt, schedule = self._dt, self._schedule
+        if schedule.get_segment_index(first * dt) == schedule.get_segment_index((end - 1) * dt):
+            return self._steps(v, x, self._scheduled(first * dt), end - first)  # one command
+        for k in range(first, end):
+            v, x = self._steps(v, x, self._scheduled(k * dt), 1)
+        return v, x
 
     def _write(self, discrete_state, v: float, x: float) -> None:
         discrete_state.get_mutable_value(self._speed_index)[0] = v
@@ -184,7 +235,21 @@ class Feeder(LeafSystem):
         """The first step due (at or after the start: Drake's periodic events fire at the start
         itself when it is one of their times), and the command held until the first batch."""
         discrete_state.get_mutable_value(self._next_index)[0] = float(self._first_due(context.get_time()))
-        discrete_state.get_mutable_value(self._held_index)[0] = self._command(context)
+        if self._schedule is None:
+            discrete_state.get_mutable_value(self._held_index)[0] = self._command(context)
+
+    def _update_played(self, context, discrete_state):
+        """A batch of a schedule: the steps due at or before this time (step k at k dt)."""
+        state = context.get_discrete_state()
+        t = context.get_time()
+        end = round(t / self._dt)
+        end = end + 1 if end * self._dt <= t else end  # past the last step at or before t
+        first = int(state.value(self._next_index).item())
+        if end > first:
+            v, x = self._play(state.value(self._speed_index).item(), state.value(self._length_index).item(),
+                              first, end)
+            self._write(discrete_state, v, x)
+            discrete_state.get_mutable_value(self._next_index)[0] = float(end)
 
     def _update_batch(self, context, discrete_state):
         state = context.get_discrete_state()
@@ -215,8 +280,12 @@ class Feeder(LeafSystem):
         due = self._due(context)
         if due:
             state = context.get_discrete_state()
-            x = self._steps(state.value(self._speed_index).item(), state.value(self._length_index).item(),
-                            state.value(self._held_index).item(), due)[1]
+            v, x = state.value(self._speed_index).item(), state.value(self._length_index).item()
+            if self._schedule is not None:
+                first = int(state.value(self._next_index).item())
+                x = self._play(v, x, first, first + due)[1]
+            else:
+                x = self._steps(v, x, state.value(self._held_index).item(), due)[1]
             return self._microsteps(x) * self._spec.step_length
         return context.get_discrete_state(self._steps_index).GetAtIndex(0) * self._spec.step_length
 
@@ -228,14 +297,31 @@ class Feeder(LeafSystem):
         output.SetAtIndex(0, float(np.floor(self._length(context) / self._chain.ball_diameter + 1e-9)))
 
 
-def batch_steps(command_period: float | None, update_period: float) -> int:
+def _checked_schedule(schedule) -> PiecewisePolynomial | None:
+    """The feeder's schedule, checked: None, or a finite (1 x 1) zero-order hold."""
+    if schedule is None:
+        return None
+    require_type(schedule, PiecewisePolynomial, "Feeder schedule", "a PiecewisePolynomial or None")
+    segments = range(schedule.get_number_of_segments())
+    if (schedule.rows(), schedule.cols()) != (1, 1) or any(schedule.getSegmentPolynomialDegree(i) for i in segments):
+        raise UserInputError(f"Feeder schedule must be a (1 x 1) zero-order hold of the speed [m/s], got "
+                             f"{schedule.rows()} x {schedule.cols()} of degrees "
+                             f"{sorted({schedule.getSegmentPolynomialDegree(i) for i in segments})}")
+    values = [schedule.value(t)[0, 0] for t in schedule.get_segment_times()]
+    if not np.all(np.isfinite(values)):
+        raise UserInputError(f"Feeder schedule's speeds must be finite, got {values}")
+    return schedule
+
+
+def batch_steps(command_period: float | None, update_period: float, name: str = "command_period") -> int:
     """How many feeder steps (``update_period`` [s]) one ``command_period`` [s] holds: 1 for None;
-    UserInputError unless it is a finite whole multiple (>= 1) of the step period."""
+    UserInputError (naming the feeder's ``name``) unless it is a finite whole multiple (>= 1) of
+    the step period."""
     if command_period is None:
         return 1
     ratio = command_period / update_period if isinstance(command_period, (int, float)) else math.nan
     n = round(ratio) if math.isfinite(ratio) else 0
     if n < 1 or abs(ratio - n) > 1e-9 * n:
-        raise UserInputError(f"feeder command_period must be a whole multiple of the step period "
+        raise UserInputError(f"feeder {name} must be a whole multiple of the step period "
                              f"{update_period:g} s, got {command_period!r}")
     return n

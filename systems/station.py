@@ -23,7 +23,8 @@ and returns what it adds:
    ``actuation_station.add_unit_systems``, the same step as the actuation-only diagram) into
    the chain's ``magnet_states`` input; ``tip_observer`` for the tip-frame mapping.
 6. ``add_insertion``: what drives ball 1's slide: the scenario's ramp (``feeder_command``),
-   the stepper ``feeder``, or an exported ``inserted_length`` input (``feeder_interface``).
+   the stepper ``feeder`` (playing the ramp itself, or commanded from outside), or an exported
+   ``inserted_length`` input (``feeder_interface``).
 7. ``add_target_touches``: ``target_touches`` (TargetTouchTracker), when the atrium has rings.
 8. ``add_pin``: ``force_sensor_pin`` (``scenario.pin``) on the tip ball, exported output
    ``pin_reading`` (3) [N].
@@ -413,7 +414,7 @@ def add_insertion(builder: DiagramBuilder, scenario: ChainScenario, chain: Chain
     if ins.external and ins.feeder:
         raise UserInputError("insertion: choose external (exported port) or feeder (the Feeder system), not both")
     if ins.feeder:
-        return add_feeder(builder, chain.config.chain, ins, desired)
+        return add_feeder(builder, chain.config.chain, ins, desired, reader_period=chain.move_period)
     if ins.external:
         # A feeder's inserted length s (systems/feeder.py's ``inserted_length`` uses the same
         # definition) becomes the slide's desired state (s, 0): the implicit PD tracks it.

@@ -20,9 +20,9 @@ so the chain feels the magnets as the wheels turn them. The units themselves (``
 unit, each Hall sensor also seeing the other units, each estimator subtracting them) are wired
 by ``actuation_station.add_unit_systems``, the same step as the actuation-only diagram's.
 
-The feeder: ``feeder_command`` (the insertion ramp as a speed profile; absent with
-``insertion.feeder_command: external``) -> ``feeder`` (stepper, quantised) -> ``feeder_interface``
-(s -> desired slide state (s, 0)) -> the plant.
+The feeder: ``feeder`` (stepper, quantised; it plays the insertion ramp as a speed schedule, or
+with ``insertion.feeder_command: external`` takes its command in ``v_insert_cmd``) ->
+``feeder_interface`` (s -> desired slide state (s, 0)) -> the chain.
 """
 
 from __future__ import annotations
@@ -212,34 +212,39 @@ def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig],
     return handles, mux.get_output_port()
 
 
-def add_feeder(builder, chain: BallChain, insertion: InsertionScenario, desired_state_port) -> Feeder:
+def add_feeder(builder, chain: BallChain, insertion: InsertionScenario, desired_state_port,
+               reader_period: float = 0.0) -> Feeder:
     """The stepper feeder playing the insertion ramp, driving the slide's desired state.
 
-    With ``insertion.feeder_command: external`` no ramp is added: the feeder's ``v_insert_cmd``
-    input is left unconnected for the caller.
+    The ramp is the feeder's own speed schedule (a zero-order hold: the ramp's speed from its
+    start for its duration, zero before and after). With a ``reader_period`` > 0 that is a
+    whole number of the feeder's steps (the quasi-static engine's, whose updates alone read the
+    length) the feeder makes its steps in batches at the reader's times: the same numbers, a
+    third of the simulator steps of a teleoperation second. With ``insertion.feeder_command:
+    external`` there is no schedule: the feeder's ``v_insert_cmd`` input is left unconnected for
+    the caller (batched at ``insertion.feeder_command_period``).
 
     Raises:
-        ValueError: the ramp's speed exceeds the feeder's limit.
+        UserInputError: the ramp's speed exceeds the feeder's limit.
     """
     spec = FeederSpec()
     ins = insertion
     external = getattr(ins, "feeder_command", "ramp") == "external"
     if ins.speed > spec.max_speed and ins.final != ins.initial and not external:
         raise UserInputError(f"insertion.speed {ins.speed} m/s exceeds the feeder's limit {spec.max_speed} m/s")
-    feeder = builder.AddSystem(Feeder(chain, spec, initial_length=ins.initial,
-                                      command_period=getattr(ins, "feeder_command_period", 0.0) or None))
-    ramp = abs(ins.final - ins.initial) / ins.speed if ins.speed > 0 else 0.0
-    t1 = max(ins.start_time, 0.0)
-    v = np.sign(ins.final - ins.initial) * ins.speed
     if external:
-        command = None
-    elif ramp > 0:
-        command = _zoh_source([t1, t1 + ramp], np.array([[v, 0.0]]), "feeder_command", builder)
+        feeder = Feeder(chain, spec, initial_length=ins.initial,
+                        command_period=getattr(ins, "feeder_command_period", 0.0) or None)
     else:
-        command = builder.AddSystem(ConstantVectorSource([0.0]))
-        command.set_name("feeder_command")
-    if command is not None:
-        builder.Connect(command.get_output_port(), feeder.GetInputPort("v_insert_cmd"))
+        ramp = abs(ins.final - ins.initial) / ins.speed if ins.speed > 0 else 0.0
+        t1 = max(ins.start_time, 0.0)
+        v = np.sign(ins.final - ins.initial) * ins.speed
+        schedule = _zoh([t1, t1 + ramp], np.array([[v, 0.0]])) if ramp > 0 else _zoh([0.0], np.zeros((1, 1)))
+        steps = reader_period / spec.update_period
+        whole = reader_period > 0 and round(steps) >= 1 and abs(steps - round(steps)) <= 1e-9 * steps
+        feeder = Feeder(chain, spec, initial_length=ins.initial, schedule=schedule,
+                        batch_period=reader_period if whole else None)
+    builder.AddSystem(feeder)
     to_state = builder.AddSystem(MatrixGain(np.array([[1.0], [0.0]])))
     to_state.set_name("feeder_interface")
     builder.Connect(feeder.GetOutputPort("inserted_length"), to_state.get_input_port())

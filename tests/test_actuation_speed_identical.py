@@ -9,8 +9,9 @@ RotationMatrix; the field at a sensor beyond the magnet's reach without the fiel
 (``MagnetSource.field_beyond_reach``), the magnet's angular velocity remembered per wheel-speed
 input, its quaternion turned on plain floats, the drive's wheel command, the mapper's command, the
 estimate and the controller's command remembered for their last input, the ADC's rounding as one
-``np.rint``. A teleoperation run with them and one with the checked path must agree bit for
-bit: every unit's magnet, Hall reading, estimate and wheel state, and the engine's state.
+``np.rint``, the feeder's steps in batches at the engine's updates. A teleoperation run with them
+and one with the checked path must agree bit for bit: every unit's magnet, Hall reading, estimate
+and wheel state, the engine's state and the feeder's inserted length.
 """
 
 import numpy as np
@@ -37,6 +38,8 @@ class _Recorder:
             row.append(h.magnet.GetOutputPort("m_W").Eval(h.magnet.GetMyContextFromRoot(root)).copy())
         engine = self.station.chain.engine_system
         row.append(engine.state_vector(engine.GetMyContextFromRoot(root)).copy())
+        feeder = self.station.feeder
+        row.append(feeder.GetOutputPort("inserted_length").Eval(feeder.GetMyContextFromRoot(root)).copy())
         self.rows.append(np.concatenate(row))
 
 
@@ -115,6 +118,13 @@ def _checked_path(monkeypatch) -> None:
         return out
 
     monkeypatch.setattr(hall_sensor, "quantise_reading", quantise)
+
+    from ballchain.systems import station
+
+    def feeder_alone(*args, add_feeder=station.add_feeder, **kwargs):  # every 2 ms step on its own
+        return add_feeder(*args, **{**kwargs, "reader_period": 0.0})
+
+    monkeypatch.setattr(station, "add_feeder", feeder_alone)
 
 
 def _turned_numpy(q, omega_W, dt):

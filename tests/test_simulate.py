@@ -184,7 +184,10 @@ def test_station_with_units_has_named_systems_and_wiring(heart):
     for unit in ("right_unit", "left_unit"):
         assert {f"{unit}.{part}" for part in ("magnet", "drive", "hall_sensor", "estimator", "controller",
                                               "teleoperation", "mode_switch", "joystick", "mode_command")} <= names
-    assert {"feeder", "feeder_command", "feeder_interface", "magnet_states", "magnetic_wrench"} <= names
+    assert {"feeder", "feeder_interface", "magnet_states", "magnetic_wrench"} <= names
+    # The feeder plays the insertion ramp itself, in batches at the engine's updates.
+    assert "feeder_command" not in names and cd.feeder.num_input_ports() == 0
+    assert cd.feeder.batch_period == cd.chain.move_period == 0.05
     assert cd.chain.wrench.get_magnet_states_input_port().size() == 12  # (p_WM, m_hat_W) per unit
     # Fixed inputs at t = 0: the wrench sees each unit at its centre with its neutral dipole, and the
     # neutral dipole makes the field at the sheath exit point along the sheath (to 1e-9).

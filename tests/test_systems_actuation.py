@@ -393,6 +393,98 @@ def test_feeder_steps_in_batches_give_the_numbers_of_stepping_alone(period, star
     assert min(lengths) == 0.0 and max(lengths) > chain.length - 1e-4  # both end stops
 
 
+def _schedule():
+    """A speed schedule over 9 s (zero-order hold) that crosses what a batch must get right:
+    knots on the 2 ms step grid and between steps, one at 0.15 s (75 x 0.002 is 0.15 while
+    3 x 0.05 is an ulp above it), 1.4 x the speed limit out to the far end stop and back past
+    the near one, short segments (several knots in one batch), and random speeds after 6.5 s."""
+    from pydrake.trajectories import PiecewisePolynomial
+
+    fast = 1.4 * FeederSpec().max_speed
+    rng = np.random.default_rng(7)
+    knots = [(0.0, 0.0), (0.0131, 0.01), (0.15, fast), (0.1537, -0.003), (0.161, fast), (3.0, -fast),
+             (6.5, 0.0)]
+    t = 6.5
+    while t < 9.0:
+        t += float(rng.uniform(0.001, 0.12))
+        knots.append((t, float(rng.uniform(-fast, fast))))
+    knots.append((t + 1.0, 0.0))
+    times, values = zip(*knots)
+    return PiecewisePolynomial.ZeroOrderHold(list(times), np.array([values]))
+
+
+@pytest.mark.parametrize("batch, start, initial", [(0.05, 0.0, 0.02), (0.01, 0.0, 0.0), (0.05, 0.0131, 0.045),
+                                                   (None, 0.0, 0.02)])
+def test_feeder_playing_a_schedule_in_batches_gives_the_numbers_of_a_trajectory_source(batch, start, initial):
+    """``Feeder(schedule=, batch_period=)`` against the feeder stepping every 2 ms on its input
+    from a ``TrajectorySource`` of the same schedule: the same outputs at every simulator step of
+    both (its own, an engine-like reader's at the batch period, a 5 ms reader's), the readers'
+    states the same, both end stops and the acceleration limit crossed. ``batch=None``: the
+    schedule played step by step."""
+    from pydrake.systems.framework import DiagramBuilder, EventStatus
+    from pydrake.systems.primitives import TrajectorySource
+
+    chain, schedule = BallChain(n_balls=16), _schedule()
+    trace = {}
+    for played in (False, True):
+        builder = DiagramBuilder()
+        if played:
+            feeder = builder.AddSystem(Feeder(chain, initial_length=initial, schedule=schedule, batch_period=batch))
+            assert feeder.num_input_ports() == 0 and feeder.batch_period == batch
+        else:
+            feeder = builder.AddSystem(Feeder(chain, initial_length=initial))
+            source = builder.AddSystem(TrajectorySource(schedule))
+            builder.Connect(source.get_output_port(), feeder.GetInputPort("v_insert_cmd"))
+        reader = builder.AddSystem(_Reader(batch or 0.05))
+        fast = builder.AddSystem(_Reader(0.005))
+        for r in (reader, fast):
+            builder.Connect(feeder.GetOutputPort("inserted_length"), r.get_input_port())
+        diagram = builder.Build()
+        simulator = Simulator(diagram)
+        simulator.get_mutable_context().SetTime(start)
+        seen = trace[played] = {}
+
+        def monitor(root, feeder=feeder, reader=reader, fast=fast, seen=seen):
+            context = feeder.GetMyContextFromRoot(root)
+            seen[root.get_time()] = (feeder.GetOutputPort("inserted_length").Eval(context)[0],
+                                     feeder.GetOutputPort("balls_out").Eval(context)[0],
+                                     reader.GetMyContextFromRoot(root).get_discrete_state_vector()[0],
+                                     fast.GetMyContextFromRoot(root).get_discrete_state_vector()[0])
+            return EventStatus.Succeeded()
+
+        simulator.set_monitor(monitor)
+        simulator.Initialize()
+        simulator.AdvanceTo(9.0)
+    alone, played = trace[False], trace[True]
+    common = sorted(set(alone) & set(played))
+    if batch is not None:
+        assert len(played) < 0.5 * len(alone)
+    assert len(common) > 0.9 * len(played)
+    assert [played[t] for t in common] == [alone[t] for t in common]
+    lengths = [v[0] for v in alone.values()]
+    assert min(lengths) == 0.0 and max(lengths) > chain.length - 1e-4  # both end stops
+
+
+def test_feeder_schedule_is_checked():
+    from pydrake.trajectories import PiecewisePolynomial
+
+    from ballchain.drake_models.errors import UserInputError
+
+    hold = PiecewisePolynomial.ZeroOrderHold([0.0, 1.0], np.array([[0.01, 0.0]]))
+    cases = [
+        (dict(schedule=PiecewisePolynomial.FirstOrderHold([0.0, 1.0], np.array([[0.0, 0.01]]))), "zero-order hold"),
+        (dict(schedule=PiecewisePolynomial.ZeroOrderHold([0.0, 1.0], np.zeros((2, 2)))), "zero-order hold"),
+        (dict(schedule=PiecewisePolynomial.ZeroOrderHold([0.0, 1.0], np.array([[np.nan, 0.0]]))), "finite"),
+        (dict(schedule=[0.0, 0.01]), "Feeder schedule must be a PiecewisePolynomial"),
+        (dict(schedule=hold, command_period=0.05), "give one or the other"),
+        (dict(batch_period=0.05), "batch_period needs a schedule"),
+        (dict(schedule=hold, batch_period=0.003), "feeder batch_period must be a whole multiple"),
+    ]
+    for kwargs, message in cases:
+        with pytest.raises(UserInputError, match=message):
+            Feeder(BallChain(), **kwargs)
+
+
 def test_feeder_command_period_must_be_whole_steps():
     from ballchain.drake_models.errors import UserInputError
 
