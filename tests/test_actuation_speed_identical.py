@@ -43,7 +43,8 @@ class _Recorder:
         self.rows.append(np.concatenate(row))
 
 
-def _record(name: str, duration: float, overrides: str = "") -> np.ndarray:
+def _record(name: str, duration: float, overrides: str = "") -> tuple[np.ndarray, float | None]:
+    """The recorder's rows of a run, and its feeder's batch period."""
     from pydrake.systems.analysis import Simulator
 
     from ballchain.systems.chain_scenario import load_scenario
@@ -55,7 +56,7 @@ def _record(name: str, duration: float, overrides: str = "") -> np.ndarray:
     simulator.set_monitor(recorder)
     simulator.Initialize()
     simulator.AdvanceTo(duration)
-    return np.array(recorder.rows)
+    return np.array(recorder.rows), station.feeder.batch_period
 
 
 def _checked_path(monkeypatch) -> None:
@@ -174,12 +175,13 @@ def test_teleop_run_is_the_same_with_and_without_the_shortcuts(overrides, durati
 
     with monkeypatch.context() as patch:
         patch.setattr(DipoleDirectionEstimator, "_other_field", counted)
-        fast = _record("teleop_two_units", duration, overrides)
+        fast, batch = _record("teleop_two_units", duration, overrides)
     # Off neutral the estimators run (and subtract the other unit) at every sample.
     assert len(compensations) >= (2 * 100 * duration if overrides else 0)
     with monkeypatch.context() as patch:
         _checked_path(patch)
-        checked = _record("teleop_two_units", duration, overrides)
+        checked, alone = _record("teleop_two_units", duration, overrides)
+    assert (batch, alone) == (0.05, None)  # the feeder in batches at the engine's updates, or alone
     assert fast.shape == checked.shape and len(fast) >= 100 * duration
     assert np.array_equal(fast, checked)  # bit for bit, every sample
     magnets = fast[:, 1:5]

@@ -185,9 +185,10 @@ def test_station_with_units_has_named_systems_and_wiring(heart):
         assert {f"{unit}.{part}" for part in ("magnet", "drive", "hall_sensor", "estimator", "controller",
                                               "teleoperation", "mode_switch", "joystick", "mode_command")} <= names
     assert {"feeder", "feeder_interface", "magnet_states", "magnetic_wrench"} <= names
-    # The feeder plays the insertion ramp itself, in batches at the engine's updates.
+    # The feeder plays the insertion ramp itself; the plant reads its length at every step, so it
+    # steps alone (with the quasi-static engine: in batches, tests/test_actuation_speed_identical.py).
     assert "feeder_command" not in names and cd.feeder.num_input_ports() == 0
-    assert cd.feeder.batch_period == cd.chain.move_period == 0.05
+    assert cd.chain.move_period == 0.0 and cd.feeder.batch_period is None
     assert cd.chain.wrench.get_magnet_states_input_port().size() == 12  # (p_WM, m_hat_W) per unit
     # Fixed inputs at t = 0: the wrench sees each unit at its centre with its neutral dipole, and the
     # neutral dipole makes the field at the sheath exit point along the sheath (to 1e-9).
