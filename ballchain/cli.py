@@ -126,7 +126,9 @@ class StopSignals:
     inside a finaliser (an object's ``__del__``, a weakref callback: a progress bar closed by the
     garbage collector) is printed and dropped, never propagated. Such a swallowed stop is caught by
     ``sys.unraisablehook`` and delivered again a moment later (``REDELIVER_S``), until it reaches
-    the command's own code.
+    the command's own code. A stop that lands inside numba's ``_numba_unpickle`` (the Python call
+    with which a compiled kernel returns a new array; numba does not check its exception, and the
+    process died of SIGSEGV or ran on) is not raised there but delivered again the same way.
     """
 
     REDELIVER_S = 0.02  # after a stop swallowed by a finaliser: long enough for the finaliser to end
@@ -148,6 +150,15 @@ class StopSignals:
             self._hook, sys.unraisablehook = sys.unraisablehook, self._unraisable
 
     def _handle(self, signum, frame):
+        if (self.signum is None or self._swallowed) and _inside_numba_unpickle(frame):
+            # numba hands a compiled kernel's new array back to Python through a Python call
+            # (``numba.core.serialize._numba_unpickle``) whose exception its compiled code does not
+            # check: raising there crashes the process (SIGSEGV) or loses the stop. Deliver it
+            # again a moment later, as a stop dropped by a finaliser.
+            self.signum = self.signum or signum
+            self._swallowed = True
+            threading.Timer(self.REDELIVER_S, self._redeliver).start()
+            return
         if self.signum is None or self._swallowed:
             self._swallowed = False
             self.signum = self.signum or signum
@@ -213,6 +224,18 @@ class StopSignals:
         return f"interrupted by {signal.Signals(self.signum).name}"
 
 
+def _inside_numba_unpickle(frame) -> bool:
+    """Whether a signal's handler runs inside numba's ``_numba_unpickle`` (or what it calls), the
+    Python call numba's compiled code makes to box a kernel's array result (numba 0.68)."""
+    while frame is not None:
+        code = frame.f_code
+        if code.co_name == "_numba_unpickle" and code.co_filename.endswith(_NUMBA_SERIALIZE):
+            return True
+        frame = frame.f_back
+    return False
+
+
+_NUMBA_SERIALIZE = os.path.join("numba", "core", "serialize.py")
 _stop: StopSignals | None = None
 
 

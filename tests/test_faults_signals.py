@@ -85,6 +85,43 @@ def test_a_stop_dropped_by_a_finaliser_is_delivered_again(capfd):
     assert "Exception ignored" not in capfd.readouterr().err  # the dropped stop is not printed as an error
 
 
+class _SignalWhenUnpickled:
+    """Unpickled, sends this process SIGTERM: its handler then runs inside numba's
+    ``_numba_unpickle``, as when a stop lands while a kernel returns a new array."""
+
+    def __reduce__(self):
+        return os.kill, (os.getpid(), signal.SIGTERM)
+
+
+def test_a_stop_landing_inside_numba_unpickle_is_delivered_after_it(capfd):
+    """numba's compiled code boxes a kernel's new array through ``numba.core.serialize._numba_unpickle``
+    (a Python call) and does not check its exception: a stop raised there made ``simulate`` die of
+    SIGSEGV (twice in about 380 runs of the replay-saving signal test's case) or run on. The
+    handler raises nothing there; the stop comes a moment later, outside, as the first signal."""
+    import pickle
+
+    from numba.core import serialize
+
+    previous = {s: signal.getsignal(s) for s in STOPS}
+    stop = StopSignals()
+    stop.install()
+    key = (0, b"ballchain test: a signal inside _numba_unpickle")
+    try:
+        try:
+            serialize._numba_unpickle(key[0], pickle.dumps(_SignalWhenUnpickled()), key[1])
+        except StopRequest:
+            pytest.fail("the stop was raised inside _numba_unpickle")
+        assert stop.signum == signal.SIGTERM  # recorded, to come
+        with pytest.raises(StopRequest) as err:
+            _busy_until_signal(seconds=10.0)  # without the second delivery: "no signal arrived"
+        assert err.value.signum == signal.SIGTERM and stop.later == [] and stop.status() == 143
+    finally:
+        stop.settle(program=False)
+        serialize._unpickled_memo.pop(key, None)
+    assert {s: signal.getsignal(s) for s in STOPS} == previous
+    assert "Exception ignored" not in capfd.readouterr().err
+
+
 def test_an_unrelated_exception_in_a_finaliser_still_reaches_the_previous_hook(monkeypatch):
     seen = []
     monkeypatch.setattr(sys, "unraisablehook", lambda u: seen.append(type(u.exc_value)))
