@@ -375,18 +375,21 @@ def test_a_stopped_simulate_keeps_the_replay_recorded_so_far(tmp_path, signum):
 @pytest.mark.slow
 def test_more_signals_while_the_replay_is_saved_change_nothing(tmp_path):
     """SIGHUP, then SIGTERM and SIGINT again and again (a batch system's kill reaching the process
-    twice, Ctrl-C mashed) until the replay is saved: it is written whole, and the status is
-    SIGHUP's. (The flood starts 0.02 s after SIGHUP: signals sent microseconds apart may reach the
-    process's threads in either order, and the run once ended with SIGINT's status, 130.)"""
+    twice, Ctrl-C mashed) until the replay is saved: it is written whole, with one note about
+    the later signals, and the status is the first handled signal's. That is SIGHUP's almost
+    always; but signals sent microseconds apart may reach the process's threads in either order
+    (the tqdm monitor thread takes them too), and 1 run in about 120 ended with SIGINT's 130. A
+    pause before the flood would let a fast save finish first (2 runs in about 500 with 0.02 s).
+    That later signals never change the status is the in-process test's
+    (``test_the_first_signal_raises_a_stop_request_and_later_ones_are_recorded``)."""
     html, log = tmp_path / "replay.html", tmp_path / "stderr.txt"
     proc, err = _start(["simulate", "--scenario", "free_space_uniform_90deg", "--duration", "600",
                         "--html", str(html)], log)
     with err:
         _wait_for_progress(log, proc, r"\| ([0-9.]+)/600 sim s", at_least=1e-9)
         proc.send_signal(signal.SIGHUP)
-        time.sleep(0.02)  # taken by then; saving the replay of a few simulated seconds takes longer
         end = time.monotonic() + 120
-        while True:  # then until the replay is written
+        while True:  # at once, and until the replay is written
             for later in (signal.SIGTERM, signal.SIGINT):
                 os.kill(proc.pid, later)
             if "interrupted at t = " in log.read_text():
@@ -395,8 +398,9 @@ def test_more_signals_while_the_replay_is_saved_change_nothing(tmp_path):
             time.sleep(0.01)
         proc.communicate(timeout=300)
     text = log.read_text()
-    assert proc.returncode == 129, text[-3000:]
-    assert text.count("received while saving what finished") == 1 and "interrupted by SIGHUP" in text
+    notes = {129: "interrupted by SIGHUP", 143: "interrupted by SIGTERM", 130: "simulate: interrupted ("}
+    assert proc.returncode in notes and notes[proc.returncode] in text, text[-3000:]
+    assert text.count("received while saving what finished") == 1
     assert html.read_bytes().rstrip().endswith(b"</html>")
 
 
