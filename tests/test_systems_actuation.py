@@ -345,6 +345,44 @@ class _Reader(__import__("pydrake.systems.framework", fromlist=["LeafSystem"]).L
             0, self._u.Eval(c)[0]))
 
 
+def _trace(builder, feeder, reader_period: float, start: float) -> dict:
+    """Run ``feeder`` (added to ``builder`` with its command) to 9 s beside an engine-like reader
+    every ``reader_period`` and a 5 ms one: at every simulator step, its outputs and the readers'
+    states, by time."""
+    from pydrake.systems.framework import EventStatus
+
+    reader = builder.AddSystem(_Reader(reader_period))
+    fast = builder.AddSystem(_Reader(0.005))
+    for r in (reader, fast):
+        builder.Connect(feeder.GetOutputPort("inserted_length"), r.get_input_port())
+    simulator = Simulator(builder.Build())
+    simulator.get_mutable_context().SetTime(start)
+    seen = {}
+
+    def monitor(root):
+        context = feeder.GetMyContextFromRoot(root)
+        seen[root.get_time()] = (feeder.GetOutputPort("inserted_length").Eval(context)[0],
+                                 feeder.GetOutputPort("balls_out").Eval(context)[0],
+                                 reader.GetMyContextFromRoot(root).get_discrete_state_vector()[0],
+                                 fast.GetMyContextFromRoot(root).get_discrete_state_vector()[0])
+        return EventStatus.Succeeded()
+
+    simulator.set_monitor(monitor)
+    simulator.Initialize()
+    simulator.AdvanceTo(9.0)
+    return seen
+
+
+def _same_at_common_steps(alone: dict, batched: dict | None, chain, fewer: bool = True) -> None:
+    """The batched trace equals stepping alone at their common times (most of the batched run's,
+    with far fewer steps when ``fewer``), and the run reached both end stops."""
+    common = sorted(set(alone) & set(batched))
+    assert len(common) > 0.9 * len(batched) and (not fewer or len(batched) < 0.5 * len(alone))
+    assert [batched[t] for t in common] == [alone[t] for t in common]
+    lengths = [v[0] for v in alone.values()]
+    assert min(lengths) == 0.0 and max(lengths) > chain.length - 1e-4  # both end stops
+
+
 @pytest.mark.parametrize("period, start, initial, seed", [(0.05, 0.0, 0.02, 1), (0.05, 0.0, 0.0, 2),
                                                          (0.01, 0.0, 0.045, 3), (0.05, 0.0131, 0.02, 4)])
 def test_feeder_steps_in_batches_give_the_numbers_of_stepping_alone(period, start, initial, seed):
@@ -354,7 +392,7 @@ def test_feeder_steps_in_batches_give_the_numbers_of_stepping_alone(period, star
     the end stops and the acceleration limit are crossed (random commands up to 1.4 x the limit).
     0.05 s against 2 ms steps puts some steps an ulp before a look (they move under the old
     command); a start between looks too."""
-    from pydrake.systems.framework import DiagramBuilder, EventStatus
+    from pydrake.systems.framework import DiagramBuilder
 
     chain = BallChain(n_balls=16)
     trace = {}
@@ -363,34 +401,10 @@ def test_feeder_steps_in_batches_give_the_numbers_of_stepping_alone(period, star
         looks = builder.AddSystem(_Looks(period, seed))
         feeder = builder.AddSystem(Feeder(chain, initial_length=initial,
                                           command_period=period if batched else None))
-        reader = builder.AddSystem(_Reader(period))
-        fast = builder.AddSystem(_Reader(0.005))
         builder.Connect(looks.get_output_port(), feeder.GetInputPort("v_insert_cmd"))
-        for r in (reader, fast):
-            builder.Connect(feeder.GetOutputPort("inserted_length"), r.get_input_port())
-        diagram = builder.Build()
-        simulator = Simulator(diagram)
-        simulator.get_mutable_context().SetTime(start)
-        seen = trace[batched] = {}
-
-        def monitor(root, diagram=diagram, feeder=feeder, reader=reader, fast=fast, seen=seen):
-            context = feeder.GetMyContextFromRoot(root)
-            seen[root.get_time()] = (feeder.GetOutputPort("inserted_length").Eval(context)[0],
-                                     feeder.GetOutputPort("balls_out").Eval(context)[0],
-                                     reader.GetMyContextFromRoot(root).get_discrete_state_vector()[0],
-                                     fast.GetMyContextFromRoot(root).get_discrete_state_vector()[0])
-            return EventStatus.Succeeded()
-
-        simulator.set_monitor(monitor)
-        simulator.Initialize()
-        simulator.AdvanceTo(9.0)
+        trace[batched] = _trace(builder, feeder, period, start)
         assert batched == (feeder.command_period == period)
-    fine, batch = trace[False], trace[True]
-    common = sorted(set(fine) & set(batch))
-    assert len(batch) < 0.5 * len(fine) and len(common) > 0.9 * len(batch)
-    assert [batch[t] for t in common] == [fine[t] for t in common]
-    lengths = [v[0] for v in fine.values()]
-    assert min(lengths) == 0.0 and max(lengths) > chain.length - 1e-4  # both end stops
+    _same_at_common_steps(trace[False], trace[True], chain)
 
 
 def _schedule():
@@ -421,7 +435,7 @@ def test_feeder_playing_a_schedule_in_batches_gives_the_numbers_of_a_trajectory_
     both (its own, an engine-like reader's at the batch period, a 5 ms reader's), the readers'
     states the same, both end stops and the acceleration limit crossed. ``batch=None``: the
     schedule played step by step."""
-    from pydrake.systems.framework import DiagramBuilder, EventStatus
+    from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import TrajectorySource
 
     chain, schedule = BallChain(n_balls=16), _schedule()
@@ -435,34 +449,8 @@ def test_feeder_playing_a_schedule_in_batches_gives_the_numbers_of_a_trajectory_
             feeder = builder.AddSystem(Feeder(chain, initial_length=initial))
             source = builder.AddSystem(TrajectorySource(schedule))
             builder.Connect(source.get_output_port(), feeder.GetInputPort("v_insert_cmd"))
-        reader = builder.AddSystem(_Reader(batch or 0.05))
-        fast = builder.AddSystem(_Reader(0.005))
-        for r in (reader, fast):
-            builder.Connect(feeder.GetOutputPort("inserted_length"), r.get_input_port())
-        diagram = builder.Build()
-        simulator = Simulator(diagram)
-        simulator.get_mutable_context().SetTime(start)
-        seen = trace[played] = {}
-
-        def monitor(root, feeder=feeder, reader=reader, fast=fast, seen=seen):
-            context = feeder.GetMyContextFromRoot(root)
-            seen[root.get_time()] = (feeder.GetOutputPort("inserted_length").Eval(context)[0],
-                                     feeder.GetOutputPort("balls_out").Eval(context)[0],
-                                     reader.GetMyContextFromRoot(root).get_discrete_state_vector()[0],
-                                     fast.GetMyContextFromRoot(root).get_discrete_state_vector()[0])
-            return EventStatus.Succeeded()
-
-        simulator.set_monitor(monitor)
-        simulator.Initialize()
-        simulator.AdvanceTo(9.0)
-    alone, played = trace[False], trace[True]
-    common = sorted(set(alone) & set(played))
-    if batch is not None:
-        assert len(played) < 0.5 * len(alone)
-    assert len(common) > 0.9 * len(played)
-    assert [played[t] for t in common] == [alone[t] for t in common]
-    lengths = [v[0] for v in alone.values()]
-    assert min(lengths) == 0.0 and max(lengths) > chain.length - 1e-4  # both end stops
+        trace[played] = _trace(builder, feeder, batch or 0.05, start)
+    _same_at_common_steps(trace[False], trace[True], chain, fewer=batch is not None)
 
 
 def test_feeder_schedule_is_checked():
