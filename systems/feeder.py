@@ -319,9 +319,16 @@ def batch_steps(command_period: float | None, update_period: float, name: str = 
     the step period."""
     if command_period is None:
         return 1
-    ratio = command_period / update_period if isinstance(command_period, (int, float)) else math.nan
-    n = round(ratio) if math.isfinite(ratio) else 0
-    if n < 1 or abs(ratio - n) > 1e-9 * n:
+    n = whole_steps(command_period, update_period)
+    if n < 1:
         raise UserInputError(f"feeder {name} must be a whole multiple of the step period "
                              f"{update_period:g} s, got {command_period!r}")
     return n
+
+
+def whole_steps(period, update_period: float) -> int:
+    """How many feeder steps (``update_period`` [s]) ``period`` [s] holds when it is a finite whole
+    multiple (>= 1) of them, else 0."""
+    ratio = period / update_period if isinstance(period, (int, float)) else math.nan
+    n = round(ratio) if math.isfinite(ratio) else 0
+    return n if n >= 1 and abs(ratio - n) <= 1e-9 * n else 0

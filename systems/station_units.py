@@ -41,7 +41,7 @@ from ballchain.drake_models.params import BallChain, CylinderMagnet
 from ballchain.drake_models.dipole_inversion import neutral_direction
 from ballchain.systems.actuation_station import StationOptions, add_unit_systems
 from ballchain.systems.chain_scenario import ChainScenario, InsertionScenario
-from ballchain.systems.feeder import Feeder, FeederSpec
+from ballchain.systems.feeder import Feeder, FeederSpec, whole_steps
 from ballchain.systems.hall_sensor import DipoleDirectionEstimator, HallSensor
 from ballchain.systems.omni_wheel_drive import OmniWheelDrive
 from ballchain.systems.reconfiguration import ReconfigurationController
@@ -240,10 +240,8 @@ def add_feeder(builder, chain: BallChain, insertion: InsertionScenario, desired_
         t1 = max(ins.start_time, 0.0)
         v = np.sign(ins.final - ins.initial) * ins.speed
         schedule = _zoh([t1, t1 + ramp], np.array([[v, 0.0]])) if ramp > 0 else _zoh([0.0], np.zeros((1, 1)))
-        steps = reader_period / spec.update_period
-        whole = reader_period > 0 and round(steps) >= 1 and abs(steps - round(steps)) <= 1e-9 * steps
         feeder = Feeder(chain, spec, initial_length=ins.initial, schedule=schedule,
-                        batch_period=reader_period if whole else None)
+                        batch_period=reader_period if whole_steps(reader_period, spec.update_period) else None)
     builder.AddSystem(feeder)
     to_state = builder.AddSystem(MatrixGain(np.array([[1.0], [0.0]])))
     to_state.set_name("feeder_interface")
