@@ -86,11 +86,12 @@ def test_a_stop_dropped_by_a_finaliser_is_delivered_again(capfd):
 
 
 class _SignalWhenUnpickled:
-    """Unpickled, sends this process SIGTERM: its handler then runs inside numba's
-    ``_numba_unpickle``, as when a stop lands while a kernel returns a new array."""
+    """Unpickled, raises SIGTERM in the calling thread (``raise_signal``: delivered and handled
+    before it returns, whatever other threads the test process has): its handler then runs
+    inside numba's ``_numba_unpickle``, as when a stop lands while a kernel returns a new array."""
 
     def __reduce__(self):
-        return os.kill, (os.getpid(), signal.SIGTERM)
+        return signal.raise_signal, (signal.SIGTERM,)
 
 
 def test_a_stop_landing_inside_numba_unpickle_is_delivered_after_it(capfd):
