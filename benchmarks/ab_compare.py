@@ -3,7 +3,7 @@
 The earlier commit (``--base``, e.g. the branch point) is exported with ``git archive`` into a
 temporary folder and imported as ``ballchain`` in its own processes (a meta-path finder maps the
 sub-packages as ``pyproject.toml`` does); the two sides run in turns, ``--rounds`` times each,
-so that the load of the machine hits both alike. Two measurements:
+so that the load of the machine hits both alike. The measurements:
 
 * ``station``: ``run_simulation`` of a named scenario for ``--duration`` simulated seconds,
   after an untimed two-step run in the same process: real-time factor (median over rounds) and
@@ -17,6 +17,10 @@ so that the load of the machine hits both alike. Two measurements:
   (``pin_force_from_statics``) once, whose result (all but its wall time) must be the same on
   both sides, and ``--repeats`` timed runs of ``--duration`` simulated seconds that never settle
   (``rel_tol`` 0): the median time of build plus run.
+* ``task``: a whole teleoperation task (``teleop.run``, ``--task``, world mapping, seed 0: Task
+  II is "right") after an untimed one-target run in the same process: its CPU and wall time
+  (both clocks are read, whatever ``--clock``), the simulated time and the task's summary,
+  which must be the same on both sides (the times of the operator's targets are simulated).
 
 Times are the children's CPU time by default (``--clock cpu``: ``time.perf_counter`` is
 replaced by ``time.process_time`` in them, so a real-time factor is simulated time over CPU
@@ -135,8 +139,27 @@ print(json.dumps({"file": ballchain.__file__, "settled": settled, "median_s": fl
 """
 
 
+_TASK = r"""
+import json, sys, time
+from threadpoolctl import threadpool_limits
+from ballchain.experiments import teleop
+import ballchain
+wall, cpu = getattr(time, "_wall_clock", time.perf_counter), time.process_time  # both clocks
+with threadpool_limits(limits=1, user_api="blas"):
+    teleop.run(task=sys.argv[1], mapping="world", targets=1, progress=False)  # first-call costs
+    w, c = wall(), cpu()
+    r = teleop.run(task=sys.argv[1], mapping="world", progress=False)
+    w, c = wall() - w, cpu() - c
+summary = r.summary.to_dict() if hasattr(r.summary, "to_dict") else dict(vars(r.summary))
+print(json.dumps({"file": ballchain.__file__, "wall_s": w, "cpu_s": c, "summary": summary,
+                  "rows": [{k: row[k] for k in ("target", "touched", "time_s")} for row in r.rows]},
+                 default=float))
+"""
+
+
 _CPU_CLOCK = r"""
 import time
+_wall_clock = time.perf_counter  # the real one, for a child that reads both (task)
 time.perf_counter = time.process_time  # every timer in the child counts this process's CPU time
 """
 
@@ -157,7 +180,7 @@ def _child(root: Path | None, code: str, args: list[str], clock: str = "cpu") ->
 
 def run(*, base: str, what: str = "station", scenario: str = "heart_left_quasi_static", duration: float = 0.1,
         overrides: str | None = None, rounds: int = 3, n_balls: int = 16, repeats: int = 7,
-        clock: str = "cpu") -> dict:
+        clock: str = "cpu", task: str = "right") -> dict:
     """Alternate ``rounds`` runs of the base commit and of this checkout; returns medians and diffs.
 
     ``clock="cpu"`` makes every timer of the children (``time.perf_counter``) count the process's
@@ -172,6 +195,8 @@ def run(*, base: str, what: str = "station", scenario: str = "heart_left_quasi_s
             code, args = _PROFILE, [scenario, str(duration), str(REPO)]
         elif what == "pin":
             code, args = _PIN, [str(duration), str(repeats)]
+        elif what == "task":
+            code, args = _TASK, [task]
         else:
             code, args = _STATICS, [str(n_balls), str(repeats)]
         sides = {"base": [], "head": []}
@@ -207,6 +232,13 @@ def run(*, base: str, what: str = "station", scenario: str = "heart_left_quasi_s
                    settled={k: {f: v[0]["settled"][f] for f in ("force_N", "steps", "sim_time_s", "settled", "reason")}
                             for k, v in sides.items()})
         out["speedup"] = out["median_s"]["base"] / out["median_s"]["head"]
+    elif what == "task":
+        out.update(task=task, **{key: {k: [r[key] for r in v] for k, v in sides.items()} for key in ("wall_s", "cpu_s")})
+        out["median_wall_s"] = {k: float(np.median(v)) for k, v in out["wall_s"].items()}
+        out["median_cpu_s"] = {k: float(np.median(v)) for k, v in out["cpu_s"].items()}
+        out["speedup_wall"] = out["median_wall_s"]["base"] / out["median_wall_s"]["head"]
+        out["summary"] = {k: v[0]["summary"] for k, v in sides.items()}
+        out["rows_identical"] = sides["base"][0]["rows"] == sides["head"][0]["rows"]
     else:
         for key in ("cold_median_ms", "warm_median_ms", "baseline_median_ms"):
             out[key] = {k: float(np.median([r[key] for r in v])) for k, v in sides.items()}
@@ -221,7 +253,7 @@ def run(*, base: str, what: str = "station", scenario: str = "heart_left_quasi_s
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--base", required=True, help="the earlier commit (any git revision)")
-    parser.add_argument("--what", choices=("station", "profile", "statics", "pin"), default="station",
+    parser.add_argument("--what", choices=("station", "profile", "statics", "pin", "task"), default="station",
                         help="what to compare")
     parser.add_argument("--scenario", default="heart_left_quasi_static", help="station: scenario name")
     parser.add_argument("--set", dest="overrides", default=None, help="station: inline YAML overrides")
@@ -230,12 +262,13 @@ def main() -> None:
     parser.add_argument("--balls", type=int, default=16, help="statics: number of balls")
     parser.add_argument("--repeats", type=int, default=7,
                         help="statics: timed solves per case; pin: timed runs per round")
+    parser.add_argument("--task", default="right", help='task: "left" (Task I) or "right" (Task II)')
     parser.add_argument("--clock", choices=("cpu", "wall"), default="cpu",
                         help="what the children's timers count (default cpu: the process's CPU time)")
     args = parser.parse_args()
     print(json.dumps(run(base=args.base, what=args.what, scenario=args.scenario, duration=args.duration,
                          overrides=args.overrides, rounds=args.rounds, n_balls=args.balls,
-                         repeats=args.repeats, clock=args.clock), indent=1))
+                         repeats=args.repeats, clock=args.clock, task=args.task), indent=1))
 
 
 if __name__ == "__main__":

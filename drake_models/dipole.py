@@ -44,16 +44,20 @@ def dipole_field(r: np.ndarray, m: np.ndarray) -> np.ndarray:
     r = np.asarray(r, dtype=float)
     m = np.asarray(m, dtype=float)
     _check_finite(r, m, "dipole_field")
-    r2 = np.einsum("...i,...i->...", r, r)
+    r2 = squared_norms(r)
     _check_separation(r2, "dipole_field")
     return _dipole_field(r, m, r2)
 
 
 def dipole_field_of_checked(r: np.ndarray, m: np.ndarray) -> np.ndarray:
     """``dipole_field`` (the same numbers) for arguments its caller has checked once: float
-    arrays, finite, no field point at a dipole (e.g. a Hall sensor at a fixed distance from its
-    magnet's centre, at every orientation of the magnet)."""
-    return _dipole_field(r, m, np.einsum("...i,...i->...", r, r))
+    arrays, finite, no field point at a dipole."""
+    return _dipole_field(r, m, squared_norms(r))
+
+
+def squared_norms(r: np.ndarray) -> np.ndarray:
+    """``|r|^2`` over the last axis, as ``dipole_field`` computes it."""
+    return np.einsum("...i,...i->...", r, r)
 
 
 def _dipole_field(r: np.ndarray, m: np.ndarray, r2: np.ndarray) -> np.ndarray:
@@ -62,6 +66,35 @@ def _dipole_field(r: np.ndarray, m: np.ndarray, r2: np.ndarray) -> np.ndarray:
     inv_r3 = inv_r**3
     mr = np.einsum("...i,...i->...", m, r)
     return K_DIPOLE * (3.0 * r * (mr * inv_r3 * inv_r * inv_r)[..., None] - m * inv_r3[..., None])
+
+
+class DipoleFieldAtPoint:
+    """The flux density at one fixed offset ``r`` (3,) [m] from a point dipole whose moment turns:
+    ``dipole_field(r[None], m)[0]``, the same numbers, for a sensor sampling a turning magnet.
+
+    What does not depend on the moment (``1/|r|``, ``1/|r|^3``, ``3 r``) is computed once with
+    ``_dipole_field``'s own numpy expressions; a call does the rest of that law's arithmetic on
+    plain floats, operation for operation (IEEE products and differences, the same in numpy and
+    Python), with ``m . r`` by numpy's ``einsum`` as the law takes it.
+    """
+
+    def __init__(self, r: np.ndarray) -> None:
+        r = np.asarray(r, dtype=float).reshape(1, 3)
+        _check_finite(r, np.zeros(3), "DipoleFieldAtPoint")
+        r2 = squared_norms(r)
+        _check_separation(r2, "DipoleFieldAtPoint")
+        inv_r = 1.0 / np.sqrt(r2)
+        self._r = r
+        self._inv_r, self._inv_r3 = float(inv_r[0]), float((inv_r**3)[0])
+        self._r3 = (3.0 * r)[0].tolist()
+
+    def __call__(self, m: np.ndarray) -> np.ndarray:
+        """(3,) flux density [T] of the moment ``m`` (3,) float [A m^2] (finite: the caller's)."""
+        inv_r, inv_r3 = self._inv_r, self._inv_r3
+        c = float(np.einsum("...i,...i->...", m, self._r)[0]) * inv_r3 * inv_r * inv_r
+        (x, y, z), (m0, m1, m2) = self._r3, m.tolist()
+        return np.array([K_DIPOLE * (x * c - m0 * inv_r3), K_DIPOLE * (y * c - m1 * inv_r3),
+                         K_DIPOLE * (z * c - m2 * inv_r3)])
 
 
 def dipole_field_gradient(r: np.ndarray, m: np.ndarray) -> np.ndarray:

@@ -19,7 +19,7 @@ import numpy as np
 
 from ballchain.drake_models.kernels import dipole_field_and_gradient
 from ballchain.drake_models.kernels.external import GRADIENT_STEP
-from ballchain.drake_models.dipole import dipole_field, dipole_field_of_checked
+from ballchain.drake_models.dipole import DipoleFieldAtPoint, dipole_field, dipole_field_of_checked
 from ballchain.drake_models.arg_checks import as_array, as_vector, require_choice, require_positive, require_type
 from ballchain.drake_models.errors import UserInputError, check_in, short_repr
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
@@ -210,6 +210,38 @@ class MagnetSource:
         # tests' reference); _to_magnet_frame above has refused points inside the magnet.
         _, B, G = dipole_field_and_gradient(p, self.p_WM[None, :], self.m_W[None, :], np.zeros(1))
         return B, G
+
+
+class FieldAtPoint:
+    """One magnet's flux density at one fixed point, for any orientation of the magnet: what
+    ``MagnetSource(magnet, p_WM, R_WM, model).field(p_W[None])[0]`` gives, the same numbers.
+
+    For a sensor fixed near a turning magnet (a Hall sensor under its unit, sampled a hundred
+    times a second): the magnet's centre, shape and model are checked by the caller once (a
+    placed ``MagnetUnitConfig``), the point is checked here once, and what does not depend on
+    the orientation (the point from the centre, its squared distance, the dipole moment) is
+    computed once. Beyond the magnet's reach (``MagnetSource.beyond_reach``) a call is the law of
+    ``MagnetSource.field_beyond_reach``; nearer, the checked ``MagnetSource.field``.
+    """
+
+    def __init__(self, magnet, p_WM: np.ndarray, model: FieldModel, p_W: np.ndarray) -> None:
+        self._magnet, self._p_WM, self._model = magnet, np.asarray(p_WM, dtype=float), model
+        self._p_W = _as_points(np.asarray(p_W, dtype=float).reshape(1, 3))
+        source = MagnetSource.at_checked_pose(magnet, self._p_WM, np.eye(3), model)
+        self.beyond_reach = source.beyond_reach(self._p_W)
+        dipole = self.beyond_reach and not (model == "exact" and isinstance(magnet, CylinderMagnet))
+        # field_beyond_reach's law: its r once, the moment's direction turning
+        self._dipole = DipoleFieldAtPoint(self._p_W - self._p_WM) if dipole else None
+        self._moment = magnet.dipole_moment
+
+    def __call__(self, R_WM: np.ndarray) -> np.ndarray:
+        """(3,) flux density [T] at the point with the magnet at orientation R_WM, a rotation
+        matrix (3, 3) of floats (a magnet unit's state)."""
+        if self._dipole is not None:
+            return self._dipole(self._moment * R_WM[:, 2])
+        source = MagnetSource.at_checked_pose(self._magnet, self._p_WM, R_WM, self._model)
+        return (source.field_beyond_reach(self._p_W) if self.beyond_reach else source.field(self._p_W))[0]
+
 
 
 @dataclass

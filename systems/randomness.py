@@ -18,14 +18,20 @@ leaves a Python system's context at its defaults), so the station's stochastic P
 
 A scenario's ``random_seed`` (``chain_scenario.ChainScenario``) is that generator's seed in
 ``chain_simulation.run_station``.
+
+A sampled system draws sample k's numbers from ``numpy.random.default_rng((seed, k))``: a
+function of the seed and the sample's index alone. ``SampleGenerators`` gives that very generator
+for a fraction of its cost (a Hall sensor samples a hundred times a second).
 """
 
 import numbers
 
+import numpy as np
 from pydrake.common import RandomGenerator
 from pydrake.systems.framework import BasicVector, Diagram, LeafSystem
 
 from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.drake_models.kernels._common import kernel
 
 MAX_SEED = 2**32 - 1  # RandomGenerator's seeds (and the seeds it draws) are 32-bit
 
@@ -90,3 +96,80 @@ def set_random_context(system, context, generator: RandomGenerator) -> None:
     for leaf in seeded_systems(system):
         leaf_context = leaf.GetMyMutableContextFromRoot(context)
         leaf.SetRandomParameters(leaf_context, leaf_context.get_mutable_parameters(), generator)
+
+
+# numpy's SeedSequence (NEP 19 keeps its algorithm and PCG64's seeding stable across versions):
+# the hash constants of its entropy pool (pool size 4, 32-bit words) and PCG64's 128-bit LCG
+# multiplier. ``tests/test_randomness.py`` holds the generator to numpy's, stream and all.
+_M32 = np.uint64(0xFFFFFFFF)
+_INIT_A, _MULT_A = np.uint64(0x43B0D7E5), np.uint64(0x931E8875)
+_INIT_B, _MULT_B = np.uint64(0x8B51F9DD), np.uint64(0x58F38DED)
+_MIX_L, _MIX_R = np.uint64(0xCA01F9DD), np.uint64(0x4973F715)
+_SHIFT = np.uint64(16)
+_PCG_MULTIPLIER = (2549297995355413924 << 64) | 4865540595714422341
+_M128 = (1 << 128) - 1
+
+
+@kernel
+def _seed_sequence_words(a, b):
+    """``SeedSequence((a, b)).generate_state(4, numpy.uint64)`` for integers 0 <= a, b < 2**63:
+    (4,) uint64. The entropy is each integer's 32-bit words, least significant first (one word
+    for 0)."""
+    entropy = np.zeros(4, np.uint64)
+    n = 0
+    for value in (np.uint64(a), np.uint64(b)):
+        entropy[n] = value & _M32
+        n += 1
+        if value >> np.uint64(32):
+            entropy[n] = value >> np.uint64(32)
+            n += 1
+    h = _INIT_A
+    pool = np.zeros(4, np.uint64)
+    for i in range(4):  # hashmix of each word (0 past the entropy) into the pool
+        v = (entropy[i] if i < n else np.uint64(0)) ^ h
+        h = (h * _MULT_A) & _M32
+        v = (v * h) & _M32
+        pool[i] = v ^ (v >> _SHIFT)
+    for i_src in range(4):  # every word mixed into every other (the entropy fits the pool)
+        for i_dst in range(4):
+            if i_src != i_dst:
+                v = pool[i_src] ^ h
+                h = (h * _MULT_A) & _M32
+                v = (v * h) & _M32
+                v ^= v >> _SHIFT
+                r = (_MIX_L * pool[i_dst] - _MIX_R * v) & _M32
+                pool[i_dst] = r ^ (r >> _SHIFT)
+    h = _INIT_B
+    out = np.zeros(4, np.uint64)
+    for i in range(8):  # generate_state: 8 32-bit words, read as 4 little-endian uint64
+        v = pool[i % 4] ^ h
+        h = (h * _MULT_B) & _M32
+        v = (v * h) & _M32
+        v ^= v >> _SHIFT
+        out[i // 2] |= v << np.uint64(32 * (i % 2))
+    return out
+
+
+class SampleGenerators:
+    """``numpy.random.default_rng((seed, k))``, the same generator (the same numbers from every
+    method), built in a few microseconds instead of tens: one PCG64 of this object's, its state
+    set to the one ``default_rng`` would start from. A sampled system keeps one and asks it for
+    sample k's generator (valid until the next ``generator`` call of this object).
+    """
+
+    def __init__(self) -> None:
+        self._bit_generator = np.random.PCG64(0)
+        self._generator = np.random.Generator(self._bit_generator)
+
+    def generator(self, seed: int, k: int) -> np.random.Generator:
+        """Sample k's generator: ``default_rng((seed, k))``'s stream, for integers
+        0 <= seed, k < 2**63 (other values: numpy's own ``default_rng``)."""
+        if not (0 <= seed < 2**63 and 0 <= k < 2**63):
+            return np.random.default_rng((seed, k))
+        w = _seed_sequence_words(seed, k).tolist()
+        # PCG64's seeding from those words (its srandom: two steps of the LCG).
+        increment = ((((w[2] << 64) | w[3]) << 1) | 1) & _M128
+        state = ((increment + ((w[0] << 64) | w[1])) * _PCG_MULTIPLIER + increment) & _M128
+        self._bit_generator.state = {"bit_generator": "PCG64", "state": {"state": state, "inc": increment},
+                                     "has_uint32": 0, "uinteger": 0}
+        return self._generator

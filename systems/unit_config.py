@@ -154,13 +154,6 @@ class MagnetUnitConfig:
         """The shared field model of this unit's magnet at orientation R_WM (3, 3)."""
         return MagnetSource(self.magnet, np.asarray(self.p_WM), np.asarray(R_WM), self.model)
 
-    def source_of_rotation(self, R_WM: np.ndarray) -> MagnetSource:
-        """``source`` for an orientation that is a rotation matrix (3, 3) of floats, as a magnet
-        unit's state gives it, built without re-checking the pose: the same source, for the
-        systems whose unit passed ``check_placed`` (centre, shape and model) when they were made
-        (the checks per Hall sample cost more than the field)."""
-        return MagnetSource.at_checked_pose(self.magnet, np.asarray(self.p_WM, dtype=float), R_WM, self.model)
-
     def placed(self, anchors: dict[str, np.ndarray]) -> "MagnetUnitConfig":
         """A copy with ``p_WM`` set: as given, or ``distance`` along ``direction_W`` from ``anchor``.
 

@@ -2,11 +2,11 @@
 statics' field check looks where the balls are.
 
 The shortcuts (each a function the test can put back to the checked path): the Hall sensor's and
-the estimator's magnet sources built without re-checking a pose from a unit quaternion
-(``MagnetUnitConfig.source_of_rotation``), the estimator's compensated fields remembered per
-orientation, the latched controller skipping its measurement, the magnet's pose from one
-RotationMatrix; the field at a sensor beyond the magnet's reach without the field points' checks
-(``MagnetSource.field_beyond_reach``), the magnet's angular velocity remembered per wheel-speed
+the estimator's magnet fields at the sensor without a checked source per orientation, the
+orientation-free part computed once (``FieldAtPoint``), the estimator's compensated fields
+remembered per orientation, the latched controller skipping its measurement, the magnet's pose
+from one RotationMatrix; the Hall noise's generator built without numpy's ``default_rng``
+(``SampleGenerators``), the magnet's angular velocity remembered per wheel-speed
 input, its quaternion turned on plain floats, the drive's wheel command, the mapper's command, the
 estimate and the controller's command remembered for their last input, the ADC's rounding as one
 ``np.rint``, the feeder's steps in batches at the engine's updates. A teleoperation run with them
@@ -61,10 +61,14 @@ def _record(name: str, duration: float, overrides: str = "") -> tuple[np.ndarray
 
 def _checked_path(monkeypatch) -> None:
     """Put every shortcut back to the work it skips."""
-    from ballchain.systems import hall_sensor, reconfiguration, rotating_magnet_unit
-    from ballchain.systems.unit_config import MagnetUnitConfig
+    from ballchain.drake_models.field_sources import FieldAtPoint, MagnetSource
+    from ballchain.systems import hall_sensor, randomness, reconfiguration, rotating_magnet_unit
 
-    monkeypatch.setattr(MagnetUnitConfig, "source_of_rotation", MagnetUnitConfig.source)
+    def field_at_point(self, R_WM):  # a checked source at every sample
+        return MagnetSource(self._magnet, self._p_WM, R_WM, self._model).field(self._p_W)[0]
+
+    monkeypatch.setattr(FieldAtPoint, "__call__", field_at_point)
+    monkeypatch.setattr(randomness.SampleGenerators, "generator", lambda self, seed, k: np.random.default_rng((seed, k)))
 
     def estimator_field(self, k, R_WM):  # the field afresh at every evaluation
         return self._others[k].source(R_WM).field(self._p_WS)[0]
@@ -85,10 +89,8 @@ def _checked_path(monkeypatch) -> None:
 
     monkeypatch.setattr(rotating_magnet_unit.RotatingMagnetUnit, "_calc_X_WM", pose)
 
-    from ballchain.drake_models.field_sources import MagnetSource
     from ballchain.systems import omni_wheel_drive, teleoperation
 
-    monkeypatch.setattr(MagnetSource, "field_beyond_reach", MagnetSource.field)
     monkeypatch.setattr(rotating_magnet_unit.RotatingMagnetUnit, "_omega_W",
                         rotating_magnet_unit.RotatingMagnetUnit._omega_W_checked)
     monkeypatch.setattr(rotating_magnet_unit, "_turned", _turned_numpy)
@@ -188,21 +190,36 @@ def test_teleop_run_is_the_same_with_and_without_the_shortcuts(overrides, durati
     assert np.ptp(magnets, axis=0).max() > 1e-3, "the magnets should turn during the run"
 
 
-def test_source_of_rotation_is_the_checked_source():
-    from ballchain.systems.unit_config import right_unit
+def test_field_at_point_is_the_checked_source_field():
+    """``FieldAtPoint`` gives a checked ``MagnetSource``'s field, bit for bit, for both models, at
+    the unit's sensor (beyond the magnet's reach) and at a point within its bounding sphere."""
     from pydrake.math import RotationMatrix
 
+    from ballchain.drake_models.errors import UserInputError
+    from ballchain.drake_models.field_sources import FieldAtPoint
+    from ballchain.systems.unit_config import right_unit
+
     unit = right_unit().check_placed()
-    R = RotationMatrix.MakeXRotation(0.3).multiply(RotationMatrix.MakeZRotation(-1.1)).matrix()
-    p = np.array([[0.01, 0.02, -0.03], unit.p_WS])
+    rng = np.random.default_rng(4)
+    turns = [RotationMatrix.MakeXRotation(a).multiply(RotationMatrix.MakeZRotation(b)).matrix()
+             for a, b in rng.uniform(-np.pi, np.pi, (5, 2))]
+    near = np.asarray(unit.p_WM) + np.array([0.0, 0.0, -0.75 * unit.magnet.bounding_radius])
     for model in ("dipole", "exact"):
         unit.model = model
-        fast, checked = unit.source_of_rotation(R), unit.source(R)
-        assert fast.magnet == checked.magnet and (fast.model, fast.fd_step) == (checked.model, checked.fd_step)
-        assert np.array_equal(fast.p_WM, checked.p_WM) and np.array_equal(fast.R_WM, checked.R_WM)
-        assert np.array_equal(fast.field(p), checked.field(p))
-        for a, b in zip(fast.field_and_gradient(p), checked.field_and_gradient(p)):
-            assert np.array_equal(a, b)
+        for point, beyond in ((unit.p_WS, True), (near, False)):
+            at_point = FieldAtPoint(unit.magnet, unit.p_WM, model, point)
+            assert at_point.beyond_reach is beyond
+            inside = 0
+            for R in turns:
+                try:
+                    checked = unit.source(R).field(point[None])[0]
+                except UserInputError:  # the point inside the magnet at this orientation: refused alike
+                    inside += 1
+                    with pytest.raises(UserInputError, match="inside the CylinderMagnet"):
+                        at_point(R)
+                    continue
+                assert np.array_equal(at_point(R), checked)
+            assert inside < len(turns)
 
 
 # --- the statics' field check: at the balls, in world ---------------------------------------------

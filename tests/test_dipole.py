@@ -7,6 +7,7 @@ from magpylib.func import sphere_field
 
 from ballchain.drake_models.dipole import (
     K_DIPOLE,
+    DipoleFieldAtPoint,
     chain_interactions,
     dipole_field,
     dipole_field_gradient,
@@ -148,3 +149,22 @@ def test_coincident_points_are_rejected():
         chain_interactions(np.zeros((2, 3)), np.ones((2, 3)))
     with pytest.raises(ValueError, match="coincides"):
         dipole_field([0, 0, 0], [0, 0, 1])
+
+
+def test_field_at_a_fixed_point_is_the_law_bit_for_bit():
+    """``DipoleFieldAtPoint(r)(m)`` is ``dipole_field(r[None], m)[0]`` (a source's field at one
+    point, ``MagnetSource.field``): the same floats, for offsets from a millimetre to a metre and
+    moments turning, scaled and with zero components. (The law on a 1-D ``r`` can differ in the
+    last bit: numpy's ``x**3`` of a scalar and of an array take different paths.)"""
+    rng = np.random.default_rng(3)
+    for scale in (1e-3, 0.03, 1.0):
+        for r in rng.normal(size=(40, 3)) * scale:
+            at_point = DipoleFieldAtPoint(r)
+            m = rng.normal(size=(25, 3)) * rng.choice([1e-3, 1.0, 50.0], size=(25, 1))
+            m[:5, rng.integers(3)] = 0.0
+            for moment in m:
+                assert np.array_equal(at_point(moment), dipole_field(r[None], moment)[0])
+    with pytest.raises(ValueError, match="coincides"):
+        DipoleFieldAtPoint(np.zeros(3))
+    with pytest.raises(ValueError, match="not finite"):
+        DipoleFieldAtPoint([np.nan, 0.0, 0.0])

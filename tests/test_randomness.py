@@ -188,3 +188,30 @@ def test_a_scenarios_random_seed_randomises_the_run_loop():
     a, again, b = readings(3)[1], readings(3)[1], readings(4)[1]
     np.testing.assert_array_equal(a, again)
     assert not np.array_equal(a, b) and not np.array_equal(a, default)
+
+
+# (seed, k) pairs at the edges of the entropy's 32-bit words and of the fast path's range.
+_SAMPLE_KEYS = [(0, 0), (0, 1), (1, 0), (MAX_SEED, 0), (MAX_SEED, 2**32 - 1), (5, 2**32), (7, 2**40 + 3),
+                (MAX_SEED, 2**63 - 1), (3, 2**63), (3, 2**64 + 5)]
+
+
+def test_sample_generators_give_default_rngs_streams():
+    """``SampleGenerators.generator(seed, k)`` is ``default_rng((seed, k))``: the same numbers
+    from every method, for random and edge keys, each call starting its key's stream afresh."""
+    from ballchain.systems.randomness import SampleGenerators
+
+    generators = SampleGenerators()
+    rng = np.random.default_rng(11)
+    keys = _SAMPLE_KEYS + [tuple(int(v) for v in rng.integers(0, MAX_SEED + 1, 2)) for _ in range(300)]
+    keys += [(seed, k) for seed in range(3) for k in range(200)]
+    for seed, k in keys:
+        reference = np.random.default_rng((seed, k))
+        fast = generators.generator(seed, k)
+        assert np.array_equal(fast.normal(scale=3e-6, size=3), reference.normal(scale=3e-6, size=3)), (seed, k)
+    for seed, k in _SAMPLE_KEYS:  # the rest of a stream, other methods, and a key asked twice
+        for _ in range(2):
+            reference, fast = np.random.default_rng((seed, k)), generators.generator(seed, k)
+            assert np.array_equal(fast.standard_normal(5), reference.standard_normal(5))
+            assert np.array_equal(fast.integers(0, 2**62, 4), reference.integers(0, 2**62, 4))
+            assert np.array_equal(fast.random(3), reference.random(3))
+            assert fast.bit_generator.state == reference.bit_generator.state
