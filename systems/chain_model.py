@@ -170,7 +170,8 @@ class BallCentres(LeafSystem):
         super().__init__()
         self._indices = [int(i) for i in ball_body_indices]
         self._poses = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
-        self.DeclareVectorOutputPort("ball_positions", 3 * len(self._indices), self._calc)
+        self.DeclareVectorOutputPort("ball_positions", 3 * len(self._indices), self._calc,
+                                     prerequisites_of_calc={self.all_input_ports_ticket()})
 
     def get_body_poses_input_port(self):
         return self._poses

@@ -228,7 +228,8 @@ class DipoleDirectionEstimator(LeafSystem):
             self.DeclareAbstractInputPort(f"X_WM_{o.name}", AbstractValue.Make(RigidTransform()))
             for o in self._others
         ]
-        self._m_port = self.DeclareVectorOutputPort("m_hat_W", 3, self._calc)
+        self._m_port = self.DeclareVectorOutputPort("m_hat_W", 3, self._calc,
+                                                    prerequisites_of_calc={self.all_input_ports_ticket()})
 
     def estimate(self, B: np.ndarray) -> np.ndarray:
         """(3,) unit direction from a field sample (3,) [T] of the own magnet; zeros for a zero field."""

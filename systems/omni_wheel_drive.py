@@ -104,7 +104,8 @@ class OmniWheelDrive(LeafSystem):
         self._steps_index = self.DeclareDiscreteState(3)
         self._applied_index = self.DeclareDiscreteState(3)
         self._applied_port = self.DeclareStateOutputPort("omega_wheels", self._applied_index)
-        self._angles_port = self.DeclareVectorOutputPort("wheel_angles", 3, self._calc_angles)
+        self._angles_port = self.DeclareVectorOutputPort("wheel_angles", 3, self._calc_angles,
+                                                         prerequisites_of_calc={self.xd_ticket()})
         self._speed_port = self.DeclareStateOutputPort("wheel_speed_setpoint", self._speed_index)
         self.DeclarePeriodicDiscreteUpdateEvent(self._spec.update_period, 0.0, self._update)
 

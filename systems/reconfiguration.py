@@ -27,7 +27,7 @@ What the paper leaves open and this controller decides:
 from __future__ import annotations
 
 import numpy as np
-from pydrake.systems.framework import LeafSystem
+from pydrake.systems.framework import EventStatus, LeafSystem
 
 from ballchain.drake_models.arg_checks import as_vector, require_type
 from ballchain.drake_models.errors import UserInputError
@@ -114,10 +114,15 @@ class ReconfigurationController(LeafSystem):
         self._mode_port = self.DeclareVectorInputPort("mode", 1)
         self._done_index = self.DeclareDiscreteState(1)
         self._mode_index = self.DeclareDiscreteState(1)
-        self._wheels_port = self.DeclareVectorOutputPort("omega_wheels_cmd", 3, self._calc_wheels)
-        self._omega_port = self.DeclareVectorOutputPort("omega_desired_W", 3, self._calc_omega)
+        # Functions of the latch and the measurement alone: cached until one changes.
+        ticket = {self.xd_ticket(), self.all_input_ports_ticket()}
+        self._wheels_port = self.DeclareVectorOutputPort("omega_wheels_cmd", 3, self._calc_wheels,
+                                                         prerequisites_of_calc=ticket)
+        self._omega_port = self.DeclareVectorOutputPort("omega_desired_W", 3, self._calc_omega,
+                                                        prerequisites_of_calc=ticket)
         self._done_port = self.DeclareStateOutputPort("done", self._done_index)
-        self._angle_port = self.DeclareVectorOutputPort("angle_error", 1, self._calc_angle)
+        self._angle_port = self.DeclareVectorOutputPort("angle_error", 1, self._calc_angle,
+                                                        prerequisites_of_calc=ticket)
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update_done)
 
     @property
@@ -152,8 +157,14 @@ class ReconfigurationController(LeafSystem):
         was_reconfiguring = state.value(self._mode_index).item() > 0.5
         requested = reconfiguring and not was_reconfiguring  # a new reconfiguration starts here
         latched = state.value(self._done_index).item() > 0.5 and not requested  # done, as _is_done
-        discrete_state.get_mutable_value(self._mode_index)[0] = 1.0 if reconfiguring else 0.0
-        discrete_state.get_mutable_value(self._done_index)[0] = 1.0 if self._done_after(context, latched) else 0.0
+        mode, done = 1.0 if reconfiguring else 0.0, 1.0 if self._done_after(context, latched) else 0.0
+        if mode == state.value(self._mode_index).item() and done == state.value(self._done_index).item():
+            # Unchanged (the flags are exactly 0.0 or 1.0): the state is left as it is, so the
+            # outputs that depend on it stay in Drake's cache (the mode switch's among them).
+            return EventStatus.DidNothing()
+        discrete_state.get_mutable_value(self._mode_index)[0] = mode
+        discrete_state.get_mutable_value(self._done_index)[0] = done
+        return EventStatus.Succeeded()
 
     def _done_after(self, context, latched: bool) -> bool:
         """Whether ``done`` holds after this update, given whether it stays latched."""

@@ -95,6 +95,35 @@ def _zoh_source(times: list[float], values: np.ndarray, name: str, builder):
     return source
 
 
+class HeldValue(LeafSystem):
+    """A constant vector output (``y0``) that depends on nothing: Drake's cache computes it once.
+
+    Drake's ``ConstantVectorSource`` gives the same value, but its output is recomputed at every
+    step (it is declared dependent on everything, time included), and so is every output
+    downstream that is declared dependent on its inputs only.
+    """
+
+    def __init__(self, value) -> None:
+        super().__init__()
+        self._value = np.array(value, dtype=float).reshape(-1)
+        self.DeclareVectorOutputPort("y0", len(self._value), lambda context, output: output.SetFromVector(self._value),
+                                     prerequisites_of_calc={self.nothing_ticket()})
+
+
+def _mode_source(times: list[float], modes: list[float], name: str, builder):
+    """The mode script's source: ``_zoh_source`` of the modes, or a ``HeldValue`` of the one value
+    it holds when it never changes (the same output at every time, but one that no step
+    invalidates: the mode switch and the controller downstream are then recomputed only when
+    their other inputs change, not at every step)."""
+    held = _zoh(times, np.array([modes]).reshape(1, -1))
+    values = np.unique(np.concatenate(held.vector_values(held.get_segment_times())))
+    if len(values) == 1:
+        source = builder.AddSystem(HeldValue([float(values[0])]))
+        source.set_name(name)
+        return source
+    return _zoh_source(times, np.array([modes]).reshape(1, -1), name, builder)
+
+
 def _zoh(times: list[float], values: np.ndarray) -> PiecewisePolynomial:
     """Zero-order hold of (size, k) values at k times, zeros before the first, held after the last."""
     times = list(times)
@@ -133,8 +162,9 @@ class TipObserver(LeafSystem):
         self.set_name(name)
         self._tip, self._previous = int(tip_body_index), int(previous_body_index)
         self._poses = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
-        self.DeclareVectorOutputPort("p_WT", 3, self._calc_p)
-        self.DeclareVectorOutputPort("tip_direction_W", 3, self._calc_direction)
+        inputs = {self.all_input_ports_ticket()}  # the poses alone: cached until they change
+        self.DeclareVectorOutputPort("p_WT", 3, self._calc_p, prerequisites_of_calc=inputs)
+        self.DeclareVectorOutputPort("tip_direction_W", 3, self._calc_direction, prerequisites_of_calc=inputs)
 
     def get_body_poses_input_port(self):
         return self._poses
@@ -194,8 +224,7 @@ def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig],
             stick = _zoh_source([q.time for q in keys], np.array([q.axes for q in keys], float).reshape(-1, 3).T,
                                 f"{n}.joystick", builder)
             builder.Connect(stick.get_output_port(), teleop.GetInputPort("joystick"))
-        mode = _zoh_source([q.time for q in keys], np.array([[float(q.mode) for q in keys]]).reshape(1, -1),
-                           f"{n}.mode_command", builder)
+        mode = _mode_source([q.time for q in keys], [float(q.mode) for q in keys], f"{n}.mode_command", builder)
         builder.Connect(mode.get_output_port(), switch.GetInputPort("mode"))
         builder.Connect(mode.get_output_port(), systems.controller.GetInputPort("mode"))
         handles[n] = UnitHandles(u, systems.magnet, systems.drive, systems.sensor, systems.estimator,

@@ -111,7 +111,8 @@ class WallForceOnBall(LeafSystem):
         self._walls = wall_geometries(plant, inspector)
         self._contact_port = self.DeclareAbstractInputPort("contact_results", AbstractValue.Make(ContactResults()))
         self._poses_port = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
-        self._output = self.DeclareVectorOutputPort("wall_force", 6, self._calc)
+        self._output = self.DeclareVectorOutputPort("wall_force", 6, self._calc,
+                                                    prerequisites_of_calc={self.all_input_ports_ticket()})
 
     def get_contact_results_input_port(self):
         return self._contact_port

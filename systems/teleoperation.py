@@ -124,7 +124,9 @@ class TeleoperationMapper(LeafSystem):
             self._m_port = self.DeclareVectorInputPort("m_W", 3)
             self._p_port = self.DeclareVectorInputPort("p_WT", 3)
             self._t_port = self.DeclareVectorInputPort("tip_direction_W", 3)
-        self._omega_port = self.DeclareVectorOutputPort("omega_desired_W", 3, self._calc)
+        # A function of the inputs alone: cached until one changes (not at every step).
+        self._omega_port = self.DeclareVectorOutputPort("omega_desired_W", 3, self._calc,
+                                                        prerequisites_of_calc={self.all_input_ports_ticket()})
 
     def _world_command(self, joystick: np.ndarray) -> np.ndarray:
         """frame "world": ``omega_max`` times the stick after the dead band."""
@@ -168,7 +170,8 @@ class ModeSwitch(LeafSystem):
         self._mode_port = self.DeclareVectorInputPort("mode", 1)
         self._teleop_port = self.DeclareVectorInputPort("omega_teleop_W", 3)
         self._reconf_port = self.DeclareVectorInputPort("omega_reconfigure_W", 3)
-        self.DeclareVectorOutputPort("omega_desired_W", 3, self._calc)
+        self.DeclareVectorOutputPort("omega_desired_W", 3, self._calc,
+                                     prerequisites_of_calc={self.all_input_ports_ticket()})  # the inputs alone
 
     def _calc(self, context, output):
         mode = int(round(float(self._mode_port.Eval(context)[0])))
