@@ -159,7 +159,7 @@ print(json.dumps({"file": ballchain.__file__, "wall_s": w, "cpu_s": c, "summary"
 
 _CPU_CLOCK = r"""
 import time
-_wall_clock = time.perf_counter  # the real one, for a child that reads both (task)
+time._wall_clock = time.perf_counter  # the real one, for a child that reads both (task)
 time.perf_counter = time.process_time  # every timer in the child counts this process's CPU time
 """
 
