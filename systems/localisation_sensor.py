@@ -6,8 +6,8 @@ samples): what a clinical navigator reads. Until the first delayed sample exists
 the first noisy sample (the tracker reports from the start).
 
 Randomness follows the station's convention (``randomness.SeededLeafSystem``): one seed
-parameter; sample k's noise is drawn from ``numpy.random.default_rng((seed, k))``, so the output
-is a function of the context.
+parameter; sample k's noise is drawn from ``numpy.random.default_rng((seed, k))`` (built by
+``randomness.SampleGenerators``), so the output is a function of the context.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from pydrake.systems.framework import BasicVector, EventStatus
 
 from ballchain.drake_models.localisation import LocalisationParams
 from ballchain.drake_models.arg_checks import require_type
-from ballchain.systems.randomness import SeededLeafSystem
+from ballchain.systems.randomness import SampleGenerators, SeededLeafSystem
 
 
 class LocalisationSensor(SeededLeafSystem):
@@ -48,6 +48,7 @@ class LocalisationSensor(SeededLeafSystem):
         self._n = int(n_balls)
         self._d = p.delay_samples
         self.DeclareSeedParameter(seed)
+        self._generators = SampleGenerators()
         self._in = self.DeclareVectorInputPort("ball_positions", 3 * self._n)
         self._state = self.DeclareDiscreteState(BasicVector(np.zeros(3 * (self._d + 1) + 1)))
         self.DeclareVectorOutputPort("p_WT_measured", 3, self._calc, prerequisites_of_calc={self.xd_ticket()})
@@ -59,7 +60,7 @@ class LocalisationSensor(SeededLeafSystem):
     def _update(self, context, discrete_state):
         x = context.get_discrete_state(self._state).get_value()
         k = int(x[-1])
-        rng = np.random.default_rng((self.seed(context), k))
+        rng = self._generators.generator(self.seed(context), k)
         tip = np.asarray(self._in.Eval(context))[-3:]
         sample = tip + self.params.noise_std * rng.standard_normal(3)
         line = x[:-1].reshape(self._d + 1, 3).copy()

@@ -53,6 +53,18 @@ def test_rate_and_latency():
     assert np.allclose(data[late, 0], expected, atol=1e-9)
 
 
+def test_sample_k_is_the_tip_plus_default_rngs_draw():
+    """Without latency, the reading after sample k is the tip plus
+    ``noise_std * default_rng((seed, k)).standard_normal(3)`` (the documented stream)."""
+    params = LocalisationParams(noise_std=0.4e-3, rate=40.0, latency=0.0)
+    t, data = _run(params, np.zeros(3), 0.5, seed=7)
+    tip = np.array([1e-3, 2e-3, 3e-3])
+    for k in range(1, 15):  # the log at t_k reads sample k - 1 (it publishes before the update at t_k)
+        row = int(np.argmin(np.abs(t - k * params.period)))
+        expected = tip + params.noise_std * np.random.default_rng((7, k - 1)).standard_normal(3)
+        assert np.array_equal(data[row], expected), k
+
+
 def test_same_seed_same_noise_other_seed_other():
     params = LocalisationParams()
     a = _run(params, np.zeros(3), 1.0, seed=3)[1]
