@@ -10,7 +10,9 @@ so that the load of the machine hits both alike. The measurements:
   the final ball positions, whose largest difference between the two sides says whether the
   results are the same.
 * ``profile``: ``benchmarks/station_profile.py`` of each side (its own copy) on the scenario:
-  exclusive microseconds per step per group of systems (wrench, actuation, monitor, C++ plant).
+  exclusive microseconds per step per group of systems (wrench, actuation, monitor, C++ plant);
+  with ``--set``, the scenario with those overrides and each actuation system a group of its
+  own (``--by-system``).
 * ``statics``: ``ballchain bench statics`` (16 balls by default): Newton cold and warm medians.
 * ``pin``: the force-sensor pin (``forces_dynamics``) on the RSPV optimum of magnet 1 (16 bare
   balls, a 4 x 5 grid and 5 refinements): the settling run from the loaded statics
@@ -89,8 +91,9 @@ spec = importlib.util.spec_from_file_location("station_profile", os.path.join(ro
 profile = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(profile)
 with threadpool_limits(limits=1, user_api="blas"):
-    profile.run(scenario=sys.argv[1], duration=0.01, top=1)  # first-call costs
-    r = profile.run(scenario=sys.argv[1], duration=float(sys.argv[2]), top=1)
+    options = dict(overrides=sys.argv[4] or None, by_system=True) if len(sys.argv) > 4 else {}
+    profile.run(scenario=sys.argv[1], duration=0.01, top=1, **options)  # first-call costs
+    r = profile.run(scenario=sys.argv[1], duration=float(sys.argv[2]), top=1, **options)
 print(json.dumps({"file": ballchain.__file__, "realtime_factor": r["realtime_factor"],
                   "us_per_step": r["us_per_step"], "derivative_evaluations": r["derivative_evaluations"],
                   "n_steps": r["n_steps"]}))
@@ -192,7 +195,7 @@ def run(*, base: str, what: str = "station", scenario: str = "heart_left_quasi_s
         if what == "station":
             code, args = _STATION, [scenario, str(duration)] + ([overrides] if overrides else [])
         elif what == "profile":
-            code, args = _PROFILE, [scenario, str(duration), str(REPO)]
+            code, args = _PROFILE, [scenario, str(duration), str(REPO)] + ([overrides] if overrides else [])
         elif what == "pin":
             code, args = _PIN, [str(duration), str(repeats)]
         elif what == "task":
@@ -256,7 +259,7 @@ def main() -> None:
     parser.add_argument("--what", choices=("station", "profile", "statics", "pin", "task"), default="station",
                         help="what to compare")
     parser.add_argument("--scenario", default="heart_left_quasi_static", help="station: scenario name")
-    parser.add_argument("--set", dest="overrides", default=None, help="station: inline YAML overrides")
+    parser.add_argument("--set", dest="overrides", default=None, help="station, profile: inline YAML overrides")
     parser.add_argument("--duration", type=float, default=0.1, help="station, pin: simulated time [s]")
     parser.add_argument("--rounds", type=int, default=3, help="runs of each side, alternating")
     parser.add_argument("--balls", type=int, default=16, help="statics: number of balls")
