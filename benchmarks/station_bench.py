@@ -14,7 +14,9 @@ The profile: one warm equilibrium of 16 balls pressed on the atrium's roof (hear
 30 mm inserted, the field turned by 1 deg about x), timed piece by piece: the evaluations (the
 chain's energy, gradient and Hessian in ReducedChain, plus the wall and sheath rows and gravity),
 the constraint Hessians, the QP steps, the positive-definite checks, the rest (line search,
-convergence tests, chart).
+convergence tests, chart). Those pieces are the Python reference solver's (``compiled=False``):
+the compiled solve is one kernel call (``benchmarks/statics_profile.py`` times its parts), timed
+on the same equilibria beside it (``compiled_equilibrium_ms``).
 
 The teleoperation task (``--teleop``): the simulated operator doing Task II (the 18 right-ring
 targets, world mapping, seed 0) on each engine in the same run: the whole task on the quasi-static
@@ -129,7 +131,11 @@ def profile_equilibrium(repeats: int = 20) -> dict:
 
     sc = load_scenario("heart_wall_contact", "{engine: statics, insertion: {initial: 0.03, final: 0.03}}")
     cd = MakeStation(sc)
-    engine = cd.chain.engine_system
+    compiled = cd.chain.engine_system
+    # The pieces are the Python solver's functions (the compiled solve is one kernel call:
+    # benchmarks/statics_profile.py times its parts); the compiled solve of the same equilibria
+    # is timed beside it.
+    engine = compiled.replica(compiled=False)
     s = 0.03
     p, m, result, k = engine.equilibrium(s, None)
     B = np.array(cd.field_source.B_W, float)
@@ -150,7 +156,7 @@ def profile_equilibrium(repeats: int = 20) -> dict:
     originals = {"evaluation": (ConstrainedChain, "evaluate"), "chain_energy": (ReducedChain, "evaluate"),
                  "constraint_hessian": (ConstrainedChain, "constraint_hessian"), "qp": (st, "dense_qp"),
                  "positive_definite": (st, "_positive_definite")}
-    totals, per_piece, iterations = [], {key: [] for key in pieces}, []
+    totals, per_piece, iterations, compiled_totals = [], {key: [] for key in pieces}, [], []
     from ballchain.drake_models.field_sources import UniformField
 
     from ballchain.systems.quasi_static_engine import _one_blas_thread
@@ -174,9 +180,14 @@ def profile_equilibrium(repeats: int = 20) -> dict:
                 setattr(owner, attr, pieces[key])
         totals.append(time.perf_counter() - t)
         iterations.append(res.iterations)
+        compiled._field_source = field
+        t = time.perf_counter()
+        compiled.equilibrium(s, None, p, m)
+        compiled_totals.append(time.perf_counter() - t)
         for key in clock:
             per_piece[key].append(clock[key])
-    out = {"equilibrium_ms": round(1e3 * float(np.median(totals)), 3),
+    out = {"compiled_equilibrium_ms": round(1e3 * float(np.median(compiled_totals)), 3),
+           "equilibrium_ms": round(1e3 * float(np.median(totals)), 3),
            "newton_iterations": float(np.median(iterations)),
            "wall_contacts": len(res.wall_forces_W)}
     for key, values in per_piece.items():
