@@ -243,7 +243,6 @@ class FieldAtPoint:
         return (source.field_beyond_reach(self._p_W) if self.beyond_reach else source.field(self._p_W))[0]
 
 
-
 @dataclass
 class FieldSources:
     """Superposition of any number of field sources (the field of the sum is the sum of fields)."""

@@ -601,3 +601,40 @@ def test_station_tip_frame_teleoperation_turns_the_field_at_the_tip():
     # 0.5 rad/s about z for 1 s, less stepper ramp and quantisation.
     assert np.arctan2(B[1], B[0]) == pytest.approx(0.5, abs=0.02)
     assert abs(B[2]) < 1e-3 * np.linalg.norm(B)
+
+
+def test_held_value_and_an_unchanged_latch_stay_in_drakes_cache():
+    """A constant mode script (``HeldValue``) is computed once, and a controller whose latch update
+    changes nothing leaves its outputs cached: the mode switch downstream is not recomputed at
+    every step (Drake's ``ConstantVectorSource`` is: it depends on time)."""
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import ConstantVectorSource
+
+    from ballchain.systems.reconfiguration import ReconfigurationController
+    from ballchain.systems.station_units import HeldValue
+
+    builder = DiagramBuilder()
+    held = builder.AddSystem(HeldValue([0.0]))
+    constant = builder.AddSystem(ConstantVectorSource([0.0]))
+    measured = builder.AddSystem(HeldValue([0.0, 0.0, 1.0]))
+    controller = builder.AddSystem(ReconfigurationController(np.array([0.0, 0.0, 1.0])))
+    builder.Connect(held.get_output_port(), controller.GetInputPort("mode"))
+    builder.Connect(measured.get_output_port(), controller.GetInputPort("m_hat_measured_W"))
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    simulator.Initialize()
+    root = simulator.get_context()
+    contexts = {s: s.GetMyContextFromRoot(root) for s in (held, constant, controller)}
+    ports = [(held, held.get_output_port()), (constant, constant.get_output_port()),
+             (controller, controller.GetOutputPort("omega_desired_W"))]
+    simulator.AdvanceTo(0.015)  # the latch set at its first update (the measurement is the neutral)
+    assert controller.GetOutputPort("done").Eval(contexts[controller])[0] == 1.0
+    for t in (0.017, 0.021, 0.025, 0.031):  # steps across the controller's 10 ms updates
+        for system, port in ports:
+            port.Eval(contexts[system])
+        simulator.AdvanceTo(t)
+        stale = [port.cache_entry().is_out_of_date(contexts[system]) for system, port in ports]
+        assert stale == [False, True, False], t
+    assert np.array_equal(held.get_output_port().Eval(contexts[held]), [0.0])
+    assert np.array_equal(controller.GetOutputPort("omega_desired_W").Eval(contexts[controller]), np.zeros(3))
