@@ -56,14 +56,17 @@ def _shots() -> Path:
     return Path(tempfile.mkdtemp(prefix="live_shots_"))
 
 
-def _wait(condition, what: str, deadline: float = DEADLINE, poll: float = 0.1):
+def _wait(condition, what: str, deadline: float = DEADLINE, poll: float = 0.1, describe=None):
+    """``condition()`` once it is true; past the deadline an AssertionError naming ``what``, with
+    ``describe()`` (what the test saw last) when given."""
     end = time.monotonic() + deadline
     while time.monotonic() < end:
         value = condition()
         if value:
             return value
         time.sleep(poll)
-    raise AssertionError(f"timed out ({deadline:g} s) waiting for {what}")
+    seen = "" if describe is None else f"; {describe()}"
+    raise AssertionError(f"timed out ({deadline:g} s) waiting for {what}{seen}")
 
 
 def _panel_colour(page) -> np.ndarray:
@@ -138,7 +141,9 @@ def test_a_person_steers_the_chain_in_the_browser_into_a_vein_and_starts_over_af
             page.keyboard.press("Space")
             for _ in range(4):
                 page.keyboard.press("KeyW")
-            _wait(lambda: heart.in_veins(np.array(tip()))[0], "the tip to go down a vein")
+            _wait(lambda: heart.in_veins(np.array(tip()))[0], "the tip to go down a vein",
+                  describe=lambda: f"the tip on the page at {np.round(np.array(tip()) * 1e3, 1).tolist()} mm, "
+                                   f"the last status lines: {lines[-3:]}")
             page.keyboard.press("Space")
             # The session goes on after the tip entered the vein (the watchdog's old rule stopped it
             # there). With the stick released the tip may slide back out within those 2 s of
