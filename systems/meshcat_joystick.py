@@ -18,7 +18,10 @@ open in a browser:
   stays where it was put, like a throttle: each press moves one axis (or the feeder command) by
   ``key_step`` towards +1 or -1; Space centres the stick and stops the feeder; N selects the
   next magnet; Escape quits; R starts the live view over after the watchdog paused it (read by
-  the live view, ``experiments/teleop.py``). ``KEY_MAP`` lists the keys.
+  the live view, ``experiments/teleop.py``). ``KEY_MAP`` lists the keys. Meshcat counts a
+  button's clicks but not their order, so the presses read in one period apply in ``KEY_MAP``
+  order: a Space read with moves centres the stick (the stop wins; a person who pressed Space
+  and then W within one period, or while the simulation lagged, presses W again).
 
 What reaches the station is the sum of the two, clipped to [-1, 1]; the stick drives only the
 selected unit (the others get zero), the feeder command is scaled by ``feeder_speed``.

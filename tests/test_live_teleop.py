@@ -137,6 +137,29 @@ def test_pad_command_follows_the_standard_gamepad_mapping():
     np.testing.assert_allclose(pad_command([], [])[0], np.zeros(3))
 
 
+def test_a_space_read_with_moves_centres_the_stick_and_later_moves_count():
+    """Meshcat keeps no order between the clicks of one reading: a Space read with W presses
+    centres the stick (the stop wins); W presses read after it move the stick."""
+    meshcat = _meshcat()
+    j = MeshcatJoystick(meshcat, ["right_unit"], period=0.02, key_step=0.25, feeder_speed=0.02)
+    simulator = Simulator(j)
+    ctx = simulator.get_mutable_context()
+    simulator.Initialize()
+    right, feed = j.GetOutputPort("joystick_right_unit"), j.GetOutputPort("v_insert_cmd")
+    _click(meshcat, _label("feed", 0, 1.0), 4)
+    simulator.AdvanceTo(0.03)
+    np.testing.assert_allclose(feed.Eval(ctx), [0.02], atol=0)
+    _click(meshcat, _label("centre"))
+    _click(meshcat, _label("axis", 1, 1.0), 4)
+    simulator.AdvanceTo(0.05)
+    np.testing.assert_allclose(right.Eval(ctx), np.zeros(3), atol=0)
+    np.testing.assert_allclose(feed.Eval(ctx), [0.0], atol=0)
+    _click(meshcat, _label("axis", 1, 1.0), 4)
+    simulator.AdvanceTo(0.07)
+    np.testing.assert_allclose(right.Eval(ctx), [0.0, 1.0, 0.0], atol=0)
+    np.testing.assert_allclose(feed.Eval(ctx), [0.0], atol=0)
+
+
 def test_meshcat_joystick_ports_keys_gamepad_and_quit():
     """Ports; keys move a sticky virtual stick by key_step; the gamepad adds to it; N selects the
     next unit; Space centres; Escape quits; clicks before the run starts do not count."""
