@@ -23,6 +23,13 @@ so that the load of the machine hits both alike. The measurements:
   II is "right") after an untimed one-target run in the same process: its CPU and wall time
   (both clocks are read, whatever ``--clock``), the simulated time and the task's summary,
   which must be the same on both sides (the times of the operator's targets are simulated).
+* ``seeds``: the acceptance test of a change to the solver's iterates (docs/performance.md 18):
+  every task of ``--task`` ("left,right": Tasks I and II) on every operator seed of ``--seeds``
+  (default 0-23), world mapping, one child per side running at once: the targets touched, the
+  targets only one side touched with a two-sided sign test on them, the seeds where one side
+  touched fewer, and CPU time per simulated second. The operator's closed loop amplifies any
+  change of an equilibrium (1e-7 m moves its next look), so one seed's run is a sample, not a
+  verdict.
 
 Times are the children's CPU time by default (``--clock cpu``: ``time.perf_counter`` is
 replaced by ``time.process_time`` in them, so a real-time factor is simulated time over CPU
@@ -33,6 +40,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import subprocess
 import sys
@@ -160,6 +168,26 @@ print(json.dumps({"file": ballchain.__file__, "wall_s": w, "cpu_s": c, "summary"
 """
 
 
+_SEEDS = r"""
+import json, sys, time
+from threadpoolctl import threadpool_limits
+from ballchain.drake_models.heart import LeftAtrium
+from ballchain.experiments import teleop
+import ballchain
+runs = []
+with threadpool_limits(limits=1, user_api="blas"):
+    heart = LeftAtrium()
+    for task in sys.argv[1].split(","):
+        for seed in [int(x) for x in sys.argv[2].split(",")]:
+            c = time.process_time()
+            r = teleop.run(task=task, mapping="world", seed=seed, progress=False, heart=heart)
+            runs.append({"task": task, "seed": seed, "touched": r.summary.touched, "targets": r.summary.targets,
+                         "missed": list(r.summary.missed), "sim_s": r.summary.sim_time_s,
+                         "cpu_s": time.process_time() - c, "failure": r.summary.failure})
+print(json.dumps({"file": ballchain.__file__, "runs": runs}))
+"""
+
+
 _CPU_CLOCK = r"""
 import time
 time._wall_clock = time.perf_counter  # the real one, for a child that reads both (task)
@@ -183,7 +211,7 @@ def _child(root: Path | None, code: str, args: list[str], clock: str = "cpu") ->
 
 def run(*, base: str, what: str = "station", scenario: str = "heart_left_quasi_static", duration: float = 0.1,
         overrides: str | None = None, rounds: int = 3, n_balls: int = 16, repeats: int = 7,
-        clock: str = "cpu", task: str = "right") -> dict:
+        clock: str = "cpu", task: str = "right", seeds: list[int] | None = None) -> dict:
     """Alternate ``rounds`` runs of the base commit and of this checkout; returns medians and diffs.
 
     ``clock="cpu"`` makes every timer of the children (``time.perf_counter``) count the process's
@@ -202,6 +230,8 @@ def run(*, base: str, what: str = "station", scenario: str = "heart_left_quasi_s
             code, args = _TASK, [task]
         else:
             code, args = _STATICS, [str(n_balls), str(repeats)]
+        if what == "seeds":  # one long child per side, both at once (CPU time is per process)
+            return _seeds(base, task, seeds, tmp, clock)
         sides = {"base": [], "head": []}
         for _ in range(rounds):
             sides["base"].append(_child(Path(tmp), code, args, clock))
@@ -253,10 +283,53 @@ def run(*, base: str, what: str = "station", scenario: str = "heart_left_quasi_s
     return out
 
 
+def _seeds(base: str, tasks: str, seeds: list[int], tmp: str, clock: str) -> dict:
+    """``--what seeds``: every task on every operator seed with each side's code; the touched
+    targets, the targets only one side touched (the paired comparison of a closed loop that
+    amplifies any change of the iterates), and CPU time per simulated second."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    args = [tasks, ",".join(str(s) for s in seeds)]
+    with ThreadPoolExecutor(2) as pool:
+        futures = {"base": pool.submit(_child, Path(tmp), _SEEDS, args, clock),
+                   "head": pool.submit(_child, None, _SEEDS, args, clock)}
+        sides = {k: {(r["task"], r["seed"]): r for r in f.result()["runs"]} for k, f in futures.items()}
+    out = {"base": base, "what": "seeds", "seeds": seeds, "clock": clock, "tasks": {}}
+    for task in tasks.split(","):
+        keys = [(task, s) for s in seeds]
+        b, h = ([sides[k][key] for key in keys] for k in ("base", "head"))
+        only_base = sum(len(set(y["missed"]) - set(x["missed"])) for x, y in zip(b, h))
+        only_head = sum(len(set(x["missed"]) - set(y["missed"])) for x, y in zip(b, h))
+        out["tasks"][task] = {
+            "targets": sum(r["targets"] for r in b),
+            "touched": {"base": sum(r["touched"] for r in b), "head": sum(r["touched"] for r in h)},
+            "touched_only_by": {"base": only_base, "head": only_head},
+            "sign_test_p": _sign_test(only_base, only_head),
+            "seeds_head_worse": sum(y["touched"] < x["touched"] for x, y in zip(b, h)),
+            "seeds_head_better": sum(y["touched"] > x["touched"] for x, y in zip(b, h)),
+            "cpu_ms_per_sim_s": {k: 1e3 * sum(r["cpu_s"] for r in v) / sum(r["sim_s"] for r in v)
+                                 for k, v in (("base", b), ("head", h))},
+            "median_cpu_s": {k: float(np.median([r["cpu_s"] for r in v])) for k, v in (("base", b), ("head", h))},
+            "failures": {k: [r["seed"] for r in v if r["failure"]] for k, v in (("base", b), ("head", h))},
+            "per_seed": {k: [{f: r[f] for f in ("seed", "touched", "sim_s", "cpu_s")} for r in v]
+                         for k, v in (("base", b), ("head", h))},
+        }
+    return out
+
+
+def _sign_test(a: int, b: int) -> float:
+    """Two-sided exact sign test of a against b successes (binomial, p = 1/2)."""
+    n = a + b
+    if n == 0:
+        return 1.0
+    tail = sum(math.comb(n, k) for k in range(min(a, b) + 1)) / 2.0**n
+    return min(1.0, 2.0 * tail)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--base", required=True, help="the earlier commit (any git revision)")
-    parser.add_argument("--what", choices=("station", "profile", "statics", "pin", "task"), default="station",
+    parser.add_argument("--what", choices=("station", "profile", "statics", "pin", "task", "seeds"), default="station",
                         help="what to compare")
     parser.add_argument("--scenario", default="heart_left_quasi_static", help="station: scenario name")
     parser.add_argument("--set", dest="overrides", default=None, help="station, profile: inline YAML overrides")
@@ -265,13 +338,24 @@ def main() -> None:
     parser.add_argument("--balls", type=int, default=16, help="statics: number of balls")
     parser.add_argument("--repeats", type=int, default=7,
                         help="statics: timed solves per case; pin: timed runs per round")
-    parser.add_argument("--task", default="right", help='task: "left" (Task I) or "right" (Task II)')
+    parser.add_argument("--task", default="right",
+                        help='task: "left" (Task I) or "right" (Task II); seeds: a comma-separated list')
+    parser.add_argument("--seeds", default="0-23", help='seeds: the operator seeds, "a-b" or a comma-separated list')
     parser.add_argument("--clock", choices=("cpu", "wall"), default="cpu",
                         help="what the children's timers count (default cpu: the process's CPU time)")
     args = parser.parse_args()
     print(json.dumps(run(base=args.base, what=args.what, scenario=args.scenario, duration=args.duration,
                          overrides=args.overrides, rounds=args.rounds, n_balls=args.balls,
-                         repeats=args.repeats, clock=args.clock, task=args.task), indent=1))
+                         repeats=args.repeats, clock=args.clock, task=args.task,
+                         seeds=_seed_list(args.seeds)), indent=1))
+
+
+def _seed_list(text: str) -> list[int]:
+    """``"0-23"`` or ``"0,3,5"`` as a list of seeds."""
+    if "-" in text:
+        a, b = text.split("-")
+        return list(range(int(a), int(b) + 1))
+    return [int(x) for x in text.split(",")]
 
 
 if __name__ == "__main__":

@@ -37,6 +37,12 @@ S_TOL, S_FEAS, S_MARGIN, S_MAX_STEP, S_HEART_WEIGHT, S_RADIUS = 0, 1, 2, 3, 4, 5
 # flags: iteration limit and what the model holds.
 F_MAX_ITER, F_EXTERNAL, F_PINNED, F_WALL, F_HEART = 0, 1, 2, 3, 4
 
+# The QP's curvature when the Lagrangian's Hessian H is indefinite: H + rho s N'N for the first of
+# these rho (s = max(1, max|H_ii|), N the step's constraint rows) whose Cholesky succeeds. On the
+# rows' tangent space the curvature stays H's own (the negative curvature of a chain pressed on the
+# wall lies across the rows: docs/performance.md), so the step is the exact one there.
+CONVEXIFY = (1e-3, 1e-2, 1e-1, 1.0, 10.0)
+
 # Why the solve stopped (``REASONS`` in statics.py gives the reference's messages).
 R_MINIMUM, R_MINIMUM_LINE, R_QP, R_SADDLE, R_LINE, R_LIMIT, R_FIELD, R_ENERGY = range(8)
 
@@ -218,6 +224,25 @@ def positive_definite(H):
 
 
 @kernel
+def qp_curvature(H, N):
+    """``(ok, Hm, Lc, definite)`` of the QP's curvature for the constraint rows N
+    (``statics._qp_curvature``): H itself when it is positive definite, else the first of
+    H + rho s N'N (s = max(1, max|H_ii|), rho in ``CONVEXIFY``) that is, else
+    ``positive_definite(H)``'s eigenvalue flip."""
+    ok, Lc = cholesky(H)
+    if ok:
+        return True, H, Lc, True
+    s = max(1.0, np.abs(np.diag(H)).max())
+    C = N.T @ N
+    for rho in CONVEXIFY:
+        Hc = H + (rho * s) * C
+        ok, Lc = cholesky(Hc)
+        if ok:
+            return True, Hc, Lc, False
+    return positive_definite(H)
+
+
+@kernel
 def null_space(J):
     """Orthonormal basis (columns) of the null space of J (rank at 1e-10 of the largest
     singular value, or of 1)."""
@@ -252,10 +277,10 @@ def newton_step(ev, H, near, pinned, lam_tip, model):
         Hm = Z @ Hz @ Z.T
         lam_tip = np.linalg.lstsq(np.ascontiguousarray(J.T), g + H @ dq)[0]
         return True, dq, Hm, np.zeros(0), lam_tip, False
-    ok, Hm, Lc, definite = positive_definite(H)
-    if not ok:
-        raise np.linalg.LinAlgError("Matrix is not positive definite.")
     if near.size == 0:
+        ok, Hm, Lc, definite = positive_definite(H)
+        if not ok:
+            raise np.linalg.LinAlgError("Matrix is not positive definite.")
         return True, -cho_solve(Lc, g), Hm, np.zeros(0), lam_tip, definite
     n_in = near.size
     J = jacobian_rows(near, ev, model)
@@ -266,6 +291,9 @@ def newton_step(ev, H, near, pinned, lam_tip, model):
     else:
         N = J
         c = gaps[near]
+    ok, Hm, Lc, definite = qp_curvature(H, N)
+    if not ok:
+        raise np.linalg.LinAlgError("Matrix is not positive definite.")
     ok, dq, y = dense_qp(Lc, g, N, c, n_in, 200)
     if not ok:
         return False, dq, Hm, y, lam_tip, definite

@@ -9,7 +9,10 @@ the exact energy, gradient and Hessian from ``drake_models.chain_energy``.
 Two solvers of the same problem:
 
 * ``"newton"`` (default): a second-order SQP. Each step minimises the quadratic model of the
-  energy (exact Hessian, made positive definite) subject to the linearised rigidity constraints
+  energy (the Lagrangian's exact Hessian H; where H is indefinite, H + rho s N'N when that is
+  positive definite for a rho of ``CONVEXIFY``, with N the step's rows, so that the curvature
+  along the rows is H's own, else H with its negative eigenvalues flipped) subject to the
+  linearised rigidity constraints
   of the pairs that are near contact; when a pair is near, the step is a QP, solved by a dense
   dual active-set method (``dense_qp``, default) or posed as a Drake MathematicalProgram and
   solved by Clarabel (``qp="clarabel"``; about 10 times slower here, the program being rebuilt
@@ -49,6 +52,7 @@ from ballchain.drake_models.field_sources import FieldSource, UniformField, requ
 from ballchain.drake_models.params import BallChain
 from ballchain.drake_models.vectors import angle_between
 from ballchain.optimization import compiled_model
+from ballchain.optimization.compiled_newton import CONVEXIFY
 from ballchain.optimization.reduced_chain import X_AXIS, ReducedChain
 from ballchain.optimization.wall_constraints import ConstrainedChain, HeartConstraints
 
@@ -255,6 +259,27 @@ def _positive_definite(H: np.ndarray, floor: float = 1e-10) -> np.ndarray:
     w, V = np.linalg.eigh(H)
     delta = floor * max(1.0, float(np.abs(w).max()))
     return (V * np.maximum(np.abs(w), delta)) @ V.T
+
+
+def _qp_curvature(H: np.ndarray, N: np.ndarray) -> np.ndarray:
+    """The QP's curvature for the constraint rows N: H itself when it is positive definite, else
+    the first of H + rho s N'N (s = max(1, max|H_ii|), rho in ``CONVEXIFY``) that is, else
+    ``_positive_definite(H)`` (``compiled_newton.qp_curvature`` is the compiled twin)."""
+    try:
+        np.linalg.cholesky(H)
+        return H
+    except np.linalg.LinAlgError:
+        pass
+    s = max(1.0, float(np.abs(np.diag(H)).max()))
+    C = N.T @ N
+    for rho in CONVEXIFY:
+        Hc = H + (rho * s) * C
+        try:
+            np.linalg.cholesky(Hc)
+            return Hc
+        except np.linalg.LinAlgError:
+            pass
+    return _positive_definite(H)
 
 
 def _set_tip_target_and_wall(model: ReducedChain, tip_target, wall) -> None:
@@ -678,7 +703,8 @@ class ChainStatics:
             Hm = Z @ Hz @ Z.T  # the model's curvature, for the predicted decrease
             lam, lam_tip = np.zeros(0), np.linalg.lstsq(J.T, g + H @ dq, rcond=None)[0]
         elif len(near) or pinned:
-            Hm = _positive_definite(H)
+            N = np.vstack([ev.jacobian[near]] + ([ev.tip_jacobian] if pinned else []))
+            Hm = _qp_curvature(H, N)
             dq, lam, lam_tip = self._qp_step(Hm, g, ev.gaps[near], ev.jacobian[near],
                                              ev.tip_residual, ev.tip_jacobian)
         else:

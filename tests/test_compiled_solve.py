@@ -218,3 +218,66 @@ def test_engine_paths_match_the_reference(name, monkeypatch):
         fast.feasibility_tolerance = slow.feasibility_tolerance = feasibility
         a, b = fast.solve(external, warm, constraints=constraints), slow.solve(external, warm, constraints=constraints)
         assert_same(a, b)
+
+
+def _tangent_basis(N):
+    """Orthonormal basis of the null space of the rows N."""
+    _, s, Vt = np.linalg.svd(N)
+    return Vt[int(np.sum(s > 1e-10 * s.max())):].T
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_qp_curvature_is_the_lagrangians_along_the_rows_and_definite(seed):
+    """An indefinite Lagrangian's Hessian whose negative curvature lies across the step's rows
+    (as a chain pressed on the wall's, docs/performance.md 11): the QP's curvature is positive
+    definite, equal to H on the rows' tangent space (the step there is the exact Newton step),
+    with no eigendecomposition; the compiled and the reference functions agree."""
+    from ballchain.optimization.compiled_newton import CONVEXIFY, qp_curvature
+    from ballchain.optimization.statics import _qp_curvature
+
+    rng = np.random.default_rng(seed)
+    n, m = 20, 3
+    A = rng.normal(size=(n, n))
+    N = rng.normal(size=(m, n))
+    H = A @ A.T / n + 0.1 * np.eye(n) - 5.0 * N.T @ N  # negative across the rows only
+    assert np.linalg.eigvalsh(H)[0] < -1.0
+    Z = _tangent_basis(N)
+    assert np.linalg.eigvalsh(Z.T @ H @ Z)[0] > 0.0
+    ok, Hm, Lc, definite = qp_curvature(H, N)
+    assert ok and not definite
+    np.testing.assert_allclose(Lc @ Lc.T, Hm, rtol=0, atol=1e-12 * np.abs(Hm).max())
+    assert np.linalg.eigvalsh(Hm)[0] > 0.0
+    np.testing.assert_allclose(Z.T @ Hm @ Z, Z.T @ H @ Z, rtol=0, atol=1e-12 * np.abs(H).max())
+    # Hm is H + rho s N'N for one of the listed rho (s = max(1, max|H_ii|)).
+    s = max(1.0, np.abs(np.diag(H)).max())
+    rho = np.linalg.lstsq((N.T @ N).reshape(-1, 1) * s, (Hm - H).reshape(-1), rcond=None)[0][0]
+    assert min(abs(rho / r - 1.0) for r in CONVEXIFY) < 1e-9
+    np.testing.assert_allclose(_qp_curvature(H, N), Hm, rtol=0, atol=1e-13 * np.abs(Hm).max())
+
+
+def test_the_qp_curvature_keeps_a_definite_hessian_and_flips_curvature_along_the_rows():
+    """H positive definite: H itself. Negative curvature on the rows' tangent space too (no
+    convexification across the rows helps): the eigenvalues' flip, as ``positive_definite``;
+    the compiled and the reference functions agree."""
+    from ballchain.optimization.compiled_newton import positive_definite, qp_curvature
+    from ballchain.optimization.statics import _positive_definite, _qp_curvature
+
+    rng = np.random.default_rng(7)
+    n = 16
+    A = rng.normal(size=(n, n))
+    N = rng.normal(size=(2, n))
+    H = A @ A.T / n + 0.1 * np.eye(n)
+    ok, Hm, _, definite = qp_curvature(H, N)
+    assert ok and definite
+    np.testing.assert_array_equal(Hm, H)
+    np.testing.assert_array_equal(_qp_curvature(H, N), H)
+    Z = _tangent_basis(N)
+    H = H - 3.0 * (Z[:, :1] @ Z[:, :1].T)  # negative along a tangent direction
+    assert np.linalg.eigvalsh(Z.T @ H @ Z)[0] < 0.0
+    ok, Hm, Lc, definite = qp_curvature(H, N)
+    assert ok and not definite
+    np.testing.assert_allclose(Hm, positive_definite(H)[1], rtol=0, atol=0)
+    w, V = np.linalg.eigh(H)
+    np.testing.assert_allclose(Hm, (V * np.abs(w)) @ V.T, rtol=0, atol=1e-12 * np.abs(H).max())
+    np.testing.assert_allclose(_qp_curvature(H, N), _positive_definite(H), rtol=0, atol=0)
+    np.testing.assert_allclose(_qp_curvature(H, N), Hm, rtol=0, atol=1e-12 * np.abs(H).max())
