@@ -26,8 +26,9 @@ so that the load of the machine hits both alike. The measurements:
 * ``seeds``: the acceptance test of a change to the solver's iterates (docs/performance.md 18):
   every task of ``--task`` ("left,right": Tasks I and II) on every operator seed of ``--seeds``
   (default 0-23), world mapping, one child per side running at once: the targets touched, the
-  targets only one side touched with a two-sided sign test on them, the seeds where one side
-  touched fewer, and CPU time per simulated second. The operator's closed loop amplifies any
+  targets only one side touched with a two-sided sign test on them (a seed's misses come in runs,
+  so they are not independent and the test overstates the evidence either way), the seeds where
+  one side touched fewer, and CPU time per simulated second. The operator's closed loop amplifies any
   change of an equilibrium (1e-7 m moves its next look), so one seed's run is a sample, not a
   verdict.
 
@@ -344,18 +345,33 @@ def main() -> None:
     parser.add_argument("--clock", choices=("cpu", "wall"), default="cpu",
                         help="what the children's timers count (default cpu: the process's CPU time)")
     args = parser.parse_args()
+    try:
+        seeds = _seed_list(args.seeds)
+    except ValueError as err:
+        parser.error(f"--seeds: {err}")
+    if args.what == "seeds" and not set(args.task.split(",")) <= {"left", "right"}:
+        parser.error(f'--task: {args.task!r} is not a comma-separated list of "left" and "right"')
     print(json.dumps(run(base=args.base, what=args.what, scenario=args.scenario, duration=args.duration,
                          overrides=args.overrides, rounds=args.rounds, n_balls=args.balls,
                          repeats=args.repeats, clock=args.clock, task=args.task,
-                         seeds=_seed_list(args.seeds)), indent=1))
+                         seeds=seeds), indent=1))
 
 
 def _seed_list(text: str) -> list[int]:
-    """``"0-23"`` or ``"0,3,5"`` as a list of seeds."""
-    if "-" in text:
-        a, b = text.split("-")
-        return list(range(int(a), int(b) + 1))
-    return [int(x) for x in text.split(",")]
+    """``"0-23"`` or ``"0,3,5"`` as a list of seeds (each 0 .. 2**32 - 1, at least one); a
+    ValueError saying what is allowed otherwise."""
+    allowed = f'seeds are "a-b" (a <= b) or a comma-separated list of integers 0 .. 2**32 - 1, got {text!r}'
+    try:
+        if "-" in text:
+            a, b = (int(x) for x in text.split("-"))
+            seeds = list(range(a, b + 1)) if 0 <= a <= b <= 2**32 - 1 else []
+        else:
+            seeds = [int(x) for x in text.split(",")]
+    except ValueError:
+        raise ValueError(allowed) from None
+    if not seeds or min(seeds) < 0 or max(seeds) > 2**32 - 1:
+        raise ValueError(allowed)
+    return seeds
 
 
 if __name__ == "__main__":
