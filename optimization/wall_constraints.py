@@ -17,13 +17,17 @@ Everything that is not in the canonical problem enters here:
   R_WB^T (-z_W) is added to the energy by ``ConstrainedChain``).
 * Wall rows, one per free ball: ``c = (sdf(p_k) - r) / d >= 0``, the ball's centre at least a
   radius inside the lumen (``drake_models.atrium_sdf``). The wall is frictionless: its push on
-  ball k is the row's multiplier along the SDF's gradient (the normal), nothing tangential.
+  ball k is the row's multiplier along the SDF's gradient (the normal), nothing tangential. A ball
+  in the bore (behind the exit plane and within r_c of the axis) has none: the sheath holds it, and
+  the SDF sees the septal puncture as closed wall. A ball behind the exit plane but outside the
+  sheath (a chain curled back beside it) has its wall row like any other.
 * Sheath rows, one per free ball: the sheath is a tube of bore radius R whose wall ends in a
   rounded lip (the collision cage's rods, radius r_rod, centres at r_c = R + r_rod around the
   axis, ending at the exit plane). A ball may not overlap it:
   ``g = (rho - r_c)^2 + max(a, 0)^2 - (r + r_rod)^2 >= 0`` with a the ball centre's distance
   past the exit plane and rho its distance from the axis (smoothed at the axis). For a <= 0
-  this keeps the ball in the bore (rho <= R - r), for a > 0 off the lip; it is C1 across the
+  this keeps a ball in the bore (rho <= R - r) and one beside the sheath outside it
+  (rho >= r_c + r + r_rod), for a > 0 off the lip; it is C1 across the
   exit plane, written in squared form so that its gradient never vanishes or jumps (a plain
   tangent plane per ball made the solves fail).
 
@@ -305,9 +309,12 @@ class ConstrainedChain(ReducedChain):
             s, grad_W = out[0], out[1]
             wall = np.ones(L, bool)
             if c.sheath is not None:
-                # Balls still in the bore have no wall row: the sheath holds them, and the SDF's
-                # inside test sees the septal puncture as closed wall.
-                wall = p_B[:, 0] > float((c.sheath.p_WE - c.p_WB) @ c.R_WB[:, 0])
+                # Balls still in the bore (behind the exit plane, within r_c of the axis) have no
+                # wall row: the sheath holds them, and the SDF's inside test sees the septal
+                # puncture as closed wall. A ball curled back beside the sheath has one.
+                r_c = c.sheath.bore_radius + c.sheath.lip_radius
+                wall = ((p_B[:, 0] > float((c.sheath.p_WE - c.p_WB) @ c.R_WB[:, 0]))
+                        | (p_B[:, 1] ** 2 + p_B[:, 2] ** 2 >= r_c**2))
             values[:L] = np.where(wall, (s - r) / d, 10.0)
             v[:L] = np.where(wall[:, None], grad_W @ c.R_WB, 0.0)  # c = (s - r)/d, dc/dp = grad/d
             if hessian:

@@ -171,6 +171,44 @@ def test_heart_insertion_matches_the_reference(heart, sdf):
     assert touched, "the chain should touch the wall"
 
 
+def test_a_ball_curled_back_beside_the_sheath_has_its_wall_row(heart, sdf):
+    """A free ball behind the sheath's exit plane is in the bore (no wall row: the sheath holds
+    it) only within r_c of the axis; curled back beside the sheath (a chain looping towards the
+    septum) it keeps its wall row, so the wall stops it. Before, any ball behind the exit plane
+    lost its row, and Task II's seed 9 (the touching-rows convexification) put the tip 1.66 mm
+    into the septum, 10.6 mm off the axis and 1.5 mm behind the exit plane. The reference and
+    the compiled rows agree."""
+    from ballchain.drake_models.kernels.heart_rows import heart_rows
+    from ballchain.optimization.compiled_model import _sdf_arrays
+    from ballchain.optimization.wall_constraints import ConstrainedChain, RHO_SMOOTHING
+
+    k, c = _constraints(heart, sdf, 0.027)
+    chain = BallChain(n_balls=4)
+    model = ConstrainedChain(chain)
+    model.set_constraints(c)
+    a_E = float((c.sheath.p_WE - c.p_WB) @ c.R_WB[:, 0])
+    r_c = c.sheath.bore_radius + c.sheath.lip_radius
+    # Free balls 1..3: in the bore behind the exit; beside the sheath 1.5 mm behind the exit and
+    # 10.6 mm off the axis, on the side where the septum is nearest (the wall row violated
+    # there); past the exit on the axis.
+    angles = np.radians(np.arange(0.0, 360.0, 10.0))
+    ring = np.column_stack([np.full(angles.size, a_E - 1.5e-3), 10.6e-3 * np.cos(angles), 10.6e-3 * np.sin(angles)])
+    beside = ring[np.argmin(sdf(c.p_WB + ring @ c.R_WB.T, gradient=False))]
+    p_B = np.array([[a_E - 1e-3, 0.1e-3, 0.0], beside, [a_E + 3e-3, 0.0, 0.0]])
+    values, v, _ = model._rows(p_B, hessian=False)
+    L = 3
+    s_W = sdf(c.p_WB + p_B @ c.R_WB.T, gradient=False)
+    assert values[0] == 10.0  # in the bore: no wall row
+    np.testing.assert_allclose(values[1:L], (s_W[1:] - model.r) / model.d, rtol=1e-12)
+    assert np.hypot(*p_B[1, 1:]) > r_c and values[1] < 0.0  # beside the sheath, in the wall: violated
+    grid, frame = _sdf_arrays(sdf)
+    sheath = np.array([1.0, a_E, r_c, model.r + c.sheath.lip_radius, RHO_SMOOTHING])
+    kv, kg, _ = heart_rows(np.ascontiguousarray(p_B), np.ascontiguousarray(c.p_WB, float),
+                           np.ascontiguousarray(c.R_WB, float), grid, frame, sheath, model.r, model.d, False)
+    np.testing.assert_allclose(kv, values, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(kg, v, rtol=1e-12, atol=1e-12)
+
+
 # --- along the engine's paths (recorded solves, replayed) ----------------------------------------
 HEART_SCENARIOS = ["heart_left_quasi_static", "heart_sleeve_quasi_static", "heart_no_field", "heart_wall_contact",
                    "teleop_right_unit", "teleop_two_units"]

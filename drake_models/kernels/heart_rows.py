@@ -4,8 +4,9 @@ The law of ``optimization/wall_constraints.py``'s ``ConstrainedChain._rows`` (it
 compiled. Frame B: the held ball's centre, +x along the sheath axis. For each free ball k
 (centre p_k in B) two dimensionless rows, each ``c >= 0``:
 
-* wall: ``c = (sdf(p_WB + R_WB p_k) - r) / d`` (the atrium's B-spline distance, ``sdf``), only
-  past the sheath's exit plane when there is a sheath (the bore holds the balls before it);
+* wall: ``c = (sdf(p_WB + R_WB p_k) - r) / d`` (the atrium's B-spline distance, ``sdf``), except
+  for a ball in the sheath's bore when there is a sheath (behind the exit plane and within r_c
+  of the axis: the bore holds it; a ball curled back beside the sheath has its wall row);
 * sheath: ``c = g / d^2``, ``g = (rho - r_c)^2 + max(a, 0)^2 - (r + r_lip)^2``, a the centre's
   distance past the exit plane, rho its (smoothed) distance from the axis.
 
@@ -47,7 +48,7 @@ def heart_rows(p_free, p_WB, R_WB, sdf_grid, sdf_frame, sheath, r, d, hessian):
     v = np.zeros((2 * L, 3))
     M = np.zeros((2 * L, 3, 3))
     has_sheath = sheath[0] > 0.0
-    a_E = sheath[1]
+    a_E, r_c = sheath[1], sheath[2]
     if sdf_grid.size > 0:
         p_W = np.empty((L, 3))
         for k in range(L):
@@ -57,7 +58,8 @@ def heart_rows(p_free, p_WB, R_WB, sdf_grid, sdf_frame, sheath, r, d, hessian):
         s, grad, hess = bspline_sdf(sdf_grid, sdf_frame[0:3], sdf_frame[3], sdf_frame[4:7], p_W,
                                     2 if hessian else 1)
         for k in range(L):
-            if has_sheath and not p_free[k, 0] > a_E:
+            if (has_sheath and not p_free[k, 0] > a_E
+                    and p_free[k, 1] * p_free[k, 1] + p_free[k, 2] * p_free[k, 2] < r_c * r_c):
                 continue  # still in the bore: the sheath holds it
             values[k] = (s[k] - r) / d
             for b in range(3):
