@@ -37,11 +37,14 @@ S_TOL, S_FEAS, S_MARGIN, S_MAX_STEP, S_HEART_WEIGHT, S_RADIUS = 0, 1, 2, 3, 4, 5
 # flags: iteration limit and what the model holds.
 F_MAX_ITER, F_EXTERNAL, F_PINNED, F_WALL, F_HEART = 0, 1, 2, 3, 4
 
-# The QP's curvature when the Lagrangian's Hessian H is indefinite: H + rho s N'N for the first of
-# these rho (s = max(1, max|H_ii|), N the step's constraint rows) whose Cholesky succeeds. On the
-# rows' tangent space the curvature stays H's own (the negative curvature of a chain pressed on the
-# wall lies across the rows: docs/performance.md), so the step is the exact one there.
+# The QP's curvature when the Lagrangian's Hessian H is indefinite: H + rho s R'R for the first of
+# these rho (s = max(1, max|H_ii|)) whose Cholesky succeeds, R first the step's rows that touch
+# (gap at most TOUCHING, dimensionless), then all its rows. On the rows' tangent space the
+# curvature stays H's own (the negative curvature of a chain pressed on the wall lies across the
+# rows: docs/performance.md 18), so the step is the exact one there; a near row that does not
+# touch may open, and keeps H's curvature along its normal unless that is what is indefinite.
 CONVEXIFY = (1e-3, 1e-2, 1e-1, 1.0, 10.0)
+TOUCHING = 1e-6
 
 # Why the solve stopped (``REASONS`` in statics.py gives the reference's messages).
 R_MINIMUM, R_MINIMUM_LINE, R_QP, R_SADDLE, R_LINE, R_LIMIT, R_FIELD, R_ENERGY = range(8)
@@ -224,21 +227,25 @@ def positive_definite(H):
 
 
 @kernel
-def qp_curvature(H, N):
-    """``(ok, Hm, Lc, definite)`` of the QP's curvature for the constraint rows N
-    (``statics._qp_curvature``): H itself when it is positive definite, else the first of
-    H + rho s N'N (s = max(1, max|H_ii|), rho in ``CONVEXIFY``) that is, else
-    ``positive_definite(H)``'s eigenvalue flip."""
+def qp_curvature(H, Nt, N):
+    """``(ok, Hm, Lc, definite)`` of the QP's curvature for the constraint rows N, of which the
+    rows Nt touch (``statics._qp_curvature``): H itself when it is positive definite, else the
+    first of H + rho s Nt'Nt, then of H + rho s N'N (s = max(1, max|H_ii|), rho in
+    ``CONVEXIFY``) that is, else ``positive_definite(H)``'s eigenvalue flip."""
     ok, Lc = cholesky(H)
     if ok:
         return True, H, Lc, True
     s = max(1.0, np.abs(np.diag(H)).max())
-    C = N.T @ N
-    for rho in CONVEXIFY:
-        Hc = H + (rho * s) * C
-        ok, Lc = cholesky(Hc)
-        if ok:
-            return True, Hc, Lc, False
+    for k in range(2):
+        if k == 1 and Nt.shape[0] == N.shape[0]:
+            break  # every row touches: tried
+        R = Nt if k == 0 else N
+        C = R.T @ R
+        for rho in CONVEXIFY:
+            Hc = H + (rho * s) * C
+            ok, Lc = cholesky(Hc)
+            if ok:
+                return True, Hc, Lc, False
     return positive_definite(H)
 
 
@@ -291,7 +298,9 @@ def newton_step(ev, H, near, pinned, lam_tip, model):
     else:
         N = J
         c = gaps[near]
-    ok, Hm, Lc, definite = qp_curvature(H, N)
+    touching = np.flatnonzero(c[:n_in] <= TOUCHING)
+    Nt = np.vstack((J[touching], N[n_in:])) if pinned else np.ascontiguousarray(J[touching])
+    ok, Hm, Lc, definite = qp_curvature(H, Nt, N)
     if not ok:
         raise np.linalg.LinAlgError("Matrix is not positive definite.")
     ok, dq, y = dense_qp(Lc, g, N, c, n_in, 200)

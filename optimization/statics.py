@@ -10,8 +10,9 @@ Two solvers of the same problem:
 
 * ``"newton"`` (default): a second-order SQP. Each step minimises the quadratic model of the
   energy (the Lagrangian's exact Hessian H; where H is indefinite, H + rho s N'N when that is
-  positive definite for a rho of ``CONVEXIFY``, with N the step's rows, so that the curvature
-  along the rows is H's own, else H with its negative eigenvalues flipped) subject to the
+  positive definite for a rho of ``CONVEXIFY``, with N the step's rows that touch, then all its
+  rows, so that the curvature along the rows is H's own, else H with its negative eigenvalues
+  flipped) subject to the
   linearised rigidity constraints
   of the pairs that are near contact; when a pair is near, the step is a QP, solved by a dense
   dual active-set method (``dense_qp``, default) or posed as a Drake MathematicalProgram and
@@ -52,7 +53,7 @@ from ballchain.drake_models.field_sources import FieldSource, UniformField, requ
 from ballchain.drake_models.params import BallChain
 from ballchain.drake_models.vectors import angle_between
 from ballchain.optimization import compiled_model
-from ballchain.optimization.compiled_newton import CONVEXIFY
+from ballchain.optimization.compiled_newton import CONVEXIFY, TOUCHING
 from ballchain.optimization.reduced_chain import X_AXIS, ReducedChain
 from ballchain.optimization.wall_constraints import ConstrainedChain, HeartConstraints
 
@@ -261,24 +262,26 @@ def _positive_definite(H: np.ndarray, floor: float = 1e-10) -> np.ndarray:
     return (V * np.maximum(np.abs(w), delta)) @ V.T
 
 
-def _qp_curvature(H: np.ndarray, N: np.ndarray) -> np.ndarray:
-    """The QP's curvature for the constraint rows N: H itself when it is positive definite, else
-    the first of H + rho s N'N (s = max(1, max|H_ii|), rho in ``CONVEXIFY``) that is, else
-    ``_positive_definite(H)`` (``compiled_newton.qp_curvature`` is the compiled twin)."""
+def _qp_curvature(H: np.ndarray, Nt: np.ndarray, N: np.ndarray) -> np.ndarray:
+    """The QP's curvature for the constraint rows N, of which the rows Nt touch: H itself when it
+    is positive definite, else the first of H + rho s Nt'Nt, then of H + rho s N'N
+    (s = max(1, max|H_ii|), rho in ``CONVEXIFY``) that is, else ``_positive_definite(H)``
+    (``compiled_newton.qp_curvature`` is the compiled twin)."""
     try:
         np.linalg.cholesky(H)
         return H
     except np.linalg.LinAlgError:
         pass
     s = max(1.0, float(np.abs(np.diag(H)).max()))
-    C = N.T @ N
-    for rho in CONVEXIFY:
-        Hc = H + (rho * s) * C
-        try:
-            np.linalg.cholesky(Hc)
-            return Hc
-        except np.linalg.LinAlgError:
-            pass
+    for R in ([Nt] if len(Nt) == len(N) else [Nt, N]):
+        C = R.T @ R
+        for rho in CONVEXIFY:
+            Hc = H + (rho * s) * C
+            try:
+                np.linalg.cholesky(Hc)
+                return Hc
+            except np.linalg.LinAlgError:
+                pass
     return _positive_definite(H)
 
 
@@ -703,8 +706,10 @@ class ChainStatics:
             Hm = Z @ Hz @ Z.T  # the model's curvature, for the predicted decrease
             lam, lam_tip = np.zeros(0), np.linalg.lstsq(J.T, g + H @ dq, rcond=None)[0]
         elif len(near) or pinned:
-            N = np.vstack([ev.jacobian[near]] + ([ev.tip_jacobian] if pinned else []))
-            Hm = _qp_curvature(H, N)
+            tip = [ev.tip_jacobian] if pinned else []
+            N = np.vstack([ev.jacobian[near]] + tip)
+            Nt = np.vstack([ev.jacobian[near[ev.gaps[near] <= TOUCHING]]] + tip)
+            Hm = _qp_curvature(H, Nt, N)
             dq, lam, lam_tip = self._qp_step(Hm, g, ev.gaps[near], ev.jacobian[near],
                                              ev.tip_residual, ev.tip_jacobian)
         else:

@@ -281,7 +281,7 @@ def test_the_qp_curvature_is_the_lagrangians_along_the_rows_and_definite(seed):
     assert np.linalg.eigvalsh(H)[0] < -1.0
     Z = _tangent_basis(N)
     assert np.linalg.eigvalsh(Z.T @ H @ Z)[0] > 0.0
-    ok, Hm, Lc, definite = qp_curvature(H, N)
+    ok, Hm, Lc, definite = qp_curvature(H, N, N)  # every row touches
     assert ok and not definite
     np.testing.assert_allclose(Lc @ Lc.T, Hm, rtol=0, atol=1e-12 * np.abs(Hm).max())
     assert np.linalg.eigvalsh(Hm)[0] > 0.0
@@ -290,7 +290,7 @@ def test_the_qp_curvature_is_the_lagrangians_along_the_rows_and_definite(seed):
     s = max(1.0, np.abs(np.diag(H)).max())
     rho = np.linalg.lstsq((N.T @ N).reshape(-1, 1) * s, (Hm - H).reshape(-1), rcond=None)[0][0]
     assert min(abs(rho / r - 1.0) for r in CONVEXIFY) < 1e-9
-    np.testing.assert_allclose(_qp_curvature(H, N), Hm, rtol=0, atol=1e-13 * np.abs(Hm).max())
+    np.testing.assert_allclose(_qp_curvature(H, N, N), Hm, rtol=0, atol=1e-13 * np.abs(Hm).max())
 
 
 def test_the_qp_curvature_keeps_a_definite_hessian_and_flips_curvature_along_the_rows():
@@ -305,17 +305,57 @@ def test_the_qp_curvature_keeps_a_definite_hessian_and_flips_curvature_along_the
     A = rng.normal(size=(n, n))
     N = rng.normal(size=(2, n))
     H = A @ A.T / n + 0.1 * np.eye(n)
-    ok, Hm, _, definite = qp_curvature(H, N)
+    ok, Hm, _, definite = qp_curvature(H, N[:1], N)
     assert ok and definite
     np.testing.assert_array_equal(Hm, H)
-    np.testing.assert_array_equal(_qp_curvature(H, N), H)
+    np.testing.assert_array_equal(_qp_curvature(H, N[:1], N), H)
     Z = _tangent_basis(N)
     H = H - 3.0 * (Z[:, :1] @ Z[:, :1].T)  # negative along a tangent direction
     assert np.linalg.eigvalsh(Z.T @ H @ Z)[0] < 0.0
-    ok, Hm, Lc, definite = qp_curvature(H, N)
+    ok, Hm, Lc, definite = qp_curvature(H, N[:1], N)
     assert ok and not definite
     np.testing.assert_allclose(Hm, positive_definite(H)[1], rtol=0, atol=0)
     w, V = np.linalg.eigh(H)
     np.testing.assert_allclose(Hm, (V * np.abs(w)) @ V.T, rtol=0, atol=1e-12 * np.abs(H).max())
-    np.testing.assert_allclose(_qp_curvature(H, N), _positive_definite(H), rtol=0, atol=0)
-    np.testing.assert_allclose(_qp_curvature(H, N), Hm, rtol=0, atol=1e-12 * np.abs(H).max())
+    np.testing.assert_allclose(_qp_curvature(H, N[:1], N), _positive_definite(H), rtol=0, atol=0)
+    np.testing.assert_allclose(_qp_curvature(H, N[:1], N), Hm, rtol=0, atol=1e-12 * np.abs(H).max())
+
+
+def _convexified_by(H, Hm, R):
+    """The rho of Hm = H + rho s R'R (s = max(1, max|H_ii|)), and how far Hm is from that."""
+    s = max(1.0, np.abs(np.diag(H)).max())
+    C = (R.T @ R) * s
+    rho = float(np.vdot(C, Hm - H) / np.vdot(C, C))
+    return rho, float(np.abs(Hm - H - rho * C).max())
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_touching_rows_convexify_first_then_every_near_row(seed):
+    """The rows that touch (Nt) convexify first: negative curvature across them is removed by
+    H + rho s Nt'Nt, leaving H's curvature along every other near row (which may open); negative
+    curvature across a near row that does not touch needs H + rho s N'N. The compiled and the
+    reference functions agree."""
+    from ballchain.optimization.compiled_newton import CONVEXIFY, qp_curvature
+    from ballchain.optimization.statics import _qp_curvature
+
+    rng = np.random.default_rng(10 + seed)
+    n = 18
+    A = rng.normal(size=(n, n))
+    N = rng.normal(size=(3, n))
+    Nt = N[:2]  # rows 0 and 1 touch, row 2 is near
+    base = A @ A.T / n + 0.1 * np.eye(n)
+    for H, R in ((base - 5.0 * Nt.T @ Nt, Nt), (base - 5.0 * N[2:].T @ N[2:], N)):
+        assert np.linalg.eigvalsh(H)[0] < 0.0
+        ok, Hm, Lc, definite = qp_curvature(H, Nt, N)
+        assert ok and not definite
+        assert np.linalg.eigvalsh(Hm)[0] > 0.0
+        np.testing.assert_allclose(Lc @ Lc.T, Hm, rtol=0, atol=1e-12 * np.abs(Hm).max())
+        rho, off = _convexified_by(H, Hm, R)
+        assert off < 1e-12 * np.abs(H).max()
+        assert min(abs(rho / r - 1.0) for r in CONVEXIFY) < 1e-9
+        np.testing.assert_allclose(_qp_curvature(H, Nt, N), Hm, rtol=0, atol=1e-13 * np.abs(Hm).max())
+    # The first case keeps H's own curvature along the near row that does not touch.
+    H = base - 5.0 * Nt.T @ Nt
+    Hm = qp_curvature(H, Nt, N)[1]
+    Zt = _tangent_basis(Nt)
+    np.testing.assert_allclose(Zt.T @ Hm @ Zt, Zt.T @ H @ Zt, rtol=0, atol=1e-12 * np.abs(H).max())
