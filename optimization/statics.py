@@ -12,9 +12,8 @@ Two solvers of the same problem:
   energy (the Lagrangian's exact Hessian H; where H is indefinite, H + rho s N'N when that is
   positive definite for a rho of ``CONVEXIFY``, with N the step's rows that touch, then all its
   rows, so that the curvature along the rows is H's own, else H with its negative eigenvalues
-  flipped) subject to the
-  linearised rigidity constraints
-  of the pairs that are near contact; when a pair is near, the step is a QP, solved by a dense
+  flipped) subject to the linearised rigidity constraints of the pairs that are near contact;
+  when a pair is near, the step is a QP, solved by a dense
   dual active-set method (``dense_qp``, default) or posed as a Drake MathematicalProgram and
   solved by Clarabel (``qp="clarabel"``; about 10 times slower here, the program being rebuilt
   every step): its multipliers are the contact forces. Otherwise it is a Cholesky solve. An l1 merit line search globalises it; a negative-curvature step leaves
