@@ -25,7 +25,8 @@ so that the load of the machine hits both alike. The measurements:
   which must be the same on both sides (the times of the operator's targets are simulated).
 * ``seeds``: the acceptance test of a change to the solver's iterates (docs/performance.md 18):
   every task of ``--task`` ("left,right": Tasks I and II) on every operator seed of ``--seeds``
-  (default 0-23), world mapping, one child per side running at once: the targets touched, the
+  (default 0-23), world mapping, one child per side running at once (each after an untimed
+  one-target run of each task): the targets touched, the
   targets only one side touched with a two-sided sign test on them (a seed's misses come in runs,
   so they are not independent and the test overstates the evidence either way), the seeds where
   one side touched fewer, and CPU time per simulated second. The operator's closed loop amplifies any
@@ -178,6 +179,8 @@ import ballchain
 runs = []
 with threadpool_limits(limits=1, user_api="blas"):
     heart = LeftAtrium()
+    for task in sys.argv[1].split(","):  # first-call costs (loading or compiling the kernels)
+        teleop.run(task=task, mapping="world", targets=1, progress=False, heart=heart)
     for task in sys.argv[1].split(","):
         for seed in [int(x) for x in sys.argv[2].split(",")]:
             c = time.process_time()
