@@ -188,6 +188,8 @@ with threadpool_limits(limits=1, user_api="blas"):
             runs.append({"task": task, "seed": seed, "touched": r.summary.touched, "targets": r.summary.targets,
                          "missed": list(r.summary.missed), "sim_s": r.summary.sim_time_s,
                          "cpu_s": time.process_time() - c, "failure": r.summary.failure})
+            print(f"{'base' if 'AB_ROOT' in __import__('os').environ else 'head'}: {task} seed {seed}: "
+                  f"{r.summary.touched}/{r.summary.targets}", file=sys.stderr, flush=True)  # progress
 print(json.dumps({"file": ballchain.__file__, "runs": runs}))
 """
 
@@ -199,17 +201,20 @@ time.perf_counter = time.process_time  # every timer in the child counts this pr
 """
 
 
-def _child(root: Path | None, code: str, args: list[str], clock: str = "cpu") -> dict:
+def _child(root: Path | None, code: str, args: list[str], clock: str = "cpu", progress: bool = False) -> dict:
+    """Run ``code`` in a fresh interpreter (the base commit's package when ``root`` is given);
+    its last stdout line as JSON. ``progress``: the child's stderr goes to ours as it runs."""
     env = dict(os.environ)
     if clock == "cpu":
         code = _CPU_CLOCK + code
     if root is not None:
         env["AB_ROOT"] = str(root)
         code = _BOOTSTRAP + code
-    proc = subprocess.run([sys.executable, "-c", code, *args], env=env, capture_output=True, text=True,
-                          timeout=1800)
+    proc = subprocess.run([sys.executable, "-c", code, *args], env=env, stdout=subprocess.PIPE,
+                          stderr=None if progress else subprocess.PIPE, text=True, timeout=1800)
     if proc.returncode != 0:
-        raise RuntimeError(f"child failed ({'base' if root else 'head'}):\n{proc.stderr[-3000:]}")
+        why = "see its output above" if progress else proc.stderr[-3000:]
+        raise RuntimeError(f"child failed ({'base' if root else 'head'}):\n{why}")
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
@@ -295,8 +300,8 @@ def _seeds(base: str, tasks: str, seeds: list[int], tmp: str, clock: str) -> dic
 
     args = [tasks, ",".join(str(s) for s in seeds)]
     with ThreadPoolExecutor(2) as pool:
-        futures = {"base": pool.submit(_child, Path(tmp), _SEEDS, args, clock),
-                   "head": pool.submit(_child, None, _SEEDS, args, clock)}
+        futures = {"base": pool.submit(_child, Path(tmp), _SEEDS, args, clock, True),
+                   "head": pool.submit(_child, None, _SEEDS, args, clock, True)}
         sides = {k: {(r["task"], r["seed"]): r for r in f.result()["runs"]} for k, f in futures.items()}
     out = {"base": base, "what": "seeds", "seeds": seeds, "clock": clock, "tasks": {}}
     for task in tasks.split(","):
