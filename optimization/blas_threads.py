@@ -14,26 +14,42 @@ _BLAS = None
 
 class _OneThread:
     """The context of ``one_blas_thread``: each BLAS library not on one thread already is set to
-    one on entry and back on exit (the engine enters it once per update: two ctypes calls per
-    library when nothing needs changing, instead of threadpoolctl's limiter and its queries)."""
+    one on entry and back on exit (the engine enters it once per update: one ctypes call per
+    library when nothing needs changing, instead of threadpoolctl's limiter and its queries).
+
+    ``libraries``: ``(get_num_threads, set_num_threads)`` per library (``_thread_calls``)."""
 
     def __init__(self, libraries):
         self._libraries = libraries
         self._restore: list = []
 
     def __enter__(self):
-        for lib in self._libraries:
-            threads = lib.get_num_threads()
+        for get, set_ in self._libraries:
+            threads = get()
             if threads != 1:
-                lib.set_num_threads(1)
-                self._restore.append((lib, threads))
+                set_(1)
+                self._restore.append((set_, threads))
         return self
 
     def __exit__(self, *exc):
         while self._restore:
-            lib, threads = self._restore.pop()
-            lib.set_num_threads(threads)
+            set_, threads = self._restore.pop()
+            set_(threads)
         return False
+
+
+def _thread_calls(lib) -> tuple:
+    """``(get_num_threads, set_num_threads)`` of a threadpoolctl controller: OpenBLAS's own
+    functions for its pthreads build (what threadpoolctl calls, without its Python around them:
+    a solve called from a script enters and leaves the limit, and after other work that Python
+    cost 30 us of a 0.3 ms solve), else the controller's methods."""
+    if type(lib).__name__ == "OpenBLASController" and getattr(lib, "threading_layer", None) == "pthreads":
+        get_symbol = getattr(lib, "_get_symbol", None)
+        if get_symbol is not None:
+            get, set_ = get_symbol("openblas_get_num_threads"), get_symbol("openblas_set_num_threads")
+            if get is not None and set_ is not None:
+                return get, set_
+    return lib.get_num_threads, lib.set_num_threads
 
 
 def one_blas_thread():
@@ -50,5 +66,5 @@ def one_blas_thread():
         import scipy.linalg.cython_lapack  # noqa: F401
         from threadpoolctl import ThreadpoolController
 
-        _BLAS = [lib for lib in ThreadpoolController().lib_controllers if lib.user_api == "blas"]
+        _BLAS = [_thread_calls(lib) for lib in ThreadpoolController().lib_controllers if lib.user_api == "blas"]
     return _OneThread(_BLAS)

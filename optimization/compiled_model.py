@@ -136,20 +136,44 @@ def reason_text(statics, reason: int) -> str:
     return f"iteration limit ({statics.max_iterations}) reached" if reason == R_LIMIT else REASONS[reason]
 
 
-def run(statics, model, external, p0, m0, lam0, constraints):
+def run(statics, model, external, p0, m0, lam0, constraints, chart0=None):
     """The compiled solve of a ChainStatics' model from (p0, m0): ``(converged, reason,
     iterations, lam_near dict, lam_tip, p, m_hat, terms (4,), gaps, v)``, or None when the
     Python solver must take it (a field or wall the kernels do not evaluate, a ball inside a
     magnet's bounding sphere). Raises ValueError, as the Python model, on two coincident balls
-    or a folded sleeve."""
+    or a folded sleeve.
+
+    ``chart0``: a one-element list remembering the chart of (p0, m0) (the caller's cold start,
+    the same arrays at every call): filled at the first call, copied at every call (the kernel
+    re-centres its chart in place)."""
     if not compilable_constraints(constraints):
         return None
-    tup = model_tuple(statics, model, external, constraints)
-    if tup is None:
-        return None
+    if constraints is None and model.tip_target is None and model.wall is None:
+        # The free chain's parts depend on the solver's settings only (a caller may change those).
+        key = (statics.tolerance, statics.feasibility_tolerance, statics.contact_margin, statics.max_step,
+               statics.max_iterations)
+        cached = getattr(statics, "_free_parts", None)
+        if cached is None or cached[0] is not model or cached[1] != key:
+            cached = statics._free_parts = (model, key, model_parts(statics, model, None))
+        if external is None:
+            field = None
+        else:
+            field = field_arrays(external)
+            if field is None:
+                return None
+        tup = with_field(cached[2], field)
+    else:
+        tup = model_tuple(statics, model, external, constraints)
+        if tup is None:
+            return None
     rows0 = np.fromiter(lam0.keys(), np.int64, len(lam0)) if lam0 else _NO_ROWS
     weights0 = np.fromiter(lam0.values(), float, len(lam0)) if lam0 else _NO_WEIGHTS
-    chart = chart_frames(configuration_vectors(np.ascontiguousarray(p0, float), np.ascontiguousarray(m0, float)))
+    if chart0 is None or chart0[0] is None:
+        chart = chart_frames(configuration_vectors(np.ascontiguousarray(p0, float), np.ascontiguousarray(m0, float)))
+        if chart0 is not None:
+            chart0[0] = tuple(a.copy() for a in chart)
+    else:
+        chart = tuple(a.copy() for a in chart0[0])
     try:
         with one_blas_thread():  # LAPACK's threads only slow these small systems (blas_threads)
             reason, status, iterations, rows, lam, lam_tip, p, m_hat, terms, gaps, v = newton(chart, tup, rows0,

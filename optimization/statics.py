@@ -410,6 +410,7 @@ class ChainStatics:
         self.max_iterations = max_iterations
         self._qp_solver = ClarabelSolver()
         self._model: ReducedChain | None = None
+        self._straight = None  # (chain, p0, m0, [its chart]): the cold start, see _straight_chain
         if method == "snopt":
             self._snopt = SnoptSolver()
             if not self._snopt.available() or not self._snopt.enabled():
@@ -456,7 +457,7 @@ class ChainStatics:
         chain = self.chain
         start = time.perf_counter()
         if warm_start is None:
-            p0, m0 = straight_chain(chain)
+            p0, m0 = self._straight_chain()
         else:
             p0, m0 = warm_start.positions, warm_start.dipoles
             if p0.shape != (chain.n_balls, 3):
@@ -489,7 +490,8 @@ class ChainStatics:
         _set_tip_target_and_wall(model, tip_target, wall)
         lam0 = getattr(warm_start, "multipliers", None) if constraints is not None else None
         if self.compiled and self.method == "newton" and self.qp == "dense" and model.backend == "kernel":
-            answer = compiled_model.run(self, model, external, p0, m0, lam0, constraints)
+            answer = compiled_model.run(self, model, external, p0, m0, lam0, constraints,
+                                        self._straight[3] if warm_start is None else None)
             if answer is not None:  # else a field or wall the kernels do not evaluate: Python's
                 converged, reason, iterations, lam_near, lam_tip, p, m_hat, t, gaps, v = answer
                 return self._assemble(model, p, m_hat, EnergyTerms(*t.tolist()), gaps, converged, reason,
@@ -558,6 +560,14 @@ class ChainStatics:
             wall_forces=wall_forces,
             **extra,
         )
+
+    def _straight_chain(self) -> tuple[np.ndarray, np.ndarray]:
+        """``straight_chain(self.chain)``, built once per chain: the cold start, which the solvers
+        only read (its chart is remembered beside it, ``compiled_model.run``)."""
+        cached = self._straight
+        if cached is None or cached[0] is not self.chain:
+            cached = self._straight = (self.chain, *straight_chain(self.chain), [None])
+        return cached[1], cached[2]
 
     def solve_or_raise(self, external: FieldSource | None, warm_start: StaticsResult | None = None,
                        tip_target=None, wall=None, constraints: HeartConstraints | None = None) -> StaticsResult:

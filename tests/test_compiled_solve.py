@@ -137,6 +137,39 @@ def test_failures_are_the_same_failures():
     assert_same(fast.solve(Python()), slow.solve(Python()))
 
 
+def test_cold_solves_start_from_the_straight_chain_every_time():
+    """The cold start and its chart are built once per solver (``ChainStatics._straight_chain``,
+    ``compiled_model.run``'s ``chart0``) while the kernel re-centres its chart in place: after a
+    solve that re-centres (8 balls, 5 mT antiparallel to the chain), the next cold solve is the
+    same solve, as a new solver's and the Python reference's."""
+    chain = BallChain(n_balls=8)
+    external = field(180.0, 5e-3)
+    fast = ChainStatics(chain)
+    first, second, third = fast.solve(external), fast.solve(external), fast.solve(external)
+    assert first.converged and first.iterations > 10
+    for other in (second, third, ChainStatics(chain).solve(external)):
+        np.testing.assert_array_equal(other.positions, first.positions)
+        assert other.iterations == first.iterations
+    assert_same(first, ChainStatics(chain, compiled=False).solve(external))
+
+
+def test_a_solvers_settings_changed_between_cold_solves_apply():
+    """The free chain's kernel inputs are remembered per solver and settings: a setting changed
+    after a solve applies to the next one."""
+    chain = BallChain(n_balls=10)
+    statics = ChainStatics(chain)
+    assert statics.solve(field(90.0)).converged
+    statics.max_iterations = 2
+    limited = statics.solve(field(90.0))
+    assert not limited.converged and "iteration limit (2)" in limited.reason
+    statics.max_iterations = 200
+    statics.tolerance = 1e-3  # a loose tolerance stops earlier
+    loose = statics.solve(field(90.0))
+    statics.tolerance = 1e-8
+    tight = statics.solve(field(90.0))
+    assert loose.converged and tight.converged and loose.iterations < tight.iterations
+
+
 def test_compiled_is_checked():
     with pytest.raises(UserInputError, match="compiled"):
         ChainStatics(BallChain(n_balls=4), compiled="yes")
