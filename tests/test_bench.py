@@ -95,3 +95,19 @@ def test_benchmark_script_runs():
     assert script.__doc__ and callable(script.main)
     out = script.run(n_balls=3, repeats=1, progress=False)
     assert out.n_balls == 3 and out.same_minimum["ok"]
+
+
+def test_each_round_orders_the_cases_afresh():
+    """The statics benchmark's rounds run their cases in drawn orders (``round_order``): every
+    round is a permutation of the cases, the same in every run, and no case always runs right
+    after the same case (the compiled cold solve used to run right after SLSQP in every round,
+    which leaves it the coldest caches)."""
+    from ballchain.experiments.statics_bench import _CASES, round_order
+
+    assert round_order(_CASES, 0) == _CASES
+    rounds = [round_order(_CASES, r) for r in range(1, 6)]
+    assert all(sorted(order) == sorted(_CASES) for order in rounds)
+    assert rounds == [round_order(_CASES, r) for r in range(1, 6)]
+    for case in _CASES:
+        before = {order[order.index(case) - 1] if order.index(case) else None for order in rounds}
+        assert len(before) > 1, (case, before)
