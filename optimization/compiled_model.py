@@ -55,17 +55,24 @@ def field_arrays(source):
     return None
 
 
-def model_tuple(statics, model, external, constraints):
+def model_tuple(statics, model, external, constraints, parts=None):
     """The kernels' model tuple for a ChainStatics' model (``ReducedChain`` with its tip target
     and wall set, or ``ConstrainedChain`` with its constraints), or None when the external field
-    is not one the kernels evaluate (``field_arrays``)."""
+    is not one the kernels evaluate (``field_arrays``). ``parts``: the model's ``model_parts``,
+    when the caller has them."""
     if external is None:
         field = None
     else:
         field = field_arrays(external)
         if field is None:
             return None
-    return with_field(model_parts(statics, model, constraints), field)
+    return with_field(model_parts(statics, model, constraints) if parts is None else parts, field)
+
+
+def settings_key(statics) -> tuple:
+    """The solver settings ``model_parts`` reads (a caller may change them between solves)."""
+    return (statics.tolerance, statics.feasibility_tolerance, statics.contact_margin, statics.max_step,
+            statics.max_iterations)
 
 
 def with_field(parts, field):
@@ -148,24 +155,17 @@ def run(statics, model, external, p0, m0, lam0, constraints, chart0=None):
     re-centres its chart in place)."""
     if not compilable_constraints(constraints):
         return None
+    parts = None
     if constraints is None and model.tip_target is None and model.wall is None:
-        # The free chain's parts depend on the solver's settings only (a caller may change those).
-        key = (statics.tolerance, statics.feasibility_tolerance, statics.contact_margin, statics.max_step,
-               statics.max_iterations)
-        cached = getattr(statics, "_free_parts", None)
+        # The free chain's parts depend on the solver's settings only.
+        key = settings_key(statics)
+        cached = statics._free_parts
         if cached is None or cached[0] is not model or cached[1] != key:
             cached = statics._free_parts = (model, key, model_parts(statics, model, None))
-        if external is None:
-            field = None
-        else:
-            field = field_arrays(external)
-            if field is None:
-                return None
-        tup = with_field(cached[2], field)
-    else:
-        tup = model_tuple(statics, model, external, constraints)
-        if tup is None:
-            return None
+        parts = cached[2]
+    tup = model_tuple(statics, model, external, constraints, parts)
+    if tup is None:
+        return None
     rows0 = np.fromiter(lam0.keys(), np.int64, len(lam0)) if lam0 else _NO_ROWS
     weights0 = np.fromiter(lam0.values(), float, len(lam0)) if lam0 else _NO_WEIGHTS
     if chart0 is None or chart0[0] is None:
@@ -255,8 +255,7 @@ class HeartSolve:
                                       and np.isfinite(field[2]).all()):
             return None
         # The parts depend on the constraints and the solver's settings (a caller may change those).
-        key = (statics.tolerance, statics.feasibility_tolerance, statics.contact_margin, statics.max_step,
-               statics.max_iterations)
+        key = settings_key(statics)
         if self._parts is None or self._parts[0] is not constraints or self._parts[1] != key:
             self._parts = (constraints, key, model_parts(statics, model, constraints))
         tup = with_field(self._parts[2], field)

@@ -411,6 +411,7 @@ class ChainStatics:
         self._qp_solver = ClarabelSolver()
         self._model: ReducedChain | None = None
         self._straight = None  # (chain, p0, m0, [its chart]): the cold start, see _straight_chain
+        self._free_parts = None  # (model, settings, model_parts) of the free chain (compiled_model.run)
         if method == "snopt":
             self._snopt = SnoptSolver()
             if not self._snopt.available() or not self._snopt.enabled():
