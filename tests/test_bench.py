@@ -40,6 +40,8 @@ def test_bench_statics_json(capsys):
     assert out["tip_position_mm"][1] > 5.0 and out["tip_position_mm"][2] == pytest.approx(0.0, abs=1e-9)
     # The speedup is the ratio of the medians it reports (no assertion on its size: wall time).
     assert out["speedup_cold"] == pytest.approx(out["baseline_median_ms"] / out["cold_median_ms"], rel=1e-12)
+    assert out["speedup_cold_back_to_back"] == pytest.approx(
+        out["baseline_median_ms"] / out["cold_back_to_back_median_ms"], rel=1e-12)
 
 
 # The same benchmark run as the JSON test above, through the text report and the script: the

@@ -72,7 +72,8 @@ BENCH_KEYS = ["benchmark", "n_balls", "field_mT", "angle_deg", "warm_start_angle
               "numpy_cold_median_ms", "numpy_warm_median_ms",
               "snopt_cold_median_ms", "snopt_warm_median_ms", "baseline_median_ms", "speedup_cold", "speedup_warm",
               "speedup_cold_vs_snopt", "kernel_speedup_cold", "kernel_speedup_warm", "compiled_speedup_cold",
-              "compiled_speedup_warm", "kernel_note", "same_minimum",
+              "compiled_speedup_warm", "cold_back_to_back_median_ms", "speedup_cold_back_to_back",
+              "kernel_note", "same_minimum",
               "converged", "iterations", "iterations_note", "energy_J", "tip_position_mm", "baseline", "samples_ms",
               "spread", "spread_note", "blas_threads", "load_average_1min", "cpu_count"]
 

@@ -97,8 +97,11 @@ def _print_statics(out: StaticsBenchResult) -> None:
     for name, ms, iters in rows:
         if ms is not None:
             print(f"  {name:<22s} {ms:10.2f} ms   {iters:5d} iterations")
+    print(f"  newton compiled, cold, back to back: {out.cold_back_to_back_median_ms:.2f} ms (the same solve "
+          f"repeated: above, each solve follows another solver, which leaves the caches cold)")
     if out.speedup_cold is not None:
-        print(f"  speedup (baseline / newton cold): {out.speedup_cold:.1f}x, warm: {out.speedup_warm:.1f}x")
+        print(f"  speedup (baseline / newton cold): {out.speedup_cold:.1f}x (back to back "
+              f"{out.speedup_cold_back_to_back:.1f}x), warm: {out.speedup_warm:.1f}x")
     if out.compiled_speedup_cold is not None:
         print(f"  compiled vs Python solver (same kernels): cold {out.compiled_speedup_cold:.1f}x, "
               f"warm {out.compiled_speedup_warm:.1f}x")

@@ -90,6 +90,10 @@ class StaticsBenchResult(Result):
         speedup_cold, speedup_warm: baseline / Newton; speedup_cold_vs_snopt: SNOPT / Newton;
         kernel_speedup_cold, kernel_speedup_warm: numpy reference / compiled (same-run ratios).
         compiled_speedup_cold, compiled_speedup_warm: Python solver / compiled solve.
+        cold_back_to_back_median_ms, speedup_cold_back_to_back: the compiled cold solve repeated
+            back to back (after the rounds), and baseline / it. In the rounds each solve follows
+            another case (the Python solvers, SLSQP), which leaves the processor's caches cold:
+            the two figures bracket a cold solve's cost.
         contact: the equilibria in contact (``contact_solves``; None: left out).
         same_minimum: each solver against the Newton cold solve (tolerances, differences, "ok").
         converged: per case (and the warm start); iterations: per case, and the baseline's
@@ -125,6 +129,8 @@ class StaticsBenchResult(Result):
     kernel_speedup_warm: float | None
     compiled_speedup_cold: float | None
     compiled_speedup_warm: float | None
+    cold_back_to_back_median_ms: float
+    speedup_cold_back_to_back: float | None
     kernel_note: str = ("python_*: the Newton solver in Python on the compiled kernels (the compiled solve's "
                         "reference); numpy_*: that solver on the numpy reference of the chain's physics")
     same_minimum: dict
@@ -351,6 +357,19 @@ def _timed_rounds(solves, active: tuple, repeats: int, now, bar, warm_start) -> 
     return samples, last
 
 
+def _back_to_back(call, repeats: int, now, bar) -> list[float]:
+    """One untimed call, then ``repeats`` timed ones in a row [ms]."""
+    call()
+    bar.update()
+    samples = []
+    for _ in range(repeats):
+        t0 = now()
+        call()
+        samples.append(1e3 * (now() - t0))
+        bar.update()
+    return samples
+
+
 def _statics_result(samples: dict, last: dict, active: tuple, warm_start) -> dict:
     """The result's medians, ratios, agreement, convergence and iteration counts (``StaticsBenchResult``
     fields), from the timed samples and each case's last solve."""
@@ -462,12 +481,13 @@ def run_statics(
     warm_up, solves = _statics_solves(chain, field_mT, angle_deg, warm_angle, baseline_ftol, chosen)
 
     load_before = os.getloadavg()
-    bar = tqdm(total=1 + (repeats + 1) * len(active), desc=f"bench statics ({n_balls} balls)", unit="solve",
+    bar = tqdm(total=1 + (repeats + 1) * (len(active) + 1), desc=f"bench statics ({n_balls} balls)", unit="solve",
                file=sys.stderr, disable=not progress, leave=False)
     with blas_threads(blas_threads_limit) as threads_in_use:
         warm_start = warm_up()
         bar.update()
         samples, last = _timed_rounds(solves, active, repeats, now, bar, warm_start)
+        back_to_back = float(np.median(_back_to_back(solves(warm_start)["newton_cold"], repeats, now, bar)))
         if "contact" in chosen:
             contact = contact_solves(repeats, now)
     bar.close()
@@ -482,6 +502,9 @@ def run_statics(
         repeats=repeats,
         clock=clock,
         **result,
+        cold_back_to_back_median_ms=back_to_back,
+        speedup_cold_back_to_back=(None if result["baseline_median_ms"] is None
+                                   else result["baseline_median_ms"] / back_to_back),
         baseline=None if "baseline" not in last else {"ftol": baseline_ftol, "message": last["baseline"].message,
                                                       "max_violation": last["baseline"].max_violation},
         blas_threads=threads_in_use,
