@@ -291,7 +291,8 @@ def test_killed_reproduce_leaves_whole_files_and_resume_finishes_it(tmp_path, ho
     Ctrl-C; SIGTERM: ``kill``, a time limit; SIGHUP: the terminal closed), check that every
     file left is whole, then ``--resume`` reuses the finished sections and runs the rest."""
     out = tmp_path / "results"
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    # A crash prints its stacks (a SIGSEGV under SIGTERM was seen once in CI, December 4th).
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONFAULTHANDLER": "1"}
     proc = subprocess.Popen(_reproduce(out), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     _wait_for(out / ".reproduce" / "sizing.json", proc)
     signum = getattr(signal, how)
