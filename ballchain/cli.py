@@ -126,9 +126,11 @@ class StopSignals:
     inside a finaliser (an object's ``__del__``, a weakref callback: a progress bar closed by the
     garbage collector) is printed and dropped, never propagated. Such a swallowed stop is caught by
     ``sys.unraisablehook`` and delivered again a moment later (``REDELIVER_S``), until it reaches
-    the command's own code. A stop that lands inside numba's ``_numba_unpickle`` (the Python call
-    with which a compiled kernel returns a new array; numba does not check its exception, and the
-    process died of SIGSEGV or ran on) is not raised there but delivered again the same way.
+    the command's own code. A stop that lands inside numba's or llvmlite's Python code is not
+    raised there but delivered again the same way: numba does not check the exception of
+    ``_numba_unpickle`` (the Python call with which a compiled kernel returns a new array), and a
+    raise inside llvmlite's disposal of an LLVM object can leave it to be disposed of twice; the
+    process died of SIGSEGV or SIGABRT, or ran on.
     """
 
     REDELIVER_S = 0.02  # after a stop swallowed by a finaliser: long enough for the finaliser to end
@@ -150,11 +152,13 @@ class StopSignals:
             self._hook, sys.unraisablehook = sys.unraisablehook, self._unraisable
 
     def _handle(self, signum, frame):
-        if (self.signum is None or self._swallowed) and _inside_numba_unpickle(frame):
-            # numba hands a compiled kernel's new array back to Python through a Python call
-            # (``numba.core.serialize._numba_unpickle``) whose exception its compiled code does not
-            # check: raising there crashes the process (SIGSEGV) or loses the stop. Deliver it
-            # again a moment later, as a stop dropped by a finaliser.
+        if (self.signum is None or self._swallowed) and _inside_numba_or_llvmlite(frame):
+            # Not exception-safe there: numba hands a compiled kernel's new array back through a
+            # Python call (``numba.core.serialize._numba_unpickle``) whose exception its compiled
+            # code does not check, and llvmlite disposes of LLVM objects (loading a kernel from
+            # numba's cache, its finalisers) in steps a raise can split, disposing of one twice.
+            # Either crashed the process (SIGSEGV, SIGABRT) or lost the stop. Deliver it again a
+            # moment later, as a stop dropped by a finaliser.
             self.signum = self.signum or signum
             self._swallowed = True
             threading.Timer(self.REDELIVER_S, self._redeliver).start()
@@ -224,18 +228,20 @@ class StopSignals:
         return f"interrupted by {signal.Signals(self.signum).name}"
 
 
-def _inside_numba_unpickle(frame) -> bool:
-    """Whether a signal's handler runs inside numba's ``_numba_unpickle`` (or what it calls), the
-    Python call numba's compiled code makes to box a kernel's array result (numba 0.68)."""
+def _inside_numba_or_llvmlite(frame) -> bool:
+    """Whether a signal's handler runs inside numba's or llvmlite's Python code (or what it
+    calls): ``_numba_unpickle``, the Python call numba's compiled code makes to box a kernel's
+    array result (numba 0.68); numba's compiler and cache; llvmlite's LLVM objects."""
     while frame is not None:
-        code = frame.f_code
-        if code.co_name == "_numba_unpickle" and code.co_filename.endswith(_NUMBA_SERIALIZE):
+        name = frame.f_code.co_filename
+        if _NUMBA_DIR in name or _LLVMLITE_DIR in name:
             return True
         frame = frame.f_back
     return False
 
 
-_NUMBA_SERIALIZE = os.path.join("numba", "core", "serialize.py")
+_NUMBA_DIR = f"{os.sep}numba{os.sep}"
+_LLVMLITE_DIR = f"{os.sep}llvmlite{os.sep}"
 _stop: StopSignals | None = None
 
 

@@ -123,6 +123,47 @@ def test_a_stop_landing_inside_numba_unpickle_is_delivered_after_it(capfd):
     assert "Exception ignored" not in capfd.readouterr().err
 
 
+def test_a_stop_landing_inside_llvmlite_is_delivered_after_it(capfd):
+    """llvmlite disposes of LLVM objects (numba's cache loads, their finalisers) in steps a raise
+    can split: a stop raised there left an object to be disposed of twice (SIGABRT in
+    ``ffi.ObjectRef.__del__`` in about 1 of 300 killed ``reproduce`` runs; SIGSEGV at a later
+    kernel call). The handler raises nothing inside llvmlite's Python code (here its lock, which
+    wraps every call into LLVM); the stop comes a moment later, outside."""
+    from llvmlite import binding
+    from llvmlite.binding import ffi
+
+    sent = []
+
+    def signal_inside():  # called by llvmlite's lock, inside its Python frames: once
+        if not sent:
+            sent.append(True)
+            signal.raise_signal(signal.SIGTERM)
+            sum(range(1000))  # the pending handler runs here
+
+    def released():
+        pass
+
+    previous = {s: signal.getsignal(s) for s in STOPS}
+    stop = StopSignals()
+    stop.install()
+    ffi.register_lock_callback(signal_inside, released)
+    try:
+        try:
+            binding.get_process_triple()  # one call into LLVM through the lock
+        except StopRequest:
+            pytest.fail("the stop was raised inside llvmlite")
+        finally:
+            ffi.unregister_lock_callback(signal_inside, released)
+        assert sent and stop.signum == signal.SIGTERM  # recorded, to come
+        with pytest.raises(StopRequest) as err:
+            _busy_until_signal(seconds=10.0)  # without the second delivery: "no signal arrived"
+        assert err.value.signum == signal.SIGTERM and stop.later == [] and stop.status() == 143
+    finally:
+        stop.settle(program=False)
+    assert {s: signal.getsignal(s) for s in STOPS} == previous
+    assert "Exception ignored" not in capfd.readouterr().err
+
+
 def test_an_unrelated_exception_in_a_finaliser_still_reaches_the_previous_hook(monkeypatch):
     seen = []
     monkeypatch.setattr(sys, "unraisablehook", lambda u: seen.append(type(u.exc_value)))
