@@ -54,6 +54,29 @@ def dipole_matrix_inverse(u: np.ndarray) -> np.ndarray:
     return 1.5 * np.outer(u, u) - np.eye(3)
 
 
+class FieldInversion:
+    """The exact inverse of the point-dipole law for one sensor offset r (3,) [m]: what depends
+    on r alone (its length and the matrix ``(3/2) u u^T - I``) computed once, for a sensor read
+    at every sample; the same floats as ``moment_from_field`` and ``direction_from_field``,
+    which build one per call."""
+
+    def __init__(self, r: np.ndarray) -> None:
+        r = np.asarray(r, dtype=float)
+        dist = float(np.linalg.norm(r))
+        if not np.isfinite(dist) or dist == 0.0:
+            raise ValueError("sensor offset r must be finite and non-zero")
+        self._scale = dist**3 / K_DIPOLE
+        self._M = dipole_matrix_inverse(r / dist)
+
+    def moment(self, B: np.ndarray) -> np.ndarray:
+        """The dipole (..., 3) [A m^2] that makes the field B (..., 3) [T] at the offset."""
+        return self._scale * np.einsum("ij,...j->...i", self._M, B)
+
+    def direction(self, B: np.ndarray) -> np.ndarray:
+        """The unit dipole direction (..., 3) that makes the field B (..., 3) [T] at the offset."""
+        return _unit(self.moment(B), "estimated moment")
+
+
 def moment_from_field(B: np.ndarray, r: np.ndarray) -> np.ndarray:
     """Exact inverse of the point-dipole law: the dipole (..., 3) [A m^2] that makes B at r.
 
@@ -64,16 +87,12 @@ def moment_from_field(B: np.ndarray, r: np.ndarray) -> np.ndarray:
     Returns:
         (..., 3) dipole moment [A m^2]; ``moment_from_field(dipole_field(r, m), r) == m``.
     """
-    r = np.asarray(r, dtype=float)
-    dist = float(np.linalg.norm(r))
-    if not np.isfinite(dist) or dist == 0.0:
-        raise ValueError("sensor offset r must be finite and non-zero")
-    return (dist**3 / K_DIPOLE) * np.einsum("ij,...j->...i", dipole_matrix_inverse(r / dist), B)
+    return FieldInversion(r).moment(B)
 
 
 def direction_from_field(B: np.ndarray, r: np.ndarray) -> np.ndarray:
     """Unit dipole direction (..., 3) from the field B (..., 3) [T] at offset r (3,) [m] (correct inverse)."""
-    return _unit(moment_from_field(B, r), "estimated moment")
+    return FieldInversion(r).direction(B)
 
 
 def neutral_direction(p_WM: np.ndarray, p_W_target: np.ndarray, b_hat_W: np.ndarray) -> np.ndarray:

@@ -9,6 +9,23 @@ from __future__ import annotations
 import numpy as np
 
 
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a x b (..., 3) for float vectors (..., 3), broadcast: ``np.cross``'s products and differences
+    in its order (the same floats, bit for bit), without its axis handling, which costs 12 us on
+    two 3-vectors (20 times the arithmetic; the control loops of the units and the catheter
+    mapping take cross products at every update). Two (3,) vectors take their plain-float path.
+    """
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    if a.shape == (3,) and b.shape == (3,):
+        a0, a1, a2 = a.tolist()
+        b0, b1, b2 = b.tolist()
+        return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
 def angle_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Angle [rad] between vectors (..., 3), robust near 0 and pi (atan2 of |u x v| and u . v).
 
@@ -20,7 +37,7 @@ def angle_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """
     u = np.asarray(u, dtype=float)
     v = np.asarray(v, dtype=float)
-    return np.arctan2(np.linalg.norm(np.cross(u, v), axis=-1), np.einsum("...i,...i->...", u, v))
+    return np.arctan2(np.linalg.norm(cross(u, v), axis=-1), np.einsum("...i,...i->...", u, v))
 
 
 def perpendicular_basis(z_hat) -> tuple[np.ndarray, np.ndarray]:

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ballchain.drake_models.steerable_catheter import SteerableCatheter
+from ballchain.drake_models.vectors import cross
 from ballchain.optimization.statics import dense_qp
 
 
@@ -49,15 +50,6 @@ def _ry(t: float) -> np.ndarray:
 def _rz(t: float) -> np.ndarray:
     c, s = np.cos(t), np.sin(t)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a x b over the last axis (length 3), broadcast: ``np.cross``'s products and differences in
-    its order (the same floats), without its axis handling, which cost more than the arithmetic
-    on the rod's small arrays."""
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
 
 
 def _convex(K: np.ndarray, W: np.ndarray) -> np.ndarray:
@@ -218,7 +210,7 @@ class RodStatics:
         m = len(nodes)
         col_joint = np.repeat(np.arange(f), 3)
         lever = nodes[:, None, :] - joints[col_joint][None, :, :]  # (m, 3f, 3)
-        J = _cross(axes[None, :, :], lever)
+        J = cross(axes[None, :, :], lever)
         J[np.arange(m)[:, None] <= col_joint[None, :]] = 0.0  # a joint moves only the nodes after it
         return RodPose(nodes, np.transpose(J, (0, 2, 1)), axes.T.copy(), R, joints[0] if f else p)
 
@@ -279,9 +271,9 @@ class RodStatics:
             out += w * (Jm.T @ He @ Jm)
             lever = pose.nodes[m] - joints[col_joint]  # (3f, 3)
             moving = np.flatnonzero(col_joint < m)  # the joints before node m move it
-            inner = _cross(axes[moving], lever[moving])  # w_j x (p - p_j)
+            inner = cross(axes[moving], lever[moving])  # w_j x (p - p_j)
             # d2[i, j] = gr . (w_i x inner_j) = inner_j . (gr x w_i), for i <= j.
-            d2 = _cross(gr, axes[moving]) @ inner.T
+            d2 = cross(gr, axes[moving]) @ inner.T
             d2 = np.triu(d2)
             d2 = d2 + np.triu(d2, 1).T
             out[np.ix_(moving, moving)] += w * d2

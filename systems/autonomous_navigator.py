@@ -51,6 +51,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 from ballchain.drake_models.errors import UserInputError, require_finite_fields
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
 from ballchain.drake_models.params import BallChain, gram_force, newtons_from_gram_force
+from ballchain.drake_models.vectors import cross
 from ballchain.optimization.statics import ChainStatics
 
 
@@ -281,7 +282,7 @@ def _rotate(m: np.ndarray, omega: np.ndarray) -> np.ndarray:
     if angle < 1e-12:
         return m
     a = omega / angle
-    out = m * np.cos(angle) + np.cross(a, m) * np.sin(angle) + a * (a @ m) * (1.0 - np.cos(angle))
+    out = m * np.cos(angle) + cross(a, m) * np.sin(angle) + a * (a @ m) * (1.0 - np.cos(angle))
     return out / np.linalg.norm(out)
 
 
@@ -480,7 +481,7 @@ class AutonomousNavigator(LeafSystem):
         p = self.params
         sticks = np.zeros((len(m), 3))
         for j, (a, b) in enumerate(zip(m, m_des)):
-            axis = np.cross(a, b)
+            axis = cross(a, b)
             sin = float(np.linalg.norm(axis))
             angle = float(np.arctan2(sin, a @ b))
             if angle < 1e-4:

@@ -32,7 +32,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 from ballchain.drake_models.arg_checks import as_vector, require_type
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.omniwheel import OmniWheelGeometry, paper_wheel_speeds
-from ballchain.drake_models.vectors import angle_between, perpendicular_axis
+from ballchain.drake_models.vectors import angle_between, cross, perpendicular_axis
 from ballchain.systems.omni_wheel_drive import saturate_uniformly
 from ballchain.systems.teleoperation import ModeSwitch
 from ballchain.systems.unit_config import MagnetUnitConfig
@@ -98,6 +98,7 @@ class ReconfigurationController(LeafSystem):
         self._max_speed = float(max_wheel_speed)
         self._tol = np.deg2rad(tolerance_deg)
         self._cone = np.deg2rad(antiparallel_deg)
+        self._sin_cone = np.sin(self._cone)
         self._g = geometry or OmniWheelGeometry()
         if wheel_map == "derived":
             self._to_wheels = self._g.wheel_speeds
@@ -132,17 +133,17 @@ class ReconfigurationController(LeafSystem):
     def desired_angular_velocity(self, m_hat: np.ndarray) -> np.ndarray:
         """The law ``K (m x m_c)`` [rad/s] with the antiparallel fix (before saturation)."""
         m_hat = np.asarray(m_hat, dtype=float)
-        if not np.any(m_hat):
+        if not m_hat.any():
             return np.zeros(3)
         m_hat = m_hat / np.linalg.norm(m_hat)
-        cross = np.cross(m_hat, self._m_c)
-        if m_hat @ self._m_c < 0 and np.linalg.norm(cross) < np.sin(self._cone):
+        m_x_mc = cross(m_hat, self._m_c)
+        if m_hat @ self._m_c < 0 and np.linalg.norm(m_x_mc) < self._sin_cone:
             # Near antiparallel the cross product is tiny and noisy: turn at the law's speed at
             # the cone's edge, about its direction if resolvable, else about a fixed axis.
-            n = np.linalg.norm(cross)
-            axis = cross / n if n > 1e-3 * np.sin(self._cone) else self._fallback_axis
-            return self._K * np.sin(self._cone) * axis
-        return self._K * cross
+            n = np.linalg.norm(m_x_mc)
+            axis = m_x_mc / n if n > 1e-3 * self._sin_cone else self._fallback_axis
+            return self._K * self._sin_cone * axis
+        return self._K * m_x_mc
 
     def wheel_command(self, m_hat: np.ndarray) -> np.ndarray:
         """(3,) saturated wheel speeds [rad/s] for a measured direction."""
@@ -171,7 +172,7 @@ class ReconfigurationController(LeafSystem):
         if latched:  # the measurement is not needed (nor evaluated)
             return True
         m = self._m_port.Eval(context)
-        return bool(np.any(m) and angle_between(m, self._m_c) < self._tol)
+        return bool(m.any() and angle_between(m, self._m_c) < self._tol)
 
     def _command(self, context) -> tuple[np.ndarray, np.ndarray]:
         """(wheel speeds, the angular velocity they make) for the measurement on the input,
@@ -194,4 +195,4 @@ class ReconfigurationController(LeafSystem):
 
     def _calc_angle(self, context, output):
         m = self._m_port.Eval(context)
-        output.SetAtIndex(0, float(angle_between(m, self._m_c)) if np.any(m) else np.pi)
+        output.SetAtIndex(0, float(angle_between(m, self._m_c)) if m.any() else np.pi)

@@ -8,16 +8,9 @@ import copy
 import numpy as np
 
 from ballchain.drake_models.steerable_catheter import SteerableCatheter
-from ballchain.optimization.rod_statics import RodStatics, _cross
+from ballchain.optimization.rod_statics import RodStatics
 from ballchain.systems.catheter_station import _finite
 from ballchain.systems.simulated_operator import TargetRecord, _Memory
-
-
-def test_cross_is_numpys_bit_for_bit():
-    rng = np.random.default_rng(7)
-    for shape_a, shape_b in (((1, 30, 3), (31, 30, 3)), ((3,), (12, 3)), ((12, 3), (12, 3))):
-        a, b = rng.normal(size=shape_a), rng.normal(size=shape_b)
-        assert np.array_equal(_cross(a, b), np.cross(a, b))
 
 
 def test_operator_memory_copy_shares_only_closed_records():

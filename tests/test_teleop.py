@@ -317,15 +317,6 @@ def test_run_seeds_aggregates_its_runs(tmp_path, heart):
     assert json.loads((tmp_path / "teleop_seeds.json").read_text())["table"][0]["seeds"] == [3, 7]
 
 
-def test_mapper_cross_product_is_numpys_bit_for_bit():
-    """The catheter mapping's 3-vector cross product (a speed-up) against np.cross: identical bits."""
-    from ballchain.systems.teleoperation import _cross
-
-    rng = np.random.default_rng(11)
-    for a, b in rng.normal(size=(2000, 2, 3)) * rng.choice([1e-9, 1.0, 1e9], size=(2000, 2, 1)):
-        assert np.array_equal(_cross(a, b), np.cross(a, b))
-
-
 def _three_right_targets(heart) -> tuple[list[dict], float]:
     """Rows and simulated time of the operator on the right ring's first three targets."""
     data = teleop.run(task="right", mapping="world", targets=3, progress=False, heart=heart)
