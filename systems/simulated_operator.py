@@ -611,7 +611,9 @@ def _saturate(u: np.ndarray) -> np.ndarray:
 
 def _damped_solve(J: np.ndarray, v: np.ndarray, damping: float) -> np.ndarray:
     """argmin_u |J u - v|^2 + mu |u|^2, mu = (damping * largest singular value of J)^2."""
-    s_max = np.linalg.norm(J, 2) if J.size else 0.0
+    # The largest singular value: np.linalg.norm(J, 2)'s number (the same LAPACK call) without
+    # its axis handling, which cost as much as the decomposition of these small matrices.
+    s_max = float(np.linalg.svd(J, compute_uv=False).max()) if J.size else 0.0
     if s_max < 1e-9:
         return np.zeros(J.shape[1])
     mu = (damping * s_max) ** 2
