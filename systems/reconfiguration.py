@@ -97,8 +97,7 @@ class ReconfigurationController(LeafSystem):
         self._K = float(gain)
         self._max_speed = float(max_wheel_speed)
         self._tol = np.deg2rad(tolerance_deg)
-        self._cone = np.deg2rad(antiparallel_deg)
-        self._sin_cone = np.sin(self._cone)
+        self._sin_cone = np.sin(np.deg2rad(antiparallel_deg))  # the law's speed at the cone's edge, over K
         self._g = geometry or OmniWheelGeometry()
         if wheel_map == "derived":
             self._to_wheels = self._g.wheel_speeds
