@@ -564,10 +564,14 @@ class ChainStatics:
 
     def _straight_chain(self) -> tuple[np.ndarray, np.ndarray]:
         """``straight_chain(self.chain)``, built once per chain: the cold start, which the solvers
-        only read (its chart is remembered beside it, ``compiled_model.run``)."""
+        only read (read-only arrays: a write anywhere raises instead of moving every later cold
+        start; its chart is remembered beside it, ``compiled_model.run``)."""
         cached = self._straight
         if cached is None or cached[0] is not self.chain:
-            cached = self._straight = (self.chain, *straight_chain(self.chain), [None])
+            p0, m0 = straight_chain(self.chain)
+            p0.setflags(write=False)
+            m0.setflags(write=False)
+            cached = self._straight = (self.chain, p0, m0, [None])
         return cached[1], cached[2]
 
     def solve_or_raise(self, external: FieldSource | None, warm_start: StaticsResult | None = None,

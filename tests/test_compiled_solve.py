@@ -147,6 +147,7 @@ def test_cold_solves_start_from_the_straight_chain_every_time():
     fast = ChainStatics(chain)
     first, second, third = fast.solve(external), fast.solve(external), fast.solve(external)
     assert first.converged and first.iterations > 10
+    assert first.positions.flags.writeable and first.dipoles.flags.writeable  # the caller's, not the cached start
     for other in (second, third, ChainStatics(chain).solve(external)):
         np.testing.assert_array_equal(other.positions, first.positions)
         assert other.iterations == first.iterations
