@@ -564,14 +564,12 @@ class ChainStatics:
 
     def _straight_chain(self) -> tuple[np.ndarray, np.ndarray]:
         """``straight_chain(self.chain)``, built once per chain: the cold start, which the solvers
-        only read (read-only arrays: a write anywhere raises instead of moving every later cold
-        start; its chart is remembered beside it, ``compiled_model.run``)."""
+        only read (a result holds a copy; its chart is remembered beside it,
+        ``compiled_model.run``). Not marked read-only: numba compiles a second specialisation of
+        every kernel it reaches for read-only arrays (``test_compile_structure``)."""
         cached = self._straight
         if cached is None or cached[0] is not self.chain:
-            p0, m0 = straight_chain(self.chain)
-            p0.setflags(write=False)
-            m0.setflags(write=False)
-            cached = self._straight = (self.chain, p0, m0, [None])
+            cached = self._straight = (self.chain, *straight_chain(self.chain), [None])
         return cached[1], cached[2]
 
     def solve_or_raise(self, external: FieldSource | None, warm_start: StaticsResult | None = None,
