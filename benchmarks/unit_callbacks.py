@@ -2,7 +2,8 @@
 
 The station (``--scenario``, on the quasi-static engine) is advanced to ``--at`` seconds (the
 magnet turning in ``teleop_right_unit``), then each callback of the first unit (and the feeder and
-the watchdog) is called on its own context ``--number`` times, the best of 5 repeats (CPU time,
+the watchdog) is called on its own context ``--number`` times: the composed Python systems'
+(``unit_systems: python``) and the compiled ``ActuationUnit``'s (a second station advanced alike), the best of 5 repeats (CPU time,
 ``time.process_time``). A discrete update writes into a scratch ``DiscreteValues``. Port values
 the callback evaluates are cached by Drake after the first call, as within one simulator step.
 "Hall sample, turned" forgets the sensor's remembered field first, as when the magnet has turned
@@ -22,18 +23,24 @@ import time
 import timeit
 
 
-def run(scenario: str = "teleop_right_unit", at: float = 0.3031, number: int = 2000) -> dict[str, float]:
+def _advanced(scenario: str, at: float, unit_systems: str):
     from pydrake.systems.analysis import Simulator
 
     from ballchain.systems.chain_scenario import load_scenario
     from ballchain.systems.chain_simulation import ChainMonitor, MakeStation
 
-    station = MakeStation(load_scenario(scenario, "{engine: statics, mode: quasi-static}"))
+    station = MakeStation(load_scenario(scenario, f"{{engine: statics, mode: quasi-static, unit_systems: {unit_systems}}}"))
     simulator = Simulator(station.diagram)
     monitor = ChainMonitor(station)
     simulator.set_monitor(monitor)
     simulator.Initialize()
     simulator.AdvanceTo(at)
+    return station, simulator, monitor
+
+
+def run(scenario: str = "teleop_right_unit", at: float = 0.3031, number: int = 2000) -> dict[str, float]:
+    station, simulator, monitor = _advanced(scenario, at, "python")  # the composed units' callbacks
+    compiled, compiled_simulator, _ = _advanced(scenario, at, "compiled")
     root = simulator.get_context()
     unit = next(iter(station.units.values()))
 
@@ -69,6 +76,28 @@ def run(scenario: str = "teleop_right_unit", at: float = 0.3031, number: int = 2
         "controller latch": update(unit.controller, unit.controller._update_done),
         "watchdog (a step between checks)": lambda: monitor(root),
     }
+    # The same unit as one ActuationUnit: its update at a Hall sample's time (every system's work
+    # of the composed unit at that time) and between samples, and its pose output.
+    fused = next(iter(compiled.units.values())).magnet
+    compiled_root = compiled_simulator.get_context()
+    fused_context = fused.GetMyContextFromRoot(compiled_root)
+    period = fused.update_period
+    samples = round((1.0 / fused.sensor_spec.sample_rate_hz) / period)
+    sample_time = round(at / (samples * period)) * samples * period
+
+    def fused_update(t):
+        scratch = fused.AllocateDiscreteVariables()
+
+        def call():
+            if compiled_root.get_time() != t:  # once: then the inputs stay cached, as above
+                compiled_root.SetTime(t)
+            fused._update(fused_context, scratch)
+        return call
+
+    pose = fused.GetOutputPort("X_WM").Allocate()
+    cases["compiled unit update, Hall sample"] = fused_update(sample_time)
+    cases["compiled unit update, between samples"] = fused_update(sample_time + period)
+    cases["compiled unit pose output (X_WM)"] = lambda: fused._calc_X_WM(fused_context, pose)
     if station.feeder is not None:
         cases["feeder update"] = update(station.feeder, station.feeder._update)
     out = {}

@@ -35,3 +35,6 @@ def warm_up() -> None:
     from ballchain.optimization.statics import ChainStatics
 
     ChainStatics(chain, gravity=True).solve(UniformField([0.0, 0.02, 0.0]))  # the compiled Newton solve
+    from ballchain.drake_models.kernels import actuation
+
+    actuation.warm_up()  # the actuation units' update

@@ -1,7 +1,9 @@
 """The actuation station: one or two magnet units (right/left of the patient) and the feeder.
 
 Each unit is wired as a loop: the teleoperation mapper and the reconfiguration controller both
-feed the mode switch, which feeds the drive -> magnet -> Hall sensor -> estimator -> controller;
+feed the mode switch, which feeds the drive -> magnet -> Hall sensor -> estimator -> controller
+(by default all of these but the mapper are one ``actuation_unit.ActuationUnit``, its update
+compiled, the same numbers; ``StationOptions(compiled_units=False)``: the composed systems);
 and the diagram exports, per unit ``<u>``: inputs ``<u>.joystick`` (3), ``<u>.mode`` (1: 0
 teleoperation, 1 reconfiguration), and with ``teleop_frame="tip"`` ``<u>.p_WT`` (3) and
 ``<u>.tip_direction_W`` (3); outputs ``<u>.q_WM`` (4), ``<u>.X_WM`` (RigidTransform),
@@ -38,6 +40,7 @@ from ballchain.systems.reconfiguration import ReconfigurationController
 from ballchain.systems.rotating_magnet_unit import RotatingMagnetUnit
 from ballchain.systems.teleoperation import ModeSwitch, TeleoperationMapper
 from ballchain.systems.unit_config import MagnetUnitConfig, right_unit
+from ballchain.systems.actuation_unit import ActuationUnit, compilable
 
 
 @dataclass
@@ -56,6 +59,9 @@ class StationOptions:
         field_points_W: (k, 3) points where the total field is exported [m], or None.
         with_feeder: add the feeder.
         chain: the ball chain fed by the feeder.
+        compiled_units: each unit as one ``actuation_unit.ActuationUnit`` (its update compiled,
+            the same numbers) where it can be (``actuation_unit.compilable``); False: the
+            composed Python systems (the reference).
     """
 
     p_W_chain: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -66,11 +72,13 @@ class StationOptions:
     field_points_W: np.ndarray | None = None
     with_feeder: bool = False
     chain: BallChain = field(default_factory=BallChain)
+    compiled_units: bool = True
 
     def __post_init__(self) -> None:
         as_vector(self.p_W_chain, "StationOptions.p_W_chain", unit="m")
         as_vector(self.feed_direction_W, "StationOptions.feed_direction_W", nonzero=True)
         require_bool(self.with_feeder, "StationOptions.with_feeder")
+        require_bool(self.compiled_units, "StationOptions.compiled_units")
         require_int(self.seed, "StationOptions.seed", 0)
         require_type(self.sensor_spec, HallSensorSpec, "StationOptions.sensor_spec")
         require_type(self.stepper_spec, StepperSpec, "StationOptions.stepper_spec")
@@ -87,15 +95,28 @@ class StationOptions:
 
 @dataclass
 class UnitSystems:
-    """The systems of one actuation unit, added by ``add_unit``."""
+    """The systems of one actuation unit, added by ``add_unit``: six composed systems, or one
+    ``ActuationUnit`` in each of the six roles (it has each one's ports and methods)."""
 
-    magnet: RotatingMagnetUnit
-    drive: OmniWheelDrive
-    sensor: HallSensor
-    estimator: DipoleDirectionEstimator
-    controller: ReconfigurationController
+    magnet: RotatingMagnetUnit | ActuationUnit
+    drive: OmniWheelDrive | ActuationUnit
+    sensor: HallSensor | ActuationUnit
+    estimator: DipoleDirectionEstimator | ActuationUnit
+    controller: ReconfigurationController | ActuationUnit
     teleop: TeleoperationMapper
-    switch: ModeSwitch
+    switch: ModeSwitch | ActuationUnit
+
+    @property
+    def compiled(self) -> bool:
+        """Whether the unit is one ``ActuationUnit``."""
+        return isinstance(self.magnet, ActuationUnit)
+
+    @property
+    def mode_inputs(self) -> list:
+        """The input ports the unit's mode source feeds (the switch's and the controller's)."""
+        if self.compiled:
+            return [self.magnet.GetInputPort("mode")]
+        return [self.switch.GetInputPort("mode"), self.controller.GetInputPort("mode")]
 
 
 def add_unit(
@@ -127,6 +148,23 @@ def add_unit(
         R_WM: initial magnet orientation (default: the unit's own default).
     """
     n = unit.name
+    teleop = builder.AddSystem(
+        TeleoperationMapper(
+            frame=unit.teleop_frame,
+            omega_max=unit.teleop_omega_max,
+            dead_band=unit.teleop_dead_band,
+            p_WM=np.asarray(unit.p_WM),
+            name=n,
+        )
+    )
+    if opt.compiled_units and compilable(unit, others, opt.sensor_spec, opt.stepper_spec):
+        fused = builder.AddSystem(ActuationUnit(unit, m_neutral_W=m_neutral_W, others=others,
+                                                sensor_spec=opt.sensor_spec, stepper_spec=opt.stepper_spec,
+                                                seed=seed, R_WM=R_WM, field_points_W=opt.field_points_W))
+        if unit.teleop_frame == "tip":
+            builder.Connect(fused.GetOutputPort("m_W"), teleop.GetInputPort("m_W"))
+        builder.Connect(teleop.GetOutputPort("omega_desired_W"), fused.GetInputPort("omega_teleop_W"))
+        return UnitSystems(fused, fused, fused, fused, fused, teleop, fused)
     # The drive holds its wheel speeds over its update period: at that period the magnet's
     # orientation is exact as discrete state (no continuous state, no integrator sub-steps).
     magnet = builder.AddSystem(RotatingMagnetUnit(unit, R_WM=R_WM, field_points_W=opt.field_points_W,
@@ -145,15 +183,6 @@ def add_unit(
             period=1.0 / opt.sensor_spec.sample_rate_hz,
             geometry=unit.geometry,
             wheel_map=unit.wheel_map,
-            name=n,
-        )
-    )
-    teleop = builder.AddSystem(
-        TeleoperationMapper(
-            frame=unit.teleop_frame,
-            omega_max=unit.teleop_omega_max,
-            dead_band=unit.teleop_dead_band,
-            p_WM=np.asarray(unit.p_WM),
             name=n,
         )
     )
@@ -180,6 +209,9 @@ def connect_other_units(builder: DiagramBuilder, units: dict) -> None:
     """
     for systems, others, compensate in units.values():
         for o in others:
+            if systems.compiled:  # one input per other magnet: its quaternion
+                builder.Connect(units[o][0].magnet.GetOutputPort("q_WM"), systems.magnet.GetInputPort(f"q_WM_{o}"))
+                continue
             X_port = units[o][0].magnet.GetOutputPort("X_WM")
             builder.Connect(X_port, systems.sensor.GetInputPort(f"X_WM_{o}"))
             if compensate:
@@ -238,7 +270,7 @@ def make_actuation_station(
 
     Returns:
         The diagram; see the module docstring for its exported ports. The magnets' orientations
-        are set through ``diagram.GetSubsystemByName(f"{name}.magnet").set_orientation``.
+        are set through ``unit_system(diagram, name, "magnet").set_orientation``.
     """
     if units is not None:
         require_type(units, (list, tuple), "make_actuation_station units", "a list of MagnetUnitConfig or None")
@@ -262,8 +294,10 @@ def make_actuation_station(
         magnet, drive, sensor, estimator = systems.magnet, systems.drive, systems.sensor, systems.estimator
         controller, teleop, switch = systems.controller, systems.teleop, systems.switch
         builder.ExportInput(teleop.GetInputPort("joystick"), f"{n}.joystick")
-        builder.ExportInput(switch.GetInputPort("mode"), f"{n}.mode")
-        builder.ConnectInput(f"{n}.mode", controller.GetInputPort("mode"))
+        mode_inputs = systems.mode_inputs
+        builder.ExportInput(mode_inputs[0], f"{n}.mode")
+        for port in mode_inputs[1:]:
+            builder.ConnectInput(f"{n}.mode", port)
         if unit.teleop_frame == "tip":
             builder.ExportInput(teleop.GetInputPort("p_WT"), f"{n}.p_WT")
             builder.ExportInput(teleop.GetInputPort("tip_direction_W"), f"{n}.tip_direction_W")
@@ -292,3 +326,13 @@ def make_actuation_station(
     diagram = builder.Build()
     diagram.set_name("actuation_station")
     return diagram
+
+
+def unit_system(diagram: Diagram, name: str, role: str):
+    """The system of unit ``name`` in ``role`` ("magnet", "drive", "hall_sensor", "estimator",
+    "controller" or "mode_switch"): the unit's ``ActuationUnit`` (named ``<name>.unit``, every
+    role) or the composed system ``<name>.<role>``."""
+    require_choice(role, ("magnet", "drive", "hall_sensor", "estimator", "controller", "mode_switch"), "unit_system role")
+    if diagram.HasSubsystemNamed(f"{name}.unit"):
+        return diagram.GetSubsystemByName(f"{name}.unit")
+    return diagram.GetSubsystemByName(f"{name}.{role}")

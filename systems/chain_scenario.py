@@ -43,6 +43,7 @@ if not SCENARIOS_FILE.exists():  # installed (non-editable) layout
 
 MODES = ("quasi-static", "dynamics")
 ENGINES = ("plant", "statics")
+UNIT_SYSTEMS = ("compiled", "python")
 DEVICES = ("ball_chain", "steerable_catheter")  # the robotic chain, or the paper's manual comparison arm
 DEFAULT_TIME_STEP = {"quasi-static": 1e-3, "dynamics": 1e-4}
 
@@ -282,6 +283,9 @@ class ChainScenario:
         statics_period: the statics engine's update period [s] (50 ms: the teleoperated magnet
             turns at most 1.5 deg and the feeder moves 1 mm in one period; larger moves are
             split by the engine's continuation).
+        unit_systems: "compiled" (the default: each unit one ``actuation_unit.ActuationUnit``,
+            its update compiled) or "python" (the composed Python systems, its reference: the
+            same numbers, bit for bit, several times the cost).
         pin: a force-sensor pin on the tip ball (off by default; plant engine only).
         device: "ball_chain" (the magnetic chain, the default) or "steerable_catheter" (the
             paper's manual comparison arm: an 8 Fr steerable catheter in the same atrium and
@@ -327,6 +331,7 @@ class ChainScenario:
     check_period: float = 5e-3
     engine: str = "plant"
     statics_period: float = 0.05
+    unit_systems: str = "compiled"
     pin: PinScenario = field(default_factory=PinScenario)
     random_seed: typing.Optional[int] = None
     device: str = "ball_chain"
@@ -561,6 +566,7 @@ def check_fields(s: "ChainScenario") -> None:
         raise UserInputError(f"scenario {path} must be a finite number, got {value}")
     _one_of(s.mode, MODES, "mode")
     _one_of(s.engine, ENGINES, "engine")
+    _one_of(s.unit_systems, UNIT_SYSTEMS, "unit_systems")
     _one_of(s.device, DEVICES, "device")
     _require(s.device == "ball_chain" or (not s.units and s.mode == "quasi-static" and (s.heart or bool(s.atrium_file))),
              "scenario device: steerable_catheter is a manual catheter in the atrium: it needs no units "

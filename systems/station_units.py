@@ -4,9 +4,12 @@
 ``insertion.feeder``. Per unit ``<u>`` (systems named as in ``actuation_station``):
 
     ``<u>.joystick`` (scripted stick, zero-order hold) -> ``<u>.teleoperation`` ->
+    ``<u>.unit`` (``actuation_unit.ActuationUnit``: the drive, magnet, Hall sensor, estimator,
+    controller and mode switch in one system, its update compiled; ``<u>.mode_command`` feeds its
+    ``mode``), or with the scenario's ``unit_systems: python`` the composed systems
     ``<u>.mode_switch`` (``<u>.mode_command``) -> ``<u>.drive`` -> ``<u>.magnet`` ->
-    ``<u>.hall_sensor`` -> ``<u>.estimator`` -> ``<u>.controller`` -> ``<u>.mode_switch``;
-    ``<u>.mode_command`` also feeds ``<u>.controller`` (its going to 1 starts a reconfiguration);
+    ``<u>.hall_sensor`` -> ``<u>.estimator`` -> ``<u>.controller`` -> ``<u>.mode_switch``,
+    ``<u>.mode_command`` also feeding ``<u>.controller`` (its going to 1 starts a reconfiguration);
 
 with ``joystick_source: external`` there is no ``<u>.joystick``: the mapper's ``joystick`` input
 is returned (``UnitHandles.joystick_input``) for another system (a simulated operator) to drive.
@@ -40,6 +43,7 @@ from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import BallChain, CylinderMagnet
 from ballchain.drake_models.dipole_inversion import neutral_direction
 from ballchain.systems.actuation_station import StationOptions, add_unit_systems
+from ballchain.systems.actuation_unit import ActuationUnit
 from ballchain.systems.chain_scenario import ChainScenario, InsertionScenario
 from ballchain.systems.feeder import Feeder, FeederSpec, whole_steps
 from ballchain.systems.hall_sensor import DipoleDirectionEstimator, HallSensor
@@ -52,14 +56,16 @@ from ballchain.systems.unit_config import JoystickKey, MagnetUnitConfig
 
 @dataclass
 class UnitHandles:
-    """The systems of one unit in the station diagram."""
+    """The systems of one unit in the station diagram: with the compiled unit (the default) its one
+    ``ActuationUnit`` is the magnet, drive, sensor, estimator and controller (it has each one's
+    ports and methods)."""
 
     config: MagnetUnitConfig
-    magnet: RotatingMagnetUnit
-    drive: OmniWheelDrive
-    sensor: HallSensor
-    estimator: DipoleDirectionEstimator
-    controller: ReconfigurationController
+    magnet: RotatingMagnetUnit | ActuationUnit
+    drive: OmniWheelDrive | ActuationUnit
+    sensor: HallSensor | ActuationUnit
+    estimator: DipoleDirectionEstimator | ActuationUnit
+    controller: ReconfigurationController | ActuationUnit
     teleoperation: TeleoperationMapper
     joystick: TrajectorySource | None
     m_hat_neutral_W: np.ndarray
@@ -207,7 +213,8 @@ def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig],
         m_initial.append(m0 / np.linalg.norm(m0))
     # The same unit step as the actuation-only diagram (actuation_station.make_actuation_station),
     # with the default hardware; unit k's Hall noise seed defaults to k.
-    unit_systems = add_unit_systems(builder, configs, StationOptions(), m_neutral_W=m_neutral,
+    options = StationOptions(compiled_units=scenario.unit_systems == "compiled")
+    unit_systems = add_unit_systems(builder, configs, options, m_neutral_W=m_neutral,
                                     seeds=range(len(configs)), R_WM=[rotation_with_z_along(m0) for m0 in m_initial])
     for u, m_c, m0 in zip(configs, m_neutral, m_initial):
         n = u.name
@@ -225,8 +232,8 @@ def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig],
                                 f"{n}.joystick", builder)
             builder.Connect(stick.get_output_port(), teleop.GetInputPort("joystick"))
         mode = _mode_source([q.time for q in keys], [float(q.mode) for q in keys], f"{n}.mode_command", builder)
-        builder.Connect(mode.get_output_port(), switch.GetInputPort("mode"))
-        builder.Connect(mode.get_output_port(), systems.controller.GetInputPort("mode"))
+        for port in systems.mode_inputs:
+            builder.Connect(mode.get_output_port(), port)
         handles[n] = UnitHandles(u, systems.magnet, systems.drive, systems.sensor, systems.estimator,
                                  systems.controller, teleop, stick, m_c, m0, teleop.GetInputPort("joystick"))
     mux = builder.AddSystem(Multiplexer([3] * (2 * len(handles))))

@@ -50,7 +50,9 @@ def _record(name: str, duration: float, overrides: str = "") -> tuple[np.ndarray
     from ballchain.systems.chain_scenario import load_scenario
     from ballchain.systems.chain_simulation import MakeStation
 
-    station = MakeStation(load_scenario(name, "{engine: statics, mode: quasi-static" + overrides + "}"))
+    # The composed Python units: their shortcuts are what this file checks (tests/test_compiled_units.py
+    # holds the compiled units to them).
+    station = MakeStation(load_scenario(name, "{engine: statics, mode: quasi-static, unit_systems: python" + overrides + "}"))
     simulator = Simulator(station.diagram)
     recorder = _Recorder(station)
     simulator.set_monitor(recorder)

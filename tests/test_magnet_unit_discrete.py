@@ -88,8 +88,8 @@ def test_discrete_matches_the_continuous_state_behind_the_stepper_drive():
 
 
 def test_station_units_use_the_discrete_state():
-    from ballchain.systems.actuation_station import make_actuation_station
+    from ballchain.systems.actuation_station import make_actuation_station, unit_system
 
     diagram = make_actuation_station()
-    assert diagram.GetSubsystemByName("right_unit.magnet").update_period == StepperSpec().update_period
+    assert unit_system(diagram, "right_unit", "magnet").update_period == StepperSpec().update_period
     assert diagram.CreateDefaultContext().num_continuous_states() == 0

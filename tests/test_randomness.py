@@ -12,7 +12,9 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import EventStatus
 
 from ballchain.drake_models.errors import UserInputError
-from ballchain.systems.actuation_station import StationOptions, make_actuation_station
+from ballchain.drake_models.kernels.actuation import X_K
+from ballchain.systems.actuation_station import StationOptions, make_actuation_station, unit_system
+from ballchain.systems.actuation_unit import ActuationUnit
 from ballchain.systems.hall_sensor import quantise_reading
 from ballchain.systems.randomness import MAX_SEED, seeded_systems, set_random_context
 from ballchain.systems.simulated_operator import OperatorParams, SimulatedOperator
@@ -21,9 +23,26 @@ from ballchain.systems.unit_config import left_unit, right_unit
 UNITS = ("right_unit", "left_unit")
 
 
-def _station(seed: int = 0):
+def _station(seed: int = 0, compiled: bool = True):
     # Both units noisy, each sensor also seeing the other magnet (the station's default).
-    return make_actuation_station([right_unit(model="dipole"), left_unit(model="dipole")], StationOptions(seed=seed))
+    return make_actuation_station([right_unit(model="dipole"), left_unit(model="dipole")],
+                                  StationOptions(seed=seed, compiled_units=compiled))
+
+
+def _sensor(diagram, name: str):
+    """Unit ``name``'s Hall sensor: its ``ActuationUnit`` or the composed ``HallSensor``."""
+    return unit_system(diagram, name, "hall_sensor")
+
+
+def _last_sample(sensor, ctx) -> int:
+    """The index of the sensor's last sample (its counter - 1)."""
+    if isinstance(sensor, ActuationUnit):
+        return int(sensor.state(ctx)[X_K]) - 1
+    return int(ctx.get_discrete_state(1).GetAtIndex(0)) - 1
+
+
+def _spec(sensor):
+    return sensor.sensor_spec if isinstance(sensor, ActuationUnit) else sensor.spec
 
 
 def _hold_and_log(station, context, t_end: float = 0.2) -> np.ndarray:
@@ -46,22 +65,24 @@ def _hold_and_log(station, context, t_end: float = 0.2) -> np.ndarray:
 def _old_seeding_reading(station, context, k: int, seed: int) -> np.ndarray:
     """What unit k's sensor reads now by the old seeding: noise ``default_rng((seed, sample))``
     on the true field, then the ADC (the last sample's index is the sensor's counter - 1)."""
-    sensor = station.GetSubsystemByName(f"{UNITS[k]}.hall_sensor")
+    sensor = _sensor(station, UNITS[k])
     ctx = sensor.GetMyContextFromRoot(context)
-    sample = int(ctx.get_discrete_state(1).GetAtIndex(0)) - 1
-    noise = np.random.default_rng((seed, sample)).normal(scale=sensor.spec.noise_std_T, size=3)
-    return quantise_reading(sensor.true_field(ctx) + noise, sensor.spec)
+    sample = _last_sample(sensor, ctx)
+    noise = np.random.default_rng((seed, sample)).normal(scale=_spec(sensor).noise_std_T, size=3)
+    return quantise_reading(sensor.true_field(ctx) + noise, _spec(sensor))
 
 
-def test_the_default_context_is_the_old_seeding():
-    """Unit k's noise seed defaults to StationOptions.seed + k, as the sensors' seeds always were."""
-    station = _station(seed=3)
+@pytest.mark.parametrize("compiled", [True, False])
+def test_the_default_context_is_the_old_seeding(compiled):
+    """Unit k's noise seed defaults to StationOptions.seed + k, as the sensors' seeds always were
+    (the compiled unit and the composed one)."""
+    station = _station(seed=3, compiled=compiled)
     context = station.CreateDefaultContext()
     log = _hold_and_log(station, context)
     assert len(log) > 10 and np.ptp(log, axis=0).max() > 0.0  # noisy readings
     for k, n in enumerate(UNITS):
-        assert station.GetSubsystemByName(f"{n}.hall_sensor").seed(
-            station.GetSubsystemByName(f"{n}.hall_sensor").GetMyContextFromRoot(context)) == 3 + k
+        assert isinstance(_sensor(station, n), ActuationUnit) == compiled
+        assert _sensor(station, n).seed(_sensor(station, n).GetMyContextFromRoot(context)) == 3 + k
         np.testing.assert_array_equal(station.GetOutputPort(f"{n}.B_sensor_T").Eval(context),
                                       _old_seeding_reading(station, context, k, 3 + k))
 
@@ -81,7 +102,7 @@ def test_the_same_generator_seed_gives_the_same_run_and_another_another():
 
 def test_each_seeded_system_draws_its_seed_from_the_generator_in_diagram_order():
     station = _station()
-    sensors = [station.GetSubsystemByName(f"{n}.hall_sensor") for n in UNITS]
+    sensors = [_sensor(station, n) for n in UNITS]
     assert seeded_systems(station) == sensors
     context = station.CreateDefaultContext()
     set_random_context(station, context, RandomGenerator(11))
@@ -98,7 +119,7 @@ def test_drakes_own_set_random_context_does_not_reach_python_systems():
     station = _station(seed=5)
     context = station.CreateDefaultContext()
     station.SetRandomContext(context, RandomGenerator(11))
-    sensors = [station.GetSubsystemByName(f"{n}.hall_sensor") for n in UNITS]
+    sensors = [_sensor(station, n) for n in UNITS]
     assert [s.seed(s.GetMyContextFromRoot(context)) for s in sensors] == [5, 6]
 
 
@@ -170,21 +191,21 @@ def test_a_scenarios_random_seed_randomises_the_run_loop():
     scenario = load_scenario("teleop_right_unit", "{heart: false, engine: statics, duration: 0.05, units: "
                                                   "[{name: right_unit, anchor: puncture}, {name: left_unit, direction_W: [0, 1, 0]}]}")
     cd = MakeStation(scenario)
-    sensors = [cd.diagram.GetSubsystemByName(f"{n}.hall_sensor") for n in UNITS]
+    sensors = [_sensor(cd.diagram, n) for n in UNITS]
 
     def readings(random_seed):
         run = run_station(replace(cd, scenario=replace(scenario, random_seed=random_seed)), duration=scenario.duration)
         assert run.failure is None
-        return run.context, np.concatenate([s.get_output_port(0).Eval(s.GetMyContextFromRoot(run.context))
+        return run.context, np.concatenate([s.GetOutputPort("B_sensor_T").Eval(s.GetMyContextFromRoot(run.context))
                                             for s in sensors])
 
     context, default = readings(None)
     for k, sensor in enumerate(sensors):  # the magnets rest until the first key at 0.1 s
         ctx = sensor.GetMyContextFromRoot(context)
-        sample = int(ctx.get_discrete_state(1).GetAtIndex(0)) - 1
-        noise = np.random.default_rng((k, sample)).normal(scale=sensor.spec.noise_std_T, size=3)
+        sample = _last_sample(sensor, ctx)
+        noise = np.random.default_rng((k, sample)).normal(scale=_spec(sensor).noise_std_T, size=3)
         np.testing.assert_array_equal(default[3 * k:3 * k + 3],
-                                      quantise_reading(sensor.true_field(ctx) + noise, sensor.spec))
+                                      quantise_reading(sensor.true_field(ctx) + noise, _spec(sensor)))
     a, again, b = readings(3)[1], readings(3)[1], readings(4)[1]
     np.testing.assert_array_equal(a, again)
     assert not np.array_equal(a, b) and not np.array_equal(a, default)

@@ -181,9 +181,13 @@ UNIT_8_BALLS = ("{n_balls: 8, uniform_field: [0.0, 0.0, 0.0], units: [{name: rig
 def test_station_with_units_has_named_systems_and_wiring(heart):
     cd = MakeStation(load_scenario("teleop_two_units"), heart=heart)
     names = {s.get_name() for s in cd.diagram.GetSystems()}
+    for unit in ("right_unit", "left_unit"):  # each unit one compiled system (tests/test_compiled_units.py)
+        assert {f"{unit}.{part}" for part in ("unit", "teleoperation", "joystick", "mode_command")} <= names
+    composed = MakeStation(load_scenario("teleop_two_units", "{unit_systems: python}"), heart=heart)
     for unit in ("right_unit", "left_unit"):
         assert {f"{unit}.{part}" for part in ("magnet", "drive", "hall_sensor", "estimator", "controller",
-                                              "teleoperation", "mode_switch", "joystick", "mode_command")} <= names
+                                              "teleoperation", "mode_switch", "joystick", "mode_command")} <= {
+            s.get_name() for s in composed.diagram.GetSystems()}
     assert {"feeder", "feeder_interface", "magnet_states", "magnetic_wrench"} <= names
     # The feeder plays the insertion ramp itself; the plant reads its length at every step, so it
     # steps alone (with the quasi-static engine: in batches, tests/test_actuation_speed_identical.py).
@@ -332,20 +336,33 @@ def test_feeder_plays_the_insertion_ramp():
     np.testing.assert_allclose(p1[0] - p0[0], [s1 - s0, 0.0, 0.0], atol=5e-6)
 
 
-def test_every_unit_option_is_reachable_from_the_scenario():
+@pytest.mark.parametrize("unit_systems", ["compiled", "python"])
+def test_every_unit_option_is_reachable_from_the_scenario(unit_systems):
     """The scenario's unit fields reach the unit's systems (they were StationOptions-only):
     slip in the magnet, the printed wheel map and the gain in the controller, no cross-talk."""
-    scenario = load_scenario("teleop_two_units")
+    from ballchain.drake_models.kernels import actuation as K
+
+    scenario = load_scenario("teleop_two_units", f"{{unit_systems: {unit_systems}}}")
     u = scenario.units[0]
     u.slip, u.wheel_map, u.controller_gain = 0.05, "paper", 2.0
     u.sensors_see_other_units = u.estimator_compensates_other_units = False
     cd = MakeStation(scenario.validate())
     right, left = cd.units["right_unit"], cd.units["left_unit"]
-    assert right.config.name == "right_unit" and right.magnet._slip == 0.05 and left.magnet._slip == 0.0
-    assert right.controller._K == 2.0 and left.controller._K == 4.0
-    assert right.controller._to_wheels is not right.controller._g.wheel_speeds  # the printed map
-    assert [p.get_name() for p in (right.sensor.get_input_port(i) for i in range(right.sensor.num_input_ports()))] == ["X_WM"]
-    assert "X_WM_right_unit" in [left.sensor.get_input_port(i).get_name() for i in range(left.sensor.num_input_ports())]
+    inputs = lambda system: [system.get_input_port(i).get_name() for i in range(system.num_input_ports())]
+    assert right.config.name == "right_unit"
+    if unit_systems == "compiled":
+        c_right, c_left = right.magnet._constants[1], left.magnet._constants[1]
+        assert c_right[K.C_SLIP] == 0.05 and c_left[K.C_SLIP] == 0.0
+        assert c_right[K.C_GAIN] == 2.0 and c_left[K.C_GAIN] == 4.0
+        assert c_right[K.C_PAPER_MAP] == 1.0 and c_left[K.C_PAPER_MAP] == 0.0  # the printed map
+        assert inputs(right.sensor) == ["omega_teleop_W", "mode"]
+        assert "q_WM_right_unit" in inputs(left.sensor)
+    else:
+        assert right.magnet._slip == 0.05 and left.magnet._slip == 0.0
+        assert right.controller._K == 2.0 and left.controller._K == 4.0
+        assert right.controller._to_wheels is not right.controller._g.wheel_speeds  # the printed map
+        assert inputs(right.sensor) == ["X_WM"]
+        assert "X_WM_right_unit" in inputs(left.sensor)
     with pytest.raises(UserInputError, match=r"units\[0\].slip must be in \[0, 1\)"):
         load_scenario("teleop_right_unit", "{units: [{name: right_unit, slip: 1.5}]}")
 

@@ -136,7 +136,8 @@ def test_a_prebuilt_field_source_replaces_the_scenarios_field_and_not_both():
 
 def _unit_wiring(diagram, names) -> set:
     """The connections between the units' own systems: {(source, output, destination, input)}."""
-    parts = (".magnet", ".drive", ".hall_sensor", ".estimator", ".controller", ".teleoperation", ".mode_switch")
+    parts = (".magnet", ".drive", ".hall_sensor", ".estimator", ".controller", ".teleoperation", ".mode_switch",
+             ".unit")
     ours = {f"{n}{p}" for n in names for p in parts}
     edges = set()
     for (dst, i), (src, o) in diagram.connection_map().items():
@@ -146,19 +147,26 @@ def _unit_wiring(diagram, names) -> set:
     return edges
 
 
-def test_the_actuation_only_diagram_wires_the_units_as_the_station_does():
+@pytest.mark.parametrize("unit_systems", ["compiled", "python"])
+def test_the_actuation_only_diagram_wires_the_units_as_the_station_does(unit_systems):
     """One unit step (``actuation_station.add_unit_systems``): the units of the full station and
     those of the actuation-only diagram built from the same unit configs have the same wiring
-    (each loop closed, each Hall sensor seeing and each estimator subtracting the other unit)."""
+    (each loop closed, each Hall sensor seeing and each estimator subtracting the other unit:
+    the composed systems through the other magnet's pose, one ``ActuationUnit`` through its
+    quaternion)."""
     from ballchain.systems.actuation_station import StationOptions, make_actuation_station
 
-    st = MakeStation(load_scenario("teleop_two_units"))
+    st = MakeStation(load_scenario("teleop_two_units", f"{{unit_systems: {unit_systems}}}"))
     names = list(st.units)
     configs = [st.units[n].config for n in names]
-    hardware = make_actuation_station(configs, StationOptions())
+    hardware = make_actuation_station(configs, StationOptions(compiled_units=unit_systems == "compiled"))
     station_edges, hardware_edges = _unit_wiring(st.diagram, names), _unit_wiring(hardware, names)
     assert station_edges == hardware_edges
     cross = {e for e in station_edges if e[0].split(".")[0] != e[2].split(".")[0]}
+    if unit_systems == "compiled":
+        assert {(e[2].split(".")[1], e[3]) for e in cross} == {("unit", "q_WM_left_unit"), ("unit", "q_WM_right_unit")}
+        assert ("right_unit.teleoperation", "omega_desired_W", "right_unit.unit", "omega_teleop_W") in station_edges
+        return
     assert {(e[2].split(".")[1], e[3]) for e in cross} == {
         ("hall_sensor", "X_WM_left_unit"), ("estimator", "X_WM_left_unit"),
         ("hall_sensor", "X_WM_right_unit"), ("estimator", "X_WM_right_unit")}

@@ -9,7 +9,7 @@ from ballchain.drake_models.dipole import K_DIPOLE, dipole_field
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.omniwheel import OmniWheelGeometry
 from ballchain.drake_models.params import BallChain, CylinderMagnet
-from ballchain.systems.actuation_station import StationOptions, make_actuation_station, neutral_direction
+from ballchain.systems.actuation_station import StationOptions, make_actuation_station, neutral_direction, unit_system
 from ballchain.systems.feeder import Feeder, FeederSpec
 from ballchain.systems.hall_sensor import DipoleDirectionEstimator
 from ballchain.systems.omni_wheel_drive import OmniWheelDrive, StepperSpec
@@ -513,7 +513,7 @@ def test_two_unit_station_ports_superposition_and_teleop_rotation():
     station.GetInputPort("right_unit.joystick").FixValue(ctx, [0.0, 0.0, 1.0])  # turn about +z
     station.GetInputPort("left_unit.joystick").FixValue(ctx, np.zeros(3))
     station.GetInputPort("feeder.v_insert_cmd").FixValue(ctx, [0.0])
-    mag_r = station.GetSubsystemByName("right_unit.magnet")
+    mag_r = unit_system(station, "right_unit", "magnet")
     m0 = np.array([1.0, 0.0, 0.0])
     mag_r.set_orientation(mag_r.GetMyMutableContextFromRoot(ctx), rotation_with_z_along(m0))
     # Superposition: the exported total field is the sum of both units' MagnetSources.
@@ -572,7 +572,7 @@ def test_two_unit_station_reconfigures_both_units():
     for n, m0 in starts.items():
         station.GetInputPort(f"{n}.mode").FixValue(ctx, [1.0])
         station.GetInputPort(f"{n}.joystick").FixValue(ctx, np.zeros(3))
-        mag = station.GetSubsystemByName(f"{n}.magnet")
+        mag = unit_system(station, n, "magnet")
         mag.set_orientation(mag.GetMyMutableContextFromRoot(ctx), rotation_with_z_along(m0))
     Simulator(station, ctx).AdvanceTo(3.0)
     for n in starts:
@@ -588,7 +588,7 @@ def test_station_tip_frame_teleoperation_turns_the_field_at_the_tip():
     station = make_actuation_station([right_unit(sensor_noise=False, teleop_frame="tip", teleop_dead_band=0.0)], opt)
     assert {"right_unit.p_WT", "right_unit.tip_direction_W"} <= set(port_names(station, "in"))
     ctx = station.CreateDefaultContext()
-    mag = station.GetSubsystemByName("right_unit.magnet")
+    mag = unit_system(station, "right_unit", "magnet")
     mag.set_orientation(mag.GetMyMutableContextFromRoot(ctx), rotation_with_z_along([-1.0, 0.0, 0.0]))
     B0 = station.GetOutputPort("B_points_W").Eval(ctx)
     np.testing.assert_allclose(B0 / np.linalg.norm(B0), [1.0, 0.0, 0.0], atol=1e-12)  # neutral: along feed

@@ -22,7 +22,7 @@ from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.vectors import angle_between
 from ballchain.experiments._result import Result
-from ballchain.systems.actuation_station import StationOptions, make_actuation_station
+from ballchain.systems.actuation_station import StationOptions, make_actuation_station, unit_system
 from ballchain.systems.rotating_magnet_unit import rotation_from_quaternion
 from ballchain.systems.unit_config import MagnetUnitConfig, right_unit
 
@@ -95,9 +95,9 @@ def run_reconfiguration(
     context = diagram.CreateDefaultContext()
     diagram.GetInputPort(f"{n}.joystick").FixValue(context, np.zeros(3))
     diagram.GetInputPort(f"{n}.mode").FixValue(context, [1.0])
-    magnet = diagram.GetSubsystemByName(f"{n}.magnet")
+    magnet = unit_system(diagram, n, "magnet")
     magnet.set_orientation(magnet.GetMyMutableContextFromRoot(context), R_WM0)
-    m_c = diagram.GetSubsystemByName(f"{n}.controller").m_c_W
+    m_c = unit_system(diagram, n, "controller").m_c_W
     m_port = diagram.GetOutputPort(f"{n}.m_W")
     done_port = diagram.GetOutputPort(f"{n}.done")
     meas_port = diagram.GetOutputPort(f"{n}.angle_error")
@@ -173,7 +173,7 @@ def run_reconfiguration_study(
     unit = right_unit(model=field_model, slip=slip, sensor_noise=noise, wheel_map=wheel_map)
     base = StationOptions()
     # The neutral direction the controller is built with (same computation as in the station).
-    m_c = make_actuation_station([unit], base).GetSubsystemByName(f"{unit.name}.controller").m_c_W
+    m_c = unit_system(make_actuation_station([unit], base), unit.name, "controller").m_c_W
     starts = list(random_rotations(runs, seed))
     starts[0] = rotation_with_z_along(-m_c)  # exactly antiparallel: the law's stall point
     finals, times, converged = [], [], 0
