@@ -39,8 +39,10 @@ ACTUATION = {
     "ballchain.systems.reconfiguration": ("ReconfigurationController",),
     "ballchain.systems.teleoperation": ("TeleoperationMapper", "ModeSwitch"),
     "ballchain.systems.feeder": ("Feeder",),
+    "ballchain.systems.actuation_unit": ("ActuationUnit",),
 }
-CALLBACK_PREFIXES = ("_calc", "_update", "_sample", "_publish", "DoCalcTimeDerivatives", "__call__")
+CALLBACK_PREFIXES = ("_calc", "_update", "_sample", "_initial_sample", "_publish", "DoCalcTimeDerivatives",
+                     "__call__")
 
 
 class ExclusiveTimer:
