@@ -88,6 +88,12 @@ class DipoleFieldAtPoint:
         self._inv_r, self._inv_r3 = float(inv_r[0]), float((inv_r**3)[0])
         self._r3 = (3.0 * r)[0].tolist()
 
+    @property
+    def law_constants(self) -> np.ndarray:
+        """(8,) what a call reads besides the moment, ``(3 r, r, 1/|r|, 1/|r|^3)``: the compiled
+        form of this law (``kernels.actuation.dipole_field``) takes them."""
+        return np.array([*self._r3, *self._r[0].tolist(), self._inv_r, self._inv_r3])
+
     def __call__(self, m: np.ndarray) -> np.ndarray:
         """(3,) flux density [T] of the moment ``m`` (3,) float [A m^2] (finite: the caller's)."""
         inv_r, inv_r3 = self._inv_r, self._inv_r3

@@ -68,6 +68,16 @@ class FieldInversion:
         self._scale = dist**3 / K_DIPOLE
         self._M = dipole_matrix_inverse(r / dist)
 
+    @property
+    def scale(self) -> float:
+        """``|r|^3 / k`` [A m^2 / T]."""
+        return self._scale
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """A copy of ``(3/2) u u^T - I`` (3, 3), u = r / |r|."""
+        return self._M.copy()
+
     def moment(self, B: np.ndarray) -> np.ndarray:
         """The dipole (..., 3) [A m^2] that makes the field B (..., 3) [T] at the offset."""
         return self._scale * np.einsum("ij,...j->...i", self._M, B)

@@ -234,6 +234,17 @@ class FieldAtPoint:
         self._dipole = DipoleFieldAtPoint(self._p_W - self._p_WM) if dipole else None
         self._moment = magnet.dipole_moment
 
+    @property
+    def dipole(self) -> DipoleFieldAtPoint | None:
+        """The point-dipole law a call evaluates (with the moment ``moment * R_WM[:, 2]``), or None
+        when a call evaluates the magnet's own model (the exact one, or within its reach)."""
+        return self._dipole
+
+    @property
+    def moment(self) -> float:
+        """The magnet's dipole moment [A m^2]."""
+        return self._moment
+
     def __call__(self, R_WM: np.ndarray) -> np.ndarray:
         """(3,) flux density [T] at the point with the magnet at orientation R_WM, a rotation
         matrix (3, 3) of floats (a magnet unit's state)."""

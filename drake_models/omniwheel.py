@@ -127,6 +127,11 @@ class OmniWheelGeometry:
     def _A_inv(self) -> np.ndarray:
         return np.linalg.inv(self.A)
 
+    @property
+    def A_inv(self) -> np.ndarray:
+        """A copy of ``A^-1`` (3, 3), the forward map's matrix (``sphere_angular_velocity``)."""
+        return self._A_inv.copy()
+
     def rolling_residual(self, omega_a: np.ndarray, omega_w: np.ndarray) -> np.ndarray:
         """Slip velocity along each wheel's driving direction (..., 3) [m/s].
 
@@ -163,6 +168,11 @@ def paper_forward_map(omega_w: np.ndarray, geometry: OmniWheelGeometry | None = 
     """The paper's printed forward map ``omega_a = (rho_a/rho_w) A_paper omega_w`` (for comparison only)."""
     g = geometry or OmniWheelGeometry()
     return g.ratio * np.einsum("ij,...j->...i", PAPER_A, np.asarray(omega_w, dtype=float))
+
+
+def paper_inverse_matrix() -> np.ndarray:
+    """A copy of the paper's printed ``A^-1`` (3, 3), the matrix of ``paper_wheel_speeds``."""
+    return _PAPER_A_INV.copy()
 
 
 def paper_wheel_speeds(omega_a: np.ndarray, geometry: OmniWheelGeometry | None = None) -> np.ndarray:

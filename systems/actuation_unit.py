@@ -47,15 +47,14 @@ from ballchain.drake_models.dipole_inversion import FieldInversion
 from ballchain.drake_models.errors import UserInputError, check_finite_input
 from ballchain.drake_models.field_sources import FieldAtPoint, MagnetSource
 from ballchain.drake_models.kernels import actuation as K
-from ballchain.drake_models.omniwheel import _PAPER_A_INV
+from ballchain.drake_models.omniwheel import paper_inverse_matrix
 from ballchain.drake_models.vectors import angle_between, perpendicular_axis
 from ballchain.systems.hall_sensor import HallSensorSpec
 from ballchain.systems.omni_wheel_drive import StepperSpec
 from ballchain.systems.randomness import SampleGenerators, SeededLeafSystem
+from ballchain.systems.reconfiguration import ANTIPARALLEL_DEG
 from ballchain.systems.rotating_magnet_unit import quaternion_from_rotation
 from ballchain.systems.unit_config import MagnetUnitConfig
-
-ANTIPARALLEL_DEG = 5.0  # ReconfigurationController's default cone around -m_c [deg]
 
 _kernels_ready = False  # kernels.actuation.warm_up has run in this process
 
@@ -78,15 +77,15 @@ def compilable(unit: MagnetUnitConfig, others: Sequence[MagnetUnitConfig], senso
     if unit.estimator_compensates_other_units:
         for o in others:
             d = replace(o, model="dipole").check_placed()
-            if FieldAtPoint(d.magnet, d.p_WM, d.model, unit.p_WS)._dipole is None:
+            if FieldAtPoint(d.magnet, d.p_WM, d.model, unit.p_WS).dipole is None:
                 return False
     return True
 
 
 def _dipole_constants(field: FieldAtPoint) -> np.ndarray:
-    """(9,) the dipole law's constants of a ``FieldAtPoint`` (``kernels.actuation``'s sources)."""
-    d = field._dipole
-    return np.array([*d._r3, *d._r[0].tolist(), d._inv_r, d._inv_r3, float(field._moment)])
+    """(9,) the dipole law's constants of a ``FieldAtPoint`` and the moment (``kernels.actuation``'s
+    sources)."""
+    return np.append(field.dipole.law_constants, float(field.moment))
 
 
 class ActuationUnit(SeededLeafSystem):
@@ -161,15 +160,15 @@ class ActuationUnit(SeededLeafSystem):
         c[K.C_RATIO], c[K.C_SLIP], c[K.C_DT] = g.ratio, u.slip, self._period
         c[K.C_STEP], c[K.C_DV] = self._microstep_angle, float(stepper.max_acceleration * stepper.update_period)
         c[K.C_MAX_SPEED], c[K.C_GAIN], c[K.C_SIN_CONE] = stepper.max_speed, u.controller_gain, sin_cone
-        c[K.C_RANGE], c[K.C_INV_SCALE], c[K.C_PAPER_MAP] = spec.range_T, inversion._scale, u.wheel_map == "paper"
-        maps = np.ascontiguousarray(np.stack([g.A, g._A_inv, _PAPER_A_INV, inversion._M]), dtype=float)
+        c[K.C_RANGE], c[K.C_INV_SCALE], c[K.C_PAPER_MAP] = spec.range_T, inversion.scale, u.wheel_map == "paper"
+        maps = np.ascontiguousarray(np.stack([g.A, g.A_inv, paper_inverse_matrix(), inversion.matrix]), dtype=float)
         vec = np.array([self._m_c, perpendicular_axis(self._m_c), np.asarray(spec.lsb_T, dtype=float)])
         # The fields at the sensor: the own magnet's and each other's seen (the HallSensor's
         # FieldAtPoint each); the dipole law's constants when it is a dipole there, else the
         # field is computed in Python (the exact model) and handed in.
         self._fields = [FieldAtPoint(m.magnet, m.p_WM, m.model, u.p_WS) for m in (u, *self._others)]
-        self._use_given = np.array([f._dipole is None for f in self._fields])
-        sources = np.array([_dipole_constants(f) if f._dipole is not None else np.zeros(9) for f in self._fields])
+        self._use_given = np.array([f.dipole is None for f in self._fields])
+        sources = np.array([_dipole_constants(f) if f.dipole is not None else np.zeros(9) for f in self._fields])
         self._last_fields: list[tuple[bytes, np.ndarray] | None] = [None] * len(self._fields)
         compensate = self._others if u.estimator_compensates_other_units else ()
         comp = [FieldAtPoint(d.magnet, d.p_WM, d.model, u.p_WS)

@@ -38,6 +38,9 @@ from ballchain.systems.teleoperation import ModeSwitch
 from ballchain.systems.unit_config import MagnetUnitConfig
 
 
+ANTIPARALLEL_DEG = 5.0  # the default half-angle of the stall fix's cone around -m_c [deg]
+
+
 class ReconfigurationController(LeafSystem):
     """Closed-loop return of the magnet's dipole to the neutral direction ``m_c``.
 
@@ -65,7 +68,7 @@ class ReconfigurationController(LeafSystem):
         gain: float = MagnetUnitConfig.controller_gain,
         max_wheel_speed: float = 2.0 * np.pi,
         tolerance_deg: float = MagnetUnitConfig.tolerance_deg,
-        antiparallel_deg: float = 5.0,
+        antiparallel_deg: float = ANTIPARALLEL_DEG,
         period: float = 0.01,
         geometry: OmniWheelGeometry | None = None,
         wheel_map: str = MagnetUnitConfig.wheel_map,
