@@ -29,9 +29,8 @@ from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import Adder
 
 from ballchain.drake_models.dipole_inversion import neutral_direction
-from ballchain.drake_models.arg_checks import (as_vector, require_bool, require_choice, require_int, require_positive,
-                                               require_type)
-from ballchain.drake_models.errors import UserInputError, check_in, short_repr
+from ballchain.drake_models.arg_checks import as_vector, require_bool, require_choice, require_int, require_type
+from ballchain.drake_models.errors import UserInputError, short_repr
 from ballchain.drake_models.params import BallChain
 from ballchain.systems.feeder import Feeder, FeederSpec
 from ballchain.systems.hall_sensor import DipoleDirectionEstimator, HallSensor, HallSensorSpec
@@ -292,7 +291,7 @@ def make_actuation_station(
         n = unit.name
         systems = magnets[n]
         magnet, drive, sensor, estimator = systems.magnet, systems.drive, systems.sensor, systems.estimator
-        controller, teleop, switch = systems.controller, systems.teleop, systems.switch
+        controller, teleop = systems.controller, systems.teleop
         builder.ExportInput(teleop.GetInputPort("joystick"), f"{n}.joystick")
         mode_inputs = systems.mode_inputs
         builder.ExportInput(mode_inputs[0], f"{n}.mode")

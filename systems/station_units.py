@@ -219,7 +219,7 @@ def add_units(builder, scenario: ChainScenario, configs: list[MagnetUnitConfig],
     for u, m_c, m0 in zip(configs, m_neutral, m_initial):
         n = u.name
         systems = unit_systems[n]
-        teleop, switch = systems.teleop, systems.switch
+        teleop = systems.teleop
         if u.teleop_frame == "tip":
             if tip_observer is None:
                 raise UserInputError(f"unit {n!r}: teleop_frame 'tip' needs the tip's pose (a tip observer)")

@@ -58,8 +58,9 @@ def test_the_magnets_turn_and_rotation_are_the_python_systems():
         assert np.array_equal(K.normalised(turned), reference / _norm(reference))
         qn = reference / _norm(reference)
         assert np.array_equal(K.rotation(qn), RotationMatrix(Quaternion(qn)).matrix())
-    q = RNG.normal(size=4)
-    assert K.turned(q, np.zeros(3), 0.005) is not None and np.array_equal(K.turned(q, np.zeros(3), 0.005), q)
+    q = RNG.normal(size=4)  # no turn: a copy of q (never a view of the read-only state)
+    still = K.turned(q, np.zeros(3), 0.005)
+    assert np.array_equal(still, q) and not np.shares_memory(still, q)
 
 
 def test_the_field_at_the_sensor_and_the_adc_are_the_python_laws():
