@@ -12,6 +12,7 @@ import shutil
 import tempfile
 import threading
 import time
+import traceback
 from pathlib import Path
 
 import numpy as np
@@ -56,17 +57,34 @@ def _shots() -> Path:
     return Path(tempfile.mkdtemp(prefix="live_shots_"))
 
 
-def _wait(condition, what: str, deadline: float = DEADLINE, poll: float = 0.1, describe=None):
+def _wait(condition, what: str, deadline: float = DEADLINE, poll: float = 0.1, describe=None, ended=None):
     """``condition()`` once it is true; past the deadline an AssertionError naming ``what``, with
-    ``describe()`` (what the test saw last) when given."""
+    ``describe()`` (what the test saw last) when given. ``ended()``, when given, says why the
+    session behind the page can no longer make the condition true (None while it runs): then
+    the AssertionError comes at once, with that reason, instead of at the deadline."""
     end = time.monotonic() + deadline
     while time.monotonic() < end:
         value = condition()
         if value:
             return value
+        gone = None if ended is None else ended()
+        if gone:
+            raise AssertionError(f"waiting for {what}: {gone}")
         time.sleep(poll)
     seen = "" if describe is None else f"; {describe()}"
     raise AssertionError(f"timed out ({deadline:g} s) waiting for {what}{seen}")
+
+
+def _session_ended(thread: threading.Thread, result: dict) -> str | None:
+    """Why the live session's thread is no longer running (its exception with the traceback, or
+    how it ended), or None while it runs."""
+    if thread.is_alive():
+        return None
+    error = result.get("error")
+    if error is not None:
+        return "the live session raised " + "".join(traceback.format_exception(error))
+    live = result.get("live")
+    return f"the live session ended ({None if live is None else live.ended}, stops {getattr(live, 'stops', None)})"
 
 
 def _panel_colour(page) -> np.ndarray:
@@ -106,54 +124,60 @@ def test_a_person_steers_the_chain_in_the_browser_into_a_vein_and_starts_over_af
 
     thread = threading.Thread(target=live, daemon=True)
     thread.start()
+
+    def wait(condition, what: str, **kw):
+        """``_wait``, ending at once when the session has died; on a timeout the last lines too."""
+        kw.setdefault("describe", lambda: f"the last lines: {lines[-4:]}")
+        return _wait(condition, what, ended=lambda: _session_ended(thread, result), **kw)
+
     shots = _shots()
     with playwright_api.sync_playwright() as pw:
         browser = pw.chromium.launch(executable_path=CHROMIUM,
                                      args=["--use-gl=swiftshader", "--enable-unsafe-swiftshader"])
         try:
             page = browser.new_page(viewport=VIEW)
-            url = _wait(lambda: next((ln.split()[1] for ln in lines if ln.startswith("Meshcat: ")), None)
-                        or ("error" in result and pytest.fail(repr(result["error"]))), "the URL", deadline=120)
-            _wait(lambda: any(ln.startswith("waiting for a browser") for ln in lines), "the wait for a browser")
+            url = wait(lambda: next((ln.split()[1] for ln in lines if ln.startswith("Meshcat: ")), None),
+                       "the URL", deadline=120)
+            wait(lambda: any(ln.startswith("waiting for a browser") for ln in lines), "the wait for a browser")
             assert not any(ln.startswith("t = ") for ln in lines), "the clock started before the page connected"
             page.goto(url)
             tip = lambda: page.evaluate(JS_BALL, f"ball_{n}")  # noqa: E731
-            p0 = np.array(_wait(tip, "the chain on the page"))
-            _wait(lambda: any(ln.startswith("t = ") for ln in lines), "the clock to start")
+            p0 = np.array(wait(tip, "the chain on the page"))
+            wait(lambda: any(ln.startswith("t = ") for ln in lines), "the clock to start")
             # The page binds a key once it has the button's control: wait for all of them.
-            _wait(lambda: page.evaluate("() => Object.keys(viewer.keydown_callbacks).length") >= len(KEY_MAP),
-                  "the page to bind the keys")
+            wait(lambda: page.evaluate("() => Object.keys(viewer.keydown_callbacks).length") >= len(KEY_MAP),
+                 "the page to bind the keys")
             page.mouse.click(5, VIEW["height"] - 5)  # focus on the page (a click, no drag: the view stays)
             page.screenshot(path=shots / "01_start.png")
 
             # Feed at full speed (4 presses of ArrowUp): the chain moves and touches a target.
             for _ in range(4):
                 page.keyboard.press("ArrowUp")
-            _wait(lambda: np.linalg.norm(np.array(tip()) - p0) > 10e-3, "the tip to move 10 mm")
-            touched = _wait(lambda: page.evaluate(JS_TOUCHED), "a target to turn green")
+            wait(lambda: np.linalg.norm(np.array(tip()) - p0) > 10e-3, "the tip to move 10 mm")
+            touched = wait(lambda: page.evaluate(JS_TOUCHED), "a target to turn green")
             page.screenshot(path=shots / "02_target_green.png")
             assert touched
             # The chain all in: the feeder's readout says ball 1 stopped while the command is full.
-            _wait(lambda: any("feeder: ball 1 +0.0 mm/s (command +20.0)" in ln for ln in lines),
-                  "ball 1 to stop at full insertion (its actual speed, not the command)")
+            wait(lambda: any("feeder: ball 1 +0.0 mm/s (command +20.0)" in ln for ln in lines),
+                 "ball 1 to stop at full insertion (its actual speed, not the command)")
 
             # Turn the magnet about world y (W, full stick) until the tip is down a vein.
             # A person sees the stop on the readout before steering: Meshcat keeps no order between
             # the clicks read in one period, and a Space read with the W presses centres the stick
             # (the stop wins), which a lagging simulation in CI made happen.
             page.keyboard.press("Space")
-            _wait(lambda: "(command +0.0)" in lines[-1], "the feeder's command to read zero after Space")
+            wait(lambda: "(command +0.0)" in lines[-1], "the feeder's command to read zero after Space")
             for _ in range(4):
                 page.keyboard.press("KeyW")
-            _wait(lambda: heart.in_veins(np.array(tip()))[0], "the tip to go down a vein",
-                  describe=lambda: f"the tip on the page at {np.round(np.array(tip()) * 1e3, 1).tolist()} mm, "
-                                   f"the last status lines: {lines[-3:]}")
+            wait(lambda: heart.in_veins(np.array(tip()))[0], "the tip to go down a vein",
+                 describe=lambda: f"the tip on the page at {np.round(np.array(tip()) * 1e3, 1).tolist()} mm, "
+                                  f"the last status lines: {lines[-3:]}")
             page.keyboard.press("Space")
             # The session goes on after the tip entered the vein (the watchdog's old rule stopped it
             # there). With the stick released the tip may slide back out within those 2 s of
             # real-time steering, so the check is the entry above and no stop after it.
             t_vein = float(_last_time(lines))
-            _wait(lambda: _last_time(lines) >= t_vein + 2.0, "2 s more of simulated time after the tip entered the vein")
+            wait(lambda: _last_time(lines) >= t_vein + 2.0, "2 s more of simulated time after the tip entered the vein")
             assert thread.is_alive() and not any(ln.startswith("stopped at") for ln in lines), "\n".join(lines)
             page.screenshot(path=shots / "03_tip_in_vein.png")
             calm = _panel_colour(page)
@@ -162,11 +186,11 @@ def test_a_person_steers_the_chain_in_the_browser_into_a_vein_and_starts_over_af
             # of the sheath has escaped (the ellipsoid without the veins was a stand-in that
             # depended on how far down the vein the real-time steering had taken the tip).
             heart.contains = lambda p: np.zeros(len(np.atleast_2d(p)), dtype=bool)
-            _wait(lambda: any(ln.startswith("paused") for ln in lines), "the pause")
+            wait(lambda: any(ln.startswith("paused") for ln in lines), "the pause")
             stop = next(ln for ln in lines if ln.startswith("stopped at"))
             assert "escaped the heart" in stop, stop
-            red = _wait(lambda: (lambda c: c.tolist() if c[0] > 2 * c[1] + 20 else None)(_panel_colour(page)),
-                        "the red pause panel on the page")
+            red = wait(lambda: (lambda c: c.tolist() if c[0] > 2 * c[1] + 20 else None)(_panel_colour(page)),
+                       "the red pause panel on the page")
             page.screenshot(path=shots / "04_paused.png")
             assert thread.is_alive()
             assert calm[0] < 2 * calm[1] + 20 < red[0]  # grey while running, red when paused
@@ -174,12 +198,13 @@ def test_a_person_steers_the_chain_in_the_browser_into_a_vein_and_starts_over_af
 
             # R starts over: the chain back where it started, the panel grey again.
             page.keyboard.press("KeyR")
-            _wait(lambda: "started over" in lines, "the restart")
+            wait(lambda: "started over" in lines, "the restart")
             # (The page redraws the chain after the restart: the tip is missing for a moment.)
-            _wait(lambda: (lambda p: p is not None and np.linalg.norm(np.array(p) - p0) < 1e-3)(tip()),
-                  "the chain back at the start")
-            _wait(lambda: (lambda c: c.tolist() if c[0] < 2 * c[1] + 20 else None)(_panel_colour(page)),
-                  "the grey readout panel again")
+            wait(lambda: (lambda p: p is not None and np.linalg.norm(np.array(p) - p0) < 1e-3)(tip()),
+                 "the chain back at the start",
+                 describe=lambda: f"the tip on the page at {tip()}, p0 {p0.tolist()}, the last status lines: {lines[-4:]}")
+            wait(lambda: (lambda c: c.tolist() if c[0] < 2 * c[1] + 20 else None)(_panel_colour(page)),
+                 "the grey readout panel again")
             page.screenshot(path=shots / "05_started_over.png")
 
             page.keyboard.press("Escape")
