@@ -980,6 +980,7 @@ class _LiveReadout:
             self.last_line = now
         self.last_wall, self.last_sim, self.last_ball_1 = now, t, ball_1
 
+
 def _wrap(text: str, width: int) -> list[str]:
     import textwrap
 
