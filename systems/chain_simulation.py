@@ -422,6 +422,14 @@ def _export_recording(cd: Station, meshcat, html: Path) -> None:
     atomic_write_text(html, captioned_replay(meshcat.StaticHtml(), replay_caption(cd.scenario)))
 
 
+def _keep_replay(cd: Station, meshcat, html: Path, progress: str | None, root) -> None:
+    """After Ctrl-C (or a stop signal): the replay recorded so far written (from the start: an
+    export the interrupt cut short left no file, the write being atomic), and the line saying so."""
+    _export_recording(cd, meshcat, html)
+    print(f"{progress or 'run'}: interrupted at t = {root.get_time():.4f} s; replay so far written "
+          f"to {html}", file=sys.stderr)
+
+
 def replay_caption(scenario: ChainScenario) -> str | None:
     """What a replay names besides the scene: the anatomy file it ran on (None: the built-in atrium)."""
     return f"anatomy: {Path(scenario.anatomy).name}" if scenario.anatomy else None
@@ -689,16 +697,18 @@ def run_station(cd: Station, *, duration: float, monitor: ChainMonitor | None = 
             failure = runner.advance_to(duration)
     except KeyboardInterrupt:  # Ctrl-C: keep the replay, stop
         if record:
-            _export_recording(cd, meshcat, html)
-            print(f"{progress or 'run'}: interrupted at t = {root.get_time():.4f} s; replay so far written "
-                  f"to {html}", file=sys.stderr)
+            _keep_replay(cd, meshcat, html, progress, root)
         raise
     finally:
         if bar is not None:
             bar.close()
     wall, cpu = time.perf_counter() - start, time.process_time() - cpu
     if record:
-        _export_recording(cd, meshcat, html)
+        try:
+            _export_recording(cd, meshcat, html)
+        except KeyboardInterrupt:  # Ctrl-C just after the run ended, while its replay was written
+            _keep_replay(cd, meshcat, html, progress, root)
+            raise
     return RunOutcome(root.get_time(), wall, cpu, failure, runner.stopped, runner.monitor, root, runner.simulator, cd)
 
 

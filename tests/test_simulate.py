@@ -100,6 +100,29 @@ def test_html_recording(tmp_path):
     assert len(text) > 10_000
 
 
+def test_ctrl_c_while_the_finished_runs_replay_is_written_keeps_the_replay(tmp_path, monkeypatch, capsys):
+    """Ctrl-C (or a stop signal) just after the run ended, while its replay was being written:
+    the replay is written all the same (the cut-short write left no file), one line says so and
+    the interrupt goes on (CI once signalled a short teleoperation task just as it ended)."""
+    from ballchain.systems import chain_simulation
+
+    export, calls = chain_simulation._export_recording, []
+
+    def interrupted_once(cd, meshcat, html):
+        calls.append(html)
+        if len(calls) == 1:
+            raise KeyboardInterrupt  # where the signal's handler would raise it
+        export(cd, meshcat, html)
+
+    monkeypatch.setattr(chain_simulation, "_export_recording", interrupted_once)
+    html = tmp_path / "run.html"
+    with pytest.raises(KeyboardInterrupt):
+        run_simulation(scenario=load_scenario("free_space_uniform_90deg", "{n_balls: 4}"), duration=0.01, html=html)
+    assert len(calls) == 2
+    assert html.read_text().rstrip().endswith("</html>")
+    assert "interrupted at t = 0.0100 s; replay so far written" in capsys.readouterr().err
+
+
 @pytest.mark.slow
 def test_monitor_names_the_escaped_ball_and_nan(heart):
     """The watchdog on hand-made states: a ball moved outside the heart, then a NaN."""
