@@ -39,6 +39,13 @@ JS_BALL = """name => {
   const p = new THREE_V(); found.object.getWorldPosition(p);
   return [p.x, -p.z, p.y];
 }"""
+# What the page holds, for a timeout's message: its websocket's state (1: open) and the number of
+# the visualizer's nodes (one per ball and part; none while the scene is being redrawn).
+JS_PAGE_STATE = """() => {
+  const vis = viewer.scene_tree.find(["drake", "visualizer"]);
+  return {socket: viewer.connection ? viewer.connection.readyState : null,
+          visualizer_nodes: Object.keys(vis.children).length};
+}"""
 JS_TOUCHED = """() => {
   const targets = viewer.scene_tree.find(["drake", "overlays", "targets"]);
   return Object.keys(targets.children).filter(k => {
@@ -202,7 +209,8 @@ def test_a_person_steers_the_chain_in_the_browser_into_a_vein_and_starts_over_af
             # (The page redraws the chain after the restart: the tip is missing for a moment.)
             wait(lambda: (lambda p: p is not None and np.linalg.norm(np.array(p) - p0) < 1e-3)(tip()),
                  "the chain back at the start",
-                 describe=lambda: f"the tip on the page at {tip()}, p0 {p0.tolist()}, the last status lines: {lines[-4:]}")
+                 describe=lambda: f"the tip on the page at {tip()}, p0 {p0.tolist()}, the page {page.evaluate(JS_PAGE_STATE)}, "
+                                  f"the last status lines: {lines[-4:]}")
             wait(lambda: (lambda c: c.tolist() if c[0] < 2 * c[1] + 20 else None)(_panel_colour(page)),
                  "the grey readout panel again")
             page.screenshot(path=shots / "05_started_over.png")
