@@ -82,6 +82,13 @@ def _wait(condition, what: str, deadline: float = DEADLINE, poll: float = 0.1, d
     raise AssertionError(f"timed out ({deadline:g} s) waiting for {what}{seen}")
 
 
+def _same_twice(read, apart: float = 0.2):
+    """``read()`` when two reads ``apart`` seconds apart agree (and are not None), else None."""
+    first = read()
+    time.sleep(apart)
+    return first if first is not None and read() == first else None
+
+
 def _session_ended(thread: threading.Thread, result: dict) -> str | None:
     """Why the live session's thread is no longer running (its exception with the traceback, or
     how it ended), or None while it runs."""
@@ -149,8 +156,12 @@ def test_a_person_steers_the_chain_in_the_browser_into_a_vein_and_starts_over_af
             assert not any(ln.startswith("t = ") for ln in lines), "the clock started before the page connected"
             page.goto(url)
             tip = lambda: page.evaluate(JS_BALL, f"ball_{n}")  # noqa: E731
-            p0 = np.array(wait(tip, "the chain on the page"))
+            wait(tip, "the chain on the page")
             wait(lambda: any(ln.startswith("t = ") for ln in lines), "the clock to start")
+            # Where the chain rests at the start, read twice 0.2 s apart: the page draws a redrawn
+            # scene message by message, each ball at the origin until its pose arrives, and the
+            # chain sits still until the first key.
+            p0 = np.array(wait(lambda: _same_twice(tip), "the chain at rest on the page"))
             # The page binds a key once it has the button's control: wait for all of them.
             wait(lambda: page.evaluate("() => Object.keys(viewer.keydown_callbacks).length") >= len(KEY_MAP),
                  "the page to bind the keys")
