@@ -644,7 +644,8 @@ def run_station(cd: Station, *, duration: float, monitor: ChainMonitor | None = 
     the watchdog (``monitor``), then the progress bar, then ``stop``. A failure of ``check`` or
     of the watchdog, or a RuntimeError / ValueError of the solver, ends the run with its message
     in ``RunOutcome.failure`` (no exception). On Ctrl-C the replay recorded so far is written to
-    ``html`` before the KeyboardInterrupt goes on. Neither ``check`` nor ``stop`` nor the
+    ``html`` before the KeyboardInterrupt goes on (also when it comes just after the run, while
+    the replay is being written). Neither ``check`` nor ``stop`` nor the
     watchdog changes the trajectory (they only read the state).
 
     Args:
