@@ -613,12 +613,14 @@ class Executor:
         return self
 
     def __exit__(self, *exc) -> None:
-        if self._own_client and self.client is not None:
-            self.client.close()
-            self.client = None
-        if self.cluster is not None:
-            self.cluster.close()
-            self.cluster = None
+        try:
+            if self._own_client and self.client is not None:
+                self.client.close()
+                self.client = None
+        finally:  # a stop while the client closes still closes the cluster (its worker processes)
+            if self.cluster is not None:
+                self.cluster.close()
+                self.cluster = None
 
 
 def _infrastructure_error(exc) -> bool:
@@ -712,22 +714,28 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
                disable=not progress)
     if not todo:  # everything done before: no cluster to start (the table and figure are redrawn)
         scheduler, workers, jobqueue, client = None, 0, None, None
-    with Executor(scheduler=scheduler, workers=workers, jobqueue=jobqueue, client=client,
-                  connect_timeout=connect_timeout) as ex:
-        try:
-            if ex.client is None:
-                for n, (k, p, s) in enumerate(todo, 1):
-                    rows[k] = run_point(spec.experiment, dataclasses.asdict(p), s)
-                    ran[0] += 1
-                    bar.update(1)
-                    save()
-                    if on_result:
-                        on_result(n, ex)
-            else:
-                resubmitted = _run_on_client(ex, spec.experiment, todo, rows, bar, save, on_result, ran)
-        except KeyboardInterrupt:
-            interrupted = True
-            save(force=True)  # before the cluster closes: a second Ctrl-C there must not cost the rows
+    ex = None
+    try:
+        with Executor(scheduler=scheduler, workers=workers, jobqueue=jobqueue, client=client,
+                      connect_timeout=connect_timeout) as ex:
+            try:
+                if ex.client is None:
+                    for n, (k, p, s) in enumerate(todo, 1):
+                        rows[k] = run_point(spec.experiment, dataclasses.asdict(p), s)
+                        ran[0] += 1
+                        bar.update(1)
+                        save()
+                        if on_result:
+                            on_result(n, ex)
+                else:
+                    resubmitted = _run_on_client(ex, spec.experiment, todo, rows, bar, save, on_result, ran)
+            except KeyboardInterrupt:
+                interrupted = True
+                save(force=True)  # before the cluster closes: a second Ctrl-C there must not cost the rows
+    except KeyboardInterrupt:
+        if ex is None:  # stopped while the cluster started: no point ran
+            raise
+        interrupted = True  # stopped while the cluster closed: the rows are written below all the same
     bar.close()
     save(force=True)
     table_rows = ordered()

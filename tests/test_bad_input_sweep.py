@@ -304,6 +304,39 @@ def test_an_interrupt_wrapped_by_compiled_code_stops_the_sweep(tmp_path, monkeyp
     assert [r["n_balls"] for r in read_table(tmp_path)] == [4]
 
 
+def test_a_stop_while_the_cluster_closes_keeps_every_finished_point(tmp_path, monkeypatch):
+    """Ctrl-C (or a stop signal) after the last point, while the executor closes (a LocalCluster
+    takes about a second): the table holds every point, not only the last periodic write, and
+    the sweep says it was interrupted (CI once signalled a 2-worker sweep just as it ended)."""
+    closed = []
+
+    def interrupted_close(self, *exc):
+        closed.append(True)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sweep, "WRITE_PERIOD", 1e9)  # no periodic write after the first point
+    monkeypatch.setattr(sweep.Executor, "__exit__", interrupted_close)
+    spec = load_spec("<test>", text="experiment: statics\ngrid: {n_balls: [4, 5, 6]}")
+    try:
+        result = run_sweep(spec, tmp_path, workers=0, progress=False, figure=False)
+    except KeyboardInterrupt:  # (not raised on: pytest would take it for the person's Ctrl-C)
+        pytest.fail(f"the stop escaped the sweep; the table holds {len(read_table(tmp_path))} of 3 points")
+    assert closed and result["interrupted"] and result["ran"] == 3
+    assert [r["n_balls"] for r in read_table(tmp_path)] == [4, 5, 6]
+    assert json.loads((tmp_path / "sweep.json").read_text())["interrupted"]
+
+
+def test_a_stop_while_the_cluster_starts_stops_the_sweep(tmp_path, monkeypatch):
+    """Ctrl-C while the executor starts: no point ran, the interrupt goes on."""
+
+    def interrupted_start(self):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sweep.Executor, "__enter__", interrupted_start)
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(load_spec("<test>", text=GOOD), tmp_path, workers=0, progress=False, figure=False)
+
+
 # 24 points that take long enough for a SIGINT a second after the first row to land mid-run: the
 # compiled solve's speed-up made 8-12 balls at 0.5 deg finish in about a second in all (the
 # signal then arrived after the end); 48-64 balls at 0.25 deg take about 25 s serially.

@@ -464,35 +464,41 @@ def test_a_stopped_teleop_keeps_its_replay(tmp_path):
     assert html.read_bytes().rstrip().endswith(b"</html>")
 
 
-SWEEP = """
+# 21 points of 48 balls, about 0.2-0.4 s each on one core: seconds left after the third for the
+# signal to land mid-run. 11 points of 12 balls took about 0.05 s each once the solve was
+# compiled: a signal sent after the third could land after the last one (CI, December 4th).
+SWEEP_ANGLES = list(range(80, 181, 5))
+SWEEP = f"""
 experiment: statics
 grid:
-  n_balls: [12]
-  field_angle_deg: [80.0, 90, 100, 110, 120, 130, 140, 150, 160, 170, 180]
-  step_deg: [0.5]
+  n_balls: [48]
+  field_angle_deg: {SWEEP_ANGLES}
+  step_deg: [0.25]
 """
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("workers", ["0", "2"])
 def test_a_stopped_sweep_keeps_every_finished_point_in_its_table(tmp_path, workers):
-    """SIGTERM after a few of 11 points: the table holds every point the run finished (the
-    progress bar's last count), not only those of the last periodic write."""
+    """SIGTERM after a few of 21 points: the table holds every point the run finished (the
+    progress bar's last count), not only those of the last periodic write. (A stop after the
+    last point, while the cluster closes: ``test_bad_input_sweep``.)"""
     from ballchain.sweep import read_table
 
+    n = len(SWEEP_ANGLES)
     spec, out, log = tmp_path / "spec.yaml", tmp_path / "sweep", tmp_path / "stderr.txt"
     spec.write_text(SWEEP)
     proc, err = _start(["sweep", str(spec), "--out", str(out), "--workers", workers, "--no-figure"], log)
     with err:
-        _wait_for_progress(log, proc, r"(\d+)/11 \[", at_least=3)
+        _wait_for_progress(log, proc, rf"(\d+)/{n} \[", at_least=3)
         proc.send_signal(signal.SIGTERM)
         stdout, _ = proc.communicate(timeout=300)
     text = log.read_text()
     assert proc.returncode == 143, text[-3000:]
     assert "interrupted: the table holds the points that finished" in stdout
-    finished = max(int(m) for m in re.findall(r"(\d+)/11 \[", text))
+    finished = max(int(m) for m in re.findall(rf"(\d+)/{n} \[", text))
     rows = read_table(out)
-    assert 3 <= finished < 11 and len(rows) == finished
+    assert 3 <= finished < n and len(rows) == finished
     assert all(r["error"] is None for r in rows)
 
 
