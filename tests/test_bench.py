@@ -113,3 +113,47 @@ def test_each_round_orders_the_cases_afresh():
     for case in _CASES:
         before = {order[order.index(case) - 1] if order.index(case) else None for order in rounds}
         assert len(before) > 1, (case, before)
+
+
+def _cold_floor():
+    spec = importlib.util.spec_from_file_location("cold_floor", REPO / "benchmarks" / "cold_floor.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    return script
+
+
+def test_cold_floor_splits_the_cold_solve_per_step_limit():
+    """``benchmarks/cold_floor.py``: each step limit's solve is the solver's own (0.5 rad, the
+    default, takes the canonical 7 iterations; 1.0 rad 5, docs/performance.md section 22), the
+    kernel's time is a part of the call's, and the kernel is unwrapped afterwards."""
+    import math
+
+    from ballchain.drake_models.field_sources import UniformField
+    from ballchain.drake_models.params import BallChain
+    from ballchain.optimization import compiled_model
+    from ballchain.optimization.statics import ChainStatics
+
+    kernel = compiled_model.newton
+    out = _cold_floor().run(repeats=1, max_steps=(0.5, 1.0), baseline_repeats=1)
+    assert compiled_model.newton is kernel
+    default = ChainStatics(BallChain(n_balls=16), method="newton").solve(UniformField.in_plane(23e-3, math.radians(90)))
+    rows = out["max_steps"]
+    assert set(rows) == {"0.5", "1"}
+    assert rows["0.5"]["iterations"] == default.iterations == 7 and rows["1"]["iterations"] == 5
+    assert rows["0.5"]["tip_m"] == [float(x) for x in default.positions[-1]]
+    for row in rows.values():
+        assert 0.0 < row["cold_kernel"] < row["cold"] and 0.0 < row["back_to_back_kernel"] < row["back_to_back"]
+        assert row["speedup"]["cold"] == pytest.approx(out["slsqp_cold_ms"] / row["cold"])
+    assert out["ms_for_700x"] == pytest.approx(out["slsqp_cold_ms"] / 700.0)
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["--max-steps", "0,1"], "--max-steps must be positive finite step limits [rad], got '0,1'"),
+    (["--max-steps", "a"], "--max-steps must be numbers separated by commas, got 'a'"),
+    (["--repeats", "0"], "--repeats must be >= 1, got 0"),
+])
+def test_cold_floor_bad_flags_exit_2_with_one_line(flags, message):
+    proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "cold_floor.py"), *flags],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr and message in proc.stderr
