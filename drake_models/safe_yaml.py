@@ -10,9 +10,12 @@ and refuses, as a one-line ``UserInputError`` naming ``where``:
 - any tag (``!!python/object``, ``!Foo``): the data is plain YAML;
 - text that is not YAML.
 
-Numbers are read as YAML 1.2 reads them: ``2.3e1``, ``1e-9``, ``.5`` and ``+1.`` are floats
-(PyYAML's YAML 1.1 resolver reads the first two as strings). Everything else is PyYAML's
-``SafeLoader``.
+Plain scalars are read as YAML 1.2's core schema reads them, not as PyYAML's YAML 1.1 resolver:
+``2.3e1``, ``1e-9``, ``.5`` and ``+1.`` are floats (YAML 1.1: the first two strings); ``010`` is
+10 (YAML 1.1: octal 8), ``0o17`` 15, ``0x10`` 16; ``1:30``, ``1_6``, ``0b11``, ``on``, ``yes``
+and ``2026-12-01`` are strings (YAML 1.1: 90, 16, 3, true, true and a date), which the schemas
+then refuse where they want a number or a boolean. Only ``true`` and ``false`` (also ``True``,
+``TRUE``, ``False``, ``FALSE``) are booleans. Everything else is PyYAML's ``SafeLoader``.
 
 ``load_typed(data, schema, where, defaults)`` builds a dataclass (or a pydrake config struct)
 from data that ``load_yaml`` returned, with pydrake's ``yaml_load_typed`` (the project's one
@@ -45,7 +48,7 @@ _BASE = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml's parser when b
 
 
 class _Loader(_BASE):
-    """SafeLoader with YAML 1.2 floats and duplicate-key refusal (tags stay unconstructable)."""
+    """SafeLoader with YAML 1.2's core schema (below) and duplicate-key refusal."""
 
     def construct_mapping(self, node, deep=False):
         if isinstance(node, MappingNode):
@@ -64,9 +67,29 @@ class _Loader(_BASE):
         return super().construct_mapping(node, deep)
 
 
-# Integers keep their resolver (it comes first); text that only YAML 1.2 reads as a float
-# reaches this one instead of falling through to a string.
+def _construct_int_1_2(loader, node):
+    """A YAML 1.2 core-schema integer: decimal (leading zeros are decimal), ``0o`` octal, ``0x`` hex."""
+    text = loader.construct_scalar(node)
+    if text.startswith("0o"):
+        return int(text[2:], 8)
+    if text.startswith("0x"):
+        return int(text[2:], 16)
+    return int(text, 10)
+
+
+# YAML 1.2's core schema in place of YAML 1.1's implicit booleans, integers, floats and dates
+# (https://yaml.org/spec/1.2.2/#1032-tag-resolution); integers first: "12" matches both.
+_YAML_1_1_ONLY = {f"tag:yaml.org,2002:{t}" for t in ("bool", "int", "float", "timestamp")}
+_Loader.yaml_implicit_resolvers = {first: [(tag, rx) for tag, rx in resolvers if tag not in _YAML_1_1_ONLY]
+                                   for first, resolvers in _BASE.yaml_implicit_resolvers.items()}
+_Loader.add_implicit_resolver("tag:yaml.org,2002:bool", re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"),
+                              list("tTfF"))
+_Loader.add_implicit_resolver("tag:yaml.org,2002:int", re.compile(r"^(?:[-+]?[0-9]+|0o[0-7]+|0x[0-9a-fA-F]+)$"),
+                              list("-+0123456789"))
 _Loader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_12, list("-+.0123456789"))
+_Loader.add_implicit_resolver("tag:yaml.org,2002:float",
+                              re.compile(r"^(?:[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$"), list("-+."))
+_Loader.add_constructor("tag:yaml.org,2002:int", _construct_int_1_2)
 
 
 class _Duplicate(Exception):

@@ -447,16 +447,24 @@ PLANT_CONFIG_BOUNDS = {  # MultibodyPlantConfig's numbers: (low, high, low open,
 }
 
 
-def parse_overrides(overrides: str | None) -> dict:
+def parse_overrides(overrides: str | dict | None) -> dict:
     """The ``--set`` inline YAML as a mapping checked against the schema ({} for None/empty).
+    From Python the overrides may also be a mapping (``plain_overrides``: numpy values welcome).
 
     Raises:
         UserInputError: it does not parse (or is too large, an alias bomb, has a duplicate key),
             is not a mapping, names an unknown field or gives a value of the wrong shape.
     """
-    if overrides is None or not str(overrides).strip():
+    if isinstance(overrides, dict):
+        data = plain_overrides(overrides)
+        check_yaml_schema(data, ChainScenario, "--set")
+        return data
+    if overrides is not None and not isinstance(overrides, str):
+        raise UserInputError(f"--set (overrides) must be inline YAML text or a mapping of scenario fields, "
+                             f"got {type(overrides).__name__}")
+    if overrides is None or not overrides.strip():
         return {}
-    data = load_yaml(str(overrides), "--set")
+    data = load_yaml(overrides, "--set")
     if data is None:
         return {}
     if not isinstance(data, dict):
@@ -464,6 +472,32 @@ def parse_overrides(overrides: str | None) -> dict:
                              f"'{{n_balls: 10}}', got {short_repr(overrides)}")
     check_yaml_schema(data, ChainScenario, "--set")
     return data
+
+
+def plain_overrides(data: dict, where: str = "--set", path: str = ""):
+    """Overrides given in Python as the plain data YAML reads: numpy scalars as Python numbers,
+    numpy arrays and tuples as lists, mappings with text keys.
+
+    Raises:
+        UserInputError: naming the field, for a key that is not text or a value that is not a
+            number, text, boolean, None, list or mapping.
+    """
+    if isinstance(data, dict):
+        out = {}
+        for key, value in data.items():
+            if not isinstance(key, str):
+                raise UserInputError(f"{where}: field names must be text, got {short_repr(key)}"
+                                     f"{f' in {path}' if path else ''}")
+            out[key] = plain_overrides(value, where, f"{path}.{key}" if path else key)
+        return out
+    if isinstance(data, (list, tuple, np.ndarray)):
+        return [plain_overrides(v, where, f"{path}[{i}]") for i, v in enumerate(data)]
+    if isinstance(data, np.generic):
+        data = data.item()
+    if data is None or isinstance(data, (bool, int, float, str)):
+        return data
+    raise UserInputError(f"{where}: {path or 'the overrides'} must be plain data (numbers, text, true/false, "
+                         f"lists, mappings), got {type(data).__name__}")
 
 
 def apply_overrides(scenario: ChainScenario, data: dict, where: str = "--set") -> ChainScenario:
@@ -477,7 +511,18 @@ def apply_overrides(scenario: ChainScenario, data: dict, where: str = "--set") -
     unit with a new name) starts from the defaults. So ``{units: [{teleop_omega_max: 1.0}]}``
     changes the first unit's speed and keeps its anchor, distance, direction and joystick, and
     ``{units: []}`` removes every unit.
+
+    Raises:
+        UserInputError: ``scenario`` is not a ChainScenario, or ``data`` not a mapping of
+            scenario fields (``plain_overrides``, ``check_yaml_schema``).
     """
+    if not isinstance(scenario, ChainScenario):
+        raise UserInputError(f"apply_overrides scenario must be a ChainScenario, got {type(scenario).__name__}")
+    if not isinstance(data, dict):
+        raise UserInputError(f"apply_overrides data must be a mapping of scenario fields (parse_overrides' "
+                             f"answer), got {type(data).__name__}")
+    data = plain_overrides(data, where)
+    check_yaml_schema(data, ChainScenario, where)
     return load_typed(_complete_entries(data, scenario, ChainScenario), ChainScenario, where, defaults=scenario)
 
 
@@ -633,6 +678,8 @@ def check_steps(s: "ChainScenario", duration: float, what: str = "--duration") -
     Raises:
         UserInputError: naming ``what`` and the period's field.
     """
+    if isinstance(duration, bool) or not isinstance(duration, numbers.Real):
+        raise UserInputError(f"{what} must be a number in (0, {MAX_DURATION:g}] s, got {short_repr(duration)}")
     if not (math.isfinite(duration) and 0.0 < duration <= MAX_DURATION):
         raise UserInputError(f"{what} must be in (0, {MAX_DURATION:g}] s, got {duration:g}")
     for name, period in update_periods(s).items():

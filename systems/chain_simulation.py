@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import gc
 import math
+import numbers
 import resource
 import sys
 import time
@@ -30,7 +31,7 @@ from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 from pydrake.systems.framework import EventStatus
 
 from ballchain.drake_models.atrium import Atrium
-from ballchain.drake_models.errors import caused_by_interrupt
+from ballchain.drake_models.errors import UserInputError, caused_by_interrupt, short_repr
 from ballchain.drake_models.safe_files import atomic_write_text, check_output_file, optional_field
 from ballchain.systems.chain_model import SnapThrough, StaticsEngineStats
 from ballchain.systems.chain_scenario import ChainScenario, check_steps
@@ -533,6 +534,14 @@ def frozen_gc(enabled: bool = True):
         gc.unfreeze()
 
 
+def _time(value, what: str, *, positive: bool) -> None:
+    """Refuse (UserInputError naming ``what``) a value that is not a finite real number, > 0 with
+    ``positive``, else >= 0."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) \
+            or value < 0.0 or (positive and value == 0.0):
+        raise UserInputError(f"{what} must be a finite number {'> 0' if positive else '>= 0'}, got {short_repr(value)}")
+
+
 class StationRunner:
     """The Simulator of a built station with its watchdog, advanced in chunks (and restartable).
 
@@ -600,6 +609,10 @@ class StationRunner:
         """
         from pydrake.systems.analysis import SimulatorStatus
 
+        _time(t, "advance_to t", positive=False)
+        if t < self.context.get_time():  # Drake's AdvanceTo would end the process (a failed assertion)
+            raise UserInputError(f"advance_to t must not be before the simulation's time {self.context.get_time():g} s, "
+                                 f"got {t:g}")
         try:
             if not self._initialized:
                 self._initialized = True
@@ -671,7 +684,24 @@ def run_station(cd: Station, *, duration: float, monitor: ChainMonitor | None = 
 
     Returns:
         RunOutcome.
+
+    Raises:
+        UserInputError: before the run, for a ``cd`` that is not a Station, a ``duration`` that is
+            not a finite time > 0, ``html`` without a Meshcat in the station, and a ``progress``,
+            ``progress_step`` or ``realtime_rate`` of the wrong kind.
     """
+    if not isinstance(cd, Station):
+        raise UserInputError(f"run_station's cd must be a Station (MakeStation(scenario)), got {type(cd).__name__}")
+    _time(duration, "run_station duration", positive=True)
+    if progress is not None and not isinstance(progress, str):
+        raise UserInputError(f"run_station progress must be a label (str) or None, got {short_repr(progress)}")
+    if progress_step is not None:
+        _time(progress_step, "run_station progress_step", positive=True)
+    if realtime_rate is not None:
+        _time(realtime_rate, "run_station realtime_rate", positive=False)
+    if html is not None and cd.visualizer is None:
+        raise UserInputError("run_station html needs a station built with a Meshcat (MakeStation(scenario, "
+                             "meshcat=...)): this one has none to record")
     bar = None
     if progress is not None:
         from tqdm import tqdm

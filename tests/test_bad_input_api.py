@@ -263,3 +263,83 @@ def test_the_checks_do_not_refuse_what_was_accepted():
     held = solver.solve(_field(), free, tip_target=tuple(free.tip_position))
     assert free.converged and held.converged
     np.testing.assert_allclose(held.tip_position, free.tip_position, atol=1e-9)
+
+
+# ------------------------------------------------------------------ running a station
+
+@pytest.fixture(scope="module")
+def free_station():
+    import ballchain as bc
+
+    return bc.MakeStation(bc.load_scenario("free_space_uniform_90deg", "{engine: statics}"))
+
+
+@pytest.mark.parametrize("kwargs, expected", [
+    (dict(duration=-1.0), "run_station duration must be a finite number > 0, got -1.0"),
+    (dict(duration=float("nan")), "run_station duration must be a finite number > 0, got nan"),
+    (dict(duration=float("inf")), "run_station duration must be a finite number > 0, got inf"),
+    (dict(duration="1"), "run_station duration must be a finite number > 0, got '1'"),
+    (dict(duration=True), "run_station duration must be a finite number > 0, got True"),
+    (dict(duration=0.01, progress=True), "run_station progress must be a label (str) or None, got True"),
+    (dict(duration=0.01, progress_step=0.0), "run_station progress_step must be a finite number > 0, got 0.0"),
+    (dict(duration=0.01, realtime_rate=-1), "run_station realtime_rate must be a finite number >= 0, got -1"),
+    (dict(duration=0.01, html="replay.html"), "run_station html needs a station built with a Meshcat"),
+])
+def test_run_station_refuses_bad_arguments_before_the_run(free_station, kwargs, expected):
+    """Drake's Simulator ends the process (a failed assertion raised as SystemExit) on a time
+    before the context's, and waits forever on an infinite one: the arguments are checked first."""
+    import ballchain as bc
+
+    with pytest.raises(UserInputError) as err:
+        bc.run_station(free_station, **kwargs)
+    assert str(err.value).startswith(expected)
+
+
+def test_run_station_and_advance_to_name_what_they_need(free_station):
+    import ballchain as bc
+    from ballchain.systems.chain_simulation import StationRunner
+
+    scenario = bc.load_scenario("free_space_uniform_90deg")
+    with pytest.raises(UserInputError, match=r"run_station's cd must be a Station \(MakeStation\(scenario\)\), "
+                                             "got ChainScenario"):
+        bc.run_station(scenario, duration=0.01)
+    runner = StationRunner(free_station)
+    assert runner.advance_to(np.float64(0.01)) is None
+    with pytest.raises(UserInputError, match="advance_to t must not be before the simulation's time 0.01 s, got 0"):
+        runner.advance_to(0.0)
+    for t in (float("nan"), -1.0, "1"):
+        with pytest.raises(UserInputError, match="advance_to t must be a finite number >= 0"):
+            runner.advance_to(t)
+    assert runner.advance_to(0.02) is None and runner.context.get_time() == pytest.approx(0.02)
+    with pytest.raises(UserInputError, match=r"duration must be a number in \(0, 3600\] s, got '1'"):
+        bc.run_simulation(scenario=scenario, duration="1")
+
+
+def test_overrides_given_as_a_mapping_take_numpy_values_and_refuse_other_objects():
+    """``load_scenario``/``apply_overrides`` from Python: numpy scalars and arrays are the numbers
+    and lists they hold (before, a mapping went through its ``str``: ``np.float64(0.5)`` was
+    refused as text and an array was "not valid YAML"); objects that are not plain data, text
+    for ``apply_overrides``' mapping and keys that are not text are named."""
+    import ballchain as bc
+
+    scenario = bc.load_scenario("free_space_uniform_90deg", {"duration": np.float64(0.5), "n_balls": np.int64(4)})
+    assert (scenario.duration, scenario.n_balls) == (0.5, 4) and type(scenario.n_balls) is int
+    station = bc.load_scenario("teleop_right_unit")
+    moved = bc.apply_overrides(station, {"units": [{"distance": np.float32(0.25)}], "sleeve": np.bool_(True)})
+    assert moved.units[0].distance == pytest.approx(0.25) and moved.sleeve is True
+    assert moved.units[0].name == station.units[0].name  # the entry updated, not replaced
+    assert moved.units[0].anchor == station.units[0].anchor
+    for call, expected in (
+            (lambda: bc.load_scenario("free_space_uniform_90deg", {"description": object()}),
+             "--set: description must be plain data (numbers, text, true/false, lists, mappings), got object"),
+            (lambda: bc.load_scenario("free_space_uniform_90deg", 5),
+             "--set (overrides) must be inline YAML text or a mapping of scenario fields, got int"),
+            (lambda: bc.apply_overrides(scenario, "{n_balls: 4}"),
+             "apply_overrides data must be a mapping of scenario fields (parse_overrides' answer), got str"),
+            (lambda: bc.apply_overrides(scenario, {1: 4}), "--set: field names must be text, got 1"),
+            (lambda: bc.apply_overrides(scenario, {"n_balls": np.float64(4.5)}), "--set: n_balls must be an integer, got 4.5"),
+            (lambda: bc.apply_overrides("free_space_uniform_90deg", {}),
+             "apply_overrides scenario must be a ChainScenario, got str")):
+        with pytest.raises(UserInputError) as err:
+            call()
+        assert str(err.value) == expected

@@ -8,6 +8,7 @@ for minutes), not a speed claim.
 
 from __future__ import annotations
 
+import math
 import time
 
 import pytest
@@ -135,6 +136,31 @@ def test_the_loader_reads_yaml_1_2_numbers_and_refuses_bombs_in_files(tmp_path):
     dup.write_text("x: {n_balls: 4}\nx: {n_balls: 5}\n")
     with pytest.raises(UserInputError, match="duplicate key 'x'"):
         load_scenario("x", filename=dup)
+
+
+def test_the_loader_reads_yaml_1_2_integers_booleans_and_dates():
+    """YAML 1.1's readings that change a number silently (octal ``010``, base-60 ``1:30``,
+    ``1_6``) or make a boolean or a date of text are YAML 1.2's: decimal, or text that the
+    schemas refuse where they want a number."""
+    from ballchain.drake_models.safe_yaml import load_yaml
+    from ballchain.sweep import load_spec
+    from ballchain.systems.chain_scenario import load_scenario
+
+    data = load_yaml("{a: 010, b: 1:30, c: 0x10, d: 0o17, e: 1_6, f: on, g: yes, h: 2026-12-01, i: -.Inf, "
+                     "j: True, k: 0b11, l: -012, m: FALSE, n: Off}", "test")
+    assert data == {"a": 10, "b": "1:30", "c": 16, "d": 15, "e": "1_6", "f": "on", "g": "yes", "h": "2026-12-01",
+                    "i": float("-inf"), "j": True, "k": "0b11", "l": -12, "m": False, "n": "Off"}
+    assert math.isnan(load_yaml("x: .NaN", "test")["x"])
+    assert load_scenario("free_space_uniform_90deg", "{n_balls: 010}").n_balls == 10
+    assert load_scenario("free_space_uniform_90deg", "{description: 2026-12-01}").description == "2026-12-01"
+    for text, message in (("{duration: 1:30}", "--set: duration must be a finite number, got '1:30'"),
+                          ("{sleeve: on}", "--set: sleeve must be true or false, got 'on'"),
+                          ("{n_balls: 1_6}", "--set: n_balls must be an integer, got '1_6'")):
+        with pytest.raises(UserInputError) as err:
+            load_scenario("free_space_uniform_90deg", text)
+        assert str(err.value) == message
+    spec = load_spec("s.yaml", text="experiment: statics\ngrid: {n_balls: [010]}\nseeds: [007, 010]")
+    assert spec.seeds == [7, 10] and spec.points[0].n_balls == 10
 
 
 def test_scenarios_and_sweep_specs_share_one_type_check():

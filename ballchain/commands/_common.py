@@ -9,7 +9,7 @@ import math
 from ballchain.drake_models.errors import check_in
 from ballchain.drake_models.safe_files import json_text, save_figure, to_jsonable, write_csv, write_json
 
-__all__ = ["add_json_flag", "check_in", "finite_float", "float_in", "int_in", "json_text", "non_negative_int",
+__all__ = ["YamlOnce", "add_json_flag", "check_in", "finite_float", "float_in", "int_in", "json_text", "non_negative_int",
            "positive_int", "print_json", "save_figure", "to_jsonable", "write_csv", "write_json"]
 
 
@@ -81,3 +81,15 @@ def float_in(lo: float, hi: float, *, lo_open: bool = False):
 
 def add_json_flag(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
+
+
+class YamlOnce(argparse.Action):
+    """argparse action of an inline-YAML flag (``--set``): given twice, the run is refused (argparse
+    would keep the last mapping and drop the first's fields without a word)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        earlier = getattr(namespace, self.dest, None)
+        if earlier is not None:
+            parser.error(f"{option_string} given twice ({earlier!r} and {values!r}); give every field in one "
+                         "mapping, e.g. --set '{n_balls: 10, duration: 2.0}'")
+        setattr(namespace, self.dest, values)

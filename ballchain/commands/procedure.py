@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, float_in, int_in, positive_int, print_json
+from ballchain.commands._common import YamlOnce, add_json_flag, float_in, int_in, positive_int, print_json
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.localisation import LATENCY_RANGE_S, NOISE_RANGE_M, RATE_RANGE_HZ, LocalisationParams
 from ballchain.experiments import procedure
@@ -54,7 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="respiratory compensation: the navigator tracks the sheath (a localisation sensor on it, "
                              "the tip's noise, rate and latency) and moves its force model's sheath and its targets "
                              "with it (default: both held at rest, motion-blind)")
-    parser.add_argument("--set", dest="overrides", default=None, metavar="YAML",
+    parser.add_argument("--set", dest="overrides", default=None, metavar="YAML", action=YamlOnce,
                         help="inline YAML overriding the station scenario's fields, e.g. "
                              "'{wall_motion: {enabled: true, cardiac: {amplitude: 0.002}}}' (not with --wall-motion)")
     parser.add_argument("--out", type=Path, default=None, metavar="DIR", help="write procedure.json here")

@@ -16,7 +16,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, float_in, print_json
+from ballchain.commands._common import YamlOnce, add_json_flag, float_in, print_json
 from ballchain.drake_models.safe_files import to_jsonable
 from ballchain.experiments.simulation import run
 from ballchain.systems.chain_scenario import ENGINES, MAX_DURATION, MODES  # MAX_DURATION [s]: the scenario's cap
@@ -35,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the scenario's engine field: plant (the MultibodyPlant with contact, the reference) or "
                              "statics (the chain's equilibrium solved every statics_period, quasi-static mode only, "
                              "much faster) (default: the scenario's engine, plant unless it says otherwise)")
-    parser.add_argument("--set", dest="overrides", default=None, metavar="YAML",
+    parser.add_argument("--set", dest="overrides", default=None, metavar="YAML", action=YamlOnce,
                         help="inline YAML overriding scenario fields, e.g. '{n_balls: 10}'; a mapping changes only the "
                              "fields it names; a list of mappings (units, magnets, joystick) is the new list, each "
                              "entry updating the scenario's entry of the same unit name or position "

@@ -28,7 +28,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, finite_float, non_negative_int, print_json
+from ballchain.commands._common import YamlOnce, add_json_flag, finite_float, non_negative_int, print_json
 
 
 def _int(text: str) -> int:
@@ -61,7 +61,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="simulated-time limit in seconds (default: every target's timeout plus 5 s)")
     parser.add_argument("--seed", type=_int, default=None,
                         help="the simulated operator's seed (its hand's tremor), an integer in 0..2**32-1 (default 0)")
-    parser.add_argument("--set", dest="overrides", default=None, metavar="YAML",
+    parser.add_argument("--set", dest="overrides", default=None, metavar="YAML", action=YamlOnce,
                         help="inline YAML overriding the station scenario (teleop_right_unit); the engine is the "
                              "quasi-static one (whole tasks in seconds) unless it says e.g. '{engine: plant}' "
                              "(the MultibodyPlant, minutes per task; '{engine: plant, time_step: 0.004}' is 3 "

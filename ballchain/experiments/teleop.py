@@ -204,7 +204,8 @@ def load_for_hand_over(name: str, overrides: str | None):
     would ignore is refused before the build.
 
     Raises:
-        UserInputError: as ``chain_scenario.load_scenario``.
+        UserInputError: as ``chain_scenario.load_scenario``; overrides that leave no magnet unit
+            (``units: []``: the operator steers one).
     """
     from ballchain.systems.chain_scenario import apply_overrides, load_scenario, parse_overrides
 
@@ -212,7 +213,12 @@ def load_for_hand_over(name: str, overrides: str | None):
     scenario = load_scenario(name)
     engine = handed_over_engine(changes.get("mode", scenario.mode), changes)
     changes = changes if engine is None else {**changes, "engine": engine}
-    return apply_overrides(scenario, changes).validate() if changes else scenario
+    scenario = apply_overrides(scenario, changes).validate() if changes else scenario
+    if not scenario.units:
+        raise UserInputError("--set: units is [], which leaves the station no magnet unit to steer; keep the "
+                             "scenario's units (a list of mappings updates them: '{units: [{teleop_omega_max: "
+                             "1.0}]}')")
+    return scenario
 
 
 def hand_over(scenario, mapping: str, n_balls: int | None, overrides: dict, units=None):
@@ -283,6 +289,7 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     """
     from dataclasses import replace
 
+    from ballchain.systems.chain_scenario import parse_overrides
     from ballchain.systems.chain_simulation import (ChainMonitor, MakeStation, after_updates, atrium_for,
                                                     near_ostium_rim, run_station)
     from ballchain.systems.simulated_operator import OperatorParams, SimulatedOperator
@@ -299,7 +306,7 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
         anatomy, task, _ = anatomy_targets(anatomy, task)
         heart = anatomy.atrium()
     scenario = scenario_for(mapping, n_balls, overrides, anatomy)
-    if "publish_period" not in (overrides or ""):
+    if "publish_period" not in parse_overrides(overrides).get("visualization", {}):
         scenario.visualization.publish_period = REPLAY_PERIOD  # a task lasts minutes: keep the replay small
     heart = heart or atrium_for(scenario)
     task_names = [n for n in heart_targets(heart)[0] if task is None or n.startswith(f"{task}_")]
