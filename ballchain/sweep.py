@@ -45,6 +45,7 @@ import hashlib
 import itertools
 import json
 import math
+import numbers
 import os
 import time
 import typing
@@ -121,6 +122,11 @@ def load_spec(source: str | Path, *, text: str | None = None, max_points: int = 
     """
     from ballchain.drake_models.safe_yaml import load_typed, load_yaml
 
+    if not isinstance(source, (str, os.PathLike)) or not str(source).strip():
+        raise UserInputError(f"load_spec source must be a spec file's name (or a label with text=...), "
+                             f"got {short_repr(source)}")
+    if text is not None and not isinstance(text, str):
+        raise UserInputError(f"load_spec text must be the spec's YAML text, got {type(text).__name__}")
     label = str(source)
     where = f"sweep spec {short_repr(label)}"
     if isinstance(max_points, bool) or not isinstance(max_points, int) or max_points < 1:
@@ -673,6 +679,17 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
 
     from ballchain.experiments.studies import EXPERIMENTS
 
+    if not isinstance(spec, SweepSpec):
+        raise UserInputError(f"run_sweep spec must be a SweepSpec: ballchain.load_spec(file) (a shipped "
+                             f"study's file is ballchain/studies/NAME.yaml), got {type(spec).__name__} {short_repr(spec)}")
+    if not isinstance(out, (str, os.PathLike)) or not str(out).strip():
+        raise UserInputError(f"run_sweep out must be a folder name, got {short_repr(out)}")
+    if isinstance(connect_timeout, bool) or not isinstance(connect_timeout, numbers.Real) \
+            or not (math.isfinite(connect_timeout) and connect_timeout > 0.0):
+        raise UserInputError(f"run_sweep connect_timeout must be a finite number of seconds > 0, "
+                             f"got {short_repr(connect_timeout)}")
+    if client is not None and not hasattr(client, "submit"):
+        raise UserInputError(f"run_sweep client must be a distributed.Client or None, got {type(client).__name__}")
     _check_executor(scheduler, workers, jobqueue)
     out = _check_out(out)
     exp = EXPERIMENTS[spec.experiment]

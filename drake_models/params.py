@@ -64,6 +64,14 @@ class Sleeve:
         return self.youngs_modulus * self.second_moment_of_area
 
 
+# What a chain of magnets can be: from beads to marbles; no permanent magnet reaches 2.5 T (NdFeB
+# about 1.5); osmium, the densest element, is 22 590 kg/m^3.
+BALL_DIAMETER_RANGE = (0.1e-3, 0.1)  # [m]
+MAX_REMANENCE = 2.5  # [T]
+MAX_DENSITY = 25000.0  # [kg/m^3]
+MAX_MAGNET_SIZE = 10.0  # [m]: a magnet's diameter or length; an MRI scanner's bore is under 1 m
+
+
 @dataclass(frozen=True)
 class BallChain:
     """A chain of identical, uniformly magnetised spherical magnets (N52 by default).
@@ -92,6 +100,13 @@ class BallChain:
             remanence=self.remanence,
             density=self.density,
         )
+        for name, value, lo, hi, unit, scale in (
+                ("ball_diameter", self.ball_diameter, *BALL_DIAMETER_RANGE, "mm", 1e3),
+                ("remanence", self.remanence, 0.0, MAX_REMANENCE, "T", 1.0),
+                ("density", self.density, 0.0, MAX_DENSITY, "kg/m^3", 1.0)):
+            if not lo <= value <= hi:  # beyond these the energies overflow or divide by zero
+                raise UserInputError(f"BallChain.{name} must be in {'(' if lo == 0.0 else '['}{lo * scale:g}, "
+                                     f"{hi * scale:g}] {unit}, got {value * scale:g} {unit}")
         if self.sleeve is not None and not isinstance(self.sleeve, Sleeve):
             raise UserInputError(f"BallChain.sleeve must be a Sleeve or None, got {short_repr(self.sleeve)}")
         # The sleeve's inside may be a little smaller than the balls (the silicone stretches over
@@ -140,8 +155,15 @@ class _UniformMagnet:
         return self.density * self.volume
 
     def __post_init__(self) -> None:
+        owner = type(self).__name__
         names = [f for f in self.__dataclass_fields__]
-        _require_positive(type(self).__name__, **{name: getattr(self, name) for name in names})
+        _require_positive(owner, **{name: getattr(self, name) for name in names})
+        limits = {"remanence": (MAX_REMANENCE, "T", 1.0), "density": (MAX_DENSITY, "kg/m^3", 1.0)}
+        for name in names:
+            hi, unit, scale = limits.get(name, (MAX_MAGNET_SIZE, "mm", 1e3))
+            if getattr(self, name) > hi:  # beyond these the volume and the moment overflow
+                raise UserInputError(f"{owner}.{name} must be in (0, {hi * scale:g}] {unit}, "
+                                     f"got {getattr(self, name) * scale:g} {unit}")
 
 
 @dataclass(frozen=True)

@@ -32,7 +32,7 @@ from ballchain.drake_models import paper
 from ballchain.drake_models.arg_checks import as_number_list, require_positive, require_type
 from ballchain.drake_models.dipole import K_DIPOLE, dipole_field, dipole_field_gradient, force_on_dipole
 from ballchain.drake_models.errors import UserInputError, short_repr
-from ballchain.drake_models.params import CylinderMagnet, SphereMagnet, newtons_from_gram_force
+from ballchain.drake_models.params import MAX_DENSITY, MAX_REMANENCE, CylinderMagnet, SphereMagnet, newtons_from_gram_force
 
 PAPER = {
     "diameter_mm": 119.0,
@@ -76,6 +76,23 @@ class SizingInputs:
                 or value <= 0
             ):
                 raise UserInputError(f"SizingInputs.{name} must be a positive finite number, got {short_repr(value)}")
+            lo, hi = SIZING_RANGES[name]
+            if not lo <= value <= hi:
+                raise UserInputError(f"SizingInputs.{name} must be in [{lo:g}, {hi:g}] (SI), got {value:g}")
+
+
+# What each input may be [SI]: physical values with room to spare. Outside them the sizing's
+# fourth powers overflow (a desired force of 1e-300 N), or its sphere is of no size at all.
+SIZING_RANGES = {
+    "alpha": (1e-6, 100.0),
+    "measured_force": (1e-6, 1e3),  # [N]: 0.1 mgf .. 100 kgf
+    "desired_force": (1e-6, 1e3),
+    "measured_distance": (1e-3, 10.0),  # [m]
+    "heart_to_surface": (1e-3, 10.0),
+    "prototype_volume": (1e-12, 1.0),  # [m^3]
+    "remanence": (1e-3, MAX_REMANENCE),  # [T]
+    "density": (1.0, MAX_DENSITY),  # [kg/m^3]
+}
 
 
 @dataclass(frozen=True)

@@ -361,6 +361,9 @@ def _line_search(model: ReducedChain, q, dq, ev, near, pinned: bool, rho: float,
     return t, dq, trial
 
 
+MAX_BALLS = 200  # dense Hessians: 200 balls take about 0.5 GB
+
+
 class ChainStatics:
     """Equilibria of one chain, reusable across solves (warm starts, continuation).
 
@@ -392,6 +395,9 @@ class ChainStatics:
         compiled: bool = True,
     ):
         require_type(chain, BallChain, "ChainStatics chain", "a BallChain")
+        if chain.n_balls > MAX_BALLS:
+            raise UserInputError(f"ChainStatics solves chains of up to {MAX_BALLS} balls (its Hessians are dense: "
+                                 f"about 0.5 GB at {MAX_BALLS}), got {chain.n_balls}")
         require_bool(gravity, "ChainStatics gravity")
         require_bool(compiled, "ChainStatics compiled")
         require_positive(tolerance, "ChainStatics tolerance")

@@ -76,6 +76,15 @@ CASES = [
     ("clinical-max-diameter-negative", ["clinical", "--max-diameter-mm", "-5"], "--max-diameter-mm"),
     ("clinical-reference", ["clinical", "--reference", "middle"], "--reference"),
     ("clinical-chains", ["clinical", "--chains", "9Fr"], "--chains"),
+    ("clinical-surface-huge", ["clinical", "--heart-to-surface-cm", "1e300"],
+     "--heart-to-surface-cm must be a number in (0, 100] cm"),
+    ("clinical-friction-huge", ["clinical", "--friction", "1e300"], "--friction must be a number in [0, 10]"),
+    ("clinical-max-diameter-huge", ["clinical", "--max-diameter-mm", "1e300"], "--max-diameter-mm"),
+    # the sizing's fourth powers overflowed on a tiny force; a tiny ball gave NaN forces
+    ("sizing-desired-force-tiny", ["sizing", "--desired-force-gf", "1e-300"],
+     "--desired-force-gf must be in [0.000102, 1.02e+05] gf"),
+    ("sizing-alpha-huge", ["sizing", "--alpha", "1e6"], "--alpha must be in [1e-06, 100]"),
+    ("field-models-tiny-ball", ["field-models", "--ball-diameter-mm", "1e-300"], "--ball-diameter-mm must be in [0.1, 50]"),
     ("clinical-out-is-file", ["clinical", "--out", "{file}"], "--out"),
     # alignment
     ("alignment-out-under-file", ["alignment", "--out", "{under_file}"], "--out"),
@@ -196,6 +205,22 @@ CASES = [
     ("sweep-out-is-file", ["sweep", "design", "--out", "{file}"], "--out"),
     ("reproduce-workers-0", ["reproduce", "--quick", "--out", "{folder}", "--workers", "0"], "--workers"),
     ("reproduce-unknown-section", ["reproduce", "--quick", "--out", "{folder}", "--sections", "nope"], "--sections"),
+    # an empty name is the current folder to pathlib: refused, not written into
+    ("forces-out-empty", ["forces", "--out", ""], "--out: must be a file or folder name, got ''"),
+    ("workspace-out-empty", ["workspace", "--out", ""], "--out"),
+    ("sweep-out-empty", ["sweep", "design", "--workers", "0", "--out", ""], "--out"),
+    ("reproduce-out-empty", ["reproduce", "--quick", "--out", " "], "--out"),
+    ("bench-scaling-out-empty", ["bench", "scaling", "--out", ""], "--out"),
+    ("teleop-html-empty", ["teleop", "--html", ""], "--html"),
+    # --set twice dropped the first mapping's fields; units: [] left the operator no unit
+    ("simulate-set-twice", ["simulate", "--scenario", "free_space_uniform_90deg", "--set", "{n_balls: 4}",
+                            "--set", "{duration: 0.01}"], "--set given twice"),
+    ("teleop-no-units", ["teleop", "--targets", "1", "--set", "{units: []}"], "--set: units is []"),
+    ("procedure-no-units", ["procedure", "--targets", "1", "--set", "{units: []}"], "--set: units is []"),
+    ("procedure-operator-no-units", ["procedure", "--targets", "1", "--navigator", "operator", "--set", "{units: []}"],
+     "--set: units is []"),
+    ("simulate-octal-is-decimal", ["simulate", "--scenario", "free_space_uniform_90deg", "--set", "{duration: 1:30}"],
+     "duration must be a finite number, got '1:30'"),
 ]
 
 

@@ -156,7 +156,9 @@ def _calls():
     from ballchain.drake_models.atrium_mesh import UserAtrium, validate_surface
     from ballchain.drake_models.heart import HeartParams, LeftAtrium
     from ballchain.drake_models.params import CylinderMagnet
-    from ballchain.experiments import field_models, planner, wheels
+    from ballchain.drake_models.params import BallChain
+    from ballchain.experiments import (ablation, alignment, clinical, field_models, planner, reconfiguration, wheels,
+                                       workspace)
     from ballchain.optimization import inverse_statics, sizing
     from ballchain.optimization.statics import ChainStatics, tip_angle_deg, uniform_field_equilibrium
     from ballchain.systems.actuation_station import StationOptions, make_actuation_station
@@ -233,6 +235,25 @@ def _calls():
          r"R_WM must be an array of shape \(3, 3\)"),
         ("ReconfigurationController m_c_W", lambda: ReconfigurationController([1.0, 0.0]), "m_c_W must be 3 finite"),
         ("wheels samples", lambda: wheels.run(samples=1.5), "samples must be an integer"),
+        ("BallChain huge balls", lambda: BallChain(n_balls=4, ball_diameter=1e300),
+         r"BallChain.ball_diameter must be in \[0.1, 100\] mm, got 1e\+303 mm"),
+        ("BallChain tiny balls", lambda: BallChain(n_balls=4, ball_diameter=1e-300), "BallChain.ball_diameter"),
+        ("BallChain remanence", lambda: BallChain(remanence=1e300), r"BallChain.remanence must be in \(0, 2.5\] T"),
+        ("BallChain density", lambda: BallChain(density=1e9), r"BallChain.density must be in \(0, 25000\] kg/m\^3"),
+        ("ChainStatics a million balls", lambda: ChainStatics(BallChain(n_balls=10**6)),
+         "ChainStatics solves chains of up to 200 balls"),
+        ("sizing tiny force", lambda: sizing.SizingInputs(desired_force=1e-300),
+         r"SizingInputs.desired_force must be in \[1e-06, 1000\] \(SI\)"),
+        ("CylinderMagnet huge", lambda: CylinderMagnet(diameter=1e200), r"CylinderMagnet.diameter must be in \(0, 10000\] mm"),
+        ("reconfiguration runs", lambda: reconfiguration.run(runs=1.5), "runs must be an integer in 1..10000, got 1.5"),
+        ("reconfiguration t_max", lambda: reconfiguration.run(t_max=-1.0), "t_max must be a finite number > 0"),
+        ("reconfiguration tolerance", lambda: reconfiguration.run(tolerance_deg=float("nan")), "tolerance_deg must be"),
+        ("reconfiguration wheel map", lambda: reconfiguration.run(wheel_map="x"), "wheel_map must be one of"),
+        ("reconfiguration seed", lambda: reconfiguration.run(seed=-1), "seed must be an integer in 0.."),
+        ("ablation time step 0", lambda: ablation.run(dt_max_s=0.0), r"dt_max_s = 0.0 is outside the model's range: 0.05..10 s"),
+        ("alignment balls 16.0", lambda: alignment.run(max_balls=16.0), "--max-balls must be an integer in 1..64, got 16.0"),
+        ("clinical vein", lambda: clinical.run(veins=("SVC",)), "veins must be some of LSPV, LIPV, RSPV, RIPV"),
+        ("workspace 10000 balls", lambda: workspace.run(balls=(10000,)), r"chains of up to 200 balls \(.*\), got 10000"),
     ]
 
 

@@ -375,3 +375,29 @@ def test_sigint_keeps_every_finished_point(tmp_path, workers):
     assert result["interrupted"] and 0 < result["ran"] < 24
     assert len(rows) == result["ran"] and len({r["key"] for r in rows}) == len(rows)
     assert all(r["error"] is None for r in rows), [r["error"] for r in rows]
+
+
+def test_the_sweep_api_names_an_argument_of_the_wrong_kind(tmp_path):
+    """``run_sweep`` and ``load_spec`` from Python: a study's name for the spec, None for a folder,
+    a mapping for the text, a bad timeout or client are refused before any work."""
+    import ballchain as bc
+
+    spec = bc.load_spec("s.yaml", text="experiment: statics\ngrid: {n_balls: [4]}")
+    out = tmp_path / "out"
+    for call, expected in (
+            (lambda: bc.run_sweep("design", out, workers=0), "run_sweep spec must be a SweepSpec: "
+                                                               "ballchain.load_spec(file)"),
+            (lambda: bc.run_sweep(spec, None, workers=0), "run_sweep out must be a folder name, got None"),
+            (lambda: bc.run_sweep(spec, "", workers=0), "run_sweep out must be a folder name, got ''"),
+            (lambda: bc.run_sweep(spec, out, client="x"), "run_sweep client must be a distributed.Client or None"),
+            (lambda: bc.run_sweep(spec, out, connect_timeout=-1.0),
+             "run_sweep connect_timeout must be a finite number of seconds > 0, got -1.0"),
+            (lambda: bc.run_sweep(spec, out, connect_timeout=float("nan")),
+             "run_sweep connect_timeout must be a finite number of seconds > 0, got nan"),
+            (lambda: bc.load_spec(None), "load_spec source must be a spec file's name"),
+            (lambda: bc.load_spec("s.yaml", text={"experiment": "statics"}),
+             "load_spec text must be the spec's YAML text, got dict")):
+        with pytest.raises(UserInputError) as err:
+            call()
+        assert str(err.value).startswith(expected), str(err.value)
+    assert not out.exists()

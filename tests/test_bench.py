@@ -60,6 +60,7 @@ def test_bench_statics_text(capsys):
         ["bench", "statics", "--balls", "two"],
         ["bench", "statics", "--repeats", "0"],
         ["bench", "statics", "--field-mT", "nan"],
+        ["bench", "statics", "--blas-threads", "100000"],
         ["bench", "dynamics"],
         ["bench"],
     ],
@@ -74,7 +75,10 @@ def test_bad_arguments_exit_2(argv, capsys):
 
 @pytest.mark.parametrize(
     "flags, message",
-    [(["--balls", "1"], "--balls must be an integer >= 2"), (["--field-mT", "-5"], "--field-mT must be a positive")],
+    [(["--balls", "1"], "--balls must be an integer >= 2"),
+     (["--field-mT", "-5"], "--field-mT must be a number in [0.001, 1000] mT, got -5.0"),
+     (["--field-mT", "1e300"], "--field-mT must be a number in [0.001, 1000] mT"),  # a solve that never converges
+     (["--angle-deg", "1e300"], "--angle-deg must be a number in [-360, 360] deg")],
 )
 def test_bad_values_exit_2_with_one_line(flags, message, capsys):
     assert cli_main(["bench", "statics", *flags]) == 2

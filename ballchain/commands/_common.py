@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 
 # Re-exported for the commands: they live below the CLI layer so that experiments can use them.
 from ballchain.drake_models.errors import check_in
 from ballchain.drake_models.safe_files import json_text, save_figure, to_jsonable, write_csv, write_json
 
-__all__ = ["YamlOnce", "add_json_flag", "check_in", "finite_float", "float_in", "int_in", "json_text", "non_negative_int",
+__all__ = ["YamlOnce", "add_json_flag", "check_in", "path_arg", "finite_float", "float_in", "int_in", "json_text", "non_negative_int",
            "positive_int", "print_json", "save_figure", "to_jsonable", "write_csv", "write_json"]
 
 
@@ -77,6 +78,14 @@ def float_in(lo: float, hi: float, *, lo_open: bool = False):
 
     parse.__name__ = f"number in {lo:g}..{hi:g}"
     return parse
+
+
+def path_arg(text: str) -> Path:
+    """argparse type: a file or folder name. An empty name is refused: ``Path("")`` is the
+    current folder, where a run would write its files unasked."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"must be a file or folder name, got {text!r}")
+    return Path(text)
 
 
 def add_json_flag(parser: argparse.ArgumentParser) -> None:

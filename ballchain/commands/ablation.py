@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, finite_float, print_json
+from ballchain.commands._common import add_json_flag, finite_float, path_arg, print_json
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.safe_files import check_output_dir
 from ballchain.experiments import ablation
@@ -33,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sensitivity", action="store_true",
                         help="also vary the choices the paper leaves open (bath temperature, saline mixing, "
                              "indentation, cut-off) at the paper's settings")
-    parser.add_argument("--out", type=Path, default=Path("results/ablation"), help="folder for the files")
+    parser.add_argument("--out", type=path_arg, default=Path("results/ablation"), help="folder for the files")
     parser.add_argument("--no-files", action="store_true", help="write no files")
     add_json_flag(parser)
 

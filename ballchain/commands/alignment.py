@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, float_in, int_in, print_json
+from ballchain.commands._common import add_json_flag, float_in, int_in, path_arg, print_json
 from ballchain.experiments.alignment import MAX_BALLS, run
 
 
@@ -19,7 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="field magnitude [mT] (0..1000]")
     parser.add_argument("--step-deg", type=float_in(0.5, 90.0), default=22.5, help="field angle step [deg] (0.5..90)")
     parser.add_argument("--sleeve", action="store_true", help="with the Dragon Skin sleeve")
-    parser.add_argument("--out", type=Path, default=Path("results/alignment"),
+    parser.add_argument("--out", type=path_arg, default=Path("results/alignment"),
                         help="folder for the CSV and PNG files")
     parser.add_argument("--no-files", action="store_true", help="write no files")
     add_json_flag(parser)

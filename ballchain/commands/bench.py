@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import argparse
 
-from ballchain.commands._common import add_json_flag, finite_float, non_negative_int, positive_int, print_json
+from ballchain.commands._common import add_json_flag, finite_float, int_in, path_arg, positive_int, print_json
 from ballchain.drake_models.errors import UserInputError
 from ballchain.experiments.statics_bench import _OPTIONAL, StaticsBenchResult, run_statics
 
@@ -37,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--baseline-ftol", type=finite_float, default=1e-12,
                         help="SLSQP tolerance on the scaled energy (default 1e-12: tight enough to reach "
                              "the same minimum)")
-    parser.add_argument("--blas-threads", type=non_negative_int, default=1,
+    parser.add_argument("--blas-threads", type=int_in(0, 256), default=1,
                         help="limit OpenBLAS to this many threads during the run; 0 leaves it alone (default 1)")
     parser.add_argument("--cases", default=",".join(_OPTIONAL),
                         help="comma-separated baselines to time besides the Newton solve on the kernels: "
@@ -60,7 +60,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="scaling: comma-separated chain lengths (default 8,16,32,64)")
     parser.add_argument("--no-reference", action="store_true",
                         help="engine, scaling: leave out the Python reference solver (compiled only)")
-    parser.add_argument("--out", default=None,
+    parser.add_argument("--out", type=path_arg, default=None,
                         help="scaling: write scaling.csv, scaling.md and scaling.png into this folder")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     add_json_flag(parser)

@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, finite_float, non_negative_int, print_json
+from ballchain.commands._common import add_json_flag, finite_float, non_negative_int, path_arg, print_json
 from ballchain.drake_models.safe_files import check_output_dir
 from ballchain.experiments import clinical
 
@@ -37,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--friction", type=finite_float, default=None,
                         help="tip-wall friction coefficient (default: the simulation's contact model, 0.1)")
     parser.add_argument("--max-diameter-mm", type=finite_float, default=1000.0, help="the sizing's search limit [mm]")
-    parser.add_argument("--out", type=Path, default=Path("results/clinical"), help="folder for the CSV, JSON, PNGs")
+    parser.add_argument("--out", type=path_arg, default=Path("results/clinical"), help="folder for the CSV, JSON, PNGs")
     parser.add_argument("--no-files", action="store_true", help="write no files")
     add_json_flag(parser)
 

@@ -14,7 +14,7 @@ import math
 
 from ballchain.commands._common import add_json_flag, print_json
 from ballchain.drake_models.errors import UserInputError
-from ballchain.drake_models.params import BallChain
+from ballchain.drake_models.params import BALL_DIAMETER_RANGE, BallChain
 from ballchain.experiments.field_models import DEFAULT_DISTANCES, DEFAULT_POLAR_ANGLES_DEG, run
 
 
@@ -74,8 +74,9 @@ def main(args: argparse.Namespace) -> int:
     for a in args.angles_deg:
         if not (math.isfinite(a) and 0.0 <= a <= 180.0):
             raise UserInputError(f"--angles-deg must lie in [0, 180], got {a}")
-    if not (math.isfinite(args.ball_diameter_mm) and 0 < args.ball_diameter_mm <= 50):
-        raise UserInputError(f"--ball-diameter-mm must be in (0, 50] mm, got {args.ball_diameter_mm}")
+    lo_mm = 1e3 * BALL_DIAMETER_RANGE[0]  # what a BallChain may be
+    if not (math.isfinite(args.ball_diameter_mm) and lo_mm <= args.ball_diameter_mm <= 50):
+        raise UserInputError(f"--ball-diameter-mm must be in [{lo_mm:g}, 50] mm, got {args.ball_diameter_mm}")
     for d in args.distances_cm:
         if d > 1000:
             raise UserInputError(f"--distances-cm must be at most 1000 cm, got {d}")

@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, int_in, print_json
+from ballchain.commands._common import add_json_flag, int_in, path_arg, print_json
 from ballchain.experiments import forces
 from ballchain.experiments.forces import GRID, REFINE, VEINS
 
@@ -27,7 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"Nelder-Mead evaluations after the grid ({REFINE[0]}..{REFINE[1]})")
     parser.add_argument("--no-dynamics", action="store_true",
                         help="statics only: skip the simulation of each optimum on the force-sensor pin")
-    parser.add_argument("--out", type=Path, default=Path("results/forces"), help="folder for the CSV and PNG")
+    parser.add_argument("--out", type=path_arg, default=Path("results/forces"), help="folder for the CSV and PNG")
     parser.add_argument("--no-files", action="store_true", help="write no files")
     add_json_flag(parser)
 

@@ -15,9 +15,8 @@ file order (``--task X``: only those named X_...).
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, float_in, int_in, positive_int, print_json
+from ballchain.commands._common import add_json_flag, float_in, int_in, path_arg, positive_int, print_json
 from ballchain.drake_models.errors import UserInputError, short_repr
 from ballchain.experiments import planner
 
@@ -26,7 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--task", default=None,
                         help="which ring of targets of the procedural atrium: left or right (default: left); with "
                              "--anatomy, only the targets named TASK_... (default: all, in file order)")
-    parser.add_argument("--anatomy", type=Path, default=None, metavar="FILE",
+    parser.add_argument("--anatomy", type=path_arg, default=None, metavar="FILE",
                         help="an anatomy file (YAML: mesh, length_unit, side, targets, sheath, magnets) to plan on")
     parser.add_argument("--targets", type=positive_int, default=None, help="only the first N targets (default: all)")
     parser.add_argument("--balls", type=int_in(2, 64), nargs="+", default=[12, 16],

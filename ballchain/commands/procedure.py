@@ -14,9 +14,8 @@ tracked position (respiratory compensation); ``--set`` overrides the station's s
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from ballchain.commands._common import YamlOnce, add_json_flag, float_in, int_in, positive_int, print_json
+from ballchain.commands._common import YamlOnce, add_json_flag, float_in, int_in, path_arg, positive_int, print_json
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.localisation import LATENCY_RANGE_S, NOISE_RANGE_M, RATE_RANGE_HZ, LocalisationParams
 from ballchain.experiments import procedure
@@ -27,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--task", default=None,
                         help="the ring: left (20 targets) or right (18; the default); with --anatomy, the targets "
                              "named TASK_... (default: all, in file order)")
-    parser.add_argument("--anatomy", type=Path, default=None, metavar="FILE",
+    parser.add_argument("--anatomy", type=path_arg, default=None, metavar="FILE",
                         help="an anatomy file (YAML: mesh, targets, sheath, magnets) instead of the procedural atrium")
     parser.add_argument("--navigator", choices=procedure.NAVIGATORS, default="auto",
                         help="auto (the model-based navigator) or operator (the simulated operator, no force estimate)")
@@ -57,8 +56,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--set", dest="overrides", default=None, metavar="YAML", action=YamlOnce,
                         help="inline YAML overriding the station scenario's fields, e.g. "
                              "'{wall_motion: {enabled: true, cardiac: {amplitude: 0.002}}}' (not with --wall-motion)")
-    parser.add_argument("--out", type=Path, default=None, metavar="DIR", help="write procedure.json here")
-    parser.add_argument("--html", type=Path, default=None, metavar="FILE", help="write a Meshcat replay here")
+    parser.add_argument("--out", type=path_arg, default=None, metavar="DIR", help="write procedure.json here")
+    parser.add_argument("--html", type=path_arg, default=None, metavar="FILE", help="write a Meshcat replay here")
     add_json_flag(parser)
 
 

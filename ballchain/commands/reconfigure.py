@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 
 from ballchain.commands._common import add_json_flag, finite_float, float_in, int_in, non_negative_int, print_json
+from ballchain.experiments.reconfiguration import MAX_RUNS, MAX_T_MAX
 
 # The five figures the study reports (the per-run lists stay out of the JSON).
 SUMMARY_KEYS = ("runs", "converged", "max_final_error_deg", "median_time_s", "max_time_s")
@@ -24,15 +25,8 @@ def _slip(text: str) -> float:
     return value
 
 
-def _positive(text: str) -> float:
-    value = finite_float(text)
-    if value <= 0.0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return value
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--runs", type=int_in(1, 10_000), default=100, help="number of runs, 1..10000 (default 100)")
+    parser.add_argument("--runs", type=int_in(1, MAX_RUNS), default=100, help=f"number of runs, 1..{MAX_RUNS} (default 100)")
     parser.add_argument("--seed", type=non_negative_int, default=0,
                         help="seed of initial orientations and noise, >= 0 (default 0)")
     parser.add_argument("--slip", type=_slip, default=0.05, help="wheel slip fraction in [0, 1) (default 0.05)")
@@ -50,9 +44,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="wheel-speed conversion in the controller (default derived)",
     )
     parser.add_argument(
-        "--tolerance-deg", type=_positive, default=1.0, help="convergence tolerance on the true error [deg] (default 1)"
+        "--tolerance-deg", type=float_in(0.0, 180.0, lo_open=True), default=1.0, help="convergence tolerance on the true error [deg] (default 1)"
     )
-    parser.add_argument("--t-max", type=float_in(0.0, 600.0, lo_open=True), default=15.0,
+    parser.add_argument("--t-max", type=float_in(0.0, MAX_T_MAX, lo_open=True), default=15.0,
                         help="time limit of one run [s], (0, 600] (default 15)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     add_json_flag(parser)

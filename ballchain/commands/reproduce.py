@@ -6,13 +6,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, positive_int, print_json
+from ballchain.commands._common import add_json_flag, path_arg, positive_int, print_json
 from ballchain.reproduce import AGREES_WITHIN, run
 from ballchain.sweep import MAX_WORKERS_PER_CORE
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", type=Path, default=Path("results"), help="output folder")
+    parser.add_argument("--out", type=path_arg, default=Path("results"), help="output folder")
     parser.add_argument("--quick", action="store_true", help="short versions of every experiment")
     parser.add_argument("--resume", action="store_true",
                         help="reuse the sections an interrupted run of the same code finished (checked by "

@@ -14,9 +14,8 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
-from ballchain.commands._common import YamlOnce, add_json_flag, float_in, print_json
+from ballchain.commands._common import YamlOnce, add_json_flag, float_in, path_arg, print_json
 from ballchain.drake_models.safe_files import to_jsonable
 from ballchain.experiments.simulation import run
 from ballchain.systems.chain_scenario import ENGINES, MAX_DURATION, MODES  # MAX_DURATION [s]: the scenario's cap
@@ -41,10 +40,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "entry updating the scenario's entry of the same unit name or position "
                              "('{units: [{teleop_omega_max: 1.0}]}' keeps the unit's placement; '{units: []}' "
                              "removes them)")
-    parser.add_argument("--html", type=Path, default=None,
+    parser.add_argument("--html", type=path_arg, default=None,
                         help="write a self-contained Meshcat recording (HTML) to this file")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
-    parser.add_argument("--anatomy", type=Path, default=None, metavar="FILE",
+    parser.add_argument("--anatomy", type=path_arg, default=None, metavar="FILE",
                         help="an anatomy file (YAML: mesh, length_unit, side, targets, sheath, magnets) to run the "
                              "scenario on; the units stand at its magnets, in order")
     add_json_flag(parser)

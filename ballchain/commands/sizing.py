@@ -14,11 +14,10 @@ import math
 from ballchain.drake_models import paper
 from ballchain.commands._common import add_json_flag, print_json
 from ballchain.drake_models.errors import UserInputError
-from ballchain.drake_models.params import CylinderMagnet, newtons_from_gram_force
+from ballchain.drake_models.params import MAX_MAGNET_SIZE, CylinderMagnet, newtons_from_gram_force
 from ballchain.experiments.sizing_check import run
-from ballchain.optimization.sizing import SizingInputs
+from ballchain.optimization.sizing import SIZING_RANGES, SizingInputs
 
-MAX_VALUE = 1e6
 # flag (without --) -> (default in the flag's unit, help)
 _FLAGS: dict[str, tuple[float, str]] = {
     "alpha": (paper.SIZING["alpha"], "chain dipole scale, prototype to clinical chain (8 Fr: 0.32) [-]"),
@@ -41,14 +40,33 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_json_flag(parser)
 
 
+# flag -> (the SizingInputs field whose range it takes, or the magnet's size; its unit; SI per unit)
+_RANGES = {
+    "alpha": ("alpha", "", 1.0),
+    "measured-force-gf": ("measured_force", "gf", newtons_from_gram_force(1.0)),
+    "desired-force-gf": ("desired_force", "gf", newtons_from_gram_force(1.0)),
+    "measured-distance-cm": ("measured_distance", "cm", 1e-2),
+    "heart-to-surface-distance-cm": ("heart_to_surface", "cm", 1e-2),
+    "prototype-diameter-mm": (None, "mm", 1e-3),
+    "prototype-length-mm": (None, "mm", 1e-3),
+    "remanence-T": ("remanence", "T", 1.0),
+    "density-kg-m3": ("density", "kg/m^3", 1.0),
+}
+
+
 def _checked(args: argparse.Namespace) -> dict[str, float]:
+    """Each flag in its unit, within what ``SizingInputs`` (``SIZING_RANGES``) and the prototype
+    magnet (``MAX_MAGNET_SIZE``) take: the message names the flag in its own unit."""
     values = {}
     for flag in _FLAGS:
         value = getattr(args, flag.replace("-", "_"))
+        field, unit, si = _RANGES[flag]
+        lo, hi = SIZING_RANGES[field] if field is not None else (1e-4, MAX_MAGNET_SIZE)
         if not math.isfinite(value) or value <= 0:
             raise UserInputError(f"--{flag} must be a positive finite number, got {value}")
-        if value > MAX_VALUE:  # in the flag's unit; beyond it the sizing's powers overflow
-            raise UserInputError(f"--{flag} must be at most {MAX_VALUE:g} (in its unit), got {value}")
+        if not lo <= value * si <= hi:
+            raise UserInputError(f"--{flag} must be in [{lo / si:.4g}, {hi / si:.4g}]{f' {unit}' if unit else ''}, "
+                                 f"got {value:g}")
         values[flag] = value
     return values
 

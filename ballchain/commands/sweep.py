@@ -17,7 +17,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, non_negative_int, positive_int, print_json
+from ballchain.commands._common import add_json_flag, non_negative_int, path_arg, positive_int, print_json
 from ballchain.drake_models.errors import UserInputError, short_repr
 from ballchain.sweep import DEFAULT_MAX_POINTS, MAX_JOBS, MAX_WORKERS_PER_CORE
 
@@ -27,7 +27,7 @@ STUDIES = Path(__file__).resolve().parents[1] / "studies"
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("spec", help="a sweep spec (YAML file) or the name of a shipped study: "
                                      + ", ".join(shipped_studies()) + " (./NAME for a local file of that name)")
-    parser.add_argument("--out", type=Path, required=True, help="results folder (table.parquet, table.csv, figure)")
+    parser.add_argument("--out", type=path_arg, required=True, help="results folder (table.parquet, table.csv, figure)")
     parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
                         help="an existing Dask scheduler, e.g. tcp://host:8786 (default: a LocalCluster here)")
     parser.add_argument("--workers", type=non_negative_int, default=None,

@@ -26,9 +26,8 @@ named X_...), the unit standing at the file's first magnet.
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from ballchain.commands._common import YamlOnce, add_json_flag, finite_float, non_negative_int, print_json
+from ballchain.commands._common import YamlOnce, add_json_flag, finite_float, non_negative_int, path_arg, print_json
 
 
 def _int(text: str) -> int:
@@ -66,8 +65,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "quasi-static one (whole tasks in seconds) unless it says e.g. '{engine: plant}' "
                              "(the MultibodyPlant, minutes per task; '{engine: plant, time_step: 0.004}' is 3 "
                              "times faster, tip path within 0.3 mm of the default 1 ms step)")
-    parser.add_argument("--html", type=Path, default=None, help="write a Meshcat replay (HTML) to this file")
-    parser.add_argument("--anatomy", type=Path, default=None, metavar="FILE",
+    parser.add_argument("--html", type=path_arg, default=None, help="write a Meshcat replay (HTML) to this file")
+    parser.add_argument("--anatomy", type=path_arg, default=None, metavar="FILE",
                         help="an anatomy file (YAML: mesh, length_unit, side, targets, sheath, magnets) instead of "
                              "the procedural atrium; the operator visits its targets in file order")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

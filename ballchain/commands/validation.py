@@ -10,13 +10,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, finite_float, print_json
+from ballchain.commands._common import add_json_flag, finite_float, path_arg, print_json
 from ballchain.experiments import model_validation
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--field-mT", type=finite_float, default=23.0, help="field at the chain's base [mT]")
-    parser.add_argument("--out", type=Path, default=Path("results/validation"), help="folder for the CSV")
+    parser.add_argument("--out", type=path_arg, default=Path("results/validation"), help="folder for the CSV")
     parser.add_argument("--no-files", action="store_true", help="write no files")
     add_json_flag(parser)
 

@@ -10,14 +10,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ballchain.commands._common import add_json_flag, finite_float, print_json
+from ballchain.commands._common import add_json_flag, finite_float, path_arg, print_json
 from ballchain.experiments import workspace
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--step-deg", type=finite_float, default=5.0, help="magnet rotation step [deg]")
     parser.add_argument("--distance-cm", type=finite_float, default=workspace.DISTANCE * 100, help="magnet to insertion point [cm]")
-    parser.add_argument("--out", type=Path, default=Path("results/workspace"), help="folder for the files")
+    parser.add_argument("--out", type=path_arg, default=Path("results/workspace"), help="folder for the files")
     parser.add_argument("--no-files", action="store_true", help="write no files")
     add_json_flag(parser)
 

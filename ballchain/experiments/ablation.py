@@ -144,6 +144,7 @@ def run_device(device: str, *, power_W: float, duration_s: float = 90.0, indenta
     the hot electrode makes an effective conductivity several times larger (a sensitivity, not
     a fitted constant). ``cutoff_C = None`` runs the pure constant-power law (no cut-off).
     """
+    check_settings(dt_max_s=dt_max_s)
     electrode = electrode_for(device, indentation_mm)
     saline = replace(laws.SALINE, thermal_conductivity=laws.SALINE.thermal_conductivity * saline_mixing)
     bar = tqdm(total=1, desc=f"ablation {device}", unit="step", disable=not progress, leave=False)
@@ -193,7 +194,8 @@ def run(*, ball_power_W: float = 15.0, catheter_power_W: float = 30.0, duration_
         progress: show progress bars.
     """
     check_settings(power_W=ball_power_W, duration_s=duration_s, indentation_mm=indentation_mm, tissue=tissue,
-                   initial_temperature_C=initial_temperature_C, h_mm=h_mm, flag_power="ball_power_W")
+                   initial_temperature_C=initial_temperature_C, h_mm=h_mm, dt_max_s=dt_max_s,
+                   flag_power="ball_power_W")
     check_settings(power_W=catheter_power_W, flag_power="catheter_power_W")
     common = dict(duration_s=duration_s, indentation_mm=indentation_mm, tissue=tissue,
                   initial_temperature_C=initial_temperature_C, h_mm=h_mm, dt_max_s=dt_max_s, progress=progress)
@@ -209,7 +211,7 @@ def run(*, ball_power_W: float = 15.0, catheter_power_W: float = 30.0, duration_
 def check_settings(*, power_W: float | None = None, duration_s: float | None = None,
                    indentation_mm: float | None = None, tissue: str | None = None,
                    initial_temperature_C: float | None = None, h_mm: float | None = None,
-                   flag_power: str = "power_W") -> None:
+                   dt_max_s: float | None = None, flag_power: str = "power_W") -> None:
     """Raise UserInputError naming the setting if a value is outside what the model covers."""
     def bad(name, value, allowed):
         raise UserInputError(f"{name} = {value!r} is outside the model's range: {allowed}")
@@ -229,6 +231,9 @@ def check_settings(*, power_W: float | None = None, duration_s: float | None = N
         bad("initial_temperature_C", initial_temperature_C, "0..45 C")
     if h_mm is not None and not (finite(h_mm) and 0.03 <= h_mm <= 0.3):
         bad("h_mm", h_mm, "0.03..0.3 mm")
+    # The steps grow from lesion_fem's 0.05 s first step to dt_max: 0 never ends, NaN never grows.
+    if dt_max_s is not None and not (finite(dt_max_s) and 0.05 <= dt_max_s <= 10):
+        bad("dt_max_s", dt_max_s, "0.05..10 s")
 
 
 def disagreement_notes(devices: list) -> list:

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from ballchain.drake_models.arg_checks import require_bool, require_int
 from ballchain.drake_models.errors import check_in
 from ballchain.drake_models.field_sources import UniformField
 from ballchain.drake_models.params import BallChain, Sleeve
@@ -114,7 +115,8 @@ def run(*, max_balls: int = 16, field_mT: float = 23.0, step_deg: float = 22.5, 
     Raises:
         UserInputError: a value out of range (named by its flag) or an unwritable ``out``.
     """
-    check_in("--max-balls", max_balls, 1, MAX_BALLS)
+    require_int(max_balls, "--max-balls", 1, MAX_BALLS)
+    require_bool(sleeve, "--sleeve")
     check_in("--field-mT", field_mT, 0.0, 1000.0, lo_open=True, unit="mT")
     check_in("--step-deg", step_deg, 0.5, 90.0, unit="deg")
     if out is not None:  # before the work: an unwritable folder must not cost the results

@@ -40,6 +40,7 @@ field's gradient pull on balls 2..n plus what the sheath pushes into the chain t
 from __future__ import annotations
 
 import math
+import numbers
 import time
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -49,7 +50,7 @@ import numpy as np
 from ballchain.drake_models import paper
 from ballchain.drake_models.dipole import dipole_field
 from ballchain.drake_models.dipole_inversion import moment_from_field
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.errors import UserInputError, short_repr
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.safe_files import agg_pyplot, atomic_write_text, save_figure, write_csv
@@ -584,22 +585,32 @@ def sizing_row(chain_key: str, criterion: str, diameter: float | None, heart_to_
                      force_between_side_by_side_gf=gram_force(between["side_by_side_parallel"]["force_N"]))
 
 
+MAX_DIAMETER_MM = 2000.0  # the largest sphere searched or given [mm]: beyond the widest cart
+MAX_HEART_TO_SURFACE_CM = 100.0  # d_c [cm]: a torso is about 30 cm across
+MAX_FRICTION = 10.0  # as the planner's --friction
+
+
 def check_inputs(*, chains, ring_step: int, diameter_mm: float, heart_to_surface_cm: float, friction: float,
-                 reference: str, max_diameter_mm: float) -> None:
+                 reference: str, max_diameter_mm: float, veins=VEINS) -> None:
     """Raise UserInputError for bad input, before any solve."""
     unknown = [c for c in chains if c not in CHAINS]
     if not chains or unknown:
         raise UserInputError(f"--chains must be some of {sorted(CHAINS)}, got {list(chains)}")
     if isinstance(ring_step, bool) or not isinstance(ring_step, int) or ring_step < 0:
         raise UserInputError(f"--ring-step must be an integer >= 0 (0: no ring targets), got {ring_step!r}")
-    for name, value in (("diameter_mm", diameter_mm), ("heart_to_surface_cm", heart_to_surface_cm),
-                        ("max_diameter_mm", max_diameter_mm)):
-        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-            raise UserInputError(f"--{name.replace('_', '-')} must be a positive finite number, got {value!r}")
+    for name, value, hi, unit in (("diameter_mm", diameter_mm, MAX_DIAMETER_MM, "mm"),
+                                  ("heart_to_surface_cm", heart_to_surface_cm, MAX_HEART_TO_SURFACE_CM, "cm"),
+                                  ("max_diameter_mm", max_diameter_mm, MAX_DIAMETER_MM, "mm")):
+        if isinstance(value, bool) or not isinstance(value, numbers.Real) or not (math.isfinite(value)
+                                                                                   and 0 < value <= hi):
+            raise UserInputError(f"--{name.replace('_', '-')} must be a number in (0, {hi:g}] {unit}, got {value!r}")
     if max_diameter_mm < diameter_mm:
         raise UserInputError(f"--max-diameter-mm ({max_diameter_mm}) must be >= --diameter-mm ({diameter_mm})")
-    if not (math.isfinite(friction) and friction >= 0):
-        raise UserInputError(f"--friction must be a finite number >= 0, got {friction!r}")
+    if isinstance(friction, bool) or not isinstance(friction, numbers.Real) or not (math.isfinite(friction)
+                                                                                    and 0 <= friction <= MAX_FRICTION):
+        raise UserInputError(f"--friction must be a number in [0, {MAX_FRICTION:g}], got {friction!r}")
+    if isinstance(veins, str) or not all(isinstance(v, str) and v in VEINS for v in veins):
+        raise UserInputError(f"veins must be some of {', '.join(VEINS)}, got {short_repr(veins)}")
     if reference not in ("surface", "centre"):
         raise UserInputError(f"--reference must be 'surface' or 'centre', got {reference!r}")
 
@@ -627,7 +638,7 @@ def run(*, chains=("8Fr", "today"), ring_step: int = 3, ring_offset: int = 0, si
 
     check_inputs(chains=chains, ring_step=ring_step, diameter_mm=diameter_mm,
                  heart_to_surface_cm=heart_to_surface_cm, friction=friction, reference=reference,
-                 max_diameter_mm=max_diameter_mm)
+                 max_diameter_mm=max_diameter_mm, veins=veins)
     if isinstance(ring_offset, bool) or not isinstance(ring_offset, int) or not 0 <= ring_offset < 18:
         raise UserInputError(f"ring_offset must be an integer in [0, 18), got {ring_offset!r}")
     t0 = time.perf_counter()

@@ -44,6 +44,7 @@ import numpy as np
 
 from ballchain.drake_models.errors import UserInputError, check_in, short_repr
 from ballchain.experiments._result import Result, optional
+from ballchain.experiments.statics_bench import check_problem
 
 PATH_SCENARIOS = ("teleop_right_unit", "teleop_two_units")
 # The insertion of the recorded path: the chain on the atrium's wall all along (the scenario's own
@@ -365,9 +366,7 @@ def run_scaling(*, sizes=SCALING_SIZES, field_mT: float = 23.0, angle_deg: float
         UserInputError: bad arguments (before any work).
     """
     sizes = _check_scaling_inputs(sizes, repeats, clock)
-    check_in("--field-mT", field_mT, 1e-3, 1e3, unit="mT")
-    check_in("--angle-deg", angle_deg, -360.0, 360.0, unit="deg")
-    check_in("--warm-offset-deg", warm_offset_deg, -45.0, 45.0, unit="deg")
+    check_problem(field_mT, angle_deg, warm_offset_deg)
     now = _clock(clock)
     if out is not None:
         from ballchain.drake_models.safe_files import check_output_dir

@@ -18,11 +18,13 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import EventStatus
 from tqdm import tqdm
 
+from ballchain.drake_models.arg_checks import require_bool, require_choice, require_int, require_positive
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.vectors import angle_between
 from ballchain.experiments._result import Result
 from ballchain.systems.actuation_station import StationOptions, make_actuation_station, unit_system
+from ballchain.systems.randomness import MAX_SEED
 from ballchain.systems.rotating_magnet_unit import rotation_from_quaternion
 from ballchain.systems.unit_config import MagnetUnitConfig, right_unit
 
@@ -138,6 +140,27 @@ def run_reconfiguration(
     )
 
 
+MAX_RUNS = 10_000
+MAX_T_MAX = 600.0  # [s] of simulated time per run
+
+
+def check_study_inputs(*, runs, seed, slip, noise, field_model, wheel_map, tolerance_deg, t_max) -> None:
+    """Raise UserInputError, naming the argument, for what ``run_reconfiguration_study`` cannot
+    take: before the first run, as the command checks its flags."""
+    require_int(runs, "runs", 1, MAX_RUNS)
+    require_int(seed, "seed", 0, MAX_SEED - int(runs))  # run k's sensor noise is seeded seed + k
+    require_bool(noise, "noise")
+    require_choice(field_model, ("dipole", "exact"), "field_model")
+    require_choice(wheel_map, ("derived", "paper"), "wheel_map")
+    require_positive(slip, "slip", allow_zero=True)
+    if slip >= 1.0:
+        raise UserInputError(f"slip must be in [0, 1) (a wheel's slip fraction), got {slip:g}")
+    for name, value, hi, unit in (("tolerance_deg", tolerance_deg, 180.0, "deg"), ("t_max", t_max, MAX_T_MAX, "s")):
+        require_positive(value, name)
+        if value > hi:
+            raise UserInputError(f"{name} must be in (0, {hi:g}] {unit}, got {value:g}")
+
+
 def run_reconfiguration_study(
     *,
     runs: int = 100,
@@ -168,8 +191,8 @@ def run_reconfiguration_study(
     Returns:
         A ``ReconfigurationStudyResult``.
     """
-    if runs < 1:
-        raise UserInputError(f"runs must be >= 1, got {runs}")
+    check_study_inputs(runs=runs, seed=seed, slip=slip, noise=noise, field_model=field_model, wheel_map=wheel_map,
+                       tolerance_deg=tolerance_deg, t_max=t_max)
     unit = right_unit(model=field_model, slip=slip, sensor_noise=noise, wheel_map=wheel_map)
     base = StationOptions()
     # The neutral direction the controller is built with (same computation as in the station).

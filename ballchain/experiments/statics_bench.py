@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.errors import UserInputError, check_in
 from ballchain.experiments._result import Result, optional
 
 # The agreement required of every solver with the Newton cold solve.
@@ -272,15 +272,26 @@ def _spread(samples_ms: list[float]) -> float:
     return float((max(samples_ms) - min(samples_ms)) / np.median(samples_ms))
 
 
+# The benchmarks' problem: the field's strength and angle, the warm start's offset (also ``bench
+# scaling``'s); beyond them the solves time another problem (no equilibrium in 200 iterations).
+FIELD_MT_RANGE = (1e-3, 1e3)
+ANGLE_DEG_RANGE = (-360.0, 360.0)
+WARM_OFFSET_DEG_RANGE = (-45.0, 45.0)
+
+
+def check_problem(field_mT, angle_deg, warm_offset_deg) -> None:
+    """The field and warm start of a benchmark's problem, each in its range (UserInputError)."""
+    check_in("--field-mT", field_mT, *FIELD_MT_RANGE, unit="mT")
+    check_in("--angle-deg", angle_deg, *ANGLE_DEG_RANGE, unit="deg")
+    check_in("--warm-offset-deg", warm_offset_deg, *WARM_OFFSET_DEG_RANGE, unit="deg")
+
+
 def _check_statics_inputs(n_balls, field_mT, angle_deg, warm_offset_deg, repeats, baseline_ftol, clock) -> None:
     """``run_statics``'s arguments checked before any work: a ``UserInputError`` naming the bad one."""
     if isinstance(n_balls, bool) or not isinstance(n_balls, int) or not 2 <= n_balls <= 64:
         # the SLSQP baseline's pairwise constraints grow as n^2: 64 balls already take minutes
         raise UserInputError(f"--balls must be an integer >= 2 and <= 64 (ball 1 is held), got {n_balls!r}")
-    if not (math.isfinite(field_mT) and field_mT > 0):
-        raise UserInputError(f"--field-mT must be a positive finite number, got {field_mT}")
-    if not (math.isfinite(angle_deg) and math.isfinite(warm_offset_deg)):
-        raise UserInputError("--angle-deg and --warm-offset-deg must be finite")
+    check_problem(field_mT, angle_deg, warm_offset_deg)
     if not isinstance(repeats, int) or not 1 <= repeats <= 1000:
         raise UserInputError(f"--repeats must be an integer in 1..1000, got {repeats!r}")
     if not (math.isfinite(baseline_ftol) and baseline_ftol > 0):

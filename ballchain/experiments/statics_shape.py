@@ -17,9 +17,8 @@ from ballchain.drake_models.errors import UserInputError, check_in, short_repr
 from ballchain.drake_models.field_sources import UniformField
 from ballchain.drake_models.params import BallChain, Sleeve
 from ballchain.experiments._result import Result
-from ballchain.optimization.statics import ChainStatics, rotation_path, tip_angle_deg
+from ballchain.optimization.statics import MAX_BALLS, ChainStatics, rotation_path, tip_angle_deg
 
-MAX_BALLS = 200  # dense Hessians: 200 balls take about 0.5 GB
 MAX_FIELD_MT = 1000.0
 MIN_STEP_DEG = 0.1  # at most 7200 continuation steps over the widest angle
 
