@@ -39,6 +39,7 @@ from ballchain.drake_models.atrium_mesh import (MAX_PUNCTURE_DISTANCE, AtriumSur
                                                 load_atrium_surface)
 from ballchain.drake_models.errors import UserInputError, short_repr
 from ballchain.drake_models.heart import HeartParams, LeftAtrium
+from ballchain.drake_models.params import CylinderMagnet
 from ballchain.drake_models.safe_yaml import check_value, check_yaml_schema, load_yaml_file
 
 ANATOMIES_DIR = Path(__file__).resolve().parent / "anatomies"
@@ -251,11 +252,26 @@ def load_anatomy(path: str | Path) -> Anatomy:
     default = not magnets
     if default:
         magnets = [default_magnet(p_WT, n_W)]
+    else:
+        _check_magnet_clearance(path, spec, surface or procedural, np.array(magnets))
     anatomy = Anatomy(path=path, name=path.stem, description=spec.description, mesh=mesh, side=spec.side,
                       surface=surface, target_names=names, p_WT=p_WT, n_W=n_W, gaps=gaps, touch_radius=touch,
                       magnets=np.array(magnets), magnets_default=default, _atrium=procedural, **sheath)
     anatomy.atrium()  # the surface's and the sheath's checks that need the wall (one chamber, a free tip)
     return anatomy
+
+
+def _check_magnet_clearance(path: Path, spec: AnatomySpec, surface, magnets_W: np.ndarray) -> None:
+    """Each magnet at least a prototype magnet's bounding radius from the surface: closer (or
+    inside the chamber) the chain could reach into the magnet, and the station would stop at
+    its start with the field point inside the magnet's bounding sphere."""
+    clearance = CylinderMagnet().bounding_radius
+    gaps, _ = _surface_at(surface, magnets_W, spec.side)
+    for k in np.flatnonzero(gaps < clearance):
+        raise _bad(path, f"magnets[{k}]", f"{short_repr(spec.magnets[k])} is {gaps[k] * 1e3:.1f} mm from the surface; "
+                                          f"a magnet unit stands outside the chamber, at least "
+                                          f"{clearance * 1e3:.1f} mm (the prototype magnet's bounding radius) "
+                                          f"from it (coordinates in {spec.length_unit}, before the transform)")
 
 
 def default_magnet(p_WT: np.ndarray, n_W: np.ndarray, distance: float = DEFAULT_MAGNET_DISTANCE) -> np.ndarray:

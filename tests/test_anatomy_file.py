@@ -232,6 +232,10 @@ BAD = [
     ({"magnets": "[[1, 2]]"}, "magnets[0] must be 3 numbers"),
     ({"magnets": "[[5000, 0, 0]]"}, "magnets[0] is 5 m from the origin"),
     ({"magnets": "[1, 2, 3]"}, "magnets[0] must be a list"),
+    # inside the chamber, and just outside its wall: the chain would reach into the magnet
+    ({"magnets": "[[-24, 7, -6]]"}, "magnets[0] [-24, 7, -6] is"),
+    ({"magnets": "[[0, 0, 120], [0, 0, 0]]"}, "magnets[1] [0, 0, 0] is"),
+    ({"magnets": "[[0, 0, 0]]"}, "mm from the surface; a magnet unit stands outside the chamber, at least 42.6 mm"),
     ({"colour": "red"}, "unknown field 'colour'"),
 ]
 

@@ -369,3 +369,17 @@ def test_a_feeder_stepping_at_the_looks_gives_the_run_of_a_feeder_stepping_alone
     alone = _three_right_targets(heart)
     assert batched[0] == alone[0] and len(alone[0]) == 3
     assert 0.0 <= batched[1] - alone[1] < 0.005
+
+
+def test_a_task_whose_simulation_stopped_exits_1_after_its_results(capsys):
+    """The sheath's rows off in the heart: the engine's first solve cannot hold the chain, the run
+    stops at t = 0. Its results still print (the target not reached), and the exit status is 1
+    with the reason on stderr, as ``simulate``'s (it was 0: a script took it for a finished task)."""
+    from ballchain.cli import main as cli_main
+
+    assert cli_main(["teleop", "--targets", "1", "--no-progress", "--set", "{sheath: false}", "--json"]) == 1
+    captured = capsys.readouterr()
+    data = json.loads(captured.out)
+    assert data["summary"]["touched"] == 0 and data["summary"]["failure"].startswith("at t = 0.0000 s")
+    (line,) = [ln for ln in captured.err.splitlines() if ln.startswith("ballchain teleop:")]
+    assert line.startswith("ballchain teleop: simulation stopped: at t = 0.0000 s: statics in the heart")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from pathlib import Path
 
 # Re-exported for the commands: they live below the CLI layer so that experiments can use them.
@@ -11,7 +12,7 @@ from ballchain.drake_models.errors import check_in
 from ballchain.drake_models.safe_files import json_text, save_figure, to_jsonable, write_csv, write_json
 
 __all__ = ["YamlOnce", "add_json_flag", "check_in", "path_arg", "finite_float", "float_in", "int_in", "json_text", "non_negative_int",
-           "positive_int", "print_json", "save_figure", "to_jsonable", "write_csv", "write_json"]
+           "positive_int", "print_json", "run_status", "save_figure", "to_jsonable", "write_csv", "write_json"]
 
 
 def print_json(data) -> None:
@@ -102,3 +103,13 @@ class YamlOnce(argparse.Action):
             parser.error(f"{option_string} given twice ({earlier!r} and {values!r}); give every field in one "
                          "mapping, e.g. --set '{n_balls: 10, duration: 2.0}'")
         setattr(namespace, self.dest, values)
+
+
+def run_status(failure: str | None, command: str) -> int:
+    """The exit status of a task run (``teleop``, ``procedure``): 1, with the failure on stderr,
+    when the simulation stopped (the watchdog or the solver ended it: the results printed are
+    those up to then), as ``simulate`` does; else 0."""
+    if not failure:
+        return 0
+    print(f"ballchain {command}: simulation stopped: {failure}", file=sys.stderr)
+    return 1

@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import argparse
 
-from ballchain.commands._common import YamlOnce, add_json_flag, float_in, int_in, path_arg, positive_int, print_json
+from ballchain.commands._common import (YamlOnce, add_json_flag, float_in, int_in, path_arg, positive_int, print_json,
+                                        run_status)
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.localisation import LATENCY_RANGE_S, NOISE_RANGE_M, RATE_RANGE_HZ, LocalisationParams
 from ballchain.experiments import procedure
@@ -78,7 +79,7 @@ def main(args: argparse.Namespace) -> int:
         procedure.write_outputs(data, args.out)
     if args.json:
         print_json(data)
-        return 0
+        return run_status(data.summary["failure"], "procedure")
     for r in data.rows:
         if not r["reached"]:
             print(f"{r['target']:9s} missed ({r.get('reason') or 'gave up'})")
@@ -94,13 +95,13 @@ def main(args: argparse.Namespace) -> int:
                                           data.settings["wall_motion"].items() if m["amplitude_mm"] > 0))
     print(f"{s['reached']}/{s['targets']} reached in {s['total_time_s']} s; force in window "
           f"{s.get('in_window_fraction')}; estimate error {s.get('estimate_mean_abs_error_gf')} gf mean |.|, "
-          f"{s.get('estimate_worst_error_gf')} gf worst" + (f"; stopped: {s['failure']}" if s["failure"] else ""))
+          f"{s.get('estimate_worst_error_gf')} gf worst")
     if data.ring is not None:
         ring = data.ring
         print(f"ring: {'isolated' if ring['isolated'] else 'NOT isolated'}, {ring['n_lesions']}/{ring['n_targets']} "
               f"lesions, {len(ring['gaps'])} gap(s), transmural {100 * ring['transmural_fraction']:.0f}%, "
               f"largest spacing {ring['max_distance_mm']} mm")
-    return 0
+    return run_status(s["failure"], "procedure")
 
 
 def _localisation(args: argparse.Namespace) -> LocalisationParams | None:

@@ -27,7 +27,8 @@ from __future__ import annotations
 
 import argparse
 
-from ballchain.commands._common import YamlOnce, add_json_flag, finite_float, non_negative_int, path_arg, print_json
+from ballchain.commands._common import (YamlOnce, add_json_flag, finite_float, non_negative_int, path_arg, print_json,
+                                        run_status)
 
 
 def _int(text: str) -> int:
@@ -110,7 +111,7 @@ def main(args: argparse.Namespace) -> int:
                       overrides=args.overrides, seed=0 if args.seed is None else args.seed, anatomy=args.anatomy)
     if args.json:
         print_json(data)
-        return 0
+        return run_status(data.summary.failure, "teleop")
     if data.anatomy is not None:
         a = data.anatomy
         print(f"anatomy {a['file']} ({a['side']} side, {len(a['targets'])} targets, the unit at "
@@ -134,11 +135,9 @@ def main(args: argparse.Namespace) -> int:
     print(f"simulated {s.sim_time_s:.1f} s in {s.wall_time_s:.1f} s of wall time in the simulation loop "
           f"(real-time factor {s.realtime_factor}; {data.settings['engine']} engine, operator seed "
           f"{data.settings['seed']})")
-    if s.failure:
-        print(f"simulation stopped: {s.failure}")
     if data.html is not None:
         print(f"replay: {data.html}")
-    return 0
+    return run_status(s.failure, "teleop")
 
 
 def _main_manual(args: argparse.Namespace) -> int:
