@@ -15,6 +15,16 @@ import numpy as np
 from ballchain.drake_models.errors import UserInputError, short_repr
 
 
+def _holds_booleans(value) -> bool:
+    """Whether ``value`` (an array, or nested lists and tuples) holds True or False: numpy would
+    read them as 1 and 0 (``UniformField([True, False, False])`` a 1 T field)."""
+    if isinstance(value, np.ndarray):
+        return value.dtype == bool or (value.dtype == object and any(_holds_booleans(v) for v in value.flat))
+    if isinstance(value, (list, tuple)):
+        return any(_holds_booleans(v) for v in value)
+    return isinstance(value, (bool, np.bool_))
+
+
 def as_vector(value, name: str, size: int = 3, *, nonzero: bool = False, unit: str = "") -> np.ndarray:
     """``value`` as a float array of ``size`` finite numbers (a copy), else UserInputError.
 
@@ -26,7 +36,7 @@ def as_vector(value, name: str, size: int = 3, *, nonzero: bool = False, unit: s
         unit: the unit named in the message (e.g. "m", "T").
     """
     allowed = f"{size} finite numbers{' [' + unit + ']' if unit else ''}{' (non-zero)' if nonzero else ''}"
-    if isinstance(value, (str, bytes, dict)) or value is None:
+    if isinstance(value, (str, bytes, dict)) or value is None or _holds_booleans(value):
         raise UserInputError(f"{name} must be {allowed}, got {short_repr(value)}")
     try:
         x = np.array(value, dtype=float)
@@ -46,7 +56,7 @@ def as_array(value, name: str, shape: tuple, *, integer: bool = False) -> np.nda
     """
     allowed = f"an array of shape ({', '.join('k' if s == -1 else str(s) for s in shape)})" \
         + (" of integers" if integer else " of finite numbers")
-    if isinstance(value, (str, bytes, dict)) or value is None:
+    if isinstance(value, (str, bytes, dict)) or value is None or _holds_booleans(value):
         raise UserInputError(f"{name} must be {allowed}, got {short_repr(value)}")
     try:
         x = np.array(value, dtype=float)

@@ -113,6 +113,8 @@ class MagnetSource:
             raise UserInputError("MagnetSource pose must be finite")
         if not np.allclose(self.R_WM.T @ self.R_WM, np.eye(3), atol=1e-6):
             raise UserInputError("MagnetSource.R_WM is not a rotation matrix")
+        if np.linalg.det(self.R_WM) < 0.0:  # orthogonal, but a reflection: a left-handed magnet frame
+            raise UserInputError("MagnetSource.R_WM is a reflection (determinant -1), not a rotation matrix")
         if self.model not in ("dipole", "exact"):
             raise UserInputError(f"MagnetSource.model must be 'dipole' or 'exact', got {self.model!r}")
 
