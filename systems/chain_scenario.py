@@ -351,6 +351,8 @@ class ChainScenario:
 
 def _scenarios_data(filename: Path) -> dict:
     """The scenarios file as a mapping (read with the one user-YAML loader)."""
+    if not isinstance(filename, (str, Path)) or not str(filename).strip():
+        raise UserInputError(f"the scenarios file must be a file name, got {short_repr(filename)}")
     where = f"scenarios file {Path(filename).name!r}"
     data = load_yaml_file(filename, where)
     if data is None:

@@ -30,6 +30,7 @@ import numpy as np
 from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 from pydrake.systems.framework import EventStatus
 
+from ballchain.drake_models.arg_checks import require_int, require_type
 from ballchain.drake_models.atrium import Atrium
 from ballchain.drake_models.errors import UserInputError, caused_by_interrupt, short_repr
 from ballchain.drake_models.safe_files import atomic_write_text, check_output_file, optional_field
@@ -171,8 +172,12 @@ class ChainMonitor:
     """
 
     def __init__(self, cd: Station, tolerate_sinking=None, wall_check_every: int = 4):
-        if int(wall_check_every) != wall_check_every or wall_check_every < 1:
-            raise ValueError(f"wall_check_every must be an integer >= 1, got {wall_check_every!r}")
+        if not (hasattr(cd, "chain") and hasattr(cd, "scenario")):  # what it reads of a Station
+            raise UserInputError(f"ChainMonitor cd must be a Station (MakeStation(scenario)), got {type(cd).__name__}")
+        require_int(wall_check_every, "ChainMonitor wall_check_every", 1)
+        if tolerate_sinking is not None and not callable(tolerate_sinking):
+            raise UserInputError(f"ChainMonitor tolerate_sinking must be a function of a point or None, "
+                                 f"got {short_repr(tolerate_sinking)}")
         self._cd = cd
         self._chain = cd.chain
         self._system = cd.chain.system  # the system whose context holds the chain
@@ -762,6 +767,7 @@ def run_simulation(*, scenario: ChainScenario, duration: float | None = None, ht
         SimulationFailure: NaN, escape or break (message says when and which ball); its
             ``metrics`` are the run's up to the failure (no ``p_W_mm``).
     """
+    require_type(scenario, ChainScenario, "run_simulation scenario", "a ChainScenario (load_scenario(name))")
     duration = scenario.duration if duration is None else duration
     check_steps(scenario, duration, "duration")
     if html is not None:

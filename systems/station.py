@@ -589,6 +589,10 @@ def MakeStation(scenario: ChainScenario, meshcat=None, *, heart: Atrium | None =
         raise UserInputError(f"MakeStation add_systems must be a function or None, got {short_repr(add_systems)}")
     if field_source is not FROM_SCENARIO:
         require_field_source(field_source, "MakeStation field_source", allow_none=True)
+    if meshcat is not None:
+        from pydrake.geometry import Meshcat
+
+        require_type(meshcat, Meshcat, "MakeStation meshcat", "a pydrake Meshcat or None")
     t0 = time.perf_counter()
     scenario.validate()
     if scenario.device == "steerable_catheter":  # the paper's manual arm: its own diagram

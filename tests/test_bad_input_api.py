@@ -157,8 +157,10 @@ def _calls():
     from ballchain.drake_models.heart import HeartParams, LeftAtrium
     from ballchain.drake_models.params import CylinderMagnet
     from ballchain.drake_models.params import BallChain
-    from ballchain.experiments import (ablation, alignment, clinical, field_models, planner, reconfiguration, wheels,
-                                       workspace)
+    from ballchain.experiments import (ablation, alignment, clinical, field_models, manual_catheter, planner, procedure,
+                                       reconfiguration, teleop, wheels, workspace)
+    from ballchain.systems.chain_scenario import load_scenario
+    from ballchain.systems.chain_simulation import run_simulation
     from ballchain.optimization import inverse_statics, sizing
     from ballchain.optimization.statics import ChainStatics, tip_angle_deg, uniform_field_equilibrium
     from ballchain.systems.actuation_station import StationOptions, make_actuation_station
@@ -257,6 +259,23 @@ def _calls():
         ("ablation time step 0", lambda: ablation.run(dt_max_s=0.0), r"dt_max_s = 0.0 is outside the model's range: 0.05..10 s"),
         ("alignment balls 16.0", lambda: alignment.run(max_balls=16.0), "--max-balls must be an integer in 1..64, got 16.0"),
         ("clinical vein", lambda: clinical.run(veins=("SVC",)), "veins must be some of LSPV, LIPV, RSPV, RIPV"),
+        ("teleop operator", lambda: teleop.run(targets=1, operator="x"), "teleop.run operator must be an OperatorParams"),
+        ("teleop heart", lambda: teleop.run(targets=1, heart="x"), "teleop.run heart must be an atrium"),
+        ("teleop live duration", lambda: teleop.check_live_inputs("world", "one", None, 1e300, 1.0),
+         r"--duration must be in \(0, 3600\] s"),
+        ("teleop live rate", lambda: teleop.check_live_inputs("world", "one", None, 1.0, 1e300),
+         r"--realtime-rate must be in \[0, 100\]"),
+        ("manual hand", lambda: manual_catheter.run(hand="x"), "manual_catheter.run hand must be a HandParams"),
+        ("manual catheter", lambda: manual_catheter.run(catheter="x"), "manual_catheter.run catheter must be"),
+        ("procedure window of one", lambda: procedure.run(targets=1, window_gf=(10.0,)),
+         r"window_gf must be \(low, high\) in gf, got \(10.0,\)"),
+        ("procedure window reversed", lambda: procedure.run(targets=1, window_gf=(40, 10)),
+         "the force window 40..10 gf must have 0 < low <= high <= 200 gf"),
+        ("run_simulation by name", lambda: run_simulation(scenario="free_space_uniform_90deg"),
+         "run_simulation scenario must be a ChainScenario"),
+        ("MakeStation meshcat", lambda: MakeStation(load_scenario("free_space_uniform_90deg"), meshcat="x"),
+         "MakeStation meshcat must be a pydrake Meshcat or None"),
+        ("scenarios file None", lambda: load_scenario("x", filename=None), "the scenarios file must be a file name"),
         ("workspace 10000 balls", lambda: workspace.run(balls=(10000,)), r"chains of up to 200 balls \(.*\), got 10000"),
     ]
 
@@ -318,6 +337,15 @@ def test_run_station_refuses_bad_arguments_before_the_run(free_station, kwargs, 
     with pytest.raises(UserInputError) as err:
         bc.run_station(free_station, **kwargs)
     assert str(err.value).startswith(expected)
+
+
+def test_the_watchdog_names_its_arguments(free_station):
+    import ballchain as bc
+
+    with pytest.raises(UserInputError, match="ChainMonitor wall_check_every must be an integer >= 1, got 0"):
+        bc.ChainMonitor(free_station, wall_check_every=0)
+    with pytest.raises(UserInputError, match=r"ChainMonitor cd must be a Station \(MakeStation\(scenario\)\)"):
+        bc.ChainMonitor(None)
 
 
 def test_run_station_and_advance_to_name_what_they_need(free_station):

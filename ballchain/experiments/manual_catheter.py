@@ -103,7 +103,16 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
     from ballchain.systems.simulated_operator import OperatorParams, SimulatedOperator
     from ballchain.systems.station import atrium_for
 
+    from ballchain.drake_models.arg_checks import require_type
+    from ballchain.drake_models.atrium import Atrium
+    from ballchain.drake_models.steerable_catheter import SteerableCatheter
+
     check_inputs(task, targets, time_limit, seed, strategy)
+    for value, types, name, what in ((heart, Atrium, "heart", "an atrium (LeftAtrium) or None"),
+                                     (hand, HandParams, "hand", "a HandParams or None"),
+                                     (catheter, SteerableCatheter, "catheter", "a SteerableCatheter or None")):
+        if value is not None:
+            require_type(value, types, f"manual_catheter.run {name}", what)
     if html is not None:  # before the run: an unwritable replay path must not cost the results
         from ballchain.drake_models.safe_files import check_output_file
 

@@ -134,12 +134,16 @@ def check_inputs(task, navigator, seed, targets, force_gf, window_gf, dwell_s) -
         raise UserInputError(f"task must be 'left' or 'right' (or an anatomy's prefix), got {short_repr(task)}")
     if targets is not None and (isinstance(targets, bool) or not isinstance(targets, int) or targets < 1):
         raise UserInputError(f"targets must be a positive integer (the first N), got {short_repr(targets)}")
+    if isinstance(window_gf, (str, bytes)) or not hasattr(window_gf, "__len__") or len(window_gf) != 2:
+        raise UserInputError(f"window_gf must be (low, high) in gf, got {short_repr(window_gf)}")
     lo, hi = window_gf
     for name, v in (("force", force_gf), ("window low", lo), ("window high", hi), ("dwell", dwell_s)):
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
             raise UserInputError(f"{name} must be a finite number, got {short_repr(v)}")
-    if not 0 < lo <= force_gf <= hi <= 200:
-        raise UserInputError(f"force {force_gf:g} gf must lie in its window {lo:g}..{hi:g} gf (0 < low, high <= 200)")
+    if not 0 < lo <= hi <= 200:
+        raise UserInputError(f"the force window {lo:g}..{hi:g} gf must have 0 < low <= high <= 200 gf")
+    if not lo <= force_gf <= hi:
+        raise UserInputError(f"force {force_gf:g} gf must lie in its window {lo:g}..{hi:g} gf")
     if not 0 <= dwell_s <= MAX_DWELL_S:
         raise UserInputError(f"dwell must be in 0..{MAX_DWELL_S:g} s, got {short_repr(dwell_s)}")
 

@@ -160,8 +160,10 @@ def check_inputs(task: str | None, mapping: str, targets: int | None, n_balls: i
     if n_balls is not None and (isinstance(n_balls, bool) or not isinstance(n_balls, (int, np.integer))
                                 or not 3 <= n_balls <= 64):
         raise UserInputError(f"balls must be an integer in 3..64 (ball 1 stays in the sheath), got {n_balls!r}")
-    if time_limit is not None and not 0 < time_limit <= 3600:  # NaN fails too
-        raise UserInputError(f"time_limit must be in (0, 3600] s of simulated time, got {time_limit}")
+    from ballchain.systems.chain_scenario import MAX_DURATION
+
+    if time_limit is not None and not 0 < time_limit <= MAX_DURATION:  # NaN fails too
+        raise UserInputError(f"time_limit must be in (0, {MAX_DURATION:g}] s of simulated time, got {time_limit}")
 
 
 def _label(task: str | None, anatomy) -> str:
@@ -225,6 +227,9 @@ def hand_over(scenario, mapping: str, n_balls: int | None, overrides: dict, unit
     """The station with the sticks of ``units`` (default: all) and the feeder left to an operator
     or a person: their scripted joysticks removed, the mapping set, the engine ``DEFAULT_ENGINE``
     unless ``overrides`` (the parsed ``--set`` mapping) name one or the mode is not quasi-static."""
+    if n_balls is not None and "n_balls" in overrides:
+        raise UserInputError(f"--balls {n_balls} and --set n_balls {overrides['n_balls']!r} both give the chain's "
+                             "length: give one of them")
     engine = handed_over_engine(scenario.mode, overrides)
     if engine is not None:
         scenario.engine = engine
@@ -296,6 +301,13 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     from ballchain.systems.target_contact import heart_targets
 
     check_inputs(task, mapping, targets, n_balls, time_limit, seed, anatomy=anatomy is not None)
+    from ballchain.drake_models.arg_checks import require_type
+    from ballchain.drake_models.atrium import Atrium
+
+    if operator is not None:
+        require_type(operator, OperatorParams, "teleop.run operator", "an OperatorParams or None")
+    if heart is not None:
+        require_type(heart, Atrium, "teleop.run heart", "an atrium (LeftAtrium, UserAtrium) or None")
     if html is not None:  # before the run: an unwritable replay path must not cost the results
         from ballchain.drake_models.safe_files import check_output_file
 
@@ -611,10 +623,14 @@ LIVE_POLL = 0.05  # [s] wall time between looks at Meshcat while waiting (a brow
 LIVE_STATUS_ANCHOR, LIVE_KEYS_ANCHOR = (-0.7, 0.44), (-0.7, -0.34)
 
 
+MAX_LIVE_RATE = 100.0  # a person steering at more than 100 times real time sees nothing of it
+
+
 def check_live_inputs(mapping: str, units: str, n_balls: int | None, duration: float | None,
                       realtime_rate: float) -> None:
     """Raises UserInputError naming the flag on bad input for ``run_live``."""
     from ballchain.drake_models.errors import UserInputError, short_repr
+    from ballchain.systems.chain_scenario import MAX_DURATION
 
     if mapping not in MAPPINGS:
         raise UserInputError(f"--mapping must be one of {tuple(MAPPINGS)}, got {short_repr(mapping)}")
@@ -623,10 +639,11 @@ def check_live_inputs(mapping: str, units: str, n_balls: int | None, duration: f
                              f"got {short_repr(units)}")
     if n_balls is not None and n_balls < 3:
         raise UserInputError(f"--balls must be >= 3 (ball 1 stays in the sheath), got {n_balls}")
-    if duration is not None and not (np.isfinite(duration) and duration > 0):
-        raise UserInputError(f"--duration must be a positive number of simulated seconds, got {duration}")
-    if not (np.isfinite(realtime_rate) and realtime_rate >= 0):
-        raise UserInputError(f"--realtime-rate must be >= 0 (0: as fast as possible), got {realtime_rate}")
+    if duration is not None and not (np.isfinite(duration) and 0 < duration <= MAX_DURATION):
+        raise UserInputError(f"--duration must be in (0, {MAX_DURATION:g}] s of simulated time, got {duration}")
+    if not (np.isfinite(realtime_rate) and 0 <= realtime_rate <= MAX_LIVE_RATE):
+        raise UserInputError(f"--realtime-rate must be in [0, {MAX_LIVE_RATE:g}] (0: as fast as possible), "
+                             f"got {realtime_rate}")
 
 
 def live_scenario_for(mapping: str, units: str = "one", n_balls: int | None = None, overrides: str | None = None,
