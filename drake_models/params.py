@@ -26,6 +26,15 @@ def _require_positive(owner: str, **values: float) -> None:
             raise UserInputError(f"{owner}.{name} must be a positive finite number, got {short_repr(value)}")
 
 
+# What a chain of magnets can be: from beads to marbles; no permanent magnet reaches 2.5 T (NdFeB
+# about 1.5); osmium, the densest element, is 22 590 kg/m^3.
+BALL_DIAMETER_RANGE = (0.1e-3, 0.1)  # [m]
+MAX_REMANENCE = 2.5  # [T]
+MAX_DENSITY = 25000.0  # [kg/m^3]
+MAX_SLEEVE_MODULUS = 10e9  # [Pa]: the stiffest polymer tubes (PEEK about 4 GPa); silicone is 0.1-5 MPa
+MAX_MAGNET_SIZE = 10.0  # [m]: a magnet's diameter or length; an MRI scanner's bore is under 1 m
+
+
 @dataclass(frozen=True)
 class Sleeve:
     """Soft silicone sleeve around the chain (Dragon Skin 10 NV by default).
@@ -52,6 +61,12 @@ class Sleeve:
                 f"Sleeve.outer_diameter ({self.outer_diameter}) must exceed inner_diameter "
                 f"({self.inner_diameter})"
             )
+        if self.youngs_modulus > MAX_SLEEVE_MODULUS:
+            raise UserInputError(f"Sleeve.youngs_modulus must be in (0, {MAX_SLEEVE_MODULUS * 1e-6:g}] MPa, got "
+                                 f"{self.youngs_modulus * 1e-6:g} MPa")
+        if self.outer_diameter > BALL_DIAMETER_RANGE[1] + 0.02:
+            raise UserInputError(f"Sleeve.outer_diameter must be at most {(BALL_DIAMETER_RANGE[1] + 0.02) * 1e3:g} mm "
+                                 f"(over the largest balls), got {self.outer_diameter * 1e3:g} mm")
 
     @property
     def second_moment_of_area(self) -> float:
@@ -62,14 +77,6 @@ class Sleeve:
     def bending_stiffness(self) -> float:
         """EI [N m^2]."""
         return self.youngs_modulus * self.second_moment_of_area
-
-
-# What a chain of magnets can be: from beads to marbles; no permanent magnet reaches 2.5 T (NdFeB
-# about 1.5); osmium, the densest element, is 22 590 kg/m^3.
-BALL_DIAMETER_RANGE = (0.1e-3, 0.1)  # [m]
-MAX_REMANENCE = 2.5  # [T]
-MAX_DENSITY = 25000.0  # [kg/m^3]
-MAX_MAGNET_SIZE = 10.0  # [m]: a magnet's diameter or length; an MRI scanner's bore is under 1 m
 
 
 @dataclass(frozen=True)

@@ -92,6 +92,9 @@ from ballchain.drake_models.errors import UserInputError, require_finite_fields
 FRENCH = 1e-3 / 3.0  # [m] per Fr (the Charriere scale)
 
 
+
+MAX_BRAID_WIRES = 256  # a braiding machine's carriers: 16-64 in catheter shafts, at most a few hundred
+
 @dataclass
 class SteerableCatheter:
     """An 8 Fr bidirectional steerable ablation catheter (module docstring: the sources).
@@ -150,9 +153,10 @@ class SteerableCatheter:
         if not 0 <= self.mu_kinetic <= self.mu_static:
             raise UserInputError("SteerableCatheter: friction needs 0 <= mu_kinetic <= mu_static, got "
                                  f"{self.mu_kinetic}, {self.mu_static}")
-        if int(self.braid_wires) != self.braid_wires or self.braid_wires < 0 or self.braid_wires % 2:
-            raise UserInputError("SteerableCatheter.braid_wires must be an even count >= 0 (half each way; 0: no "
-                                 f"braid), got {self.braid_wires}")
+        if int(self.braid_wires) != self.braid_wires or not 0 <= self.braid_wires <= MAX_BRAID_WIRES \
+                or self.braid_wires % 2:
+            raise UserInputError(f"SteerableCatheter.braid_wires must be an even count in 0..{MAX_BRAID_WIRES} (half "
+                                 f"each way; 0: no braid), got {self.braid_wires}")
         for name in ("braid_wire_diameter", "braid_modulus"):
             if not getattr(self, name) > 0:
                 raise UserInputError(f"SteerableCatheter.{name} must be > 0, got {getattr(self, name)}")

@@ -156,7 +156,8 @@ def _calls():
     from ballchain.drake_models.atrium_mesh import UserAtrium, validate_surface
     from ballchain.drake_models.heart import HeartParams, LeftAtrium
     from ballchain.drake_models.params import CylinderMagnet
-    from ballchain.drake_models.params import BallChain
+    from ballchain.drake_models.params import BallChain, Sleeve
+    from ballchain.drake_models.steerable_catheter import SteerableCatheter
     from ballchain.experiments import (ablation, alignment, clinical, field_models, manual_catheter, planner, procedure,
                                        reconfiguration, teleop, wheels, workspace)
     from ballchain.systems.chain_scenario import load_scenario
@@ -276,6 +277,11 @@ def _calls():
         ("MakeStation meshcat", lambda: MakeStation(load_scenario("free_space_uniform_90deg"), meshcat="x"),
          "MakeStation meshcat must be a pydrake Meshcat or None"),
         ("scenarios file None", lambda: load_scenario("x", filename=None), "the scenarios file must be a file name"),
+        ("planner omega_max", lambda: planner.run(omega_max=-1.0), r"omega_max must be a finite number > 0 \[rad/s\]"),
+        ("planner feeder_speed", lambda: planner.run(feeder_speed=0.0), "feeder_speed must be a finite number > 0"),
+        ("Sleeve modulus", lambda: Sleeve(youngs_modulus=1e300), r"Sleeve.youngs_modulus must be in \(0, 10000\] MPa"),
+        ("braid wires", lambda: SteerableCatheter(braid_wires=10**9).validate(),
+         "SteerableCatheter.braid_wires must be an even count in 0..256"),
         ("workspace 10000 balls", lambda: workspace.run(balls=(10000,)), r"chains of up to 200 balls \(.*\), got 10000"),
     ]
 

@@ -22,7 +22,7 @@ from typing import Callable
 import numpy as np
 from tqdm import tqdm
 
-from ballchain.drake_models.arg_checks import as_int_list, require_int
+from ballchain.drake_models.arg_checks import as_int_list, require_int, require_positive
 from ballchain.drake_models import paper
 from ballchain.drake_models.anatomy import (PROCEDURAL_FILE, Anatomy, AnatomyTargets, ellipsoid_inward_normal,
                                             load_anatomy)
@@ -212,6 +212,8 @@ def run(*, task: str | None = None, targets: int | None = None, balls=(16,), gri
         raise UserInputError(f"min_force_gf must be a finite number > 0, got {min_force_gf}")
     if not (math.isfinite(friction) and friction >= 0):  # a NaN once ran and reported "no feasible answer"
         raise UserInputError(f"friction must be a finite number >= 0, got {friction}")
+    require_positive(omega_max, "omega_max", "rad/s")  # the plan's times divide by both
+    require_positive(feeder_speed, "feeder_speed", "m/s")
     if not balls or any(n < 2 for n in balls):
         raise UserInputError(f"balls must be chain lengths >= 2, got {balls}")
     anatomy, task, chosen = anatomy_targets(anatomy, task)
