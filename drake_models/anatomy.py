@@ -267,7 +267,9 @@ def _check_magnet_clearance(path: Path, spec: AnatomySpec, surface, magnets_W: n
     its start with the field point inside the magnet's bounding sphere."""
     clearance = CylinderMagnet().bounding_radius
     gaps, _ = _surface_at(surface, magnets_W, spec.side)
-    for k in np.flatnonzero(gaps < clearance):
+    near = np.flatnonzero(gaps < clearance)
+    if len(near):
+        k = int(near[0])
         raise _bad(path, f"magnets[{k}]", f"{short_repr(spec.magnets[k])} is {gaps[k] * 1e3:.1f} mm from the surface; "
                                           f"a magnet unit stands outside the chamber, at least "
                                           f"{clearance * 1e3:.1f} mm (the prototype magnet's bounding radius) "

@@ -31,6 +31,7 @@ def _require_positive(owner: str, **values: float) -> None:
 BALL_DIAMETER_RANGE = (0.1e-3, 0.1)  # [m]
 MAX_REMANENCE = 2.5  # [T]
 MAX_DENSITY = 25000.0  # [kg/m^3]
+MAX_SLEEVE_DIAMETER = 0.12  # [m]: over the largest balls
 MAX_SLEEVE_MODULUS = 10e9  # [Pa]: the stiffest polymer tubes (PEEK about 4 GPa); silicone is 0.1-5 MPa
 MAX_MAGNET_SIZE = 10.0  # [m]: a magnet's diameter or length; an MRI scanner's bore is under 1 m
 
@@ -64,9 +65,9 @@ class Sleeve:
         if self.youngs_modulus > MAX_SLEEVE_MODULUS:
             raise UserInputError(f"Sleeve.youngs_modulus must be in (0, {MAX_SLEEVE_MODULUS * 1e-6:g}] MPa, got "
                                  f"{self.youngs_modulus * 1e-6:g} MPa")
-        if self.outer_diameter > BALL_DIAMETER_RANGE[1] + 0.02:
-            raise UserInputError(f"Sleeve.outer_diameter must be at most {(BALL_DIAMETER_RANGE[1] + 0.02) * 1e3:g} mm "
-                                 f"(over the largest balls), got {self.outer_diameter * 1e3:g} mm")
+        if self.outer_diameter > MAX_SLEEVE_DIAMETER:
+            raise UserInputError(f"Sleeve.outer_diameter must be at most {MAX_SLEEVE_DIAMETER * 1e3:g} mm (a sleeve "
+                                 f"over the largest balls), got {self.outer_diameter * 1e3:g} mm")
 
     @property
     def second_moment_of_area(self) -> float:
