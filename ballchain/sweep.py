@@ -45,7 +45,6 @@ import hashlib
 import itertools
 import json
 import math
-import numbers
 import os
 import time
 import typing
@@ -53,6 +52,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, NamedTuple, Sequence
 
+from ballchain.drake_models.arg_checks import require_positive
 from ballchain.drake_models.errors import UserInputError, caused_by_interrupt, short_repr
 from ballchain.drake_models.safe_files import atomic_path, check_output_dir
 
@@ -684,10 +684,7 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
                              f"study's file is ballchain/studies/NAME.yaml), got {type(spec).__name__} {short_repr(spec)}")
     if not isinstance(out, (str, os.PathLike)) or not str(out).strip():
         raise UserInputError(f"run_sweep out must be a folder name, got {short_repr(out)}")
-    if isinstance(connect_timeout, bool) or not isinstance(connect_timeout, numbers.Real) \
-            or not (math.isfinite(connect_timeout) and connect_timeout > 0.0):
-        raise UserInputError(f"run_sweep connect_timeout must be a finite number of seconds > 0, "
-                             f"got {short_repr(connect_timeout)}")
+    require_positive(connect_timeout, "run_sweep connect_timeout", "s")
     if client is not None and not hasattr(client, "submit"):
         raise UserInputError(f"run_sweep client must be a distributed.Client or None, got {type(client).__name__}")
     _check_executor(scheduler, workers, jobqueue)

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import gc
 import math
-import numbers
 import resource
 import sys
 import time
@@ -30,7 +29,7 @@ import numpy as np
 from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 from pydrake.systems.framework import EventStatus
 
-from ballchain.drake_models.arg_checks import require_int, require_type
+from ballchain.drake_models.arg_checks import require_int, require_positive, require_type
 from ballchain.drake_models.atrium import Atrium
 from ballchain.drake_models.errors import UserInputError, caused_by_interrupt, short_repr
 from ballchain.drake_models.safe_files import atomic_write_text, check_output_file, optional_field
@@ -539,14 +538,6 @@ def frozen_gc(enabled: bool = True):
         gc.unfreeze()
 
 
-def _time(value, what: str, *, positive: bool) -> None:
-    """Refuse (UserInputError naming ``what``) a value that is not a finite real number, > 0 with
-    ``positive``, else >= 0."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) \
-            or value < 0.0 or (positive and value == 0.0):
-        raise UserInputError(f"{what} must be a finite number {'> 0' if positive else '>= 0'}, got {short_repr(value)}")
-
-
 class StationRunner:
     """The Simulator of a built station with its watchdog, advanced in chunks (and restartable).
 
@@ -614,7 +605,7 @@ class StationRunner:
         """
         from pydrake.systems.analysis import SimulatorStatus
 
-        _time(t, "advance_to t", positive=False)
+        require_positive(t, "advance_to t", allow_zero=True)
         if t < self.context.get_time():  # Drake's AdvanceTo would end the process (a failed assertion)
             raise UserInputError(f"advance_to t must not be before the simulation's time {self.context.get_time():g} s, "
                                  f"got {t:g}")
@@ -697,13 +688,13 @@ def run_station(cd: Station, *, duration: float, monitor: ChainMonitor | None = 
     """
     if not isinstance(cd, Station):
         raise UserInputError(f"run_station's cd must be a Station (MakeStation(scenario)), got {type(cd).__name__}")
-    _time(duration, "run_station duration", positive=True)
+    require_positive(duration, "run_station duration")
     if progress is not None and not isinstance(progress, str):
         raise UserInputError(f"run_station progress must be a label (str) or None, got {short_repr(progress)}")
     if progress_step is not None:
-        _time(progress_step, "run_station progress_step", positive=True)
+        require_positive(progress_step, "run_station progress_step")
     if realtime_rate is not None:
-        _time(realtime_rate, "run_station realtime_rate", positive=False)
+        require_positive(realtime_rate, "run_station realtime_rate", allow_zero=True)
     if html is not None and cd.visualizer is None:
         raise UserInputError("run_station html needs a station built with a Meshcat (MakeStation(scenario, "
                              "meshcat=...)): this one has none to record")

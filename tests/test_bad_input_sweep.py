@@ -391,9 +391,9 @@ def test_the_sweep_api_names_an_argument_of_the_wrong_kind(tmp_path):
             (lambda: bc.run_sweep(spec, "", workers=0), "run_sweep out must be a folder name, got ''"),
             (lambda: bc.run_sweep(spec, out, client="x"), "run_sweep client must be a distributed.Client or None"),
             (lambda: bc.run_sweep(spec, out, connect_timeout=-1.0),
-             "run_sweep connect_timeout must be a finite number of seconds > 0, got -1.0"),
+             "run_sweep connect_timeout must be a finite number > 0 [s], got -1.0"),
             (lambda: bc.run_sweep(spec, out, connect_timeout=float("nan")),
-             "run_sweep connect_timeout must be a finite number of seconds > 0, got nan"),
+             "run_sweep connect_timeout must be a finite number > 0 [s], got nan"),
             (lambda: bc.load_spec(None), "load_spec source must be a spec file's name"),
             (lambda: bc.load_spec("s.yaml", text={"experiment": "statics"}),
              "load_spec text must be the spec's YAML text, got dict")):

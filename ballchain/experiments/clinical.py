@@ -40,7 +40,6 @@ field's gradient pull on balls 2..n plus what the sheath pushes into the chain t
 from __future__ import annotations
 
 import math
-import numbers
 import time
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -50,7 +49,7 @@ import numpy as np
 from ballchain.drake_models import paper
 from ballchain.drake_models.dipole import dipole_field
 from ballchain.drake_models.dipole_inversion import moment_from_field
-from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.drake_models.errors import UserInputError, check_in, short_repr
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.safe_files import agg_pyplot, atomic_write_text, save_figure, write_csv
@@ -601,14 +600,10 @@ def check_inputs(*, chains, ring_step: int, diameter_mm: float, heart_to_surface
     for name, value, hi, unit in (("diameter_mm", diameter_mm, MAX_DIAMETER_MM, "mm"),
                                   ("heart_to_surface_cm", heart_to_surface_cm, MAX_HEART_TO_SURFACE_CM, "cm"),
                                   ("max_diameter_mm", max_diameter_mm, MAX_DIAMETER_MM, "mm")):
-        if isinstance(value, bool) or not isinstance(value, numbers.Real) or not (math.isfinite(value)
-                                                                                   and 0 < value <= hi):
-            raise UserInputError(f"--{name.replace('_', '-')} must be a number in (0, {hi:g}] {unit}, got {value!r}")
+        check_in(f"--{name.replace('_', '-')}", value, 0.0, hi, lo_open=True, unit=unit)
     if max_diameter_mm < diameter_mm:
         raise UserInputError(f"--max-diameter-mm ({max_diameter_mm}) must be >= --diameter-mm ({diameter_mm})")
-    if isinstance(friction, bool) or not isinstance(friction, numbers.Real) or not (math.isfinite(friction)
-                                                                                    and 0 <= friction <= MAX_FRICTION):
-        raise UserInputError(f"--friction must be a number in [0, {MAX_FRICTION:g}], got {friction!r}")
+    check_in("--friction", friction, 0.0, MAX_FRICTION)
     if isinstance(veins, str) or not all(isinstance(v, str) and v in VEINS for v in veins):
         raise UserInputError(f"veins must be some of {', '.join(VEINS)}, got {short_repr(veins)}")
     if reference not in ("surface", "centre"):
