@@ -9,6 +9,7 @@ export appears without editing any page.
 
 import inspect
 import os
+import shutil
 from pathlib import Path
 
 import ballchain
@@ -121,6 +122,26 @@ def write_scenarios_table() -> None:
     text = "\n".join(rows) + "\n"
     if not out.exists() or out.read_text() != text:
         out.write_text(text)
+
+
+# What this file and autosummary generate inside the source folder, because Sphinx reads its pages
+# only from there: removed again when the build ends, so that a build writes only into its output
+# folder and leaves the source tree as it found it.
+GENERATED = (DOCS / "api.md", DOCS / "generated", DOCS / "_generated")
+
+
+def remove_generated(app=None, exception=None) -> None:
+    """Remove the generated pages from the source folder (Sphinx's ``build-finished`` event)."""
+    for path in GENERATED:
+        if path.is_dir():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
+
+
+def setup(app):
+    app.connect("build-finished", remove_generated)
+    return {"parallel_read_safe": True}
 
 
 write_api_page()

@@ -34,10 +34,17 @@ def site(tmp_path_factory) -> Path:
     shutil.copytree(ROOT / "notebooks", src / "notebooks")
     shutil.copy(ROOT / "README.md", src / "README.md")
     html = src / "html"
+    before = _files(src / "docs")
     run = subprocess.run([sys.executable, "-m", "sphinx", "-W", "-q", "-b", "html", "-D", "nb_execution_mode=off",
                           str(src / "docs"), str(html)], capture_output=True, text=True, timeout=1800)
     assert run.returncode == 0, run.stderr[-3000:]
+    # the build writes only into its output folder: the source folder is as it was
+    assert _files(src / "docs") == before, sorted(_files(src / "docs") ^ before)[:10]
     return html
+
+
+def _files(folder: Path) -> set[str]:
+    return {str(p.relative_to(folder)) for p in folder.rglob("*")}
 
 
 @pytest.mark.slow
