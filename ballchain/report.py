@@ -293,9 +293,10 @@ def _block_html(block, out_dir: Path | None) -> str:
                                           else f"<td class='text'>{_inline(c, out_dir, False)}</td>"
                                           for r, c in zip(right, row)) + "</tr>")
         return "\n".join(parts + ["</table>"])
-    if not block.path.exists():  # say so instead of failing the whole report
+    path = block.path if block.path.is_absolute() or out_dir is None else Path(out_dir) / block.path
+    if not path.exists():  # say so instead of failing the whole report
         return f"<p><em>figure missing: {esc(str(block.path))}</em></p>"
-    data = base64.b64encode(block.path.read_bytes()).decode()
+    data = base64.b64encode(path.read_bytes()).decode()
     return (f"<figure><img src='data:image/png;base64,{data}'>"
             f"<figcaption>{esc(block.caption)}</figcaption></figure>")
 

@@ -538,7 +538,7 @@ def manual_section(out: Path, quick: bool) -> tuple[Section, dict]:
                      "handle twist): " + "; ".join(
                          f"{w['time_s']} s, handle at {w['twist_at_first_deg']} -> {w['twist_at_second_deg']} deg, "
                          f"windup up to {w['max_windup_deg']} deg" for w in windup) + ".")
-    section.figure("manual_transitions.png", "Median time per target-to-target transition (grey: never completed).")
+    section.figure(out / "manual_transitions.png", "Median time per target-to-target transition (grey: never completed).")
     _manual_headlines(section, comparison["table"])
     return section, comparison
 

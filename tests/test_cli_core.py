@@ -74,6 +74,7 @@ def test_reproduce_quick_writes_the_report(capsys, tmp_path):
     assert "paper" in report and "119" in report
     html = (tmp_path / "report.html").read_text()
     assert html.count("data:image/png;base64") >= 2
+    assert "figure missing" not in html  # every figure the report names is embedded
     assert set(data["experiments"]) == {"alignment", "sizing", "field models", "workspace", "model validation",
                                         "tip forces", "Table I effects and clinical design", "model-based steering",
                                         "teleoperation", "robotic vs manual", "ablation", "ablation procedure"}

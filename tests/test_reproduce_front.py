@@ -197,3 +197,26 @@ def test_the_command_ends_with_the_findings_and_the_reports_path(tmp_path, monke
     assert "[`sections/sizing.json`](sections/sizing.json)" in md and "(sections/notes.json)" in md
     assert md.index("## Summary") < md.index("## Contents") < md.index("## Clinical magnet sizing")
     assert "- [Notes](#notes)" in md and "- [Run time](#run-time)" in md
+
+
+def test_a_figure_named_relative_to_the_results_folder_is_embedded(tmp_path):
+    """A section's figure given relative to the results folder (as the manual comparison named its
+    ``manual_transitions.png``) is read from that folder: the report said "figure missing" while
+    the file was there."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig = plt.figure(figsize=(1, 1))
+    fig.savefig(tmp_path / "rel.png")
+    plt.close(fig)
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "rel.png").replace(tmp_path / "sub" / "rel.png")
+    sections = [Section("Figures").figure("sub/rel.png", "relative").figure(tmp_path / "sub" / "rel.png", "absolute")
+                .figure("sub/none.png", "absent")]
+    page = to_html("Title", sections, tmp_path)
+    assert page.count("<img src='data:image/png;base64,") == 2
+    assert page.count("figure missing") == 1 and "figure missing: sub/none.png" in page
+    md = write_report("Title", sections, tmp_path)[0].read_text()
+    assert "![relative](sub/rel.png)" in md and "![absolute](sub/rel.png)" in md
