@@ -58,7 +58,7 @@ def alignment_section(out: Path, quick: bool) -> tuple[Section, dict]:
     by_n = {}
     for r in data.rows:
         by_n[r["n_balls"]] = max(by_n.get(r["n_balls"], 0.0), r["tip_angle_deg"])
-    section = Section("Tip alignment with the field (model; paper Fig. model_simulation)")
+    section = Section("Tip alignment with the field (model; paper Fig. 5)")
     section.text(
         "A 23 mT field rotated from 0 to 180 deg with continuation; the angle between the field "
         "and the tip ball's dipole. Paper: below 1.4 deg for chains longer than 10 balls. "
@@ -145,7 +145,7 @@ def workspace_section(out: Path, quick: bool) -> tuple[Section, dict]:
 
     data = workspace.run(step_deg=15.0 if quick else 5.0, out=out / "workspace")
     s, p = data.summary, data.paper
-    section = Section("Workspace with one rotating magnet (paper Fig. workspace_results)")
+    section = Section("Workspace with one rotating magnet (paper Fig. 9)")
     section.text(
         f"The prototype magnet beside the insertion point, 16.51 cm away, turns through its range; "
         f"its field at the base is {s.field_at_base_mT_range[0]:.1f} to {s.field_at_base_mT_range[1]:.1f} mT. "
@@ -181,7 +181,7 @@ def validation_section(out: Path, quick: bool) -> tuple[Section, dict]:
 
     data = model_validation.run(out=out / "validation", balls=(5, 6, 10) if quick else range(5, 11))
     s, p = data.summary, data.paper
-    section = Section("Model validation: which field model (paper Fig. model_results)")
+    section = Section("Model validation: which field model (paper Fig. 11)")
     section.text(
         "5..10 balls, 23 mT at 0, 45, 90, 135 and 180 deg. The paper's model assumes a uniform "
         "field; the rig's field comes from the 76.2 mm cylinder about 10 cm away (placed here "

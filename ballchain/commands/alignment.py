@@ -1,4 +1,4 @@
-"""``ballchain alignment``: tip-to-field alignment against chain length (paper Fig. model_simulation).
+"""``ballchain alignment``: tip-to-field alignment against chain length (paper Fig. 5).
 
 Prints the tip angle of every chain length at every field angle, or ``--json``; the study, its
 CSV and its figures are ``ballchain.experiments.alignment``.

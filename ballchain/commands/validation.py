@@ -1,4 +1,4 @@
-"""Model validation (paper Fig. model_results): 5..10 balls, 23 mT at 0..180 deg, three field models.
+"""Model validation (paper Fig. 11): 5..10 balls, 23 mT at 0..180 deg, three field models.
 
 Uniform field (the paper's model), the prototype cylinder as a point dipole and with its exact
 field; prints how far the models' tips are apart beside the paper's measured errors. The

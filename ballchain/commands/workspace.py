@@ -1,4 +1,4 @@
-"""Workspace of the chain with one rotating magnet 16.51 cm away (paper Fig. workspace_results).
+"""Workspace of the chain with one rotating magnet 16.51 cm away (paper Fig. 9).
 
 Prints the half-workspace areas with and without sleeve and the tip-to-tip distance beside the
 paper's 3345 mm^2, 2939 mm^2 (12 % less) and about 8 mm; writes a plot of the tip curves and

@@ -1,4 +1,4 @@
-"""Tip-to-field alignment, the paper's model figure (Fig. model_simulation).
+"""Tip-to-field alignment, the paper's model figure (Fig. 5).
 
 Chains of 1..16 balls; a 23 mT field rotated from 0 to 180 deg in 22.5 deg steps with
 continuation; the angle between the field and the tip ball's dipole. The paper claims less

@@ -1,4 +1,4 @@
-"""Model validation (paper Fig. model_results): 5..10 balls, 23 mT at {0, 45, 90, 135, 180} deg.
+"""Model validation (paper Fig. 11): 5..10 balls, 23 mT at {0, 45, 90, 135, 180} deg.
 
 The paper compares a uniform-field dipole model with webcam measurements: for 6 or more balls
 median/max tip-angle error 5/8 deg; tip position error below 5 mm (5 balls), below 3 mm (6 or

@@ -1,4 +1,4 @@
-"""Workspace (paper Fig. workspace_results): one magnet 16.51 cm away, rotated through its range.
+"""Workspace (paper Fig. 9): one magnet 16.51 cm away, rotated through its range.
 
 The chain leaves the sheath at the origin along +x; the prototype cylinder sits beside the
 insertion point at (0, -16.51 cm, 0) and turns about z. Starting from the straight chain (the
