@@ -37,3 +37,12 @@ def test_short_plan_presses_every_target_and_times_the_turns():
     a, b = (np.array(r["dipole"]) for r in data.rows)
     np.testing.assert_allclose(turns[1], np.arccos(np.clip(a @ b, -1, 1)), atol=1e-9)
     assert data.summary.insertion_time_s == 0.0  # one length only
+
+
+@pytest.mark.slow
+def test_a_reached_row_carries_no_reason_from_a_length_that_failed():
+    """Two balls cannot press the target, sixteen can: the row is reached and gives no reason
+    (it carried the 2-ball failure's)."""
+    data = planner.run(task="right", targets=1, balls=(2, 16), grid=3, refine=4, progress=False)
+    (row,) = data.rows
+    assert row["reached"] and row["n_balls"] == 16 and row["reason"] == "", row

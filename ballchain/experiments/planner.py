@@ -153,7 +153,8 @@ class PlanResult(Result):
         task: "left" or "right" (None: a user anatomy's every target).
         rows: one per target in order: {target, reached, force_gf, n_balls, dipole (unit (3,), in the
             statics frame: x along the sheath), dipole_W (the same in the world frame),
-            turn_deg, friction_needed, offset_mm, how, reason} (None where not reached).
+            turn_deg, friction_needed, offset_mm, how, reason} (None where not reached; the reason,
+            each chain length's, only where no length reached the target: "" otherwise).
         summary: the totals (``PlanSummary``).
         paper: the paper's operator on the task; min_force_gf: the force asked for;
         friction: the tip's Coulomb coefficient; target_radius_mm: the targets' radius.
@@ -240,7 +241,7 @@ def run(*, task: str | None = None, targets: int | None = None, balls=(16,), gri
         row = {"target": name, "reached": bool(options), "force_gf": None, "n_balls": None, "dipole": None,
                "dipole_W": None,
                "turn_deg": None, "friction_needed": None, "offset_mm": None, "how": None,
-               "reason": "; ".join(reasons)}
+               "reason": "" if options else "; ".join(reasons)}  # why not: only on a row not reached
         if options:
             cost, n, plan, how = min(options, key=lambda o: o[0])
             turn_time += float(plan.turn_rad[0]) / omega_max
