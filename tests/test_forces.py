@@ -32,6 +32,20 @@ def test_short_optimisation_finds_a_pressing_force():
     # the paper's tens of grams; see the report).
     assert 0.0 < out["force_N"] == -result.tip_reaction @ axis
     assert out["force_gf"] < 30.0
+    # Five evaluations cannot meet Nelder-Mead's tolerances: the result says it stopped short ...
+    assert out["refine_converged"] is False
+    # ... and with room to converge it says it did, at a force no lower than the short search's.
+    full = forces.max_normal_force(BallChain(n_balls=16), stand, "RSPV", ("1",), grid=4, refine_evaluations=400)
+    assert full["refine_converged"] is True and full["force_N"] >= out["force_N"]
+
+
+def test_forces_command_says_when_the_refinement_stopped_short(capsys):
+    from ballchain.cli import main
+
+    assert main(["forces", "--veins", "RSPV", "--sleeve", "no", "--grid", "2", "--refine", "1", "--no-files",
+                 "--no-dynamics"]) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    assert last.startswith("note: on 3 of 3 rows the Nelder-Mead refinement stopped at its limit of 1 evaluations")
 
 
 # --- Table I from the simulation: the force-sensor pin and the steady state -------------------

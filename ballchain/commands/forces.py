@@ -47,4 +47,8 @@ def main(args: argparse.Namespace) -> int:
               f"{r['paper_gf']:9.1f}"
               + ("" if r.get("dynamics_gf") is not None or r.get("dynamics_note") == "not simulated"
                  else f"  ({r.get('dynamics_note')})"))
+    short = sum(r["refine_converged"] is False for r in data.rows)
+    if short:
+        print(f"note: on {short} of {len(data.rows)} rows the Nelder-Mead refinement stopped at its limit of "
+              f"{args.refine} evaluations before converging: those forces may be below the optimum (raise --refine)")
     return 0

@@ -98,8 +98,10 @@ def max_normal_force(chain: BallChain, stand: Stand, vein: str, configs=("1",), 
             default the prototype cylinder).
 
     Returns:
-        {"force_N", "force_gf", "angles_rad", "dipoles", "result" (StaticsResult), "evaluations"}
-        or {"force_N": None, ...} when no orientation holds the tip on the pin.
+        {"force_N", "force_gf", "angles_rad", "dipoles", "result" (StaticsResult), "evaluations",
+        "refine_converged" (False when the refinement stopped at ``refine_evaluations`` before its
+        tolerances: the force may be short of the optimum)} or {"force_N": None, ...} when no
+        orientation holds the tip on the pin.
     """
     target, axis = stand.targets[vein]
     if np.linalg.norm(target) > (chain.n_balls - 1) * chain.ball_diameter:
@@ -150,8 +152,8 @@ def max_normal_force(chain: BallChain, stand: Stand, vein: str, configs=("1",), 
             cache[key] = -force if np.isfinite(force) else 1e3
         return cache[key]
 
-    minimize(objective, best["angles"], method="Nelder-Mead",
-             options={"maxfev": refine_evaluations, "xatol": 1e-3, "fatol": 1e-9})
+    refined = minimize(objective, best["angles"], method="Nelder-Mead",
+                       options={"maxfev": refine_evaluations, "xatol": 1e-3, "fatol": 1e-9})
     if best["force_N"] <= 0.0:  # the best held equilibrium pulls the tip off the pin: no press found
         return {"force_N": None, "reason": f"no orientation found that presses the pin (the best pulls with "
                 f"{gram_force(-best['force_N']):.3g} gf): search a finer grid", "evaluations": evaluations[0]}
@@ -163,6 +165,9 @@ def max_normal_force(chain: BallChain, stand: Stand, vein: str, configs=("1",), 
         "dipoles": [_direction(angles[2 * k: 2 * k + 2]) for k in range(len(configs))],
         "result": best["result"],
         "evaluations": evaluations[0],
+        # False: Nelder-Mead stopped at its evaluation limit before its tolerances were met, so the
+        # force may lie below the optimum (more refine_evaluations would say how far)
+        "refine_converged": bool(refined.success),
     }
 
 
@@ -204,7 +209,8 @@ class ForcesResult(Result):
     Attributes:
         rows: one per vein, configuration ("1", "2", "both") and sleeve: {vein, config, sleeve,
             statics_gf, statics_lateral_gf, n_balls, magnet_dipoles (unit 3-vectors, one per
-            magnet), paper_gf, the simulation columns (``dynamics_columns``: dynamics_gf,
+            magnet), paper_gf, refine_converged (False: the Nelder-Mead refinement stopped at its
+            evaluation limit, so statics_gf may be short of the optimum), the simulation columns (``dynamics_columns``: dynamics_gf,
             dynamics_lateral_gf, statics_dynamics_diff_pct, dynamics_note, ...); the "both" row
             also superposition_gf (the sum of the single-magnet optima)}; None where no held
             equilibrium was found.
@@ -226,7 +232,8 @@ def write_files(data: ForcesResult, out: Path) -> list[str]:
     out.mkdir(parents=True, exist_ok=True)
     path = out / "forces.csv"
     keys = ["vein", "config", "sleeve", "statics_gf", "dynamics_gf", "statics_dynamics_diff_pct", "paper_gf",
-            "statics_lateral_gf", "dynamics_lateral_gf", "n_balls", "superposition_gf", "dynamics_note"]
+            "statics_lateral_gf", "dynamics_lateral_gf", "n_balls", "superposition_gf", "dynamics_note",
+            "refine_converged"]
     write_csv(path, data.rows, keys)
     rows = data.rows
     labels = [f"{r['vein']} {r['config']}{' S' if r['sleeve'] else ''}" for r in rows]
@@ -303,6 +310,7 @@ def run(*, veins=("LSPV", "LIPV", "RSPV", "RIPV"), sleeves=(False, True), n_ball
                 "n_balls": None if best is None else best["n_balls"],
                 "magnet_dipoles": None if best is None else [list(map(float, d)) for d in best["dipoles"]],
                 "paper_gf": PAPER_GF[(vein, label, sleeve)],
+                "refine_converged": None if best is None else best["refine_converged"],
             }
             if dynamics:
                 chain = None if best is None else BallChain(n_balls=best["n_balls"],
