@@ -67,6 +67,17 @@ def test_alignment_writes_csv_and_figures(capsys, tmp_path):
         assert (tmp_path / name).stat().st_size > 0
 
 
+def test_alignment_prints_a_headed_table_and_its_summary_in_words(capsys):
+    from ballchain.cli import main
+
+    assert main(["alignment", "--max-balls", "3", "--step-deg", "90", "--no-files"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("Angle between the tip's dipole and the 23 mT field [deg]")
+    assert lines[1].split() == ["balls", "|", "0", "90", "180"] and lines[2].startswith("------+")
+    assert [line.split()[0] for line in lines[3:6]] == ["1", "2", "3"]
+    assert lines[6] == "largest tip angle of chains longer than 10 balls: - (at 180 deg: -; the paper: < 1.4 deg)"
+
+
 @pytest.mark.slow
 def test_reproduce_quick_writes_the_report(capsys, tmp_path):
     data = run_json(capsys, "reproduce", "--quick", "--out", str(tmp_path))

@@ -31,9 +31,18 @@ def main(args: argparse.Namespace) -> int:
     if args.json:
         print_json({"rows": data.rows, "summary": data.summary, "files": data.files or []})
         return 0
-    print("n_balls  " + "  ".join(f"{a:>6g}" for a in sorted({r['field_angle_deg'] for r in data.rows})))
+    angles = sorted({r["field_angle_deg"] for r in data.rows})
+    print(f"Angle between the tip's dipole and the {args.field_mT:g} mT field [deg], by chain length (rows) "
+          "and field angle from +x (columns)")
+    print(f"{'balls':>5s} | " + "  ".join(f"{a:>6g}" for a in angles))
+    print("-" * 6 + "+" + "-" * (8 * len(angles)))
     for n in sorted({r["n_balls"] for r in data.rows}):
         vals = [r["tip_angle_deg"] for r in data.rows if r["n_balls"] == n]
-        print(f"{n:7d}  " + "  ".join(f"{v:6.2f}" for v in vals))
-    print(data.summary.to_dict())
+        print(f"{n:5d} | " + "  ".join(f"{v:6.2f}" for v in vals))
+    s = data.summary
+    fmt = lambda v: "-" if v is None else f"{v:.2f} deg"  # noqa: E731
+    print(f"largest tip angle of chains longer than 10 balls: {fmt(s.max_tip_angle_deg_beyond_10_balls)} "
+          f"(at 180 deg: {fmt(s.max_tip_angle_deg_beyond_10_balls_at_180deg)}; the paper: < {s.paper_claim_deg:g} deg)")
+    for path in data.files or []:
+        print(f"wrote {path}")
     return 0
