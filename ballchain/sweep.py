@@ -754,16 +754,18 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
     save(force=True)
     table_rows = ordered()
     summary = exp.summary(table_rows) if exp.summary and not interrupted else None
-    figure_path = None
+    figure_path = figure_note = None
     if figure and exp.figure and not interrupted and any(r.get("error") is None for r in table_rows):
-        figure_path = exp.figure(table_rows, out)
+        drawn = exp.figure(table_rows, out)  # a path, or a line saying why this grid gives no figure
+        figure_path, figure_note = (None, drawn) if isinstance(drawn, str) else (drawn, None)
     result = {
         "experiment": spec.experiment, "description": spec.description, "spec": spec.source, "out": out,
         "table_parquet": out / TABLE_PARQUET, "table_csv": out / TABLE_CSV, "points": len(tasks),
         "ran": ran[0], "skipped": len(tasks) - len(todo),
         "failed": sum(1 for k in keys if k in rows and rows[k].get("error") is not None),
         "resubmitted": resubmitted, "interrupted": interrupted, "wall_time_s": time.perf_counter() - start,
-        "executor": ex.description, "figure": figure_path, "summary": summary, "table_note": note,
+        "executor": ex.description, "figure": figure_path, "figure_note": figure_note, "summary": summary,
+        "table_note": note,
     }
     from ballchain.drake_models.safe_files import to_jsonable
 

@@ -332,3 +332,79 @@ def test_workers_pin_blas_to_one_thread(client, tmp_path):
     # ...and here, outside the pin, numpy's BLAS may use more (the check above is not vacuous
     # when this machine has several cores).
     assert [p for p in threadpool_info() if p["user_api"] == "blas"]
+
+
+DESIGN_SPEC = """
+experiment: design
+grid:
+  vein: [LSPV]
+  config: ["1"]
+  n_balls: [12, 16]
+  distance_cm: [14.0, 20.0]
+  grid: [2]
+  refine_evaluations: [1]
+"""
+
+
+def _write(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
+def test_design_summary_and_figure_keep_every_grid_field_apart(tmp_path, capsys):
+    """The design summary keys a design by every grid field but the vein: the 16-ball rows were
+    overwritten by the 12-ball ones (and LSPV at 14 cm reported one length's force for both). The
+    figure draws the user's grid (one magnet, 14-20 cm) with a line per chain length; a grid with
+    one distance per design gives no figure and says why. The command prints a headed table."""
+    import matplotlib.image
+
+    from ballchain.cli import main
+    from ballchain.experiments.studies import design_figure, design_summary
+
+    assert main(["sweep", str(_write(tmp_path / "spec.yaml", DESIGN_SPEC)), "--out", str(tmp_path / "out"),
+                 "--workers", "0", "--no-progress"]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    rows = read_table(tmp_path / "out")
+    designs = design_summary(rows)["designs"]
+    assert sorted((d["n_balls"], d["distance_cm"]) for d in designs) == [(12, 14.0), (12, 20.0), (16, 14.0),
+                                                                         (16, 20.0)]
+    for d in designs:
+        (row,) = [r for r in rows if (r["n_balls"], r["distance_cm"]) == (d["n_balls"], d["distance_cm"])]
+        assert d["forces_gf"]["LSPV"] == row["force_gf"] and d["veins_swept"] == ["LSPV"]
+        assert d["weakest_swept_gf"] == row["force_gf"] and d["min_force_gf"] is None  # three veins not swept
+    # The figure: the user's distances on the x-axis, one magnet in the title.
+    figure = json.loads((tmp_path / "out" / "sweep.json").read_text())["figure"]
+    assert figure and matplotlib.image.imread(figure).shape[0] > 100
+    # The headed table: the varied fields, then the outputs.
+    header = printed[1].split() if printed[0].startswith("design:") else printed[0].split()
+    assert header[:2] == ["n_balls", "distance_cm"] and "force_gf" in header
+    assert sum(line.split()[:2] in (["12", "14"], ["16", "20"]) for line in printed) == 2
+    # One distance per design: no figure, and the reason instead.
+    one = [r for r in rows if r["distance_cm"] == 14.0]
+    reason = design_figure(one, tmp_path / "one")
+    assert isinstance(reason, str) and "two distances" in reason and not (tmp_path / "one" / "design.png").exists()
+
+
+def test_design_figure_axes_follow_the_grid(tmp_path):
+    """The figure's x-axis spans the grid's distances and its title names the configuration."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from unittest import mock
+
+    import matplotlib.pyplot as plt
+
+    from ballchain.experiments.studies import design_figure
+
+    rows = [{"ball_diameter_mm": 3.175, "n_balls": n, "magnet": "cylinder", "distance_cm": d, "vein": "LSPV",
+             "config": "1", "sleeve": False, "grid": 2, "refine_evaluations": 1, "force_gf": f, "error": None}
+            for n, d, f in ((12, 14.0, 3.0), (12, 20.0, 1.0), (16, 14.0, 4.0), (16, 20.0, 1.5))]
+    with mock.patch.object(plt, "close"):  # keep the figure to read its axes
+        design_figure(rows, tmp_path)
+        ax = plt.gcf().axes[0]
+    lo, hi = ax.get_xlim()
+    assert 13.0 < lo < 14.0 and 20.0 < hi < 21.0  # the grid's 14-20 cm (the 29.65 cm line left out)
+    assert "one magnet, patient's right" in ax.get_title() and "two magnets" not in ax.get_title()
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert any("n_balls 12" in t for t in labels) and any("n_balls 16" in t for t in labels)
+    plt.close("all")

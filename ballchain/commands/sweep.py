@@ -76,10 +76,61 @@ def main(args: argparse.Namespace) -> int:
         print(f"{data['experiment']}: {data['points']} points, {data['ran']} run, {data['skipped']} skipped "
               f"(done before), {data['failed']} failed, {data['resubmitted']} resubmitted; "
               f"{data['wall_time_s']:.1f} s on {data['executor']}")
+        print_result_table(spec, sweep.read_table(args.out))
         print(f"table: {data['table_parquet']} and {data['table_csv']}")
         if data["figure"]:
             print(f"figure: {data['figure']}")
+        elif data.get("figure_note"):
+            print(data["figure_note"])
     if data["interrupted"]:
         print("interrupted: the table holds the points that finished; rerun with the same --out to go on")
         return 130
     return 0
+
+
+SHOWN_ROWS = 12  # rows of the table printed after a sweep (all of them are in table.csv)
+SHOWN_OUTPUTS = 5  # output columns printed
+
+
+def result_table(spec, rows: list[dict]) -> list[str]:
+    """A short, headed table of a sweep's rows: the grid fields that vary, the seed if there are
+    several, and the experiment's headline outputs (``Experiment.shown``; else its first scalar
+    outputs); at most ``SHOWN_ROWS`` rows."""
+    import dataclasses
+
+    from ballchain import sweep
+    from ballchain.experiments.studies import EXPERIMENTS
+
+    params = [f.name for f in dataclasses.fields(type(spec.points[0]))] if spec.points else []
+    varied = [p for p in params if len({repr(r.get(p)) for r in rows}) > 1]
+    if len({r.get("seed") for r in rows}) > 1:
+        varied.append("seed")
+    skip = set(params) | set(sweep.META_COLUMNS) | set(sweep.TAIL_COLUMNS) | {"seed"}
+    outputs = []
+    for r in rows:
+        outputs += [k for k, v in r.items() if k not in skip and k not in outputs
+                    and (v is None or isinstance(v, (int, float, bool, str)))]
+    shown = [c for c in EXPERIMENTS[spec.experiment].shown if c in outputs] or outputs[:SHOWN_OUTPUTS]
+    columns = varied + shown + ["error"]
+
+    def cell(value) -> str:
+        if value is None:
+            return "-"
+        if isinstance(value, float):
+            return f"{value:.4g}"
+        text = str(value)
+        return text if len(text) <= 24 else text[:21] + "..."
+
+    table = [[cell(r.get(c)) for c in columns] for r in rows[:SHOWN_ROWS]]
+    widths = [max([len(c)] + [len(t[i]) for t in table]) for i, c in enumerate(columns)]
+    lines = ["  ".join(c.rjust(w) for c, w in zip(columns, widths)),
+             "  ".join("-" * w for w in widths)]
+    lines += ["  ".join(t.rjust(w) for t, w in zip(row, widths)) for row in table]
+    if len(rows) > SHOWN_ROWS:
+        lines.append(f"... {len(rows) - SHOWN_ROWS} more rows in table.csv")
+    return lines
+
+
+def print_result_table(spec, rows: list[dict]) -> None:
+    if rows:
+        print("\n".join(result_table(spec, rows)))

@@ -21,6 +21,7 @@ that a value the command refuses is refused in a spec too, before any point runs
 
 # No ``from __future__ import annotations``: pydrake's yaml_load_typed reads the parameter
 # dataclasses' field types as objects, not strings (as in systems/chain_scenario.py).
+import dataclasses
 import functools
 import json
 import math
@@ -44,11 +45,13 @@ class Experiment:
         params: a dataclass of scalar fields (bool, int, float, str) with defaults.
         point: ``point(params, seed) -> {output name: scalar}``; lists/dicts are stored as JSON.
         check: ``check(params)`` raises UserInputError naming the field (before the sweep).
-        figure: ``figure(rows, out_dir) -> Path`` from the table's rows (dicts), or None.
+        figure: ``figure(rows, out_dir) -> Path`` from the table's rows (dicts), or a line (str)
+            saying why this grid gives no figure; or None (the study has no figure).
         summary: ``summary(rows) -> dict`` of headline numbers, or None.
         description: one line.
         typical_s: a point's typical CPU time [s] on one core, for the estimate printed before a
             sweep starts (an earlier table's own times replace it when there is one).
+        shown: the output columns that ``ballchain sweep`` prints in its short table.
     """
 
     name: str
@@ -59,6 +62,7 @@ class Experiment:
     summary: Callable | None = None
     description: str = ""
     typical_s: float = 1.0
+    shown: tuple = ()  # the outputs the sweep command prints in its short table (default: the first few)
 
 
 def _one_of(name: str, value, allowed) -> None:
@@ -249,28 +253,42 @@ def design_point(p: DesignPoint, seed: int) -> dict:
 
     lateral = _lateral_gf(-out["result"].tip_reaction, stand.targets[p.vein][1])
     return {**base, "force_gf": out["force_gf"], "lateral_gf": lateral,
-            "reaches_target": bool(out["force_gf"] >= TARGET_GF), "evaluations": out["evaluations"], "note": None}
+            "reaches_target": bool(out["force_gf"] >= TARGET_GF), "evaluations": out["evaluations"],
+            "refine_converged": out["refine_converged"],
+            "note": None if out["refine_converged"] else
+            f"refinement stopped at {p.refine_evaluations} evaluations: the force may be short of the optimum"}
+
+
+DESIGN_KEY = tuple(f.name for f in dataclasses.fields(DesignPoint) if f.name != "vein")  # what makes one design
 
 
 def _design_table(rows) -> dict:
-    """(ball, magnet, distance) -> {vein: force_gf} for the configuration rows."""
+    """{design: {vein: force_gf}} of the rows that ran, a design being every grid field but the vein
+    (``DESIGN_KEY``): rows that differ in any of them (n_balls, the sleeve, grid, ...) are other designs."""
     table: dict = {}
     for r in _ok(rows):
-        table.setdefault((r["ball_diameter_mm"], r["magnet"], r["distance_cm"], r["config"], r["sleeve"]), {})[
-            r["vein"]] = r["force_gf"]
+        table.setdefault(tuple(r.get(k) for k in DESIGN_KEY), {})[r["vein"]] = r["force_gf"]
     return table
 
 
 def design_summary(rows) -> dict:
-    """Per design the weakest vein's force; which designs give 10 gf on every vein; the paper's
-    clinical claim (two 119 mm spheres, 8 Fr chain, 29.65 cm / 35.6 cm) checked."""
+    """Per design (every field of ``DesignPoint`` but the vein) the weakest vein's force; which
+    designs give 10 gf on every vein; the paper's clinical claim (two 119 mm spheres, 8 Fr chain,
+    29.65 cm / 35.6 cm) checked.
+
+    Each design: its fields, ``forces_gf`` {vein: gf or None}, ``veins_swept`` (the veins the grid
+    ran for it), ``weakest_swept_gf`` (the weakest of those: None if one has no force),
+    ``min_force_gf`` (the weakest of all four veins: None unless all four were swept and pressed)
+    and ``every_vein_10gf``.
+    """
     designs = []
-    for (ball, magnet, distance, config, sleeve), forces in sorted(_design_table(rows).items(),
-                                                                   key=lambda kv: tuple(map(str, kv[0]))):
+    for key, forces in sorted(_design_table(rows).items(), key=lambda kv: tuple(map(str, kv[0]))):
         values = [forces.get(v) for v in VEINS]
         complete = all(v is not None for v in values)
-        designs.append({"ball_diameter_mm": ball, "magnet": magnet, "distance_cm": distance, "config": config,
-                        "sleeve": sleeve, "min_force_gf": min(values) if complete else None,
+        swept = [v for v in VEINS if v in forces]
+        weakest = None if any(forces[v] is None for v in swept) else min(forces[v] for v in swept)
+        designs.append({**dict(zip(DESIGN_KEY, key)), "min_force_gf": min(values) if complete else None,
+                        "veins_swept": swept, "weakest_swept_gf": weakest,
                         "forces_gf": dict(zip(VEINS, values)), "every_vein_10gf": complete and min(values) >= TARGET_GF})
     clinical = [d for d in designs if d["ball_diameter_mm"] == 2.17 and d["magnet"] == "sphere119"
                 and d["config"] == "both"]
@@ -281,32 +299,59 @@ def design_summary(rows) -> dict:
             "clinical_119mm": clinical}
 
 
-def design_figure(rows, out: Path) -> Path:
-    """Weakest-vein force against distance, one line per magnet, a panel per ball size."""
+CONFIG_WORDS = {"1": "one magnet, patient's right", "2": "one magnet, patient's left", "both": "two magnets"}
+
+
+def design_figure(rows, out: Path) -> Path | str:
+    """The weakest swept vein's force against distance: a panel per ball size, a line per design
+    that the grid varies besides the distance (magnet, chain length, sleeve, configuration, ...),
+    drawn from the rows' own values. When no design has a force at two distances or more, no
+    figure (a line of single points says nothing the table does not): the reason, as a str."""
+    designs = [d for d in design_summary(rows)["designs"] if d["weakest_swept_gf"] is not None]
+    # The fields that tell the lines apart: those the grid varies, besides the ball size (panels)
+    # and the distance (the x-axis).
+    varied = [k for k in DESIGN_KEY if k not in ("ball_diameter_mm", "distance_cm")
+              and len({d[k] for d in designs}) > 1]
+    lines: dict = {}
+    for d in designs:
+        lines.setdefault((d["ball_diameter_mm"], tuple(d[k] for k in varied), d["magnet"], d["config"]), []).append(
+            (d["distance_cm"], d["weakest_swept_gf"]))
+    if not any(len(pts) >= 2 for pts in lines.values()):
+        return ("no figure: it draws the force against distance_cm, and no design of this grid has a force at "
+                "two distances or more")
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    summary = design_summary(rows)["designs"]
-    balls = sorted({d["ball_diameter_mm"] for d in summary}, reverse=True)
+    balls = sorted({key[0] for key in lines}, reverse=True)
     fig, axes = plt.subplots(1, len(balls), figsize=(5.5 * len(balls), 4.2), sharex=True, sharey=True,
                              squeeze=False)
+    distances = [x for pts in lines.values() for x, _ in pts]
+    veins = sorted({v for d in designs for v in d["veins_swept"]}, key=VEINS.index)
     for ax, ball in zip(axes[0], balls):
-        mine = [d for d in summary if d["ball_diameter_mm"] == ball and d["min_force_gf"] is not None]
-        for magnet in sorted({d["magnet"] for d in mine}, key=lambda m: (m != "cylinder", len(m), m)):
-            pts = sorted((d["distance_cm"], d["min_force_gf"]) for d in mine if d["magnet"] == magnet)
+        for (b, values, magnet, config), pts in sorted(lines.items(), key=lambda kv: tuple(map(str, kv[0]))):
+            if b != ball:
+                continue
             label = "76.2 mm cylinder (prototype)" if magnet == "cylinder" else f"{magnet[6:]} mm sphere"
-            ax.plot(*zip(*pts), "o-", label=label)
+            extra = ", ".join(f"{k} {v}" for k, v in zip(varied, values) if k != "magnet")
+            ax.plot(*zip(*sorted(pts)), "o-", label=label + (f" ({extra})" if extra else ""))
         ax.axhline(TARGET_GF, color="k", ls="--", lw=1, label="10 gf")
-        ax.axvline(paper.CLINICAL_DISTANCE * 100, color="grey", ls=":", lw=1)
-        if ball < 3:  # the paper's claim: two 119 mm spheres, centres d_c + d_d/2 away, 10 gf
+        configs = sorted({key[3] for key in lines if key[0] == ball})
+        clinical_cm = paper.CLINICAL_DISTANCE * 100
+        if min(distances) <= clinical_cm <= max(distances):
+            ax.axvline(clinical_cm, color="grey", ls=":", lw=1, label=f"d_c = {clinical_cm:g} cm")
+        if ball < 3 and configs == ["both"] and min(distances) <= 35.6 <= max(distances):
+            # the paper's claim: two 119 mm spheres, centres d_c + d_d/2 away, 10 gf
             ax.plot([35.6], [TARGET_GF], "*", color="C2", ms=14, mec="k", label="paper's claim (119 mm, 35.6 cm)")
         ax.set_yscale("log")
-        ax.set_xlabel("magnet centre to septal puncture [cm] (dotted: 29.65)")
-        ax.set_title(f"balls {ball} mm ({'prototype' if ball > 3 else '8 Fr'}), two magnets")
+        ax.set_xlabel("magnet centre to septal puncture [cm]")
+        ax.set_title(f"balls {ball} mm ({'prototype' if ball > 3 else '8 Fr' if ball == 2.17 else 'own'}), "
+                     + "; ".join(CONFIG_WORDS[c] for c in configs))
         ax.grid(True, which="both", alpha=0.3)
-    axes[0][0].set_ylabel("tip force on the weakest of the four veins [gf]")
+    axes[0][0].set_ylabel(f"tip force on {veins[0]} [gf]" if len(veins) == 1 else
+                          "tip force on the weakest of the four veins [gf]" if veins == list(VEINS)
+                          else f"tip force on the weakest of {', '.join(veins)} [gf]")
     axes[0][-1].legend(fontsize=8)
     return _savefig(fig, Path(out) / "design.png")
 
@@ -599,12 +644,16 @@ def sleeve_figure(rows, out: Path) -> Path:
 EXPERIMENTS: dict[str, Experiment] = {
     e.name: e for e in (
         Experiment("statics", StaticsPoint, statics_point, statics_check,
-                   description="one equilibrium of the canonical chain in a uniform field", typical_s=0.05),
+                   description="one equilibrium of the canonical chain in a uniform field", typical_s=0.05,
+                   shown=("tip_x_mm", "tip_y_mm", "tip_angle_deg", "iterations")),
         Experiment("design", DesignPoint, design_point, design_check, design_figure, design_summary,
-                   "ball size x actuation magnet x distance -> tip force on a vein (statics)", typical_s=10.0),
+                   "ball size x actuation magnet x distance -> tip force on a vein (statics)", typical_s=10.0,
+                   shown=("n_balls_used", "force_gf", "lateral_gf", "reaches_target", "note")),
         Experiment("operators", OperatorsPoint, operators_point, operators_check, operators_figure,
-                   operators_summary, "simulated operators on the teleoperation tasks", typical_s=10.0),
+                   operators_summary, "simulated operators on the teleoperation tasks", typical_s=10.0,
+                   shown=("touched", "n_targets", "total_time_s", "median_accuracy_mm", "failure")),
         Experiment("sleeve", SleevePoint, sleeve_point, sleeve_check, sleeve_figure, sleeve_summary,
-                   "workspace against the sleeve's Young's modulus and wall thickness", typical_s=15.0),
+                   "workspace against the sleeve's Young's modulus and wall thickness", typical_s=15.0,
+                   shown=("half_area_bare_mm2", "half_area_sleeve_mm2", "reduction_pct", "tip_to_tip_max_mm")),
     )
 }
