@@ -81,6 +81,8 @@ class UniformField:
         return UniformField(magnitude_T * np.array([np.cos(angle_rad), np.sin(angle_rad), 0.0]))
 
     def field_and_gradient(self, p_W):
+        """(B_W (k, 3) [T], G_W (k, 3, 3) [T/m]) at the points p_W (k, 3) [m]: the same field
+        everywhere, no gradient."""
         p = _as_points(p_W)
         return np.broadcast_to(self.B_W, p.shape).copy(), np.zeros((p.shape[0], 3, 3))
 
@@ -190,6 +192,8 @@ class MagnetSource:
         return bool(np.all(np.linalg.norm(p - self.p_WM, axis=1) > self.magnet.bounding_radius))
 
     def field_and_gradient(self, p_W):
+        """(B_W (k, 3) [T], G_W (k, 3, 3) [T/m]) at the points p_W (k, 3) [m]: the magnet's
+        field by its ``model`` (the point dipole, or the exact cylinder)."""
         p = _as_points(p_W)
         p_M = self._to_magnet_frame(p)
         if self.model == "exact" and isinstance(self.magnet, CylinderMagnet):
@@ -268,6 +272,8 @@ class FieldSources:
             require_field_source(source, f"FieldSources.sources[{k}]")
 
     def field_and_gradient(self, p_W):
+        """(B_W (k, 3) [T], G_W (k, 3, 3) [T/m]) at the points p_W (k, 3) [m]: the sum of the
+        sources' fields and gradients."""
         p = _as_points(p_W)
         B = np.zeros((p.shape[0], 3))
         G = np.zeros((p.shape[0], 3, 3))

@@ -234,6 +234,7 @@ class SphereMagnet(_UniformMagnet):
         return self.diameter / 2.0
 
     def contains(self, p_M):
+        """Whether points given in the magnet frame lie inside the sphere."""
         p_M = np.asarray(p_M, dtype=float)
         return np.linalg.norm(p_M, axis=-1) < self.diameter / 2.0
 

@@ -61,6 +61,25 @@ def test_api_reference_lists_every_exported_name(site):
 
 
 @pytest.mark.slow
+def test_the_api_reference_documents_every_public_method(site):
+    """Each exported class's page documents its own public methods, with their arguments: the
+    site listed ``ChainStatics.solve`` as a name with one line, and its ``wall`` and
+    ``tip_target`` were on no page."""
+    statics = (site / "generated" / "ballchain.ChainStatics.html").read_text()
+    solve = statics.split('id="ballchain.ChainStatics.solve"', 1)[1].split('id="ballchain.ChainStatics.', 1)[0]
+    for argument in ("tip_target", "wall", "constraints", "warm_start"):
+        assert argument in solve, argument
+    for name in ballchain.__all__:
+        value = getattr(ballchain, name)
+        if not inspect.isclass(value):
+            continue
+        page = (site / "generated" / f"ballchain.{name}.html").read_text()
+        own = [m for m, v in vars(value).items() if not m.startswith("_") and inspect.isfunction(v)]
+        for method in own:
+            assert f'id="ballchain.{name}.{method}"' in page, f"{name}.{method}"
+
+
+@pytest.mark.slow
 def test_every_page_of_the_guide_is_built(site):
     for page in ("index", "getting_started", "results", "design", "notebooks", "testing", "guide/scenarios",
                  "guide/station", "guide/statics", "guide/teleoperation", "guide/experiments", "guide/sweeps",
