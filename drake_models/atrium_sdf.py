@@ -27,7 +27,9 @@ costs a few microseconds.
   derivatives of one function and the wall normal is continuous, as the statics' Newton steps
   need; trilinear interpolation's gradient jumps at every cell face).
 * Cache: ``atrium_sdf_<hash>.npz`` next to the heart's generated files, the hash of the
-  triangles, the inside test and the grid parameters, written atomically.
+  triangles, the inside test and the grid parameters, written atomically and signed with the
+  user's key (``atrium_sdf_<hash>.hmac``, ``model_files.install_signed``): a grid not signed is
+  rebuilt.
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ from pathlib import Path
 
 import numpy as np
 from ballchain.drake_models import mesh_tools as mt
+from ballchain.drake_models import model_files
 from ballchain.drake_models.kernels.sdf import bspline_sdf
 from ballchain.drake_models.model_files import report_rebuilt
 
@@ -215,26 +218,28 @@ def atrium_sdf(heart, spacing: float = 0.5e-3, band: float = 5e-3, margin: float
     key = cache_key(V, F, heart.lumen_key, spacing, band, margin)
     directory = Path(directory) if directory else Path(heart.write_files()["vtk"]).parent
     path = directory / f"atrium_sdf_{key}.npz"
+    listing = directory / f"atrium_sdf_{key}.hmac"  # its signature (model_files.install_signed)
     damaged = False
-    if path.exists():
-        try:
-            with np.load(path) as data:
-                origin, values = data["origin"], data["values"]
-                stored = float(data["spacing"]), float(data["band"])
-            if (origin.shape == (3,) and values.ndim == 3 and min(values.shape) >= 1
-                    and stored == (float(spacing), float(band)) and np.all(np.isfinite(origin))
-                    and np.all(np.isfinite(values))):
-                return AtriumSDF(origin, stored[0], values.astype(float), stored[1], key)
-            damaged = True
-        except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, zlib.error):
-            damaged = True  # truncated, edited or not an npz at all: rebuild it
+    if path.exists() and listing.exists():  # a grid never signed (a killed run's) is built again quietly
+        damaged = True  # unless it carries this user's signature and reads back whole
+        if model_files.unsigned(listing, [path]) is None:  # else truncated, edited or planted
+            try:
+                with np.load(path) as data:
+                    origin, values = data["origin"], data["values"]
+                    stored = float(data["spacing"]), float(data["band"])
+                if (origin.shape == (3,) and values.ndim == 3 and min(values.shape) >= 1
+                        and stored == (float(spacing), float(band)) and np.all(np.isfinite(origin))
+                        and np.all(np.isfinite(values))):
+                    return AtriumSDF(origin, stored[0], values.astype(float), stored[1], key)
+            except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, zlib.error):
+                pass  # not an npz of the grid: rebuild it
     sdf = build_atrium_sdf(heart, spacing, band, margin)
     sdf.key = key
     directory.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npz")
     np.savez_compressed(tmp, origin=sdf.origin, spacing=sdf.spacing, values=sdf.values.astype(np.float32),
                         band=sdf.band)
-    os.replace(tmp, path)
+    model_files.install_signed(listing, {path: tmp})
     if damaged:
         report_rebuilt(path)
     return sdf

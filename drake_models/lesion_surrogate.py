@@ -47,7 +47,9 @@ covers the mesh's 2.3 C and the interpolation's error (``validation_table``).
 The table is generated data: cached under ``model_files.cache_dir()`` in ``lesion_surrogate/``,
 its name keyed by a hash of the ``TableSpec`` and of the source of everything that changes it
 (the FEM, the tissue laws, the electrode's parameters and the functions here that run them), built with a progress bar on
-stderr, written atomically (``model_files.cached_files``) with its build's CPU time inside.
+stderr, written atomically and signed with the user's key (``model_files.cached_files``) with its
+build's CPU time inside. The tables shipped in the package (``SHIPPED``) are checked against
+their SHA-1 list only: they are as trusted as the code beside them.
 """
 
 from __future__ import annotations

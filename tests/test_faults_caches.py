@@ -1,6 +1,8 @@
 """Caches that heal: a damaged cached file (generated wall mesh, atrium SDF, the generated
 package's package.xml, numba's compiled kernels, a reproduce section record) is rebuilt with one
-line on stderr and gives the same result as a fresh build; a bad ``BALLCHAIN_CACHE`` is one line."""
+line on stderr and gives the same result as a fresh build; a bad ``BALLCHAIN_CACHE`` is one line.
+A cache someone else controls: a folder of another user's or one that others may write is refused
+in one line; a file planted with a rewritten digest list, or signed with another key, is rebuilt."""
 
 from __future__ import annotations
 
@@ -61,7 +63,7 @@ def test_a_damaged_generated_mesh_is_rebuilt_with_one_line(user_atrium, tmp_path
 def test_a_damaged_digest_list_rebuilds_and_a_missing_one_rebuilds_quietly(user_atrium, tmp_path, capsys):
     files = user_atrium.write_files(tmp_path)
     fresh = files["vtk"].read_bytes()
-    listing = tmp_path / model_files.DIGESTS
+    listing = tmp_path / model_files.SIGNATURES
     listing.write_bytes(b"\xff\xfe garbage without the two-space separator\n")
     files["vtk"].write_bytes(b"half a file")
     capsys.readouterr()
@@ -163,6 +165,229 @@ def test_ballchain_cache_a_file_stops_the_command_before_any_work(tmp_path, monk
     assert captured.out == ""
     (line,) = captured.err.strip().splitlines()
     assert "$BALLCHAIN_CACHE" in line and "is a file" in line
+
+
+# ------------------------------------------------------------------ a cache someone else controls
+
+NOBODY = 65534  # the uid given to "another user's" folders
+
+
+def _give_away(path: Path) -> None:
+    """Make ``path`` another user's (uid 65534), as a second user of the machine would have made it."""
+    if os.geteuid() != 0:
+        pytest.skip("not root: only root can give a folder to another user (os.chown); these cases are not run")
+    os.chown(path, NOBODY, NOBODY)
+
+
+@pytest.fixture
+def own_cache(tmp_path, monkeypatch):
+    """The default cache folder moved under ``tmp_path`` (``$XDG_CACHE_HOME``), ``$BALLCHAIN_CACHE`` unset."""
+    monkeypatch.delenv("BALLCHAIN_CACHE", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    return tmp_path / "xdg" / "ballchain"
+
+
+def _refusal(excinfo, folder: Path, *words) -> str:
+    line = str(excinfo.value)
+    assert "\n" not in line and str(folder) in line and "$BALLCHAIN_CACHE" in line, line
+    for word in words:
+        assert word in line, line
+    return line
+
+
+@pytest.mark.parametrize("named", ["$BALLCHAIN_CACHE", "the default"])
+def test_a_cache_folder_of_another_user_is_refused_and_left_alone(tmp_path, monkeypatch, named):
+    """The audit's case: a world-writable folder another user made where the cache goes."""
+    if named == "$BALLCHAIN_CACHE":
+        folder = tmp_path / "cache"
+        monkeypatch.setenv("BALLCHAIN_CACHE", str(folder))
+    else:  # no usable home: the shared temporary folder, under this user's uid
+        monkeypatch.delenv("BALLCHAIN_CACHE", raising=False)
+        monkeypatch.delenv("XDG_CACHE_HOME", raising=False)
+        monkeypatch.setenv("HOME", str(tmp_path / "no home"))
+        monkeypatch.setattr("tempfile.tempdir", str(tmp_path))
+        folder = tmp_path / f"ballchain_cache-{os.geteuid()}"
+        assert model_files.default_cache_root() == folder
+    folder.mkdir()
+    folder.chmod(0o777)
+    _give_away(folder)
+    with pytest.raises(UserInputError) as excinfo:
+        model_files.cache_dir()
+    _refusal(excinfo, folder, f"uid {NOBODY}", "0777", "not to you")
+    assert list(folder.iterdir()) == []  # nothing written into it
+    with pytest.raises(UserInputError, match=f"uid {NOBODY}"):
+        model_files.check_cache_dir()
+
+
+def test_a_cache_folder_of_another_user_stops_the_command_before_any_work(tmp_path, monkeypatch, capsys):
+    from ballchain import cli
+
+    folder = tmp_path / "cache"
+    folder.mkdir(mode=0o777)
+    _give_away(folder)
+    monkeypatch.setenv("BALLCHAIN_CACHE", str(folder))
+    assert cli.main(["wheels", "--json"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    (line,) = captured.err.strip().splitlines()
+    assert "$BALLCHAIN_CACHE" in line and f"uid {NOBODY}" in line
+
+
+@pytest.mark.parametrize("mode, who", [(0o770, "its group"), (0o757, "everyone"), (0o777, "everyone")])
+@pytest.mark.parametrize("named", ["$BALLCHAIN_CACHE", "the default"])
+def test_a_cache_folder_others_may_write_is_refused(tmp_path, monkeypatch, own_cache, mode, who, named):
+    """Even the user's own folder, and even one the user named: its group or everyone could plant files."""
+    folder = own_cache
+    if named == "$BALLCHAIN_CACHE":
+        folder = tmp_path / "named"
+        monkeypatch.setenv("BALLCHAIN_CACHE", str(folder))
+    folder.mkdir(parents=True)
+    folder.chmod(mode)
+    with pytest.raises(UserInputError) as excinfo:
+        model_files.cache_dir()
+    line = _refusal(excinfo, folder, f"writable by {who}", f"{mode:04o}", "chmod go-w")
+    assert line.startswith("$BALLCHAIN_CACHE" if named == "$BALLCHAIN_CACHE" else "the cache folder")
+    assert list(folder.iterdir()) == []
+
+
+@pytest.mark.parametrize("mode, refused", [(0o777, True), (0o1777, False)])
+def test_a_cache_under_a_folder_others_may_write_is_refused_unless_sticky(tmp_path, monkeypatch, mode, refused):
+    """Whoever can write the folder above could rename the cache away and put theirs in its place;
+    a sticky folder (as /tmp) lets no one rename another's entry."""
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    shared.chmod(mode)
+    monkeypatch.setenv("BALLCHAIN_CACHE", str(shared / "mine"))
+    if refused:
+        with pytest.raises(UserInputError) as excinfo:
+            model_files.cache_dir()
+        _refusal(excinfo, shared, "could swap the cache folder")
+    else:
+        assert model_files.cache_dir() == shared / "mine"
+
+
+def test_a_cache_reached_through_another_users_link_is_refused(tmp_path, monkeypatch):
+    """A link in a sticky shared folder that its owner (not you) can point elsewhere at any time."""
+    mine = tmp_path / "mine"
+    mine.mkdir(mode=0o700)
+    link = tmp_path / "link"
+    link.symlink_to(mine)
+    if os.geteuid() != 0:
+        pytest.skip("not root: only root can give a link to another user (os.lchown); this case is not run")
+    os.lchown(link, NOBODY, NOBODY)
+    monkeypatch.setenv("BALLCHAIN_CACHE", str(link))
+    with pytest.raises(UserInputError) as excinfo:
+        model_files.cache_dir()
+    _refusal(excinfo, link, "the link", f"uid {NOBODY}")
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o000])
+def test_the_default_cache_folder_is_made_private_under_a_per_user_name(own_cache, umask):
+    old = os.umask(umask)
+    try:
+        assert model_files.cache_dir() == own_cache
+        key = model_files.signing_key()
+    finally:
+        os.umask(old)
+    assert own_cache.stat().st_mode & 0o777 == 0o700
+    assert len(key) == 32 and (own_cache / model_files.KEY_FILE).stat().st_mode & 0o777 == 0o600
+    assert model_files.signing_key() == key  # made once, then read
+
+
+def test_without_a_usable_home_the_default_cache_is_the_uids_own_in_tmp(tmp_path, monkeypatch):
+    monkeypatch.delenv("BALLCHAIN_CACHE", raising=False)
+    monkeypatch.delenv("XDG_CACHE_HOME", raising=False)
+    monkeypatch.setenv("HOME", str(tmp_path / "absent"))
+    monkeypatch.setattr("tempfile.tempdir", str(tmp_path))
+    folder = model_files.cache_dir()
+    assert folder == tmp_path / f"ballchain_cache-{os.geteuid()}"
+    assert folder.stat().st_mode & 0o777 == 0o700
+
+
+def _plant(files: dict, listing_dir: Path) -> None:
+    """What a second user did: the wall meshes scaled by 0.7, and every list beside them rewritten
+    with the planted files' plain digests (the SHA-1 list, and a list of the same name as the
+    signatures; without the key, a plain digest is all they can write)."""
+    import hashlib
+
+    V, T = mt.read_vtk_tetrahedra(files["vtk"])
+    mt.write_vtk_tetrahedra(files["vtk"], 0.7 * V, T)
+    obj = files["obj"].read_text().splitlines()
+    files["obj"].write_text("\n".join(
+        "v " + " ".join(f"{0.7 * float(x):.9g}" for x in line.split()[1:]) if line.startswith("v ") else line
+        for line in obj) + "\n")
+    for name, algorithm in (("files.sha1", "sha1"), (model_files.SIGNATURES, "sha256")):
+        (listing_dir / name).write_text("".join(f"{hashlib.new(algorithm, p.read_bytes()).hexdigest()}  {p.name}\n"
+                                                for p in files.values()))
+
+
+@pytest.mark.parametrize("where", ["in the cache", "in a folder given"])
+def test_a_planted_mesh_with_its_digest_list_rewritten_is_rebuilt_with_one_line(user_atrium, tmp_path, monkeypatch,
+                                                                              capsys, where):
+    monkeypatch.setenv("BALLCHAIN_CACHE", str(tmp_path / "cache"))
+    directory = None if where == "in the cache" else tmp_path / "wall"
+    files = user_atrium.write_files(directory)
+    fresh = {k: p.read_bytes() for k, p in files.items()}
+    _plant(files, files["vtk"].parent)
+    capsys.readouterr()
+    again = user_atrium.write_files(directory)
+    _one_rebuilt_line(capsys.readouterr().err, files["vtk"])
+    assert {k: p.read_bytes() for k, p in again.items()} == fresh
+    user_atrium.write_files(directory)  # signed again: reused, nothing said
+    assert "damaged" not in capsys.readouterr().err
+
+
+def test_a_set_signed_with_another_key_is_rebuilt(user_atrium, tmp_path, monkeypatch, capsys):
+    """A whole set copied from another cache (another user's, or another key): its signatures are not this key's."""
+    monkeypatch.setenv("BALLCHAIN_CACHE", str(tmp_path / "theirs"))
+    theirs = user_atrium.write_files(tmp_path / "wall")
+    monkeypatch.setenv("BALLCHAIN_CACHE", str(tmp_path / "mine"))
+    capsys.readouterr()
+    user_atrium.write_files(tmp_path / "wall")
+    _one_rebuilt_line(capsys.readouterr().err, theirs["vtk"])
+
+
+@pytest.mark.parametrize("how", ["readable by others", "another owner", "a link", "not a key"])
+def test_a_signing_key_that_is_not_the_users_private_one_is_replaced(user_atrium, tmp_path, monkeypatch, capsys, how):
+    monkeypatch.setenv("BALLCHAIN_CACHE", str(tmp_path / "cache"))
+    files = user_atrium.write_files()
+    key = tmp_path / "cache" / model_files.KEY_FILE
+    if how == "readable by others":
+        key.chmod(0o644)
+    elif how == "another owner":
+        _give_away(key)
+    elif how == "a link":
+        (tmp_path / "planted.key").write_text("0" * 64)
+        key.unlink()
+        key.symlink_to(tmp_path / "planted.key")
+    else:
+        key.write_text("0" * 64 + "\n")
+    capsys.readouterr()
+    again = user_atrium.write_files()
+    err = capsys.readouterr().err
+    assert f"cache key {key} was damaged; rebuilt" in err  # and the set signed with the old key:
+    _one_rebuilt_line("\n".join(line for line in err.splitlines() if "cache key" not in line), files["vtk"])
+    assert not key.is_symlink() and key.stat().st_mode & 0o777 == 0o600 and key.stat().st_uid == os.geteuid()
+    assert again == files
+
+
+def test_a_planted_sdf_grid_is_rebuilt_with_one_line(user_atrium, tmp_path, monkeypatch, capsys):
+    from ballchain.drake_models.atrium_sdf import atrium_sdf
+
+    monkeypatch.setenv("BALLCHAIN_CACHE", str(tmp_path / "cache"))
+    grid = dict(spacing=2e-3, band=3e-3)
+    fresh = atrium_sdf(user_atrium, directory=tmp_path, **grid)
+    (path,) = tmp_path.glob("atrium_sdf_*.npz")
+    np.savez_compressed(path, origin=fresh.origin, spacing=fresh.spacing, values=(fresh.values + 1e-3).astype(np.float32),
+                        band=fresh.band)  # a wall 1 mm away everywhere: a well-formed grid
+    for listing in tmp_path.glob("atrium_sdf_*.hmac"):
+        import hashlib
+
+        listing.write_text(f"{hashlib.sha256(path.read_bytes()).hexdigest()}  {path.name}\n")
+    capsys.readouterr()
+    sdf = atrium_sdf(user_atrium, directory=tmp_path, **grid)
+    _one_rebuilt_line(capsys.readouterr().err, path)
+    np.testing.assert_array_equal(sdf.values, fresh.values)
 
 
 # ------------------------------------------------------------------ numba's compiled kernels
