@@ -24,6 +24,8 @@ import functools
 import hashlib
 import json
 import math
+import os
+import stat
 import sys
 import time
 from pathlib import Path
@@ -32,7 +34,7 @@ from tqdm import tqdm
 
 from ballchain.drake_models import paper
 from ballchain.drake_models.dipole import K_DIPOLE
-from ballchain.drake_models.errors import UserInputError, caused_by_interrupt, short_repr
+from ballchain.drake_models.errors import OutputError, UserInputError, caused_by_interrupt, short_repr
 from ballchain.experiments.field_models import DEFAULT_DISTANCES
 from ballchain.drake_models.params import BallChain
 from ballchain.drake_models.safe_files import TEMP_SUFFIX, atomic_write_text, check_output_dir, to_jsonable, write_json
@@ -867,9 +869,13 @@ def _cached(out: Path, name: str, key: str) -> dict | None:
     return record
 
 
-def run_section(out: Path, name: str, experiment, quick: bool, key: str, resume: bool) -> tuple[Section, dict]:
+def run_section(out: Path, name: str, experiment, quick: bool, key: str, resume: bool,
+                folder: tuple[int, int] | None = None) -> tuple[Section, dict]:
     """One section with its cache step: reuse it (``resume`` and a matching record) or run it and
     store its data, its report part and the hashes of the files it wrote.
+
+    ``folder``: the results folder's ``folder_identity`` at the start of the run; the section
+    neither starts nor stores its data when ``out`` is no longer that folder (``check_same_folder``).
 
     Returns:
         (the section, its record: {"key", "seconds", "files", "reused"}).
@@ -878,10 +884,12 @@ def run_section(out: Path, name: str, experiment, quick: bool, key: str, resume:
         record = _cached(out, name, key)
         if record is not None:
             return section_from_dict(record["section"], out), {**record, "reused": True}
+    check_same_folder(out, folder, f"section {name!r}")
     before = _snapshot(out)
     t0 = time.perf_counter()
     section, data = experiment(out, quick)
     seconds = time.perf_counter() - t0
+    check_same_folder(out, folder, f"the data of section {name!r} were stored")
     write_json(out / SECTION_DATA / f"{_slug(name)}.json", data)
     section.text(f"All of this section's data: `{SECTION_DATA}/{_slug(name)}.json`.")  # a link in the report
     after = _snapshot(out)
@@ -893,12 +901,39 @@ def run_section(out: Path, name: str, experiment, quick: bool, key: str, resume:
     return section, {**record, "reused": False}
 
 
-def _section_job(name: str, key: str, out: Path, quick: bool) -> tuple[Section, dict]:
+def _section_job(name: str, key: str, folder, out: Path, quick: bool) -> tuple[Section, dict]:
     """One section with its cache step, as a task for a worker process (see ``run``)."""
-    return run_section(Path(out), name, dict(EXPERIMENTS)[name], quick, key, resume=False)
+    return run_section(Path(out), name, dict(EXPERIMENTS)[name], quick, key, resume=False, folder=folder)
 
 
-def _run_parallel(out: Path, chosen, quick: bool, code: str, resume: bool, workers: int) -> dict:
+def folder_identity(out: Path) -> tuple[int, int] | None:
+    """(device, inode) of the folder ``out``; None when there is no folder there now."""
+    try:
+        st = os.stat(out)
+    except OSError:
+        return None
+    return (st.st_dev, st.st_ino) if stat.S_ISDIR(st.st_mode) else None
+
+
+def check_same_folder(out: Path, folder: tuple[int, int] | None, before: str) -> None:
+    """Stop when the results folder is not the one the run started in (``folder``, its
+    ``folder_identity``): deleted, or deleted and made again (a later write recreates it empty),
+    or another folder moved to its name. Writing on would give a report citing files that are
+    gone; nothing is checked when ``folder`` is None.
+
+    Raises:
+        OutputError: one line (exit status 1) naming the folder and where the run stopped.
+    """
+    if folder is None:
+        return
+    now = folder_identity(out)
+    if now != folder:
+        how = "was deleted" if now is None else "was deleted or replaced (it is not the folder the run started in)"
+        raise OutputError(f"--out {short_repr(str(out))} {how} during the run: stopped before {before}; "
+                          "nothing more was written")
+
+
+def _run_parallel(out: Path, chosen, quick: bool, code: str, resume: bool, workers: int, folder=None) -> dict:
     """The sections on ``workers`` processes (``ballchain.sweep.run_sections``); {name: (section, record)}.
 
     Each worker runs ``run_section`` (the cache step) for its section, so an interrupted parallel
@@ -915,7 +950,7 @@ def _run_parallel(out: Path, chosen, quick: bool, code: str, resume: bool, worke
         if record is not None:
             results[name] = (section_from_dict(record["section"], out), {**record, "reused": True})
         else:
-            todo.append((name, functools.partial(_section_job, name, key)))
+            todo.append((name, functools.partial(_section_job, name, key, folder)))
     _say(f"running {len(todo)} section(s) on {workers} worker processes: {', '.join(n for n, _ in todo)}")
     for run in run_sections(todo, out, quick, workers=workers):
         results[run.name] = run.value
@@ -999,7 +1034,8 @@ def _run_serial(out: Path, chosen, quick: bool, code: str, resume: bool, weights
         for name, experiment in chosen:
             progress["current"] = name
             bar.set_postfix_str(f"now: {name}")
-            section, record = run_section(out, name, experiment, quick, section_key(name, quick, code), resume)
+            section, record = run_section(out, name, experiment, quick, section_key(name, quick, code), resume,
+                                          folder=progress.get("folder"))
             if record["reused"]:
                 _say(f"reused the finished section {name!r} ({record['seconds']:.1f} s in the earlier run)")
                 bar.total -= weights[name]  # costs nothing now: out of the estimate
@@ -1009,6 +1045,7 @@ def _run_serial(out: Path, chosen, quick: bool, code: str, resume: bool, weights
             done.append(section)
             summary[name] = {"seconds": record["seconds"], "reused": record["reused"]}
             pending = [n for n, _ in chosen if n not in summary]
+            check_same_folder(out, progress.get("folder"), "the report was written")
             write_report(TITLE, done + [_timing_section(summary, time.perf_counter() - progress["start"], pending)],
                          out)
         progress["current"] = None
@@ -1042,7 +1079,11 @@ def run(*, out: Path, quick: bool = False, resume: bool = False, sections=None, 
         UserInputError: an unwritable ``out`` or an unknown section name.
     """
     out = Path(out)
-    check_output_dir(out, "--out", names=("report.md", "report.html"))
+    # The files the run writes at fixed names (besides its figures' folders): none may be a file this
+    # run reads (``safe_files.register_input``).
+    check_output_dir(out, "--out", names=("report.md", "report.html", "sizing.json", "field_models.json",
+                                          "table1_effects.json",
+                                          *(f"{SECTION_DATA}/{_slug(n)}.json" for n, _ in EXPERIMENTS)))
     from ballchain.sweep import MAX_WORKERS_PER_CORE, max_workers  # the one cap on worker processes
 
     if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= max_workers():
@@ -1061,28 +1102,41 @@ def run(*, out: Path, quick: bool = False, resume: bool = False, sections=None, 
         for name, _ in chosen:
             (out / CACHE / f"{_slug(name)}.json").unlink(missing_ok=True)
     code = code_version()
-    progress = {"done": [], "summary": {}, "start": time.perf_counter(), "current": None}
-    done, summary, start = progress["done"], progress["summary"], progress["start"]
+    # The folder this run writes in: it stops when the folder goes (check_same_folder). Held open for
+    # the run, so that its inode number cannot be given to a folder made after it was deleted (tmpfs
+    # and ext4 hand a freed number out again at once: the new folder would pass for the old one).
+    held = os.open(out, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
     try:
-        if workers > 1:
-            results = _run_parallel(out, chosen, quick, code, resume, workers)
-            for name, _ in chosen:
-                section, record = results[name]
-                done.append(section)
-                summary[name] = {"seconds": record["seconds"], "reused": record["reused"]}
-            write_report(TITLE, done + [_timing_section(summary, time.perf_counter() - start, [])], out)
-        else:
-            _run_serial(out, chosen, quick, code, resume, weights, progress)
-    except BaseException as err:
-        if not caused_by_interrupt(err):
-            raise
-        pending = [n for n, _ in chosen if n not in summary]
-        write_report(TITLE, done + [_timing_section(summary, time.perf_counter() - start, pending)], out)
-        _say(f"interrupted in {progress['current']!r}; {len(summary)} of {len(chosen)} sections finished and kept; "
-             f"`ballchain reproduce --out {out}{' --quick' if quick else ''} --resume` finishes the rest")
-        if isinstance(err, KeyboardInterrupt):
-            raise
-        raise KeyboardInterrupt from err
+        folder = folder_identity(out)
+        progress = {"done": [], "summary": {}, "start": time.perf_counter(), "current": None, "folder": folder}
+        done, summary, start = progress["done"], progress["summary"], progress["start"]
+        try:
+            if workers > 1:
+                results = _run_parallel(out, chosen, quick, code, resume, workers, folder)
+                for name, _ in chosen:
+                    section, record = results[name]
+                    done.append(section)
+                    summary[name] = {"seconds": record["seconds"], "reused": record["reused"]}
+                check_same_folder(out, folder, "the report was written")
+                write_report(TITLE, done + [_timing_section(summary, time.perf_counter() - start, [])], out)
+            else:
+                _run_serial(out, chosen, quick, code, resume, weights, progress)
+        except BaseException as err:
+            if not caused_by_interrupt(err):
+                raise
+            pending = [n for n, _ in chosen if n not in summary]
+            if folder_identity(out) != folder:  # gone: a report written now would cite files that are not there
+                _say(f"interrupted, and {out} is not the folder the run started in (deleted or replaced): no report "
+                     "written")
+            else:
+                write_report(TITLE, done + [_timing_section(summary, time.perf_counter() - start, pending)], out)
+                _say(f"interrupted in {progress['current']!r}; {len(summary)} of {len(chosen)} sections finished and "
+                     f"kept; `ballchain reproduce --out {out}{' --quick' if quick else ''} --resume` finishes the rest")
+            if isinstance(err, KeyboardInterrupt):
+                raise
+            raise KeyboardInterrupt from err
+    finally:
+        os.close(held)
     md, page = out / "report.md", out / "report.html"
     return {"report_md": md, "report_html": page, "experiments": summary,
             "total_seconds": time.perf_counter() - start, "quick": quick, "code_version": code,

@@ -54,7 +54,7 @@ from typing import Any, Callable, NamedTuple, Sequence
 
 from ballchain.drake_models.arg_checks import require_positive
 from ballchain.drake_models.errors import UserInputError, caused_by_interrupt, short_repr
-from ballchain.drake_models.safe_files import atomic_path, check_output_dir
+from ballchain.drake_models.safe_files import atomic_path, check_output_dir, register_input
 
 TABLE_PARQUET = "table.parquet"
 TABLE_CSV = "table.csv"
@@ -169,6 +169,7 @@ def _read_spec_text(path: Path, where: str) -> str:
         data = path.read_bytes()
     except OSError as err:
         raise UserInputError(f"{where}: cannot read it ({err.strerror})") from None
+    register_input(path, "sweep spec")  # the sweep's outputs may not replace it
     try:
         if data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
             return data.decode("utf-16")
@@ -650,13 +651,16 @@ def _lost_row(experiment: str, params, seed: int, reason: str) -> dict:
 def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None, workers: int | None = None,
               jobqueue: str | None = None, client=None, progress: bool = True, figure: bool = True,
               on_result: Callable[[int, "Executor"], None] | None = None,
-              echo: Callable[[str], None] | None = None, connect_timeout: float = CONNECT_TIMEOUT) -> dict:
+              echo: Callable[[str], None] | None = None, connect_timeout: float = CONNECT_TIMEOUT,
+              append: bool = False) -> dict:
     """Run every point of ``spec`` not already done in ``out``; write the table (and the figure).
 
     Args:
         spec: from ``load_spec``.
         out: the results folder (created); a rerun with the same folder skips the points that
-            already have a row without error and reruns the failed ones.
+            already have a row without error and reruns the failed ones. A folder whose table
+            holds rows that are not points of ``spec`` (another spec's) is refused unless
+            ``append``.
         scheduler: address of an existing Dask scheduler (tcp://host:8786).
         workers: worker processes of the LocalCluster (default: one per core), jobs of the job
             queue; 0 runs the points serially in this process.
@@ -670,6 +674,8 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
         echo: called with one line each before the work starts: the number of points and an
             estimate of their time, and a note when an earlier table was unreadable.
         connect_timeout: [s] for ``scheduler`` to answer (``CONNECT_TIMEOUT``).
+        append: keep another spec's rows in ``out``'s table and add this spec's (``--append``);
+            the table then has a ``spec`` column naming the spec each row came from.
 
     Returns:
         {"experiment", "out", "table_parquet", "table_csv", "points", "ran", "skipped", "failed",
@@ -688,6 +694,8 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
     if client is not None and not hasattr(client, "submit"):
         raise UserInputError(f"run_sweep client must be a distributed.Client or None, got {type(client).__name__}")
     _check_executor(scheduler, workers, jobqueue)
+    if not isinstance(append, bool):
+        raise UserInputError(f"run_sweep append must be true or false, got {short_repr(append)}")
     out = _check_out(out)
     exp = EXPERIMENTS[spec.experiment]
     param_names = [f.name for f in dataclasses.fields(exp.params)]
@@ -705,10 +713,24 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
     rows: dict[str, dict] = {k: earlier[k] for k in keys if k in earlier}
     todo = [(k, p, s) for k, (p, s) in zip(keys, tasks) if k not in done]
     key_set = set(keys)
-    extra = [r for r in previous if r["key"] not in key_set]  # points of an earlier spec: kept
+    extra = [r for r in previous if r["key"] not in key_set]  # points of another spec: kept with --append
+    if extra and not append:
+        held = sorted({str(r["spec"]) for r in extra if r.get("spec")}) or [_recorded_spec(out) or "an earlier spec"]
+        shown = ", ".join(map(short_repr, held[:3])) + (f" and {len(held) - 3} more" if len(held) > 3 else "")
+        whose = (f"rows of an earlier version of {shown} (or of the experiment's parameters)" if held == [spec.source]
+                 else f"rows of another sweep spec ({shown})")
+        raise UserInputError(f"--out {short_repr(str(out))} holds {whose}: {len(extra)} of its {len(previous)} rows "
+                             f"are not points of {short_repr(spec.source)}; give another folder, or --append to add "
+                             "this spec's rows to that table")
+    if append:  # every row says which spec it came from (the earlier ones: the spec the folder's last run ran)
+        held = _recorded_spec(out) or "an earlier spec"
+        for r in previous:
+            if not r.get("spec"):
+                r["spec"] = held
 
     def ordered() -> list[dict]:
-        return [rows[k] for k in keys if k in rows] + extra
+        table = [rows[k] for k in keys if k in rows] + extra
+        return [r if r.get("spec") else {**r, "spec": spec.source} for r in table] if append else table
 
     last_write = [0.0]
 
@@ -772,6 +794,18 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
     _atomic_write(out / "sweep.json", lambda tmp: Path(tmp).write_text(
         json.dumps(to_jsonable(result), indent=1, allow_nan=False, default=str)))
     return result
+
+
+def _recorded_spec(out: Path) -> str | None:
+    """The spec the last sweep into ``out`` ran, as its ``sweep.json`` records it (None: none)."""
+    path = out / "sweep.json"
+    try:
+        if path.stat().st_size > 10_000_000:  # the sweep writes a few kB: not its file
+            return None
+        recorded = json.loads(path.read_text(encoding="utf-8")).get("spec")
+    except (OSError, ValueError, RecursionError, AttributeError):
+        return None
+    return recorded if isinstance(recorded, str) and recorded else None
 
 
 def _duration(seconds: float) -> str:

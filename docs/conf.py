@@ -124,6 +124,40 @@ def write_scenarios_table() -> None:
         out.write_text(text)
 
 
+def write_sweep_reference() -> None:
+    """Write ``_generated/sweep_reference.md``: for every sweepable experiment, its spec fields
+    (type, default, meaning), its output columns and its example spec (``guide/sweep_examples``,
+    which the tests run), read from ``ballchain.experiments.studies.EXPERIMENTS``."""
+    import dataclasses
+
+    from ballchain.experiments.studies import EXPERIMENTS, field_docs
+
+    cell = lambda text: str(text).replace("|", "/")  # noqa: E731
+    parts = []
+    for name, exp in EXPERIMENTS.items():
+        docs = field_docs(exp.params)
+        parts += [f"### `{name}`", "", f"{exp.description[:1].upper()}{exp.description[1:]}. A point takes "
+                  f"about {exp.typical_s:g} s of CPU time (typical).", "",
+                  "| field | type | default | meaning |", "|---|---|---|---|"]
+        for field in dataclasses.fields(exp.params):
+            kind = getattr(field.type, "__name__", str(field.type))
+            default = field.default
+            shown = (str(default).lower() if isinstance(default, bool) else f"{default:g}"
+                     if isinstance(default, float) else repr(default))  # as YAML reads it
+            parts.append(f"| `{field.name}` | {kind} | `{shown}` | {cell(docs.get(field.name, ''))} |")
+        parts += ["", "Output columns (after `key`, `experiment`, the fields and `seed`; then `wall_time_s`, "
+                  "`cpu_time_s`, `worker` and `error`, the reason a point failed):", "",
+                  "| column | meaning |", "|---|---|"]
+        parts += [f"| `{column}` | {cell(meaning)} |" for column, meaning in exp.outputs.items()]
+        parts += ["", f"An example (`docs/guide/sweep_examples/{name}.yaml`, run by the tests):", "",
+                  f"```{{literalinclude}} /guide/sweep_examples/{name}.yaml", ":language: yaml", "```", ""]
+    out = DOCS / "_generated" / "sweep_reference.md"
+    out.parent.mkdir(exist_ok=True)
+    text = "\n".join(parts)
+    if not out.exists() or out.read_text() != text:
+        out.write_text(text)
+
+
 # What this file and autosummary generate inside the source folder, because Sphinx reads its pages
 # only from there: removed again when the build ends, so that a build writes only into its output
 # folder and leaves the source tree as it found it.
@@ -146,3 +180,4 @@ def setup(app):
 
 write_api_page()
 write_scenarios_table()
+write_sweep_reference()

@@ -40,6 +40,7 @@ from ballchain.drake_models.atrium_mesh import (MAX_PUNCTURE_DISTANCE, AtriumSur
 from ballchain.drake_models.errors import UserInputError, short_repr
 from ballchain.drake_models.heart import HeartParams, LeftAtrium
 from ballchain.drake_models.params import CylinderMagnet
+from ballchain.drake_models.safe_files import register_input
 from ballchain.drake_models.safe_yaml import check_value, check_yaml_schema, load_yaml_file
 
 ANATOMIES_DIR = Path(__file__).resolve().parent / "anatomies"
@@ -224,6 +225,7 @@ def load_anatomy(path: str | Path) -> Anatomy:
     path = Path(path)
     if not path.is_file():
         raise UserInputError(f"{_where(path)}: {'not a file (a folder?)' if path.exists() else 'no such file'}")
+    register_input(path, "anatomy file")  # an output of the run may not replace it (nor the files it names)
     data = load_yaml_file(path, _where(path))
     if not isinstance(data, dict):
         raise UserInputError(f"{_where(path)}: must be a mapping of anatomy fields (mesh, length_unit, targets, "
@@ -376,6 +378,7 @@ def _mesh(path: Path, spec: AnatomySpec, R: np.ndarray, t: np.ndarray) -> tuple[
     if not mesh.is_file():
         raise _bad(path, "mesh", f"{short_repr(spec.mesh)}: {'not a file' if mesh.exists() else 'no such file'} "
                                  f"(looked for {mesh})")
+    register_input(mesh, "anatomy mesh")
     try:
         surface = load_atrium_surface(mesh, spec.length_unit)
     except UserInputError as err:
@@ -448,6 +451,7 @@ def _targets(path: Path, raw, unit: str) -> tuple[list[str], np.ndarray, list[st
         if not csv.is_file():
             raise _bad(path, "targets", f"{short_repr(raw)}: {'not a file' if csv.exists() else 'no such file'} "
                                         f"(looked for {csv})")
+        register_input(csv, "anatomy targets CSV")
         label = f"targets {short_repr(raw)}"
         names, points, rows = read_targets_csv(csv, f"{_where(path)}: {label}")
         rows = [f"{short_repr(raw)} {row}" for row in rows]

@@ -14,6 +14,12 @@ symbolic link. A symbolic link to a file stays a link: its target gets the new c
 longer than the file system allows and a disk without room for the output are refused up
 front; a write that fails anyway (the disk filled up during the run) raises ``OutputError``
 naming the file and the reason, and the destination keeps its earlier content.
+
+An output is never a file the run reads: the loaders register their files (``register_input``:
+an anatomy file and the mesh and targets it names, the scenarios file, a scenario's
+``atrium_file``, a sweep spec), and an output path that is one of them (links followed, hard
+links included), or a folder holding one under a name the run writes, is refused by the checks
+before any work, and by ``atomic_path`` at the latest.
 """
 
 from __future__ import annotations
@@ -28,6 +34,7 @@ import secrets
 import shutil
 import stat
 import tempfile
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -126,13 +133,18 @@ def atomic_path(path):
 
     Raises:
         OutputError: ``path`` is not a regular file nor a named pipe (a device, a socket, a
-            folder), or the write failed for a reason of the place (full disk, read-only, name
-            too long, ...: ``WRITE_ERRNOS``); ``path`` is unchanged.
+            folder), it is an input of this run (``register_input``), or the write failed for
+            a reason of the place (full disk, read-only, name too long, ...: ``WRITE_ERRNOS``);
+            ``path`` is unchanged.
     """
     target, kind = destination(path)
     if kind not in ("absent", "file", "fifo"):
         raise OutputError(f"cannot write {short_repr(str(path))}: it is {_phrase(kind)}, not a regular file "
                           f"({_ONLY_FILES})")
+    found = input_at(path) if kind == "file" else None
+    if found is not None:  # the last guard: the checks before the run should have said so
+        raise OutputError(f"cannot write {short_repr(str(path))}: it is an input of this run "
+                          f"({_input_phrase(path, found)}); nothing was replaced")
     # The temporary file's name is chosen before the file exists, and the clean-up below covers its
     # creation: a stop (Ctrl-C, SIGTERM or SIGHUP, raised as KeyboardInterrupt between two
     # bytecodes) landing right after the file was made cannot leave it behind. With
@@ -252,6 +264,74 @@ def check_free_space(folder, what: str, expected_bytes: float = 0, shown=None) -
                              f"{need}")
 
 
+# --- this run's inputs: an output never replaces one ----------------------------------------------
+
+_INPUTS: dict[str, str] = {}
+"""The files this process has read as inputs: resolved path -> what it is ("anatomy mesh", "sweep
+spec", ...). The loaders add to it (``register_input``); the output checks and ``atomic_path`` read
+it, so that a result is never written over a file the run reads."""
+_INPUTS_LOCK = threading.Lock()
+
+
+def register_input(path, what: str) -> None:
+    """Record ``path`` as a file this run reads (``what`` names it in messages: "anatomy mesh").
+
+    From then on an output that is that file (the same path once links are followed, or a hard
+    link to it) is refused by ``check_output_file`` / ``check_output_dir`` before any work, and
+    by ``atomic_path`` at the latest. Called by the loaders (anatomy files and what they name,
+    the scenarios file and a scenario's ``atrium_file``, sweep specs); never raises.
+    """
+    try:
+        real = os.path.realpath(os.fspath(path))
+    except (TypeError, ValueError, OSError):
+        return
+    with _INPUTS_LOCK:
+        _INPUTS.setdefault(real, str(what))
+
+
+def forget_inputs() -> None:
+    """Forget every registered input (a long-lived session that starts an unrelated run)."""
+    with _INPUTS_LOCK:
+        _INPUTS.clear()
+
+
+def input_at(path) -> tuple[str, str] | None:
+    """(the input's path, what it is) when ``path`` is a registered input of this run (by its
+    resolved path, links followed, or by its device and inode: a hard link), else None."""
+    with _INPUTS_LOCK:
+        inputs = list(_INPUTS.items())
+    if not inputs:
+        return None
+    try:
+        real = os.path.realpath(os.fspath(path))
+    except (TypeError, ValueError, OSError):
+        return None
+    for known, what in inputs:
+        if known == real:
+            return known, what
+    try:
+        st = os.stat(real)
+    except (OSError, ValueError):
+        return None  # absent: no input (the registered ones exist under their own names)
+    if not stat.S_ISREG(st.st_mode):
+        return None
+    for known, what in inputs:
+        try:
+            other = os.stat(known)
+        except (OSError, ValueError):
+            continue
+        if (other.st_dev, other.st_ino) == (st.st_dev, st.st_ino):
+            return known, what
+    return None
+
+
+def _input_phrase(path, found: tuple[str, str]) -> str:
+    """"anatomy mesh" or "anatomy mesh a/atrium.stl" (when ``path`` reaches it through a link)."""
+    known, what = found
+    same = os.path.abspath(os.fspath(path)) == known
+    return what if same else f"{what} {short_repr(known)}"
+
+
 def check_output_dir(path, what: str, *, expected_bytes: float = 0, names=()) -> Path:
     """Check that ``path`` is (or can be created as) a writable folder, without creating it.
 
@@ -260,11 +340,13 @@ def check_output_dir(path, what: str, *, expected_bytes: float = 0, names=()) ->
         what: the flag or field named in the message (e.g. "--out").
         expected_bytes: about how much the run writes there (checked against the free space).
         names: the files the run writes in the folder: any that exists must be a regular file
-            (or a named pipe), not a folder or a device.
+            (or a named pipe), not a folder or a device, and not an input of this run
+            (``register_input``).
 
     Raises:
         UserInputError: it is a file, or it (or its nearest existing parent) is not writable, a
-            name is too long, the disk is (nearly) full, or one of ``names`` is not a file.
+            name is too long, the disk is (nearly) full, or one of ``names`` is not a file or is
+            an input of this run.
     """
     path = Path(path)
     shown = short_repr(str(path))
@@ -288,6 +370,11 @@ def check_output_dir(path, what: str, *, expected_bytes: float = 0, names=()) ->
         if kind not in ("absent", "file", "fifo"):
             raise UserInputError(f"{what} {shown}: {short_repr(name)} in it is {_phrase(kind)}, and this run writes "
                                  "a file of that name; move it away or give another folder")
+        found = input_at(path / name)
+        if found is not None:
+            raise UserInputError(f"{what} {shown}: {short_repr(name)} in it is an input of this run "
+                                 f"({_input_phrase(path / name, found)}), and this run writes a file of that name "
+                                 "there: choose another folder")
     return path
 
 
@@ -303,8 +390,9 @@ def check_output_file(path, what: str, *, expected_bytes: float = 0) -> Path:
         expected_bytes: about how big the file will be (checked against the free space).
 
     Raises:
-        UserInputError: it is a folder, a device, a read-only file, in an unwritable place, its
-            name is too long, or the disk is (nearly) full.
+        UserInputError: it is a folder, a device, a read-only file, an input of this run
+            (``register_input``: by its resolved path or as a hard link), in an unwritable place,
+            its name is too long, or the disk is (nearly) full.
     """
     path = Path(path)
     shown = short_repr(str(path))
@@ -316,6 +404,10 @@ def check_output_file(path, what: str, *, expected_bytes: float = 0) -> Path:
         raise UserInputError(f"{what} {shown} is {kind}, not a regular file; give a file name ({_ONLY_FILES})")
     if kind != "absent" and not os.access(target, os.W_OK):
         raise UserInputError(f"{what} {shown} exists and is not writable")
+    found = input_at(path) if kind == "file" else None
+    if found is not None:
+        raise UserInputError(f"{what} {shown} is an input of this run ({_input_phrase(path, found)}): choose "
+                             "another name")
     if kind == "fifo":
         return path
     try:

@@ -25,6 +25,7 @@ from pydrake.visualization import VisualizationConfig
 from ballchain.drake_models import paper, wall_motion
 from ballchain.drake_models.errors import UserInputError, short_repr
 from ballchain.drake_models.localisation import LocalisationParams, check_figures
+from ballchain.drake_models.safe_files import register_input
 from ballchain.drake_models.safe_yaml import check_value  # noqa: F401 (the sweep's check imports it from here)
 from ballchain.drake_models.safe_yaml import (check_yaml_schema, load_typed, load_yaml, load_yaml_file,
                                              schema_fields as _schema_fields)
@@ -354,6 +355,7 @@ def _scenarios_data(filename: Path) -> dict:
     if not isinstance(filename, (str, Path)) or not str(filename).strip():
         raise UserInputError(f"the scenarios file must be a file name, got {short_repr(filename)}")
     where = f"scenarios file {Path(filename).name!r}"
+    register_input(filename, "scenarios file")  # an output of the run may not replace it
     data = load_yaml_file(filename, where)
     if data is None:
         return {}
@@ -957,6 +959,7 @@ def check_anatomy_field(s: "ChainScenario", others: tuple, default: "ChainScenar
     path = Path(s.anatomy)
     _require(path.is_file(), f"scenario anatomy {short_repr(s.anatomy)}: "
                              f"{'not a file (a folder?)' if path.exists() else 'no such file'}")
+    register_input(path, "scenario anatomy file")
 
 
 def check_atrium_file(path: str) -> None:
@@ -979,3 +982,4 @@ def check_atrium_file(path: str) -> None:
         raise UserInputError(f"scenario atrium_file {path!r}: no such file")
     if not resolved.is_file():
         raise UserInputError(f"scenario atrium_file {path!r} is not a file (a folder?); give an .obj or .stl file")
+    register_input(resolved, "scenario atrium_file")

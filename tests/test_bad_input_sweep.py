@@ -401,3 +401,58 @@ def test_the_sweep_api_names_an_argument_of_the_wrong_kind(tmp_path):
             call()
         assert str(err.value).startswith(expected), str(err.value)
     assert not out.exists()
+
+
+# --- a folder holding another spec's table (issue 41) ---------------------------------------------
+
+OTHER = "experiment: statics\ngrid:\n  n_balls: [6]\n"
+
+
+def _spec_file(tmp_path: Path, name: str, text: str) -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def test_a_second_different_spec_into_the_same_out_is_refused_naming_the_spec_it_holds(tmp_path, capsys):
+    first, second = _spec_file(tmp_path, "first.yaml", GOOD), _spec_file(tmp_path, "second.yaml", OTHER)
+    out = tmp_path / "o"
+    assert main(["sweep", str(first), "--out", str(out), "--workers", "0", "--no-progress", "--no-figure"]) == 0
+    capsys.readouterr()
+    table = {name: (out / name).read_bytes() for name in ("table.csv", "table.parquet", "sweep.json")}
+    code, lines = _cli(capsys, [str(second), "--out", str(out), "--workers", "0", "--no-progress"])
+    assert code == 2 and len(lines) == 1, lines
+    assert f"--out '{out}' holds rows of another sweep spec ('{first}'): 2 of its 2 rows are not points of " \
+           f"'{second}'; give another folder, or --append" in lines[0]
+    assert {name: (out / name).read_bytes() for name in table} == table  # nothing written
+    # The same spec again resumes as before, and so does one that only adds points to it.
+    grown = _spec_file(tmp_path, "grown.yaml", "experiment: statics\ngrid:\n  n_balls: [4, 5, 7]\n")
+    result = run_sweep(load_spec(grown), out, workers=0, progress=False, figure=False)
+    assert (result["ran"], result["skipped"]) == (1, 2)
+    assert "spec" not in read_table(out)[0]  # one spec's table: no spec column
+    # A spec without one of the table's points is another spec: the table would keep that row.
+    with pytest.raises(UserInputError, match=r"holds rows of another sweep spec \('.*grown.yaml'\): 1 of its 3 rows"):
+        run_sweep(load_spec(first), out, workers=0, progress=False, figure=False)
+    grown.write_text(GOOD)  # the same file, edited
+    with pytest.raises(UserInputError, match=r"holds rows of an earlier version of '.*grown.yaml' \(or of the "):
+        run_sweep(load_spec(grown), out, workers=0, progress=False, figure=False)
+
+
+def test_append_keeps_both_specs_rows_and_names_each_row_s_spec(tmp_path):
+    first, second = _spec_file(tmp_path, "first.yaml", GOOD), _spec_file(tmp_path, "second.yaml", OTHER)
+    out = tmp_path / "o"
+    run_sweep(load_spec(first), out, workers=0, progress=False, figure=False)
+    result = run_sweep(load_spec(second), out, workers=0, progress=False, figure=False, append=True)
+    assert (result["ran"], result["skipped"]) == (1, 0)
+    rows = read_table(out)
+    assert [(r["n_balls"], r["spec"]) for r in rows] == [(6, str(second)), (4, str(first)), (5, str(first))]
+    csv_header = (out / "table.csv").read_text().splitlines()[0]
+    assert '"spec"' in csv_header
+    # Appended again: every row keeps the spec it came from; a plain rerun of either is refused.
+    run_sweep(load_spec(first), out, workers=0, progress=False, figure=False, append=True)
+    assert [(r["n_balls"], r["spec"]) for r in read_table(out)] == [(4, str(first)), (5, str(first)),
+                                                                    (6, str(second))]
+    with pytest.raises(UserInputError, match=r"holds rows of another sweep spec \('.*second.yaml'\)"):
+        run_sweep(load_spec(first), out, workers=0, progress=False, figure=False)
+    with pytest.raises(UserInputError, match="run_sweep append must be true or false"):
+        run_sweep(load_spec(first), out, workers=0, progress=False, append="yes")

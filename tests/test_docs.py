@@ -6,6 +6,7 @@ writes nothing into the source tree. CI builds the site once, notebooks executed
 folder in ``$BALLCHAIN_DOCS_HTML``; the tests then read that build instead.
 """
 
+import dataclasses
 import inspect
 import os
 import shutil
@@ -85,6 +86,15 @@ def test_every_page_of_the_guide_is_built(site):
                  "guide/station", "guide/statics", "guide/teleoperation", "guide/experiments", "guide/sweeps",
                  "guide/anatomy", "guide/long_runs", *(f"notebooks/{p.stem}" for p in NOTEBOOKS)):
         assert (site / f"{page}.html").exists(), page
+    # the sweep reference: every experiment's fields, outputs and example
+    from ballchain.experiments.studies import EXPERIMENTS
+
+    sweeps = (site / "guide" / "sweeps.html").read_text()
+    for exp in EXPERIMENTS.values():
+        for name in [*exp.outputs, *(f.name for f in dataclasses.fields(exp.params))]:
+            assert f"<code class=\"docutils literal notranslate\"><span class=\"pre\">{name}</span></code>" in sweeps, name
+    for name in EXPERIMENTS:  # the example specs, highlighted
+        assert f'<span class="nt">experiment</span><span class="p">:</span><span class="w"> </span><span class="l l-Scalar l-Scalar-Plain">{name}</span>' in sweeps, name
     # the design notes render as a page: their sections and tables
     design = (site / "design.html").read_text()
     assert "Where the paper is wrong" in design and design.count("<table") >= 2

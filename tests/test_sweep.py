@@ -408,3 +408,34 @@ def test_design_figure_axes_follow_the_grid(tmp_path):
     labels = [t.get_text() for t in ax.get_legend().get_texts()]
     assert any("n_balls 12" in t for t in labels) and any("n_balls 16" in t for t in labels)
     plt.close("all")
+
+
+EXAMPLES = sorted((Path(__file__).resolve().parents[1] / "docs" / "guide" / "sweep_examples").glob("*.yaml"))
+
+
+def test_every_experiment_has_an_example_spec_and_documents_its_fields():
+    from ballchain.experiments.studies import field_docs
+
+    assert sorted(p.stem for p in EXAMPLES) == sorted(EXPERIMENTS)
+    for name, exp in EXPERIMENTS.items():
+        import dataclasses
+
+        documented = field_docs(exp.params)
+        assert [f.name for f in dataclasses.fields(exp.params)] == list(documented), name
+        assert all(documented.values()) and all(exp.outputs.values()), name
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("path", EXAMPLES, ids=lambda p: p.stem)
+def test_the_sweep_reference_example_runs_and_its_outputs_are_documented(path, tmp_path):
+    """Each experiment's example spec of the sweep reference runs as it stands, and every output
+    column it writes is one the reference explains (``Experiment.outputs``)."""
+    spec = load_spec(path)
+    result = run_sweep(spec, tmp_path, workers=0, progress=False)
+    assert result["failed"] == 0 and result["ran"] == result["points"] > 0
+    rows = read_table(tmp_path)
+    import dataclasses
+
+    params = {f.name for f in dataclasses.fields(EXPERIMENTS[spec.experiment].params)}
+    meta = {"key", "experiment", "seed", "wall_time_s", "cpu_time_s", "worker", "error"}
+    assert set(rows[0]) - params - meta == set(EXPERIMENTS[spec.experiment].outputs)

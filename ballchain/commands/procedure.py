@@ -63,13 +63,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from ballchain.drake_models.safe_files import check_output_dir
+    from ballchain.drake_models.safe_files import check_output_dir, check_output_file
 
     if args.anatomy is None and args.task is None:
         args.task = "right"
     if args.anatomy is None and args.task not in procedure.TASKS:
         raise UserInputError(f"--task must be left or right, got {args.task!r}")
     localisation = _localisation(args)
+    if args.anatomy is not None and (args.out is not None or args.html is not None):
+        from ballchain.drake_models.anatomy import load_anatomy
+
+        # Loaded once, here: its files are then this run's inputs, which the output checks refuse.
+        args.anatomy = load_anatomy(args.anatomy)
+    if args.html is not None:
+        check_output_file(args.html, "--html")
     if args.out is not None:
         check_output_dir(args.out, "--out", names=("procedure.json", "ring.png"))
     data = procedure.run(args.task, args.navigator, args.anatomy, args.seed, targets=args.targets,

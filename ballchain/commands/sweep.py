@@ -9,7 +9,9 @@ any spec file (a bare study name is always the shipped study, even beside a fold
 that name: write ``./design`` for a local one). Every point is checked with its command's own
 rules, and the points are counted (``--max-points``, default 5000) before any cluster starts;
 the count and an estimate of the time are printed first (on stderr). Rerunning with the same
-``--out`` skips the points already done; Ctrl-C keeps what finished.
+``--out`` skips the points already done; Ctrl-C keeps what finished. An ``--out`` whose table
+holds another spec's rows is refused unless ``--append``; one holding the spec file itself
+(``sweep.json``, a JSON spec) is refused.
 """
 
 from __future__ import annotations
@@ -39,6 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--jobqueue", default=None, metavar="KIND",
                         help="a dask-jobqueue cluster: slurm, pbs, sge, lsf, htcondor, moab, oar (optional dependency) "
                              "(default: none, the workers run here)")
+    parser.add_argument("--append", action="store_true",
+                        help="add this spec's rows to a table in --out that holds another spec's rows (refused "
+                             "without it); the table's spec column then names each row's spec")
     parser.add_argument("--no-figure", action="store_true", help="do not draw the study's figure")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_json_flag(parser)
@@ -68,7 +73,7 @@ def main(args: argparse.Namespace) -> int:
     # Every check (spec, flags, output folder) runs before a cluster starts.
     spec = sweep.load_spec(resolve_spec(args.spec), max_points=args.max_points)
     data = sweep.run_sweep(spec, args.out, scheduler=args.scheduler, workers=args.workers, jobqueue=args.jobqueue,
-                           progress=not args.no_progress, figure=not args.no_figure,
+                           progress=not args.no_progress, figure=not args.no_figure, append=args.append,
                            echo=lambda line: print(line, file=sys.stderr, flush=True))
     if args.json:
         print_json(data)

@@ -23,6 +23,7 @@ that a value the command refuses is refused in a spec too, before any point runs
 # dataclasses' field types as objects, not strings (as in systems/chain_scenario.py).
 import dataclasses
 import functools
+import inspect
 import json
 import math
 import re
@@ -52,6 +53,8 @@ class Experiment:
         typical_s: a point's typical CPU time [s] on one core, for the estimate printed before a
             sweep starts (an earlier table's own times replace it when there is one).
         shown: the output columns that ``ballchain sweep`` prints in its short table.
+        outputs: {output column: its meaning and unit}, every column ``point`` returns (the sweep
+            reference in the docs is generated from it; a test checks that it is complete).
     """
 
     name: str
@@ -63,6 +66,7 @@ class Experiment:
     description: str = ""
     typical_s: float = 1.0
     shown: tuple = ()  # the outputs the sweep command prints in its short table (default: the first few)
+    outputs: dict = dataclasses.field(default_factory=dict)  # {output column: what it is, with its unit}
 
 
 def _one_of(name: str, value, allowed) -> None:
@@ -641,19 +645,92 @@ def sleeve_figure(rows, out: Path) -> Path:
     return _savefig(fig, Path(out) / "sleeve.png")
 
 
+def field_docs(params: type) -> dict[str, str]:
+    """{field: its description} from a parameter dataclass's ``Attributes:`` docstring section
+    (Google style: ``name: text`` with indented continuation lines); for the sweep reference."""
+    docs: dict[str, str] = {}
+    lines = inspect.cleandoc(params.__doc__ or "").splitlines()
+    if "Attributes:" not in lines:
+        return docs
+    name = None
+    for line in lines[lines.index("Attributes:") + 1:]:
+        if not line.strip():
+            break
+        field = re.match(r"^    (\w+): (.*)$", line)
+        if field and field.group(1) in {f.name for f in dataclasses.fields(params)}:
+            name = field.group(1)
+            docs[name] = field.group(2).strip()
+        elif name is not None:
+            docs[name] += " " + line.strip()
+    return docs
+
+
+# What each experiment's points return: the columns of the sweep's table after the parameters.
+STATICS_OUTPUTS = {
+    "tip_x_mm": "the tip ball's centre along the insertion direction +x [mm]",
+    "tip_y_mm": "the tip ball's centre along +y, the field's turning side [mm]",
+    "tip_angle_deg": "angle between the tip ball's dipole and the final field [deg]",
+    "energy_J": "the chain's total potential energy at equilibrium [J]",
+    "iterations": "Newton iterations of the continuation, summed over its steps",
+}
+DESIGN_OUTPUTS = {
+    "n_balls_used": "the chain length simulated (n_balls, or the prototype's length in balls of this size)",
+    "magnet_mass_kg": "one actuation magnet's mass [kg] (N52, 7500 kg/m^3)",
+    "magnet_moment_Am2": "one actuation magnet's dipole moment [A m^2]",
+    "chain_moment_Am2": "the chain's summed dipole moment [A m^2]",
+    "clearance_mm": "the nearest magnet's surface beyond the chain's reach from the sheath exit [mm] "
+                    "(<= 0: no force computed)",
+    "force_gf": "the largest tip force along the vein's axis over the magnets' orientations [gf] "
+                "(empty: no orientation presses the pin)",
+    "lateral_gf": "the tip force across the vein's axis at that optimum [gf]",
+    "reaches_target": "force_gf >= 10 gf, the paper's clinically relevant force (empty: not computed)",
+    "evaluations": "statics solves of the orientation search (grid and Nelder-Mead)",
+    "refine_converged": "whether Nelder-Mead met its tolerances within refine_evaluations (false: force_gf may "
+                        "be short of the optimum)",
+    "note": "why a row has no force, or that the refinement stopped short",
+}
+OPERATORS_OUTPUTS = {
+    "engine_used": "the station's engine (statics: quasi-static; plant: MultibodyPlant)",
+    "note": "a remark on the run (empty when none)",
+    "touched": "targets touched by the tip",
+    "n_targets": "targets asked for",
+    "total_time_s": "simulated time of the whole task [s]",
+    "median_time_s": "median time from one target to the next [s]",
+    "median_accuracy_mm": "median distance of the touch from the target's centre [mm]",
+    "max_accuracy_mm": "largest such distance [mm]",
+    "failure": "why the run stopped early (empty: it ended normally)",
+    "sim_time_s": "simulated time [s]",
+    "realtime_factor": "simulated seconds per wall-clock second",
+    "target_names": "JSON list: the targets in order",
+    "target_times_s": "JSON list: each target's time [s] (null: not touched)",
+    "target_accuracy_mm": "JSON list: each touch's distance from the centre [mm]",
+    "target_touched": "JSON list: whether each target was touched",
+    "paper_time_per_target_s": "the paper's operator's time per target on this task [s]",
+}
+SLEEVE_OUTPUTS = {
+    "bending_stiffness_Nm2": "the sleeve's bending stiffness E I [N m^2]",
+    "half_area_bare_mm2": "half the area swept by the bare chain's tip as the magnet turns [mm^2]",
+    "half_area_sleeve_mm2": "the same for the chain in this sleeve [mm^2]",
+    "reduction_pct": "the sleeve's loss of workspace: 100 (1 - sleeve / bare) [%]",
+    "tip_to_tip_max_mm": "largest distance between the two tips at the same magnet angle [mm]",
+}
+
+
 EXPERIMENTS: dict[str, Experiment] = {
     e.name: e for e in (
         Experiment("statics", StaticsPoint, statics_point, statics_check,
                    description="one equilibrium of the canonical chain in a uniform field", typical_s=0.05,
-                   shown=("tip_x_mm", "tip_y_mm", "tip_angle_deg", "iterations")),
+                   shown=("tip_x_mm", "tip_y_mm", "tip_angle_deg", "iterations"), outputs=STATICS_OUTPUTS),
         Experiment("design", DesignPoint, design_point, design_check, design_figure, design_summary,
                    "ball size x actuation magnet x distance -> tip force on a vein (statics)", typical_s=10.0,
-                   shown=("n_balls_used", "force_gf", "lateral_gf", "reaches_target", "note")),
+                   shown=("n_balls_used", "force_gf", "lateral_gf", "reaches_target", "note"), outputs=DESIGN_OUTPUTS),
         Experiment("operators", OperatorsPoint, operators_point, operators_check, operators_figure,
                    operators_summary, "simulated operators on the teleoperation tasks", typical_s=10.0,
-                   shown=("touched", "n_targets", "total_time_s", "median_accuracy_mm", "failure")),
+                   shown=("touched", "n_targets", "total_time_s", "median_accuracy_mm", "failure"),
+                   outputs=OPERATORS_OUTPUTS),
         Experiment("sleeve", SleevePoint, sleeve_point, sleeve_check, sleeve_figure, sleeve_summary,
                    "workspace against the sleeve's Young's modulus and wall thickness", typical_s=15.0,
-                   shown=("half_area_bare_mm2", "half_area_sleeve_mm2", "reduction_pct", "tip_to_tip_max_mm")),
+                   shown=("half_area_bare_mm2", "half_area_sleeve_mm2", "reduction_pct", "tip_to_tip_max_mm"),
+                   outputs=SLEEVE_OUTPUTS),
     )
 }
