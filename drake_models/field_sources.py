@@ -20,12 +20,18 @@ import numpy as np
 from ballchain.drake_models.kernels import dipole_field_and_gradient
 from ballchain.drake_models.kernels.external import GRADIENT_STEP
 from ballchain.drake_models.dipole import DipoleFieldAtPoint, dipole_field, dipole_field_of_checked
-from ballchain.drake_models.arg_checks import as_array, as_vector, require_choice, require_positive, require_type
+from ballchain.drake_models.arg_checks import as_array, as_vector, require_choice, require_type
 from ballchain.drake_models.errors import UserInputError, check_in, short_repr
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
 from ballchain.drake_models.vectors import perpendicular_basis
 
 FieldModel = Literal["dipole", "exact"]
+
+# The strongest field a source of the API (and every --field-mT flag) may give [T]: a
+# catheter's actuation fields are tens of mT (the paper's 23 mT), an MRI scanner's 1.5..3 T
+# are not steering fields. "23" for 23 mT is 23 T: refused with this bound in the message.
+MAX_FIELD_T = 1.0
+MAX_FD_STEP = 1e-3  # [m]: the exact model's central-difference step (1e-5 by default); a ball is 3..6 mm
 
 
 class FieldSource(Protocol):
@@ -42,7 +48,12 @@ def require_field_source(source, name: str, allow_none: bool = False):
 
 
 def _as_points(p_W) -> np.ndarray:
-    p = np.asarray(p_W, dtype=float)
+    if isinstance(p_W, (str, bytes, dict)) or p_W is None:
+        raise UserInputError(f"field points p_W must be (k, 3) finite numbers [m], got {short_repr(p_W)}")
+    try:
+        p = np.asarray(p_W, dtype=float)
+    except (TypeError, ValueError):
+        raise UserInputError(f"field points p_W must be (k, 3) finite numbers [m], got {short_repr(p_W)}") from None
     if p.ndim == 1:
         p = p[None, :]
     if p.ndim != 2 or p.shape[1] != 3:
@@ -72,11 +83,16 @@ class UniformField:
         self.B_W = as_vector(self.B_W, "UniformField.B_W", unit="T")
         if not np.all(np.isfinite(self.B_W)):
             raise UserInputError(f"UniformField.B_W must be finite, got {self.B_W}")
+        magnitude = float(np.linalg.norm(self.B_W))
+        if magnitude > MAX_FIELD_T:
+            raise UserInputError(f"UniformField.B_W |B| = {magnitude:g} T must be at most {MAX_FIELD_T:g} T "
+                                 f"({MAX_FIELD_T * 1e3:g} mT): it is in tesla (23 mT is 0.023), "
+                                 f"got {short_repr(self.B_W.tolist())}")
 
     @staticmethod
     def in_plane(magnitude_T: float, angle_rad: float) -> "UniformField":
         """A field in the x-y plane at ``angle_rad`` from +x towards +y."""
-        check_in("UniformField.in_plane magnitude_T", magnitude_T, -math.inf, math.inf, unit="T")
+        check_in("UniformField.in_plane magnitude_T", magnitude_T, -MAX_FIELD_T, MAX_FIELD_T, unit="T")
         check_in("UniformField.in_plane angle_rad", angle_rad, -math.inf, math.inf, unit="rad")
         return UniformField(magnitude_T * np.array([np.cos(angle_rad), np.sin(angle_rad), 0.0]))
 
@@ -110,7 +126,7 @@ class MagnetSource:
         self.p_WM = as_vector(self.p_WM, "MagnetSource.p_WM", unit="m")
         self.R_WM = as_array(self.R_WM, "MagnetSource.R_WM", (3, 3))
         require_choice(self.model, ("dipole", "exact"), "MagnetSource.model")
-        require_positive(self.fd_step, "MagnetSource.fd_step", "m")
+        check_in("MagnetSource.fd_step", self.fd_step, 0.0, MAX_FD_STEP, lo_open=True, unit="m")
         if not np.all(np.isfinite(self.p_WM)) or not np.all(np.isfinite(self.R_WM)):
             raise UserInputError("MagnetSource pose must be finite")
         if not np.allclose(self.R_WM.T @ self.R_WM, np.eye(3), atol=1e-6):

@@ -581,6 +581,66 @@ def _finite_fields(obj, where: str = ""):
                 yield p, item
 
 
+def check_kinds(obj, schema=None, path: str = "") -> None:
+    """A scenario built or changed in Python (``ChainScenario(...)``, ``dataclasses.replace``,
+    an attribute set) against its schema, every field recursively: each part an instance of its
+    dataclass or pydrake config struct, each list a list, each value what ``safe_yaml.check_value``
+    allows in the YAML. Numpy numbers and arrays, and tuples, are stored as the plain numbers and
+    lists they hold (what ``load_scenario`` gives), so the checks after this one read plain data.
+
+    Raises:
+        UserInputError: "scenario: {path} must be {what}, got {value}", naming the field path.
+    """
+    schema = type(obj) if schema is None else schema
+    for name, tp in _schema_fields(schema).items():
+        where = f"{path}.{name}" if path else name
+        value = getattr(obj, name)
+        plain = _plain(value)
+        _check_kind(plain, tp, where)
+        if plain is not value and dataclasses.is_dataclass(obj):  # pydrake's structs convert on their own
+            setattr(obj, name, plain)
+
+
+def _plain(value):
+    """Numpy numbers and arrays, and tuples, as the Python numbers and lists they hold."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, list) and any(isinstance(v, (np.generic, np.ndarray, tuple)) for v in value):
+        return [_plain(v) for v in value]
+    return value
+
+
+def _a(name: str) -> str:
+    return f"{'an' if name[:1] in 'AEIOU' else 'a'} {name}"
+
+
+def _check_kind(value, tp, path: str) -> None:
+    if typing.get_origin(tp) is typing.Union and type(None) in typing.get_args(tp):  # Optional[T]
+        if value is None:
+            return
+        (tp,) = [a for a in typing.get_args(tp) if a is not type(None)]
+    item = _list_item_schema(tp)
+    if _schema_fields(tp) is not None:
+        if not isinstance(value, tp):
+            hint = (f" (a mapping is the YAML's form: {tp.__name__}(**fields), or load_scenario's overrides)"
+                    if isinstance(value, dict) else "")
+            raise UserInputError(f"scenario: {path} must be {_a(tp.__name__)}{hint}, "
+                                 f"got {type(value).__name__} {short_repr(value)}")
+        check_kinds(value, tp, path)
+    elif item is not None:
+        if not isinstance(value, list):
+            raise UserInputError(f"scenario: {path} must be a list of {item.__name__}, "
+                                 f"got {type(value).__name__} {short_repr(value)}")
+        for i, entry in enumerate(value):
+            _check_kind(entry, item, f"{path}[{i}]")
+    else:
+        check_value(value, tp, path, "scenario")
+
+
 def _require(condition: bool, message: str) -> None:
     if not condition:
         raise UserInputError(message)
@@ -613,6 +673,7 @@ def check_fields(s: "ChainScenario") -> None:
     """
     for path, value in _finite_fields(s):
         raise UserInputError(f"scenario {path} must be a finite number, got {value}")
+    check_kinds(s)  # a scenario built in Python: every field of its kind, before anything reads one
     _one_of(s.mode, MODES, "mode")
     _one_of(s.engine, ENGINES, "engine")
     _one_of(s.unit_systems, UNIT_SYSTEMS, "unit_systems")

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import gc
 import math
+import os
 import resource
 import sys
 import time
@@ -29,7 +30,7 @@ import numpy as np
 from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 from pydrake.systems.framework import EventStatus
 
-from ballchain.drake_models.arg_checks import require_int, require_positive, require_type
+from ballchain.drake_models.arg_checks import require_bool, require_int, require_positive, require_type
 from ballchain.drake_models.atrium import Atrium
 from ballchain.drake_models.errors import UserInputError, caused_by_interrupt, short_repr
 from ballchain.drake_models.safe_files import atomic_write_text, check_output_file, optional_field
@@ -199,6 +200,11 @@ class ChainMonitor:
         self._tolerate_sinking = tolerate_sinking
         self.tolerated_sinkings: list[tuple[float, int, float]] = []
 
+    def __getstate__(self) -> dict:
+        """Its numbers (the metrics, the failure, the tolerated sinkings) without the station it
+        watches, which cannot be pickled: an unpickled monitor is a record, it checks nothing."""
+        return {**self.__dict__, "_cd": None, "_chain": None, "_system": None, "_tolerate_sinking": None}
+
     def restart(self) -> None:
         """Forget the failure and the check schedule: the run starts over from its initial state
         (``StationRunner.restart``); the metrics keep their extremes over every start."""
@@ -341,6 +347,11 @@ class RunOutcome:
         context: the Simulator's root context at the end.
         simulator: the Simulator.
         station: the Station that ran.
+
+    It pickles (``pickle.dumps``, a process pool, a Dask worker) as plain data: the times, the
+    failure, the chain's end state (``ball_positions``, ``tip_position``) and the monitor's
+    numbers. The live pydrake objects cannot be pickled: ``context``, ``simulator`` and
+    ``station`` are None in the unpickled copy (and its ``monitor`` has no station to check).
     """
 
     sim_time: float
@@ -361,12 +372,30 @@ class RunOutcome:
     @property
     def ball_positions(self) -> np.ndarray:
         """The ball centres (n, 3) [m] at the end of the run, ball 1 first, the tip ball last."""
+        kept = self.__dict__.get("_ball_positions")  # an unpickled copy's
+        if self.station is None and kept is not None:
+            return kept.copy()
         return self._station().ball_positions(self.context)
 
     @property
     def tip_position(self) -> np.ndarray:
         """The tip ball's centre (3,) [m] at the end of the run."""
+        if self.station is None and self.__dict__.get("_ball_positions") is not None:
+            return self.ball_positions[-1]
         return self._station().tip_position(self.context)
+
+    def __getstate__(self) -> dict:
+        """Plain data (see the class docstring): the live pydrake objects are left out."""
+        state = dict(self.__dict__)
+        has_state = self.station is not None or self.__dict__.get("_ball_positions") is not None
+        state["_ball_positions"] = np.array(self.ball_positions, dtype=float) if has_state else None
+        state.update(context=None, simulator=None, station=None)
+        return state
+
+    def __copy__(self) -> "RunOutcome":
+        copy = object.__new__(RunOutcome)  # a shallow copy keeps the live objects (pickling leaves them out)
+        copy.__dict__.update(self.__dict__)
+        return copy
 
 
 # The size of a Meshcat replay (``StaticHtml``): the page with its meshes, plus one pose per
@@ -538,6 +567,39 @@ def frozen_gc(enabled: bool = True):
         gc.unfreeze()
 
 
+def check_run_arguments(cd, what: str, *, monitor=None, stop=None, check=None, on_time=None, context=None,
+                        realtime_rate=None, html=None) -> None:
+    """The arguments of a run (``run_station``, ``StationRunner``) that Drake or a hook would
+    otherwise refuse deep inside the run (a pybind11 "incompatible function arguments", "'dict'
+    object is not callable" at the first step): each of its kind, before anything is built.
+
+    Raises:
+        UserInputError: "{what} {argument} must be ..., got ...".
+    """
+    if not isinstance(cd, Station):
+        raise UserInputError(f"{what}'s cd must be a Station (MakeStation(scenario)), got {type(cd).__name__}")
+    if monitor is not None:
+        require_type(monitor, ChainMonitor, f"{what} monitor", "a ChainMonitor (ChainMonitor(station)) or None")
+    for name, hook in (("stop", stop), ("check", check), ("on_time", on_time)):
+        if hook is not None and not callable(hook):
+            raise UserInputError(f"{what} {name} must be a function of the root context or None, "
+                                 f"got {type(hook).__name__} {short_repr(hook)}")
+    if context is not None:
+        from pydrake.systems.framework import Context
+
+        try:
+            ok = isinstance(context, Context) and cd.diagram.ValidateContext(context) is None
+        except RuntimeError:  # a context of another system
+            ok = False
+        if not ok:
+            raise UserInputError(f"{what} context must be a root context of the station's diagram "
+                                 f"(station.diagram.CreateDefaultContext()) or None, got {type(context).__name__}")
+    if realtime_rate is not None:
+        require_positive(realtime_rate, f"{what} realtime_rate", allow_zero=True)
+    if html is not None and (isinstance(html, bool) or not isinstance(html, (str, os.PathLike))):
+        raise UserInputError(f"{what} html must be a file name (str or Path) or None, got {short_repr(html)}")
+
+
 class StationRunner:
     """The Simulator of a built station with its watchdog, advanced in chunks (and restartable).
 
@@ -564,6 +626,8 @@ class StationRunner:
 
     def __init__(self, cd: Station, *, monitor: ChainMonitor | None = None, stop=None, check=None,
                  on_time=None, context=None, realtime_rate: float | None = None, restartable: bool = False):
+        check_run_arguments(cd, "StationRunner", monitor=monitor, stop=stop, check=check, on_time=on_time,
+                            context=context, realtime_rate=realtime_rate)
         self.cd = cd
         if context is None and cd.scenario.random_seed is not None:
             from pydrake.common import RandomGenerator
@@ -686,8 +750,7 @@ def run_station(cd: Station, *, duration: float, monitor: ChainMonitor | None = 
             not a finite time > 0, ``html`` without a Meshcat in the station, and a ``progress``,
             ``progress_step`` or ``realtime_rate`` of the wrong kind.
     """
-    if not isinstance(cd, Station):
-        raise UserInputError(f"run_station's cd must be a Station (MakeStation(scenario)), got {type(cd).__name__}")
+    check_run_arguments(cd, "run_station", monitor=monitor, stop=stop, check=check, context=context, html=html)
     require_positive(duration, "run_station duration")
     if progress is not None and not isinstance(progress, str):
         raise UserInputError(f"run_station progress must be a label (str) or None, got {short_repr(progress)}")
@@ -759,6 +822,9 @@ def run_simulation(*, scenario: ChainScenario, duration: float | None = None, ht
             ``metrics`` are the run's up to the failure (no ``p_W_mm``).
     """
     require_type(scenario, ChainScenario, "run_simulation scenario", "a ChainScenario (load_scenario(name))")
+    require_bool(progress, "run_simulation progress")
+    if html is not None and (isinstance(html, bool) or not isinstance(html, (str, os.PathLike))):
+        raise UserInputError(f"run_simulation html must be a file name (str or Path) or None, got {short_repr(html)}")
     duration = scenario.duration if duration is None else duration
     check_steps(scenario, duration, "duration")
     if html is not None:

@@ -125,7 +125,15 @@ class MagnetUnitConfig:
 
     def __post_init__(self) -> None:
         if not isinstance(self.p_WM, list):  # a tuple or an array from code: the YAML shape
-            self.p_WM = [float(v) for v in np.asarray(self.p_WM, dtype=float).reshape(-1)]
+            try:
+                p = None if isinstance(self.p_WM, (str, bytes, dict)) or self.p_WM is None else \
+                    np.asarray(self.p_WM, dtype=float).reshape(-1)
+            except (TypeError, ValueError):
+                p = None
+            if p is None or p.size not in (0, 3):
+                raise UserInputError(f"MagnetUnitConfig.p_WM must be [] or 3 numbers [m] (the magnet's centre), "
+                                     f"got {short_repr(self.p_WM)}")
+            self.p_WM = [float(v) for v in p]
 
     @property
     def magnet(self) -> CylinderMagnet | SphereMagnet:

@@ -402,3 +402,176 @@ def test_overrides_given_as_a_mapping_take_numpy_values_and_refuse_other_objects
         with pytest.raises(UserInputError) as err:
             call()
         assert str(err.value) == expected
+
+
+# ------------------------------------------------------------------ round three: the API's edges
+
+def test_a_run_outcome_pickles_as_plain_data(free_station):
+    """``pickle.dumps(run_station(...))`` raised deep inside pydrake (a Diagram cannot be
+    pickled): the outcome pickles its numbers and the chain's end state, without the live objects."""
+    import copy
+    import pickle
+
+    import ballchain as bc
+
+    outcome = bc.run_station(free_station, duration=0.01)
+    again = pickle.loads(pickle.dumps(outcome))
+    np.testing.assert_array_equal(again.tip_position, outcome.tip_position)
+    np.testing.assert_array_equal(again.ball_positions, outcome.ball_positions)
+    assert again.ball_positions.shape == (free_station.scenario.n_balls, 3)
+    fields = ("sim_time", "wall_time", "cpu_time", "failure", "stopped")
+    assert [getattr(again, f) for f in fields] == [getattr(outcome, f) for f in fields]
+    watched = ("checks", "max_gap", "max_penetration", "failure", "tolerated_sinkings")
+    assert [getattr(again.monitor, f) for f in watched] == [getattr(outcome.monitor, f) for f in watched]
+    assert again.context is None and again.simulator is None and again.station is None
+    twice = pickle.loads(pickle.dumps(again))  # an unpickled copy pickles too
+    np.testing.assert_array_equal(twice.tip_position, outcome.tip_position)
+    # The original keeps its live objects, and so does a shallow copy.
+    assert outcome.station is free_station and copy.copy(outcome).context is outcome.context
+
+
+def test_the_api_bounds_a_field_as_the_command_line_does():
+    """``UniformField([0, 23, 0])`` (23 mT typed as tesla) ran a 23 T field; the commands refuse
+    more than 1000 mT. One bound, ``field_sources.MAX_FIELD_T``, for both."""
+    import ballchain as bc
+
+    for call, expected in (
+            (lambda: bc.UniformField([0, 23, 0]),
+             "UniformField.B_W |B| = 23 T must be at most 1 T (1000 mT): it is in tesla (23 mT is 0.023), "
+             "got [0.0, 23.0, 0.0]"),
+            (lambda: bc.UniformField(np.full(3, 0.6)), "UniformField.B_W |B| = 1.03923 T must be at most 1 T"),
+            (lambda: bc.UniformField.in_plane(23.0, 0.5),
+             "UniformField.in_plane magnitude_T must be a number in [-1, 1] T, got 23.0"),
+            (lambda: bc.MagnetSource(bc.CylinderMagnet(), [0, 0, 0.2], model="exact", fd_step=1e300),
+             "MagnetSource.fd_step must be a number in (0, 0.001] m, got 1e+300"),
+            (lambda: bc.CylinderMagnet(remanence=23.0), "CylinderMagnet.remanence must be in (0, 2.5] T, got 23 T"),
+            (lambda: bc.UniformField([0, 0.023, 0]).field_and_gradient("origin"),
+             "field points p_W must be (k, 3) finite numbers [m], got 'origin'")):
+        with pytest.raises(UserInputError) as err:
+            call()
+        assert str(err.value).startswith(expected), str(err.value)
+    import argparse
+
+    from ballchain.commands import alignment as alignment_command
+    from ballchain.drake_models.field_sources import MAX_FIELD_T
+    from ballchain.experiments import alignment, statics_bench, statics_shape
+
+    assert bc.UniformField([0.0, MAX_FIELD_T, 0.0]).B_W[1] == MAX_FIELD_T  # the bound itself is allowed
+    assert statics_shape.MAX_FIELD_MT == statics_bench.FIELD_MT_RANGE[1] == MAX_FIELD_T * 1e3 == 1000.0
+    with pytest.raises(UserInputError, match=r"--field-mT must be a number in \(0, 1000\] mT, got 1001"):
+        alignment.run(field_mT=1001.0)
+    parser = argparse.ArgumentParser()
+    alignment_command.add_arguments(parser)
+    assert parser.parse_args(["--field-mT", "1000"]).field_mT == 1000.0
+
+
+def _scenario_with(**changes):
+    import dataclasses
+
+    import ballchain as bc
+
+    return dataclasses.replace(bc.load_scenario("free_space_uniform_90deg"), **changes)
+
+
+@pytest.mark.parametrize("changes, expected", [
+    (dict(magnets=[{"shape": "sphere"}]), "scenario: magnets[0] must be a MagnetScenario (a mapping is the YAML's "
+                                          "form: MagnetScenario(**fields), or load_scenario's overrides), got dict"),
+    (dict(units=[{"name": "right_unit"}]), "scenario: units[0] must be a MagnetUnitConfig"),
+    (dict(units=None), "scenario: units must be a list of MagnetUnitConfig, got NoneType None"),
+    (dict(magnets={"shape": "sphere"}), "scenario: magnets must be a list of MagnetScenario, got dict"),
+    (dict(insertion={"speed": 0.01}), "scenario: insertion must be an InsertionScenario"),
+    (dict(plant_config={}), "scenario: plant_config must be a MultibodyPlantConfig"),
+    (dict(visualization=None), "scenario: visualization must be a VisualizationConfig, got NoneType None"),
+    (dict(sleeve="yes"), "scenario: sleeve must be true or false, got 'yes'"),
+    (dict(description=None), "scenario: description must be a string, got None"),
+    (dict(uniform_field="north"), "scenario: uniform_field must be a list of finite numbers, got 'north'"),
+    (dict(random_seed=1.5), "scenario: random_seed must be an integer, got 1.5"),
+])
+def test_a_scenario_part_of_the_wrong_kind_is_named_at_make_station(changes, expected):
+    """A scenario built in Python with a part of the wrong kind (plain dicts for ``magnets`` or
+    ``units``, ``units=None``) ended in an AttributeError or TypeError from the checks or the
+    build: ``MakeStation`` (its ``validate``) names the field path first."""
+    import ballchain as bc
+
+    with pytest.raises(UserInputError) as err:
+        bc.MakeStation(_scenario_with(**changes))
+    assert str(err.value).startswith(expected), str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_a_scenario_built_with_numpy_values_and_tuples_validates_as_plain_data():
+    """Numpy numbers and arrays, tuples: what a script has at hand; stored as the plain numbers
+    and lists ``load_scenario`` gives (a numpy ``sheath_aim`` was "truth value of an array is
+    ambiguous" before)."""
+    import ballchain as bc
+
+    scenario = _scenario_with(n_balls=np.int64(8), duration=np.float32(0.05), uniform_field=np.array([0.0, 0.02, 0.0]),
+                              wall_plane=(0.0, 0.0, -0.01, 0.0, 0.0, 1.0), random_seed=np.uint32(3)).validate()
+    assert type(scenario.n_balls) is int and scenario.n_balls == 8 and type(scenario.duration) is float
+    assert scenario.uniform_field == [0.0, 0.02, 0.0] and scenario.wall_plane == [0.0, 0.0, -0.01, 0.0, 0.0, 1.0]
+    assert scenario.random_seed == 3 and type(scenario.random_seed) is int
+    heart = bc.load_scenario("heart_left_quasi_static")
+    heart.sheath_aim = np.array([0.0, 0.0, 0.01])  # read as the list it holds, then refused as that list is
+    with pytest.raises(UserInputError, match="scenario sheath_aim is for a user's atrium"):
+        heart.validate()
+    with pytest.raises(UserInputError, match=r"MagnetUnitConfig.p_WM must be \[\] or 3 numbers \[m\] .*got 'x'"):
+        bc.MagnetUnitConfig(p_WM="x")
+    assert bc.MagnetUnitConfig(p_WM=np.array([0.0, -0.2, 0.0])).p_WM == [0.0, -0.2, 0.0]
+
+
+@pytest.mark.parametrize("overrides, expected", [
+    ("{units: [{joystick_source: script}]}",
+     "--set units[0].joystick_source: 'script' would be ignored: the stick of unit 'right_unit' is the operator's"),
+    ("{units: [{joystick: [{time: 0.0, axes: [1.0, 0.0, 0.0]}]}]}", "--set units[0].joystick: "),
+    ("{units: [{teleop_frame: tip}]}",
+     "--set units[0].teleop_frame: 'tip' would be ignored: the mapping of unit 'right_unit' is --mapping world's"),
+    ("{insertion: {feeder_command: ramp}}", "--set insertion.feeder_command: 'ramp' would be ignored: the operator"),
+    ("{insertion: {final: 0.05}}", "--set insertion.final: 0.05 would be ignored"),
+])
+def test_teleop_refuses_an_override_its_operator_would_replace(overrides, expected):
+    """``teleop`` hands each unit's stick and the feeder to its operator: a scripted stick
+    (``joystick_source: script``) was replaced without a word and the run exited 0."""
+    from ballchain.experiments import teleop
+
+    with pytest.raises(UserInputError) as err:
+        teleop.scenario_for("world", overrides=overrides)
+    assert str(err.value).startswith(expected), str(err.value)
+    # What the hand-over sets anyway is accepted.
+    scenario = teleop.scenario_for("world", overrides="{units: [{joystick_source: external, teleop_frame: world}]}")
+    assert scenario.units[0].joystick_source == "external"
+
+
+def test_the_teleop_command_refuses_a_scripted_stick_in_one_line(capsys):
+    from ballchain.cli import main
+
+    assert main(["teleop", "--targets", "1", "--no-progress", "--set", "{units: [{joystick_source: script}]}"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "units[0].joystick_source: 'script' would be ignored" in line
+
+
+def test_the_hooks_of_a_run_are_checked_before_it(free_station):
+    """A monitor, ``stop``, ``check`` or ``context`` of the wrong kind failed at the first step
+    (pybind11's multi-line "incompatible function arguments", "'str' object is not callable")."""
+    import ballchain as bc
+
+    for call, expected in (
+            (lambda: bc.run_station(free_station, duration=0.01, stop="at 1 s"),
+             "run_station stop must be a function of the root context or None, got str 'at 1 s'"),
+            (lambda: bc.run_station(free_station, duration=0.01, check=True), "run_station check must be a function"),
+            (lambda: bc.run_station(free_station, duration=0.01, monitor={}),
+             "run_station monitor must be a ChainMonitor (ChainMonitor(station)) or None, got dict"),
+            (lambda: bc.run_station(free_station, duration=0.01, context={}),
+             "run_station context must be a root context of the station's diagram"),
+            (lambda: bc.StationRunner(free_station, context=free_station.chain.system.CreateDefaultContext()),
+             "StationRunner context must be a root context of the station's diagram"),
+            (lambda: bc.StationRunner(free_station, realtime_rate=float("nan")),
+             "StationRunner realtime_rate must be a finite number >= 0, got nan"),
+            (lambda: bc.run_station(free_station, duration=0.01, html=5), "run_station html must be a file name"),
+            (lambda: bc.run_simulation(scenario=free_station.scenario, duration=0.01, html={"file": "x.html"}),
+             "run_simulation html must be a file name (str or Path) or None, got {'file': 'x.html'}"),
+            (lambda: bc.run_simulation(scenario=free_station.scenario, duration=0.01, progress="yes"),
+             "run_simulation progress must be True or False, got 'yes'")):
+        with pytest.raises(UserInputError) as err:
+            call()
+        assert str(err.value).startswith(expected), str(err.value)
+        assert "\n" not in str(err.value)

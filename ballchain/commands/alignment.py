@@ -11,12 +11,13 @@ from pathlib import Path
 
 from ballchain.commands._common import add_json_flag, float_in, int_in, path_arg, print_json
 from ballchain.experiments.alignment import MAX_BALLS, run
+from ballchain.experiments.statics_shape import MAX_FIELD_MT
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-balls", type=int_in(1, MAX_BALLS), default=16, help=f"longest chain (1..{MAX_BALLS})")
-    parser.add_argument("--field-mT", type=float_in(0.0, 1000.0, lo_open=True), default=23.0,
-                        help="field magnitude [mT] (0..1000]")
+    parser.add_argument("--field-mT", type=float_in(0.0, MAX_FIELD_MT, lo_open=True), default=23.0,
+                        help=f"field magnitude [mT] (0..{MAX_FIELD_MT:g}]")
     parser.add_argument("--step-deg", type=float_in(0.5, 90.0), default=22.5, help="field angle step [deg] (0.5..90)")
     parser.add_argument("--sleeve", action="store_true", help="with the Dragon Skin sleeve")
     parser.add_argument("--out", type=path_arg, default=Path("results/alignment"),

@@ -16,7 +16,7 @@ from tqdm import tqdm
 
 from ballchain.drake_models.arg_checks import require_bool, require_int
 from ballchain.drake_models.errors import check_in
-from ballchain.drake_models.field_sources import UniformField
+from ballchain.drake_models.field_sources import MAX_FIELD_T, UniformField
 from ballchain.drake_models.params import BallChain, Sleeve
 from ballchain.drake_models.safe_files import agg_pyplot, check_output_dir, note_replacements, save_figure, write_csv
 from ballchain.experiments._result import Result, optional
@@ -117,7 +117,7 @@ def run(*, max_balls: int = 16, field_mT: float = 23.0, step_deg: float = 22.5, 
     """
     require_int(max_balls, "--max-balls", 1, MAX_BALLS)
     require_bool(sleeve, "--sleeve")
-    check_in("--field-mT", field_mT, 0.0, 1000.0, lo_open=True, unit="mT")
+    check_in("--field-mT", field_mT, 0.0, MAX_FIELD_T * 1e3, lo_open=True, unit="mT")
     check_in("--step-deg", step_deg, 0.5, 90.0, unit="deg")
     if out is not None:  # before the work: an unwritable folder must not cost the results
         check_output_dir(out, "--out")

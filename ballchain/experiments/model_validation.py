@@ -19,7 +19,7 @@ from tqdm import tqdm
 
 from ballchain.drake_models.arg_checks import as_int_list, as_number_list
 from ballchain.drake_models.errors import UserInputError, check_in
-from ballchain.drake_models.field_sources import UniformField
+from ballchain.drake_models.field_sources import MAX_FIELD_T, UniformField
 from ballchain.drake_models.params import BallChain
 from ballchain.drake_models.safe_files import check_output_dir, note_replacements, write_csv
 from ballchain.drake_models.vectors import angle_between
@@ -113,9 +113,9 @@ def run(*, balls=range(5, 11), angles_deg=(0.0, 45.0, 90.0, 135.0, 180.0), field
     as_int_list(balls, "balls", 2)
     as_number_list(angles_deg, "angles_deg", -360.0, 360.0, unit="deg")
     check_in("step_deg", step_deg, 0.0, 90.0, lo_open=True, unit="deg")
-    if not (isinstance(field_T, (int, float)) and 0 < field_T <= 1.0):
+    if not (isinstance(field_T, (int, float)) and 0 < field_T <= MAX_FIELD_T):
         shown = field_T * 1e3 if isinstance(field_T, (int, float)) else field_T
-        raise UserInputError(f"--field-mT must be in (0, 1000] mT, got {shown}")
+        raise UserInputError(f"--field-mT must be in (0, {MAX_FIELD_T * 1e3:g}] mT, got {shown}")
     if out is not None:  # before the work
         check_output_dir(out, "--out")
     rows = []

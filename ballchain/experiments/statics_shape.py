@@ -14,12 +14,12 @@ import numpy as np
 from tqdm import tqdm
 
 from ballchain.drake_models.errors import UserInputError, check_in, short_repr
-from ballchain.drake_models.field_sources import UniformField
+from ballchain.drake_models.field_sources import MAX_FIELD_T, UniformField
 from ballchain.drake_models.params import BallChain, Sleeve
 from ballchain.experiments._result import Result
 from ballchain.optimization.statics import MAX_BALLS, ChainStatics, rotation_path, tip_angle_deg
 
-MAX_FIELD_MT = 1000.0
+MAX_FIELD_MT = MAX_FIELD_T * 1e3  # the API's bound (field_sources.MAX_FIELD_T) in the flags' unit
 MIN_STEP_DEG = 0.1  # at most 7200 continuation steps over the widest angle
 
 

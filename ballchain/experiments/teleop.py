@@ -230,6 +230,7 @@ def hand_over(scenario, mapping: str, n_balls: int | None, overrides: dict, unit
     if n_balls is not None and "n_balls" in overrides:
         raise UserInputError(f"--balls {n_balls} and --set n_balls {overrides['n_balls']!r} both give the chain's "
                              "length: give one of them")
+    refuse_replaced(scenario, overrides, mapping, scenario.units if units is None else units)
     engine = handed_over_engine(scenario.mode, overrides)
     if engine is not None:
         scenario.engine = engine
@@ -243,6 +244,43 @@ def hand_over(scenario, mapping: str, n_balls: int | None, overrides: dict, unit
     ins.feeder, ins.feeder_command = True, "external"
     ins.final = ins.initial
     return scenario.validate()
+
+
+def refuse_replaced(scenario, overrides: dict, mapping: str, handed) -> None:
+    """Refuse the overrides that ``hand_over`` would replace without a word: a handed unit's
+    scripted stick (``joystick_source``, ``joystick``: the operator cannot drive a script), its
+    mapping (``teleop_frame``: ``--mapping``'s) and the feeder's own motion (``insertion``'s
+    ``feeder``, ``feeder_command``, ``final``: the operator feeds the chain). ``scenario`` has the
+    overrides applied (its ``units[i]`` is the override's ``units[i]``).
+
+    Raises:
+        UserInputError: naming the field, the value and what the run does instead.
+    """
+    from ballchain.drake_models.errors import short_repr
+
+    other = "catheter" if mapping == "world" else "world"
+    for i, entry in enumerate(overrides.get("units") or []):
+        if not isinstance(entry, dict) or i >= len(scenario.units) or not any(scenario.units[i] is u for u in handed):
+            continue
+        name = scenario.units[i].name
+        stick = (f"the stick of unit {name!r} is the operator's (joystick_source: external), who cannot drive a "
+                 "script (a scripted stick runs with `ballchain simulate`)")
+        allowed = {"joystick_source": ("external", stick), "joystick": ([], stick),
+                   "teleop_frame": (MAPPINGS[mapping], f"the mapping of unit {name!r} is --mapping {mapping}'s "
+                                                       f"({MAPPINGS[mapping]!r}; --mapping {other} gives "
+                                                       f"{MAPPINGS[other]!r})")}
+        for key, (kept, why) in allowed.items():
+            if key in entry and entry[key] != kept:
+                raise UserInputError(f"--set units[{i}].{key}: {short_repr(entry[key])} would be ignored: {why}; "
+                                     f"leave {key} out")
+    insertion = overrides.get("insertion")
+    if isinstance(insertion, dict):
+        kept = {"feeder": True, "feeder_command": "external", "final": scenario.insertion.initial}
+        for key, value in kept.items():
+            if key in insertion and insertion[key] != value:
+                raise UserInputError(f"--set insertion.{key}: {short_repr(insertion[key])} would be ignored: the "
+                                     f"operator feeds the chain (feeder: true, feeder_command: external, the "
+                                     f"insertion starting at insertion.initial); leave {key} out")
 
 
 def command_period(scenario, period: float) -> None:
