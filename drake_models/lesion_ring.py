@@ -27,6 +27,7 @@ the wall, oriented by its normal, coloured by transmurality, gaps marked).
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -295,6 +296,22 @@ def _unrolled(lesions: list[Lesion], verdict: RingVerdict) -> tuple[list, float]
     return s, total
 
 
+LABEL_PT = 9  # the smallest text of the ring figure [pt]: legible where a report shows it
+
+
+def _name_prefix(names) -> str:
+    """What every target name of the ring starts with, up to its last "_" ("right_" of right_1 ...
+    right_18), so that the figure labels the targets by what tells them apart; "" if nothing."""
+    common = os.path.commonprefix(list(names)) if names else ""
+    prefix = common[: common.rfind("_") + 1]
+    return prefix if all(len(n) > len(prefix) for n in names) else ""
+
+
+def _prefix_note(names) -> str:
+    prefix = _name_prefix(names)
+    return f"; targets {prefix}N by their N" if prefix else ""
+
+
 def ring_figure(verdict: RingVerdict, lesions: list[Lesion], path, *, title: str = "Lesion ring") -> None:
     """A PNG map of the ring: unrolled along the ring (lesions drawn to scale by their width, green
     through the wall, orange not, missing targets and gaps in red, the first lesion drawn again at
@@ -304,7 +321,8 @@ def ring_figure(verdict: RingVerdict, lesions: list[Lesion], path, *, title: str
 
     plt = agg_pyplot()
     s, total = _unrolled(lesions, verdict)
-    fig, (ax, ax_d, ax_z) = plt.subplots(3, 1, figsize=(13, 8), gridspec_kw={"height_ratios": [1.0, 1, 1]})
+    # Drawn at the width a report shows it (about 1000 px), every text at least LABEL_PT points.
+    fig, (ax, ax_d, ax_z) = plt.subplots(3, 1, figsize=(10, 9), gridspec_kw={"height_ratios": [1.0, 1, 1]})
     for q, k in enumerate(verdict.slots):
         x = 1e3 * s[q]
         if k is None:
@@ -321,25 +339,27 @@ def ring_figure(verdict: RingVerdict, lesions: list[Lesion], path, *, title: str
     first = next((q for q, k in enumerate(verdict.slots) if k is not None), None)
     labels = list(zip(s, names)) + ([(total, f"{names[first]} again")] if first is not None else [])
     for x, name in labels:
-        ax.text(1e3 * x, -5.0, name, rotation=90, ha="center", va="top", fontsize=6)
+        ax.text(1e3 * x, -5.0, name[len(_name_prefix(verdict.order)):], rotation=90, ha="center", va="top", fontsize=LABEL_PT)
     for p in verdict.pairs:
         if not p["overlap"]:
             qa = verdict.slots.index(p["ia"])
             xa = 1e3 * s[qa]
             ax.annotate("", xy=(xa + 1e3 * p["distance_m"], 4.8), xytext=(xa, 4.8),
                         arrowprops={"arrowstyle": "<->", "color": GAP_RGB})
-            ax.text(xa + 0.5e3 * p["distance_m"], 5.3, "gap", color=GAP_RGB, ha="center", fontsize=7)
+            ax.text(xa + 0.5e3 * p["distance_m"], 5.3, "gap", color=GAP_RGB, ha="center", fontsize=LABEL_PT)
     ax.set_xlim(-6, 1e3 * total + 6)
-    ax.set_ylim(-12.5, 6.5)
+    ax.set_ylim(-14.5, 7.5)
     ax.set_aspect("equal")
     ax.set_yticks([])
-    ax.set_xlabel("distance along the ring [mm] (centre to centre)")
+    ax.set_xlabel("distance along the ring [mm] (centre to centre)" + _prefix_note(verdict.order),
+                  fontsize=LABEL_PT + 1)
+    ax.tick_params(labelsize=LABEL_PT)
     _distance_panel(ax_d, verdict)
     _depth_panel(ax_z, lesions, verdict)
     state = "ISOLATED" if verdict.isolated else f"NOT isolated: {len(verdict.gaps)} gap(s)"
     if verdict.non_transmural:
         state += f", {len(verdict.non_transmural)} not transmural"
-    ax.set_title(f"{title}: {state}; spacing rule {'met' if verdict.spacing_ok else 'broken'}", fontsize=10)
+    ax.set_title(f"{title}: {state}; spacing rule {'met' if verdict.spacing_ok else 'broken'}", fontsize=LABEL_PT + 2)
     fig.tight_layout()
     save_figure(fig, path, dpi=110)
     plt.close(fig)
@@ -347,7 +367,8 @@ def ring_figure(verdict: RingVerdict, lesions: list[Lesion], path, *, title: str
 
 def _distance_panel(ax, verdict: RingVerdict) -> None:
     """Inter-lesion distances (bars; red: no overlap) against the spacing rule and the mean widths."""
-    labels = [f"{p['a']}-{p['b']}" for p in verdict.pairs]
+    cut = len(_name_prefix(verdict.order))
+    labels = [f"{p['a'][cut:]}-{p['b'][cut:]}" for p in verdict.pairs]
     x = np.arange(len(labels))
     dist = [1e3 * p["distance_m"] for p in verdict.pairs]
     colours = [GAP_RGB if not p["overlap"] else (0.35, 0.45, 0.75) for p in verdict.pairs]
@@ -356,11 +377,12 @@ def _distance_panel(ax, verdict: RingVerdict) -> None:
             label="mean width (overlap below it)")
     ax.axhline(1e3 * verdict.spacing_rule_m, color="k", ls="--", lw=1,
                label=f"spacing rule {1e3 * verdict.spacing_rule_m:g} mm (CLOSE)")
-    ax.set_xticks(x, labels, rotation=90, fontsize=6)
-    ax.set_ylabel("inter-lesion\ndistance [mm]")
+    ax.set_xticks(x, labels, rotation=90, fontsize=LABEL_PT)
+    ax.tick_params(axis="y", labelsize=LABEL_PT)
+    ax.set_ylabel("inter-lesion\ndistance [mm]", fontsize=LABEL_PT + 1)
     ax.set_xlim(-0.6, max(len(labels), 1) - 0.4)
     ax.set_ylim(0, 1.45 * max(dist + [1e3 * verdict.spacing_rule_m]))
-    ax.legend(fontsize=7, loc="upper right", ncol=3)
+    ax.legend(fontsize=LABEL_PT, loc="upper right", ncol=2)
 
 
 def _depth_panel(ax, lesions: list[Lesion], verdict: RingVerdict) -> None:
@@ -370,11 +392,13 @@ def _depth_panel(ax, lesions: list[Lesion], verdict: RingVerdict) -> None:
            color=[TRANSMURAL_RGB if les.transmural else PARTIAL_RGB for les in lesions])
     ax.axhline(1e3 * verdict.wall_thickness_m, color="k", ls="--", lw=1,
                label=f"wall {1e3 * verdict.wall_thickness_m:g} mm (green: transmural)")
-    ax.set_xticks(x, [les.name for les in lesions], rotation=90, fontsize=6)
-    ax.set_ylabel("lesion depth [mm]")
+    cut = len(_name_prefix(verdict.order))
+    ax.set_xticks(x, [les.name[cut:] for les in lesions], rotation=90, fontsize=LABEL_PT)
+    ax.tick_params(axis="y", labelsize=LABEL_PT)
+    ax.set_ylabel("lesion depth [mm]", fontsize=LABEL_PT + 1)
     ax.set_xlim(-0.6, max(len(lesions), 1) - 0.4)
     ax.set_ylim(0, 1.35 * max([1e3 * les.depth_m for les in lesions] + [1e3 * verdict.wall_thickness_m]))
-    ax.legend(fontsize=7, loc="upper right")
+    ax.legend(fontsize=LABEL_PT, loc="upper right")
 
 
 def draw_lesions(meshcat, lesions: list[Lesion], verdict: RingVerdict, prefix: str = "lesions",

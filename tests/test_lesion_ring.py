@@ -180,3 +180,27 @@ def test_unrolled_ring_puts_missing_targets_between_their_neighbours():
     np.testing.assert_allclose(s, [2 * 6e-3 + 1.5 * long, 0, 6e-3, 6e-3 + 0.5 * long, 6e-3 + long,
                                    2 * 6e-3 + long], rtol=1e-12)
     assert total == pytest.approx(2 * 6e-3 + 2 * long, rel=1e-12)
+
+
+def test_ring_figure_text_is_legible_and_names_targets_by_what_tells_them_apart(tmp_path, monkeypatch):
+    """Every text of the ring figure is at least LABEL_PT points at a width a report shows (its
+    tick labels were 6 pt on a 13-inch figure: about 5 px in the report), and targets right_1 ..
+    right_18 are labelled 1 .. 18."""
+    import dataclasses
+
+    from matplotlib.text import Text
+
+    import ballchain.drake_models.safe_files as sf
+
+    pts = [dataclasses.replace(p, name=f"right_{k + 1}") for k, p in enumerate(ring_points(18, radius=14e-3))]
+    lesions = [lesion(p, 6e-3) for k, p in enumerate(pts) if k != 5]
+    verdict = lr.analyse_ring(lesions, [p.name for p in pts])
+    saved = []
+    monkeypatch.setattr(sf, "save_figure", lambda fig, path, **kw: saved.append(fig))
+    lr.ring_figure(verdict, lesions, tmp_path / "ring.png")
+    (fig,) = saved
+    assert fig.get_size_inches()[0] * 110 <= 1200  # shown near its own size in a report
+    texts = [t for t in fig.findobj(Text) if t.get_text().strip()]
+    assert texts and min(t.get_fontsize() for t in texts) >= lr.LABEL_PT
+    shown = {t.get_text() for t in texts}
+    assert {"1", "18", "1 again", "5-7", "18-1"} <= shown and not any(s.startswith("right_") for s in shown)
