@@ -785,6 +785,11 @@ def run_station(cd: Station, *, duration: float, monitor: ChainMonitor | None = 
         with frozen_gc(freeze_gc):
             start, cpu = time.perf_counter(), time.process_time()
             failure = runner.advance_to(duration)
+        if bar is not None:  # the bar shows where the run ended; a task that ended early ends at 100 %
+            end = root.get_time()
+            if runner.stopped and failure is None:
+                bar.total = end
+            bar.update(end - shown[0])
     except KeyboardInterrupt:  # Ctrl-C: keep the replay, stop
         if record:
             _keep_replay(cd, meshcat, html, progress, root)

@@ -405,6 +405,21 @@ def test_the_one_run_loop_stops_on_its_condition_and_reports_a_failure():
     assert "the chain broke between balls" in broken.failure and broken.sim_time < 0.05
 
 
+def test_the_progress_bar_ends_at_100_percent_when_the_task_ends_early(capsys):
+    """A run whose stop condition ends it early (its task done) ends its bar at 100 %, at the
+    time it ended; a run the watchdog ends keeps its bar where it stopped."""
+    from ballchain.systems.chain_simulation import run_station
+
+    scenario = load_scenario("free_space_uniform_90deg", "{n_balls: 4}")
+    run_station(MakeStation(scenario), duration=0.2, stop=lambda root: root.get_time() >= 0.05, progress="task")
+    last = capsys.readouterr().err.replace("\r", "\n").strip().splitlines()[-1]
+    assert last.startswith("task: 100%") and "0.05/0.05 sim s" in last, last
+    broken = MakeStation(load_scenario("free_space_uniform_90deg", "{translational_damping: 0.1}"))
+    assert run_station(broken, duration=0.05, progress="broken").failure is not None
+    last = capsys.readouterr().err.replace("\r", "\n").strip().splitlines()[-1]
+    assert last.startswith("broken:") and "100%" not in last, last
+
+
 def test_the_run_loop_takes_a_run_check_and_a_start_context():
     """``run_station``'s ``check`` (a run's own failure test, before the watchdog) ends the run
     with its message; ``context`` is the state the run starts from (here ball 4 put 2 m away:
