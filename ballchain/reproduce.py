@@ -35,6 +35,7 @@ from tqdm import tqdm
 from ballchain.drake_models import paper
 from ballchain.drake_models.dipole import K_DIPOLE
 from ballchain.drake_models.errors import OutputError, UserInputError, caused_by_interrupt, short_repr
+from ballchain.drake_models.input_files import read_input_file
 from ballchain.experiments.field_models import DEFAULT_DISTANCES
 from ballchain.drake_models.params import BallChain
 from ballchain.drake_models.safe_files import TEMP_SUFFIX, atomic_write_text, check_output_dir, to_jsonable, write_json
@@ -45,6 +46,7 @@ AGREES_WITHIN = 0.10
 """The summary's rule: a model value within this fraction of the paper's agrees with it (the
 tables beside it hold the numbers; a verdict on a claim rather than a number says so)."""
 CACHE = ".reproduce"  # OUT/.reproduce/<section>.json: finished sections, for --resume
+MAX_RECORD_BYTES = 10_000_000  # a section record is a few kB (its report part and its files' hashes)
 SECTION_DATA = "sections"  # OUT/sections/<section>.json: each section's data
 
 
@@ -780,7 +782,8 @@ def _slug(name: str) -> str:
 
 
 def _file_hash(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
+    with open(path, "rb") as f:  # streamed: a result file of any size costs no memory
+        return hashlib.file_digest(f, "sha256").hexdigest()
 
 
 def _snapshot(out: Path) -> dict[str, tuple[int, int]]:
@@ -802,7 +805,7 @@ def _record_problem(record) -> str | None:
         return f"no {', '.join(repr(k) for k in missing)}"
     seconds, files, section = record["seconds"], record["files"], record["section"]
     if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not math.isfinite(seconds):
-        return f"'seconds' is {short_repr(seconds)}"
+        return "'seconds' is not a finite number"
     if not isinstance(files, dict) or not all(isinstance(v, str) for v in files.values()):
         return "'files' is not an object of file hashes"
     if not isinstance(section, dict) or not isinstance(section.get("title"), str) \
@@ -816,18 +819,18 @@ def _record_problem(record) -> str | None:
                 and all(isinstance(r, list) for r in block["table"]["rows"]))
             or (isinstance(block.get("figure"), dict) and isinstance(block["figure"].get("path"), str)))
         if not ok:
-            return f"a block of 'section' is {short_repr(block)}"
+            return "a block of 'section' is not a text, a table or a figure"
         resolution = (block["table"].get("resolution") or {}) if isinstance(block.get("table"), dict) else {}
         if not isinstance(resolution, dict) or not all(
                 k.isdigit() and isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0
                 for k, v in resolution.items()):
-            return f"a table's resolution is {short_repr(resolution)}"
+            return "a table's resolution is not a mapping of column numbers to positive numbers"
     headlines = section.get("headlines", [])
     if not isinstance(headlines, list) or not all(
             isinstance(h, dict) and isinstance(h.get("result"), str) and isinstance(h.get("why", ""), str)
             and h.get("agrees") in (True, False, None)
             for h in headlines):
-        return f"'headlines' is {short_repr(headlines)}"
+        return "'headlines' is not a list of {result, why, agrees}"
     return None
 
 
@@ -838,9 +841,13 @@ def _cached(out: Path, name: str, key: str) -> dict | None:
     is not an error: the section runs again, and a line says so.
     """
     path = out / CACHE / f"{_slug(name)}.json"
-    try:
-        text = path.read_text()
-    except OSError:
+    if not os.path.lexists(path):
+        return None
+    try:  # a regular file of at most MAX_RECORD_BYTES (input_files)
+        text = read_input_file(path, f"the record of the finished section {name!r}", MAX_RECORD_BYTES,
+                               "a section record").decode("utf-8", errors="replace")
+    except UserInputError as err:
+        _say(f"{err}; running the section again")
         return None
     try:
         record = json.loads(text)
@@ -993,8 +1000,9 @@ def _previous_seconds(out: Path, names: list[str], quick: bool) -> dict[str, flo
     found = {}
     for name in names:
         try:
-            record = json.loads((out / CACHE / f"{_slug(name)}.json").read_text())
-        except (OSError, ValueError, RecursionError):
+            record = json.loads(read_input_file(out / CACHE / f"{_slug(name)}.json", "a section record",
+                                                MAX_RECORD_BYTES).decode("utf-8", errors="replace"))
+        except (OSError, ValueError, RecursionError):  # (UserInputError is a ValueError)
             continue
         if isinstance(record, dict) and record.get("quick") is bool(quick) and _record_problem(record) is None:
             found[name] = float(record["seconds"])

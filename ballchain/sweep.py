@@ -58,6 +58,7 @@ from ballchain.drake_models.safe_files import atomic_path, check_output_dir, reg
 
 TABLE_PARQUET = "table.parquet"
 TABLE_CSV = "table.csv"
+MAX_TABLE_BYTES = 1_000_000_000  # a results table read back on resume (5000 points are a few MB)
 META_COLUMNS = ("key", "experiment")
 TAIL_COLUMNS = ("wall_time_s", "cpu_time_s", "worker", "error")
 MAX_ATTEMPTS = 3  # submissions of one point whose worker died before it gives up (an error row)
@@ -157,18 +158,10 @@ def load_spec(source: str | Path, *, text: str | None = None, max_points: int = 
 def _read_spec_text(path: Path, where: str) -> str:
     """A spec file's text: UTF-8 (a BOM is skipped), or UTF-16 with its BOM (as some Windows
     editors save); a binary file or another encoding is refused."""
+    from ballchain.drake_models.input_files import read_input_file
     from ballchain.drake_models.safe_yaml import MAX_BYTES
 
-    if path.is_dir():
-        raise UserInputError(f"{where} is a folder, not a spec file")
-    if not path.is_file():
-        raise UserInputError(f"{where} is not a file")
-    try:
-        if path.stat().st_size > MAX_BYTES:
-            raise UserInputError(f"{where}: the file is {path.stat().st_size} bytes, more than {MAX_BYTES}: refused")
-        data = path.read_bytes()
-    except OSError as err:
-        raise UserInputError(f"{where}: cannot read it ({err.strerror})") from None
+    data = read_input_file(path, where, MAX_BYTES, "a spec file (YAML)")
     register_input(path, "sweep spec")  # the sweep's outputs may not replace it
     try:
         if data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
@@ -391,16 +384,20 @@ def read_table(out: Path) -> list[dict]:
     """The rows of ``out/table.parquet`` (empty if there is none)."""
     import pyarrow.parquet as pq
 
+    from ballchain.drake_models.input_files import check_input_file
+
     path = Path(out) / TABLE_PARQUET
     if not path.exists():
         return []
+    check_input_file(path, f"--out {short_repr(str(out))}: {TABLE_PARQUET}", MAX_TABLE_BYTES, "a sweep's table")
     return pq.read_table(path).to_pylist()
 
 
 def read_table_csv(out: Path, experiment) -> list[dict]:
     """The rows of ``out/table.csv``, typed as the Parquet table is: the experiment's parameters
     by their fields' types, the key, seed, times, worker and error by theirs; the outputs as
-    pyarrow infers them. Raises pyarrow's errors (or OSError) on a file that does not parse."""
+    pyarrow infers them. Raises pyarrow's errors (or OSError) on a file that does not parse, and
+    UserInputError on one that is not a regular file or larger than ``MAX_TABLE_BYTES``."""
     import pyarrow as pa
     import pyarrow.csv as pacsv
 
@@ -408,6 +405,10 @@ def read_table_csv(out: Path, experiment) -> list[dict]:
     types = {"key": pa.string(), "experiment": pa.string(), "seed": pa.int64(), "wall_time_s": pa.float64(),
              "cpu_time_s": pa.float64(), "worker": pa.string(), "error": pa.string()}
     types.update({name: arrow[t] for name, t in typing.get_type_hints(experiment.params).items()})
+    from ballchain.drake_models.input_files import check_input_file
+
+    check_input_file(Path(out) / TABLE_CSV, f"--out {short_repr(str(out))}: {TABLE_CSV}", MAX_TABLE_BYTES,
+                     "a sweep's table")
     table = pacsv.read_csv(Path(out) / TABLE_CSV,
                            convert_options=pacsv.ConvertOptions(column_types=types, strings_can_be_null=True))
     return table.to_pylist()

@@ -35,13 +35,15 @@ from pathlib import Path
 import numpy as np
 
 from ballchain.drake_models import mesh_tools as mt
-from ballchain.drake_models.atrium_mesh import (MAX_PUNCTURE_DISTANCE, AtriumSurface, UserAtrium,
+from ballchain.drake_models.atrium_mesh import (MAX_PUNCTURE_DISTANCE, MESH_NOUN, AtriumSurface, UserAtrium,
                                                 load_atrium_surface)
 from ballchain.drake_models.errors import UserInputError, short_repr
 from ballchain.drake_models.heart import HeartParams, LeftAtrium
 from ballchain.drake_models.params import CylinderMagnet
+from ballchain.drake_models.input_files import (MAX_MESH_BYTES, MAX_TABLE_TEXT_BYTES, check_input_file,
+                                                read_input_file)
 from ballchain.drake_models.safe_files import register_input
-from ballchain.drake_models.safe_yaml import check_value, check_yaml_schema, load_yaml_file
+from ballchain.drake_models.safe_yaml import MAX_BYTES, check_value, check_yaml_schema, load_yaml_file, yaml_kind
 
 ANATOMIES_DIR = Path(__file__).resolve().parent / "anatomies"
 PROCEDURAL_FILE = ANATOMIES_DIR / "procedural_left_atrium.yaml"
@@ -223,13 +225,12 @@ def load_anatomy(path: str | Path) -> Anatomy:
     if not isinstance(path, (str, Path)) or not str(path):
         raise UserInputError(f"anatomy file must be a file name, got {short_repr(path)}")
     path = Path(path)
-    if not path.is_file():
-        raise UserInputError(f"{_where(path)}: {'not a file (a folder?)' if path.exists() else 'no such file'}")
+    check_input_file(path, _where(path), MAX_BYTES, "an anatomy file (YAML)")
     register_input(path, "anatomy file")  # an output of the run may not replace it (nor the files it names)
     data = load_yaml_file(path, _where(path))
     if not isinstance(data, dict):
         raise UserInputError(f"{_where(path)}: must be a mapping of anatomy fields (mesh, length_unit, targets, "
-                             f"...), got {short_repr(data)}")
+                             f"...), got {yaml_kind(data)}")
     data = dict(data)
     raw_targets = data.pop("targets", None)
     check_yaml_schema(data, AnatomySpec, _where(path))
@@ -374,16 +375,25 @@ def _transform(path: Path, spec: AnatomySpec, scale: float) -> tuple[np.ndarray,
 def _mesh(path: Path, spec: AnatomySpec, R: np.ndarray, t: np.ndarray) -> tuple[Path | None, AtriumSurface | None]:
     if spec.mesh == PROCEDURAL:
         return None, None
-    mesh = (path.parent / spec.mesh) if not Path(spec.mesh).is_absolute() else Path(spec.mesh)
-    if not mesh.is_file():
-        raise _bad(path, "mesh", f"{short_repr(spec.mesh)}: {'not a file' if mesh.exists() else 'no such file'} "
-                                 f"(looked for {mesh})")
+    mesh = _named_file(path, "mesh", spec.mesh, MAX_MESH_BYTES, MESH_NOUN)
     register_input(mesh, "anatomy mesh")
     try:
         surface = load_atrium_surface(mesh, spec.length_unit)
     except UserInputError as err:
         raise _bad(path, "mesh", f"{short_repr(spec.mesh)}: {' '.join(str(err).split())}") from None
     return mesh, replace(surface, V=surface.V @ R.T + t)  # a rigid motion: the orientation and volume stay
+
+
+def _named_file(path: Path, field_name: str, raw: str, limit: int, noun: str) -> Path:
+    """The file an anatomy field names (relative to the anatomy file), checked before it is read
+    (``input_files.check_input_file``: a regular file of at most ``limit`` bytes)."""
+    named = path.parent / raw if not Path(raw).is_absolute() else Path(raw)
+    try:
+        return check_input_file(named, f"{_where(path)}: {field_name} {short_repr(raw)}", limit, noun)
+    except UserInputError as err:
+        if str(err).endswith("no such file"):
+            raise UserInputError(f"{err} (looked for {short_repr(str(named))})") from None
+        raise
 
 
 def _surface_at(surface, p: np.ndarray, side: str) -> tuple[np.ndarray, np.ndarray]:
@@ -447,10 +457,7 @@ def _targets(path: Path, raw, unit: str) -> tuple[list[str], np.ndarray, list[st
     if raw is None:
         raise _bad(path, "targets", "is required: a CSV file (x, y, z per row) or an inline list of [x, y, z]")
     if isinstance(raw, str):
-        csv = path.parent / raw if not Path(raw).is_absolute() else Path(raw)
-        if not csv.is_file():
-            raise _bad(path, "targets", f"{short_repr(raw)}: {'not a file' if csv.exists() else 'no such file'} "
-                                        f"(looked for {csv})")
+        csv = _named_file(path, "targets", raw, MAX_TABLE_TEXT_BYTES, "a targets CSV (x, y, z per row)")
         register_input(csv, "anatomy targets CSV")
         label = f"targets {short_repr(raw)}"
         names, points, rows = read_targets_csv(csv, f"{_where(path)}: {label}")
@@ -517,12 +524,12 @@ def read_targets_csv(csv: Path, where: str) -> tuple[list[str], list[list[float]
 
     Raises:
         UserInputError: ``where`` and the row: a field that is not a number, a row with the wrong
-            number of fields.
+            number of fields; not a regular file, or larger than ``MAX_TABLE_TEXT_BYTES``. The
+            messages name the row and the column, never quote the file (it may not be a targets
+            file at all: a credentials file, ``/proc/self/environ``).
     """
-    try:
-        text = csv.read_bytes().decode("utf-8-sig", errors="replace")
-    except OSError as err:
-        raise UserInputError(f"{where}: cannot read it ({err.strerror})") from None
+    text = read_input_file(csv, where, MAX_TABLE_TEXT_BYTES, "a targets CSV (x, y, z per row)").decode(
+        "utf-8-sig", errors="replace")
     lines = [(k, line) for k, line in enumerate(text.splitlines(), start=1)
              if line.strip() and not line.lstrip().startswith("#")]
     columns = None
@@ -531,8 +538,8 @@ def read_targets_csv(csv: Path, where: str) -> tuple[list[str], list[list[float]
         columns = [_HEADER_NAMES.get(c) for c in header]
         named = [c for c in columns if c is not None]
         if sorted(c for c in named if c in "xyz") != ["x", "y", "z"] or len(set(named)) != len(named):
-            raise UserInputError(f"{where}: row {lines[0][0]}: the header {short_repr(lines[0][1].strip())} must "
-                                 "name the columns x, y, z once each (and optionally name)")
+            raise UserInputError(f"{where}: row {lines[0][0]}: a header (a row without numbers) must name the "
+                                 "columns x, y, z once each (and optionally name)")
         lines = lines[1:]
     names, points, rows = [], [], []
     for lineno, line in lines:
@@ -541,14 +548,13 @@ def read_targets_csv(csv: Path, where: str) -> tuple[list[str], list[list[float]
         cols = columns or _guess_columns(cells)
         if cols is None or len(cells) != len(cols):
             expected = len(columns) if columns else "3 (x, y, z) or 4 (with a name first or last)"
-            raise UserInputError(f"{where}: {row}: {len(cells)} fields in {short_repr(line.strip())}, expected "
-                                 f"{expected}")
+            raise UserInputError(f"{where}: {row}: {len(cells)} fields, expected {expected}")
         values = dict(zip(cols, cells))
         xyz = [_number(values[c]) for c in "xyz"]
         if any(v is None for v in xyz):
-            bad = next(values[c] for c, v in zip("xyz", xyz) if v is None)
-            raise UserInputError(f"{where}: {row}: {short_repr(bad)} is not a finite number (x, y, z are numbers "
-                                 f"in the anatomy's length_unit)")
+            bad = next(c for c, v in zip("xyz", xyz) if v is None)
+            raise UserInputError(f"{where}: {row}: its {bad} is not a finite number (x, y, z are numbers in the "
+                                 f"anatomy's length_unit)")
         names.append(values.get("name") or f"target_{len(points) + 1}")
         points.append(xyz)
         rows.append(row)

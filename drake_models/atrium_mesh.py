@@ -36,6 +36,7 @@ from ballchain.drake_models import mesh_tools as mt
 from ballchain.drake_models.arg_checks import (as_array, as_vector, require_choice, require_int, require_positive,
                                                require_type)
 from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.drake_models.input_files import MAX_MESH_BYTES, check_input_file, read_input_file
 from ballchain.drake_models.surface_tree import SurfaceTree
 
 Units = Literal["auto", "m", "mm"]
@@ -109,11 +110,17 @@ def _mesh_text(path: Path, data: bytes, what: str) -> str:
         return data.decode("latin-1")  # only v/f records matter: their digits read the same
 
 
+MESH_NOUN = "a mesh file (.obj, .stl, .ply or .vtk)"
+
+
 def _read_bytes(path: Path) -> bytes:
+    """The mesh file's bytes: a regular file of at most ``MAX_MESH_BYTES`` (``input_files``)."""
     try:
-        return Path(path).read_bytes()
-    except OSError as err:
-        raise AtriumMeshError(f"{path}: cannot read the file ({err.strerror or err})") from None
+        return read_input_file(path, str(path), MAX_MESH_BYTES, MESH_NOUN)
+    except AtriumMeshError:
+        raise
+    except UserInputError as err:
+        raise AtriumMeshError(str(err)) from None
 
 
 def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -126,8 +133,8 @@ def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
     text = _mesh_text(path, _read_bytes(path), "OBJ")
     V, F, lines = [], [], []
 
-    def bad(lineno: int, line: str, why: str, allowed: str):
-        return AtriumMeshError(f"{path}: line {lineno}: {why} in {short_repr(line.strip())}; allowed: {allowed}")
+    def bad(lineno: int, line: str, why: str, allowed: str):  # the line is not quoted: the file may be no mesh
+        return AtriumMeshError(f"{path}: line {lineno}: {why}; allowed: {allowed}")
 
     for lineno, line in enumerate(text.splitlines(), start=1):
         parts = line.split()
@@ -214,10 +221,11 @@ def read_stl(path: Path) -> tuple[np.ndarray, np.ndarray]:
                 try:
                     xyz = [float(x) for x in parts[1:]]
                 except ValueError:
-                    xyz = []
-                if len(xyz) != 3 or not all(np.isfinite(xyz)):
-                    raise AtriumMeshError(f"{path}: line {lineno}: bad vertex {short_repr(line.strip())}; "
-                                          f"allowed: {STL_VERTEX}")
+                    xyz = None
+                if xyz is None or len(xyz) != 3 or not all(np.isfinite(xyz)):
+                    why = ("a coordinate that is not a number" if xyz is None else
+                           f"{len(xyz)} coordinates" if len(xyz) != 3 else "a coordinate that is not finite")
+                    raise AtriumMeshError(f"{path}: line {lineno}: bad vertex ({why}); allowed: {STL_VERTEX}")
                 verts.append(xyz)
         corners = np.array(verts, float).reshape(-1, 3)
         if len(corners) % 3:
@@ -241,7 +249,7 @@ def _ply_header(path: Path, data: bytes) -> tuple[str, list, int]:
         raise AtriumMeshError(f"{path}: not a PLY file (it must start with 'ply' and have an 'end_header' line)")
     body = data.index(b"\n", end) + 1
     fmt, elements = "", []
-    for line in data[:end].decode("latin-1").splitlines()[1:]:
+    for lineno, line in enumerate(data[:end].decode("latin-1").splitlines()[1:], start=2):
         parts = line.split()
         if not parts or parts[0] in ("comment", "obj_info"):
             continue
@@ -255,10 +263,11 @@ def _ply_header(path: Path, data: bytes) -> tuple[str, list, int]:
             elif parts[0] == "property":
                 elements[-1][2].append((parts[2], PLY_TYPES[parts[1]], None))
         except (IndexError, KeyError, ValueError):
-            raise AtriumMeshError(f"{path}: PLY header line {short_repr(line)} is not understood") from None
+            raise AtriumMeshError(f"{path}: PLY header line {lineno} is not understood (allowed: format, element, "
+                                  "property, comment)") from None
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
-        raise AtriumMeshError(f"{path}: PLY format {short_repr(fmt)}; allowed: ascii, binary_little_endian, "
-                              "binary_big_endian")
+        raise AtriumMeshError(f"{path}: the PLY header's format is {'unknown' if fmt else 'missing'}; allowed: "
+                              "ascii, binary_little_endian, binary_big_endian")
     return fmt, elements, body
 
 
@@ -653,10 +662,10 @@ def load_atrium_surface(path: Path | str, units: Units = "auto") -> AtriumSurfac
     require_type(path, (str, Path), "path", "a file name (str or Path)")
     require_choice(units, ("auto", "m", "mm"), "units")
     path = Path(path)
-    if not path.exists():
-        raise AtriumMeshError(f"{path}: no such file")
-    if not path.is_file():
-        raise AtriumMeshError(f"{path}: not a file (a folder?); give an .obj, .stl, .ply or .vtk file")
+    try:
+        check_input_file(path, str(path), MAX_MESH_BYTES, MESH_NOUN)
+    except UserInputError as err:
+        raise AtriumMeshError(str(err)) from None
     suffix = path.suffix.lower()
     readers = {".obj": read_obj, ".stl": read_stl, ".ply": read_ply, ".vtk": read_vtk_polydata}
     if suffix not in readers:

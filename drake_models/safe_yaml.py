@@ -6,9 +6,14 @@ and refuses, as a one-line ``UserInputError`` naming ``where``:
 - a document larger than ``MAX_BYTES``, or whose aliases expand to more than ``MAX_NODES``
   values (an "alias bomb": nine anchors of nine aliases each are 10^9 values, which any walk
   over the data would take hours to visit) or refer to themselves;
+- mappings and lists nested more than ``MAX_DEPTH`` deep, in the text or through aliases: counted
+  on the parser's events before any node is built (libyaml's composer recurses in C, and about
+  25,000 levels, a 50 kB ``[[[[...]]]]``, ended the process with SIGSEGV);
 - a mapping that names the same key twice (PyYAML keeps the last one silently);
 - any tag (``!!python/object``, ``!Foo``): the data is plain YAML;
-- text that is not YAML.
+- text that is not YAML (the message names the line, the column and the kind of problem, and
+  quotes nothing of the text: a file that is not what the user meant, a credentials file, must
+  not end up in a log).
 
 Plain scalars are read as YAML 1.2's core schema reads them, not as PyYAML's YAML 1.1 resolver:
 ``2.3e1``, ``1e-9``, ``.5`` and ``+1.`` are floats (YAML 1.1: the first two strings); ``010`` is
@@ -41,6 +46,7 @@ from ballchain.drake_models.errors import UserInputError, short_repr
 
 MAX_BYTES = 1_000_000  # a scenario file is a few kB; a sweep spec a few hundred lines
 MAX_NODES = 100_000  # values after alias expansion (every use of an alias counts its anchor's values again)
+MAX_DEPTH = 100  # mappings and lists nested in one another; the deepest shipped document (station.scenarios.yaml) has 7
 
 # YAML 1.2 core schema floats (https://yaml.org/spec/1.2.2/#1023-core-schema), beside YAML 1.1's.
 _FLOAT_12 = re.compile(r"^[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?$")
@@ -102,16 +108,40 @@ def _at(mark) -> str:
     return f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
 
 
+def _too_deep(where: str, mark) -> UserInputError:
+    return UserInputError(f"{where}: the YAML nests mappings and lists more than {MAX_DEPTH} deep{_at(mark)}: refused")
+
+
+def _check_depth(text: str, where: str) -> None:
+    """Refuse mappings and lists nested more than MAX_DEPTH deep in the text, from the parser's
+    event stream (an iterative state machine in libyaml and in PyYAML, unlike their composers),
+    stopping at the first event too deep: nothing recursive runs on a deep document."""
+    depth = 0
+    for event in yaml.parse(text, Loader=_Loader):
+        if isinstance(event, yaml.CollectionStartEvent):
+            depth += 1
+            if depth > MAX_DEPTH:
+                raise _too_deep(where, event.start_mark)
+        elif isinstance(event, yaml.CollectionEndEvent):
+            depth -= 1
+
+
 def _check_size(root, where: str) -> None:
     """Count the values of the composed document, each alias as many times as it is used
-    (memoised per node, so the count itself is cheap); refuse above MAX_NODES or a cycle."""
+    (memoised per node, so the count itself is cheap); refuse above MAX_NODES, a cycle, or a
+    nesting deeper than MAX_DEPTH through aliases (an anchor's depth adds to its alias's)."""
     sizes: dict[int, int] = {}
+    heights: dict[int, int] = {}  # levels of mappings and lists in a node, itself included
     open_nodes: set[int] = set()
 
-    def size(node) -> int:
+    def size(node, level: int = 1) -> int:
         key = id(node)
         if key in sizes:
+            if level - 1 + heights[key] > MAX_DEPTH:
+                raise _too_deep(where, node.start_mark)
             return sizes[key]
+        if isinstance(node, (SequenceNode, MappingNode)) and level > MAX_DEPTH:
+            raise _too_deep(where, node.start_mark)
         if key in open_nodes:
             raise UserInputError(f"{where}: an alias refers to its own anchor{_at(node.start_mark)}: "
                                  "recursive YAML is refused")
@@ -122,14 +152,16 @@ def _check_size(root, where: str) -> None:
             children = [item for pair in node.value for item in pair]
         else:
             children = []
-        total = 1
+        total, height = 1, 0
         for child in children:
-            total += size(child)
+            total += size(child, level + 1)
+            height = max(height, heights[id(child)])
             if total > MAX_NODES:
                 raise UserInputError(f"{where}: the YAML expands to more than {MAX_NODES} values (aliases "
                                      f"repeat their anchor's values){_at(node.start_mark)}: refused")
         open_nodes.discard(key)
         sizes[key] = total
+        heights[key] = height + isinstance(node, (SequenceNode, MappingNode))
         return total
 
     size(root)
@@ -146,16 +178,18 @@ def load_yaml(text: str, where: str) -> object:
         The data (dict, list, str, int, float, bool or None).
 
     Raises:
-        UserInputError: one line naming ``where``: too large, an alias bomb or a recursive alias,
-            a duplicate key, a tag, or not YAML (with the line and column).
+        UserInputError: one line naming ``where``: too large, nested too deep, an alias bomb or a
+            recursive alias, a duplicate key, a tag, or not YAML (with the line and column).
     """
     if isinstance(text, bytes):
         text = text.decode("utf-8", errors="replace")
     if len(text.encode("utf-8", errors="replace")) > MAX_BYTES:
         raise UserInputError(f"{where}: the YAML is {len(text.encode('utf-8', errors='replace'))} bytes, "
                              f"more than {MAX_BYTES}: refused")
-    loader = _Loader(text)
+    loader = None
     try:
+        _check_depth(text, where)  # before the composer, which recurses
+        loader = _Loader(text)
         root = loader.get_single_node()
         if root is None:
             return None
@@ -167,38 +201,57 @@ def load_yaml(text: str, where: str) -> object:
     except yaml.constructor.ConstructorError as err:
         problem = " ".join(str(err.problem or err).split())
         if "could not determine a constructor for the tag" in problem:
-            tag = problem.split("tag", 1)[1].strip()
-            raise UserInputError(f"{where}: the tag {tag[:80]} is refused{_at(err.problem_mark)}: "
+            raise UserInputError(f"{where}: a YAML tag (!...) is refused{_at(err.problem_mark)}: "
                                  "give plain YAML (mappings, lists, numbers, strings)") from None
-        raise UserInputError(f"{where} is not valid YAML: {problem[:200]}{_at(err.problem_mark)}") from None
+        raise UserInputError(f"{where} is not valid YAML: {_unquoted(problem)}{_at(err.problem_mark)}") from None
     except yaml.YAMLError as err:
-        problem = getattr(err, "problem", None) or str(err).splitlines()[0]
+        problem = getattr(err, "problem", None) or getattr(err, "reason", None) or type(err).__name__
         if getattr(err, "context", None) and "single document" in err.context:
             problem = f"{err.context}, {problem}"  # "expected a single document ..., but found another"
-        problem = " ".join(str(problem).split())[:200]
-        raise UserInputError(f"{where} is not valid YAML: {problem}{_at(getattr(err, 'problem_mark', None))}") \
-            from None
+        mark = getattr(err, "problem_mark", None)
+        if isinstance(err, yaml.reader.ReaderError):  # a character YAML does not allow: its offset
+            problem, mark = f"{problem} (character {err.position + 1})", None
+        raise UserInputError(f"{where} is not valid YAML: {_unquoted(problem)}{_at(mark)}") from None
     except RecursionError:
         raise UserInputError(f"{where}: the YAML is nested too deeply: refused") from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
+
+
+def _unquoted(problem) -> str:
+    """A parser's problem in words, without what it quotes of the text (PyYAML's pure-Python
+    parser quotes a character, an alias or a tag handle: "found undefined alias 'x'"); token
+    names such as '<block end>' stay."""
+    text = re.sub(r"""\s*(['"])(?!<)(?:\\.|(?!\1).)*\1""", "", " ".join(str(problem).split()))
+    return text[:200]
 
 
 def load_yaml_file(path: str | Path, where: str | None = None) -> object:
-    """``load_yaml`` of a file (its size checked before it is read).
+    """``load_yaml`` of a file, checked before it is read (``input_files.read_input_file``: a
+    regular file of at most ``MAX_BYTES``).
 
     Raises:
-        UserInputError: not a readable file, or as ``load_yaml``.
+        UserInputError: not a readable regular file, too large, or as ``load_yaml``.
     """
+    from ballchain.drake_models.input_files import read_input_file
+
     path = Path(path)
-    where = where or f"YAML file {str(path)!r}"
-    try:
-        if path.stat().st_size > MAX_BYTES:
-            raise UserInputError(f"{where}: the file is {path.stat().st_size} bytes, more than {MAX_BYTES}: refused")
-        text = path.read_text(encoding="utf-8", errors="replace")
-    except OSError as err:
-        raise UserInputError(f"{where}: cannot read it ({err.strerror})") from None
-    return load_yaml(text, where)
+    where = where or f"YAML file {short_repr(str(path))}"
+    data = read_input_file(path, where, MAX_BYTES, "a YAML file")
+    return load_yaml(data.decode("utf-8", errors="replace"), where)
+
+
+def yaml_kind(value) -> str:
+    """What a loaded YAML value is, in words ("a string", "a list", ...), for a message that must
+    not quote a file's contents (a document of the wrong shape: ``/proc/self/environ``, a key file)."""
+    if value is None:
+        return "an empty document (null)"
+    if isinstance(value, bool):
+        return "true or false"
+    if isinstance(value, (int, float)):
+        return "a number"
+    return {str: "a string", list: "a list", dict: "a mapping"}.get(type(value), f"a {type(value).__name__}")
 
 
 def dump_yaml(data) -> str:
@@ -317,8 +370,9 @@ def check_yaml_schema(data, schema, where: str, path: str = "") -> None:
         raise UserInputError(f"{where}{': ' + path if path else ''} must be {_type_name(schema)}, "
                              f"got {short_repr(data)}")
     hints = schema_fields(schema)
-    for key, value in data.items():
+    for key in data:  # every key before any value: a document that is not of this schema is not quoted
         if key not in hints:
             raise UserInputError(f"{where}: unknown field {short_repr(key)}{f' in {path}' if path else ''}; "
                                  f"{schema.__name__} fields are {', '.join(hints)}")
+    for key, value in data.items():
         check_value(value, hints[key], f"{path}.{key}" if path else str(key), where)

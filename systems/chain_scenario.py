@@ -28,7 +28,7 @@ from ballchain.drake_models.localisation import LocalisationParams, check_figure
 from ballchain.drake_models.safe_files import register_input
 from ballchain.drake_models.safe_yaml import check_value  # noqa: F401 (the sweep's check imports it from here)
 from ballchain.drake_models.safe_yaml import (check_yaml_schema, load_typed, load_yaml, load_yaml_file,
-                                             schema_fields as _schema_fields)
+                                             schema_fields as _schema_fields, yaml_kind)
 from ballchain.drake_models.params import BallChain
 from ballchain.systems.chain_plant import ChainPlantConfig, ContactConfig, chain_multibody_plant_config
 from ballchain.systems.feeder import FeederSpec, batch_steps
@@ -354,13 +354,13 @@ def _scenarios_data(filename: Path) -> dict:
     """The scenarios file as a mapping (read with the one user-YAML loader)."""
     if not isinstance(filename, (str, Path)) or not str(filename).strip():
         raise UserInputError(f"the scenarios file must be a file name, got {short_repr(filename)}")
-    where = f"scenarios file {Path(filename).name!r}"
+    where = f"scenarios file {short_repr(Path(filename).name)}"
     register_input(filename, "scenarios file")  # an output of the run may not replace it
     data = load_yaml_file(filename, where)
     if data is None:
         return {}
     if not isinstance(data, dict):
-        raise UserInputError(f"{where} must be a mapping of scenario names to scenarios, got {short_repr(data)}")
+        raise UserInputError(f"{where} must be a mapping of scenario names to scenarios, got {yaml_kind(data)}")
     return data
 
 
@@ -1017,9 +1017,11 @@ def check_anatomy_field(s: "ChainScenario", others: tuple, default: "ChainScenar
         _require(getattr(s, name) == getattr(default, name),
                  f"scenario {name} cannot go with anatomy: the anatomy file gives the surface, its units, the "
                  f"sheath and the targets (leave {name} out)")
-    path = Path(s.anatomy)
-    _require(path.is_file(), f"scenario anatomy {short_repr(s.anatomy)}: "
-                             f"{'not a file (a folder?)' if path.exists() else 'no such file'}")
+    from ballchain.drake_models.input_files import check_input_file
+    from ballchain.drake_models.safe_yaml import MAX_BYTES
+
+    path = check_input_file(s.anatomy, f"scenario anatomy {short_repr(s.anatomy)}", MAX_BYTES,
+                            "an anatomy file (YAML)")
     register_input(path, "scenario anatomy file")
 
 
@@ -1039,8 +1041,8 @@ def check_atrium_file(path: str) -> None:
             raise UserInputError(f"scenario atrium_file {path!r} does not resolve: {first}") from None
     else:
         resolved = Path(path)
-    if not resolved.exists():
-        raise UserInputError(f"scenario atrium_file {path!r}: no such file")
-    if not resolved.is_file():
-        raise UserInputError(f"scenario atrium_file {path!r} is not a file (a folder?); give an .obj or .stl file")
+    from ballchain.drake_models.atrium_mesh import MESH_NOUN
+    from ballchain.drake_models.input_files import MAX_MESH_BYTES, check_input_file
+
+    check_input_file(resolved, f"scenario atrium_file {short_repr(path)}", MAX_MESH_BYTES, MESH_NOUN)
     register_input(resolved, "scenario atrium_file")

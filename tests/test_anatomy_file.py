@@ -248,9 +248,9 @@ def test_every_bad_field_is_refused_naming_the_field_and_the_file(tmp_path, fiel
 
 @pytest.mark.parametrize("text,message", [
     ("name,x,y,z\nL1,1,2\n", "row 2: 3 fields"),
-    ("x,y,z\n1,2,z\n", "row 2: 'z' is not a finite number"),
-    ("1,2,3\n4,5,nan\n", "row 2: 'nan' is not a finite number"),
-    ("a,b,c\n1,2,3\n", "row 1: the header 'a,b,c' must name the columns x, y, z"),
+    ("x,y,z\n1,2,z\n", "row 2: its z is not a finite number"),
+    ("1,2,3\n4,5,nan\n", "row 2: its z is not a finite number"),
+    ("a,b,c\n1,2,3\n", "row 1: a header (a row without numbers) must name the columns x, y, z"),
     ("L1,1,2,3\nL1,1,2,3\n", "row 2: the name 'L1' is used twice"),
 ])
 def test_a_bad_targets_csv_is_refused_naming_its_row(tmp_path, text, message):

@@ -113,7 +113,7 @@ def test_malformed_stl_records_are_named(tmp_path):
 def test_a_folder_for_a_mesh_file_is_one_line(tmp_path):
     folder = tmp_path / "atrium.obj"
     folder.mkdir()
-    with pytest.raises(AtriumMeshError, match="not a file"):
+    with pytest.raises(AtriumMeshError, match="is a folder, not a mesh file"):
         load_atrium_surface(folder)
 
 

@@ -224,3 +224,102 @@ def test_bounds_accept_the_documented_ranges():
             assert getattr(s.contact, name) == value
     s = load_scenario("free_space_wall", "{wall_plane: [0.0, 1.0, 0.0, 0.0, -1.0, 0.0]}")
     assert s.wall_plane[1] == 1.0
+
+
+# ----------------------------------------------------------------------------------- nesting depth
+# libyaml's composer recurses in C: about 25,000 nested lists (a 50 kB value) ended the process
+# with SIGSEGV, no message. Run in a child process, so that a crash is a negative return code
+# here and not the end of the test session.
+
+_RUN_SET = ("import sys; from ballchain.cli import main; "
+            "sys.exit(main(sys.argv[1:-1] + ['--set', open(sys.argv[-1], encoding='utf-8').read()]))")
+
+
+def _deep(levels: int) -> str:
+    """A flow value nested ``levels`` lists deep: [[[...[1]...]]] (2 bytes a level)."""
+    return "[" * levels + "1" + "]" * levels
+
+
+def _child(argv: list[str], cwd) -> tuple[int, list[str]]:
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, *argv], cwd=cwd, capture_output=True, text=True, timeout=600)
+    return done.returncode, [line for line in done.stderr.splitlines() if line.strip()]
+
+
+@pytest.mark.parametrize("levels", [25_000, 200_000])
+@pytest.mark.parametrize("where", ["--set", "anatomy file", "sweep spec"])
+def test_a_deeply_nested_value_is_one_line_not_a_crash(tmp_path, where, levels):
+    """The value is read in a child process (``--set`` from a file: one argument may not exceed
+    128 kB on Linux, and 200,000 levels are 400 kB); exit status 2 and one line naming the file
+    (or --set) and the limit, instead of SIGSEGV."""
+    from ballchain.drake_models.safe_yaml import MAX_DEPTH
+
+    if where == "--set":
+        (tmp_path / "value.yaml").write_text(f"{{n_balls: {_deep(levels)}}}")
+        code, lines = _child(["-c", _RUN_SET, *SIM, "value.yaml"], tmp_path)
+        named = "--set"
+    elif where == "anatomy file":
+        from anatomy_helpers import lumen_anatomy
+
+        path = lumen_anatomy(tmp_path, magnets=_deep(levels))
+        code, lines = _child(["-m", "ballchain", "plan", "--anatomy", str(path)], tmp_path)
+        named = "anatomy file"
+    else:
+        (tmp_path / "deep_spec.yaml").write_text(f"experiment: statics\ngrid: {{n_balls: {_deep(levels)}}}\n")
+        code, lines = _child(["-m", "ballchain", "sweep", "deep_spec.yaml", "--out", "out"], tmp_path)
+        named = "sweep spec 'deep_spec.yaml'"
+    assert code == 2, (code, lines[-3:])
+    assert len(lines) == 1, lines
+    assert named in lines[0] and f"more than {MAX_DEPTH} deep" in lines[0], lines[0]
+
+
+def test_the_depth_limit_counts_lists_mappings_and_aliases():
+    """MAX_DEPTH levels are read, one more is refused: in flow and block style, and through an
+    alias, whose anchor's depth adds to where it is used."""
+    from ballchain.drake_models.safe_yaml import MAX_DEPTH, load_yaml
+
+    assert load_yaml(_deep(MAX_DEPTH), "t") is not None
+    assert load_yaml("- " * MAX_DEPTH + "x", "t") is not None
+    for text in (_deep(MAX_DEPTH + 1), "{a: " * (MAX_DEPTH + 1) + "1" + "}" * (MAX_DEPTH + 1),
+                 "- " * (MAX_DEPTH + 1) + "x",
+                 "a:\n" + "".join(" " * (k + 1) + "a:\n" for k in range(MAX_DEPTH)),
+                 # 1 (the top mapping) + 60 + 41 (the anchor's) levels
+                 f"a: &a {_deep(40)}\nb: {'[' * 60}*a{']' * 60}\n"):
+        with pytest.raises(UserInputError, match=f"nests mappings and lists more than {MAX_DEPTH} deep"):
+            load_yaml(text, "t")
+    assert load_yaml(f"a: &a {_deep(40)}\nb: {'[' * 59}*a{']' * 59}\n", "t")["b"] is not None
+
+
+def test_the_shipped_documents_are_far_from_the_depth_limit():
+    """The limit leaves room: the deepest shipped document nests 7 levels."""
+    import subprocess
+    from pathlib import Path
+
+    import yaml
+
+    from ballchain.drake_models.safe_yaml import MAX_DEPTH
+
+    root = Path(__file__).resolve().parents[1]
+    names = subprocess.run(["git", "ls-files", "*.yaml"], cwd=root, capture_output=True, text=True).stdout.split()
+    deepest = 0
+    for name in [n for n in names if not n.startswith("tests/")]:
+        depth = 0
+        for event in yaml.parse((root / name).read_text(encoding="utf-8"), Loader=yaml.SafeLoader):
+            depth += isinstance(event, yaml.CollectionStartEvent) - isinstance(event, yaml.CollectionEndEvent)
+            deepest = max(deepest, depth)
+    assert 0 < deepest <= MAX_DEPTH // 10
+
+
+def test_not_valid_yaml_quotes_nothing_of_the_text():
+    """A file that is not YAML (a key file, an environment dump) is refused naming the line, the
+    column and the kind of problem, quoting none of it: nor a tag, nor a character."""
+    from ballchain.drake_models.safe_yaml import load_yaml
+
+    secret = "AKIA_SECRET_TOKEN_123"
+    for text in (f"!{secret} x", f"a: !!{secret} x", f"[default]\naws_access_key_id = {secret}\n",
+                 f"FOO={secret}\0BAR=1\0", f"a: *{secret}", f'a: "\\q{secret}"', f"a: b: {secret}"):
+        with pytest.raises(UserInputError) as err:
+            load_yaml(text, "t")
+        assert secret not in str(err.value) and "\n" not in str(err.value), str(err.value)

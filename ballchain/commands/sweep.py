@@ -17,6 +17,7 @@ holds another spec's rows is refused unless ``--append``; one holding the spec f
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 
 from ballchain.commands._common import add_json_flag, non_negative_int, path_arg, positive_int, print_json
@@ -59,7 +60,8 @@ def resolve_spec(spec: str) -> Path:
     if spec in shipped_studies():
         return STUDIES / f"{spec}.yaml"
     path = Path(spec)
-    if not path.exists() and path.name == spec and not path.suffix:  # a bare name, neither study nor file
+    # a bare name, neither study nor file (os.path.exists: False for a name too long, which load_spec names)
+    if not os.path.exists(spec) and path.name == spec and not path.suffix:
         raise UserInputError(f"sweep spec {short_repr(spec)} is neither a file nor a shipped study "
                              f"({', '.join(shipped_studies())})")
     return path
