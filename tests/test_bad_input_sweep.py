@@ -314,7 +314,7 @@ def test_a_stop_while_the_cluster_closes_keeps_every_finished_point(tmp_path, mo
         closed.append(True)
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(sweep, "WRITE_PERIOD", 1e9)  # no periodic write after the first point
+    monkeypatch.setattr(sweep.runner, "WRITE_PERIOD", 1e9)  # no periodic write after the first point
     monkeypatch.setattr(sweep.Executor, "__exit__", interrupted_close)
     spec = load_spec("<test>", text="experiment: statics\ngrid: {n_balls: [4, 5, 6]}")
     try:

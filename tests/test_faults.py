@@ -201,21 +201,23 @@ def _fake_experiments(calls: dict, fail_at: str | None = None):
             return Section(f"Section {name}").text(f"{name} done").table(["x"], [[1.5], [float("nan")]]), {"n": name}
         return section
 
-    return [(name, make(name)) for name in ("one", "two", "three")]
+    from ballchain.reproduce import ReportSection
+
+    return [ReportSection(name, make(name)) for name in ("one", "two", "three")]
 
 
 def test_resume_reuses_finished_sections_and_checks_them_by_content(tmp_path, monkeypatch):
     from ballchain import reproduce
 
     calls: dict = {}
-    monkeypatch.setattr(reproduce, "EXPERIMENTS", _fake_experiments(calls, fail_at="two"))
+    monkeypatch.setattr(reproduce.registry, "SECTIONS", _fake_experiments(calls, fail_at="two"))
     with pytest.raises(KeyboardInterrupt):
         reproduce.run(out=tmp_path, quick=True)
     report = (tmp_path / "report.md").read_text()
     assert "Section one" in report and "Not finished" in report and "two, three" in report
     assert json.loads((tmp_path / "sections" / "one.json").read_text()) == {"n": "one"}
 
-    monkeypatch.setattr(reproduce, "EXPERIMENTS", _fake_experiments(calls))
+    monkeypatch.setattr(reproduce.registry, "SECTIONS", _fake_experiments(calls))
     data = reproduce.run(out=tmp_path, quick=True, resume=True)
     assert data["reused"] == ["one"] and calls == {"one": 1, "two": 2, "three": 1}
     report = (tmp_path / "report.md").read_text()
@@ -225,7 +227,7 @@ def test_resume_reuses_finished_sections_and_checks_them_by_content(tmp_path, mo
     (tmp_path / "one.txt").write_text("edited\n")
     assert reproduce.run(out=tmp_path, quick=True, resume=True)["reused"] == ["two", "three"]
     assert reproduce.run(out=tmp_path, quick=False, resume=True)["reused"] == []
-    monkeypatch.setattr(reproduce, "code_version", lambda: "another version")
+    monkeypatch.setattr(reproduce.runner, "code_version", lambda: "another version")
     assert reproduce.run(out=tmp_path, quick=False, resume=True)["reused"] == []
     assert calls == {"one": 4, "two": 4, "three": 3}
 

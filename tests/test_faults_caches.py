@@ -438,7 +438,9 @@ def _experiments(calls: dict):
             return Section(f"Section {name}").text(f"{name} done"), {"n": name}
         return section
 
-    return [(name, make(name)) for name in ("one", "two")]
+    from ballchain.reproduce import ReportSection
+
+    return [ReportSection(name, make(name)) for name in ("one", "two")]
 
 
 def _edit_record(record: dict, how: str):
@@ -467,7 +469,7 @@ def test_a_resume_record_of_the_wrong_shape_reruns_its_section_with_one_line(tmp
     from ballchain import reproduce
 
     calls: dict = {}
-    monkeypatch.setattr(reproduce, "EXPERIMENTS", _experiments(calls))
+    monkeypatch.setattr(reproduce.registry, "SECTIONS", _experiments(calls))
     reproduce.run(out=tmp_path, quick=True)
     path = tmp_path / reproduce.CACHE / "one.json"
     if how == "not JSON":

@@ -180,14 +180,16 @@ def _fake_experiments():
     def notes(out: Path, quick: bool):
         return Section("Notes").text("nothing to compare"), {"n": 1}
 
-    return [("sizing", sizing), ("notes", notes)]
+    from ballchain.reproduce import ReportSection
+
+    return [ReportSection("sizing", sizing), ReportSection("notes", notes)]
 
 
 def test_the_command_ends_with_the_findings_and_the_reports_path(tmp_path, monkeypatch, capsys):
     from ballchain import reproduce
     from ballchain.cli import main
 
-    monkeypatch.setattr(reproduce, "EXPERIMENTS", _fake_experiments())
+    monkeypatch.setattr(reproduce.registry, "SECTIONS", _fake_experiments())
     assert main(["reproduce", "--out", str(tmp_path)]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
     assert lines[-1] == f"open {tmp_path / 'report.html'}"

@@ -1,4 +1,4 @@
-"""The sweep executor (ballchain/sweep.py): specs, tables, faults, a scheduler address, sections.
+"""The sweep executor (ballchain/sweep/, ballchain/executor.py, ballchain/sections.py): specs, tables, faults, a scheduler address, sections.
 
 The cluster tests run on a 2-worker LocalCluster of processes on 127.0.0.1 (no dashboard) with
 cheap points (the ``statics`` experiment: one equilibrium in a uniform field, tens of ms).

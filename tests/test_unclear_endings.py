@@ -4,7 +4,7 @@ mesh that crosses itself is said (a note, or a refusal when the wall distance wo
 A results folder deleted (or replaced) while ``reproduce`` runs ended with exit status 0 and a
 report citing files that were no longer there: the run now checks, before each section and
 before each report, that ``--out`` is still the folder it started in (device and inode), and
-stops with one line, exit status 1. The sections here are stand-ins (``reproduce.EXPERIMENTS``
+stops with one line, exit status 1. The sections here are stand-ins (``reproduce.registry.SECTIONS``
 replaced) that write a file each, as the real ones write their figures.
 """
 
@@ -36,7 +36,7 @@ def _sections(calls: list, act=None):
             return Section(f"Section {name}").text(f"{name} done: `{name}/{name}.txt`"), {"n": name}
         return section
 
-    return [(name, make(name)) for name in ("one", "two", "three")]
+    return [reproduce.ReportSection(name, make(name)) for name in ("one", "two", "three")]
 
 
 def _one_line(capsys, code: int, expected: int) -> str:
@@ -50,7 +50,7 @@ def test_the_results_folder_deleted_during_a_section_stops_the_run_with_exit_1(t
     out = tmp_path / "results"
     calls = []
     # During section two the folder goes; the section's own write then makes an empty one again.
-    monkeypatch.setattr(reproduce, "EXPERIMENTS",
+    monkeypatch.setattr(reproduce.registry, "SECTIONS",
                         _sections(calls, lambda name, o: shutil.rmtree(o) if name == "two" else None))
     line = _one_line(capsys, cli_main(["reproduce", "--out", str(out)]), 1)
     assert f"--out '{out}' was deleted or replaced" in line and "stopped before the data of section 'two'" in line
@@ -66,16 +66,16 @@ def test_the_results_folder_deleted_between_sections_stops_before_the_next(tmp_p
         if name == "two":
             return
         if name == "one":  # the section ends normally; the folder goes just after its report
-            real = reproduce.write_report
+            real = reproduce.runner.write_report
 
             def write_then_delete(*args, **kwargs):
                 real(*args, **kwargs)
-                monkeypatch.setattr(reproduce, "write_report", real)
+                monkeypatch.setattr(reproduce.runner, "write_report", real)
                 shutil.rmtree(o)
 
-            monkeypatch.setattr(reproduce, "write_report", write_then_delete)
+            monkeypatch.setattr(reproduce.runner, "write_report", write_then_delete)
 
-    monkeypatch.setattr(reproduce, "EXPERIMENTS", _sections(calls, delete_after_one))
+    monkeypatch.setattr(reproduce.registry, "SECTIONS", _sections(calls, delete_after_one))
     with pytest.raises(OutputError, match=r"was deleted during the run: stopped before section 'two'; nothing more"):
         reproduce.run(out=out)
     assert calls == ["one"] and not out.exists()
@@ -91,7 +91,7 @@ def test_a_results_folder_replaced_by_another_is_not_written_into(tmp_path, monk
             (tmp_path / "elsewhere").mkdir()
             os.rename(tmp_path / "elsewhere", o)
 
-    monkeypatch.setattr(reproduce, "EXPERIMENTS", _sections(calls, swap))
+    monkeypatch.setattr(reproduce.registry, "SECTIONS", _sections(calls, swap))
     with pytest.raises(OutputError, match="was deleted or replaced"):
         reproduce.run(out=out)
     assert not (out / "report.md").exists() and (tmp_path / "old" / "report.md").exists()
@@ -99,7 +99,7 @@ def test_a_results_folder_replaced_by_another_is_not_written_into(tmp_path, monk
 
 def test_a_run_whose_folder_stays_is_unchanged(tmp_path, monkeypatch):
     calls = []
-    monkeypatch.setattr(reproduce, "EXPERIMENTS", _sections(calls))
+    monkeypatch.setattr(reproduce.registry, "SECTIONS", _sections(calls))
     data = reproduce.run(out=tmp_path / "results")
     assert calls == ["one", "two", "three"] and data["report_md"].exists()
     assert "Section three" in data["report_md"].read_text()

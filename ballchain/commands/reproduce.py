@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ballchain.commands._common import add_json_flag, path_arg, positive_int, print_json
 from ballchain.reproduce import AGREES_WITHIN, run
-from ballchain.sweep import MAX_WORKERS_PER_CORE
+from ballchain.executor import MAX_WORKERS_PER_CORE
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -108,7 +108,7 @@ def default_workers() -> int:
 
 
 def _map(jobs: list, out: Path, workers: int, what: str) -> list:
-    from ballchain.sweep import run_sections
+    from ballchain.sections import run_sections
 
     return [r.value for r in run_sections(jobs, out, False, workers=workers, progress=what)]
 
