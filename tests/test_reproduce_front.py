@@ -222,3 +222,33 @@ def test_a_figure_named_relative_to_the_results_folder_is_embedded(tmp_path):
     assert page.count("figure missing") == 1 and "figure missing: sub/none.png" in page
     md = write_report("Title", sections, tmp_path)[0].read_text()
     assert "![relative](sub/rel.png)" in md and "![absolute](sub/rel.png)" in md
+
+
+def test_one_registry_gives_every_section_its_function_cost_and_headlines():
+    from ballchain import reproduce
+
+    names = [s.name for s in reproduce.SECTIONS]
+    assert len(names) == len(set(names)) == 12
+    for entry in reproduce.SECTIONS:
+        assert callable(entry.function) and callable(entry.headlines), entry.name
+        full, quick = entry.cost_s
+        assert full > 0 and quick > 0, entry.name
+    # The old tables are views of the registry, not second tables.
+    assert reproduce.EXPERIMENTS == [(s.name, s) for s in reproduce.SECTIONS]
+    assert reproduce.SECTION_COST_S == {s.name: s.cost_s for s in reproduce.SECTIONS}
+    assert reproduce.find("sizing") is reproduce.sizing_section is reproduce.SECTIONS[1]
+
+
+def test_a_registry_entry_runs_its_function_then_its_headline_builder(tmp_path):
+    from ballchain.reproduce import ReportSection
+
+    def function(out: Path, quick: bool):
+        return Section("X").table(["quantity", "paper", "model"], [["d [mm]", 2.0, 2.1]]), {"d_mm": 2.1}
+
+    def headlines(section: Section, data: dict):
+        section.headline("d [mm]", 2.0, data["d_mm"], True, "from the data")
+
+    section, data = ReportSection("x", function, (1.0, 1.0), headlines)(tmp_path, True)
+    assert [(h.result, h.model) for h in section.headlines] == [("d [mm]", 2.1)] and data == {"d_mm": 2.1}
+    bare, _ = ReportSection("x", function)(tmp_path, True)  # no headline builder: no summary rows
+    assert bare.headlines == []
