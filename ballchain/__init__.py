@@ -14,7 +14,8 @@ The exported names, by job:
 
 - scenarios: ``ChainScenario``, ``load_scenario``, ``scenario_names``, ``scenario_descriptions``,
   ``parse_overrides``, ``apply_overrides``;
-- the station and its run: ``MakeStation``, ``Station``, ``MagnetUnitConfig``,
+- the station and its run: ``MakeStation``, ``Station``, ``DeviceModel`` (the interface every
+  device implements) and ``register_device_model`` (a new device), ``MagnetUnitConfig``,
   ``StationOptions``, ``run_station``, ``RunOutcome``, ``StationRunner``, ``ChainMonitor``,
   ``run_simulation``, ``SimulationFailure``;
 - statics: ``ChainStatics``, ``StaticsResult``, ``StaticsError``, ``BallChain``, ``Sleeve``,
@@ -45,6 +46,8 @@ _EXPORTS: dict[str, str] = {
     "apply_overrides": "ballchain.systems.chain_scenario",
     "MakeStation": "ballchain.systems.station",
     "Station": "ballchain.systems.station",
+    "DeviceModel": "ballchain.systems.device_model",
+    "register_device_model": "ballchain.systems.device_model",
     "MagnetUnitConfig": "ballchain.systems.unit_config",
     "StationOptions": "ballchain.systems.actuation_station",
     "run_station": "ballchain.systems.chain_simulation",

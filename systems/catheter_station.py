@@ -1,10 +1,10 @@
-"""The manual arm of the paper's comparison (Sec. V-C) as a station: a steerable catheter in the
-atrium, a hand on its handle, the targets.
+"""The manual arm of the paper's comparison (Sec. V-C): a steerable catheter in the atrium and a
+hand on its handle, the systems of its device model (``catheter_model.CatheterModel``).
 
-``MakeStation`` builds this diagram for a scenario with ``device: steerable_catheter`` (the one
-place the device is chosen), the sibling of the ball chain's station: the same atrium, the same
-sheath exit and axis, the same target rings and ``TargetTouchTracker``, the same ``add_systems``
-hook for an operator, but a catheter instead of the chain and the units:
+``MakeStation`` builds them for a scenario with ``device: steerable_catheter`` into the same
+station as the ball chain's: the same atrium, the same sheath exit and axis, the same target
+rings and ``TargetTouchTracker``, the same ``add_systems`` hook for an operator and the same run
+loop, with the catheter instead of the chain and the hand instead of the units:
 
 * ``SteerableCatheterSystem``: the catheter's quasi-static state, advanced every ``period`` from
   the handle's position (the push past the start [m], the handle's twist [rad], the knob in
@@ -25,7 +25,7 @@ hook for an operator, but a catheter instead of the chain and the units:
   handle half a turn towards neutral.
 
 Exported inputs (when the hook leaves them unconnected): ``hand.joystick`` (3),
-``hand.v_insert_cmd`` (1).
+``feeder.v_insert_cmd`` (1) (the hand's push: the station's names for every device).
 """
 
 from __future__ import annotations
@@ -36,12 +36,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RotationMatrix
-from pydrake.systems.framework import BasicVector, Diagram, DiagramBuilder, EventStatus, LeafSystem
+from pydrake.geometry import Rgba, Sphere
+from pydrake.systems.framework import EventStatus, LeafSystem
 
 from ballchain.drake_models.errors import UserInputError, require_finite_fields
 from ballchain.drake_models.steerable_catheter import SteerableCatheter
 from ballchain.optimization.rod_statics import RodStatics
-from ballchain.systems.target_contact import TargetTouchTracker, heart_targets
+from ballchain.systems.meshcat_view import frame_scene
 from ballchain.systems.teleoperation import apply_dead_band
 
 STRATEGIES = ("keep", "switch")
@@ -205,7 +206,8 @@ class SteerableCatheterSystem(LeafSystem):
     Input ports: handle (3: push past the start [m], handle twist [rad], knob in [-1, 1]).
     Output ports: body_poses (abstract list[RigidTransform]: index 0 the world, 1..n + 1 the rod's
     nodes, the tip sphere's centre last, with the tip's frame), tip_position (3: the tip's end),
-    windup (3: handle twist, twist at the sheath exit [rad], slips so far).
+    windup (3: handle twist, twist at the sheath exit [rad], slips so far), tip_wall_force (6: zero, the rod
+    statics do not report the wall's force, then the tip sphere's centre).
 
     Args:
         catheter: the SteerableCatheter.
@@ -225,6 +227,7 @@ class SteerableCatheterSystem(LeafSystem):
             raise UserInputError(f"SteerableCatheterSystem initial_length must be in (0, "
                                  f"{self.rod.max_length * 1e3:.0f} mm], got {initial_length}")
         self.initial_length = float(initial_length)
+        self.period = float(period)
         self._twist_chain, self._push_chain = self.catheter.twist_chain(), self.catheter.push_chain()
         self.n_bodies = self.rod.n_joints + 1
         self._handle = self.DeclareVectorInputPort("handle", 3)
@@ -234,6 +237,7 @@ class SteerableCatheterSystem(LeafSystem):
                                        self._calc_poses, prerequisites_of_calc=ticket)
         self.DeclareVectorOutputPort("tip_position", 3, self._calc_tip, prerequisites_of_calc=ticket)
         self.DeclareVectorOutputPort("windup", 3, self._calc_windup, prerequisites_of_calc=ticket)
+        self.DeclareVectorOutputPort("tip_wall_force", 6, self._calc_wall_force, prerequisites_of_calc=ticket)
         self.DeclarePeriodicUnrestrictedUpdateEvent(period, 0.0, self._update)
 
     def _start(self) -> _CatheterState:
@@ -291,24 +295,25 @@ class SteerableCatheterSystem(LeafSystem):
         st = self.state(context)
         output.SetFromVector([st.twist[0], st.twist[-1], float(st.slips)])
 
+    def _calc_wall_force(self, context, output):
+        output.SetFromVector(np.concatenate([np.zeros(3), self.state(context).nodes[-1]]))
+
 
 class CatheterMeshcat(LeafSystem):
     """The catheter in Meshcat: the atrium's blood-side surface and the targets drawn once, the
     rod's nodes (spheres of its radius) moved at every publish from ``body_poses``, at the
-    publish's time (while the Meshcat records, these are the replay's frames).
+    publish's time (while the Meshcat records, these are the replay's frames). It records a
+    replay as the station's visualizer does (``StartRecording``, ``StopRecording``,
+    ``PublishRecording``: ``run_station(html=...)``), a frame every ``period``.
 
     Input ports: body_poses (abstract list[RigidTransform]).
     """
 
     def __init__(self, meshcat, heart, n_bodies: int, radius: float, targets=None, period: float = 0.05) -> None:
         super().__init__()
-        from pydrake.geometry import Rgba, Sphere
-
         self.set_name("catheter_meshcat")
-        self._meshcat, self._n = meshcat, n_bodies
+        self._meshcat, self._n, self._period = meshcat, n_bodies, period
         self._poses = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
-        from ballchain.systems.meshcat_view import frame_scene
-
         frame_scene(meshcat, heart)  # the camera on the atrium (and a replay opens on the same view)
         V, F = heart.blood_surface
         meshcat.SetTriangleMesh("catheter_view/atrium", np.asarray(V, float).T, np.asarray(F).T,
@@ -328,67 +333,27 @@ class CatheterMeshcat(LeafSystem):
             self._meshcat.SetTransform(f"catheter_view/rod/{i}", poses[i + 1], context.get_time())
         return EventStatus.Succeeded()
 
+    def StartRecording(self) -> None:
+        """Record the frames (the poses set at their times), one every ``period``."""
+        self._meshcat.StartRecording(1.0 / self._period, False)
 
-@dataclass
-class CatheterPorts:
-    """What the ``add_systems`` hook may connect to (as ``station.StationPorts`` for the chain):
-    the catheter, its ``body_poses``, the hand's stick and push inputs, the targets."""
+    def StopRecording(self) -> None:
+        self._meshcat.StopRecording()
 
-    catheter: SteerableCatheterSystem
-    body_poses: object
-    joystick_input: object
-    feeder_command_input: object
-    heart: object
-    targets: tuple | None
-    target_touches: TargetTouchTracker | None
+    def PublishRecording(self) -> None:
+        self._meshcat.PublishRecording()
 
 
 @dataclass
-class CatheterStation:
-    """The built catheter station (``make_catheter_station``)."""
+class CatheterParams:
+    """The catheter device's own parameters (``MakeStation(device_params=...)``).
 
-    diagram: Diagram
-    catheter: SteerableCatheterSystem
-    hand: ManualHand
-    heart: object
-    scenario: object
-    target_touches: TargetTouchTracker | None = None
-    added: dict = field(default_factory=dict)
+    Attributes:
+        catheter: the SteerableCatheter (default: its defaults).
+        hand: the HandParams of the hand on its handle (default: its defaults).
+        initial_length: rod beyond the sheath exit at the start [m].
+    """
 
-
-def make_catheter_station(scenario, *, heart=None, add_systems=None, catheter: SteerableCatheter | None = None,
-                          hand: HandParams | None = None, initial_length: float = 20e-3,
-                          meshcat=None) -> CatheterStation:
-    """The catheter station of a ``device: steerable_catheter`` scenario (module docstring); the
-    catheter updates every ``scenario.statics_period``, the targets are checked as often; with a
-    Meshcat, ``catheter_meshcat`` draws it (``scenario.visualization.publish_period``)."""
-    from ballchain.drake_models.atrium_sdf import atrium_sdf
-    from ballchain.systems.station import atrium_for
-
-    heart = heart if heart is not None else atrium_for(scenario)
-    builder = DiagramBuilder()
-    period = scenario.statics_period
-    cat = builder.AddSystem(SteerableCatheterSystem(catheter or SteerableCatheter(), heart.p_HE,
-                                                    heart.sheath_axis_H, atrium_sdf(heart), initial_length, period))
-    hand_system = builder.AddSystem(ManualHand(hand))
-    builder.Connect(hand_system.GetOutputPort("handle"), cat.GetInputPort("handle"))
-    targets = heart_targets(heart) if hasattr(heart, "rings") else None
-    tracker = None
-    if targets is not None and targets[0]:
-        names, p_WT, n_W, radius = targets
-        tracker = builder.AddSystem(TargetTouchTracker(cat.n_bodies, names, p_WT, n_W, radius,
-                                                       ball_radius=cat.catheter.radius, period=period))
-        builder.Connect(cat.GetOutputPort("body_poses"), tracker.get_body_poses_input_port())
-    ports = CatheterPorts(cat, cat.GetOutputPort("body_poses"), hand_system.GetInputPort("joystick"),
-                          hand_system.GetInputPort("v_insert_cmd"), heart, targets, tracker)
-    if meshcat is not None:
-        view = builder.AddSystem(CatheterMeshcat(meshcat, heart, cat.n_bodies, cat.catheter.radius, targets,
-                                                 scenario.visualization.publish_period))
-        builder.Connect(cat.GetOutputPort("body_poses"), view.GetInputPort("body_poses"))
-    added = dict(add_systems(builder, ports) or {}) if add_systems is not None else {}
-    for port, name in ((ports.joystick_input, "hand.joystick"), (ports.feeder_command_input, "hand.v_insert_cmd")):
-        if not builder.IsConnectedOrExported(port):
-            builder.ExportInput(port, name)
-    diagram = builder.Build()
-    diagram.set_name("catheter_in_heart")
-    return CatheterStation(diagram, cat, hand_system, heart, scenario, tracker, added)
+    catheter: SteerableCatheter = field(default_factory=SteerableCatheter)
+    hand: HandParams = field(default_factory=HandParams)
+    initial_length: float = 20e-3

@@ -1,6 +1,6 @@
-"""The chain model: one interface for the chain's two engines, behind which the station sees no difference.
+"""The chain model: the ball chain's ``DeviceModel``, one interface for its two engines.
 
-A ``ChainModel`` is the ball chain as Drake systems in a station diagram, with its field coupling
+A ``ChainModel`` (``device_model.DeviceModel`` of ``device: ball_chain``) is the ball chain as Drake systems in a station diagram, with its field coupling
 inside: the MultibodyPlant with its ``MagneticWrenchSystem`` (``chain_plant.PlantChainModel``,
 ``engine: plant``), or the ``QuasiStaticEngine`` (``quasi_static_engine.StaticsChainModel``,
 ``engine: statics``). Both have
@@ -15,6 +15,8 @@ port                      size     what
 ``tip_wall_force`` (out)  6        the wall's push on the tip ball f_W [N], then where it acts [m]
                                    (the tip's centre when nothing pushes)
 ``snap_throughs`` (out)   1        snap-throughs so far (the plant has none: 0)
+``anatomy_offsets`` (out) 6        (statics with ``wall_motion`` only) the heart's and the wall's
+                                   offsets [m]; None for a still anatomy
 ========================  =======  ===================================================================
 
 and the same geometry (``ChainGeometry``: the sheath exit, the insertion axis, the feeder frame,
@@ -26,18 +28,22 @@ system whose context holds the chain), ``ball_positions``, ``is_finite``, ``fail
 
 from __future__ import annotations
 
-from abc import ABC, abstractmethod
+from abc import abstractmethod
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 from pydrake.common.value import AbstractValue
+from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import LeafSystem
 
+from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import FieldSource, rotation_with_z_along
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
+from ballchain.systems.device_model import DeviceModel
+from ballchain.systems.meshcat_view import frame_scene
 
 if TYPE_CHECKING:
     from ballchain.systems.chain_plant import ChainPlantConfig
@@ -181,10 +187,12 @@ class BallCentres(LeafSystem):
         output.SetFromVector(np.concatenate([poses[i].translation() for i in self._indices]))
 
 
-class ChainModel(ABC):
-    """The ball chain in a station diagram: the interface both engines implement.
+class ChainModel(DeviceModel):
+    """The ball chain in a station diagram: the interface both engines implement (the ball
+    chain's ``DeviceModel``: its bodies are the balls, its tip the tip ball).
 
-    Built by a subclass's ``add_to``; the station reads the chain only through this interface.
+    Built by a subclass's ``add_to`` (``add_to_station``: the chain's configuration from the
+    scenario, then ``add_to``); the station reads the chain only through this interface.
 
     Attributes:
         geometry: the chain's geometry (its attributes are also this model's: ``config``,
@@ -197,16 +205,41 @@ class ChainModel(ABC):
             ``failure`` at once: the watchdog reads its state only at its checks.
     """
 
+    device = "ball_chain"
     engine: str  # the scenario's ``engine`` this model is
     geometry: ChainGeometry
     system: LeafSystem
     time_step: float
     move_period: float = 0.0
+    diagram_name = "chain_in_heart"
 
     @classmethod
     @abstractmethod
     def add_to(cls, builder, scenario, config: ChainPlantConfig, coupling: FieldCoupling) -> ChainModel:
         """Add the chain and its field coupling to ``builder`` (the ``scenario``'s engine settings)."""
+
+    @staticmethod
+    @abstractmethod
+    def config_for(scenario, heart) -> ChainPlantConfig:
+        """The chain's configuration from the scenario (``chain_plant.chain_plant_config``)."""
+
+    @classmethod
+    def add_to_station(cls, builder, scenario, heart, coupling: FieldCoupling, params=None) -> ChainModel:
+        """The chain's configuration (``config_for``), its insertion checked against the sheath,
+        then ``add_to``.
+
+        Raises:
+            UserInputError: an insertion length outside what the sheath holds.
+        """
+        config = cls.config_for(scenario, heart)
+        s_max = chain_geometry(config).max_inserted_length()
+        ins = scenario.insertion
+        for what, s in (("initial", ins.initial), ("final", ins.final)):
+            if not 0.0 <= s <= s_max:
+                raise UserInputError(
+                    f"insertion.{what} = {s * 1e3:.1f} mm is outside 0..{s_max * 1e3:.1f} mm for "
+                    f"{config.chain.n_balls} balls (ball 1 must stay in the sheath)")
+        return cls.add_to(builder, scenario, config, coupling)
 
     # --- the geometry --------------------------------------------------------------------------
     @property
@@ -242,6 +275,38 @@ class ChainModel(ABC):
     def sheath_length(self) -> float:
         return self.geometry.sheath_length()
 
+    # --- the geometry as a device ---------------------------------------------------------------
+    @property
+    def body_indices(self) -> list:
+        return self.geometry.ball_body_indices
+
+    @property
+    def tip_radius(self) -> float:
+        return 0.5 * self.config.chain.ball_diameter
+
+    @property
+    def start_point(self) -> np.ndarray:
+        """The sheath exit in the heart; ball 1's initial centre in free space (the canonical
+        statics origin)."""
+        if self.config.heart is not None:
+            return self.p_WE
+        return self.X_WF.multiply(np.array([self.config.initial_inserted_length, 0.0, 0.0]))
+
+    @property
+    def length(self) -> float:
+        return self.config.chain.length
+
+    @property
+    def initial_inserted_length(self) -> float:
+        return self.config.initial_inserted_length
+
+    def fed_chain(self):
+        return self.config.chain
+
+    def neighbour_gaps(self, p_W: np.ndarray) -> np.ndarray:
+        """The gaps between neighbouring balls' surfaces [m] (negative: overlap)."""
+        return np.linalg.norm(np.diff(p_W, axis=0), axis=1) - self.config.chain.ball_diameter
+
     # --- ports ----------------------------------------------------------------------------------
     @abstractmethod
     def get_magnet_states_input_port(self):
@@ -272,6 +337,18 @@ class ChainModel(ABC):
         """The SceneGraph the chain's (and the heart's, the sheath's) illustration geometry is
         registered with, for a MeshcatVisualizer (added to ``builder`` when needed)."""
 
+    def add_visualizer(self, builder, meshcat, scenario, heart, targets):
+        """``meshcat_visualizer`` (``scenario.visualization``) on ``add_geometry``'s SceneGraph,
+        the camera on the atrium (or the free chain's reach)."""
+        vis = scenario.visualization
+        params = MeshcatVisualizerParams(publish_period=vis.publish_period, default_color=vis.default_illustration_color,
+                                         delete_on_initialization_event=vis.delete_on_initialization_event,
+                                         enable_alpha_slider=vis.enable_alpha_sliders)
+        visualizer = MeshcatVisualizer.AddToBuilder(builder, self.add_geometry(builder), meshcat, params)
+        visualizer.set_name("meshcat_visualizer")
+        frame_scene(meshcat, heart, self.config.chain.length, self.p_WE)
+        return visualizer
+
     def add_pin(self, builder, point: np.ndarray, stiffness: float):
         """A force-sensor pin on the tip ball (``force_sensor_pin``): only a model with forces can
         hold one (the scenario's validation refuses a pin on the others)."""
@@ -282,6 +359,9 @@ class ChainModel(ABC):
     def ball_positions(self, context) -> np.ndarray:
         """Ball centres (n, 3) [m] from ``system``'s context or the diagram's root context."""
 
+    def body_positions(self, context) -> np.ndarray:
+        return self.ball_positions(context)
+
     @abstractmethod
     def is_finite(self, context) -> bool:
         """Whether the chain's state in ``system``'s context is finite."""
@@ -289,25 +369,6 @@ class ChainModel(ABC):
     @abstractmethod
     def non_finite_part(self, context) -> str:
         """Which part of the state is not finite (for a failure message)."""
-
-    def anatomy_offsets(self, context) -> tuple[np.ndarray, np.ndarray] | None:
-        """Where the state's anatomy is (``drake_models.wall_motion``): (heart and sheath offset
-        (3,), wall offset (3,)) [m] from the rest pose, for ``system``'s context or the root's;
-        None: the anatomy does not move (the rest pose)."""
-        return None
-
-    @property
-    def failure(self) -> str | None:
-        """A failure the model found itself (a failed solve), or None."""
-        return None
-
-    def clear_failure(self) -> None:
-        """Forget ``failure`` (a run started over from its initial context)."""
-
-    @property
-    def events(self) -> list:
-        """What the model reported during the run (snap-throughs, failed solves)."""
-        return []
 
     def solver_stats(self) -> StaticsEngineStats | None:
         """The statics solves of the run (None: no solver)."""

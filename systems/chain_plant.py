@@ -59,7 +59,7 @@ from pydrake.systems.primitives import ConstantVectorSource
 from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
-from ballchain.drake_models.params import GRAVITY, BallChain
+from ballchain.drake_models.params import GRAVITY, BallChain, Sleeve
 from ballchain.systems.chain_model import (
     BallCentres,
     ChainGeometry,
@@ -170,6 +170,40 @@ class ChainPlantConfig:
     feeder_gains: tuple = (2e4, 20.0)
     wall_plane: tuple = ()
     plant_config: MultibodyPlantConfig = field(default_factory=chain_multibody_plant_config)
+
+
+def chain_for(scenario) -> BallChain:
+    """The scenario's ball chain (``n_balls``, with the sleeve's bending forces or not)."""
+    return BallChain(n_balls=scenario.n_balls, sleeve=Sleeve() if scenario.sleeve else None)
+
+
+def chain_plant_config(scenario, heart) -> ChainPlantConfig:
+    """The chain's configuration from the scenario (either engine's: ``ChainModel.config_for``).
+
+    The plant's step is ``scenario.effective_time_step`` (the time step's one home);
+    ``scenario.plant_config`` is Drake's MultibodyPlantConfig. Free space: the sheath exit is
+    placed so that ball 1 sits at the origin at s = 0 and the chain extends along +x (the
+    canonical statics frame).
+    """
+    chain = chain_for(scenario)
+    quasi = scenario.mode == "quasi-static"
+    d = chain.ball_diameter
+    return ChainPlantConfig(
+        chain=chain,
+        time_step=scenario.effective_time_step,
+        translational_damping=scenario.translational_damping if quasi else 0.0,
+        angular_damping=scenario.angular_damping if quasi else 0.0,
+        gravity=scenario.gravity,
+        heart=heart,
+        sheath=SheathConfig() if scenario.sheath else None,
+        p_WE=((chain.n_balls - 0.5) * d, 0.0, 0.0),
+        sheath_axis_W=(1.0, 0.0, 0.0),
+        initial_inserted_length=scenario.insertion.initial,
+        contact=scenario.contact,
+        feeder_gains=tuple(scenario.insertion.slide_gains),
+        wall_plane=tuple(scenario.wall_plane),
+        plant_config=scenario.plant_config,
+    )
 
 
 @dataclass
@@ -372,6 +406,7 @@ class PlantChainModel(ChainModel):
     """
 
     engine = "plant"
+    config_for = staticmethod(chain_plant_config)
 
     def __init__(self, handles: ChainPlant, wrench: MagneticWrenchSystem, tip_force: WallForceOnBall,
                  centres: BallCentres, snaps: ConstantVectorSource):

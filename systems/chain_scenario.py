@@ -31,6 +31,9 @@ from ballchain.drake_models.safe_yaml import (check_yaml_schema, load_typed, loa
                                              schema_fields as _schema_fields, yaml_kind)
 from ballchain.drake_models.params import BallChain
 from ballchain.systems.chain_plant import ChainPlantConfig, ContactConfig, chain_multibody_plant_config
+# ENGINES, DEVICES: live views of the one registry of device models (``device_model.DEVICE_MODELS``):
+# the ball chain on "plant" or "statics", the paper's manual comparison arm, and any registered.
+from ballchain.systems.device_model import DEVICE_MODELS, DEVICES, ENGINES, engines  # noqa: F401
 from ballchain.systems.feeder import FeederSpec, batch_steps
 from ballchain.systems.force_sensor_pin import stability_bound
 from ballchain.systems.randomness import check_random_seed
@@ -43,9 +46,7 @@ if not SCENARIOS_FILE.exists():  # installed (non-editable) layout
     SCENARIOS_FILE = Path(_dm.__file__).with_name("station.scenarios.yaml")
 
 MODES = ("quasi-static", "dynamics")
-ENGINES = ("plant", "statics")
 UNIT_SYSTEMS = ("compiled", "python")
-DEVICES = ("ball_chain", "steerable_catheter")  # the robotic chain, or the paper's manual comparison arm
 DEFAULT_TIME_STEP = {"quasi-static": 1e-3, "dynamics": 1e-4}
 
 
@@ -678,9 +679,13 @@ def check_fields(s: "ChainScenario") -> None:
     _one_of(s.engine, ENGINES, "engine")
     _one_of(s.unit_systems, UNIT_SYSTEMS, "unit_systems")
     _one_of(s.device, DEVICES, "device")
-    _require(s.device == "ball_chain" or (not s.units and s.mode == "quasi-static" and (s.heart or bool(s.atrium_file))),
+    _require(s.device != "steerable_catheter" or (not s.units and s.mode == "quasi-static"
+                                                  and (s.heart or bool(s.atrium_file))),
              "scenario device: steerable_catheter is a manual catheter in the atrium: it needs no units "
              "(units: []), mode: quasi-static and an atrium")
+    _require((s.device, s.engine) in DEVICE_MODELS,
+             f"scenario engine {short_repr(s.engine)} has no model of device {s.device!r}: its engines: "
+             f"{', '.join(map(repr, engines(s.device)))}")
     if s.random_seed is not None:
         check_random_seed(s.random_seed, "scenario random_seed")
     check_timing(s)

@@ -1,9 +1,9 @@
 """Run the station of a scenario: the one run loop, its watchdog and metrics.
 
 The diagram is built by ``systems/station.py`` (``MakeStation``: its steps, system names and
-exported ports are described there). The run loop, the watchdog and the metrics read the chain
-through its model's interface (``Station.chain``, a ``chain_model.ChainModel``): the same code for
-the plant and the quasi-static engine.
+exported ports are described there). The run loop, the watchdog and the metrics read the device
+through its model's interface (``Station.chain``, a ``device_model.DeviceModel``): the same code for
+the ball chain on either engine, the steerable catheter and a user's device.
 
 ``run_station`` is the one Simulator loop (watchdog, progress, stop condition, a run's own
 check, recording, Ctrl-C) of ``simulate``, teleoperation and the force pin, on a
@@ -152,8 +152,11 @@ _FAILED = EventStatus.Severity.kFailed
 class ChainMonitor:
     """Per-step watchdog and metrics of a Station (install with ``simulator.set_monitor``).
 
-    Every ``scenario.check_period`` it checks the state for NaN, the chain for breaks and ball
-    overlaps (cheap; between those checks, the state for NaN at every step, unless the chain
+    It reads any device through its model (``DeviceModel``: ``body_positions``, ``body_radius``,
+    ``neighbour_gaps``, ``in_sheath``, ``is_finite``, ``failure``).
+
+    Every ``scenario.check_period`` it checks the state for NaN, a chain of touching bodies (the
+    ball chain: ``neighbour_gaps``) for breaks and overlaps (cheap; between those checks, the state for NaN at every step, unless the chain
     moves only at its updates and reports a non-finite one as its ``failure``: the engine);
     every ``wall_check_every``-th of those checks it also checks escapes from the heart and the
     wall clearance (mesh queries, about 2 ms for 16 balls: checked every
@@ -181,7 +184,7 @@ class ChainMonitor:
         self._cd = cd
         self._chain = cd.chain
         self._system = cd.chain.system  # the system whose context holds the chain
-        self._d = cd.chain.config.chain.ball_diameter
+        self._d = 2.0 * cd.chain.body_radius
         # A chain that moves only at its updates (the engine's) shows nothing new in between.
         self._period = max(cd.scenario.check_period, cd.chain.move_period)
         self._quiet_between = cd.chain.move_period > 0
@@ -196,7 +199,7 @@ class ChainMonitor:
         self.max_ball_overlap = 0.0
         self.max_wall_penetration = 0.0
         self.checks = 0
-        self._iu = np.triu_indices(cd.chain.n_balls, k=1)
+        self._iu = np.triu_indices(len(cd.chain.body_indices), k=1)
         self._tolerate_sinking = tolerate_sinking
         self.tolerated_sinkings: list[tuple[float, int, float]] = []
 
@@ -226,13 +229,14 @@ class ChainMonitor:
             return f"NaN or inf in the state at t = {t:.4f} s: {chain.non_finite_part(plant_context)}"
         if chain.failure:
             return chain.failure
-        p = chain.ball_positions(plant_context)
+        p = chain.body_positions(plant_context)
         self.checks += 1
-        gaps = np.linalg.norm(np.diff(p, axis=0), axis=1) - self._d
-        self.max_gap = max(self.max_gap, float(gaps.max()))
-        dist = np.linalg.norm(p[self._iu[0]] - p[self._iu[1]], axis=1)
-        self.max_ball_overlap = max(self.max_ball_overlap, float(self._d - dist.min()))
-        self.max_penetration = max(self.max_penetration, self.max_ball_overlap)
+        gaps = chain.neighbour_gaps(p)
+        if gaps is not None:
+            self.max_gap = max(self.max_gap, float(gaps.max()))
+            dist = np.linalg.norm(p[self._iu[0]] - p[self._iu[1]], axis=1)
+            self.max_ball_overlap = max(self.max_ball_overlap, float(self._d - dist.min()))
+            self.max_penetration = max(self.max_penetration, self.max_ball_overlap)
         heart = self._cd.heart
         if heart is not None and not wall:
             return self._check_gaps(gaps, t)
@@ -266,13 +270,13 @@ class ChainMonitor:
                     return (f"ball {i + 1} sank {-clearance.min() * 1e3:.2f} mm into the wall at "
                             f"t = {t:.4f} s, past its middle ({half_wall * 1e3:.2f} mm), where the "
                             "compliant wall would push it out: raise contact.wall_hydroelastic_modulus")
-        elif np.any(np.linalg.norm(p, axis=1) > 10 * chain.config.chain.length + 0.1):
+        elif np.any(np.linalg.norm(p, axis=1) > 10 * chain.length + 0.1):
             i = int(np.argmax(np.linalg.norm(p, axis=1)))
             return f"ball {i + 1} flew away at t = {t:.4f} s: centre at {np.round(p[i] * 1e3, 1).tolist()} mm"
         return self._check_gaps(gaps, t)
 
-    def _check_gaps(self, gaps: np.ndarray, t: float) -> str | None:
-        if gaps.max() > self._cd.scenario.break_gap:
+    def _check_gaps(self, gaps: np.ndarray | None, t: float) -> str | None:
+        if gaps is not None and gaps.max() > self._cd.scenario.break_gap:
             i = int(np.argmax(gaps))
             return (f"the chain broke between balls {i + 1} and {i + 2} at t = {t:.4f} s "
                     f"(gap {gaps[i] * 1e3:.2f} mm > {self._cd.scenario.break_gap * 1e3:.2f} mm)")
@@ -299,7 +303,7 @@ class ChainMonitor:
     def metrics(self, plant_context) -> dict:
         """The watchdog's part of ``SimulationMetrics`` (tip_position_mm .. monitor_checks, by
         field name) at the end of a run; the wall clearance is checked once more here."""
-        p = self._chain.ball_positions(plant_context)
+        p = self._chain.body_positions(plant_context)
         if (self._cd.heart is not None and plant_context.get_time() > self._last_wall_time
                 and np.all(np.isfinite(p)) and self.failure is None):
             # The clearance at the end of the run too (the wall check runs at a coarser period).
@@ -863,5 +867,5 @@ def run_simulation(*, scenario: ChainScenario, duration: float | None = None, ht
     )
     if error is not None:
         raise SimulationFailure(f"simulation stopped: {error}", metrics)
-    metrics.p_W_mm = (chain.ball_positions(plant_context) * 1e3).round(4).tolist()
+    metrics.p_W_mm = (chain.body_positions(plant_context) * 1e3).round(4).tolist()
     return metrics

@@ -52,6 +52,7 @@ from ballchain.optimization.blas_threads import one_blas_thread as _one_blas_thr
 from ballchain.optimization.compiled_model import HeartAnswer, HeartSolve
 from ballchain.optimization.statics import ChainStatics, StaticsResult, straight_chain
 from ballchain.optimization.wall_constraints import HeartConstraints, SheathGeometry, base_ball, base_rotation
+from ballchain.systems.chain_plant import chain_plant_config
 from ballchain.systems.chain_model import (
     ChainGeometry,
     ChainModel,
@@ -744,6 +745,7 @@ class StaticsChainModel(ChainModel):
     """
 
     engine = "statics"
+    config_for = staticmethod(chain_plant_config)
 
     def __init__(self, geometry: ChainGeometry, engine: QuasiStaticEngine, sheath: SheathGeometry | None):
         self.geometry = geometry
@@ -795,6 +797,9 @@ class StaticsChainModel(ChainModel):
 
     def get_snap_throughs_output_port(self):
         return self.engine_system.get_snap_throughs_output_port()
+
+    def get_anatomy_offsets_output_port(self):
+        return self.engine_system.get_anatomy_offsets_output_port()
 
     def add_geometry(self, builder):
         """A SceneGraph of the engine's own, with ``engine_geometry`` posing the balls in it."""

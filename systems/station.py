@@ -8,45 +8,46 @@ steps, one concern each (docs/design.md, "The station builder"); each step takes
 and returns what it adds:
 
 1. ``apply_atrium``: the procedural left atrium, a user's segmented one, or free space.
-2. ``apply_chain_plant_config``: the chain's ChainPlantConfig from the scenario (the time
-   step's one home is ``scenario.time_step``; Drake's ``MultibodyPlantConfig`` is
-   ``scenario.plant_config``).
-3. ``add_field_sources``: the fixed external field (uniform field, fixed magnets, or a prebuilt
+2. ``add_field_sources``: the fixed external field (uniform field, fixed magnets, or a prebuilt
    FieldSource) and the units' MagnetUnitConfigs at their anchors (``FieldSetup``).
-4. ``add_chain``: the chain model (``chain_model.ChainModel``) of the scenario's ``engine``
-   (``CHAIN_MODELS``): the MultibodyPlant with ``magnetic_wrench`` (``plant``), or the
-   ``quasi_static_engine`` (``statics``), each with its field coupling inside. This is the
-   one place the engine is chosen: every later step, the run loop and the experiments see the
-   interface only (its ports: ``magnet_states``, the feeder's desired state, ``body_poses``,
-   ``ball_positions``, ``tip_wall_force``, ``snap_throughs``).
-5. ``add_units_step``: the rotating actuation units (``station_units.add_units``, wired by
+3. ``add_device``: the device model (``device_model.DeviceModel``) of the scenario's
+   ``(device, engine)`` (``device_model.device_model_class``, the one registry), which adds
+   itself with its field coupling inside: for the ball chain (``chain_model.ChainModel``) its
+   ChainPlantConfig (``chain_plant.chain_plant_config``) and the MultibodyPlant with
+   ``magnetic_wrench`` (``plant``) or the ``quasi_static_engine`` (``statics``); for the
+   steerable catheter (``catheter_model.CatheterModel``) the catheter and the hand on its
+   handle. This is the one place the device and the engine are chosen: every later step, the
+   run loop and the experiments see the interface only (its ports: the actuation inputs,
+   ``body_poses``, ``tip_wall_force``, ``anatomy_offsets``).
+4. ``add_units_step``: the rotating actuation units (``station_units.add_units``, wired by
    ``actuation_station.add_unit_systems``, the same step as the actuation-only diagram) into
-   the chain's ``magnet_states`` input; ``tip_observer`` for the tip-frame mapping.
-6. ``add_insertion``: what drives ball 1's slide: the scenario's ramp (``feeder_command``),
-   the stepper ``feeder`` (playing the ramp itself, or commanded from outside), or an exported
-   ``inserted_length`` input (``feeder_interface``).
-7. ``add_target_touches``: ``target_touches`` (TargetTouchTracker), when the atrium has rings.
-8. ``add_pin``: ``force_sensor_pin`` (``scenario.pin``) on the tip ball, exported output
+   the device's ``magnet_states`` input; ``tip_observer`` for the tip-frame mapping.
+5. ``add_insertion``: what drives the device's slide (its ``feeder_state`` input, when it has
+   one): the scenario's ramp (``feeder_command``), the stepper ``feeder`` (playing the ramp
+   itself, or commanded from outside), or an exported ``inserted_length`` input
+   (``feeder_interface``).
+6. ``add_target_touches``: ``target_touches`` (TargetTouchTracker), when the atrium has rings.
+7. ``add_pin``: ``force_sensor_pin`` (``scenario.pin``) on the tip ball, exported output
    ``pin_reading`` (3) [N].
-9. ``add_external_commands``: the ``add_systems`` hook (e.g. a simulated operator) and the
+8. ``add_external_commands``: the ``add_systems`` hook (e.g. a simulated operator) and the
    export of the external command inputs it leaves unconnected: ``<u>.joystick`` (3),
-   ``feeder.v_insert_cmd`` (1).
-10. ``add_visualization``: with a Meshcat, ``meshcat_visualizer`` (``scenario.visualization``)
-    on the chain model's SceneGraph (``add_geometry``), ``meshcat_overlays`` (targets, field at
-    the tip, the chain's ``tip_wall_force``), ``unit_markers``; the camera framed on the atrium
-    (``meshcat_view.frame_scene``).
+   ``feeder.v_insert_cmd`` (1) (the units' and the feeder's, or the device's own: the
+   catheter's ``hand.joystick`` and its hand's push).
+9. ``add_visualization``: with a Meshcat, the device's view (``DeviceModel.add_visualizer``:
+   the chain's ``meshcat_visualizer`` on its SceneGraph, the camera framed on the atrium), the
+   fixed magnets, ``unit_markers``, and ``meshcat_overlays`` (targets, field at the tip, the
+   device's ``tip_wall_force``) for a device that wants them.
 
-Exported ports (by name): inputs ``inserted_length`` (1, with ``insertion.external``),
-``<u>.joystick`` (3), ``feeder.v_insert_cmd`` (1) (external commands nobody drives); output
-``pin_reading`` (3, with a pin). ``chain_simulation.run_station`` is the one run loop
-(``scenario.simulator_config``).
+Exported ports (by name, the same for every device): inputs ``inserted_length`` (1, with
+``insertion.external``), ``<u>.joystick`` (3), ``feeder.v_insert_cmd`` (1) (external commands
+nobody drives); output ``pin_reading`` (3, with a pin). ``chain_simulation.run_station`` is the
+one run loop (``scenario.simulator_config``).
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -57,17 +58,16 @@ from pydrake.trajectories import PiecewisePolynomial
 from ballchain.drake_models.atrium import Atrium
 from ballchain.drake_models.arg_checks import require_type
 from ballchain.drake_models.errors import UserInputError, short_repr
-from ballchain.drake_models.field_sources import FieldSource, FieldSources, MagnetSource, UniformField, require_field_source
-from ballchain.drake_models.heart import HeartParams, LeftAtrium
-from ballchain.drake_models.params import BallChain, CylinderMagnet, Sleeve, SphereMagnet
-from ballchain.systems.chain_model import ChainModel, FieldCoupling, chain_geometry, subsystem_context
-from ballchain.systems.chain_plant import ChainPlantConfig, PlantChainModel, SheathConfig
+from ballchain.drake_models.field_sources import FieldSource, MagnetSource, require_field_source
+from ballchain.drake_models.params import CylinderMagnet
+from ballchain.systems.chain_model import ChainModel, FieldCoupling, subsystem_context
+from ballchain.systems.chain_plant import chain_for, chain_plant_config  # noqa: F401 (re-exported)
 from ballchain.systems.chain_scenario import ChainScenario
+from ballchain.systems.device_model import DeviceModel, device_model_class, engines
 from ballchain.systems.feeder import Feeder
 from ballchain.systems.meshcat_overlays import MeshcatOverlays
-from ballchain.systems.meshcat_view import frame_scene
-from ballchain.systems.quasi_static_engine import StaticsChainModel
 from ballchain.systems.rotating_magnet_unit import MagnetUnitConfig
+from ballchain.systems.station_models import apply_anatomy, atrium_for, field_source_for  # noqa: F401 (re-exported)
 from ballchain.systems.station_units import (
     TipObserver,
     UnitHandles,
@@ -83,8 +83,12 @@ if TYPE_CHECKING:
 
     from ballchain.systems.force_sensor_pin import ForceSensorPin
 
-# The chain model of each ``engine`` (the scenario's ``engine`` field).
-CHAIN_MODELS: dict[str, type[ChainModel]] = {"plant": PlantChainModel, "statics": StaticsChainModel}
+# The ball chain's model of each ``engine`` (a view of the registry, ``device_model.DEVICE_MODELS``).
+CHAIN_MODELS: dict[str, type[ChainModel]] = {engine: device_model_class("ball_chain", engine)
+                                             for engine in engines("ball_chain")}
+
+# The chain's configuration from a scenario (its home: ``chain_plant.chain_plant_config``).
+apply_chain_plant_config = chain_plant_config
 
 # The prebuilt field source's placeholder: "build it from the scenario".
 FROM_SCENARIO = object()
@@ -95,15 +99,16 @@ class Station:
     """The built station diagram and handles to its parts (``MakeStation``).
 
     Attributes:
-        diagram: the built diagram ("chain_in_heart").
-        chain: the chain model (the plant or the quasi-static engine, ``chain_model.ChainModel``).
+        diagram: the built diagram (the device model's ``diagram_name``: "chain_in_heart", ...).
+        chain: the device model (``device_model.DeviceModel``; for the ball chain the plant or
+            the quasi-static engine, ``chain_model.ChainModel``); also ``device``.
         heart: the atrium, or None in free space.
         scenario: the scenario it was built from.
         field_source: the fixed external field, or None.
         visualizer: the MeshcatVisualizer, with a Meshcat.
         build_time_s: wall time of the build [s].
-        units: {unit name: UnitHandles} (``station_units``).
-        feeder: the Feeder, with ``insertion.feeder``.
+        units: {unit name: UnitHandles} (``station_units``; none for a device not magnetic).
+        feeder: the Feeder, with ``insertion.feeder`` (on a device with a slide).
         tip_observer: the TipObserver, for the catheter-frame mapping.
         target_touches: the TargetTouchTracker, when the atrium has target rings.
         meshcat_overlays: the MeshcatOverlays, with a Meshcat.
@@ -116,7 +121,7 @@ class Station:
     """
 
     diagram: Diagram
-    chain: ChainModel
+    chain: DeviceModel
     heart: Atrium | None
     scenario: ChainScenario
     field_source: FieldSource | None
@@ -130,6 +135,11 @@ class Station:
     added: dict = field(default_factory=dict)
     pin: ForceSensorPin | None = None
 
+    @property
+    def device(self) -> DeviceModel:
+        """The device model (``chain``)."""
+        return self.chain
+
     # Readings of a context: each takes the diagram's root context (``RunOutcome.context``, a
     # Simulator's context) or the context of the system it reads (``chain_context`` for the chain).
     def chain_context(self, context):
@@ -137,11 +147,12 @@ class Station:
         return subsystem_context(self.chain.system, context)
 
     def ball_positions(self, context) -> np.ndarray:
-        """The ball centres (n, 3) [m], ball 1 (the feeder ball) first, the tip ball last."""
-        return self.chain.ball_positions(self.chain_context(context))
+        """The ball centres (n, 3) [m], ball 1 (the feeder ball) first, the tip ball last (the
+        device's ``body_positions``: for the catheter its rod's nodes, the tip sphere last)."""
+        return self.chain.body_positions(self.chain_context(context))
 
     def tip_position(self, context) -> np.ndarray:
-        """The tip ball's centre (3,) [m]."""
+        """The tip ball's (the tip body's) centre (3,) [m]."""
         return self.ball_positions(context)[-1]
 
     def tip_wall_force(self, context) -> np.ndarray:
@@ -168,19 +179,20 @@ class StationPorts:
     """What an ``add_systems`` hook of ``MakeStation`` may connect to (before ``Build``).
 
     Attributes:
-        chain: the chain model (its geometry: ``ball_body_indices``, ``p_WE``, ...).
-        body_poses: the chain's ``body_poses`` output port.
+        chain: the device model (its geometry: ``tip_body_index``, ``p_WE``, ...); also ``device``.
+        body_poses: the device's ``body_poses`` output port.
         joystick_inputs: {unit name: its mapper's ``joystick`` input (3)} for the units with
-            ``joystick_source: external``.
+            ``joystick_source: external``, and the device's own (the catheter's ``hand``).
         feeder_command_input: the feeder's ``v_insert_cmd`` input (1) [m/s] with
-            ``insertion.feeder_command: external``, else None.
+            ``insertion.feeder_command: external`` (or the device's own: the catheter hand's
+            push), else None.
         heart: the atrium (or None).
         targets: ``heart_targets(heart)`` (names, p_WT, n_W, target radius), or None.
         target_touches: the TargetTouchTracker, or None.
         units: {unit name: UnitHandles}.
     """
 
-    chain: ChainModel
+    chain: DeviceModel
     body_poses: OutputPort
     joystick_inputs: dict[str, InputPort]
     feeder_command_input: InputPort | None
@@ -188,6 +200,11 @@ class StationPorts:
     targets: tuple | None
     target_touches: TargetTouchTracker | None
     units: dict[str, UnitHandles]
+
+    @property
+    def device(self) -> DeviceModel:
+        """The device model (``chain``)."""
+        return self.chain
 
 
 @dataclass
@@ -226,77 +243,7 @@ class View:
     """What ``add_visualization`` returns."""
 
     visualizer: MeshcatVisualizer
-    overlays: MeshcatOverlays
-
-
-# ------------------------------------------------------------------------------------------------
-# Scenario -> models (no diagram yet).
-
-
-def atrium_for(scenario: ChainScenario) -> Atrium:
-    """The scenario's atrium: its anatomy file's (``anatomy``), the user's surface when
-    ``atrium_file`` is set, else procedural."""
-    if scenario.anatomy:
-        from ballchain.drake_models.anatomy import load_anatomy
-
-        return load_anatomy(scenario.anatomy).atrium()
-    if not scenario.atrium_file:
-        return LeftAtrium(HeartParams(scale=scenario.heart_scale, subdivisions=scenario.heart_subdivisions))
-    from ballchain.drake_models.atrium_mesh import UserAtrium, load_atrium_surface
-    from ballchain.drake_models.model_files import resolve_uri
-
-    path = scenario.atrium_file
-    path = resolve_uri(path) if path.startswith("package://") else Path(path)
-    try:
-        surface = load_atrium_surface(path, scenario.atrium_units)
-    except UserInputError as err:  # name the scenario field the user typed
-        raise UserInputError(f"scenario atrium_file: {err}") from None
-    return UserAtrium(surface, scenario.puncture, scenario.sheath_aim or None)
-
-
-def apply_anatomy(scenario: ChainScenario, anatomy, units=None) -> ChainScenario:
-    """The scenario on a loaded anatomy (``drake_models.anatomy.Anatomy``): ``anatomy`` names its
-    file, and the units (default: all), in order, stand at its magnets (``p_WM``).
-
-    Raises:
-        UserInputError: fewer magnets in the file than units to place (naming the file).
-    """
-    from dataclasses import replace
-
-    units = scenario.units if units is None else units
-    if len(anatomy.magnets) < len(units):
-        raise UserInputError(f"anatomy file {short_repr(str(anatomy.path))}: magnets gives {len(anatomy.magnets)} "
-                             f"unit position(s), the station has {len(units)} unit(s): give one per unit")
-    scenario.anatomy = str(anatomy.path)
-    fresh = type(units[0])() if units else None
-    for unit, p_WM in zip(units, anatomy.magnets):
-        placed = replace(unit, p_WM=[float(v) for v in p_WM], anchor=fresh.anchor, distance=fresh.distance,
-                         direction_W=list(fresh.direction_W))
-        scenario.units[next(k for k, u in enumerate(scenario.units) if u is unit)] = placed
-    return scenario.validate()
-
-
-def chain_for(scenario: ChainScenario) -> BallChain:
-    """The scenario's ball chain (``n_balls``, with the sleeve's bending forces or not)."""
-    return BallChain(n_balls=scenario.n_balls, sleeve=Sleeve() if scenario.sleeve else None)
-
-
-def field_source_for(scenario: ChainScenario, p_WP: np.ndarray) -> FieldSource | None:
-    """The scenario's fixed external field (a FieldSource or None); p_WP is the puncture [m]."""
-    sources = []
-    if np.any(np.asarray(scenario.uniform_field) != 0.0):
-        sources.append(UniformField(np.asarray(scenario.uniform_field, float)))
-    for m in scenario.magnets:
-        magnet = CylinderMagnet() if m.shape == "cylinder" else SphereMagnet()
-        if m.p_WM:
-            p_WM = np.asarray(m.p_WM, float)
-        else:
-            u = np.asarray(m.direction_W, float)
-            p_WM = p_WP + m.distance_from_puncture * u / np.linalg.norm(u)
-        sources.append(MagnetSource.pointing(magnet, p_WM, m.m_hat_W, m.model))
-    if not sources:
-        return None
-    return sources[0] if len(sources) == 1 else FieldSources(sources)
+    overlays: MeshcatOverlays | None
 
 
 # ------------------------------------------------------------------------------------------------
@@ -311,37 +258,8 @@ def apply_atrium(scenario: ChainScenario, heart: Atrium | None) -> Atrium | None
     return heart if heart is not None else atrium_for(scenario)
 
 
-def apply_chain_plant_config(scenario: ChainScenario, heart: Atrium | None) -> ChainPlantConfig:
-    """Step 2, the chain's configuration from the scenario.
-
-    The plant's step is ``scenario.effective_time_step`` (the time step's one home);
-    ``scenario.plant_config`` is Drake's MultibodyPlantConfig. Free space: the sheath exit is
-    placed so that ball 1 sits at the origin at s = 0 and the chain extends along +x (the
-    canonical statics frame).
-    """
-    chain = chain_for(scenario)
-    quasi = scenario.mode == "quasi-static"
-    d = chain.ball_diameter
-    return ChainPlantConfig(
-        chain=chain,
-        time_step=scenario.effective_time_step,
-        translational_damping=scenario.translational_damping if quasi else 0.0,
-        angular_damping=scenario.angular_damping if quasi else 0.0,
-        gravity=scenario.gravity,
-        heart=heart,
-        sheath=SheathConfig() if scenario.sheath else None,
-        p_WE=((chain.n_balls - 0.5) * d, 0.0, 0.0),
-        sheath_axis_W=(1.0, 0.0, 0.0),
-        initial_inserted_length=scenario.insertion.initial,
-        contact=scenario.contact,
-        feeder_gains=tuple(scenario.insertion.slide_gains),
-        wall_plane=tuple(scenario.wall_plane),
-        plant_config=scenario.plant_config,
-    )
-
-
 def add_field_sources(scenario: ChainScenario, heart: Atrium | None, field_source=FROM_SCENARIO) -> FieldSetup:
-    """Step 3, the fields: the fixed external field (the scenario's uniform field and magnets, or
+    """Step 2, the fields: the fixed external field (the scenario's uniform field and magnets, or
     a prebuilt FieldSource such as a stand's magnets) and the units' MagnetUnitConfigs, placed
     at their anchors (the puncture, the LA centre, the carinas).
 
@@ -362,46 +280,52 @@ def add_field_sources(scenario: ChainScenario, heart: Atrium | None, field_sourc
     return FieldSetup(source, unit_configs(scenario, anchors))
 
 
-def add_chain(builder: DiagramBuilder, scenario: ChainScenario, config: ChainPlantConfig,
-              fields: FieldSetup) -> ChainModel:
-    """Step 4, the chain model of ``scenario.engine`` (``CHAIN_MODELS``) with its field coupling.
+def add_device(builder: DiagramBuilder, scenario: ChainScenario, heart: Atrium | None, fields: FieldSetup,
+               params=None) -> DeviceModel:
+    """Step 3, the device model of the scenario's ``(device, engine)`` (the registry's) with its
+    field coupling, and its own ``params`` (the model's ``params_type``, or None: its defaults).
 
     Raises:
-        UserInputError: an insertion length outside what the sheath holds.
+        UserInputError: a pair the registry does not hold, params of another type, or what the
+            model refuses (e.g. an insertion outside the chain's sheath).
     """
-    s_max = chain_geometry(config).max_inserted_length()
-    ins = scenario.insertion
-    for what, s in (("initial", ins.initial), ("final", ins.final)):
-        if not 0.0 <= s <= s_max:
-            raise UserInputError(
-                f"insertion.{what} = {s * 1e3:.1f} mm is outside 0..{s_max * 1e3:.1f} mm for "
-                f"{config.chain.n_balls} balls (ball 1 must stay in the sheath)")
-    return CHAIN_MODELS[scenario.engine].add_to(builder, scenario, config, fields.coupling)
+    model = device_model_class(scenario.device, scenario.engine)
+    if params is not None:
+        if model.params_type is None:
+            raise UserInputError(f"MakeStation device_params: device {scenario.device!r} takes none, "
+                                 f"got {short_repr(params)}")
+        require_type(params, model.params_type, "MakeStation device_params",
+                     f"a {model.params_type.__name__} (device {scenario.device!r}) or None")
+    return model.add_to_station(builder, scenario, heart, fields.coupling, params)
 
 
-def add_units_step(builder: DiagramBuilder, scenario: ChainScenario, heart: Atrium | None, chain: ChainModel,
+def add_units_step(builder: DiagramBuilder, scenario: ChainScenario, heart: Atrium | None, chain: DeviceModel,
                    configs: list[MagnetUnitConfig]) -> UnitsStep:
-    """Step 5, the rotating actuation units into the chain's ``magnet_states`` input
+    """Step 4, the rotating actuation units into the device's ``magnet_states`` input
     (``station_units.add_units``), with ``tip_observer`` when a unit uses the tip-frame mapping.
 
-    The neutral field is defined where the free chain starts: the sheath exit in the heart,
-    ball 1's initial centre in free space (the canonical statics origin).
+    The neutral field is defined where the free device starts (``DeviceModel.start_point``: for
+    the chain the sheath exit in the heart, ball 1's initial centre in free space).
+
+    Raises:
+        UserInputError: units for a device without a ``magnet_states`` input.
     """
     if not configs:
         return UnitsStep({}, None, None)
-    p_W_chain = heart.p_HE if heart is not None else chain.X_WF.multiply(
-        np.array([scenario.insertion.initial, 0.0, 0.0]))
+    if chain.get_magnet_states_input_port() is None:
+        raise UserInputError(f"scenario units: device {chain.device!r} is not magnetic: it takes no units (units: [])")
     tip_observer = None
     if any(u.teleop_frame == "tip" for u in scenario.units):
-        tip_observer = builder.AddSystem(TipObserver(chain.ball_body_indices[-1], chain.ball_body_indices[-2]))
+        tip_observer = builder.AddSystem(TipObserver(chain.tip_body_index, chain.tip_base_body_index))
         builder.Connect(chain.get_body_poses_output_port(), tip_observer.get_body_poses_input_port())
-    units, magnet_states = add_units(builder, scenario, configs, chain.get_magnet_states_input_port(), p_W_chain,
-                                     chain.sheath_axis_W, tip_observer)
+    units, magnet_states = add_units(builder, scenario, configs, chain.get_magnet_states_input_port(),
+                                     chain.start_point, chain.sheath_axis_W, tip_observer)
     return UnitsStep(units, tip_observer, magnet_states)
 
 
-def add_insertion(builder: DiagramBuilder, scenario: ChainScenario, chain: ChainModel) -> Feeder | None:
-    """Step 6, what drives ball 1's slide (the chain's feeder desired state (s, s')).
+def add_insertion(builder: DiagramBuilder, scenario: ChainScenario, chain: DeviceModel) -> Feeder | None:
+    """Step 5, what drives the device's slide (its feeder desired state (s, s'): the chain's ball 1;
+    nothing for a device without one).
 
     ``insertion.feeder``: the stepper ``feeder`` (``station_units.add_feeder``, returned);
     ``insertion.external``: ``feeder_interface`` and the exported input ``inserted_length`` (1)
@@ -413,8 +337,10 @@ def add_insertion(builder: DiagramBuilder, scenario: ChainScenario, chain: Chain
     ins, desired = scenario.insertion, chain.get_feeder_state_input_port()
     if ins.external and ins.feeder:
         raise UserInputError("insertion: choose external (exported port) or feeder (the Feeder system), not both")
+    if desired is None:
+        return None
     if ins.feeder:
-        return add_feeder(builder, chain.config.chain, ins, desired, reader_period=chain.move_period)
+        return add_feeder(builder, chain.fed_chain(), ins, desired, reader_period=chain.move_period)
     if ins.external:
         # A feeder's inserted length s (systems/feeder.py's ``inserted_length`` uses the same
         # definition) becomes the slide's desired state (s, 0): the implicit PD tracks it.
@@ -438,27 +364,29 @@ def add_insertion(builder: DiagramBuilder, scenario: ChainScenario, chain: Chain
 
 
 def add_target_touches(builder: DiagramBuilder, scenario: ChainScenario, heart: Atrium | None,
-                       chain: ChainModel) -> TargetTouches | None:
-    """Step 7, ``target_touches``: which ablation targets the tip ball has touched (with or
-    without Meshcat: the run's metrics read it), when the atrium has target rings."""
+                       chain: DeviceModel) -> TargetTouches | None:
+    """Step 6, ``target_touches``: which ablation targets the tip (the device's electrode) has
+    touched (with or without Meshcat: the run's metrics read it), when the atrium has target
+    rings; on a moving anatomy the device's ``anatomy_offsets`` place them."""
     targets = heart_targets(heart) if heart is not None else None
     if targets is None or not targets[0]:
         return None
     names, p_WT, n_W, target_radius = targets
-    # A chain that moves only at its updates (the engine's) shows nothing new in between.
+    # A device that moves only at its updates (an engine's) shows nothing new in between.
     period = max(scenario.check_period, chain.move_period)
-    moving = scenario.wall_motion.law() is not None
+    offsets = chain.get_anatomy_offsets_output_port()  # engine: statics with wall_motion
+    electrode = chain.electrode
     tracker = builder.AddSystem(TargetTouchTracker(
-        chain.ball_body_indices[-1], names, p_WT, n_W, target_radius,
-        ball_radius=0.5 * chain.config.chain.ball_diameter, period=period, moving_wall=moving))
+        electrode.body_index, names, p_WT, n_W, target_radius,
+        ball_radius=electrode.radius, period=period, moving_wall=offsets is not None))
     builder.Connect(chain.get_body_poses_output_port(), tracker.get_body_poses_input_port())
-    if moving:  # engine: statics (check_wall_motion): the anatomy its solves placed
-        builder.Connect(chain.engine_system.get_anatomy_offsets_output_port(), tracker.get_anatomy_offsets_input_port())
+    if offsets is not None:  # the anatomy the device's solves placed
+        builder.Connect(offsets, tracker.get_anatomy_offsets_input_port())
     return TargetTouches(targets, tracker)
 
 
-def add_pin(builder: DiagramBuilder, scenario: ChainScenario, chain: ChainModel) -> ForceSensorPin | None:
-    """Step 8, ``force_sensor_pin`` (``scenario.pin``, when its point is set): a stiff explicit
+def add_pin(builder: DiagramBuilder, scenario: ChainScenario, chain: DeviceModel) -> ForceSensorPin | None:
+    """Step 7, ``force_sensor_pin`` (``scenario.pin``, when its point is set): a stiff explicit
     spring from the pin point to the tip ball's centre (``ChainModel.add_pin``); its reading
     (the force the tip presses on the pin) exported as ``pin_reading`` (3) [N]."""
     if not scenario.pin.point:
@@ -469,7 +397,7 @@ def add_pin(builder: DiagramBuilder, scenario: ChainScenario, chain: ChainModel)
 
 
 def add_external_commands(builder: DiagramBuilder, ports: StationPorts, add_systems=None) -> dict:
-    """Step 9, the external commands (a unit's ``joystick_source: external``,
+    """Step 8, the external commands (a unit's ``joystick_source: external``,
     ``insertion.feeder_command: external``, in ``ports``): the ``add_systems`` hook adds what
     drives them (e.g. a simulated operator) and its dict is returned; whatever it leaves
     unconnected is exported as a diagram input (``<u>.joystick`` (3), ``feeder.v_insert_cmd`` (1))."""
@@ -483,14 +411,17 @@ def add_external_commands(builder: DiagramBuilder, ports: StationPorts, add_syst
     return added
 
 
-def station_ports(scenario: ChainScenario, heart: Atrium | None, chain: ChainModel, units: UnitsStep,
+def station_ports(scenario: ChainScenario, heart: Atrium | None, chain: DeviceModel, units: UnitsStep,
                   feeder: Feeder | None, touches: TargetTouches | None) -> StationPorts:
     """What the ``add_systems`` hook may connect to: the external command inputs (a unit's
-    ``joystick_source: external``, ``insertion.feeder_command: external``) and the chain."""
+    ``joystick_source: external``, ``insertion.feeder_command: external``, the device's own:
+    ``DeviceModel.operator_inputs``) and the device."""
+    own = chain.operator_inputs()
     joystick_inputs = {u.name: units.units[u.name].joystick_input for u in scenario.units
                        if u.joystick_source == "external"}
-    feeder_input = None
-    if scenario.insertion.feeder and scenario.insertion.feeder_command == "external":
+    joystick_inputs.update(own.joystick_inputs)
+    feeder_input = own.feeder_command_input
+    if feeder is not None and scenario.insertion.feeder and scenario.insertion.feeder_command == "external":
         feeder_input = feeder.GetInputPort("v_insert_cmd")
     return StationPorts(chain, chain.get_body_poses_output_port(), joystick_inputs, feeder_input, heart,
                         touches.targets if touches is not None else None,
@@ -514,42 +445,35 @@ def _draw_magnets(meshcat, source) -> None:
         meshcat.SetTransform(path, RigidTransform(RotationMatrix(s.R_WM), s.p_WM))
 
 
-def add_visualization(builder: DiagramBuilder, scenario: ChainScenario, meshcat, chain: ChainModel,
+def add_visualization(builder: DiagramBuilder, scenario: ChainScenario, meshcat, chain: DeviceModel,
                       heart: Atrium | None, fields: FieldSetup, units: UnitsStep,
                       touches: TargetTouches | None) -> View | None:
-    """Step 10, the Meshcat view (with a Meshcat): ``meshcat_visualizer`` from
-    ``scenario.visualization`` (a VisualizationConfig: publish period, illustration colour,
-    ...) on the chain model's SceneGraph (``ChainModel.add_geometry``), the fixed magnets,
-    ``unit_markers``, ``meshcat_overlays`` (targets, the field at the tip, the chain's
-    ``tip_wall_force``), and the camera framed on the atrium."""
+    """Step 9, the Meshcat view (with a Meshcat): the device's (``DeviceModel.add_visualizer``:
+    the chain's ``meshcat_visualizer`` from ``scenario.visualization`` on its SceneGraph, the
+    camera framed on the atrium), the fixed magnets, ``unit_markers``, and, for a device with
+    ``station_overlays``, ``meshcat_overlays`` (targets, the field at the tip, the device's
+    ``tip_wall_force``)."""
     if meshcat is None:
         return None
-    from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams
-
     configs = fields.unit_configs
-    vis = scenario.visualization
-    period = vis.publish_period
-    params = MeshcatVisualizerParams(publish_period=period, default_color=vis.default_illustration_color,
-                                     delete_on_initialization_event=vis.delete_on_initialization_event,
-                                     enable_alpha_slider=vis.enable_alpha_sliders)
-    visualizer = MeshcatVisualizer.AddToBuilder(builder, chain.add_geometry(builder), meshcat, params)
-    visualizer.set_name("meshcat_visualizer")
+    period = scenario.visualization.publish_period
+    visualizer = chain.add_visualizer(builder, meshcat, scenario, heart,
+                                      touches.targets if touches is not None else None)
     _draw_magnets(meshcat, fields.source)
-    # The camera starts on the atrium (or the free chain's reach), also in the replays.
-    frame_scene(meshcat, heart, chain.config.chain.length, chain.p_WE)
+    if not chain.station_overlays:
+        return View(visualizer, None)
     if configs:
         markers = builder.AddSystem(UnitMeshcatMarkers(meshcat, configs, period))
         for c in configs:
             builder.Connect(units.units[c.name].magnet.GetOutputPort("X_WM"), markers.GetInputPort(f"X_WM_{c.name}"))
     coupling = fields.coupling
     overlays = builder.AddSystem(MeshcatOverlays(
-        meshcat, chain.ball_body_indices[-1], period, targets=touches.targets if touches is not None else None,
+        meshcat, chain.tip_body_index, period, targets=touches.targets if touches is not None else None,
         field_source=coupling.field_source, port_magnets=coupling.port_magnets, model=coupling.model,
         moving_wall=touches is not None and touches.tracker.get_anatomy_offsets_input_port() is not None))
     builder.Connect(chain.get_tip_wall_force_output_port(), overlays.get_tip_wall_force_input_port())
     if overlays.get_anatomy_offsets_input_port() is not None:  # the statics engine's (check_wall_motion)
-        builder.Connect(chain.engine_system.get_anatomy_offsets_output_port(),
-                        overlays.get_anatomy_offsets_input_port())
+        builder.Connect(chain.get_anatomy_offsets_output_port(), overlays.get_anatomy_offsets_input_port())
     builder.Connect(chain.get_body_poses_output_port(), overlays.get_body_poses_input_port())
     if touches is not None:
         builder.Connect(touches.tracker.get_touched_output_port(), overlays.get_touched_input_port())
@@ -559,7 +483,7 @@ def add_visualization(builder: DiagramBuilder, scenario: ChainScenario, meshcat,
 
 
 def MakeStation(scenario: ChainScenario, meshcat=None, *, heart: Atrium | None = None, add_systems=None,
-                field_source=FROM_SCENARIO) -> Station:
+                field_source=FROM_SCENARIO, device_params=None) -> Station:
     """Build the station diagram of a scenario (see the module docstring for the steps and ports).
 
     Args:
@@ -574,10 +498,11 @@ def MakeStation(scenario: ChainScenario, meshcat=None, *, heart: Atrium | None =
         field_source: a prebuilt external FieldSource (or None: no fixed field) instead of the
             scenario's ``uniform_field`` and ``magnets`` (which must then be empty), for fields a
             scenario cannot express (e.g. the force stand's magnets, ``experiments.forces``).
+        device_params: the device's own parameters (its model's ``params_type``, e.g.
+            ``catheter_station.CatheterParams``), or None: its defaults.
 
     Returns:
-        a Station; for ``device: steerable_catheter`` the manual arm's
-        ``catheter_station.CatheterStation`` instead.
+        a Station, for every device.
 
     Raises:
         UserInputError: a bad scenario (naming the field).
@@ -595,19 +520,12 @@ def MakeStation(scenario: ChainScenario, meshcat=None, *, heart: Atrium | None =
         require_type(meshcat, Meshcat, "MakeStation meshcat", "a pydrake Meshcat or None")
     t0 = time.perf_counter()
     scenario.validate()
-    if scenario.device == "steerable_catheter":  # the paper's manual arm: its own diagram
-        if field_source is not FROM_SCENARIO:
-            raise UserInputError("MakeStation: device: steerable_catheter takes no field_source (it is not magnetic)")
-        from ballchain.systems.catheter_station import make_catheter_station
-
-        return make_catheter_station(scenario, heart=heart, add_systems=add_systems, meshcat=meshcat)
     heart = apply_atrium(scenario, heart)
     if heart is not None:
         heart.wall_distance  # the watchdog's wall distance (a k-d tree), built now: not in the timed run
-    config = apply_chain_plant_config(scenario, heart)
     fields = add_field_sources(scenario, heart, field_source)
     builder = DiagramBuilder()
-    chain = add_chain(builder, scenario, config, fields)
+    chain = add_device(builder, scenario, heart, fields, device_params)
     units = add_units_step(builder, scenario, heart, chain, fields.unit_configs)
     feeder = add_insertion(builder, scenario, chain)
     touches = add_target_touches(builder, scenario, heart, chain)
@@ -615,7 +533,7 @@ def MakeStation(scenario: ChainScenario, meshcat=None, *, heart: Atrium | None =
     added = add_external_commands(builder, station_ports(scenario, heart, chain, units, feeder, touches), add_systems)
     view = add_visualization(builder, scenario, meshcat, chain, heart, fields, units, touches)
     diagram = builder.Build()
-    diagram.set_name("chain_in_heart")
+    diagram.set_name(chain.diagram_name)
     return Station(diagram, chain, heart, scenario, fields.source, view.visualizer if view is not None else None,
                    time.perf_counter() - t0, units=units.units, feeder=feeder, tip_observer=units.tip_observer,
                    target_touches=touches.tracker if touches is not None else None,

@@ -154,29 +154,36 @@ def test_manual_task_smoke(task):
 
 
 def test_make_station_builds_the_catheter_with_its_meshcat_view(atrium):
-    """MakeStation with device: steerable_catheter: the catheter's diagram with the hand's inputs
-    exported (the knob turned by the stick bends the tip off the sheath axis), and the atrium,
-    the targets and the rod's nodes in a (localhost) Meshcat."""
+    """MakeStation with device: steerable_catheter: a Station like the chain's, with the hand's
+    inputs exported under the station's names (``hand.joystick``, ``feeder.v_insert_cmd``; the
+    knob turned by the stick bends the tip off the sheath axis), and the atrium, the targets and
+    the rod's nodes in a (localhost) Meshcat."""
     from pydrake.geometry import Meshcat, MeshcatParams
 
-    from ballchain.systems.station import MakeStation
+    from ballchain.systems.catheter_model import CatheterModel
+    from ballchain.systems.station import MakeStation, Station
 
     heart, _ = atrium
     meshcat = Meshcat(MeshcatParams(host="localhost"))
     station = MakeStation(mc.scenario_for(), meshcat=meshcat, heart=heart)
+    assert isinstance(station, Station) and isinstance(station.device, CatheterModel)
+    assert station.chain is station.device and station.target_touches is not None
     diagram = station.diagram
     sim = Simulator(diagram)
     context = sim.get_mutable_context()
     diagram.GetInputPort("hand.joystick").FixValue(context, [0.0, 1.0, 0.0])
-    diagram.GetInputPort("hand.v_insert_cmd").FixValue(context, [0.0])
+    diagram.GetInputPort("feeder.v_insert_cmd").FixValue(context, [0.0])
     sim.AdvanceTo(0.5)
     diagram.ForcedPublish(context)
-    assert station.hand.GetOutputPort("handle").Eval(station.hand.GetMyContextFromRoot(context))[2] > 0.3
-    tip = station.catheter.GetOutputPort("tip_position").Eval(station.catheter.GetMyContextFromRoot(context))
+    hand, catheter = station.device.hand, station.device.system
+    assert hand.GetOutputPort("handle").Eval(hand.GetMyContextFromRoot(context))[2] > 0.3
+    tip = catheter.GetOutputPort("tip_position").Eval(catheter.GetMyContextFromRoot(context))
     rel = tip - heart.p_HE
     assert np.linalg.norm(rel - (rel @ heart.sheath_axis_H) * heart.sheath_axis_H) > 1e-3
+    np.testing.assert_array_equal(station.tip_position(context), station.ball_positions(context)[-1])
+    assert station.tip_wall_force(context).tolist() == [0.0, 0.0, 0.0]  # the rod statics report none
     for path in ("catheter_view/atrium", "catheter_view/targets/left_1",
-                 f"catheter_view/rod/{station.catheter.n_bodies - 1}"):
+                 f"catheter_view/rod/{catheter.n_bodies - 1}"):
         assert meshcat.HasPath(path)
 
 

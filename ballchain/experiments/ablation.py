@@ -36,7 +36,7 @@ PAPER = {
     "catheter": {"power_W": 30.0, "duration_s": 90.0, "width_mm": 5.4, "depth_mm": 3.3},
 }
 CRITERION = {"min_depth_mm": 2.9, "width_range_mm": (5.2, 6.0)}
-DEVICES = ("ball_chain", "catheter")
+ELECTRODES = ("ball_chain", "catheter")  # the electrodes compared (the JSON's "device" values)
 FULL_DAMAGE_OMEGA = 4.6  # 99 % of the protein denatured (1 - exp(-4.6)): closer to "full denaturation"
 
 
@@ -52,7 +52,7 @@ def electrode_for(device: str, indentation_mm: float) -> fem.Electrode:
         return fem.ball_chain_tip(indentation=indentation_mm * 1e-3)
     if device == "catheter":
         return fem.catheter_8fr(indentation=indentation_mm * 1e-3)
-    raise UserInputError(f"device must be one of {DEVICES}, got {device!r}")
+    raise UserInputError(f"device must be one of {ELECTRODES}, got {device!r}")
 
 
 @dataclass
@@ -289,7 +289,7 @@ def sensitivity(*, cases: dict = SENSITIVITIES, h_mm: float = 0.15, dt_max_s: fl
         peak_electrode_C, energy_J}.
     """
     rows = []
-    jobs = [(case, device) for case in cases for device in DEVICES]
+    jobs = [(case, device) for case in cases for device in ELECTRODES]
     for case, device in tqdm(jobs, desc="ablation sensitivity", unit="run", disable=not progress):
         kw = dict(cases[case])
         d = run_device(device, power_W=PAPER[device]["power_W"], duration_s=PAPER[device]["duration_s"],

@@ -142,7 +142,7 @@ def record_path(scenario: str, path_s: float, rate_hz: float):
 
     sc = load_scenario(scenario, f"{{engine: statics, mode: quasi-static, insertion: {PATH_INSERTION}}}")
     cd = MakeStation(sc)
-    engine = cd.chain.engine_system
+    engine = cd.chain.system  # the QuasiStaticEngine (engine: statics)
     runner = StationRunner(cd)
     points, skipped = [], 0
     for i in range(int(round(path_s * rate_hz)) + 1):

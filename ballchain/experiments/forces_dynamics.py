@@ -249,7 +249,7 @@ class PinSteadyState:
 
     def __init__(self, pd: Station, chain: BallChain, config: PinSimulationConfig):
         self._pd, self._chain, self._config = pd, chain, config
-        self._plant = pd.chain.plant
+        self._plant = pd.chain.system  # the MultibodyPlant (the pin needs forces: engine plant)
         self._n_window = int(round(config.window / config.check_period))
         self._t = 0.0  # the next sample's time: the same sums of check_period as the samples
         self._sampled = False  # a sample was taken at this call and awaits the steady-state test
@@ -357,7 +357,7 @@ def simulate_pin_force(chain: BallChain, external, pin_point, axis, start=None,
     axis = axis / np.linalg.norm(axis)
     pd = build_pin_diagram(chain, external, pin_point, config)
     root = pd.diagram.CreateDefaultContext()
-    plant_context = pd.chain.plant.GetMyContextFromRoot(root)
+    plant_context = pd.chain.system.GetMyContextFromRoot(root)
     if start is None:
         positions, dipoles = straight_chain(chain)
     elif isinstance(start, StaticsResult):

@@ -21,8 +21,18 @@ from dataclasses import replace
 
 import numpy as np
 
+from pydrake.systems.primitives import LogVectorOutput
+
+from ballchain.drake_models.arg_checks import require_type
+from ballchain.drake_models.atrium import Atrium
 from ballchain.drake_models.errors import UserInputError
+from ballchain.drake_models.safe_files import check_output_file
+from ballchain.drake_models.steerable_catheter import SteerableCatheter
 from ballchain.experiments import teleop
+from ballchain.systems.catheter_station import CatheterParams, HandParams
+from ballchain.systems.chain_simulation import after_updates, replay_meshcat, run_station
+from ballchain.systems.simulated_operator import OperatorParams, SimulatedOperator
+from ballchain.systems.station import MakeStation, atrium_for
 
 STRATEGIES = ("switch", "keep")
 
@@ -71,9 +81,9 @@ REPLAY_BODY_FRAME_BYTES = 200.0
 REPLAY_BASE_BYTES = 2.5e6
 
 
-def _run_settings(used, seed: int, hand, scenario, params, limit: float, hand_state, cat_state, failure,
-                  path: dict) -> dict:
-    """A manual run's settings: the catheter's, the hand's and the operator's, and what the run did."""
+def _run_settings(used, seed: int, hand, scenario, params, limit: float, device: dict, path: dict) -> dict:
+    """A manual run's settings: the catheter's, the hand's and the operator's, and what the run did
+    (``device``: the catheter model's metrics)."""
     return {"device": "steerable_catheter", "seed": seed, "strategy": hand.strategy,
             "braid_wires": used.braid_wires,
             "shaft_GJ_over_plain": round(used.shaft_GJ / used.plain_GJ, 3), "torsion_lead": torsion_lead_deg(used),
@@ -81,32 +91,22 @@ def _run_settings(used, seed: int, hand, scenario, params, limit: float, hand_st
             "reaction_s": params.period * params.reaction_steps, "timeout_s": params.timeout,
             "axes": list(params.axes), "time_limit_s": limit, "push_speed_m_s": hand.push_speed,
             "twist_rate_deg_s": round(float(np.degrees(hand.twist_rate)), 3), "knob_rate_per_s": hand.knob_rate,
-            "switches": int(hand_state[6]), "slips": int(cat_state.slips), "rod_warnings": failure,
+            "switches": device["switches"], "slips": device["slips"], "rod_warnings": device["rod_warnings"],
             "path": path}
 
 
 def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy: str = "switch",
         time_limit: float | None = None, heart=None, hand=None, catheter=None, html=None) -> teleop.TeleopResult:
-    """The operator does ``task`` with the manual catheter (default: ``comparison_catheter()``);
-    with ``html`` (a path) a Meshcat replay of the rod in the atrium is written there (frames every
-    ``teleop.REPLAY_PERIOD``).
+    """The operator does ``task`` with the manual catheter (default: ``comparison_catheter()``)
+    in the station ``MakeStation`` builds for ``device: steerable_catheter``, run by
+    ``run_station``; with ``html`` (a path) a Meshcat replay of the rod in the atrium is written
+    there (frames every ``teleop.REPLAY_PERIOD``).
 
     Returns:
         a ``teleop.TeleopResult`` (mapping "manual"); its settings add the catheter's and the
-        hand's, and ``path`` {t, tip (k, 3) [m], twist (k,) handle twist [rad], exit_twist (k,),
-        knob (k,), push (k,) [m]} sampled at the operator's looks, and ``switches``, ``slips``.
+        hand's, and ``path`` {t, tip (k, 3) [m], twist (k,) handle twist [rad], exit_twist (k,)}
+        sampled at the operator's looks, and ``switches``, ``slips`` (the device's metrics).
     """
-    from pydrake.systems.analysis import Simulator
-    from pydrake.systems.primitives import LogVectorOutput
-
-    from ballchain.systems.catheter_station import HandParams
-    from ballchain.systems.simulated_operator import OperatorParams, SimulatedOperator
-    from ballchain.systems.station import atrium_for
-
-    from ballchain.drake_models.arg_checks import require_type
-    from ballchain.drake_models.atrium import Atrium
-    from ballchain.drake_models.steerable_catheter import SteerableCatheter
-
     check_inputs(task, targets, time_limit, seed, strategy)
     for value, types, name, what in ((heart, Atrium, "heart", "an atrium (LeftAtrium) or None"),
                                      (hand, HandParams, "hand", "a HandParams or None"),
@@ -114,8 +114,6 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
         if value is not None:
             require_type(value, types, f"manual_catheter.run {name}", what)
     if html is not None:  # before the run: an unwritable replay path must not cost the results
-        from ballchain.drake_models.safe_files import check_output_file
-
         check_output_file(html, "--html")
     scenario = scenario_for()
     heart = heart or atrium_for(scenario)
@@ -129,63 +127,41 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
     def add_operator(builder, ports):
         names, p_WT, n_W, radius = ports.targets
         chosen = [i for i, n in enumerate(names) if n.startswith(f"{task}_")][:n_targets]
-        cat = ports.catheter
-        seen = replace(params, ball_radius=cat.catheter.radius, target_radius=radius, p_WE=tuple(cat.rod.p_E),
-                       initial_length=cat.initial_length, min_length=cat.initial_length, max_length=cat.rod.max_length,
-                       keep_out=teleop.vein_openings(heart))
-        op = builder.AddSystem(SimulatedOperator(cat.n_bodies, cat.n_bodies - 1, [names[i] for i in chosen],
-                                                 p_WT[chosen], n_W[chosen], seen))
+        device = ports.device
+        seen = replace(params, ball_radius=device.tip_radius, target_radius=radius, p_WE=tuple(device.p_WE),
+                       initial_length=device.initial_inserted_length, min_length=device.initial_inserted_length,
+                       max_length=device.max_inserted_length(), keep_out=teleop.vein_openings(heart))
+        op = builder.AddSystem(SimulatedOperator(device.tip_body_index, device.tip_base_body_index,
+                                                 [names[i] for i in chosen], p_WT[chosen], n_W[chosen], seen))
         builder.Connect(ports.body_poses, op.get_body_poses_input_port())
-        builder.Connect(op.GetOutputPort("joystick"), ports.joystick_input)
+        (joystick,) = ports.joystick_inputs.values()
+        builder.Connect(op.GetOutputPort("joystick"), joystick)
         builder.Connect(op.GetOutputPort("v_insert_cmd"), ports.feeder_command_input)
-        handles["tip"] = LogVectorOutput(cat.GetOutputPort("tip_position"), builder, params.period)
-        handles["windup"] = LogVectorOutput(cat.GetOutputPort("windup"), builder, params.period)
+        handles["tip"] = LogVectorOutput(device.system.GetOutputPort("tip_position"), builder, params.period)
+        handles["windup"] = LogVectorOutput(device.system.GetOutputPort("windup"), builder, params.period)
         handles["operator"] = op
         return {"operator": op}
 
     limit = time_limit if time_limit is not None else n_targets * params.timeout + params.start_time + 5.0
     meshcat = _replay_meshcat(html, scenario, limit, used)
     built = time.perf_counter()
-    from ballchain.systems.catheter_station import make_catheter_station
-
-    # MakeStation's catheter diagram, with this catheter and hand.
-    station = make_catheter_station(scenario, heart=heart, add_systems=add_operator,
-                                    catheter=used, hand=hand, meshcat=meshcat)
+    station = MakeStation(scenario, meshcat=meshcat, heart=heart, add_systems=add_operator,
+                          device_params=CatheterParams(catheter=used, hand=hand))
     built = time.perf_counter() - built
     op = handles["operator"]
-    simulator = Simulator(station.diagram)
-    root = simulator.get_mutable_context()
-
-    def monitor(context):
-        from pydrake.systems.framework import EventStatus
-
-        if op.is_done(op.GetMyContextFromRoot(context)):
-            return EventStatus.ReachedTermination(op, "every target touched or given up")
-        return EventStatus.DidNothing()
-
-    simulator.set_monitor(monitor)
-    wall, cpu = time.perf_counter(), time.process_time()
-    if meshcat is not None:
-        meshcat.StartRecording(1.0 / scenario.visualization.publish_period, False)
-    simulator.Initialize()
-    simulator.AdvanceTo(limit)
-    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
-    if meshcat is not None:
-        _write_replay(meshcat, html)
-    sim_time = root.get_time()
-    cat_state = station.catheter.state(station.catheter.GetMyContextFromRoot(root))
-    failure = "; ".join(sorted(set(cat_state.failures))[:3]) or None
+    # The run ends when the operator has touched or given up every target.
+    outcome = run_station(station, duration=limit, html=html, meshcat=meshcat,
+                          stop=after_updates(lambda c: op.is_done(op.GetMyContextFromRoot(c)), op.params.period))
+    root = outcome.context
     rows = op.rows(op.GetMyContextFromRoot(root))
-    summary = teleop.summarize(rows, sim_time, wall, None)
+    summary = teleop.summarize(rows, outcome.sim_time, outcome.wall_time, outcome.failure)
     summary.build_time_s = round(built, 2)
-    summary.realtime_factor_cpu = round(sim_time / cpu, 4) if cpu > 0 else None
+    summary.realtime_factor_cpu = round(outcome.sim_time / outcome.cpu_time, 4) if outcome.cpu_time > 0 else None
     tip_log = handles["tip"].FindLog(root)
     wind_log = handles["windup"].FindLog(root)
-    hand_state = station.hand.GetOutputPort("state").Eval(station.hand.GetMyContextFromRoot(root))
     path = {"t": tip_log.sample_times().tolist(), "tip": tip_log.data().T.tolist(),
             "twist": wind_log.data()[0].tolist(), "exit_twist": wind_log.data()[1].tolist()}
-    settings = _run_settings(used, int(seed), hand, scenario, params, limit,
-                             hand_state, cat_state, failure, path)
+    settings = _run_settings(used, int(seed), hand, scenario, params, limit, station.device.metrics(root), path)
     return teleop.TeleopResult(task=task, mapping="manual", rows=rows, summary=summary, paper=teleop.PAPER[task],
                                settings=settings, html=None if html is None else str(html))
 
@@ -195,23 +171,11 @@ def _replay_meshcat(html, scenario, duration: float, catheter):
     the disk is checked; the scenario's publish period becomes the replay's frame period."""
     if html is None:
         return None
-    from ballchain.drake_models.safe_files import check_output_file
-    from ballchain.systems.chain_simulation import replay_meshcat
-
     scenario.visualization.publish_period = teleop.REPLAY_PERIOD
     nodes = int(round(catheter.model_length / catheter.segment_length)) + 1
     check_output_file(html, "--html", expected_bytes=REPLAY_BASE_BYTES + duration / teleop.REPLAY_PERIOD * nodes
                       * REPLAY_BODY_FRAME_BYTES)
     return replay_meshcat()
-
-
-def _write_replay(meshcat, html) -> None:
-    """The recording as a self-contained page at ``html``, written atomically."""
-    from ballchain.drake_models.safe_files import atomic_write_text
-
-    meshcat.StopRecording()
-    meshcat.PublishRecording()
-    atomic_write_text(html, meshcat.StaticHtml())
 
 
 def reach_map(task: str = "right", n_twist: int = 12, n_knob: int = 5, step: float = 5e-3, heart=None,
@@ -354,7 +318,7 @@ def _search_target(rod, p_WT, n_W, radius: float, x0: np.ndarray, q0, max_solves
 
 
 # ------------------------------------------------------------------------------ the comparison
-DEVICES = ("robotic", "manual")
+ARMS = ("robotic", "manual")  # the arms of the comparison (the JSON keys "robotic", "manual")
 PAPER_COMPARISON = {  # Sec. V-C, after learning: total times [s], the hardest manual transition
     "left": {"robotic_s": 40.0, "manual_s": 40.0, "hardest_manual": ("left_13", "left_14", 5.49)},
     "right": {"robotic_s": 26.0, "manual_s": 33.0, "hardest_manual": None},
@@ -468,7 +432,7 @@ def compare(tasks=teleop.TASKS, seeds=(0, 1, 2), targets: int | None = None, hea
     table, trans, pairs, windups, runs = [], {}, {}, [], []
     for task in tasks:
         trans[task] = {}
-        for device in DEVICES:
+        for device in ARMS:
             results = [run_device(device, task, s, targets, heart, catheter) for s in seeds]
             per = [transitions(r) for r in results]
             pairs[task] = [p["pair"] for p in per[0]]
@@ -513,12 +477,12 @@ def transition_figure(comparison: dict, path) -> None:
 
     tasks = list(comparison["transitions"])
     fig, axes = plt.subplots(len(tasks), 1, figsize=(10, 1.6 * len(tasks) + 0.6), squeeze=False)
-    vmax = max([v for t in tasks for d in DEVICES for v in comparison["transitions"][t][d] if v is not None] or [1.0])
+    vmax = max([v for t in tasks for d in ARMS for v in comparison["transitions"][t][d] if v is not None] or [1.0])
     for ax, task in zip(axes[:, 0], tasks):
-        grid = np.array([[np.nan if v is None else v for v in comparison["transitions"][task][d]] for d in DEVICES])
+        grid = np.array([[np.nan if v is None else v for v in comparison["transitions"][task][d]] for d in ARMS])
         cmap = matplotlib.colormaps["viridis"].with_extremes(bad="0.8")
         image = ax.imshow(np.ma.masked_invalid(grid), aspect="auto", cmap=cmap, vmin=0.0, vmax=vmax)
-        ax.set_yticks(range(len(DEVICES)), DEVICES)
+        ax.set_yticks(range(len(ARMS)), ARMS)
         ax.set_xticks(range(grid.shape[1]), comparison["pairs"][task], rotation=90, fontsize=7)
         ax.set_title(f"Task {'I' if task == 'left' else 'II'} ({task} ring): median time per transition [s]",
                      fontsize=9)

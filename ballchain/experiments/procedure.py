@@ -356,8 +356,7 @@ def _add_sheath_tracker(builder, ports, localisation: LocalisationParams, seed: 
 
     own_seed = int(np.random.SeedSequence((seed, 1)).generate_state(1)[0])  # not the tip sensor's stream
     sensor = builder.AddSystem(LocalisationSensor(1, localisation, own_seed, name="sheath_localisation"))
-    engine = getattr(ports.chain, "engine_system", None)
-    offsets = None if engine is None else engine.get_anatomy_offsets_output_port()
+    offsets = ports.device.get_anatomy_offsets_output_port()
     if offsets is None:  # a still wall: the sheath stays at rest
         source = builder.AddSystem(ConstantVectorSource(np.zeros(3))).get_output_port()
     else:  # the first three: the heart's (and the sheath's) offset

@@ -35,6 +35,7 @@ import numpy as np
 
 from ballchain.drake_models import paper
 from ballchain.drake_models.errors import UserInputError, check_in, short_repr
+from ballchain.systems.device_model import engines
 
 
 @dataclass(frozen=True)
@@ -362,7 +363,7 @@ def design_figure(rows, out: Path) -> Path | str:
 
 # --- operators: teleoperation tasks x mappings x operator seeds ------------------------------------
 
-ENGINES = ("plant", "statics")
+ENGINES = engines("ball_chain")  # the teleoperated chain's engines (the registry's, ``device_model``)
 
 
 @dataclass

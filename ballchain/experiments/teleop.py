@@ -368,15 +368,14 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     def add_operator(builder, ports):
         names, p_WT, n_W, radius = ports.targets
         chosen = [i for i, n in enumerate(names) if task is None or n.startswith(f"{task}_")][:n_targets]
-        cp = ports.chain
-        indices = cp.ball_body_indices
+        cp = ports.device  # any device, through its model's interface
         # What the console shows besides the camera: the sheath exit, the feeder's readout.
-        seen = replace(params, ball_radius=0.5 * cp.config.chain.ball_diameter, target_radius=radius,
-                       p_WE=tuple(cp.p_WE), initial_length=scenario.insertion.initial,
+        seen = replace(params, ball_radius=cp.tip_radius, target_radius=radius,
+                       p_WE=tuple(cp.p_WE), initial_length=cp.initial_inserted_length,
                        max_length=cp.max_inserted_length(),
                        keep_out=vein_openings(heart))
         op = builder.AddSystem(SimulatedOperator(
-            indices[-1], indices[-2], [names[i] for i in chosen], p_WT[chosen], n_W[chosen], seen))
+            cp.tip_body_index, cp.tip_base_body_index, [names[i] for i in chosen], p_WT[chosen], n_W[chosen], seen))
         builder.Connect(ports.body_poses, op.get_body_poses_input_port())
         (joystick,) = ports.joystick_inputs.values()
         builder.Connect(op.GetOutputPort("joystick"), joystick)

@@ -1,0 +1,134 @@
+"""The steerable catheter as a device model (``device: steerable_catheter``, ``engine: statics``).
+
+The paper's manual comparison arm behind the ``DeviceModel`` interface, so that ``MakeStation``
+builds it into the same ``Station`` as the ball chain and ``run_station`` runs it: the
+``SteerableCatheterSystem`` (quasi-static, updated every ``scenario.statics_period``) and the
+``ManualHand`` on its handle (``systems/catheter_station.py``). Its bodies are the rod's nodes
+(``body_poses`` 1..n + 1, the tip sphere's centre last); its electrode is the tip sphere; its
+actuation input is ``handle`` (3), driven by the hand, whose stick and push an operator drives
+(``operator_inputs``: ``hand.joystick``, and the push as the feeder command); its metrics are
+the windup (the handle's twist, the twist at the sheath exit, slips) and the hand's switches.
+It feels no field (it is not magnetic) and reports no wall force (zero).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ballchain.drake_models.atrium_sdf import atrium_sdf
+from ballchain.drake_models.errors import UserInputError
+from ballchain.systems.catheter_station import CatheterMeshcat, CatheterParams, ManualHand, SteerableCatheterSystem
+from ballchain.systems.chain_model import subsystem_context
+from ballchain.systems.device_model import DeviceModel, OperatorInputs
+
+
+class CatheterModel(DeviceModel):
+    """The steerable catheter and the hand on its handle in a station (module docstring).
+
+    Attributes (besides ``DeviceModel``'s):
+        system: the SteerableCatheterSystem; hand: the ManualHand.
+    """
+
+    device = "steerable_catheter"
+    engine = "statics"
+    params_type = CatheterParams
+    station_overlays = False  # its Meshcat view draws the atrium, the targets and the rod
+    diagram_name = "catheter_in_heart"
+
+    def __init__(self, system: SteerableCatheterSystem, hand: ManualHand) -> None:
+        self.system, self.hand = system, hand
+        self.time_step = self.move_period = system.period
+
+    @classmethod
+    def add_to_station(cls, builder, scenario, heart, coupling, params: CatheterParams | None = None) -> CatheterModel:
+        """The catheter at the atrium's sheath exit and the hand on its handle.
+
+        Raises:
+            UserInputError: a field to feel (the catheter is not magnetic).
+        """
+        if coupling.field_source is not None or coupling.port_magnets:
+            raise UserInputError("MakeStation: device: steerable_catheter takes no field (field_source, "
+                                 "uniform_field, magnets or units): it is not magnetic")
+        params = params or CatheterParams()
+        cat = builder.AddSystem(SteerableCatheterSystem(params.catheter, heart.p_HE, heart.sheath_axis_H,
+                                                        atrium_sdf(heart), params.initial_length,
+                                                        scenario.statics_period))
+        hand = builder.AddSystem(ManualHand(params.hand))
+        builder.Connect(hand.GetOutputPort("handle"), cat.GetInputPort("handle"))
+        return cls(cat, hand)
+
+    # --- the geometry --------------------------------------------------------------------------
+    @property
+    def body_indices(self) -> list:
+        return list(range(1, self.system.n_bodies + 1))
+
+    @property
+    def tip_radius(self) -> float:
+        return self.system.catheter.radius
+
+    @property
+    def p_WE(self) -> np.ndarray:
+        return self.system.rod.p_E
+
+    @property
+    def sheath_axis_W(self) -> np.ndarray:
+        return self.system.rod.R_E[:, 2]
+
+    @property
+    def length(self) -> float:
+        return self.system.rod.max_length
+
+    @property
+    def initial_inserted_length(self) -> float:
+        return self.system.initial_length
+
+    def max_inserted_length(self) -> float:
+        return self.system.rod.max_length
+
+    def in_sheath(self, p_W: np.ndarray) -> np.ndarray:
+        """The rod's nodes still in the sheath: on its axis, behind the exit."""
+        rel = np.asarray(p_W) - self.p_WE
+        along = rel @ self.sheath_axis_W
+        radial = np.linalg.norm(rel - along[:, None] * self.sheath_axis_W, axis=1)
+        return (along <= 1e-9) & (radial <= self.tip_radius)
+
+    # --- ports ----------------------------------------------------------------------------------
+    def actuation_input_ports(self) -> dict:
+        return {"handle": self.system.GetInputPort("handle")}
+
+    def operator_inputs(self) -> OperatorInputs:
+        return OperatorInputs({"hand": self.hand.GetInputPort("joystick")}, self.hand.GetInputPort("v_insert_cmd"))
+
+    def get_body_poses_output_port(self):
+        return self.system.GetOutputPort("body_poses")
+
+    def get_tip_wall_force_output_port(self):
+        return self.system.GetOutputPort("tip_wall_force")
+
+    def add_visualizer(self, builder, meshcat, scenario, heart, targets):
+        """``catheter_meshcat``: the atrium, the targets and the rod's nodes, a frame every
+        ``scenario.visualization.publish_period``."""
+        view = builder.AddSystem(CatheterMeshcat(meshcat, heart, self.system.n_bodies, self.tip_radius, targets,
+                                                 scenario.visualization.publish_period))
+        builder.Connect(self.get_body_poses_output_port(), view.GetInputPort("body_poses"))
+        return view
+
+    # --- the state ------------------------------------------------------------------------------
+    def body_positions(self, context) -> np.ndarray:
+        return self.system.state(subsystem_context(self.system, context)).nodes.copy()
+
+    def is_finite(self, context) -> bool:
+        return bool(np.isfinite(self.body_positions(context)).all())
+
+    def non_finite_part(self, context) -> str:
+        return "the rod's nodes"
+
+    def metrics(self, context) -> dict:
+        """{switches (the hand's tendon switches), slips (the shaft's), windup_rad (the handle's
+        twist, the twist at the sheath exit), rod_warnings (the first three distinct, or None)}
+        in the diagram's root context."""
+        st = self.system.state(self.system.GetMyContextFromRoot(context))
+        hand_state = self.hand.GetOutputPort("state").Eval(self.hand.GetMyContextFromRoot(context))
+        return {"switches": int(hand_state[6]), "slips": int(st.slips),
+                "windup_rad": [float(st.twist[0]), float(st.twist[-1])],
+                "rod_warnings": "; ".join(sorted(set(st.failures))[:3]) or None}
