@@ -21,6 +21,7 @@ that status.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import errno
 import importlib
 import os
@@ -28,6 +29,7 @@ import signal
 import sys
 import threading
 
+from ballchain.drake_models import kernel_compiler
 from ballchain.drake_models.errors import OutputError, StopRequest, UserInputError, caused_by_interrupt
 from ballchain.drake_models.model_files import CACHE_ENV, check_cache_dir
 
@@ -130,7 +132,9 @@ class StopSignals:
     raised there but delivered again the same way: numba does not check the exception of
     ``_numba_unpickle`` (the Python call with which a compiled kernel returns a new array), and a
     raise inside llvmlite's disposal of an LLVM object can leave it to be disposed of twice; the
-    process died of SIGSEGV or SIGABRT, or ran on.
+    process died of SIGSEGV or SIGABRT, or ran on. A kernel's compilation, minutes of LLVM on a
+    machine's first run, is therefore done by a child process (``kernel_compiler``), and the
+    stop is raised in the wait for it, though numba's cache called that wait.
     """
 
     REDELIVER_S = 0.02  # after a stop swallowed by a finaliser: long enough for the finaliser to end
@@ -231,8 +235,12 @@ class StopSignals:
 def _inside_numba_or_llvmlite(frame) -> bool:
     """Whether a signal's handler runs inside numba's or llvmlite's Python code (or what it
     calls): ``_numba_unpickle``, the Python call numba's compiled code makes to box a kernel's
-    array result (numba 0.68); numba's compiler and cache; llvmlite's LLVM objects."""
+    array result (numba 0.68); numba's compiler and cache; llvmlite's LLVM objects. Not the wait
+    for a kernel compiled by a child process (``kernel_compiler.WAITS``), though numba's cache
+    called it: plain Python, where the stop is raised and the child killed."""
     while frame is not None:
+        if frame.f_code in kernel_compiler.WAITS:
+            return False
         name = frame.f_code.co_filename
         if _NUMBA_DIR in name or _LLVMLITE_DIR in name:
             return True
@@ -266,7 +274,10 @@ def main(argv: list[str] | None = None) -> int:
     stop = _stop = StopSignals()
     try:
         stop.install()
-        code = _run(argv, stop)
+        # As the program, a kernel's first compilation runs in a child process that a stop ends
+        # (``kernel_compiler``); called from Python (a test), compilations stay in this process.
+        with kernel_compiler.in_a_child() if program else contextlib.nullcontext():
+            code = _run(argv, stop)
     except KeyboardInterrupt:  # a stop outside the command's own handling (as it starts or ends)
         code = stop.status()
     finally:

@@ -7,18 +7,30 @@ with exit status 2. Anything else that escapes is a bug and stays a traceback.
 
 from __future__ import annotations
 
+import re
+
 
 def caused_by_interrupt(err: BaseException) -> bool:
     """Whether ``err`` is Ctrl-C, or an error raised because of it: a KeyboardInterrupt that lands
     inside a compiled call (a numba dispatcher, a Drake callback) comes back wrapped, e.g. as
-    "SystemError: ... returned a result with an exception set", with the interrupt as its context."""
+    "SystemError: ... returned a result with an exception set", with the interrupt as its context.
+    Drake's SNOPT keeps only the text of an exception raised in a cost or constraint: a
+    RuntimeError "Exception while evaluating SNOPT costs and constraints: 'StopRequest: 15..."
+    (pybind11's "<type>: <message>" of the interrupt), without the interrupt as its context."""
     seen = set()
     while err is not None and id(err) not in seen:
         if isinstance(err, KeyboardInterrupt):
             return True
+        if isinstance(err, RuntimeError) and _WRAPPED_INTERRUPT.search(str(err)):
+            return True
         seen.add(id(err))
         err = err.__cause__ or err.__context__
     return False
+
+
+# pybind11's text of a Python exception that C++ caught (Drake's solvers quote it in their own)
+_WRAPPED_INTERRUPT = re.compile(
+    r"^Exception while evaluating \w+ costs and constraints: '(?:KeyboardInterrupt|StopRequest):")
 
 
 MAX_QUOTED = 80  # characters of a user's value quoted in a message

@@ -5,7 +5,9 @@ and data files (``...nbc``) in ``__pycache__`` next to its source, or under ``$N
 numba reads them on the kernel's first call of a process and raises on a file it cannot
 unpickle (truncated by a full disk or a killed copy, edited): every later run would fail the same
 way. ``guard_cache`` makes such a load forget the kernel's cache files, say so in one line on
-stderr and compile afresh (numba then writes new files).
+stderr and compile afresh (numba then writes new files). A kernel missing from the cache is
+compiled by a child process while a ``ballchain`` command runs (``kernel_compiler``: a stop can
+end that), then loaded from the cache.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from ballchain.drake_models import kernel_compiler
 from ballchain.drake_models.errors import caused_by_interrupt
 
 
@@ -28,6 +31,14 @@ def _guard(dispatcher) -> None:
     load = cache.load_overload
 
     def load_overload(sig, target_context):
+        data = load_healed(sig, target_context)
+        # Not in the cache: inside a ``ballchain`` command a child process compiles it into the
+        # cache, where a stop can end the wait (``kernel_compiler``); then it is loaded from there.
+        if data is None and kernel_compiler.compiled_elsewhere(dispatcher, sig, target_context):
+            data = load_healed(sig, target_context)
+        return data  # None: numba compiles the kernel here and saves it
+
+    def load_healed(sig, target_context):
         try:
             return load(sig, target_context)
         except Exception as err:  # noqa: BLE001 - whatever unpickling a damaged file raises

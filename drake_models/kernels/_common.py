@@ -133,6 +133,8 @@ def inline_kernel(py_func):
 
 def _compiled(py_func, **options):
     dispatcher = njit(cache=True, **options)(py_func)
+    if dispatcher is py_func:  # NUMBA_DISABLE_JIT=1 (a debugging switch): the kernels run as Python
+        return py_func
     dispatcher._cache = _PackageCache(py_func)  # what ``cache=True`` set, with the package stamp
     _without_literals(dispatcher)
     return guard_kernel(dispatcher)  # a damaged cache file is recompiled, not a traceback on every run
