@@ -34,7 +34,6 @@ import secrets
 import shutil
 import stat
 import tempfile
-import threading
 from pathlib import Path
 
 import numpy as np
@@ -270,7 +269,8 @@ _INPUTS: dict[str, str] = {}
 """The files this process has read as inputs: resolved path -> what it is ("anatomy mesh", "sweep
 spec", ...). The loaders add to it (``register_input``); the output checks and ``atomic_path`` read
 it, so that a result is never written over a file the run reads."""
-_INPUTS_LOCK = threading.Lock()
+# No lock: each use below is one dict operation, which the interpreter makes atomic; a lock held
+# when a stop (a KeyboardInterrupt from the signal handler) lands inside it would never be released.
 
 
 def register_input(path, what: str) -> None:
@@ -285,21 +285,18 @@ def register_input(path, what: str) -> None:
         real = os.path.realpath(os.fspath(path))
     except (TypeError, ValueError, OSError):
         return
-    with _INPUTS_LOCK:
-        _INPUTS.setdefault(real, str(what))
+    _INPUTS.setdefault(real, str(what))
 
 
 def forget_inputs() -> None:
     """Forget every registered input (a long-lived session that starts an unrelated run)."""
-    with _INPUTS_LOCK:
-        _INPUTS.clear()
+    _INPUTS.clear()
 
 
 def input_at(path) -> tuple[str, str] | None:
     """(the input's path, what it is) when ``path`` is a registered input of this run (by its
     resolved path, links followed, or by its device and inode: a hard link), else None."""
-    with _INPUTS_LOCK:
-        inputs = list(_INPUTS.items())
+    inputs = _INPUTS.copy().items()  # a copy in one step: another thread may register meanwhile
     if not inputs:
         return None
     try:
