@@ -16,11 +16,15 @@ The exported names, by job:
   ``parse_overrides``, ``apply_overrides``;
 - the station and its run: ``MakeStation``, ``Station``, ``DeviceModel`` (the interface every
   device implements) and ``register_device_model`` (a new device), ``MagnetUnitConfig``,
-  ``StationOptions``, ``run_station``, ``RunOutcome``, ``StationRunner``, ``ChainMonitor``,
-  ``run_simulation``, ``SimulationFailure``;
+  ``StationOptions`` and ``make_actuation_station`` (the units and the feeder alone),
+  ``StationPorts`` (what an ``add_systems`` hook connects to), ``run_station``, ``RunOutcome``,
+  ``StationRunner``, ``ChainMonitor``, ``run_simulation``, ``SimulationMetrics``,
+  ``SimulationFailure``;
 - statics: ``ChainStatics``, ``StaticsResult``, ``StaticsError``, ``BallChain``, ``Sleeve``,
-  ``UniformField``, ``MagnetSource``, ``FieldSources``, ``CylinderMagnet``, ``SphereMagnet``;
-- anatomy: ``LeftAtrium`` (the procedural atrium), ``UserAtrium`` (a segmented one);
+  ``UniformField``, ``MagnetSource``, ``FieldSources``, ``FieldSource`` (the protocol a new
+  source implements), ``CylinderMagnet``, ``SphereMagnet``;
+- anatomy: ``LeftAtrium`` (the procedural atrium), ``UserAtrium`` (a segmented one), ``Atrium``
+  (the protocol a new atrium implements), ``load_anatomy`` (an anatomy file);
 - the paper's experiments: ``experiments`` (``ballchain.experiments.<name>.run``);
 - sweeps: ``SweepSpec``, ``load_spec``, ``Executor``, ``run_sweep``;
 - errors: ``UserInputError`` (bad input, naming the field and what is allowed).
@@ -29,7 +33,8 @@ The names load when first used (a module ``__getattr__``), so ``import ballchain
 import Drake. Every other name, in ``ballchain`` or its sub-packages, is private by convention:
 it may change without notice. The layers live in sub-packages: ``ballchain.drake_models``
 (physics and models), ``ballchain.optimization`` (MathematicalProgram problems),
-``ballchain.systems`` (LeafSystems and diagrams); ``ballchain.cli`` is the ``ballchain`` command.
+``ballchain.systems`` (LeafSystems and diagrams), all above ``ballchain.infrastructure`` (errors,
+safe files, YAML, numba's cache); ``ballchain.cli`` is the ``ballchain`` command.
 """
 
 import importlib as _importlib
@@ -50,12 +55,15 @@ _EXPORTS: dict[str, str] = {
     "register_device_model": "ballchain.systems.device_model",
     "MagnetUnitConfig": "ballchain.systems.unit_config",
     "StationOptions": "ballchain.systems.actuation_station",
+    "make_actuation_station": "ballchain.systems.actuation_station",
+    "StationPorts": "ballchain.systems.station",
     "run_station": "ballchain.systems.chain_simulation",
     "RunOutcome": "ballchain.systems.chain_simulation",
     "StationRunner": "ballchain.systems.chain_simulation",
     "ChainMonitor": "ballchain.systems.chain_simulation",
     "run_simulation": "ballchain.systems.chain_simulation",
     "SimulationFailure": "ballchain.systems.chain_simulation",
+    "SimulationMetrics": "ballchain.systems.chain_simulation",
     "ChainStatics": "ballchain.optimization.statics",
     "StaticsResult": "ballchain.optimization.statics",
     "StaticsError": "ballchain.optimization.statics",
@@ -66,9 +74,12 @@ _EXPORTS: dict[str, str] = {
     "UniformField": "ballchain.drake_models.field_sources",
     "MagnetSource": "ballchain.drake_models.field_sources",
     "FieldSources": "ballchain.drake_models.field_sources",
+    "FieldSource": "ballchain.drake_models.field_sources",
     "LeftAtrium": "ballchain.drake_models.heart",
     "UserAtrium": "ballchain.drake_models.atrium_mesh",
-    "UserInputError": "ballchain.drake_models.errors",
+    "Atrium": "ballchain.drake_models.atrium",
+    "load_anatomy": "ballchain.drake_models.anatomy",
+    "UserInputError": "ballchain.infrastructure.errors",
     "SweepSpec": "ballchain.sweep",
     "load_spec": "ballchain.sweep",
     "Executor": "ballchain.sweep",

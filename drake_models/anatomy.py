@@ -37,13 +37,13 @@ import numpy as np
 from ballchain.drake_models import mesh_tools as mt
 from ballchain.drake_models.atrium_mesh import (MAX_PUNCTURE_DISTANCE, MESH_NOUN, AtriumSurface, UserAtrium,
                                                 load_atrium_surface)
-from ballchain.drake_models.errors import UserInputError, short_repr
 from ballchain.drake_models.heart import HeartParams, LeftAtrium
 from ballchain.drake_models.params import CylinderMagnet
-from ballchain.drake_models.input_files import (MAX_MESH_BYTES, MAX_TABLE_TEXT_BYTES, check_input_file,
-                                                read_input_file)
-from ballchain.drake_models.safe_files import register_input
-from ballchain.drake_models.safe_yaml import MAX_BYTES, check_value, check_yaml_schema, load_yaml_file, yaml_kind
+from ballchain.infrastructure.errors import UserInputError, short_repr
+from ballchain.infrastructure.input_files import (MAX_MESH_BYTES, MAX_TABLE_TEXT_BYTES, check_input_file,
+                                                  read_input_file)
+from ballchain.infrastructure.safe_files import register_input
+from ballchain.infrastructure.safe_yaml import MAX_BYTES, check_value, check_yaml_schema, load_yaml_file, yaml_kind
 
 ANATOMIES_DIR = Path(__file__).resolve().parent / "anatomies"
 PROCEDURAL_FILE = ANATOMIES_DIR / "procedural_left_atrium.yaml"

@@ -7,6 +7,7 @@ use an atrium only through these members (frame H: the heart's, the world's in t
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -14,7 +15,11 @@ import numpy as np
 
 @runtime_checkable
 class Atrium(Protocol):
-    """An atrium as the station sees it.
+    """An atrium as the station sees it: the members below, and nothing else.
+
+    A new atrium (another mesh, an analytic chamber) is any object with these members; it need
+    not inherit from this class (a structural protocol: ``isinstance(obj, Atrium)`` checks the
+    members' names). ``MakeStation(scenario, heart=my_atrium)`` and ``run_station`` take it.
 
     Attributes:
         p_HP: (3,) septal puncture [m].
@@ -46,6 +51,11 @@ class Atrium(Protocol):
     def contains(self, p_H: np.ndarray) -> np.ndarray:
         """(k,) bool: the points (k, 3) lie where the chain may be (inside the chamber; for a
         solid, outside it and within the working box)."""
+
+    def write_files(self, directory: Path | None = None) -> dict[str, Path]:
+        """The wall's model files, written to ``directory`` (default: the cache, reused when
+        intact): ``{"vtk": the wall's tetrahedra (hydroelastic contact), "obj": its surface (the
+        visual)}``; the plant and the quasi-static engine load them."""
 
     @property
     def wall_tetrahedra(self) -> tuple[np.ndarray, np.ndarray]:

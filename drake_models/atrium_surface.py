@@ -13,10 +13,10 @@ from typing import Literal
 import numpy as np
 
 from ballchain.drake_models import mesh_tools as mt
-from ballchain.drake_models.arg_checks import as_array, require_choice, require_type
 from ballchain.drake_models.mesh_crossings import _self_crossing_problems
 from ballchain.drake_models.mesh_io import AtriumMeshError, read_mesh
 from ballchain.drake_models.mesh_shells import opening_areas, orient_shells
+from ballchain.infrastructure.arg_checks import as_array, require_choice, require_type
 
 Units = Literal["auto", "m", "mm"]
 SENSIBLE_EXTENT_MM = (30.0, 80.0)  # typical LA size; outside ACCEPTED_EXTENT_MM is refused

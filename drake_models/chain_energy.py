@@ -20,27 +20,12 @@ ball whose dipole direction is m_hat_i, ``tau_i = m_hat_i x (-dU/dm_hat_i)``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from ballchain.drake_models.dipole import chain_interaction_hessian, chain_interactions
 from ballchain.drake_models.field_sources import FieldSource, field_gradient_derivative
+from ballchain.drake_models.kernels import EnergyTerms
 from ballchain.drake_models.params import GRAVITY, BallChain
-
-
-@dataclass
-class EnergyTerms:
-    """The energy's parts [J]."""
-
-    balls: float = 0.0
-    external: float = 0.0
-    sleeve: float = 0.0
-    gravity: float = 0.0
-
-    @property
-    def total(self) -> float:
-        return self.balls + self.external + self.sleeve + self.gravity
 
 
 def sleeve_bending(u: np.ndarray, base_direction: np.ndarray, stiffness_over_d: float, hessian: bool = False):

@@ -13,17 +13,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Literal, Protocol, Sequence
+from typing import ClassVar, Literal, Protocol, Sequence
 
 import numpy as np
 
 from ballchain.drake_models.kernels import dipole_field_and_gradient
 from ballchain.drake_models.kernels.external import GRADIENT_STEP
+from ballchain.drake_models.kernels.external import field_gradient_derivative as _field_gradient_derivative
 from ballchain.drake_models.dipole import DipoleFieldAtPoint, dipole_field, dipole_field_of_checked
-from ballchain.drake_models.arg_checks import as_array, as_vector, require_choice, require_type
-from ballchain.drake_models.errors import UserInputError, check_in, short_repr
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
 from ballchain.drake_models.vectors import perpendicular_basis
+from ballchain.infrastructure.arg_checks import as_array, as_vector, require_choice, require_type
+from ballchain.infrastructure.errors import UserInputError, check_in, short_repr
 
 FieldModel = Literal["dipole", "exact"]
 
@@ -35,8 +36,40 @@ MAX_FD_STEP = 1e-3  # [m]: the exact model's central-difference step (1e-5 by de
 
 
 class FieldSource(Protocol):
+    """What a magnetic field source is to the statics, the wrench system and the kernels: one method.
+
+    A new source (a coil model, a measured field map) is any object with
+    ``field_and_gradient``; it need not inherit from this class (a structural protocol, as
+    ``UniformField``, ``MagnetSource`` and ``FieldSources`` are). ``ChainStatics.solve``,
+    ``ReducedChain`` and ``kernels.chain_wrenches`` take it as it is::
+
+        class LinearField:  # B = B0 + G0 p, the same gradient everywhere
+            def __init__(self, B0, G0):
+                self.B0, self.G0 = np.asarray(B0, float), np.asarray(G0, float)
+
+            def field_and_gradient(self, p_W):
+                p = np.atleast_2d(p_W)
+                return self.B0 + p @ self.G0.T, np.broadcast_to(self.G0, (len(p), 3, 3)).copy()
+
+        bc.ChainStatics(bc.BallChain(n_balls=8)).solve(LinearField([0, 0.02, 0], np.zeros((3, 3))))
+
+    Two optional members let a source skip work it knows is zero (the built-in sources use them,
+    ``kernels.external``): ``uniform = True`` for a field that is ``B_W`` (3,) [T] everywhere with
+    no gradient (``UniformField``), and ``field_gradient_derivative(p, step)`` for a source that
+    computes its own second derivative (``FieldSources`` sums its parts'); without them the
+    Newton statics' second derivative is the central difference of ``field_and_gradient``.
+    """
+
     def field_and_gradient(self, p_W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(B_W (k, 3) [T], G_W (k, 3, 3) [T/m]) at the points p_W (k, 3) [m]."""
+        """The flux density and its gradient at some points.
+
+        Args:
+            p_W: (k, 3) points in the world frame [m].
+
+        Returns:
+            ``(B_W, G_W)``: B_W (k, 3) [T]; G_W (k, 3, 3) [T/m] with ``G_W[i, a, b] = dB_a / dp_b``
+            at point i.
+        """
 
 
 def require_field_source(source, name: str, allow_none: bool = False):
@@ -78,6 +111,7 @@ class UniformField:
     """A spatially uniform flux density ``B_W`` (3,) [T] (a Helmholtz/Maxwell-coil idealisation)."""
 
     B_W: np.ndarray
+    uniform: ClassVar[bool] = True  # the kernels take B_W as it is and skip the gradients (``FieldSource``)
 
     def __post_init__(self) -> None:
         self.B_W = as_vector(self.B_W, "UniformField.B_W", unit="T")
@@ -299,23 +333,20 @@ class FieldSources:
             G += g
         return B, G
 
+    def field_gradient_derivative(self, p_W, step: float = GRADIENT_STEP) -> np.ndarray:
+        """The sum of the sources' ``field_gradient_derivative`` (k, 3, 3, 3) [T/m^2] at p_W (k, 3) [m]."""
+        p = _as_points(p_W)
+        total = np.zeros((p.shape[0], 3, 3, 3))
+        for source in self.sources:
+            total += field_gradient_derivative(source, p, step)
+        return total
+
 
 def field_gradient_derivative(source: FieldSource, p_W, step: float = GRADIENT_STEP) -> np.ndarray:
     """Second spatial derivative ``dG[k, a, b, c] = d2 B_a / dp_b dp_c`` (k, 3, 3, 3) [T/m^2].
 
-    Zero for a uniform field; otherwise central differences of the source's analytic (or, for
-    the exact cylinder, finite-difference) gradient. Used by the Newton statics' Hessian.
+    Zero for a uniform field; the sum of the parts' for ``FieldSources``; otherwise central
+    differences of the source's analytic (or, for the exact cylinder, finite-difference)
+    gradient (``kernels.external.field_gradient_derivative``). Used by the Newton statics' Hessian.
     """
-    p = _as_points(p_W)
-    if isinstance(source, UniformField):
-        return np.zeros((p.shape[0], 3, 3, 3))
-    if isinstance(source, FieldSources):
-        total = np.zeros((p.shape[0], 3, 3, 3))
-        for s in source.sources:
-            total += field_gradient_derivative(s, p, step)
-        return total
-    offsets = np.concatenate([np.eye(3) * step, -np.eye(3) * step])
-    stencil = (p[:, None, :] + offsets[None, :, :]).reshape(-1, 3)
-    _, G = source.field_and_gradient(stencil)
-    G = G.reshape(p.shape[0], 6, 3, 3)
-    return ((G[:, :3] - G[:, 3:]) / (2 * step)).transpose(0, 2, 3, 1)
+    return _field_gradient_derivative(source, _as_points(p_W), step)

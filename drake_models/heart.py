@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import sys
 from dataclasses import asdict, dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
@@ -54,8 +55,9 @@ import numpy as np
 
 from ballchain.drake_models import mesh_tools as mt
 from ballchain.drake_models import paper
-from ballchain.drake_models.arg_checks import as_vector, require_int, require_type
-from ballchain.drake_models.errors import UserInputError, require_finite_fields
+from ballchain.drake_models.model_files import cache_dir, cached_files, source_hash
+from ballchain.infrastructure.arg_checks import as_vector, require_int, require_type
+from ballchain.infrastructure.errors import UserInputError, require_finite_fields
 
 PV_NAMES = ("LSPV", "LIPV", "RSPV", "RIPV")
 
@@ -132,10 +134,6 @@ class HeartParams:
     def key(self) -> str:
         """A short hash of the parameters and of the code that makes the meshes, naming the
         generated files."""
-        import sys
-
-        from ballchain.drake_models.model_files import source_hash
-
         code = source_hash(sys.modules[__name__], mt)
         return hashlib.sha1((repr(sorted(asdict(self).items())) + code).encode()).hexdigest()[:12]
 
@@ -517,8 +515,6 @@ class LeftAtrium:
         Files go to ``directory`` or to ``model_files.cache_dir()/heart_<key>``, and are reused
         when they already exist intact (``model_files.cached_files``).
         """
-        from ballchain.drake_models.model_files import cache_dir, cached_files
-
         def write(tmp: dict[str, Path]) -> None:
             mt.write_vtk_tetrahedra(tmp["vtk"], *self.wall_tetrahedra)
             mt.write_obj(tmp["obj"], *self.visual_surface)

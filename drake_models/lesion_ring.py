@@ -33,9 +33,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ballchain.drake_models import lesion_surrogate as surrogate
-from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.heart import HeartParams
 from ballchain.drake_models.params import GRAVITY, magnet_grade
+from ballchain.infrastructure.errors import UserInputError, short_repr
+from ballchain.infrastructure import safe_files
 
 CLOSE_MAX_DISTANCE_M = 6e-3  # the CLOSE protocol's largest inter-lesion distance (Taghji et al. 2018)
 DEFAULT_WALL_THICKNESS_M = HeartParams.wall_thickness
@@ -317,9 +319,7 @@ def ring_figure(verdict: RingVerdict, lesions: list[Lesion], path, *, title: str
     through the wall, orange not, missing targets and gaps in red, the first lesion drawn again at
     the end for the last -> first pair), the distances against the 6 mm spacing rule and the mean
     widths (overlap), and the depths against the wall thickness."""
-    from ballchain.drake_models.safe_files import agg_pyplot, save_figure
-
-    plt = agg_pyplot()
+    plt = safe_files.agg_pyplot()
     s, total = _unrolled(lesions, verdict)
     # Drawn at the width a report shows it (about 1000 px), every text at least LABEL_PT points.
     fig, (ax, ax_d, ax_z) = plt.subplots(3, 1, figsize=(10, 9), gridspec_kw={"height_ratios": [1.0, 1, 1]})
@@ -361,7 +361,7 @@ def ring_figure(verdict: RingVerdict, lesions: list[Lesion], path, *, title: str
         state += f", {len(verdict.non_transmural)} not transmural"
     ax.set_title(f"{title}: {state}; spacing rule {'met' if verdict.spacing_ok else 'broken'}", fontsize=LABEL_PT + 2)
     fig.tight_layout()
-    save_figure(fig, path, dpi=110)
+    safe_files.save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -415,8 +415,6 @@ def draw_lesions(meshcat, lesions: list[Lesion], verdict: RingVerdict, prefix: s
     """
     from pydrake.geometry import Cylinder, Rgba, Sphere
     from pydrake.math import RigidTransform, RotationMatrix
-
-    from ballchain.drake_models.field_sources import rotation_with_z_along
 
     meshcat.Delete(prefix)
     seen: dict[str, int] = {}

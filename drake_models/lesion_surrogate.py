@@ -71,7 +71,7 @@ from ballchain.drake_models import lesion_fem as fem
 from ballchain.drake_models import model_files
 from ballchain.drake_models import params
 from ballchain.drake_models import tissue as laws
-from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.infrastructure.errors import UserInputError, short_repr
 
 BODY_TEMPERATURE_C = 37.0
 MYOCARDIUM_YOUNGS_MODULUS = 75e3  # [Pa] Perez et al. 2022 (module docstring)

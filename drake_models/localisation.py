@@ -25,7 +25,7 @@ import math
 import numbers
 from dataclasses import dataclass
 
-from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.infrastructure.errors import UserInputError, short_repr
 
 NOISE_RANGE_M = (0.0, 5e-3)  # [m] per-axis standard deviation allowed
 RATE_RANGE_HZ = (1.0, 1000.0)

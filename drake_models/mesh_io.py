@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ballchain.drake_models.errors import UserInputError
-from ballchain.drake_models.input_files import MAX_MESH_BYTES, check_input_file, read_input_file
+from ballchain.infrastructure.errors import UserInputError
+from ballchain.infrastructure.input_files import MAX_MESH_BYTES, check_input_file, read_input_file
 
 
 class AtriumMeshError(UserInputError):

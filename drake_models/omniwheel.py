@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 
 # Printed in the paper (Section III), 2 decimals.
 PAPER_A = np.array(

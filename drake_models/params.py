@@ -13,8 +13,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ballchain.drake_models.dipole import MU0
-from ballchain.drake_models.errors import UserInputError, short_repr
 from ballchain.drake_models.tissue import N52_IRREVERSIBLE_LOSS_C
+from ballchain.infrastructure.errors import UserInputError, short_repr
 
 GRAVITY = 9.80665  # standard gravity [m/s^2]; also the grams-force conversion
 

@@ -87,7 +87,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ballchain.drake_models.errors import UserInputError, require_finite_fields
+from ballchain.infrastructure.errors import UserInputError, require_finite_fields
 
 FRENCH = 1e-3 / 3.0  # [m] per Fr (the Charriere scale)
 

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from ballchain.drake_models.numba_cache import guard_cache
+from ballchain.infrastructure.numba_cache import guard_cache
 
 LEAF_SIZE = 8
 BETA = 3.0  # a cluster is expanded beyond BETA times its bounding radius

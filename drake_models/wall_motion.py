@@ -55,7 +55,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.infrastructure.errors import UserInputError, short_repr
 
 # Defaults (see the module docstring for the sources).
 RESPIRATORY_AMPLITUDE = 5e-3  # [m]

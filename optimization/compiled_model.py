@@ -9,15 +9,18 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 
 import numpy as np
 
 from ballchain.drake_models.atrium_sdf import AtriumSDF
+from ballchain.drake_models.chain_energy import EnergyTerms
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, UniformField
 from ballchain.drake_models.kernels import check_status
 from ballchain.drake_models.params import GRAVITY
 from ballchain.optimization.blas_threads import one_blas_thread
-from ballchain.optimization.wall_constraints import RHO_SMOOTHING, PointDipoles, row_force_W
+from ballchain.optimization.reduced_chain import answer_verdict
+from ballchain.optimization.wall_constraints import RHO_SMOOTHING, ConstrainedChain, PointDipoles, row_force_W
 from ballchain.optimization.compiled_newton import (F_EXTERNAL, R_FIELD, R_LIMIT, R_LINE, R_MINIMUM,
                                                     R_MINIMUM_LINE, R_QP, R_SADDLE, R_ENERGY, S_HEART_WEIGHT, newton)
 from ballchain.drake_models.kernels import chart_frames, configuration_vectors
@@ -226,8 +229,6 @@ class HeartSolve:
     """
 
     def __init__(self, statics):
-        from ballchain.optimization.wall_constraints import ConstrainedChain
-
         self.statics = statics
         if statics._constrained is None:
             statics._constrained = ConstrainedChain(statics.chain)
@@ -326,8 +327,6 @@ class HeartAnswer:
         self._solve, self._constraints = solve, constraints
         self._raw = (reason, rows, lam, lam_tip, terms, gaps, v)
         self.positions, self.dipoles, self.iterations, self.solve_time = p, m_hat, iterations, elapsed
-        from ballchain.optimization.statics import answer_verdict  # statics imports this module
-
         # ChainStatics._assemble's verdict (its reason text is built when asked, ``result``).
         total = float(terms[0]) + float(terms[1]) + float(terms[2]) + float(terms[3])  # EnergyTerms.total
         self.converged = answer_verdict(solve.model, p, m_hat, total, gaps, reason in (R_MINIMUM, R_MINIMUM_LINE),
@@ -353,10 +352,6 @@ class HeartAnswer:
     def result(self):
         """The ``StaticsResult`` ``ChainStatics.solve`` returns for this answer."""
         if self._result is None:
-            from dataclasses import replace
-
-            from ballchain.drake_models.chain_energy import EnergyTerms
-
             reason, rows, lam, lam_tip, terms, gaps, v = self._raw
             statics, model = self._solve.statics, self._solve.model
             model.set_constraints(self._constraints)

@@ -32,9 +32,9 @@ import numpy as np
 from pydrake.autodiffutils import AutoDiffXd, ExtractGradient, ExtractValue, InitializeAutoDiff
 from pydrake.solvers import MathematicalProgram, SnoptSolver, SolverOptions
 
-from ballchain.drake_models.arg_checks import as_rows, as_vector, require_int, require_positive, require_type
-from ballchain.drake_models.errors import UserInputError, short_repr
 from ballchain.drake_models.field_sources import FieldSource, require_field_source
+from ballchain.infrastructure.arg_checks import as_rows, as_vector, require_int, require_positive, require_type
+from ballchain.infrastructure.errors import UserInputError, short_repr
 from ballchain.optimization.statics import ChainStatics, StaticsResult
 
 FieldFor = Callable[[np.ndarray], FieldSource]  # (k, 3) unit dipole directions -> external field

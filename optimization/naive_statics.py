@@ -37,9 +37,9 @@ from scipy.optimize import minimize
 
 from ballchain.drake_models.chain_energy import chain_energy
 from ballchain.drake_models.dipole import K_DIPOLE
-from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import FieldSource
 from ballchain.drake_models.params import BallChain
+from ballchain.infrastructure.errors import UserInputError
 
 _X_AXIS = np.array([1.0, 0.0, 0.0])
 

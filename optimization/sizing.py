@@ -29,10 +29,10 @@ import numpy as np
 from scipy.optimize import brentq
 
 from ballchain.drake_models import paper
-from ballchain.drake_models.arg_checks import as_number_list, require_positive, require_type
 from ballchain.drake_models.dipole import K_DIPOLE, dipole_field, dipole_field_gradient, force_on_dipole
-from ballchain.drake_models.errors import UserInputError, short_repr
 from ballchain.drake_models.params import MAX_DENSITY, MAX_REMANENCE, CylinderMagnet, SphereMagnet, newtons_from_gram_force
+from ballchain.infrastructure.arg_checks import as_number_list, require_positive, require_type
+from ballchain.infrastructure.errors import UserInputError, short_repr
 
 PAPER = {
     "diameter_mm": 119.0,

@@ -43,17 +43,17 @@ from pydrake.solvers import (
     SolverOptions,
 )
 
-from ballchain.drake_models.arg_checks import (as_plane, as_vector, require_bool, require_int, require_positive,
-                                               require_type)
 from ballchain.drake_models.chain_energy import EnergyTerms
 from ballchain.drake_models.kernels import chain_energy
-from ballchain.drake_models.errors import UserInputError
 from ballchain.drake_models.field_sources import FieldSource, UniformField, require_field_source
 from ballchain.drake_models.params import BallChain
 from ballchain.drake_models.vectors import angle_between
+from ballchain.infrastructure.arg_checks import (as_plane, as_vector, require_bool, require_int, require_positive,
+                                                 require_type)
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.optimization import compiled_model
 from ballchain.optimization.compiled_newton import CONVEXIFY, TOUCHING
-from ballchain.optimization.reduced_chain import X_AXIS, ReducedChain
+from ballchain.optimization.reduced_chain import X_AXIS, ReducedChain, answer_verdict
 from ballchain.optimization.wall_constraints import ConstrainedChain, HeartConstraints
 
 Method = Literal["newton", "snopt"]
@@ -798,30 +798,6 @@ def solve_statics(
 
 
 MAX_CONTINUATION_STEPS = 10_000
-
-
-def answer_verdict(model, p: np.ndarray, m_hat: np.ndarray, total: float, row_gaps, converged: bool,
-                   reason: str) -> tuple[bool, str, float]:
-    """A solver's answer judged on its own numbers: ``(converged, reason, max_violation [m])``,
-    converged overruled (with the reason) by a non-finite configuration or energy, or by a
-    rigidity or wall row violated by more than 1e-7 of a ball diameter.
-
-    ``row_gaps``: the rows' values (``Evaluation.gaps``): rigidity rows first (``model.n_pairs``),
-    then wall rows."""
-    P, d = model.n_pairs, model.d
-    # The smallest gap [m]: rigidity rows |p_j - p_i| - d (monotone in c_ij: its smallest),
-    # then wall rows n . (p - p0) - d/2.
-    smallest = [float(np.sqrt(max(row_gaps[:P].min() + 1.0, 0.0)) * d - d)] if P else []
-    if len(row_gaps) > P:
-        smallest.append(float(row_gaps[P:].min() * d))
-    max_violation = max(0.0, -min(smallest)) if smallest else 0.0
-    if not (np.isfinite(p).all() and np.isfinite(m_hat).all()):
-        converged, reason = False, "non-finite configuration"
-    elif not np.isfinite(total):
-        converged, reason = False, f"non-finite energy ({total}) at the solver's answer"
-    elif converged and max_violation > 1e-7 * d:
-        converged, reason = False, f"rigidity or wall violated by {max_violation:.3g} m"
-    return converged, reason, max_violation
 
 
 def _non_finite_field(external, p: np.ndarray) -> str | None:

@@ -42,7 +42,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ballchain.drake_models.dipole import dipole_field, dipole_field_gradient
-from ballchain.drake_models.field_sources import FieldSource, FieldSources
+from ballchain.drake_models.field_sources import (FieldSource, FieldSources, MagnetSource, UniformField,
+                                                  rotation_with_z_along)
 from ballchain.drake_models.params import GRAVITY, BallChain
 from ballchain.optimization.reduced_chain import Evaluation, ReducedChain
 
@@ -94,8 +95,6 @@ def base_ball(n_balls: int, inserted_length: float, d: float, free_in_bore: int 
 def base_rotation(axis_W) -> np.ndarray:
     """R_WB (3, 3) with its first column along the sheath axis (the other two as chain_plant's
     feeder frame, so the canonical chart's out-of-plane direction is deterministic)."""
-    from ballchain.drake_models.field_sources import rotation_with_z_along
-
     return rotation_with_z_along(axis_W)[:, [2, 0, 1]]
 
 
@@ -179,8 +178,6 @@ def _point_dipoles_W(source) -> tuple[list, list, np.ndarray] | None:
     """(centres, moments, uniform B) [SI, world] of a source made only of point dipoles and
     uniform fields (MagnetSource with model "dipole", any object with ``p_WM`` and ``m_W`` arrays
     such as the wrench's PortDipoles, UniformField, sums of them), else None."""
-    from ballchain.drake_models.field_sources import MagnetSource, UniformField
-
     if isinstance(source, FieldSources):
         p, m, B = [], [], np.zeros(3)
         for s in source.sources:

@@ -11,8 +11,10 @@ import numpy as np
 
 from ballchain.drake_models import kernels
 from ballchain.drake_models.field_sources import UniformField
+from ballchain.drake_models.kernels import actuation
 from ballchain.drake_models.params import BallChain, Sleeve
 from ballchain.optimization.reduced_chain import ReducedChain
+from ballchain.optimization.statics import ChainStatics
 
 
 def warm_up() -> None:
@@ -32,9 +34,5 @@ def warm_up() -> None:
     ev.jacobian[np.arange(len(ev.gaps))]
     model.constraint_hessian(q, np.array([0]), np.array([1.0]))
     model.tip_hessian(q, np.ones(3))
-    from ballchain.optimization.statics import ChainStatics
-
     ChainStatics(chain, gravity=True).solve(UniformField([0.0, 0.02, 0.0]))  # the compiled Newton solve
-    from ballchain.drake_models.kernels import actuation
-
     actuation.warm_up()  # the actuation units' update

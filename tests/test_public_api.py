@@ -135,3 +135,79 @@ def test_unit_magnet_reading_takes_the_root_context():
     np.testing.assert_allclose(source.m_W / np.linalg.norm(source.m_W), unit.m_hat_initial_W, atol=1e-12)
     with pytest.raises(bc.UserInputError, match="no unit 'left_unit'.*right_unit"):
         station.unit_magnet("left_unit", root)
+
+
+class _UserUniformField:
+    """A field source written by a user: only ``FieldSource``'s one method, no base class."""
+
+    def __init__(self, B_W):
+        self.B_W = np.asarray(B_W, dtype=float)
+
+    def field_and_gradient(self, p_W):
+        p = np.atleast_2d(np.asarray(p_W, dtype=float))
+        return np.tile(self.B_W, (len(p), 1)), np.zeros((len(p), 3, 3))
+
+
+def test_a_user_field_source_gives_the_uniform_fields_equilibrium():
+    """A class implementing ``bc.FieldSource``'s protocol goes through ``ChainStatics.solve`` (the
+    Newton statics evaluate it through the protocol alone) to the equilibrium of a ``UniformField``
+    of the same value."""
+    B_W = [0.0, 0.023, 0.0]
+    chain = bc.BallChain(n_balls=12)
+    mine = bc.ChainStatics(chain).solve(_UserUniformField(B_W))
+    reference = bc.ChainStatics(chain).solve(bc.UniformField(B_W))
+    assert mine.converged and reference.converged
+    # The same minimum of the same energy; the user's source skips no evaluation (its gradient's
+    # derivative is central differences of zeros): equal to rounding, 1e-12 of a ball diameter.
+    np.testing.assert_allclose(mine.positions, reference.positions, rtol=0, atol=1e-12 * chain.ball_diameter)
+    np.testing.assert_allclose(mine.energy, reference.energy, rtol=1e-12)
+    assert mine.tip_position[1] > 0.0  # bent towards the field
+
+
+class _UserAtrium:
+    """An atrium written by a user: every member of ``bc.Atrium`` (here answered by a procedural
+    atrium it holds, so the two stations must agree), no base class."""
+
+    def __init__(self, inner):
+        self._inner = inner
+        for name in ("p_HP", "p_HE", "sheath_axis_H", "params", "rings", "ostia", "carinas", "lumen_key", "side"):
+            setattr(self, name, getattr(inner, name))
+
+    def contains(self, p_H):
+        return self._inner.contains(p_H)
+
+    @property
+    def wall_tetrahedra(self):
+        return self._inner.wall_tetrahedra
+
+    @property
+    def blood_surface(self):
+        return self._inner.blood_surface
+
+    def lumen_grid_contains(self, origin, spacing, shape):
+        return self._inner.lumen_grid_contains(origin, spacing, shape)
+
+    @property
+    def wall_distance(self):
+        return self._inner.wall_distance
+
+    def write_files(self, directory=None):
+        return self._inner.write_files(directory)
+
+    # Targets on the procedural atrium's rings (not an anatomy file's) are placed by its ellipsoid
+    # (``target_contact.heart_targets``): an atrium with such rings gives its semi-axes too.
+    @property
+    def semi_axes(self):
+        return self._inner.semi_axes
+
+
+def test_a_user_atrium_runs_in_the_station(heart):
+    """An object implementing ``bc.Atrium``'s protocol is a station's heart: ``MakeStation`` and
+    ``run_station`` use it through the protocol alone, to the same run as the atrium it answers from."""
+    mine = _UserAtrium(heart)
+    assert isinstance(mine, bc.Atrium) and not isinstance(mine, bc.LeftAtrium)
+    scenario = bc.load_scenario("heart_left_quasi_static")
+    runs = [bc.run_station(bc.MakeStation(scenario, heart=atrium), duration=0.02) for atrium in (mine, heart)]
+    assert all(run.failure is None for run in runs)
+    np.testing.assert_array_equal(runs[0].tip_position, runs[1].tip_position)
+    assert mine.contains(runs[0].tip_position[None])[0]

@@ -32,6 +32,7 @@ and editing any kernel file recompiles them all.
 from ballchain.drake_models.kernels._common import (
     COINCIDENT,
     FOLDED,
+    EnergyTerms,
     OK,
     TERM_BALLS,
     TERM_EXTERNAL,
@@ -71,7 +72,7 @@ from ballchain.drake_models.kernels.wrenches import (
 )
 
 __all__ = [
-    "COINCIDENT", "FOLDED", "OK", "TERM_BALLS", "TERM_EXTERNAL", "TERM_GRAVITY", "TERM_SLEEVE",
+    "COINCIDENT", "EnergyTerms", "FOLDED", "OK", "TERM_BALLS", "TERM_EXTERNAL", "TERM_GRAVITY", "TERM_SLEEVE",
     "add_external", "add_gravity", "add_sleeve", "cartesian_energy", "cartesian_wrenches",
     "chain_configuration", "chain_energy", "chain_wrenches", "chart_frames", "chart_vectors",
     "check_status", "configuration_vectors", "constraint_rows", "dipole_field_and_gradient",

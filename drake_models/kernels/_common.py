@@ -1,5 +1,6 @@
 """What every kernel file shares: the ``kernel`` decorator (numba, cached on disk), the energy
-parts' order in the ``terms`` arrays, and the status codes with their messages.
+parts' order in the ``terms`` arrays (and ``EnergyTerms``, their values), and the status codes
+with their messages.
 
 Numba's on-disk cache (``cache=True``: ``__pycache__`` next to the source file, or
 ``NUMBA_CACHE_DIR``) keys a compiled kernel on its own file's content only, while a kernel
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+from dataclasses import dataclass
 from pathlib import Path
 
 from numba import njit, types
@@ -24,10 +26,24 @@ from numba.core.caching import (
     UserWideCacheLocator,
 )
 
-from ballchain.drake_models.numba_cache import guard_kernel
+from ballchain.infrastructure.numba_cache import guard_kernel
 
 # Energy parts, in the order of the kernels' ``terms`` arrays (EnergyTerms' fields).
 TERM_BALLS, TERM_EXTERNAL, TERM_SLEEVE, TERM_GRAVITY = 0, 1, 2, 3
+
+
+@dataclass
+class EnergyTerms:
+    """The energy's parts [J] (re-exported by ``chain_energy``, its numpy reference's home)."""
+
+    balls: float = 0.0
+    external: float = 0.0
+    sleeve: float = 0.0
+    gravity: float = 0.0
+
+    @property
+    def total(self) -> float:
+        return self.balls + self.external + self.sleeve + self.gravity
 
 # Status codes of the kernels (raised as ValueError by the Python wrappers).
 OK, COINCIDENT, FOLDED = 0, 1, 2

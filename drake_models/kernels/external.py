@@ -4,7 +4,9 @@ of the balls in a field with its derivatives.
 The laws of ``dipole.py`` (``dipole_field``, ``dipole_field_gradient``) and of the external term
 of ``chain_energy.field_energy``, compiled. Field sources stay Python objects
 (``field_sources.FieldSource``): ``external_arrays`` evaluates one at the ball centres and the
-kernels take the arrays.
+kernels take the arrays. It knows a source only through the protocol (``field_and_gradient``,
+and the optional ``uniform`` and ``field_gradient_derivative``), so this file imports no field
+source: ``field_sources`` imports the kernels.
 """
 
 from __future__ import annotations
@@ -188,18 +190,38 @@ def _zeros(shape) -> np.ndarray:
     return z
 
 
+def field_gradient_derivative(source, p: np.ndarray, step: float = GRADIENT_STEP) -> np.ndarray:
+    """Second spatial derivative ``dG[k, a, b, c] = d2 B_a / dp_b dp_c`` (k, 3, 3, 3) [T/m^2] of a
+    FieldSource at the points p (k, 3) [m] (checked by the caller).
+
+    Zero for a uniform source (``source.uniform``); the source's own
+    ``field_gradient_derivative(p, step)`` when it has one (a sum of sources sums its parts');
+    otherwise central differences of the source's analytic (or, for the exact cylinder,
+    finite-difference) gradient. ``field_sources.field_gradient_derivative`` checks the points
+    and calls this.
+    """
+    if getattr(source, "uniform", False):
+        return np.zeros((p.shape[0], 3, 3, 3))
+    own = getattr(source, "field_gradient_derivative", None)
+    if own is not None:
+        return own(p, step)
+    offsets = np.concatenate([np.eye(3) * step, -np.eye(3) * step])
+    stencil = (p[:, None, :] + offsets[None, :, :]).reshape(-1, 3)
+    _, G = source.field_and_gradient(stencil)
+    G = G.reshape(p.shape[0], 6, 3, 3)
+    return ((G[:, :3] - G[:, 3:]) / (2 * step)).transpose(0, 2, 3, 1)
+
+
 def external_arrays(external, p: np.ndarray, hessian: bool = False):
     """(has_external, B (n, 3), G (n, 3, 3), dG (n, 3, 3, 3)) of a FieldSource (or None) at p.
 
-    dG (from ``field_sources.field_gradient_derivative``) only when ``hessian``; zeros otherwise.
+    dG (from ``field_gradient_derivative``) only when ``hessian``; zeros otherwise.
     The zero arrays are shared between calls (the kernels only read them): do not write to them.
     """
-    from ballchain.drake_models.field_sources import UniformField, field_gradient_derivative
-
     n = p.shape[0]
     if external is None:
         return False, _zeros((n, 3)), _zeros((n, 3, 3)), _zeros((n, 3, 3, 3))
-    if isinstance(external, UniformField):  # the same field everywhere: no gradient
+    if getattr(external, "uniform", False):  # the same field B_W everywhere: no gradient
         B = np.empty((n, 3))
         B[:] = external.B_W
         return True, B, _zeros((n, 3, 3)), _zeros((n, 3, 3, 3))

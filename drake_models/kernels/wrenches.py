@@ -11,6 +11,7 @@ import numpy as np
 
 from ballchain.drake_models.kernels._common import (
     OK,
+    EnergyTerms,
     TERM_BALLS,
     TERM_EXTERNAL,
     TERM_GRAVITY,
@@ -22,6 +23,7 @@ from ballchain.drake_models.kernels.external import add_external, external_array
 from ballchain.drake_models.kernels.gravity import add_gravity
 from ballchain.drake_models.kernels.pair import pair_energy_gradient
 from ballchain.drake_models.kernels.sleeve import add_sleeve
+from ballchain.drake_models.params import GRAVITY
 
 
 @kernel
@@ -94,9 +96,6 @@ def chain_energy(chain, p, m_hat, external=None, gravity: bool = False, base_dir
     Returns:
         ``(U, dU_dp, dU_dm_hat, terms)``: U [J], gradients (n, 3) [J/m] and [J], EnergyTerms.
     """
-    from ballchain.drake_models.chain_energy import EnergyTerms
-    from ballchain.drake_models.params import GRAVITY
-
     p = np.ascontiguousarray(p, dtype=float)
     m_hat = np.ascontiguousarray(m_hat, dtype=float)
     if not (np.all(np.isfinite(p)) and np.all(np.isfinite(m_hat))):
