@@ -31,6 +31,9 @@ import tempfile
 from pathlib import Path
 from typing import Callable
 
+from ballchain.infrastructure.errors import UserInputError, short_repr
+from ballchain.infrastructure.safe_files import check_output_dir
+
 PACKAGE_XML = Path(__file__).with_name("package.xml")
 GENERATED_PACKAGE = "ballchain_generated"
 CACHE_ENV = "BALLCHAIN_CACHE"  # the cache folder; default default_cache_root()
@@ -91,7 +94,7 @@ def _cache_what() -> str:
 
 def _user(uid: int) -> str:
     try:
-        import pwd
+        import pwd  # lazy: POSIX only, and only for a refusal's message
 
         return f"{pwd.getpwuid(uid).pw_name} (uid {uid})"
     except (ImportError, KeyError):
@@ -112,8 +115,6 @@ def check_private(root, what: str | None = None) -> None:
     Raises:
         UserInputError: one line naming the folder, its owner and mode, and what to do.
     """
-    from ballchain.drake_models.errors import UserInputError, short_repr
-
     what = what or _cache_what()
     me = os.geteuid()
     root = Path(root)
@@ -154,8 +155,6 @@ def check_cache_dir() -> Path:
     """The cache folder, checked without creating it: a UserInputError naming ``$BALLCHAIN_CACHE``
     when it is a file, cannot be written, or someone else could write it (``check_private``; the
     command line checks this before any work)."""
-    from ballchain.drake_models.safe_files import check_output_dir
-
     check_private(_cache_root())
     return check_output_dir(_cache_root(), _cache_what())
 
@@ -312,8 +311,6 @@ def cached_files(directory: Path, names: dict[str, str],
     try:
         directory.mkdir(parents=True, exist_ok=True)
     except OSError as err:
-        from ballchain.drake_models.errors import UserInputError
-
         raise UserInputError(f"cannot make the folder {str(directory)!r} for generated model files "
                              f"({err.strerror or err})") from None
     paths = {k: directory / n for k, n in names.items()}

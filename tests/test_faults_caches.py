@@ -378,11 +378,11 @@ def test_a_planted_sdf_grid_is_rebuilt_with_one_line(user_atrium, tmp_path, monk
     grid = dict(spacing=2e-3, band=3e-3)
     fresh = atrium_sdf(user_atrium, directory=tmp_path, **grid)
     (path,) = tmp_path.glob("atrium_sdf_*.npz")
-    np.savez_compressed(path, origin=fresh.origin, spacing=fresh.spacing, values=(fresh.values + 1e-3).astype(np.float32),
-                        band=fresh.band)  # a wall 1 mm away everywhere: a well-formed grid
-    for listing in tmp_path.glob("atrium_sdf_*.hmac"):
-        import hashlib
+    import hashlib
 
+    planted = (fresh.values + 1e-3).astype(np.float32)  # a wall 1 mm away everywhere: a well-formed grid
+    np.savez_compressed(path, origin=fresh.origin, spacing=fresh.spacing, values=planted, band=fresh.band)
+    for listing in tmp_path.glob("atrium_sdf_*.hmac"):
         listing.write_text(f"{hashlib.sha256(path.read_bytes()).hexdigest()}  {path.name}\n")
     capsys.readouterr()
     sdf = atrium_sdf(user_atrium, directory=tmp_path, **grid)

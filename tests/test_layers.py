@@ -58,7 +58,6 @@ ALLOWED_CYCLES = {
 # more than this; lower the number (or drop the entry) as they get their reason or move up.
 PENDING_REASONS: dict[str, int] = {
     "ballchain.drake_models.atrium_mesh": 1,  # being split (issue 42, item 3)
-    "ballchain.drake_models.model_files": 3,  # the cache's ownership check being edited
     "ballchain.systems.chain_plant": 1,  # systems/: the device seam and the typed configs (items 1, 2)
     "ballchain.systems.chain_scenario": 5,
     "ballchain.systems.chain_simulation": 1,
