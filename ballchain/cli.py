@@ -32,6 +32,7 @@ import threading
 from ballchain.drake_models import kernel_compiler
 from ballchain.drake_models.errors import OutputError, StopRequest, UserInputError, caused_by_interrupt
 from ballchain.drake_models.model_files import CACHE_ENV, check_cache_dir
+from ballchain.infrastructure.resource_limits import address_space_refusal, limit_message
 
 # subcommand -> (module under ballchain.commands, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -299,6 +300,9 @@ def _run(argv: list[str], stop: StopSignals) -> int:
     if not argv or argv[0] not in COMMANDS:
         parser.parse_args(argv)  # prints help or the error, and exits
         return 2
+    if (refusal := address_space_refusal()) is not None:  # before the libraries load (they hang below it)
+        print(f"ballchain {argv[0]}: error: {refusal}", file=sys.stderr)
+        return 1
     try:
         # Load only the chosen subcommand's module, give its parser the arguments, then parse.
         module = importlib.import_module(f"ballchain.commands.{COMMANDS[argv[0]][0]}")
@@ -341,15 +345,26 @@ def _run(argv: list[str], stop: StopSignals) -> int:
         return 1
     except OSError as err:
         if err.errno not in (errno.ENOSPC, errno.EDQUOT):  # a full disk outside the result files (a cache)
-            raise
+            return _resource_limit(args.command, err)
         print(f"ballchain {args.command}: error: {err.strerror}: {err.filename or ''} (files already written "
               "are complete)", file=sys.stderr)
         return 1
     except Exception as err:
-        if not caused_by_interrupt(err):  # a bug: the traceback
-            raise
+        if not caused_by_interrupt(err):  # a machine's limit met (one line, status 1), else a bug: the traceback
+            return _resource_limit(args.command, err)
         print(f"ballchain {args.command}: {stop.note()} (files already written are complete)", file=sys.stderr)
         return stop.status()
+
+
+def _resource_limit(command: str, err: BaseException) -> int:
+    """Status 1 and one line when ``err`` comes from a limit of the machine (open files, processes,
+    memory: ``resource_limits``); otherwise ``err`` is raised again (a bug: the traceback)."""
+    message = limit_message(err)
+    if message is None:
+        raise err
+    print(f"ballchain {command}: error: {' '.join(message.split())} (files already written are complete)",
+          file=sys.stderr)
+    return 1
 
 
 if __name__ == "__main__":

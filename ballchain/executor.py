@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 
 from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.infrastructure.resource_limits import ResourceLimitError, check_open_files, limit_message
 
 MAX_WORKERS_PER_CORE = 4  # LocalCluster processes per core: more only share the cores (and the memory)
 MAX_JOBS = 256  # job-queue jobs one sweep may ask for
@@ -161,13 +162,25 @@ class Executor:
             from distributed import LocalCluster
 
             n = self.workers or default_workers()
+            check_open_files(n)  # too low a ulimit -n: one line now (Dask's nannies fail in tracebacks)
             # Processes with one thread each: the points are GIL-bound Python and numpy. The
             # scheduler's HTTP server (health routes) moves to a free port when another cluster on
             # the machine holds 8787: not worth a warning.
-            with warnings.catch_warnings():
-                warnings.filterwarnings("ignore", message=r"Port \d+ is already in use")
-                self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                            dashboard_address=None, silence_logs=logging.ERROR)
+            nanny_log = logging.getLogger("distributed.nanny")
+            level = nanny_log.level
+            nanny_log.setLevel(logging.CRITICAL)  # its "Failed to start process" traceback: the error below holds it
+            try:
+                with warnings.catch_warnings():
+                    warnings.filterwarnings("ignore", message=r"Port \d+ is already in use")
+                    self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                                dashboard_address=None, silence_logs=logging.ERROR)
+            except Exception as err:  # a limit met as the workers start (processes, memory): one line
+                message = limit_message(err)
+                if message is None:
+                    raise
+                raise ResourceLimitError(message) from err
+            finally:
+                nanny_log.setLevel(level)
             self.client = Client(self.cluster)
             self.description = f"LocalCluster, {n} worker process(es)"
         return self

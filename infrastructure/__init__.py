@@ -4,7 +4,8 @@ Nothing here knows physics or Drake: ``errors`` (``UserInputError``, ``OutputErr
 ``arg_checks`` (the Python API's argument checks), ``input_files`` (the one check of every file a
 user gives), ``safe_files`` (atomic result files, checked output paths), ``safe_yaml`` (the one
 loader of user YAML), ``numba_cache`` and ``kernel_compiler`` (numba's on-disk cache made to heal
-itself, and compilations a stop can end). Every layer may import it (``drake_models`` ->
+itself, and compilations a stop can end), ``resource_limits`` (open files, processes and memory:
+checked before a run where cheap, one line when met). Every layer may import it (``drake_models`` ->
 ``optimization`` -> ``systems`` -> the top); it imports none of them (``tests/test_layers.py``).
 
 The old homes in ``ballchain.drake_models`` (``ballchain.drake_models.errors`` and the others)

@@ -67,6 +67,12 @@ class OutputError(Exception):
     file's earlier content, if any, is unchanged (the writes are atomic)."""
 
 
+class ResourceLimitError(Exception):
+    """The machine's limit on open files, processes or memory stops the run (``ulimit -n``,
+    ``-u``, ``-v``): one line naming the limit, its value and what to do, exit status 1 (the input
+    is valid; the same command runs where the limit is higher). See ``resource_limits``."""
+
+
 class UserInputError(ValueError):
     """Bad input from the user: reported as one line, exit status 2.
 
