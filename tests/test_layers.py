@@ -47,12 +47,7 @@ LIBRARY_LAYERS = ("infrastructure", "drake_models", "optimization", "systems")
 
 # Cycles being removed elsewhere, each with the issue that removes it (the edges are printed all
 # the same). Remove the entry when that lands: the test then holds the rule for them too.
-ALLOWED_CYCLES = {
-    # issue 42, item 3 (reproduce as a package): ``reproduce.cache.code_version`` imports the
-    # ``reproduce`` package (inside the function) for its folder, which its own
-    # ``Path(__file__).parent`` gives.
-    frozenset({"ballchain.reproduce", "ballchain.reproduce.cache", "ballchain.reproduce.runner"}),
-}
+ALLOWED_CYCLES: set = set()  # none: a cycle is fixed at its root, not allowed here
 # Function-level imports in the library layers without their reason, in files being edited by
 # others at the time of writing (issue 42): module -> how many. The test fails when a module has
 # more than this; lower the number (or drop the entry) as they get their reason or move up.

@@ -10,6 +10,7 @@ the one it started in (``check_same_folder``).
 from __future__ import annotations
 
 import hashlib
+import importlib.util
 import json
 import math
 import os
@@ -28,21 +29,22 @@ MAX_RECORD_BYTES = 10_000_000  # a section record is a few kB (its report part a
 SECTION_DATA = "sections"  # OUT/sections/<section>.json: each section's data
 
 
+SOURCE_PACKAGES = ("ballchain", "ballchain.drake_models", "ballchain.optimization", "ballchain.systems",
+                   "ballchain.infrastructure")  # each a top-level folder (pyproject's package-dir)
+
+
 def code_version() -> str:
-    """A hash of every source file of the package (and its scenario YAML): the code's version.
+    """A hash of every source file of the package (and its YAML), sub-packages included (the
+    kernels, the reproduce and sweep packages, the infrastructure): the code's version.
 
     A content hash, not a commit id, so that uncommitted edits count as another version.
     """
-    import ballchain
-    from ballchain import commands as commands_pkg
-    from ballchain import drake_models, experiments, optimization, reproduce, sweep, systems
-
     digest = hashlib.sha256()
-    roots = [Path(m.__file__).parent for m in (ballchain, commands_pkg, experiments, drake_models,
-                                                optimization, systems, reproduce, sweep)]
-    for root in roots:
-        for path in sorted(root.glob("*.py")) + sorted(root.glob("*.yaml")):
-            digest.update(path.name.encode())
+    for name in SOURCE_PACKAGES:
+        (root,) = importlib.util.find_spec(name).submodule_search_locations  # found, not imported
+        root = Path(root)
+        for path in sorted([*root.rglob("*.py"), *root.rglob("*.yaml")]):
+            digest.update(f"{name}/{path.relative_to(root).as_posix()}".encode())
             digest.update(path.read_bytes())
     return digest.hexdigest()[:16]
 
