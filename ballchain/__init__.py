@@ -15,7 +15,7 @@ The exported names, by job:
 - scenarios: ``ChainScenario``, ``load_scenario``, ``scenario_names``, ``scenario_descriptions``,
   ``parse_overrides``, ``apply_overrides``;
 - the station and its run: ``MakeStation``, ``Station``, ``DeviceModel`` (the interface every
-  device implements) and ``register_device_model`` (a new device), ``MagnetUnitConfig``,
+  device implements; ``ChainModel``, the ball chain's) and ``register_device_model`` (a new device), ``MagnetUnitConfig``,
   ``StationOptions`` and ``make_actuation_station`` (the units and the feeder alone),
   ``StationPorts`` (what an ``add_systems`` hook connects to), ``run_station``, ``RunOutcome``,
   ``StationRunner``, ``ChainMonitor``, ``run_simulation``, ``SimulationMetrics``,
@@ -52,6 +52,7 @@ _EXPORTS: dict[str, str] = {
     "MakeStation": "ballchain.systems.station",
     "Station": "ballchain.systems.station",
     "DeviceModel": "ballchain.systems.device_model",
+    "ChainModel": "ballchain.systems.chain_model",
     "register_device_model": "ballchain.systems.device_model",
     "MagnetUnitConfig": "ballchain.systems.unit_config",
     "StationOptions": "ballchain.systems.actuation_station",

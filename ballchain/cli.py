@@ -29,8 +29,8 @@ import signal
 import sys
 import threading
 
-from ballchain.drake_models import kernel_compiler
-from ballchain.drake_models.errors import OutputError, StopRequest, UserInputError, caused_by_interrupt
+from ballchain.infrastructure import kernel_compiler
+from ballchain.infrastructure.errors import OutputError, StopRequest, UserInputError, caused_by_interrupt
 from ballchain.drake_models.model_files import CACHE_ENV, check_cache_dir
 from ballchain.infrastructure.resource_limits import address_space_refusal, limit_message
 

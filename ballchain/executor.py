@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import os
 
-from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.infrastructure.errors import UserInputError, short_repr
 from ballchain.infrastructure.resource_limits import ResourceLimitError, check_open_files, limit_message
 
 MAX_WORKERS_PER_CORE = 4  # LocalCluster processes per core: more only share the cores (and the memory)

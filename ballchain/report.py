@@ -27,7 +27,7 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ballchain.drake_models.safe_files import atomic_write_text
+from ballchain.infrastructure.safe_files import atomic_write_text
 
 NOISE_RELATIVE = 1e-9
 """A value below this fraction of its column's largest magnitude is round-off: printed as 0."""

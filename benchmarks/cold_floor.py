@@ -104,8 +104,8 @@ def main() -> None:
     if args.repeats < 1:
         parser.error(f"--repeats must be >= 1, got {args.repeats}")
     if args.json:  # before the runs: a path that cannot be written must not cost them
-        from ballchain.drake_models.errors import UserInputError
-        from ballchain.drake_models.safe_files import check_output_file
+        from ballchain.infrastructure.errors import UserInputError
+        from ballchain.infrastructure.safe_files import check_output_file
 
         try:
             check_output_file(args.json, "--json")
@@ -121,7 +121,7 @@ def main() -> None:
               f"{s['cold']:5.0f}x   {r['cold_kernel']:.3f} {s['cold_kernel']:5.0f}x   "
               f"{r['back_to_back']:.3f} ({r['back_to_back_kernel']:.3f}) {s['back_to_back']:5.0f}x")
     if args.json:
-        from ballchain.drake_models.safe_files import write_json
+        from ballchain.infrastructure.safe_files import write_json
 
         write_json(args.json, out)
 

@@ -289,8 +289,8 @@ def main():
     if args.plant_targets < 0 or args.teleop_repeats < 1:
         parser.error("--plant-targets must be >= 0 and --teleop-repeats >= 1")
     if args.json:  # before the runs: a path that cannot be written must not cost them
-        from ballchain.drake_models.errors import UserInputError
-        from ballchain.drake_models.safe_files import check_output_file
+        from ballchain.infrastructure.errors import UserInputError
+        from ballchain.infrastructure.safe_files import check_output_file
 
         try:
             check_output_file(args.json, "--json")
@@ -304,7 +304,7 @@ def main():
     if args.teleop:
         out["teleop_right_world"] = teleop_task(args.plant_targets or None, args.teleop_repeats)
     if args.json:
-        from ballchain.drake_models.safe_files import write_json
+        from ballchain.infrastructure.safe_files import write_json
 
         write_json(args.json, out)
 

@@ -39,11 +39,11 @@ from pathlib import Path
 import numpy as np
 
 from ballchain.drake_models import mesh_tools as mt
-from ballchain.drake_models.arg_checks import as_vector, require_choice, require_int, require_positive, require_type
+from ballchain.infrastructure.arg_checks import as_vector, require_choice, require_int, require_positive, require_type
 from ballchain.drake_models.atrium_surface import (ACCEPTED_EXTENT_MM, DECIMATE_ABOVE, DECIMATE_TO, MAX_OPENING_AREA,
                                                    MAX_TRIANGLES, SENSIBLE_EXTENT_MM, AtriumSurface, Units, decimate,
                                                    load_atrium_surface, validate_surface)
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.mesh_crossings import SELF_CROSSING_DEPTH, self_crossings
 from ballchain.drake_models.mesh_io import (MESH_NOUN, AtriumMeshError, read_mesh, read_obj, read_ply, read_stl,
                                             read_vtk_polydata, write_stl_ascii, write_stl_binary)

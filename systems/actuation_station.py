@@ -29,8 +29,8 @@ from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import Adder
 
 from ballchain.drake_models.dipole_inversion import neutral_direction
-from ballchain.drake_models.arg_checks import as_vector, require_bool, require_choice, require_int, require_type
-from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.infrastructure.arg_checks import as_vector, require_bool, require_choice, require_int, require_type
+from ballchain.infrastructure.errors import UserInputError, short_repr
 from ballchain.drake_models.params import BallChain
 from ballchain.systems.feeder import Feeder, FeederSpec
 from ballchain.systems.hall_sensor import DipoleDirectionEstimator, HallSensor, HallSensorSpec

@@ -42,9 +42,9 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import Context
 
-from ballchain.drake_models.arg_checks import as_array, as_vector, require_int, require_type
+from ballchain.infrastructure.arg_checks import as_array, as_vector, require_int, require_type
 from ballchain.drake_models.dipole_inversion import FieldInversion
-from ballchain.drake_models.errors import UserInputError, check_finite_input
+from ballchain.infrastructure.errors import UserInputError, check_finite_input
 from ballchain.drake_models.field_sources import FieldAtPoint, MagnetSource
 from ballchain.drake_models.kernels import actuation as K
 from ballchain.drake_models.omniwheel import paper_inverse_matrix

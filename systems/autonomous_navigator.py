@@ -48,7 +48,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus, LeafSystem
 
-from ballchain.drake_models.errors import UserInputError, require_finite_fields
+from ballchain.infrastructure.errors import UserInputError, require_finite_fields
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
 from ballchain.drake_models.params import BallChain, gram_force, newtons_from_gram_force
 from ballchain.drake_models.vectors import cross

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ballchain.drake_models.atrium_sdf import atrium_sdf
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.systems.catheter_station import CatheterMeshcat, CatheterParams, ManualHand, SteerableCatheterSystem
 from ballchain.systems.chain_model import subsystem_context
 from ballchain.systems.device_model import DeviceModel, OperatorInputs

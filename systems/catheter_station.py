@@ -39,7 +39,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.geometry import Rgba, Sphere
 from pydrake.systems.framework import EventStatus, LeafSystem
 
-from ballchain.drake_models.errors import UserInputError, require_finite_fields
+from ballchain.infrastructure.errors import UserInputError, require_finite_fields
 from ballchain.drake_models.steerable_catheter import SteerableCatheter
 from ballchain.optimization.rod_statics import RodStatics
 from ballchain.systems.meshcat_view import frame_scene

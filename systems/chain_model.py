@@ -39,7 +39,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import LeafSystem
 
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.field_sources import FieldSource, rotation_with_z_along
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
 from ballchain.systems.device_model import DeviceModel
@@ -188,8 +188,9 @@ class BallCentres(LeafSystem):
 
 
 class ChainModel(DeviceModel):
-    """The ball chain in a station diagram: the interface both engines implement (the ball
-    chain's ``DeviceModel``: its bodies are the balls, its tip the tip ball).
+    """The ball chain's DeviceModel in a station diagram: the interface both engines implement.
+
+    Its bodies are the balls, its tip the tip ball.
 
     Built by a subclass's ``add_to`` (``add_to_station``: the chain's configuration from the
     scenario, then ``add_to``); the station reads the chain only through this interface.

@@ -8,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 from pydrake.systems.framework import EventStatus
 
-from ballchain.drake_models.arg_checks import require_int
-from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.infrastructure.arg_checks import require_int
+from ballchain.infrastructure.errors import UserInputError, short_repr
 from ballchain.systems.station import Station
 
 

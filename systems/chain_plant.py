@@ -56,7 +56,7 @@ from pydrake.multibody.tree import (
 )
 from pydrake.systems.primitives import ConstantVectorSource
 
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import GRAVITY, BallChain, Sleeve

@@ -23,11 +23,11 @@ from pydrake.systems.analysis import GetIntegrationSchemes, SimulatorConfig
 from pydrake.visualization import VisualizationConfig
 
 from ballchain.drake_models import paper, wall_motion
-from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.infrastructure.errors import UserInputError, short_repr
 from ballchain.drake_models.localisation import LocalisationParams, check_figures
-from ballchain.drake_models.safe_files import register_input
-from ballchain.drake_models.safe_yaml import check_value  # noqa: F401 (the sweep's check imports it from here)
-from ballchain.drake_models.safe_yaml import (check_yaml_schema, load_typed, load_yaml, load_yaml_file,
+from ballchain.infrastructure.safe_files import register_input
+from ballchain.infrastructure.safe_yaml import check_value  # noqa: F401 (the sweep's check imports it from here)
+from ballchain.infrastructure.safe_yaml import (check_yaml_schema, load_typed, load_yaml, load_yaml_file,
                                              schema_fields as _schema_fields, yaml_kind)
 from ballchain.drake_models.params import BallChain
 from ballchain.systems.chain_plant import ChainPlantConfig, ContactConfig, chain_multibody_plant_config
@@ -1022,8 +1022,8 @@ def check_anatomy_field(s: "ChainScenario", others: tuple, default: "ChainScenar
         _require(getattr(s, name) == getattr(default, name),
                  f"scenario {name} cannot go with anatomy: the anatomy file gives the surface, its units, the "
                  f"sheath and the targets (leave {name} out)")
-    from ballchain.drake_models.input_files import check_input_file
-    from ballchain.drake_models.safe_yaml import MAX_BYTES
+    from ballchain.infrastructure.input_files import check_input_file
+    from ballchain.infrastructure.safe_yaml import MAX_BYTES
 
     path = check_input_file(s.anatomy, f"scenario anatomy {short_repr(s.anatomy)}", MAX_BYTES,
                             "an anatomy file (YAML)")
@@ -1047,7 +1047,7 @@ def check_atrium_file(path: str) -> None:
     else:
         resolved = Path(path)
     from ballchain.drake_models.atrium_mesh import MESH_NOUN
-    from ballchain.drake_models.input_files import MAX_MESH_BYTES, check_input_file
+    from ballchain.infrastructure.input_files import MAX_MESH_BYTES, check_input_file
 
     check_input_file(resolved, f"scenario atrium_file {short_repr(path)}", MAX_MESH_BYTES, MESH_NOUN)
     register_input(resolved, "scenario atrium_file")

@@ -30,10 +30,10 @@ from pathlib import Path
 import numpy as np
 from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 
-from ballchain.drake_models.arg_checks import require_bool, require_positive, require_type
+from ballchain.infrastructure.arg_checks import require_bool, require_positive, require_type
 from ballchain.drake_models.atrium import Atrium
-from ballchain.drake_models.errors import UserInputError, caused_by_interrupt, short_repr
-from ballchain.drake_models.safe_files import atomic_write_text, check_output_file, optional_field
+from ballchain.infrastructure.errors import UserInputError, caused_by_interrupt, short_repr
+from ballchain.infrastructure.safe_files import atomic_write_text, check_output_file, optional_field
 from ballchain.systems.chain_model import SnapThrough, StaticsEngineStats
 from ballchain.systems.chain_scenario import ChainScenario, check_steps
 from ballchain.systems.chain_monitor import RIM_BAND, ChainMonitor, near_ostium_rim, station_monitor  # noqa: F401

@@ -15,8 +15,8 @@ import numpy as np
 from pydrake.systems.framework import BasicVector, LeafSystem
 from pydrake.trajectories import PiecewisePolynomial
 
-from ballchain.drake_models.arg_checks import require_positive, require_type
-from ballchain.drake_models.errors import UserInputError, check_finite_input, require_finite_fields
+from ballchain.infrastructure.arg_checks import require_positive, require_type
+from ballchain.infrastructure.errors import UserInputError, check_finite_input, require_finite_fields
 from ballchain.drake_models.params import BallChain
 
 

@@ -35,7 +35,7 @@ import numpy as np
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
 from ballchain.drake_models.dipole_inversion import neutral_direction
-from ballchain.drake_models.errors import UserInputError, require_finite_fields
+from ballchain.infrastructure.errors import UserInputError, require_finite_fields
 from ballchain.systems.station_units import TipObserver, joystick_keys_for_rotation
 from ballchain.systems.unit_config import MagnetUnitConfig
 

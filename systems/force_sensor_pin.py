@@ -28,8 +28,8 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import BasicVector, LeafSystem
-from ballchain.drake_models.arg_checks import as_vector, require_positive
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.arg_checks import as_vector, require_positive
+from ballchain.infrastructure.errors import UserInputError
 
 
 def stability_bound(time_step: float, damping: float, mass: float) -> float:

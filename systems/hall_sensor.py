@@ -18,9 +18,9 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 
-from ballchain.drake_models.arg_checks import require_int, require_type
+from ballchain.infrastructure.arg_checks import require_int, require_type
 from ballchain.drake_models.dipole_inversion import FieldInversion, refine_direction
-from ballchain.drake_models.errors import UserInputError, require_finite_fields
+from ballchain.infrastructure.errors import UserInputError, require_finite_fields
 from ballchain.drake_models.field_sources import FieldAtPoint, FieldSource, FieldSources, MagnetSource
 from ballchain.systems.randomness import SampleGenerators, SeededLeafSystem
 from ballchain.systems.unit_config import MagnetUnitConfig

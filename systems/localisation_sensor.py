@@ -16,7 +16,7 @@ import numpy as np
 from pydrake.systems.framework import BasicVector, EventStatus
 
 from ballchain.drake_models.localisation import LocalisationParams
-from ballchain.drake_models.arg_checks import require_type
+from ballchain.infrastructure.arg_checks import require_type
 from ballchain.systems.randomness import SampleGenerators, SeededLeafSystem
 
 

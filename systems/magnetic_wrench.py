@@ -18,9 +18,9 @@ from pydrake.multibody.math import SpatialForce
 from pydrake.multibody.plant import ExternallyAppliedSpatialForce
 from pydrake.systems.framework import LeafSystem
 
-from ballchain.drake_models.arg_checks import require_type
+from ballchain.infrastructure.arg_checks import require_type
 from ballchain.drake_models.kernels import chain_wrenches, dipole_field_and_gradient
-from ballchain.drake_models.errors import NonFiniteSignal, UserInputError
+from ballchain.infrastructure.errors import NonFiniteSignal, UserInputError
 from ballchain.drake_models.field_sources import FieldSource, FieldSources, MagnetSource
 from ballchain.drake_models.params import BallChain, CylinderMagnet, SphereMagnet
 

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from ballchain.drake_models.arg_checks import require_type
-from ballchain.drake_models.errors import UserInputError, check_finite_input
+from ballchain.infrastructure.arg_checks import require_type
+from ballchain.infrastructure.errors import UserInputError, check_finite_input
 from ballchain.drake_models.omniwheel import OmniWheelGeometry
 
 

@@ -44,8 +44,8 @@ from pydrake.geometry import (
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
-from ballchain.drake_models.arg_checks import as_vector, require_bool, require_type
-from ballchain.drake_models.errors import UserInputError, caused_by_interrupt
+from ballchain.infrastructure.arg_checks import as_vector, require_bool, require_type
+from ballchain.infrastructure.errors import UserInputError, caused_by_interrupt
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import BallChain
 from ballchain.optimization.blas_threads import one_blas_thread as _one_blas_thread

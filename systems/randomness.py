@@ -30,7 +30,7 @@ import numpy as np
 from pydrake.common import RandomGenerator
 from pydrake.systems.framework import BasicVector, Diagram, LeafSystem
 
-from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.infrastructure.errors import UserInputError, short_repr
 from ballchain.drake_models.kernels._common import kernel
 
 MAX_SEED = 2**32 - 1  # RandomGenerator's seeds (and the seeds it draws) are 32-bit

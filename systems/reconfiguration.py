@@ -29,8 +29,8 @@ from __future__ import annotations
 import numpy as np
 from pydrake.systems.framework import EventStatus, LeafSystem
 
-from ballchain.drake_models.arg_checks import as_vector, require_type
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.arg_checks import as_vector, require_type
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.omniwheel import OmniWheelGeometry, paper_wheel_speeds
 from ballchain.drake_models.vectors import angle_between, cross, perpendicular_axis
 from ballchain.systems.omni_wheel_drive import saturate_uniformly

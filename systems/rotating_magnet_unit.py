@@ -25,10 +25,10 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, Context, LeafSystem
 
-from ballchain.drake_models.errors import check_finite_input
+from ballchain.infrastructure.errors import check_finite_input
 from ballchain.drake_models.field_sources import MagnetSource
 from ballchain.systems.unit_config import MagnetUnitConfig, right_unit
-from ballchain.drake_models.arg_checks import as_array, require_type
+from ballchain.infrastructure.arg_checks import as_array, require_type
 
 # Pull |q| back to 1 at this rate [1/s]: the quaternion ODE conserves the norm exactly, so
 # this only removes integrator drift and never changes the rotation.

@@ -65,7 +65,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import EventStatus
 
-from ballchain.drake_models.errors import UserInputError, require_finite_fields
+from ballchain.infrastructure.errors import UserInputError, require_finite_fields
 from ballchain.systems.randomness import SeededLeafSystem
 from ballchain.systems.target_contact import targets_touched
 from ballchain.systems.unit_config import MagnetUnitConfig

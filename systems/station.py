@@ -56,8 +56,8 @@ from pydrake.systems.primitives import MatrixGain, TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
 
 from ballchain.drake_models.atrium import Atrium
-from ballchain.drake_models.arg_checks import require_type
-from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.infrastructure.arg_checks import require_type
+from ballchain.infrastructure.errors import UserInputError, short_repr
 from ballchain.drake_models.field_sources import FieldSource, MagnetSource, require_field_source
 from ballchain.drake_models.params import CylinderMagnet
 from ballchain.systems.chain_model import ChainModel, FieldCoupling, subsystem_context

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ballchain.drake_models.atrium import Atrium
-from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.infrastructure.errors import UserInputError, short_repr
 from ballchain.drake_models.field_sources import FieldSource, FieldSources, MagnetSource, UniformField
 from ballchain.drake_models.heart import HeartParams, LeftAtrium
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet

@@ -38,7 +38,7 @@ from pydrake.systems.framework import LeafSystem, OutputPort
 from pydrake.systems.primitives import ConstantVectorSource, MatrixGain, Multiplexer, TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
 
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import BallChain, CylinderMagnet
 from ballchain.drake_models.dipole_inversion import neutral_direction

@@ -21,7 +21,7 @@ from pydrake.systems.framework import LeafSystem
 
 from ballchain.drake_models.dipole import dipole_field
 from ballchain.drake_models.dipole_inversion import moment_from_field
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.vectors import cross
 from ballchain.systems.unit_config import MagnetUnitConfig
 

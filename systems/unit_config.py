@@ -19,7 +19,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ballchain.drake_models import paper
-from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.infrastructure.errors import UserInputError, short_repr
 from ballchain.drake_models.field_sources import MagnetSource
 from ballchain.drake_models.omniwheel import OmniWheelGeometry
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet

@@ -9,7 +9,7 @@ import pytest
 from ballchain.cli import main as cli_main
 from ballchain.drake_models import lesion_fem as fem
 from ballchain.drake_models import tissue as laws
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.experiments import ablation
 
 

@@ -197,7 +197,7 @@ def test_field_at_point_is_the_checked_source_field():
     the unit's sensor (beyond the magnet's reach) and at a point within its bounding sphere."""
     from pydrake.math import RotationMatrix
 
-    from ballchain.drake_models.errors import UserInputError
+    from ballchain.infrastructure.errors import UserInputError
     from ballchain.drake_models.field_sources import FieldAtPoint
     from ballchain.systems.unit_config import right_unit
 

@@ -10,7 +10,7 @@ from ballchain.cli import main
 from ballchain.drake_models import mesh_tools as mt
 from ballchain.drake_models.anatomy import (DEFAULT_MAGNET_DISTANCE, DEFAULT_TOUCH_RADIUS, MAX_TARGET_GAP,
                                             PROCEDURAL_FILE, load_anatomy, procedural_anatomy_text)
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.heart import HeartParams
 
 

@@ -22,7 +22,7 @@ from ballchain.drake_models import mesh_tools as mt  # noqa: E402
 from ballchain.drake_models.atrium_mesh import (DECIMATE_TO, UserAtrium, UserAtriumParams,  # noqa: E402
                                                 grid_winding_inside, load_atrium_surface, validate_surface)
 from ballchain.drake_models.atrium_sdf import atrium_sdf  # noqa: E402
-from ballchain.drake_models.errors import UserInputError  # noqa: E402
+from ballchain.infrastructure.errors import UserInputError  # noqa: E402
 from ballchain.drake_models.surface_tree import SurfaceTree  # noqa: E402
 
 PLATE_TIP_MM = [0.0, 0.0, 25.0]  # the sheath's tip above the plate, between the holes

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from ballchain.cli import main
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 
 HANG_GUARD_S = 30.0  # a case that reaches the long work (or hangs) takes minutes
 

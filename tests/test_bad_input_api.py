@@ -11,7 +11,7 @@ import pytest
 
 from ballchain.drake_models import mesh_tools as mt
 from ballchain.drake_models.atrium_mesh import AtriumMeshError, load_atrium_surface, read_obj
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 
 
 # ------------------------------------------------------------------ a user's mesh file

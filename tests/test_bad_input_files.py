@@ -1,4 +1,4 @@
-"""Input files checked before they are read (drake_models/input_files.py): every file a user
+"""Input files checked before they are read (infrastructure/input_files.py): every file a user
 names (an anatomy file, its mesh and targets CSV, a scenario's anatomy and atrium_file, a sweep
 spec, a scenarios file, the records a resumed run reads back) is refused in one line, exit status
 2, when its name is longer than the file system allows, when it is not a regular file, or when it
@@ -22,7 +22,7 @@ import pytest
 from anatomy_helpers import lumen_anatomy
 
 from ballchain.cli import main
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 
 SECRET = "AKIA_SECRET_TOKEN_123"
 LONG = "x" * 300  # a name longer than the file system's 255 bytes
@@ -204,8 +204,8 @@ def _sparse(path: Path, size: int) -> Path:
 @pytest.mark.parametrize("role", ["mesh", "atrium_file", "targets", "anatomy", "sweep spec", "scenarios file"])
 def test_a_file_larger_than_its_kind_s_limit_is_refused_naming_the_limit(tmp_path, monkeypatch, capsys, role):
     """One byte over the limit (a sparse file): refused from its size, the limit in the message."""
-    from ballchain.drake_models.input_files import MAX_MESH_BYTES, MAX_TABLE_TEXT_BYTES
-    from ballchain.drake_models.safe_yaml import MAX_BYTES
+    from ballchain.infrastructure.input_files import MAX_MESH_BYTES, MAX_TABLE_TEXT_BYTES
+    from ballchain.infrastructure.safe_yaml import MAX_BYTES
 
     limit = {"mesh": MAX_MESH_BYTES, "atrium_file": MAX_MESH_BYTES, "targets": MAX_TABLE_TEXT_BYTES}.get(role,
                                                                                                       MAX_BYTES)
@@ -250,7 +250,7 @@ def test_an_8_gb_sparse_input_is_refused_under_a_4_gb_address_limit(tmp_path, na
 def test_a_file_that_says_it_is_small_is_read_only_up_to_the_limit(tmp_path):
     """The size a file's folder gives is checked, and so is what is read: a file longer than the
     limit (here: a limit below its size, as /proc's files say 0) is refused, not read whole."""
-    from ballchain.drake_models.input_files import read_input_file
+    from ballchain.infrastructure.input_files import read_input_file
 
     path = tmp_path / "t.csv"
     path.write_bytes(b"1,2,3\n" * 100)

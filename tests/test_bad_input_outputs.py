@@ -1,4 +1,4 @@
-"""Outputs that are not plain files, names too long and a full disk (drake_models/safe_files.py).
+"""Outputs that are not plain files, names too long and a full disk (infrastructure/safe_files.py).
 
 Only regular files are ever replaced: a device (``/dev/null``), a socket or a folder at an
 output path is refused before any work (exit status 2, one line), also behind a symbolic link;
@@ -21,9 +21,9 @@ from pathlib import Path
 import pytest
 
 from ballchain.cli import main as cli_main
-from ballchain.drake_models import safe_files
-from ballchain.drake_models.errors import OutputError, UserInputError
-from ballchain.drake_models.safe_files import atomic_path, atomic_write_text, check_output_dir, check_output_file
+from ballchain.infrastructure import safe_files
+from ballchain.infrastructure.errors import OutputError, UserInputError
+from ballchain.infrastructure.safe_files import atomic_path, atomic_write_text, check_output_dir, check_output_file
 
 SIMULATE = ["simulate", "--scenario", "free_space_uniform_90deg", "--duration", "0.003", "--no-progress", "--json"]
 

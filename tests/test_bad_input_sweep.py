@@ -26,7 +26,7 @@ import pytest
 
 from ballchain import sweep
 from ballchain.cli import main
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.sweep import load_spec, read_table, run_sweep
 
 HANG_GUARD_S = 120.0  # a fresh interpreter imports pydrake and distributed; a hang takes hours

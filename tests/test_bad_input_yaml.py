@@ -1,4 +1,4 @@
-"""Bad YAML and scenario input: the one loader (drake_models/safe_yaml.py), the one schema check,
+"""Bad YAML and scenario input: the one loader (infrastructure/safe_yaml.py), the one schema check,
 ``--set`` list merging, fields that would be ignored, and the bounds of every field of a kind.
 
 CLI cases run in-process (``ballchain.cli.main``) like tests/test_bad_input.py: exit status 2,
@@ -14,7 +14,7 @@ import time
 import pytest
 
 from ballchain.cli import main
-from ballchain.drake_models.errors import MAX_QUOTED, UserInputError
+from ballchain.infrastructure.errors import MAX_QUOTED, UserInputError
 
 HANG_GUARD_S = 30.0
 
@@ -120,7 +120,7 @@ def test_a_long_expanded_value_is_cut_in_the_message(capsys):
 
 
 def test_the_loader_reads_yaml_1_2_numbers_and_refuses_bombs_in_files(tmp_path):
-    from ballchain.drake_models.safe_yaml import load_yaml
+    from ballchain.infrastructure.safe_yaml import load_yaml
     from ballchain.systems.chain_scenario import check_value, load_scenario
 
     data = load_yaml("{a: 2.3e1, b: 1e-9, c: .5, d: +1., e: 12, f: '2.3e1'}", "test")
@@ -142,7 +142,7 @@ def test_the_loader_reads_yaml_1_2_integers_booleans_and_dates():
     """YAML 1.1's readings that change a number silently (octal ``010``, base-60 ``1:30``,
     ``1_6``) or make a boolean or a date of text are YAML 1.2's: decimal, or text that the
     schemas refuse where they want a number."""
-    from ballchain.drake_models.safe_yaml import load_yaml
+    from ballchain.infrastructure.safe_yaml import load_yaml
     from ballchain.sweep import load_spec
     from ballchain.systems.chain_scenario import load_scenario
 
@@ -254,7 +254,7 @@ def test_a_deeply_nested_value_is_one_line_not_a_crash(tmp_path, where, levels):
     """The value is read in a child process (``--set`` from a file: one argument may not exceed
     128 kB on Linux, and 200,000 levels are 400 kB); exit status 2 and one line naming the file
     (or --set) and the limit, instead of SIGSEGV."""
-    from ballchain.drake_models.safe_yaml import MAX_DEPTH
+    from ballchain.infrastructure.safe_yaml import MAX_DEPTH
 
     if where == "--set":
         (tmp_path / "value.yaml").write_text(f"{{n_balls: {_deep(levels)}}}")
@@ -278,7 +278,7 @@ def test_a_deeply_nested_value_is_one_line_not_a_crash(tmp_path, where, levels):
 def test_the_depth_limit_counts_lists_mappings_and_aliases():
     """MAX_DEPTH levels are read, one more is refused: in flow and block style, and through an
     alias, whose anchor's depth adds to where it is used."""
-    from ballchain.drake_models.safe_yaml import MAX_DEPTH, load_yaml
+    from ballchain.infrastructure.safe_yaml import MAX_DEPTH, load_yaml
 
     assert load_yaml(_deep(MAX_DEPTH), "t") is not None
     assert load_yaml("- " * MAX_DEPTH + "x", "t") is not None
@@ -300,7 +300,7 @@ def test_the_shipped_documents_are_far_from_the_depth_limit():
 
     import ballchain
     from ballchain import drake_models
-    from ballchain.drake_models.safe_yaml import MAX_DEPTH
+    from ballchain.infrastructure.safe_yaml import MAX_DEPTH
 
     shipped = [*Path(drake_models.__file__).parent.rglob("*.yaml"), *Path(ballchain.__file__).parent.rglob("*.yaml")]
     assert len(shipped) >= 5, shipped
@@ -316,7 +316,7 @@ def test_the_shipped_documents_are_far_from_the_depth_limit():
 def test_not_valid_yaml_quotes_nothing_of_the_text():
     """A file that is not YAML (a key file, an environment dump) is refused naming the line, the
     column and the kind of problem, quoting none of it: nor a tag, nor a character."""
-    from ballchain.drake_models.safe_yaml import load_yaml
+    from ballchain.infrastructure.safe_yaml import load_yaml
 
     secret = "AKIA_SECRET_TOKEN_123"
     for text in (f"!{secret} x", f"a: !!{secret} x", f"[default]\naws_access_key_id = {secret}\n",

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.experiments import manual_catheter as mc
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from ballchain.drake_models.dipole import MU0, dipole_field
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.image_dipole import (
     image_dipole,
     image_energy,

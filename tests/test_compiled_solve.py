@@ -6,7 +6,7 @@ space, with a tip target, a plane wall, in the heart and along a recorded teleop
 import numpy as np
 import pytest
 
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, UniformField
 from ballchain.drake_models.params import BallChain, CylinderMagnet, Sleeve
 from ballchain.optimization.statics import ChainStatics, rotation_path

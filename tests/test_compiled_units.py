@@ -17,7 +17,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.analysis import Simulator
 
 from ballchain.drake_models.dipole import DipoleFieldAtPoint
-from ballchain.drake_models.errors import NonFiniteSignal, UserInputError
+from ballchain.infrastructure.errors import NonFiniteSignal, UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.kernels import actuation as K
 from ballchain.drake_models.omniwheel import OmniWheelGeometry, paper_wheel_speeds

@@ -183,7 +183,7 @@ def test_short_path_leaves_a_non_finite_field_to_chain_statics():
 def test_short_path_declines_a_ball_inside_a_magnets_bounding_sphere():
     """A port magnet whose bounding sphere holds a ball of the warm start: the short path declines
     (ChainStatics.solve refuses such a field, naming the magnet); one just outside it: answered."""
-    from ballchain.drake_models.errors import UserInputError
+    from ballchain.infrastructure.errors import UserInputError
     from ballchain.optimization.statics import StaticsResult
     from ballchain.systems.chain_scenario import load_scenario
     from ballchain.systems.chain_simulation import MakeStation

@@ -19,7 +19,7 @@ import pytest
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import BasicVector, DiagramBuilder, LeafSystem
 
-from ballchain.drake_models.errors import NonFiniteSignal
+from ballchain.infrastructure.errors import NonFiniteSignal
 
 HANG_GUARD_S = 60.0  # a NaN that stalls the integrator runs forever; the answer takes milliseconds
 
@@ -189,7 +189,7 @@ def test_statics_on_a_nan_field_is_not_converged_and_says_why(method):
 # ------------------------------------------------------------------ reproduce: nothing lost
 
 def _fake_experiments(calls: dict, fail_at: str | None = None):
-    from ballchain.drake_models.safe_files import atomic_write_text
+    from ballchain.infrastructure.safe_files import atomic_write_text
     from ballchain.report import Section
 
     def make(name):
@@ -362,7 +362,7 @@ def test_ctrl_c_in_simulate_keeps_the_replay_recorded_so_far(tmp_path):
 def test_an_interrupt_wrapped_by_a_compiled_call_is_still_an_interrupt():
     """Ctrl-C landing inside a numba dispatcher comes back as a SystemError whose context is the
     KeyboardInterrupt: it is treated as Ctrl-C (exit 130), not as a bug."""
-    from ballchain.drake_models.errors import caused_by_interrupt
+    from ballchain.infrastructure.errors import caused_by_interrupt
 
     try:
         try:

@@ -17,7 +17,7 @@ import pytest
 
 from ballchain.drake_models import mesh_tools as mt
 from ballchain.drake_models import model_files
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 
 
 @pytest.fixture(scope="module")
@@ -428,7 +428,7 @@ def test_a_damaged_numba_cache_file_is_recompiled_with_one_line(tmp_path, which,
 # ------------------------------------------------------------------ reproduce --resume records
 
 def _experiments(calls: dict):
-    from ballchain.drake_models.safe_files import atomic_write_text
+    from ballchain.infrastructure.safe_files import atomic_write_text
     from ballchain.report import Section
 
     def make(name):

@@ -1,4 +1,4 @@
-"""Stops and notes around the kernels' compilation and the optimisers (``drake_models/kernel_compiler.py``,
+"""Stops and notes around the kernels' compilation and the optimisers (``infrastructure/kernel_compiler.py``,
 ``cli.StopSignals``, ``errors.caused_by_interrupt``), and ``NUMBA_DISABLE_JIT``.
 
 A ``ballchain`` command has each kernel that numba's cache lacks compiled by a child process and
@@ -26,8 +26,8 @@ import numpy as np
 import pytest
 
 from ballchain.cli import main as cli_main
-from ballchain.drake_models import kernel_compiler
-from ballchain.drake_models.errors import StopRequest, caused_by_interrupt
+from ballchain.infrastructure import kernel_compiler
+from ballchain.infrastructure.errors import StopRequest, caused_by_interrupt
 
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONFAULTHANDLER": "1"}
 ANSWERED_S = 15.0  # a stopped command has ended by then (it ran on for minutes before the change)
@@ -130,7 +130,7 @@ def test_a_command_waiting_for_another_process_compilation_says_so_and_stops_at_
 _KERNEL_CALL = textwrap.dedent("""
     import sys
     import numpy as np
-    from ballchain.drake_models import kernel_compiler
+    from ballchain.infrastructure import kernel_compiler
     from ballchain.drake_models.kernels import pair as ck
     r, x, y = np.array([1e-3, 2e-3, 0.5e-3]), np.array([0.0, 0.0, 1.0]), np.array([0.6, 0.0, 0.8])
     g = [np.zeros(3) for _ in range(3)]
@@ -187,7 +187,7 @@ _CALL_ELSEWHERE = textwrap.dedent("""
     import sys
     sys.path.insert(0, sys.argv[1])  # a module only this process can import
     import elsewhere
-    from ballchain.drake_models import kernel_compiler
+    from ballchain.infrastructure import kernel_compiler
     with kernel_compiler.in_a_child():
         value = elsewhere.offset(1.0)
     stats = elsewhere.offset.stats

@@ -23,7 +23,7 @@ import pytest
 
 from ballchain import cli
 from ballchain.cli import StopSignals, main as cli_main
-from ballchain.drake_models.errors import StopRequest
+from ballchain.infrastructure.errors import StopRequest
 
 STOPS = [signal.SIGINT, signal.SIGTERM, signal.SIGHUP]
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONFAULTHANDLER": "1"}  # a crash prints its stacks
@@ -262,7 +262,7 @@ def test_a_stop_while_the_libraries_load_is_a_stop(monkeypatch, capsys):
 
 
 def test_signals_while_saving_do_not_cut_the_saving_short(monkeypatch, capfd, tmp_path):
-    from ballchain.drake_models.safe_files import atomic_write_text
+    from ballchain.infrastructure.safe_files import atomic_write_text
 
     def body(args):
         try:
@@ -288,7 +288,7 @@ def test_a_stop_anywhere_in_an_atomic_write_leaves_no_temporary_file(tmp_path, e
     temporary file is left. The stop is simulated by a trace function raising KeyboardInterrupt at
     the n-th line or call, for every n until the write finishes uninterrupted. (With
     tempfile.mkstemp a stop right after the file was made left it behind: a CI run's SIGHUP.)"""
-    from ballchain.drake_models.safe_files import TEMP_SUFFIX, atomic_write_text
+    from ballchain.infrastructure.safe_files import TEMP_SUFFIX, atomic_write_text
 
     dest = tmp_path / "out" / "report.html"
     old, new = "old report\n", "new report, whole\n" * 50

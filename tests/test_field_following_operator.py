@@ -12,7 +12,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
 from ballchain.drake_models.dipole import dipole_field
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.vectors import angle_between
 from ballchain.systems.field_following_operator import (
     FieldFollowingOperator,

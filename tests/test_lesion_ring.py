@@ -8,7 +8,7 @@ import pytest
 
 from ballchain.drake_models import lesion_ring as lr
 from ballchain.drake_models import lesion_surrogate as ls
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from lesion_helpers import tiny_surrogate  # noqa: F401 (a fixture)
 
 WALL = 2.5e-3
@@ -190,7 +190,7 @@ def test_ring_figure_text_is_legible_and_names_targets_by_what_tells_them_apart(
 
     from matplotlib.text import Text
 
-    import ballchain.drake_models.safe_files as sf
+    import ballchain.infrastructure.safe_files as sf
 
     pts = [dataclasses.replace(p, name=f"right_{k + 1}") for k, p in enumerate(ring_points(18, radius=14e-3))]
     lesions = [lesion(p, 6e-3) for k, p in enumerate(pts) if k != 5]

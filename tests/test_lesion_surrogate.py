@@ -6,7 +6,7 @@ import pytest
 
 from ballchain.drake_models import lesion_fem as fem
 from ballchain.drake_models import lesion_surrogate as ls
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.params import MAGNET_GRADES, newtons_from_gram_force
 from lesion_helpers import TINY_SPEC, tiny_surrogate  # noqa: F401 (a fixture)
 

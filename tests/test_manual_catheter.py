@@ -9,7 +9,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.steerable_catheter import SteerableCatheter
 from ballchain.experiments import manual_catheter as mc
 from ballchain.systems.catheter_station import HandParams, ManualHand, SteerableCatheterSystem

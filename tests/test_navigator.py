@@ -4,7 +4,7 @@ static cases: the magnet held where inverse statics says it presses a target; an
 import numpy as np
 import pytest
 
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.localisation import LocalisationParams
 from ballchain.drake_models.params import BallChain, newtons_from_gram_force
 from ballchain.systems.autonomous_navigator import NavigatorParams, TipForceEstimator

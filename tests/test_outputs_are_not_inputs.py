@@ -20,9 +20,9 @@ import pytest
 from anatomy_helpers import lumen_anatomy
 
 from ballchain.cli import main as cli_main
-from ballchain.drake_models import safe_files
-from ballchain.drake_models.errors import OutputError, UserInputError
-from ballchain.drake_models.safe_files import (atomic_write_text, check_output_dir, check_output_file, input_at,
+from ballchain.infrastructure import safe_files
+from ballchain.infrastructure.errors import OutputError, UserInputError
+from ballchain.infrastructure.safe_files import (atomic_write_text, check_output_dir, check_output_file, input_at,
                                                register_input)
 
 

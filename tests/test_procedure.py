@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from ballchain.cli import main as cli_main
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.experiments import procedure
 
 

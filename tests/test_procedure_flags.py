@@ -7,7 +7,7 @@ import pytest
 
 from ballchain.cli import build_parser
 from ballchain.commands import procedure as command
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.localisation import LocalisationParams
 
 

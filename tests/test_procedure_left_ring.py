@@ -72,7 +72,7 @@ def test_slack_plans_the_fewest_balls_that_reach_past_the_target(left_station):
 
 @pytest.mark.parametrize("slack", [float("nan"), -1.0, "2", True])
 def test_slack_is_checked_before_any_plan(left_station, slack):
-    from ballchain.drake_models.errors import UserInputError
+    from ballchain.infrastructure.errors import UserInputError
 
     anatomy, chosen, magnets_W, n = left_station
     with pytest.raises(UserInputError, match="slack"):
@@ -181,7 +181,7 @@ def test_a_retry_retracts_half_the_chain_then_the_target_is_given_up():
     feeder's command backwards), comes back to the plan once, and then gives the target up."""
     from pydrake.systems.analysis import Simulator
 
-    from ballchain.drake_models.errors import UserInputError
+    from ballchain.infrastructure.errors import UserInputError
     from ballchain.systems.autonomous_navigator import AutonomousNavigator, NavigatorParams, TargetPlan
 
     n_W = np.array([0.0, 0.0, 1.0])

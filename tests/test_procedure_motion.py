@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from ballchain.cli import main as cli_main
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.params import BallChain, CylinderMagnet
 from ballchain.drake_models.wall_motion import WallMotion
 from ballchain.experiments import procedure, teleop

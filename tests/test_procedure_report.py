@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.localisation import LocalisationParams
 from ballchain.experiments import procedure, procedure_report
 from ballchain.systems.chain_scenario import ChainScenario, LocalisationScenario, load_scenario

@@ -278,7 +278,7 @@ def test_engines_agree_after_settling(name, overrides, contact, from_engine, dur
 
 
 def test_engine_field_is_checked():
-    from ballchain.drake_models.errors import UserInputError
+    from ballchain.infrastructure.errors import UserInputError
     from ballchain.systems.chain_scenario import load_scenario
 
     assert load_scenario("heart_left_quasi_static").engine == "plant"  # nothing changes by default

@@ -11,7 +11,7 @@ from pydrake.math import RigidTransform
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import EventStatus
 
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.kernels.actuation import X_K
 from ballchain.systems.actuation_station import StationOptions, make_actuation_station, unit_system
 from ballchain.systems.actuation_unit import ActuationUnit

@@ -10,7 +10,7 @@ import pytest
 from ballchain.commands._common import json_text
 from ballchain.experiments import _result, alignment, field_models, forces_dynamics, sizing_check, wheels
 from ballchain.drake_models.params import BallChain
-from ballchain.drake_models.safe_files import OMIT_IF_NONE
+from ballchain.infrastructure.safe_files import OMIT_IF_NONE
 from ballchain.optimization.sizing import SizingInputs
 
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from ballchain.cli import main as cli_main
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.systems.chain_scenario import ChainScenario, load_scenario, scenario_names
 from ballchain.systems.chain_simulation import MakeStation, run_simulation
 
@@ -445,7 +445,7 @@ def test_the_metrics_serialise_to_the_keys_of_the_simulate_json():
     """``SimulationMetrics`` through ``safe_files.to_jsonable``: the keys of ``ballchain simulate
     --json`` in their order; the engine's stats (with a snap-through), the replay and the ball
     centres only when there are any."""
-    from ballchain.drake_models.safe_files import to_jsonable
+    from ballchain.infrastructure.safe_files import to_jsonable
     from ballchain.systems.chain_simulation import SimulationMetrics, SnapThrough, StaticsEngineStats
 
     always = ["realtime_factor", "sim_time_s", "tip_position_mm", "min_wall_clearance_mm", "max_neighbor_gap_um",

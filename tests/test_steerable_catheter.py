@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.steerable_catheter import CoulombChain, SteerableCatheter
 from ballchain.optimization.rod_statics import RodStatics
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.experiments.studies import EXPERIMENTS
 from ballchain.sweep import load_spec, point_key, read_table, run_point, run_sections, run_sweep
 
@@ -219,7 +219,7 @@ def test_worker_lost_mid_sweep_loses_and_duplicates_nothing(client, tmp_path, fa
 @pytest.mark.slow
 def test_sections_in_parallel_equal_the_serial_run(client, tmp_path):
     from ballchain import reproduce
-    from ballchain.drake_models.safe_files import to_jsonable
+    from ballchain.infrastructure.safe_files import to_jsonable
 
     sections = [("sizing", reproduce.sizing_section), ("field models", reproduce.field_models_section)]
     serial = run_sections(sections, tmp_path, quick=True, workers=1)

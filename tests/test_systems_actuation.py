@@ -456,7 +456,7 @@ def test_feeder_playing_a_schedule_in_batches_gives_the_numbers_of_a_trajectory_
 def test_feeder_schedule_is_checked():
     from pydrake.trajectories import PiecewisePolynomial
 
-    from ballchain.drake_models.errors import UserInputError
+    from ballchain.infrastructure.errors import UserInputError
 
     hold = PiecewisePolynomial.ZeroOrderHold([0.0, 1.0], np.array([[0.01, 0.0]]))
     cases = [
@@ -474,7 +474,7 @@ def test_feeder_schedule_is_checked():
 
 
 def test_feeder_command_period_must_be_whole_steps():
-    from ballchain.drake_models.errors import UserInputError
+    from ballchain.infrastructure.errors import UserInputError
 
     for bad in (0.003, 0.0, -0.05, float("nan"), "0.05"):
         with pytest.raises(UserInputError, match="whole multiple of the step period"):

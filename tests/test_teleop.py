@@ -339,7 +339,7 @@ def test_feeder_command_period_is_checked_in_the_scenario():
     """``insertion.feeder_command_period``: only for a command from another system's looks, a
     whole number of the feeder's 2 ms steps, up to 1 s; the teleoperation scenario gets the
     operator's period."""
-    from ballchain.drake_models.errors import UserInputError
+    from ballchain.infrastructure.errors import UserInputError
     from ballchain.systems.chain_scenario import load_scenario
 
     external = "feeder: true, feeder_command: external, final: 0.02"

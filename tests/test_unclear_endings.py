@@ -19,12 +19,12 @@ import pytest
 
 from ballchain import reproduce
 from ballchain.cli import main as cli_main
-from ballchain.drake_models.errors import OutputError
+from ballchain.infrastructure.errors import OutputError
 
 
 def _sections(calls: list, act=None):
     """Three stand-in sections; ``act(name, out)`` runs inside each, before its file is written."""
-    from ballchain.drake_models.safe_files import atomic_write_text
+    from ballchain.infrastructure.safe_files import atomic_write_text
     from ballchain.report import Section
 
     def make(name):

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from ballchain.drake_models import wall_motion as wm
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.params import BallChain
 from ballchain.drake_models.wall_motion import Oscillation, WallMotion
 from ballchain.optimization.wall_constraints import PlaneSDF

@@ -8,8 +8,8 @@ import sys
 from pathlib import Path
 
 # Re-exported for the commands: they live below the CLI layer so that experiments can use them.
-from ballchain.drake_models.errors import check_in
-from ballchain.drake_models.safe_files import json_text, save_figure, to_jsonable, write_csv, write_json
+from ballchain.infrastructure.errors import check_in
+from ballchain.infrastructure.safe_files import json_text, save_figure, to_jsonable, write_csv, write_json
 
 __all__ = ["YamlOnce", "add_json_flag", "check_in", "path_arg", "finite_float", "float_in", "int_in", "json_text", "non_negative_int",
            "positive_int", "print_json", "run_status", "save_figure", "to_jsonable", "write_csv", "write_json"]

@@ -14,8 +14,8 @@ import argparse
 from pathlib import Path
 
 from ballchain.commands._common import add_json_flag, finite_float, path_arg, print_json
-from ballchain.drake_models.errors import UserInputError
-from ballchain.drake_models.safe_files import check_output_dir
+from ballchain.infrastructure.errors import UserInputError
+from ballchain.infrastructure.safe_files import check_output_dir
 from ballchain.experiments import ablation
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 
 from ballchain.commands._common import add_json_flag, finite_float, int_in, path_arg, positive_int, print_json
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.experiments.statics_bench import _OPTIONAL, StaticsBenchResult, run_statics
 
 TARGETS = ("statics", "engine", "scaling")

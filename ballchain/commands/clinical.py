@@ -16,7 +16,7 @@ import argparse
 from pathlib import Path
 
 from ballchain.commands._common import add_json_flag, finite_float, non_negative_int, path_arg, print_json
-from ballchain.drake_models.safe_files import check_output_dir
+from ballchain.infrastructure.safe_files import check_output_dir
 from ballchain.experiments import clinical
 
 

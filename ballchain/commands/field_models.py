@@ -13,7 +13,7 @@ import argparse
 import math
 
 from ballchain.commands._common import add_json_flag, print_json
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.params import BALL_DIAMETER_RANGE, BallChain
 from ballchain.experiments.field_models import DEFAULT_DISTANCES, DEFAULT_POLAR_ANGLES_DEG, run
 

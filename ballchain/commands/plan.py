@@ -17,7 +17,7 @@ from __future__ import annotations
 import argparse
 
 from ballchain.commands._common import add_json_flag, float_in, int_in, path_arg, positive_int, print_json
-from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.infrastructure.errors import UserInputError, short_repr
 from ballchain.experiments import planner
 
 

@@ -17,7 +17,7 @@ import argparse
 
 from ballchain.commands._common import (YamlOnce, add_json_flag, float_in, int_in, path_arg, positive_int, print_json,
                                         run_status)
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.localisation import LATENCY_RANGE_S, NOISE_RANGE_M, RATE_RANGE_HZ, LocalisationParams
 from ballchain.experiments import procedure
 from ballchain.systems.chain_scenario import parse_overrides
@@ -63,7 +63,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from ballchain.drake_models.safe_files import check_output_dir, check_output_file
+    from ballchain.infrastructure.safe_files import check_output_dir, check_output_file
 
     if args.anatomy is None and args.task is None:
         args.task = "right"

@@ -16,7 +16,7 @@ import argparse
 import sys
 
 from ballchain.commands._common import YamlOnce, add_json_flag, float_in, path_arg, print_json
-from ballchain.drake_models.safe_files import to_jsonable
+from ballchain.infrastructure.safe_files import to_jsonable
 from ballchain.experiments.simulation import run
 from ballchain.systems.chain_scenario import ENGINES, MAX_DURATION, MODES  # MAX_DURATION [s]: the scenario's cap
 

@@ -13,7 +13,7 @@ import math
 
 from ballchain.drake_models import paper
 from ballchain.commands._common import add_json_flag, print_json
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.params import MAX_MAGNET_SIZE, CylinderMagnet, newtons_from_gram_force
 from ballchain.experiments.sizing_check import run
 from ballchain.optimization.sizing import SIZING_RANGES, SizingInputs

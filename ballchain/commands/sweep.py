@@ -21,7 +21,7 @@ import os
 from pathlib import Path
 
 from ballchain.commands._common import add_json_flag, non_negative_int, path_arg, positive_int, print_json
-from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.infrastructure.errors import UserInputError, short_repr
 from ballchain.sweep import DEFAULT_MAX_POINTS, MAX_JOBS, MAX_WORKERS_PER_CORE
 
 STUDIES = Path(__file__).resolve().parents[1] / "studies"

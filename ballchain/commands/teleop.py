@@ -91,7 +91,7 @@ def main(args: argparse.Namespace) -> int:
     from ballchain.experiments import teleop
 
     if args.device not in (None, "ball_chain", "steerable_catheter"):
-        from ballchain.drake_models.errors import UserInputError, short_repr
+        from ballchain.infrastructure.errors import UserInputError, short_repr
 
         raise UserInputError(f"--device must be ball_chain or steerable_catheter, got {short_repr(args.device)}")
     if args.device == "steerable_catheter":
@@ -177,7 +177,7 @@ def _main_manual(args: argparse.Namespace) -> int:
 
 def _refuse(where: str, flags, why: str) -> None:
     """UserInputError naming the first of ``flags`` ((flag, value or None), ...) that was given."""
-    from ballchain.drake_models.errors import UserInputError, short_repr
+    from ballchain.infrastructure.errors import UserInputError, short_repr
 
     for flag, value in flags:
         if value is not None:

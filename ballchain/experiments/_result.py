@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from ballchain.drake_models.safe_files import NOT_IN_JSON, json_text, optional_field, to_jsonable
+from ballchain.infrastructure.safe_files import NOT_IN_JSON, json_text, optional_field, to_jsonable
 
 # A field that defaults to None and is left out of the JSON while None: for the parts of a result
 # that exist only in some runs (the files written with ``out``, the replay with ``html``).

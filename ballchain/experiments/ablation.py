@@ -27,8 +27,8 @@ from tqdm import tqdm
 
 from ballchain.drake_models import lesion_fem as fem
 from ballchain.drake_models import tissue as laws
-from ballchain.drake_models.errors import UserInputError
-from ballchain.drake_models.safe_files import atomic_write_text, save_figure, write_csv
+from ballchain.infrastructure.errors import UserInputError
+from ballchain.infrastructure.safe_files import atomic_write_text, save_figure, write_csv
 from ballchain.experiments._result import Result, not_in_json, optional
 
 PAPER = {

@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from ballchain.drake_models.arg_checks import require_bool, require_int
-from ballchain.drake_models.errors import check_in
+from ballchain.infrastructure.arg_checks import require_bool, require_int
+from ballchain.infrastructure.errors import check_in
 from ballchain.drake_models.field_sources import MAX_FIELD_T, UniformField
 from ballchain.drake_models.params import BallChain, Sleeve
-from ballchain.drake_models.safe_files import agg_pyplot, check_output_dir, note_replacements, save_figure, write_csv
+from ballchain.infrastructure.safe_files import agg_pyplot, check_output_dir, note_replacements, save_figure, write_csv
 from ballchain.experiments._result import Result, optional
 from ballchain.optimization.statics import ChainStatics, rotation_path, tip_angle_deg
 

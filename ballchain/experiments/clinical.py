@@ -47,10 +47,10 @@ from pathlib import Path
 import numpy as np
 
 from ballchain.drake_models.dipole import dipole_field
-from ballchain.drake_models.errors import UserInputError, check_in, short_repr
+from ballchain.infrastructure.errors import UserInputError, check_in, short_repr
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import BallChain, SphereMagnet, gram_force
-from ballchain.drake_models.safe_files import agg_pyplot, atomic_write_text, save_figure, write_csv
+from ballchain.infrastructure.safe_files import agg_pyplot, atomic_write_text, save_figure, write_csv
 from ballchain.experiments._result import Result, optional
 from ballchain.experiments.clinical_solver import (  # noqa: F401 (the stand and the solver; their old home re-exports)
     CHAINS,

@@ -15,7 +15,7 @@ import numpy as np
 
 from ballchain.drake_models import paper
 from ballchain.drake_models.dipole_inversion import moment_from_field
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import (

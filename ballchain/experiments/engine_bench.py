@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ballchain.drake_models.errors import UserInputError, check_in, short_repr
+from ballchain.infrastructure.errors import UserInputError, check_in, short_repr
 from ballchain.experiments._result import Result, optional
 from ballchain.experiments.statics_bench import check_problem
 
@@ -369,7 +369,7 @@ def run_scaling(*, sizes=SCALING_SIZES, field_mT: float = 23.0, angle_deg: float
     check_problem(field_mT, angle_deg, warm_offset_deg)
     now = _clock(clock)
     if out is not None:
-        from ballchain.drake_models.safe_files import check_output_dir
+        from ballchain.infrastructure.safe_files import check_output_dir
 
         out = check_output_dir(out, "--out", names=("scaling.csv", "scaling.md", "scaling.png"))
     from tqdm import tqdm
@@ -402,7 +402,7 @@ def scaling_markdown(result: ScalingBenchResult) -> str:
 
 def write_scaling_files(result: ScalingBenchResult, out: Path) -> list[str]:
     """scaling.csv, scaling.md and scaling.png in ``out``; returns their paths."""
-    from ballchain.drake_models.safe_files import agg_pyplot, atomic_write_text, save_figure, write_csv
+    from ballchain.infrastructure.safe_files import agg_pyplot, atomic_write_text, save_figure, write_csv
 
     out.mkdir(parents=True, exist_ok=True)
     csv_path = write_csv(out / "scaling.csv", result.rows)

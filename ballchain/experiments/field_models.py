@@ -22,10 +22,10 @@ from typing import Sequence
 
 import numpy as np
 
-from ballchain.drake_models.arg_checks import as_number_list, require_type
+from ballchain.infrastructure.arg_checks import as_number_list, require_type
 from ballchain.drake_models import paper
 from ballchain.drake_models.dipole import force_on_dipole
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.field_sources import MagnetSource
 from ballchain.drake_models.params import BallChain, CylinderMagnet, gram_force
 from ballchain.drake_models.vectors import angle_between

@@ -27,13 +27,13 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import minimize
 
-from ballchain.drake_models.arg_checks import as_int_list
+from ballchain.infrastructure.arg_checks import as_int_list
 from ballchain.drake_models import paper
-from ballchain.drake_models.errors import UserInputError, check_in
+from ballchain.infrastructure.errors import UserInputError, check_in
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import BallChain, CylinderMagnet, Sleeve, gram_force
-from ballchain.drake_models.safe_files import agg_pyplot, check_output_dir, note_replacements, save_figure, write_csv
+from ballchain.infrastructure.safe_files import agg_pyplot, check_output_dir, note_replacements, save_figure, write_csv
 from ballchain.experiments._result import Result, optional
 from ballchain.optimization.inverse_statics import pin_tip
 from ballchain.optimization.statics import ChainStatics

@@ -23,10 +23,10 @@ import numpy as np
 
 from pydrake.systems.primitives import LogVectorOutput
 
-from ballchain.drake_models.arg_checks import require_type
+from ballchain.infrastructure.arg_checks import require_type
 from ballchain.drake_models.atrium import Atrium
-from ballchain.drake_models.errors import UserInputError
-from ballchain.drake_models.safe_files import check_output_file
+from ballchain.infrastructure.errors import UserInputError
+from ballchain.infrastructure.safe_files import check_output_file
 from ballchain.drake_models.steerable_catheter import SteerableCatheter
 from ballchain.experiments import teleop
 from ballchain.systems.catheter_station import CatheterParams, HandParams
@@ -473,7 +473,7 @@ def transition_figure(comparison: dict, path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ballchain.drake_models.safe_files import save_figure
+    from ballchain.infrastructure.safe_files import save_figure
 
     tasks = list(comparison["transitions"])
     fig, axes = plt.subplots(len(tasks), 1, figsize=(10, 1.6 * len(tasks) + 0.6), squeeze=False)

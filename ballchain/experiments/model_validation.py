@@ -17,11 +17,11 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from ballchain.drake_models.arg_checks import as_int_list, as_number_list
-from ballchain.drake_models.errors import UserInputError, check_in
+from ballchain.infrastructure.arg_checks import as_int_list, as_number_list
+from ballchain.infrastructure.errors import UserInputError, check_in
 from ballchain.drake_models.field_sources import MAX_FIELD_T, UniformField
 from ballchain.drake_models.params import BallChain
-from ballchain.drake_models.safe_files import check_output_dir, note_replacements, write_csv
+from ballchain.infrastructure.safe_files import check_output_dir, note_replacements, write_csv
 from ballchain.drake_models.vectors import angle_between
 from ballchain.experiments._result import Result, optional
 from ballchain.experiments.magnet_poses import side_magnet_for_field

@@ -22,12 +22,12 @@ from typing import Callable
 import numpy as np
 from tqdm import tqdm
 
-from ballchain.drake_models.arg_checks import as_int_list, require_int, require_positive
+from ballchain.infrastructure.arg_checks import as_int_list, require_int, require_positive
 from ballchain.drake_models import paper
 from ballchain.drake_models.anatomy import (PROCEDURAL_FILE, Anatomy, AnatomyTargets, ellipsoid_inward_normal,
                                             load_anatomy)
 from ballchain.drake_models.dipole_inversion import neutral_direction
-from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.infrastructure.errors import UserInputError, short_repr
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import BallChain, CylinderMagnet, gram_force, newtons_from_gram_force

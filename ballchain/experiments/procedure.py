@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.infrastructure.errors import UserInputError, short_repr
 from ballchain.drake_models.localisation import LocalisationParams
 from ballchain.drake_models.params import gram_force, newtons_from_gram_force
 from ballchain.experiments._result import Result, not_in_json, optional
@@ -513,7 +513,7 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
     if plans is not None and not isinstance(plans, RingPlans):
         raise UserInputError(f"plans must be a RingPlans (``plan_ring``), got {short_repr(plans)}")
     if html is not None:
-        from ballchain.drake_models.safe_files import check_output_file
+        from ballchain.infrastructure.safe_files import check_output_file
 
         check_output_file(html, "--html")
     anatomy, task, chosen = anatomy_targets(anatomy, task)
@@ -636,7 +636,7 @@ def _finisher(lesions: bool, ring_order: list[str], html):
             with_lesions(result, ring_order)
         if html is not None and meshcat is not None and result.verdict is not None:
             from ballchain.drake_models.lesion_ring import draw_lesions
-            from ballchain.drake_models.safe_files import atomic_write_text
+            from ballchain.infrastructure.safe_files import atomic_write_text
             from ballchain.systems.chain_simulation import captioned_replay, replay_caption
 
             draw_lesions(meshcat, result.lesion_objects, result.verdict)
@@ -840,7 +840,7 @@ def with_lesions(result: ProcedureResult, ring_order: list[str]) -> ProcedureRes
 def write_outputs(result: ProcedureResult, out: Path) -> dict:
     """``procedure.json`` and ``ring.png`` (``lesion_ring.ring_figure``) in ``out`` (atomically)."""
     from ballchain.drake_models.lesion_ring import ring_figure
-    from ballchain.drake_models.safe_files import atomic_write_text
+    from ballchain.infrastructure.safe_files import atomic_write_text
 
     out = Path(out)
     files = {"json": str(out / "procedure.json")}

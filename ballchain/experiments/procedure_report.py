@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ballchain.drake_models.errors import UserInputError, short_repr
+from ballchain.infrastructure.errors import UserInputError, short_repr
 from ballchain.experiments import procedure
 from ballchain.experiments._result import Result, optional
 
@@ -136,7 +136,7 @@ def run(seeds=SEEDS, *, rings=RINGS, targets: int | None = None, dwell_s: float 
         raise UserInputError(f"workers must be a positive integer, got {short_repr(workers)}")
     folder = None
     if out is not None:
-        from ballchain.drake_models.safe_files import check_output_dir
+        from ballchain.infrastructure.safe_files import check_output_dir
 
         out = check_output_dir(out, "out")
         folder = out / "runs"
@@ -203,7 +203,7 @@ def force_figure(report: ProcedureReport, path: Path) -> Path:
     """The navigator's estimate against the true force, one point per dwell (its means; the bar
     spans the true force's min..max over the dwell), every seed, a colour per ring; beside it the
     operator's true force per dwell. The clinical window shaded."""
-    from ballchain.drake_models.safe_files import agg_pyplot, save_figure
+    from ballchain.infrastructure.safe_files import agg_pyplot, save_figure
 
     plt = agg_pyplot()
     fig, (ax, ax_o) = plt.subplots(1, 2, figsize=(11, 4.6), gridspec_kw={"width_ratios": [1.3, 1.0]})

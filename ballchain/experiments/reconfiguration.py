@@ -18,8 +18,8 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import EventStatus
 from tqdm import tqdm
 
-from ballchain.drake_models.arg_checks import require_bool, require_choice, require_int, require_positive
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.arg_checks import require_bool, require_choice, require_int, require_positive
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.vectors import angle_between
 from ballchain.experiments._result import Result

@@ -14,9 +14,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ballchain.drake_models.arg_checks import require_type
-from ballchain.drake_models.errors import UserInputError, short_repr
-from ballchain.drake_models.safe_files import check_output_file, to_jsonable
+from ballchain.infrastructure.arg_checks import require_type
+from ballchain.infrastructure.errors import UserInputError, short_repr
+from ballchain.infrastructure.safe_files import check_output_file, to_jsonable
 from ballchain.experiments._result import Result, optional
 from ballchain.optimization.statics import uniform_field_equilibrium
 

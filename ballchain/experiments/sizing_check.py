@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ballchain.drake_models.arg_checks import require_type
+from ballchain.infrastructure.arg_checks import require_type
 from ballchain.drake_models.params import gram_force, newtons_from_gram_force
 from ballchain.optimization.sizing import (
     PAPER,

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ballchain.drake_models.errors import UserInputError, check_in
+from ballchain.infrastructure.errors import UserInputError, check_in
 from ballchain.drake_models.field_sources import MAX_FIELD_T
 from ballchain.experiments._result import Result, optional
 

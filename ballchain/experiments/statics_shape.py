@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
-from ballchain.drake_models.errors import UserInputError, check_in, short_repr
+from ballchain.infrastructure.errors import UserInputError, check_in, short_repr
 from ballchain.drake_models.field_sources import MAX_FIELD_T, UniformField
 from ballchain.drake_models.params import BallChain, Sleeve
 from ballchain.experiments._result import Result

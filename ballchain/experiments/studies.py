@@ -34,7 +34,7 @@ from typing import Callable
 import numpy as np
 
 from ballchain.drake_models import paper
-from ballchain.drake_models.errors import UserInputError, check_in, short_repr
+from ballchain.infrastructure.errors import UserInputError, check_in, short_repr
 from ballchain.systems.device_model import engines
 
 
@@ -86,7 +86,7 @@ def _ok(rows):
 
 def _savefig(fig, path: Path) -> Path:
     """Save a figure atomically (a temporary file in the folder, then ``os.replace``)."""
-    from ballchain.drake_models.safe_files import save_figure
+    from ballchain.infrastructure.safe_files import save_figure
 
     return save_figure(fig, path, dpi=120, bbox_inches="tight")
 

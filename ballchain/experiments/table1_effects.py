@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ballchain.drake_models.arg_checks import require_bool
+from ballchain.infrastructure.arg_checks import require_bool
 from ballchain.drake_models.field_sources import UniformField
 from ballchain.drake_models.image_dipole import image_dipole, normal_attraction
 from ballchain.drake_models.dipole import dipole_field_gradient, force_on_dipole

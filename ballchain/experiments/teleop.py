@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.experiments._result import Result, optional
 
 from ballchain.drake_models import paper
@@ -256,7 +256,7 @@ def refuse_replaced(scenario, overrides: dict, mapping: str, handed) -> None:
     Raises:
         UserInputError: naming the field, the value and what the run does instead.
     """
-    from ballchain.drake_models.errors import short_repr
+    from ballchain.infrastructure.errors import short_repr
 
     other = "catheter" if mapping == "world" else "world"
     for i, entry in enumerate(overrides.get("units") or []):
@@ -339,7 +339,7 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     from ballchain.systems.target_contact import heart_targets
 
     check_inputs(task, mapping, targets, n_balls, time_limit, seed, anatomy=anatomy is not None)
-    from ballchain.drake_models.arg_checks import require_type
+    from ballchain.infrastructure.arg_checks import require_type
     from ballchain.drake_models.atrium import Atrium
 
     if operator is not None:
@@ -347,7 +347,7 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     if heart is not None:
         require_type(heart, Atrium, "teleop.run heart", "an atrium (LeftAtrium, UserAtrium) or None")
     if html is not None:  # before the run: an unwritable replay path must not cost the results
-        from ballchain.drake_models.safe_files import check_output_file
+        from ballchain.infrastructure.safe_files import check_output_file
 
         check_output_file(html, "--html")
     if anatomy is not None:
@@ -391,7 +391,7 @@ def run(task: str = "left", mapping: str = "world", targets: int | None = None, 
     limit = time_limit if time_limit is not None else n_targets * params.timeout + params.start_time + 5.0
     meshcat = None
     if html is not None:
-        from ballchain.drake_models.safe_files import check_output_file
+        from ballchain.infrastructure.safe_files import check_output_file
         from ballchain.systems.chain_simulation import replay_bytes, replay_meshcat
 
         check_output_file(html, "--html", expected_bytes=replay_bytes(scenario, limit))  # room for the replay
@@ -579,7 +579,7 @@ def run_seeds(tasks=TASKS, mappings=tuple(MAPPINGS), seeds=range(5), *, targets:
     seeds = check_seeds(seeds)
     files = None
     if out is not None:  # before the runs
-        from ballchain.drake_models.safe_files import check_output_dir
+        from ballchain.infrastructure.safe_files import check_output_dir
 
         out = check_output_dir(out, "out")
         files = {"csv": out / "teleop_seeds.csv", "json": out / "teleop_seeds.json"}
@@ -603,7 +603,7 @@ def run_seeds(tasks=TASKS, mappings=tuple(MAPPINGS), seeds=range(5), *, targets:
                                settings={"seeds": seeds, "targets": targets, "overrides": overrides,
                                          "engine": results[0].settings["engine"]})
     if files is not None:
-        from ballchain.drake_models.safe_files import write_csv, write_json
+        from ballchain.infrastructure.safe_files import write_csv, write_json
 
         write_csv(files["csv"], table, SEED_FIELDS)
         write_json(files["json"], result)
@@ -666,7 +666,7 @@ MAX_LIVE_RATE = 100.0  # a person steering at more than 100 times real time sees
 def check_live_inputs(mapping: str, units: str, n_balls: int | None, duration: float | None,
                       realtime_rate: float) -> None:
     """Raises UserInputError naming the flag on bad input for ``run_live``."""
-    from ballchain.drake_models.errors import UserInputError, short_repr
+    from ballchain.infrastructure.errors import UserInputError, short_repr
     from ballchain.systems.chain_scenario import MAX_DURATION
 
     if mapping not in MAPPINGS:
@@ -696,7 +696,7 @@ def live_scenario_for(mapping: str, units: str = "one", n_balls: int | None = No
             about a fifth of it) unless they name one, e.g. ``{engine: plant}``.
         anatomy: a loaded ``Anatomy``: the station on it, the units at its magnets (in order).
     """
-    from ballchain.drake_models.errors import UserInputError
+    from ballchain.infrastructure.errors import UserInputError
     from ballchain.systems.chain_scenario import parse_overrides
 
     try:

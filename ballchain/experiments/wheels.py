@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ballchain.drake_models.arg_checks import require_int
+from ballchain.infrastructure.arg_checks import require_int
 from ballchain.drake_models.omniwheel import PAPER_A, OmniWheelGeometry, paper_forward_map
 from ballchain.experiments._result import Result
 

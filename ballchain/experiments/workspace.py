@@ -22,11 +22,11 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from ballchain.drake_models.arg_checks import as_int_list
+from ballchain.infrastructure.arg_checks import as_int_list
 from ballchain.drake_models import paper
-from ballchain.drake_models.errors import UserInputError
+from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.params import BallChain, Sleeve
-from ballchain.drake_models.safe_files import agg_pyplot, atomic_write_text, check_output_dir, note_replacements, save_figure
+from ballchain.infrastructure.safe_files import agg_pyplot, atomic_write_text, check_output_dir, note_replacements, save_figure
 from ballchain.experiments._result import Result, optional
 from ballchain.experiments.magnet_poses import field_angle_for_magnet_angle, side_magnet
 from ballchain.optimization.statics import ChainStatics

@@ -18,9 +18,9 @@ import stat
 import time
 from pathlib import Path
 
-from ballchain.drake_models.errors import OutputError, UserInputError, short_repr
-from ballchain.drake_models.input_files import read_input_file
-from ballchain.drake_models.safe_files import TEMP_SUFFIX, atomic_write_text, to_jsonable, write_json
+from ballchain.infrastructure.errors import OutputError, UserInputError, short_repr
+from ballchain.infrastructure.input_files import read_input_file
+from ballchain.infrastructure.safe_files import TEMP_SUFFIX, atomic_write_text, to_jsonable, write_json
 from ballchain.report import Section, section_from_dict, section_to_dict
 from ballchain.reproduce.common import _say
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ballchain.drake_models import paper
-from ballchain.drake_models.safe_files import write_json
+from ballchain.infrastructure.safe_files import write_json
 from ballchain.report import Section
 from ballchain.reproduce.common import _agrees
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ballchain.drake_models.safe_files import write_json
+from ballchain.infrastructure.safe_files import write_json
 from ballchain.report import Section, Table
 
 ABLATION_HEADER = ["device", "quantity", "paper", "model"]

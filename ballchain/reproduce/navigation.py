@@ -11,7 +11,7 @@ import math
 from pathlib import Path
 
 from ballchain.drake_models import paper
-from ballchain.drake_models.safe_files import write_json
+from ballchain.infrastructure.safe_files import write_json
 from ballchain.report import Section
 from ballchain.reproduce.common import AGREES_WITHIN, _say
 

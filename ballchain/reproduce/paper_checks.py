@@ -13,7 +13,7 @@ from pathlib import Path
 from ballchain.drake_models import paper
 from ballchain.drake_models.dipole import K_DIPOLE
 from ballchain.drake_models.params import BallChain
-from ballchain.drake_models.safe_files import write_json
+from ballchain.infrastructure.safe_files import write_json
 from ballchain.experiments.field_models import DEFAULT_DISTANCES
 from ballchain.report import Section
 from ballchain.reproduce.common import _agrees

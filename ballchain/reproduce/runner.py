@@ -15,9 +15,9 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from ballchain.drake_models.errors import UserInputError, caused_by_interrupt, short_repr
-from ballchain.drake_models.input_files import read_input_file
-from ballchain.drake_models.safe_files import TEMP_SUFFIX, check_output_dir
+from ballchain.infrastructure.errors import UserInputError, caused_by_interrupt, short_repr
+from ballchain.infrastructure.input_files import read_input_file
+from ballchain.infrastructure.safe_files import TEMP_SUFFIX, check_output_dir
 from ballchain.report import Section, section_from_dict, summary_lines, write_report
 from ballchain.reproduce import registry
 from ballchain.reproduce.cache import (CACHE, MAX_RECORD_BYTES, SECTION_DATA, _cached, _record_problem, _slug,

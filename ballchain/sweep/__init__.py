@@ -17,7 +17,7 @@ parameter sets, times a list of seeds::
 
 Fields a point does not set take the experiment's defaults. The spec is checked before any
 cluster starts, ``UserInputError`` naming the field: the file (UTF-8 text, or UTF-16 with its
-BOM; read by ``drake_models/safe_yaml.py``), unknown experiment or field, wrong type, empty grid,
+BOM; read by ``infrastructure/safe_yaml.py``), unknown experiment or field, wrong type, empty grid,
 the number of runs (points x seeds, counted as the product of the axes' lengths before the grid
 is expanded; at most ``DEFAULT_MAX_POINTS`` unless ``max_points`` says more), and every point's
 values against its experiment's check, which applies the rules of the experiment's command.

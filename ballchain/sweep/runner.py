@@ -10,8 +10,8 @@ import time
 from pathlib import Path
 from typing import Callable
 
-from ballchain.drake_models.arg_checks import require_positive
-from ballchain.drake_models.errors import UserInputError, caused_by_interrupt, short_repr
+from ballchain.infrastructure.arg_checks import require_positive
+from ballchain.infrastructure.errors import UserInputError, caused_by_interrupt, short_repr
 from ballchain.executor import (CONNECT_TIMEOUT, Executor, _check_executor, _infrastructure_error, _worker_name,
                                 default_workers)
 from ballchain.sweep.spec import SweepSpec, point_key
@@ -205,7 +205,7 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
         "executor": ex.description, "figure": figure_path, "figure_note": figure_note, "summary": summary,
         "table_note": note,
     }
-    from ballchain.drake_models.safe_files import to_jsonable
+    from ballchain.infrastructure.safe_files import to_jsonable
 
     _atomic_write(out / "sweep.json", lambda tmp: Path(tmp).write_text(
         json.dumps(to_jsonable(result), indent=1, allow_nan=False, default=str)))

@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ballchain.drake_models.errors import UserInputError, short_repr
-from ballchain.drake_models.safe_files import register_input
+from ballchain.infrastructure.errors import UserInputError, short_repr
+from ballchain.infrastructure.safe_files import register_input
 
 SPEC_KEYS = ("experiment", "description", "grid", "points", "seeds")
 DEFAULT_MAX_POINTS = 5000  # runs (points x seeds) a spec may hold unless --max-points raises it
@@ -73,7 +73,7 @@ def load_spec(source: str | Path, *, text: str | None = None, max_points: int = 
             field list, more runs than ``max_points`` (counted before the grid is expanded), or a
             value the experiment's command refuses; the message names the field (and the point).
     """
-    from ballchain.drake_models.safe_yaml import load_typed, load_yaml
+    from ballchain.infrastructure.safe_yaml import load_typed, load_yaml
 
     if not isinstance(source, (str, os.PathLike)) or not str(source).strip():
         raise UserInputError(f"load_spec source must be a spec file's name (or a label with text=...), "
@@ -110,8 +110,8 @@ def load_spec(source: str | Path, *, text: str | None = None, max_points: int = 
 def _read_spec_text(path: Path, where: str) -> str:
     """A spec file's text: UTF-8 (a BOM is skipped), or UTF-16 with its BOM (as some Windows
     editors save); a binary file or another encoding is refused."""
-    from ballchain.drake_models.input_files import read_input_file
-    from ballchain.drake_models.safe_yaml import MAX_BYTES
+    from ballchain.infrastructure.input_files import read_input_file
+    from ballchain.infrastructure.safe_yaml import MAX_BYTES
 
     data = read_input_file(path, where, MAX_BYTES, "a spec file (YAML)")
     register_input(path, "sweep spec")  # the sweep's outputs may not replace it

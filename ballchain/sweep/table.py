@@ -9,8 +9,8 @@ import typing
 from pathlib import Path
 from typing import Callable, Sequence
 
-from ballchain.drake_models.errors import UserInputError, short_repr
-from ballchain.drake_models.safe_files import atomic_path, check_output_dir
+from ballchain.infrastructure.errors import UserInputError, short_repr
+from ballchain.infrastructure.safe_files import atomic_path, check_output_dir
 
 TABLE_PARQUET = "table.parquet"
 TABLE_CSV = "table.csv"
@@ -29,7 +29,7 @@ def _scalar(value):
         return value
     if isinstance(value, float):
         return value if math.isfinite(value) else None
-    from ballchain.drake_models.safe_files import to_jsonable
+    from ballchain.infrastructure.safe_files import to_jsonable
 
     return json.dumps(to_jsonable(value), allow_nan=False, default=str)
 
@@ -77,7 +77,7 @@ def read_table(out: Path) -> list[dict]:
     """The rows of ``out/table.parquet`` (empty if there is none)."""
     import pyarrow.parquet as pq
 
-    from ballchain.drake_models.input_files import check_input_file
+    from ballchain.infrastructure.input_files import check_input_file
 
     path = Path(out) / TABLE_PARQUET
     if not path.exists():
@@ -98,7 +98,7 @@ def read_table_csv(out: Path, experiment) -> list[dict]:
     types = {"key": pa.string(), "experiment": pa.string(), "seed": pa.int64(), "wall_time_s": pa.float64(),
              "cpu_time_s": pa.float64(), "worker": pa.string(), "error": pa.string()}
     types.update({name: arrow[t] for name, t in typing.get_type_hints(experiment.params).items()})
-    from ballchain.drake_models.input_files import check_input_file
+    from ballchain.infrastructure.input_files import check_input_file
 
     check_input_file(Path(out) / TABLE_CSV, f"--out {short_repr(str(out))}: {TABLE_CSV}", MAX_TABLE_BYTES,
                      "a sweep's table")
