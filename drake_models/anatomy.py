@@ -39,7 +39,7 @@ from ballchain.drake_models.atrium_mesh import (MAX_PUNCTURE_DISTANCE, MESH_NOUN
                                                 load_atrium_surface)
 from ballchain.drake_models.heart import HeartParams, LeftAtrium
 from ballchain.drake_models.params import CylinderMagnet
-from ballchain.infrastructure.errors import UserInputError, short_repr
+from ballchain.infrastructure.errors import UserInputError, short_repr, quote_path
 from ballchain.infrastructure.input_files import (MAX_MESH_BYTES, MAX_TABLE_TEXT_BYTES, check_input_file,
                                                   read_input_file)
 from ballchain.infrastructure.safe_files import register_input
@@ -392,7 +392,7 @@ def _named_file(path: Path, field_name: str, raw: str, limit: int, noun: str) ->
         return check_input_file(named, f"{_where(path)}: {field_name} {short_repr(raw)}", limit, noun)
     except UserInputError as err:
         if str(err).endswith("no such file"):
-            raise UserInputError(f"{err} (looked for {short_repr(str(named))})") from None
+            raise UserInputError(f"{err} (looked for {quote_path(named)})") from None
         raise
 
 

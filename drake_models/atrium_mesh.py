@@ -50,6 +50,7 @@ from ballchain.drake_models.mesh_io import (MESH_NOUN, AtriumMeshError, read_mes
 from ballchain.drake_models.mesh_shells import (NESTED_FRACTION, SEAM_GAP, opening_areas, orient_shells,
                                                 shell_containment, shell_labels)
 from ballchain.drake_models.surface_tree import SurfaceTree
+from ballchain.drake_models.model_files import cache_dir, cached_files, source_hash
 
 MAX_PUNCTURE_DISTANCE = 5e-3  # [m] a user's puncture may lie this far from the surface
 MAX_MITER = 3.0  # a wall vertex moves at most this many wall thicknesses (at a sharp corner)
@@ -316,8 +317,6 @@ class UserAtrium:
         """Write the wall (VTK) and its boundary (OBJ) to the cache (reused when intact, see
         ``model_files.cached_files``); returns their paths."""
         import hashlib
-
-        from ballchain.drake_models.model_files import cache_dir, cached_files, source_hash
 
         key = hashlib.sha1(self.surface.V.tobytes() + self.wall_faces.tobytes() + repr(self.params).encode()
                            + self.side.encode() + source_hash(sys.modules[__name__], mt).encode()).hexdigest()[:12]

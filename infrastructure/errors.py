@@ -34,6 +34,7 @@ _WRAPPED_INTERRUPT = re.compile(
 
 
 MAX_QUOTED = 80  # characters of a user's value quoted in a message
+MAX_PATH_QUOTED = 160  # characters of a file name quoted in a message: whole, unless longer (then cut in the middle)
 
 
 def short_repr(value, limit: int = MAX_QUOTED) -> str:
@@ -47,7 +48,19 @@ def short_repr(value, limit: int = MAX_QUOTED) -> str:
     text = " ".join(text.split())
     if len(text) <= limit:
         return text
-    return f"{text[:limit - 3]}... ({len(text)} characters)"
+    tail = (limit - 3) // 2  # both ends kept: a path's file name is at its end
+    return f"{text[:limit - 3 - tail]}...{text[len(text) - tail:]} ({len(text)} characters)"
+
+
+def quote_path(path) -> str:
+    """A file or folder name for a one-line message: quoted whole up to ``MAX_PATH_QUOTED``
+    characters (a user needs the whole name to act on it), else cut in the middle as
+    ``short_repr`` cuts. Never raises."""
+    try:
+        text = str(path)
+    except Exception:  # noqa: BLE001
+        return short_repr(path)
+    return short_repr(text, MAX_PATH_QUOTED)
 
 
 class StopRequest(KeyboardInterrupt):

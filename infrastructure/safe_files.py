@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ballchain.infrastructure.errors import OutputError, UserInputError, short_repr
+from ballchain.infrastructure.errors import OutputError, UserInputError, short_repr, quote_path
 
 TEMP_SUFFIX = ".partial"
 _UMASK = os.umask(0o022)
@@ -108,10 +108,10 @@ def output_error(path, err: OSError) -> OutputError:
     if err.errno in (errno.ENOSPC, errno.EDQUOT):
         base = _existing_folder(Path(path).absolute().parent)
         with contextlib.suppress(OSError):
-            reason += f" ({_megabytes(shutil.disk_usage(base).free)} free in {short_repr(str(base))})"
+            reason += f" ({_megabytes(shutil.disk_usage(base).free)} free in {quote_path(base)})"
     elif err.errno == errno.EPIPE:
         reason += " (the reader of the pipe went away)"
-    return OutputError(f"cannot write {short_repr(str(path))}: {reason}; nothing was replaced")
+    return OutputError(f"cannot write {quote_path(path)}: {reason}; nothing was replaced")
 
 
 def _megabytes(n: float) -> str:
@@ -138,11 +138,11 @@ def atomic_path(path):
     """
     target, kind = destination(path)
     if kind not in ("absent", "file", "fifo"):
-        raise OutputError(f"cannot write {short_repr(str(path))}: it is {_phrase(kind)}, not a regular file "
+        raise OutputError(f"cannot write {quote_path(path)}: it is {_phrase(kind)}, not a regular file "
                           f"({_ONLY_FILES})")
     found = input_at(path) if kind == "file" else None
     if found is not None:  # the last guard: the checks before the run should have said so
-        raise OutputError(f"cannot write {short_repr(str(path))}: it is an input of this run "
+        raise OutputError(f"cannot write {quote_path(path)}: it is an input of this run "
                           f"({_input_phrase(path, found)}); nothing was replaced")
     # The temporary file's name is chosen before the file exists, and the clean-up below covers its
     # creation: a stop (Ctrl-C, SIGTERM or SIGHUP, raised as KeyboardInterrupt between two
@@ -236,11 +236,11 @@ def check_name_lengths(path, what: str, room: int = 0) -> None:
     for part in absolute.parts[1:]:
         size = len(os.fsencode(part))
         if size > name_max:
-            raise UserInputError(f"{what} {short_repr(str(path))}: the name {short_repr(part)} is {size} bytes long; "
+            raise UserInputError(f"{what} {quote_path(path)}: the name {short_repr(part)} is {size} bytes long; "
                                  f"the file system allows {name_max} bytes per name")
     size = len(os.fsencode(str(absolute)))
     if size + room >= path_max:
-        raise UserInputError(f"{what} {short_repr(str(path))}: the path is {size} bytes long; the file system "
+        raise UserInputError(f"{what} {quote_path(path)}: the path is {size} bytes long; the file system "
                              f"allows {path_max - 1 - room} here")
 
 
@@ -258,8 +258,8 @@ def check_free_space(folder, what: str, expected_bytes: float = 0, shown=None) -
         return  # no answer from the file system: the write will tell
     if free < MIN_FREE_BYTES + expected_bytes:
         need = f"about {_megabytes(expected_bytes)}" if expected_bytes else f"at least {_megabytes(MIN_FREE_BYTES)}"
-        raise UserInputError(f"{what} {short_repr(str(shown if shown is not None else folder))}: only "
-                             f"{_megabytes(free)} free on the disk holding {short_repr(str(base))}; this run writes "
+        raise UserInputError(f"{what} {quote_path(shown if shown is not None else folder)}: only "
+                             f"{_megabytes(free)} free on the disk holding {quote_path(base)}; this run writes "
                              f"{need}")
 
 
@@ -346,21 +346,21 @@ def check_output_dir(path, what: str, *, expected_bytes: float = 0, names=()) ->
             an input of this run.
     """
     path = Path(path)
-    shown = short_repr(str(path))
+    shown = quote_path(path)
     check_name_lengths(path, what, room=FOLDER_NAME_ROOM)
     target, kind = destination(path)
     if kind not in ("absent", "folder"):
         raise UserInputError(f"{what} {shown} is {_phrase(kind)}, not a folder")
     base = _existing_folder(path.absolute())
     if not base.is_dir():
-        raise UserInputError(f"{what} {shown}: {short_repr(str(base))} is a file, so the folder cannot be created")
+        raise UserInputError(f"{what} {shown}: {quote_path(base)} is a file, so the folder cannot be created")
     if not os.access(base, os.W_OK | os.X_OK):
-        raise UserInputError(f"{what} {shown}: folder {short_repr(str(base))} is not writable")
+        raise UserInputError(f"{what} {shown}: folder {quote_path(base)} is not writable")
     try:  # os.access says yes to root even on a read-only file system: try it
         with tempfile.TemporaryFile(dir=base, prefix=".ballchain_probe"):
             pass
     except OSError as err:
-        raise UserInputError(f"{what} {shown}: cannot write in {short_repr(str(base))} ({err.strerror})") from None
+        raise UserInputError(f"{what} {shown}: cannot write in {quote_path(base)} ({err.strerror})") from None
     check_free_space(base, what, expected_bytes, shown=path)
     for name in names:
         _, kind = destination(path / name)
@@ -392,7 +392,7 @@ def check_output_file(path, what: str, *, expected_bytes: float = 0) -> Path:
             its name is too long, or the disk is (nearly) full.
     """
     path = Path(path)
-    shown = short_repr(str(path))
+    shown = quote_path(path)
     check_name_lengths(path, what)
     target, kind = destination(path)
     if kind == "folder":
@@ -412,7 +412,7 @@ def check_output_file(path, what: str, *, expected_bytes: float = 0) -> Path:
     except UserInputError:
         base = _existing_folder(target.absolute().parent)
         if base.exists() and not base.is_dir():
-            raise UserInputError(f"{what} {shown}: {short_repr(str(base))} is a file, so the folder cannot "
+            raise UserInputError(f"{what} {shown}: {quote_path(base)} is a file, so the folder cannot "
                                  "be created") from None
         raise
     return path

@@ -42,7 +42,7 @@ import numpy as np
 import yaml
 from yaml.nodes import MappingNode, SequenceNode
 
-from ballchain.infrastructure.errors import UserInputError, short_repr
+from ballchain.infrastructure.errors import UserInputError, short_repr, quote_path
 from ballchain.infrastructure.input_files import read_input_file
 
 MAX_BYTES = 1_000_000  # a scenario file is a few kB; a sweep spec a few hundred lines
@@ -236,7 +236,7 @@ def load_yaml_file(path: str | Path, where: str | None = None) -> object:
         UserInputError: not a readable regular file, too large, or as ``load_yaml``.
     """
     path = Path(path)
-    where = where or f"YAML file {short_repr(str(path))}"
+    where = where or f"YAML file {quote_path(path)}"
     data = read_input_file(path, where, MAX_BYTES, "a YAML file")
     return load_yaml(data.decode("utf-8", errors="replace"), where)
 

@@ -268,12 +268,15 @@ class ChainModel(DeviceModel):
         return self.geometry.n_balls
 
     def max_inserted_length(self) -> float:
+        """Largest inserted length that keeps ball 1 inside the sheath [m]."""
         return self.geometry.max_inserted_length()
 
     def in_sheath(self, p_W: np.ndarray) -> np.ndarray:
+        """Whether points (k, 3) [m] lie inside the sheath tube (within its outer radius)."""
         return self.geometry.in_sheath(p_W)
 
     def sheath_length(self) -> float:
+        """The sheath's length [m]: the chain's length and the sheath's extra length."""
         return self.geometry.sheath_length()
 
     # --- the geometry as a device ---------------------------------------------------------------
@@ -302,6 +305,7 @@ class ChainModel(DeviceModel):
         return self.config.initial_inserted_length
 
     def fed_chain(self):
+        """The chain the feeder pushes (``params.BallChain``)."""
         return self.config.chain
 
     def neighbour_gaps(self, p_W: np.ndarray) -> np.ndarray:
@@ -361,6 +365,7 @@ class ChainModel(DeviceModel):
         """Ball centres (n, 3) [m] from ``system``'s context or the diagram's root context."""
 
     def body_positions(self, context) -> np.ndarray:
+        """The bodies' centres (n, 3) [m], the tip last: the ball centres."""
         return self.ball_positions(context)
 
     @abstractmethod

@@ -70,6 +70,7 @@ from ballchain.systems.chain_model import (
 )
 from ballchain.systems.magnetic_wrench import MagneticWrenchSystem
 from ballchain.systems.target_contact import WallForceOnBall
+from ballchain.systems.force_sensor_pin import ForceSensorPin
 
 
 def chain_multibody_plant_config(**overrides) -> MultibodyPlantConfig:
@@ -464,7 +465,6 @@ class PlantChainModel(ChainModel):
 
     def add_pin(self, builder, point: np.ndarray, stiffness: float):
         """The ``ForceSensorPin`` on the tip ball, into the plant's generalized forces."""
-        from ballchain.systems.force_sensor_pin import ForceSensorPin
 
         pin = builder.AddSystem(ForceSensorPin(self.plant, self.ball_bodies[-1], point, stiffness))
         pin.set_name("force_sensor_pin")

@@ -38,6 +38,10 @@ from ballchain.systems.feeder import FeederSpec, batch_steps
 from ballchain.systems.force_sensor_pin import stability_bound
 from ballchain.systems.randomness import check_random_seed
 from ballchain.systems.unit_config import MagnetUnitConfig
+from ballchain.drake_models.atrium_mesh import MESH_NOUN
+from ballchain.drake_models.model_files import resolve_uri
+from ballchain.infrastructure.input_files import MAX_MESH_BYTES, check_input_file
+from ballchain.infrastructure.safe_yaml import MAX_BYTES
 
 SCENARIOS_FILE = Path(__file__).resolve().parents[1] / "drake_models" / "station.scenarios.yaml"
 if not SCENARIOS_FILE.exists():  # installed (non-editable) layout
@@ -1022,8 +1026,6 @@ def check_anatomy_field(s: "ChainScenario", others: tuple, default: "ChainScenar
         _require(getattr(s, name) == getattr(default, name),
                  f"scenario {name} cannot go with anatomy: the anatomy file gives the surface, its units, the "
                  f"sheath and the targets (leave {name} out)")
-    from ballchain.infrastructure.input_files import check_input_file
-    from ballchain.infrastructure.safe_yaml import MAX_BYTES
 
     path = check_input_file(s.anatomy, f"scenario anatomy {short_repr(s.anatomy)}", MAX_BYTES,
                             "an anatomy file (YAML)")
@@ -1037,7 +1039,6 @@ def check_atrium_file(path: str) -> None:
         UserInputError: naming atrium_file.
     """
     if str(path).startswith("package://"):
-        from ballchain.drake_models.model_files import resolve_uri
 
         try:
             resolved = resolve_uri(path)
@@ -1046,8 +1047,6 @@ def check_atrium_file(path: str) -> None:
             raise UserInputError(f"scenario atrium_file {path!r} does not resolve: {first}") from None
     else:
         resolved = Path(path)
-    from ballchain.drake_models.atrium_mesh import MESH_NOUN
-    from ballchain.infrastructure.input_files import MAX_MESH_BYTES, check_input_file
 
     check_input_file(resolved, f"scenario atrium_file {short_repr(path)}", MAX_MESH_BYTES, MESH_NOUN)
     register_input(resolved, "scenario atrium_file")

@@ -55,6 +55,7 @@ from ballchain.systems.station import (  # re-exported (__all__)
     chain_for,
     field_source_for,
 )
+from ballchain.systems.randomness import set_random_context
 
 
 @dataclass
@@ -345,8 +346,6 @@ class StationRunner:
         self.cd = cd
         if context is None and cd.scenario.random_seed is not None:
             from pydrake.common import RandomGenerator
-
-            from ballchain.systems.randomness import set_random_context
 
             context = cd.diagram.CreateDefaultContext()
             set_random_context(cd.diagram, context, RandomGenerator(cd.scenario.random_seed))

@@ -64,6 +64,10 @@ from ballchain.systems.chain_model import (
 )
 from ballchain.systems.engine_kernels import ball_frames as _ball_frames
 from ballchain.systems.magnetic_wrench import external_field_source
+from ballchain.drake_models.atrium_sdf import atrium_sdf
+from ballchain.drake_models.wall_motion import WallMotion
+from ballchain.optimization.statics import StaticsError
+from ballchain.optimization.wall_constraints import PlaneSDF
 
 
 def _norms(rows: np.ndarray) -> np.ndarray:
@@ -174,7 +178,6 @@ class QuasiStaticEngine(LeafSystem):
             max_insertion_step=max_insertion_step, snap_distance=snap_distance, compiled=compiled,
             wall_motion=wall_motion)
         if wall_motion is not None:
-            from ballchain.drake_models.wall_motion import WallMotion
 
             require_type(wall_motion, WallMotion, "QuasiStaticEngine wall_motion", "a WallMotion or None")
         self.wall_motion = None if wall_motion is None or wall_motion.still else wall_motion
@@ -379,7 +382,6 @@ class QuasiStaticEngine(LeafSystem):
             ``StaticsResult`` or the compiled path's ``HeartAnswer`` (its ``result()`` the
             former); raises StaticsError when the restart fails too.
         """
-        from ballchain.optimization.statics import StaticsError
 
         k, c = self._constraints(s, t)
         if k >= self._n - 1:
@@ -564,7 +566,6 @@ class QuasiStaticEngine(LeafSystem):
         return p, m, result
 
     def _update(self, context, discrete_state):
-        from ballchain.optimization.statics import StaticsError
 
         x = self.state_vector(context)
         s, mags = self._inputs(context)
@@ -756,12 +757,10 @@ class StaticsChainModel(ChainModel):
     @classmethod
     def add_to(cls, builder, scenario, config, coupling: FieldCoupling) -> StaticsChainModel:
         """The engine, solving every ``scenario.statics_period`` (warmed up here, not in the timed run)."""
-        from ballchain.optimization.wall_constraints import PlaneSDF
 
         geometry = chain_geometry(config)
         sdf = None
         if config.heart is not None:
-            from ballchain.drake_models.atrium_sdf import atrium_sdf
 
             sdf = atrium_sdf(config.heart)
         elif config.wall_plane:

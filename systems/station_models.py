@@ -10,11 +10,14 @@ from pathlib import Path
 import numpy as np
 
 from ballchain.drake_models.atrium import Atrium
-from ballchain.infrastructure.errors import UserInputError, short_repr
+from ballchain.infrastructure.errors import UserInputError, short_repr, quote_path
 from ballchain.drake_models.field_sources import FieldSource, FieldSources, MagnetSource, UniformField
 from ballchain.drake_models.heart import HeartParams, LeftAtrium
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
 from ballchain.systems.chain_scenario import ChainScenario
+from ballchain.drake_models.anatomy import load_anatomy
+from ballchain.drake_models.atrium_mesh import UserAtrium, load_atrium_surface
+from ballchain.drake_models.model_files import resolve_uri
 
 
 
@@ -22,13 +25,10 @@ def atrium_for(scenario: ChainScenario) -> Atrium:
     """The scenario's atrium: its anatomy file's (``anatomy``), the user's surface when
     ``atrium_file`` is set, else procedural."""
     if scenario.anatomy:
-        from ballchain.drake_models.anatomy import load_anatomy
 
         return load_anatomy(scenario.anatomy).atrium()
     if not scenario.atrium_file:
         return LeftAtrium(HeartParams(scale=scenario.heart_scale, subdivisions=scenario.heart_subdivisions))
-    from ballchain.drake_models.atrium_mesh import UserAtrium, load_atrium_surface
-    from ballchain.drake_models.model_files import resolve_uri
 
     path = scenario.atrium_file
     path = resolve_uri(path) if path.startswith("package://") else Path(path)
@@ -50,7 +50,7 @@ def apply_anatomy(scenario: ChainScenario, anatomy, units=None) -> ChainScenario
 
     units = scenario.units if units is None else units
     if len(anatomy.magnets) < len(units):
-        raise UserInputError(f"anatomy file {short_repr(str(anatomy.path))}: magnets gives {len(anatomy.magnets)} "
+        raise UserInputError(f"anatomy file {quote_path(anatomy.path)}: magnets gives {len(anatomy.magnets)} "
                              f"unit position(s), the station has {len(units)} unit(s): give one per unit")
     scenario.anatomy = str(anatomy.path)
     fresh = type(units[0])() if units else None

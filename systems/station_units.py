@@ -52,6 +52,7 @@ from ballchain.systems.reconfiguration import ReconfigurationController
 from ballchain.systems.rotating_magnet_unit import RotatingMagnetUnit
 from ballchain.systems.teleoperation import TeleoperationMapper
 from ballchain.systems.unit_config import JoystickKey, MagnetUnitConfig
+from ballchain.drake_models.vectors import perpendicular_axis
 
 
 @dataclass
@@ -353,7 +354,6 @@ def joystick_keys_for_rotation(m_from_W, m_to_W, omega_max: float, start_time: f
     if angle < 1e-9:
         return [JoystickKey(time=start_time, axes=[0.0, 0.0, 0.0])]
     if np.linalg.norm(cross) < 1e-9:  # antiparallel: any axis perpendicular to a
-        from ballchain.drake_models.vectors import perpendicular_axis
 
         cross = perpendicular_axis(a)
     axis = cross / np.linalg.norm(cross)

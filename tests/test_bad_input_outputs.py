@@ -241,3 +241,18 @@ def test_the_benchmark_script_checks_its_json_path_first(tmp_path):
     proc = subprocess.run([sys.executable, "benchmarks/station_bench.py", "--json", "/dev/null"],
                           capture_output=True, text=True, cwd=Path(__file__).parents[1], timeout=300)
     assert proc.returncode == 2 and "character device" in proc.stderr
+
+
+def test_a_file_name_in_a_message_is_whole_or_keeps_both_ends():
+    """A message quotes a file name whole up to MAX_PATH_QUOTED characters (a folder under
+    pytest's workers cut at 80 lost the file's name: 'tar... (86 characters)'); a longer one is
+    cut in the middle, so its file name stays."""
+    from ballchain.infrastructure.errors import MAX_PATH_QUOTED, quote_path, short_repr
+
+    path = "/tmp/" + "a" * 100 + "/targets.csv"
+    assert quote_path(path) == repr(path)
+    long = "/tmp/" + "b" * 400 + "/atrium.stl"
+    quoted = quote_path(long)
+    assert quoted.endswith(f"/atrium.stl' ({len(long) + 2} characters)") and quoted.startswith("'/tmp/bbb")
+    assert len(quoted.split(" (")[0]) == MAX_PATH_QUOTED
+    assert short_repr("x" * 200).startswith("'xxx") and "...xxx" in short_repr("x" * 200)

@@ -51,15 +51,7 @@ ALLOWED_CYCLES: set = set()  # none: a cycle is fixed at its root, not allowed h
 # Function-level imports in the library layers without their reason, in files being edited by
 # others at the time of writing (issue 42): module -> how many. The test fails when a module has
 # more than this; lower the number (or drop the entry) as they get their reason or move up.
-PENDING_REASONS: dict[str, int] = {
-    "ballchain.drake_models.atrium_mesh": 1,  # being split (issue 42, item 3)
-    "ballchain.systems.chain_plant": 1,  # systems/: the device seam and the typed configs (items 1, 2)
-    "ballchain.systems.chain_scenario": 5,
-    "ballchain.systems.chain_simulation": 1,
-    "ballchain.systems.quasi_static_engine": 5,
-    "ballchain.systems.station_models": 3,
-    "ballchain.systems.station_units": 1,
-}
+PENDING_REASONS: dict[str, int] = {}  # none left: every one is at the top or says why
 
 
 @dataclass(frozen=True)

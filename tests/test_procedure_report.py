@@ -39,7 +39,7 @@ def test_scenario_localisation_bad_yaml_names_the_field(field, value):
                                           ("rate", True), ("latency", None), ("latency", 2.0)])
 def test_scenario_localisation_bad_python_value_names_the_field(field, value):
     scenario = ChainScenario(localisation=LocalisationScenario(**{field: value}))
-    with pytest.raises(UserInputError, match=f"scenario localisation.{field}") as err:
+    with pytest.raises(UserInputError, match=rf"scenario:? localisation\.{field}") as err:
         scenario.validate()
     assert len(str(err.value)) < 300
 

@@ -63,14 +63,17 @@ def test_every_containment_test_agrees_down_each_vein(heart, vein):
 
 
 def _fake_station(heart, n: int):
-    """The parts of a Station ChainMonitor reads (its ``chain``, a ChainModel): a chain of n
+    """The parts of a Station ChainMonitor reads (its ``chain``, a DeviceModel): a chain of n
     balls whose centres are set."""
     state = {"p": np.zeros((n, 3))}
     chain = SimpleNamespace(system=SimpleNamespace(GetMyContextFromRoot=lambda root: root),
                             config=SimpleNamespace(chain=SimpleNamespace(ball_diameter=BALL, length=n * BALL)),
-                            n_balls=n, move_period=1e-3, failure=None, in_sheath=lambda p: np.zeros(len(p), bool),
+                            n_balls=n, body_indices=list(range(1, n + 1)), body_radius=BALL / 2,
+                            move_period=1e-3, failure=None, in_sheath=lambda p: np.zeros(len(p), bool),
                             is_finite=lambda ctx: bool(np.all(np.isfinite(state["p"]))),
                             non_finite_part=lambda ctx: "a ball", ball_positions=lambda ctx: state["p"],
+                            body_positions=lambda ctx: state["p"],
+                            neighbour_gaps=lambda p: np.linalg.norm(np.diff(p, axis=0), axis=1) - BALL,
                             anatomy_offsets=lambda ctx: None)
     cd = SimpleNamespace(chain=chain, heart=heart, scenario=SimpleNamespace(check_period=5e-3, break_gap=1e-3))
     return cd, state

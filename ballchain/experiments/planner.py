@@ -27,7 +27,7 @@ from ballchain.drake_models import paper
 from ballchain.drake_models.anatomy import (PROCEDURAL_FILE, Anatomy, AnatomyTargets, ellipsoid_inward_normal,
                                             load_anatomy)
 from ballchain.drake_models.dipole_inversion import neutral_direction
-from ballchain.infrastructure.errors import UserInputError, short_repr
+from ballchain.infrastructure.errors import UserInputError, short_repr, quote_path
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
 from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import BallChain, CylinderMagnet, gram_force, newtons_from_gram_force
@@ -289,6 +289,6 @@ def anatomy_targets(anatomy, task: str | None) -> tuple[Anatomy, str | None, lis
         raise UserInputError(f"task must be 'left' or 'right' on the procedural atrium, got {short_repr(task)}")
     chosen = anatomy.indices(task)
     if not chosen:
-        raise UserInputError(f"task {short_repr(task)}: anatomy file {short_repr(str(anatomy.path))} has no "
+        raise UserInputError(f"task {short_repr(task)}: anatomy file {quote_path(anatomy.path)} has no "
                              f"targets named {task}_... (leave the task out for all its targets)")
     return anatomy, task, chosen

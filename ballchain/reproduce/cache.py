@@ -18,7 +18,7 @@ import stat
 import time
 from pathlib import Path
 
-from ballchain.infrastructure.errors import OutputError, UserInputError, short_repr
+from ballchain.infrastructure.errors import OutputError, UserInputError, short_repr, quote_path
 from ballchain.infrastructure.input_files import read_input_file
 from ballchain.infrastructure.safe_files import TEMP_SUFFIX, atomic_write_text, to_jsonable, write_json
 from ballchain.report import Section, section_from_dict, section_to_dict
@@ -208,7 +208,7 @@ def check_same_folder(out: Path, folder: tuple[int, int] | None, before: str) ->
     now = folder_identity(out)
     if now != folder:
         how = "was deleted" if now is None else "was deleted or replaced (it is not the folder the run started in)"
-        raise OutputError(f"--out {short_repr(str(out))} {how} during the run: stopped before {before}; "
+        raise OutputError(f"--out {quote_path(out)} {how} during the run: stopped before {before}; "
                           "nothing more was written")
 
 

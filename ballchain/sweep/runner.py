@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Callable
 
 from ballchain.infrastructure.arg_checks import require_positive
-from ballchain.infrastructure.errors import UserInputError, caused_by_interrupt, short_repr
+from ballchain.infrastructure.errors import UserInputError, caused_by_interrupt, short_repr, quote_path
 from ballchain.executor import (CONNECT_TIMEOUT, Executor, _check_executor, _infrastructure_error, _worker_name,
                                 default_workers)
 from ballchain.sweep.spec import SweepSpec, point_key
@@ -132,11 +132,11 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
     extra = [r for r in previous if r["key"] not in key_set]  # points of another spec: kept with --append
     if extra and not append:
         held = sorted({str(r["spec"]) for r in extra if r.get("spec")}) or [_recorded_spec(out) or "an earlier spec"]
-        shown = ", ".join(map(short_repr, held[:3])) + (f" and {len(held) - 3} more" if len(held) > 3 else "")
+        shown = ", ".join(map(quote_path, held[:3])) + (f" and {len(held) - 3} more" if len(held) > 3 else "")
         whose = (f"rows of an earlier version of {shown} (or of the experiment's parameters)" if held == [spec.source]
                  else f"rows of another sweep spec ({shown})")
-        raise UserInputError(f"--out {short_repr(str(out))} holds {whose}: {len(extra)} of its {len(previous)} rows "
-                             f"are not points of {short_repr(spec.source)}; give another folder, or --append to add "
+        raise UserInputError(f"--out {quote_path(out)} holds {whose}: {len(extra)} of its {len(previous)} rows "
+                             f"are not points of {quote_path(spec.source)}; give another folder, or --append to add "
                              "this spec's rows to that table")
     if append:  # every row says which spec it came from (the earlier ones: the spec the folder's last run ran)
         held = _recorded_spec(out) or "an earlier spec"

@@ -9,7 +9,7 @@ import typing
 from pathlib import Path
 from typing import Callable, Sequence
 
-from ballchain.infrastructure.errors import UserInputError, short_repr
+from ballchain.infrastructure.errors import UserInputError, short_repr, quote_path
 from ballchain.infrastructure.safe_files import atomic_path, check_output_dir
 
 TABLE_PARQUET = "table.parquet"
@@ -82,7 +82,7 @@ def read_table(out: Path) -> list[dict]:
     path = Path(out) / TABLE_PARQUET
     if not path.exists():
         return []
-    check_input_file(path, f"--out {short_repr(str(out))}: {TABLE_PARQUET}", MAX_TABLE_BYTES, "a sweep's table")
+    check_input_file(path, f"--out {quote_path(out)}: {TABLE_PARQUET}", MAX_TABLE_BYTES, "a sweep's table")
     return pq.read_table(path).to_pylist()
 
 
@@ -100,7 +100,7 @@ def read_table_csv(out: Path, experiment) -> list[dict]:
     types.update({name: arrow[t] for name, t in typing.get_type_hints(experiment.params).items()})
     from ballchain.infrastructure.input_files import check_input_file
 
-    check_input_file(Path(out) / TABLE_CSV, f"--out {short_repr(str(out))}: {TABLE_CSV}", MAX_TABLE_BYTES,
+    check_input_file(Path(out) / TABLE_CSV, f"--out {quote_path(out)}: {TABLE_CSV}", MAX_TABLE_BYTES,
                      "a sweep's table")
     table = pacsv.read_csv(Path(out) / TABLE_CSV,
                            convert_options=pacsv.ConvertOptions(column_types=types, strings_can_be_null=True))
