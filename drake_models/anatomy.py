@@ -221,6 +221,15 @@ def load_anatomy(path: str | Path) -> Anatomy:
 
     Raises:
         UserInputError: one line naming the field and the file, before any simulation work.
+
+    Example:
+        The shipped example anatomy (the procedural atrium written as a file)::
+
+            >>> from importlib.resources import files
+            >>> import ballchain as bc
+            >>> anatomy = bc.load_anatomy(files("ballchain.drake_models") / "anatomies" / "procedural_left_atrium.yaml")
+            >>> anatomy.side, len(anatomy.target_names)
+            ('lumen', 38)
     """
     if not isinstance(path, (str, Path)) or not str(path):
         raise UserInputError(f"anatomy file must be a file name, got {short_repr(path)}")

@@ -108,7 +108,16 @@ def rotation_with_z_along(direction) -> np.ndarray:
 
 @dataclass
 class UniformField:
-    """A spatially uniform flux density ``B_W`` (3,) [T] (a Helmholtz/Maxwell-coil idealisation)."""
+    """A spatially uniform flux density ``B_W`` (3,) [T] (a Helmholtz/Maxwell-coil idealisation).
+
+    Example:
+        A 23 mT field along +y (``in_plane``: a magnitude and an angle from +x towards +y)::
+
+            >>> import numpy as np, ballchain as bc
+            >>> B, G = bc.UniformField.in_plane(0.023, np.radians(90.0)).field_and_gradient([[0.0, 0.0, 0.0]])
+            >>> [round(1e3 * float(v), 3) for v in B[0]], float(np.abs(G).max())  # [mT], no gradient
+            ([0.0, 23.0, 0.0], 0.0)
+    """
 
     B_W: np.ndarray
     uniform: ClassVar[bool] = True  # the kernels take B_W as it is and skip the gradients (``FieldSource``)
@@ -147,6 +156,16 @@ class MagnetSource:
         R_WM: (3, 3) orientation; column 2 is the magnetisation direction.
         model: "dipole" (point dipole at the centre) or "exact" (magpylib's closed-form field of
             the cylinder; for a sphere the dipole field is already exact outside it).
+
+    Example:
+        The prototype's magnet 16.51 cm along +x, its dipole towards the origin: the point dipole and the
+        exact cylinder at the origin::
+
+            >>> import ballchain as bc
+            >>> dipole = bc.MagnetSource.pointing(bc.CylinderMagnet(), [0.1651, 0.0, 0.0], [-1.0, 0.0, 0.0])
+            >>> exact = bc.MagnetSource.pointing(bc.CylinderMagnet(), [0.1651, 0.0, 0.0], [-1.0, 0.0, 0.0], "exact")
+            >>> [round(1e3 * float(s.field_and_gradient([[0.0, 0.0, 0.0]])[0][0, 0]), 2) for s in (dipole, exact)]  # [mT]
+            [-8.85, -8.38]
     """
 
     magnet: CylinderMagnet | SphereMagnet

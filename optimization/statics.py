@@ -451,6 +451,23 @@ class ChainStatics:
 
         Returns:
             The result; check ``converged`` (or use ``solve_or_raise``).
+
+        Example:
+            Eight balls in a 23 mT field at 45 deg: free, with the tip held 2 mm towards -y, and against a
+            wall at y = 10 mm::
+
+                >>> import numpy as np, ballchain as bc
+                >>> statics = bc.ChainStatics(bc.BallChain(n_balls=8))
+                >>> field = bc.UniformField.in_plane(0.023, np.radians(45.0))
+                >>> free = statics.solve(field)
+                >>> free.converged, [round(1e3 * float(v), 1) for v in free.tip_position[:2]]  # [mm]
+                (True, [17.6, 12.9])
+                >>> held = statics.solve(field, free, tip_target=free.tip_position + [0.0, -0.002, 0.0])
+                >>> [round(float(v), 3) for v in held.tip_reaction[:2]]  # the target's push on the tip [N]
+                [-0.137, -0.117]
+                >>> wall = statics.solve(field, free, wall=([0.0, 0.010, 0.0], [0.0, -1.0, 0.0]))
+                >>> {i: round(f, 4) for i, f in wall.wall_forces.items()}  # ball (0-based): the wall's push [N]
+                {7: 0.0449}
         """
         require_field_source(external, "external", allow_none=True)
         if warm_start is not None:

@@ -396,6 +396,14 @@ def load_scenario(name: str, overrides: str | None = None, filename: Path = SCEN
     Raises:
         UserInputError: unknown name, YAML that does not parse, a field that does not exist, a
             value of the wrong type, or a bad value (the message names the field).
+
+    Example:
+        A named scenario with one field changed (``--set`` on the command line)::
+
+            >>> import ballchain as bc
+            >>> scenario = bc.load_scenario("free_space_uniform_90deg", "{n_balls: 6}")
+            >>> scenario.n_balls, scenario.engine, scenario.uniform_field  # field [T]
+            (6, 'plant', [0.0, 0.023, 0.0])
     """
     data = _scenarios_data(filename)
     names = [k for k in data if not str(k).startswith("_")]

@@ -337,6 +337,16 @@ class StationRunner:
     Attributes:
         simulator, context (its root context), monitor; stopped: ``stop`` ended the last advance;
         failure: the failure message that ended the last advance, or None.
+
+    Example:
+        Advance a station in chunks (as the live view does between a person's inputs)::
+
+            >>> import ballchain as bc
+            >>> runner = bc.StationRunner(bc.MakeStation(bc.load_scenario("free_space_uniform_90deg", "{n_balls: 6}")))
+            >>> runner.advance_to(0.02), runner.advance_to(0.05)  # None: no failure
+            (None, None)
+            >>> [round(1e3 * float(v), 1) for v in runner.cd.tip_position(runner.context)[:2]]  # [mm]
+            [14.9, 3.9]
     """
 
     def __init__(self, cd: Station, *, monitor: ChainMonitor | None = None, stop=None, check=None,
@@ -462,6 +472,17 @@ def run_station(cd: Station, *, duration: float, monitor: ChainMonitor | None = 
         UserInputError: before the run, for a ``cd`` that is not a Station, a ``duration`` that is
             not a finite time > 0, ``html`` without a Meshcat in the station, and a ``progress``,
             ``progress_step`` or ``realtime_rate`` of the wrong kind.
+
+    Example:
+        Run a station for 50 ms of simulated time and read the tip::
+
+            >>> import ballchain as bc
+            >>> station = bc.MakeStation(bc.load_scenario("free_space_uniform_90deg", "{n_balls: 6}"))
+            >>> outcome = bc.run_station(station, duration=0.05)
+            >>> outcome.failure, round(outcome.sim_time, 3), outcome.stopped
+            (None, 0.05, False)
+            >>> [round(1e3 * float(v), 1) for v in outcome.tip_position[:2]]  # the tip ball's centre [mm]
+            [14.9, 3.9]
     """
     check_run_arguments(cd, "run_station", monitor=monitor, stop=stop, check=check, context=context, html=html)
     require_positive(duration, "run_station duration")

@@ -506,6 +506,17 @@ def MakeStation(scenario: ChainScenario, meshcat=None, *, heart: Atrium | None =
 
     Raises:
         UserInputError: a bad scenario (naming the field).
+
+    Example:
+        A named scenario's station, built and run for 50 ms::
+
+            >>> import ballchain as bc
+            >>> station = bc.MakeStation(bc.load_scenario("free_space_uniform_90deg", "{n_balls: 6}"))
+            >>> type(station).__name__, station.chain.n_balls, station.heart is None
+            ('Station', 6, True)
+            >>> outcome = bc.run_station(station, duration=0.05)  # simulated seconds
+            >>> outcome.failure, [round(1e3 * float(v), 1) for v in outcome.tip_position[:2]]  # [mm]
+            (None, [14.9, 3.9])
     """
     require_type(scenario, ChainScenario, "MakeStation scenario", "a ChainScenario (from load_scenario)")
     if heart is not None:

@@ -96,6 +96,19 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
     Returns:
         {"experiment", "out", "table_parquet", "table_csv", "points", "ran", "skipped", "failed",
         "resubmitted", "interrupted", "wall_time_s", "executor", "figure", "summary"}
+
+    Example:
+        A two-point sweep run serially in this process, its table read back::
+
+            >>> import tempfile, ballchain as bc
+            >>> from ballchain.sweep import read_table
+            >>> spec = bc.load_spec("example", text="{experiment: statics, grid: {n_balls: [4, 6]}}")
+            >>> out = tempfile.mkdtemp()
+            >>> result = bc.run_sweep(spec, out, workers=0, progress=False)
+            >>> result["ran"], result["failed"]
+            (2, 0)
+            >>> [(r["n_balls"], round(r["tip_y_mm"], 1)) for r in read_table(out)]
+            [(4, 7.1), (6, 13.4)]
     """
     from tqdm import tqdm
 
