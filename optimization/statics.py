@@ -26,16 +26,18 @@ Two solvers of the same problem:
   rigidity as a vector constraint) solved by SNOPT. A quasi-Newton reference: about 50 times
   slower here, since it needs tens of iterations that each pass through Drake's AutoDiff
   bindings.
+
+``StaticsResult`` and ``StaticsError`` live in ``statics_result``, ``dense_qp`` in
+``active_set_qp``, the line search and the continuation's ``rotation_path`` in ``statics_steps``
+(all re-exported here), the SNOPT reference's program in ``statics_snopt``.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
-from typing import Iterable, Literal
+from typing import Iterable
 
 import numpy as np
-from pydrake.autodiffutils import AutoDiffXd, ExtractGradient, ExtractValue, InitializeAutoDiff
 from pydrake.solvers import (
     ClarabelSolver,
     MathematicalProgram,
@@ -47,206 +49,30 @@ from ballchain.drake_models.chain_energy import EnergyTerms
 from ballchain.drake_models.kernels import chain_energy
 from ballchain.drake_models.field_sources import FieldSource, UniformField, require_field_source
 from ballchain.drake_models.params import BallChain
-from ballchain.drake_models.vectors import angle_between
 from ballchain.infrastructure.arg_checks import (as_plane, as_vector, require_bool, require_int, require_positive,
                                                  require_type)
 from ballchain.infrastructure.errors import UserInputError
 from ballchain.optimization import compiled_model
+from ballchain.optimization.active_set_qp import _refined, dense_qp  # noqa: F401 (re-exported)
 from ballchain.optimization.compiled_newton import CONVEXIFY, TOUCHING
 from ballchain.optimization.reduced_chain import X_AXIS, ReducedChain, answer_verdict
+from ballchain.optimization.statics_snopt import _SNOPT_MESSAGES, snopt_solve  # noqa: F401
+from ballchain.optimization.statics_result import (  # noqa: F401 (re-exported)
+    Method,
+    StaticsError,
+    StaticsResult,
+    straight_chain,
+    tip_angle_deg,
+)
+from ballchain.optimization.statics_steps import (  # noqa: F401 (re-exported)
+    MAX_CONTINUATION_STEPS,
+    _infeasibility,
+    _line_search,
+    _non_finite_field,
+    _set_tip_target_and_wall,
+    rotation_path,
+)
 from ballchain.optimization.wall_constraints import ConstrainedChain, HeartConstraints
-
-Method = Literal["newton", "snopt"]
-
-_SNOPT_MESSAGES = {
-    1: "optimality conditions satisfied",
-    3: "requested accuracy could not be achieved",
-    13: "nonlinear infeasibilities minimized",
-    31: "iteration limit reached",
-    32: "major iteration limit reached",
-    41: "current point cannot be improved",
-    42: "singular basis",
-}
-
-
-class StaticsError(RuntimeError):
-    """A statics solve that did not converge, with the reason."""
-
-
-@dataclass
-class StaticsResult:
-    """An equilibrium of the chain (or the last iterate of a failed solve).
-
-    Attributes:
-        positions: (n, 3) ball centres [m], ball 1 at the origin.
-        dipoles: (n, 3) unit dipole directions, ball 1 along +x.
-        energy: total potential energy [J].
-        terms: the energy's parts.
-        converged: whether the solver certified a (local) minimum.
-        reason: the solver's message (why it stopped).
-        solver: solver name.
-        iterations: Newton iterations, or energy evaluations for SNOPT.
-        solve_time: wall time of the solve [s].
-        max_violation: largest rigidity-constraint violation, ``|p_i - p_j| < d``, [m] (0 if none).
-        pair_forces: ``{(i, j): force [N]}`` between non-adjacent balls i, j (0-based) that touch
-            at the equilibrium: the rigidity constraints' multipliers.
-        tip_reaction: (3,) force [N] that a tip target exerts on the tip ball (the tip
-            constraint's multiplier); zero without a target. The chain presses on the target
-            with minus this.
-        wall_forces: ``{i: force [N]}`` the wall pushes on ball i (0-based) along its normal.
-        wall_forces_W: with ``HeartConstraints``: ``{i: f_W (3,) [N]}`` the atrium's wall
-            pushes on ball i of the sub-chain (frictionless: along the wall's normal).
-        sheath_forces_W: likewise the sheath's lip and bore.
-        positions_W, dipoles_W: with ``HeartConstraints``: the configuration in world.
-        multipliers: ``{row: multiplier}`` of the rows near contact at the solution (scaled
-            units); a warm start carrying them starts the next solve's model with them.
-    """
-
-    positions: np.ndarray
-    dipoles: np.ndarray
-    energy: float
-    terms: EnergyTerms
-    converged: bool
-    reason: str
-    solver: str
-    iterations: int
-    solve_time: float
-    max_violation: float = 0.0
-    pair_forces: dict = field(default_factory=dict)
-    tip_reaction: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    wall_forces: dict = field(default_factory=dict)
-    wall_forces_W: dict = field(default_factory=dict)
-    sheath_forces_W: dict = field(default_factory=dict)
-    positions_W: np.ndarray | None = None
-    dipoles_W: np.ndarray | None = None
-    multipliers: dict = field(default_factory=dict)
-
-    @property
-    def tip_position(self) -> np.ndarray:
-        return self.positions[-1]
-
-    @property
-    def tip_dipole(self) -> np.ndarray:
-        return self.dipoles[-1]
-
-    def link_directions(self) -> np.ndarray:
-        """(n-1, 3) unit vectors from each ball to the next."""
-        links = np.diff(self.positions, axis=0)
-        return links / np.linalg.norm(links, axis=1)[:, None]
-
-
-def straight_chain(chain: BallChain, direction=X_AXIS) -> tuple[np.ndarray, np.ndarray]:
-    """The straight chain along ``direction`` from the origin, all dipoles along it."""
-    direction = np.asarray(direction, dtype=float)
-    direction = direction / np.linalg.norm(direction)
-    n = chain.n_balls
-    positions = np.arange(n)[:, None] * chain.ball_diameter * direction
-    return positions, np.tile(direction, (n, 1))
-
-
-def tip_angle_deg(result: StaticsResult, field_direction) -> float:
-    """Angle between the tip ball's dipole and a field direction [deg]."""
-    require_type(result, StaticsResult, "result", "a StaticsResult")
-    as_vector(field_direction, "field_direction", nonzero=True)
-    f = np.asarray(field_direction, dtype=float)
-    return float(np.degrees(angle_between(result.tip_dipole, f / np.linalg.norm(f))))
-
-
-
-
-def dense_qp(H: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarray, E: np.ndarray | None = None,
-             e: np.ndarray | None = None, max_iterations: int = 200):
-    """min 1/2 x' H x + g' x  s.t.  A x + b >= 0  and  E x + e = 0, for a positive definite H.
-
-    Solved in the dual: with x = H^-1 (A' lam + E' mu - g) the multipliers minimise
-    1/2 y' M y + y' (c - N H^-1 g) over y = (lam >= 0, mu free), N = [A; E], M = N H^-1 N',
-    c = (b, e): a small bound-constrained QP (as many unknowns as rows near contact) solved by
-    a Lawson-Hanson active set (exact, finite). One Cholesky factorisation of H. The dual is
-    regularised by delta = 1e-13 trace(M) (dependent rows); when that alone leaves a row below
-    the tolerance (H nearly singular: trace(M) huge), the dual is refined on the free set
-    (``_refined``) before the rows are called infeasible.
-
-    Returns:
-        ``(x, lam, mu)``, or ``(None, None, None)`` when the constraints are infeasible (the
-        dual is unbounded) or the active set cycles.
-    """
-    n_in = len(b)
-    n_eq = 0 if E is None else len(e)
-    N = A if n_eq == 0 else np.vstack([A, E])
-    c = b if n_eq == 0 else np.concatenate([b, e])
-    # numpy's Cholesky and solves: scipy's cho_factor/solve_triangular measured 25 times slower
-    # on these 60 x 60 matrices here.
-    Lc = np.linalg.cholesky(H)
-    Hinv_g = np.linalg.solve(Lc.T, np.linalg.solve(Lc, g))
-    if len(c) == 0:
-        return -Hinv_g, np.zeros(0), np.zeros(0)
-    Y = np.linalg.solve(Lc, N.T)  # L^-1 N'
-    M = Y.T @ Y
-    delta = 1e-13 * max(1.0, float(np.trace(M)))
-    M += delta * np.eye(len(M))  # dependent rows: a unique dual
-    r = c - N @ Hinv_g
-    m = len(c)
-    y = np.zeros(m)
-    free = np.zeros(m, bool)
-    free[n_in:] = True  # equality multipliers are never bounded
-    for _ in range(max_iterations):
-        # Minimise over the free set with the bound ones at zero.
-        while True:
-            z = np.zeros(m)
-            F = np.flatnonzero(free)
-            if len(F):
-                z[F] = np.linalg.solve(M[np.ix_(F, F)], -r[F])
-            bad = free[:n_in] & (z[:n_in] < 0.0)
-            if not np.any(bad):
-                y = z
-                break
-            # Step from y towards z until the first inequality multiplier reaches zero.
-            idx = np.flatnonzero(bad)
-            alpha = np.min(y[idx] / (y[idx] - z[idx]))
-            y = y + alpha * (z - y)
-            free[:n_in] &= ~(y[:n_in] <= 1e-14 * max(1.0, np.abs(y).max()))
-            y[:n_in][~free[:n_in]] = 0.0
-        w = -(M @ y + r)  # the dual's negative gradient: positive where a bound should be freed
-        w[free] = 0.0
-        w[n_in:] = 0.0
-        j = int(np.argmax(w))
-        if w[j] <= 1e-12 * max(1.0, np.abs(r).max()):
-            if not np.all(np.isfinite(y)) or np.abs(y).max() > 1e12:
-                return None, None, None
-            x = np.linalg.solve(Lc.T, np.linalg.solve(Lc, N.T @ y - g))
-            floor = -1e-8 * max(1.0, np.abs(b).max())
-            if n_in and (A @ x + b).min() < floor:
-                # The regularisation leaves each free row at -delta y_i, not 0: more than the
-                # tolerance when H is nearly singular (a soft mode makes trace(M) huge). Refined
-                # against the unregularised dual on the free set, a feasible set's rows close
-                # (an infeasible one's stay violated); only then infeasible.
-                y = _refined(M, r, y, free, n_in, delta)
-                if y is None:
-                    return None, None, None
-                x = np.linalg.solve(Lc.T, np.linalg.solve(Lc, N.T @ y - g))
-                if (A @ x + b).min() < floor:
-                    return None, None, None  # infeasible: the regularised dual stops at a violation
-            return x, y[:n_in], y[n_in:]
-        free[j] = True
-    return None, None, None
-
-
-def _refined(M: np.ndarray, r: np.ndarray, y: np.ndarray, free: np.ndarray, n_in: int,
-             delta: float) -> np.ndarray | None:
-    """``dense_qp``'s dual y refined on the free set F towards the unregularised system
-    (M - delta I)_FF y_F = -r_F (M regularised by delta): three rounds of iterative
-    refinement with the regularised matrix, each shrinking the error by about
-    delta / (delta + the eigenvalue). None when a refined inequality multiplier (the first
-    ``n_in``) turns negative or y is not finite."""
-    F = np.flatnonzero(free)
-    y = y.copy()
-    MF = M[np.ix_(F, F)]
-    for _ in range(3):
-        y[F] += np.linalg.solve(MF, -(r[F] + MF @ y[F] - delta * y[F]))
-    if not np.all(np.isfinite(y)) or np.any(y[:n_in] < 0.0):
-        return None
-    return y
-
 
 def _positive_definite(H: np.ndarray, floor: float = 1e-10) -> np.ndarray:
     """H itself when it is positive definite, else H with its eigenvalues replaced by
@@ -284,27 +110,6 @@ def _qp_curvature(H: np.ndarray, Nt: np.ndarray, N: np.ndarray) -> np.ndarray:
     return _positive_definite(H)
 
 
-def _set_tip_target_and_wall(model: ReducedChain, tip_target, wall) -> None:
-    """Pin the model's tip at ``tip_target`` (or not) and place its plane ``wall`` (or none)."""
-    model.tip_target = None if tip_target is None else np.asarray(tip_target, dtype=float).reshape(3)
-    if model.tip_target is not None and not np.all(np.isfinite(model.tip_target)):
-        raise UserInputError(f"tip target must be finite, got {tip_target}")
-    if wall is None:
-        model.wall = None
-    else:
-        point, normal = (np.asarray(v, dtype=float).reshape(3) for v in wall)
-        if not (np.all(np.isfinite(point)) and np.all(np.isfinite(normal)) and np.linalg.norm(normal) > 0):
-            raise UserInputError(f"wall must be a finite point and a non-zero normal, got {wall}")
-        model.wall = (point, normal / np.linalg.norm(normal))
-        if point @ model.wall[1] > -0.5 * model.d:
-            raise UserInputError("the wall cuts ball 1 (held at the origin): move it beyond half a ball")
-
-
-def _infeasibility(e, pinned: bool) -> float:
-    """The summed violation of an evaluation's rows (and of the tip target when ``pinned``)."""
-    tip = float(np.abs(e.tip_residual).sum()) if pinned else 0.0
-    return float(np.maximum(0.0, -e.gaps).sum()) + tip
-
 
 def _negative_curvature(ev, H, near, lam, pinned: bool, nq: int):
     """None when H is positive semi-definite (up to 1e-7) on the tangent space of the active rows
@@ -321,44 +126,6 @@ def _negative_curvature(ev, H, near, lam, pinned: bool, nq: int):
     except np.linalg.LinAlgError:
         w, V = np.linalg.eigh(H_tangent)
     return Z, V
-
-
-def _line_search(model: ReducedChain, q, dq, ev, near, pinned: bool, rho: float, merit0: float, slope: float):
-    """Backtracking on the l1 merit ``energy + rho * infeasibility`` along dq from q (Armijo,
-    1e-4), with a second-order correction of the full step onto curved rows.
-
-    Returns:
-        ``(t, dq, trial)``: the step length (below 1e-10: no descent), the step (corrected or
-        not) and the evaluation there (with derivatives when the full step was taken).
-    """
-    t = 1.0
-    while True:
-        # The full step is usually taken: evaluate it with derivatives for the next
-        # iteration; shorter trials only need the energy.
-        trial = model.evaluate(q + t * dq, 2 if t == 1.0 else 0)
-        merit = trial.energy + rho * _infeasibility(trial, pinned)
-        if merit <= merit0 + 1e-4 * t * min(slope, 0.0) or t < 1e-10:
-            break
-        if t == 1.0 and pinned:
-            # Second-order correction: the full step leaves the tip off target by the
-            # constraint's curvature (Maratos effect); project it back before shortening.
-            correction = -np.linalg.pinv(ev.tip_jacobian) @ trial.tip_residual
-            corrected = model.evaluate(q + dq + correction, 2)
-            if corrected.energy + rho * _infeasibility(corrected, pinned) <= merit0 + 1e-4 * min(slope, 0.0):
-                dq, trial = dq + correction, corrected
-                break
-        if t == 1.0 and not pinned and len(near):
-            # The same for the inequality rows the full step violates (a ball pressed
-            # on a curved wall): the linearised row is met, the curved one is not.
-            rows = near[trial.gaps[near] < 0.0]
-            if len(rows):
-                correction = -np.linalg.pinv(ev.jacobian[rows]) @ trial.gaps[rows]
-                corrected = model.evaluate(q + dq + correction, 2)
-                if corrected.energy + rho * _infeasibility(corrected, pinned) <= merit0 + 1e-4 * min(slope, 0.0):
-                    dq, trial = dq + correction, corrected
-                    break
-        t *= 0.5
-    return t, dq, trial
 
 
 MAX_BALLS = 200  # dense Hessians: 200 balls take about 0.5 GB
@@ -754,46 +521,7 @@ class ChainStatics:
 
     # --- SNOPT reference ------------------------------------------------------------------------
     def _snopt_solve(self, model: ReducedChain):
-        prog = MathematicalProgram()
-        q = prog.NewContinuousVariables(model.nq, "q")
-        cache: dict = {}
-        counter = [0]
-
-        def evaluate(x):
-            value = ExtractValue(x).reshape(-1)
-            key = value.tobytes()
-            if cache.get("key") != key:
-                cache["key"], cache["ev"] = key, model.evaluate(value, 1)
-                counter[0] += 1
-            return value, cache["ev"]
-
-        def cost(x):
-            _, ev = evaluate(x)
-            if x.dtype == float:
-                return ev.energy
-            return AutoDiffXd(ev.energy, ev.gradient @ ExtractGradient(x))
-
-        def rigidity(x):
-            _, ev = evaluate(x)
-            if x.dtype == float:
-                return ev.gaps
-            return InitializeAutoDiff(ev.gaps, ev.jacobian @ ExtractGradient(x)).reshape(-1)
-
-        prog.AddCost(cost, q, description="energy")
-        n_pairs = len(model.pair_i)
-        binding = None
-        if n_pairs:
-            binding = prog.AddConstraint(rigidity, np.zeros(n_pairs), np.full(n_pairs, np.inf), q,
-                                         description="rigidity")
-        prog.AddBoundingBoxConstraint(-1.5, 1.5, q[model.n_vectors :])
-        result = self._snopt.Solve(prog, np.zeros(model.nq), self._snopt_options)
-        info = result.get_solver_details().info
-        lam = {}
-        if binding is not None:
-            duals = result.GetDualSolution(binding)
-            lam = {k: float(v) for k, v in enumerate(duals) if v > 0}
-        return (result.GetSolution(q), info == 1, _SNOPT_MESSAGES.get(info, f"SNOPT info {info}"),
-                counter[0], lam)
+        return snopt_solve(self._snopt, self._snopt_options, model)
 
 
 def _null_space(J: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
@@ -813,36 +541,6 @@ def solve_statics(
     """One equilibrium of ``chain`` in ``external`` (see ChainStatics.solve); raises if not converged."""
     return ChainStatics(chain, gravity=gravity, method=method).solve_or_raise(external, warm_start)
 
-
-MAX_CONTINUATION_STEPS = 10_000
-
-
-def _non_finite_field(external, p: np.ndarray) -> str | None:
-    """Why the external field is unusable at the balls p (n, 3) (a reason string), or None."""
-    if external is None:
-        return None
-    if isinstance(external, UniformField):  # the same B everywhere, no gradient: B is the answer
-        finite = np.all(np.isfinite(np.asarray(external.B_W, float)))
-        return None if finite else "the external field is not finite (NaN or inf) at ball 1"
-    B, G = external.field_and_gradient(p)  # a source that refuses the points says why (raises)
-    bad = ~(np.all(np.isfinite(np.reshape(B, (len(p), -1))), axis=1)
-            & np.all(np.isfinite(np.reshape(G, (len(p), -1))), axis=1))
-    if np.any(bad):
-        return f"the external field is not finite (NaN or inf) at ball {int(np.argmax(bad)) + 1}"
-    return None
-
-
-def rotation_path(start_deg: float, stop_deg: float, step_deg: float) -> np.ndarray:
-    """Field angles from start to stop (inclusive) in steps of at most ``step_deg`` [deg]."""
-    if not (np.isfinite(step_deg) and step_deg > 0) or not (np.isfinite(start_deg) and np.isfinite(stop_deg)):
-        raise UserInputError(f"continuation angles must be finite and the step positive, got {start_deg}, "
-                             f"{stop_deg}, step {step_deg}")
-    steps = abs(stop_deg - start_deg) / step_deg
-    if steps > MAX_CONTINUATION_STEPS:  # bounded work (a 1e-12 deg step once asked for 655 TiB)
-        raise UserInputError(f"continuation step {step_deg:g} deg gives {steps:.3g} steps from {start_deg:g} to "
-                             f"{stop_deg:g} deg, more than {MAX_CONTINUATION_STEPS}: use a larger step")
-    n = max(1, int(np.ceil(steps - 1e-9)))
-    return np.linspace(start_deg, stop_deg, n + 1)
 
 
 def uniform_field_equilibrium(
