@@ -225,8 +225,7 @@ def load_anatomy(path: str | Path) -> Anatomy:
     Example:
         The shipped example anatomy (the procedural atrium written as a file)::
 
-            >>> from importlib.resources import files
-            >>> import ballchain as bc
+            >>> import ballchain as bc; from importlib.resources import files
             >>> anatomy = bc.load_anatomy(files("ballchain.drake_models") / "anatomies" / "procedural_left_atrium.yaml")
             >>> anatomy.side, len(anatomy.target_names)
             ('lumen', 38)
