@@ -1,7 +1,7 @@
 """Meshcat overlays of a chain simulation.
 
 ``meshcat_overlays`` (MeshcatOverlays, only with a Meshcat): the 5 mm targets as discs on the
-wall (yellow, green once touched), the total external field at the tip ball as a blue arrow and
+wall (blue, vermillion with a white rim once touched), the total external field at the tip ball as a blue arrow and
 the wall's contact force on the tip ball as an orange arrow. Everything is also stored in the
 Meshcat recording, so the HTML replay shows it. Which targets are touched comes from
 ``systems/target_contact.py``, the wall force from the chain model's ``tip_wall_force``.
@@ -30,8 +30,12 @@ FORCE_ARROW_RGBA = Rgba(1.0, 0.55, 0.0, 1.0)  # orange
 # semi-transparent heart over them; a semi-transparent disc is drawn after the heart and its
 # depth test fails wherever the heart's near wall is in front of it (every disc on the near side
 # of the chamber vanished in the replays).
-TARGET_RGBA = Rgba(0.95, 0.85, 0.1, 1.0)  # yellow: not touched yet
-TOUCHED_RGBA = Rgba(0.1, 0.8, 0.2, 1.0)  # green: touched
+# Okabe-Ito colours, told apart by colour-blind readers: blue #0072B2 not touched yet,
+# vermillion #D55E00 touched; a touched disc also has a white rim (a wider white disc under it).
+TARGET_RGBA = Rgba(0.0, 0.447, 0.698, 1.0)  # blue: not touched yet
+TOUCHED_RGBA = Rgba(0.835, 0.369, 0.0, 1.0)  # vermillion: touched
+TARGET_OUTLINE_RGBA = Rgba(1.0, 1.0, 1.0, 1.0)  # white: the touched disc's rim
+TARGET_OUTLINE_SCALE = 1.3  # the rim's radius over the disc's
 
 
 def _arrow_pose(p_W: np.ndarray, v_W: np.ndarray) -> RigidTransform:
@@ -44,8 +48,8 @@ class MeshcatOverlays(LeafSystem):
 
     Meshcat paths (all under ``overlays/``):
         ``targets/<name>/open`` and ``targets/<name>/touched``: a 5 mm disc (the target's
-            diameter, 0.3 mm thick) on the wall at each target, yellow until the tip touches it
-            (``touched`` input), then green for the rest of the run.
+            diameter, 0.3 mm thick) on the wall at each target, blue until the tip touches it
+            (``touched`` input), then vermillion with a white rim (``touched/rim``) for the rest of the run.
         ``tip_field``: the total external field B_W at the tip ball's centre (fixed sources and
             port magnets, not the chain's own dipoles), blue, 1 mm per mT.
         ``tip_contact_force``: the wall's contact force on the tip ball (the sum over its
@@ -103,6 +107,8 @@ class MeshcatOverlays(LeafSystem):
             meshcat.SetTransform(path, _arrow_pose(p + 1e-4 * n, n))
             meshcat.SetObject(f"{path}/open", Cylinder(radius, 0.3e-3), TARGET_RGBA)
             meshcat.SetObject(f"{path}/touched", Cylinder(radius, 0.3e-3), TOUCHED_RGBA)
+            meshcat.SetObject(f"{path}/touched/rim", Cylinder(TARGET_OUTLINE_SCALE * radius, 0.2e-3), TARGET_OUTLINE_RGBA)
+            meshcat.SetTransform(f"{path}/touched/rim", RigidTransform([0.0, 0.0, -0.1e-3]))
             meshcat.SetProperty(f"{path}/touched", "visible", False)
         for path, rgba in (("overlays/tip_field", FIELD_ARROW_RGBA), ("overlays/tip_contact_force", FORCE_ARROW_RGBA)):
             # A unit-length shaft along z (scaled to the arrow's length) and a 2 mm head at its end.

@@ -99,8 +99,19 @@ def frame_box(meshcat, lower, upper, direction_W=VIEW_DIRECTION_W, hide_grid: bo
     return p_WC, p_WT
 
 
-def frame_scene(meshcat, heart=None, chain_length: float | None = None, p_W_base=None):
+def box_with_points(lower, upper, points=None) -> tuple[np.ndarray, np.ndarray]:
+    """The box (lower, upper) grown to hold ``points`` ((k, 3) [m], e.g. the magnets' centres; None
+    or empty: the box as it is)."""
+    lower, upper = np.asarray(lower, float), np.asarray(upper, float)
+    P = np.asarray([] if points is None else points, float).reshape(-1, 3)
+    return (np.minimum(lower, P.min(axis=0)), np.maximum(upper, P.max(axis=0))) if len(P) else (lower, upper)
+
+
+def frame_scene(meshcat, heart=None, chain_length: float | None = None, p_W_base=None, points=None):
     """Frame the atrium, or in free space the chain's reach, in Meshcat's camera.
+
+    A replay page frames the atrium and the magnets once its scene has loaded
+    (``replay_files.replay_overlay``, with this module's view direction, field of view and margin).
 
     Args:
         meshcat: the Meshcat.
@@ -108,13 +119,14 @@ def frame_scene(meshcat, heart=None, chain_length: float | None = None, p_W_base
         chain_length: without a heart, the chain's length [m]: the view frames a cube of twice
             that side around ``p_W_base`` (everywhere the chain can swing to).
         p_W_base: (3,) without a heart, where the chain starts [m] (default: the origin).
+        points: (k, 3) more points to keep in view [m] (e.g. the magnets' centres), or None.
 
     Returns:
         (p_WC, p_WT) [m], or None when there is nothing to frame (no heart, no chain length).
     """
     if heart is not None:
-        return frame_box(meshcat, *atrium_box(heart))
+        return frame_box(meshcat, *box_with_points(*atrium_box(heart), points))
     if chain_length is None or not chain_length > 0:
         return None
     base = np.zeros(3) if p_W_base is None else np.asarray(p_W_base, float)
-    return frame_box(meshcat, base - chain_length, base + chain_length)
+    return frame_box(meshcat, *box_with_points(base - chain_length, base + chain_length, points))
