@@ -117,7 +117,7 @@ def _panel_colour(page) -> np.ndarray:
 
 
 def test_a_person_steers_the_chain_in_the_browser_into_a_vein_and_starts_over_after_a_stop():
-    """Keys pressed on the page reach the station: the chain moves, a target turns green; the tip
+    """Keys pressed on the page reach the station: the chain moves, a target turns vermillion; the tip
     goes down a vein (the left inferior) and the session goes on there; a stop of the watchdog
     (forced: nothing counts as inside, a stand-in for a real escape) pauses the session
     with the reason on the page (red panel), R starts over (the chain back at the start) and
@@ -172,7 +172,7 @@ def test_a_person_steers_the_chain_in_the_browser_into_a_vein_and_starts_over_af
             for _ in range(4):
                 page.keyboard.press("ArrowUp")
             wait(lambda: np.linalg.norm(np.array(tip()) - p0) > 10e-3, "the tip to move 10 mm")
-            touched = wait(lambda: page.evaluate(JS_TOUCHED), "a target to turn green")
+            touched = wait(lambda: page.evaluate(JS_TOUCHED), "a target to turn vermillion")
             page.screenshot(path=shots / "02_target_green.png")
             assert touched
             # The chain all in: the feeder's readout says ball 1 stopped while the command is full.

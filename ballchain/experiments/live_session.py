@@ -361,7 +361,7 @@ def _announce_live(session, mapping: str, realtime_rate: float, duration: float 
          + (f", for {duration:g} s" if duration is not None else ", until you quit (Escape, Start or Ctrl-C)"))
     echo(_panel_lines(session, mapping, omega)[0])
     echo(key_map_text(session.joystick.keys))
-    echo("the targets turn green when the tip touches them; the orange arrow is the wall's force on the tip")
+    echo("the targets turn from blue to vermillion when the tip touches them; the orange arrow is the wall's force on the tip")
     keys = TextPanel(meshcat, "keys", anchor=LIVE_KEYS_ANCHOR, width_px=1150)
     keys.show(_panel_lines(session, mapping, omega))
     keys.flush()
