@@ -6,6 +6,13 @@ Arrhenius damage. Prints both lesions (Omega = 1 and the 50 C isotherm), the pea
 electrode temperatures and the impedance beside the paper's lesions; writes the temperature
 field with the lesion contours, the lesion growth over time and (``--map``) the power-duration
 map of the ball chain.
+
+Clinical conditions (issue 44): ``--blood-flow low|high`` (Newton cooling of the electrode and the
+wall), ``--irrigation open`` (the catheter's tip held at the irrigant's temperature),
+``--control temperature --target-temperature-C 60`` (the set power is then the cap),
+``--contact-force-gf`` (the indentation by Hertz's law), ``--magnet-grade``: the ball chain's
+magnet is held below its grade's limit less a margin. Each device then reports its delivered
+power beside the set one and the magnet's peak. Without these flags it is the paper's bench.
 """
 
 from __future__ import annotations
@@ -16,7 +23,7 @@ from pathlib import Path
 from ballchain.commands._common import add_json_flag, finite_float, path_arg, print_json
 from ballchain.infrastructure.errors import UserInputError
 from ballchain.infrastructure.safe_files import check_output_dir
-from ballchain.experiments import ablation
+from ballchain.experiments import ablation, ablation_clinical
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -28,6 +35,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tissue", default="myocardium", help="tissue type: myocardium or liver")
     parser.add_argument("--bath-temperature-C", type=finite_float, default=22.0,
                         help="initial tissue and saline temperature [C] (not in the paper)")
+    parser.add_argument("--contact-force-gf", type=finite_float, default=None,
+                        help="contact force [gf]: sets each electrode's indentation (Hertz); overrides --indentation-mm")
+    parser.add_argument("--irrigation", default="none", help="catheter irrigation: none or open")
+    parser.add_argument("--blood-flow", default="none", help="blood flow past the electrode: none (still bath), low, high")
+    parser.add_argument("--control", default="power",
+                        help="generator mode: power, or temperature (the set power is then the cap)")
+    parser.add_argument("--target-temperature-C", type=finite_float, default=60.0,
+                        help="electrode set point under --control temperature [C] (clinical 55-65)")
+    parser.add_argument("--magnet-grade", default="N52", help="the ball chain's magnet grade (N52, N42SH)")
     parser.add_argument("--mesh-mm", type=finite_float, default=0.1, help="mesh spacing near the electrode [mm]")
     parser.add_argument("--map", action="store_true", help="also run the ball chain's power-duration map")
     parser.add_argument("--sensitivity", action="store_true",
@@ -56,12 +72,48 @@ def _check(args: argparse.Namespace) -> None:
                 ablation.check_settings(**{key: value})
         except UserInputError as err:
             raise UserInputError(str(err).replace(key, FLAGS[key], 1)) from None
+    clinical = _clinical_settings(args)
+    if clinical is not None and (args.map or args.sensitivity):
+        raise UserInputError("--map and --sensitivity run the paper's bench; drop the clinical flags "
+                             "(--contact-force-gf, --irrigation, --blood-flow, --control, --magnet-grade) to use them")
     if not args.no_files:
         check_output_dir(args.out, "--out")
 
 
+CLINICAL_FLAGS = {"contact_force_gf": "--contact-force-gf", "irrigation": "--irrigation",
+                  "blood_flow": "--blood-flow", "control": "--control",
+                  "target_temperature_C": "--target-temperature-C", "magnet grade": "--magnet-grade"}
+
+
+def _clinical_settings(args: argparse.Namespace):
+    """The clinical settings (checked, naming the flag), or None for the paper's bench."""
+    settings = ablation_clinical.ClinicalSettings(
+        blood_flow=args.blood_flow, irrigation=args.irrigation, control=args.control,
+        target_temperature_C=args.target_temperature_C, contact_force_gf=args.contact_force_gf,
+        magnet_grade=args.magnet_grade)
+    try:
+        settings.check()
+    except UserInputError as err:
+        text = str(err)
+        for key, flag in CLINICAL_FLAGS.items():
+            if text.startswith(key):
+                text = flag + text[len(key):]
+                break
+        raise UserInputError(text) from None
+    bench = ablation_clinical.ClinicalSettings(magnet_grade=args.magnet_grade,
+                                               target_temperature_C=args.target_temperature_C)
+    return None if settings == bench else settings
+
+
 def main(args: argparse.Namespace) -> int:
     _check(args)
+    clinical = _clinical_settings(args)
+    if clinical is not None:
+        result = ablation_clinical.run(
+            clinical, ball_power_W=args.ball_power_W, catheter_power_W=args.catheter_power_W,
+            duration_s=args.duration_s, indentation_mm=args.indentation_mm, tissue=args.tissue,
+            initial_temperature_C=args.bath_temperature_C, h_mm=args.mesh_mm, progress=not args.json)
+        return _report(args, result)
     result = ablation.run(ball_power_W=args.ball_power_W, catheter_power_W=args.catheter_power_W,
                           duration_s=args.duration_s, indentation_mm=args.indentation_mm, tissue=args.tissue,
                           initial_temperature_C=args.bath_temperature_C, h_mm=args.mesh_mm,
@@ -72,6 +124,10 @@ def main(args: argparse.Namespace) -> int:
             progress=not args.json)
     if args.sensitivity:
         result.sensitivity = ablation.sensitivity(progress=not args.json)
+    return _report(args, result)
+
+
+def _report(args: argparse.Namespace, result) -> int:
     if not args.no_files:
         result.files = ablation.write_files(result, args.out)
     if args.json:

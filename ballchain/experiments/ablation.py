@@ -88,6 +88,7 @@ class DeviceResult(Result):
     meets_criterion: bool
     growth: list
     simulation: fem.LesionSimulation | None = not_in_json()
+    clinical: dict | None = optional()
 
 
 @dataclass
@@ -158,6 +159,13 @@ def run_device(device: str, *, power_W: float, duration_s: float = 90.0, indenta
                        initial_temperature_C=initial_temperature_C, h=h_mm * 1e-3, dt_max=dt_max_s,
                        output_every_s=output_every_s, saline=saline, limit_C=cutoff_C, progress=tick)
     bar.close()
+    return device_result(device, electrode, sim, power_W=power_W, duration_s=duration_s,
+                         indentation_mm=indentation_mm)
+
+
+def device_result(device: str, electrode: fem.Electrode, sim: fem.LesionSimulation, *, power_W: float,
+                  duration_s: float, indentation_mm: float) -> DeviceResult:
+    """The lesion, temperatures, impedance and energy of one simulated application."""
     end = sim.growth[-1]
     rf = sim.power > 0
     dts = np.diff(np.concatenate([[0.0], sim.times]))
