@@ -59,7 +59,38 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "'{wall_motion: {enabled: true, cardiac: {amplitude: 0.002}}}' (not with --wall-motion)")
     parser.add_argument("--out", type=path_arg, default=None, metavar="DIR", help="write procedure.json here")
     parser.add_argument("--html", type=path_arg, default=None, metavar="FILE", help="write a Meshcat replay here")
+    lesion = parser.add_argument_group("lesions as in a beating heart (issue 44; default: the paper's still bench)")
+    lesion.add_argument("--blood-flow", choices=("none", "low", "high"), default="none",
+                        help="blood flow cooling the tip ball and the wall (low, high); none: the still bench")
+    lesion.add_argument("--control", choices=("power", "temperature"), default="power",
+                        help="generator mode for the lesions (the magnet's limit is in its loop either way)")
+    lesion.add_argument("--target-temperature-C", type=float_in(40.0, 95.0), default=60.0,
+                        help="the tip's set point under --control temperature [C]")
+    lesion.add_argument("--lesion-power-W", type=float_in(0.5, 100.0), default=30.0,
+                        help="set power (or the cap under temperature control) of the clinical lesions [W]")
+    lesion.add_argument("--magnet-grade", default="N52", help="the tip magnet's grade (N52, N42SH)")
+    lesion.add_argument("--dwell-criterion", choices=("fixed", "transmural", "fti"), default="fixed",
+                        help="each lesion's RF time: the --dwell (fixed), until transmural, or until the "
+                             "force-time integral reaches 400 gf s (EFFICAS II)")
+    lesion.add_argument("--rf-time-limit-s", type=float_in(1.0, 120.0), default=60.0,
+                        help="the longest RF time per lesion under a dwell criterion [s]")
     add_json_flag(parser)
+
+
+def _lesion_conditions(args: argparse.Namespace):
+    """The clinical lesion conditions (``lesion_dwell.LesionConditions``), or True (the bench)."""
+    from ballchain.drake_models.lesion_dwell import LesionConditions  # only when asked: builds no table here
+
+    bench = (args.blood_flow == "none" and args.control == "power" and args.dwell_criterion == "fixed"
+             and args.magnet_grade == "N52")
+    if bench:
+        return True
+    try:
+        return LesionConditions(blood_flow=args.blood_flow, control=args.control, power_W=args.lesion_power_W,
+                                target_C=args.target_temperature_C, grade=args.magnet_grade,
+                                criterion=args.dwell_criterion, time_limit_s=args.rf_time_limit_s)
+    except UserInputError as err:
+        raise UserInputError(str(err).replace("magnet grade", "--magnet-grade", 1)) from None
 
 
 def main(args: argparse.Namespace) -> int:
@@ -70,6 +101,7 @@ def main(args: argparse.Namespace) -> int:
     if args.anatomy is None and args.task not in procedure.TASKS:
         raise UserInputError(f"--task must be left or right, got {args.task!r}")
     localisation = _localisation(args)
+    lesions = _lesion_conditions(args)
     if args.anatomy is not None and (args.out is not None or args.html is not None):
         from ballchain.drake_models.anatomy import load_anatomy
 
@@ -81,7 +113,8 @@ def main(args: argparse.Namespace) -> int:
         check_output_dir(args.out, "--out", names=("procedure.json", "ring.png"))
     data = procedure.run(args.task, args.navigator, args.anatomy, args.seed, targets=args.targets,
                          force_gf=args.force, dwell_s=args.dwell, localisation=localisation, html=args.html,
-                         overrides=args.overrides, wall_motion=args.wall_motion, track_sheath=args.track_sheath)
+                         overrides=args.overrides, wall_motion=args.wall_motion, track_sheath=args.track_sheath,
+                         lesions=lesions)
     if args.out is not None:
         procedure.write_outputs(data, args.out)
     if args.json:

@@ -311,6 +311,21 @@ def target_plans(anatomy, chosen: list[int], force_N: float, n_balls: int, inser
     return plans, missing
 
 
+def _with_lesion_conditions(finish, lesions):
+    """``finish`` with the clinical lesion conditions (``lesion_dwell.LesionConditions``) put in
+    the result's settings first, where ``with_lesions`` reads them (issue 44)."""
+    if isinstance(lesions, bool):
+        return finish
+    if not callable(getattr(lesions, "to_dict", None)):
+        raise UserInputError(f"lesions must be true, false or a LesionConditions, got {short_repr(lesions)}")
+
+    def finish_clinical(result, cd, meshcat):
+        result.settings["lesions"] = lesions.to_dict()
+        return finish(result, cd, meshcat)
+
+    return finish_clinical
+
+
 def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed: int = 0, *,
         targets: int | None = None, force_gf: float = FORCE_GF, window_gf=WINDOW_GF, dwell_s: float = DWELL_S,
         localisation: LocalisationParams | None = None, overrides: str | None = None, progress: bool = True,
@@ -335,7 +350,9 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
         html: write a Meshcat replay here.
         units: "one" (the unit beyond the right carina) or "two" (both carinas' units); None:
             ``default_units``.
-        lesions: each dwell's lesion and the ring's verdict (``with_lesions``).
+        lesions: each dwell's lesion and the ring's verdict (``with_lesions``); a
+            ``lesion_dwell.LesionConditions``: the lesions as in a beating heart (blood flow,
+            the generator's loop, the dwell by a lesion criterion), kept in ``settings["lesions"]``.
         wall_motion: the moving wall, one of ``WALL_MOTIONS`` (``with_wall_motion``); the motion
             the run used is in ``settings["wall_motion"]``.
         track_sheath: the autonomous navigator tracks the sheath (a localisation sensor on it,
@@ -377,7 +394,7 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
     params = NavigatorParams(force_command=newtons_from_gram_force(force_gf),
                              force_window=tuple(newtons_from_gram_force(v) for v in window_gf), dwell=dwell_s)
     ring_order = [anatomy.target_names[k] for k in chosen]
-    finish = _finisher(lesions, ring_order, html)
+    finish = _with_lesion_conditions(_finisher(bool(lesions), ring_order, html), lesions)
     if navigator == "operator":
         return finish(*_simulate_operator(task, anatomy, chosen, scenario, params, seed, progress, html, overrides))
     key = _plans_key(anatomy, chosen, scenario, force_gf)

@@ -58,19 +58,33 @@ def with_lesions(result: ProcedureResult, ring_order: list[str]) -> ProcedureRes
     """The result with each dwell's lesion and the ring's verdict (``drake_models.lesion_ring``):
     the generator power of a dwell is the highest that keeps the tip magnet below its grade's
     limit at the dwell's mean true force and duration (``choose_power``); a dwell outside the
-    surrogate's range leaves no lesion (a gap, its reason in ``lesions``)."""
+    surrogate's range leaves no lesion (a gap, its reason in ``lesions``).
+
+    With ``settings["lesions"]`` (``lesion_dwell.LesionConditions.to_dict``: blood flow, the
+    generator with the magnet's limit in its loop, a dwell criterion), each lesion comes from the
+    clinical table instead: its RF time by the criterion, its power the delivered mean (issue 44)."""
     from ballchain.drake_models.lesion_ring import AblationPoint, analyse_ring, choose_power, lesions_for
 
+    clinical = (result.settings or {}).get("lesions")
+    if clinical is not None:
+        from ballchain.drake_models.lesion_dwell import LesionConditions, lesion_for
+
+        clinical = LesionConditions.from_dict(clinical)
     lesions, listed = [], []
     for row in result.rows:
         pt = row.get("point")
         if pt is None:
             continue
         try:
-            power = choose_power(pt["force_N"], pt["duration_s"])
-            point = AblationPoint(pt["name"], np.asarray(pt["p_W"], float), np.asarray(pt["n_W"], float),
-                                  float(pt["force_N"]), float(pt["duration_s"]), float(power))
-            (lesion,) = lesions_for([point])
+            if clinical is not None:
+                lesion = lesion_for(pt["name"], pt["p_W"], pt["n_W"], pt["force_N"], pt["duration_s"], clinical)
+                power = lesion.point.power_W
+                pt["rf_duration_s"] = lesion.point.duration_s
+            else:
+                power = choose_power(pt["force_N"], pt["duration_s"])
+                point = AblationPoint(pt["name"], np.asarray(pt["p_W"], float), np.asarray(pt["n_W"], float),
+                                      float(pt["force_N"]), float(pt["duration_s"]), float(power))
+                (lesion,) = lesions_for([point])
         except UserInputError as err:
             listed.append({"name": pt["name"], "reason": f"no lesion: {err}"})
             continue

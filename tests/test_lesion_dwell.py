@@ -1,0 +1,92 @@
+"""The tip ball's clinical lesion table and the dwell by a lesion criterion (issue 44), on a tiny
+table (2 coarse FEM runs of 8 s in a temporary cache), and the procedure's lesions from it."""
+
+import numpy as np
+import pytest
+
+from ballchain.cli import main as cli_main
+from ballchain.drake_models import lesion_dwell as ld
+from ballchain.drake_models.params import GRAVITY
+from ballchain.experiments.procedure_result import ProcedureResult, with_lesions
+from ballchain.infrastructure.errors import UserInputError
+
+TINY = ld.DwellTableSpec(indentations_m=(0.8e-3, 1.2e-3), duration_s=8.0, output_every_s=2.0, h_m=0.3e-3)
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    mp = pytest.MonkeyPatch()
+    mp.setenv("BALLCHAIN_CACHE", str(tmp_path_factory.getbasetemp() / "dwell_cache"))
+    try:
+        yield ld.DwellSurrogate(TINY, progress=False)
+    finally:
+        mp.undo()
+
+
+def gf(v):
+    return v * 1e-3 * GRAVITY
+
+
+def test_table_holds_the_magnet_below_its_limit(tiny):
+    """N52: 80 C less the 5 C margin; the generator's loop holds the ball's peak there."""
+    assert tiny.table["magnet_peak_C"].max() <= 75.0 + 1e-6
+    assert np.all(tiny.table["mean_power_W"][:, 1:] <= TINY.power_W + 1e-9)
+    assert np.all(np.diff(tiny.table["depth_mm"], axis=1) >= -1e-9)  # the lesion only grows
+
+
+def test_transmural_dwell_is_the_first_time_the_depth_reaches_the_wall(tiny):
+    """The criterion's time: deep enough then, not 0.25 s before (the search's step)."""
+    depth_end = tiny.predict(gf(20), TINY.duration_s)["depth_m"]
+    wall = 0.8 * depth_end
+    c = ld.LesionConditions(criterion="transmural", wall_thickness_m=wall, time_limit_s=8.0)
+    t = tiny.dwell_for(gf(20), c, fixed_s=5.0)
+    assert 0.25 <= t < 8.0
+    assert tiny.predict(gf(20), t)["depth_m"] >= wall - 1e-12
+    assert tiny.predict(gf(20), t - 0.25)["depth_m"] < wall
+    # A wall deeper than the table reaches: the time limit.
+    deep = ld.LesionConditions(criterion="transmural", wall_thickness_m=2 * depth_end + 1e-3, time_limit_s=6.0)
+    assert tiny.dwell_for(gf(20), deep, fixed_s=5.0) == 6.0
+
+
+def test_fti_and_fixed_dwells():
+    c = ld.LesionConditions(criterion="fti", time_limit_s=60.0)
+    model = object.__new__(ld.DwellSurrogate)
+    model.spec = ld.DwellTableSpec()
+    assert model.dwell_for(gf(20), c, fixed_s=10.0) == pytest.approx(20.0)  # 400 gf s / 20 gf
+    assert model.dwell_for(gf(4), c, fixed_s=10.0) == 60.0  # 100 s capped at the limit
+    fixed = ld.LesionConditions(criterion="fixed")
+    assert model.dwell_for(gf(20), fixed, fixed_s=10.0) == 10.0
+
+
+def test_procedure_lesions_from_the_clinical_table(tiny, monkeypatch):
+    """``with_lesions`` with ``settings["lesions"]``: each lesion's RF time by the criterion, its
+    power the delivered mean, the verdict recomputed from them."""
+    monkeypatch.setattr(ld, "dwell_surrogate", lambda spec: tiny)
+    wall = 0.8 * tiny.predict(gf(20), TINY.duration_s)["depth_m"]
+    cond = ld.LesionConditions(criterion="transmural", wall_thickness_m=wall, time_limit_s=8.0)
+    rows = []
+    for k, force in enumerate((20.0, 20.0, 0.0)):
+        p = np.array([2e-3 * k, 0.0, 0.0])
+        rows.append({"target": f"t{k}", "point": {"name": f"t{k}", "p_W": p.tolist(), "n_W": [0.0, 0.0, 1.0],
+                                                   "force_N": gf(force), "duration_s": 5.0}})
+    result = ProcedureResult(task=None, navigator="auto", rows=rows, summary={}, settings={"lesions": cond.to_dict()})
+    with_lesions(result, ["t0", "t1", "t2"])
+    strong, weak = result.lesions[0], result.lesions[2]
+    assert strong["transmural"] and strong["duration_s"] < 8.0 and 0 < strong["power_W"] < cond.power_W
+    assert not weak["transmural"] and weak["depth_mm"] == 0.0  # no force, no lesion
+    assert result.summary["isolated"] is False and result.ring["n_lesions"] == 3
+    assert rows[0]["point"]["rf_duration_s"] == strong["duration_s"]
+
+
+def test_bad_conditions_are_refused():
+    with pytest.raises(UserInputError, match="criterion"):
+        ld.LesionConditions(criterion="impedance")
+    with pytest.raises(UserInputError, match="blood_flow"):
+        ld.LesionConditions(blood_flow="fast")
+    with pytest.raises(UserInputError, match="time_limit_s"):
+        ld.LesionConditions(time_limit_s=0.0)
+
+
+def test_procedure_refuses_a_bad_grade_before_running(capsys):
+    assert cli_main(["procedure", "--blood-flow", "high", "--magnet-grade", "N99"]) == 2
+    assert "--magnet-grade" in capsys.readouterr().err
