@@ -35,6 +35,7 @@ from ballchain.systems.chain_plant import ContactConfig, chain_multibody_plant_c
 # the ball chain on "plant" or "statics", the paper's manual comparison arm, and any registered.
 from ballchain.systems.device_model import DEVICE_MODELS, DEVICES, ENGINES, engines  # noqa: F401
 from ballchain.systems.unit_config import MagnetUnitConfig
+from ballchain.systems.world_scenario import WorldScenario
 # The parts and the checks, re-exported (their homes: scenario_schema.py, scenario_checks.py).
 from ballchain.systems.scenario_schema import (ANCHORS, CONTACT_MODELS, CONTACT_SURFACE_REPRESENTATIONS,  # noqa: F401
                                                DEFAULT_TIME_STEP, DISCRETE_CONTACT_APPROXIMATIONS,
@@ -135,6 +136,8 @@ class ChainScenario:
             (``randomness.set_random_context``, Drake's SetRandomContext).
         localisation: the tip tracker's noise, rate and latency (``LocalisationScenario``), read
             by the simulated procedure's navigator.
+        world: the world the engine plays, unknown to the planner, the navigator and the operator
+            (``world_scenario.WorldScenario``: ``preset: none``, the model's own numbers, by default).
     """
 
     description: str = ""
@@ -174,6 +177,7 @@ class ChainScenario:
     device: str = "ball_chain"
     wall_motion: WallMotionScenario = field(default_factory=WallMotionScenario)
     localisation: LocalisationScenario = field(default_factory=LocalisationScenario)
+    world: WorldScenario = field(default_factory=WorldScenario)
 
     @property
     def effective_time_step(self) -> float:

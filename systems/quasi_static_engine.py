@@ -54,6 +54,7 @@ from ballchain.systems.engine_frames import (  # noqa: F401 (re-exported)
 )
 from ballchain.systems.engine_geometry import EngineGeometry
 from ballchain.systems.engine_system import QuasiStaticEngine
+from ballchain.systems.world_apply import apply_world_statics, magnet_errors, perturbed_exit, perturbed_wall
 
 
 class StaticsChainModel(ChainModel):
@@ -76,8 +77,10 @@ class StaticsChainModel(ChainModel):
 
     @classmethod
     def add_to(cls, builder, scenario, config, coupling: FieldCoupling) -> StaticsChainModel:
-        """The engine, solving every ``scenario.statics_period`` (warmed up here, not in the timed run)."""
+        """The engine, solving every ``scenario.statics_period`` (warmed up here, not in the timed run),
+        in the scenario's world (``world_apply``: nothing changes without one)."""
 
+        config, coupling, world = apply_world_statics(scenario, config, coupling)
         geometry = chain_geometry(config)
         sdf = None
         if config.heart is not None:
@@ -86,21 +89,30 @@ class StaticsChainModel(ChainModel):
         elif config.wall_plane:
             w = np.asarray(config.wall_plane, float)
             sdf = PlaneSDF(w[:3], w[3:])
+        p_WE = geometry.p_WE
+        if world is not None:  # the world's wall and sheath exit
+            sdf, p_WE = perturbed_wall(sdf, world, p_WE), perturbed_exit(p_WE, geometry.sheath_axis_W, world)
         sheath = None
         if config.sheath is not None:
-            sheath = SheathGeometry(geometry.p_WE, geometry.sheath_axis_W, 0.5 * config.sheath.inner_diameter,
+            sheath = SheathGeometry(p_WE, geometry.sheath_axis_W, 0.5 * config.sheath.inner_diameter,
                                     0.5 * config.sheath.wall_thickness)
         engine = builder.AddSystem(QuasiStaticEngine(
-            config.chain, geometry.ball_body_indices, geometry.p_WE, geometry.sheath_axis_W, sdf=sdf, sheath=sheath,
+            config.chain, geometry.ball_body_indices, p_WE, geometry.sheath_axis_W, sdf=sdf, sheath=sheath,
             field_source=coupling.field_source, port_magnets=coupling.port_magnets, model=coupling.model,
             gravity=config.gravity, period=scenario.statics_period,
             initial_inserted_length=config.initial_inserted_length, wall_motion=scenario.wall_motion.law()))
         engine.set_name("quasi_static_engine")
         engine.warm_up()  # compiled kernels and solvers loaded at build time, not in the timed run
-        return cls(geometry, engine, sheath)
+        model = cls(geometry, engine, sheath)
+        if world is not None and coupling.port_magnets:  # the units' magnets where the world has them
+            errors = builder.AddSystem(magnet_errors(world, len(coupling.port_magnets)))
+            builder.Connect(errors.get_output_port(), engine.get_magnet_states_input_port())
+            model.magnet_states_input = errors.get_input_port()
+        return model
 
     def get_magnet_states_input_port(self):
-        return self.engine_system.get_magnet_states_input_port()
+        port = getattr(self, "magnet_states_input", None)  # the world's magnet errors (``add_to``), if any
+        return port if port is not None else self.engine_system.get_magnet_states_input_port()
 
     def get_feeder_state_input_port(self):
         return self.engine_system.get_feeder_state_input_port()

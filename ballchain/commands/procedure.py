@@ -20,6 +20,7 @@ from ballchain.commands._common import (YamlOnce, add_json_flag, float_in, int_i
 from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.localisation import LATENCY_RANGE_S, NOISE_RANGE_M, RATE_RANGE_HZ, LocalisationParams
 from ballchain.experiments import procedure
+from ballchain.experiments.procedure_world import WORLDS
 from ballchain.systems.chain_scenario import parse_overrides
 
 
@@ -54,6 +55,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="respiratory compensation: the navigator tracks the sheath (a localisation sensor on it, "
                              "the tip's noise, rate and latency) and moves its force model's sheath and its targets "
                              "with it (default: both held at rest, motion-blind)")
+    parser.add_argument("--world", choices=WORLDS, default="none",
+                        help="the world the engine plays, unknown to the planner and the navigator: none (the model's "
+                             "own numbers) or literature (magnets, balls, sheath, anatomy registration and tracker "
+                             "bias perturbed at published magnitudes, drawn from --seed; docs/guide/world.md)")
     parser.add_argument("--set", dest="overrides", default=None, metavar="YAML", action=YamlOnce,
                         help="inline YAML overriding the station scenario's fields, e.g. "
                              "'{wall_motion: {enabled: true, cardiac: {amplitude: 0.002}}}' (not with --wall-motion)")
@@ -114,7 +119,7 @@ def main(args: argparse.Namespace) -> int:
     data = procedure.run(args.task, args.navigator, args.anatomy, args.seed, targets=args.targets,
                          force_gf=args.force, dwell_s=args.dwell, localisation=localisation, html=args.html,
                          overrides=args.overrides, wall_motion=args.wall_motion, track_sheath=args.track_sheath,
-                         lesions=lesions)
+                         world=args.world, lesions=lesions)
     if args.out is not None:
         procedure.write_outputs(data, args.out)
     if args.json:

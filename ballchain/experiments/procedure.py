@@ -57,6 +57,7 @@ from ballchain.experiments.procedure_runs import (  # noqa: F401 (re-exported)
     _simulate_operator,
     _summary,
 )
+from ballchain.experiments.procedure_world import with_world
 from ballchain.experiments.teleop import check_seed
 
 TASKS = ("left", "right")
@@ -331,7 +332,7 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
         localisation: LocalisationParams | None = None, overrides: str | None = None, progress: bool = True,
         html: Path | None = None, units: str | None = None, lesions: bool = True,
         wall_motion: str = "off", track_sheath: bool = False,
-        plans: "RingPlans | None" = None) -> ProcedureResult:
+        plans: "RingPlans | None" = None, world="none") -> ProcedureResult:
     """Simulate the procedure on a ring: every target reached, pressed and held for the dwell.
 
     Args:
@@ -360,6 +361,10 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
             respiratory compensation; off, it holds them at rest (motion-blind).
         plans: the ring's plans made ahead (``plan_ring``, same task, targets, force, units and
             overrides; auto only): the run skips its planning (same result as planning it).
+        world: the world the engine plays, unknown to the planner and the navigator
+            (``procedure_world.with_world``): "none" (the model's own numbers), "literature", or
+            {preset, only, scale, seed} (the seed defaulting to ``seed``); drawn in
+            ``settings["world"]``. The plans do not depend on it.
 
     Returns:
         A ``ProcedureResult``.
@@ -368,7 +373,7 @@ def run(task: str | None = "right", navigator: str = "auto", anatomy=None, seed:
     from ballchain.systems.autonomous_navigator import NavigatorParams
 
     check_inputs(task, navigator, seed, targets, force_gf, tuple(window_gf), dwell_s)
-    overrides = with_wall_motion(overrides, wall_motion)
+    overrides = with_world(with_wall_motion(overrides, wall_motion), world, seed)
     if not isinstance(track_sheath, bool):
         raise UserInputError(f"track_sheath must be true or false, got {short_repr(track_sheath)}")
     if track_sheath and navigator != "auto":

@@ -45,9 +45,10 @@ def _add_sheath_tracker(builder, ports, localisation: LocalisationParams, seed: 
 
 
 def _add_auto(handles: dict, plans: list, localisation: LocalisationParams, params, seed: int,
-              track_sheath: bool = False):
+              track_sheath: bool = False, bias=None):
     """The ``add_systems`` hook of the autonomous run: sensor, navigator, loggers (and with
-    ``track_sheath`` the sheath's sensor, ``_add_sheath_tracker``)."""
+    ``track_sheath`` the sheath's sensor, ``_add_sheath_tracker``); ``bias``: the world's
+    tracker bias (3,) [m] on the tip's readings (``world_apply.biased_reading``), or None."""
     from pydrake.systems.primitives import LogVectorOutput
 
     from ballchain.drake_models.params import BallChain
@@ -59,10 +60,15 @@ def _add_auto(handles: dict, plans: list, localisation: LocalisationParams, para
         n = cp.config.chain.n_balls
         sensor = builder.AddSystem(LocalisationSensor(n, localisation, seed))
         builder.Connect(cp.get_ball_positions_output_port(), sensor.get_ball_positions_input_port())
+        measured = sensor.GetOutputPort("p_WT_measured")
+        if bias is not None:  # the world's tracker bias, unknown to the navigator
+            from ballchain.systems.world_apply import biased_reading
+
+            measured = biased_reading(builder, measured, bias)
         units = list(ports.joystick_inputs)
         nav = builder.AddSystem(AutonomousNavigator(units, plans, _estimator(ports, BallChain(), n), params,
                                                     tracks_sheath=track_sheath))
-        builder.Connect(sensor.GetOutputPort("p_WT_measured"), nav.GetInputPort("p_WT_measured"))
+        builder.Connect(measured, nav.GetInputPort("p_WT_measured"))
         if track_sheath:
             builder.Connect(_add_sheath_tracker(builder, ports, localisation, seed),
                             nav.GetInputPort("sheath_offset_measured"))
@@ -75,7 +81,7 @@ def _add_auto(handles: dict, plans: list, localisation: LocalisationParams, para
         period = params.period
         handles["logs"] = [LogVectorOutput(port, builder, period) for port in (
             cp.get_tip_wall_force_output_port(), cp.get_ball_positions_output_port(),
-            nav.GetOutputPort("force_estimate"), sensor.GetOutputPort("p_WT_measured"))]
+            nav.GetOutputPort("force_estimate"), measured)]
         handles["navigator"] = nav
         return {"navigator": nav, "localisation": sensor}
 
@@ -200,8 +206,12 @@ def _simulate(task, anatomy, scenario, plans, missing, params, localisation, see
         meshcat = replay_meshcat()
     per_target = 15.0 + params.seek_timeout * (params.retries + 1) + params.dwell
     limit = params.start_time + per_target * max(len(plans), 1)
+    from ballchain.systems.world_apply import world_draw
+
+    world = world_draw(scenario)
     cd = MakeStation(_fed_every(scenario, params.period), meshcat=meshcat, heart=heart,
-                     add_systems=_add_auto(handles, plans, localisation, params, seed, track_sheath))
+                     add_systems=_add_auto(handles, plans, localisation, params, seed, track_sheath,
+                                           None if world is None else world.localisation_bias))
     nav = handles["navigator"]
     _check_batches(cd, nav.params.period)
     monitor = ChainMonitor(cd, tolerate_sinking=lambda p: near_ostium_rim(heart, p))
@@ -222,7 +232,7 @@ def _simulate(task, anatomy, scenario, plans, missing, params, localisation, see
     rows += [{"target": name, "reached": False, "time_s": None, "reason": "no plan"} for name in missing]
     summary = _summary(rows, run, plan_cpu, missing)
     settings = {**_settings(params, seed, scenario, overrides, limit, anatomy, localisation),
-                "navigator_tracks_sheath": track_sheath}
+                "navigator_tracks_sheath": track_sheath, "world": None if world is None else world.to_dict()}
     return ProcedureResult(task=task, navigator="auto", rows=rows, summary=summary, settings=settings,
                            html=None if html is None else str(html)), cd, meshcat
 
