@@ -9,7 +9,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ballchain.experiments.trials import DEFAULT_SEEDS as TRIALS_SEEDS
 from ballchain.infrastructure.safe_files import write_json
+from ballchain.intervals import Interval, interval, paired_interval, proportion_interval
 from ballchain.report import Section, Table
 
 ABLATION_HEADER = ["device", "quantity", "paper", "model"]
@@ -153,11 +155,32 @@ def procedure_section(out: Path, quick: bool) -> tuple[Section, dict]:
                    "force per dwell (left) and the operator's true force per dwell (right), every seed")
     for key, path in report.files["rings"].items():
         section.figure(path, f"lesion ring, {key}, seed {seeds[0]}")
-    return section, report.to_dict()
+    data = report.to_dict()
+    data["intervals"] = procedure_intervals(data["runs"])
+    write_json(out / "procedure" / "procedure_intervals.json", data["intervals"])
+    return section, data
+
+
+def procedure_intervals(runs: list[dict]) -> dict:
+    """Per ring: each navigator's targets reached (median, 95 % interval), the paired difference
+    navigator - operator over the seeds both ran, and each one's share of runs that isolate the
+    ring (Clopper-Pearson); the per-seed values with them (``ballchain.intervals``)."""
+    found = {}
+    for ring in dict.fromkeys(x["ring"] for x in runs):
+        arm = {n: {x["seed"]: x for x in runs if x["ring"] == ring and x["navigator"] == n} for n in ("auto", "operator")}
+        seeds = [s for s in arm["auto"] if s in arm["operator"]]
+        if not seeds:
+            continue
+        reached = {n: [arm[n][s]["summary"]["reached"] for s in seeds] for n in arm}
+        isolated = {n: [bool((arm[n][s].get("ring_verdict") or {}).get("isolated")) for s in seeds] for n in arm}
+        found[ring] = {"seeds": seeds, **{f"reached_{n}": interval(reached[n]).to_dict() for n in arm},
+                       "reached_difference": paired_interval(reached["auto"], reached["operator"]).to_dict(),
+                       **{f"isolated_{n}": proportion_interval(sum(isolated[n]), len(seeds)).to_dict() for n in arm}}
+    return found
 
 
 def procedure_headlines(section: Section, data: dict) -> None:
-    _procedure_headlines(section, data["table"])
+    _procedure_headlines(section, data["table"], data.get("intervals") or procedure_intervals(data["runs"]))
 
 
 def _median_range(v: dict, fmt: str = "{:.3g}") -> str:
@@ -168,18 +191,23 @@ def _median_range(v: dict, fmt: str = "{:.3g}") -> str:
     return fmt.format(v["median"]) + ("" if lo == hi else f" ({lo}-{hi})")
 
 
-def _procedure_headlines(section: Section, table: list[dict]) -> None:
-    """Per ring: targets reached and force in window, navigator vs operator (no paper value)."""
+def _procedure_headlines(section: Section, table: list[dict], intervals: dict) -> None:
+    """Per ring: targets reached (median, 95 % interval) and force in window, navigator vs operator,
+    with the paired difference and the rings isolated (no paper value)."""
     by = {(r["ring"], r["navigator"]): r for r in table}
     for ring in dict.fromkeys(r["ring"] for r in table):
         auto, op = by[(ring, "auto")], by[(ring, "operator")]
         n = auto["targets"]
-        reached = f"{auto['reached']['median']:g}/{n} vs {op['reached']['median']:g}/{n}"
-        window = [("-" if v["in_window_fraction"]["median"] is None else f"{100 * v['in_window_fraction']['median']:.0f}%")
-                  for v in (auto, op)]
+        v = intervals[ring]
+        a, o, d = (Interval(**v[k]) for k in ("reached_auto", "reached_operator", "reached_difference"))
+        ia, io = Interval(**v["isolated_auto"]), Interval(**v["isolated_operator"])
+        reached = f"{a.text('{:g}')} vs {o.text('{:g}')} of {n}; difference {d.text('{:+g}')}"
+        window = [("-" if x["in_window_fraction"]["median"] is None else f"{100 * x['in_window_fraction']['median']:.0f}%")
+                  for x in (auto, op)]
         section.headline(f"{ring} ring: targets reached, autonomous navigator vs simulated operator "
-                         f"(median of {auto['runs']} seeds)", None, reached, None,
+                         f"(median of {auto['runs']} seeds, 95 % CI)", None, reached, None,
                          f"dwell in the 10-40 gf window {window[0]} vs {window[1]}; ring isolated in "
-                         f"{auto['isolated_runs']}/{auto['runs']} vs {op['isolated_runs']}/{op['runs']} runs")
+                         f"{auto['isolated_runs']}/{auto['runs']} vs {op['isolated_runs']}/{op['runs']} runs (95 % CI "
+                         f"{ia.lo:.2f}-{ia.hi:.2f} vs {io.lo:.2f}-{io.hi:.2f}); `ballchain trials` runs {TRIALS_SEEDS} seeds")
 
 
