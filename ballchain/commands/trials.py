@@ -18,6 +18,7 @@ from ballchain.commands._common import add_json_flag, non_negative_int, path_arg
 from ballchain.executor import MAX_WORKERS_PER_CORE
 from ballchain.experiments import trials
 
+SHOWN_FAILURES = 5  # failed runs named after the intervals (all of them are in the table)
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=path_arg, required=True, metavar="DIR",
@@ -52,6 +53,11 @@ def main(args: argparse.Namespace) -> int:
           f"before, {st['failed']} failed; {st['wall_time_s']:.1f} s on {st['executor']}")
     for line in lines(result.intervals):
         print(line)
+    failed = [r for r in result.rows if r.get("error")]
+    for r in failed[:SHOWN_FAILURES]:
+        print(f"  failed: {r['arm']} seed {r['seed']}: {r['error'][:200]}")
+    if len(failed) > SHOWN_FAILURES:
+        print(f"  ... {len(failed) - SHOWN_FAILURES} more failed runs in the table (rerun into --out to retry them)")
     print(f"table: {result.files['table_parquet']} and {result.files['table_csv']}; intervals: {result.files['json']}")
     return 0
 

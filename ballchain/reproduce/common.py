@@ -9,7 +9,10 @@ from tqdm import tqdm
 TITLE = "Magnetic ball chain: the paper's numbers in simulation"
 AGREES_WITHIN = 0.10
 """The summary's rule: a model value within this fraction of the paper's agrees with it (the
-tables beside it hold the numbers; a verdict on a claim rather than a number says so)."""
+tables beside it hold the numbers; a verdict on a claim rather than a number says so). The
+closed-loop rows (teleoperation, robotic vs manual, the procedure: statistics over seeds) use the
+interval rule instead (``ballchain.intervals``): they agree only when the paper's number lies
+inside the 95 % interval over the seeds, which the row prints beside it."""
 
 
 def _agrees(paper_value, model_value) -> bool | None:
