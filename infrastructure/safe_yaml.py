@@ -10,7 +10,9 @@ and refuses, as a one-line ``UserInputError`` naming ``where``:
   on the parser's events before any node is built (libyaml's composer recurses in C, and about
   25,000 levels, a 50 kB ``[[[[...]]]]``, ended the process with SIGSEGV);
 - a mapping that names the same key twice (PyYAML keeps the last one silently);
-- any tag (``!!python/object``, ``!Foo``): the data is plain YAML;
+- any tag (``!!python/object``, ``!Foo``): the data is plain YAML, except the local tags a caller
+  names (``tags``: a scenario's ``engine: !Statics {}``), read as pydrake's ``yaml_load_data``
+  reads a union's variant, the mapping with the tag under the key ``_tag``;
 - text that is not YAML (the message names the line, the column and the kind of problem, and
   quotes nothing of the text: a file that is not what the user meant, a credentials file, must
   not end up in a log).
@@ -40,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 import yaml
-from yaml.nodes import MappingNode, SequenceNode
+from yaml.nodes import MappingNode, ScalarNode, SequenceNode
 
 from ballchain.infrastructure.errors import UserInputError, short_repr, quote_path
 from ballchain.infrastructure.input_files import read_input_file
@@ -97,6 +99,27 @@ _Loader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_12, list("-+.012
 _Loader.add_implicit_resolver("tag:yaml.org,2002:float",
                               re.compile(r"^(?:[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$"), list("-+."))
 _Loader.add_constructor("tag:yaml.org,2002:int", _construct_int_1_2)
+
+
+def _tagged_loader(tags: frozenset):
+    """``_Loader`` that reads the local tags in ``tags`` as pydrake's ``yaml_load_data`` does: a
+    tagged mapping as the mapping with its tag under ``_tag`` (``!Statics {}`` is
+    ``{"_tag": "!Statics"}``), a tag alone (an empty scalar) as the empty mapping's; any other tag,
+    or a tag on a list or a value, is refused as before."""
+
+    class TaggedLoader(_Loader):
+        pass
+
+    def construct(loader, suffix, node):
+        if node.tag not in tags or not (isinstance(node, MappingNode)
+                                        or (isinstance(node, ScalarNode) and node.value == "")):
+            raise yaml.constructor.ConstructorError(
+                None, None, f"could not determine a constructor for the tag {node.tag!r}", node.start_mark)
+        value = loader.construct_mapping(node, deep=True) if isinstance(node, MappingNode) else {}
+        return {**value, "_tag": node.tag}
+
+    TaggedLoader.add_multi_constructor("!", construct)
+    return TaggedLoader
 
 
 class _Duplicate(Exception):
@@ -168,12 +191,14 @@ def _check_size(root, where: str) -> None:
     size(root)
 
 
-def load_yaml(text: str, where: str) -> object:
+def load_yaml(text: str, where: str, tags=()) -> object:
     """Parse one plain-YAML document given by the user.
 
     Args:
         text: the document.
         where: what it is, for messages ("--set", "scenario file 'x.yaml'", "sweep spec s.yaml").
+        tags: local tags ("!Statics") read as tagged mappings (``{"_tag": "!Statics", ...}``);
+            every other tag is refused.
 
     Returns:
         The data (dict, list, str, int, float, bool or None).
@@ -190,7 +215,7 @@ def load_yaml(text: str, where: str) -> object:
     loader = None
     try:
         _check_depth(text, where)  # before the composer, which recurses
-        loader = _Loader(text)
+        loader = (_tagged_loader(frozenset(tags)) if tags else _Loader)(text)
         root = loader.get_single_node()
         if root is None:
             return None
@@ -202,8 +227,9 @@ def load_yaml(text: str, where: str) -> object:
     except yaml.constructor.ConstructorError as err:
         problem = " ".join(str(err.problem or err).split())
         if "could not determine a constructor for the tag" in problem:
+            allowed = f" or the tags {', '.join(sorted(tags))} on a mapping" if tags else ""
             raise UserInputError(f"{where}: a YAML tag (!...) is refused{_at(err.problem_mark)}: "
-                                 "give plain YAML (mappings, lists, numbers, strings)") from None
+                                 f"give plain YAML (mappings, lists, numbers, strings){allowed}") from None
         raise UserInputError(f"{where} is not valid YAML: {_unquoted(problem)}{_at(err.problem_mark)}") from None
     except yaml.YAMLError as err:
         problem = getattr(err, "problem", None) or getattr(err, "reason", None) or type(err).__name__
@@ -228,7 +254,7 @@ def _unquoted(problem) -> str:
     return text[:200]
 
 
-def load_yaml_file(path: str | Path, where: str | None = None) -> object:
+def load_yaml_file(path: str | Path, where: str | None = None, tags=()) -> object:
     """``load_yaml`` of a file, checked before it is read (``input_files.read_input_file``: a
     regular file of at most ``MAX_BYTES``).
 
@@ -238,7 +264,7 @@ def load_yaml_file(path: str | Path, where: str | None = None) -> object:
     path = Path(path)
     where = where or f"YAML file {quote_path(path)}"
     data = read_input_file(path, where, MAX_BYTES, "a YAML file")
-    return load_yaml(data.decode("utf-8", errors="replace"), where)
+    return load_yaml(data.decode("utf-8", errors="replace"), where, tags)
 
 
 def yaml_kind(value) -> str:

@@ -34,8 +34,10 @@ from ballchain.systems.chain_plant import ContactConfig, chain_multibody_plant_c
 # ENGINES, DEVICES: live views of the one registry of device models (``device_model.DEVICE_MODELS``):
 # the ball chain on "plant" or "statics", the paper's manual comparison arm, and any registered.
 from ballchain.systems.device_model import DEVICE_MODELS, DEVICES, ENGINES, engines  # noqa: F401
+# The engine and the device as typed configs (a plain name is converted: ``choice_config``).
+from ballchain.systems.engine_config import (CHOICES, BallChainDevice, DeviceConfig, EngineConfig,  # noqa: F401
+                                             PlantEngine, StaticsEngine, choice_config, choice_name, choice_tags)
 from ballchain.systems.unit_config import MagnetUnitConfig
-from ballchain.systems.world_scenario import WorldScenario
 # The parts and the checks, re-exported (their homes: scenario_schema.py, scenario_checks.py).
 from ballchain.systems.scenario_schema import (ANCHORS, CONTACT_MODELS, CONTACT_SURFACE_REPRESENTATIONS,  # noqa: F401
                                                DEFAULT_TIME_STEP, DISCRETE_CONTACT_APPROXIMATIONS,
@@ -115,9 +117,11 @@ class ChainScenario:
         duration: default simulated time [s].
         break_gap: a gap between neighbours larger than this means the chain broke [m].
         check_period: how often the monitor checks escape, breaks and clearance [s].
-        engine: "plant" (the MultibodyPlant: the reference, and the only one for dynamics) or
-            "statics" (``systems/quasi_static_engine.py``: the equilibrium solved every
-            ``statics_period``, quasi-static mode only).
+        engine: the engine's typed config (``engine_config``): ``PlantEngine`` (``plant`` or
+            ``!Plant {}``: the MultibodyPlant, the reference, and the only one for dynamics) or
+            ``StaticsEngine`` (``statics`` or ``!Statics {}``: ``systems/quasi_static_engine.py``,
+            the equilibrium solved every ``statics_period``, quasi-static mode only). A config is
+            its name (a ``str``); a name set here is converted.
         statics_period: the statics engine's update period [s] (50 ms: the teleoperated magnet
             turns at most 1.5 deg and the feeder moves 1 mm in one period; larger moves are
             split by the engine's continuation).
@@ -125,9 +129,12 @@ class ChainScenario:
             its update compiled) or "python" (the composed Python systems, its reference: the
             same numbers, bit for bit, several times the cost).
         pin: a force-sensor pin on the tip ball (off by default; plant engine only).
-        device: "ball_chain" (the magnetic chain, the default) or "steerable_catheter" (the
-            paper's manual comparison arm: an 8 Fr steerable catheter in the same atrium and
-            sheath, ``systems/catheter_station.py``; no magnet units, quasi-static).
+        device: the device's typed config (``engine_config``): ``BallChainDevice`` (``ball_chain``
+            or ``!BallChain {}``: the magnetic chain, the default) or ``SteerableCatheterDevice``
+            (``steerable_catheter`` or ``!SteerableCatheter {}``: the paper's manual comparison
+            arm, an 8 Fr steerable catheter in the same atrium and sheath,
+            ``systems/catheter_station.py``; no magnet units, quasi-static), or any registered
+            device's name (``device_model.register_device_model``). A name set here is converted.
         wall_motion: the anatomy's periodic motion, respiration and heart beat
             (``WallMotionScenario``; off by default; ``engine: statics`` only).
         random_seed: absent (null): every stochastic system (the Hall sensors' noise, a simulated
@@ -136,8 +143,6 @@ class ChainScenario:
             (``randomness.set_random_context``, Drake's SetRandomContext).
         localisation: the tip tracker's noise, rate and latency (``LocalisationScenario``), read
             by the simulated procedure's navigator.
-        world: the world the engine plays, unknown to the planner, the navigator and the operator
-            (``world_scenario.WorldScenario``: ``preset: none``, the model's own numbers, by default).
     """
 
     description: str = ""
@@ -169,15 +174,19 @@ class ChainScenario:
     duration: float = 0.1
     break_gap: float = 1e-3
     check_period: float = 5e-3
-    engine: str = "plant"
+    engine: EngineConfig = PlantEngine()
     statics_period: float = 0.05
     unit_systems: str = "compiled"
     pin: PinScenario = field(default_factory=PinScenario)
     random_seed: typing.Optional[int] = None
-    device: str = "ball_chain"
+    device: DeviceConfig = BallChainDevice()
     wall_motion: WallMotionScenario = field(default_factory=WallMotionScenario)
     localisation: LocalisationScenario = field(default_factory=LocalisationScenario)
-    world: WorldScenario = field(default_factory=WorldScenario)
+
+    def __setattr__(self, name, value) -> None:
+        if name in CHOICES and isinstance(value, str):  # engine, device: a name is its config
+            value = choice_config(name, value)
+        super().__setattr__(name, value)
 
     @property
     def effective_time_step(self) -> float:
@@ -196,7 +205,7 @@ def _scenarios_data(filename: Path) -> dict:
         raise UserInputError(f"the scenarios file must be a file name, got {short_repr(filename)}")
     where = f"scenarios file {short_repr(Path(filename).name)}"
     register_input(filename, "scenarios file")  # an output of the run may not replace it
-    data = load_yaml_file(filename, where)
+    data = load_yaml_file(filename, where, _tags())
     if data is None:
         return {}
     if not isinstance(data, dict):
@@ -245,8 +254,11 @@ def load_scenario(name: str, overrides: str | None = None, filename: Path = SCEN
     if name not in names:
         raise UserInputError(f"unknown scenario {short_repr(name)}; known scenarios: {', '.join(map(str, names))}")
     where = f"scenario {name!r}"
-    check_yaml_schema(data[name], ChainScenario, where)
-    scenario = load_typed(data[name], ChainScenario, where, defaults=ChainScenario())
+    entry, choices = _split_choices(data[name], where)
+    check_yaml_schema(entry, ChainScenario, where)
+    scenario = load_typed(entry, ChainScenario, where, defaults=ChainScenario())
+    for key, value in choices.items():
+        setattr(scenario, key, value)
     changes = parse_overrides(overrides)
     if changes:
         scenario = apply_overrides(scenario, changes)
@@ -262,22 +274,41 @@ def parse_overrides(overrides: str | dict | None) -> dict:
             is not a mapping, names an unknown field or gives a value of the wrong shape.
     """
     if isinstance(overrides, dict):
-        data = plain_overrides(overrides)
-        check_yaml_schema(data, ChainScenario, "--set")
-        return data
+        return _checked(plain_overrides(overrides), "--set")
     if overrides is not None and not isinstance(overrides, str):
         raise UserInputError(f"--set (overrides) must be inline YAML text or a mapping of scenario fields, "
                              f"got {type(overrides).__name__}")
     if overrides is None or not overrides.strip():
         return {}
-    data = load_yaml(overrides, "--set")
+    data = load_yaml(overrides, "--set", _tags())
     if data is None:
         return {}
     if not isinstance(data, dict):
         raise UserInputError(f"--set must be a YAML mapping of scenario fields such as "
                              f"'{{n_balls: 10}}', got {short_repr(overrides)}")
-    check_yaml_schema(data, ChainScenario, "--set")
-    return data
+    return _checked(data, "--set")
+
+
+def _tags() -> tuple[str, ...]:
+    """The YAML tags of the engines' and devices' typed configs (``!Statics``, ``!BallChain``, ...)."""
+    return choice_tags((ENGINES, DEVICES))
+
+
+def _split_choices(data, where: str) -> tuple[dict, dict]:
+    """``data`` without its ``engine`` and ``device``, and those as names (a plain name, or a
+    tagged config's: ``engine_config.choice_name``); data that is not a mapping as it is."""
+    if not isinstance(data, dict):
+        return data, {}
+    names = {"engine": ENGINES, "device": DEVICES}
+    choices = {key: choice_name(key, data[key], names[key], where) for key in CHOICES if key in data}
+    return {k: v for k, v in data.items() if k not in choices}, choices
+
+
+def _checked(data, where: str):
+    """Override data checked against the schema, the engine and device as names."""
+    rest, choices = _split_choices(data, where)
+    check_yaml_schema(rest, ChainScenario, where)
+    return {**data, **choices}
 
 
 def plain_overrides(data: dict, where: str = "--set", path: str = ""):
@@ -327,9 +358,11 @@ def apply_overrides(scenario: ChainScenario, data: dict, where: str = "--set") -
     if not isinstance(data, dict):
         raise UserInputError(f"apply_overrides data must be a mapping of scenario fields (parse_overrides' "
                              f"answer), got {type(data).__name__}")
-    data = plain_overrides(data, where)
-    check_yaml_schema(data, ChainScenario, where)
-    return load_typed(_complete_entries(data, scenario, ChainScenario), ChainScenario, where, defaults=scenario)
+    rest, choices = _split_choices(_checked(plain_overrides(data, where), where), where)
+    scenario = load_typed(_complete_entries(rest, scenario, ChainScenario), ChainScenario, where, defaults=scenario)
+    for key, value in choices.items():
+        setattr(scenario, key, value)
+    return scenario
 
 
 def _complete_entries(data: dict, base, schema) -> dict:

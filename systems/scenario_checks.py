@@ -20,12 +20,11 @@ from pydrake.visualization import VisualizationConfig
 from ballchain.drake_models import wall_motion
 from ballchain.infrastructure.errors import UserInputError, short_repr
 from ballchain.drake_models.localisation import check_figures
-from ballchain.systems.world_scenario import check_world
 from ballchain.infrastructure.safe_files import register_input
 from ballchain.infrastructure.safe_yaml import check_value, schema_fields as _schema_fields
 from ballchain.drake_models.params import BallChain
-from ballchain.systems.chain_plant import ChainPlantConfig, chain_multibody_plant_config
 from ballchain.systems.device_model import DEVICE_MODELS, DEVICES, ENGINES, engines
+from ballchain.systems.engine_config import ScenarioChoice, choices_with
 from ballchain.systems.feeder import FeederSpec, batch_steps
 from ballchain.systems.force_sensor_pin import stability_bound
 from ballchain.systems.randomness import check_random_seed
@@ -146,6 +145,10 @@ def _a(name: str) -> str:
 
 
 def _check_kind(value, tp, path: str) -> None:
+    if isinstance(tp, type) and issubclass(tp, ScenarioChoice):  # the engine, the device: a config or its name
+        _require(isinstance(value, tp), f"scenario: {path} must be {_a(tp.__name__)} or its name (a string), "
+                                        f"got {type(value).__name__} {short_repr(value)}")
+        return
     if typing.get_origin(tp) is typing.Union and type(None) in typing.get_args(tp):  # Optional[T]
         if value is None:
             return
@@ -205,13 +208,11 @@ def check_fields(s: "ChainScenario") -> None:
     _one_of(s.engine, ENGINES, "engine")
     _one_of(s.unit_systems, UNIT_SYSTEMS, "unit_systems")
     _one_of(s.device, DEVICES, "device")
-    _require(s.device != "steerable_catheter" or (not s.units and s.mode == "quasi-static"
-                                                  and (s.heart or bool(s.atrium_file))),
-             "scenario device: steerable_catheter is a manual catheter in the atrium: it needs no units "
-             "(units: []), mode: quasi-static and an atrium")
+    s.device.check(s)  # each config checks the scenario for itself (engine_config)
     _require((s.device, s.engine) in DEVICE_MODELS,
              f"scenario engine {short_repr(s.engine)} has no model of device {s.device!r}: its engines: "
              f"{', '.join(map(repr, engines(s.device)))}")
+    s.engine.check(s)
     if s.random_seed is not None:
         check_random_seed(s.random_seed, "scenario random_seed")
     check_timing(s)
@@ -224,7 +225,6 @@ def check_fields(s: "ChainScenario") -> None:
     check_wall_motion(s)
     loc = s.localisation
     check_figures(loc.noise_std, loc.rate, loc.latency, "scenario localisation.")
-    check_world(s)
     if s.pin.point:
         check_pin(s)
     _require(s.pin.point or s.pin.stiffness == PinScenario.stiffness,
@@ -243,8 +243,6 @@ def check_timing(s: "ChainScenario") -> None:
     _require(s.mode != "dynamics" or s.effective_time_step <= MAX_DYNAMICS_STEP,
              f"scenario time_step {s.effective_time_step:g} s is too large for the dynamics mode: the magnetic "
              "forces are explicit and need about 1e-4 s (use quasi-static for larger steps)")
-    _require(s.engine != "statics" or s.mode == "quasi-static",
-             f"scenario engine: statics needs mode: quasi-static (the engine solves equilibria), got {s.mode!r}")
     _require(0.0 < s.statics_period <= 1.0, f"scenario statics_period must be in (0, 1] s, got {s.statics_period:g}")
     for name in ("break_gap", "check_period"):
         _require(getattr(s, name) > 0.0, f"scenario {name} must be > 0, got {getattr(s, name):g}")
@@ -252,10 +250,10 @@ def check_timing(s: "ChainScenario") -> None:
     check_steps(s, s.duration, "scenario duration")
     for name in ("translational_damping", "angular_damping"):
         _require(getattr(s, name) >= 0.0, f"scenario {name} must be >= 0, got {getattr(s, name):g}")
-        if s.mode == "dynamics" or s.engine == "statics":  # only the plant's quasi-static joints are damped
+        if s.mode == "dynamics" or not s.engine.has_plant:  # only the plant's quasi-static joints are damped
             _require(getattr(s, name) == getattr(type(s), name),
                      f"scenario {name} = {getattr(s, name):g} damps the plant's quasi-static joints: "
-                     f"{'mode: dynamics' if s.mode == 'dynamics' else 'engine: statics'} does not read it "
+                     f"{'mode: dynamics' if s.mode == 'dynamics' else f'engine: {s.engine}'} does not read it "
                      "(leave it out, or use mode: quasi-static with engine: plant)")
 
 
@@ -263,8 +261,8 @@ def update_periods(s: "ChainScenario") -> dict:
     """{field: period [s]} of the run's periodic events: the engine's step (the plant's time
     step or the statics engine's update), the monitor's checks, the publishing, and the
     simulator's largest step."""
-    step = ("statics_period", s.statics_period) if s.engine == "statics" else ("time_step", s.effective_time_step)
-    return dict([step, ("check_period", s.check_period), ("visualization.publish_period", s.visualization.publish_period),
+    return dict([s.engine.update(s), ("check_period", s.check_period),
+                 ("visualization.publish_period", s.visualization.publish_period),
                  ("simulator_config.max_step_size", s.simulator_config.max_step_size)])
 
 
@@ -461,13 +459,6 @@ def check_drake_configs(s: "ChainScenario") -> None:
         v = getattr(p, name)
         _require(math.isfinite(v) and (lo < v if lo_open else lo <= v) and v <= hi,
                  f"scenario plant_config.{name} must be in {'(' if lo_open else '['}{lo:g}, {hi:g}] {unit}, got {v:g}")
-    if s.engine == "statics":  # the engine has no plant: a plant setting would be silently ignored
-        _require(repr(p) == repr(chain_multibody_plant_config()),
-                 "scenario plant_config configures the MultibodyPlant: engine: statics does not read it "
-                 "(leave plant_config out, or use engine: plant)")
-        _require(list(s.insertion.slide_gains) == list(ChainPlantConfig.feeder_gains),
-                 "scenario insertion.slide_gains are the plant's slide actuator: engine: statics does not read "
-                 "them (leave them out, or use engine: plant)")
     c = s.simulator_config
     schemes = GetIntegrationSchemes()
     _require(c.integration_scheme in schemes,
@@ -517,10 +508,12 @@ def check_wall_motion(s: "ChainScenario") -> None:
                  "scenario wall_motion: its amplitudes, frequencies and directions are read only with "
                  "wall_motion.enabled: true (add it, or leave them out)")
         return
-    _require(s.engine == "statics", f"scenario wall_motion needs engine: statics (the quasi-static engine places the "
-                                    f"wall for each update; the plant's wall is fixed), got {s.engine!r}"
-                                    + ("" if s.mode == "quasi-static" else f" (mode {s.mode} runs only on the plant)"))
-    _require(s.device == "ball_chain", "scenario wall_motion is for the magnetic chain (device: ball_chain)")
+    _require(s.engine.moves_wall, f"scenario wall_motion needs engine: {choices_with('engine', ENGINES, 'moves_wall')} "
+                                  f"(the quasi-static engine places the wall for each update; the plant's wall is "
+                                  f"fixed), got {s.engine!r}"
+                                  + ("" if s.mode == "quasi-static" else f" (mode {s.mode} runs only on the plant)"))
+    _require(s.device.takes_wall_motion, f"scenario wall_motion is for the magnetic chain (device: "
+                                         f"{choices_with('device', DEVICES, 'takes_wall_motion')})")
     _require(s.heart or bool(s.wall_plane), "scenario wall_motion moves a wall: it needs the heart or a wall_plane")
 
 
@@ -531,7 +524,8 @@ def check_pin(s: "ChainScenario") -> None:
         UserInputError: naming ``pin.point`` or ``pin.stiffness``.
     """
     _point(s.pin.point, "pin.point")
-    _require(s.engine == "plant", f"scenario pin needs engine: plant (the pin is a force on the plant), got {s.engine!r}")
+    _require(s.engine.holds_pin, f"scenario pin needs engine: {choices_with('engine', ENGINES, 'holds_pin')} (the pin "
+                                 f"is a force on the plant), got {s.engine!r}")
     chain = BallChain(n_balls=s.n_balls)
     damping = s.translational_damping if s.mode == "quasi-static" else 0.0
     bound = stability_bound(s.effective_time_step, damping, chain.ball_mass)

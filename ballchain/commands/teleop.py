@@ -88,14 +88,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from ballchain.experiments import teleop
-
-    if args.device not in (None, "ball_chain", "steerable_catheter"):
+    device = "ball_chain" if args.device is None else args.device
+    if device not in DEVICE_RUNS:
         from ballchain.infrastructure.errors import UserInputError, short_repr
 
-        raise UserInputError(f"--device must be ball_chain or steerable_catheter, got {short_repr(args.device)}")
-    if args.device == "steerable_catheter":
-        return _main_manual(args)
+        raise UserInputError(f"--device must be {' or '.join(DEVICE_RUNS)}, got {short_repr(args.device)}")
+    return DEVICE_RUNS[device](args)
+
+
+def _main_chain(args: argparse.Namespace) -> int:
+    from ballchain.experiments import teleop
+
     _refuse("without --device steerable_catheter", (("--strategy", args.strategy), ("--braid", args.braid)),
             "they set up the manual catheter")
     args.mapping = "world" if args.mapping is None else args.mapping
@@ -207,3 +210,7 @@ def _main_live(args: argparse.Namespace) -> int:
     if args.json:
         print_json(data)
     return 0
+
+
+# --device: the run of each device (the robotic chain's teleop task or the manual catheter's).
+DEVICE_RUNS = {"ball_chain": _main_chain, "steerable_catheter": _main_manual}
