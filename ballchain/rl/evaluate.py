@@ -48,7 +48,7 @@ def run_episode(env: NavigationEnv, policy, seed: int, target: str | None = None
     obs, info = env.reset(seed=seed, options=options)
     start = info["target"]
     cpu, ret, steps, done = time.process_time(), 0.0, 0, False
-    tips, actions, forces = [env.station.tip_position(env.runner.context)], [], []
+    tips, actions, forces = [env.tip_true()], [], []
     while not done:
         action = np.asarray(policy(obs), np.float32)
         obs, reward, terminated, truncated, info = env.step(action)
@@ -56,7 +56,7 @@ def run_episode(env: NavigationEnv, policy, seed: int, target: str | None = None
         steps += 1
         actions.append(action / env.action_space.high)
         if info["failure"] is None:
-            tips.append(env.station.tip_position(env.runner.context))
+            tips.append(env.tip_true())
         forces.append(info["tip_force_gf"])
         done = terminated or truncated
     a = np.asarray(actions)
