@@ -9,20 +9,21 @@ one (``hand_over``). ``teleop`` re-exports every name.
 from __future__ import annotations
 
 from ballchain.infrastructure.errors import UserInputError
+from ballchain.systems.engine_config import StaticsEngine
 
 MAPPINGS = {"world": "world", "catheter": "tip"}  # user-facing name -> TeleoperationMapper frame
 SCENARIO = "teleop_right_unit"
 # The station's engine unless the overrides say otherwise: the quasi-static engine
 # (``systems/quasi_static_engine.py``: the chain's equilibrium with the atrium's wall every 50 ms),
 # whole tasks in seconds. ``--set '{engine: plant}'`` runs the MultibodyPlant (minutes per task).
-DEFAULT_ENGINE = "statics"
+DEFAULT_ENGINE = StaticsEngine()
 
 
 def handed_over_engine(mode: str, overrides: dict) -> str | None:
     """The engine ``hand_over`` gives a scenario of ``mode``: ``DEFAULT_ENGINE`` unless
-    ``overrides`` (the parsed ``--set`` mapping) name one or the mode is not quasi-static (None:
-    the scenario keeps its own)."""
-    return DEFAULT_ENGINE if "engine" not in overrides and mode == "quasi-static" else None
+    ``overrides`` (the parsed ``--set`` mapping) name one or it does not run the mode (the
+    quasi-static engine runs only the quasi-static mode; None: the scenario keeps its own)."""
+    return DEFAULT_ENGINE if "engine" not in overrides and mode in DEFAULT_ENGINE.modes else None
 
 
 def load_for_hand_over(name: str, overrides: str | None):
