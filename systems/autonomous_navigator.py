@@ -52,6 +52,7 @@ from ballchain.infrastructure.errors import UserInputError, require_finite_field
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
 from ballchain.drake_models.params import BallChain, gram_force, newtons_from_gram_force
 from ballchain.drake_models.vectors import cross
+from ballchain.optimization.compiled_held_tip import HeldTip, HeldTipStatics
 from ballchain.optimization.statics import ChainStatics
 
 
@@ -186,8 +187,8 @@ class TipForceEstimator:
         self.chain, self.model, self.n_max = chain, model, int(n_max)
         self.p_WE, self.R_WS = np.asarray(p_WE, float), np.asarray(R_WS, float)
         self.magnets = [(mag, self.R_WS.T @ (np.asarray(p, float) - self.p_WE)) for mag, p in magnets]
-        self._solvers: dict[int, ChainStatics] = {}
-        self._last: dict[int, object] = {}
+        self._solvers: dict[int, HeldTipStatics] = {}
+        self._last: dict[int, HeldTip] = {}
 
     def free_balls(self, inserted_length: float) -> int:
         """Balls beyond the sheath exit at an inserted length (ball 1 included, at least 2)."""
@@ -205,16 +206,21 @@ class TipForceEstimator:
     def reaction_W(self, p_W: np.ndarray, dipoles_W: np.ndarray, inserted_length: float,
                    sheath_offset_W: np.ndarray | None = None) -> np.ndarray | None:
         """The reaction (3,) [N] holding the tip ball's centre at p_W (None: no held equilibrium),
-        with the sheath's exit at ``p_WE`` moved by ``sheath_offset_W`` (3,) [m] (None: at rest)."""
+        with the sheath's exit at ``p_WE`` moved by ``sheath_offset_W`` (3,) [m] (None: at rest).
+
+        The statics (``ChainStatics``) on the compiled path with the magnets' arrays
+        (``optimization.compiled_held_tip``: the same solve as with ``field_S``'s sources)."""
         n = self.free_balls(inserted_length)
         solver = self._solvers.get(n)
         if solver is None:
-            solver = self._solvers[n] = ChainStatics(self.chain.with_balls(n), max_iterations=25)
+            solver = self._solvers[n] = HeldTipStatics(ChainStatics(self.chain.with_balls(n), max_iterations=25),
+                                                       self.magnets, self.model)
         p_WE = self.p_WE if sheath_offset_W is None else self.p_WE + np.asarray(sheath_offset_W, float)
         target = self.R_WS.T @ (np.asarray(p_W, float) - p_WE)
-        field_S = self.field_S(dipoles_W, sheath_offset_W)
+        m_S = (self.R_WS.T @ np.asarray(dipoles_W, float).reshape(-1, 3).T).T
+        shift = None if sheath_offset_W is None else self.R_WS.T @ np.asarray(sheath_offset_W, float)
         for start in (self._last.get(n), None):
-            result = solver.solve(field_S, start, tip_target=target)
+            result = solver.reaction(m_S, target, start, shift)
             if result.converged:
                 self._last[n] = result
                 return self.R_WS @ result.tip_reaction
@@ -265,9 +271,9 @@ class _Memory:
         new = copy.copy(self)
         new.m_des = None if self.m_des is None else self.m_des.copy()
         new.stick = None if self.stick is None else self.stick.copy()
-        new.records = [copy.copy(r) for r in self.records]
+        new.records = list(self.records)  # the closed records never change again: shared
         if self.records:  # only the open record changes
-            last = new.records[-1]
+            new.records[-1] = last = copy.copy(self.records[-1])
             last.estimates, last.p_measured = list(last.estimates), list(last.p_measured)
         return new
 

@@ -424,15 +424,17 @@ class RingPlans:
 
     Attributes:
         plans: the ``TargetPlan``s in order; missing: the targets with no plan.
-        cpu_time_s: the CPU time the planning took [s].
+        cpu_time_s: the CPU time the planning took [s] (reading them, when ``cached``).
         key: what they were made for: (a one-line description, the targets, the force [gf],
             the chain's length, the units' centres [m]); ``run`` refuses plans of another key.
+        cached: read from the on-disk cache of plans (``plan_cache``), not computed.
     """
 
     plans: tuple
     missing: tuple
     cpu_time_s: float
     key: tuple
+    cached: bool = False
 
 
 def _plans_key(anatomy, chosen: list[int], scenario, force_gf: float) -> tuple:
@@ -445,9 +447,12 @@ def _plans_key(anatomy, chosen: list[int], scenario, force_gf: float) -> tuple:
     return said, names, float(force_gf), int(scenario.n_balls), magnets_W
 
 
-def _plan_ring(anatomy, chosen: list[int], scenario, force_gf: float, key: tuple, progress: bool) -> RingPlans:
-    """``target_plans`` for the station of ``scenario``: its chain beyond the sheath, its units."""
+def _plan_ring(anatomy, chosen: list[int], scenario, force_gf: float, key: tuple, progress: bool,
+               cache: bool = True) -> RingPlans:
+    """``target_plans`` for the station of ``scenario``: its chain beyond the sheath, its units;
+    through the on-disk cache of plans (``plan_cache``) unless ``cache`` is False."""
     from ballchain.drake_models.params import BallChain
+    from ballchain.experiments.plan_cache import ring_plans
     from ballchain.systems.autonomous_navigator import NavigatorParams
 
     cpu0 = time.process_time()
@@ -457,16 +462,19 @@ def _plan_ring(anatomy, chosen: list[int], scenario, force_gf: float, key: tuple
     # half a ball inside, the chain 1.6 mm short of the plan's reach).
     s_full = (n - 0.5) * BallChain().ball_diameter
     slack = PLAN_SLACK_BALLS[min(len(key[4]), 2)]
-    plans, missing = target_plans(anatomy, chosen, newtons_from_gram_force(force_gf), n, s_full,
-                                  [np.array(p) for p in key[4]], progress, NavigatorParams().touch_radius, slack)
-    return RingPlans(tuple(plans), tuple(missing), time.process_time() - cpu0, key)
+    args = (anatomy, chosen, newtons_from_gram_force(force_gf), n, s_full, [np.array(p) for p in key[4]])
+    tolerance = NavigatorParams().touch_radius
+    plans, missing, reused = ring_plans(*args, tolerance, slack,
+                                        lambda: target_plans(*args, progress, tolerance, slack), cache)
+    return RingPlans(tuple(plans), tuple(missing), time.process_time() - cpu0, key, reused)
 
 
 def plan_ring(task: str | None = "right", anatomy=None, *, targets: int | None = None,
               force_gf: float = FORCE_GF, units: str | None = None, overrides: str | None = None,
-              progress: bool = False) -> RingPlans:
+              progress: bool = False, cache: bool = True) -> RingPlans:
     """The autonomous navigator's plans for a ring, to give to ``run(..., plans=)`` for each seed
-    (arguments as ``run``'s; the planning is about half of an autonomous run's cost)."""
+    (arguments as ``run``'s; the planning is about half of an autonomous run's cost). ``cache``:
+    read and keep them in the on-disk cache of plans (``plan_cache``; False: computed afresh)."""
     from ballchain.experiments.planner import anatomy_targets
 
     check_inputs(task, "auto", 0, targets, force_gf, (force_gf, force_gf), DWELL_S)  # the force alone
@@ -475,4 +483,5 @@ def plan_ring(task: str | None = "right", anatomy=None, *, targets: int | None =
     anatomy, task, chosen = anatomy_targets(anatomy, task)
     chosen = chosen[:targets] if targets else chosen
     scenario = scenario_for(units if units is not None else default_units(task, anatomy), overrides, anatomy)
-    return _plan_ring(anatomy, chosen, scenario, force_gf, _plans_key(anatomy, chosen, scenario, force_gf), progress)
+    return _plan_ring(anatomy, chosen, scenario, force_gf, _plans_key(anatomy, chosen, scenario, force_gf), progress,
+                      cache)

@@ -1,0 +1,100 @@
+"""CPU time of a whole procedure (issue 48): the ring's planning, cold and from the cache, and the
+run with its plans given, with the force model's compiled held-tip path on and off in the same
+process (``optimization.compiled_held_tip``; off: ``ChainStatics.solve`` on ``FieldSources``, the
+code before issue 48, the same numbers).
+
+The machine is shared: every figure is process CPU time (``time.process_time``), each run
+``--repeats`` times alternating the two paths, the median printed, and the ratio of the medians
+taken in the same run. ``--profile`` prints the cProfile of one run (fast path) by internal time.
+
+    python benchmarks/procedure_bench.py --task right --repeats 2
+    python benchmarks/procedure_bench.py --targets 4 --dwell 2 --cold --profile --json out.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import json
+import pstats
+import statistics
+import time
+
+import numpy as np
+
+from ballchain.experiments import procedure
+from ballchain.optimization import compiled_held_tip
+
+RESULT_KEYS = ("reached", "in_window_fraction", "estimate_mean_abs_error_gf", "estimate_worst_error_gf",
+               "sim_time_s")
+
+
+def _run(args, plans, fast: bool):
+    """One run with the plans given; returns (CPU s, the summary)."""
+    saved = compiled_held_tip.HeldTipStatics._fast_ready
+    if not fast:
+        compiled_held_tip.HeldTipStatics._fast_ready = lambda self, m, t: False
+    try:
+        c0 = time.process_time()
+        result = procedure.run(args.task, plans=plans, targets=args.targets, dwell_s=args.dwell, progress=False,
+                               lesions=False)
+        return time.process_time() - c0, result
+    finally:
+        compiled_held_tip.HeldTipStatics._fast_ready = saved
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--task", default="right")
+    parser.add_argument("--targets", type=int, default=None)
+    parser.add_argument("--dwell", type=float, default=procedure.DWELL_S)
+    parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--cold", action="store_true", help="also time a cold plan (no cache: tens of CPU-s)")
+    parser.add_argument("--profile", action="store_true")
+    parser.add_argument("--json", default=None)
+    args = parser.parse_args(argv)
+    out: dict = {"task": args.task, "targets": args.targets, "dwell_s": args.dwell}
+    if args.cold:
+        c0 = time.process_time()
+        cold = procedure.plan_ring(args.task, targets=args.targets, cache=False)
+        out["plan_cold_cpu_s"] = time.process_time() - c0
+    plans = procedure.plan_ring(args.task, targets=args.targets)  # stores them (or reads them)
+    c0 = time.process_time()
+    plans = procedure.plan_ring(args.task, targets=args.targets)
+    out["plan_warm_cpu_s"] = time.process_time() - c0
+    out["plan_warm_cached"] = plans.cached
+    if args.cold:
+        fields = ("p_WT", "n_W", "dipoles_W", "inserted_length", "basis_W", "J_m", "J_o", "force_N", "aim_offset")
+        out["cold_equals_cached"] = len(cold.plans) == len(plans.plans) and all(
+            a.name == b.name and all(np.array_equal(getattr(a, f), getattr(b, f)) for f in fields)
+            for a, b in zip(cold.plans, plans.plans))
+    times: dict = {"fast": [], "general": []}
+    summaries = {}
+    for _ in range(args.repeats):
+        for name, fast in (("general", False), ("fast", True)):
+            cpu, result = _run(args, plans, fast)
+            times[name].append(cpu)
+            summaries[name] = {k: result.summary.get(k) for k in RESULT_KEYS}
+            summaries[name]["rows"] = [(r["target"], r.get("force_true_mean_gf"), r.get("estimate_mean_error_gf"))
+                                       for r in result.rows]
+            print(f"{name:8s} run: {cpu:6.2f} CPU-s ({result.summary['sim_time_s']} s simulated)", flush=True)
+    out.update({f"run_{k}_cpu_s": statistics.median(v) for k, v in times.items()})
+    out["runs_cpu_s"] = times
+    out["speed_up"] = out["run_general_cpu_s"] / out["run_fast_cpu_s"]
+    out["same_results"] = summaries["fast"] == summaries["general"]
+    out["summary"] = {k: v for k, v in summaries["fast"].items() if k != "rows"}
+    if args.profile:
+        prof = cProfile.Profile()
+        prof.enable()
+        _run(args, plans, True)
+        prof.disable()
+        pstats.Stats(prof).sort_stats("tottime").print_stats(25)
+    print(json.dumps({k: v for k, v in out.items() if k != "runs_cpu_s"}, indent=1))
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(out, f, indent=1)
+    return out
+
+
+if __name__ == "__main__":
+    main()
