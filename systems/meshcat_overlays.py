@@ -67,8 +67,10 @@ class MeshcatOverlays(LeafSystem):
             and the wall's offsets [m], ``drake_models.wall_motion``); ``overlays/targets`` is
             moved by the wall's offset, so that the discs ride on the moving wall.
 
-    Publishes every ``period`` seconds and at initialisation; each drawing carries the context's
-    time, so that it is stored in the Meshcat recording when one is running.
+    Publishes every ``period`` seconds and at initialisation, and a target's change at the step
+    it happens (a per-step publish: the last touch of a run that ends there is in the replay's
+    last frame); each drawing carries the context's time, so that it is stored in the Meshcat
+    recording when one is running.
 
     Args:
         meshcat: the Meshcat.
@@ -118,6 +120,11 @@ class MeshcatOverlays(LeafSystem):
         self._drawn_touched = np.zeros(len(names), bool)
         self.DeclarePeriodicPublishEvent(period, 0.0, self._publish)
         self.DeclareInitializationPublishEvent(self._publish_all)
+        if names:
+            # A touch is drawn at the step it happens, not at the next period: a run that ends at
+            # its last touch (the operator's task done) ended before that period, and the
+            # replay's last frame missed the last target (Task II's right_18, issue 46).
+            self.DeclarePerStepPublishEvent(self._publish_touches)
 
     def get_body_poses_input_port(self):
         return self._body_poses_port
@@ -187,6 +194,10 @@ class MeshcatOverlays(LeafSystem):
     def _publish(self, context):
         self._draw_targets(context, changed_only=True)
         self._draw_arrows(context)
+        return EventStatus.Succeeded()
+
+    def _publish_touches(self, context):
+        self._draw_targets(context, changed_only=True)
         return EventStatus.Succeeded()
 
     def _publish_all(self, context):

@@ -164,7 +164,8 @@ _SCRIPT = """
     }
     const targets = drake("overlays/targets");
     if (targets) {
-      const names = Object.keys(targets.children).filter(k => visible(targets.children[k].children["touched"]));
+      const names = Object.keys(targets.children).filter(k => visible(targets.children[k].children["touched"]))
+        .sort((a, b) => a.localeCompare(b, undefined, {numeric: true}));  // right_2 before right_10
       $("ballchain-touched").textContent = "touched by now: " + (names.length ? names.join(", ") : "none");
     }
     if (!framed && FRAMING.magnets && ((a && a.duration > 0) || performance.now() - started > 3000)) framed = frameMagnets();

@@ -25,6 +25,8 @@ def replay(tmp_path_factory) -> Path:
     html = tmp_path_factory.mktemp("replay") / "replay.html"
     result = teleop.run(task="right", targets=1, html=html, progress=False)
     assert result.html == str(html) and html.exists()
+    # The targets the run touched, beside the page (the browser test reads them at the last frame).
+    (html.parent / "touched.txt").write_text("\n".join(r["target"] for r in result.rows if r["touched"]))
     return html
 
 
@@ -96,6 +98,17 @@ def test_in_a_browser_the_clock_runs_and_the_legend_shows(replay):
             for label in ("the chain", "target, not touched yet", "target touched", "magnet"):
                 assert page.get_by_text(label).first.is_visible(), label
             page.screenshot(path=shots / "replay_view.png")
+            # The last frame shows the last touch: the run ends at its last target's touch, which
+            # the overlays draw at that step (they drew it only at the next period, never reached).
+            touched = sorted((replay.parent / "touched.txt").read_text().split())
+            assert touched, "the one-target run touched nothing"
+            page.evaluate("() => { const a = viewer.animator; a.pause(); a.seek(a.duration); }")
+            shown = "() => document.getElementById('ballchain-touched').textContent"
+            text = wait(lambda: (lambda t: t if t.startswith("touched by now: ") else None)(page.evaluate(shown)),
+                        "the touched targets' line")
+            wait(lambda: sorted(page.evaluate(shown).removeprefix("touched by now: ").split(", ")) == touched,
+                 f"the last frame to show {touched} touched (the page: {text!r})")
+            page.screenshot(path=shots / "replay_last_frame.png")
             assert not errors, errors
         finally:
             browser.close()
