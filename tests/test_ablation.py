@@ -229,6 +229,9 @@ def test_reproduce_section_quick(tmp_path):
     saved = json.loads((tmp_path / "ablation" / "ablation.json").read_text())
     assert saved["devices"][0]["paper"] == {"power_W": 15.0, "duration_s": 90.0, "width_mm": 5.7, "depth_mm": 3.1}
     assert len(saved["power_duration_map"]["rows"]) == 4
+    # Beyond the paper: the catheter against the published lesions (issue 44).
+    assert data["validation"]["summary"]["points"] == 10
+    assert (tmp_path / "ablation" / "lesion_validation.json").stat().st_size > 0
 
 
 def test_joule_share_catheter_heats_mostly_saline():
