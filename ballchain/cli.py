@@ -44,6 +44,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "forces": ("forces", "tip forces on the pulmonary veins, both configurations (paper Table I)"),
     "plan": ("plan", "inverse statics for every ablation target and a visiting plan (beyond the paper)"),
     "procedure": ("procedure", "simulated ablation procedure: autonomous navigation, sensorless force hold (beyond the paper)"),
+    "sensitivity": ("sensitivity", "the procedure's force estimate in a world it does not know, per perturbation (issue 43)"),
     "workspace": ("workspace", "workspace with one rotating magnet 16.51 cm away (paper Fig. 9)"),
     "validation": ("validation", "model validation: uniform vs dipole vs exact field, 5..10 balls"),
     "reproduce": ("reproduce", "run the paper checks and write a report (the main job)"),

@@ -101,6 +101,8 @@ CASES = [
     ("plan-min-force-negative", ["plan", "--min-force", "-1"], "--min-force"),
     ("plan-balls-1", ["plan", "--balls", "1"], "--balls"),
     ("procedure-latency-off-grid", ["procedure", "--latency", "0.03"], "latency"),
+    ("procedure-world", ["procedure", "--world", "lab"], "--world"),
+    ("sensitivity-seeds", ["sensitivity", "--seeds", "0"], "--seeds"),
     # workspace, validation, field models, sizing, bench, wheels, reconfigure
     ("workspace-step", ["workspace", "--step-deg", "0.01"], "--step-deg"),
     ("workspace-distance", ["workspace", "--distance-cm", "5"], "--distance-cm"),
