@@ -11,6 +11,8 @@ physics: the table stores its running mean.
 Each dwell ends by a lesion criterion (``LesionConditions.criterion``):
 
 - "transmural": when the predicted depth reaches the local wall thickness,
+- "contiguous": when it is transmural AND as wide as the distance to its farthest ring neighbour
+  (so that neighbouring lesions overlap: the ring's gap rule, ``lesion_ring``),
 - "fti": when the force-time integral reaches ``fti_target_gfs`` (EFFICAS II: target 20 g,
   range 10-30 g, at least 400 g s; Kautzner et al., Europace 17(8):1229-1235, 2015),
 - "fixed": the procedure's own dwell,
@@ -46,7 +48,7 @@ from ballchain.drake_models import tissue as laws
 from ballchain.drake_models.lesion_ring import DEFAULT_WALL_THICKNESS_M, AblationPoint, Lesion
 from ballchain.infrastructure.errors import UserInputError, short_repr
 
-CRITERIA = ("transmural", "fti", "fixed")
+CRITERIA = ("transmural", "contiguous", "fti", "fixed")
 FTI_TARGET_GFS = 400.0  # [gf s] EFFICAS II's minimum force-time integral
 TIME_LIMIT_S = 60.0  # [s] the longest RF application per point (clinical point-by-point PVI: 20-60 s)
 DWELL_TABLE_VERSION = 1
@@ -217,8 +219,10 @@ class DwellSurrogate:
         return {"width_m": 1e-3 * v["width_mm"], "depth_m": 1e-3 * v["depth_mm"], "magnet_peak_C": v["magnet_peak_C"],
                 "mean_power_W": v["mean_power_W"], "indentation_m": float(x[0, 0])}
 
-    def dwell_for(self, force_N: float, conditions: LesionConditions, fixed_s: float) -> float:
-        """The RF time the criterion gives at this force [s] (within the time limit and the table)."""
+    def dwell_for(self, force_N: float, conditions: LesionConditions, fixed_s: float,
+                  width_target_m: float = 0.0) -> float:
+        """The RF time the criterion gives at this force [s] (within the time limit and the table);
+        ``width_target_m``: the width the "contiguous" criterion waits for [m]."""
         limit = min(conditions.time_limit_s, self.spec.duration_s)
         if conditions.criterion == "fixed" or force_N <= 0.0:
             return float(min(fixed_s, limit))
@@ -226,7 +230,10 @@ class DwellSurrogate:
             return float(min(conditions.fti_target_gfs / (force_N / params.GRAVITY * 1e3), limit))
         times = np.arange(0.0, limit + 1e-9, 0.25)
         x = np.c_[np.full(len(times), self._indentation(force_N)), times]
-        reached = np.flatnonzero(1e-3 * self._interp["depth_mm"](x) >= conditions.wall_thickness_m)
+        done = 1e-3 * self._interp["depth_mm"](x) >= conditions.wall_thickness_m
+        if conditions.criterion == "contiguous":
+            done &= 1e-3 * self._interp["width_mm"](x) >= width_target_m
+        reached = np.flatnonzero(done)
         return float(times[reached[0]]) if len(reached) else float(limit)
 
 
@@ -236,12 +243,24 @@ def dwell_surrogate(spec: DwellTableSpec) -> DwellSurrogate:
     return DwellSurrogate(spec)
 
 
+def neighbour_distances(points: list) -> dict:
+    """Per ring point (dicts with "name" and "p_W", in ring order, a closed loop) the distance to
+    its farthest neighbour [m]: the width its lesion needs to overlap both."""
+    out = {}
+    n = len(points)
+    for k, pt in enumerate(points):
+        p = np.asarray(pt["p_W"], float)
+        near = [np.asarray(points[(k + d) % n]["p_W"], float) for d in (-1, 1)] if n > 1 else [p]
+        out[pt["name"]] = float(max(np.linalg.norm(q - p) for q in near))
+    return out
+
+
 def lesion_for(name: str, p_W, n_W, force_N: float, fixed_s: float, conditions: LesionConditions,
-               model: DwellSurrogate | None = None) -> Lesion:
+               model: DwellSurrogate | None = None, width_target_m: float = 0.0) -> Lesion:
     """The lesion of one dwell under ``conditions``: its RF time by the criterion, its power the
     delivered mean, its depth judged against ``conditions.wall_thickness_m``."""
     model = model or dwell_surrogate(conditions.table_spec())
-    rf_s = model.dwell_for(float(force_N), conditions, float(fixed_s))
+    rf_s = model.dwell_for(float(force_N), conditions, float(fixed_s), width_target_m)
     pred = model.predict(float(force_N), rf_s)
     point = AblationPoint(name, np.asarray(p_W, float), np.asarray(n_W, float), float(force_N), rf_s,
                           pred["mean_power_W"])

@@ -48,6 +48,26 @@ def test_transmural_dwell_is_the_first_time_the_depth_reaches_the_wall(tiny):
     assert tiny.dwell_for(gf(20), deep, fixed_s=5.0) == 6.0
 
 
+def test_contiguous_dwell_waits_for_the_width_too(tiny):
+    """"contiguous": transmural and as wide as the farthest neighbour: never sooner than transmural,
+    and wide enough when it stops (or the time limit)."""
+    wall = 0.5 * tiny.predict(gf(20), TINY.duration_s)["depth_m"]
+    width = 0.95 * tiny.predict(gf(20), TINY.duration_s)["width_m"]
+    trans = ld.LesionConditions(criterion="transmural", wall_thickness_m=wall, time_limit_s=8.0)
+    cont = ld.LesionConditions(criterion="contiguous", wall_thickness_m=wall, time_limit_s=8.0)
+    t_trans = tiny.dwell_for(gf(20), trans, fixed_s=5.0)
+    t_cont = tiny.dwell_for(gf(20), cont, fixed_s=5.0, width_target_m=width)
+    assert t_cont >= t_trans
+    assert tiny.predict(gf(20), t_cont)["width_m"] >= width - 1e-12
+    assert tiny.dwell_for(gf(20), cont, fixed_s=5.0, width_target_m=0.0) == t_trans
+
+
+def test_neighbour_distances_close_the_loop():
+    pts = [{"name": n, "p_W": p} for n, p in (("a", [0, 0, 0]), ("b", [3e-3, 0, 0]), ("c", [3e-3, 4e-3, 0]))]
+    d = ld.neighbour_distances(pts)
+    assert d["a"] == pytest.approx(5e-3) and d["b"] == pytest.approx(4e-3) and d["c"] == pytest.approx(5e-3)
+
+
 def test_fti_and_fixed_dwells():
     c = ld.LesionConditions(criterion="fti", time_limit_s=60.0)
     model = object.__new__(ld.DwellSurrogate)

@@ -74,9 +74,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     lesion.add_argument("--lesion-power-W", type=float_in(0.5, 100.0), default=30.0,
                         help="set power (or the cap under temperature control) of the clinical lesions [W]")
     lesion.add_argument("--magnet-grade", default="N52", help="the tip magnet's grade (N52, N42SH)")
-    lesion.add_argument("--dwell-criterion", choices=("fixed", "transmural", "fti"), default="fixed",
-                        help="each lesion's RF time: the --dwell (fixed), until transmural, or until the "
-                             "force-time integral reaches 400 gf s (EFFICAS II)")
+    lesion.add_argument("--dwell-criterion", choices=("fixed", "transmural", "contiguous", "fti"), default="fixed",
+                        help="each lesion's RF time: the --dwell (fixed), until transmural, until transmural and as "
+                             "wide as the distance to its ring neighbours (contiguous), or until the force-time "
+                             "integral reaches 400 gf s (EFFICAS II)")
     lesion.add_argument("--rf-time-limit-s", type=float_in(1.0, 120.0), default=60.0,
                         help="the longest RF time per lesion under a dwell criterion [s]")
     add_json_flag(parser)

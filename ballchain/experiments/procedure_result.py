@@ -67,9 +67,11 @@ def with_lesions(result: ProcedureResult, ring_order: list[str]) -> ProcedureRes
 
     clinical = (result.settings or {}).get("lesions")
     if clinical is not None:
-        from ballchain.drake_models.lesion_dwell import LesionConditions, lesion_for
+        from ballchain.drake_models.lesion_dwell import LesionConditions, lesion_for, neighbour_distances
 
         clinical = LesionConditions.from_dict(clinical)
+        reached = [row["point"] for row in result.rows if row.get("point") is not None]
+        widths = neighbour_distances(reached)  # the "contiguous" criterion's width per target
     lesions, listed = [], []
     for row in result.rows:
         pt = row.get("point")
@@ -77,7 +79,8 @@ def with_lesions(result: ProcedureResult, ring_order: list[str]) -> ProcedureRes
             continue
         try:
             if clinical is not None:
-                lesion = lesion_for(pt["name"], pt["p_W"], pt["n_W"], pt["force_N"], pt["duration_s"], clinical)
+                lesion = lesion_for(pt["name"], pt["p_W"], pt["n_W"], pt["force_N"], pt["duration_s"], clinical,
+                                    width_target_m=widths[pt["name"]])
                 power = lesion.point.power_W
                 pt["rf_duration_s"] = lesion.point.duration_s
             else:
