@@ -194,7 +194,7 @@ class TipForceEstimator:
         """Balls beyond the sheath exit at an inserted length (ball 1 included, at least 2)."""
         # (n - 1/2) diameters put ball 1's centre at the exit with n balls out (the plans' rule);
         # rounded, so that a feeder within half a diameter of the plan's length counts n.
-        return int(np.clip(round(inserted_length / self.chain.ball_diameter + 0.5), 2, self.n_max))
+        return min(max(round(inserted_length / self.chain.ball_diameter + 0.5), 2), self.n_max)  # (np.clip's cost)
 
     def field_S(self, dipoles_W: np.ndarray, sheath_offset_W: np.ndarray | None = None) -> FieldSources:
         m_S = (self.R_WS.T @ np.asarray(dipoles_W, float).reshape(-1, 3).T).T
@@ -464,7 +464,7 @@ class AutonomousNavigator(LeafSystem):
         rhs = w * np.concatenate([[p.force_command - f_est + plan.J_o[0] @ o], plan.J_o[1:] @ o - f_t])
         # dm_j = omega_j x m_j: J_m's columns of unit j times -skew(m_j).
         J = w[:, None] * np.hstack([plan.J_m[:, 3 * j:3 * j + 3] @ (-_skew(m_j)) for j, m_j in enumerate(m)])
-        s_max = np.linalg.norm(J, 2)
+        s_max = float(np.linalg.svd(J, compute_uv=False)[0])  # norm(J, 2), without its wrapping
         if s_max > 1e-12 and np.all(np.isfinite(rhs)):
             mu = (p.damping * s_max) ** 2
             omega = np.linalg.solve(J.T @ J + mu * np.eye(J.shape[1]), J.T @ rhs) * p.gain

@@ -63,12 +63,13 @@ class LocalisationSensor(SeededLeafSystem):
         rng = self._generators.generator(self.seed(context), k)
         tip = np.asarray(self._in.Eval(context))[-3:]
         sample = tip + self.params.noise_std * rng.standard_normal(3)
-        line = x[:-1].reshape(self._d + 1, 3).copy()
+        new = np.empty_like(x)  # the line shifted by one sample, the new one last, then the count
         if k == 0:  # the first sample fills the line: the reading exists from the start
-            line[:] = sample
+            new[:-1] = np.tile(sample, self._d + 1)
         else:
-            line = np.vstack([line[1:], sample])
-        discrete_state.get_mutable_vector(self._state).SetFromVector(np.append(line.reshape(-1), k + 1.0))
+            new[:-4], new[-4:-1] = x[3:-1], sample
+        new[-1] = k + 1.0
+        discrete_state.get_mutable_vector(self._state).SetFromVector(new)
         return EventStatus.Succeeded()
 
     def _calc(self, context, output):
