@@ -14,9 +14,12 @@ The catheter's mechanics, as modelled:
   curvature in its bending plane, one sign per tendon (a D-F catheter: a tighter curve one way than
   the other; the knob's travel sets the fraction of the side's largest curvature).
 * The shaft from the handle to the sheath exit (``shaft_length``): in torsion and in tension a
-  chain of elastic elements with Coulomb friction against the sheath (``CoulombChain``): static
-  friction above kinetic gives stick-slip; the twist the handle puts in winds up in the shaft until
-  the friction gives way, and is released in jumps (a quasi-static incremental model).
+  chain of elastic elements with Coulomb friction where it bears on the sheath's bends
+  (``drake_models.sheath``: the bends' end forces and the capstan's |T| / R, ``ShaftChain``):
+  static friction above kinetic gives stick-slip; the twist the handle puts in winds up in the
+  shaft until the friction gives way, and is released in jumps (a quasi-static incremental model).
+  (``CoulombChain``, friction spread evenly along the shaft, is the earlier model, kept for its
+  closed-form tests.)
 
 Sources of the constants (no constant was tuned to the paper's times):
 
@@ -73,26 +76,30 @@ Sources of the constants (no constant was tuned to the paper's times):
 * Friction in the sheath: PTFE-lined sheath, kinetic coefficient 0.1 (Schroeder 1993,
   Cardiovasc. Intervent. Radiol. 16:93: a Teflon coating halves the sliding friction of steel,
   about 0.2 on polymer), static 0.15 (static above kinetic: the assumption that makes stick-slip).
-  The normal force that presses the shaft on the sheath is sized by a stated estimate: the sheath's
-  bends (two of 25 mm radius, the transseptal sheath's distal curve and the turn from the
-  inferior vena cava into the septum) hold the shaft on the curve; the couple EI / R at each end of
-  a bend is carried by contact forces over a transition of order R, 2 EI / R^2 at each end: 4 EI /
-  R^2 per bend. The friction torque is mu N r (r the shaft's radius), the axial force mu N.
+  The normal force that presses the shaft on the sheath acts at the sheath's bends
+  (``drake_models.sheath.SheathPath``: two of 25 mm radius, the transseptal sheath's distal
+  curve and the turn from the inferior vena cava into the septum, wrap angles assumed): the couple
+  EI / R at each end of a bend is carried by contact forces over a transition of order R,
+  2 EI / R^2 at each end (a stated estimate), and the shaft's axial force T presses it on the bend
+  with |T| / R per unit length (the capstan). The friction torque is mu N r (r the shaft's radius),
+  the axial force mu N.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from ballchain.drake_models.sheath import ShaftChain, SheathPath, shaft_chains
 from ballchain.infrastructure.errors import UserInputError, require_finite_fields
 
 FRENCH = 1e-3 / 3.0  # [m] per Fr (the Charriere scale)
 
 
 
+SHEATH_FRICTION = ("bends", "even")  # where the shaft's friction acts (SteerableCatheter.sheath_friction)
 MAX_BRAID_WIRES = 256  # a braiding machine's carriers: 16-64 in catheter shafts, at most a few hundred
 
 @dataclass
@@ -111,8 +118,12 @@ class SteerableCatheter:
         segment_length: the rod's discretisation [m].
         shaft_length: handle to sheath exit [m].
         mu_static, mu_kinetic: shaft on the sheath's PTFE liner.
-        sheath_bend_radius: radius of the sheath's bends [m]; sheath_bends: how many.
-        shaft_elements: elements of the shaft's friction chain.
+        sheath: the sheath's path (``drake_models.sheath.SheathPath``: its bends, where the shaft
+            bears on it).
+        sheath_friction: "bends" (the friction where the shaft bears on the sheath's bends,
+            ``drake_models.sheath``) or "even" (the earlier model: the bends' end forces spread
+            evenly over ``shaft_elements`` nodes of a ``CoulombChain``, no axial load, no capstan).
+        shaft_elements: the "even" model's elements.
         braid_wires: the shaft braid's wire count (0: no braid, the plain tube's GJ).
         braid_wire_diameter: its round wire's diameter [m].
         braid_angle: its wires' angle from the shaft's axis [rad].
@@ -133,8 +144,8 @@ class SteerableCatheter:
     shaft_length: float = 1.15
     mu_static: float = 0.15
     mu_kinetic: float = 0.10
-    sheath_bend_radius: float = 25e-3
-    sheath_bends: int = 2
+    sheath: SheathPath = field(default_factory=SheathPath)
+    sheath_friction: str = "even"
     shaft_elements: int = 8
     braid_wires: int = 16
     braid_wire_diameter: float = 0.002 * 25.4e-3
@@ -147,7 +158,7 @@ class SteerableCatheter:
         if not 0 < self.lumen_diameter < self.diameter:
             raise UserInputError(f"SteerableCatheter.lumen_diameter must be in (0, diameter), got {self.lumen_diameter}")
         for name in ("flexural_modulus", "tip_EI", "deflectable_length", "segment_length", "shaft_length",
-                     "sheath_bend_radius", "max_deflection_D", "max_deflection_F"):
+                     "max_deflection_D", "max_deflection_F"):
             if not getattr(self, name) > 0:
                 raise UserInputError(f"SteerableCatheter.{name} must be > 0, got {getattr(self, name)}")
         if not 0 <= self.mu_kinetic <= self.mu_static:
@@ -164,8 +175,14 @@ class SteerableCatheter:
             raise UserInputError(f"SteerableCatheter.braid_angle must be in (0, pi/2) rad, got {self.braid_angle}")
         if self.braid_wires and not 0 < self.braid_radius < self.radius:
             raise UserInputError(f"SteerableCatheter.braid_radius must be in (0, diameter / 2), got {self.braid_radius}")
-        if not self.deflectable_length <= self.model_length or self.shaft_elements < 1:
-            raise UserInputError("SteerableCatheter: deflectable_length <= model_length and shaft_elements >= 1")
+        if not self.deflectable_length <= self.model_length:
+            raise UserInputError("SteerableCatheter: deflectable_length must be <= model_length")
+        if not isinstance(self.sheath, SheathPath):
+            raise UserInputError(f"SteerableCatheter.sheath must be a SheathPath, got {type(self.sheath).__name__}")
+        self.sheath.validate(self.shaft_length)
+        if self.sheath_friction not in SHEATH_FRICTION or self.shaft_elements < 1:
+            raise UserInputError(f"SteerableCatheter.sheath_friction must be one of {SHEATH_FRICTION} (and "
+                                 f"shaft_elements >= 1), got {self.sheath_friction!r}, {self.shaft_elements}")
         return self
 
     # ------------------------------------------------------------------ derived stiffnesses
@@ -216,21 +233,30 @@ class SteerableCatheter:
         return knob * (d if knob >= 0 else f)
 
     def sheath_normal_force(self) -> float:
-        """The shaft's total normal force on the sheath [N] (module docstring: 4 EI / R^2 per bend)."""
-        return self.sheath_bends * 4.0 * self.shaft_EI / self.sheath_bend_radius**2
+        """The bends' end forces on the sheath, the shaft unloaded [N] (module docstring: 2 EI / R^2
+        at each end of each bend)."""
+        return len(self.sheath.bend_angles) * 4.0 * self.shaft_EI / self.sheath.bend_radius**2
 
-    def twist_chain(self) -> "CoulombChain":
+    def chains(self) -> tuple:
+        """The shaft in the sheath (torsion: handle twist [rad] to the twist at the exit, axial:
+        handle advance [m] to the advance at the exit): ``sheath_friction`` "bends": through the
+        sheath's bends (``drake_models.sheath.shaft_chains``, ShaftChain); "even": CoulombChains."""
+        if self.sheath_friction == "bends":
+            return shaft_chains(self.shaft_GJ, self.shaft_EA, self.shaft_EI, self.radius, self.shaft_length,
+                                self.mu_static, self.mu_kinetic, self.sheath)
+        n = self.shaft_elements
+        N = self.sheath_normal_force() / n
+        return (CoulombChain(n, n * self.shaft_GJ / self.shaft_length, self.mu_static * N * self.radius,
+                             self.mu_kinetic * N * self.radius),
+                CoulombChain(n, n * self.shaft_EA / self.shaft_length, self.mu_static * N, self.mu_kinetic * N))
+
+    def twist_chain(self):
         """The shaft in torsion: handle twist [rad] to the twist at the sheath exit."""
-        n = self.shaft_elements
-        N = self.sheath_normal_force() / n
-        return CoulombChain(n, n * self.shaft_GJ / self.shaft_length, self.mu_static * N * self.radius,
-                            self.mu_kinetic * N * self.radius)
+        return self.chains()[0]
 
-    def push_chain(self) -> "CoulombChain":
+    def push_chain(self):
         """The shaft in tension/compression: handle advance [m] to the advance at the sheath exit."""
-        n = self.shaft_elements
-        N = self.sheath_normal_force() / n
-        return CoulombChain(n, n * self.shaft_EA / self.shaft_length, self.mu_static * N, self.mu_kinetic * N)
+        return self.chains()[1]
 
 
 @dataclass
@@ -300,3 +326,12 @@ class CoulombChain:
     def windup(self, x: np.ndarray) -> float:
         """The handle's lead over the distal node (x_0 - x_n)."""
         return float(x[0] - x[-1])
+
+    def forces(self, x: np.ndarray) -> np.ndarray:
+        """The elements' loads (n,), positive when the distal node leads."""
+        return self.k * np.diff(np.asarray(x, float))
+
+    def lead(self, mu_ratio: float = 1.0) -> float:
+        """The handle's lead over the distal node with every node at ``mu_ratio`` times its static
+        capacity: n (n + 1) / 2 static / k."""
+        return self.n * (self.n + 1) / 2 * mu_ratio * self.static / self.k

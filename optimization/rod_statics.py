@@ -108,8 +108,9 @@ class RodPose:
 @dataclass
 class RodSolution:
     """An equilibrium: ``q`` (3 f,), its pose, the wall's normal force on each node [N] (m,),
-    the rod's torque on the shaft at the exit about the sheath axis [N m], the iterations, and
-    whether it converged."""
+    the rod's torque on the shaft at the exit about the sheath axis [N m], the iterations,
+    whether it converged, and the rod's axial force on the shaft at the exit [N] (the wall's
+    forces along the sheath axis: positive pulls the shaft out of the sheath)."""
 
     q: np.ndarray
     pose: RodPose
@@ -117,6 +118,7 @@ class RodSolution:
     base_torque: float
     iterations: int
     converged: bool
+    base_force: float = 0.0
 
 
 class RodStatics:
@@ -334,9 +336,10 @@ class RodStatics:
             q = q + scale * dq
         pose = self.pose(q, length, phi)
         forces = lam if len(lam) == len(pose.nodes) else np.zeros(len(pose.nodes))
-        torque_E = 0.0
+        torque_E = force_E = 0.0
         if forces.any():
             _, grads = self.wall_at(pose)
             moments = np.cross(pose.nodes - self.p_E, forces[:, None] * grads)
             torque_E = float(moments.sum(axis=0) @ self.R_E[:, 2])
-        return RodSolution(q, pose, forces, torque_E, it, converged)
+            force_E = float((forces[:, None] * grads).sum(axis=0) @ self.R_E[:, 2])
+        return RodSolution(q, pose, forces, torque_E, it, converged, force_E)

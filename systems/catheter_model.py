@@ -4,7 +4,8 @@ The paper's manual comparison arm behind the ``DeviceModel`` interface, so that 
 builds it into the same ``Station`` as the ball chain and ``run_station`` runs it: the
 ``SteerableCatheterSystem`` (quasi-static, updated every ``scenario.statics_period``) and the
 ``ManualHand`` on its handle (``systems/catheter_station.py``). Its bodies are the rod's nodes
-(``body_poses`` 1..n + 1, the tip sphere's centre last); its electrode is the tip sphere; its
+(``body_poses`` 1..n + 1, the tip sphere's centre last); its electrode is the distal 3.5 mm
+(cylinder and dome, ``CatheterElectrode``: its whole surface touches); its
 actuation input is ``handle`` (3), driven by the hand, whose stick and push an operator drives
 (``operator_inputs``: ``hand.joystick``, and the push as the feeder command); its metrics are
 the windup (the handle's twist, the twist at the sheath exit, slips) and the hand's switches.
@@ -13,13 +14,24 @@ It feels no field (it is not magnetic) and reports no wall force (zero).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ballchain.drake_models.atrium_sdf import atrium_sdf
+from ballchain.drake_models.electrode import CATHETER_ELECTRODE_LENGTH
 from ballchain.infrastructure.errors import UserInputError
 from ballchain.systems.catheter_station import CatheterMeshcat, CatheterParams, ManualHand, SteerableCatheterSystem
 from ballchain.systems.chain_model import subsystem_context
-from ballchain.systems.device_model import DeviceModel, OperatorInputs
+from ballchain.systems.device_model import DeviceModel, Electrode, OperatorInputs
+
+
+@dataclass
+class CatheterElectrode(Electrode):
+    """The catheter's distal electrode: the tip sphere's centre is its dome's centre, its axis
+    runs ``length - radius`` back along the tip (``drake_models.electrode``)."""
+
+    length: float = CATHETER_ELECTRODE_LENGTH
 
 
 class CatheterModel(DeviceModel):
@@ -55,6 +67,7 @@ class CatheterModel(DeviceModel):
                                                         scenario.statics_period))
         hand = builder.AddSystem(ManualHand(params.hand))
         builder.Connect(hand.GetOutputPort("handle"), cat.GetInputPort("handle"))
+        builder.Connect(cat.GetOutputPort("handle_load"), hand.GetInputPort("handle_load"))
         return cls(cat, hand)
 
     # --- the geometry --------------------------------------------------------------------------
@@ -65,6 +78,12 @@ class CatheterModel(DeviceModel):
     @property
     def tip_radius(self) -> float:
         return self.system.catheter.radius
+
+    @property
+    def electrode(self) -> CatheterElectrode:
+        """The distal electrode (3.5 mm, cylinder and dome: ``drake_models.electrode``) on the
+        tip sphere's body, touching with its whole surface."""
+        return CatheterElectrode(int(self.tip_body_index), self.tip_radius, CATHETER_ELECTRODE_LENGTH)
 
     @property
     def p_WE(self) -> np.ndarray:
@@ -129,6 +148,6 @@ class CatheterModel(DeviceModel):
         in the diagram's root context."""
         st = self.system.state(self.system.GetMyContextFromRoot(context))
         hand_state = self.hand.GetOutputPort("state").Eval(self.hand.GetMyContextFromRoot(context))
-        return {"switches": int(hand_state[6]), "slips": int(st.slips),
+        return {"switches": int(hand_state[6]), "slips": int(st.slips), "push_slips": int(st.push_slips),
                 "windup_rad": [float(st.twist[0]), float(st.twist[-1])],
                 "rod_warnings": "; ".join(sorted(set(st.failures))[:3]) or None}

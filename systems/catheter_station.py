@@ -17,10 +17,11 @@ loop, with the catheter instead of the chain and the hand instead of the units:
 * ``ManualHand``: the hand on the handle, driven like the robotic console (a stick with a dead
   band and a feeder command, so that the same ``SimulatedOperator`` drives it): stick axis 0 turns
   the handle, axis 1 the knob, the feeder command pushes or pulls, each within a human-like rate
-  limit. At the windup the paper describes (about half a turn of the handle, where the reaction
-  between catheter and sheath builds), its strategy is to ``keep`` turning or to ``switch``: turn
-  the handle back by half a turn while moving the knob to the opposite tendon (the same bend, the
-  other wire), during which it takes no other command. The ``switch`` hand does the same when the
+  limit. It feels the shaft's torque at the handle (the catheter's ``handle_load``); when the
+  torque it turns against reaches its threshold (``HandParams.torque_threshold``, a human
+  parameter: the windup the paper describes is felt, not counted in degrees), its strategy is to
+  ``keep`` turning or to ``switch``: turn the handle back by half a turn while moving the knob to
+  the opposite tendon (the same bend, the other wire), during which it takes no other command. The ``switch`` hand does the same when the
   knob is at the F tendon's end and asked for more bend: the D tendon (the tighter curve) and the
   handle half a turn towards neutral.
 
@@ -82,8 +83,13 @@ class HandParams:
         twist_rate: [rad/s] at full stick on axis 0.
         knob_rate: knob travel per second at full stick on axis 1 (the travel is -1..1).
         dead_band: the stick's dead band (the operator pushes past it).
-        windup_twist: the handle's twist from neutral beyond which the ``switch`` strategy turns
-            back [rad] (the paper: about 180 degrees).
+        torque_threshold: the shaft's torque at the handle, against the turn asked for, at which
+            the ``switch`` strategy turns back [N m]: 7.6 mN m, the just-noticeable difference
+            in torque of a hand turning a handle between thumb and index finger (12.7 % of a
+            60 mN m reference; Jandura and Srinivasan 1994, "Experiments on human performance in
+            torque discrimination and control", ASME DSC vol. 55-1, MIT Touch Lab's instrumented
+            screwdriver); taken as the rise in resistance a hand notices, an assumption (no
+            absolute threshold for torque on a catheter handle was found).
         strategy: "keep" (keep turning) or "switch" (the opposite tendon and back by half a turn).
         knob_end_switch: the ``switch`` hand also switches at the F tendon's end when asked for
             more bend (to the D tendon, the handle half a turn towards neutral).
@@ -96,7 +102,7 @@ class HandParams:
     twist_rate: float = np.radians(90.0)
     knob_rate: float = 1.0
     dead_band: float = 0.1
-    windup_twist: float = np.pi
+    torque_threshold: float = 0.127 * 60e-3
     strategy: str = "switch"
     knob_end_switch: bool = True
     f_over_d: float = 1.0
@@ -106,7 +112,7 @@ class HandParams:
         require_finite_fields(self)
         if self.strategy not in STRATEGIES:
             raise UserInputError(f"HandParams.strategy must be one of {STRATEGIES}, got {self.strategy!r}")
-        for name in ("push_speed", "twist_rate", "knob_rate", "windup_twist", "period", "f_over_d"):
+        for name in ("push_speed", "twist_rate", "knob_rate", "torque_threshold", "period", "f_over_d"):
             if not getattr(self, name) > 0:
                 raise UserInputError(f"HandParams.{name} must be > 0, got {getattr(self, name)}")
         if not 0.0 <= self.dead_band < 1.0:
@@ -117,7 +123,9 @@ class HandParams:
 class ManualHand(LeafSystem):
     """The hand on the handle (module docstring).
 
-    Input ports: joystick (3: axis 0 turns the handle, axis 1 the knob), v_insert_cmd (1) [m/s].
+    Input ports: joystick (3: axis 0 turns the handle, axis 1 the knob), v_insert_cmd (1) [m/s],
+    handle_load (2: the shaft's torque [N m] and axial force [N] at the handle, the catheter's;
+    unconnected: nothing felt).
     Output ports: handle (3: push past the start [m], twist [rad], knob in [-1, 1]),
     switches (1: tendon switches so far).
     State (discrete, 7): push, twist, knob, switching (0/1), the switch's target twist and knob,
@@ -130,6 +138,7 @@ class ManualHand(LeafSystem):
         self.set_name("hand")
         self._joystick = self.DeclareVectorInputPort("joystick", 3)
         self._push = self.DeclareVectorInputPort("v_insert_cmd", 1)
+        self._feel = self.DeclareVectorInputPort("handle_load", 2)
         self._state = self.DeclareDiscreteState(7)
         self.DeclareStateOutputPort("state", self._state)
         self.DeclareVectorOutputPort("handle", 3, self._calc_handle, prerequisites_of_calc={self.xd_ticket()})
@@ -155,10 +164,11 @@ class ManualHand(LeafSystem):
         v = float(np.clip(_finite(self._push.Eval(context))[0], -p.push_speed, p.push_speed))
         dt = p.period
         twist_rate, knob_rate = u[0] * p.twist_rate, u[1] * p.knob_rate
-        if (not switching and p.strategy == "switch" and abs(twist) >= p.windup_twist
-                and twist_rate * twist > 0 and abs(knob) > 0.2):
-            # Wound up and asked to turn further: the other tendon, and back by half a turn.
-            switching, target = 1.0, twist - np.sign(twist) * np.pi
+        torque = float(_finite(self._feel.Eval(context))[0]) if self._feel.HasValue(context) else 0.0
+        if (not switching and p.strategy == "switch" and abs(torque) >= p.torque_threshold
+                and twist_rate * torque > 0 and abs(knob) > 0.2):
+            # Wound up (felt) and asked to turn further: the other tendon, and back by half a turn.
+            switching, target = 1.0, twist - np.sign(twist_rate) * np.pi
             goal, switches = self._other_tendon(knob), switches + 1
         elif (not switching and p.strategy == "switch" and p.knob_end_switch and knob <= -1.0 + 1e-9
               and knob_rate < 0.0):
@@ -190,6 +200,8 @@ class _CatheterState:
     nodes: np.ndarray  # (n + 1, 3): every joint (those in the sheath on its axis) and the tip centre
     R_tip: np.ndarray
     slips: int = 0
+    force: float = 0.0  # the rod's axial force on the shaft at the exit [N]
+    push_slips: int = 0
     failures: list = field(default_factory=list)
 
     def __deepcopy__(self, memo):
@@ -228,7 +240,11 @@ class SteerableCatheterSystem(LeafSystem):
                                  f"{self.rod.max_length * 1e3:.0f} mm], got {initial_length}")
         self.initial_length = float(initial_length)
         self.period = float(period)
-        self._twist_chain, self._push_chain = self.catheter.twist_chain(), self.catheter.push_chain()
+        self._twist_chain, self._push_chain = self.catheter.chains()
+        # The coupling's scales: the chains' kinetic friction, the shaft unloaded.
+        c = self.catheter
+        self._torque_scale = c.mu_kinetic * c.radius * c.sheath_normal_force()
+        self._force_scale = c.mu_kinetic * c.sheath_normal_force()
         self.n_bodies = self.rod.n_joints + 1
         self._handle = self.DeclareVectorInputPort("handle", 3)
         self._index = self.DeclareAbstractState(AbstractValue.Make(self._solve(self._start(), 0.0, 0.0, 0.0)))
@@ -238,6 +254,7 @@ class SteerableCatheterSystem(LeafSystem):
         self.DeclareVectorOutputPort("tip_position", 3, self._calc_tip, prerequisites_of_calc=ticket)
         self.DeclareVectorOutputPort("windup", 3, self._calc_windup, prerequisites_of_calc=ticket)
         self.DeclareVectorOutputPort("tip_wall_force", 6, self._calc_wall_force, prerequisites_of_calc=ticket)
+        self.DeclareVectorOutputPort("handle_load", 2, self._calc_handle_load, prerequisites_of_calc=ticket)
         self.DeclarePeriodicUnrestrictedUpdateEvent(period, 0.0, self._update)
 
     def _start(self) -> _CatheterState:
@@ -249,23 +266,32 @@ class SteerableCatheterSystem(LeafSystem):
 
     def _solve(self, st: _CatheterState, push: float, twist: float, knob: float) -> _CatheterState:
         """``st`` advanced (in place, and returned) to the handle at (push, twist, knob): the shaft's
-        chains, then the rod; the twist chain sees the rod's new torque once more (the quasi-static
-        coupling)."""
-        st.push, _ = self._push_chain.step(st.push, push)
-        length = float(np.clip(self.initial_length + st.push[-1], 2 * self.rod.h, self.rod.max_length))
+        chains through the sheath's bends (the axial one under the rod's axial force, the
+        torsional one under the rod's torque and pressed by the axial one's tension), then the
+        rod; the chains see the rod's new loads once more (the quasi-static coupling)."""
         kappa = self.catheter.curvature(knob)
+        bends = self.catheter.sheath_friction == "bends"
         for _ in range(2):
-            st.twist, slips = self._twist_chain.step(st.twist, twist, st.torque)
+            if bends:
+                st.push, slips_push = self._push_chain.step(st.push, push, st.force)
+                tension = self._push_chain.mean_tension(st.push, st.force)
+                st.twist, slips = self._twist_chain.step(st.twist, twist, st.torque, tension)
+            else:  # the earlier model (SteerableCatheter.sheath_friction): no axial load, no capstan
+                st.push, slips_push = self._push_chain.step(st.push, push)
+                st.twist, slips = self._twist_chain.step(st.twist, twist, st.torque)
+            length = float(np.clip(self.initial_length + st.push[-1], 2 * self.rod.h, self.rod.max_length))
             st.slips += slips
+            st.push_slips += slips_push
             sol = self.rod.solve(length, st.twist[-1], kappa, q0=st.q if len(st.q) else None)
-            if not (np.all(np.isfinite(sol.q)) and np.isfinite(sol.base_torque)):
+            if not (np.all(np.isfinite(sol.q)) and np.isfinite(sol.base_torque) and np.isfinite(sol.base_force)):
                 if len(st.failures) < 20:
                     st.failures.append(f"rod statics not finite at length {length * 1e3:.1f} mm")
                 return st  # the last finite state stays
             if not sol.converged and len(st.failures) < 20:  # the first few, for the run's warnings
                 st.failures.append(f"rod statics did not converge at length {length * 1e3:.1f} mm")
-            changed = abs(sol.base_torque - st.torque) > 0.05 * self._twist_chain.kinetic
-            st.q, st.torque, st.length = sol.q, sol.base_torque, length
+            changed = (abs(sol.base_torque - st.torque) > 0.05 * self._torque_scale
+                       or abs(sol.base_force - st.force) > 0.05 * self._force_scale)
+            st.q, st.torque, st.force, st.length = sol.q, sol.base_torque, sol.base_force, length
             if not changed:
                 break
         st.R_tip = sol.pose.R_tip
@@ -294,6 +320,12 @@ class SteerableCatheterSystem(LeafSystem):
     def _calc_windup(self, context, output):
         st = self.state(context)
         output.SetFromVector([st.twist[0], st.twist[-1], float(st.slips)])
+
+    def _calc_handle_load(self, context, output):
+        """What the hand feels: the shaft's torque [N m] and axial force [N] at the handle (its
+        first elements', positive when the shaft resists the handle's positive twist / push)."""
+        st = self.state(context)
+        output.SetFromVector([-self._twist_chain.forces(st.twist)[0], -self._push_chain.forces(st.push)[0]])
 
     def _calc_wall_force(self, context, output):
         output.SetFromVector(np.concatenate([np.zeros(3), self.state(context).nodes[-1]]))

@@ -61,6 +61,8 @@ class OperatorParams:
         start_time: when it starts [s].
         ball_radius: the tip ball's radius [m] (for the touch test and the aim).
         target_radius: [m] (half the target's diameter).
+        electrode_length: the electrode's length along the tip, dome included [m], for the touch
+            test (``drake_models.electrode``: its whole surface; 0: the tip ball).
     """
 
     period: float = 0.05
@@ -103,6 +105,7 @@ class OperatorParams:
     start_time: float = 0.0
     ball_radius: float = 0.5 * 3.175e-3
     target_radius: float = 2.5e-3
+    electrode_length: float = 0.0
 
     def validate(self) -> "OperatorParams":
         require_finite_fields(self, allow_inf=("max_length",))  # inf: no end stop known

@@ -67,6 +67,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import EventStatus
 
+from ballchain.drake_models.electrode import axis_start
 from ballchain.infrastructure.errors import UserInputError
 from ballchain.systems.operator_params import OperatorParams, TargetRecord
 from ballchain.systems.randomness import SeededLeafSystem
@@ -253,7 +254,7 @@ class SimulatedOperator(SeededLeafSystem):
             self._watch(mem, tip, d)
         mem.p_last, mem.d_last = tip, d
         if mem.phase not in ("wait", "done"):
-            self._check_target(mem, t, tip)
+            self._check_target(mem, t, tip, d)
         u = np.zeros(self._n + 1) if mem.phase in ("wait", "done", "hold") else self._decide(mem, t, tip, d)
         mem.queue.append(u)
         mem.applied = mem.queue.pop(0)
@@ -316,7 +317,7 @@ class SimulatedOperator(SeededLeafSystem):
         if descending != mem.descending:
             mem.descending, mem.best, mem.t_best = descending, np.inf, t
 
-    def _check_target(self, mem: _Memory, t: float, tip: np.ndarray) -> None:
+    def _check_target(self, mem: _Memory, t: float, tip: np.ndarray, d: np.ndarray | None = None) -> None:
         p = self.params
         k = mem.k
         record = mem.records[-1]
@@ -326,7 +327,10 @@ class SimulatedOperator(SeededLeafSystem):
                 self._next_target(mem, t)
             return
         record.closest = min(record.closest, float(np.linalg.norm(tip - p.ball_radius * self._n_W[k] - self._p_WT[k])))
-        touched = targets_touched(tip, self._p_WT[k:k + 1], self._n_W[k:k + 1], p.ball_radius, p.target_radius)[0]
+        start = None if d is None or p.electrode_length <= p.ball_radius else axis_start(
+            tip, d, p.ball_radius, p.electrode_length)  # the electrode's whole surface (d: the tip's direction)
+        touched = targets_touched(tip, self._p_WT[k:k + 1], self._n_W[k:k + 1], p.ball_radius, p.target_radius,
+                                  axis_start=start)[0]
         if touched:
             record.t_touch = t
             record.accuracy = float(np.linalg.norm(tip - p.ball_radius * self._n_W[k] - self._p_WT[k]))

@@ -378,7 +378,8 @@ def add_target_touches(builder: DiagramBuilder, scenario: ChainScenario, heart: 
     electrode = chain.electrode
     tracker = builder.AddSystem(TargetTouchTracker(
         electrode.body_index, names, p_WT, n_W, target_radius,
-        ball_radius=electrode.radius, period=period, moving_wall=offsets is not None))
+        ball_radius=electrode.radius, period=period, moving_wall=offsets is not None,
+        electrode_length=getattr(electrode, "length", 0.0)))  # the catheter's: its whole surface
     builder.Connect(chain.get_body_poses_output_port(), tracker.get_body_poses_input_port())
     if offsets is not None:  # the anatomy the device's solves placed
         builder.Connect(offsets, tracker.get_anatomy_offsets_input_port())

@@ -28,6 +28,7 @@ from pydrake.math import RigidTransform
 from pydrake.multibody.plant import ContactResults
 from pydrake.systems.framework import EventStatus, LeafSystem
 
+from ballchain.drake_models import electrode
 from ballchain.systems.chain_model import subsystem_context
 
 TOUCH_TOLERANCE = 0.5e-3  # [m] the ball's surface this close to the wall counts as touching
@@ -161,8 +162,10 @@ def heart_targets(heart) -> tuple[list[str], np.ndarray, np.ndarray, float]:
 
 
 def targets_touched(p_W_tip, p_WT: np.ndarray, n_W: np.ndarray, ball_radius: float, target_radius: float,
-                    tolerance: float = TOUCH_TOLERANCE) -> np.ndarray:
-    """Which targets a ball centred at ``p_W_tip`` touches (see the module docstring).
+                    tolerance: float = TOUCH_TOLERANCE, axis_start=None) -> np.ndarray:
+    """Which targets a ball centred at ``p_W_tip`` touches (see the module docstring), or an
+    electrode of that radius whose axis runs from ``axis_start`` to ``p_W_tip``, its dome's centre
+    (``drake_models.electrode.touches``: the one rule for both, its whole surface counted).
 
     Args:
         p_W_tip: (3,) the tip ball's centre [m].
@@ -171,14 +174,12 @@ def targets_touched(p_W_tip, p_WT: np.ndarray, n_W: np.ndarray, ball_radius: flo
         ball_radius: [m].
         target_radius: [m] (half the target's diameter).
         tolerance: how far the ball's surface may be from the wall [m].
+        axis_start: (3,) the electrode axis's proximal end [m] (None: a ball).
 
     Returns:
         (n,) bool.
     """
-    rel = np.asarray(p_W_tip, float) - p_WT
-    h = (rel * n_W).sum(axis=1)
-    lateral2 = (rel * rel).sum(axis=1) - h * h  # |rel|^2 = h^2 + lateral^2
-    return (np.abs(h) <= ball_radius + tolerance) & (lateral2 <= target_radius**2)
+    return electrode.touches(p_W_tip, p_WT, n_W, ball_radius, target_radius, tolerance, axis_start)
 
 
 class TargetTouchTracker(LeafSystem):
@@ -201,10 +202,13 @@ class TargetTouchTracker(LeafSystem):
         moving_wall: the targets ride on a moving wall (``drake_models.wall_motion``): the input
             port ``anatomy_offsets`` (6, the quasi-static engine's) gives the wall's offset
             (its last 3) for the chain's pose on ``body_poses``; they are at p_WT + offset.
+        electrode_length: the electrode's length [m], dome included, along the tip body's z axis
+            (``drake_models.electrode``; 0: the tip ball).
     """
 
     def __init__(self, tip_body_index, names: Sequence[str], p_WT: np.ndarray, n_W: np.ndarray,
-                 target_radius: float, ball_radius: float, period: float, moving_wall: bool = False) -> None:
+                 target_radius: float, ball_radius: float, period: float, moving_wall: bool = False,
+                 electrode_length: float = 0.0) -> None:
         super().__init__()
         self.set_name("target_touches")
         self.names = list(names)
@@ -213,6 +217,7 @@ class TargetTouchTracker(LeafSystem):
         self._n_W = np.asarray(n_W, float).reshape(-1, 3)
         self._target_radius = float(target_radius)
         self._ball_radius = float(ball_radius)
+        self._electrode_length = float(electrode_length)
         self._body_poses_port = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
         self._anatomy_port = self.DeclareVectorInputPort("anatomy_offsets", 6) if moving_wall else None
         self._state_index = self.DeclareDiscreteState(len(self.names))
@@ -231,11 +236,14 @@ class TargetTouchTracker(LeafSystem):
         return self._anatomy_port
 
     def _update(self, context, discrete_state):
-        p_tip = self._body_poses_port.Eval(context)[self._tip].translation()
+        pose = self._body_poses_port.Eval(context)[self._tip]
+        p_tip = pose.translation()
         p_WT = self._p_WT
         if self._anatomy_port is not None:
             p_WT = p_WT + self._anatomy_port.Eval(context)[3:]
-        now = targets_touched(p_tip, p_WT, self._n_W, self._ball_radius, self._target_radius)
+        start = None if self._electrode_length <= self._ball_radius else electrode.axis_start(
+            p_tip, pose.rotation().col(2), self._ball_radius, self._electrode_length)
+        now = targets_touched(p_tip, p_WT, self._n_W, self._ball_radius, self._target_radius, axis_start=start)
         old = context.get_discrete_state(self._state_index).get_value()
         discrete_state.get_mutable_vector(self._state_index).SetFromVector(np.maximum(old, now))
         return EventStatus.Succeeded()

@@ -25,13 +25,16 @@ def test_scenario_device_is_validated():
     assert mc.scenario_for().device == "steerable_catheter"
 
 
-def _hand(joystick, push=0.0, params=None, t=1.0, initial=None):
+def _hand(joystick, push=0.0, params=None, t=1.0, initial=None, feel=None):
     builder = DiagramBuilder()
     hand = builder.AddSystem(ManualHand(params))
     stick = builder.AddSystem(ConstantVectorSource(np.asarray(joystick, float)))
     feed = builder.AddSystem(ConstantVectorSource([push]))
     builder.Connect(stick.get_output_port(), hand.GetInputPort("joystick"))
     builder.Connect(feed.get_output_port(), hand.GetInputPort("v_insert_cmd"))
+    if feel is not None:  # the shaft's torque and force at the handle, as the catheter reports them
+        load = builder.AddSystem(ConstantVectorSource(np.asarray(feel, float)))
+        builder.Connect(load.get_output_port(), hand.GetInputPort("handle_load"))
     diagram = builder.Build()
     sim = Simulator(diagram)
     context = hand.GetMyContextFromRoot(sim.get_mutable_context())
@@ -54,18 +57,25 @@ def test_hand_rate_limits():
     assert inside[1] == 0.0
 
 
-def test_hand_switches_tendon_at_the_windup_and_turns_back():
-    """Wound past half a turn with the knob on one tendon and asked to turn further: the
-    ``switch`` hand moves the knob to the other tendon and the handle back by half a turn, then
-    obeys again; the ``keep`` hand keeps turning."""
+def test_hand_switches_tendon_when_it_feels_the_windup_and_turns_back():
+    """Asked to turn further against a handle torque at its threshold (issue 45: felt, not a
+    scripted half turn), the ``switch`` hand moves the knob to the other tendon and the handle
+    back by half a turn, then obeys again; below the threshold, or with the ``keep`` hand, it
+    keeps turning, whatever the twist."""
     start = [0.0, np.pi + 0.01, 0.8, 0.0, 0.0, 0.0, 0.0]
     p = HandParams(strategy="switch")
-    # Half a turn at 90 deg/s is 2 s; the knob's 1.6 of travel 1.6 s; then 1 s more of turning.
-    state = _hand([1.0, 0.0, 0.0], params=p, t=3.0, initial=start)
+    felt = [p.torque_threshold * 1.01, 0.0]
+    # Half a turn at 90 deg/s is 2 s; the knob's 1.6 of travel 1.6 s: at 1.8 s the knob is on the
+    # other tendon and the handle on its way back (1.75 s of turning back, the first update's
+    # period spent deciding).
+    state = _hand([1.0, 0.0, 0.0], params=p, t=1.8, initial=start, feel=felt)
     assert state[6] == 1.0 and state[2] == pytest.approx(-0.8)
-    assert state[1] < np.pi  # back below half a turn, then turning up again
-    assert state[1] == pytest.approx(0.01 + (3.0 - 2.0 - p.period) * p.twist_rate, abs=2 * p.period * p.twist_rate)
-    kept = _hand([1.0, 0.0, 0.0], params=HandParams(strategy="keep"), t=1.0, initial=start)
+    assert state[1] == pytest.approx(np.pi + 0.01 - 1.75 * p.twist_rate, abs=p.period * p.twist_rate)
+    light = _hand([1.0, 0.0, 0.0], params=p, t=1.0, initial=start, feel=[0.99 * p.torque_threshold, 0.0])
+    assert light[6] == 0.0 and light[1] > np.pi + 1.0
+    unfelt = _hand([1.0, 0.0, 0.0], params=p, t=1.0, initial=start)  # the port unconnected: nothing felt
+    assert unfelt[6] == 0.0
+    kept = _hand([1.0, 0.0, 0.0], params=HandParams(strategy="keep"), t=1.0, initial=start, feel=felt)
     assert kept[6] == 0.0 and kept[1] > np.pi + 1.0
     with pytest.raises(UserInputError, match="strategy"):
         HandParams(strategy="turn").validate()

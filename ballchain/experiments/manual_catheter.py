@@ -48,12 +48,15 @@ def comparison_catheter(braid_wires: int | None = None):
 
 
 def torsion_lead_deg(catheter) -> dict:
-    """How far the handle leads the tip in twist before the tip turns [deg]: the twist chain's
-    static lead (every node at its static friction) and kinetic one (each just after a slip)."""
+    """How far the handle leads the tip in twist before the tip turns [deg], the shaft unloaded:
+    the twist chain's static lead (every node at its static friction, ``CapstanChain.lead``) and
+    kinetic one (each just after a slip)."""
     chain = catheter.twist_chain()
-    nodes = chain.n * (chain.n + 1) / 2
-    return {"static_deg": round(float(np.degrees(nodes * chain.static / chain.k)), 1),
-            "kinetic_deg": round(float(np.degrees(nodes * chain.kinetic / chain.k)), 1)}
+    if catheter.sheath_friction == "bends":
+        static, kinetic = chain.lead(catheter.mu_static), chain.lead(catheter.mu_kinetic)
+    else:
+        static, kinetic = chain.lead(), chain.lead(chain.kinetic / chain.static)
+    return {"static_deg": round(float(np.degrees(static)), 1), "kinetic_deg": round(float(np.degrees(kinetic)), 1)}
 
 
 def scenario_for():
@@ -129,6 +132,7 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
         chosen = [i for i, n in enumerate(names) if n.startswith(f"{task}_")][:n_targets]
         device = ports.device
         seen = replace(params, ball_radius=device.tip_radius, target_radius=radius, p_WE=tuple(device.p_WE),
+                       electrode_length=device.electrode.length,
                        initial_length=device.initial_inserted_length, min_length=device.initial_inserted_length,
                        max_length=device.max_inserted_length(), keep_out=teleop.vein_openings(heart))
         op = builder.AddSystem(SimulatedOperator(device.tip_body_index, device.tip_base_body_index,
