@@ -139,7 +139,8 @@ def _run(kind: str, task: str, navigator: str | None, seed: int, targets, plans,
         return {"targets": s["targets"], "touched": s["reached"], "total_time_s": s["total_time_s"],
                 "in_window_fraction": s.get("in_window_fraction"),
                 "estimate_mean_abs_error_gf": s.get("estimate_mean_abs_error_gf"),
-                "isolated": s.get("isolated"), "ring_gaps": s.get("ring_gaps")}
+                "isolated": s.get("isolated"), "ring_gaps": s.get("ring_gaps"), "failure": s.get("failure"),
+                "not_planned": len(s.get("not_planned") or ())}
     if kind == "teleop":
         from ballchain.experiments import teleop
 
