@@ -28,7 +28,9 @@ Sources of the constants (no constant was tuned to the paper's times):
 * Deflectable segment's EI: 4.4e4 g mm^2 = 4.3e-4 N m^2, the small-deflection value measured on a
   commercial ablation catheter's tip by Khoshnam and Patel's large-deflection beam model (thesis,
   Western University, Fig. 2.6 "Relation between the catheter tip deflection and the value of EI":
-  EI = (2.5 Phi^7.2 + 4.4) x 1e4 g mm^2; at 1 rad of deflection 6.9e4).
+  EI = (2.5 Phi^7.2 + 4.4) x 1e4 g mm^2, measured over tip bends Phi of 0.4-1.1 rad; at 1 rad of
+  deflection 6.9e4, 1.57 times the small-bend value). The tip stiffens with its bend by this fit
+  (``tip_EI_factor``, issue 45), held at 1.1 rad's 2.13 times beyond the measured range.
 * Shaft's EI: a Pebax tube of the 8 Fr outer diameter and an assumed 1.5 mm lumen, flexural
   modulus 500 MPa (the top of the Pebax 33 series' 10-500 MPa range, Arkema's Pebax mechanical
   properties page, ISO 178), the braid neglected (a lower bound): E pi (D^4 - d^4) / 64.
@@ -99,6 +101,7 @@ FRENCH = 1e-3 / 3.0  # [m] per Fr (the Charriere scale)
 
 
 
+TIP_FIT_MAX_BEND = 1.1  # [rad] the largest tip bend of Khoshnam and Patel's EI measurements (Fig. 2.6)
 SHEATH_FRICTION = ("bends", "even")  # where the shaft's friction acts (SteerableCatheter.sheath_friction)
 MAX_BRAID_WIRES = 256  # a braiding machine's carriers: 16-64 in catheter shafts, at most a few hundred
 
@@ -111,7 +114,8 @@ class SteerableCatheter:
         lumen_diameter: the inner lumen assumed for the shaft's section [m].
         flexural_modulus: of the shaft's Pebax [Pa].
         poisson: Poisson's ratio (GJ = EI / (1 + nu)).
-        tip_EI: the deflectable segment's bending stiffness [N m^2].
+        tip_EI: the deflectable segment's bending stiffness at small bends [N m^2].
+        tip_stiffening: the deflectable segment stiffens with its bend (``tip_EI_factor``).
         deflectable_length: the deflectable segment's length [m].
         max_deflection_D, max_deflection_F: the segment's total bend at full knob, each tendon [rad].
         model_length: the distal length modelled as a rod (beyond it the shaft stays in the sheath) [m].
@@ -136,11 +140,12 @@ class SteerableCatheter:
     flexural_modulus: float = 500e6
     poisson: float = 0.45
     tip_EI: float = 4.4e4 * 9.80665e-3 * 1e-6
+    tip_stiffening: bool = True
     deflectable_length: float = 55e-3
     max_deflection_D: float = np.pi
     max_deflection_F: float = np.radians(120.0)
     model_length: float = 120e-3
-    segment_length: float = 4e-3
+    segment_length: float = 3e-3
     shaft_length: float = 1.15
     mu_static: float = 0.15
     mu_kinetic: float = 0.10
@@ -225,6 +230,19 @@ class SteerableCatheter:
     def max_curvature(self) -> tuple[float, float]:
         """The deflectable segment's largest curvature on the D (+) and the F (-) side [1/m]."""
         return self.max_deflection_D / self.deflectable_length, self.max_deflection_F / self.deflectable_length
+
+    def tip_EI_factor(self, kappa: float) -> float:
+        """The deflectable segment's EI over its small-bend value at the commanded curvature
+        ``kappa`` [1/m] (1 without ``tip_stiffening``): Khoshnam and Patel's fit to their
+        measurements on an ablation catheter's tip, EI = (2.5 Phi^7.2 + 4.4) x 1e4 g mm^2 at the
+        tip's bend Phi [rad] (module docstring), as a factor (2.5 Phi^7.2 + 4.4) / 4.4, Phi the
+        commanded bend |kappa| times the segment's length, held at the fit's last measured angle
+        (1.1 rad: 2.13 times) beyond it (the power law is not extrapolated: at pi it would give
+        2000 times). 1.57 times at 1 rad."""
+        if not self.tip_stiffening or kappa == 0.0:
+            return 1.0
+        phi = min(abs(float(kappa)) * self.deflectable_length, TIP_FIT_MAX_BEND)
+        return (2.5 * phi**7.2 + 4.4) / 4.4
 
     def curvature(self, knob: float) -> float:
         """The commanded curvature [1/m] for a knob position in [-1, 1] (+: the D tendon)."""

@@ -36,6 +36,8 @@ from ballchain.drake_models.steerable_catheter import SteerableCatheter
 from ballchain.drake_models.vectors import cross
 from ballchain.optimization.statics import dense_qp
 
+MIN_SHARE = 1e-3  # the least free share of the joint at the exit (its stiffness over g: finite)
+
 
 def _rx(t: float) -> np.ndarray:
     c, s = np.cos(t), np.sin(t)
@@ -137,9 +139,19 @@ class RodStatics:
         self.n_joints = int(round(c.model_length / self.h))
         self.sigma = (np.arange(self.n_joints)[::-1] + 0.5) * self.h  # joint j, proximal first
         tip = self.sigma < c.deflectable_length
-        self.EI = np.where(tip, c.tip_EI, c.shaft_EI)
-        self.GJ = np.where(tip, c.tip_GJ, c.shaft_GJ)
+        # The share of each joint's h of rod in the deflectable segment (joint m from the tip
+        # covers [m h, (m + 1) h]): the segment's end falls inside one joint's share, whose rest
+        # curvature it scales and whose compliance it splits (h / EI = f h / EI_tip + (1 - f) h /
+        # EI_shaft); without it the segment's length is quantised to whole joints (at 2-4 mm, one
+        # mm more of full-knob bend: 2 mm at the tip).
+        self.frac = np.clip(c.deflectable_length / self.h - (self.sigma / self.h - 0.5), 0.0, 1.0)
+        tip = self.frac > 0
+        self._tip_compliance = self.frac / c.tip_EI
+        self._shaft_compliance = (1.0 - self.frac) / c.shaft_EI
+        self.EI = 1.0 / (self._tip_compliance + self._shaft_compliance)
+        self.GJ = 1.0 / (self.frac / c.tip_GJ + (1.0 - self.frac) / c.shaft_GJ)
         self.deflectable = tip
+        self._stiffness_key = None
         self.p_E = np.asarray(p_E, float)
         self.R_E = frame_along(axis)
         self.sdf = sdf
@@ -151,23 +163,58 @@ class RodStatics:
         return self.n_joints * self.h
 
     def first_free(self, length: float) -> int:
-        """The first joint outside the sheath for ``length`` of rod beyond the exit."""
-        free = np.flatnonzero(self.sigma < length)
+        """The first joint outside the sheath for ``length`` of rod beyond the exit: the first
+        whose h of rod reaches beyond the exit (sigma - h / 2 < length)."""
+        free = np.flatnonzero(self.sigma - 0.5 * self.h < length)
         return int(free[0]) if len(free) else self.n_joints
 
-    def stiffness(self, j0: int) -> np.ndarray:
-        """diag(EI/h, EI/h, GJ/h) of the free joints j0.. (3 f,)."""
-        return np.column_stack([self.EI[j0:], self.EI[j0:], self.GJ[j0:]]).ravel() / self.h
+    def share(self, j0: int, length: float | None) -> tuple[float, float]:
+        """The first free joint's rod out of the sheath, (free, of it deflectable) [m] (None: its
+        whole h, its share of the deflectable segment): the joint at the exit bends by the
+        deflectable part's rest curvature with the free part's compliance, growing from nothing
+        as it leaves the sheath to its whole h once out, so that the free rod's bend grows
+        continuously with the push (without it a joint of full-knob bend, 0.1 rad at 2 mm,
+        appears at once)."""
+        if j0 >= self.n_joints:
+            return self.h, 0.0
+        if length is None:
+            return self.h, self.h * float(self.frac[j0])
+        lo = self.sigma[j0] - 0.5 * self.h  # its h of rod's distal end
+        free = float(np.clip(length - lo, MIN_SHARE * self.h, self.h))
+        bent = float(np.clip(min(length, self.catheter.deflectable_length) - lo, 0.0, free))
+        return free, bent
 
-    def rest(self, j0: int, kappa: float) -> np.ndarray:
-        """The joints' rest angles: b = h kappa in the deflectable segment (3 f,)."""
+    def stiffness(self, j0: int, kappa: float = 0.0, length: float | None = None) -> np.ndarray:
+        """diag(EI/h, EI/h, GJ/h) of the free joints j0.. (3 f,), the deflectable segment's EI
+        stiffened for the commanded curvature ``kappa`` (``SteerableCatheter.tip_EI_factor``), the
+        first joint's from its rod out of the sheath (``share``)."""
+        free, bent = self.share(j0, length)
+        key = (j0, float(kappa), free, bent)
+        if self._stiffness_key == key:
+            return self._stiffness
+        c = self.catheter
+        factor = c.tip_EI_factor(kappa)
+        EI = self.EI if factor == 1.0 else 1.0 / (self._tip_compliance / factor + self._shaft_compliance)
+        K = np.column_stack([EI[j0:], EI[j0:], self.GJ[j0:]]) / self.h
+        if len(K) and length is not None and (free < self.h or bent != self.h * self.frac[j0]):
+            K[0, :2] = 1.0 / (bent / (c.tip_EI * factor) + (free - bent) / c.shaft_EI)
+            K[0, 2] = 1.0 / (bent / c.tip_GJ + (free - bent) / c.shaft_GJ)
+        self._stiffness_key = key
+        self._stiffness = K.ravel()
+        return self._stiffness
+
+    def rest(self, j0: int, kappa: float, length: float | None = None) -> np.ndarray:
+        """The joints' rest angles: b = h kappa times each joint's share in the deflectable segment
+        (3 f,), the first joint's from its rod out of the sheath (``share``)."""
         r = np.zeros((self.n_joints - j0, 3))
-        r[:, 1] = np.where(self.deflectable[j0:], self.h * kappa, 0.0)
+        r[:, 1] = self.h * kappa * self.frac[j0:]
+        if len(r) and length is not None:
+            r[0, 1] = kappa * self.share(j0, length)[1]
         return r.ravel()
 
-    def energy(self, q: np.ndarray, j0: int, kappa: float) -> float:
-        d = q - self.rest(j0, kappa)
-        return 0.5 * float(d @ (self.stiffness(j0) * d))
+    def energy(self, q: np.ndarray, j0: int, kappa: float, length: float | None = None) -> float:
+        d = q - self.rest(j0, kappa, length)
+        return 0.5 * float(d @ (self.stiffness(j0, kappa, length) * d))
 
     def pose(self, q: np.ndarray, length: float, phi: float) -> RodPose:
         """The free nodes and their Jacobians for joint angles q, ``length`` beyond the exit and
@@ -220,7 +267,7 @@ class RodStatics:
         """dE/dq less the virtual work of a tip force [N] at the tip sphere's centre and a tip
         torque [N m] (both in world)."""
         j0 = self.first_free(length)
-        g = self.stiffness(j0) * (q - self.rest(j0, kappa))
+        g = self.stiffness(j0, kappa, length) * (q - self.rest(j0, kappa, length))
         if force is not None or torque is not None:
             pose = self.pose(q, length, phi)
             if force is not None:
@@ -245,7 +292,7 @@ class RodStatics:
     def _merit(self, q, length, phi, kappa, force, rho: float) -> float:
         """Energy, less a tip force's work, plus rho times the wall's violation (metres)."""
         j0 = self.first_free(length)
-        value = self.energy(q, j0, kappa)
+        value = self.energy(q, j0, kappa, length)
         if force is not None or self.sdf is not None:
             pose = self.pose(q, length, phi)
             if force is not None:
@@ -287,6 +334,7 @@ class RodStatics:
             return -g / np.diag(H) if len(g) else np.zeros(0), np.zeros(0)
         A, b, _ = self._wall_rows(self.pose(q, length, phi))
         near = b < 3e-3  # rows that can become active within a step
+        near[0] = False  # the first joint, at the exit (or up to h / 2 behind it), no joint moves
         dq, lam_near, _ = dense_qp(H, g, A[near], b[near])
         if dq is None:  # the linearised rows cannot all hold with this energy: back to the wall
             dq, lam_near, _ = dense_qp(H, np.zeros(len(g)), A[near], b[near])
@@ -306,7 +354,7 @@ class RodStatics:
         is taken by whole steps)."""
         length = float(np.clip(length, 0.0, self.max_length))
         j0 = self.first_free(length)
-        K = self.stiffness(j0)
+        K = self.stiffness(j0, kappa, length)
         # From the straight rod (out of the sheath's bore: inside the lumen) unless warm-started;
         # a warm start with fewer (more) free joints gains straight joints at the exit (loses the
         # proximal ones): the continuation of pushing (pulling) rod through the exit.

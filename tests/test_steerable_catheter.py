@@ -88,7 +88,7 @@ def test_energy_gradient_matches_finite_differences():
     f = np.array([0.01, -0.02, 0.015])
 
     def total(x):
-        return rod.energy(x, j0, kappa) - f @ rod.pose(x, length, phi).tip_centre
+        return rod.energy(x, j0, kappa, length) - f @ rod.pose(x, length, phi).tip_centre
 
     g = rod.gradient(q, length, phi, kappa, force=f)
     eps = 1e-6
