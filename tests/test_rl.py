@@ -167,3 +167,30 @@ def test_evaluate_on_dask_matches_serial():
         dask = evaluate(policy, 2, ex, env_kwargs=kwargs, seed=3)
     assert [r["return"] for r in dask.episodes] == [r["return"] for r in serial.episodes]
     assert dask.summary["executor"].startswith("dask")
+
+
+def test_world_block_goes_into_the_scenario_overrides():
+    from ballchain.systems.chain_scenario import ChainScenario
+
+    if "world" not in ChainScenario.__dataclass_fields__:
+        pytest.skip("this version's scenario has no world block")
+    assert json.loads(rl_env._overrides("{n_balls: 16}", {"preset": "literature"})) == {
+        "n_balls": 16, "world": {"preset": "literature"}}
+    assert rl_env._overrides("{n_balls: 16}", None) == "{n_balls: 16}"
+    for bad in ("literature", ["preset"]):
+        with pytest.raises(UserInputError, match="world"):
+            rl_env._overrides(None, bad)
+    with pytest.raises(UserInputError, match="not both"):
+        rl_env._overrides("{world: {preset: none}}", {"preset": "literature"})
+
+
+@pytest.mark.slow
+def test_world_reaches_the_station():
+    from ballchain.systems.chain_scenario import ChainScenario
+
+    if "world" not in ChainScenario.__dataclass_fields__:
+        pytest.skip("this version's scenario has no world block")
+    e = NavigationEnv(world={"preset": "literature", "seed": 3})
+    assert e.scenario.world.preset == "literature" and e.scenario.world.seed == 3
+    obs, _ = e.reset(seed=0)
+    assert np.all(np.isfinite(obs))

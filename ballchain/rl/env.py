@@ -7,7 +7,9 @@ sensor, and advanced by a Drake Simulator (``chain_simulation.StationRunner``, i
 ``ChainMonitor``) one control period per ``step``. ``reset`` restarts the cached diagram's
 context (``StationRunner.restart``) and draws the run's Drake randomness (the localisation noise,
 the units' sensor noise: ``randomness.set_random_context``) from the environment's generator:
-``reset(seed=s)`` gives the same episode for the same ``s``.
+``reset(seed=s)`` gives the same episode for the same ``s``. ``reset`` then runs one control
+period at rest, so that the sensor's first sample and the units' estimates exist before the
+first observation.
 
 Two tasks (registered by ``ballchain.rl``):
 
