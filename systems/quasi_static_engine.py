@@ -54,7 +54,8 @@ from ballchain.systems.engine_frames import (  # noqa: F401 (re-exported)
 )
 from ballchain.systems.engine_geometry import EngineGeometry
 from ballchain.systems.engine_system import QuasiStaticEngine
-from ballchain.systems.world_apply import apply_world_statics, magnet_errors, perturbed_exit, perturbed_wall
+from ballchain.systems.world_apply import (apply_world_statics, magnet_errors, monitor_offsets, perturbed_exit,
+                                          perturbed_wall)
 
 
 class StaticsChainModel(ChainModel):
@@ -104,6 +105,7 @@ class StaticsChainModel(ChainModel):
         engine.set_name("quasi_static_engine")
         engine.warm_up()  # compiled kernels and solvers loaded at build time, not in the timed run
         model = cls(geometry, engine, sheath)
+        model.world, model.world_exit = world, p_WE  # for the monitor (``anatomy_offsets``)
         if world is not None and coupling.port_magnets:  # the units' magnets where the world has them
             errors = builder.AddSystem(magnet_errors(world, len(coupling.port_magnets)))
             builder.Connect(errors.get_output_port(), engine.get_magnet_states_input_port())
@@ -155,10 +157,15 @@ class StaticsChainModel(ChainModel):
 
     def anatomy_offsets(self, context) -> tuple[np.ndarray, np.ndarray] | None:
         engine = self.engine_system
-        if engine.wall_motion is None:
-            return None
-        t = engine.wall_time(subsystem_context(engine, context))
-        return engine.wall_motion.heart_offset(t), engine.wall_motion.wall_offset(t)
+        motion = None
+        if engine.wall_motion is not None:
+            t = engine.wall_time(subsystem_context(engine, context))
+            motion = engine.wall_motion.heart_offset(t), engine.wall_motion.wall_offset(t)
+        world = getattr(self, "world", None)
+        if world is None:
+            return motion
+        # The world's sheath and wall (``world_apply``): the wall's offset per ball (its scale).
+        return monitor_offsets(world, self.p_WE, self.world_exit, self.ball_positions(context), motion)
 
     def is_finite(self, context) -> bool:
         # Checked every step by the watchdog: the array's own ``all`` (not np.all's wrapper).

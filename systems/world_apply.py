@@ -119,3 +119,19 @@ def biased_reading(builder, port, bias):
     system.set_name("world_tracker_bias")
     builder.Connect(port, system.get_input_port())
     return system.get_output_port()
+
+
+def monitor_offsets(draw: WorldDraw, p_WE, p_WE_world, p: np.ndarray, motion=None):
+    """What the chain monitor subtracts from the balls ``p`` (n, 3) [m] to see them from the
+    nominal sheath and the nominal wall (``StaticsChainModel.anatomy_offsets``): (the sheath's
+    displacement (3,), each ball's displacement from its place in the nominal wall's frame
+    (n, 3)), the world's (``perturbed_wall``, ``perturbed_exit``) after the moving wall's
+    ``motion`` = (heart offset, wall offset) when it moves."""
+    sheath = np.asarray(p_WE_world, float) - np.asarray(p_WE, float)
+    wall = np.zeros(3)
+    if motion is not None:
+        sheath, wall = sheath + motion[0], np.asarray(motion[1], float)
+    c = np.asarray(p_WE, float)
+    p = np.asarray(p, float)
+    p_H = c + (p - wall - np.asarray(draw.anatomy_offset, float) - c) / float(draw.anatomy_scale)
+    return sheath, p - p_H

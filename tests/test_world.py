@@ -128,3 +128,19 @@ def test_world_field_at_the_chain_differs_by_the_expected_amount():
 def test_world_preset_names_cover_the_perturbations():
     assert set(PRESETS["literature"].to_dict()) == set(NAMES)
     assert all(v > 0 for v in PRESETS["literature"].to_dict().values())
+
+
+def test_the_monitor_sees_the_world_wall_from_the_nominal_one():
+    """A point of the world's wall (scaled about the sheath exit, then moved) is seen where it
+    was on the nominal wall, and the sheath by its own displacement (``monitor_offsets``)."""
+    from ballchain.systems.world_apply import monitor_offsets, perturbed_exit
+
+    draw = draw_world(PRESETS["literature"], 2, 1)
+    c, axis = np.array([0.01, -0.02, 0.005]), np.array([1.0, 0.0, 0.0])
+    q = np.array([[0.03, 0.01, -0.02], [-0.01, 0.02, 0.0]])  # nominal wall points
+    p = c + draw.anatomy_scale * (q - c) + np.asarray(draw.anatomy_offset)  # the same points of the world's wall
+    exit_W = perturbed_exit(c, axis, draw)
+    sheath, wall = monitor_offsets(draw, c, exit_W, p)
+    assert np.allclose(p - wall, q, rtol=0, atol=1e-15)
+    assert abs((exit_W - c - np.asarray(draw.anatomy_offset)) @ axis) < 1e-15  # across the axis only
+    assert np.allclose(sheath, exit_W - c, rtol=0, atol=0)

@@ -35,7 +35,7 @@ def test_rows_pool_the_seeds():
 
 @pytest.mark.parametrize("kwargs,field", [({"rings": ("middle",)}, "rings"), ({"seeds": (-1,)}, "seeds"),
                                           ({"targets": 0}, "targets"), ({"dwell_s": 0.0}, "dwell"),
-                                          ({"conditions": ("wall",)}, "conditions")])
+                                          ({"conditions": ("wall",)}, "conditions"), ({"scales": (0.0,)}, "scales")])
 def test_bad_input_refused_before_any_run(kwargs, field):
     with pytest.raises(UserInputError, match=field):
         world_sensitivity.run(**kwargs, progress=False)
@@ -75,3 +75,9 @@ def test_sensitivity_resumes_from_its_cache(tmp_path, monkeypatch):
     again = world_sensitivity.run(("right",), (0,), targets=1, dwell_s=1.0, conditions=("none", "ball_remanence"),
                                   cache=cache, progress=False)
     assert again.rows == first.rows
+
+
+def test_scaled_worlds_are_rows_of_their_own():
+    assert world_sensitivity._world("all x0.5", 3) == {"preset": "literature", "seed": 3, "scale": 0.5}
+    assert world_sensitivity._world("anatomy_scale", 3) == {"preset": "literature", "only": ["anatomy_scale"], "seed": 3}
+    assert world_sensitivity._row("right", "all x0.5", [_run("all x0.5", 0, [])])["magnitude"] == "x0.5"

@@ -26,6 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--only", choices=world_sensitivity.CONDITIONS, nargs="+", default=None, metavar="CONDITION",
                         help="only these conditions, among: " + ", ".join(world_sensitivity.CONDITIONS) +
                              " (default: none, each perturbation alone, all)")
+    parser.add_argument("--scales", type=float_in(0.0, 10.0, lo_open=True), nargs="+", default=(), metavar="S",
+                        help="more rows: every perturbation at S times its magnitude (e.g. 0.25 0.5 2)")
     parser.add_argument("--cache", type=path_arg, default=None, metavar="FILE",
                         help="keep every finished run in this JSON file and resume from it")
     add_json_flag(parser)
@@ -34,7 +36,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     rings = world_sensitivity.RINGS if args.ring == "both" else (args.ring,)
     result = world_sensitivity.run(rings, tuple(range(args.seeds)), targets=args.targets, dwell_s=args.dwell,
-                                   conditions=tuple(args.only or world_sensitivity.CONDITIONS), cache=args.cache)
+                                   conditions=tuple(args.only or world_sensitivity.CONDITIONS), scales=tuple(args.scales),
+                                   cache=args.cache)
     if args.json:
         print_json(result)
         return 0

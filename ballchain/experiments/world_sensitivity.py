@@ -65,6 +65,8 @@ def _world(condition: str, seed: int):
         return "none"
     if condition == "all":
         return {"preset": "literature", "seed": seed}
+    if condition.startswith("all x"):  # every perturbation at a multiple of its magnitude
+        return {"preset": "literature", "seed": seed, "scale": float(condition[len("all x"):])}
     return {"preset": "literature", "only": [condition], "seed": seed}
 
 
@@ -87,8 +89,8 @@ def _row(ring: str, condition: str, runs: list) -> dict:
     worst = [d["worst_error_gf"] for d in dwells]
     inside = [d["in_window"] for d in dwells if d["in_window"] is not None]
     unit = {name: u for name, _, u, _ in PERTURBATIONS}
-    magnitude = None if condition in ("none", "all") else \
-        f"{PRESETS['literature'].to_dict()[condition]:.3g} {unit[condition]}"
+    magnitude = None if condition in ("none", "all") else condition[len("all "):] if condition.startswith("all x") \
+        else f"{PRESETS['literature'].to_dict()[condition]:.3g} {unit[condition]}"
     return {"ring": ring, "condition": condition, "magnitude": magnitude, "seeds": len(runs),
             "reached": sum(r["summary"]["reached"] for r in runs),
             "targets": sum(r["summary"]["targets"] for r in runs), "dwells": len(dwells),
@@ -101,7 +103,7 @@ def _row(ring: str, condition: str, runs: list) -> dict:
             "failures": sum(r["summary"].get("failure") is not None for r in runs)}
 
 
-def _check(rings, seeds, targets, dwell_s, conditions) -> None:
+def _check(rings, seeds, targets, dwell_s, conditions, scales=()) -> None:
     if isinstance(rings, str) or not all(r in RINGS for r in rings) or not rings:
         raise UserInputError(f"rings must be some of {RINGS}, got {short_repr(rings)}")
     if isinstance(seeds, (str, bytes)) or not seeds or any(
@@ -114,10 +116,13 @@ def _check(rings, seeds, targets, dwell_s, conditions) -> None:
         raise UserInputError(f"dwell must be in (0, 120] s, got {short_repr(dwell_s)}")
     if isinstance(conditions, str) or not conditions or any(c not in CONDITIONS for c in conditions):
         raise UserInputError(f"conditions must be some of {', '.join(CONDITIONS)}, got {short_repr(conditions)}")
+    if isinstance(scales, (str, bytes)) or any(isinstance(v, bool) or not isinstance(v, (int, float))
+                                               or not math.isfinite(v) or not 0 < v <= 10 for v in scales):
+        raise UserInputError(f"scales must be numbers in (0, 10] (every magnitude times it), got {short_repr(scales)}")
 
 
 def run(rings=RINGS, seeds=(0, 1, 2), *, targets: int | None = 6, dwell_s: float = 10.0,
-        conditions=CONDITIONS, cache: Path | None = None, progress: bool = True) -> SensitivityResult:
+        conditions=CONDITIONS, scales=(), cache: Path | None = None, progress: bool = True) -> SensitivityResult:
     """The sensitivity table (module docstring).
 
     Args:
@@ -126,6 +131,8 @@ def run(rings=RINGS, seeds=(0, 1, 2), *, targets: int | None = 6, dwell_s: float
         targets: the first N targets of each ring (None: all; the cost grows with N).
         dwell_s: the RF time per target [s].
         conditions: some of ``CONDITIONS``.
+        scales: more conditions: every perturbation at each of these multiples of its magnitude
+            (rows "all x0.5", ...): where the estimator stops being useful.
         cache: a JSON file keeping every finished run (resumed from when it exists).
         progress: a progress bar on stderr.
 
@@ -137,8 +144,9 @@ def run(rings=RINGS, seeds=(0, 1, 2), *, targets: int | None = 6, dwell_s: float
     from ballchain.experiments import procedure
     from ballchain.infrastructure.safe_files import atomic_write_text, check_output_file
 
-    rings, seeds, conditions = tuple(rings), tuple(seeds), tuple(conditions)
-    _check(rings, seeds, targets, dwell_s, conditions)
+    rings, seeds, conditions, scales = tuple(rings), tuple(seeds), tuple(conditions), tuple(scales)
+    _check(rings, seeds, targets, dwell_s, conditions, scales)
+    conditions += tuple(f"all x{float(v):g}" for v in scales)
     settings = {"rings": list(rings), "seeds": list(seeds), "targets": targets, "dwell_s": dwell_s,
                 "force_gf": procedure.FORCE_GF, "window_gf": list(procedure.WINDOW_GF), "conditions": list(conditions),
                 "magnitudes": PRESETS["literature"].to_dict()}
