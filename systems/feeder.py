@@ -64,6 +64,12 @@ class Feeder(LeafSystem):
     Output ports:
         inserted_length: (1,) length beyond the sheath tip, whole microsteps [m].
         balls_out: (1,) number of whole balls beyond the sheath tip.
+    The end stops are ``min_length`` (default 0: the first ball still inside) and the chain's
+    length: a command past one stops the feeder there (no wind-up). A live session sets
+    ``min_length`` to the starting length, so that holding retract stops with the chain's
+    first balls out in the heart instead of pulling them back into the sheath
+    (``set_min_length``); ``end_stops`` gives both, for a system that drops a command against
+    one (``MeshcatJoystick``).
 
     State (discrete, period ``spec.update_period``): ``speed`` (1) [m/s], ``length_command``
     (1) [m], ``microsteps`` (1) [count].
@@ -89,7 +95,8 @@ class Feeder(LeafSystem):
 
     def __init__(self, chain: BallChain | None = None, spec: FeederSpec | None = None, name: str = "feeder",
                  initial_length: float = 0.0, command_period: float | None = None,
-                 schedule: PiecewisePolynomial | None = None, batch_period: float | None = None) -> None:
+                 schedule: PiecewisePolynomial | None = None, batch_period: float | None = None,
+                 min_length: float = 0.0) -> None:
         """
         Args:
             chain: the chain being fed (its length is the end stop).
@@ -106,6 +113,7 @@ class Feeder(LeafSystem):
             batch_period: with a ``schedule``, None (every step on its own) or a whole multiple
                 of ``spec.update_period`` [s]: the steps made in batches at its multiples (for
                 readers at those times, e.g. the quasi-static engine's updates).
+            min_length: the retraction stop [m], in 0..``initial_length`` (``set_min_length``).
         """
         super().__init__()
         if chain is not None:
@@ -121,6 +129,8 @@ class Feeder(LeafSystem):
         self._chain_length = float(self._chain.length)
         self._step_length = float(self._spec.step_length)
         self._max_steps = float(np.floor(self._chain_length / self._step_length))
+        self._min_length = 0.0
+        self.set_min_length(min_length, initial_length)
         self._dt = float(self._spec.update_period)
         self._max_speed = float(self._spec.max_speed)
         self._dv = float(self._spec.max_acceleration * self._spec.update_period)
@@ -159,6 +169,26 @@ class Feeder(LeafSystem):
         return self._spec
 
     @property
+    def min_length(self) -> float:
+        """The retraction stop [m] (0: the first ball still inside the sheath)."""
+        return self._min_length
+
+    def set_min_length(self, min_length: float, initial_length: float | None = None) -> None:
+        """Set the retraction stop [m]: from the next step, a retraction stops there. It must lie
+        in 0..the chain's length and not above ``initial_length`` when given (the start)."""
+        require_positive(min_length, "Feeder min_length", "m", allow_zero=True)
+        top = self._chain_length if initial_length is None else min(initial_length, self._chain_length)
+        if not 0.0 <= min_length <= top + 1e-12:
+            raise UserInputError(f"Feeder min_length {min_length} m is outside 0..{top} m "
+                                 "(the retraction stop lies between the first ball inside and the start)")
+        self._min_length = float(min_length)
+
+    def end_stops(self) -> tuple[float, float, float]:
+        """(retraction stop, insertion stop, tolerance) [m]: an ``inserted_length`` within the
+        tolerance (a microstep and a half: the length is whole microsteps) of a stop is at it."""
+        return self._min_length, self._chain_length, 1.5 * self._step_length
+
+    @property
     def command_period(self) -> float | None:
         """The period [s] at whose multiples alone the command changes (None: any step)."""
         return None if self._batch == 1 or self._schedule is not None else self._command_period
@@ -173,12 +203,12 @@ class Feeder(LeafSystem):
         # Plain floats throughout (500 steps a second): min/max clip a finite number as np.clip
         # does.
         target = min(max(command, -self._max_speed), self._max_speed)
-        dv, dt, end = self._dv, self._dt, self._chain_length
+        dv, dt, start, end = self._dv, self._dt, self._min_length, self._chain_length
         for _ in range(n):
             v += min(max(target - v, -dv), dv)
             x = x + v * dt
-            if x <= 0.0 or x >= end:  # end stops: stop there, no wind-up
-                x = min(max(x, 0.0), end)
+            if x <= start or x >= end:  # end stops: stop there, no wind-up
+                x = min(max(x, start), end)
                 v = 0.0
         return v, x
 

@@ -24,7 +24,12 @@ open in a browser:
   and then W within one period, or while the simulation lagged, presses W again).
 
 What reaches the station is the sum of the two, clipped to [-1, 1]; the stick drives only the
-selected unit (the others get zero), the feeder command is scaled by ``feeder_speed``.
+selected unit (the others get zero), the feeder command is scaled by ``feeder_speed`` (so it
+never exceeds the feeder's limit, 20 mm/s: four presses). With the feeder's ``end_stop``
+connected (``end_stops``: the input ``feeder_inserted_length``), a feeder command against the stop the feeder sits at is
+dropped (the keyboard's back to zero, the gamepad's trigger ignored): presses of feed with the
+whole chain out, or of retract at the retraction stop, add nothing, and the command shown is
+what the chain can follow.
 
 Everything read is discrete state, so the outputs are functions of the context (state output
 ports) and a run is reproducible from the inputs injected into Meshcat.
@@ -97,6 +102,9 @@ class MeshcatJoystick(LeafSystem):
         selected_unit: (1,) index into ``unit_names`` of the unit the stick drives.
         quit: (1,) 1.0 once the person asked to quit (Escape, the quit button, or Start).
 
+    Input ports (with ``end_stops``):
+        feeder_inserted_length: (1,) the feeder's ``inserted_length`` [m].
+
     State (discrete, updated every ``period`` s and at initialisation): the keyboard's stick
     (3) and feeder command (1), the combined stick (3) and feeder command (1) sent, the selected
     unit, the quit flag, the gamepad buttons' pressed flags (for their press edges) and the
@@ -109,10 +117,14 @@ class MeshcatJoystick(LeafSystem):
         key_step: how far one key press moves a keyboard axis (of the full range 1).
         feeder_speed: the feeder speed at full command [m/s] (the stepper feeder's limit).
         keys: the keyboard bindings (``KEY_MAP``).
+        end_stops: None, or the feeder's ``end_stops()`` (retraction stop, insertion stop,
+            tolerance) [m]: the input ``feeder_inserted_length`` is declared, and a feeder
+            command against the stop the feeder sits at is dropped.
     """
 
     def __init__(self, meshcat, unit_names: Sequence[str], period: float = 0.02, key_step: float = 0.25,
-                 feeder_speed: float | None = None, keys: Sequence[Key] = KEY_MAP) -> None:
+                 feeder_speed: float | None = None, keys: Sequence[Key] = KEY_MAP,
+                 end_stops: tuple[float, float, float] | None = None) -> None:
         super().__init__()
         if not unit_names:
             raise ValueError("MeshcatJoystick needs at least one unit name")
@@ -135,11 +147,16 @@ class MeshcatJoystick(LeafSystem):
         self._i_pad = slice(10, 10 + n_pad)
         self._i_clicks = slice(10 + n_pad, 10 + n_pad + n_keys)
         self._state = self.DeclareDiscreteState(BasicVector(np.zeros(10 + n_pad + n_keys)))
-        self._joystick_ports = [self.DeclareVectorOutputPort(f"joystick_{n}", 3, self._make_calc_joystick(k))
+        self._end_stops = None if end_stops is None else tuple(float(v) for v in end_stops)
+        self._length_port = self.DeclareVectorInputPort("feeder_inserted_length", 1) if end_stops else None
+        # The outputs are the state's alone (no feedthrough from the feeder's length: no loop).
+        state_only = {self.xd_ticket()}
+        self._joystick_ports = [self.DeclareVectorOutputPort(f"joystick_{n}", 3, self._make_calc_joystick(k),
+                                                             prerequisites_of_calc=state_only)
                                 for k, n in enumerate(self.unit_names)]
-        self.DeclareVectorOutputPort("v_insert_cmd", 1, self._calc_feeder)
-        self.DeclareVectorOutputPort("selected_unit", 1, self._calc_selected)
-        self.DeclareVectorOutputPort("quit", 1, self._calc_quit)
+        self.DeclareVectorOutputPort("v_insert_cmd", 1, self._calc_feeder, prerequisites_of_calc=state_only)
+        self.DeclareVectorOutputPort("selected_unit", 1, self._calc_selected, prerequisites_of_calc=state_only)
+        self.DeclareVectorOutputPort("quit", 1, self._calc_quit, prerequisites_of_calc=state_only)
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
 
@@ -190,8 +207,13 @@ class MeshcatJoystick(LeafSystem):
             if edge[2]:
                 quit_ = 1.0
             x[self._i_pad] = pressed
+        out = np.clip(kb + np.append(stick, feed), -1.0, 1.0)
+        stop = 0.0 if self._length_port is None else end_stop(self._length_port.Eval(context)[0], *self._end_stops)
+        if stop * out[3] > 0:  # against the stop the feeder sits at: dropped, no wind-up
+            kb[3] = 0.0 if stop * kb[3] > 0 else kb[3]
+            out[3] = 0.0
         x[self._i_kb] = kb
-        x[self._i_out] = np.clip(kb + np.append(stick, feed), -1.0, 1.0)
+        x[self._i_out] = out
         x[self._i_unit], x[self._i_quit] = unit, quit_
         discrete_state.get_mutable_vector(self._state).SetFromVector(x)
         return EventStatus.Succeeded()
@@ -232,6 +254,12 @@ class MeshcatJoystick(LeafSystem):
         """Delete this system's buttons from Meshcat (when the live run ends)."""
         for key in self.keys:
             self._meshcat.DeleteButton(key.label, strict=False)
+
+
+def end_stop(length: float, low: float, high: float, tolerance: float) -> int:
+    """-1 when the inserted ``length`` [m] is at the retraction stop ``low``, +1 at the insertion
+    stop ``high``, 0 between (within ``tolerance`` of a stop counts as at it)."""
+    return -1 if length <= low + tolerance else (1 if length >= high - tolerance else 0)
 
 
 def key_map_text(keys: Sequence[Key] = KEY_MAP) -> str:

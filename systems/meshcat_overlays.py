@@ -9,18 +9,22 @@ Meshcat recording, so the HTML replay shows it. Which targets are touched comes 
 
 from __future__ import annotations
 
+import hashlib
+import io
 from typing import Sequence
 
 import numpy as np
+from PIL import Image, ImageDraw, ImageFont
+from pydrake.common import MemoryFile
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import Cylinder, MeshcatCone, Rgba
+from pydrake.geometry import Cylinder, InMemoryMesh, Mesh, MeshcatCone, Rgba
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import EventStatus, LeafSystem
 
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.params import CylinderMagnet, SphereMagnet
 from ballchain.systems.magnetic_wrench import external_field_source
-from ballchain.systems.meshcat_view import MESHCAT_FOV_DEG
+from ballchain.systems.meshcat_view import MESHCAT_FOV_DEG, VIEW_DIRECTION_W, atrium_box
 
 FIELD_ARROW_SCALE = 1.0  # [m/T]: 1 mm per mT
 FORCE_ARROW_SCALE = 0.1  # [m/N]: 10 mm per 0.1 N
@@ -219,6 +223,42 @@ TEXT_PX_PER_VIEW = 1400  # texture pixels per screen height (sharp on screens up
 TEXT_FONT_PX = 26  # font height in texture pixels (13 px on a 700 px high view)
 
 
+def _text_png(lines: Sequence[str], width_px: int | None, colour, background, font_px: int) -> bytes:
+    """A picture (PNG) of ``lines``; ``width_px`` None: as wide as the longest line."""
+    font = ImageFont.load_default(size=font_px)
+    line_px = int(round(1.25 * font_px))
+    height_px = line_px * max(1, len(lines)) + font_px // 2
+    if width_px is None:
+        width_px = int(max([font.getlength(line) for line in lines] + [1])) + font_px
+    image = Image.new("RGB", (int(width_px), height_px), background)
+    draw = ImageDraw.Draw(image)
+    for k, line in enumerate(lines):
+        draw.text((font_px // 2, font_px // 4 + k * line_px), line, font=font, fill=colour)
+    png = io.BytesIO()
+    image.save(png, format="PNG")
+    return png.getvalue()
+
+
+def _quad_mesh(png: bytes, w: float, h: float, two_sided: bool = False):
+    """A flat w x h [m] rectangle centred on its origin, facing +z, showing the picture ``png``
+    (a Drake Mesh in memory: OBJ, MTL and PNG); ``two_sided``: its back shows the picture too,
+    read the right way round from behind."""
+    # Files named by their content: the page keeps a texture by its file name, so a new text under
+    # a name seen before would never be loaded.
+    name = "panel_" + hashlib.sha1(png).hexdigest()[:12]
+    obj = (f"mtllib {name}.mtl\nv {-w / 2} {-h / 2} 0\nv {w / 2} {-h / 2} 0\nv {w / 2} {h / 2} 0\n"
+           f"v {-w / 2} {h / 2} 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvn 0 0 1\nusemtl {name}\n"
+           "f 1/1/1 2/2/1 3/3/1\nf 1/1/1 3/3/1 4/4/1\n")
+    if two_sided:  # the back: the other winding, the picture mirrored so that it reads from behind
+        obj += "vn 0 0 -1\nf 2/1/2 1/2/2 4/3/2\nf 2/1/2 4/3/2 3/4/2\n"
+    # Emissive only (no diffuse): the panel shows its picture's colours whatever the lights.
+    mtl = f"newmtl {name}\nKa 0 0 0\nKd 0 0 0\nKs 0 0 0\nKe 1 1 1\nmap_Ke {name}.png\n"
+    mesh = InMemoryMesh(mesh_file=MemoryFile(obj, ".obj", f"{name}.obj"),
+                        supporting_files={f"{name}.mtl": MemoryFile(mtl, ".mtl", f"{name}.mtl"),
+                                          f"{name}.png": MemoryFile(png, ".png", f"{name}.png")})
+    return Mesh(mesh)
+
+
 def text_panel_mesh(lines: Sequence[str], width_px: int, colour=(255, 255, 255), background=(20, 20, 20),
                     font_px: int = TEXT_FONT_PX):
     """A flat rectangle showing ``lines`` as a Drake Mesh (in memory: OBJ, MTL and PNG), its
@@ -227,36 +267,174 @@ def text_panel_mesh(lines: Sequence[str], width_px: int, colour=(255, 255, 255),
     Returns:
         (Mesh, (width, height) [m]): the rectangle is centred on its origin, facing +z.
     """
-    import hashlib
-    import io
-
-    from PIL import Image, ImageDraw, ImageFont
-    from pydrake.common import MemoryFile
-    from pydrake.geometry import InMemoryMesh, Mesh
-
-    font = ImageFont.load_default(size=font_px)
-    line_px = int(round(1.25 * font_px))
-    height_px = line_px * max(1, len(lines)) + font_px // 2
-    image = Image.new("RGB", (int(width_px), height_px), background)
-    draw = ImageDraw.Draw(image)
-    for k, line in enumerate(lines):
-        draw.text((font_px // 2, font_px // 4 + k * line_px), line, font=font, fill=colour)
-    png = io.BytesIO()
-    image.save(png, format="PNG")
-    # Files named by their content: the page keeps a texture by its file name, so a new text under
-    # a name seen before would never be loaded.
-    name = "panel_" + hashlib.sha1(png.getvalue()).hexdigest()[:12]
+    png = _text_png(lines, width_px, colour, background, font_px)
+    width_px, height_px = Image.open(io.BytesIO(png)).size
     view_height = 2.0 * TEXT_DEPTH * np.tan(np.radians(0.5 * MESHCAT_FOV_DEG))
     w, h = view_height * width_px / TEXT_PX_PER_VIEW, view_height * height_px / TEXT_PX_PER_VIEW
-    obj = (f"mtllib {name}.mtl\nv {-w / 2} {-h / 2} 0\nv {w / 2} {-h / 2} 0\nv {w / 2} {h / 2} 0\n"
-           f"v {-w / 2} {h / 2} 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvn 0 0 1\nusemtl {name}\n"
-           "f 1/1/1 2/2/1 3/3/1\nf 1/1/1 3/3/1 4/4/1\n")
-    # Emissive only (no diffuse): the panel shows its picture's colours whatever the lights.
-    mtl = f"newmtl {name}\nKa 0 0 0\nKd 0 0 0\nKs 0 0 0\nKe 1 1 1\nmap_Ke {name}.png\n"
-    mesh = InMemoryMesh(mesh_file=MemoryFile(obj, ".obj", f"{name}.obj"),
-                        supporting_files={f"{name}.mtl": MemoryFile(mtl, ".mtl", f"{name}.mtl"),
-                                          f"{name}.png": MemoryFile(png.getvalue(), ".png", f"{name}.png")})
-    return Mesh(mesh), (w, h)
+    return _quad_mesh(png, w, h), (w, h)
+
+
+def label_mesh(text: str, height: float, colour=(255, 255, 255), background=(20, 20, 20), font_px: int = 32):
+    """A label in the scene: ``text`` on a two-sided rectangle ``height`` [m] high (as wide as the
+    text), centred on its origin, facing +z.
+
+    Returns:
+        (Mesh, (width, height) [m]).
+    """
+    png = _text_png([text], None, colour, background, font_px)
+    width_px, height_px = Image.open(io.BytesIO(png)).size
+    w = height * width_px / height_px
+    return _quad_mesh(png, w, height, two_sided=True), (w, height)
+
+
+# --------------------------------------------------------------------------- labels in the scene
+LABELS_PATH = "/labels"  # outside /drake: the station's restart redraws /drake, not the labels
+VEIN_LABEL_HEIGHT = 3.5e-3  # [m]
+TARGET_LABEL_HEIGHT = 2.2e-3  # [m]
+TRIAD_LABEL_HEIGHT = 3.0e-3  # [m]
+TRIAD_LENGTH = 12e-3  # [m]
+# The triad in the colours of Drake's (AddFrameTriadIllustration: x red, y green, z blue), each
+# axis also named by its letter (the colours alone are not enough for colour-blind readers).
+TRIAD_RGBA = {"x": Rgba(0.9, 0.1, 0.1, 1.0), "y": Rgba(0.1, 0.7, 0.1, 1.0), "z": Rgba(0.1, 0.2, 0.9, 1.0)}
+VEIN_NAMES = {"LSPV": "left superior vein", "LIPV": "left inferior vein", "RSPV": "right superior vein",
+              "RIPV": "right inferior vein"}
+
+
+def show_on_top(meshcat, path: str) -> None:
+    """Draw the object at ``path`` over everything (the semi-transparent heart wall tinted the
+    labels behind it pink and faint): no depth test, among the transparent objects, drawn last
+    (three.js material and render order, set through Meshcat's property paths)."""
+    meshcat.SetProperty(f"{path}/<object>", "material.depthTest", False)
+    meshcat.SetProperty(f"{path}/<object>", "material.transparent", True)
+    meshcat.SetProperty(f"{path}/<object>", "renderOrder", 10.0)
+
+
+def _facing(direction_W) -> RotationMatrix:
+    """A label's rotation: its face (+z) towards ``direction_W`` (towards the camera), its
+    text's up (+y) as near the world's up (+z) as it goes."""
+    z = np.asarray(direction_W, float) / np.linalg.norm(direction_W)
+    x = np.cross([0.0, 0.0, 1.0], z)
+    x = x / np.linalg.norm(x) if np.linalg.norm(x) > 1e-9 else np.array([1.0, 0.0, 0.0])
+    return RotationMatrix(np.column_stack([x, np.cross(z, x), z]))
+
+
+def add_scene_labels(meshcat, heart=None, targets=None, direction_W=None) -> dict[str, str]:
+    """Names in the scene: each vein's at its ostium, each target's short name beside its disc
+    ("R5": ``right_5``), and an axes triad of the world frame (x, y, z: the world mapping's stick
+    axes turn the magnet about them), all under ``LABELS_PATH``; the labels face
+    ``direction_W`` (the default view's, ``meshcat_view.VIEW_DIRECTION_W``) and read from
+    behind too.
+
+    Args:
+        meshcat: the Meshcat.
+        heart: the atrium (its ``ostia``: none for a user's atrium), or None.
+        targets: ``heart_targets(heart)`` (names, p_WT, n_W, radius), or None.
+        direction_W: towards the camera (default ``VIEW_DIRECTION_W``).
+
+    Returns:
+        {Meshcat path: the label's text}.
+    """
+    R = _facing(VIEW_DIRECTION_W if direction_W is None else direction_W)
+    shown: dict[str, str] = {}
+
+    def label(path: str, text: str, p_W, height: float, colour=(255, 255, 255), background=(20, 20, 20)):
+        mesh, _ = label_mesh(text, height, colour, background)
+        meshcat.SetObject(f"{LABELS_PATH}/{path}", mesh)
+        show_on_top(meshcat, f"{LABELS_PATH}/{path}")
+        meshcat.SetTransform(f"{LABELS_PATH}/{path}", RigidTransform(R, np.asarray(p_W, float)))
+        shown[f"{LABELS_PATH}/{path}"] = text
+
+    for ostium in getattr(heart, "ostia", None) or []:
+        # In the lumen, a vein's radius in from its ostium's centre (the wall does not hide it).
+        p = np.asarray(ostium.p_HO) - 0.5 * ostium.diameter * np.asarray(ostium.axis_H)
+        label(f"veins/{ostium.name}", f"{ostium.name} {VEIN_NAMES.get(ostium.name, 'vein')}", p,
+              VEIN_LABEL_HEIGHT, colour=(20, 20, 20), background=(255, 255, 255))
+    if targets is not None:
+        names, p_WT, n_W, radius = targets
+        p_WT, n_W = np.asarray(p_WT, float), np.asarray(n_W, float)
+        rings: dict[str, list[int]] = {}
+        for k, name in enumerate(names):
+            rings.setdefault(name.rpartition("_")[0], []).append(k)
+        for ring, ks in rings.items():
+            centre = p_WT[ks].mean(axis=0)
+            for k in ks:
+                # Beside the disc on the ring's outer side (clear of the disc, whose colour says
+                # whether it is touched, and of the vein labels inside the ring), a little into the
+                # chamber: "R5" is right_5, shown before it is touched.
+                out = p_WT[k] - centre
+                out -= (out @ n_W[k]) * n_W[k]
+                out /= max(np.linalg.norm(out), 1e-12)
+                number = names[k].rpartition("_")[2]
+                text = f"{ring[:1].upper()}{number}" if ring and number.isdigit() else names[k]
+                label(f"targets/{names[k]}", text, p_WT[k] + 2.0 * radius * out + 0.5e-3 * n_W[k],
+                      TARGET_LABEL_HEIGHT, colour=(255, 255, 255), background=(0, 114, 178))
+    if heart is not None:
+        # At the atrium's lower front corner on the side away from the sheath (in the default
+        # view, in front of the wall at the lower left for the procedural atrium, whose sheath
+        # comes in from the lower right).
+        lower, upper = atrium_box(heart)
+        sheath = np.asarray(getattr(heart, "p_HE", 0.5 * (lower + upper)), float)
+        x = lower[0] if sheath[0] - lower[0] > upper[0] - sheath[0] else upper[0]
+        add_triad(meshcat, [x, upper[1], lower[2] + TRIAD_LENGTH], shown, R)
+    return shown
+
+
+def add_triad(meshcat, p_W, shown: dict | None = None, label_rotation: RotationMatrix | None = None) -> None:
+    """The world frame's axes at ``p_W`` (``LABELS_PATH``/triad): ``TRIAD_LENGTH`` long, x red,
+    y green, z blue, each named by its letter at its end."""
+    shown = {} if shown is None else shown
+    R_label = label_rotation or RotationMatrix()
+    base = f"{LABELS_PATH}/triad"
+    meshcat.SetTransform(base, RigidTransform(np.asarray(p_W, float)))
+    for k, (axis, rgba) in enumerate(TRIAD_RGBA.items()):
+        e = np.zeros(3)
+        e[k] = 1.0
+        R = RotationMatrix(rotation_with_z_along(e))
+        meshcat.SetObject(f"{base}/{axis}/shaft", Cylinder(0.35e-3, TRIAD_LENGTH), rgba)
+        meshcat.SetTransform(f"{base}/{axis}/shaft", RigidTransform(R, 0.5 * TRIAD_LENGTH * e))
+        meshcat.SetObject(f"{base}/{axis}/head", MeshcatCone(2e-3, 1e-3, 1e-3), rgba)
+        meshcat.SetTransform(f"{base}/{axis}/head", RigidTransform(R.multiply(RotationMatrix.MakeXRotation(np.pi)),
+                                                                    (TRIAD_LENGTH + 2e-3) * e))
+        colour = tuple(round(255 * c) for c in (rgba.r(), rgba.g(), rgba.b()))
+        mesh, _ = label_mesh(f"{axis} (world)", TRIAD_LABEL_HEIGHT, (255, 255, 255), colour)
+        meshcat.SetObject(f"{base}/{axis}/label", mesh)
+        show_on_top(meshcat, f"{base}/{axis}/label")
+        meshcat.SetTransform(f"{base}/{axis}/label", RigidTransform(R_label, (TRIAD_LENGTH + 5.5e-3) * e))
+        shown[f"{base}/{axis}/label"] = f"{axis} (world)"
+
+
+class PageText:
+    """Lines of text in the page itself (HTML, not a picture): each line the label of a Meshcat
+    button in the page's control panel (``Meshcat.AddButton``; clicking one does nothing), so a
+    screen reader reads it, a person copies it and a browser test finds it
+    (``page.get_by_text``). A new text replaces the lines that changed.
+
+    Args:
+        meshcat: the Meshcat (buttons are added from the thread that made it).
+        prefix: put before every line (names the group in the panel, keeps the labels apart
+            from other buttons').
+    """
+
+    def __init__(self, meshcat, prefix: str):
+        self._meshcat, self._prefix = meshcat, prefix
+        self.labels: list[str] = []
+
+    def show(self, lines: Sequence[str]) -> None:
+        labels = []
+        for k, line in enumerate(lines):
+            label = f"{self._prefix}{line}"
+            labels.append(label if label not in labels else f"{label} ({k + 1})")  # names are unique
+        if labels == self.labels:
+            return
+        self.clear()
+        for label in labels:
+            self._meshcat.AddButton(label)
+        self.labels = labels
+
+    def clear(self) -> None:
+        for label in self.labels:
+            self._meshcat.DeleteButton(label, strict=False)
+        self.labels = []
 
 
 class TextPanel:

@@ -46,6 +46,13 @@ JS_PAGE_STATE = """() => {
   return {socket: viewer.connection ? viewer.connection.readyState : null,
           visualizer_nodes: Object.keys(vis.children).length};
 }"""
+# The labels in the scene (meshcat_overlays.add_scene_labels): {group: names under /labels/<group>}.
+JS_LABELS = """() => {
+  const labels = viewer.scene_tree.find(["labels"]);
+  const out = {};
+  for (const g in labels.children) out[g] = Object.keys(labels.children[g].children);
+  return out;
+}"""
 JS_TOUCHED = """() => {
   const targets = viewer.scene_tree.find(["drake", "overlays", "targets"]);
   return Object.keys(targets.children).filter(k => {
@@ -125,6 +132,7 @@ def test_a_person_steers_the_chain_in_the_browser_into_a_vein_and_starts_over_af
     from ballchain.drake_models.heart import LeftAtrium
     from ballchain.experiments import teleop
     from ballchain.systems.meshcat_joystick import KEY_MAP
+    from ballchain.systems.target_contact import heart_targets
 
     heart = LeftAtrium()
     n = 16
@@ -166,7 +174,25 @@ def test_a_person_steers_the_chain_in_the_browser_into_a_vein_and_starts_over_af
             wait(lambda: page.evaluate("() => Object.keys(viewer.keydown_callbacks).length") >= len(KEY_MAP),
                  "the page to bind the keys")
             page.mouse.click(5, VIEW["height"] - 5)  # focus on the page (a click, no drag: the view stays)
+            # The scene names what it shows: every vein, every target (before it is touched: its
+            # short name, "R5" for right_5), and the world's axes x, y, z.
+            labels = wait(lambda: (lambda d: d if len(d.get("targets", [])) == len(heart_targets(heart)[0]) else None)(
+                page.evaluate(JS_LABELS)), "the labels in the scene")
+            assert sorted(labels["veins"]) == sorted(o.name for o in heart.ostia) == ["LIPV", "LSPV", "RIPV", "RSPV"]
+            assert sorted(labels["triad"]) == ["x", "y", "z"]
             page.screenshot(path=shots / "01_start.png")
+            # The readouts and the key map are text in the page (Meshcat's controls), not only pictures.
+            for text in ("feed (ArrowUp)", "retract (ArrowDown)", "world mapping: stick axes 0, 1, 2 turn the magnet",
+                         "tip force on the wall"):
+                wait(lambda: page.get_by_text(text).count(), f"{text!r} as page text")
+            # Retract at the start: the feeder sits at its retraction stop (the start's length), the
+            # command is dropped and the page says why; the chain stays (no watchdog stop).
+            for _ in range(4):
+                page.keyboard.press("ArrowDown")
+            wait(lambda: page.get_by_text("retraction stop").count(), "the retraction stop in the page's text")
+            assert "(command +0.0)" in [ln for ln in lines if ln.startswith("t = ")][-1]
+            assert np.linalg.norm(np.array(tip()) - p0) < 1e-3
+            page.screenshot(path=shots / "01b_retraction_stop.png")
 
             # Feed at full speed (4 presses of ArrowUp): the chain moves and touches a target.
             for _ in range(4):
@@ -175,9 +201,12 @@ def test_a_person_steers_the_chain_in_the_browser_into_a_vein_and_starts_over_af
             touched = wait(lambda: page.evaluate(JS_TOUCHED), "a target to turn vermillion")
             page.screenshot(path=shots / "02_target_green.png")
             assert touched
-            # The chain all in: the feeder's readout says ball 1 stopped while the command is full.
-            wait(lambda: any("feeder: ball 1 +0.0 mm/s (command +20.0)" in ln for ln in lines),
-                 "ball 1 to stop at full insertion (its actual speed, not the command)")
+            # The chain all out: ball 1 stops, the command against the stop is dropped (no wind-up:
+            # it read +20 mm/s while the chain did not move) and the readout says why.
+            wait(lambda: any("feeder: ball 1 +0.0 mm/s (command +0.0); the whole chain is out" in ln for ln in lines),
+                 "ball 1 to stop at full insertion, the command dropped and said why")
+            wait(lambda: page.get_by_text("the whole chain is out").count(), "the insertion stop in the page's text")
+            page.screenshot(path=shots / "02b_whole_chain_out.png")
 
             # Turn the magnet about world y (W, full stick) until the tip is down a vein.
             # A person sees the stop on the readout before steering: Meshcat keeps no order between
@@ -225,6 +254,12 @@ def test_a_person_steers_the_chain_in_the_browser_into_a_vein_and_starts_over_af
             wait(lambda: (lambda c: c.tolist() if c[0] < 2 * c[1] + 20 else None)(_panel_colour(page)),
                  "the grey readout panel again")
             page.screenshot(path=shots / "05_started_over.png")
+
+            # The controls opened (the readouts and the keys as text), for the picture; in this small
+            # window the open panel is taller than the page, which arrow keys and Space would scroll.
+            page.get_by_text("Open Controls").click()
+            wait(lambda: page.get_by_text("tip force on the wall").first.is_visible(), "the readout in the open controls")
+            page.screenshot(path=shots / "06_controls_as_text.png")
 
             page.keyboard.press("Escape")
             thread.join(DEADLINE)

@@ -178,6 +178,29 @@ class LiveSession:
         unit = j.selected_unit(ctx)
         return unit, j.get_joystick_output_port(unit).Eval(ctx), float(j.GetOutputPort("v_insert_cmd").Eval(ctx)[0])
 
+    def feeder_end_stop(self) -> int:
+        """-1 at the feeder's retraction stop, +1 with the whole chain out, 0 between (or no feeder)."""
+        from ballchain.systems.meshcat_joystick import end_stop
+
+        feeder = self.cd.feeder
+        if feeder is None:
+            return 0
+        length = feeder.GetOutputPort("inserted_length").Eval(feeder.GetMyContextFromRoot(self.root))[0]
+        return end_stop(length, *feeder.end_stops())
+
+    def feeder_note(self, v_cmd: float, v_ball_1: float) -> str | None:
+        """What the readout says when the chain does not follow the feeder's command (at an end
+        stop, where the command is dropped, or ball 1 slower than a quarter of it), else None."""
+        stop, feeder = self.feeder_end_stop(), self.cd.feeder
+        if stop > 0:
+            return f"the whole chain is out ({self.cd.scenario.n_balls} balls): feed adds nothing"
+        if stop < 0:
+            return (f"retraction stop ({feeder.min_length * 1e3:.0f} mm out, where the run started): "
+                    "retract adds nothing")
+        if abs(v_cmd) > 1e-3 and abs(v_ball_1) < 0.25 * abs(v_cmd):
+            return "the chain does not follow the command"
+        return None
+
     def clicks(self, action: str) -> float:
         """Clicks so far of the key bound to ``action`` (Meshcat's count; read while paused)."""
         return sum(self.meshcat.GetButtonClicks(k.label) for k in self.joystick.keys if k.action == action)
@@ -203,6 +226,7 @@ def build_live(*, mapping: str = "world", units: str = "one", n_balls: int | Non
     from ballchain.systems.chain_simulation import (ChainMonitor, MakeStation, StationRunner, atrium_for,
                                                     near_ostium_rim, without_stop_signals)
     from ballchain.systems.meshcat_joystick import MeshcatJoystick
+    from ballchain.systems.meshcat_overlays import add_scene_labels
 
     check_live_inputs(mapping, units, n_balls, None, realtime_rate)
     if anatomy is not None:
@@ -216,10 +240,20 @@ def build_live(*, mapping: str = "world", units: str = "one", n_balls: int | Non
     heart = heart or atrium_for(scenario)
 
     def add_joystick(builder, ports):
-        j = builder.AddSystem(MeshcatJoystick(meshcat, list(ports.joystick_inputs), period=joystick_period))
+        # The stepper feeder's end stops reach the joystick (a command against one is dropped).
+        feeder = builder.GetSubsystemByName("feeder") if builder.HasSubsystemNamed("feeder") else None
+        if feeder is not None:
+            # Retraction stops at the start's length: holding retract leaves the chain's first
+            # balls out in the heart (pulled back into the sheath, the watchdog stopped the run).
+            feeder.set_min_length(scenario.insertion.initial)
+        j = builder.AddSystem(MeshcatJoystick(meshcat, list(ports.joystick_inputs), period=joystick_period,
+                                              end_stops=None if feeder is None else feeder.end_stops()))
         for name, port in ports.joystick_inputs.items():
             builder.Connect(j.get_joystick_output_port(name), port)
         builder.Connect(j.GetOutputPort("v_insert_cmd"), ports.feeder_command_input)
+        if feeder is not None:
+            builder.Connect(feeder.GetOutputPort("inserted_length"), j.GetInputPort("feeder_inserted_length"))
+        add_scene_labels(meshcat, ports.heart, ports.targets)
         return {"meshcat_joystick": j}
 
     cd = MakeStation(scenario, meshcat=meshcat, heart=heart, add_systems=add_joystick)
@@ -351,7 +385,7 @@ def _announce_live(session, mapping: str, realtime_rate: float, duration: float 
     Returns the page's status panel (also kept as ``session.status``).
     """
     from ballchain.systems.meshcat_joystick import key_map_text
-    from ballchain.systems.meshcat_overlays import TextPanel
+    from ballchain.systems.meshcat_overlays import PageText, TextPanel
 
     scenario, meshcat = session.cd.scenario, session.meshcat
     omega = scenario.units[0].teleop_omega_max
@@ -362,10 +396,14 @@ def _announce_live(session, mapping: str, realtime_rate: float, duration: float 
     echo(_panel_lines(session, mapping, omega)[0])
     echo(key_map_text(session.joystick.keys))
     echo("the targets turn from blue to vermillion when the tip touches them; the orange arrow is the wall's force on the tip")
+    echo("the page's controls (Open Controls) hold the key map and the readouts as text")
     keys = TextPanel(meshcat, "keys", anchor=LIVE_KEYS_ANCHOR, width_px=1150)
     keys.show(_panel_lines(session, mapping, omega))
     keys.flush()
+    # The same as page text (the key bindings are the joystick's buttons, above these lines).
+    PageText(meshcat, "").show([_panel_lines(session, mapping, omega)[0]])
     status = session.status = TextPanel(meshcat, "status", anchor=LIVE_STATUS_ANCHOR, width_px=1150)
+    status.page = PageText(meshcat, "")  # the readouts as page text too (_status_panel)
     return status
 
 
@@ -373,6 +411,9 @@ def _status_panel(status, lines: list[str], paused: bool = False) -> None:
     """The status panel's lines: white on dark grey, or yellow on red while paused."""
     status.show(lines, colour=(255, 235, 120) if paused else (255, 255, 255),
                 background=(150, 20, 20) if paused else (20, 20, 20))
+    page = getattr(status, "page", None)
+    if page is not None:
+        page.show(lines)
 
 
 def _wait_for_browser(meshcat, status, echo) -> None:
@@ -431,18 +472,21 @@ class _LiveReadout:
         rate = (t - self.last_sim) / (now - self.last_wall)
         f_gf = gram_force(float(np.linalg.norm(session.tip_force_N())))
         touched = session.touched()
+        follow = session.feeder_note(v_cmd, v_ball_1)
         if panel_due:
             _status_panel(self.status, [
                 f"t = {t:.1f} s   real-time rate {rate:.2f}   {unit}",
                 f"targets touched {len(touched)}/{n_targets}" + (f": {', '.join(touched[-4:])}" if touched else ""),
                 f"tip force on the wall {f_gf:.1f} gf",
-                f"feeder: ball 1 moves {v_ball_1 * 1e3:+.1f} mm/s (command {v_cmd * 1e3:+.1f} mm/s)"])
+                f"feeder: ball 1 moves {v_ball_1 * 1e3:+.1f} mm/s (command {v_cmd * 1e3:+.1f} mm/s)"]
+                + ([follow] if follow else []))
             session.meshcat.SetRealtimeRate(rate)
             self.last_panel = now
         if line_due:
             self.echo(f"t = {t:7.2f} s  real-time rate {rate:5.2f}  targets {len(touched)}/{n_targets}  "
                       f"tip force {f_gf:5.1f} gf  {unit} stick {np.round(stick, 2).tolist()}  "
-                      f"feeder: ball 1 {v_ball_1 * 1e3:+.1f} mm/s (command {v_cmd * 1e3:+.1f})")
+                      f"feeder: ball 1 {v_ball_1 * 1e3:+.1f} mm/s (command {v_cmd * 1e3:+.1f})"
+                      + (f"; {follow}" if follow else ""))
             self.last_line = now
         self.last_wall, self.last_sim, self.last_ball_1 = now, t, ball_1
 
