@@ -194,3 +194,22 @@ def test_world_reaches_the_station():
     assert e.scenario.world.preset == "literature" and e.scenario.world.seed == 3
     obs, _ = e.reset(seed=0)
     assert np.all(np.isfinite(obs))
+
+
+@pytest.mark.slow
+def test_force_estimate_agrees_with_the_true_force_in_contact():
+    """With force_estimate the observation holds the navigator's model-based estimate: in contact
+    with the target it agrees with the true normal force (privileged) within 3 gf at some step."""
+    e = NavigationEnv(force_estimate=True, privileged=True)
+    policy = LinearPolicy.for_env(e, json.loads(WEIGHTS.read_text())["theta"])
+    obs, _ = e.reset(seed=1, options={"target": "right_4"})
+    layout, gf, close, done = e.obs_layout, 9.80665e-3, [], False
+    while not done:
+        obs, _, terminated, truncated, _ = e.step(policy(obs))
+        done = terminated or truncated
+        true = float(obs[layout["tip_wall_force"]] @ e.n_W[0]) / gf
+        estimate = float(obs[layout["force_estimate"]][0]) / gf
+        assert np.isfinite(estimate)
+        if true > 5.0:
+            close.append(abs(estimate - true) < 3.0)
+    assert any(close)

@@ -32,7 +32,9 @@ dipole direction ``m_hat_W`` (3) (its Hall-sensor estimator) and the magnet's an
 ``omega_WM_W`` (3) [rad/s] (its wheel encoders); the feeder's inserted length (1) [m]; the
 target's centre (3) [m] and wall normal into the chamber (3); with ``force_estimate`` the
 model-based contact force estimate along the target's normal (1) [N]
-(``autonomous_navigator.TipForceEstimator``, 0 when it has no held equilibrium); with
+(``autonomous_navigator.TipForceEstimator``, 0 when it has no held equilibrium; a contact
+force only in contact: away from the wall, the reaction that would hold the tip at the noisy
+measured point); with
 ``privileged`` the true tip centre (3) [m] and the walls' force on the tip (3) [N]. Never the
 true state unless ``privileged``.
 
