@@ -213,3 +213,30 @@ def test_force_estimate_agrees_with_the_true_force_in_contact():
         if true > 5.0:
             close.append(abs(estimate - true) < 3.0)
     assert any(close)
+
+
+def test_anatomy_file_and_ring_option():
+    from ballchain.drake_models.anatomy import PROCEDURAL_FILE
+
+    e = NavigationEnv(anatomy=PROCEDURAL_FILE, ring="left", targets=["left_3", "left_4"])
+    obs, info = e.reset(seed=0)
+    assert info["target"] in ("left_3", "left_4")
+    anatomy, _, _ = anatomy_targets(PROCEDURAL_FILE, "left")
+    k = anatomy.target_names.index(info["target"])
+    np.testing.assert_allclose(obs[e.obs_layout["target_p_W"]], anatomy.p_WT[k], atol=1e-6)
+
+
+@pytest.mark.slow
+def test_ring_task_moves_to_the_next_target():
+    e = gym.make("ballchain/RingTask-v0", targets=["right_1", "right_2"]).unwrapped
+    policy = LinearPolicy.for_env(e, json.loads(WEIGHTS.read_text())["theta"])
+    obs, info = e.reset(seed=2)
+    seen, done = [info["target"]], False
+    while not done:
+        obs, reward, terminated, truncated, info = e.step(policy(obs))
+        done = terminated or truncated
+        if info["target"] != seen[-1]:
+            assert reward > rl_env.REWARD_SUCCESS - 5.0  # the first target's touch is rewarded
+            np.testing.assert_allclose(obs[e.obs_layout["target_p_W"]], e.p_WT[1], atol=1e-6)
+            seen.append(info["target"])
+    assert seen == ["right_1", "right_2"] and info["success"] and info["targets_done"] == 2
