@@ -15,7 +15,10 @@ Needs the ``rl`` extra (``pip install -e ".[rl]"``: gymnasium).
 
 from __future__ import annotations
 
-import gymnasium as gym
+try:
+    import gymnasium as gym
+except ImportError as err:  # the optional extra
+    raise ImportError("ballchain.rl needs gymnasium: pip install -e \".[rl]\" (or the test extra)") from err
 
 from ballchain.rl.env import NavigationEnv  # noqa: F401
 from ballchain.rl.evaluate import EvaluationResult, evaluate, make_vector_env, rollout  # noqa: F401
