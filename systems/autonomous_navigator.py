@@ -360,7 +360,8 @@ class AutonomousNavigator(LeafSystem):
     def _update(self, context, state):
         p = self.params
         t = context.get_time()
-        mem = copy.deepcopy(self._memory(context))
+        # Drake hands the update a copy of the state: the memory is changed in place there.
+        mem = state.get_mutable_abstract_state(self._memory_index).get_mutable_value()
         tip = np.asarray(self._tip.Eval(context), float)
         m = np.array([np.asarray(port.Eval(context), float) for port in self._m])
         m /= np.maximum(np.linalg.norm(m, axis=1, keepdims=True), 1e-12)
@@ -374,10 +375,9 @@ class AutonomousNavigator(LeafSystem):
             mem.stick, mem.v_feed = np.zeros((len(self.units), 3)), 0.0
         else:
             mem.stick = self._sticks(m, mem.m_des)
-            mem.v_feed = float(np.clip(p.feeder_gain * (mem.s_des - s), -p.feeder_speed, p.feeder_speed))
+            mem.v_feed = min(max(p.feeder_gain * (mem.s_des - s), -p.feeder_speed), p.feeder_speed)  # (np.clip's)
             if mem.phase == "move" and self._misalignment(m, mem.m_des) > p.feed_after:
                 mem.v_feed = min(mem.v_feed, 0.0)  # the magnets turn first, then the chain goes in
-        state.get_mutable_abstract_state(self._memory_index).set_value(mem)
         return EventStatus.Succeeded()
 
     def _start_target(self, mem: _Memory, t: float, retry: bool = False) -> None:
