@@ -71,6 +71,7 @@ from ballchain.systems.chain_model import (
 from ballchain.systems.magnetic_wrench import MagneticWrenchSystem
 from ballchain.systems.target_contact import WallForceOnBall
 from ballchain.systems.force_sensor_pin import ForceSensorPin
+from ballchain.systems.meshcat_view import TARGET_CENTRE_RADIUS, TARGET_CENTRE_RGBA
 
 
 def chain_multibody_plant_config(**overrides) -> MultibodyPlantConfig:
@@ -364,10 +365,10 @@ def add_chain_plant(builder, config: ChainPlantConfig) -> ChainPlant:
                                         "heart_wall", wall_props)
         plant.RegisterVisualGeometry(world, RigidTransform(), Mesh(str(files["obj"])),
                                      "heart_wall", np.array([0.85, 0.35, 0.35, 0.35]))
-        tgt = np.array([0.1, 0.6, 0.1, 1.0])
+        tgt = np.array(TARGET_CENTRE_RGBA)
         for side, ring in heart.rings.items():
             for k, p in enumerate(ring.p_HT):
-                plant.RegisterVisualGeometry(world, RigidTransform(p), Sphere(0.6e-3),
+                plant.RegisterVisualGeometry(world, RigidTransform(p), Sphere(TARGET_CENTRE_RADIUS),
                                              f"target_{side}_{k + 1}", tgt)
     if config.wall_plane:
         _add_wall_plane(plant, config)

@@ -19,6 +19,7 @@ from pydrake.systems.framework import LeafSystem
 
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.optimization.wall_constraints import SheathGeometry
+from ballchain.systems.meshcat_view import TARGET_CENTRE_RADIUS, TARGET_CENTRE_RGBA
 
 
 class EngineGeometry(LeafSystem):
@@ -71,8 +72,8 @@ class EngineGeometry(LeafSystem):
             add(wall_frame, RigidTransform(), Mesh(str(files["obj"])), "heart_wall", Rgba(0.85, 0.35, 0.35, 0.35))
             for side, ring in heart.rings.items():
                 for k, p in enumerate(ring.p_HT):
-                    add(wall_frame, RigidTransform(p), Sphere(0.6e-3), f"target_{side}_{k + 1}",
-                        Rgba(0.1, 0.6, 0.1, 1.0))
+                    add(wall_frame, RigidTransform(p), Sphere(TARGET_CENTRE_RADIUS), f"target_{side}_{k + 1}",
+                        Rgba(*TARGET_CENTRE_RGBA))
         if sheath is not None and sheath_length > 0:
             from pydrake.geometry import Cylinder
 

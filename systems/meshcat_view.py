@@ -26,6 +26,14 @@ MARGIN = 1.1  # the camera stands this much farther than the tightest fit
 
 SHEATH_IN_VIEW = 0.02  # [m] of a solid's sheath, back from its tip, kept in view
 
+# The marker at each target's centre (a small sphere on the wall, in the scene's geometry: the
+# quasi-static engine's and the plant's), poking through the target's disc: Okabe-Ito yellow
+# #F0E442, apart from the disc's blue and vermillion for colour-blind readers too (a green dot
+# on the vermillion disc of a touched target was the red-green pair), and 0.8 mm in radius (at
+# 0.6 mm it showed as a dot of a few pixels).
+TARGET_CENTRE_RGBA = (0.941, 0.894, 0.259, 1.0)
+TARGET_CENTRE_RADIUS = 0.8e-3  # [m]
+
 
 def atrium_box(heart) -> tuple[np.ndarray, np.ndarray]:
     """The axis-aligned bounding box (lower (3,), upper (3,)) [m] of an atrium's blood side;

@@ -13,7 +13,7 @@ from pathlib import Path
 from ballchain.systems.chain_scenario import ChainScenario
 from ballchain.systems.meshcat_overlays import (FIELD_ARROW_RGBA, FORCE_ARROW_RGBA, TARGET_OUTLINE_RGBA, TARGET_RGBA,
                                                  TOUCHED_RGBA)
-from ballchain.systems.meshcat_view import MARGIN, MESHCAT_FOV_DEG, VIEW_DIRECTION_W
+from ballchain.systems.meshcat_view import MARGIN, MESHCAT_FOV_DEG, TARGET_CENTRE_RGBA, VIEW_DIRECTION_W
 
 
 # The size of a Meshcat replay (``StaticHtml``): the page with its meshes, plus one pose per
@@ -87,6 +87,10 @@ def _hex(rgba) -> str:
     return "#" + "".join(f"{round(255 * c):02x}" for c in (rgba.r(), rgba.g(), rgba.b()))
 
 
+def _hex_tuple(rgba) -> str:
+    return "#" + "".join(f"{round(255 * c):02x}" for c in rgba[:3])
+
+
 def _legend_rows() -> list[tuple[str, str, str]]:
     disc = "display:inline-block;width:12px;height:12px;border-radius:50%;vertical-align:middle"
     bar = "display:inline-block;width:16px;height:4px;vertical-align:middle"
@@ -96,6 +100,8 @@ def _legend_rows() -> list[tuple[str, str, str]]:
         (f"{disc};background:{_hex(TARGET_RGBA)}", "target, not touched yet", "overlays/targets"),
         (f"{disc};background:{_hex(TOUCHED_RGBA)};box-shadow:0 0 0 2px {_hex(TARGET_OUTLINE_RGBA)},0 0 0 3px #555",
          "target touched (white rim)", "overlays/targets"),
+        (f"{disc};width:6px;height:6px;margin:3px;background:{_hex_tuple(TARGET_CENTRE_RGBA)};box-shadow:0 0 0 1px #555",
+         "target centre", "overlays/targets"),
         (f"{disc};border-radius:3px;background:#999aa6;border-top:3px solid #d91a1a", "magnet (red: north)",
          "units|magnets"),
         (f"{bar};background:{_hex(FIELD_ARROW_RGBA)}", "field at the tip (1 mm per mT)", "overlays/tip_field"),

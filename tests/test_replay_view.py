@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from ballchain.systems.meshcat_overlays import TARGET_RGBA, TOUCHED_RGBA
+from ballchain.systems.meshcat_view import TARGET_CENTRE_RGBA
 from ballchain.systems.replay_files import captioned_replay, replay_overlay
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser") or "/usr/bin/chromium"
@@ -54,6 +55,9 @@ def test_the_written_replay_has_the_caption_legend_and_clock(replay):
     # The legend's swatches are the colours the targets are drawn in (Okabe-Ito blue, vermillion).
     assert (TARGET_RGBA.r(), TARGET_RGBA.g(), TARGET_RGBA.b()) == (0.0, 0.447, 0.698) and "#0072b2" in page
     assert (TOUCHED_RGBA.r(), TOUCHED_RGBA.g(), TOUCHED_RGBA.b()) == (0.835, 0.369, 0.0) and "#d55e00" in page
+    # The centre markers: Okabe-Ito yellow (#F0E442; they were green, the red-green pair on a
+    # touched disc), in the legend too.
+    assert TARGET_CENTRE_RGBA[:3] == (0.941, 0.894, 0.259) and "#f0e442" in page and "target centre" in page
     assert 'id="ballchain-time"' in page and "viewer.animator" in page and "requestAnimationFrame" in page
 
 
