@@ -18,8 +18,10 @@ The exported names, by job:
   device implements; ``ChainModel``, the ball chain's) and ``register_device_model`` (a new device), ``MagnetUnitConfig``,
   ``StationOptions`` and ``make_actuation_station`` (the units and the feeder alone),
   ``StationPorts`` (what an ``add_systems`` hook connects to), ``run_station``, ``RunOutcome``,
-  ``StationRunner``, ``ChainMonitor``, ``run_simulation``, ``SimulationMetrics``,
-  ``SimulationFailure``;
+  ``StationRunner``, ``ChainMonitor`` (and ``near_ostium_rim``, the rule by which it tolerates a
+  ball sinking at a vein's rim), ``run_simulation``, ``SimulationMetrics``, ``SimulationFailure``,
+  ``add_field_following_operator`` (an operator steering the tip to a point: an ``add_systems``
+  hook);
 - statics: ``ChainStatics``, ``StaticsResult``, ``StaticsError``, ``BallChain``, ``Sleeve``,
   ``UniformField``, ``MagnetSource``, ``FieldSources``, ``FieldSource`` (the protocol a new
   source implements), ``CylinderMagnet``, ``SphereMagnet``;
@@ -62,9 +64,11 @@ _EXPORTS: dict[str, str] = {
     "RunOutcome": "ballchain.systems.chain_simulation",
     "StationRunner": "ballchain.systems.chain_simulation",
     "ChainMonitor": "ballchain.systems.chain_simulation",
+    "near_ostium_rim": "ballchain.systems.chain_simulation",
     "run_simulation": "ballchain.systems.chain_simulation",
     "SimulationFailure": "ballchain.systems.chain_simulation",
     "SimulationMetrics": "ballchain.systems.chain_simulation",
+    "add_field_following_operator": "ballchain.systems.field_following_operator",
     "ChainStatics": "ballchain.optimization.statics",
     "StaticsResult": "ballchain.optimization.statics",
     "StaticsError": "ballchain.optimization.statics",

@@ -17,8 +17,10 @@ RIM_BAND = 3e-3  # [m] how close to an ostium's rim the wall mesh is too soft to
 
 
 def near_ostium_rim(heart, p_W: np.ndarray) -> bool:
-    """Whether a ball centre is within ``RIM_BAND`` of a vein ostium's rim (radially, and along the vein
-    axis within a vein radius of the ostium's centre). There the atrium's compliant wall mesh has
+    """Whether a ball centre is near a vein ostium's rim, where the watchdog tolerates sinking.
+
+    Near: within ``RIM_BAND`` of the rim radially, and along the vein axis within a vein radius
+    of the ostium's centre. There the atrium's compliant wall mesh has
     next to no stiffness (the pressure field of the tetrahedral shell vanishes on the cut faces of
     the opening, and the vein tube's shell overlaps it): measured with a rigid ball pressed 0.3 to
     1.2 mm into the wall 0.5 to 1.5 mm from the LIPV rim, the wall pushes back with 0.03 to 0.09 N
