@@ -223,8 +223,10 @@ TEXT_PX_PER_VIEW = 1400  # texture pixels per screen height (sharp on screens up
 TEXT_FONT_PX = 26  # font height in texture pixels (13 px on a 700 px high view)
 
 
-def _text_png(lines: Sequence[str], width_px: int | None, colour, background, font_px: int) -> bytes:
-    """A picture (PNG) of ``lines``; ``width_px`` None: as wide as the longest line."""
+def _text_png(lines: Sequence[str], width_px: int | None, colour, background, font_px: int,
+              stroke_px: int = 0) -> bytes:
+    """A picture (PNG) of ``lines``; ``width_px`` None: as wide as the longest line; ``stroke_px``
+    thickens the letters (a label shrunk on the screen keeps its contrast)."""
     font = ImageFont.load_default(size=font_px)
     line_px = int(round(1.25 * font_px))
     height_px = line_px * max(1, len(lines)) + font_px // 2
@@ -233,7 +235,8 @@ def _text_png(lines: Sequence[str], width_px: int | None, colour, background, fo
     image = Image.new("RGB", (int(width_px), height_px), background)
     draw = ImageDraw.Draw(image)
     for k, line in enumerate(lines):
-        draw.text((font_px // 2, font_px // 4 + k * line_px), line, font=font, fill=colour)
+        draw.text((font_px // 2, font_px // 4 + k * line_px), line, font=font, fill=colour,
+                  stroke_width=stroke_px, stroke_fill=colour)
     png = io.BytesIO()
     image.save(png, format="PNG")
     return png.getvalue()
@@ -281,7 +284,7 @@ def label_mesh(text: str, height: float, colour=(255, 255, 255), background=(20,
     Returns:
         (Mesh, (width, height) [m]).
     """
-    png = _text_png([text], None, colour, background, font_px)
+    png = _text_png([text], None, colour, background, font_px, stroke_px=max(1, font_px // 16))
     width_px, height_px = Image.open(io.BytesIO(png)).size
     w = height * width_px / height_px
     return _quad_mesh(png, w, height, two_sided=True), (w, height)
@@ -289,15 +292,13 @@ def label_mesh(text: str, height: float, colour=(255, 255, 255), background=(20,
 
 # --------------------------------------------------------------------------- labels in the scene
 LABELS_PATH = "/labels"  # outside /drake: the station's restart redraws /drake, not the labels
-VEIN_LABEL_HEIGHT = 3.5e-3  # [m]
+VEIN_LABEL_HEIGHT = 4.0e-3  # [m]
 TARGET_LABEL_HEIGHT = 2.2e-3  # [m]
 TRIAD_LABEL_HEIGHT = 3.0e-3  # [m]
 TRIAD_LENGTH = 12e-3  # [m]
 # The triad in the colours of Drake's (AddFrameTriadIllustration: x red, y green, z blue), each
 # axis also named by its letter (the colours alone are not enough for colour-blind readers).
 TRIAD_RGBA = {"x": Rgba(0.9, 0.1, 0.1, 1.0), "y": Rgba(0.1, 0.7, 0.1, 1.0), "z": Rgba(0.1, 0.2, 0.9, 1.0)}
-VEIN_NAMES = {"LSPV": "left superior vein", "LIPV": "left inferior vein", "RSPV": "right superior vein",
-              "RIPV": "right inferior vein"}
 
 
 def show_on_top(meshcat, path: str) -> None:
@@ -347,7 +348,8 @@ def add_scene_labels(meshcat, heart=None, targets=None, direction_W=None) -> dic
     for ostium in getattr(heart, "ostia", None) or []:
         # In the lumen, a vein's radius in from its ostium's centre (the wall does not hide it).
         p = np.asarray(ostium.p_HO) - 0.5 * ostium.diameter * np.asarray(ostium.axis_H)
-        label(f"veins/{ostium.name}", f"{ostium.name} {VEIN_NAMES.get(ostium.name, 'vein')}", p,
+        # The acronym alone (the full names overlapped where two ostia line up in the view).
+        label(f"veins/{ostium.name}", ostium.name, p,
               VEIN_LABEL_HEIGHT, colour=(20, 20, 20), background=(255, 255, 255))
     if targets is not None:
         names, p_WT, n_W, radius = targets

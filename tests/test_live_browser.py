@@ -239,6 +239,7 @@ def test_a_person_steers_the_chain_in_the_browser_into_a_vein_and_starts_over_af
             red = wait(lambda: (lambda c: c.tolist() if c[0] > 2 * c[1] + 20 else None)(_panel_colour(page)),
                        "the red pause panel on the page")
             page.screenshot(path=shots / "04_paused.png")
+            wait(lambda: page.get_by_text("PAUSED: the watchdog stopped the run").count(), "the pause as page text")
             assert thread.is_alive()
             assert calm[0] < 2 * calm[1] + 20 < red[0]  # grey while running, red when paused
             del heart.contains  # the real rule again

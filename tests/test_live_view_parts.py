@@ -110,7 +110,7 @@ def test_the_scene_names_every_vein_and_target_and_the_world_axes():
     meshcat = _RecordingMeshcat()
     shown = add_scene_labels(meshcat, heart, targets)
     veins = {p.rsplit("/", 1)[1]: t for p, t in shown.items() if "/veins/" in p}
-    assert sorted(veins) == ["LIPV", "LSPV", "RIPV", "RSPV"] and veins["LSPV"] == "LSPV left superior vein"
+    assert sorted(veins) == ["LIPV", "LSPV", "RIPV", "RSPV"] and all(veins[v] == v for v in veins)
     labelled = {p.rsplit("/", 1)[1]: t for p, t in shown.items() if "/targets/" in p}
     assert sorted(labelled) == sorted(names) and labelled["right_5"] == "R5" and labelled["left_20"] == "L20"
     assert sorted(t for p, t in shown.items() if "/triad/" in p) == ["x (world)", "y (world)", "z (world)"]
@@ -142,3 +142,22 @@ def test_page_text_replaces_only_a_changed_text_and_keeps_labels_unique():
     assert meshcat.buttons == ["t = 2.0 s", "same", "same (3)"]
     text.clear()
     assert meshcat.buttons == []
+
+
+@pytest.mark.parametrize("stop, v_cmd, v_ball_1, says", [
+    (1, 0.0, 0.0, "the whole chain is out (16 balls): feed adds nothing"),
+    (-1, 0.0, 0.0, "retraction stop (20 mm out, where the run started): retract adds nothing"),
+    (0, 0.02, 0.001, "the chain does not follow the command"),  # ball 1 at a twentieth of it
+    (0, 0.02, 0.019, None),  # it follows
+    (0, 0.0, 0.0, None),  # nothing asked
+])
+def test_the_readout_says_why_the_chain_does_not_follow(stop, v_cmd, v_ball_1, says):
+    from types import SimpleNamespace
+
+    from ballchain.experiments.live_session import LiveSession
+
+    session = object.__new__(LiveSession)  # the readout's rule alone, on a stand-in station
+    session.cd = SimpleNamespace(feeder=Feeder(BallChain(n_balls=16), initial_length=0.02, min_length=0.02),
+                                 scenario=SimpleNamespace(n_balls=16))
+    session.feeder_end_stop = lambda: stop
+    assert session.feeder_note(v_cmd, v_ball_1) == says

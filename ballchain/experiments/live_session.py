@@ -287,7 +287,10 @@ def run_live(*, mapping: str = "world", units: str = "one", n_balls: int | None 
     simulated seconds have passed. When the station is slower than real time it runs as fast as
     it can. The page shows the key map and a readout panel (time, the real-time rate achieved,
     targets touched, the wall's force on the tip, the feeder's actual speed: ball 1's along the
-    sheath). When the watchdog stops the run (a ball out of the heart, the chain broken, a
+    sheath, and why the chain does not follow the command when it does not), both also as text
+    in the page (Meshcat's controls); the scene names the veins and the targets and shows the
+    world's axes (``meshcat_overlays.add_scene_labels``). Retraction stops at the start's
+    length (the feeder's ``min_length``). When the watchdog stops the run (a ball out of the heart, the chain broken, a
     failed solve) while a browser is connected, the view pauses with the reason on the page
     until the person starts over (R) or quits; with nobody connected the run ends as a failure.
 
