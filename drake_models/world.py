@@ -15,42 +15,27 @@ quasi-static engine's magnets, chain, sheath and wall) and where the tracker mea
 The perturbations (``PERTURBATIONS``, in draw order; each drawn whether or not it is chosen, so
 that a world with one perturbation alone has the same value of it as the world with all):
 
-===================  =======  ==========================================  ====================================
-name                 law      ``literature`` magnitude                    source
-===================  =======  ==========================================  ====================================
-magnet_position      normal   2.0 mm per axis (1 sigma), per magnet       assumption (a cart's placement; the
-                                                                          issue's "2 mm at 10 cm"); no
-                                                                          published figure found
-magnet_axis          normal   1.0 deg per axis (rotation vector), magnet  K&J Magnetics (sintered NdFeB
-                                                                          magnetisation axis "within a few
-                                                                          degrees, less than 5 deg"); 1 deg
-                                                                          sigma is an assumption below it
-magnet_magnetisation uniform  +-1.4 % of Br, per magnet                   N52 Br 1.42-1.46 T (Shanghai
-                                                                          Magnet grade table), 1.45-1.48 T
-                                                                          (K&J Magnetics specifications)
-ball_diameter        uniform  +-0.05 mm (one lot: every ball)             ground sintered NdFeB tolerance
-                                                                          +-0.05 mm (Mainrich, "NdFeB magnet
-                                                                          tolerances"; Kyle Magnet)
-ball_remanence       uniform  +-1.4 % of Br (one lot)                     as magnet_magnetisation
-sheath_exit          normal   1.0 mm per axis                             a tracked sheath: CARTO 3 point
-                                                                          localisation 0.46 +- 0.17 mm,
-                                                                          registration offset 1.62 +- 0.77 mm
-                                                                          (Bourier et al., J Cardiovasc
-                                                                          Electrophysiol 2014;25:74-83)
-anatomy_position     normal   1.56 mm per axis (2.7 mm 3-D)               CT/MR-to-CARTO integration error
-                                                                          2.7 +- 0.7 mm (Taclas et al., Heart
-                                                                          Rhythm 2010, PMID 20122877);
-                                                                          CARTO 3 phantom 1.62 +- 0.77 mm
-                                                                          (Bourier 2014)
-anatomy_scale        normal   2 % (1 sigma)                               assumption (CT at another phase or
-                                                                          rhythm than the procedure)
-localisation_bias    normal   1.0 mm per axis                             assumption: the NDI Aurora's 0.70 mm
-                                                                          RMS is in an undisturbed volume;
-                                                                          a C-arm distorts EM tracking by mm
-                                                                          (Yaniv et al., Med Phys 2009;
-                                                                          Cavaliere & Cantillon-Murphy, IJCARS
-                                                                          2022: 12 mm before compensation)
-===================  =======  ==========================================  ====================================
+* ``magnet_position``, normal, 2.0 mm per axis per unit magnet: an assumption (a cart's
+  placement; the issue's "2 mm at 10 cm"); no published figure was found.
+* ``magnet_axis``, normal, 1.0 deg per axis (a rotation vector) per unit magnet: K&J Magnetics
+  (sintered NdFeB's magnetisation axis "within a few degrees, less than 5 deg"); 1 deg is an
+  assumption below that bound.
+* ``magnet_magnetisation``, uniform, +-1.4 % of Br per unit magnet: N52 Br 1.42-1.46 T
+  (Shanghai Magnet's grade table), 14.5-14.8 kG (K&J Magnetics' specifications).
+* ``ball_diameter``, uniform, +-0.05 mm (one lot: every ball): ground sintered NdFeB +-0.05 mm
+  (Mainrich, "NdFeB magnet tolerances"; Kyle Magnet).
+* ``ball_remanence``, uniform, +-1.4 % of Br (one lot): as ``magnet_magnetisation``.
+* ``sheath_exit``, normal, 1.0 mm per axis, across the sheath's axis: CARTO 3 point
+  localisation 0.46 +- 0.17 mm, registration offset 1.62 +- 0.77 mm in a phantom (Bourier et
+  al., J Cardiovasc Electrophysiol 2014;25:74-83).
+* ``anatomy_position``, normal, 1.56 mm per axis (2.7 mm in 3-D), the wall and the sheath in it
+  together: CT/MR-to-CARTO integration error 2.7 +- 0.7 mm (Taclas et al., Heart Rhythm 2010,
+  PMID 20122877); 1.62 +- 0.77 mm in a phantom (Bourier 2014).
+* ``anatomy_scale``, normal, 2 %, about the sheath exit: an assumption (CT at another phase or
+  rhythm than the procedure).
+* ``localisation_bias``, normal, 1.0 mm per axis: an assumption; the NDI Aurora's 0.70 mm RMS
+  is for an undisturbed volume, a C-arm distorts EM tracking by millimetres (Yaniv et al., Med
+  Phys 2009; Cavaliere and Cantillon-Murphy, IJCARS 2022: 12-25 mm before compensation).
 
 Not here: the wall's stiffness and friction. The quasi-static engine's wall is rigid and
 frictionless (``optimization.wall_constraints``): the press's force is set by the magnets' torque

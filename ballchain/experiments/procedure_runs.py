@@ -315,6 +315,8 @@ def _operator_row(record, logs, context, n_W, params, ball_radius: float) -> dic
 
 def _simulate_operator(task, anatomy, chosen, scenario, params, seed, progress, html, overrides) -> ProcedureResult:
     """The simulated operator's run on the targets ``chosen`` (indices in the anatomy's file order)."""
+    from ballchain.systems.world_apply import world_draw
+
     from ballchain.systems.chain_simulation import (ChainMonitor, MakeStation, after_updates, near_ostium_rim,
                                                     run_station)
 
@@ -345,5 +347,6 @@ def _simulate_operator(task, anatomy, chosen, scenario, params, seed, progress, 
             for name in names]
     summary = _summary(rows, run, 0.0, [])
     return ProcedureResult(task=task, navigator="operator", rows=rows, summary=summary,
-                           settings=_settings(params, seed, scenario, overrides, limit, anatomy),
+                           settings={**_settings(params, seed, scenario, overrides, limit, anatomy),
+                                     "world": None if (world := world_draw(scenario)) is None else world.to_dict()},
                            html=None if html is None else str(html)), cd, meshcat
