@@ -12,9 +12,9 @@ from ballchain.infrastructure.errors import UserInputError
 from ballchain.intervals import agrees, interval
 
 
-def _row(arm, seed, touched, total, asked=None, **extra):
-    return {"arm": arm, "seed": seed, "touched": touched, "total_time_s": total, "asked_targets": asked,
-            "error": None, **extra}
+def _row(arm, seed, touched, total, asked=None, targets=None, **extra):
+    return {"arm": arm, "seed": seed, "touched": touched, "targets": touched if targets is None else targets,
+            "total_time_s": total, "asked_targets": asked, "error": None, **extra}
 
 
 def test_summarize_pairs_the_arms_and_applies_the_paper_s_rule():
@@ -36,6 +36,10 @@ def test_summarize_pairs_the_arms_and_applies_the_paper_s_rule():
     assert (touched["lo"], touched["hi"], touched["paper"], touched["verdict"]) == (18.0, 18.0, 18, True)
     times = [r["total_time_s"] for r in rows if r["arm"] == "robotic_right"]
     assert found["robotic_right: total_time_s"]["value"] == pytest.approx(np.median(times), abs=1e-12)
+    # Faster only by giving up (the manual catheter's median run missed targets): no agreement.
+    gave_up = [dict(r, touched=10, targets=18) if r["arm"] == "manual_right" else r for r in rows]
+    found = {x["row"]: x for x in trials.summarize(gave_up)}
+    assert found["robotic_right - manual_right: total_time_s"]["verdict"] is False
     # Partial tasks: no paper number, no verdict.
     partial = trials.summarize([_row("robotic_right", s, 2, 5.0 + s, asked=2) for s in range(3)])
     assert all(x["paper"] is None and x["verdict"] is None for x in partial)
@@ -43,7 +47,7 @@ def test_summarize_pairs_the_arms_and_applies_the_paper_s_rule():
 
 def test_summarize_procedure_isolation_and_failed_runs_left_out():
     rows = [_row("procedure_right_auto", s, 18, 300.0 + s, isolated=s != 0) for s in range(5)]
-    rows += [_row("procedure_right_operator", s, 17, 250.0 + s, isolated=False) for s in range(5)]
+    rows += [_row("procedure_right_operator", s, 17, 250.0 + s, targets=18, isolated=False) for s in range(5)]
     rows.append({"arm": "procedure_right_operator", "seed": 5, "error": "RuntimeError: lost"})
     found = {x["row"]: x for x in trials.summarize(rows)}
     iso = found["procedure_right_auto: ring isolated"]
