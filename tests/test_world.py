@@ -5,13 +5,17 @@ perturbation predicts."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
 from ballchain.drake_models.dipole import dipole_field, dipole_field_gradient
 from ballchain.drake_models.world import NAMES, PRESETS, WorldMagnitudes, draw_world
+from ballchain.drake_models.params import BallChain
 from ballchain.experiments import teleop
+from ballchain.experiments.procedure_runs import _estimator
 from ballchain.experiments.procedure_world import with_world, world_block
 from ballchain.infrastructure.errors import UserInputError
 from ballchain.systems.magnetic_wrench import external_field_source
@@ -117,6 +121,11 @@ def test_world_field_at_the_chain_differs_by_the_expected_amount():
     expected = draw.magnet_scales[0] * dipole_field(r - dp, m)
     assert np.allclose(B_world, expected, rtol=1e-10, atol=0)
     assert np.allclose(B_nominal, dipole_field(r, m), rtol=1e-10, atol=0)
+    # The navigator's own force model (``procedure_runs._estimator``) feels the nominal field.
+    estimator = _estimator(SimpleNamespace(heart=station.heart, units=station.units), BallChain(), 16)
+    p_S = estimator.R_WS.T @ (p_W - estimator.p_WE)
+    B_navigator = estimator.R_WS @ np.asarray(estimator.field_S(nominal[3:]).field_and_gradient(p_S[None])[0]).reshape(3)
+    assert np.allclose(B_navigator, B_nominal, rtol=1e-10, atol=0)
     # First order: dB = (dp . grad) B + (scale - 1) B, within the second-order terms (|dp| / |r|).
     G = dipole_field_gradient(r, m)  # dB_i / dr_j
     first = -G @ dp + (draw.magnet_scales[0] - 1.0) * B_nominal
