@@ -136,6 +136,12 @@ def main(args: argparse.Namespace) -> int:
               f"{r['force_true_mean_gf']} gf ({r['force_true_min_gf']}..{r['force_true_max_gf']}), in window "
               f"{100 * (r['in_window_fraction'] or 0):.0f}%{estimate}")
     s = data.summary
+    if data.settings.get("world"):  # the drawn world (docs/guide/world.md), unknown to the navigator
+        w = data.settings["world"]
+        print(f"world {args.world} (seed {w['seed']}), unknown to the navigator: magnets off by "
+              f"{', '.join(f'{sum(v * v for v in o) ** 0.5:.2f}' for o in w['magnet_offsets_mm'])} mm, anatomy by "
+              f"{sum(v * v for v in w['anatomy_offset_mm']) ** 0.5:.2f} mm, tracker bias "
+              f"{sum(v * v for v in w['localisation_bias_mm']) ** 0.5:.2f} mm (--json: all of it)")
     if data.settings.get("wall_motion"):
         print("wall moving: " + ", ".join(f"{name} {m['amplitude_mm']:g} mm at {m['frequency_hz']:g} Hz" for name, m in
                                           data.settings["wall_motion"].items() if m["amplitude_mm"] > 0))
