@@ -83,3 +83,12 @@ def test_text_and_dict():
 def test_bad_input(call):
     with pytest.raises(UserInputError):
         call()
+
+
+def test_the_docstring_example_runs():
+    import doctest
+
+    import ballchain.intervals as module
+
+    results = doctest.testmod(module, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert results.attempted >= 2 and results.failed == 0, results
