@@ -3,6 +3,10 @@ run with its plans given, with the force model's compiled held-tip path on and o
 process (``optimization.compiled_held_tip``; off: ``ChainStatics.solve`` on ``FieldSources``, the
 code before issue 48, the same numbers).
 
+``--planner-held-solve`` also times a cold plan with the planner's held-tip solves routed through
+``compiled_held_tip.held_solve`` (``ChainStatics.solve`` replaced for this process only: the
+change it measures is not made in the planner) and checks that the plans are the same.
+
 The machine is shared: every figure is process CPU time (``time.process_time``), each run
 ``--repeats`` times alternating the two paths, the median printed, and the ratio of the medians
 taken in the same run. ``--profile`` prints the cProfile of one run (fast path) by internal time.
@@ -24,6 +28,7 @@ import numpy as np
 
 from ballchain.experiments import procedure
 from ballchain.optimization import compiled_held_tip
+from ballchain.optimization.statics import ChainStatics
 
 RESULT_KEYS = ("reached", "in_window_fraction", "estimate_mean_abs_error_gf", "estimate_worst_error_gf",
                "sim_time_s")
@@ -43,6 +48,31 @@ def _run(args, plans, fast: bool):
         compiled_held_tip.HeldTipStatics._fast_ready = saved
 
 
+def _same_plans(a, b) -> bool:
+    fields = ("p_WT", "n_W", "dipoles_W", "inserted_length", "basis_W", "J_m", "J_o", "force_N", "aim_offset")
+    return len(a.plans) == len(b.plans) and a.missing == b.missing and all(
+        p.name == q.name and all(np.array_equal(getattr(p, f), getattr(q, f)) for f in fields)
+        for p, q in zip(a.plans, b.plans))
+
+
+def _cold_plan_held_solve(args):
+    """A cold plan with ``ChainStatics.solve``'s held-tip calls through ``held_solve``."""
+    general = ChainStatics.solve
+
+    def solve(self, external, warm_start=None, tip_target=None, wall=None, constraints=None):
+        if tip_target is not None and warm_start is not None and wall is None and constraints is None:
+            return compiled_held_tip.held_solve(self, external, warm_start, tip_target)
+        return general(self, external, warm_start, tip_target, wall, constraints)
+
+    ChainStatics.solve = solve
+    try:
+        c0 = time.process_time()
+        plans = procedure.plan_ring(args.task, targets=args.targets, cache=False)
+        return time.process_time() - c0, plans
+    finally:
+        ChainStatics.solve = general
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", default="right")
@@ -50,6 +80,9 @@ def main(argv=None) -> dict:
     parser.add_argument("--dwell", type=float, default=procedure.DWELL_S)
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--cold", action="store_true", help="also time a cold plan (no cache: tens of CPU-s)")
+    parser.add_argument("--planner-held-solve", action="store_true",
+                        help="also a cold plan with the planner's solves through held_solve (and without, alternating)")
+    parser.add_argument("--no-runs", action="store_true", help="the planning only")
     parser.add_argument("--profile", action="store_true")
     parser.add_argument("--json", default=None)
     args = parser.parse_args(argv)
@@ -64,25 +97,35 @@ def main(argv=None) -> dict:
     out["plan_warm_cpu_s"] = time.process_time() - c0
     out["plan_warm_cached"] = plans.cached
     if args.cold:
-        fields = ("p_WT", "n_W", "dipoles_W", "inserted_length", "basis_W", "J_m", "J_o", "force_N", "aim_offset")
-        out["cold_equals_cached"] = len(cold.plans) == len(plans.plans) and all(
-            a.name == b.name and all(np.array_equal(getattr(a, f), getattr(b, f)) for f in fields)
-            for a, b in zip(cold.plans, plans.plans))
-    times: dict = {"fast": [], "general": []}
-    summaries = {}
-    for _ in range(args.repeats):
-        for name, fast in (("general", False), ("fast", True)):
-            cpu, result = _run(args, plans, fast)
-            times[name].append(cpu)
-            summaries[name] = {k: result.summary.get(k) for k in RESULT_KEYS}
-            summaries[name]["rows"] = [(r["target"], r.get("force_true_mean_gf"), r.get("estimate_mean_error_gf"))
-                                       for r in result.rows]
-            print(f"{name:8s} run: {cpu:6.2f} CPU-s ({result.summary['sim_time_s']} s simulated)", flush=True)
-    out.update({f"run_{k}_cpu_s": statistics.median(v) for k, v in times.items()})
-    out["runs_cpu_s"] = times
-    out["speed_up"] = out["run_general_cpu_s"] / out["run_fast_cpu_s"]
-    out["same_results"] = summaries["fast"] == summaries["general"]
-    out["summary"] = {k: v for k, v in summaries["fast"].items() if k != "rows"}
+        out["cold_equals_cached"] = _same_plans(cold, plans)
+    if args.planner_held_solve:
+        pairs = {"general": [], "held_solve": []}
+        for _ in range(args.repeats):
+            c0 = time.process_time()
+            general = procedure.plan_ring(args.task, targets=args.targets, cache=False)
+            pairs["general"].append(time.process_time() - c0)
+            cpu, held = _cold_plan_held_solve(args)
+            pairs["held_solve"].append(cpu)
+            print(f"cold plan: general {pairs['general'][-1]:.2f}, held_solve {cpu:.2f} CPU-s", flush=True)
+        out["planner_cold_cpu_s"] = {k: statistics.median(v) for k, v in pairs.items()}
+        out["planner_held_solve_speed_up"] = statistics.median(pairs["general"]) / statistics.median(pairs["held_solve"])
+        out["planner_held_solve_same_plans"] = _same_plans(general, held) and _same_plans(general, plans)
+    if not args.no_runs:
+        times: dict = {"fast": [], "general": []}
+        summaries = {}
+        for _ in range(args.repeats):
+            for name, fast in (("general", False), ("fast", True)):
+                cpu, result = _run(args, plans, fast)
+                times[name].append(cpu)
+                summaries[name] = {k: result.summary.get(k) for k in RESULT_KEYS}
+                summaries[name]["rows"] = [(r["target"], r.get("force_true_mean_gf"), r.get("estimate_mean_error_gf"))
+                                           for r in result.rows]
+                print(f"{name:8s} run: {cpu:6.2f} CPU-s ({result.summary['sim_time_s']} s simulated)", flush=True)
+        out.update({f"run_{k}_cpu_s": statistics.median(v) for k, v in times.items()})
+        out["runs_cpu_s"] = times
+        out["speed_up"] = out["run_general_cpu_s"] / out["run_fast_cpu_s"]
+        out["same_results"] = summaries["fast"] == summaries["general"]
+        out["summary"] = {k: v for k, v in summaries["fast"].items() if k != "rows"}
     if args.profile:
         prof = cProfile.Profile()
         prof.enable()

@@ -17,12 +17,15 @@ a magnet's bounding sphere, a singular step, a non-finite input) goes through
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from ballchain.drake_models.chain_energy import EnergyTerms
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
 from ballchain.drake_models.kernels import chart_frames, configuration_vectors
 from ballchain.optimization.blas_threads import one_blas_thread
+from ballchain.optimization.compiled_model import field_arrays, reason_text
 from ballchain.optimization.compiled_newton import R_LIMIT, R_MINIMUM, R_MINIMUM_LINE, newton
 from ballchain.optimization.reduced_chain import answer_verdict
 from ballchain.optimization.statics import ChainStatics, StaticsResult
@@ -30,6 +33,7 @@ from ballchain.optimization.statics import ChainStatics, StaticsResult
 _ZERO6, _ZERO3, _EYE3 = np.zeros(6), np.zeros(3), np.eye(3)
 _NO_GRID, _NO_FRAME, _NO_SHEATH = np.zeros((0, 0, 0)), np.zeros(7), np.zeros(5)
 _NO_ROWS, _NO_WEIGHTS = np.zeros(0, np.int64), np.zeros(0)
+_GENERAL = ChainStatics.solve  # held_solve's fallback, whatever a caller later puts in its place
 
 
 class HeldTip:
@@ -121,3 +125,44 @@ def _warm(start: HeldTip) -> StaticsResult:
     """A warm start for ``ChainStatics.solve`` (which reads its configuration only)."""
     return StaticsResult(start.positions, start.dipoles, float("nan"), EnergyTerms(0.0, 0.0, 0.0, 0.0), True, "",
                          "newton", 0, 0.0)
+
+
+def held_solve(statics: ChainStatics, external, warm_start: StaticsResult, tip_target) -> StaticsResult:
+    """``statics.solve(external, warm_start, tip_target=tip_target)``, the same ``StaticsResult``
+    (its ``solve_time`` aside), without the general solve's per-call Python when ``external`` is
+    made of point dipoles and uniform fields (``compiled_model.field_arrays``) and the solver has
+    solved once (its model built): the kernels' model tuple built here, the answer assembled by
+    ``statics._assemble`` as ``solve`` does. Anything else goes through ``statics.solve``.
+
+    For the planner's held-tip solves (``inverse_statics.HeldTip``, ``pin_tip``): about 0.35 ms
+    of Python per solve there (``docs/performance.md``, section 23); not wired into them yet.
+    """
+    model = statics._model
+    field = None
+    if (warm_start is not None and tip_target is not None and statics.compiled and statics.method == "newton"
+            and statics.qp == "dense" and model is not None and model.backend == "kernel"
+            and warm_start.positions.shape == (statics.chain.n_balls, 3)):
+        field = field_arrays(external) if external is not None else None
+    target = None if field is None else np.asarray(tip_target, dtype=float).reshape(3)
+    if field is None or not (all(np.isfinite(a).all() for a in field[:3]) and np.isfinite(target).all()):
+        return _GENERAL(statics, external, warm_start, tip_target=tip_target)
+    start = time.perf_counter()
+    centres, moments, B0, r2 = (np.ascontiguousarray(a, float) for a in field)
+    settings = np.array([statics.tolerance, statics.feasibility_tolerance, statics.contact_margin, statics.max_step,
+                         0.0, 0.5 * model.d])
+    flags = np.array([statics.max_iterations, 1, 1, 0, 0], dtype=np.int64)  # a field, pinned, no wall, no heart
+    tup = (model._params, centres, moments, B0, r2, target, _ZERO6, _ZERO3, _EYE3, _NO_GRID, _NO_FRAME, _NO_SHEATH,
+           settings, flags)
+    p0 = np.ascontiguousarray(warm_start.positions, float)
+    chart = chart_frames(configuration_vectors(p0, np.ascontiguousarray(warm_start.dipoles, float)))
+    try:
+        with one_blas_thread():
+            reason, _, iterations, rows, lam, lam_tip, p, m_hat, terms, gaps, v = newton(chart, tup, _NO_ROWS,
+                                                                                         _NO_WEIGHTS)
+    except np.linalg.LinAlgError:
+        return _GENERAL(statics, external, warm_start, tip_target=tip_target)
+    if reason > R_LIMIT:  # R_FIELD, R_ENERGY: the general solve decides (and says why)
+        return _GENERAL(statics, external, warm_start, tip_target=tip_target)
+    lam_near = dict(zip(rows.tolist(), lam.tolist()))
+    return statics._assemble(model, p, m_hat, EnergyTerms(*terms.tolist()), gaps, reason in (R_MINIMUM, R_MINIMUM_LINE),
+                             reason_text(statics, reason), int(iterations), lam_near, lam_tip, None, start, v)

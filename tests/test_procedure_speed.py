@@ -162,3 +162,38 @@ def test_a_ring_s_plans_from_the_cache_are_the_computed_ones(cache):
     assert read.key == fresh.key and read.missing == fresh.missing
     _same(list(fresh.plans), list(read.plans))
     assert read.cpu_time_s < 0.25 * stored.cpu_time_s
+
+
+def test_held_solve_is_the_general_solve(monkeypatch):
+    """``compiled_held_tip.held_solve`` against ``ChainStatics.solve`` on noisy held tips under a
+    turning magnet, each warm-started from the last: every field of every result the same (its
+    solve_time aside), the multipliers and pair forces included, converged or not; the general
+    solve taken only for the cold start."""
+    from dataclasses import fields
+
+    from ballchain.drake_models.field_sources import FieldSources, MagnetSource
+    from ballchain.optimization import compiled_held_tip
+    from ballchain.optimization.compiled_held_tip import held_solve
+
+    general = []
+    monkeypatch.setattr(compiled_held_tip, "_GENERAL", lambda *a, **k: general.append(1) or ChainStatics.solve(*a, **k))
+
+    p_WE, p_WM, looks = _looks(12, seed=3)
+    chain = BallChain(n_balls=16)
+    fast, slow = ChainStatics(chain, max_iterations=25), ChainStatics(chain, max_iterations=25)
+    field = lambda m: FieldSources([MagnetSource.pointing(CylinderMagnet(), p_WM - p_WE, m[0])])  # noqa: E731
+    first = slow.solve(field(looks[0][1]))
+    a = b = fast.solve(field(looks[0][1]), first, tip_target=first.tip_position)
+    b = slow.solve(field(looks[0][1]), first, tip_target=first.tip_position)
+    compared = 0
+    for p, m in looks:
+        target = p - p_WE
+        a, b = held_solve(fast, field(m), a, target), slow.solve(field(m), b, tip_target=target)
+        for f in fields(a):
+            if f.name != "solve_time":
+                x, y = getattr(a, f.name), getattr(b, f.name)
+                assert (np.array_equal(x, y) if isinstance(x, np.ndarray) else x == y), f.name
+        compared += a.converged
+        if not a.converged:
+            a = b = first
+    assert compared >= 6 and not general
