@@ -161,6 +161,10 @@ def test_manual_task_smoke(task):
     assert len(r.settings["path"]["tip"]) == len(r.settings["path"]["t"]) > 10
     assert len(mc.transitions(r)) == 2
     assert mc.effort(r)["handle_revolutions"] >= 0.0
+    smooth = r.settings["smoothness"]  # the JSON's smoothness beside the time (issue 45)
+    assert smooth["transitions"] == mc.transitions(r)
+    sparcs = [t["sparc"] for t in smooth["transitions"] if t["sparc"] is not None]
+    assert smooth["sparc_median"] == (round(float(np.median(sparcs)), 3) if sparcs else None)
 
 
 def test_make_station_builds_the_catheter_with_its_meshcat_view(atrium):

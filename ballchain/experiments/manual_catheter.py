@@ -6,7 +6,9 @@ only the tip, learns the input-to-tip mapping online, presses towards each targe
 after its timeout), its stick's two axes now on the catheter's handle (axis 0 turns it, axis 1
 the knob) and its feeder command the hand's push and pull, within the hand's rate limits
 (``HandParams``), with the windup strategy ``switch`` (the opposite tendon and back by half a
-turn, also at the F tendon's end) or ``keep`` (keep turning). The operator keeps at least the
+turn when the hand feels the shaft's torque reach its threshold, ``HandParams.torque_threshold``,
+also at the F tendon's end) or ``keep`` (keep turning). The catheter's 3.5 mm distal electrode
+touches a target with its whole surface (``drake_models.electrode``). The operator keeps at least the
 catheter's starting length (20 mm) out of the sheath (``min_length``): with less out the knob
 and the handle move the tip less (the 55 mm deflectable segment mostly in the sheath), and
 without the floor its retraction bursts drew the catheter back to 0-5 mm, where it stayed for
@@ -108,7 +110,8 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
     Returns:
         a ``teleop.TeleopResult`` (mapping "manual"); its settings add the catheter's and the
         hand's, and ``path`` {t, tip (k, 3) [m], twist (k,) handle twist [rad], exit_twist (k,)}
-        sampled at the operator's looks, and ``switches``, ``slips`` (the device's metrics).
+        sampled at the operator's looks, ``switches``, ``slips`` (the device's metrics) and
+        ``smoothness`` {sparc_median, transitions (``transitions``)}.
     """
     check_inputs(task, targets, time_limit, seed, strategy)
     for value, types, name, what in ((heart, Atrium, "heart", "an atrium (LeftAtrium) or None"),
@@ -166,8 +169,12 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
     path = {"t": tip_log.sample_times().tolist(), "tip": tip_log.data().T.tolist(),
             "twist": wind_log.data()[0].tolist(), "exit_twist": wind_log.data()[1].tolist()}
     settings = _run_settings(used, int(seed), hand, scenario, params, limit, station.device.metrics(root), path)
-    return teleop.TeleopResult(task=task, mapping="manual", rows=rows, summary=summary, paper=teleop.PAPER[task],
-                               settings=settings, html=None if html is None else str(html))
+    result = teleop.TeleopResult(task=task, mapping="manual", rows=rows, summary=summary, paper=teleop.PAPER[task],
+                                 settings=settings, html=None if html is None else str(html))
+    # The smoothness beside the time (issue 45): SPARC of each touched-to-touched movement.
+    moves = transitions(result)
+    settings["smoothness"] = {"sparc_median": _median([m["sparc"] for m in moves]), "transitions": moves}
+    return result
 
 
 def _replay_meshcat(html, scenario, duration: float, catheter):
