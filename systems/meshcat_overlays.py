@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import io
+import textwrap
 from typing import Sequence
 
 import numpy as np
@@ -405,6 +406,9 @@ def add_triad(meshcat, p_W, shown: dict | None = None, label_rotation: RotationM
         shown[f"{base}/{axis}/label"] = f"{axis} (world)"
 
 
+PAGE_TEXT_WIDTH = 40  # characters a line of page text holds (Meshcat's control panel, 245 px)
+
+
 class PageText:
     """Lines of text in the page itself (HTML, not a picture): each line the label of a Meshcat
     button in the page's control panel (``Meshcat.AddButton``; clicking one does nothing), so a
@@ -415,16 +419,18 @@ class PageText:
         meshcat: the Meshcat (buttons are added from the thread that made it).
         prefix: put before every line (names the group in the panel, keeps the labels apart
             from other buttons').
+        width: lines longer than this many characters are wrapped (the panel shows about 42 of
+            a button's label; the rest is cut off on the screen, though a screen reader has it).
     """
 
-    def __init__(self, meshcat, prefix: str):
-        self._meshcat, self._prefix = meshcat, prefix
+    def __init__(self, meshcat, prefix: str, width: int = PAGE_TEXT_WIDTH):
+        self._meshcat, self._prefix, self._width = meshcat, prefix, int(width)
         self.labels: list[str] = []
 
     def show(self, lines: Sequence[str]) -> None:
         labels = []
-        for k, line in enumerate(lines):
-            label = f"{self._prefix}{line}"
+        wrapped = [part for line in lines for part in (textwrap.wrap(f"{self._prefix}{line}", self._width) or [""])]
+        for k, label in enumerate(wrapped):
             labels.append(label if label not in labels else f"{label} ({k + 1})")  # names are unique
         if labels == self.labels:
             return

@@ -140,6 +140,8 @@ def test_page_text_replaces_only_a_changed_text_and_keeps_labels_unique():
     assert meshcat.calls == 2  # unchanged: nothing sent
     text.show(["t = 2.0 s", "same", "same"])
     assert meshcat.buttons == ["t = 2.0 s", "same", "same (3)"]
+    text.show(["feeder: ball 1 moves +0.0 mm/s (command +20.0 mm/s)"])  # wrapped: the panel shows 40 characters
+    assert meshcat.buttons == ["feeder: ball 1 moves +0.0 mm/s (command", "+20.0 mm/s)"]
     text.clear()
     assert meshcat.buttons == []
 
