@@ -38,6 +38,7 @@ from ballchain.systems.device_model import DEVICE_MODELS, DEVICES, ENGINES, engi
 from ballchain.systems.engine_config import (CHOICES, BallChainDevice, DeviceConfig, EngineConfig,  # noqa: F401
                                              PlantEngine, StaticsEngine, choice_config, choice_name, choice_tags)
 from ballchain.systems.unit_config import MagnetUnitConfig
+from ballchain.systems.world_scenario import WorldScenario
 # The parts and the checks, re-exported (their homes: scenario_schema.py, scenario_checks.py).
 from ballchain.systems.scenario_schema import (ANCHORS, CONTACT_MODELS, CONTACT_SURFACE_REPRESENTATIONS,  # noqa: F401
                                                DEFAULT_TIME_STEP, DISCRETE_CONTACT_APPROXIMATIONS,
@@ -143,6 +144,8 @@ class ChainScenario:
             (``randomness.set_random_context``, Drake's SetRandomContext).
         localisation: the tip tracker's noise, rate and latency (``LocalisationScenario``), read
             by the simulated procedure's navigator.
+        world: the world the engine plays, unknown to the planner, the navigator and the operator
+            (``world_scenario.WorldScenario``: ``preset: none``, the model's own numbers, by default).
     """
 
     description: str = ""
@@ -182,6 +185,7 @@ class ChainScenario:
     device: DeviceConfig = BallChainDevice()
     wall_motion: WallMotionScenario = field(default_factory=WallMotionScenario)
     localisation: LocalisationScenario = field(default_factory=LocalisationScenario)
+    world: WorldScenario = field(default_factory=WorldScenario)
 
     def __setattr__(self, name, value) -> None:
         if name in CHOICES and isinstance(value, str):  # engine, device: a name is its config

@@ -20,6 +20,7 @@ from pydrake.visualization import VisualizationConfig
 from ballchain.drake_models import wall_motion
 from ballchain.infrastructure.errors import UserInputError, short_repr
 from ballchain.drake_models.localisation import check_figures
+from ballchain.systems.world_scenario import check_world
 from ballchain.infrastructure.safe_files import register_input
 from ballchain.infrastructure.safe_yaml import check_value, schema_fields as _schema_fields
 from ballchain.drake_models.params import BallChain
@@ -225,6 +226,7 @@ def check_fields(s: "ChainScenario") -> None:
     check_wall_motion(s)
     loc = s.localisation
     check_figures(loc.noise_std, loc.rate, loc.latency, "scenario localisation.")
+    check_world(s)
     if s.pin.point:
         check_pin(s)
     _require(s.pin.point or s.pin.stiffness == PinScenario.stiffness,
