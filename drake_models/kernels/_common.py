@@ -26,6 +26,7 @@ from numba.core.caching import (
     UserWideCacheLocator,
 )
 
+from ballchain.drake_models.kernels import _blas_order
 from ballchain.infrastructure.numba_cache import guard_kernel
 
 # Energy parts, in the order of the kernels' ``terms`` arrays (EnergyTerms' fields).
@@ -89,7 +90,8 @@ class _PackageStamp:
     imported, which a process importing the edited files does not load."""
 
     def get_source_stamp(self):
-        return _package_stamp(getattr(self, "_py_file", None))
+        # With how this process's BLAS sums (``_blas_order``): the kernels mirror it.
+        return _package_stamp(getattr(self, "_py_file", None)) + ":" + _blas_order.ORDER
 
 
 class _UserProvidedLocator(_PackageStamp, UserProvidedCacheLocator):

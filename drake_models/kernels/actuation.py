@@ -19,8 +19,8 @@ this to bit for bit over whole teleoperation runs):
 
 Each operation is the reference's, in its order, so that the floats are the same: numpy's
 ``einsum`` three-term dot sums ``(x0 y0 + x2 y2) + x1 y1`` (``_einsum_dot``); a 1-D ``norm``,
-``@`` and ``.dot`` go through BLAS's ``ddot``, left to right on this kind of machine
-(``_blas_dot``); ``norm(..., axis=-1)`` sums left to right; Drake's rotation of a quaternion
+``@`` and ``.dot`` go through BLAS's ``ddot``, left to right, fused or not by the CPU's kernel
+(``_blas_dot``, ``_blas_order``); ``norm(..., axis=-1)`` sums left to right; Drake's rotation of a quaternion
 takes ``2 / ((x^2 + z^2) + (y^2 + w^2))`` (Eigen's two-lane sum). What the kernels cannot
 reproduce stays Python: the noise (numpy's generator), the latch's angle test (numpy's
 ``arctan2``), the exact (magpylib) fields of a magnet near its sensor.
@@ -43,6 +43,7 @@ import math
 import numpy as np
 
 from ballchain.drake_models.dipole import K_DIPOLE
+from ballchain.drake_models.kernels._blas_order import DDOT_FMA, fma
 from ballchain.drake_models.kernels._common import inline_kernel, kernel
 
 # The scalars of ``c``.
@@ -61,12 +62,27 @@ def _einsum_dot(a, b):
 
 
 @inline_kernel
-def _blas_dot(a, b):
-    """A 1-D ``@``/``.dot``/``norm``'s BLAS ``ddot``: left to right."""
+def _plain_dot(a, b):
+    """A 1-D ``@``/``.dot``/``norm``'s BLAS ``ddot`` on a Haswell-class kernel: left to right,
+    a product then a sum per term."""
     s = a[0] * b[0]
     for i in range(1, a.shape[0]):
         s += a[i] * b[i]
     return s
+
+
+@inline_kernel
+def _fused_dot(a, b):
+    """A 1-D ``@``/``.dot``/``norm``'s BLAS ``ddot`` on a SkylakeX-class kernel: left to right,
+    a fused multiply-add per term (``_blas_order``)."""
+    s = a[0] * b[0]
+    for i in range(1, a.shape[0]):
+        s = fma(a[i], b[i], s)
+    return s
+
+
+_blas_dot = _fused_dot if DDOT_FMA else _plain_dot
+"""The sum numpy's ``ddot`` does on this machine (``_blas_order.ORDER``)."""
 
 
 @inline_kernel
