@@ -84,7 +84,8 @@ def test_the_api_reference_documents_every_public_method(site):
 def test_every_page_of_the_guide_is_built(site):
     for page in ("index", "getting_started", "results", "design", "notebooks", "testing", "guide/scenarios",
                  "guide/station", "guide/statics", "guide/teleoperation", "guide/experiments", "guide/sweeps",
-                 "guide/anatomy", "guide/long_runs", *(f"notebooks/{p.stem}" for p in NOTEBOOKS)):
+                 "guide/anatomy", "guide/long_runs", "guide/ablation", "guide/world", "guide/trials", "guide/rl",
+                 "guide/procedure", "guide/manual_catheter", *(f"notebooks/{p.stem}" for p in NOTEBOOKS)):
         assert (site / f"{page}.html").exists(), page
     # the sweep reference: every experiment's fields, outputs and example
     from ballchain.experiments.studies import EXPERIMENTS

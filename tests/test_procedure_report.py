@@ -60,11 +60,13 @@ def test_plans_of_another_ring_or_type_refused():
 
 
 @pytest.mark.slow
-def test_plans_made_once_give_the_run_that_plans_itself():
+def test_plans_made_once_give_the_run_that_plans_itself(tmp_path, monkeypatch):
     """Bit-identical rows, lesions and ring (the CPU times aside); the scenario's localisation
-    (here overridden) is what the run uses when not given one."""
+    (here overridden) is what the run uses when not given one. An empty cache of plans: the run
+    without plans plans itself (``plan_ring(cache=False)`` neither reads nor keeps them)."""
+    monkeypatch.setenv("BALLCHAIN_CACHE", str(tmp_path / "cache"))
     overrides = "{localisation: {rate: 20, latency: 0.1}}"
-    plans = procedure.plan_ring("right", targets=1, overrides=overrides)
+    plans = procedure.plan_ring("right", targets=1, overrides=overrides, cache=False)
     assert plans.plans and plans.cpu_time_s > 0
     reused = procedure.run("right", seed=2, targets=1, dwell_s=2.0, plans=plans, overrides=overrides, progress=False)
     own = procedure.run("right", seed=2, targets=1, dwell_s=2.0, overrides=overrides, progress=False)

@@ -35,8 +35,8 @@ def main(args: argparse.Namespace) -> int:
         reused = f" (reused {len(data['reused'])} finished sections)" if data["reused"] else ""
         print(f"wrote {data['report_md']} and {data['report_html']} in {data['total_seconds']:.1f} s{reused}")
         if data["headlines"]:
-            print(f"what it found, paper vs model (agrees: within {100 * AGREES_WITHIN:g} %; the report's summary "
-                  "says more):")
+            print(f"what it found, paper vs model (agrees: within {100 * AGREES_WITHIN:g} %, or for a closed-loop "
+                  "row the paper's number inside the 95 % interval over the seeds; the report's summary says more):")
             print("\n".join(f"  {line}" for line in data["headlines"]))
         print(f"open {data['report_html']}")
     return 0

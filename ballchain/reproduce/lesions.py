@@ -190,11 +190,20 @@ def procedure_section(out: Path, quick: bool) -> tuple[Section, dict]:
                      "-" if r["force_true_min_gf"] is None else f"{r['force_true_min_gf']:.1f}-{r['force_true_max_gf']:.1f}",
                      span(r["estimate_mean_abs_error_gf"], "{:.2f}"),
                      "-" if r["estimate_worst_error_gf"] is None else r["estimate_worst_error_gf"],
-                     span(r["ring_gaps"]), f"{r['isolated_runs']}/{r['runs']}", ", ".join(r["failures"]) or "-"])
+                     span(r["ring_gaps"]), f"{r['isolated_runs']}/{r['runs']}",
+                     span(r["clinical_ring_gaps"]), f"{r['clinical_isolated_runs']}/{r['runs']}",
+                     span(r["clinical_rf_time_s"], "{:.0f}"), ", ".join(r["failures"]) or "-"])
     section.table(["ring", "navigator", "targets reached", "total time [s]", "dwell in 10-40 gf",
                    "true force range [gf]", "estimate error, mean |.| [gf]", "estimate error, worst [gf]",
-                   "ring gaps", "ring isolated (runs)", "stopped by"], rows,
+                   "ring gaps (bench lesions)", "ring isolated (runs)", "ring gaps (clinical lesions)",
+                   "isolated, clinical (runs)", "clinical RF time [s]", "stopped by"], rows,
                   caption="medians over the seeds (min-max)")
+    section.text(
+        "Two verdicts per run. Bench lesions: the paper's still saline, each dwell's 10 s at the highest power "
+        "that keeps the N52 tip magnet below its limit. Clinical lesions (`procedure_report.CLINICAL_LESIONS`, "
+        "issue 44): high blood flow, the generator holding the magnet below its limit, each lesion run until "
+        "transmural and as wide as its farthest ring neighbour, at most 90 s; recomputed on the run's own "
+        "dwells, assuming each RF time is held at the dwell's mean force and place (the run itself dwelt 10 s).")
     section.figure(out / "procedure" / "procedure_forces.png", "the navigator's force estimate against the true "
                    "force per dwell (left) and the operator's true force per dwell (right), every seed")
     for key, path in report.files["rings"].items():
