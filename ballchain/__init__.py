@@ -28,6 +28,9 @@ The exported names, by job:
 - anatomy: ``LeftAtrium`` (the procedural atrium), ``UserAtrium`` (a segmented one), ``Atrium``
   (the protocol a new atrium implements), ``load_anatomy`` (an anatomy file);
 - the paper's experiments: ``experiments`` (``ballchain.experiments.<name>.run``);
+- statistics over seeds: ``intervals`` (``interval``, ``paired_interval``,
+  ``difference_interval``, ``proportion_interval``, ``agrees``, ``side_agrees``: a result's 95 %
+  bootstrap interval and the verdict rule of docs/guide/trials.md);
 - sweeps: ``SweepSpec``, ``load_spec``, ``Executor``, ``run_sweep``;
 - errors: ``UserInputError`` (bad input, naming the field and what is allowed).
 
@@ -90,7 +93,7 @@ _EXPORTS: dict[str, str] = {
     "Executor": "ballchain.sweep",
     "run_sweep": "ballchain.sweep",
 }
-_SUBPACKAGES = ("experiments",)
+_SUBPACKAGES = ("experiments", "intervals")  # sub-packages and public modules, sorted
 
 __all__ = ["__version__", *_EXPORTS, *_SUBPACKAGES]
 
