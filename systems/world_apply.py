@@ -10,7 +10,8 @@ The quasi-static engine (``quasi_static_engine.StaticsChainModel.add_to``) plays
   the nominal centres and magnets;
 * the chain: every ball's diameter and remanence scaled (one lot, ``perturbed_config``);
 * the anatomy's registration: the wall and the sheath in it moved together by the drawn offset
-  relative to the magnets, the wall's grid scaled about the sheath exit (``perturbed_wall``);
+  relative to the magnets, the wall's grid scaled and turned about the sheath exit
+  (``perturbed_wall``; the turn by ``PosedWall``: the grid stays axis-aligned);
 * the sheath exit moved across its axis by its drawn offset (the engine's ``p_WE`` and sheath,
   ``perturbed_exit``);
 
@@ -29,7 +30,7 @@ import numpy as np
 from pydrake.systems.primitives import AffineSystem
 
 from ballchain.drake_models.atrium_sdf import AtriumSDF
-from ballchain.drake_models.world import WorldDraw, draw_world
+from ballchain.drake_models.world import PosedWall, WorldDraw, draw_world
 from ballchain.systems.world_scenario import world_seed
 
 
@@ -59,9 +60,11 @@ def perturbed_coupling(coupling, draw: WorldDraw):
 
 def perturbed_wall(sdf, draw: WorldDraw, p_WE):
     """The wall's signed distance scaled by ``anatomy_scale`` about the sheath exit ``p_WE`` (the
-    septal puncture stays where the sheath crosses it) and moved by ``anatomy_offset``:
-    ``s * sdf(c + (p - t - c) / s)``, exact on the grid (origin, spacing, values and band scaled).
-    A wall that is not a grid (a plane) is only moved."""
+    septal puncture stays where the sheath crosses it), turned by the anatomy's rotation R about
+    it too and moved by ``anatomy_offset`` t: ``s * sdf(c + R^T (p - t - c) / s)``; the scale is
+    exact on the grid (origin, spacing, values and band scaled), the turn a ``PosedWall`` around
+    it. A wall that is not a grid (a plane) is only turned and moved. No rotation drawn: no
+    ``PosedWall`` (the wall is the grid, bit for bit as before)."""
     if sdf is None:
         return None
     offset = np.asarray(draw.anatomy_offset, float)
@@ -70,6 +73,8 @@ def perturbed_wall(sdf, draw: WorldDraw, p_WE):
         c = np.asarray(p_WE, float)
         sdf = AtriumSDF(c + s * (np.asarray(sdf.origin, float) - c), sdf.spacing * s, sdf.values * s, sdf.band * s,
                         key=f"{sdf.key}-scaled-{s!r}")
+    if np.any(np.asarray(draw.anatomy_rotation, float) != 0.0):
+        sdf = PosedWall.about(sdf, draw.anatomy_rotation_matrix(), p_WE)
     return sdf.translated(offset) if np.any(offset != 0.0) else sdf
 
 
@@ -125,7 +130,7 @@ def monitor_offsets(draw: WorldDraw, p_WE, p_WE_world, p: np.ndarray, motion=Non
     """What the chain monitor subtracts from the balls ``p`` (n, 3) [m] to see them from the
     nominal sheath and the nominal wall (``StaticsChainModel.anatomy_offsets``): (the sheath's
     displacement (3,), each ball's displacement from its place in the nominal wall's frame
-    (n, 3)), the world's (``perturbed_wall``, ``perturbed_exit``) after the moving wall's
+    (n, 3)), the world's (``perturbed_wall``: ``c + R^T (p - t - c) / s``, ``perturbed_exit``) after the moving wall's
     ``motion`` = (heart offset, wall offset) when it moves."""
     sheath = np.asarray(p_WE_world, float) - np.asarray(p_WE, float)
     wall = np.zeros(3)
@@ -133,5 +138,6 @@ def monitor_offsets(draw: WorldDraw, p_WE, p_WE_world, p: np.ndarray, motion=Non
         sheath, wall = sheath + motion[0], np.asarray(motion[1], float)
     c = np.asarray(p_WE, float)
     p = np.asarray(p, float)
-    p_H = c + (p - wall - np.asarray(draw.anatomy_offset, float) - c) / float(draw.anatomy_scale)
+    R = draw.anatomy_rotation_matrix()
+    p_H = c + ((p - wall - np.asarray(draw.anatomy_offset, float) - c) @ R) / float(draw.anatomy_scale)
     return sheath, p - p_H

@@ -140,14 +140,16 @@ def test_world_preset_names_cover_the_perturbations():
 
 
 def test_the_monitor_sees_the_world_wall_from_the_nominal_one():
-    """A point of the world's wall (scaled about the sheath exit, then moved) is seen where it
-    was on the nominal wall, and the sheath by its own displacement (``monitor_offsets``)."""
+    """A point of the world's wall (scaled and turned about the sheath exit, then moved) is seen
+    where it was on the nominal wall, and the sheath by its own displacement (``monitor_offsets``)."""
     from ballchain.systems.world_apply import monitor_offsets, perturbed_exit
 
     draw = draw_world(PRESETS["literature"], 2, 1)
     c, axis = np.array([0.01, -0.02, 0.005]), np.array([1.0, 0.0, 0.0])
     q = np.array([[0.03, 0.01, -0.02], [-0.01, 0.02, 0.0]])  # nominal wall points
-    p = c + draw.anatomy_scale * (q - c) + np.asarray(draw.anatomy_offset)  # the same points of the world's wall
+    R = draw.anatomy_rotation_matrix()
+    assert np.linalg.norm(draw.anatomy_rotation) > 0.0  # the literature world turns the anatomy
+    p = c + draw.anatomy_scale * (q - c) @ R.T + np.asarray(draw.anatomy_offset)  # the same points of the world's wall
     exit_W = perturbed_exit(c, axis, draw)
     sheath, wall = monitor_offsets(draw, c, exit_W, p)
     assert np.allclose(p - wall, q, rtol=0, atol=1e-15)
