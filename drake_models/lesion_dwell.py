@@ -22,7 +22,11 @@ simulated robot held the force for the procedure's dwell, and the lesion takes t
 force as held for the criterion's time (reported per lesion).
 
 The table is generated data, cached like ``lesion_surrogate``'s (keyed by a hash of the spec
-and of the source of every module that makes it; 7 FEM runs, under a CPU-minute).
+and of the source of every module that makes it; 7 FEM runs, under a CPU-minute). The tables of
+``SHIPPED_SPECS`` (the procedure report's clinical lesions) ship in the package
+(``generated/lesion_dwell/<key>/``, with their SHA-1 list), so that a fresh machine does not
+build them; after a change to the code that makes them (a new key), regenerate them with
+``python -m ballchain.drake_models.lesion_dwell`` (``ship_tables``).
 """
 
 from __future__ import annotations
@@ -31,10 +35,13 @@ import dataclasses
 import functools
 import hashlib
 import inspect
+import io
 import math
+import shutil
 import sys
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy.interpolate import RegularGridInterpolator
@@ -47,6 +54,7 @@ from ballchain.drake_models import model_files, params, rf_generator
 from ballchain.drake_models import tissue as laws
 from ballchain.drake_models.lesion_ring import DEFAULT_WALL_THICKNESS_M, AblationPoint, Lesion
 from ballchain.infrastructure.errors import UserInputError, short_repr
+from ballchain.infrastructure.safe_files import atomic_write_bytes, atomic_write_text
 
 CRITERIA = ("transmural", "contiguous", "fti", "fixed")
 FTI_TARGET_GFS = 400.0  # [gf s] EFFICAS II's minimum force-time integral
@@ -170,9 +178,45 @@ def build_dwell_table(spec: DwellTableSpec, progress: bool = True) -> dict:
             "cpu_s": np.array(time.process_time() - start)}
 
 
+SHIPPED = surrogate.SHIPPED.parent / "lesion_dwell"
+"""Tables shipped with the package (``<key>/dwell_table.npz`` + ``files.sha1``); used only when
+the key and the digest match, otherwise the table is built into the cache."""
+SHIPPED_SPECS = (DwellTableSpec(blood_flow="high"),)
+"""The specs whose tables ship: the procedure report's ``CLINICAL_LESIONS.table_spec()`` (high
+flow, power control at 30 W with the N52 magnet's limit in the loop; tests/test_lesion_dwell.py
+checks that they agree)."""
+SHIP_COMMAND = "python -m ballchain.drake_models.lesion_dwell"
+
+
+def shipped_path(spec: DwellTableSpec) -> Path:
+    """Where the shipped table of ``spec`` is (or would be) [path]."""
+    return SHIPPED / spec.key() / "dwell_table.npz"
+
+
+def ship_tables(specs=SHIPPED_SPECS, progress: bool = True) -> list[Path]:
+    """Build the tables of ``specs`` into the package (``SHIPPED``), each with its SHA-1 list, and
+    remove the shipped tables of older keys. Returns the tables written."""
+    keep = {spec.key() for spec in specs}
+    written = []
+    for spec in specs:
+        path = shipped_path(spec)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        buffer = io.BytesIO()
+        np.savez(buffer, **build_dwell_table(spec, progress=progress))
+        data = buffer.getvalue()
+        atomic_write_bytes(path, data)
+        atomic_write_text(path.parent / model_files.DIGESTS, f"{hashlib.sha1(data).hexdigest()}  {path.name}\n")
+        written.append(path)
+    for old in SHIPPED.iterdir() if SHIPPED.is_dir() else ():
+        if old.is_dir() and old.name not in keep:
+            shutil.rmtree(old)
+    return written
+
+
 def cached_dwell_table(spec: DwellTableSpec, progress: bool = True) -> dict:
-    """``build_dwell_table(spec)`` from the cache (built and written when missing or damaged)."""
-    shipped = surrogate.SHIPPED.parent / "lesion_dwell" / spec.key() / "dwell_table.npz"
+    """``build_dwell_table(spec)``: the copy shipped with the package when its key matches, else
+    from the cache (built and written when missing or damaged)."""
+    shipped = shipped_path(spec)
     try:
         listed = (shipped.parent / model_files.DIGESTS).read_text().split()
         if listed[:2] == [hashlib.sha1(shipped.read_bytes()).hexdigest(), shipped.name]:
@@ -267,3 +311,8 @@ def lesion_for(name: str, p_W, n_W, force_N: float, fixed_s: float, conditions: 
     return Lesion(point=point, width_m=pred["width_m"], depth_m=pred["depth_m"], magnet_peak_C=pred["magnet_peak_C"],
                   transmural=bool(pred["depth_m"] >= conditions.wall_thickness_m - 1e-9),
                   wall_thickness_m=conditions.wall_thickness_m, grade=conditions.grade)
+
+
+if __name__ == "__main__":  # python -m ballchain.drake_models.lesion_dwell: (re)build the shipped tables
+    for written in ship_tables():
+        print(written)

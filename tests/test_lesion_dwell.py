@@ -1,12 +1,19 @@
 """The tip ball's clinical lesion table and the dwell by a lesion criterion (issue 44), on a tiny
-table (2 coarse FEM runs of 8 s in a temporary cache), and the procedure's lesions from it."""
+table (2 coarse FEM runs of 8 s in a temporary cache), and the procedure's lesions from it; the
+report's clinical table shipped in the package, for the current code."""
+
+import hashlib
+import shutil
 
 import numpy as np
 import pytest
 
 from ballchain.cli import main as cli_main
 from ballchain.drake_models import lesion_dwell as ld
-from ballchain.drake_models.params import GRAVITY
+from ballchain.drake_models import model_files
+from ballchain.drake_models.lesion_surrogate import MAGNET_MARGIN_C
+from ballchain.drake_models.params import GRAVITY, magnet_grade
+from ballchain.experiments.procedure_report import CLINICAL_LESIONS
 from ballchain.experiments.procedure_result import ProcedureResult, with_lesions
 from ballchain.infrastructure.errors import UserInputError
 
@@ -110,3 +117,59 @@ def test_bad_conditions_are_refused():
 def test_procedure_refuses_a_bad_grade_before_running(capsys):
     assert cli_main(["procedure", "--blood-flow", "high", "--magnet-grade", "N99"]) == 2
     assert "--magnet-grade" in capsys.readouterr().err
+
+
+def _no_build(*args, **kwargs):
+    pytest.fail("the clinical table was built (or read from the cache), not taken from the package")
+
+
+def test_the_reports_clinical_table_ships_for_the_current_code(tmp_path, monkeypatch):
+    """The procedure report's clinical verdict loads its table from the package (no FEM run, nothing
+    in an empty cache). A change to the code that makes the table changes its key: then this fails
+    and says how to regenerate it."""
+    spec = CLINICAL_LESIONS.table_spec()
+    assert spec in ld.SHIPPED_SPECS, f"CLINICAL_LESIONS' table {spec} is not in lesion_dwell.SHIPPED_SPECS"
+    path = ld.shipped_path(spec)
+    shipped = sorted(d.name for d in ld.SHIPPED.iterdir())
+    assert path.exists(), (f"the shipped clinical lesion table is not for the current code (its key is now "
+                           f"{spec.key()}, shipped: {shipped}): regenerate it with `{ld.SHIP_COMMAND}` (about "
+                           f"20 CPU-s) and commit drake_models/generated/lesion_dwell/")
+    assert (path.parent / model_files.DIGESTS).read_text().split() == [hashlib.sha1(path.read_bytes()).hexdigest(),
+                                                                      path.name]
+    assert shipped == sorted({s.key() for s in ld.SHIPPED_SPECS}), "a stale shipped table: " + ld.SHIP_COMMAND
+    monkeypatch.setenv("BALLCHAIN_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setattr(model_files, "cached_files", _no_build)
+    table = ld.cached_dwell_table(spec, progress=False)
+    assert not (tmp_path / "cache" / "lesion_dwell").exists()
+    # The table of this spec: its axes, the magnet held at its grade's limit less the margin, the
+    # delivered power under the set power, lesions that only grow.
+    np.testing.assert_array_equal(table["indentation_m"], spec.indentations_m)
+    np.testing.assert_array_equal(table["duration_s"], spec.durations_s)
+    assert table["magnet_peak_C"].max() <= magnet_grade(spec.grade).max_operating_C - MAGNET_MARGIN_C + 1e-6
+    assert np.all(table["mean_power_W"] <= spec.power_W + 1e-9) and table["mean_power_W"][:, 1:].min() > 0.0
+    assert np.all(np.diff(table["depth_mm"], axis=1) >= -1e-9) and table["depth_mm"][:, -1].min() > 1.0
+
+
+def test_a_shipped_table_of_other_code_or_altered_is_not_used(tmp_path, monkeypatch):
+    """The key carries the code's version: another version finds no shipped table; a shipped file
+    whose SHA-1 is not the listed one is not read (the table is built into the cache instead)."""
+    spec = ld.SHIPPED_SPECS[0]
+    key = spec.key()
+    monkeypatch.setattr(ld, "DWELL_TABLE_VERSION", ld.DWELL_TABLE_VERSION + 1)
+    assert spec.key() != key and not ld.shipped_path(spec).exists()
+    monkeypatch.undo()
+    altered = tmp_path / "lesion_dwell"
+    shutil.copytree(ld.SHIPPED, altered)
+    (altered / key / "dwell_table.npz").write_bytes((ld.SHIPPED / key / "dwell_table.npz").read_bytes() + b"\0")
+    monkeypatch.setattr(ld, "SHIPPED", altered)
+
+    class FellThrough(Exception):
+        pass
+
+    def cached_files(directory, names, write):
+        raise FellThrough(directory)
+
+    monkeypatch.setattr(model_files, "cached_files", cached_files)
+    with pytest.raises(FellThrough) as fell:
+        ld.cached_dwell_table(spec, progress=False)
+    assert fell.value.args[0].name == key  # to the cache, under the same key
