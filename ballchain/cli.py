@@ -107,7 +107,8 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, argparse.Argument
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     subparsers = {}
     for name, (module, help_text) in COMMANDS.items():
-        subparsers[name] = sub.add_parser(name, help=help_text, description=help_text,
+        # argparse %-formats a help string (``%(default)s``): a literal "95 %" is escaped, not a format
+        subparsers[name] = sub.add_parser(name, help=help_text.replace("%", "%%"), description=help_text,
                                           formatter_class=DefaultsHelpFormatter)
     return parser, subparsers
 

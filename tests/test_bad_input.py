@@ -103,6 +103,7 @@ CASES = [
     ("procedure-latency-off-grid", ["procedure", "--latency", "0.03"], "latency"),
     ("procedure-world", ["procedure", "--world", "lab"], "--world"),
     ("sensitivity-seeds", ["sensitivity", "--seeds", "0"], "--seeds"),
+    ("trials-seeds", ["trials", "--out", "{folder}", "--seeds", "0"], "--seeds"),
     # workspace, validation, field models, sizing, bench, wheels, reconfigure
     ("workspace-step", ["workspace", "--step-deg", "0.01"], "--step-deg"),
     ("workspace-distance", ["workspace", "--distance-cm", "5"], "--distance-cm"),
