@@ -225,3 +225,92 @@ def shaft_chains(GJ: float, EA: float, EI: float, radius: float, shaft_length: f
     twist = ShaftChain("torsion", GJ / free, path, end_force, mu_static, mu_kinetic, radius)
     push = ShaftChain("axial", EA / free, path, end_force, mu_static, mu_kinetic, radius)
     return twist, push
+
+
+# ------------------------------------------------------------------------ the steerable sheath
+@dataclass
+class SteerableSheath:
+    """A deflectable (steerable) transseptal sheath's distal end in the left atrium: advanced or
+    retracted through the septum, rotated about its axis, its distal ``deflectable_length``
+    deflected in one plane (issue 45, the manual arm only: the robotic arm keeps the paper's fixed
+    sheath).
+
+    Geometry (quasi-static, the sheath rigid against the catheter inside it): the sheath crosses
+    the septum at ``p_S`` along the fixed sheath's axis; ``advance`` of it lies beyond the
+    septum: a straight part, then (the last ``min(advance, deflectable_length)``) an arc of
+    curvature ``deflection / deflectable_length`` in the plane at ``rotation`` about the axis
+    (rotation 0: the plane of the sheath frame's x axis, ``rod_statics.frame_along``); the exit is
+    the arc's end, the catheter leaving it along the arc's tangent. A part of the deflectable
+    length still in the septum does not bend.
+
+    Sources and assumptions:
+
+    * Deflection: 180 degrees each way: the 8.5 F steerable introducer of FDA 510(k) K191190
+      (cleared 2019-08-01; "180 degrees bi-directional deflection", its curl size on the
+      product labels, not given in the summary) and the class of the Agilis NxT (Abbott) and
+      CARTO VIZIGO (Biosense Webster) bidirectional sheaths used for pulmonary-vein isolation
+      (Vizigo's first real-world series: J. Interv. Card. Electrophysiol., 2022,
+      doi 10.1007/s10840-022-01332-8). ``max_deflection`` 180 degrees on both sides.
+    * Deflectable length 40 mm (a 180-degree curl of 25 mm across, 2 L / pi): an assumption at the
+      level of a "medium curl" (no curl-size chart of these sheaths was found in the reference
+      material available here).
+    * Advance range 0-40 mm beyond the septum (the fixed sheath's exit lies 3.5 mm beyond it:
+      ``nominal_advance``, measured on the atrium model as the exit's depth inside the wall along
+      the axis): an assumption, the atrium's size.
+    """
+
+    deflectable_length: float = 40e-3
+    max_deflection: float = math.pi
+    max_advance: float = 40e-3
+    nominal_advance: float = 3.5e-3
+
+    def validate(self) -> "SteerableSheath":
+        require_finite_fields(self)
+        for name in ("deflectable_length", "max_deflection", "max_advance"):
+            if not getattr(self, name) > 0:
+                raise UserInputError(f"SteerableSheath.{name} must be > 0, got {getattr(self, name)}")
+        if not self.max_deflection <= math.pi + 1e-12:
+            raise UserInputError(f"SteerableSheath.max_deflection must be <= pi (a half turn), got {self.max_deflection}")
+        if not 0.0 <= self.nominal_advance <= self.max_advance:
+            raise UserInputError(f"SteerableSheath.nominal_advance must be in [0, max_advance = {self.max_advance}], "
+                                 f"got {self.nominal_advance}")
+        return self
+
+    def clamp(self, advance: float, deflection: float) -> tuple[float, float]:
+        """(advance, deflection) within the sheath's travel."""
+        return (float(np.clip(advance, 0.0, self.max_advance)),
+                float(np.clip(deflection, -self.max_deflection, self.max_deflection)))
+
+    def local(self, advance: float, deflection: float, n: int = 2) -> tuple[np.ndarray, np.ndarray]:
+        """The sheath's centreline beyond the septum in the fixed sheath's frame at rotation 0
+        (z its axis, the bend towards +x for a positive deflection), the septum at the origin:
+        (points (n, 3) from the septum to the exit [m], the exit's unit tangent (3,))."""
+        advance, deflection = self.clamp(advance, deflection)
+        bent = min(advance, self.deflectable_length)
+        straight = advance - bent
+        kappa = deflection / self.deflectable_length
+        s = np.linspace(0.0, advance, max(int(n), 2))
+        u = np.clip(s - straight, 0.0, None)
+        if abs(kappa) < 1e-12:
+            x, z = np.zeros_like(s), s
+        else:
+            x = (1.0 - np.cos(kappa * u)) / kappa
+            z = np.minimum(s, straight) + np.sin(kappa * u) / kappa
+        a = kappa * bent
+        return np.column_stack([x, np.zeros_like(s), z]), np.array([math.sin(a), 0.0, math.cos(a)])
+
+    def exit_pose(self, p_S, R_S, advance: float, rotation: float, deflection: float,
+                  n: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The exit in the world: (p (3,), its frame R (3, 3), the centreline (n, 3)) for the
+        septal crossing ``p_S`` and the fixed sheath's frame ``R_S`` (z its axis). R is ``R_S``
+        carried along the arc (turned about the bending plane's normal by the bend: z the exit's
+        axis): rotating the sheath does not twist the catheter inside it."""
+        pts, tangent = self.local(advance, deflection, n)
+        c, s = math.cos(rotation), math.sin(rotation)
+        Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        R = np.asarray(R_S, float) @ Rz
+        a = math.atan2(tangent[0], tangent[2])
+        ca, sa = math.cos(a), math.sin(a)
+        Ry = np.array([[ca, 0.0, sa], [0.0, 1.0, 0.0], [-sa, 0.0, ca]])
+        world = np.asarray(p_S, float)[None, :] + pts @ R.T
+        return world[-1], R @ Ry @ Rz.T, world

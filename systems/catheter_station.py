@@ -41,7 +41,9 @@ from pydrake.geometry import Rgba, Sphere
 from pydrake.systems.framework import EventStatus, LeafSystem
 
 from ballchain.infrastructure.errors import UserInputError, require_finite_fields
+from ballchain.drake_models.sheath import SteerableSheath
 from ballchain.drake_models.steerable_catheter import SteerableCatheter
+from ballchain.infrastructure.arg_checks import require_type
 from ballchain.optimization.rod_statics import RodStatics
 from ballchain.systems.meshcat_view import frame_scene
 from ballchain.systems.teleoperation import apply_dead_band
@@ -230,11 +232,17 @@ class SteerableCatheterSystem(LeafSystem):
     """
 
     def __init__(self, catheter: SteerableCatheter, p_E, axis, sdf, initial_length: float = 20e-3,
-                 period: float = 0.05) -> None:
+                 period: float = 0.05, sheath: SteerableSheath | None = None) -> None:
         super().__init__()
         self.set_name("steerable_catheter")
         self.catheter = catheter.validate()
         self.rod = RodStatics(self.catheter, p_E, axis, sdf)
+        # A steerable sheath (issue 45, the manual arm): its exit moves with its input (advance
+        # beyond the septum [m], rotation [rad], deflection [rad]); None: the paper's fixed exit.
+        self.sheath = None if sheath is None else require_type(sheath, SteerableSheath, "sheath",
+                                                                "a SteerableSheath or None").validate()
+        self._p_S = self.rod.p_E - (0.0 if sheath is None else sheath.nominal_advance) * self.rod.R_E[:, 2]
+        self._R_S = self.rod.R_E.copy()
         if not 0.0 < initial_length <= self.rod.max_length:
             raise UserInputError(f"SteerableCatheterSystem initial_length must be in (0, "
                                  f"{self.rod.max_length * 1e3:.0f} mm], got {initial_length}")
@@ -247,6 +255,7 @@ class SteerableCatheterSystem(LeafSystem):
         self._force_scale = c.mu_kinetic * c.sheath_normal_force()
         self.n_bodies = self.rod.n_joints + 1
         self._handle = self.DeclareVectorInputPort("handle", 3)
+        self._sheath = None if sheath is None else self.DeclareVectorInputPort("sheath", 3)
         self._index = self.DeclareAbstractState(AbstractValue.Make(self._solve(self._start(), 0.0, 0.0, 0.0)))
         ticket = {self.abstract_state_ticket(self._index)}
         self.DeclareAbstractOutputPort("body_poses", lambda: AbstractValue.Make([RigidTransform()]),
@@ -300,8 +309,19 @@ class SteerableCatheterSystem(LeafSystem):
         st.nodes = np.vstack([inside, sol.pose.nodes])
         return st
 
+    def place_sheath(self, advance: float, rotation: float, deflection: float) -> None:
+        """The rod's base at the steerable sheath's exit for its (advance [m], rotation [rad],
+        deflection [rad]) (``SteerableSheath.exit_pose``): the next solve starts there, warm-started
+        from the last joint angles (a quasi-static move: the catheter rides in the sheath)."""
+        p, R, _ = self.sheath.exit_pose(self._p_S, self._R_S, advance, rotation, deflection)
+        if not (np.array_equal(p, self.rod.p_E) and np.array_equal(R, self.rod.R_E)):
+            self.rod.p_E, self.rod.R_E = p, R
+            self.rod._last_pose = None  # its cached pose is keyed by the joint angles only, not the base
+
     def _update(self, context, state):
         push, twist, knob = _finite(self._handle.Eval(context))
+        if self._sheath is not None and self._sheath.HasValue(context):
+            self.place_sheath(*(float(v) for v in _finite(self._sheath.Eval(context))))
         # Drake hands the update a copy of the state: the catheter's is advanced in place there.
         self._solve(state.get_mutable_abstract_state(self._index).get_mutable_value(), float(push), float(twist),
                     float(knob))
