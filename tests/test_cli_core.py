@@ -88,7 +88,8 @@ def test_reproduce_quick_writes_the_report(capsys, tmp_path):
     assert "figure missing" not in html  # every figure the report names is embedded
     assert set(data["experiments"]) == {"alignment", "sizing", "field models", "workspace", "model validation",
                                         "tip forces", "Table I effects and clinical design", "model-based steering",
-                                        "teleoperation", "robotic vs manual", "ablation", "ablation procedure"}
+                                        "teleoperation", "robotic vs manual", "ablation", "ablation procedure",
+                                        "world sensitivity"}
     assert "Simulated ablation procedure" in report and "procedure_forces.png" in report
     assert "model simulation [gf]" in report and "Run time" in report
     assert "ferromagnetic pin" in report and "two N52 spheres of 119 mm" in report

@@ -54,6 +54,8 @@ def test_procedure_json_carries_the_world_and_a_larger_error():
     drawn = data["settings"]["world"]
     assert drawn["seed"] == 1 and drawn["magnet_magnetisation_pct"][0] > 3.0
     assert drawn["magnet_offsets_mm"] == [[0.0, 0.0, 0.0]]  # only the magnetisation
+    assert drawn["anatomy_rotation_deg"] == [0.0, 0.0, 0.0]
+    assert set(drawn["not_modelled"]) == {"wall_stiffness", "wall_friction"}  # said, not drawn
     assert json.loads(nominal.to_json())["settings"]["world"] is None
     assert nominal.summary["reached"] == perturbed.summary["reached"] == 2
     grown = perturbed.summary["estimate_mean_abs_error_gf"] - nominal.summary["estimate_mean_abs_error_gf"]

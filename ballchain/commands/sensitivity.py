@@ -4,7 +4,9 @@ in a world it does not know, each perturbation alone at its published magnitude 
 
 Prints per ring and condition the targets reached, the estimate's error over the dwells and the
 fraction of the dwells in the force window; ``--json`` the whole result; ``--cache FILE`` keeps
-every finished run there (a run stopped resumes from it).
+every finished run there (a run stopped resumes from it); ``--out DIR`` writes the result to
+``DIR/sensitivity.json``, which ``ballchain reproduce --out OUT`` lays out as its "world
+sensitivity" section when DIR is ``OUT/sensitivity`` (``reproduce/sensitivity.py``).
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ import argparse
 
 from ballchain.commands._common import add_json_flag, float_in, int_in, path_arg, positive_int, print_json
 from ballchain.experiments import world_sensitivity
+from ballchain.infrastructure.safe_files import check_output_dir, write_json
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -30,14 +33,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="more rows: every perturbation at S times its magnitude (e.g. 0.25 0.5 2)")
     parser.add_argument("--cache", type=path_arg, default=None, metavar="FILE",
                         help="keep every finished run in this JSON file and resume from it")
+    parser.add_argument("--out", type=path_arg, default=None, metavar="DIR",
+                        help="write the result to DIR/sensitivity.json (the report reads OUT/sensitivity/sensitivity.json)")
     add_json_flag(parser)
 
 
 def main(args: argparse.Namespace) -> int:
     rings = world_sensitivity.RINGS if args.ring == "both" else (args.ring,)
+    if args.out is not None:  # before the runs: a folder that cannot be written is said now
+        check_output_dir(args.out, "--out", names=("sensitivity.json",))
     result = world_sensitivity.run(rings, tuple(range(args.seeds)), targets=args.targets, dwell_s=args.dwell,
                                    conditions=tuple(args.only or world_sensitivity.CONDITIONS), scales=tuple(args.scales),
                                    cache=args.cache)
+    if args.out is not None:
+        write_json(args.out / "sensitivity.json", result.to_dict())
     if args.json:
         print_json(result)
         return 0
@@ -52,4 +61,6 @@ def main(args: argparse.Namespace) -> int:
               f"{err:>10s} {worst:>9s} {inside:>9s} {worse:>11s}")
     print(f"{len(result.runs)} runs, {result.settings['cpu_time_s']} CPU s (the first {args.targets} targets, "
           f"{args.dwell:g} s dwells)")
+    if args.out is not None:
+        print(f"written: {args.out / 'sensitivity.json'}")
     return 0

@@ -21,6 +21,7 @@ from ballchain.reproduce.paper_checks import (alignment_headlines, alignment_sec
                                               field_models_section, sizing_headlines, sizing_section,
                                               validation_headlines, validation_section, workspace_headlines,
                                               workspace_section)
+from ballchain.reproduce.sensitivity import sensitivity_headlines, sensitivity_section
 
 
 @dataclass(frozen=True)
@@ -66,6 +67,8 @@ SECTIONS: tuple[ReportSection, ...] = (
     ReportSection("ablation", ablation_section, (76.6, 56.5), ablation_headlines),
     # Alone, 2 worker processes (load 2; quick: load 7-9, before issue 22).
     ReportSection("ablation procedure", procedure_section, (370.0, 290.6), procedure_headlines),
+    # Reads OUT/sensitivity/sensitivity.json (``ballchain sensitivity --out``) if any: runs nothing.
+    ReportSection("world sensitivity", sensitivity_section, (0.1, 0.1), sensitivity_headlines),
 )
 """The sections in report order. Their costs were measured once: the wall time of a full run
 (21.6 min) and of a --quick run (6.7 min), each ``ballchain reproduce`` in a new process (the first
