@@ -44,15 +44,10 @@ def test_every_notebook_is_stored_without_outputs(path):
 
 # The notebooks a researcher copies from use the public names only: ``import ballchain as bc``
 # (``ballchain.__all__``), ``from ballchain import <exported name>``, and the experiments' ``run``
-# (``from ballchain.experiments import <module>``, then ``<module>.run``). Those still on private
-# paths, with what they need (each entry goes once its notebook is on public names; the test
-# fails while a listed notebook is already clean, so that the list only shrinks):
-PRIVATE_PENDING = {
-    "ablation": "the lesion FEM and the tissue laws (ballchain.drake_models.lesion_fem, tissue) and "
-                "ablation.figure_fields / figure_growth",
-    "actuation": "the unit's parts (unit_system, right_unit, rotation_with_z_along) and the Hall inversion, "
-                 "wheel map and reconfiguration studies' own functions",
-}
+# (``from ballchain.experiments import <module>``, then ``<module>.run``). A notebook still on
+# private paths would be listed here with what it needs (the test fails while a listed notebook is
+# already clean, so that the list only shrinks); none is.
+PRIVATE_PENDING: dict[str, str] = {}
 
 
 def _private_uses(path: Path) -> list[str]:

@@ -28,7 +28,7 @@ from tqdm import tqdm
 from ballchain.drake_models import lesion_fem as fem
 from ballchain.drake_models import tissue as laws
 from ballchain.infrastructure.errors import UserInputError
-from ballchain.infrastructure.safe_files import atomic_write_text, save_figure, write_csv
+from ballchain.infrastructure.safe_files import atomic_write_text, check_output_dir, save_figure, write_csv
 from ballchain.experiments._result import Result, not_in_json, optional
 
 PAPER = {
@@ -188,7 +188,7 @@ def device_result(device: str, electrode: fem.Electrode, sim: fem.LesionSimulati
 
 def run(*, ball_power_W: float = 15.0, catheter_power_W: float = 30.0, duration_s: float = 90.0,
         indentation_mm: float = 1.0, tissue: str = "myocardium", initial_temperature_C: float = 22.0,
-        h_mm: float = 0.1, dt_max_s: float = 1.0, progress: bool = True) -> AblationResult:
+        h_mm: float = 0.1, dt_max_s: float = 1.0, progress: bool = True, out: Path | None = None) -> AblationResult:
     """Both devices of the paper's ablation test.
 
     Args:
@@ -200,11 +200,15 @@ def run(*, ball_power_W: float = 15.0, catheter_power_W: float = 30.0, duration_
         h_mm: mesh spacing near the electrode [mm].
         dt_max_s: largest time step [s].
         progress: show progress bars.
+        out: a folder for ``write_files``' JSON, CSV and figures (checked writable before the
+            work; None: no files), listed in ``files``.
     """
     check_settings(power_W=ball_power_W, duration_s=duration_s, indentation_mm=indentation_mm, tissue=tissue,
                    initial_temperature_C=initial_temperature_C, h_mm=h_mm, dt_max_s=dt_max_s,
                    flag_power="ball_power_W")
     check_settings(power_W=catheter_power_W, flag_power="catheter_power_W")
+    if out is not None:
+        check_output_dir(out, "--out")
     common = dict(duration_s=duration_s, indentation_mm=indentation_mm, tissue=tissue,
                   initial_temperature_C=initial_temperature_C, h_mm=h_mm, dt_max_s=dt_max_s, progress=progress)
     devices = [run_device("ball_chain", power_W=ball_power_W, **common),
@@ -213,7 +217,10 @@ def run(*, ball_power_W: float = 15.0, catheter_power_W: float = 30.0, duration_
                                 initial_temperature_C=initial_temperature_C, h_mm=h_mm, dt_max_s=dt_max_s,
                                 tissue_source=laws.TISSUES[tissue].source,
                                 damage_source=laws.DAMAGE_MODELS[tissue].source, saline_source=laws.SALINE.source)
-    return AblationResult(devices=devices, settings=settings, notes=disagreement_notes(devices))
+    result = AblationResult(devices=devices, settings=settings, notes=disagreement_notes(devices))
+    if out is not None:
+        result.files = write_files(result, Path(out))
+    return result
 
 
 def check_settings(*, power_W: float | None = None, duration_s: float | None = None,

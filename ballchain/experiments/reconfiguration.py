@@ -22,7 +22,7 @@ from ballchain.infrastructure.arg_checks import require_bool, require_choice, re
 from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.field_sources import rotation_with_z_along
 from ballchain.drake_models.vectors import angle_between
-from ballchain.experiments._result import Result
+from ballchain.experiments._result import Result, not_in_json
 from ballchain.systems.actuation_station import StationOptions, make_actuation_station, unit_system
 from ballchain.systems.randomness import MAX_SEED
 from ballchain.systems.rotating_magnet_unit import rotation_from_quaternion
@@ -61,6 +61,8 @@ class ReconfigurationStudyResult(Result):
         antiparallel_time_s: run 0's (the antiparallel start's) time to done [s].
         slip, sensor_noise, field_model, wheel_map: the settings.
         final_error_deg, time_s: per run, lists of length ``runs``.
+        traces: per run, its ``ReconfigurationRun`` (the true and measured angle over time, for a
+            figure; run 0 is the antiparallel start); never in the JSON.
     """
 
     runs: int
@@ -75,6 +77,7 @@ class ReconfigurationStudyResult(Result):
     wheel_map: str
     final_error_deg: list
     time_s: list
+    traces: list | None = not_in_json()
 
 
 def random_rotations(n: int, seed: int) -> np.ndarray:
@@ -199,7 +202,7 @@ def run_reconfiguration_study(
     m_c = unit_system(make_actuation_station([unit], base), unit.name, "controller").m_c_W
     starts = list(random_rotations(runs, seed))
     starts[0] = rotation_with_z_along(-m_c)  # exactly antiparallel: the law's stall point
-    finals, times, converged = [], [], 0
+    finals, times, traces, converged = [], [], [], 0
     bar = tqdm(total=runs, desc="reconfigure", unit="run", file=sys.stderr, disable=progress is not True)
     for k, R0 in enumerate(starts):
         result = run_reconfiguration(R0, unit=unit, options=replace(base, seed=seed + k), t_max=t_max)
@@ -207,6 +210,7 @@ def run_reconfiguration_study(
         converged += int(ok)
         finals.append(result.final_error_deg)
         times.append(result.time_s)
+        traces.append(result)
         bar.update(1)
         if callable(progress):
             progress(1)
@@ -224,6 +228,7 @@ def run_reconfiguration_study(
         wheel_map=wheel_map,
         final_error_deg=finals,
         time_s=times,
+        traces=traces,
     )
 
 
