@@ -140,6 +140,9 @@ class DwellTableSpec:
 
     def key(self) -> str:
         code = model_files.source_hash(fem, laws, clinical, boundary, rf_generator) + repr(params.BallChain())
+        # The generator as the FEM runs get it: the magnet's limit less the margin, which live in
+        # params and lesion_surrogate (a change to them is a new table).
+        code += repr(self.generator())
         builder = inspect.getsource(build_dwell_table)
         text = repr(sorted(dataclasses.asdict(self).items())) + code + builder + str(DWELL_TABLE_VERSION)
         return hashlib.sha1(text.encode()).hexdigest()[:12]
