@@ -27,7 +27,8 @@ subcommand        experiment module                             result
 ``ablation``      ``ablation``                                  ``AblationResult``
 ``clinical``      ``clinical``, ``table1_effects``              ``ClinicalResult``, ``EffectsResult``
 ``bench``         ``statics_bench``                             ``StaticsBenchResult``
-(notebook)        ``hall_inversion``                            ``InversionComparison``
+(notebook)        ``hall_inversion``                            ``HallInversionResult``
+(notebook)        ``lesion_fem_check``                          ``FemCheckResult``
 ================  ============================================  =======================================
 """
 
