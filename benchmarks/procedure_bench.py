@@ -3,9 +3,10 @@ run with its plans given, with the force model's compiled held-tip path on and o
 process (``optimization.compiled_held_tip``; off: ``ChainStatics.solve`` on ``FieldSources``, the
 code before issue 48, the same numbers).
 
-``--planner-held-solve`` also times a cold plan with the planner's held-tip solves routed through
-``compiled_held_tip.held_solve`` (``ChainStatics.solve`` replaced for this process only: the
-change it measures is not made in the planner) and checks that the plans are the same.
+``--planner-held-solve`` also times a cold plan as the planner makes it (its held-tip solves
+through ``compiled_held_tip.held_solve``, its sources built without re-validation) against the
+code before that wiring (``ChainStatics.solve`` and validated ``MagnetSource``s, put back for this
+process only), alternating, and checks that the plans are the same, every array.
 
 The machine is shared: every figure is process CPU time (``time.process_time``), each run
 ``--repeats`` times alternating the two paths, the median printed, and the ratio of the medians
@@ -26,8 +27,10 @@ import time
 
 import numpy as np
 
-from ballchain.experiments import procedure
-from ballchain.optimization import compiled_held_tip
+from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
+from ballchain.drake_models.params import CylinderMagnet
+from ballchain.experiments import planner, procedure
+from ballchain.optimization import compiled_held_tip, inverse_statics
 from ballchain.optimization.statics import ChainStatics
 
 RESULT_KEYS = ("reached", "in_window_fraction", "estimate_mean_abs_error_gf", "estimate_worst_error_gf",
@@ -55,22 +58,28 @@ def _same_plans(a, b) -> bool:
         for p, q in zip(a.plans, b.plans))
 
 
-def _cold_plan_held_solve(args):
-    """A cold plan with ``ChainStatics.solve``'s held-tip calls through ``held_solve``."""
-    general = ChainStatics.solve
+def _old_field_for(stand):
+    """``planner._field_for`` before issue 48's wiring: a validated ``MagnetSource`` per direction."""
+    magnet, p_M = CylinderMagnet(), stand.magnets["1"]
+    return lambda m: FieldSources([MagnetSource(magnet, p_M, rotation_with_z_along(m.reshape(-1, 3)[0]))])
 
-    def solve(self, external, warm_start=None, tip_target=None, wall=None, constraints=None):
-        if tip_target is not None and warm_start is not None and wall is None and constraints is None:
-            return compiled_held_tip.held_solve(self, external, warm_start, tip_target)
-        return general(self, external, warm_start, tip_target, wall, constraints)
 
-    ChainStatics.solve = solve
+def _general_held(statics, external, warm_start, tip_target):
+    return ChainStatics.solve(statics, external, warm_start, tip_target=tip_target)
+
+
+def _cold_plan(args, before: bool):
+    """A cold plan (CPU s, plans); ``before``: the planner's held solves through ``ChainStatics.solve``
+    and its sources validated per solve (the code before the wiring, for this process only)."""
+    saved = inverse_statics.held_solve, planner._field_for
+    if before:
+        inverse_statics.held_solve, planner._field_for = _general_held, _old_field_for
     try:
         c0 = time.process_time()
         plans = procedure.plan_ring(args.task, targets=args.targets, cache=False)
         return time.process_time() - c0, plans
     finally:
-        ChainStatics.solve = general
+        inverse_statics.held_solve, planner._field_for = saved
 
 
 def main(argv=None) -> dict:
@@ -81,7 +90,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--cold", action="store_true", help="also time a cold plan (no cache: tens of CPU-s)")
     parser.add_argument("--planner-held-solve", action="store_true",
-                        help="also a cold plan with the planner's solves through held_solve (and without, alternating)")
+                        help="also cold plans as wired and as before the wiring, alternating")
     parser.add_argument("--no-runs", action="store_true", help="the planning only")
     parser.add_argument("--profile", action="store_true")
     parser.add_argument("--json", default=None)
@@ -99,17 +108,17 @@ def main(argv=None) -> dict:
     if args.cold:
         out["cold_equals_cached"] = _same_plans(cold, plans)
     if args.planner_held_solve:
-        pairs = {"general": [], "held_solve": []}
+        pairs = {"before": [], "held_solve": []}
         for _ in range(args.repeats):
-            c0 = time.process_time()
-            general = procedure.plan_ring(args.task, targets=args.targets, cache=False)
-            pairs["general"].append(time.process_time() - c0)
-            cpu, held = _cold_plan_held_solve(args)
+            cpu, before = _cold_plan(args, True)
+            pairs["before"].append(cpu)
+            cpu, held = _cold_plan(args, False)
             pairs["held_solve"].append(cpu)
-            print(f"cold plan: general {pairs['general'][-1]:.2f}, held_solve {cpu:.2f} CPU-s", flush=True)
+            print(f"cold plan: before {pairs['before'][-1]:.2f}, wired {cpu:.2f} CPU-s", flush=True)
         out["planner_cold_cpu_s"] = {k: statistics.median(v) for k, v in pairs.items()}
-        out["planner_held_solve_speed_up"] = statistics.median(pairs["general"]) / statistics.median(pairs["held_solve"])
-        out["planner_held_solve_same_plans"] = _same_plans(general, held) and _same_plans(general, plans)
+        out["planner_cold_runs_cpu_s"] = pairs
+        out["planner_held_solve_speed_up"] = statistics.median(pairs["before"]) / statistics.median(pairs["held_solve"])
+        out["planner_held_solve_same_plans"] = _same_plans(before, held) and _same_plans(before, plans)
     if not args.no_runs:
         times: dict = {"fast": [], "general": []}
         summaries = {}

@@ -35,6 +35,7 @@ from pydrake.solvers import MathematicalProgram, SnoptSolver, SolverOptions
 from ballchain.drake_models.field_sources import FieldSource, require_field_source
 from ballchain.infrastructure.arg_checks import as_rows, as_vector, require_int, require_positive, require_type
 from ballchain.infrastructure.errors import UserInputError, short_repr
+from ballchain.optimization.compiled_held_tip import held_solve
 from ballchain.optimization.statics import ChainStatics, StaticsResult
 
 FieldFor = Callable[[np.ndarray], FieldSource]  # (k, 3) unit dipole directions -> external field
@@ -58,7 +59,7 @@ def pin_tip(solver: ChainStatics, external: FieldSource, target: np.ndarray, sta
         return None
     origin = current.tip_position.copy()
     for s in np.linspace(0.0, 1.0, steps + 1)[1:]:
-        current = solver.solve(external, current, tip_target=origin + s * (np.asarray(target) - origin))
+        current = held_solve(solver, external, current, origin + s * (np.asarray(target) - origin))
         if not current.converged:
             return None
     return current
@@ -133,7 +134,7 @@ class HeldTip:
         target = self.tip_point(offset)
         self.evaluations += 1
         for start in (self._last, self.home):
-            result = self.solver.solve(external, start, tip_target=target)
+            result = held_solve(self.solver, external, start, target)  # solver.solve's answer (issue 48)
             if result.converged:
                 self._last = result
                 return result

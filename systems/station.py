@@ -376,11 +376,20 @@ def add_target_touches(builder: DiagramBuilder, scenario: ChainScenario, heart: 
     period = max(scenario.check_period, chain.move_period)
     offsets = chain.get_anatomy_offsets_output_port()  # engine: statics with wall_motion
     electrode = chain.electrode
+    length = getattr(electrode, "length", 0.0)  # the catheter's: its whole surface
+    # The tip ball's centre alone from the centres, not every ball's frame (issue 48).
+    positions = getattr(chain, "get_ball_positions_output_port", None)
+    n = len(chain.body_indices)
+    by_centre = (positions is not None and length <= electrode.radius and electrode.body_index == chain.body_indices[-1]
+                 and positions().size() == 3 * n)
     tracker = builder.AddSystem(TargetTouchTracker(
         electrode.body_index, names, p_WT, n_W, target_radius,
         ball_radius=electrode.radius, period=period, moving_wall=offsets is not None,
-        electrode_length=getattr(electrode, "length", 0.0)))  # the catheter's: its whole surface
-    builder.Connect(chain.get_body_poses_output_port(), tracker.get_body_poses_input_port())
+        electrode_length=length, n_positions=n if by_centre else None))
+    if by_centre:
+        builder.Connect(positions(), tracker.get_ball_positions_input_port())
+    else:
+        builder.Connect(chain.get_body_poses_output_port(), tracker.get_body_poses_input_port())
     if offsets is not None:  # the anatomy the device's solves placed
         builder.Connect(offsets, tracker.get_anatomy_offsets_input_port())
     return TargetTouches(targets, tracker)

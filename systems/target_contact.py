@@ -186,7 +186,8 @@ class TargetTouchTracker(LeafSystem):
     """Remembers which ablation targets the tip ball has touched (``targets_touched``).
 
     Input ports:
-        body_poses: abstract list[RigidTransform] indexed by BodyIndex (the plant's ``body_poses``).
+        body_poses: abstract list[RigidTransform] indexed by BodyIndex (the plant's ``body_poses``),
+            or with ``n_positions``: ball_positions (3 n) the ball centres [m], the tip's last.
 
     Output ports:
         touched: (n_targets,) 1.0 for each target touched at any update so far, else 0.0 (the
@@ -204,11 +205,15 @@ class TargetTouchTracker(LeafSystem):
             (its last 3) for the chain's pose on ``body_poses``; they are at p_WT + offset.
         electrode_length: the electrode's length [m], dome included, along the tip body's z axis
             (``drake_models.electrode``; 0: the tip ball).
+        n_positions: read the tip ball's centre from a ``ball_positions`` vector input (3 n, the
+            tip's last: the device's centres) instead of ``body_poses`` (every body's frame, of
+            which the tracker needs one translation; issue 48): n, or None for ``body_poses``.
+            Only for the tip ball (no electrode beyond it: its axis needs the tip's frame).
     """
 
     def __init__(self, tip_body_index, names: Sequence[str], p_WT: np.ndarray, n_W: np.ndarray,
                  target_radius: float, ball_radius: float, period: float, moving_wall: bool = False,
-                 electrode_length: float = 0.0) -> None:
+                 electrode_length: float = 0.0, n_positions: int | None = None) -> None:
         super().__init__()
         self.set_name("target_touches")
         self.names = list(names)
@@ -218,7 +223,12 @@ class TargetTouchTracker(LeafSystem):
         self._target_radius = float(target_radius)
         self._ball_radius = float(ball_radius)
         self._electrode_length = float(electrode_length)
-        self._body_poses_port = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
+        if n_positions is not None and self._electrode_length > self._ball_radius:
+            raise ValueError("TargetTouchTracker: an electrode beyond the tip ball needs body_poses (n_positions=None)")
+        self._body_poses_port = None if n_positions is not None else self.DeclareAbstractInputPort(
+            "body_poses", AbstractValue.Make([RigidTransform()]))
+        self._positions_port = None if n_positions is None else self.DeclareVectorInputPort(
+            "ball_positions", 3 * int(n_positions))
         self._anatomy_port = self.DeclareVectorInputPort("anatomy_offsets", 6) if moving_wall else None
         self._state_index = self.DeclareDiscreteState(len(self.names))
         self._touched_port = self.DeclareStateOutputPort("touched", self._state_index)
@@ -226,7 +236,12 @@ class TargetTouchTracker(LeafSystem):
         self.DeclareInitializationDiscreteUpdateEvent(self._update)
 
     def get_body_poses_input_port(self):
+        """The ``body_poses`` port (None when the tracker reads ``ball_positions``)."""
         return self._body_poses_port
+
+    def get_ball_positions_input_port(self):
+        """The ``ball_positions`` port (None when the tracker reads ``body_poses``)."""
+        return self._positions_port
 
     def get_touched_output_port(self):
         return self._touched_port
@@ -236,8 +251,11 @@ class TargetTouchTracker(LeafSystem):
         return self._anatomy_port
 
     def _update(self, context, discrete_state):
-        pose = self._body_poses_port.Eval(context)[self._tip]
-        p_tip = pose.translation()
+        if self._positions_port is not None:
+            pose, p_tip = None, self._positions_port.Eval(context)[-3:]
+        else:
+            pose = self._body_poses_port.Eval(context)[self._tip]
+            p_tip = pose.translation()
         p_WT = self._p_WT
         if self._anatomy_port is not None:
             p_WT = p_WT + self._anatomy_port.Eval(context)[3:]

@@ -74,9 +74,46 @@ def neutral_dipole(stand: Stand) -> np.ndarray:
     return neutral_direction(stand.magnets["1"], np.zeros(3), np.array([1.0, 0.0, 0.0]))
 
 
+class _PointingMagnet(MagnetSource):
+    """``MagnetSource(magnet, p_WM, rotation_with_z_along(direction))`` with the magnet and its
+    centre checked by the caller and the direction finite and non-zero: its dipole moment
+    computed from the direction alone (the same floats: the rotation's third column is the unit
+    direction), the rotation itself built only when read (the general solve's field; the
+    compiled held solve reads ``m_W`` only: ``compiled_model.field_arrays``). Issue 48: the
+    planner asks for one source per held solve, and the rotation's cross products cost a sixth
+    of a cold plan."""
+
+    def __init__(self, magnet, p_WM: np.ndarray, direction: np.ndarray, unit: np.ndarray) -> None:
+        self.magnet, self.p_WM, self.model, self.fd_step = magnet, p_WM, "dipole", MagnetSource.fd_step
+        self._direction, self._unit, self._R = direction, unit, None
+
+    @property
+    def R_WM(self) -> np.ndarray:
+        if self._R is None:
+            self._R = rotation_with_z_along(self._direction)
+        return self._R
+
+    @property
+    def m_W(self) -> np.ndarray:
+        return self.magnet.dipole_moment * self._unit
+
+
 def _field_for(stand: Stand) -> Callable[[np.ndarray], FieldSources]:
-    magnet, p_M = CylinderMagnet(), stand.magnets["1"]
-    return lambda m: FieldSources([MagnetSource(magnet, p_M, rotation_with_z_along(m.reshape(-1, 3)[0]))])
+    """The magnet's field as a function of its direction (1, 3): the magnet and its centre checked
+    once here (``MagnetSource``'s checks), each direction's source without them (``_PointingMagnet``:
+    the same fields, the same floats; a direction ``rotation_with_z_along`` would refuse goes
+    through it and is refused), since the planner asks for one per held solve (issue 48)."""
+    magnet = CylinderMagnet()
+    p_M = MagnetSource(magnet, stand.magnets["1"]).p_WM
+
+    def field(m: np.ndarray) -> FieldSources:
+        z = np.asarray(m, dtype=float).reshape(-1, 3)[0]
+        norm = np.linalg.norm(z)  # as rotation_with_z_along normalises it
+        if not (np.isfinite(norm) and norm > 0.0):
+            return FieldSources([MagnetSource(magnet, p_M, rotation_with_z_along(z))])  # raises its error
+        return FieldSources([_PointingMagnet(magnet, p_M, z, z / norm)])
+
+    return field
 
 
 def plan_target(chain: BallChain, stand: Stand, name: str, m_previous: np.ndarray,
