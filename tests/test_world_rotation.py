@@ -98,3 +98,26 @@ def test_no_rotation_keeps_the_grid_and_the_earlier_draws():
     d = a.to_dict()
     assert len(d["anatomy_rotation_deg"]) == 3 and d["anatomy_rotation_angle_deg"] > 0.0
     assert set(d["not_modelled"]) == {"wall_stiffness", "wall_friction"}
+
+
+def test_the_engine_plays_the_turned_wall_and_none_keeps_its_grid():
+    """Wired where the translation is: the quasi-static engine's wall is the nominal grid turned
+    by the drawn rotation about the nominal sheath exit; ``world: none`` keeps the grid itself."""
+    from ballchain.drake_models.atrium_sdf import atrium_sdf
+    from ballchain.experiments import teleop
+    from ballchain.experiments.procedure_world import with_world
+    from ballchain.systems.station import MakeStation
+
+    world = {"preset": "literature", "only": ["anatomy_rotation"], "seed": 5}
+    turned = MakeStation(teleop.scenario_for("world", None, with_world(None, world, 5), None))
+    nominal = MakeStation(teleop.scenario_for("world", None, None, None))
+    grid = nominal.chain.engine_system._sdf
+    assert isinstance(grid, AtriumSDF) and grid.key == atrium_sdf(nominal.heart).key
+    wall = turned.chain.engine_system._sdf
+    assert isinstance(wall, PosedWall) and wall.inner.key == grid.key
+    draw = draw_world(PRESETS["literature"].only(["anatomy_rotation"]), 5, len(turned.units))
+    c = np.asarray(nominal.chain.p_WE, float)
+    assert np.array_equal(np.asarray(turned.chain.world_exit, float), c)  # the exit stays: the turn is about it
+    assert np.allclose(wall.R, draw.anatomy_rotation_matrix(), rtol=0, atol=1e-15)
+    q = c + RNG.uniform(-0.02, 0.02, size=(10, 3))
+    assert np.max(np.abs(wall(c + (q - c) @ wall.R.T)[0] - grid(q)[0])) < 1e-12
