@@ -100,4 +100,4 @@ def sensitivity_headlines(section: Section, data: dict) -> None:
         why = "" if worst is None else (f"alone, {worst['condition']} reaches the fewest targets "
                                         f"({worst['reached']}/{worst['targets']})")
         section.headline(f"{ring} ring: the sensorless force estimate in a world it does not know "
-                         "(mean |error| over the dwells)", None, "; ".join(parts) or "-", None, why)
+                         "(mean abs error over the dwells)", None, "; ".join(parts) or "-", None, why)
