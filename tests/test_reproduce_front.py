@@ -163,7 +163,7 @@ def test_a_quick_batch_run_prints_no_meshcat_line_says_where_replays_go_and_ends
     lines = proc.stdout.strip().splitlines()
     assert lines[-1] == f"open {out / 'report.html'}"
     found = [line for line in lines if line.startswith("  ")]
-    assert len(found) == 3  # two teleoperation tasks, the clinical design
+    assert len(found) == 5  # two teleoperation tasks (targets touched, time: each with its interval), the clinical design
     assert all(re.match(r"  (agrees|disagrees|-) +\S", line) for line in found)
     md = (out / "report.md").read_text()
     # The replays are linked; the force-per-target figure is left out with one target per chain.
