@@ -2,8 +2,8 @@
 
 Runs seeds x arms (``experiments/trials.py``: the teleoperation tasks with the robotic chain,
 the manual catheter, the ablation procedure's navigator and operator on a ring) through the
-project's Dask executor: a LocalCluster by default, an existing cluster with ``--scheduler
-tcp://host:8786``, this process with ``--workers 0``. Each finished run is written to
+project's Dask executor: a LocalCluster by default, an existing cluster with
+``--scheduler-address tcp://host:8786``, this process with ``--workers 0``. Each finished run is written to
 ``OUT/runs/`` at once; rerunning with the same ``--out`` skips them. Prints per arm the median of
 the targets touched and of the total time with its 95 % bootstrap interval beside the paper's
 number, and the paired comparisons; ``--json`` the whole result. ``OUT/table.parquet``,
