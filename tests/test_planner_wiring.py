@@ -53,3 +53,35 @@ def test_plan_target_is_the_same_as_before_the_wiring(heart, monkeypatch):
         assert np.array_equal(np.asarray(getattr(pa, name)), np.asarray(getattr(pb, name))), name
     assert np.array_equal(pa.result.positions, pb.result.positions)
     assert np.array_equal(pa.result.tip_reaction, pb.result.tip_reaction)
+
+
+def test_held_solve_is_the_general_solve_with_two_magnets():
+    """Procedure's plans with two units hold the tip under two magnets: ``held_solve`` (the
+    planner's path now) against ``ChainStatics.solve`` on the same sources, warm-started along
+    a homotopy of the tip and the magnets' directions, every result field the same."""
+    from dataclasses import fields
+
+    from ballchain.optimization.compiled_held_tip import held_solve
+
+    chain = BallChain(n_balls=16)
+    fast, slow = ChainStatics(chain, max_iterations=25), ChainStatics(chain, max_iterations=25)
+    centres = [np.array([0.02, 0.0, 0.11]), np.array([0.03, 0.1, -0.05])]
+    field = planner.field_for_centres(centres)
+    m0 = np.array([[0.0, 0.2, 1.0], [0.3, -1.0, 0.1]])
+    first = slow.solve(field(m0))
+    assert first.converged
+    a = b = first
+    rng = np.random.default_rng(7)
+    compared = 0
+    for k in range(10):
+        m = m0 + 0.05 * k * rng.standard_normal((2, 3))
+        target = first.tip_position + 1e-3 * k * np.array([0.2, 0.5, -0.3])
+        a, b = held_solve(fast, field(m), a, target), slow.solve(field(m), b, tip_target=target)
+        for f in fields(a):
+            if f.name != "solve_time":
+                x, y = getattr(a, f.name), getattr(b, f.name)
+                assert (np.array_equal(x, y) if isinstance(x, np.ndarray) else x == y), f.name
+        compared += a.converged
+        if not a.converged:
+            a = b = first
+    assert compared >= 5

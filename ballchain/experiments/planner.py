@@ -98,22 +98,32 @@ class _PointingMagnet(MagnetSource):
         return self.magnet.dipole_moment * self._unit
 
 
-def _field_for(stand: Stand) -> Callable[[np.ndarray], FieldSources]:
-    """The magnet's field as a function of its direction (1, 3): the magnet and its centre checked
-    once here (``MagnetSource``'s checks), each direction's source without them (``_PointingMagnet``:
-    the same fields, the same floats; a direction ``rotation_with_z_along`` would refuse goes
-    through it and is refused), since the planner asks for one per held solve (issue 48)."""
+def field_for_centres(centres) -> Callable[[np.ndarray], FieldSources]:
+    """The prototype magnets' field at ``centres`` (k of (3,)) [m] as a function of their
+    directions (k, 3): the magnets and their centres checked once here (``MagnetSource``'s
+    checks), each call's sources without them (``_PointingMagnet``: the same fields, the same
+    floats; a direction ``rotation_with_z_along`` would refuse goes through it and is refused),
+    since the planner asks for sources at every held solve (issue 48)."""
     magnet = CylinderMagnet()
-    p_M = MagnetSource(magnet, stand.magnets["1"]).p_WM
+    p_M = [MagnetSource(magnet, p).p_WM for p in centres]
 
     def field(m: np.ndarray) -> FieldSources:
-        z = np.asarray(m, dtype=float).reshape(-1, 3)[0]
-        norm = np.linalg.norm(z)  # as rotation_with_z_along normalises it
-        if not (np.isfinite(norm) and norm > 0.0):
-            return FieldSources([MagnetSource(magnet, p_M, rotation_with_z_along(z))])  # raises its error
-        return FieldSources([_PointingMagnet(magnet, p_M, z, z / norm)])
+        m = np.asarray(m, dtype=float).reshape(-1, 3)
+        sources = []
+        for p, z in zip(p_M, m):
+            norm = np.linalg.norm(z)  # as rotation_with_z_along normalises it
+            if not (np.isfinite(norm) and norm > 0.0):
+                sources.append(MagnetSource(magnet, p, rotation_with_z_along(z)))  # raises its error
+            else:
+                sources.append(_PointingMagnet(magnet, p, z, z / norm))
+        return FieldSources(sources)
 
     return field
+
+
+def _field_for(stand: Stand) -> Callable[[np.ndarray], FieldSources]:
+    """The stand's one magnet's field as a function of its direction (1, 3) (``field_for_centres``)."""
+    return field_for_centres([stand.magnets["1"]])
 
 
 def plan_target(chain: BallChain, stand: Stand, name: str, m_previous: np.ndarray,
