@@ -174,10 +174,8 @@ def _plan_step(chain, stand, name: str, m_prev: np.ndarray, previous, forces_N, 
         {"feasible", "plan" (the OrientationPlan), "start" (which warm start answered),
         "asked_N" (the force asked for)}, or {"feasible": False, "reason"}.
     """
-    from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
-    from ballchain.drake_models.params import CylinderMagnet
     from ballchain.experiments.forces import max_normal_force
-    from ballchain.experiments.planner import plan_target
+    from ballchain.experiments.planner import field_for_centres, plan_target
     from ballchain.optimization.inverse_statics import HeldTip, min_turn_orientation, pin_tip
     from ballchain.optimization.statics import ChainStatics
 
@@ -189,11 +187,7 @@ def _plan_step(chain, stand, name: str, m_prev: np.ndarray, previous, forces_N, 
             if out.get("feasible"):
                 return {**out, "start": out.get("how"), "asked_N": f}
         return {**out, "feasible": False}
-    centres = [stand.magnets[key] for key in keys]
-
-    def field_for(m):
-        m = np.asarray(m, float).reshape(-1, 3)
-        return FieldSources([MagnetSource(CylinderMagnet(), p, rotation_with_z_along(mj)) for p, mj in zip(centres, m)])
+    field_for = field_for_centres([stand.magnets[key] for key in keys])  # the same sources, checked once
 
     centre, axis = stand.targets[name]
     solver = ChainStatics(chain, max_iterations=25)
@@ -261,9 +255,7 @@ def target_plans(anatomy, chosen: list[int], force_N: float, n_balls: int, inser
     from ballchain.drake_models.dipole_inversion import neutral_direction
     from ballchain.drake_models.params import BallChain
     from ballchain.experiments.forces import Stand
-    from ballchain.experiments.planner import anatomy_stand
-    from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
-    from ballchain.drake_models.params import CylinderMagnet
+    from ballchain.experiments.planner import anatomy_stand, field_for_centres
     from ballchain.optimization.inverse_statics import HeldTip
     from ballchain.optimization.statics import ChainStatics
     from ballchain.systems.autonomous_navigator import TargetPlan
@@ -276,10 +268,7 @@ def target_plans(anatomy, chosen: list[int], force_N: float, n_balls: int, inser
     m_now = np.array([neutral_direction(c, np.zeros(3), np.array([1.0, 0.0, 0.0])) for c in centres])
     m_now /= np.linalg.norm(m_now, axis=1, keepdims=True)
 
-    def field_for(m):
-        m = np.asarray(m, float).reshape(-1, 3)
-        return FieldSources([MagnetSource(CylinderMagnet(), p, rotation_with_z_along(mj)) for p, mj in zip(centres, m)])
-
+    field_for = field_for_centres(centres)  # the same sources, checked once (issue 48)
     held, plans, missing = None, [], []
     d = chain.ball_diameter
     for k, name in zip(tqdm(chosen, desc="plan", unit="target", disable=not progress), stand.targets):
