@@ -286,18 +286,25 @@ class SteerableSheath:
         (z its axis, the bend towards +x for a positive deflection), the septum at the origin:
         (points (n, 3) from the septum to the exit [m], the exit's unit tangent (3,))."""
         advance, deflection = self.clamp(advance, deflection)
+        a = deflection / self.deflectable_length * min(advance, self.deflectable_length)
+        return self.points(advance, deflection, np.linspace(0.0, advance, max(int(n), 2))), \
+            np.array([math.sin(a), 0.0, math.cos(a)])
+
+    def points(self, advance: float, deflection: float, s) -> np.ndarray:
+        """The centreline's points (k, 3) at the arc lengths ``s`` (k,) from the septum [m], in the
+        frame of ``local``; s < 0: behind the septum, on the fixed sheath's axis."""
+        advance, deflection = self.clamp(advance, deflection)
         bent = min(advance, self.deflectable_length)
         straight = advance - bent
         kappa = deflection / self.deflectable_length
-        s = np.linspace(0.0, advance, max(int(n), 2))
+        s = np.minimum(np.asarray(s, float), advance)
         u = np.clip(s - straight, 0.0, None)
         if abs(kappa) < 1e-12:
             x, z = np.zeros_like(s), s
         else:
             x = (1.0 - np.cos(kappa * u)) / kappa
             z = np.minimum(s, straight) + np.sin(kappa * u) / kappa
-        a = kappa * bent
-        return np.column_stack([x, np.zeros_like(s), z]), np.array([math.sin(a), 0.0, math.cos(a)])
+        return np.column_stack([x, np.zeros_like(s), z])
 
     def exit_pose(self, p_S, R_S, advance: float, rotation: float, deflection: float,
                   n: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -314,3 +321,11 @@ class SteerableSheath:
         Ry = np.array([[ca, 0.0, sa], [0.0, 1.0, 0.0], [-sa, 0.0, ca]])
         world = np.asarray(p_S, float)[None, :] + pts @ R.T
         return world[-1], R @ Ry @ Rz.T, world
+
+    def behind_exit(self, p_S, R_S, advance: float, rotation: float, deflection: float, d) -> np.ndarray:
+        """Points (k, 3) ``d`` (k,) behind the exit along the sheath [m] (where the catheter's
+        part still in the sheath lies), in the world as ``exit_pose``."""
+        advance, deflection = self.clamp(advance, deflection)
+        c, s = math.cos(rotation), math.sin(rotation)
+        R = np.asarray(R_S, float) @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        return np.asarray(p_S, float)[None, :] + self.points(advance, deflection, advance - np.asarray(d, float)) @ R.T

@@ -250,6 +250,21 @@ class SteerableCatheter:
         d, f = self.max_curvature
         return knob * (d if knob >= 0 else f)
 
+    def unloaded_shape(self, out: float, knob: float, n: int = 14) -> np.ndarray:
+        """The rod beyond the exit with no load on it, in the exit's frame (z its axis, the D bend
+        towards +x): straight, then the deflectable segment (what is out of it) at the knob's
+        constant curvature; (n, 3) points from the exit to the tip sphere's centre [m] (the
+        shape a hand expects, for a steerable sheath's plan: ``systems.catheter_station``)."""
+        out = max(float(out), 0.0)
+        bent = min(out, self.deflectable_length)
+        kappa = self.curvature(knob)
+        s = np.linspace(0.0, out, max(int(n), 2))
+        u = np.clip(s - (out - bent), 0.0, None)
+        if abs(kappa) < 1e-12:
+            return np.column_stack([np.zeros_like(s), np.zeros_like(s), s])
+        return np.column_stack([(1.0 - np.cos(kappa * u)) / kappa, np.zeros_like(s),
+                                np.minimum(s, out - bent) + np.sin(kappa * u) / kappa])
+
     def sheath_normal_force(self) -> float:
         """The bends' end forces on the sheath, the shaft unloaded [N] (module docstring: 2 EI / R^2
         at each end of each bend)."""

@@ -21,7 +21,9 @@ import numpy as np
 from ballchain.drake_models.atrium_sdf import atrium_sdf
 from ballchain.drake_models.electrode import CATHETER_ELECTRODE_LENGTH
 from ballchain.infrastructure.errors import UserInputError
-from ballchain.systems.catheter_station import CatheterMeshcat, CatheterParams, ManualHand, SteerableCatheterSystem
+from ballchain.systems.catheter_station import (CatheterMeshcat, CatheterParams, ManualHand, SheathPlan,
+                                                SteerableCatheterSystem)
+from ballchain.systems.target_contact import heart_targets
 from ballchain.systems.chain_model import subsystem_context
 from ballchain.systems.device_model import DeviceModel, Electrode, OperatorInputs
 
@@ -62,11 +64,16 @@ class CatheterModel(DeviceModel):
             raise UserInputError("MakeStation: device: steerable_catheter takes no field (field_source, "
                                  "uniform_field, magnets or units): it is not magnetic")
         params = params or CatheterParams()
-        cat = builder.AddSystem(SteerableCatheterSystem(params.catheter, heart.p_HE, heart.sheath_axis_H,
-                                                        atrium_sdf(heart), params.initial_length,
-                                                        scenario.statics_period))
-        hand = builder.AddSystem(ManualHand(params.hand))
+        sdf = atrium_sdf(heart)
+        cat = builder.AddSystem(SteerableCatheterSystem(params.catheter, heart.p_HE, heart.sheath_axis_H, sdf,
+                                                        params.initial_length, scenario.statics_period,
+                                                        sheath=params.sheath))
+        plan = None if params.sheath is None else SheathPlan(
+            params.sheath, cat.catheter, cat.septum[0], cat.septum[1], sdf, heart_targets(heart)[3])
+        hand = builder.AddSystem(ManualHand(params.hand, plan, params.initial_length))
         builder.Connect(hand.GetOutputPort("handle"), cat.GetInputPort("handle"))
+        if plan is not None:
+            builder.Connect(hand.GetOutputPort("sheath"), cat.GetInputPort("sheath"))
         builder.Connect(cat.GetOutputPort("handle_load"), hand.GetInputPort("handle_load"))
         return cls(cat, hand)
 
@@ -105,11 +112,9 @@ class CatheterModel(DeviceModel):
         return self.system.rod.max_length
 
     def in_sheath(self, p_W: np.ndarray) -> np.ndarray:
-        """The rod's nodes still in the sheath: on its axis, behind the exit."""
-        rel = np.asarray(p_W) - self.p_WE
-        along = rel @ self.sheath_axis_W
-        radial = np.linalg.norm(rel - along[:, None] * self.sheath_axis_W, axis=1)
-        return (along <= 1e-9) & (radial <= self.tip_radius)
+        """The rod's nodes still in the sheath: on its axis behind the exit (a steerable sheath:
+        along its centreline, and behind the septum on its axis)."""
+        return self.system.in_sheath(p_W, self.tip_radius)
 
     # --- ports ----------------------------------------------------------------------------------
     def actuation_input_ports(self) -> dict:

@@ -46,6 +46,7 @@ from ballchain.drake_models.steerable_catheter import SteerableCatheter
 from ballchain.infrastructure.arg_checks import require_type
 from ballchain.optimization.rod_statics import RodStatics
 from ballchain.systems.meshcat_view import frame_scene
+from ballchain.systems.sheath_plan import SheathPlan
 from ballchain.systems.teleoperation import apply_dead_band
 
 STRATEGIES = ("keep", "switch")
@@ -98,6 +99,13 @@ class HandParams:
         f_over_d: the F curve's largest bend over the D curve's (the hand knows its handle's two
             curves): a switch puts the knob where the other tendon gives the same bend.
         period: the hand's update [s].
+        sheath_advance_rate, sheath_rotation_rate, sheath_deflection_rate: how fast the other hand
+            moves a steerable sheath (advance [m/s], rotation [rad/s], deflection [rad/s]): 10 mm/s,
+            90 deg/s (the handle's twist rate) and its knob's travel (half a turn each way) in
+            1 s as the catheter's knob: assumptions, no source found.
+        sheath_retract_out: how much catheter the hand leaves out of the sheath while it moves
+            the sheath (it pulls back first, at ``push_speed``) [m]: the rod's shortest (two of
+            its 3 mm segments).
     """
 
     push_speed: float = 0.02
@@ -109,17 +117,25 @@ class HandParams:
     knob_end_switch: bool = True
     f_over_d: float = 1.0
     period: float = 0.05
+    sheath_advance_rate: float = 10e-3
+    sheath_rotation_rate: float = np.radians(90.0)
+    sheath_deflection_rate: float = np.pi
+    sheath_retract_out: float = 6e-3
 
     def validate(self) -> "HandParams":
         require_finite_fields(self)
         if self.strategy not in STRATEGIES:
             raise UserInputError(f"HandParams.strategy must be one of {STRATEGIES}, got {self.strategy!r}")
-        for name in ("push_speed", "twist_rate", "knob_rate", "torque_threshold", "period", "f_over_d"):
+        for name in ("push_speed", "twist_rate", "knob_rate", "torque_threshold", "period", "f_over_d",
+                     "sheath_advance_rate", "sheath_rotation_rate", "sheath_deflection_rate", "sheath_retract_out"):
             if not getattr(self, name) > 0:
                 raise UserInputError(f"HandParams.{name} must be > 0, got {getattr(self, name)}")
         if not 0.0 <= self.dead_band < 1.0:
             raise UserInputError(f"HandParams.dead_band must be in [0, 1), got {self.dead_band}")
         return self
+
+
+SHEATH_SUBSTEP = 1.0  # [deg or mm] the largest move of a steerable sheath between the rod's solves
 
 
 class ManualHand(LeafSystem):
@@ -130,18 +146,36 @@ class ManualHand(LeafSystem):
     unconnected: nothing felt).
     Output ports: handle (3: push past the start [m], twist [rad], knob in [-1, 1]),
     switches (1: tendon switches so far).
-    State (discrete, 7): push, twist, knob, switching (0/1), the switch's target twist and knob,
-    switches.
+    State (discrete, 7; 18 with a sheath plan): push, twist, knob, switching (0/1), the switch's
+    target twist and knob, switches; the sheath's setting (advance [m], rotation, deflection
+    [rad]) and its goal, the target (3), the push before a pull-back and whether one is under way.
+
+    With a ``SheathPlan`` (a steerable sheath, issue 45) it also has an input ``target`` (6: the
+    operator's target centre and wall normal, what the operator sees) and an output ``sheath``
+    (3: the sheath's setting): on each new target it plans the sheath's setting (``SheathPlan``:
+    straight, the fixed sheath's exit, when the catheter's shapes reach the target from there)
+    and, when that differs from the sheath's, pulls the catheter back to ``sheath_retract_out``,
+    moves the sheath at its rates (``HandParams.sheath_*_rate``) and pushes the catheter out as
+    far as it was (pull back and re-approach), holding the handle's twist and knob meanwhile
+    (the clinician's other hand on the sheath); the operator's commands wait.
     """
 
-    def __init__(self, params: HandParams | None = None) -> None:
+    def __init__(self, params: HandParams | None = None, plan: SheathPlan | None = None,
+                 initial_length: float = 20e-3) -> None:
         super().__init__()
         self.params = p = (params or HandParams()).validate()
+        self.plan, self.initial_length = plan, float(initial_length)
         self.set_name("hand")
         self._joystick = self.DeclareVectorInputPort("joystick", 3)
         self._push = self.DeclareVectorInputPort("v_insert_cmd", 1)
         self._feel = self.DeclareVectorInputPort("handle_load", 2)
-        self._state = self.DeclareDiscreteState(7)
+        start = np.zeros(7 if plan is None else 18)
+        if plan is not None:
+            start[7:10] = start[10:13] = plan.nominal
+            start[13:16] = np.nan  # no target planned yet
+            self._target = self.DeclareVectorInputPort("target", 6)
+            self.DeclareVectorOutputPort("sheath", 3, self._calc_sheath, prerequisites_of_calc={self.xd_ticket()})
+        self._state = self.DeclareDiscreteState(start)
         self.DeclareStateOutputPort("state", self._state)
         self.DeclareVectorOutputPort("handle", 3, self._calc_handle, prerequisites_of_calc={self.xd_ticket()})
         self.DeclareVectorOutputPort("switches", 1, self._calc_switches, prerequisites_of_calc={self.xd_ticket()})
@@ -153,6 +187,46 @@ class ManualHand(LeafSystem):
     def _calc_switches(self, context, output):
         output.SetAtIndex(0, context.get_discrete_state(self._state).get_value()[6])
 
+    def _calc_sheath(self, context, output):
+        output.SetFromVector(context.get_discrete_state(self._state).get_value()[7:10])
+
+    def _move_sheath(self, context, x: np.ndarray) -> bool:
+        """The sheath's setting and goal in ``x`` (the state) advanced one period: a new target
+        plans a new goal; returns whether the sheath is still moving (the hand holds the catheter)."""
+        p, dt = self.params, self.params.period
+        if not self._target.HasValue(context):
+            return False
+        target = _finite(self._target.Eval(context))
+        if not np.all(np.abs(target[:3] - x[13:16]) <= 1e-9):  # a new target (also the first: NaN)
+            x[10:13], x[13:16] = self.plan.plan(target[:3], target[3:]), target[:3]
+        sheath, goal = x[7:10], x[10:13]
+        delta = goal - sheath
+        delta[1] = (delta[1] + np.pi) % (2 * np.pi) - np.pi  # the rotation the short way round
+        if sheath[2] == 0.0 and goal[2] == 0.0:
+            delta[1] = 0.0  # a straight sheath: its rotation does not matter
+        if not np.any(np.abs(delta) > 1e-12):
+            if x[17]:  # re-approach: the catheter out again as far as before the pull-back
+                x[0] = min(x[0] + p.push_speed * dt, x[16])
+                x[17] = float(x[0] < x[16] - 1e-12)
+                return True
+            return False
+        # Pull back first (the catheter's tip into the sheath's mouth, ``sheath_retract_out`` out),
+        # then move the sheath, then push the catheter out again.
+        if not x[17]:
+            x[16], x[17] = x[0], 1.0
+        if self.initial_length + x[0] > p.sheath_retract_out + 1e-9:
+            x[0] = max(x[0] - p.push_speed * dt, p.sheath_retract_out - self.initial_length)
+            return True
+        rates = np.array([p.sheath_advance_rate, p.sheath_rotation_rate, p.sheath_deflection_rate]) * dt
+        # Straight while it advances or turns (the straight sheath stays on its axis, inside the
+        # atrium; a deflected one swept about could cross the wall): straighten, advance and
+        # turn, then deflect.
+        if np.any(np.abs(delta[:2]) > 1e-12):
+            delta = np.array([0.0, 0.0, -sheath[2]]) if abs(sheath[2]) > 1e-12 else np.array([delta[0], delta[1], 0.0])
+        step = np.clip(delta, -rates, rates)
+        x[7:10] = sheath + step
+        return True
+
     def _other_tendon(self, knob: float) -> float:
         """The knob on the other tendon for the same bend (``f_over_d``: the F curve's largest bend
         over the D curve's), within the knob's travel."""
@@ -161,7 +235,9 @@ class ManualHand(LeafSystem):
 
     def _update(self, context, discrete_state):
         p = self.params
-        push, twist, knob, switching, target, goal, switches = context.get_discrete_state(self._state).get_value()
+        x = context.get_discrete_state(self._state).get_value().copy()
+        holding = self.plan is not None and not x[3] and self._move_sheath(context, x)
+        push, twist, knob, switching, target, goal, switches = x[:7]
         u = apply_dead_band(_finite(self._joystick.Eval(context)), p.dead_band)
         v = float(np.clip(_finite(self._push.Eval(context))[0], -p.push_speed, p.push_speed))
         dt = p.period
@@ -184,9 +260,11 @@ class ManualHand(LeafSystem):
             knob_rate = float(np.clip((goal - knob) / dt, -p.knob_rate, p.knob_rate))
             if abs(target - twist - twist_rate * dt) < 1e-9 and abs(goal - knob - knob_rate * dt) < 1e-9:
                 switching = 0.0
-        state = [push + v * dt, twist + twist_rate * dt, float(np.clip(knob + knob_rate * dt, -1.0, 1.0)),
+        if holding:  # the other hand on the sheath: the catheter held
+            v = twist_rate = knob_rate = 0.0
+        x[:7] = [push + v * dt, twist + twist_rate * dt, float(np.clip(knob + knob_rate * dt, -1.0, 1.0)),
                  switching, target, goal, switches]
-        discrete_state.get_mutable_vector(self._state).SetFromVector(state)
+        discrete_state.get_mutable_vector(self._state).SetFromVector(x)
         return EventStatus.Succeeded()
 
 
@@ -243,6 +321,7 @@ class SteerableCatheterSystem(LeafSystem):
                                                                 "a SteerableSheath or None").validate()
         self._p_S = self.rod.p_E - (0.0 if sheath is None else sheath.nominal_advance) * self.rod.R_E[:, 2]
         self._R_S = self.rod.R_E.copy()
+        self.sheath_setting = None if sheath is None else (sheath.nominal_advance, 0.0, 0.0)
         if not 0.0 < initial_length <= self.rod.max_length:
             raise UserInputError(f"SteerableCatheterSystem initial_length must be in (0, "
                                  f"{self.rod.max_length * 1e3:.0f} mm], got {initial_length}")
@@ -305,14 +384,45 @@ class SteerableCatheterSystem(LeafSystem):
                 break
         st.R_tip = sol.pose.R_tip
         j0 = self.rod.first_free(length)
-        inside = self.rod.p_E[None, :] + np.outer(length - self.rod.sigma[:j0], self.rod.R_E[:, 2])
+        inside = self.behind_exit(self.rod.sigma[:j0] - length)
         st.nodes = np.vstack([inside, sol.pose.nodes])
         return st
+
+    @property
+    def septum(self) -> tuple:
+        """(p_S, R_S): where the sheath crosses the septum and the fixed sheath's frame there."""
+        return self._p_S, self._R_S
+
+    def behind_exit(self, d) -> np.ndarray:
+        """Points (k, 3) ``d`` (k,) behind the exit along the sheath [m]: on the fixed sheath's
+        axis, or along the steerable sheath's centreline and then its axis behind the septum."""
+        d = np.asarray(d, float)
+        if self.sheath is None:
+            return self.rod.p_E[None, :] - np.outer(d, self.rod.R_E[:, 2])
+        return self.sheath.behind_exit(self._p_S, self._R_S, *self.sheath_setting, d)
+
+    def in_sheath(self, p_W, radius: float) -> np.ndarray:
+        """Which points (k, 3) lie in the sheath (within ``radius`` of its centreline)."""
+        p_W = np.atleast_2d(np.asarray(p_W, float))
+        if self.sheath is None:
+            line = self.rod.p_E[None, :]
+        else:
+            line = self.behind_exit(np.linspace(0.0, self.sheath.max_advance, 81))
+        axis = self._R_S[:, 2]
+        start = line[-1] if self.sheath is not None else self.rod.p_E
+        rel = p_W - start
+        along = rel @ axis
+        behind = (along <= 1e-9) & (np.linalg.norm(rel - along[:, None] * axis, axis=1) <= radius)
+        if self.sheath is None:
+            return behind
+        near = np.min(np.linalg.norm(p_W[:, None, :] - line[None], axis=2), axis=1) <= radius + 0.5e-3
+        return behind | near
 
     def place_sheath(self, advance: float, rotation: float, deflection: float) -> None:
         """The rod's base at the steerable sheath's exit for its (advance [m], rotation [rad],
         deflection [rad]) (``SteerableSheath.exit_pose``): the next solve starts there, warm-started
         from the last joint angles (a quasi-static move: the catheter rides in the sheath)."""
+        self.sheath_setting = (float(advance), float(rotation), float(deflection))
         p, R, _ = self.sheath.exit_pose(self._p_S, self._R_S, advance, rotation, deflection)
         if not (np.array_equal(p, self.rod.p_E) and np.array_equal(R, self.rod.R_E)):
             self.rod.p_E, self.rod.R_E = p, R
@@ -321,7 +431,17 @@ class SteerableCatheterSystem(LeafSystem):
     def _update(self, context, state):
         push, twist, knob = _finite(self._handle.Eval(context))
         if self._sheath is not None and self._sheath.HasValue(context):
-            self.place_sheath(*(float(v) for v in _finite(self._sheath.Eval(context))))
+            new = _finite(self._sheath.Eval(context))
+            old = np.array(self.sheath_setting)
+            # In steps of at most SHEATH_SUBSTEP's degrees (or mm): the rod's solve is warm-started
+            # from the last one, which a large jump of its base leaves too far behind.
+            turn = np.degrees(np.abs(new - old))
+            n = int(np.ceil(max(turn[1] * abs(new[2]) / np.pi, turn[2], abs(new[0] - old[0]) * 1e3) / SHEATH_SUBSTEP))
+            for k in range(1, n):
+                self.place_sheath(*(old + (new - old) * k / n))
+                self._solve(state.get_mutable_abstract_state(self._index).get_mutable_value(), float(push),
+                            float(twist), float(knob))
+            self.place_sheath(*(float(v) for v in new))
         # Drake hands the update a copy of the state: the catheter's is advanced in place there.
         self._solve(state.get_mutable_abstract_state(self._index).get_mutable_value(), float(push), float(twist),
                     float(knob))
@@ -404,8 +524,11 @@ class CatheterParams:
         catheter: the SteerableCatheter (default: its defaults).
         hand: the HandParams of the hand on its handle (default: its defaults).
         initial_length: rod beyond the sheath exit at the start [m].
+        sheath: a steerable sheath the hand moves (``SteerableSheath``, issue 45), or None: the
+            paper's fixed sheath.
     """
 
     catheter: SteerableCatheter = field(default_factory=SteerableCatheter)
     hand: HandParams = field(default_factory=HandParams)
     initial_length: float = 20e-3
+    sheath: SteerableSheath | None = None

@@ -180,6 +180,7 @@ class SimulatedOperator(SeededLeafSystem):
         self.DeclareVectorOutputPort("joystick", 3, self._calc_joystick, prerequisites_of_calc=ticket)
         self.DeclareVectorOutputPort("v_insert_cmd", 1, self._calc_feeder, prerequisites_of_calc=ticket)
         self.DeclareVectorOutputPort("done", 1, self._calc_done, prerequisites_of_calc=ticket)
+        self.DeclareVectorOutputPort("target", 6, self._calc_target, prerequisites_of_calc=ticket)
         self.DeclarePeriodicUnrestrictedUpdateEvent(p.period, 0.0, self._update)
 
     # ---------------------------------------------------------------------------- ports
@@ -206,6 +207,12 @@ class SimulatedOperator(SeededLeafSystem):
 
     def _calc_done(self, context, output):
         output.SetAtIndex(0, 1.0 if self._memory(context).done else 0.0)
+
+    def _calc_target(self, context, output):
+        """The target it is on (the last once done): its centre [m] and wall normal (what it sees;
+        for a hand that places a steerable sheath, issue 45)."""
+        k = min(self._memory(context).k, len(self.names) - 1)
+        output.SetFromVector(np.concatenate([self._p_WT[k], self._n_W[k]]))
 
     # -------------------------------------------------------------------------- results
     def records(self, context) -> list[TargetRecord]:

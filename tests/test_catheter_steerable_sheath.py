@@ -78,3 +78,81 @@ def test_catheter_rides_in_the_sheath():
     seen_steer = R.T @ (tip - p)
     np.testing.assert_allclose(seen_steer, seen_fixed, atol=1e-6)
     assert np.linalg.norm(tip - tip_fixed) > 10e-3  # the sheath moved the tip
+
+
+class _Plan:
+    """A plan stub: one setting for any target."""
+
+    nominal = (3.5e-3, 0.0, 0.0)
+
+    def __init__(self, goal):
+        self.goal, self.calls = goal, 0
+
+    def plan(self, p_T, n_T):
+        self.calls += 1
+        return self.goal
+
+
+def test_hand_pulls_back_then_moves_the_sheath_at_its_rates():
+    from ballchain.systems.catheter_station import HandParams, ManualHand
+
+    params = HandParams()
+    goal = (20e-3, 1.0, math.pi)
+    plan = _Plan(goal)
+    hand = ManualHand(params, plan, initial_length=20e-3)
+    ctx = hand.CreateDefaultContext()
+    hand.GetInputPort("joystick").FixValue(ctx, [1.0, 1.0, 0.0])  # the operator asks for a turn and a bend
+    hand.GetInputPort("v_insert_cmd").FixValue(ctx, [0.02])
+    hand.GetInputPort("handle_load").FixValue(ctx, [0.0, 0.0])
+    hand.GetInputPort("target").FixValue(ctx, [0.01, 0.0, 0.0, 0.0, 0.0, 1.0])
+    dt = params.period
+    pulled_steps = round((20e-3 - params.sheath_retract_out) / (params.push_speed * dt))
+    for _ in range(pulled_steps):
+        x = hand.EvalUniquePeriodicDiscreteUpdate(ctx).get_vector().CopyToVector()
+        ctx.SetDiscreteState(0, x)
+    handle = hand.GetOutputPort("handle").Eval(ctx)
+    # Pulled back to sheath_retract_out out, the handle's twist and knob held, the sheath not yet moved.
+    assert handle[0] == pytest.approx(params.sheath_retract_out - 20e-3, abs=1e-9)
+    assert handle[1] == 0.0 and handle[2] == 0.0
+    np.testing.assert_allclose(hand.GetOutputPort("sheath").Eval(ctx), plan.nominal, atol=1e-12)
+    # Then the sheath, straight while it advances and turns, then deflected.
+    straight = int(np.ceil(max((goal[0] - 3.5e-3) / params.sheath_advance_rate,
+                               goal[1] / params.sheath_rotation_rate) / dt - 1e-9))
+    bend = int(np.ceil(goal[2] / params.sheath_deflection_rate / dt - 1e-9))
+    for k in range(straight + bend):
+        x = hand.EvalUniquePeriodicDiscreteUpdate(ctx).get_vector().CopyToVector()
+        ctx.SetDiscreteState(0, x)
+        if k == 0:
+            np.testing.assert_allclose(x[7:10] - plan.nominal, [params.sheath_advance_rate * dt,
+                                       params.sheath_rotation_rate * dt, 0.0], atol=1e-12)
+        if k == straight - 1:
+            np.testing.assert_allclose(x[7:10], [goal[0], goal[1], 0.0], atol=1e-12)
+    np.testing.assert_allclose(hand.GetOutputPort("sheath").Eval(ctx), goal, atol=1e-12)
+    assert plan.calls == 1  # planned once per target
+    # Re-approach: the catheter pushed out again as far as it was, the operator still waiting.
+    for _ in range(pulled_steps):
+        x = hand.EvalUniquePeriodicDiscreteUpdate(ctx).get_vector().CopyToVector()
+        ctx.SetDiscreteState(0, x)
+    assert x[0] == pytest.approx(0.0, abs=1e-9) and x[1] == 0.0 and not x[17]
+    # The sheath stands: the operator's commands move the catheter again.
+    before = hand.GetOutputPort("handle").Eval(ctx).copy()
+    x = hand.EvalUniquePeriodicDiscreteUpdate(ctx).get_vector().CopyToVector()
+    assert x[0] > before[0] and x[1] > before[1]
+
+
+def test_sheath_plan_keeps_the_straight_sheath_when_it_reaches_and_curls_it_when_not():
+    from ballchain.systems.catheter_station import SheathPlan
+
+    cat, sheath = SteerableCatheter(), SteerableSheath()
+    plan = SheathPlan(sheath, cat, np.zeros(3), np.eye(3), None, 2e-3)  # free space, the septum at 0
+    ahead = np.array([0.0, 0.0, 60e-3])
+    assert plan.plan(ahead, [0.0, 0.0, -1.0]) == plan.nominal
+    assert plan.miss(plan.nominal, ahead, np.array([0.0, 0.0, -1.0])) == 0.0
+    # Beside the septum, facing into the atrium: the straight sheath's curves cannot press on it
+    # (the catheter's D curve is a half turn, 35 mm across: it would have to come back past the exit).
+    behind, normal = np.array([20e-3, 0.0, 2e-3]), np.array([0.0, 0.0, 1.0])
+    straight = plan.miss(plan.nominal, behind, normal)
+    assert straight > 1e-3
+    setting = plan.plan(behind, normal)
+    assert setting != plan.nominal and abs(setting[2]) > np.radians(90.0)
+    assert plan.miss(setting, behind, normal) < 0.5 * straight  # closer, though its first 12 need not touch

@@ -29,6 +29,7 @@ from ballchain.infrastructure.arg_checks import require_type
 from ballchain.drake_models.atrium import Atrium
 from ballchain.infrastructure.errors import UserInputError
 from ballchain.infrastructure.safe_files import check_output_file
+from ballchain.drake_models.sheath import SteerableSheath
 from ballchain.drake_models.steerable_catheter import SteerableCatheter
 from ballchain.experiments import teleop
 from ballchain.systems.catheter_station import CatheterParams, HandParams
@@ -100,12 +101,19 @@ def _run_settings(used, seed: int, hand, scenario, params, limit: float, device:
             "path": path}
 
 
+SHEATHS = ("steerable", "fixed")  # the manual arm's sheath: a steerable one the hand moves, or the paper's fixed one
+
+
 def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy: str = "switch",
-        time_limit: float | None = None, heart=None, hand=None, catheter=None, html=None) -> teleop.TeleopResult:
+        time_limit: float | None = None, heart=None, hand=None, catheter=None, html=None,
+        sheath: str = "fixed") -> teleop.TeleopResult:
     """The operator does ``task`` with the manual catheter (default: ``comparison_catheter()``)
     in the station ``MakeStation`` builds for ``device: steerable_catheter``, run by
     ``run_station``; with ``html`` (a path) a Meshcat replay of the rod in the atrium is written
-    there (frames every ``teleop.REPLAY_PERIOD``).
+    there (frames every ``teleop.REPLAY_PERIOD``). ``sheath`` "fixed" (the paper's, as the robotic
+    arm's) or "steerable" (``drake_models.sheath.SteerableSheath``, placed by the hand per target:
+    ``systems.catheter_station.SheathPlan``; issue 45, not yet the comparison's: see
+    ``docs/guide/manual_catheter.md``).
 
     Returns:
         a ``teleop.TeleopResult`` (mapping "manual"); its settings add the catheter's and the
@@ -114,6 +122,9 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
         ``smoothness`` {sparc_median, transitions (``transitions``)}.
     """
     check_inputs(task, targets, time_limit, seed, strategy)
+    if sheath not in SHEATHS:
+        raise UserInputError(f"sheath must be one of {SHEATHS} (a steerable sheath the hand moves, or the paper's "
+                             f"fixed one), got {sheath!r}")
     for value, types, name, what in ((heart, Atrium, "heart", "an atrium (LeftAtrium) or None"),
                                      (hand, HandParams, "hand", "a HandParams or None"),
                                      (catheter, SteerableCatheter, "catheter", "a SteerableCatheter or None")):
@@ -134,7 +145,9 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
         names, p_WT, n_W, radius = ports.targets
         chosen = [i for i, n in enumerate(names) if n.startswith(f"{task}_")][:n_targets]
         device = ports.device
-        seen = replace(params, ball_radius=device.tip_radius, target_radius=radius, p_WE=tuple(device.p_WE),
+        # With the steerable sheath the exit moves: no feed cap from the fixed exit's distance.
+        seen = replace(params, ball_radius=device.tip_radius, target_radius=radius,
+                       p_WE=None if sheath == "steerable" else tuple(device.p_WE),
                        electrode_length=device.electrode.length,
                        initial_length=device.initial_inserted_length, min_length=device.initial_inserted_length,
                        max_length=device.max_inserted_length(), keep_out=teleop.vein_openings(heart))
@@ -144,6 +157,8 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
         (joystick,) = ports.joystick_inputs.values()
         builder.Connect(op.GetOutputPort("joystick"), joystick)
         builder.Connect(op.GetOutputPort("v_insert_cmd"), ports.feeder_command_input)
+        if device.hand.plan is not None:  # the hand places the steerable sheath for the operator's target
+            builder.Connect(op.GetOutputPort("target"), device.hand.GetInputPort("target"))
         handles["tip"] = LogVectorOutput(device.system.GetOutputPort("tip_position"), builder, params.period)
         handles["windup"] = LogVectorOutput(device.system.GetOutputPort("windup"), builder, params.period)
         handles["operator"] = op
@@ -153,7 +168,8 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
     meshcat = _replay_meshcat(html, scenario, limit, used)
     built = time.perf_counter()
     station = MakeStation(scenario, meshcat=meshcat, heart=heart, add_systems=add_operator,
-                          device_params=CatheterParams(catheter=used, hand=hand))
+                          device_params=CatheterParams(catheter=used, hand=hand,
+                                                       sheath=SteerableSheath() if sheath == "steerable" else None))
     built = time.perf_counter() - built
     op = handles["operator"]
     # The run ends when the operator has touched or given up every target.
@@ -169,6 +185,8 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
     path = {"t": tip_log.sample_times().tolist(), "tip": tip_log.data().T.tolist(),
             "twist": wind_log.data()[0].tolist(), "exit_twist": wind_log.data()[1].tolist()}
     settings = _run_settings(used, int(seed), hand, scenario, params, limit, station.device.metrics(root), path)
+    settings["sheath"] = ("steerable (drake_models.sheath.SteerableSheath, placed by the hand per target)"
+                          if sheath == "steerable" else "fixed (the paper's)")
     result = teleop.TeleopResult(task=task, mapping="manual", rows=rows, summary=summary, paper=teleop.PAPER[task],
                                  settings=settings, html=None if html is None else str(html))
     # The smoothness beside the time (issue 45): SPARC of each touched-to-touched movement.

@@ -1,0 +1,101 @@
+"""Where the manual arm's hand puts a steerable sheath for a target (issue 45): ``SheathPlan``,
+used by ``catheter_station.ManualHand`` (split from that module for its length)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ballchain.drake_models.sheath import SteerableSheath
+from ballchain.drake_models.steerable_catheter import SteerableCatheter
+from ballchain.systems.target_contact import TOUCH_TOLERANCE
+
+SHEATH_CLEARANCE = 1.5e-3  # [m] the planned sheath stays this far inside the atrium, beyond the septum's 4 mm
+PLAN_DEFLECTIONS = (0.0, 45.0, 90.0, 135.0, 180.0)  # [deg] the sheath deflections a plan weighs
+# [m] the fixed sheath's setting is kept while its unloaded shapes miss a target by no more: the
+# wall's contact slides the tip further than the shapes (right_1 at 0.3 mm and left_11 at 1.1 mm
+# are touched from the fixed exit, the paper's sheath); an assumption.
+PLAN_KEEP = 1.5e-3
+
+
+class SheathPlan:
+    """Where the hand puts a steerable sheath for a target (issue 45): what a clinician does with
+    the curves they know, not a search of the mechanics. The catheter's unloaded shapes
+    (``SteerableCatheter.unloaded_shape``: the push 5-120 mm in 4 mm, 11 knob positions, 24 twists
+    a turn) from a sheath setting's exit must touch the target (the tip sphere's centre over the
+    target's circle, its surface within the touch tolerance of the wall), the rod inside the
+    atrium; the fixed sheath's setting (nominal advance, straight) is kept when it does (within
+    ``PLAN_KEEP``). Else the
+    settings (advance 3.5-40 mm, rotation 24 a turn, ``PLAN_DEFLECTIONS``; the sheath
+    ``SHEATH_CLEARANCE`` inside the atrium) are tried in the order of how squarely their exit
+    faces the target (the exit's axis against the wall's normal, and against the line to the
+    target), the first ``top`` of them, and the first that touches is the plan (else the least
+    miss). ``benchmarks/manual_sheath_reach.py`` is the same check over every setting.
+    """
+
+    def __init__(self, sheath: SteerableSheath, catheter: SteerableCatheter, p_S, R_S, sdf,
+                 target_radius: float, top: int = 12) -> None:
+        self.sheath, self.catheter, self.sdf = sheath.validate(), catheter, sdf
+        self.target_radius, self.top = float(target_radius), int(top)
+        self.nominal = (sheath.nominal_advance, 0.0, 0.0)
+        advances = sorted({sheath.nominal_advance, 10e-3, 15e-3, 20e-3, 30e-3, sheath.max_advance})
+        self.candidates = []
+        for advance in advances:
+            for deg in PLAN_DEFLECTIONS:
+                for rotation in np.linspace(0.0, 2 * np.pi, 24, endpoint=False) if deg else [0.0]:
+                    setting = (advance, float(rotation), float(np.radians(deg)))
+                    p, R, line = sheath.exit_pose(p_S, R_S, *setting, 8)
+                    along = np.linspace(0.0, advance, len(line))
+                    if sdf is not None and np.any(sdf(line[along > 4e-3], gradient=False) < SHEATH_CLEARANCE):
+                        continue
+                    self.candidates.append((setting, p, R))
+        self._p_S, self._R_S = np.asarray(p_S, float), np.asarray(R_S, float)
+        self.shapes = np.array([catheter.unloaded_shape(out, knob) for out in np.arange(5e-3, 120e-3 + 1e-9, 4e-3)
+                                for knob in np.linspace(-1.0, 1.0, 11)])  # (S, n, 3)
+        t = np.linspace(0.0, 2 * np.pi, 24, endpoint=False)
+        c, si, z, o = np.cos(t), np.sin(t), np.zeros_like(t), np.ones_like(t)
+        self._twists = np.stack([np.stack([c, -si, z], -1), np.stack([si, c, z], -1), np.stack([z, z, o], -1)], 1)
+        self._cache = {}
+
+    def miss(self, setting, p_T, n_T) -> float:
+        """The least distance from a touch of the target (p_T, n_T) over the catheter's unloaded
+        shapes from the sheath ``setting``'s exit [m] (inf: none stays in the atrium)."""
+        p, R, _ = self.sheath.exit_pose(self._p_S, self._R_S, *setting)
+        frames = R[None] @ self._twists  # (24, 3, 3)
+        pts = p + np.einsum("snj,tij->tsni", self.shapes, frames)  # (24, S, n, 3)
+        ok = np.ones(pts.shape[:2], bool)
+        if self.sdf is not None:
+            d = self.sdf(pts[:, :, :-1].reshape(-1, 3), gradient=False).reshape(pts.shape[0], pts.shape[1], -1)
+            ok = d.min(axis=2) >= 0.5 * self.catheter.radius
+        if not ok.any():
+            return np.inf
+        rel = pts[:, :, -1][ok] - p_T
+        h = rel @ n_T
+        lateral = np.sqrt(np.maximum((rel * rel).sum(axis=1) - h * h, 0.0))
+        miss = np.hypot(np.maximum(lateral - self.target_radius, 0.0),
+                        np.maximum(np.abs(h) - self.catheter.radius - TOUCH_TOLERANCE, 0.0))
+        return float(miss.min())
+
+    def plan(self, p_T, n_T, keep: bool = True) -> tuple:
+        """The sheath setting (advance [m], rotation [rad], deflection [rad]) for the target
+        (``keep``: the fixed sheath's setting when its shapes reach; else a deflected one)."""
+        p_T, n_T = np.asarray(p_T, float), np.asarray(n_T, float)
+        key = (tuple(np.round(p_T, 9)), bool(keep))
+        if key in self._cache:
+            return self._cache[key]
+        best, best_miss = self.nominal, self.miss(self.nominal, p_T, n_T)
+        if not keep:
+            best_miss = np.inf
+        if best_miss > PLAN_KEEP:
+            def facing(c):
+                _, p, R = c
+                v = p_T - p
+                return (np.arccos(np.clip(-(R[:, 2] @ n_T), -1.0, 1.0))
+                        + 0.5 * np.arccos(np.clip(R[:, 2] @ v / max(np.linalg.norm(v), 1e-9), -1.0, 1.0)))
+            for setting, _, _ in sorted(self.candidates, key=facing)[:self.top]:
+                m = self.miss(setting, p_T, n_T)
+                if m < best_miss:
+                    best, best_miss = setting, m
+                if m == 0.0:
+                    break
+        self._cache[key] = best
+        return best
