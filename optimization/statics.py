@@ -131,6 +131,10 @@ def _negative_curvature(ev, H, near, lam, pinned: bool, nq: int):
 MAX_BALLS = 200  # dense Hessians: 200 balls take about 0.5 GB
 
 
+MAX_TOLERANCE = 1e-3
+"""The loosest stationarity tolerance ``ChainStatics`` takes (the engine uses 1e-6, the statics 1e-8)."""
+
+
 class ChainStatics:
     """Equilibria of one chain, reusable across solves (warm starts, continuation).
 
@@ -168,6 +172,9 @@ class ChainStatics:
         require_bool(gravity, "ChainStatics gravity")
         require_bool(compiled, "ChainStatics compiled")
         require_positive(tolerance, "ChainStatics tolerance")
+        if tolerance > MAX_TOLERANCE:  # a looser one calls any point stationary: a result that is not one
+            raise UserInputError(f"ChainStatics tolerance must be in (0, {MAX_TOLERANCE:g}] (on the scaled energy "
+                                 f"gradient), got {tolerance!r}")
         require_int(max_iterations, "ChainStatics max_iterations", 1)
         if method not in ("newton", "snopt"):
             raise UserInputError(f"method must be 'newton' or 'snopt', got {method!r}")

@@ -194,6 +194,8 @@ def _calls():
         ("ChainStatics iterations", lambda: ChainStatics(_chain(), max_iterations=0),
          "max_iterations must be an integer"),
         ("ChainStatics gravity", lambda: ChainStatics(_chain(), gravity="yes"), "gravity must be True or False"),
+        ("ChainStatics tolerance", lambda: ChainStatics(_chain(), tolerance=1e300),
+         r"ChainStatics tolerance must be in \(0, 0.001\]"),
         ("solve external", lambda: _solver().solve("field"), "external must be a field source"),
         ("solve warm start", lambda: _solver().solve(_field(), warm_start=[1, 2]),
          "warm_start must be a StaticsResult"),
