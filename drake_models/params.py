@@ -34,6 +34,7 @@ MAX_DENSITY = 25000.0  # [kg/m^3]
 MAX_SLEEVE_DIAMETER = 0.12  # [m]: over the largest balls
 MAX_SLEEVE_MODULUS = 10e9  # [Pa]: the stiffest polymer tubes (PEEK about 4 GPa); silicone is 0.1-5 MPa
 MAX_MAGNET_SIZE = 10.0  # [m]: a magnet's diameter or length; an MRI scanner's bore is under 1 m
+MIN_MAGNET_SIZE = 1e-4  # [m]: 0.1 mm, below the smallest sintered NdFeB parts (a typo in metres, not a magnet)
 
 
 @dataclass(frozen=True)
@@ -169,8 +170,10 @@ class _UniformMagnet:
         limits = {"remanence": (MAX_REMANENCE, "T", 1.0), "density": (MAX_DENSITY, "kg/m^3", 1.0)}
         for name in names:
             hi, unit, scale = limits.get(name, (MAX_MAGNET_SIZE, "mm", 1e3))
-            if getattr(self, name) > hi:  # beyond these the volume and the moment overflow
-                raise UserInputError(f"{owner}.{name} must be in (0, {hi * scale:g}] {unit}, "
+            lo = 0.0 if name in limits else MIN_MAGNET_SIZE
+            if not lo <= getattr(self, name) <= hi:  # beyond these the volume and the moment overflow
+                interval = f"(0, {hi * scale:g}]" if lo == 0.0 else f"[{lo * scale:g}, {hi * scale:g}]"
+                raise UserInputError(f"{owner}.{name} must be in {interval} {unit}, "
                                      f"got {getattr(self, name) * scale:g} {unit}")
 
 
