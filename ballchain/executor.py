@@ -29,6 +29,9 @@ def max_workers() -> int:
 def _check_executor(scheduler: str | None, workers: int | None, jobqueue: str | None) -> None:
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 0):
         raise UserInputError(f"--workers must be an integer >= 0 (0: serial, in this process), got {short_repr(workers)}")
+    for name, value in (("--scheduler", scheduler), ("--jobqueue", jobqueue)):
+        if value is not None and not isinstance(value, str):
+            raise UserInputError(f"{name} must be a string (or None), got {short_repr(value)}")
     if scheduler is not None and jobqueue is not None:
         raise UserInputError("--scheduler and --jobqueue exclude each other: give one")
     if scheduler is not None and workers == 0:

@@ -162,7 +162,7 @@ class Station:
 
     def unit_magnet(self, name: str, context) -> MagnetSource:
         """Unit ``name``'s magnet at its pose in the context (a MagnetSource: its field anywhere)."""
-        if name not in self.units:
+        if not isinstance(name, str) or name not in self.units:
             raise UserInputError(f"no unit {short_repr(name)} in this station; its units: "
                                  f"{', '.join(self.units) or 'none'}")
         magnet = self.units[name].magnet

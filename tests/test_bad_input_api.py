@@ -156,6 +156,7 @@ def _calls():
     from ballchain.drake_models.atrium_mesh import UserAtrium, validate_surface
     from ballchain.drake_models.heart import HeartParams, LeftAtrium
     from ballchain.drake_models.params import CylinderMagnet
+    from ballchain.executor import Executor
     from ballchain.drake_models.params import BallChain, Sleeve
     from ballchain.drake_models.steerable_catheter import SteerableCatheter
     from ballchain.experiments import (ablation, alignment, clinical, field_models, manual_catheter, planner, procedure,
@@ -257,6 +258,7 @@ def _calls():
          r"SizingInputs.desired_force must be in \[1e-06, 1000\] \(SI\)"),
         ("CylinderMagnet huge", lambda: CylinderMagnet(diameter=1e200), r"CylinderMagnet.diameter must be in \[0.1, 10000\] mm"),
         ("reconfiguration runs", lambda: reconfiguration.run(runs=1.5), "runs must be an integer in 1..10000, got 1.5"),
+        ("Executor jobqueue", lambda: Executor(jobqueue={}), r"--jobqueue must be a string \(or None\), got \{\}"),
         ("reconfiguration t_max", lambda: reconfiguration.run(t_max=-1.0), "t_max must be a finite number > 0"),
         ("reconfiguration tolerance", lambda: reconfiguration.run(tolerance_deg=float("nan")), "tolerance_deg must be"),
         ("reconfiguration wheel map", lambda: reconfiguration.run(wheel_map="x"), "wheel_map must be one of"),

@@ -135,6 +135,8 @@ def test_unit_magnet_reading_takes_the_root_context():
     np.testing.assert_allclose(source.m_W / np.linalg.norm(source.m_W), unit.m_hat_initial_W, atol=1e-12)
     with pytest.raises(bc.UserInputError, match="no unit 'left_unit'.*right_unit"):
         station.unit_magnet("left_unit", root)
+    with pytest.raises(bc.UserInputError, match=r"no unit \{\} in this station"):  # not a TypeError: unhashable
+        station.unit_magnet({}, root)
 
 
 class _UserUniformField:
