@@ -52,6 +52,10 @@ MAX_DURATION = 3600.0  # [s] of simulated time
 MAX_STEPS = 5_000_000  # updates of the most frequent periodic event: hours of wall time at a few ms each
 MAX_UNIFORM_FIELD = 0.5  # [T]: clinical fields are tens of mT; 23 here means 23 T (mT typed)
 MAX_DISTANCE = 1.0  # [m]: magnets, points and walls farther away are a unit mistake (mm typed as m)
+MAX_CHECK_PERIOD = 1.0  # [s]: the watchdog looks at least once a second (an escape or a break is not missed for longer)
+# [N s/m], [N m s]: 1000x the defaults; beyond them a ball barely moves in a run (a quasi-static
+# joint's time constant damping / stiffness grows past the run's length) and large values overflow.
+MAX_DAMPING = {"translational_damping": 1e3, "angular_damping": 1e-2}
 MIN_SAMPLES_PER_CYCLE = 8  # the statics engine's updates per cycle of a moving wall's fastest motion
 
 # Contact parameters: (low, high, unit, why). The bounds keep the contact physical and the
@@ -248,10 +252,13 @@ def check_timing(s: "ChainScenario") -> None:
     _require(0.0 < s.statics_period <= 1.0, f"scenario statics_period must be in (0, 1] s, got {s.statics_period:g}")
     for name in ("break_gap", "check_period"):
         _require(getattr(s, name) > 0.0, f"scenario {name} must be > 0, got {getattr(s, name):g}")
+    _require(s.check_period <= MAX_CHECK_PERIOD,
+             f"scenario check_period must be at most {MAX_CHECK_PERIOD:g} s (the watchdog's checks), got {s.check_period:g}")
     _require(s.break_gap <= MAX_DISTANCE, f"scenario break_gap must be at most {MAX_DISTANCE:g} m, got {s.break_gap:g}")
     check_steps(s, s.duration, "scenario duration")
     for name in ("translational_damping", "angular_damping"):
-        _require(getattr(s, name) >= 0.0, f"scenario {name} must be >= 0, got {getattr(s, name):g}")
+        _require(0.0 <= getattr(s, name) <= MAX_DAMPING[name],
+                 f"scenario {name} must be in 0..{MAX_DAMPING[name]:g}, got {getattr(s, name):g}")
         if s.mode == "dynamics" or not s.engine.has_plant:  # only the plant's quasi-static joints are damped
             _require(getattr(s, name) == getattr(type(s), name),
                      f"scenario {name} = {getattr(s, name):g} damps the plant's quasi-static joints: "

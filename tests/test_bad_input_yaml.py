@@ -78,6 +78,8 @@ CASES = [
     # bounds: every periodic update counts against MAX_STEPS
     ("statics-period-1e-9", SIM + ["--set", "{engine: statics, statics_period: 1e-9}"], "statics_period"),
     ("check-period-1e-9", SIM + ["--set", "{check_period: 1e-9}"], "check_period"),
+    ("check-period-1e300", SIM + ["--set", "{check_period: 1e300}"], "check_period must be at most 1 s"),
+    ("damping-1e300", SIM + ["--set", "{translational_damping: 1e300}"], "translational_damping must be in 0..1000"),
     ("publish-period-1e-9", SIM + ["--set", "{visualization: {publish_period: 1e-9}}"], "publish_period"),
     ("max-step-size-1e-12", SIM + ["--set", "{simulator_config: {max_step_size: 1e-12}}"], "max_step_size"),
     ("duration-flag-statics", SIM + ["--set", "{engine: statics, statics_period: 1e-5}", "--duration", "3000"],
