@@ -359,6 +359,7 @@ class SteerableCatheterSystem(LeafSystem):
         rod; the chains see the rod's new loads once more (the quasi-static coupling)."""
         kappa = self.catheter.curvature(knob)
         bends = self.catheter.sheath_friction == "bends"
+        start = st.twist.copy()  # the twist chain before this update
         for _ in range(2):
             if bends:
                 st.push, slips_push = self._push_chain.step(st.push, push, st.force)
@@ -368,9 +369,13 @@ class SteerableCatheterSystem(LeafSystem):
                 st.push, slips_push = self._push_chain.step(st.push, push)
                 st.twist, slips = self._twist_chain.step(st.twist, twist, st.torque)
             length = float(np.clip(self.initial_length + st.push[-1], 2 * self.rod.h, self.rod.max_length))
-            st.slips += slips
             st.push_slips += slips_push
-            sol = self.rod.solve(length, st.twist[-1], kappa, q0=st.q if len(st.q) else None)
+            if self.sheath is not None:  # the exit twist and the rod's torque solved together
+                st.twist, slips, sol = self.coupled_twist(start, twist, tension if bends else None, length, kappa,
+                                                          st.q, st.failures)
+            else:  # the paper's fixed sheath: the alternating coupling (its runs' numbers kept)
+                sol = self.rod.solve(length, st.twist[-1], kappa, q0=st.q if len(st.q) else None)
+            st.slips += slips
             if not (np.all(np.isfinite(sol.q)) and np.isfinite(sol.base_torque) and np.isfinite(sol.base_force)):
                 if len(st.failures) < 20:
                     st.failures.append(f"rod statics not finite at length {length * 1e3:.1f} mm")
@@ -387,6 +392,65 @@ class SteerableCatheterSystem(LeafSystem):
         inside = self.behind_exit(self.rod.sigma[:j0] - length)
         st.nodes = np.vstack([inside, sol.pose.nodes])
         return st
+
+    def coupled_twist(self, chain_x, handle: float, tension, length: float, kappa: float, q0,
+                      failures: list, xtol: float = 1e-7, max_evaluations: int = 80, max_step: float = 0.1):
+        """The twist chain stepped from ``chain_x`` to ``handle`` with the rod's torque at its own
+        exit twist (issue 45): the root of F(phi) = (the chain's exit node under the rod's torque
+        at phi) - phi, bracketed outward from the last exit twist (where ``q0`` holds) in steps
+        growing to ``max_step`` [rad], each rod solve warm-started from the nearest one done (the
+        quasi-static path: a far jump lands the rod on another of its equilibria against the
+        wall), then refined by the Illinois regula falsi on the values kept. Alternating the two
+        (the fixed sheath's coupling) runs away when the rod's torsional stiffness exceeds the
+        shaft's, as with the short rod beyond a curled sheath. ``tension`` None: "even" chains.
+
+        Returns:
+            (chain nodes, slips, the RodSolution at the exit twist)."""
+        q0 = q0 if len(q0) else None
+        chain, seen = self._twist_chain, {}
+        step = ((lambda load: chain.step(chain_x, handle, load)) if tension is None
+                else (lambda load: chain.step(chain_x, handle, load, tension)))
+
+        def F(phi):
+            near = min(seen, key=lambda p: abs(p - phi)) if seen else None
+            sol = self.rod.solve(length, phi, kappa, q0=q0 if near is None else seen[near][0].q)
+            if not (np.all(np.isfinite(sol.q)) and np.isfinite(sol.base_torque)):
+                raise FloatingPointError
+            x, slips = step(sol.base_torque)
+            seen[phi] = (sol, x, slips)
+            return float(x[-1]) - phi
+
+        try:
+            a = float(chain_x[-1])
+            fa = F(a)
+            if abs(fa) > xtol:
+                d = float(np.sign(fa)) * min(abs(fa), 0.02)
+                b, fb = a + d, F(a + d)
+                while fb * fa > 0 and len(seen) < max_evaluations // 2:
+                    a, fa, d = b, fb, float(np.sign(d)) * min(2 * abs(d), max_step)
+                    b, fb = a + d, F(a + d)
+                while fb * fa < 0 and abs(b - a) > xtol and len(seen) < max_evaluations:
+                    m = b - fb * (b - a) / (fb - fa)  # the Illinois regula falsi on the bracket's values
+                    fm = F(m)
+                    if fm * fb < 0:
+                        a, fa = b, fb
+                    else:
+                        fa *= 0.5
+                    b, fb = m, fm
+            phi = min(seen, key=lambda p: abs(seen[p][1][-1] - p))
+            # F jumps where a chain node starts to slip (static above kinetic): a bracket closed on
+            # the jump is the node at the edge of slipping, balanced (its nodes as the chain left them).
+            edge = abs(fa) > xtol and fb * fa < 0 and abs(b - a) <= xtol
+        except FloatingPointError:
+            phi, edge = None, False
+        if phi is None or (abs(seen[phi][1][-1] - phi) > 1e3 * xtol and not edge):  # the last finite try
+            if len(failures) < 20:
+                failures.append(f"exit twist not balanced at length {length * 1e3:.1f} mm ({len(seen)} solves)")
+            if phi is None:
+                sol = self.rod.solve(length, float(chain_x[-1]), kappa, q0=q0)
+                return np.asarray(chain_x, float).copy(), 0, sol
+        sol, x, slips = seen[phi]
+        return x, slips, sol
 
     @property
     def septum(self) -> tuple:

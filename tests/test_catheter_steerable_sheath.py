@@ -156,3 +156,47 @@ def test_sheath_plan_keeps_the_straight_sheath_when_it_reaches_and_curls_it_when
     setting = plan.plan(behind, normal)
     assert setting != plan.nominal and abs(setting[2]) > np.radians(90.0)
     assert plan.miss(setting, behind, normal) < 0.5 * straight  # closer, though its first 12 need not touch
+
+
+def test_exit_twist_balances_the_rods_torque_where_the_alternating_coupling_runs_away():
+    """Issue 45: seed 0's right ring stopped with the sheath curled (advance 20 mm, rotation
+    120 deg, deflection 180 deg), the knob at full D, the handle at -256 deg and the catheter
+    pushed out from 6.7 mm: the rod, pressed on the wall, loads the shaft's twist with a torque
+    over ten times what the shaft's friction holds. Alternating the twist chain and the rod (the
+    fixed sheath's coupling) sends the exit twist round by turns (HEAD's runs: -229, -989, -1239
+    deg); ``coupled_twist`` finds the exit twist where the chain's exit node under the rod's
+    torque is the exit twist, and each chain node's elastic torque balances its load within what
+    its friction holds."""
+    from ballchain.drake_models.atrium_sdf import atrium_sdf
+    from ballchain.experiments import manual_catheter as mc
+    from ballchain.systems.station import atrium_for
+
+    heart = atrium_for(mc.scenario_for())
+    s = SteerableCatheterSystem(SteerableCatheter(), heart.p_HE, heart.sheath_axis_H, atrium_sdf(heart), 20e-3,
+                                sheath=SteerableSheath())
+    s.place_sheath(20e-3, 2 * math.pi / 3, math.pi)
+    kappa, chain, handle = s.catheter.curvature(1.0), s._twist_chain, math.radians(-256.0)
+    x, q = chain.initial(), np.zeros(0)
+    for h in np.radians(np.linspace(0.0, -256.0, 58)):  # the handle turned with 6.7 mm out, the rod free
+        x, _, sol = s.coupled_twist(x, h, None, 6.7e-3, kappa, q, [])
+        q = sol.q
+    xa, qa, torque = x.copy(), q.copy(), sol.base_torque
+    alternating, failures = [], []
+    for length in np.arange(7.7e-3, 16e-3, 1e-3):  # pushed out 1 mm per update (20 mm/s)
+        for _ in range(2):  # HEAD's alternating coupling
+            xa, _ = chain.step(xa, handle, torque)
+            rod = s.rod.solve(length, xa[-1], kappa, q0=qa)
+            qa, torque = rod.q, rod.base_torque
+        alternating.append(math.degrees(xa[-1]))
+        x, _, sol = s.coupled_twist(x, handle, None, length, kappa, q, failures)
+        q = sol.q
+        assert sol.converged
+        # The fixed point: the chain under the rod's torque at x[-1] ends at x[-1].
+        again, _ = chain.step(x, handle, sol.base_torque)
+        assert abs(again[-1] - x[-1]) < 1e-6
+        # Every chain node balanced within its static friction (the last one under the rod's torque).
+        assert np.all(np.abs(chain.net_loads(x, sol.base_torque)) <= chain.static * (1 + 1e-9))
+    assert not failures
+    assert max(abs(a) for a in alternating) > 700.0  # the runaway reproduced
+    assert abs(sol.base_torque) > 10 * chain.static  # the rod's torque is far above the friction
+    assert -400.0 < math.degrees(x[-1]) < -256.0  # the exit ahead of the handle, less than half a turn
