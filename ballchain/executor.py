@@ -175,8 +175,12 @@ class Executor:
             try:
                 with warnings.catch_warnings():
                     warnings.filterwarnings("ignore", message=r"Port \d+ is already in use")
+                    # The workers' own logs at CRITICAL only: a point's failure reaches the client as its
+                    # exception and a dead worker as KilledWorker (both reported by the caller), while at
+                    # shutdown a worker whose heartbeat meets the closed scheduler logs a traceback
+                    # ("Failed to communicate with scheduler during heartbeat") after a clean run.
                     self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                                dashboard_address=None, silence_logs=logging.ERROR)
+                                                dashboard_address=None, silence_logs=logging.CRITICAL)
             except Exception as err:  # a limit met as the workers start (processes, memory): one line
                 message = limit_message(err)
                 if message is None:
