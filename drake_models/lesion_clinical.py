@@ -22,25 +22,14 @@ import math
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
-from skfem import BilinearForm, asm
-from skfem.helpers import dot, grad
+from skfem import asm
 
 from ballchain.drake_models import lesion_boundary as boundary
 from ballchain.drake_models import lesion_fem as fem
 from ballchain.drake_models import tissue as laws
-from ballchain.drake_models.lesion_fem import ELECTRODE, HOLDER, SALINE, TISSUE
+from ballchain.drake_models.lesion_fem import ELECTRODE, HOLDER, SALINE, TISSUE, _diffusion, _mass  # the bench FEM's forms
 from ballchain.drake_models.rf_generator import Generator
 from ballchain.infrastructure.errors import UserInputError
-
-
-@BilinearForm
-def _diffusion(u, v, w):
-    return w.coef * dot(grad(u), grad(v)) * w.x[0]
-
-
-@BilinearForm
-def _mass(u, v, w):
-    return w.coef * u * v * w.x[0]
 
 
 class ClinicalModel:

@@ -17,6 +17,7 @@ from ballchain.drake_models.params import BallChain, CylinderMagnet
 from ballchain.experiments import plan_cache
 from ballchain.optimization.statics import ChainStatics
 from ballchain.systems.autonomous_navigator import TargetPlan, TipForceEstimator
+from statics_helpers import assert_same_statics
 
 
 def _looks(n: int, seed: int = 0):
@@ -169,7 +170,6 @@ def test_held_solve_is_the_general_solve(monkeypatch):
     turning magnet, each warm-started from the last: every field of every result the same (its
     solve_time aside), the multipliers and pair forces included, converged or not; the general
     solve taken only for the cold start."""
-    from dataclasses import fields
 
     from ballchain.drake_models.field_sources import FieldSources, MagnetSource
     from ballchain.optimization import compiled_held_tip
@@ -189,10 +189,7 @@ def test_held_solve_is_the_general_solve(monkeypatch):
     for p, m in looks:
         target = p - p_WE
         a, b = held_solve(fast, field(m), a, target), slow.solve(field(m), b, tip_target=target)
-        for f in fields(a):
-            if f.name != "solve_time":
-                x, y = getattr(a, f.name), getattr(b, f.name)
-                assert (np.array_equal(x, y) if isinstance(x, np.ndarray) else x == y), f.name
+        assert_same_statics(a, b)
         compared += a.converged
         if not a.converged:
             a = b = first
