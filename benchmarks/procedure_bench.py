@@ -28,6 +28,7 @@ import time
 import numpy as np
 
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
+from ballchain.infrastructure.safe_files import atomic_write_text, check_output_file
 from ballchain.drake_models.params import CylinderMagnet
 from ballchain.experiments import planner, procedure
 from ballchain.optimization import compiled_held_tip, inverse_statics
@@ -95,6 +96,8 @@ def main(argv=None) -> dict:
     parser.add_argument("--profile", action="store_true")
     parser.add_argument("--json", default=None)
     args = parser.parse_args(argv)
+    if args.json:  # the output checked before the minutes of measuring
+        check_output_file(args.json, "--json")
     out: dict = {"task": args.task, "targets": args.targets, "dwell_s": args.dwell}
     if args.cold:
         c0 = time.process_time()
@@ -143,8 +146,7 @@ def main(argv=None) -> dict:
         pstats.Stats(prof).sort_stats("tottime").print_stats(25)
     print(json.dumps({k: v for k, v in out.items() if k != "runs_cpu_s"}, indent=1))
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(out, f, indent=1)
+        atomic_write_text(args.json, json.dumps(out, indent=1))
     return out
 
 

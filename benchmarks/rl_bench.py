@@ -34,6 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ballchain.infrastructure.safe_files import atomic_write_text, check_output_file
+
 
 def _policy(env):
     from ballchain.rl.baseline import LinearPolicy
@@ -153,6 +155,8 @@ def main(argv=None) -> int:
     parser.add_argument("--skip-async", action="store_true")
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
     args = parser.parse_args(argv)
+    if args.json:  # the output checked before the minutes of measuring
+        check_output_file(args.json, "--json")
 
     from ballchain.rl import NavigationEnv, evaluate
 
@@ -197,8 +201,6 @@ def main(argv=None) -> int:
            "profile_fraction": profile}
     print(json.dumps(out, indent=1))
     if args.json is not None:
-        from ballchain.infrastructure.safe_files import atomic_write_text
-
         atomic_write_text(args.json, json.dumps(out, indent=1))
     return 0
 
