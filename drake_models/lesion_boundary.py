@@ -46,7 +46,7 @@ import numpy as np
 from skfem import BilinearForm, ElementTriP1, FacetBasis, LinearForm, asm
 
 from ballchain.drake_models import tissue as laws
-from ballchain.drake_models.lesion_fem import ELECTRODE, HOLDER, SALINE, TISSUE, AblationMesh
+from ballchain.drake_models.lesion_mesh import ELECTRODE, HOLDER, SALINE, TISSUE, AblationMesh
 from ballchain.infrastructure.errors import UserInputError, short_repr
 
 BLOOD = laws.Material(

@@ -21,13 +21,13 @@ from __future__ import annotations
 import math
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 from skfem import asm
 
 from ballchain.drake_models import lesion_boundary as boundary
 from ballchain.drake_models import lesion_fem as fem
 from ballchain.drake_models import tissue as laws
-from ballchain.drake_models.lesion_fem import ELECTRODE, HOLDER, SALINE, TISSUE, _diffusion, _mass  # the bench FEM's forms
+from ballchain.drake_models.lesion_assembly import mass_form  # the bench FEM's form
+from ballchain.drake_models.lesion_mesh import ELECTRODE, HOLDER, SALINE, TISSUE
 from ballchain.drake_models.rf_generator import Generator
 from ballchain.infrastructure.errors import UserInputError
 
@@ -50,6 +50,7 @@ class ClinicalModel:
         fluid = fluid or (boundary.BLOOD if conditions.flowing else laws.SALINE)
         self.em = fem.ElectroThermalModel(am, tissue_material, fluid)
         thermal = [TISSUE, ELECTRODE, HOLDER] + ([] if conditions.flowing else [SALINE])
+        self.thermal_domains = tuple(thermal)
         self.thermal_elements = np.isin(am.domain, thermal)
         self._qp_mask = np.repeat(self.thermal_elements[:, None], self.em.basis.X.shape[1], axis=1)
         if conditions.flowing:
@@ -57,15 +58,17 @@ class ClinicalModel:
             for d, mat in self.em.materials.items():
                 rho_c[self.em._dom == d] = mat.volumetric_heat_capacity
             rho_c[~self._qp_mask] = 0.0
-            self.mass = sp.diags(np.asarray(asm(_mass, self.em.basis, coef=rho_c).sum(axis=1)).ravel()).tocsr()
+            self.capacity = np.asarray(asm(mass_form, self.em.basis, coef=rho_c).sum(axis=1)).ravel()
+            self.mass = sp.diags(self.capacity).tocsr()
         else:
-            self.mass = self.em.mass
+            self.capacity, self.mass = self.em.capacity, self.em.mass
         n = am.n_nodes
         t_b = float(initial_temperature_C)
         facets = boundary.interface_facets(am)
         r_e, l_e = boundary.robin_operator(am, facets["electrode"], conditions.h_electrode, t_b)
         r_t, l_t = boundary.robin_operator(am, facets["tissue"], conditions.h_tissue, t_b)
         self.robin, self.robin_load = (r_e + r_t).tocsr(), l_e + l_t
+        self._robin_data = self.em.ops.data_of(self.robin) if self.robin.nnz else None
         # Held nodes: the far arc, the nodes of no heat-conducting element (the flowing blood), the
         # irrigated electrode.
         in_thermal = np.zeros(n, dtype=bool)
@@ -78,16 +81,13 @@ class ClinicalModel:
             self.held_value[tip] = conditions.irrigant_C
         self.fixed = np.unique(np.concatenate(held))
         self.free = np.setdiff1d(np.arange(n), self.fixed)
+        self.block = self.em.ops.block(self.free)
 
-    def stiffness(self, temperature_C):
-        """Conduction (k(T), the flowing blood excluded) plus the Newton conditions."""
-        if not self.conditions.flowing:
-            k = self.em.thermal_stiffness(temperature_C)
-        else:
-            coef = self.em._field(laws.thermal_conductivity, temperature_C)
-            coef[~self._qp_mask] = 0.0
-            k = asm(_diffusion, self.em.basis, coef=coef)
-        return k + self.robin if self.robin.nnz else k
+    def stiffness(self, temperature_C) -> np.ndarray:
+        """Conduction (k(T), the flowing blood excluded) plus the Newton conditions, as data of the
+        mesh's pattern (``em.ops``)."""
+        k = self.em.conduction(temperature_C, self.thermal_domains)
+        return k + self._robin_data if self._robin_data is not None else k
 
     def joule(self, temperature_C):
         """(conductance [S], load per V^2 into the heat problem, load per V^2 of every element)."""
@@ -133,7 +133,7 @@ def simulate_clinical(electrode: fem.Electrode, *, generator: Generator, duratio
     T = np.full(n, float(initial_temperature_C))
     T[model.fixed] = model.held_value[model.fixed]
     T0 = T.copy()
-    fixed, free = model.fixed, model.free
+    fixed = model.fixed
     tissue_nodes = am.nodes_of(TISSUE)
     electrode_nodes = am.nodes_of(ELECTRODE)
     water_nodes = am.nodes_of(TISSUE, SALINE)
@@ -151,14 +151,11 @@ def simulate_clinical(electrode: fem.Electrode, *, generator: Generator, duratio
     vaporised_at, t_prev = None, 0.0
     for i, t in enumerate(times):
         dt = t - t_prev
-        A = (model.mass / dt + model.stiffness(T)).tocsr()
-        lu = spla.splu(A[free][:, free].tocsc())
-        base = model.mass @ T / dt + model.robin_load
-        T_next = T0.copy()
-        T_next[free] = lu.solve(base[free] - A[free][:, fixed] @ T0[fixed])
+        A, lu, base, T_next = fem.implicit_step(model.em.ops, model.block, model.stiffness(T), model.capacity, T, T0,
+                                                dt, model.robin_load)
         conductance, unit_load, unit_all = model.joule(T)
         rise = np.zeros(n)
-        rise[free] = lu.solve(unit_load[free])
+        rise[lu.rows] = lu.solve(unit_load)
         v2, which = generator.voltage_squared(conductance, T_next, rise, water_nodes, electrode_nodes)
         T_next = T_next + v2 * rise
         load = v2 * unit_load

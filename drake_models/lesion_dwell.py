@@ -139,7 +139,8 @@ class DwellTableSpec:
                                       electrode_limit_C=limit)
 
     def key(self) -> str:
-        code = model_files.source_hash(fem, laws, clinical, boundary, rf_generator) + repr(params.BallChain())
+        code = (model_files.source_hash(*fem.SOURCE_MODULES, laws, clinical, boundary, rf_generator)
+                + repr(params.BallChain()))
         # The generator as the FEM runs get it: the magnet's limit less the margin, which live in
         # params and lesion_surrogate (a change to them is a new table).
         code += repr(self.generator())
