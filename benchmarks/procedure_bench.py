@@ -8,6 +8,13 @@ through ``compiled_held_tip.held_solve``, its sources built without re-validatio
 code before that wiring (``ChainStatics.solve`` and validated ``MagnetSource``s, put back for this
 process only), alternating, and checks that the plans are the same, every array.
 
+``--sensitivities`` times a cold plan as the planner makes it (the held tip's analytic
+sensitivities, ``optimization.held_sensitivity``; SNOPT's limit of 100 major iterations; the
+hardest-press searches on the compiled held solve, each kept for the target's next force)
+against the code before (forward differences, 60 iterations, ``ChainStatics.solve``, every
+search made again: put back for this process only), alternating, and reports how far the plans
+are apart (``dipoles_W``, ``J_m``, ``J_o``, ``force_N``: the largest difference and the target).
+
 The machine is shared: every figure is process CPU time (``time.process_time``), each run
 ``--repeats`` times alternating the two paths, the median printed, and the ratio of the medians
 taken in the same run. ``--profile`` prints the cProfile of one run (fast path) by internal time.
@@ -31,6 +38,7 @@ from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rot
 from ballchain.infrastructure.safe_files import atomic_write_text, check_output_file
 from ballchain.drake_models.params import CylinderMagnet
 from ballchain.experiments import planner, procedure
+from ballchain.experiments import forces
 from ballchain.optimization import compiled_held_tip, inverse_statics
 from ballchain.optimization.statics import ChainStatics
 
@@ -83,6 +91,62 @@ def _cold_plan(args, before: bool):
         inverse_statics.held_solve, planner._field_for = saved
 
 
+PLAN_FIELDS = ("dipoles_W", "J_m", "J_o", "force_N")
+
+
+def _plan_differences(a, b) -> dict:
+    """The largest absolute difference of each of ``PLAN_FIELDS`` between two ring plans (the
+    same targets), with the target where it is."""
+    if [p.name for p in a.plans] != [p.name for p in b.plans]:
+        return {"same_targets": False}
+    out: dict = {"same_targets": True}
+    for f in PLAN_FIELDS:
+        gaps = [(float(np.max(np.abs(np.asarray(getattr(p, f)) - np.asarray(getattr(q, f))))), p.name)
+                for p, q in zip(a.plans, b.plans)]
+        worst = max(gaps)
+        out[f] = {"max_abs": worst[0], "target": worst[1],
+                  "median_target_max_abs": statistics.median(g for g, _ in gaps) if gaps else None}
+    return out
+
+
+def _sensitivities_before():
+    """Put back, for this process, the planner before issue 48's sensitivities: the held tip's
+    forward differences, SNOPT's 60 major iterations, the hardest-press searches on
+    ``ChainStatics.solve`` and made again for every force. Returns the undo."""
+    saved = (inverse_statics.HeldTip.value_and_jacobian, inverse_statics.min_turn_orientation,
+             planner.min_turn_orientation, forces.held_solve, planner._hardest_press)
+    vj, turn = saved[0], saved[1]
+
+    def fd(self, x, step=1e-5, method="fd"):
+        return vj(self, x, step, method)
+
+    def sixty(*args, major_iterations=60, **kwargs):
+        return turn(*args, major_iterations=major_iterations, **kwargs)
+
+    inverse_statics.HeldTip.value_and_jacobian = fd
+    inverse_statics.min_turn_orientation = planner.min_turn_orientation = sixty
+    forces.held_solve = _general_held
+    planner._hardest_press = lambda chain, stand, name, grid, refine: planner.max_normal_force(
+        chain, stand, name, ("1",), grid, refine)
+
+    def undo():
+        (inverse_statics.HeldTip.value_and_jacobian, inverse_statics.min_turn_orientation,
+         planner.min_turn_orientation, forces.held_solve, planner._hardest_press) = saved
+    return undo
+
+
+def _cold_plan_sensitivities(args, before: bool):
+    """A cold plan (CPU s, plans), ``before``: with ``_sensitivities_before``'s code."""
+    undo = _sensitivities_before() if before else (lambda: None)
+    planner._HARDEST.clear()  # no search kept from another plan
+    try:
+        c0 = time.process_time()
+        plans = procedure.plan_ring(args.task, targets=args.targets, cache=False)
+        return time.process_time() - c0, plans
+    finally:
+        undo()
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", default="right")
@@ -92,6 +156,9 @@ def main(argv=None) -> dict:
     parser.add_argument("--cold", action="store_true", help="also time a cold plan (no cache: tens of CPU-s)")
     parser.add_argument("--planner-held-solve", action="store_true",
                         help="also cold plans as wired and as before the wiring, alternating")
+    parser.add_argument("--sensitivities", action="store_true",
+                        help="also cold plans with the analytic sensitivities and with the forward differences, "
+                             "alternating")
     parser.add_argument("--no-runs", action="store_true", help="the planning only")
     parser.add_argument("--profile", action="store_true")
     parser.add_argument("--json", default=None)
@@ -122,6 +189,20 @@ def main(argv=None) -> dict:
         out["planner_cold_runs_cpu_s"] = pairs
         out["planner_held_solve_speed_up"] = statistics.median(pairs["before"]) / statistics.median(pairs["held_solve"])
         out["planner_held_solve_same_plans"] = _same_plans(before, held) and _same_plans(before, plans)
+    if args.sensitivities:
+        pairs = {"differences": [], "analytic": []}
+        for _ in range(args.repeats):
+            cpu, before = _cold_plan_sensitivities(args, True)
+            pairs["differences"].append(cpu)
+            cpu, after = _cold_plan_sensitivities(args, False)
+            pairs["analytic"].append(cpu)
+            print(f"cold plan: differences {pairs['differences'][-1]:.2f}, analytic {cpu:.2f} CPU-s", flush=True)
+        out["sensitivities_cold_cpu_s"] = {k: statistics.median(v) for k, v in pairs.items()}
+        out["sensitivities_cold_runs_cpu_s"] = pairs
+        out["sensitivities_speed_up"] = (statistics.median(pairs["differences"])
+                                         / statistics.median(pairs["analytic"]))
+        out["sensitivities_plans_apart"] = _plan_differences(before, after)
+        out["sensitivities_missing"] = {"differences": list(before.missing), "analytic": list(after.missing)}
     if not args.no_runs:
         times: dict = {"fast": [], "general": []}
         summaries = {}

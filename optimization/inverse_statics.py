@@ -17,8 +17,9 @@ part: friction. ``min_turn_orientation`` is the MathematicalProgram of one plann
                 F_n(m, o) >= F_min                     (the tip presses at least F_min)
                 |F_t| <= mu F_n                        (Coulomb friction holds the tip)
 
-solved by SNOPT. The constraint gradients are forward differences of warm-started equilibria
-(converged to 1e-8 in scaled stationarity, far below the difference step's effect). The answer
+solved by SNOPT. The constraint gradients are the held equilibrium's sensitivities
+(``held_sensitivity``: the implicit function theorem on its KKT system, one linear solve),
+forward differences of warm-started equilibria where that does not apply. The answer
 is re-checked by turning the magnets from the start to it in small steps (the branch the chain
 follows); "feasible" means that re-checked equilibrium meets every constraint.
 """
@@ -36,6 +37,7 @@ from ballchain.drake_models.field_sources import FieldSource, require_field_sour
 from ballchain.infrastructure.arg_checks import as_rows, as_vector, require_int, require_positive, require_type
 from ballchain.infrastructure.errors import UserInputError, short_repr
 from ballchain.optimization.compiled_held_tip import held_solve
+from ballchain.optimization.held_sensitivity import pressing_jacobian
 from ballchain.optimization.statics import ChainStatics, StaticsResult
 
 FieldFor = Callable[[np.ndarray], FieldSource]  # (k, 3) unit dipole directions -> external field
@@ -111,6 +113,7 @@ class HeldTip:
         self.home = home
         self._last = home
         self.evaluations = 0
+        self.jacobians = {"analytic": 0, "fd": 0}
 
     @property
     def axis(self) -> np.ndarray:
@@ -132,6 +135,7 @@ class HeldTip:
         m, offset = self.split(x)
         external = self.field_for(m)
         target = self.tip_point(offset)
+        self._at = (external, target)  # the field and target of the last equilibrium (its Jacobian's)
         self.evaluations += 1
         for start in (self._last, self.home):
             result = held_solve(self.solver, external, start, target)  # solver.solve's answer (issue 48)
@@ -148,13 +152,36 @@ class HeldTip:
             return None, None
         return self.basis.T @ (-result.tip_reaction), result
 
-    def value_and_jacobian(self, x, step: float = 1e-5) -> tuple[np.ndarray | None, np.ndarray]:
-        """``pressing`` and its forward-difference Jacobian (3, len(x)) (step in m for o)."""
+    def value_and_jacobian(self, x, step: float = 1e-5,
+                           method: str = "analytic") -> tuple[np.ndarray | None, np.ndarray]:
+        """``pressing`` and its Jacobian (3, len(x)) with respect to the raw x (the direction rows
+        before ``split`` makes them unit).
+
+        ``method``: "analytic" (default): the implicit function theorem on the held equilibrium's
+        KKT system (``held_sensitivity.pressing_jacobian``: one linear solve), falling back to
+        forward differences where that law does not apply (a field the kernels do not evaluate,
+        a singular KKT system); "fd": forward differences (``step`` for the directions, ``1e-3
+        step`` m for o: 3k + 2 more held solves, each warm-started at x: off by 1e-5 to 4e-5 of
+        the Jacobian's norm on the right ring's targets, since a solve a step away stops after one
+        Newton step whose multiplier is an estimate; the analytic one is within 2e-9 of central
+        differences of converged solves, ``tests/test_held_sensitivity.py``). ``jacobians``
+        counts the Jacobians of each kind.
+        """
+        if method not in ("analytic", "fd"):
+            raise UserInputError(f"HeldTip.value_and_jacobian method must be 'analytic' or 'fd', got "
+                                 f"{short_repr(method)}")
         x = np.asarray(x, dtype=float).reshape(-1)
         f0, base = self.pressing(x)
         J = np.zeros((3, x.size))
         if base is None:
             return None, J
+        if method == "analytic":
+            external, target = self._at
+            J_a = pressing_jacobian(self.solver, external, base, target, x[: 3 * self.k].reshape(-1, 3), self.basis)
+            if J_a is not None:
+                self.jacobians["analytic"] += 1
+                return f0, J_a
+        self.jacobians["fd"] += 1
         for i in range(x.size):
             dx = x.copy()
             dx[i] += step * (1.0 if i < 3 * self.k else 1e-3)  # o in m: 1e-8 m steps
@@ -194,7 +221,7 @@ class OrientationPlan:
 
 
 def min_turn_orientation(held: HeldTip, m_start, m_previous, min_force: float, target_radius: float,
-                         friction: float = 0.0, major_iterations: int = 60) -> OrientationPlan:
+                         friction: float = 0.0, major_iterations: int = 100) -> OrientationPlan:
     """The smallest turn of the magnets from ``m_previous`` that presses the target hard enough.
 
     Args:
@@ -208,7 +235,12 @@ def min_turn_orientation(held: HeldTip, m_start, m_previous, min_force: float, t
         major_iterations: SNOPT's major iteration limit. The optimum is flat along the target
             circle and SNOPT creeps along it with the friction cone active; on the right ring's
             first target 16 balls were feasible after 25 iterations (94.3 deg turn, 33
-            evaluations; 93.6 deg converged after 211) but 12 balls needed 60 (96.7 deg).
+            evaluations; 93.6 deg converged after 211) but 12 balls needed 60 (96.7 deg) with
+            forward-difference gradients. With the analytic ones (issue 48) SNOPT's path
+            differs: 16 balls converge within 60 (93.59 deg, 271 evaluations; the differences
+            stopped there at 93.95 deg), 12 balls need between 60 and 100 (96.68 deg, 310
+            evaluations, the answer of the differences): the limit is 100, an iteration
+            costing about a sixth of what it did.
 
     Returns:
         an OrientationPlan (``feasible`` False: no orientation met the constraints; ``dipoles``
@@ -307,7 +339,7 @@ def max_force_orientation(held: HeldTip, m_start, target_radius: float, friction
         subject to  |m_j|^2 = 1,  |o|^2 <= r^2,  |F_t| <= mu F_n
 
     solved by SNOPT from ``m_start`` (with ``held.home`` its held equilibrium), the gradients
-    forward differences of warm-started equilibria. The answer is re-checked by turning the
+    ``HeldTip.value_and_jacobian``'s. The answer is re-checked by turning the
     magnets from the start to it in ``recheck_steps`` steps (the branch the chain follows).
 
     Args:

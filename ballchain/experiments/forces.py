@@ -35,6 +35,7 @@ from ballchain.drake_models.heart import LeftAtrium
 from ballchain.drake_models.params import BallChain, CylinderMagnet, Sleeve, gram_force
 from ballchain.infrastructure.safe_files import agg_pyplot, check_output_dir, note_replacements, save_figure, write_csv
 from ballchain.experiments._result import Result, optional
+from ballchain.optimization.compiled_held_tip import held_solve
 from ballchain.optimization.inverse_statics import pin_tip
 from ballchain.optimization.statics import ChainStatics
 
@@ -118,8 +119,8 @@ def max_normal_force(chain: BallChain, stand: Stand, vein: str, configs=("1",), 
         external = stand_field(stand, configs, angles, magnet)
         if start is None:  # bring the tip onto the pin from the free equilibrium
             result = pin_tip(solver, external, target, None)
-        else:  # already on the pin: only the magnets turned
-            result = solver.solve(external, start, tip_target=target)
+        else:  # already on the pin: only the magnets turned (solver.solve's answer, compiled: issue 48)
+            result = held_solve(solver, external, start, target)
             if not result.converged:  # no held equilibrium near this one: skip the orientation
                 result = None
         if result is None:

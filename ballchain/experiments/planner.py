@@ -126,6 +126,25 @@ def _field_for(stand: Stand) -> Callable[[np.ndarray], FieldSources]:
     return field_for_centres([stand.magnets["1"]])
 
 
+_HARDEST: dict = {}  # the last few hardest-press searches (``_hardest_press``)
+
+
+def _hardest_press(chain: BallChain, stand: Stand, name: str, grid: int, refine: int) -> dict:
+    """``forces.max_normal_force(chain, stand, name, ("1",), grid, refine)``, the last few kept:
+    the search reads only these (the chain, the target, the magnet's centre, the effort) and
+    answers the same floats every time, and a caller asking several forces of one target
+    (``procedure._plan_step``: the force, then 3/4 and half of it) asked it again per force
+    (issue 48: 14 of the right ring's 31 searches, a seventh of a cold plan)."""
+    centre, axis = stand.targets[name]
+    key = (chain, np.asarray(centre, float).tobytes(), np.asarray(axis, float).tobytes(),
+           np.asarray(stand.magnets["1"], float).tobytes(), grid, refine)
+    if key not in _HARDEST:
+        if len(_HARDEST) >= 4:
+            del _HARDEST[next(iter(_HARDEST))]  # the oldest
+        _HARDEST[key] = max_normal_force(chain, stand, name, ("1",), grid, refine)
+    return _HARDEST[key]
+
+
 def plan_target(chain: BallChain, stand: Stand, name: str, m_previous: np.ndarray,
                 previous: StaticsResult | None, min_force_N: float, target_radius: float, friction: float,
                 grid: int, refine: int) -> dict:
@@ -155,7 +174,7 @@ def plan_target(chain: BallChain, stand: Stand, name: str, m_previous: np.ndarra
                 break
         if (plan is not None and plan.feasible) or k == 1:
             break
-        best = max_normal_force(chain, stand, name, ("1",), grid, refine)
+        best = _hardest_press(chain, stand, name, grid, refine)
         if best.get("force_N") is None:
             return {"reached": False, "feasible": False, "reason": best.get("reason", "no held equilibrium")}
         max_force = best["force_N"]
