@@ -34,6 +34,7 @@ latch's angle test (numpy's ``arctan2``), the exact (magpylib) field of a magnet
 from __future__ import annotations
 
 from dataclasses import replace
+from math import isfinite
 from typing import Sequence
 
 import numpy as np
@@ -168,6 +169,7 @@ class ActuationUnit(SeededLeafSystem):
         # field is computed in Python (the exact model) and handed in.
         self._fields = [FieldAtPoint(m.magnet, m.p_WM, m.model, u.p_WS) for m in (u, *self._others)]
         self._use_given = np.array([f.dipole is None for f in self._fields])
+        self._any_given = bool(self._use_given.any())
         sources = np.array([_dipole_constants(f) if f.dipole is not None else np.zeros(9) for f in self._fields])
         self._last_fields: list[tuple[bytes, np.ndarray] | None] = [None] * len(self._fields)
         compensate = self._others if u.estimator_compensates_other_units else ()
@@ -274,8 +276,12 @@ class ActuationUnit(SeededLeafSystem):
         return context.get_discrete_state(self._x_index).get_value()
 
     def _mode(self, context) -> int:
-        value = check_finite_input(self, self._mode_port, context)
-        mode = int(round(float(value[0])))
+        # The one number as a float (its finiteness checked by the float's own test; a NaN or an
+        # inf is refused by check_finite_input, naming the port and the time).
+        (value,) = self._mode_port.Eval(context).tolist()
+        if not isfinite(value):
+            check_finite_input(self, self._mode_port, context)
+        mode = int(round(value))
         if mode not in (0, 1):
             raise ValueError(f"{self.get_name()}: mode must be 0 (teleoperation) or 1 (reconfiguration), got {mode}")
         return mode
@@ -287,7 +293,7 @@ class ActuationUnit(SeededLeafSystem):
 
     def _given_fields(self, x, t, q_others) -> tuple[np.ndarray, np.ndarray]:
         """The fields at the sensor the kernel cannot compute (``use_given``), in Python."""
-        if not self._use_given.any():
+        if not self._any_given:
             return self._given, self._use_given
         given = self._given.copy()
         for k in np.flatnonzero(self._use_given):
@@ -303,7 +309,8 @@ class ActuationUnit(SeededLeafSystem):
     def _noise(self, context, x) -> np.ndarray:
         if not self._noise_std:
             return self._no_noise
-        return self._generators.generator(self.seed(context), int(x[K.X_K])).normal(scale=self._noise_std, size=3)
+        # default_rng((seed, k)).normal(scale=..., size=3), the same floats, drawn compiled.
+        return self._generators.normal(self.seed(context), int(x[K.X_K]), self._noise_std, 3)
 
     def _initial_sample(self, context, discrete_state):
         x, t = self._x(context), context.get_time()
@@ -318,7 +325,13 @@ class ActuationUnit(SeededLeafSystem):
     def _update(self, context, discrete_state):
         x, t = self._x(context), context.get_time()
         mode = self._mode(context)
-        teleop = check_finite_input(self, self._teleop_port, context) if mode == 0 else self._zeros
+        if mode == 0:
+            teleop = self._teleop_port.Eval(context)
+            a, b, c = teleop.tolist()
+            if not isfinite(a + b + c):  # a NaN or an inf among them (or a sum past the largest float)
+                check_finite_input(self, self._teleop_port, context, teleop)
+        else:
+            teleop = self._zeros
         sampling = round(t / self._period) % self._ratio == 0
         needs_others = sampling or mode == 1
         q_others = self._q_others(context) if needs_others else self._no_others

@@ -41,8 +41,8 @@ the plan did not foresee), ``retries`` times; then it is given up (missed).
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass, field
+from math import copysign, isfinite
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -268,14 +268,23 @@ class _Memory:
     done: bool = False
 
     def __deepcopy__(self, memo):
-        new = copy.copy(self)
+        # Drake copies the state twice a look: copy.copy's shallow copies, without its
+        # __reduce_ex__ protocol (the attributes in a new instance's __dict__).
+        new = _shallow_copy(self)
         new.m_des = None if self.m_des is None else self.m_des.copy()
         new.stick = None if self.stick is None else self.stick.copy()
         new.records = list(self.records)  # the closed records never change again: shared
         if self.records:  # only the open record changes
-            new.records[-1] = last = copy.copy(self.records[-1])
+            new.records[-1] = last = _shallow_copy(self.records[-1])
             last.estimates, last.p_measured = list(last.estimates), list(last.p_measured)
         return new
+
+
+def _shallow_copy(obj):
+    """``copy.copy`` of a plain dataclass instance (its attributes shared)."""
+    new = object.__new__(type(obj))
+    new.__dict__.update(obj.__dict__)
+    return new
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -463,12 +472,13 @@ class AutonomousNavigator(LeafSystem):
         w = np.array([p.force_weight, 1.0, 1.0])
         rhs = w * np.concatenate([[p.force_command - f_est + plan.J_o[0] @ o], plan.J_o[1:] @ o - f_t])
         # dm_j = omega_j x m_j: J_m's columns of unit j times -skew(m_j).
-        J = w[:, None] * np.hstack([plan.J_m[:, 3 * j:3 * j + 3] @ (-_skew(m_j)) for j, m_j in enumerate(m)])
+        blocks = [plan.J_m[:, 3 * j:3 * j + 3] @ (-_skew(m_j)) for j, m_j in enumerate(m)]
+        J = w[:, None] * (blocks[0] if len(blocks) == 1 else np.hstack(blocks))
         s_max = float(np.linalg.svd(J, compute_uv=False)[0])  # norm(J, 2), without its wrapping
-        if s_max > 1e-12 and np.all(np.isfinite(rhs)):
+        if s_max > 1e-12 and all(map(isfinite, rhs.tolist())):
             mu = (p.damping * s_max) ** 2
             omega = np.linalg.solve(J.T @ J + mu * np.eye(J.shape[1]), J.T @ rhs) * p.gain
-            big = float(np.max(np.linalg.norm(omega.reshape(-1, 3), axis=1)))
+            big = float(np.linalg.norm(omega.reshape(-1, 3), axis=1).max())
             if big > p.max_step:
                 omega *= p.max_step / big
             m_new = np.array([_rotate(md, w) for md, w in zip(mem.m_des, omega.reshape(-1, 3))])
@@ -479,21 +489,30 @@ class AutonomousNavigator(LeafSystem):
     @staticmethod
     def _misalignment(m: np.ndarray, m_des: np.ndarray) -> float:
         """The largest angle between a measured dipole and its desired one [rad]."""
-        return max(float(np.arccos(np.clip(a @ b, -1.0, 1.0))) for a, b in zip(m, m_des))
+        # min/max clip a dot product (a NaN too) as np.clip does, without its wrapping.
+        return max(float(np.arccos(min(max(float(a @ b), -1.0), 1.0))) for a, b in zip(m, m_des))
 
     def _sticks(self, m: np.ndarray, m_des: np.ndarray) -> np.ndarray:
         """Joystick axes turning each measured dipole towards its desired one (world mapping:
         axes = magnet angular velocity / omega_max, past the dead band)."""
         p = self.params
         sticks = np.zeros((len(m), 3))
+        band, rest = p.dead_band, 1.0 - p.dead_band
         for j, (a, b) in enumerate(zip(m, m_des)):
             axis = cross(a, b)
             sin = float(np.linalg.norm(axis))
             angle = float(np.arctan2(sin, a @ b))
             if angle < 1e-4:
                 continue
-            u = min(p.magnet_gain * angle, 1.0) * axis / max(sin, 1e-12)
-            u /= max(float(np.abs(u).max()), 1.0)  # no axis beyond full speed
+            # The numpy expressions' element-wise operations on plain floats, in their order.
+            gain, d = min(p.magnet_gain * angle, 1.0), max(sin, 1e-12)
+            u = [gain * x / d for x in axis.tolist()]
+            if not all(map(isfinite, u)):  # a NaN or an inf: the numpy expressions (NaN-propagating)
+                u = min(p.magnet_gain * angle, 1.0) * axis / max(sin, 1e-12)
+                u /= max(float(np.abs(u).max()), 1.0)
+                sticks[j] = np.where(np.abs(u) > 1e-6, np.sign(u) * (band + rest * np.abs(u)), 0.0)
+                continue
+            scale = max(abs(u[0]), abs(u[1]), abs(u[2]), 1.0)  # no axis beyond full speed
             # Past the mapper's dead band, axis by axis (it subtracts it and rescales).
-            sticks[j] = np.where(np.abs(u) > 1e-6, np.sign(u) * (p.dead_band + (1.0 - p.dead_band) * np.abs(u)), 0.0)
+            sticks[j] = [copysign(band + rest * abs(x / scale), x) if abs(x / scale) > 1e-6 else 0.0 for x in u]
         return sticks

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 from pydrake.systems.framework import EventStatus
 
+from ballchain.drake_models.kernels._common import kernel
 from ballchain.infrastructure.arg_checks import require_int
 from ballchain.infrastructure.errors import UserInputError, short_repr
 from ballchain.systems.station import Station
@@ -34,6 +35,24 @@ def near_ostium_rim(heart, p_W: np.ndarray) -> bool:
         if abs(along) < 0.5 * o.diameter and abs(rho - 0.5 * o.diameter) < RIM_BAND:
             return True
     return False
+
+
+@kernel
+def closest_pair_distance(p):
+    """The smallest distance [m] between two of the points (n, 3), n >= 2: ``np.linalg.norm(p[i] -
+    p[j], axis=1).min()`` over the pairs i < j, the same floats (each distance's squares summed
+    left to right, as numpy's norm along a row), without the (n (n - 1) / 2, 3) temporaries."""
+    best = np.inf
+    n = p.shape[0]
+    for i in range(n):
+        for j in range(i + 1, n):
+            dx, dy, dz = p[i, 0] - p[j, 0], p[i, 1] - p[j, 1], p[i, 2] - p[j, 2]
+            d = np.sqrt(dx * dx + dy * dy + dz * dz)
+            if d < best or d != d:  # a NaN is the minimum, as numpy's min
+                best = d
+                if d != d:
+                    return d
+    return best
 
 
 _SUCCEEDED = EventStatus.Succeeded()  # the watchdog's answer between its checks (returned by value)
@@ -125,8 +144,9 @@ class ChainMonitor:
         gaps = chain.neighbour_gaps(p)
         if gaps is not None:
             self.max_gap = max(self.max_gap, float(gaps.max()))
-            dist = np.linalg.norm(p[self._iu[0]] - p[self._iu[1]], axis=1)
-            self.max_ball_overlap = max(self.max_ball_overlap, float(self._d - dist.min()))
+            closest = closest_pair_distance(np.ascontiguousarray(p, dtype=float)) if len(p) > 1 else (
+                np.linalg.norm(p[self._iu[0]] - p[self._iu[1]], axis=1).min())  # (an empty min's error)
+            self.max_ball_overlap = max(self.max_ball_overlap, float(self._d - closest))
             self.max_penetration = max(self.max_penetration, self.max_ball_overlap)
         heart = self._cd.heart
         if heart is not None and not wall:

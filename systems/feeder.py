@@ -149,8 +149,13 @@ class Feeder(LeafSystem):
         period = batch_period if schedule is not None else command_period
         self._batch = batch_steps(period, self._dt, "batch_period" if schedule is not None else "command_period")
         self._command_period = None if command_period is None else float(command_period)
-        self._length_port = self.DeclareVectorOutputPort("inserted_length", 1, self._calc_length)
-        self._balls_port = self.DeclareVectorOutputPort("balls_out", 1, self._calc_balls)
+        # The outputs are functions of the time and the state alone (the command of the steps due
+        # is held in the state): Drake's cache keeps them while neither changes (the engine and
+        # the navigator read the length at the same step, the navigator's update between them).
+        now = {self.time_ticket(), self.xd_ticket()}
+        self._length_port = self.DeclareVectorOutputPort("inserted_length", 1, self._calc_length,
+                                                         prerequisites_of_calc=now)
+        self._balls_port = self.DeclareVectorOutputPort("balls_out", 1, self._calc_balls, prerequisites_of_calc=now)
         if self._batch == 1:
             self.DeclarePeriodicDiscreteUpdateEvent(self._spec.update_period, 0.0, self._update)
         elif schedule is not None:

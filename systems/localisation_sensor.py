@@ -60,9 +60,9 @@ class LocalisationSensor(SeededLeafSystem):
     def _update(self, context, discrete_state):
         x = context.get_discrete_state(self._state).get_value()
         k = int(x[-1])
-        rng = self._generators.generator(self.seed(context), k)
         tip = np.asarray(self._in.Eval(context))[-3:]
-        sample = tip + self.params.noise_std * rng.standard_normal(3)
+        # default_rng((seed, k)).standard_normal(3), the same floats, drawn compiled.
+        sample = tip + self.params.noise_std * self._generators.standard_normal(self.seed(context), k, 3)
         new = np.empty_like(x)  # the line shifted by one sample, the new one last, then the count
         if k == 0:  # the first sample fills the line: the reading exists from the start
             new[:-1] = np.tile(sample, self._d + 1)

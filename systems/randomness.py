@@ -21,12 +21,15 @@ A scenario's ``random_seed`` (``chain_scenario.ChainScenario``) is that generato
 
 A sampled system draws sample k's numbers from ``numpy.random.default_rng((seed, k))``: a
 function of the seed and the sample's index alone. ``SampleGenerators`` gives that very generator
-for a fraction of its cost (a Hall sensor samples a hundred times a second).
+for a fraction of its cost (a Hall sensor samples a hundred times a second), and its normal
+draws (``normal``, ``standard_normal``) in one compiled call: numpy's PCG64 and ziggurat on the
+same words, the same floats (``tests/test_per_update_python.py``).
 """
 
 import numbers
 
 import numpy as np
+from numba.np.random import _constants as _zig
 from pydrake.common import RandomGenerator
 from pydrake.systems.framework import BasicVector, Diagram, LeafSystem
 
@@ -150,6 +153,86 @@ def _seed_sequence_words(a, b):
     return out
 
 
+_ONE, _BITS_32, _BITS_63 = np.uint64(1), np.uint64(32), np.uint64(63)
+_MULT_HI, _MULT_LO = np.uint64(_PCG_MULTIPLIER >> 64), np.uint64(_PCG_MULTIPLIER & 0xFFFFFFFFFFFFFFFF)
+# numpy's ziggurat for the standard normal (``random_standard_normal`` of its distributions.c),
+# its tables as numba's port of that code holds them (the same numbers as numpy's).
+_KI, _WI, _FI = (np.ascontiguousarray(a) for a in (_zig.ki_double, _zig.wi_double, _zig.fi_double))
+_ZIG_R, _ZIG_INV_R = float(_zig.ziggurat_nor_r), float(_zig.ziggurat_nor_inv_r)
+_TO_DOUBLE = 1.0 / 9007199254740992.0  # numpy's next_double: the top 53 bits times 2**-53
+
+
+@kernel
+def _mul_64(a, b):
+    """(high, low) uint64 words of the 128-bit product a b of two uint64 words."""
+    a_lo, a_hi = a & _M32, a >> _BITS_32
+    b_lo, b_hi = b & _M32, b >> _BITS_32
+    lo_lo, hi_lo, lo_hi, hi_hi = a_lo * b_lo, a_hi * b_lo, a_lo * b_hi, a_hi * b_hi
+    middle = (lo_lo >> _BITS_32) + (hi_lo & _M32) + lo_hi
+    return hi_hi + (hi_lo >> _BITS_32) + (middle >> _BITS_32), (middle << _BITS_32) | (lo_lo & _M32)
+
+
+@kernel
+def _lcg_128(hi, lo, inc_hi, inc_lo):
+    """(hi, lo) of PCG64's step ``state * multiplier + increment`` modulo 2**128."""
+    p_hi, p_lo = _mul_64(lo, _MULT_LO)
+    p_hi = p_hi + hi * _MULT_LO + lo * _MULT_HI  # modulo 2**64: the words above 128 bits drop
+    lo_new = p_lo + inc_lo
+    carry = _ONE if lo_new < p_lo else np.uint64(0)
+    return p_hi + inc_hi + carry, lo_new
+
+
+@kernel
+def _pcg64_output(hi, lo):
+    """PCG64's output of a state: XSL-RR (the two words xored, rotated right by the top 6 bits)."""
+    x = hi ^ lo
+    rot = hi >> np.uint64(58)
+    return (x >> rot) | (x << ((np.uint64(64) - rot) & np.uint64(63)))
+
+
+@kernel
+def _standard_normals(seed, k, n, scale):
+    """``numpy.random.default_rng((seed, k)).standard_normal(n)`` (n,) for integers
+    0 <= seed, k < 2**63: PCG64 seeded as numpy seeds it from ``SeedSequence((seed, k))``, each
+    number numpy's ziggurat on its 64-bit outputs (``SampleGenerators.standard_normal``); with a
+    ``scale`` (not NaN), ``normal(scale=scale, size=n)``: numpy's ``0.0 + scale * z`` each."""
+    w = _seed_sequence_words(seed, k)
+    # PCG64's srandom: increment (w2 w3) << 1 | 1, the state (w0 w1) added after one step from 0.
+    inc_hi, inc_lo = (w[2] << _ONE) | (w[3] >> _BITS_63), (w[3] << _ONE) | _ONE
+    lo = inc_lo + w[1]
+    hi = inc_hi + w[0] + (_ONE if lo < inc_lo else np.uint64(0))
+    hi, lo = _lcg_128(hi, lo, inc_hi, inc_lo)
+    out = np.empty(n)
+    for i in range(n):
+        while True:  # numpy's random_standard_normal
+            hi, lo = _lcg_128(hi, lo, inc_hi, inc_lo)
+            r = _pcg64_output(hi, lo)
+            idx = np.intp(r & np.uint64(0xFF))
+            r >>= np.uint64(8)
+            rabs = (r >> _ONE) & np.uint64(0x000FFFFFFFFFFFFF)
+            x = float(rabs) * _WI[idx]
+            if r & _ONE:
+                x = -x
+            if rabs < _KI[idx]:
+                break
+            if idx == 0:
+                while True:
+                    hi, lo = _lcg_128(hi, lo, inc_hi, inc_lo)
+                    xx = -_ZIG_INV_R * np.log1p(-(float(_pcg64_output(hi, lo) >> np.uint64(11)) * _TO_DOUBLE))
+                    hi, lo = _lcg_128(hi, lo, inc_hi, inc_lo)
+                    yy = -np.log1p(-(float(_pcg64_output(hi, lo) >> np.uint64(11)) * _TO_DOUBLE))
+                    if yy + yy > xx * xx:
+                        x = -(_ZIG_R + xx) if (rabs >> np.uint64(8)) & _ONE else _ZIG_R + xx
+                        break
+                break
+            hi, lo = _lcg_128(hi, lo, inc_hi, inc_lo)
+            u = float(_pcg64_output(hi, lo) >> np.uint64(11)) * _TO_DOUBLE
+            if (_FI[idx - 1] - _FI[idx]) * u + _FI[idx] < np.exp(-0.5 * x * x):
+                break
+        out[i] = x if np.isnan(scale) else 0.0 + scale * x
+    return out
+
+
 class SampleGenerators:
     """``numpy.random.default_rng((seed, k))``, the same generator (the same numbers from every
     method), built in a few microseconds instead of tens: one PCG64 of this object's, its state
@@ -173,3 +256,17 @@ class SampleGenerators:
         self._bit_generator.state = {"bit_generator": "PCG64", "state": {"state": state, "inc": increment},
                                      "has_uint32": 0, "uinteger": 0}
         return self._generator
+
+    def standard_normal(self, seed: int, k: int, n: int) -> np.ndarray:
+        """Sample k's ``default_rng((seed, k)).standard_normal(n)`` (n,), the same floats, drawn by
+        one compiled call (no generator's state set from Python: a few microseconds less a sample)."""
+        if not (0 <= seed < 2**63 and 0 <= k < 2**63):
+            return np.random.default_rng((seed, k)).standard_normal(n)
+        return _standard_normals(seed, k, n, np.nan)
+
+    def normal(self, seed: int, k: int, scale: float, n: int) -> np.ndarray:
+        """Sample k's ``default_rng((seed, k)).normal(scale=scale, size=n)`` (n,) for a scale
+        >= 0: numpy's ``loc + scale * z`` with loc 0, the same floats."""
+        if not (0 <= seed < 2**63 and 0 <= k < 2**63 and scale >= 0):
+            return np.random.default_rng((seed, k)).normal(scale=scale, size=n)
+        return _standard_normals(seed, k, n, float(scale))
