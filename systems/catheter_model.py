@@ -69,7 +69,8 @@ class CatheterModel(DeviceModel):
                                                         params.initial_length, scenario.statics_period,
                                                         sheath=params.sheath))
         plan = None if params.sheath is None else SheathPlan(
-            params.sheath, cat.catheter, cat.septum[0], cat.septum[1], sdf, heart_targets(heart)[3])
+            params.sheath, cat.catheter, cat.septum[0], cat.septum[1], sdf, heart_targets(heart)[3],
+            min_out=params.hand.sheath_retract_out)
         hand = builder.AddSystem(ManualHand(params.hand, plan, params.initial_length))
         builder.Connect(hand.GetOutputPort("handle"), cat.GetInputPort("handle"))
         if plan is not None:

@@ -11,6 +11,7 @@ from ballchain.systems.target_contact import TOUCH_TOLERANCE
 
 SHEATH_CLEARANCE = 1.5e-3  # [m] the planned sheath stays this far inside the atrium, beyond the septum's 4 mm
 PLAN_DEFLECTIONS = (0.0, 45.0, 90.0, 135.0, 180.0)  # [deg] the sheath deflections a plan weighs
+PLAN_ADVANCES = (10e-3, 15e-3, 20e-3, 30e-3)  # [m] and its advances beyond the septum (with the nominal and the most)
 # [m] the fixed sheath's setting is kept while its unloaded shapes miss a target by no more: the
 # wall's contact slides the tip further than the shapes (right_1 at 0.3 mm and left_11 at 1.1 mm
 # are touched from the fixed exit, the paper's sheath); an assumption.
@@ -33,11 +34,11 @@ class SheathPlan:
     """
 
     def __init__(self, sheath: SteerableSheath, catheter: SteerableCatheter, p_S, R_S, sdf,
-                 target_radius: float, top: int = 12) -> None:
+                 target_radius: float, top: int = 12, min_out: float = 6e-3) -> None:
         self.sheath, self.catheter, self.sdf = sheath.validate(), catheter, sdf
         self.target_radius, self.top = float(target_radius), int(top)
         self.nominal = (sheath.nominal_advance, 0.0, 0.0)
-        advances = sorted({sheath.nominal_advance, 10e-3, 15e-3, 20e-3, 30e-3, sheath.max_advance})
+        advances = sorted({sheath.nominal_advance, *PLAN_ADVANCES, sheath.max_advance})
         self.candidates = []
         for advance in advances:
             for deg in PLAN_DEFLECTIONS:
@@ -47,18 +48,37 @@ class SheathPlan:
                     along = np.linspace(0.0, advance, len(line))
                     if sdf is not None and np.any(sdf(line[along > 4e-3], gradient=False) < SHEATH_CLEARANCE):
                         continue
+                    if sdf is not None and not self._room(p_S, R_S, setting, min_out):
+                        continue
                     self.candidates.append((setting, p, R))
         self._p_S, self._R_S = np.asarray(p_S, float), np.asarray(R_S, float)
-        self.shapes = np.array([catheter.unloaded_shape(out, knob) for out in np.arange(5e-3, 120e-3 + 1e-9, 4e-3)
-                                for knob in np.linspace(-1.0, 1.0, 11)])  # (S, n, 3)
+        grid = [(out, knob) for out in np.arange(5e-3, 120e-3 + 1e-9, 4e-3) for knob in np.linspace(-1.0, 1.0, 11)]
+        self.outs = np.array([out for out, _ in grid])  # (S,) each shape's catheter out of the sheath [m]
+        self.knobs = np.array([knob for _, knob in grid])  # (S,) each shape's knob
+        self.shapes = np.array([catheter.unloaded_shape(out, knob) for out, knob in grid])  # (S, n, 3)
         t = np.linspace(0.0, 2 * np.pi, 24, endpoint=False)
         c, si, z, o = np.cos(t), np.sin(t), np.zeros_like(t), np.ones_like(t)
         self._twists = np.stack([np.stack([c, -si, z], -1), np.stack([si, c, z], -1), np.stack([z, z, o], -1)], 1)
         self._cache = {}
 
-    def miss(self, setting, p_T, n_T) -> float:
-        """The least distance from a touch of the target (p_T, n_T) over the catheter's unloaded
-        shapes from the sheath ``setting``'s exit [m] (inf: none stays in the atrium)."""
+    def _room(self, p_S, R_S, setting, min_out: float, steps: int = 6) -> bool:
+        """Whether the catheter's shortest (``min_out`` straight out of the exit, the hand's
+        pull-back) stays a radius inside the atrium at the setting and at the deflections the
+        hand passes through on the way to it (it deflects last, ``ManualHand``): else the sheath
+        curling with the catheter in it drives the rod's tip into the wall (a 6 mm rod on an exit
+        4.5 mm from the wall pressed it with 18 N, the issue-45 steerable runs' 6-27 N)."""
+        advance, rotation, deflection = setting
+        reach = np.linspace(0.0, min_out, 4)
+        for d in np.linspace(0.0, deflection, steps + 1)[1:] if deflection else [0.0]:
+            p, R, _ = self.sheath.exit_pose(p_S, R_S, advance, rotation, d)
+            if np.any(self.sdf(p + np.outer(reach, R[:, 2]), gradient=False) < self.catheter.radius):
+                return False
+        return True
+
+    def misses(self, setting, p_T, n_T) -> np.ndarray:
+        """The distance from a touch of the target (p_T, n_T) of each of the catheter's unloaded
+        shapes from the sheath ``setting``'s exit, (24 twists, S shapes) [m] (inf: the shape
+        leaves the atrium)."""
         p, R, _ = self.sheath.exit_pose(self._p_S, self._R_S, *setting)
         frames = R[None] @ self._twists  # (24, 3, 3)
         pts = p + np.einsum("snj,tij->tsni", self.shapes, frames)  # (24, S, n, 3)
@@ -66,14 +86,33 @@ class SheathPlan:
         if self.sdf is not None:
             d = self.sdf(pts[:, :, :-1].reshape(-1, 3), gradient=False).reshape(pts.shape[0], pts.shape[1], -1)
             ok = d.min(axis=2) >= 0.5 * self.catheter.radius
-        if not ok.any():
-            return np.inf
-        rel = pts[:, :, -1][ok] - p_T
+        rel = pts[:, :, -1] - p_T
         h = rel @ n_T
-        lateral = np.sqrt(np.maximum((rel * rel).sum(axis=1) - h * h, 0.0))
+        lateral = np.sqrt(np.maximum((rel * rel).sum(axis=-1) - h * h, 0.0))
         miss = np.hypot(np.maximum(lateral - self.target_radius, 0.0),
                         np.maximum(np.abs(h) - self.catheter.radius - TOUCH_TOLERANCE, 0.0))
-        return float(miss.min())
+        return np.where(ok, miss, np.inf)
+
+    def miss(self, setting, p_T, n_T) -> float:
+        """The least distance from a touch of the target (p_T, n_T) over the catheter's unloaded
+        shapes from the sheath ``setting``'s exit [m] (inf: none stays in the atrium)."""
+        return float(self.misses(setting, p_T, n_T).min())
+
+    def approach(self, p_T, n_T) -> tuple[float, float, float]:
+        """The catheter's curve the hand sets at the planned setting before the operator steers
+        again (the re-approach after a pull-back, ``ManualHand``): (push out of the sheath [m],
+        knob, twist about the exit's axis [rad]) of the unloaded shape nearest a touch of the
+        target, the shortest and least bent of the equals (a clinician dials the curve they know
+        reaches the target and advances the catheter about as far as the target lies from the
+        sheath's tip, not as far as it was out before: with the exit facing the wall a few mm
+        away, the old length drove the rod into the wall)."""
+        p_T, n_T = np.asarray(p_T, float), np.asarray(n_T, float)
+        miss = self.misses(self.plan(p_T, n_T), p_T, n_T)  # (24, S)
+        if not np.isfinite(miss.min()):
+            return float(self.outs.min()), 0.0, 0.0
+        t, k = np.nonzero(miss <= miss.min() + 1e-12)
+        best = min(zip(t, k), key=lambda tk: (self.outs[tk[1]], abs(self.knobs[tk[1]]), tk[0]))
+        return float(self.outs[best[1]]), float(self.knobs[best[1]]), float(2 * np.pi * best[0] / len(self._twists))
 
     def plan(self, p_T, n_T, keep: bool = True) -> tuple:
         """The sheath setting (advance [m], rotation [rad], deflection [rad]) for the target

@@ -102,6 +102,7 @@ class _Memory:
     F: np.ndarray | None = None  # (3,) the feeder's effect beyond its expected share [mm/s per unit command]
     burst_start: float = np.inf  # distance to the aim when the current burst began [m]
     burst_failed: float = 0.0  # sign of this target's last burst that brought the tip no closer (0: none)
+    held: bool = False  # its other hand was moving a steerable sheath at the last look (``hand_hold``)
 
     def __deepcopy__(self, memo) -> "_Memory":
         """An independent copy, field by field: the arrays and the open record copied (a closed
@@ -139,6 +140,7 @@ class SimulatedOperator(SeededLeafSystem):
     Input ports:
         body_poses: abstract list[RigidTransform] indexed by BodyIndex (the plant's ``body_poses``):
             it looks at the tip ball and the ball before it.
+        hand_hold: optional (2): its other hand moving a steerable sheath (``_held``).
 
     Output ports:
         joystick: (3,) stick axes in [-1, 1] (into a unit's TeleoperationMapper).
@@ -175,6 +177,9 @@ class SimulatedOperator(SeededLeafSystem):
                          length=p.initial_length, F=np.zeros(3))
         self.DeclareSeedParameter(p.seed)
         self._poses = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
+        # Optional (the manual arm's steerable sheath, issue 45): (1 while its other hand moves the
+        # sheath, the catheter out by the handle's readout [m]); unconnected: no such hand.
+        self._hand_hold = self.DeclareVectorInputPort("hand_hold", 2)
         self._memory_index = self.DeclareAbstractState(AbstractValue.Make(memory))
         ticket = {self.abstract_state_ticket(self._memory_index)}
         self.DeclareVectorOutputPort("joystick", 3, self._calc_joystick, prerequisites_of_calc=ticket)
@@ -257,6 +262,9 @@ class SimulatedOperator(SeededLeafSystem):
         if mem.phase == "wait" and t + 1e-9 >= p.start_time:
             mem.records.append(TargetRecord(self.names[0], t))
             self._start_probe(mem, t)
+        if self._hand_hold.HasValue(context) and mem.phase not in ("wait", "done") and self._held(mem, t, tip, d,
+                                                                                                 context):
+            return EventStatus.Succeeded()
         if mem.p_last is not None and mem.phase != "wait":
             self._watch(mem, tip, d)
         mem.p_last, mem.d_last = tip, d
@@ -266,6 +274,29 @@ class SimulatedOperator(SeededLeafSystem):
         mem.queue.append(u)
         mem.applied = mem.queue.pop(0)
         return EventStatus.Succeeded()
+
+    def _held(self, mem: _Memory, t: float, tip: np.ndarray, d: np.ndarray, context) -> bool:
+        """While its other hand moves a steerable sheath (``hand_hold``): it gives no command and
+        learns nothing from the tip's motion (it knows the sheath moves it), and still sees a
+        touch or runs out of time; once the sheath stands, the stick's effect has changed (the
+        exit turned): it learns it again as at the start (the estimate cleared, a probing
+        wiggle) and reads how much catheter is out from the handle. Returns whether it is held."""
+        hold = self._hand_hold.Eval(context)
+        if hold[0] > 0.5:
+            mem.held, mem.p_last, mem.d_last = True, None, None
+            self._check_target(mem, t, tip, d)
+            mem.queue.append(np.zeros(self._n + 1))
+            mem.applied = mem.queue.pop(0)
+            return True
+        if mem.held:
+            p = self.params
+            mem.held = False
+            mem.J, mem.F = np.zeros_like(mem.J), np.zeros(3)
+            mem.P = p.initial_covariance * np.eye(len(mem.P))
+            mem.length = float(np.clip(hold[1], 0.0, p.max_length))
+            if mem.phase in ("probe", "pursue", "burst"):
+                self._start_probe(mem, t)
+        return False
 
     def _start_probe(self, mem: _Memory, t: float) -> None:
         mem.phase, mem.phase_start = "probe", t

@@ -85,12 +85,15 @@ class _Plan:
 
     nominal = (3.5e-3, 0.0, 0.0)
 
-    def __init__(self, goal):
-        self.goal, self.calls = goal, 0
+    def __init__(self, goal, out=20e-3):
+        self.goal, self.calls, self.out = goal, 0, out
 
     def plan(self, p_T, n_T):
         self.calls += 1
         return self.goal
+
+    def approach(self, p_T, n_T):
+        return self.out, 0.0, 0.0
 
 
 def test_hand_pulls_back_then_moves_the_sheath_at_its_rates():
@@ -129,7 +132,8 @@ def test_hand_pulls_back_then_moves_the_sheath_at_its_rates():
             np.testing.assert_allclose(x[7:10], [goal[0], goal[1], 0.0], atol=1e-12)
     np.testing.assert_allclose(hand.GetOutputPort("sheath").Eval(ctx), goal, atol=1e-12)
     assert plan.calls == 1  # planned once per target
-    # Re-approach: the catheter pushed out again as far as it was, the operator still waiting.
+    # Re-approach: the catheter pushed out as far as the plan's approach (here as far as it was),
+    # the operator still waiting.
     for _ in range(pulled_steps):
         x = hand.EvalUniquePeriodicDiscreteUpdate(ctx).get_vector().CopyToVector()
         ctx.SetDiscreteState(0, x)

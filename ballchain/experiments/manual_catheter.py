@@ -112,8 +112,9 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
     ``run_station``; with ``html`` (a path) a Meshcat replay of the rod in the atrium is written
     there (frames every ``teleop.REPLAY_PERIOD``). ``sheath`` "fixed" (the paper's, as the robotic
     arm's) or "steerable" (``drake_models.sheath.SteerableSheath``, placed by the hand per target:
-    ``systems.catheter_station.SheathPlan``; issue 45, not yet the comparison's: see
-    ``docs/guide/manual_catheter.md``).
+    ``systems.catheter_station.SheathPlan``; the operator waits while the hand moves it, its
+    input ``hand_hold``; issue 45, not yet the comparison's default: it touches 14-15/18 on the
+    right ring, see ``docs/guide/manual_catheter.md``).
 
     Returns:
         a ``teleop.TeleopResult`` (mapping "manual"); its settings add the catheter's and the
@@ -159,6 +160,7 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
         builder.Connect(op.GetOutputPort("v_insert_cmd"), ports.feeder_command_input)
         if device.hand.plan is not None:  # the hand places the steerable sheath for the operator's target
             builder.Connect(op.GetOutputPort("target"), device.hand.GetInputPort("target"))
+            builder.Connect(device.hand.GetOutputPort("hold"), op.GetInputPort("hand_hold"))
         handles["tip"] = LogVectorOutput(device.system.GetOutputPort("tip_position"), builder, params.period)
         handles["windup"] = LogVectorOutput(device.system.GetOutputPort("windup"), builder, params.period)
         handles["operator"] = op
