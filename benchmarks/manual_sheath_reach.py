@@ -10,9 +10,11 @@ the septum stays 1.5 mm inside the atrium and every catheter node but the tip in
 atrium's signed distance); its tip's distance from a touch is ``manual_catheter.touch_miss``
 (0: it touches). No wall contact: a tip that would slide along the wall is not followed, so a
 few-mm miss here may still touch in a run, and a 0 may still be unreachable against friction.
-Prints one JSON line per sheath setting: the least miss [mm] per right-ring target.
+``--min-out 6`` keeps only the settings the hand's plan may use (``sheath_plan.has_room``: the
+catheter's shortest, 6 mm, fits ahead of the exit on the way). Prints one JSON line per sheath
+setting: the least miss [mm] per right-ring target.
 
-    python benchmarks/manual_sheath_reach.py [--deflections 0 45 90 135 180]
+    python benchmarks/manual_sheath_reach.py [--deflections 0 45 90 135 180] [--min-out 6]
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from ballchain.drake_models.atrium_sdf import atrium_sdf
 from ballchain.drake_models.sheath import SteerableSheath
 from ballchain.experiments import manual_catheter as mc
 from ballchain.optimization.rod_statics import frame_along
+from ballchain.systems.sheath_plan import has_room
 from ballchain.systems.station import atrium_for
 from ballchain.systems.target_contact import heart_targets
 
@@ -46,7 +49,8 @@ def catheter_shape(cat, out: float, knob: float, n: int = 14) -> np.ndarray:
     return pts
 
 
-def reach(heart, sdf, sheath: SteerableSheath, deflection: float, advances, n_rot: int = 12) -> dict:
+def reach(heart, sdf, sheath: SteerableSheath, deflection: float, advances, n_rot: int = 12,
+          min_out: float = 0.0) -> dict:
     cat = mc.comparison_catheter()
     names, p_WT, n_W, radius = heart_targets(heart)
     right = [i for i, name in enumerate(names) if name.startswith("right_")]
@@ -62,6 +66,8 @@ def reach(heart, sdf, sheath: SteerableSheath, deflection: float, advances, n_ro
             along = np.linspace(0.0, advance, len(line))
             if np.any(sdf(line[along > 4e-3], gradient=False) < 1.5e-3):
                 continue
+            if min_out > 0 and not has_room(sheath, cat, sdf, p_S, R_S, (advance, rotation, deflection), min_out):
+                continue
             for shape in shapes:
                 for twist in np.linspace(0.0, 2 * np.pi, 24, endpoint=False):
                     w = p + shape @ (R_E @ _rz(twist)).T
@@ -75,6 +81,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--deflections", type=float, nargs="+", default=[0.0, 45.0, 90.0, 135.0, 180.0],
                         help="sheath deflections [deg]")
+    parser.add_argument("--min-out", type=float, default=0.0,
+                        help="[mm] keep only the settings where this much straight catheter fits ahead of the "
+                             "exit on the way (the hand's pull-back, 6 mm: the plan's room check; 0: none)")
     args = parser.parse_args()
     heart = atrium_for(mc.scenario_for())
     sdf = atrium_sdf(heart)
@@ -84,7 +93,7 @@ def main() -> None:
     for deg in args.deflections:
         t0 = time.process_time()
         advances = [sheath.nominal_advance, 10e-3, 15e-3, 20e-3, 30e-3, 40e-3]
-        miss = reach(heart, sdf, sheath, float(np.radians(deg)), advances)
+        miss = reach(heart, sdf, sheath, float(np.radians(deg)), advances, min_out=args.min_out * 1e-3)
         print(json.dumps({"sheath": f"steerable, deflection {deg:g} deg, advance 3.5-40 mm, any rotation",
                           "miss_mm": miss, "cpu_s": round(time.process_time() - t0, 1)}))
 

@@ -18,6 +18,22 @@ PLAN_ADVANCES = (10e-3, 15e-3, 20e-3, 30e-3)  # [m] and its advances beyond the 
 PLAN_KEEP = 1.5e-3
 
 
+def has_room(sheath: SteerableSheath, catheter: SteerableCatheter, sdf, p_S, R_S, setting, min_out: float,
+             steps: int = 6) -> bool:
+    """Whether the catheter's shortest (``min_out`` straight out of the exit, the hand's
+    pull-back) stays a radius inside the atrium at the sheath ``setting`` and at the deflections
+    the hand passes through on the way to it (it deflects last, ``ManualHand``): else the sheath
+    curling with the catheter in it drives the rod's tip into the wall (a 6 mm rod on an exit
+    4.5 mm from the wall pressed it with 18 N, the issue-45 steerable runs' 6-27 N)."""
+    advance, rotation, deflection = setting
+    reach = np.linspace(0.0, min_out, 4)
+    for d in np.linspace(0.0, deflection, steps + 1)[1:] if deflection else [0.0]:
+        p, R, _ = sheath.exit_pose(p_S, R_S, advance, rotation, d)
+        if np.any(sdf(p + np.outer(reach, R[:, 2]), gradient=False) < catheter.radius):
+            return False
+    return True
+
+
 class SheathPlan:
     """Where the hand puts a steerable sheath for a target (issue 45): what a clinician does with
     the curves they know, not a search of the mechanics. The catheter's unloaded shapes
@@ -61,19 +77,8 @@ class SheathPlan:
         self._twists = np.stack([np.stack([c, -si, z], -1), np.stack([si, c, z], -1), np.stack([z, z, o], -1)], 1)
         self._cache = {}
 
-    def _room(self, p_S, R_S, setting, min_out: float, steps: int = 6) -> bool:
-        """Whether the catheter's shortest (``min_out`` straight out of the exit, the hand's
-        pull-back) stays a radius inside the atrium at the setting and at the deflections the
-        hand passes through on the way to it (it deflects last, ``ManualHand``): else the sheath
-        curling with the catheter in it drives the rod's tip into the wall (a 6 mm rod on an exit
-        4.5 mm from the wall pressed it with 18 N, the issue-45 steerable runs' 6-27 N)."""
-        advance, rotation, deflection = setting
-        reach = np.linspace(0.0, min_out, 4)
-        for d in np.linspace(0.0, deflection, steps + 1)[1:] if deflection else [0.0]:
-            p, R, _ = self.sheath.exit_pose(p_S, R_S, advance, rotation, d)
-            if np.any(self.sdf(p + np.outer(reach, R[:, 2]), gradient=False) < self.catheter.radius):
-                return False
-        return True
+    def _room(self, p_S, R_S, setting, min_out: float) -> bool:
+        return has_room(self.sheath, self.catheter, self.sdf, p_S, R_S, setting, min_out)
 
     def misses(self, setting, p_T, n_T) -> np.ndarray:
         """The distance from a touch of the target (p_T, n_T) of each of the catheter's unloaded
