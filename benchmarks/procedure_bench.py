@@ -9,7 +9,8 @@ code before that wiring (``ChainStatics.solve`` and validated ``MagnetSource``s,
 process only), alternating, and checks that the plans are the same, every array.
 
 ``--sensitivities`` times a cold plan as the planner makes it (the held tip's analytic
-sensitivities, ``optimization.held_sensitivity``; SNOPT's limit of 100 major iterations; the
+sensitivities, ``optimization.held_sensitivity``, and the warm starts their tangent predicts;
+SNOPT's limit of 100 major iterations; the
 hardest-press searches on the compiled held solve, each kept for the target's next force)
 against the code before (forward differences, 60 iterations, ``ChainStatics.solve``, every
 search made again: put back for this process only), alternating, and reports how far the plans

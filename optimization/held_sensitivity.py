@@ -16,7 +16,9 @@ The mixed derivatives ``d(grad E)/dm`` are ``compiled_sensitivity.moment_columns
 energy is linear in each moment); ``dc_t/dt = -I / d``. The tip's reaction is
 ``E0 / d lam_t`` (``ChainStatics._assemble``), the force it presses in a basis
 ``basis' (-reaction)`` (``inverse_statics.HeldTip.pressing``). One linear solve with 3k + 3
-right-hand sides replaces 3k + 2 warm-started held solves of forward differences.
+right-hand sides replaces 3k + 2 warm-started held solves of forward differences; its dq/dtheta
+is the tangent of the held equilibria (``pressing_sensitivity``), from which ``HeldTip``
+predicts the next evaluation's warm start.
 
 The system is regular when A has full row rank and H_L is positive definite on A's null space
 (second-order sufficiency: the solve verified positive semi-definiteness only); either failing
@@ -63,11 +65,17 @@ def reaction_sensitivity(statics, external, result, target):
     moment columns), a ball inside a magnet's bounding sphere, or a singular KKT system (see
     the module)."""
     field = _NO_FIELD if external is None else field_arrays(external)
-    return _sensitivity(statics, field, result, target)
+    out = _sensitivity(statics, field, result, target)
+    if out is None:
+        return None
+    k3 = field[1].size
+    return out[0][:, :k3], out[0][:, k3:]
 
 
 def _sensitivity(statics, field, result, target):
-    """``reaction_sensitivity`` of the field's ``field_arrays`` (None: not point dipoles)."""
+    """``(dR (3, 3k + 3), dq (nq, 3k + 3), chart)`` at ``result`` for the field's ``field_arrays``:
+    the reaction's and the chart coordinates' derivatives with respect to the k moments and the
+    target, in the chart centred on the result (``reaction_sensitivity``'s None cases: None)."""
     model = statics._model
     if (result is None or not result.converged or statics.method != "newton" or model is None
             or not hasattr(model, "_params") or result.positions.shape != (statics.chain.n_balls, 3)):
@@ -96,12 +104,11 @@ def _sensitivity(statics, field, result, target):
         top[:, :k3] = -C  # -d(grad E)/dm
         bottom = np.zeros((r, k3 + 3))
         bottom[r - 3:, k3:] = np.eye(3) / model.d  # -dc_t/dt
-        status, _, y = kkt_solve(H, A, top, bottom, RANK, DEFINITE)
+        status, dq, y = kkt_solve(H, A, top, bottom, RANK, DEFINITE)
     if status != KKT_OK:
         return None
-    dlam_tip = -y[r - 3:]
-    dR = (model.energy_scale / model.d) * dlam_tip
-    return dR[:, :k3], dR[:, k3:]
+    dR = (model.energy_scale / model.d) * -y[r - 3:]
+    return dR, dq, chart
 
 
 def pressing_jacobian(statics, external, result, target, directions, basis):
@@ -111,6 +118,15 @@ def pressing_jacobian(statics, external, result, target, directions, basis):
     ``external`` (source j: the magnet's moment along the unit row j) and the tip target
     ``target``; None where ``reaction_sensitivity`` is, or when ``external``'s dipoles are not
     the k magnets along ``directions``."""
+    out = pressing_sensitivity(statics, external, result, target, directions, basis)
+    return None if out is None else out[0]
+
+
+def pressing_sensitivity(statics, external, result, target, directions, basis):
+    """``(J (3, 3k + 2), T (nq, 3k + 2), chart)``: ``pressing_jacobian``'s J, and T the chart
+    coordinates' derivatives with respect to the same x in the chart centred on ``result``
+    (``chart_frames`` of its configuration: the tangent of the held equilibria); None as
+    ``pressing_jacobian``."""
     directions = np.asarray(directions, float).reshape(-1, 3)
     field = field_arrays(external) if external is not None else None
     if field is None or field[1].shape != directions.shape:
@@ -123,12 +139,12 @@ def pressing_jacobian(statics, external, result, target, directions, basis):
     out = _sensitivity(statics, field, result, target)
     if out is None:
         return None
-    dR_dm, dR_dt = out
+    dR, dq, chart = out
     k = directions.shape[0]
-    J = np.empty((3, 3 * k + 2))
+    D = np.vstack((-basis.T @ dR, dq))  # the pressing force's and the coordinates' derivatives
+    raw = np.empty((D.shape[0], 3 * k + 2))
     for j in range(k):  # m_j = |m_j| x_j / |x_j|: d m_j / d x_j = |m_j| (I - u u') / |x_j|
         u = units[j]
-        J[:, 3 * j:3 * j + 3] = -basis.T @ dR_dm[:, 3 * j:3 * j + 3] @ (
-            (strengths[j] / norms[j]) * (np.eye(3) - np.outer(u, u)))
-    J[:, 3 * k:] = -basis.T @ dR_dt @ basis[:, 1:]
-    return J
+        raw[:, 3 * j:3 * j + 3] = D[:, 3 * j:3 * j + 3] @ ((strengths[j] / norms[j]) * (np.eye(3) - np.outer(u, u)))
+    raw[:, 3 * k:] = D[:, 3 * k:] @ basis[:, 1:]  # the target moves along the wall's basis
+    return raw[:3], raw[3:], chart

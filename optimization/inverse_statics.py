@@ -34,10 +34,11 @@ from pydrake.autodiffutils import AutoDiffXd, ExtractGradient, ExtractValue, Ini
 from pydrake.solvers import MathematicalProgram, SnoptSolver, SolverOptions
 
 from ballchain.drake_models.field_sources import FieldSource, require_field_source
+from ballchain.drake_models.kernels import chain_configuration, chart_vectors
 from ballchain.infrastructure.arg_checks import as_rows, as_vector, require_int, require_positive, require_type
 from ballchain.infrastructure.errors import UserInputError, short_repr
 from ballchain.optimization.compiled_held_tip import held_solve
-from ballchain.optimization.held_sensitivity import pressing_jacobian
+from ballchain.optimization.held_sensitivity import pressing_sensitivity
 from ballchain.optimization.statics import ChainStatics, StaticsResult
 
 FieldFor = Callable[[np.ndarray], FieldSource]  # (k, 3) unit dipole directions -> external field
@@ -67,6 +68,18 @@ def pin_tip(solver: ChainStatics, external: FieldSource, target: np.ndarray, sta
     return current
 
 
+def _predicted(solver: ChainStatics, tangent, x) -> StaticsResult | None:
+    """The held equilibrium at x predicted to first order from ``tangent`` = (an equilibrium,
+    its x, dq/dx, its chart): a warm start (None when the step in the chart is beyond 1 rad)."""
+    base, x0, T, chart = tangent
+    dq = T @ (np.asarray(x, float) - x0)
+    if not np.all(np.abs(dq) <= 1.0):
+        return None
+    V = chart_vectors(dq, *chart)
+    p, m = chain_configuration(V[0], base.positions.shape[0] - 1, solver.chain.ball_diameter)
+    return StaticsResult(p, m, float("nan"), base.terms, True, "", "newton", 0, 0.0)
+
+
 def _unit_rows(m: np.ndarray) -> np.ndarray:
     m = np.asarray(m, dtype=float).reshape(-1, 3)
     norms = np.linalg.norm(m, axis=1, keepdims=True)
@@ -89,6 +102,11 @@ class HeldTip:
         n_magnets: k.
 
     The touch point's offset o (2,) [m] is along ``basis[:, 1:]``, two unit vectors in the wall.
+
+    ``predict`` (True by default): an evaluation right after an analytic Jacobian is first solved
+    from the configuration its tangent (``held_sensitivity.pressing_sensitivity``'s dq/dx)
+    predicts, then from the last equilibrium and home as always: SNOPT's next point takes 3-4
+    Newton steps instead of 5 (issue 48: a sixth of a cold plan).
     """
 
     def __init__(self, solver: ChainStatics, field_for: FieldFor, centre, axis, home: StaticsResult,
@@ -114,6 +132,9 @@ class HeldTip:
         self._last = home
         self.evaluations = 0
         self.jacobians = {"analytic": 0, "fd": 0}
+        self._tangent = None  # (equilibrium, its x, dq/dx, its chart) of the last analytic Jacobian
+
+    predict = True  # warm-start from the last analytic Jacobian's first-order prediction
 
     @property
     def axis(self) -> np.ndarray:
@@ -131,13 +152,19 @@ class HeldTip:
         self._last = self.home
 
     def equilibrium(self, x) -> StaticsResult | None:
-        """The held equilibrium at x, or None when none converges near the last or home."""
+        """The held equilibrium at x, or None when none converges near the last or home (nor
+        near the last tangent's prediction, ``predict``)."""
         m, offset = self.split(x)
         external = self.field_for(m)
         target = self.tip_point(offset)
         self._at = (external, target)  # the field and target of the last equilibrium (its Jacobian's)
         self.evaluations += 1
-        for start in (self._last, self.home):
+        starts = (self._last, self.home)
+        if self.predict and self._tangent is not None and self._tangent[0] is self._last:
+            guess = _predicted(self.solver, self._tangent, x)
+            if guess is not None:
+                starts = (guess, self._last, self.home)
+        for start in starts:
             result = held_solve(self.solver, external, start, target)  # solver.solve's answer (issue 48)
             if result.converged:
                 self._last = result
@@ -177,10 +204,11 @@ class HeldTip:
             return None, J
         if method == "analytic":
             external, target = self._at
-            J_a = pressing_jacobian(self.solver, external, base, target, x[: 3 * self.k].reshape(-1, 3), self.basis)
-            if J_a is not None:
+            out = pressing_sensitivity(self.solver, external, base, target, x[: 3 * self.k].reshape(-1, 3), self.basis)
+            if out is not None:
                 self.jacobians["analytic"] += 1
-                return f0, J_a
+                self._tangent = (base, x.copy(), out[1], out[2])
+                return f0, out[0]
         self.jacobians["fd"] += 1
         for i in range(x.size):
             dx = x.copy()

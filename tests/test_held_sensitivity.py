@@ -15,7 +15,7 @@ from ballchain.infrastructure.errors import UserInputError
 from ballchain.optimization.compiled_sensitivity import (KKT_CURVATURE, KKT_OK, KKT_RANK, kkt_solve,
                                                          moment_columns)
 from ballchain.optimization.held_sensitivity import reaction_sensitivity
-from ballchain.optimization.inverse_statics import HeldTip, pin_tip
+from ballchain.optimization.inverse_statics import HeldTip, _predicted, pin_tip
 from ballchain.optimization.reduced_chain import ReducedChain
 from ballchain.optimization.statics import ChainStatics
 from ballchain.optimization.wall_constraints import PointDipoles
@@ -207,3 +207,27 @@ def test_hardest_press_on_the_compiled_held_solve_is_the_general_solve(heart, mo
     kept = planner._hardest_press(chain, stand, "right_4", 2, 8)
     assert kept["force_N"] == fast["force_N"] and planner._hardest_press(chain, stand, "right_4", 2, 8) is kept
     assert planner._hardest_press(chain, stand, "right_4", 2, 9) is not kept  # another effort: searched again
+
+
+def test_the_tangent_predicts_the_next_held_equilibrium_to_second_order(heart):
+    """``pressing_sensitivity``'s dq/dx: the configuration it predicts a step away is off by
+    O(step^2) (halving the step quarters the error) and far closer than the equilibrium it
+    starts from; the held solve from it finds the same equilibrium as from there."""
+    held, m0 = _held(heart, 12, "right_1", True)
+    x = np.r_[(1.3 * m0 + 0.1 * np.array([0.0, 1.0, 0.0])).ravel(), 0.5e-3, -0.5e-3]
+    held.value_and_jacobian(x)
+    base = held._last
+    direction = np.r_[np.tile([0.02, -0.03, 0.01], held.k), 1e-4, 2e-4]
+    errors = []
+    for s in (1.0, 0.5):
+        guess = _predicted(held.solver, held._tangent, x + s * direction)
+        held._last, held.predict = base, False
+        _, truth = held.pressing(x + s * direction)
+        errors.append(np.abs(guess.positions - truth.positions).max())
+        assert errors[-1] < 0.05 * np.abs(base.positions - truth.positions).max()
+        held._last, held.predict = base, True  # the tangent is still base's
+        _, predicted = held.pressing(x + s * direction)
+        np.testing.assert_allclose(predicted.positions, truth.positions, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(predicted.tip_reaction, truth.tip_reaction, rtol=0,
+                                   atol=1e-7 * np.abs(truth.tip_reaction).max())
+    assert 3.0 < errors[0] / errors[1] < 5.0, errors
