@@ -177,7 +177,9 @@ def procedure_section(out: Path, quick: bool) -> tuple[Section, dict]:
         "(`drake_models/lesion_ring.py`). "
         + (f"Quick report: the first {targets} targets of each ring, seed 0. " if quick else
            f"Whole rings, seeds {', '.join(map(str, seeds))} for both navigators (the localisation noise's "
-           "for the navigator, the hand's tremor's for the operator); medians over the seeds with the range. ")
+           "for the navigator, the hand's tremor's for the operator); medians over the seeds with the range "
+           "(the main job's few seeds keep it within its budget: `ballchain trials --seeds 20` runs the same arms "
+           "over 20 seeds with their 95 % intervals, on a Dask cluster with `--scheduler-address`). ")
         + "The navigator's plans (inverse statics) do not depend on the seed: made once per ring "
         f"({plan_cost}) and given to "
         f"every seed's run. The runs ran on {st['workers']} worker process(es): {st['cpu_time_s'] / 60:.1f} "
