@@ -10,8 +10,8 @@ stands in for a node), each into a fresh folder, and measures:
   project's executor, and the cluster's start and stop.
 
 From those it estimates the study on N nodes: the fixed cost (the command's start, the plans, the
-cluster's start), plus the makespan of the measured runs' wall times scheduled longest first on N
-workers, plus the per-task overhead. The estimate is a model, printed beside the measured rows
+cluster's start and stop, a worker's warm-up taken from the 1-worker row), plus the makespan of the
+serial runs' wall times scheduled longest first on N workers, plus the per-task overhead. The estimate is a model, printed beside the measured rows
 it can be checked against (N = 1, 2).
 
 The machine is shared and has 2 cores: wall times move with the load (printed with each row);
@@ -93,13 +93,55 @@ def makespan(walls: list[float], n: int) -> float:
     return max(finish)
 
 
-def estimate(serial: dict, overhead: dict, nodes: int) -> float:
-    """The study's wall time on ``nodes`` workers from the serial run: its fixed cost (the command's
-    wall less its runs'), the cluster's start and stop, the makespan and each run's round trip."""
+def warm_up(rows: list[dict], overhead: dict) -> float:
+    """A worker's own start (its process, imports and compiled kernels, the plans it is sent): the
+    1-worker row's wall time less the serial row's and the cluster's start, stop and round trips
+    (0 without a 1-worker row)."""
+    serial = next(r for r in rows if r["workers"] == 0)
+    one = next((r for r in rows if r["workers"] == 1), None)
+    if one is None:
+        return 0.0
+    n = len(serial["run_wall_s"])
+    return max(0.0, one["wall_s"] - serial["wall_s"] - overhead["cluster_start_s"] - overhead["cluster_stop_s"]
+               - n * overhead["task_round_trip_s"])
+
+
+def estimate(rows: list[dict], overhead: dict, nodes: int) -> float:
+    """The study's wall time on ``nodes`` workers (each on a core of its own): the serial command's
+    fixed cost (its wall time less its runs'), the cluster's start and stop, a worker's warm-up
+    (``warm_up``: the workers start side by side), the makespan of the serial runs' wall times and
+    each run's round trip."""
+    serial = next(r for r in rows if r["workers"] == 0)
     fixed = serial["wall_s"] - sum(serial["run_wall_s"])
     runs = serial["run_wall_s"]
-    return (fixed + overhead["cluster_start_s"] + overhead["cluster_stop_s"] + makespan(runs, nodes)
-            + len(runs) * overhead["task_round_trip_s"] / nodes)
+    return (fixed + overhead["cluster_start_s"] + overhead["cluster_stop_s"] + warm_up(rows, overhead)
+            + makespan(runs, nodes) + len(runs) * overhead["task_round_trip_s"] / nodes)
+
+
+def report(args_arms, seeds: int, rows: list[dict], overhead: dict, nodes) -> dict:
+    """Print the tables; return the estimates."""
+    serial = next(r for r in rows if r["workers"] == 0)
+    n_runs = len(serial["run_cpu_s"])
+    print(f"trials: {len(args_arms)} arm(s) x {seeds} seed(s) = {n_runs} runs; arms {' '.join(args_arms)}")
+    print(f"per run (serial): CPU median {statistics.median(serial['run_cpu_s']):.2f} s, "
+          f"sum {sum(serial['run_cpu_s']):.1f} s; wall sum {sum(serial['run_wall_s']):.1f} s, "
+          f"longest {max(serial['run_wall_s']):.1f} s")
+    print(f"scheduler (2-worker LocalCluster): start {overhead['cluster_start_s']:.2f} s, stop "
+          f"{overhead['cluster_stop_s']:.2f} s, a no-op task's round trip {1e3 * overhead['task_round_trip_s']:.2f} ms, "
+          f"mapped {1e3 * overhead['task_throughput_s']:.2f} ms a task; a worker's warm-up "
+          f"{warm_up(rows, overhead):.1f} s (from the 1-worker row)")
+    print("\n| workers | wall [s] | CPU, command + workers [s] | runs' CPU [s] | load | speed-up (wall) | estimate [s] |")
+    print("|---:|---:|---:|---:|---:|---:|---:|")
+    for r in rows:
+        est = "-" if r["workers"] == 0 else f"{estimate(rows, overhead, r['workers']):.1f}"
+        print(f"| {r['workers'] or 'serial'} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | {sum(r['run_cpu_s']):.1f} | "
+              f"{r['load']:.1f} | {serial['wall_s'] / r['wall_s']:.2f}x | {est} |")
+    print("\n| nodes | estimated wall [s] | per run [s] |")
+    print("|---:|---:|---:|")
+    estimates = {n: estimate(rows, overhead, n) for n in nodes}
+    for n, e in estimates.items():
+        print(f"| {n} | {e:.1f} | {e / n_runs:.2f} |")
+    return estimates
 
 
 def main(argv=None) -> int:
@@ -112,37 +154,24 @@ def main(argv=None) -> int:
                         help="the estimate's cluster sizes")
     parser.add_argument("--tasks", type=int, default=200, help="no-op tasks for the scheduler's overhead")
     parser.add_argument("--json", type=Path, default=None, help="write the figures here (atomically)")
+    parser.add_argument("--from-json", type=Path, default=None, help="print the tables of a saved --json (no runs)")
     args = parser.parse_args(argv)
     if args.seeds < 1 or args.tasks < 1 or 0 not in args.workers:
         parser.error("--seeds and --tasks must be at least 1, and --workers must include 0 (the estimate's base)")
     if args.json is not None:
         check_output_file(args.json, "--json")
 
+    if args.from_json is not None:  # the tables again from a saved measurement
+        saved = json.loads(args.from_json.read_text())
+        report(saved["arms"], saved["seeds"], saved["rows"], saved["overhead"], args.nodes)
+        return 0
     root = Path(tempfile.mkdtemp(prefix="trials_scaling_"))
     try:
         rows = [_trials(root / f"w{w}", w, args.seeds, args.arms, args.targets) for w in args.workers]
     finally:
         shutil.rmtree(root, ignore_errors=True)
     overhead = _scheduler_overhead(args.tasks)
-    serial = next(r for r in rows if r["workers"] == 0)
-    n_runs = len(serial["run_cpu_s"])
-    print(f"trials: {len(args.arms)} arm(s) x {args.seeds} seed(s) = {n_runs} runs; arms {' '.join(args.arms)}")
-    print(f"per run (serial): CPU median {statistics.median(serial['run_cpu_s']):.2f} s, "
-          f"sum {sum(serial['run_cpu_s']):.1f} s; wall sum {sum(serial['run_wall_s']):.1f} s")
-    print(f"scheduler (2-worker LocalCluster): start {overhead['cluster_start_s']:.2f} s, stop "
-          f"{overhead['cluster_stop_s']:.2f} s, a no-op task's round trip {1e3 * overhead['task_round_trip_s']:.2f} ms, "
-          f"mapped {1e3 * overhead['task_throughput_s']:.2f} ms a task")
-    print("\n| workers | wall [s] | CPU, command + workers [s] | runs' CPU [s] | load | speed-up (wall) | estimate [s] |")
-    print("|---:|---:|---:|---:|---:|---:|---:|")
-    for r in rows:
-        est = "-" if r["workers"] == 0 else f"{estimate(serial, overhead, r['workers']):.1f}"
-        print(f"| {r['workers'] or 'serial'} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | {sum(r['run_cpu_s']):.1f} | "
-              f"{r['load']:.1f} | {serial['wall_s'] / r['wall_s']:.2f}x | {est} |")
-    print("\n| nodes | estimated wall [s] | per run [s] |")
-    print("|---:|---:|---:|")
-    estimates = {n: estimate(serial, overhead, n) for n in args.nodes}
-    for n, e in estimates.items():
-        print(f"| {n} | {e:.1f} | {e / n_runs:.2f} |")
+    estimates = report(args.arms, args.seeds, rows, overhead, args.nodes)
     if args.json is not None:
         atomic_write_text(args.json, json.dumps({"arms": args.arms, "seeds": args.seeds, "targets": args.targets,
                                                  "rows": rows, "overhead": overhead,
