@@ -202,6 +202,8 @@ def manual_section(out: Path, quick: bool) -> tuple[Section, dict]:
     mc.transition_figure(comparison, out / "manual_transitions.png")
     plain = mc.torsion_lead_deg(mc.comparison_catheter(0))
     cat = mc.comparison_catheter()
+    from ballchain.systems.manual_hand import HandParams
+
     braided = mc.torsion_lead_deg(cat)
     section = Section("Robotic vs manual navigation (paper Sec. V-C)")
     section.text(
@@ -209,7 +211,9 @@ def manual_section(out: Path, quick: bool) -> tuple[Section, dict]:
         "on the robotic chain (world mapping, quasi-static engine) and on an 8 Fr steerable catheter "
         "(`systems/catheter_station.py`: a Kirchhoff rod in the atrium, tendon curvature both ways, stick-slip "
         "friction of the shaft in the sheath; the hand turns the handle, the knob and pushes at human rates and, "
-        "wound past half a turn or at the F tendon's end, switches tendon and turns back). "
+        "when the handle's torque it feels reaches its threshold "
+        f"({1e3 * HandParams().torque_threshold:.1f} mN m, a stated human parameter) or at the F tendon's end, "
+        "switches tendon and turns back). "
         + (f"Quick report: the first {targets} targets, seed 0. " if quick else
            f"Whole tasks, operator seeds {', '.join(map(str, seeds))}; medians over the seeds. ")
         + "Smoothness: SPARC of the tip's speed per transition (Balasubramanian et al. 2015; closer to 0 is "
