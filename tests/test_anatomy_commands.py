@@ -28,7 +28,6 @@ def without_first_target(directory):
     return path
 
 
-@pytest.mark.slow
 def test_plan_reports_each_target_of_the_anatomy(tmp_path, capsys):
     path = without_first_target(tmp_path)
     data = run_json(capsys, "plan", "--anatomy", path, "--targets", "2", "--balls", "16", "--grid", "2",

@@ -106,6 +106,7 @@ def test_no_message_quotes_the_contents_of_a_file(tmp_path, monkeypatch, capsys,
     assert secret.name in lines[0], lines[0]
 
 
+@pytest.mark.slow
 def test_the_environment_of_the_process_is_not_quoted(tmp_path):
     """The audit's case: targets: /proc/self/environ quoted the first characters of the
     environment (an access key) in the error. Its size says 0: it is read up to the limit."""
@@ -229,6 +230,7 @@ def test_a_file_larger_than_its_kind_s_limit_is_refused_naming_the_limit(tmp_pat
     _one_line(capsys, argv, big.name, f"({limit + 1} bytes), more than the", f"({limit} bytes) allowed")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["atrium.stl", "targets.csv"])
 def test_an_8_gb_sparse_input_is_refused_under_a_4_gb_address_limit(tmp_path, name):
     """The audit's case, in a child limited to 4 GB of address space: an 8 GB sparse mesh or

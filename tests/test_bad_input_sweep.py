@@ -178,6 +178,7 @@ def silent_listener():
         conn.close()
 
 
+@pytest.mark.slow
 def test_a_silent_listener_is_not_a_scheduler(tmp_path, silent_listener):
     spec = load_spec("<test>", text=GOOD)
     with pytest.raises(UserInputError, match="no Dask scheduler answered within 2 s"):

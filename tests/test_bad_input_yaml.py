@@ -250,7 +250,7 @@ def _child(argv: list[str], cwd) -> tuple[int, list[str]]:
     return done.returncode, [line for line in done.stderr.splitlines() if line.strip()]
 
 
-@pytest.mark.parametrize("levels", [25_000, 200_000])
+@pytest.mark.parametrize("levels", [25_000, pytest.param(200_000, marks=pytest.mark.slow)])
 @pytest.mark.parametrize("where", ["--set", "anatomy file", "sweep spec"])
 def test_a_deeply_nested_value_is_one_line_not_a_crash(tmp_path, where, levels):
     """The value is read in a child process (``--set`` from a file: one argument may not exceed

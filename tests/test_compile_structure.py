@@ -133,6 +133,7 @@ print(edited.offset(1.0), sum(edited.offset.stats.cache_hits.values()), sum(edit
 """
 
 
+@pytest.mark.slow
 def test_a_process_running_old_code_does_not_cache_it_for_the_edited_file(tmp_path):
     """A process imports a kernel's file, the file is edited (a constant: numba's own index key,
     the function's bytecode, does not change), then the process compiles and caches the code it
@@ -155,6 +156,7 @@ def test_a_process_running_old_code_does_not_cache_it_for_the_edited_file(tmp_pa
     assert run() == (3.0, 1, 0)  # and now loaded
 
 
+@pytest.mark.slow
 def test_the_solves_kernels_are_compiled_once():
     """The named cases in a fresh process on this run's cache (compiled there, or loaded: then
     only the kernels called from Python are): at most one specialisation per kernel."""

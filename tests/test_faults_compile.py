@@ -148,6 +148,7 @@ def _kernel_run(cache: Path, code: str = _KERNEL_CALL, *args) -> tuple[list[str]
     return proc.stdout.split(), proc.stderr
 
 
+@pytest.mark.slow
 def test_a_kernel_compiled_by_the_child_is_loaded_from_the_cache(tmp_path):
     """The child compiles into the cache and the command loads it (a cache hit, no compilation
     of its own), with the one line; the next process loads it and says nothing."""
@@ -195,6 +196,7 @@ _CALL_ELSEWHERE = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_a_kernel_the_child_cannot_find_is_compiled_in_the_command(tmp_path):
     """A kernel the child cannot import (a module on a path set at run time) is compiled in the
     command's process, as before: the right value, no hang, the one line all the same."""
@@ -210,6 +212,7 @@ def test_a_kernel_the_child_cannot_find_is_compiled_in_the_command(tmp_path):
 _TIP = re.compile(r"tip at \(([-0-9., ]+)\) mm, tip angle ([-0-9.]+) deg, energy ([-0-9.e+]+) J")
 
 
+@pytest.mark.slow
 def test_numba_disable_jit_runs_the_commands_as_python():
     """NUMBA_DISABLE_JIT=1 (a debugging switch) ran into an AttributeError at import: the kernels
     now run as Python, with the compiled kernels' answer."""

@@ -65,6 +65,7 @@ def spec(tmp_path):
 
 # ------------------------------------------------------------------ open files (ulimit -n)
 
+@pytest.mark.slow
 def test_an_open_file_limit_too_low_for_the_workers_is_one_line_before_they_start(spec, tmp_path):
     """The audit's case: ulimit -n 24 and --workers 2 gave five chained tracebacks (EMFILE,
     "Nanny failed to start")."""
@@ -75,6 +76,7 @@ def test_an_open_file_limit_too_low_for_the_workers_is_one_line_before_they_star
     assert not (tmp_path / "out" / "table.csv").exists()  # refused before any point ran
 
 
+@pytest.mark.slow
 def test_a_low_soft_open_file_limit_is_raised_up_to_the_hard_one(spec, tmp_path):
     soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
     if hard != resource.RLIM_INFINITY and hard < resource_limits.open_files_needed(2):
@@ -110,6 +112,7 @@ if __name__ == "__main__":
 """
 
 
+@pytest.mark.slow
 def test_a_worker_process_that_cannot_be_started_is_one_line_naming_ulimit_u(spec, tmp_path):
     result = _ballchain(["sweep", str(spec), "--out", "out", "--workers", "2", "--no-progress"], tmp_path,
                         _limited(RLIMIT_NPROC=(4000, resource.getrlimit(resource.RLIMIT_NPROC)[1])),

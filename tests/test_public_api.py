@@ -53,6 +53,7 @@ def test_the_experiments_load_on_first_use():
     assert bc.experiments.simulation is importlib.import_module("ballchain.experiments.simulation")
 
 
+@pytest.mark.slow
 def test_import_ballchain_does_not_import_drake_until_a_name_is_used():
     code = ("import sys, ballchain\n"
             "ballchain.__all__, dir(ballchain), ballchain.__version__\n"

@@ -40,7 +40,6 @@ def test_diagram_has_named_systems(heart):
 
 
 @pytest.mark.parametrize("name", scenario_names())
-@pytest.mark.slow
 def test_every_named_scenario_runs_briefly(name, heart):
     scenario = load_scenario(name)
     duration = 10 * scenario.effective_time_step

@@ -151,6 +151,7 @@ def test_the_crossing_test_finds_a_shell_crossing_itself_not_separate_shells():
     assert not (F[pairs[:, 0]][:, :, None] == F[pairs[:, 1]][:, None, :]).any()  # no pair shares a corner
 
 
+@pytest.mark.slow
 def test_a_shell_overlapping_itself_deeply_is_refused(tmp_path, capsys):
     """The tube's end inside its start: the winding number is 2 there (still inside: the inside
     test gives the union), but the buried triangles stay in the surface, so the wall distance
