@@ -103,10 +103,16 @@ class HeldTip:
 
     The touch point's offset o (2,) [m] is along ``basis[:, 1:]``, two unit vectors in the wall.
 
-    ``predict`` (True by default): an evaluation right after an analytic Jacobian is first solved
+    ``predict`` (False by default): an evaluation right after an analytic Jacobian is first solved
     from the configuration its tangent (``held_sensitivity.pressing_sensitivity``'s dq/dx)
     predicts, then from the last equilibrium and home as always: SNOPT's next point takes 3-4
-    Newton steps instead of 5 (issue 48: a sixth of a cold plan).
+    Newton steps instead of 5 (issue 48: a sixth of a cold plan). Off by default: from a
+    predicted start the held solve can land on another branch of equilibria than the one the
+    last Jacobian described, and SNOPT's model of the constraint breaks; on a user anatomy's
+    two-unit target (``tests/test_procedure.py``'s four-target lumen, its third target) the
+    15 gf program from the hardest press then ran into SNOPT's iteration limit (389
+    evaluations) where without the prediction it answers in 94, and the target was planned
+    at 10 gf, below the navigator's window.
     """
 
     def __init__(self, solver: ChainStatics, field_for: FieldFor, centre, axis, home: StaticsResult,
@@ -134,7 +140,7 @@ class HeldTip:
         self.jacobians = {"analytic": 0, "fd": 0}
         self._tangent = None  # (equilibrium, its x, dq/dx, its chart) of the last analytic Jacobian
 
-    predict = True  # warm-start from the last analytic Jacobian's first-order prediction
+    predict = False  # warm-start from the last analytic Jacobian's first-order prediction (see above)
 
     @property
     def axis(self) -> np.ndarray:
