@@ -14,7 +14,21 @@ few-mm miss here may still touch in a run, and a 0 may still be unreachable agai
 catheter's shortest, 6 mm, fits ahead of the exit on the way). Prints one JSON line per sheath
 setting: the least miss [mm] per right-ring target.
 
-    python benchmarks/manual_sheath_reach.py [--deflections 0 45 90 135 180] [--min-out 6]
+``--loaded`` (issue 45, the loop or prolapse): the same question with the rod's statics in the
+atrium instead of the unloaded shapes (``optimization.rod_statics``: the rod pushed out along the
+wall, its shaft bearing on it, the wall frictionless), for the targets named by ``--targets``.
+From each sheath setting (the fixed exit, or ``--deflections`` at ``--advances`` and rotations
+every ``--rotation-step``), at each twist at the exit (every ``--twist-step``) and knob
+(``--knobs``), the rod is pushed out from 6 mm to ``--max-out`` in 3 mm steps, each equilibrium
+warm-started from the last (a hand pushing); each converged equilibrium's electrode (its whole
+surface, ``target_contact.targets_touched``) is tested against the targets and its wall forces
+summed. Prints per target the least miss (0: a touch) with the rod's total wall force at most
+each of ``WALL_FORCE_LIMITS`` and with any force, where (sheath, twist, knob, push) and the force
+it takes (total on the rod, on the tip).
+
+    python benchmarks/manual_sheath_reach.py --loaded [--targets right_15 right_16 right_17]
+        [--deflections 0 90] [--advances 3.5 15 30] [--rotation-step 45 | --rotations 165 180]
+        [--twist-step 30 | --twists 180 210] [--knobs -1 -0.5 0 0.5 0.75 1] [--max-out 120]
 """
 
 from __future__ import annotations
@@ -28,10 +42,17 @@ import numpy as np
 from ballchain.drake_models.atrium_sdf import atrium_sdf
 from ballchain.drake_models.sheath import SteerableSheath
 from ballchain.experiments import manual_catheter as mc
-from ballchain.optimization.rod_statics import frame_along
+from ballchain.drake_models.electrode import CATHETER_ELECTRODE_LENGTH, axis_start
+from ballchain.optimization.rod_statics import RodStatics, frame_along
 from ballchain.systems.sheath_plan import has_room
 from ballchain.systems.station import atrium_for
-from ballchain.systems.target_contact import heart_targets
+from ballchain.systems.target_contact import heart_targets, targets_touched
+
+# [N] the rod's total wall force a loaded curve may take: 40 g (0.39 N), the contact force Matsuda
+# et al. class as excessive at the tip (Heart Vessels 31:1544, 2016, TactiCath, PMC5010593: 4-7 %
+# of ablation points); 1 N and 2 N beyond it (a shaft bearing on the wall over a length is not a
+# tip: where its limit lies is an assumption, no source found).
+WALL_FORCE_LIMITS = (0.39, 1.0, 2.0)
 
 
 def _rz(t: float) -> np.ndarray:
@@ -41,12 +62,9 @@ def _rz(t: float) -> np.ndarray:
 
 def catheter_shape(cat, out: float, knob: float, n: int = 14) -> np.ndarray:
     """The unloaded catheter beyond the exit in the exit's frame (z its axis, the bend towards
-    +x): (n, 3) from the exit to the tip sphere's centre [m]."""
-    sheathlike = SteerableSheath(deflectable_length=cat.deflectable_length, max_deflection=np.pi,
-                                 max_advance=max(out, 1e-6), nominal_advance=0.0)
-    bend = cat.curvature(knob) * cat.deflectable_length
-    pts, _ = sheathlike.local(out, float(np.clip(bend, -np.pi, np.pi)), n)
-    return pts
+    +x): (n, 3) from the exit to the tip sphere's centre [m] (``SteerableCatheter.unloaded_shape``,
+    the plan's)."""
+    return cat.unloaded_shape(out, knob, n)
 
 
 def reach(heart, sdf, sheath: SteerableSheath, deflection: float, advances, n_rot: int = 12,
@@ -77,6 +95,74 @@ def reach(heart, sdf, sheath: SteerableSheath, deflection: float, advances, n_ro
     return {names[i]: round(float(m) * 1e3, 1) for i, m in zip(right, best)}
 
 
+def loaded_reach(heart, sdf, sheath: SteerableSheath, settings, targets, twists, knobs, max_out: float = 120e-3,
+                 step: float = 3e-3, limits=WALL_FORCE_LIMITS, cat=None) -> dict:
+    """The loaded curves' reach (module docstring, ``--loaded``): per target name, per force limit
+    (and "any"), the least miss [mm] (0: the electrode touches) of the converged equilibria whose
+    total wall force is within it, with where and the force (None: no converged equilibrium);
+    and the solves and how many did not converge."""
+    cat = cat or mc.comparison_catheter()
+    names, p_WT, n_W, radius = heart_targets(heart)
+    ks = [names.index(t) for t in targets]
+    axis = np.asarray(heart.sheath_axis_H, float)
+    R_S = frame_along(axis)
+    p_S = np.asarray(heart.p_HE, float) - sheath.nominal_advance * axis
+    rod = RodStatics(cat, heart.p_HE, axis, sdf)
+    keys = [str(lim) for lim in limits] + ["any"]
+    bounds = list(limits) + [np.inf]
+    best = {t: {k: None for k in keys} for t in targets}
+    solves = failed = 0
+    for setting in settings:
+        p, R, line = sheath.exit_pose(p_S, R_S, *setting, 8)
+        along = np.linspace(0.0, setting[0], len(line))
+        if np.any(sdf(line[along > 4e-3], gradient=False) < 1.5e-3):
+            continue
+        rod.p_E, rod.R_E, rod._last_pose = p, R, None
+        for twist in twists:
+            for knob in knobs:
+                q = None
+                for out in np.arange(6e-3, max_out + 1e-9, step):
+                    sol = rod.solve(out, twist, cat.curvature(knob), q0=q)
+                    q, solves = sol.q, solves + 1
+                    if not sol.converged:
+                        failed += 1
+                        continue
+                    c, force = sol.pose.tip_centre, float(sol.wall_forces.sum())
+                    a = axis_start(c, sol.pose.tip_direction, cat.radius, CATHETER_ELECTRODE_LENGTH)
+                    touch = targets_touched(c, p_WT[ks], n_W[ks], cat.radius, radius, axis_start=a)
+                    miss = np.where(touch, 0.0, mc.touch_miss(c, p_WT[ks], n_W[ks], cat.radius, radius))
+                    for j, t in enumerate(targets):
+                        row = {"miss_mm": round(float(miss[j]) * 1e3, 2), "wall_force_N": round(force, 3),
+                               "tip_force_N": round(float(sol.wall_forces[-1]), 3),
+                               "sheath": [round(setting[0] * 1e3, 1), round(float(np.degrees(setting[1]))),
+                                          round(float(np.degrees(setting[2])))],
+                               "twist_deg": round(float(np.degrees(twist))), "knob": knob, "out_mm": round(out * 1e3)}
+                        for key, bound in zip(keys, bounds):
+                            old = best[t][key]
+                            if force <= bound and (old is None or (row["miss_mm"], force) < (old["miss_mm"], old["wall_force_N"])):
+                                best[t][key] = row
+    return {"targets": best, "solves": solves, "not_converged": failed}
+
+
+def _main_loaded(args, heart, sdf, sheath) -> None:
+    settings = []
+    for deg in args.deflections:
+        if deg == 0.0:
+            settings.append((sheath.nominal_advance, 0.0, 0.0))
+            continue
+        for advance in args.advances:
+            for rot in args.rotations if args.rotations else np.arange(0.0, 360.0, args.rotation_step):
+                settings.append((advance * 1e-3, float(np.radians(rot)), float(np.radians(deg))))
+    t0 = time.process_time()
+    twists = args.twists if args.twists else np.arange(0.0, 360.0, args.twist_step)
+    out = loaded_reach(heart, sdf, sheath, settings, args.targets, np.radians(twists),
+                       [float(k) for k in args.knobs], args.max_out * 1e-3)
+    print(json.dumps({"loaded": True, "deflections_deg": args.deflections, "advances_mm": args.advances,
+                      "rotation_step_deg": args.rotation_step,
+                      "rotations_deg": args.rotations, "twist_step_deg": args.twist_step, "twists_deg": args.twists, "knobs": args.knobs,
+                      "max_out_mm": args.max_out, **out, "cpu_s": round(time.process_time() - t0, 1)}))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--deflections", type=float, nargs="+", default=[0.0, 45.0, 90.0, 135.0, 180.0],
@@ -84,10 +170,24 @@ def main() -> None:
     parser.add_argument("--min-out", type=float, default=0.0,
                         help="[mm] keep only the settings where this much straight catheter fits ahead of the "
                              "exit on the way (the hand's pull-back, 6 mm: the plan's room check; 0: none)")
+    parser.add_argument("--loaded", action="store_true", help="the rod's statics along the wall (module docstring)")
+    parser.add_argument("--targets", nargs="+", default=["right_15", "right_16", "right_17"])
+    parser.add_argument("--advances", type=float, nargs="+", default=[3.5, 15.0, 30.0], help="[mm] (--loaded)")
+    parser.add_argument("--rotation-step", type=float, default=45.0, help="[deg] (--loaded)")
+    parser.add_argument("--rotations", type=float, nargs="+", default=None,
+                        help="[deg] the sheath's rotations instead of --rotation-step's (--loaded)")
+    parser.add_argument("--twist-step", type=float, default=30.0, help="[deg] (--loaded)")
+    parser.add_argument("--twists", type=float, nargs="+", default=None,
+                        help="[deg] the twists at the exit instead of --twist-step's (--loaded)")
+    parser.add_argument("--knobs", type=float, nargs="+", default=[-1.0, -0.5, 0.0, 0.5, 0.75, 1.0])
+    parser.add_argument("--max-out", type=float, default=120.0, help="[mm] (--loaded)")
     args = parser.parse_args()
     heart = atrium_for(mc.scenario_for())
     sdf = atrium_sdf(heart)
     sheath = SteerableSheath().validate()
+    if args.loaded:
+        _main_loaded(args, heart, sdf, sheath)
+        return
     fixed = reach(heart, sdf, sheath, 0.0, [sheath.nominal_advance])
     print(json.dumps({"sheath": "fixed (the paper's exit)", "miss_mm": fixed}))
     for deg in args.deflections:

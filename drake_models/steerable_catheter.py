@@ -254,11 +254,14 @@ class SteerableCatheter:
         """The rod beyond the exit with no load on it, in the exit's frame (z its axis, the D bend
         towards +x): straight, then the deflectable segment (what is out of it) at the knob's
         constant curvature; (n, 3) points from the exit to the tip sphere's centre [m] (the
-        shape a hand expects, for a steerable sheath's plan: ``systems.catheter_station``)."""
+        shape a hand expects, for a steerable sheath's plan: ``systems.catheter_station``). The
+        tip sphere's centre lies a radius short of the rod's end, as in the rod's statics
+        (``optimization.rod_statics``: its last half segment ends a radius short; before, the
+        shape ended at the rod's end, 1.3 mm beyond the statics' unloaded tip)."""
         out = max(float(out), 0.0)
         bent = min(out, self.deflectable_length)
         kappa = self.curvature(knob)
-        s = np.linspace(0.0, out, max(int(n), 2))
+        s = np.linspace(0.0, max(out - self.radius, 0.0), max(int(n), 2))
         u = np.clip(s - (out - bent), 0.0, None)
         if abs(kappa) < 1e-12:
             return np.column_stack([np.zeros_like(s), np.zeros_like(s), s])

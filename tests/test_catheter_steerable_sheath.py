@@ -204,3 +204,18 @@ def test_exit_twist_balances_the_rods_torque_where_the_alternating_coupling_runs
     assert max(abs(a) for a in alternating) > 700.0  # the runaway reproduced
     assert abs(sol.base_torque) > 10 * chain.static  # the rod's torque is far above the friction
     assert -400.0 < math.degrees(x[-1]) < -256.0  # the exit ahead of the handle, less than half a turn
+
+
+def test_unloaded_shape_ends_at_the_rods_free_tip():
+    """The plan's unloaded shape (``SteerableCatheter.unloaded_shape``) ends where the rod's
+    statics in free space put the tip sphere's centre (a radius short of the rod's end), within
+    0.1 mm over pushes and knobs (the shape ended 1.3 mm beyond it before)."""
+    from ballchain.optimization.rod_statics import RodStatics
+
+    cat = SteerableCatheter().validate()
+    rod = RodStatics(cat, np.zeros(3), [0.0, 0.0, 1.0], None)
+    for out in (9e-3, 21e-3, 45e-3, 100e-3):
+        for knob in (1.0, -0.5, 0.0):
+            tip = rod.solve(out, 0.0, cat.curvature(knob)).pose.tip_centre
+            shape = rod.R_E @ cat.unloaded_shape(out, knob)[-1]
+            assert np.linalg.norm(tip - shape) < 0.1e-3, (out, knob)
