@@ -148,6 +148,20 @@ def _cold_plan_sensitivities(args, before: bool):
         undo()
 
 
+def _alternate(args, cold_plan, names: tuple[str, str], label: str):
+    """``cold_plan(args, before)`` ``args.repeats`` times, the code before and now alternating:
+    ({name: [CPU s]}, the last plans before, the last plans now)."""
+    pairs = {name: [] for name in names}
+    for _ in range(args.repeats):
+        for name, before in zip(names, (True, False)):
+            cpu, plans = cold_plan(args, before)
+            pairs[name].append(cpu)
+            if before:
+                old = plans
+        print(f"cold plan: {names[0]} {pairs[names[0]][-1]:.2f}, {label} {cpu:.2f} CPU-s", flush=True)
+    return pairs, old, plans
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", default="right")
@@ -164,6 +178,9 @@ def main(argv=None) -> dict:
     parser.add_argument("--profile", action="store_true")
     parser.add_argument("--json", default=None)
     args = parser.parse_args(argv)
+    if args.repeats < 1 or (args.targets is not None and args.targets < 1) or not args.dwell > 0:
+        parser.error(f"--repeats and --targets must be at least 1 and --dwell positive, got {args.repeats}, "
+                     f"{args.targets} and {args.dwell}")
     if args.json:  # the output checked before the minutes of measuring
         check_output_file(args.json, "--json")
     out: dict = {"task": args.task, "targets": args.targets, "dwell_s": args.dwell}
@@ -179,25 +196,13 @@ def main(argv=None) -> dict:
     if args.cold:
         out["cold_equals_cached"] = _same_plans(cold, plans)
     if args.planner_held_solve:
-        pairs = {"before": [], "held_solve": []}
-        for _ in range(args.repeats):
-            cpu, before = _cold_plan(args, True)
-            pairs["before"].append(cpu)
-            cpu, held = _cold_plan(args, False)
-            pairs["held_solve"].append(cpu)
-            print(f"cold plan: before {pairs['before'][-1]:.2f}, wired {cpu:.2f} CPU-s", flush=True)
+        pairs, before, held = _alternate(args, _cold_plan, ("before", "held_solve"), "wired")
         out["planner_cold_cpu_s"] = {k: statistics.median(v) for k, v in pairs.items()}
         out["planner_cold_runs_cpu_s"] = pairs
         out["planner_held_solve_speed_up"] = statistics.median(pairs["before"]) / statistics.median(pairs["held_solve"])
         out["planner_held_solve_same_plans"] = _same_plans(before, held) and _same_plans(before, plans)
     if args.sensitivities:
-        pairs = {"differences": [], "analytic": []}
-        for _ in range(args.repeats):
-            cpu, before = _cold_plan_sensitivities(args, True)
-            pairs["differences"].append(cpu)
-            cpu, after = _cold_plan_sensitivities(args, False)
-            pairs["analytic"].append(cpu)
-            print(f"cold plan: differences {pairs['differences'][-1]:.2f}, analytic {cpu:.2f} CPU-s", flush=True)
+        pairs, before, after = _alternate(args, _cold_plan_sensitivities, ("differences", "analytic"), "analytic")
         out["sensitivities_cold_cpu_s"] = {k: statistics.median(v) for k, v in pairs.items()}
         out["sensitivities_cold_runs_cpu_s"] = pairs
         out["sensitivities_speed_up"] = (statistics.median(pairs["differences"])

@@ -156,8 +156,13 @@ def main(argv=None) -> int:
     parser.add_argument("--json", type=Path, default=None, help="write the figures here (atomically)")
     parser.add_argument("--from-json", type=Path, default=None, help="print the tables of a saved --json (no runs)")
     args = parser.parse_args(argv)
-    if args.seeds < 1 or args.tasks < 1 or 0 not in args.workers:
-        parser.error("--seeds and --tasks must be at least 1, and --workers must include 0 (the estimate's base)")
+    if args.seeds < 1 or args.tasks < 1 or 0 not in args.workers or min(args.workers) < 0:
+        parser.error("--seeds and --tasks must be at least 1, and --workers non-negative and including 0 "
+                     "(the estimate's base)")
+    if min(args.nodes) < 1 or (args.targets is not None and args.targets < 1):
+        parser.error(f"--nodes and --targets must be at least 1, got {args.nodes} and {args.targets}")
+    if args.from_json is not None and not args.from_json.is_file():
+        parser.error(f"--from-json {args.from_json}: no such file")
     if args.json is not None:
         check_output_file(args.json, "--json")
 
