@@ -30,11 +30,12 @@ with dm = omega x m per unit (a rotation), solved by damped least squares; the d
 turn by ``gain`` times that rotation (capped at ``max_step``) and the joysticks drive the
 measured dipoles to them (proportional, at most the mapper's full speed).
 
-Sequencing, per target: ``move`` (the magnets to the plan's dipoles, the feeder to its length),
-``seek`` (the Newton steps until the measured tip is within ``touch_radius`` of the target's
-centre laterally and the estimate inside the force window for ``settle`` looks), ``dwell``
-(``dwell`` seconds of the same loop holding the force: the RF application), then the next
-target. A target not touched within ``seek_timeout`` is retried from its plan's dipoles after
+Sequencing, per target: ``move`` (the magnets to the plan's dipoles, the feeder to its length;
+from the second target on the chain is drawn back by ``lift`` while the magnets turn, so that
+the tip leaves the wall rather than sliding along it pressed), ``seek`` (the Newton steps until
+the measured tip is within ``touch_radius`` of the target's centre laterally and the estimate
+inside the force window for ``settle`` looks), ``dwell`` (``dwell`` seconds of the same loop
+holding the force: the RF application, looking every ``dwell_period``), then the next target. A target not touched within ``seek_timeout`` is retried from its plan's dipoles after
 retracting part of the chain (``back_off``: it re-forms under the plan's field, off a branch
 the plan did not foresee), ``retries`` times; then it is given up (missed).
 """
@@ -50,10 +51,22 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 
 from ballchain.infrastructure.errors import UserInputError, require_finite_fields
 from ballchain.drake_models.field_sources import FieldSources, MagnetSource, rotation_with_z_along
+from ballchain.drake_models.omniwheel import OmniWheelGeometry
 from ballchain.drake_models.params import BallChain, gram_force, newtons_from_gram_force
 from ballchain.drake_models.vectors import cross
 from ballchain.optimization.compiled_held_tip import HeldTip, HeldTipStatics
 from ballchain.optimization.statics import ChainStatics
+from ballchain.systems.omni_wheel_drive import StepperSpec
+
+
+def _half_microstep_turn() -> float:
+    """Half the smallest turn one wheel's microstep gives the magnet, with the paper's drive
+    (``StepperSpec``, ``OmniWheelGeometry``: 0.124 deg a microstep) [rad]."""
+    geometry, step = OmniWheelGeometry(), StepperSpec().microstep_angle
+    return 0.5 * min(float(np.linalg.norm(geometry.sphere_angular_velocity(step * e))) for e in np.eye(3))
+
+
+_HALF_MICROSTEP = _half_microstep_turn()
 
 
 @dataclass
@@ -83,18 +96,35 @@ class NavigatorParams:
             (docs/guide/procedure.md: what 8 changed).
         slip: in the dwell, a measured tip this far from the target's centre laterally has
             slipped off: back to seeking from the plan (the dwell's clock stops meanwhile) [m].
+        dwell_period: how often it looks while dwelling [s] (a whole number of ``period``s):
+            the force held on a target only drifts with the sensor's noise, and each look costs
+            a held-tip solve (docs/guide/procedure.md: the dwell's looks).
         damping: damped least squares, as a fraction of the Jacobian's largest singular value.
         magnet_gain: joystick per radian of dipole error [1/rad] (then saturated).
         aligned: the move phase ends when every dipole is within this of its plan [rad].
         feed_after: in the move phase the feeder inserts only once every dipole is within
             this of its plan (the magnets turn first) [rad].
         feeder_gain: feeder speed per metre of length error [1/s]; feeder_speed: its cap [m/s].
+        lift: from the second target on, the move draws the chain back this far while the
+            magnets turn to the next plan, then feeds it to the plan's length [m] (one ball): the
+            tip leaves the wall instead of sliding along it pressed under a turning field, where
+            the pressed chain can snap through to an equilibrium far from both targets
+            (docs/guide/procedure.md: the move between targets).
+        captured: a measured tip this far beyond the target's wall (along its normal, from the
+            target's centre) for ``settle`` looks while moving or seeking has left the atrium (a
+            vein or the appendage) [m]: the chain is drawn back until the tip is inside the wall
+            again, then the seek goes on (its clock running: the timeout, the retry and the
+            give-up as before); 0: never. The feeder inserts nothing while the last look was
+            beyond.
         seek_timeout: seconds seeking one target before a retry.
         retries: retries before giving up a target.
         back_off: the fraction of the inserted length retracted before a retry: the chain
             re-forms from a short stub under the plan's field (a chain held on another
             equilibrium branch than the plan's leaves it; a few millimetres back does not).
         omega_max: the mapper's magnet speed at full stick [rad/s]; dead_band: its dead band.
+        hold_band: a measured dipole within this of its desired one is left where it is [rad]:
+            half the turn one wheel microstep gives the magnet (the paper's drive: 0.06 deg), below
+            which the steppers can only hunt about the desired dipole a step either side.
         start_time: when it starts [s].
     """
 
@@ -110,17 +140,21 @@ class NavigatorParams:
     force_weight: float = 0.3
     average: int = 1
     slip: float = 3.0e-3
+    dwell_period: float = 0.25
     damping: float = 0.05
     magnet_gain: float = 8.0
     aligned: float = np.radians(1.0)
     feed_after: float = np.radians(5.0)
     feeder_gain: float = 4.0
     feeder_speed: float = 0.02
+    lift: float = BallChain().ball_diameter
+    captured: float = 2.0 * BallChain().ball_diameter
     seek_timeout: float = 6.0
     retries: int = 1
     back_off: float = 0.5
     omega_max: float = 0.5
     dead_band: float = 0.1
+    hold_band: float = _HALF_MICROSTEP
     start_time: float = 0.1
 
     def validate(self) -> "NavigatorParams":
@@ -133,8 +167,18 @@ class NavigatorParams:
             raise UserInputError("NavigatorParams: period and seek_timeout must be > 0, dwell and retries >= 0")
         if isinstance(self.average, bool) or not isinstance(self.average, (int, np.integer)) or self.average < 1:
             raise UserInputError(f"NavigatorParams average must be a whole number of looks >= 1, got {self.average!r}")
+        if not self.captured >= 0.0:
+            raise UserInputError(f"NavigatorParams captured must be >= 0 m (0: never), got {self.captured!r}")
+        if not 0.0 <= self.lift <= 0.05:
+            raise UserInputError(f"NavigatorParams lift must be in 0..0.05 m, got {self.lift!r}")
         if not 0.0 <= self.back_off <= 1.0:
             raise UserInputError(f"NavigatorParams back_off must be a fraction in 0..1, got {self.back_off!r}")
+        if not 0.0 <= self.hold_band < 0.1:
+            raise UserInputError(f"NavigatorParams hold_band must be in 0..0.1 rad, got {self.hold_band!r}")
+        ratio = self.dwell_period / self.period
+        if not ratio >= 1.0 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
+            raise UserInputError(f"NavigatorParams dwell_period must be a whole number (>= 1) of periods "
+                                 f"({self.period!r} s), got {self.dwell_period!r} s")
         return self
 
 
@@ -245,6 +289,7 @@ class DwellRecord:
     t_end: float | None = None
     retries: int = 0
     slips: int = 0
+    captures: int = 0  # times the tip was drawn back from beyond the wall (``NavigatorParams.captured``)
     reached: bool = False
     dwell_time: float = 0.0  # [s] spent in the dwell (on the target)
     estimates: list = field(default_factory=list)  # [(t, F_est [N])] over the dwell
@@ -265,6 +310,10 @@ class _Memory:
     f_est: float = 0.0
     r_est: np.ndarray | None = None  # the last look's reaction on the tip (W) [N]
     looks: tuple = ()  # the last measured tips on this target (relative to the sheath's offset) [m]
+    skip: int = 0  # periods left before the dwell's next look
+    lifted: bool = False  # the move draws the chain back by ``lift`` until the magnets are aligned
+    beyond: int = 0  # looks in a row with the tip beyond the target's wall by ``captured``
+    resume: float = 0.0  # the seek's start to resume after drawing a captured tip back
     done: bool = False
 
     def __deepcopy__(self, memo):
@@ -387,6 +436,8 @@ class AutonomousNavigator(LeafSystem):
             mem.v_feed = min(max(p.feeder_gain * (mem.s_des - s), -p.feeder_speed), p.feeder_speed)  # (np.clip's)
             if mem.phase == "move" and self._misalignment(m, mem.m_des) > p.feed_after:
                 mem.v_feed = min(mem.v_feed, 0.0)  # the magnets turn first, then the chain goes in
+            if mem.beyond > 0:
+                mem.v_feed = min(mem.v_feed, 0.0)  # a tip beyond the wall is never pushed on
         return EventStatus.Succeeded()
 
     def _start_target(self, mem: _Memory, t: float, retry: bool = False) -> None:
@@ -394,7 +445,12 @@ class AutonomousNavigator(LeafSystem):
         if not retry:
             mem.records.append(DwellRecord(plan.name, t))
         mem.phase, mem.phase_start, mem.on_target, mem.r_est, mem.looks = "move", t, 0, None, ()
+        mem.skip = 0
         mem.m_des, mem.s_des = plan.dipoles_W.copy(), plan.inserted_length
+        mem.beyond = 0
+        mem.lifted = not retry and mem.k > 0 and self.params.lift > 0.0
+        if mem.lifted:
+            mem.s_des = plan.inserted_length - self.params.lift
 
     def _finish_target(self, mem: _Memory, t: float) -> None:
         mem.records[-1].t_end = t
@@ -412,10 +468,29 @@ class AutonomousNavigator(LeafSystem):
             if s <= mem.s_des + 0.5e-3 or t - mem.phase_start > 1.0 + p.back_off * plan.inserted_length / p.feeder_speed:
                 self._start_target(mem, t, retry=True)
             return
+        if mem.phase == "out":  # captured: drawn back until the tip is inside the wall, then seeking on
+            if self._beyond_wall(plan, tip, h) <= 0.0 or t - mem.phase_start > 1.0 + plan.inserted_length / p.feeder_speed:
+                mem.phase, mem.phase_start, mem.on_target, mem.looks = "seek", mem.resume, 0, ()
+                mem.s_des, mem.beyond = plan.inserted_length, 0
+            return
+        if p.captured > 0.0 and mem.phase in ("move", "seek"):
+            mem.beyond = mem.beyond + 1 if self._beyond_wall(plan, tip, h) > p.captured else 0
+            if mem.beyond >= p.settle:  # in a vein or the appendage
+                record.captures += 1
+                mem.resume = mem.phase_start if mem.phase == "seek" else t
+                mem.phase, mem.phase_start, mem.s_des = "out", t, 0.0
+                return
         if mem.phase == "move":
             angle = self._misalignment(m, mem.m_des)
+            if mem.lifted:  # drawn back while the magnets turn; then fed to the plan's length
+                if angle < p.aligned:
+                    mem.s_des, mem.lifted = plan.inserted_length, False
+                return
             if angle < p.aligned and abs(s - mem.s_des) < 0.5e-3:
                 mem.phase, mem.phase_start = "seek", t
+            return
+        if mem.phase == "dwell" and mem.skip > 0:  # between the dwell's looks
+            mem.skip -= 1
             return
         f_est, lateral = self._newton(mem, plan, tip, m, s, h)
         mem.f_est = f_est
@@ -425,6 +500,7 @@ class AutonomousNavigator(LeafSystem):
             mem.on_target = mem.on_target + 1 if inside else 0
             if mem.on_target >= p.settle:
                 mem.phase, mem.phase_start = "dwell", t
+                mem.skip = round(p.dwell_period / p.period) - 1  # the dwell's first look a dwell_period on
                 record.t_touch, record.reached = t, True
             elif t - mem.phase_start > p.seek_timeout:
                 if record.retries < p.retries:
@@ -441,7 +517,9 @@ class AutonomousNavigator(LeafSystem):
             return
         record.estimates.append((t, f_est))  # dwell
         record.p_measured.append(tip.copy())
-        record.dwell_time += p.period
+        looks = round(p.dwell_period / p.period)
+        record.dwell_time += looks * p.period
+        mem.skip = looks - 1
         if record.dwell_time >= p.dwell - 1e-9:
             self._finish_target(mem, t)
 
@@ -486,6 +564,14 @@ class AutonomousNavigator(LeafSystem):
                 mem.m_des = m_new
         return f_est, float(np.linalg.norm(o))
 
+    def _beyond_wall(self, plan: TargetPlan, tip: np.ndarray, h: np.ndarray | None) -> float:
+        """How far the measured tip lies beyond the target's centre, out of the chamber along
+        the wall's normal [m] (the sheath's tracked offset ``h`` moves the target)."""
+        d = tip - plan.p_WT - 0.5 * self.estimator.chain.ball_diameter * plan.n_W
+        if h is not None:
+            d = d - h
+        return -float(plan.n_W @ d)
+
     @staticmethod
     def _misalignment(m: np.ndarray, m_des: np.ndarray) -> float:
         """The largest angle between a measured dipole and its desired one [rad]."""
@@ -502,7 +588,7 @@ class AutonomousNavigator(LeafSystem):
             axis = cross(a, b)
             sin = float(np.linalg.norm(axis))
             angle = float(np.arctan2(sin, a @ b))
-            if angle < 1e-4:
+            if angle < p.hold_band:
                 continue
             # The numpy expressions' element-wise operations on plain floats, in their order.
             gain, d = min(p.magnet_gain * angle, 1.0), max(sin, 1e-12)

@@ -131,3 +131,192 @@ def test_the_force_model_holds_the_mean_of_the_last_looks():
     for bad in (0, 2.5, True):
         with pytest.raises(UserInputError, match="average"):
             NavigatorParams(average=bad).validate()
+
+
+def test_the_dwell_looks_every_dwell_period():
+    """``NavigatorParams.dwell_period``: in the dwell the navigator looks (asks the force model)
+    once every dwell_period, each look counting that long of RF time; the dwell still ends
+    ``dwell`` after the touch, and seeking looks every period. A period that is not a whole
+    number of periods is refused."""
+    from pydrake.systems.analysis import Simulator
+
+    from ballchain.drake_models.params import BallChain
+    from ballchain.systems.autonomous_navigator import AutonomousNavigator, TargetPlan
+
+    command = newtons_from_gram_force(20.0)
+    n_W = np.array([0.0, 0.0, 1.0])
+    asked = []
+
+    class Pressing:  # the force model: the commanded force on the target's normal, wherever the tip
+        chain = BallChain()
+
+        def reaction_W(self, p_W, dipoles_W, inserted_length, sheath_offset_W=None):
+            asked.append(round(self.t, 6))
+            return command * n_W
+
+    plan = TargetPlan("t", np.zeros(3), n_W, np.array([[1.0, 0.0, 0.0]]), 0.03,
+                      np.column_stack([-n_W, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]),
+                      np.eye(3), np.zeros((3, 2)), command)
+    centre = 0.5 * BallChain().ball_diameter * n_W
+
+    def dwell_of(params):
+        asked.clear()
+        model = Pressing()
+        nav = AutonomousNavigator(["u"], [plan], model, params)
+        context = nav.CreateDefaultContext()
+        nav.GetInputPort("m_W_u").FixValue(context, np.array([1.0, 0.0, 0.0]))
+        nav.GetInputPort("inserted_length").FixValue(context, [0.03])
+        nav.GetInputPort("p_WT_measured").FixValue(context, centre)
+        simulator = Simulator(nav, context)
+        k = 0
+        while not nav.is_done(context) and k < 200:
+            k += 1
+            model.t = (k - 1) * params.period  # the time of the next update
+            simulator.AdvanceTo(model.t + 0.5 * params.period)  # that update done
+        assert nav.is_done(context)
+        record = nav.records(context)[0]
+        return record, [t for t in asked if t > record.t_touch + 1e-9]
+
+    quick = NavigatorParams(start_time=0.0, dwell=1.0, dwell_period=0.05)
+    record, dwell_looks = dwell_of(quick)
+    assert record.reached and len(record.estimates) == len(dwell_looks) == 20
+    assert record.t_end - record.t_touch == pytest.approx(1.0, abs=1e-9)
+    slow = NavigatorParams(start_time=0.0, dwell=1.0, dwell_period=0.25)
+    record, dwell_looks = dwell_of(slow)
+    assert record.reached and record.dwell_time == pytest.approx(1.0)
+    np.testing.assert_allclose([t for t, _ in record.estimates], record.t_touch + 0.25 * np.arange(1, 5), atol=1e-9)
+    assert len(dwell_looks) == 4 and record.t_end - record.t_touch == pytest.approx(1.0, abs=1e-9)
+    for bad in (0.07, 0.0, 0.02):
+        with pytest.raises(UserInputError, match="dwell_period"):
+            NavigatorParams(dwell_period=bad).validate()
+
+
+def test_a_dipole_within_the_hold_band_is_left_where_it_is():
+    """``NavigatorParams.hold_band``: no stick for a dipole within it of the desired one (half a
+    wheel microstep's turn of the magnet by default, which the steppers cannot resolve), a stick
+    towards the desired dipole beyond it; a band that is negative or a tenth of a radian is refused."""
+    from ballchain.drake_models.params import BallChain
+    from ballchain.systems.autonomous_navigator import AutonomousNavigator, TargetPlan
+
+    params = NavigatorParams()
+    assert np.degrees(2 * params.hold_band) == pytest.approx(0.124, abs=5e-4)  # 1.8 deg / 16 x rho_w / rho_a
+    plan = TargetPlan("t", np.zeros(3), np.array([0.0, 0.0, 1.0]), np.array([[1.0, 0.0, 0.0]]), 0.03,
+                      np.eye(3), np.eye(3), np.zeros((3, 2)), params.force_command)
+
+    class Model:
+        chain = BallChain()
+
+    nav = AutonomousNavigator(["u"], [plan], Model(), params)
+    m = np.array([[1.0, 0.0, 0.0]])
+    for angle, moves in ((0.9 * params.hold_band, False), (1.1 * params.hold_band, True)):
+        m_des = np.array([[np.cos(angle), np.sin(angle), 0.0]])
+        stick = nav._sticks(m, m_des)[0]
+        assert bool(np.any(stick)) == moves
+        if moves:  # about +z: the magnet turns towards the desired dipole
+            assert stick[2] > params.dead_band and abs(stick[0]) < 1e-12 and abs(stick[1]) < 1e-12
+    for bad in (-1e-3, 0.1):
+        with pytest.raises(UserInputError, match="hold_band"):
+            NavigatorParams(hold_band=bad).validate()
+
+
+def test_the_move_to_the_next_target_lifts_the_tip_off_the_wall():
+    """``NavigatorParams.lift``: after the first target, the move draws the chain back by
+    ``lift`` while the magnets turn (the feeder's command is a retraction), then, once the
+    dipoles are aligned with the plan, feeds it to the plan's length; the first target and a
+    lift of 0 feed straight to the plan's length."""
+    from pydrake.systems.analysis import Simulator
+
+    from ballchain.drake_models.params import BallChain
+    from ballchain.systems.autonomous_navigator import AutonomousNavigator, TargetPlan
+
+    command = newtons_from_gram_force(20.0)
+    n_W, s_plan = np.array([0.0, 0.0, 1.0]), 0.03
+    m_1, m_2 = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+
+    class Pressing:
+        chain = BallChain()
+
+        def reaction_W(self, p_W, dipoles_W, inserted_length, sheath_offset_W=None):
+            return command * n_W
+
+    plans = [TargetPlan(name, np.zeros(3), n_W, m[None, :], s_plan, np.column_stack([-n_W, [1.0, 0, 0], [0, 1.0, 0]]),
+                        np.eye(3), np.zeros((3, 2)), command) for name, m in (("a", m_1), ("b", m_2))]
+    centre = 0.5 * BallChain().ball_diameter * n_W
+
+    def feeds(params):
+        nav = AutonomousNavigator(["u"], plans, Pressing(), params)
+        context = nav.CreateDefaultContext()
+        nav.GetInputPort("m_W_u").FixValue(context, m_1)
+        nav.GetInputPort("inserted_length").FixValue(context, [s_plan])
+        nav.GetInputPort("p_WT_measured").FixValue(context, centre)
+        simulator = Simulator(nav, context)
+        t = 0.0
+        while not nav.records(context) or len(nav.records(context)) < 2:  # the first target pressed and held
+            t += params.period
+            simulator.AdvanceTo(t)
+            assert t < 5.0
+        turning = float(nav.GetOutputPort("v_insert_cmd").Eval(context)[0])
+        nav.GetInputPort("m_W_u").FixValue(context, m_2)  # the magnets reach the next plan
+        simulator.AdvanceTo(t + 2 * params.period)
+        return turning, float(nav.GetOutputPort("v_insert_cmd").Eval(context)[0])
+
+    params = NavigatorParams(start_time=0.0, dwell=0.1, dwell_period=0.05)
+    turning, aligned = feeds(params)
+    assert turning == pytest.approx(-params.feeder_gain * params.lift)  # drawn back while turning
+    assert aligned == 0.0  # aligned at the plan's length: no feed (the lift is undone from s)
+    turning, _ = feeds(NavigatorParams(start_time=0.0, dwell=0.1, dwell_period=0.05, lift=0.0))
+    assert turning == 0.0
+    for bad in (-1e-3, 0.1):
+        with pytest.raises(UserInputError, match="lift"):
+            NavigatorParams(lift=bad).validate()
+
+
+def test_a_tip_beyond_the_wall_is_drawn_back_then_the_seek_goes_on():
+    """``NavigatorParams.captured``: a measured tip more than ``captured`` beyond the target's
+    wall for ``settle`` looks (in a vein) makes the navigator draw the chain back (the feeder's
+    full speed backwards) until the tip is inside the wall, then seek again on the seek's clock;
+    just inside that depth it keeps seeking and feeding."""
+    from pydrake.systems.analysis import Simulator
+
+    from ballchain.drake_models.params import BallChain
+    from ballchain.systems.autonomous_navigator import AutonomousNavigator, TargetPlan
+
+    n_W = np.array([0.0, 0.0, 1.0])  # into the chamber
+
+    class NoContact:
+        chain = BallChain()
+
+        def reaction_W(self, p_W, dipoles_W, inserted_length, sheath_offset_W=None):
+            return np.zeros(3)
+
+    plan = TargetPlan("t", np.zeros(3), n_W, np.array([[1.0, 0.0, 0.0]]), 0.03,
+                      np.column_stack([-n_W, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]),
+                      np.eye(3), np.zeros((3, 2)), newtons_from_gram_force(20.0))
+    params = NavigatorParams(start_time=0.0)
+    centre = 0.5 * BallChain().ball_diameter * n_W
+
+    def run(depth):
+        nav = AutonomousNavigator(["u"], [plan], NoContact(), params)
+        context = nav.CreateDefaultContext()
+        nav.GetInputPort("p_WT_measured").FixValue(context, centre - depth * n_W)
+        nav.GetInputPort("m_W_u").FixValue(context, np.array([1.0, 0.0, 0.0]))
+        nav.GetInputPort("inserted_length").FixValue(context, [0.029])  # 1 mm short of the plan
+        simulator = Simulator(nav, context)
+        simulator.AdvanceTo((params.settle + 1.5) * params.period)  # the move, then settle looks
+        return nav, context, simulator
+
+    nav, context, simulator = run(1.01 * params.captured)
+    assert nav.GetOutputPort("v_insert_cmd").Eval(context)[0] == pytest.approx(-params.feeder_speed)
+    simulator.AdvanceTo(simulator.get_context().get_time() + 4 * params.period)
+    assert nav.GetOutputPort("v_insert_cmd").Eval(context)[0] == pytest.approx(-params.feeder_speed)
+    nav.GetInputPort("p_WT_measured").FixValue(context, centre + 1e-4 * n_W)  # back inside
+    simulator.AdvanceTo(simulator.get_context().get_time() + 2 * params.period)
+    (record,) = nav.records(context)
+    assert record.captures == 1 and not record.reached and not nav.is_done(context)
+    assert nav.GetOutputPort("v_insert_cmd").Eval(context)[0] > 0.0  # seeking at the plan's length again
+    nav, context, _ = run(0.99 * params.captured)
+    (record,) = nav.records(context)
+    assert record.captures == 0
+    assert nav.GetOutputPort("v_insert_cmd").Eval(context)[0] > 0.0
+    with pytest.raises(UserInputError, match="captured"):
+        NavigatorParams(captured=-1e-3).validate()

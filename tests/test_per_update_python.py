@@ -83,7 +83,8 @@ def test_the_closest_pair_is_numpys_norms_min():
 
 
 def _sticks_reference(params, m, m_des):
-    """The joysticks as numpy expressions (the code before section 25)."""
+    """The joysticks as numpy expressions (the code before section 25; the hold band, then 1e-4
+    rad, now ``params.hold_band``)."""
     from ballchain.drake_models.vectors import cross
 
     sticks = np.zeros((len(m), 3))
@@ -91,7 +92,7 @@ def _sticks_reference(params, m, m_des):
         axis = cross(a, b)
         sin = float(np.linalg.norm(axis))
         angle = float(np.arctan2(sin, a @ b))
-        if angle < 1e-4:
+        if angle < params.hold_band:
             continue
         u = min(params.magnet_gain * angle, 1.0) * axis / max(sin, 1e-12)
         u /= max(float(np.abs(u).max()), 1.0)
@@ -102,7 +103,7 @@ def _sticks_reference(params, m, m_des):
 
 def test_the_navigators_sticks_and_misalignment_are_the_numpy_expressions():
     navigator = AutonomousNavigator.__new__(AutonomousNavigator)
-    for params in (NavigatorParams(), NavigatorParams(magnet_gain=200.0, dead_band=0.0)):
+    for params in (NavigatorParams(), NavigatorParams(magnet_gain=200.0, dead_band=0.0, hold_band=1e-4)):
         navigator.params = params
         for n in range(6000):
             m = RNG.normal(size=(1 + n % 3, 3))

@@ -155,7 +155,7 @@ def test_a_look_without_an_equilibrium_keeps_the_last_estimate():
                       np.eye(3), np.zeros((3, 2)), newtons_from_gram_force(20.0))
     f_first = newtons_from_gram_force(12.0)
     estimator = _Estimator(f_first * n_W)
-    nav = AutonomousNavigator(["u"], [plan], estimator, NavigatorParams(start_time=0.0))
+    nav = AutonomousNavigator(["u"], [plan], estimator, NavigatorParams(start_time=0.0, dwell_period=0.05))
     context = nav.CreateDefaultContext()
     ball_r = 0.5 * BallChain().ball_diameter
     nav.GetInputPort("p_WT_measured").FixValue(context, ball_r * n_W)

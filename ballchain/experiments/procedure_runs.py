@@ -88,11 +88,14 @@ def _add_auto(handles: dict, plans: list, localisation: LocalisationParams, para
     return add
 
 
-def _dwell_row(record, logs, context, plan, window_N, ball_radius: float) -> dict:
-    """One target's row from the navigator's record and the run's logs."""
+def _dwell_row(record, logs, context, plan, window_N, ball_radius: float, look_period: float) -> dict:
+    """One target's row from the navigator's record and the run's logs (sampled every navigator
+    period; ``look_period``: how often it looked in the dwell, each look standing for the samples
+    since the one before)."""
     force, balls, estimate, _ = (log.FindLog(context) for log in logs)
     t = force.sample_times()
     row = {"target": record.target, "reached": record.reached, "retries": record.retries, "slips": record.slips,
+           "captures": record.captures,
            "plan_force_gf": round(gram_force(plan.force_N), 3), "aim_offset_mm": round(plan.aim_offset * 1e3, 3),
            "time_s": None if record.t_end is None else round(record.t_end - record.t_start, 3),
            "t_touch_s": None if record.t_touch is None else round(record.t_touch, 3), "dwell_s": 0.0,
@@ -102,9 +105,14 @@ def _dwell_row(record, logs, context, plan, window_N, ball_radius: float) -> dic
     if not record.reached:
         row["reason"] = "gave up" if record.t_end is not None else "run ended"
         return row
-    # The dwell's looks (on the target; a slip off it and the seek back are not RF time).
-    looks = np.array([e[0] for e in record.estimates])
-    mask = np.isin(np.round(t, 6), np.round(looks, 6)) if looks.size else np.zeros(len(t), bool)
+    # The dwell's samples: each look's and those since the one before (on the target; a slip off
+    # it and the seek back are not RF time), the estimate held between the looks.
+    looks = np.round(np.array([e[0] for e in record.estimates]), 6)
+    mask = np.zeros(len(t), bool)
+    if looks.size:
+        t6 = np.round(t, 6)
+        k = np.minimum(np.searchsorted(looks, t6), looks.size - 1)  # the first look at or after each sample
+        mask = (t6 <= looks[k]) & (looks[k] - t6 < look_period - 1e-7)
     if not mask.any():
         return row
     f_W = force.data()[:3, mask].T
@@ -228,7 +236,7 @@ def _simulate(task, anatomy, scenario, plans, missing, params, localisation, see
         if rec is None:
             rows.append({"target": plan.name, "reached": False, "time_s": None, "reason": "not reached"})
             continue
-        rows.append(_dwell_row(rec, handles["logs"], run.context, plan, window, ball_r))
+        rows.append(_dwell_row(rec, handles["logs"], run.context, plan, window, ball_r, nav.params.dwell_period))
     rows += [{"target": name, "reached": False, "time_s": None, "reason": "no plan"} for name in missing]
     summary = _summary(rows, run, plan_cpu, missing)
     settings = {**_settings(params, seed, scenario, overrides, limit, anatomy, localisation),
