@@ -24,14 +24,21 @@ engine (its wall time printed), and the plant (4 ms quasi-static steps, ``teleop
 targets (the plant's whole task takes minutes: ``--plant-targets 0`` runs it whole). RTF on the
 wall and CPU time of the simulation loop; the engine's speed-up is the ratio of the RTFs.
 
+``--engine-only``: the quasi-static engine's runs alone (each scenario's engine RTF with every
+run's, and Task II on the engine), for the engine's goals (issue 48: RTF >= 20 on every named heart
+scenario, Task II <= 2 s of wall time). Everything runs with BLAS on one thread, as the command line
+runs its commands. The JSON records the load average before and after.
+
     python benchmarks/station_bench.py --repeats 3 --json out.json
     python benchmarks/station_bench.py --scenarios --teleop --plant-targets 2
+    python benchmarks/station_bench.py --engine-only --repeats 3 --teleop --teleop-repeats 3 --no-profile
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from dataclasses import dataclass
 
@@ -80,16 +87,20 @@ def _run_once(name: str, engine: str, duration: float | None, max_duration: floa
 
 
 def run(*, scenarios=None, repeats: int = 3, duration: float | None = None,
-        max_duration: float = np.inf, profile_repeats: int = 20, profile: bool = True) -> dict:
+        max_duration: float = np.inf, profile_repeats: int = 20, profile: bool = True,
+        engine_only: bool = False) -> dict:
     """RTF per scenario and engine (medians; ``scenarios`` None: ``heart_scenarios()``) and the
-    profile of one equilibrium in contact."""
+    profile of one equilibrium in contact. ``engine_only``: the quasi-static engine's runs alone
+    (no plant column)."""
     results = {}
+    engines = ("statics",) if engine_only else ("plant", "statics")
     for name in heart_scenarios() if scenarios is None else scenarios:
-        _run_once(name, "plant", min(duration or 0.02, 0.02))  # warm-up (untimed)
+        if not engine_only:
+            _run_once(name, "plant", min(duration or 0.02, 0.02))  # warm-up (untimed)
         _run_once(name, "statics", duration, max_duration)
-        samples = {"plant": [], "statics": []}
+        samples = {engine: [] for engine in engines}
         for _ in range(repeats):
-            for engine in ("plant", "statics"):
+            for engine in engines:
                 samples[engine].append(_run_once(name, engine, duration, max_duration))
         row = {}
         for engine, runs in samples.items():
@@ -101,8 +112,10 @@ def run(*, scenarios=None, repeats: int = 3, duration: float | None = None,
             if engine == "statics":
                 row[engine]["median_solve_ms"] = round(float(np.median([r.median_solve_ms for r in runs])), 2)
                 row[engine]["solves"] = runs[0].solves
-        row["speedup_wall"] = round(row["statics"]["rtf_wall"] / row["plant"]["rtf_wall"], 2)
-        row["speedup_cpu"] = round(row["statics"]["rtf_cpu"] / row["plant"]["rtf_cpu"], 2)
+                row[engine]["rtf_cpu_runs"] = [round(r.rtf_cpu, 3) for r in runs]
+        if not engine_only:
+            row["speedup_wall"] = round(row["statics"]["rtf_wall"] / row["plant"]["rtf_wall"], 2)
+            row["speedup_cpu"] = round(row["statics"]["rtf_cpu"] / row["plant"]["rtf_cpu"], 2)
         results[name] = row
         print(name, json.dumps(row), flush=True)
     print(rtf_table(results), flush=True)
@@ -112,6 +125,13 @@ def run(*, scenarios=None, repeats: int = 3, duration: float | None = None,
 def rtf_table(results: dict) -> str:
     """Markdown: every scenario's engine and plant RTF (CPU time), the engine's median solve and
     its speed-up over the plant (same run)."""
+    if any("plant" not in row for row in results.values()):  # engine_only
+        lines = ["| scenario | engine RTF (CPU) | runs | median solve [ms] |", "|---|---:|---|---:|"]
+        for name, row in results.items():
+            e = row["statics"]
+            lines.append(f"| {name} | {e['rtf_cpu']:.2f} | {', '.join(f'{v:.1f}' for v in e['rtf_cpu_runs'])} | "
+                         f"{e['median_solve_ms']:.2f} |")
+        return "\n".join(lines)
     lines = ["| scenario | engine RTF (CPU) | median solve [ms] | plant mode | plant RTF (CPU) | engine / plant |",
              "|---|---:|---:|---|---:|---:|"]
     for name, row in results.items():
@@ -235,15 +255,17 @@ def qp_comparison(engine, s, p, m, repeats: int = 30) -> dict:
     return out
 
 
-def teleop_task(plant_targets: int | None = 2, repeats: int = 1) -> dict:
+def teleop_task(plant_targets: int | None = 2, repeats: int = 1, engine_only: bool = False) -> dict:
     """Task II (right ring, world mapping, seed 0) per engine: the engine whole, the plant on the
-    first ``plant_targets`` (None: whole). Medians over ``repeats`` alternating runs after an
-    untimed warm-up of each (one target)."""
+    first ``plant_targets`` (None: whole; ``engine_only``: no plant). Medians over ``repeats``
+    alternating runs after an untimed warm-up of each (one target)."""
     from ballchain.experiments import teleop
     from ballchain.systems.chain_simulation import atrium_for
 
     heart = atrium_for(teleop.scenario_for("world"))
-    engines = {"statics": (None, None), "plant": (teleop.FAST, plant_targets)}
+    engines = {"statics": (None, None)}
+    if not engine_only:
+        engines["plant"] = (teleop.FAST, plant_targets)
     for overrides, _ in engines.values():  # warm-up: numba kernels, the SDF, the plant's first build
         teleop.run(task="right", mapping="world", targets=1, progress=False, heart=heart, overrides=overrides)
     samples = {k: [] for k in engines}
@@ -256,11 +278,13 @@ def teleop_task(plant_targets: int | None = 2, repeats: int = 1) -> dict:
         out[engine] = {"targets": runs[0].targets, "touched": runs[0].touched,
                        "sim_s": runs[0].sim_time_s,
                        "wall_s": round(float(np.median([r.wall_time_s for r in runs])), 2),
+                       "wall_s_runs": [round(r.wall_time_s, 3) for r in runs],
                        "rtf_wall": round(float(np.median([r.realtime_factor for r in runs])), 3),
                        "rtf_cpu": round(float(np.median([r.realtime_factor_cpu for r in runs])), 3),
                        "failure": runs[0].failure, "missed_reasons": runs[0].missed_reasons}
-    out["speedup_wall"] = round(out["statics"]["rtf_wall"] / out["plant"]["rtf_wall"], 2)
-    out["speedup_cpu"] = round(out["statics"]["rtf_cpu"] / out["plant"]["rtf_cpu"], 2)
+    if not engine_only:
+        out["speedup_wall"] = round(out["statics"]["rtf_wall"] / out["plant"]["rtf_wall"], 2)
+        out["speedup_cpu"] = round(out["statics"]["rtf_cpu"] / out["plant"]["rtf_cpu"], 2)
     print("teleop_right_world", json.dumps(out), flush=True)
     e = out["statics"]
     print(f"Task II (right ring, world mapping) with the engine: {e['touched']}/{e['targets']} targets, "
@@ -284,6 +308,8 @@ def main():
     parser.add_argument("--plant-targets", type=int, default=2,
                         help="with --teleop: the plant's run covers the first N targets (0: the whole task, minutes)")
     parser.add_argument("--teleop-repeats", type=int, default=1, help="with --teleop: timed runs per engine")
+    parser.add_argument("--engine-only", action="store_true",
+                        help="only the quasi-static engine's runs (no plant column, no plant Task II)")
     parser.add_argument("--json", default=None, help="write the results to this file")
     args = parser.parse_args()
     if args.plant_targets < 0 or args.teleop_repeats < 1:
@@ -296,13 +322,23 @@ def main():
             check_output_file(args.json, "--json")
         except UserInputError as err:
             parser.error(str(err))
+    from threadpoolctl import threadpool_limits
+
     out = {}
-    if args.scenarios is None or args.scenarios:
-        out = run(scenarios=args.scenarios, repeats=args.repeats, duration=args.duration,
-                  max_duration=args.max_duration, profile_repeats=args.profile_repeats,
-                  profile=not args.no_profile)
-    if args.teleop:
-        out["teleop_right_world"] = teleop_task(args.plant_targets or None, args.teleop_repeats)
+    load_before = os.getloadavg()[0]
+    # BLAS on one thread for the whole run, as the command line runs every command (``cli``): the
+    # engine's per-update limit (``one_blas_thread``) is then a no-op, as in ``ballchain
+    # simulate``, instead of two thread-count changes per update (about 20 us).
+    with threadpool_limits(limits=1, user_api="blas"):
+        if args.scenarios is None or args.scenarios:
+            out = run(scenarios=args.scenarios, repeats=args.repeats, duration=args.duration,
+                      max_duration=args.max_duration, profile_repeats=args.profile_repeats,
+                      profile=not args.no_profile, engine_only=args.engine_only)
+        if args.teleop:
+            out["teleop_right_world"] = teleop_task(args.plant_targets or None, args.teleop_repeats,
+                                                    engine_only=args.engine_only)
+    out["load_average_1min"] = {"before": load_before, "after": os.getloadavg()[0]}
+    out["cpu_count"] = os.cpu_count()
     if args.json:
         from ballchain.infrastructure.safe_files import write_json
 

@@ -289,7 +289,15 @@ class ActuationUnit(SeededLeafSystem):
     def _q_others(self, context) -> np.ndarray:
         if not self._q_ports:
             return self._no_others
-        return np.array([check_finite_input(self, port, context) for port in self._q_ports])
+        rows = []
+        for port in self._q_ports:
+            # The four numbers' finiteness by their float sum (a NaN or an inf among them, or a sum
+            # past the largest float: then check_finite_input decides, naming the port and the time).
+            q = port.Eval(context)
+            if not isfinite(sum(q.tolist())):
+                q = check_finite_input(self, port, context, q)
+            rows.append(q)
+        return np.array(rows)
 
     def _given_fields(self, x, t, q_others) -> tuple[np.ndarray, np.ndarray]:
         """The fields at the sensor the kernel cannot compute (``use_given``), in Python."""

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
+from math import ceil, isfinite
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -21,6 +22,7 @@ from ballchain.optimization.compiled_model import HeartAnswer, HeartSolve
 from ballchain.optimization.statics import ChainStatics, StaticsError, StaticsResult, straight_chain
 from ballchain.optimization.wall_constraints import HeartConstraints, SheathGeometry, base_ball, base_rotation
 from ballchain.systems.engine_frames import EngineEvent, _norms, ball_frames
+from ballchain.systems.engine_kernels import interpolate_magnets, magnet_moves
 from ballchain.systems.magnetic_wrench import external_field_source
 
 
@@ -363,19 +365,21 @@ class QuasiStaticEngine(LeafSystem):
     def last_result(self, result) -> None:
         self._last_result = result
 
-    def _tip_force(self, p: np.ndarray, result) -> np.ndarray:
-        out = np.zeros(6)
-        out[3:] = p[-1]
+    def _tip_force(self, p: np.ndarray, result) -> list[float]:
+        """(6,) the wall's push on the tip ball and its contact point: the floats of
+        ``p[-1] - 0.5 * d * f / |f|`` (the centre without a push) on plain floats."""
+        c0, c1, c2 = p[-1].tolist()
         if result is not None:
             if isinstance(result, HeartAnswer):
                 f = result.tip_wall_force_W()
             else:
                 f = result.wall_forces_W.get(result.positions.shape[0] - 1)
-            size = 0.0 if f is None else np.linalg.norm(f)
+            size = 0.0 if f is None else float(np.linalg.norm(f))
             if size > 0:
-                out[:3] = f
-                out[3:] = p[-1] - 0.5 * self._d * f / size
-        return out
+                f0, f1, f2 = np.asarray(f, float).tolist()
+                h = 0.5 * self._d
+                return [f0, f1, f2, c0 - h * f0 / size, c1 - h * f1 / size, c2 - h * f2 / size]
+        return [0.0, 0.0, 0.0, c0, c1, c2]
 
     def _step_size(self, s0, s1, mag0, mag1, times=(0.0, 0.0)) -> float:
         """How far the inputs move, in continuation steps (the largest of the feeder's travel,
@@ -385,10 +389,12 @@ class QuasiStaticEngine(LeafSystem):
         if self.wall_motion is not None:
             u = max(u, self._wall_travel(*times) / self.max_insertion_step)
         if mag0 is not None and len(mag0):
-            a, b = mag0.reshape(-1, 6), mag1.reshape(-1, 6)
-            cos = np.einsum("ij,ij->i", a[:, 3:], b[:, 3:]) / (_norms(a[:, 3:]) * _norms(b[:, 3:]))
-            u = max(u, float(np.arccos(np.minimum(np.maximum(cos, -1.0), 1.0)).max()) / self.max_angle_step,
-                    float(_norms(a[:, :3] - b[:, :3]).max()) / 5e-3)
+            moves = magnet_moves(mag0, mag1)  # plain floats, the same as numpy's below
+            if moves is None:  # a zero-length direction or a non-finite number: numpy's semantics
+                a, b = mag0.reshape(-1, 6), mag1.reshape(-1, 6)
+                cos = np.einsum("ij,ij->i", a[:, 3:], b[:, 3:]) / (_norms(a[:, 3:]) * _norms(b[:, 3:]))
+                moves = np.minimum(np.maximum(cos, -1.0), 1.0), float(_norms(a[:, :3] - b[:, :3]).max())
+            u = max(u, float(np.arccos(np.asarray(moves[0], float)).max()) / self.max_angle_step, moves[1] / 5e-3)
         return u
 
     def _wall_travel(self, t0: float, t1: float) -> float:
@@ -409,7 +415,7 @@ class QuasiStaticEngine(LeafSystem):
         # As many steps as the largest of the moves over its per-step limit asks for (the
         # ceiling of the largest ratio is the largest of the ratios' ceilings).
         u = self._step_size(s0, s1, mag0, mag1, times)
-        steps = max(1, int(np.ceil(u)))
+        steps = max(1, ceil(u) if isfinite(u) else int(np.ceil(u)))  # (np.ceil's error past the floats)
         result = None
         u_step = u / steps
         s_prev, f_prev = s0 + 0.0 * (s1 - s0), 0.0
@@ -425,7 +431,8 @@ class QuasiStaticEngine(LeafSystem):
                 ratio = min(u_step / motion[2], 2.0)
                 predicted = (p + ratio * motion[0], m + ratio * motion[1])
             p_new, m_new, result, _ = self._equilibrium(s, mag, p, m, predicted, t=tau)
-            jump = float(_norms(p_new - p).max() - abs(s - s_prev))
+            dp = p_new - p  # (the jump's and the predictor's: one subtraction)
+            jump = float(_norms(dp).max() - abs(s - s_prev))
             if self.wall_motion is not None:  # the chain rides on the moving anatomy: not a jump
                 jump -= self._wall_travel(tau_prev, tau)
             if jump > self.snap_distance:
@@ -438,13 +445,16 @@ class QuasiStaticEngine(LeafSystem):
                                                    f"inserted length {s * 1e3:.2f} mm"))
                 motion = None  # no extrapolation across a jump
             else:
-                motion = (p_new - p, m_new - m, u_step)
+                motion = (dp, m_new - m, u_step)
             p, m = p_new, m_new
             s_prev, f_prev, tau_prev = s, f, tau
         return p, m, result, motion
 
     @staticmethod
     def _interpolate(a: np.ndarray, b: np.ndarray, f: float) -> np.ndarray:
+        out = interpolate_magnets(a, b, f)  # plain floats, the same as numpy's below
+        if out is not None:
+            return np.array(out)
         a, b = a.reshape(-1, 6), b.reshape(-1, 6)
         out = (1 - f) * a + f * b  # centres: linear; directions: normalised (a short arc)
         out[:, 3:] /= _norms(out[:, 3:])[:, None]
@@ -487,19 +497,21 @@ class QuasiStaticEngine(LeafSystem):
         x = self.state_vector(context)
         s, mags = self._inputs(context)
         sl = self._slices
-        s_last = float(x[sl["s"]][0])
+        s_last = float(x[sl["s"].start])
         mags_last = None if mags is None else x[sl["magnets"]]
         t = context.get_time()
-        times = (0.0, 0.0) if self.wall_motion is None else (float(x[sl["wall_t"]][0]), t)
-        if s == s_last and (mags is None or np.array_equal(mags, mags_last)) and times[0] == times[1]:
+        times = (0.0, 0.0) if self.wall_motion is None else (float(x[sl["wall_t"].start]), t)
+        # (np.array_equal on plain floats: a NaN differs from itself in both)
+        if s == s_last and (mags is None or mags.tolist() == mags_last.tolist()) and times[0] == times[1]:
             # Nothing moved: the chain stays where it is (and the next move starts afresh).
             # discrete_state holds the current state: only the step size changes.
             discrete_state.get_mutable_vector(self._state_index).get_mutable_value()[sl["u"]] = 0.0
             return EventStatus.Succeeded()
         n_events = len(self.events)
         motion = None
-        if x[sl["u"]][0] > 0:
-            motion = (x[sl["dp"]].reshape(-1, 3), x[sl["dm"]].reshape(-1, 3), float(x[sl["u"]][0]))
+        u_last = float(x[sl["u"].start])
+        if u_last > 0:
+            motion = (x[sl["dp"]].reshape(-1, 3), x[sl["dm"]].reshape(-1, 3), u_last)
         try:
             with _one_blas_thread():
                 p, m, result, motion = self._walk(t, s_last, s, mags_last, mags, x[sl["p"]].reshape(-1, 3),
@@ -532,8 +544,10 @@ class QuasiStaticEngine(LeafSystem):
             x[sl["magnets"]] = mags
         if self.wall_motion is not None:
             x[sl["wall_t"]] = context.get_time()
-        x[sl["snaps"]] += new_snaps
-        x[sl["failures"]] += new_failures
+        if new_snaps:  # (counts: adding 0 leaves them as they are)
+            x[sl["snaps"]] += new_snaps
+        if new_failures:
+            x[sl["failures"]] += new_failures
         if not np.isfinite(x).all() and self.failure is None:
             # The watchdog looks at the state only at its checks (the chain moves only here):
             # a non-finite update is reported at once, as a failure (ChainModel.move_period).

@@ -206,3 +206,22 @@ def test_the_navigators_memory_copy_shares_only_what_never_changes():
     assert vars(new.records[1]) == vars(open_)
     new.records[1].estimates.append((4.0, 0.3))
     assert open_.estimates == [(3.0, 0.2)]
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_a_non_finite_quaternion_of_another_unit_is_refused_naming_the_port(bad):
+    """The other units' quaternions (read at each Hall sample) are checked by their float sum:
+    a non-finite one is refused naming the unit, the port and the time; huge finite ones pass
+    the fast test to ``check_finite_input``, which takes them."""
+    from ballchain.systems.unit_config import left_unit
+
+    unit = ActuationUnit(right_unit(), m_neutral_W=[-1.0, 0.2, 0.1], others=[left_unit()])
+    context = unit.CreateDefaultContext()
+    unit.GetInputPort("mode").FixValue(context, [0.0])
+    unit.GetInputPort("omega_teleop_W").FixValue(context, np.zeros(3))
+    unit.GetInputPort("q_WM_left_unit").FixValue(context, [1.0, 0.0, bad, 0.0])
+    with pytest.raises(NonFiniteSignal, match=r"right_unit\.unit: input port 'q_WM_left_unit' is not finite at "
+                                              r"t = 0 s \(element 2 of 4"):
+        Simulator(unit, context).AdvanceTo(0.02)
+    unit.GetInputPort("q_WM_left_unit").FixValue(context, [1e308, 1e308, 0.0, 0.0])
+    assert unit._q_others(context).tolist() == [[1e308, 1e308, 0.0, 0.0]]
