@@ -209,10 +209,33 @@ class Feeder(LeafSystem):
         # does.
         target = min(max(command, -self._max_speed), self._max_speed)
         dv, dt, start, end = self._dv, self._dt, self._min_length, self._chain_length
+        if n > 0 and target == 0.0 and v == 0.0 and start < x < end:
+            # Held still between the stops: each step adds 0.0 to the speed and 0.0 * dt to the
+            # length, which leaves a positive length as it is and the speed +0.0 (what the loop
+            # below gives, a signed zero included; ``_steps_reference``).
+            return 0.0, x
+        low = -dv
+        for _ in range(n):
+            # min(max(a, lo), hi) written out as the builtins decide (max(a, b) is b only if
+            # b > a, min(a, b) is b only if b < a): the same floats, NaN and signed zeros included.
+            a = target - v
+            a = low if low > a else a
+            v += dv if dv < a else a
+            x = x + v * dt
+            if x <= start or x >= end:  # end stops: stop there, no wind-up
+                x = start if start > x else x
+                x = end if end < x else x
+                v = 0.0
+        return v, x
+
+    def _steps_reference(self, v: float, x: float, command: float, n: int) -> tuple[float, float]:
+        """``_steps`` as the plain loop with the builtins (the reference its shortcuts are held to)."""
+        target = min(max(command, -self._max_speed), self._max_speed)
+        dv, dt, start, end = self._dv, self._dt, self._min_length, self._chain_length
         for _ in range(n):
             v += min(max(target - v, -dv), dv)
             x = x + v * dt
-            if x <= start or x >= end:  # end stops: stop there, no wind-up
+            if x <= start or x >= end:
                 x = min(max(x, start), end)
                 v = 0.0
         return v, x
@@ -234,7 +257,7 @@ class Feeder(LeafSystem):
     def _play(self, v: float, x: float, first: int, end: int) -> tuple[float, float]:
         """(speed, length) after the steps first..end-1, step k under the schedule at k dt."""
         if end <= first:
-            return v, x
+            return 0.0, x
         dt, schedule = self._dt, self._schedule
         if schedule.get_segment_index(first * dt) == schedule.get_segment_index((end - 1) * dt):
             return self._steps(v, x, self._scheduled(first * dt), end - first)  # one command

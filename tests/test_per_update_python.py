@@ -225,3 +225,28 @@ def test_a_non_finite_quaternion_of_another_unit_is_refused_naming_the_port(bad)
         Simulator(unit, context).AdvanceTo(0.02)
     unit.GetInputPort("q_WM_left_unit").FixValue(context, [1e308, 1e308, 0.0, 0.0])
     assert unit._q_others(context).tolist() == [[1e308, 1e308, 0.0, 0.0]]
+
+
+def test_the_feeders_steps_are_the_builtins_loop_held_still_and_at_the_stops():
+    """``Feeder._steps`` (the clamps written out, a still feeder's steps skipped) gives the floats of
+    the loop with the builtins, signed zeros included, moving, held, and against either stop."""
+    from ballchain.drake_models.params import BallChain
+
+    rng = np.random.default_rng(3)
+    chain = BallChain()
+    feeder = Feeder(chain, initial_length=0.02, min_length=0.01)
+    end = chain.length
+    speeds = [0.0, -0.0, 1e-3, -1e-3, 0.02, -0.02, 0.05, -0.05]
+    lengths = [0.01, 0.0100001, 0.02, end - 1e-6, end, 0.009, end + 1e-3]
+    cases = [(v, x, c, n) for v in speeds for x in lengths for c in speeds for n in (0, 1, 2, 25, 300)]
+    cases += [(rng.uniform(-0.03, 0.03), rng.uniform(0.0, end + 0.01), rng.uniform(-0.05, 0.05),
+               int(rng.integers(0, 60))) for _ in range(5000)]
+    taken = 0
+    for v, x, c, n in cases:
+        got, expected = feeder._steps(v, x, c, n), feeder._steps_reference(v, x, c, n)
+        assert np.array_equal(np.array(got), np.array(expected)) and all(
+            np.signbit(a) == np.signbit(b) for a, b in zip(got, expected)), (v, x, c, n, got, expected)
+        taken += n > 0 and c == 0.0 and v == 0.0 and 0.01 < x < end
+    assert taken > 20  # the still feeder's shortcut was taken
+    got = feeder._steps(0.0, 0.02, float("nan"), 3)
+    assert all(np.isnan(got)) and all(np.isnan(feeder._steps_reference(0.0, 0.02, float("nan"), 3)))
