@@ -113,9 +113,10 @@ class NavigatorParams:
         captured: a measured tip this far beyond the target's wall (along its normal, from the
             target's centre) for ``settle`` looks while moving or seeking has left the atrium (a
             vein or the appendage) [m]: the chain is drawn back until the tip is inside the wall
-            again, then the seek goes on (its clock running: the timeout, the retry and the
-            give-up as before); 0: never. The feeder inserts nothing while the last look was
-            beyond.
+            again; a target not yet pressed is then given up (its plan's field grows the chain
+            into the vein: a retry would too), one pressed before (the tip slipped off it) is
+            sought again on the seek's clock; 0: never. The feeder inserts nothing while the
+            last look was beyond.
         seek_timeout: seconds seeking one target before a retry.
         retries: retries before giving up a target.
         back_off: the fraction of the inserted length retracted before a retry: the chain
@@ -468,8 +469,12 @@ class AutonomousNavigator(LeafSystem):
             if s <= mem.s_des + 0.5e-3 or t - mem.phase_start > 1.0 + p.back_off * plan.inserted_length / p.feeder_speed:
                 self._start_target(mem, t, retry=True)
             return
-        if mem.phase == "out":  # captured: drawn back until the tip is inside the wall, then seeking on
+        if mem.phase == "out":  # captured: drawn back until the tip is inside the wall
             if self._beyond_wall(plan, tip, h) <= 0.0 or t - mem.phase_start > 1.0 + plan.inserted_length / p.feeder_speed:
+                if not record.reached:  # the plan's field grows the chain into the vein: given up
+                    self._finish_target(mem, t)
+                    return
+                # pressed before (slipped off it into the vein): sought again on the seek's clock
                 mem.phase, mem.phase_start, mem.on_target, mem.looks = "seek", mem.resume, 0, ()
                 mem.s_des, mem.beyond = plan.inserted_length, 0
             return

@@ -271,52 +271,74 @@ def test_the_move_to_the_next_target_lifts_the_tip_off_the_wall():
             NavigatorParams(lift=bad).validate()
 
 
-def test_a_tip_beyond_the_wall_is_drawn_back_then_the_seek_goes_on():
+def test_a_tip_beyond_the_wall_is_drawn_back():
     """``NavigatorParams.captured``: a measured tip more than ``captured`` beyond the target's
     wall for ``settle`` looks (in a vein) makes the navigator draw the chain back (the feeder's
-    full speed backwards) until the tip is inside the wall, then seek again on the seek's clock;
-    just inside that depth it keeps seeking and feeding."""
+    full speed backwards) until the tip is inside the wall; a target never pressed is then given
+    up, one pressed before (the tip slipped off it into the vein) is sought again. Just inside
+    that depth the navigator keeps seeking and feeding."""
     from pydrake.systems.analysis import Simulator
 
     from ballchain.drake_models.params import BallChain
     from ballchain.systems.autonomous_navigator import AutonomousNavigator, TargetPlan
 
     n_W = np.array([0.0, 0.0, 1.0])  # into the chamber
+    command = newtons_from_gram_force(20.0)
 
-    class NoContact:
-        chain = BallChain()
+    class Model:
+        chain, pressing = BallChain(), False
 
         def reaction_W(self, p_W, dipoles_W, inserted_length, sheath_offset_W=None):
-            return np.zeros(3)
+            return command * n_W if self.pressing else np.zeros(3)
 
     plan = TargetPlan("t", np.zeros(3), n_W, np.array([[1.0, 0.0, 0.0]]), 0.03,
                       np.column_stack([-n_W, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]),
-                      np.eye(3), np.zeros((3, 2)), newtons_from_gram_force(20.0))
+                      np.eye(3), np.zeros((3, 2)), command)
     params = NavigatorParams(start_time=0.0)
     centre = 0.5 * BallChain().ball_diameter * n_W
 
-    def run(depth):
-        nav = AutonomousNavigator(["u"], [plan], NoContact(), params)
+    def start(tip, pressing=False):
+        model = Model()
+        model.pressing = pressing
+        nav = AutonomousNavigator(["u"], [plan], model, params)
         context = nav.CreateDefaultContext()
-        nav.GetInputPort("p_WT_measured").FixValue(context, centre - depth * n_W)
+        nav.GetInputPort("p_WT_measured").FixValue(context, tip)
         nav.GetInputPort("m_W_u").FixValue(context, np.array([1.0, 0.0, 0.0]))
         nav.GetInputPort("inserted_length").FixValue(context, [0.029])  # 1 mm short of the plan
-        simulator = Simulator(nav, context)
-        simulator.AdvanceTo((params.settle + 1.5) * params.period)  # the move, then settle looks
-        return nav, context, simulator
+        return nav, context, Simulator(nav, context)
 
-    nav, context, simulator = run(1.01 * params.captured)
-    assert nav.GetOutputPort("v_insert_cmd").Eval(context)[0] == pytest.approx(-params.feeder_speed)
-    simulator.AdvanceTo(simulator.get_context().get_time() + 4 * params.period)
-    assert nav.GetOutputPort("v_insert_cmd").Eval(context)[0] == pytest.approx(-params.feeder_speed)
-    nav.GetInputPort("p_WT_measured").FixValue(context, centre + 1e-4 * n_W)  # back inside
-    simulator.AdvanceTo(simulator.get_context().get_time() + 2 * params.period)
+    def advance(simulator, periods):
+        simulator.AdvanceTo(simulator.get_context().get_time() + periods * params.period)
+
+    def drawn_back(nav, context, simulator):
+        assert nav.GetOutputPort("v_insert_cmd").Eval(context)[0] == pytest.approx(-params.feeder_speed)
+        advance(simulator, 4)
+        assert nav.GetOutputPort("v_insert_cmd").Eval(context)[0] == pytest.approx(-params.feeder_speed)
+        nav.GetInputPort("p_WT_measured").FixValue(context, centre + 1e-4 * n_W)  # back inside
+        advance(simulator, 2)
+
+    # Never pressed: in the vein on the way in, drawn back, given up.
+    nav, context, simulator = start(centre - 1.01 * params.captured * n_W)
+    advance(simulator, params.settle + 1.5)
+    drawn_back(nav, context, simulator)
     (record,) = nav.records(context)
-    assert record.captures == 1 and not record.reached and not nav.is_done(context)
+    assert record.captures == 1 and not record.reached and nav.is_done(context)
+    # Pressed, then slipped off into the vein: drawn back, sought again.
+    nav, context, simulator = start(centre, pressing=True)
+    nav.GetInputPort("inserted_length").FixValue(context, [0.03])
+    advance(simulator, params.settle + 3.5)
+    assert nav.records(context)[0].reached
+    nav.GetInputPort("p_WT_measured").FixValue(context, centre + [4e-3, 0, 0] - 1.01 * params.captured * n_W)
+    nav.GetInputPort("inserted_length").FixValue(context, [0.029])
+    advance(simulator, round(params.dwell_period / params.period) + params.settle + 1)  # the slip, then the looks
+    drawn_back(nav, context, simulator)
+    (record,) = nav.records(context)
+    assert record.captures == 1 and record.slips == 1 and not nav.is_done(context)
     assert nav.GetOutputPort("v_insert_cmd").Eval(context)[0] > 0.0  # seeking at the plan's length again
-    nav, context, _ = run(0.99 * params.captured)
+    # Just inside the depth: seeking and feeding on.
+    nav, context, simulator = start(centre - 0.99 * params.captured * n_W)
+    advance(simulator, params.settle + 1.5)
     (record,) = nav.records(context)
-    assert record.captures == 0
-    assert nav.GetOutputPort("v_insert_cmd").Eval(context)[0] > 0.0
+    assert record.captures == 0 and nav.GetOutputPort("v_insert_cmd").Eval(context)[0] > 0.0
     with pytest.raises(UserInputError, match="captured"):
         NavigatorParams(captured=-1e-3).validate()
