@@ -7,7 +7,8 @@ import pytest
 from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.localisation import LocalisationParams
 from ballchain.drake_models.params import BallChain, newtons_from_gram_force
-from ballchain.systems.autonomous_navigator import NavigatorParams, TipForceEstimator
+from ballchain.systems.autonomous_navigator import NavigatorParams
+from ballchain.systems.tip_force_estimator import TipForceEstimator
 
 # Dipole directions (world) that inverse statics (``procedure.target_plans``) found to press the
 # right ring's first target with the whole chain out: inputs of the static case, not answers.

@@ -53,7 +53,7 @@ def test_slack_plans_the_fewest_balls_that_reach_past_the_target(left_station):
     """``target_plans(slack=2)``: left_20 (10.9 diameters from the exit) is planned with the fewest
     balls whose straight chain reaches 2 diameters beyond it, inserted (n - 1/2) diameters, and
     the navigator's force model counts those n balls out at that insertion."""
-    from ballchain.systems.autonomous_navigator import TipForceEstimator
+    from ballchain.systems.tip_force_estimator import TipForceEstimator
 
     anatomy, chosen, magnets_W, n = left_station
     k = anatomy.target_names.index("left_20")

@@ -13,7 +13,7 @@ from ballchain.infrastructure.errors import UserInputError
 from ballchain.drake_models.params import BallChain, CylinderMagnet
 from ballchain.drake_models.wall_motion import WallMotion
 from ballchain.experiments import procedure, teleop
-from ballchain.systems.autonomous_navigator import TipForceEstimator
+from ballchain.systems.tip_force_estimator import TipForceEstimator
 from ballchain.systems.chain_scenario import load_scenario, parse_overrides
 
 MOVING = "{wall_motion: {enabled: true}}"

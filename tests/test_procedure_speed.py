@@ -16,7 +16,8 @@ from ballchain.drake_models import model_files
 from ballchain.drake_models.params import BallChain, CylinderMagnet
 from ballchain.experiments import plan_cache
 from ballchain.optimization.statics import ChainStatics
-from ballchain.systems.autonomous_navigator import TargetPlan, TipForceEstimator
+from ballchain.systems.autonomous_navigator import TargetPlan
+from ballchain.systems.tip_force_estimator import TipForceEstimator
 from statics_helpers import assert_same_statics
 
 

@@ -15,7 +15,7 @@ from ballchain.experiments.procedure_result import ProcedureResult, with_lesions
 def _estimator(ports, chain, n_balls: int):
     """The navigator's force model from what the station's hook sees (atrium, units)."""
     from ballchain.drake_models.field_sources import rotation_with_z_along
-    from ballchain.systems.autonomous_navigator import TipForceEstimator
+    from ballchain.systems.tip_force_estimator import TipForceEstimator
 
     heart, units = ports.heart, list(ports.units.values())
     R_WS = rotation_with_z_along(heart.sheath_axis_H)[:, [2, 0, 1]]

@@ -208,7 +208,7 @@ class NavigationEnv(gym.Env):
     def _force_estimator(self, cd):
         from ballchain.drake_models.field_sources import rotation_with_z_along
         from ballchain.drake_models.params import BallChain
-        from ballchain.systems.autonomous_navigator import TipForceEstimator
+        from ballchain.systems.tip_force_estimator import TipForceEstimator
 
         heart = cd.heart
         R_WS = rotation_with_z_along(heart.sheath_axis_H)[:, [2, 0, 1]]
