@@ -44,6 +44,7 @@ from ballchain.drake_models.sheath import SteerableSheath
 from ballchain.experiments import manual_catheter as mc
 from ballchain.drake_models.electrode import CATHETER_ELECTRODE_LENGTH, axis_start
 from ballchain.optimization.rod_statics import RodStatics, frame_along
+from ballchain.systems.rod_wall_friction import FrictionalRodStatics
 from ballchain.systems.sheath_plan import has_room
 from ballchain.systems.station import atrium_for
 from ballchain.systems.target_contact import heart_targets, targets_touched
@@ -107,7 +108,7 @@ def loaded_reach(heart, sdf, sheath: SteerableSheath, settings, targets, twists,
     axis = np.asarray(heart.sheath_axis_H, float)
     R_S = frame_along(axis)
     p_S = np.asarray(heart.p_HE, float) - sheath.nominal_advance * axis
-    rod = RodStatics(cat, heart.p_HE, axis, sdf)
+    rod = (FrictionalRodStatics if cat.wall_mu > 0 else RodStatics)(cat, heart.p_HE, axis, sdf)
     keys = [str(lim) for lim in limits] + ["any"]
     bounds = list(limits) + [np.inf]
     best = {t: {k: None for k in keys} for t in targets}
@@ -121,9 +122,13 @@ def loaded_reach(heart, sdf, sheath: SteerableSheath, settings, targets, twists,
         for twist in twists:
             for knob in knobs:
                 q = None
+                if cat.wall_mu > 0:  # the hand's push from the rod's shortest: nothing stuck yet
+                    rod.anchors, rod.last_nodes = {}, {}
                 for out in np.arange(6e-3, max_out + 1e-9, step):
                     sol = rod.solve(out, twist, cat.curvature(knob), q0=q)
                     q, solves = sol.q, solves + 1
+                    if cat.wall_mu > 0:  # the wall's friction: the nodes stuck where they were
+                        rod.anchors, rod.last_nodes = sol.anchors, sol.last_nodes
                     if not sol.converged:
                         failed += 1
                         continue
@@ -136,7 +141,10 @@ def loaded_reach(heart, sdf, sheath: SteerableSheath, settings, targets, twists,
                                "tip_force_N": round(float(sol.wall_forces[-1]), 3),
                                "sheath": [round(setting[0] * 1e3, 1), round(float(np.degrees(setting[1]))),
                                           round(float(np.degrees(setting[2])))],
-                               "twist_deg": round(float(np.degrees(twist))), "knob": knob, "out_mm": round(out * 1e3)}
+                               "twist_deg": round(float(np.degrees(twist))), "knob": knob, "out_mm": round(out * 1e3, 1)}
+                        if cat.wall_mu > 0:  # the tip stuck on the wall, and the friction's share
+                            row["tip_stuck"] = bool(rod.n_joints in sol.anchors)
+                            row["friction_N"] = round(float(np.linalg.norm(sol.friction, axis=1).sum()), 3)
                         for key, bound in zip(keys, bounds):
                             old = best[t][key]
                             if force <= bound and (old is None or (row["miss_mm"], force) < (old["miss_mm"], old["wall_force_N"])):
@@ -155,12 +163,15 @@ def _main_loaded(args, heart, sdf, sheath) -> None:
                 settings.append((advance * 1e-3, float(np.radians(rot)), float(np.radians(deg))))
     t0 = time.process_time()
     twists = args.twists if args.twists else np.arange(0.0, 360.0, args.twist_step)
+    cat = mc.comparison_catheter()
+    cat.wall_mu = args.wall_mu
     out = loaded_reach(heart, sdf, sheath, settings, args.targets, np.radians(twists),
-                       [float(k) for k in args.knobs], args.max_out * 1e-3)
+                       [float(k) for k in args.knobs], args.max_out * 1e-3, step=args.step * 1e-3,
+                       cat=cat.validate())
     print(json.dumps({"loaded": True, "deflections_deg": args.deflections, "advances_mm": args.advances,
                       "rotation_step_deg": args.rotation_step,
                       "rotations_deg": args.rotations, "twist_step_deg": args.twist_step, "twists_deg": args.twists, "knobs": args.knobs,
-                      "max_out_mm": args.max_out, **out, "cpu_s": round(time.process_time() - t0, 1)}))
+                      "max_out_mm": args.max_out, "step_mm": args.step, "wall_mu": args.wall_mu, **out, "cpu_s": round(time.process_time() - t0, 1)}))
 
 
 def main() -> None:
@@ -181,6 +192,9 @@ def main() -> None:
                         help="[deg] the twists at the exit instead of --twist-step's (--loaded)")
     parser.add_argument("--knobs", type=float, nargs="+", default=[-1.0, -0.5, 0.0, 0.5, 0.75, 1.0])
     parser.add_argument("--max-out", type=float, default=120.0, help="[mm] (--loaded)")
+    parser.add_argument("--step", type=float, default=3.0, help="[mm] the push's step (--loaded)")
+    parser.add_argument("--wall-mu", type=float, default=0.0,
+                        help="the wall's Coulomb friction (--loaded; SteerableCatheter.wall_mu, 0: frictionless)")
     args = parser.parse_args()
     heart = atrium_for(mc.scenario_for())
     sdf = atrium_sdf(heart)

@@ -122,6 +122,10 @@ class SteerableCatheter:
         segment_length: the rod's discretisation [m].
         shaft_length: handle to sheath exit [m].
         mu_static, mu_kinetic: shaft on the sheath's PTFE liner.
+        wall_mu: Coulomb friction of the rod on the atrium's wall (``systems.rod_wall_friction``:
+            a node touching the wall sticks while the tangential reaction is within wall_mu times
+            the normal one); 0: the frictionless wall. An assumption (no measured coefficient of
+            a catheter on endocardium was found; the module's docstring gives what was).
         sheath: the sheath's path (``drake_models.sheath.SheathPath``: its bends, where the shaft
             bears on it).
         sheath_friction: "bends" (the friction where the shaft bears on the sheath's bends,
@@ -149,6 +153,7 @@ class SteerableCatheter:
     shaft_length: float = 1.15
     mu_static: float = 0.15
     mu_kinetic: float = 0.10
+    wall_mu: float = 0.0
     sheath: SheathPath = field(default_factory=SheathPath)
     sheath_friction: str = "even"
     shaft_elements: int = 8
@@ -169,6 +174,9 @@ class SteerableCatheter:
         if not 0 <= self.mu_kinetic <= self.mu_static:
             raise UserInputError("SteerableCatheter: friction needs 0 <= mu_kinetic <= mu_static, got "
                                  f"{self.mu_kinetic}, {self.mu_static}")
+        if not 0.0 <= self.wall_mu <= 2.0:
+            raise UserInputError(f"SteerableCatheter.wall_mu must be in [0, 2] (0: a frictionless wall), got "
+                                 f"{self.wall_mu}")
         if int(self.braid_wires) != self.braid_wires or not 0 <= self.braid_wires <= MAX_BRAID_WIRES \
                 or self.braid_wires % 2:
             raise UserInputError(f"SteerableCatheter.braid_wires must be an even count in 0..{MAX_BRAID_WIRES} (half "

@@ -45,6 +45,7 @@ from ballchain.drake_models.sheath import SteerableSheath
 from ballchain.drake_models.steerable_catheter import SteerableCatheter
 from ballchain.infrastructure.arg_checks import require_type
 from ballchain.optimization.rod_statics import RodStatics
+from ballchain.systems.rod_wall_friction import FrictionalRodStatics
 from ballchain.systems.meshcat_view import frame_scene
 from ballchain.systems.manual_hand import STRATEGIES, HandParams, ManualHand, _finite  # noqa: F401 (re-exported)
 from ballchain.systems.sheath_plan import SheathPlan  # noqa: F401 (re-exported)
@@ -67,12 +68,15 @@ class _CatheterState:
     force: float = 0.0  # the rod's axial force on the shaft at the exit [N]
     push_slips: int = 0
     failures: list = field(default_factory=list)
+    anchors: dict = field(default_factory=dict)  # the wall's stuck nodes (``systems.rod_wall_friction``)
+    last_nodes: dict = field(default_factory=dict)  # the free nodes at the last update, by material key
 
     def __deepcopy__(self, memo):
         new = copy.copy(self)
         for name in ("q", "twist", "push", "nodes", "R_tip"):
             setattr(new, name, getattr(self, name).copy())
         new.failures = list(self.failures)
+        new.anchors, new.last_nodes = dict(self.anchors), dict(self.last_nodes)
         return new
 
 
@@ -98,7 +102,9 @@ class SteerableCatheterSystem(LeafSystem):
         super().__init__()
         self.set_name("steerable_catheter")
         self.catheter = catheter.validate()
-        self.rod = RodStatics(self.catheter, p_E, axis, sdf)
+        # The wall's friction (``SteerableCatheter.wall_mu`` > 0, ``systems.rod_wall_friction``);
+        # 0: the frictionless wall's statics, as before.
+        self.rod = (FrictionalRodStatics if self.catheter.wall_mu > 0 else RodStatics)(self.catheter, p_E, axis, sdf)
         # A steerable sheath (issue 45, the manual arm): its exit moves with its input (advance
         # beyond the septum [m], rotation [rad], deflection [rad]); None: the paper's fixed exit.
         self.sheath = None if sheath is None else require_type(sheath, SteerableSheath, "sheath",
@@ -144,6 +150,9 @@ class SteerableCatheterSystem(LeafSystem):
         kappa = self.catheter.curvature(knob)
         bends = self.catheter.sheath_friction == "bends"
         start = st.twist.copy()  # the twist chain before this update
+        friction = isinstance(self.rod, FrictionalRodStatics)
+        if friction:  # every solve of this update sticks where the last update's nodes were stuck
+            self.rod.anchors, self.rod.last_nodes = st.anchors, st.last_nodes
         for _ in range(2):
             if bends:
                 st.push, slips_push = self._push_chain.step(st.push, push, st.force)
@@ -172,6 +181,8 @@ class SteerableCatheterSystem(LeafSystem):
             if not changed:
                 break
         st.R_tip = sol.pose.R_tip
+        if friction:
+            st.anchors, st.last_nodes = sol.anchors, sol.last_nodes
         j0 = self.rod.first_free(length)
         inside = self.behind_exit(self.rod.sigma[:j0] - length)
         st.nodes = np.vstack([inside, sol.pose.nodes])
