@@ -14,11 +14,14 @@ at the nodes in contact (the tip sphere's centre, the electrode's dome, and the 
   slips: its stick rows are dropped and the wall's friction on it becomes an applied force of
   magnitude mu_wall N against its slip (first the direction of the reaction that would have
   held it, then the direction it moved from its anchor), solved again until the slipping nodes'
-  forces settle (``max_rounds``). A node whose normal reaction vanishes leaves the wall (no
-  friction, no anchor).
-* A node that comes into contact during the update slides frictionlessly to its equilibrium
-  and sticks from there on (the anchor is where it ended): the incremental law, exact as the
-  updates' step goes to zero (the hand moves the rod by at most 1 mm an update).
+  forces settle (``max_rounds``). A stuck node that its rows hold off the wall (N = 0: the rod
+  pulls it along, not into the wall) slips likewise; a slipping node whose N vanishes has no
+  friction.
+* A node that comes into contact during the update (from ``last_nodes``) is stuck where it met
+  the wall, its last position moved along the wall's normal onto it (``_touch_point``), and then
+  follows the same law; a node with no last position (the first solve) slides frictionlessly and
+  sticks where it ended from the next update. The law is incremental: exact as the update's step
+  goes to zero (the hand moves the rod by at most 1 mm an update).
 
 One coefficient (static = kinetic): the law has no stick-slip of its own. The solution carries
 the anchors for the next update (``RodSolution.anchors``, keyed by the node's material point:
@@ -43,6 +46,7 @@ from ballchain.optimization.active_set_qp import dense_qp
 from ballchain.optimization.rod_statics import RodSolution, RodStatics
 
 
+FRICTION_NODES = ("tip", "all")
 POLISH_STEP = 1e-5  # [rad] below it a stuck rod's SQP step that does not lower the merit ends the solve
 
 
@@ -63,6 +67,12 @@ class FrictionalRodStatics(RodStatics):
         catheter, p_E, axis, sdf: as ``RodStatics``.
         mu: the wall's friction coefficient (default ``catheter.wall_mu``).
         max_rounds: the stick/slip rounds of one solve.
+        nodes: "tip" (the friction at the tip sphere's centre only, the electrode's dome: the
+            shaft's joints on the wall frictionless) or "all" (every free node). Two joints stuck
+            on the wall hold the rigid segments between them (the rod is inextensible): the
+            stuck shaft jams, its QP rows often infeasible, and the solve falls back to the
+            frictionless wall (on the fixed exit's loop, 10 of 29 solves not converged); the
+            tip alone is the default.
 
     Attributes:
         anchors: {node key: (3,) world point}: where the nodes stuck at the last update (set by
@@ -72,8 +82,12 @@ class FrictionalRodStatics(RodStatics):
             slides to its equilibrium, frictionless, and sticks there from the next update).
     """
 
-    def __init__(self, catheter, p_E, axis, sdf=None, mu: float | None = None, max_rounds: int = 6) -> None:
+    def __init__(self, catheter, p_E, axis, sdf=None, mu: float | None = None, max_rounds: int = 6,
+                 nodes: str = "tip") -> None:
         super().__init__(catheter, p_E, axis, sdf)
+        if nodes not in FRICTION_NODES:
+            raise ValueError(f"FrictionalRodStatics nodes must be one of {FRICTION_NODES}, got {nodes!r}")
+        self.nodes = nodes
         self.mu = float(catheter.wall_mu if mu is None else mu)
         if not self.mu >= 0.0:
             raise ValueError(f"FrictionalRodStatics mu must be >= 0, got {self.mu}")
@@ -194,7 +208,8 @@ class FrictionalRodStatics(RodStatics):
         length = float(np.clip(length, 0.0, self.max_length))
         keys = self.node_keys(length)
         index = {k: m for m, k in enumerate(keys)}
-        stick = {index[k]: np.asarray(a, float) for k, a in self.anchors.items() if index.get(k, 0) > 0}
+        stick = {index[k]: np.asarray(a, float) for k, a in self.anchors.items()
+                 if index.get(k, 0) > 0 and (self.nodes == "all" or k == self.n_joints)}
         applied, anchor = {}, dict(stick)  # anchor: each node's stick point in this solve
         reaction, sol = {}, None
         for _ in range(self.max_rounds):
@@ -213,7 +228,8 @@ class FrictionalRodStatics(RodStatics):
             N = sol.wall_forces
             for m in list(stick):
                 ft = reaction.get(m, np.zeros(3))
-                if N[m] <= 0.0:  # off the wall: free
+                if N[m] <= 0.0:  # held off the wall by its stick rows: it slides on it (kinetic friction)
+                    applied[m] = np.zeros(3)
                     del stick[m]
                     changed = True
                 elif np.linalg.norm(ft) > self.mu * N[m] * (1.0 + 1e-9):  # beyond the cone: slips
@@ -232,6 +248,8 @@ class FrictionalRodStatics(RodStatics):
                     applied[m] = new
             for m in np.flatnonzero(N > 0.0):  # come into contact: stuck where it met the wall
                 m = int(m)
+                if self.nodes == "tip" and m != len(keys) - 1:
+                    continue
                 if m > 0 and m not in anchor and keys[m] in self.last_nodes:
                     anchor[m] = stick[m] = self._touch_point(self.last_nodes[keys[m]])
                     changed = True
@@ -256,7 +274,7 @@ class FrictionalRodStatics(RodStatics):
         anchors = {}
         if self.mu > 0.0:
             for m in np.flatnonzero(sol.wall_forces > 0.0):
-                if m > 0:
+                if m > 0 and (self.nodes == "all" or m == len(keys) - 1):
                     anchors[keys[m]] = (anchor[m].copy() if m in reaction else sol.pose.nodes[m].copy())
         sol.friction, sol.anchors = friction, anchors
         sol.last_nodes = {k: p.copy() for k, p in zip(keys, sol.pose.nodes)}
