@@ -138,3 +138,33 @@ def test_tangent_basis_and_bad_coefficient():
         assert np.allclose(T @ T.T, np.eye(2), atol=1e-12) and np.allclose(T @ n, 0.0, atol=1e-12)
     with pytest.raises(UserInputError, match="wall_mu"):
         SteerableCatheter(wall_mu=-0.1).validate()
+
+
+def test_the_catheter_keeps_its_tip_stuck_between_updates():
+    """The catheter system's state carries the anchors from one update to the next (its copy
+    too): pushed 0.2 mm a step into a plane facing its tip (tilted by tan(alpha) = mu / 2, where
+    the rod's statics hold it, above), the tip stays where it first stuck while the rod bows."""
+    import copy
+
+    from ballchain.systems.catheter_station import SteerableCatheterSystem
+
+    cat = SteerableCatheter(wall_mu=MU).validate()
+    length, knob = 30e-3, 0.1
+    free = RodStatics(cat, np.zeros(3), AXIS).solve(length, 0.0, cat.curvature(knob))
+    d = free.pose.tip_direction
+    side = np.cross(d, [1.0, 0.0, 0.0])
+    side /= np.linalg.norm(side)
+    alpha = np.arctan(0.5 * MU)
+    n = -np.cos(alpha) * d + np.sin(alpha) * side
+    wall = Plane(n, -(n @ free.pose.tip_centre) + cat.radius - 0.1e-3)
+    system = SteerableCatheterSystem(cat, np.zeros(3), AXIS, wall, initial_length=length)
+    st = system._start()
+    system._solve(st, 0.0, 0.0, knob)
+    tip = system.rod.n_joints
+    first = st.anchors[tip].copy()
+    clone = copy.deepcopy(st)
+    assert clone.anchors is not st.anchors and np.array_equal(clone.anchors[tip], first)
+    for k in range(1, 5):
+        system._solve(st, k * 0.2e-3, 0.0, knob)
+        assert np.linalg.norm(st.nodes[-1] - first) < 1e-8
+        assert np.array_equal(st.anchors[tip], first)
