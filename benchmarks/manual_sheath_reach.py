@@ -26,9 +26,17 @@ summed. Prints per target the least miss (0: a touch) with the rod's total wall 
 each of ``WALL_FORCE_LIMITS`` and with any force, where (sheath, twist, knob, push) and the force
 it takes (total on the rod, on the tip).
 
+``--wall-mu`` (issue 45, H8) gives the wall Coulomb friction (``SteerableCatheter.wall_mu``,
+``systems.rod_wall_friction``: the tip sphere sticks where it touched while the wall's tangential
+reaction is within mu times the normal one, slips beyond it), each push's contact state carried
+to the next; ``--step`` the push's step [mm] (the friction law is incremental: a finer step
+follows the tip's catch more closely). Rows then add ``tip_stuck`` and ``friction_N`` (the sum
+of the friction forces' magnitudes).
+
     python benchmarks/manual_sheath_reach.py --loaded [--targets right_15 right_16 right_17]
         [--deflections 0 90] [--advances 3.5 15 30] [--rotation-step 45 | --rotations 165 180]
         [--twist-step 30 | --twists 180 210] [--knobs -1 -0.5 0 0.5 0.75 1] [--max-out 120]
+        [--wall-mu 0.2] [--step 1.5]
 """
 
 from __future__ import annotations

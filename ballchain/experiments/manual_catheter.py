@@ -189,6 +189,8 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
     settings = _run_settings(used, int(seed), hand, scenario, params, limit, station.device.metrics(root), path)
     settings["sheath"] = ("steerable (drake_models.sheath.SteerableSheath, placed by the hand per target)"
                           if sheath == "steerable" else "fixed (the paper's)")
+    if used.wall_mu > 0:  # the wall's Coulomb friction at the tip (systems.rod_wall_friction); 0: none, not listed
+        settings["wall_mu"] = used.wall_mu
     result = teleop.TeleopResult(task=task, mapping="manual", rows=rows, summary=summary, paper=teleop.PAPER[task],
                                  settings=settings, html=None if html is None else str(html))
     # The smoothness beside the time (issue 45): SPARC of each touched-to-touched movement.
