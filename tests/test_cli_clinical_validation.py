@@ -9,6 +9,8 @@ import pytest
 
 from ballchain.cli import main
 
+pytestmark = pytest.mark.slow  # whole commands (2-3 s each): the full tier
+
 
 def _json(capsys, argv):
     code = main(argv + ["--json"])
