@@ -343,3 +343,49 @@ def test_a_tip_beyond_the_wall_is_drawn_back():
     assert record.captures == 0 and nav.GetOutputPort("v_insert_cmd").Eval(context)[0] > 0.0
     with pytest.raises(UserInputError, match="captured"):
         NavigatorParams(captured=-1e-3).validate()
+
+
+def test_the_dwell_row_counts_every_sample_between_the_looks():
+    """``procedure_runs._dwell_row``: with a look every ``look_period`` the dwell's figures are
+    taken over every logged sample in the dwell (each look standing for the samples since the one
+    before, the estimate held between the looks), not over the looks alone; a slip's interval (no
+    look recorded) is left out; with a look every period only the looks' samples count."""
+    from ballchain.experiments.procedure_runs import _dwell_row
+    from ballchain.systems.autonomous_navigator import DwellRecord, TargetPlan
+
+    period, lo, hi = 0.05, newtons_from_gram_force(10.0), newtons_from_gram_force(40.0)
+    t = np.round(np.arange(0, 61) * period, 10)  # 0 .. 3 s
+    n_W = np.array([0.0, 0.0, 1.0])
+    true = np.where(t < 1.0, newtons_from_gram_force(20.0), newtons_from_gram_force(5.0))  # drops out of the window
+
+    class Log:
+        def __init__(self, data):
+            self._data = np.atleast_2d(data)
+
+        def FindLog(self, context):
+            return self
+
+        def sample_times(self):
+            return t
+
+        def data(self):
+            return self._data
+
+    force = Log(np.vstack([np.zeros((2, t.size)), true]))
+    balls = Log(np.zeros((3, t.size)))
+    estimate = Log(np.full(t.size, newtons_from_gram_force(20.0)))
+    plan = TargetPlan("t", np.zeros(3), n_W, np.array([[1.0, 0.0, 0.0]]), 0.03, np.eye(3), np.eye(3),
+                      np.zeros((3, 2)), newtons_from_gram_force(20.0))
+    record = DwellRecord("t", 0.0, t_touch=0.25, t_end=2.5, reached=True, dwell_time=2.0)
+    # Looks every 0.25 s from 0.5 to 1.5 s, a slip, then again from 2.0 to 2.25 s.
+    looks = [0.5, 0.75, 1.0, 1.25, 1.5, 2.0, 2.25]
+    record.estimates = [(x, newtons_from_gram_force(20.0)) for x in looks]
+    row = _dwell_row(record, [force, balls, estimate, balls], None, plan, (lo, hi), 0.0, 0.25)
+    counted = [x for x in t if any(0 <= L - x < 0.25 - 1e-9 for L in looks)]
+    inside = sum(1 for x in counted if x < 1.0)
+    assert len(counted) == 7 * 5
+    assert row["in_window_fraction"] == pytest.approx(round(inside / len(counted), 4))
+    assert row["force_true_min_gf"] == pytest.approx(5.0)
+    # Looks every period: the looks' own samples only (the code before the dwell's look period).
+    row = _dwell_row(record, [force, balls, estimate, balls], None, plan, (lo, hi), 0.0, period)
+    assert row["in_window_fraction"] == pytest.approx(round(sum(1 for x in looks if x < 1.0) / len(looks), 4))
