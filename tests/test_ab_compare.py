@@ -2,23 +2,20 @@
 (the acceptance test of a change to the solver's iterates, docs/performance.md 18) against
 scipy's exact binomial test, and bad ``--seeds``/``--task`` refused before any work."""
 
-import importlib.util
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 from scipy.stats import binomtest
+from script_helpers import load_benchmark
 
 REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
 def ab():
-    spec = importlib.util.spec_from_file_location("ab_compare", REPO / "benchmarks" / "ab_compare.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("ab_compare")
 
 
 @pytest.mark.parametrize("a, b", [(0, 5), (19, 31), (31, 19), (7, 4), (3, 3), (0, 1), (12, 40)])

@@ -275,13 +275,9 @@ def test_station_builds_the_watchdog_wall_distance_before_the_run():
 
 def test_callback_benchmark_times_every_callback():
     """``benchmarks/unit_callbacks.py`` calls each unit callback on a running station's context."""
-    import importlib.util
-    from pathlib import Path
+    from script_helpers import load_benchmark
 
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "unit_callbacks.py"
-    spec = importlib.util.spec_from_file_location("unit_callbacks", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = load_benchmark("unit_callbacks")
     times = module.run("teleop_right_unit", at=0.05, number=3)
     assert {"Hall sample, turned", "magnet update", "drive update", "feeder update",
             "watchdog (a step between checks)"} <= set(times)

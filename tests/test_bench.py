@@ -1,7 +1,6 @@
 """``ballchain bench``: the statics benchmark's JSON (correctness fields only, never wall time)
 and its argument errors."""
 
-import importlib.util
 import json
 import subprocess
 import sys
@@ -10,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from ballchain.cli import main as cli_main
+from script_helpers import load_benchmark
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -95,9 +95,7 @@ def test_bad_argument_in_a_fresh_process_has_no_traceback():
 
 @pytest.mark.slow
 def test_benchmark_script_runs():
-    spec = importlib.util.spec_from_file_location("bench_statics", REPO / "benchmarks" / "bench_statics.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    script = load_benchmark("bench_statics")
     assert script.__doc__ and callable(script.main)
     out = script.run(n_balls=3, repeats=1, progress=False)
     assert out.n_balls == 3 and out.same_minimum["ok"]
@@ -120,10 +118,7 @@ def test_each_round_orders_the_cases_afresh():
 
 
 def _cold_floor():
-    spec = importlib.util.spec_from_file_location("cold_floor", REPO / "benchmarks" / "cold_floor.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
-    return script
+    return load_benchmark("cold_floor")
 
 
 def test_cold_floor_splits_the_cold_solve_per_step_limit():

@@ -280,15 +280,9 @@ def test_station_bench_profiles_the_python_solvers_pieces(monkeypatch):
     """``benchmarks/station_bench.py``'s per-piece profile times the Python solver's functions
     (each piece called: a compiled solve would leave them at zero, as it once did) and the
     compiled solve of the same equilibria beside it."""
-    import importlib.util
-    import sys
-    from pathlib import Path
+    from script_helpers import load_benchmark
 
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "station_bench.py"
-    spec = importlib.util.spec_from_file_location("station_bench", path)
-    module = importlib.util.module_from_spec(spec)
-    monkeypatch.setitem(sys.modules, "station_bench", module)  # its dataclasses look themselves up
-    spec.loader.exec_module(module)
+    module = load_benchmark("station_bench", monkeypatch)  # its dataclasses look themselves up
     out = module.profile_equilibrium(repeats=1)
     for piece in ("evaluation", "chain_energy", "constraint_hessian", "qp", "compiled_equilibrium", "equilibrium"):
         assert out[f"{piece}_ms"] > 0, piece

@@ -4,9 +4,6 @@ statics solved again independently."""
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -17,16 +14,14 @@ from ballchain.experiments import manual_catheter as mc
 from ballchain.optimization.rod_statics import RodStatics
 from ballchain.systems.station import atrium_for
 from ballchain.systems.target_contact import heart_targets, targets_touched
+from script_helpers import load_benchmark
 
-REPO = Path(__file__).resolve().parents[1]
 TARGETS = ["right_15", "right_16", "right_17"]
 
 
 @pytest.fixture(scope="module")
 def reach():
-    spec = importlib.util.spec_from_file_location("manual_sheath_reach", REPO / "benchmarks" / "manual_sheath_reach.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = load_benchmark("manual_sheath_reach")
     heart = atrium_for(mc.scenario_for())
     return module, heart, atrium_sdf(heart), SteerableSheath().validate()
 
