@@ -35,9 +35,7 @@ import dataclasses
 import functools
 import hashlib
 import inspect
-import io
 import math
-import shutil
 import sys
 import time
 from dataclasses import dataclass
@@ -54,7 +52,6 @@ from ballchain.drake_models import model_files, params, rf_generator
 from ballchain.drake_models import tissue as laws
 from ballchain.drake_models.lesion_ring import DEFAULT_WALL_THICKNESS_M, AblationPoint, Lesion
 from ballchain.infrastructure.errors import UserInputError, short_repr
-from ballchain.infrastructure.safe_files import atomic_write_bytes, atomic_write_text
 
 CRITERIA = ("transmural", "contiguous", "fti", "fixed")
 FTI_TARGET_GFS = 400.0  # [gf s] EFFICAS II's minimum force-time integral
@@ -199,35 +196,18 @@ def shipped_path(spec: DwellTableSpec) -> Path:
 
 def ship_tables(specs=SHIPPED_SPECS, progress: bool = True) -> list[Path]:
     """Build the tables of ``specs`` into the package (``SHIPPED``), each with its SHA-1 list, and
-    remove the shipped tables of older keys. Returns the tables written."""
-    keep = {spec.key() for spec in specs}
-    written = []
-    for spec in specs:
-        path = shipped_path(spec)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        buffer = io.BytesIO()
-        np.savez(buffer, **build_dwell_table(spec, progress=progress))
-        data = buffer.getvalue()
-        atomic_write_bytes(path, data)
-        atomic_write_text(path.parent / model_files.DIGESTS, f"{hashlib.sha1(data).hexdigest()}  {path.name}\n")
-        written.append(path)
-    for old in SHIPPED.iterdir() if SHIPPED.is_dir() else ():
-        if old.is_dir() and old.name not in keep:
-            shutil.rmtree(old)
-    return written
+    remove the shipped tables of older keys (``model_files.ship_arrays``). Returns the tables
+    written."""
+    tables = {spec.key(): build_dwell_table(spec, progress=progress) for spec in specs}
+    return model_files.ship_arrays(SHIPPED, tables, shipped_path(specs[0]).name)
 
 
 def cached_dwell_table(spec: DwellTableSpec, progress: bool = True) -> dict:
     """``build_dwell_table(spec)``: the copy shipped with the package when its key matches, else
     from the cache (built and written when missing or damaged)."""
-    shipped = shipped_path(spec)
-    try:
-        listed = (shipped.parent / model_files.DIGESTS).read_text().split()
-        if listed[:2] == [hashlib.sha1(shipped.read_bytes()).hexdigest(), shipped.name]:
-            with np.load(shipped) as data:
-                return {k: np.array(data[k]) for k in data.files}
-    except OSError:
-        pass
+    shipped = model_files.shipped_arrays(shipped_path(spec))
+    if shipped is not None:
+        return shipped
 
     def write(tmp):
         table = build_dwell_table(spec, progress=progress)

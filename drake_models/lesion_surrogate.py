@@ -191,23 +191,35 @@ does not pay the FEM runs (about 1 CPU-min for the default table since issue 48,
 when the key and the digest match, otherwise the table is built into the cache."""
 
 
-def _shipped_table(spec: TableSpec) -> Path | None:
-    path = SHIPPED / spec.key() / "lesion_table.npz"
-    try:
-        listed = (path.parent / model_files.DIGESTS).read_text().split()
-        digest = hashlib.sha1(path.read_bytes()).hexdigest()
-    except OSError:
-        return None
-    return path if listed[:2] == [digest, path.name] else None
+SHIP_COMMAND = "python -m ballchain.drake_models.lesion_surrogate"
+
+
+def shipped_path(spec: TableSpec) -> Path:
+    """Where the shipped table of ``spec`` is (or would be) [path]."""
+    return SHIPPED / spec.key() / "lesion_table.npz"
+
+
+def shipped_table(spec: TableSpec) -> dict | None:
+    """The table of ``spec`` shipped with the package, None when there is none intact for its key."""
+    return model_files.shipped_arrays(shipped_path(spec))
+
+
+def ship_table(spec: TableSpec | None = None, progress: bool = True) -> Path:
+    """Build the table of ``spec`` (default: ``TableSpec()``) into the package (``SHIPPED``) with its
+    SHA-1 list and remove the shipped tables of older keys (``model_files.ship_arrays``); run it
+    (``SHIP_COMMAND``) when the FEM, the tissue laws or the table's builder change its key.
+    Returns the table written."""
+    spec = TableSpec() if spec is None else spec
+    path = shipped_path(spec)
+    return model_files.ship_arrays(SHIPPED, {spec.key(): build_table(spec, progress=progress)}, path.name)[0]
 
 
 def cached_table(spec: TableSpec, progress: bool = True) -> dict:
     """``build_table(spec)``: the copy shipped with the package when its key matches, else from the
     cache when it is there and intact (built and written otherwise)."""
-    shipped = _shipped_table(spec)
+    shipped = shipped_table(spec)
     if shipped is not None:
-        with np.load(shipped) as data:
-            return {k: np.array(data[k]) for k in data.files}
+        return shipped
     directory = model_files.cache_dir() / "lesion_surrogate"
 
     def write(tmp):
@@ -418,3 +430,7 @@ def format_error_table(rows: list[dict]) -> str:
         lines.append(f"largest |error|{label}: width {worst['width_mm']:.3f} mm, depth {worst['depth_mm']:.3f} mm, "
                      f"magnet {worst['magnet_peak_C']:.2f} C")
     return "\n".join(lines)
+
+
+if __name__ == "__main__":  # python -m ballchain.drake_models.lesion_surrogate: (re)build the shipped table
+    print(ship_table())

@@ -329,6 +329,52 @@ def cached_files(directory: Path, names: dict[str, str],
     return paths
 
 
+def shipped_arrays(path: Path) -> dict | None:
+    """The arrays of a table shipped in the package (``ship_arrays``): None when it is missing or
+    its content does not match its line in the ``DIGESTS`` list beside it (then the caller builds
+    the table into the cache instead)."""
+    import io
+
+    import numpy as np
+
+    try:
+        listed = (path.parent / DIGESTS).read_text().split()
+        data = path.read_bytes()
+    except OSError:
+        return None
+    if listed[:2] != [hashlib.sha1(data).hexdigest(), path.name]:
+        return None
+    with np.load(io.BytesIO(data)) as table:
+        return {k: np.array(table[k]) for k in table.files}
+
+
+def ship_arrays(root: Path, tables: dict, name: str) -> list[Path]:
+    """Write tables into the package: each ``{key: arrays}`` as ``root/<key>/<name>`` (an .npz)
+    with its ``DIGESTS`` list, atomically, and remove the folders of ``root`` of any other key
+    (a stale key's table would never be read again). Returns the tables written."""
+    import io
+    import shutil
+
+    import numpy as np
+
+    from ballchain.infrastructure.safe_files import atomic_write_bytes, atomic_write_text
+
+    written = []
+    for key, arrays in tables.items():
+        path = Path(root) / key / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        buffer = io.BytesIO()
+        np.savez(buffer, **arrays)
+        data = buffer.getvalue()
+        atomic_write_bytes(path, data)
+        atomic_write_text(path.parent / DIGESTS, f"{hashlib.sha1(data).hexdigest()}  {path.name}\n")
+        written.append(path)
+    for old in Path(root).iterdir():
+        if old.is_dir() and old.name not in tables:
+            shutil.rmtree(old)
+    return written
+
+
 def source_hash(*modules) -> str:
     """A short hash of the source files of ``modules``: part of the key of a generated file, so
     that the cache (shared by every checkout on the machine) never hands a run a mesh made by

@@ -1,6 +1,8 @@
 """The lesion surrogate: the FEM at the table's nodes, held-out points, monotonicity, the Hertz
 law, choose_power against the magnet's limit, the cache."""
 
+import hashlib
+
 import numpy as np
 import pytest
 
@@ -186,11 +188,13 @@ def test_choose_power_keeps_the_magnet_below_its_limit_in_a_direct_fem_run(gf, d
 
 def test_the_shipped_table_is_the_default_specs_and_intact():
     """The package ships the default table under its key: when the FEM, the tissue laws or the
-    builder change, the key changes and this fails (rebuild it with ``build_table`` and ship the new
-    one) instead of every first run silently paying the FEM runs."""
+    builder change, the key changes and this fails (rebuild it with ``ls.SHIP_COMMAND``) instead of
+    every first run silently paying the FEM runs; no table of another key is shipped beside it."""
     spec = ls.TableSpec()
-    shipped = ls._shipped_table(spec)
-    assert shipped is not None, f"no shipped table for key {spec.key()} in {ls.SHIPPED}"
+    shipped = ls.shipped_table(spec)
+    assert shipped is not None, (f"no shipped table for key {spec.key()} in {ls.SHIPPED}: regenerate it with "
+                                 f"`{ls.SHIP_COMMAND}` (about 1 CPU-min) and commit drake_models/generated/lesion_surrogate/")
+    assert sorted(d.name for d in ls.SHIPPED.iterdir()) == [spec.key()], "a stale shipped table: " + ls.SHIP_COMMAND
     table = ls.cached_table(spec, progress=False)
     assert table["width_mm"].shape == (len(spec.indentations_m), len(spec.powers_W) + 1, len(spec.durations_s))
     np.testing.assert_array_equal(table["power_W"][1:], spec.powers_W)
@@ -208,3 +212,32 @@ def test_the_shipped_table_equals_a_fresh_fem_run_at_a_node():
     np.testing.assert_allclose(table["width_mm"][i, j, 1:], width, rtol=0, atol=1e-9)
     np.testing.assert_allclose(table["depth_mm"][i, j, 1:], depth, rtol=0, atol=1e-9)
     np.testing.assert_allclose(table["magnet_peak_C"][i, j, 1:], peak, rtol=0, atol=1e-9)
+
+
+def test_shipping_writes_the_table_with_its_digest_and_removes_older_keys(tmp_path, monkeypatch):
+    """``ship_table`` (``model_files.ship_arrays``): the table under its key with its SHA-1 line,
+    read back by ``shipped_table`` array for array; another key's folder is removed; a table whose
+    bytes differ from its line (or with no line) is not read. The FEM runs are replaced by a
+    small table here (the builder is tested above)."""
+    from ballchain.drake_models import model_files
+
+    root = tmp_path / "lesion_surrogate"
+    (root / "0123456789ab").mkdir(parents=True)  # an older key's table
+    (root / "0123456789ab" / "lesion_table.npz").write_bytes(b"old")
+    monkeypatch.setattr(ls, "SHIPPED", root)
+    table = {"width_mm": np.arange(24.0).reshape(2, 3, 4), "power_W": np.array([0.0, 5.0, 10.0])}
+    monkeypatch.setattr(ls, "build_table", lambda spec, progress=True: table)
+    spec = ls.TableSpec()
+    path = ls.ship_table(spec, progress=False)
+    assert path == root / spec.key() / "lesion_table.npz"
+    assert sorted(d.name for d in root.iterdir()) == [spec.key()]
+    listed = (path.parent / model_files.DIGESTS).read_text().split()
+    assert listed == [hashlib.sha1(path.read_bytes()).hexdigest(), path.name]
+    back = ls.shipped_table(spec)
+    assert back.keys() == table.keys()
+    for k in table:
+        np.testing.assert_array_equal(back[k], table[k])
+    path.write_bytes(path.read_bytes() + b"\0")  # altered after shipping
+    assert ls.shipped_table(spec) is None
+    (path.parent / model_files.DIGESTS).unlink()
+    assert ls.shipped_table(spec) is None
