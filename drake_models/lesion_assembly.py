@@ -17,18 +17,19 @@ mesh with new coefficients, and for P1 the rest of the integrand is fixed:
 quadrature) as sparse matrices acting on the coefficient at the quadrature points: a step's
 matrix is one sparse product giving the data array of a CSR pattern fixed once (every element's
 node pairs and the diagonal). The free-node blocks the solves need (``OrderedBlock``) take their
-entries from that data array through an index map computed once, in a fill-reducing order
-computed once from the block's structure (SuperLU's minimum degree on A + A^T), so that each
-step's factorisation is SuperLU's numeric factorisation alone, without pivoting (the blocks are
-symmetric positive definite). The same discretisation as ``skfem.asm`` of the forms, summed in
-another order: ``tests/test_lesion_assembly.py`` checks the two agree to 1e-12.
+upper triangles' entries from that data array through an index map computed once; the blocks are
+symmetric positive definite, so each is factorised as LDL^T by QDLDL, whose fill-reducing order
+(approximate minimum degree) and symbolic analysis are made once per block and reused by every
+later step's numeric factorisation (docs/performance.md 32: about half of SuperLU's time). The
+same discretisation as ``skfem.asm`` of the forms, summed in another order:
+``tests/test_lesion_assembly.py`` checks the two agree to 1e-12, and the solves against scipy's.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
+import qdldl
 from skfem import BilinearForm, CellBasis, LinearForm
 from skfem.helpers import dot, grad
 
@@ -152,46 +153,53 @@ class P1Operators:
 
 
 class OrderedBlock:
-    """A symmetric positive definite sub-matrix A[rows][:, rows] of the pattern, factorised each step.
+    """A symmetric positive definite sub-matrix A[rows][:, rows] of the pattern, factorised each step
+    by QDLDL (``qdldl.Solver``: LDL^T in an approximate-minimum-degree order found once, at the
+    first factorisation; each later one is numeric only, on the same pattern).
 
     Args:
         ops: the mesh's operators (the pattern).
-        rows: the block's nodes (the free nodes of a solve).
+        rows: the block's nodes (the free nodes of a solve), in the order of ``solve``'s answer.
 
     Attributes:
-        rows: the nodes, in the fill-reducing order the factorisation uses.
+        rows: those nodes.
+        factorisations: how many times the block was factorised.
     """
 
-    _SPD = dict(diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
-
     def __init__(self, ops: P1Operators, rows: np.ndarray):
-        # The order: SuperLU's minimum degree on A + A^T of the block's structure (values do not enter;
-        # a diagonally dominant matrix with that structure is factorised once for it).
+        # The block's upper triangle (the factorisation reads only it), as positions in the
+        # pattern's data array.
         index = sp.csr_matrix((np.arange(1, ops.nnz + 1, dtype=float), ops.indices, ops.indptr), shape=(ops.n, ops.n))
-        sub = index[rows][:, rows].tocsc()
-        structure = sub.copy()
-        structure.data[:] = -1.0
-        structure.setdiag(np.diff(structure.indptr) + 1.0)
-        perm = spla.splu(structure, permc_spec="MMD_AT_PLUS_A", **self._SPD).perm_c
-        self.rows = rows[np.argsort(perm)]
-        sub = index[self.rows][:, self.rows].tocsc()
-        sub.sort_indices()
-        self._take = sub.data.astype(np.int64) - 1
-        self._indices, self._indptr = sub.indices, sub.indptr
+        upper = sp.triu(index[rows][:, rows], format="csc")
+        upper.sort_indices()
+        self.rows = np.asarray(rows)
+        self._take = upper.data.astype(np.int64) - 1
+        self._pattern = (upper.indices, upper.indptr)
         self._size = len(rows)
+        self._solver = None
+        self.factorisations = 0
 
-    def factor(self, data) -> BlockFactor:
-        """The LU factors of the block of the matrix with pattern data ``data``."""
-        a = sp.csc_matrix((data[self._take], self._indices, self._indptr), shape=(self._size, self._size))
-        return BlockFactor(self.rows, spla.splu(a, permc_spec="NATURAL", **self._SPD))
+    def factor(self, data) -> "BlockFactor":
+        """The factors of the block of the matrix with pattern data ``data``; those of the block's
+        previous factorisation can no longer solve."""
+        a = sp.csc_matrix((data[self._take], *self._pattern), shape=(self._size, self._size))
+        if self._solver is None:
+            self._solver = qdldl.Solver(a, upper=True)
+        else:
+            self._solver.update(a, upper=True)
+        self.factorisations += 1
+        return BlockFactor(self, self.factorisations)
 
 
 class BlockFactor:
     """The factors of one block: ``solve(rhs)`` takes a full-length right-hand side (only its block
-    rows are read) and returns the solution on ``rows`` (in that order)."""
+    rows are read) and returns the solution on ``rows`` (in that order). Valid until the block is
+    factorised again (the factors are refreshed in place)."""
 
-    def __init__(self, rows: np.ndarray, lu):
-        self.rows, self._lu = rows, lu
+    def __init__(self, block: OrderedBlock, factorisation: int):
+        self.rows, self._block, self._factorisation = block.rows, block, factorisation
 
     def solve(self, rhs) -> np.ndarray:
-        return self._lu.solve(np.ascontiguousarray(rhs[self.rows]))
+        if self._block.factorisations != self._factorisation:
+            raise RuntimeError("BlockFactor.solve: the block was factorised again since these factors were made")
+        return self._block._solver.solve(np.ascontiguousarray(rhs[self.rows], dtype=float))
