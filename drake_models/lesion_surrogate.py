@@ -187,7 +187,7 @@ def build_table(spec: TableSpec, progress: bool = True) -> dict:
 
 SHIPPED = Path(__file__).parent / "generated" / "lesion_surrogate"
 """Tables shipped with the package (``<key>/lesion_table.npz`` + ``files.sha1``), so that a first run
-does not pay the FEM runs (about 1 CPU-min for the default table since issue 48, 6 before); used only
+does not pay the FEM runs (about 30 CPU-s for the default table with QDLDL, 1 CPU-min with SuperLU, 6 before issue 48); used only
 when the key and the digest match, otherwise the table is built into the cache."""
 
 

@@ -133,7 +133,7 @@ def test_the_reports_clinical_table_ships_for_the_current_code(tmp_path, monkeyp
     shipped = sorted(d.name for d in ld.SHIPPED.iterdir())
     assert path.exists(), (f"the shipped clinical lesion table is not for the current code (its key is now "
                            f"{spec.key()}, shipped: {shipped}): regenerate it with `{ld.SHIP_COMMAND}` (about "
-                           f"20 CPU-s) and commit drake_models/generated/lesion_dwell/")
+                           f"3 CPU-s) and commit drake_models/generated/lesion_dwell/")
     assert (path.parent / model_files.DIGESTS).read_text().split() == [hashlib.sha1(path.read_bytes()).hexdigest(),
                                                                       path.name]
     assert shipped == sorted({s.key() for s in ld.SHIPPED_SPECS}), "a stale shipped table: " + ld.SHIP_COMMAND

@@ -193,7 +193,7 @@ def test_the_shipped_table_is_the_default_specs_and_intact():
     spec = ls.TableSpec()
     shipped = ls.shipped_table(spec)
     assert shipped is not None, (f"no shipped table for key {spec.key()} in {ls.SHIPPED}: regenerate it with "
-                                 f"`{ls.SHIP_COMMAND}` (about 1 CPU-min) and commit drake_models/generated/lesion_surrogate/")
+                                 f"`{ls.SHIP_COMMAND}` (about 30 CPU-s) and commit drake_models/generated/lesion_surrogate/")
     assert sorted(d.name for d in ls.SHIPPED.iterdir()) == [spec.key()], "a stale shipped table: " + ls.SHIP_COMMAND
     table = ls.cached_table(spec, progress=False)
     assert table["width_mm"].shape == (len(spec.indentations_m), len(spec.powers_W) + 1, len(spec.durations_s))
