@@ -22,17 +22,21 @@ from __future__ import annotations
 
 import hashlib
 import hmac
+import io
 import os
 import re
 import secrets
+import shutil
 import stat
 import sys
 import tempfile
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
+
 from ballchain.infrastructure.errors import UserInputError, short_repr
-from ballchain.infrastructure.safe_files import check_output_dir
+from ballchain.infrastructure.safe_files import atomic_write_bytes, atomic_write_text, check_output_dir
 
 PACKAGE_XML = Path(__file__).with_name("package.xml")
 GENERATED_PACKAGE = "ballchain_generated"
@@ -333,10 +337,6 @@ def shipped_arrays(path: Path) -> dict | None:
     """The arrays of a table shipped in the package (``ship_arrays``): None when it is missing or
     its content does not match its line in the ``DIGESTS`` list beside it (then the caller builds
     the table into the cache instead)."""
-    import io
-
-    import numpy as np
-
     try:
         listed = (path.parent / DIGESTS).read_text().split()
         data = path.read_bytes()
@@ -352,13 +352,6 @@ def ship_arrays(root: Path, tables: dict, name: str) -> list[Path]:
     """Write tables into the package: each ``{key: arrays}`` as ``root/<key>/<name>`` (an .npz)
     with its ``DIGESTS`` list, atomically, and remove the folders of ``root`` of any other key
     (a stale key's table would never be read again). Returns the tables written."""
-    import io
-    import shutil
-
-    import numpy as np
-
-    from ballchain.infrastructure.safe_files import atomic_write_bytes, atomic_write_text
-
     written = []
     for key, arrays in tables.items():
         path = Path(root) / key / name

@@ -67,10 +67,21 @@ class Import:
 
 
 def package_dirs() -> dict[str, Path]:
-    """The installed packages and their folders, from pyproject.toml's package-dir."""
+    """The installed packages and their folders, from pyproject.toml's package-dir (a package it
+    does not name lies under its nearest named parent's folder, as setuptools places it: the
+    data-only packages)."""
     config = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
     dirs = config["package-dir"]
-    return {package: ROOT / dirs[package] for package in config["packages"]}
+
+    def folder(package: str) -> Path:
+        parts = package.split(".")
+        for k in range(len(parts), 0, -1):
+            parent = ".".join(parts[:k])
+            if parent in dirs:
+                return ROOT / dirs[parent] / Path(*parts[k:])
+        raise KeyError(f"{package}: no folder in pyproject.toml's package-dir")
+
+    return {package: folder(package) for package in config["packages"]}
 
 
 def modules() -> dict[str, Path]:
