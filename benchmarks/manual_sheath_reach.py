@@ -33,10 +33,16 @@ to the next; ``--step`` the push's step [mm] (the friction law is incremental: a
 follows the tip's catch more closely). Rows then add ``tip_stuck`` and ``friction_N`` (the sum
 of the friction forces' magnitudes).
 
+``--wall-stiffness`` (issue 45, H10) makes the wall compliant (``SteerableCatheter.wall_stiffness``,
+``systems.rod_wall_compliance``: every free node indents the wall by d against N = k d, rigid
+beyond a 3 mm cap), given in N/mm (the source's unit: Ijima et al., about 0.11-0.14 N/mm). Rows
+then add ``tip_indentation_mm`` and ``hard_N`` (the part of the rod's wall force the rigid cap
+carries). The wall force is the whole normal reaction in either case.
+
     python benchmarks/manual_sheath_reach.py --loaded [--targets right_15 right_16 right_17]
         [--deflections 0 90] [--advances 3.5 15 30] [--rotation-step 45 | --rotations 165 180]
         [--twist-step 30 | --twists 180 210] [--knobs -1 -0.5 0 0.5 0.75 1] [--max-out 120]
-        [--wall-mu 0.2] [--step 1.5]
+        [--wall-mu 0.2 | --wall-stiffness 0.14] [--step 1.5]
 """
 
 from __future__ import annotations
@@ -52,6 +58,7 @@ from ballchain.drake_models.sheath import SteerableSheath
 from ballchain.experiments import manual_catheter as mc
 from ballchain.drake_models.electrode import CATHETER_ELECTRODE_LENGTH, axis_start
 from ballchain.optimization.rod_statics import RodStatics, frame_along
+from ballchain.systems.rod_wall_compliance import CompliantRodStatics
 from ballchain.systems.rod_wall_friction import FrictionalRodStatics
 from ballchain.systems.sheath_plan import has_room
 from ballchain.systems.station import atrium_for
@@ -116,7 +123,8 @@ def loaded_reach(heart, sdf, sheath: SteerableSheath, settings, targets, twists,
     axis = np.asarray(heart.sheath_axis_H, float)
     R_S = frame_along(axis)
     p_S = np.asarray(heart.p_HE, float) - sheath.nominal_advance * axis
-    rod = (FrictionalRodStatics if cat.wall_mu > 0 else RodStatics)(cat, heart.p_HE, axis, sdf)
+    rod = (FrictionalRodStatics if cat.wall_mu > 0 else
+           CompliantRodStatics if cat.wall_stiffness > 0 else RodStatics)(cat, heart.p_HE, axis, sdf)
     keys = [str(lim) for lim in limits] + ["any"]
     bounds = list(limits) + [np.inf]
     best = {t: {k: None for k in keys} for t in targets}
@@ -153,6 +161,9 @@ def loaded_reach(heart, sdf, sheath: SteerableSheath, settings, targets, twists,
                         if cat.wall_mu > 0:  # the tip stuck on the wall, and the friction's share
                             row["tip_stuck"] = bool(rod.n_joints in sol.anchors)
                             row["friction_N"] = round(float(np.linalg.norm(sol.friction, axis=1).sum()), 3)
+                        if cat.wall_stiffness > 0:  # the compliant wall: the tip's indentation, the cap's share
+                            row["tip_indentation_mm"] = round(float(sol.indentation[-1]) * 1e3, 3)
+                            row["hard_N"] = round(float(sol.hard_forces.sum()), 3)
                         for key, bound in zip(keys, bounds):
                             old = best[t][key]
                             if force <= bound and (old is None or (row["miss_mm"], force) < (old["miss_mm"], old["wall_force_N"])):
@@ -173,13 +184,15 @@ def _main_loaded(args, heart, sdf, sheath) -> None:
     twists = args.twists if args.twists else np.arange(0.0, 360.0, args.twist_step)
     cat = mc.comparison_catheter()
     cat.wall_mu = args.wall_mu
+    cat.wall_stiffness = args.wall_stiffness * 1e3  # [N/mm] -> [N/m]
     out = loaded_reach(heart, sdf, sheath, settings, args.targets, np.radians(twists),
                        [float(k) for k in args.knobs], args.max_out * 1e-3, step=args.step * 1e-3,
                        cat=cat.validate())
     print(json.dumps({"loaded": True, "deflections_deg": args.deflections, "advances_mm": args.advances,
                       "rotation_step_deg": args.rotation_step,
                       "rotations_deg": args.rotations, "twist_step_deg": args.twist_step, "twists_deg": args.twists, "knobs": args.knobs,
-                      "max_out_mm": args.max_out, "step_mm": args.step, "wall_mu": args.wall_mu, **out, "cpu_s": round(time.process_time() - t0, 1)}))
+                      "max_out_mm": args.max_out, "step_mm": args.step, "wall_mu": args.wall_mu,
+                      "wall_stiffness_N_per_mm": args.wall_stiffness, **out, "cpu_s": round(time.process_time() - t0, 1)}))
 
 
 def main() -> None:
@@ -203,6 +216,9 @@ def main() -> None:
     parser.add_argument("--step", type=float, default=3.0, help="[mm] the push's step (--loaded)")
     parser.add_argument("--wall-mu", type=float, default=0.0,
                         help="the wall's Coulomb friction (--loaded; SteerableCatheter.wall_mu, 0: frictionless)")
+    parser.add_argument("--wall-stiffness", type=float, default=0.0,
+                        help="[N/mm] the wall's compliance (--loaded; SteerableCatheter.wall_stiffness / 1000, "
+                             "0: the rigid wall)")
     args = parser.parse_args()
     heart = atrium_for(mc.scenario_for())
     sdf = atrium_sdf(heart)

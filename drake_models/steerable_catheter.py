@@ -103,6 +103,9 @@ FRENCH = 1e-3 / 3.0  # [m] per Fr (the Charriere scale)
 
 TIP_FIT_MAX_BEND = 1.1  # [rad] the largest tip bend of Khoshnam and Patel's EI measurements (Fig. 2.6)
 SHEATH_FRICTION = ("bends", "even")  # where the shaft's friction acts (SteerableCatheter.sheath_friction)
+# [N/m] the stiffest compliant wall: a 1 N load indents it 1 micrometre, the rigid wall for every
+# purpose here (and the SQP's Hessian stays within a few decades of the rod's own stiffness)
+MAX_WALL_STIFFNESS = 1e6
 MAX_BRAID_WIRES = 256  # a braiding machine's carriers: 16-64 in catheter shafts, at most a few hundred
 
 @dataclass
@@ -126,6 +129,11 @@ class SteerableCatheter:
             a node touching the wall sticks while the tangential reaction is within wall_mu times
             the normal one); 0: the frictionless wall. An assumption (no measured coefficient of
             a catheter on endocardium was found; the module's docstring gives what was).
+        wall_stiffness: the atrium wall's normal stiffness per rod node [N/m]
+            (``systems.rod_wall_compliance``: a node indenting the wall by d meets N = k d, the
+            rigid wall beyond a 3 mm cap); 0: the rigid wall (the rod's statics unchanged). The
+            source's range (Ijima et al., ex vivo porcine tissue, a catheter tip pressed in: 0.11-0.14
+            N/mm) and the values run: ``docs/guide/manual_catheter.md``.
         sheath: the sheath's path (``drake_models.sheath.SheathPath``: its bends, where the shaft
             bears on it).
         sheath_friction: "bends" (the friction where the shaft bears on the sheath's bends,
@@ -154,6 +162,7 @@ class SteerableCatheter:
     mu_static: float = 0.15
     mu_kinetic: float = 0.10
     wall_mu: float = 0.0
+    wall_stiffness: float = 0.0
     sheath: SheathPath = field(default_factory=SheathPath)
     sheath_friction: str = "even"
     shaft_elements: int = 8
@@ -177,6 +186,12 @@ class SteerableCatheter:
         if not 0.0 <= self.wall_mu <= 2.0:
             raise UserInputError(f"SteerableCatheter.wall_mu must be in [0, 2] (0: a frictionless wall), got "
                                  f"{self.wall_mu}")
+        if not 0.0 <= self.wall_stiffness <= MAX_WALL_STIFFNESS:
+            raise UserInputError(f"SteerableCatheter.wall_stiffness must be in [0, {MAX_WALL_STIFFNESS:g}] N/m (0: the "
+                                 f"rigid wall; tissue about 100-140 N/m), got {self.wall_stiffness}")
+        if self.wall_stiffness > 0 and self.wall_mu > 0:
+            raise UserInputError("SteerableCatheter: wall_stiffness and wall_mu together are not built (the compliant "
+                                 f"wall is frictionless), got wall_stiffness {self.wall_stiffness}, wall_mu {self.wall_mu}")
         if int(self.braid_wires) != self.braid_wires or not 0 <= self.braid_wires <= MAX_BRAID_WIRES \
                 or self.braid_wires % 2:
             raise UserInputError(f"SteerableCatheter.braid_wires must be an even count in 0..{MAX_BRAID_WIRES} (half "

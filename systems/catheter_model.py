@@ -150,10 +150,12 @@ class CatheterModel(DeviceModel):
 
     def metrics(self, context) -> dict:
         """{switches (the hand's tendon switches), slips (the shaft's), windup_rad (the handle's
-        twist, the twist at the sheath exit), rod_warnings (the first three distinct, or None)}
-        in the diagram's root context."""
+        twist, the twist at the sheath exit), rod_warnings (the first three distinct, or None),
+        peak_wall_force_N and peak_tip_force_N (the largest total wall force on the rod, and on
+        its tip sphere, at any update)} in the diagram's root context."""
         st = self.system.state(self.system.GetMyContextFromRoot(context))
         hand_state = self.hand.GetOutputPort("state").Eval(self.hand.GetMyContextFromRoot(context))
         return {"switches": int(hand_state[6]), "slips": int(st.slips), "push_slips": int(st.push_slips),
                 "windup_rad": [float(st.twist[0]), float(st.twist[-1])],
-                "rod_warnings": "; ".join(sorted(set(st.failures))[:3]) or None}
+                "rod_warnings": "; ".join(sorted(set(st.failures))[:3]) or None,
+                "peak_wall_force_N": float(st.peak_wall_force), "peak_tip_force_N": float(st.peak_tip_force)}

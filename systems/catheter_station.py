@@ -45,6 +45,7 @@ from ballchain.drake_models.sheath import SteerableSheath
 from ballchain.drake_models.steerable_catheter import SteerableCatheter
 from ballchain.infrastructure.arg_checks import require_type
 from ballchain.optimization.rod_statics import RodStatics
+from ballchain.systems.rod_wall_compliance import CompliantRodStatics
 from ballchain.systems.rod_wall_friction import FrictionalRodStatics
 from ballchain.systems.meshcat_view import frame_scene
 from ballchain.systems.manual_hand import STRATEGIES, HandParams, ManualHand, _finite  # noqa: F401 (re-exported)
@@ -70,6 +71,8 @@ class _CatheterState:
     failures: list = field(default_factory=list)
     anchors: dict = field(default_factory=dict)  # the wall's stuck nodes (``systems.rod_wall_friction``)
     last_nodes: dict = field(default_factory=dict)  # the free nodes at the last update, by material key
+    peak_wall_force: float = 0.0  # the largest total wall force on the rod at any update so far [N]
+    peak_tip_force: float = 0.0  # the largest wall force on the tip sphere at any update so far [N]
 
     def __deepcopy__(self, memo):
         new = copy.copy(self)
@@ -102,9 +105,12 @@ class SteerableCatheterSystem(LeafSystem):
         super().__init__()
         self.set_name("steerable_catheter")
         self.catheter = catheter.validate()
-        # The wall's friction (``SteerableCatheter.wall_mu`` > 0, ``systems.rod_wall_friction``);
-        # 0: the frictionless wall's statics, as before.
-        self.rod = (FrictionalRodStatics if self.catheter.wall_mu > 0 else RodStatics)(self.catheter, p_E, axis, sdf)
+        # The wall's friction (``SteerableCatheter.wall_mu`` > 0, ``systems.rod_wall_friction``) or
+        # compliance (``wall_stiffness`` > 0, ``systems.rod_wall_compliance``); 0: the frictionless
+        # rigid wall's statics, as before.
+        statics = (FrictionalRodStatics if self.catheter.wall_mu > 0 else
+                   CompliantRodStatics if self.catheter.wall_stiffness > 0 else RodStatics)
+        self.rod = statics(self.catheter, p_E, axis, sdf)
         # A steerable sheath (issue 45, the manual arm): its exit moves with its input (advance
         # beyond the septum [m], rotation [rad], deflection [rad]); None: the paper's fixed exit.
         self.sheath = None if sheath is None else require_type(sheath, SteerableSheath, "sheath",
@@ -181,6 +187,9 @@ class SteerableCatheterSystem(LeafSystem):
             if not changed:
                 break
         st.R_tip = sol.pose.R_tip
+        if len(sol.wall_forces):
+            st.peak_wall_force = max(st.peak_wall_force, float(sol.wall_forces.sum()))
+            st.peak_tip_force = max(st.peak_tip_force, float(sol.wall_forces[-1]))
         if friction:
             st.anchors, st.last_nodes = sol.anchors, sol.last_nodes
         j0 = self.rod.first_free(length)

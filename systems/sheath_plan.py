@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ballchain.drake_models.sheath import SteerableSheath
+from ballchain.drake_models.wall_motion import CONTACT_FORCE
 from ballchain.drake_models.steerable_catheter import SteerableCatheter
 from ballchain.systems.target_contact import TOUCH_TOLERANCE
 
@@ -18,18 +19,34 @@ PLAN_ADVANCES = (10e-3, 15e-3, 20e-3, 30e-3)  # [m] and its advances beyond the 
 PLAN_KEEP = 1.5e-3
 
 
+def press_depth(catheter: SteerableCatheter) -> float:
+    """How far the catheter's shortest may press into a compliant wall when the hand places the
+    sheath [m]: the indentation of the procedure's target contact force (``wall_motion.CONTACT_FORCE``,
+    20 gf, the ball chain's too) on the wall's stiffness (``SteerableCatheter.wall_stiffness``),
+    within the compliance's cap; 0 on the rigid wall (issue 45, H10: the manoeuvre of bringing the
+    curled sheath up to the wall, the catheter's tip pressed on it, as a clinician feels it)."""
+    if catheter.wall_stiffness <= 0:
+        return 0.0
+    from ballchain.systems.rod_wall_compliance import INDENTATION_CAP
+
+    return min(CONTACT_FORCE / catheter.wall_stiffness, INDENTATION_CAP)
+
+
 def has_room(sheath: SteerableSheath, catheter: SteerableCatheter, sdf, p_S, R_S, setting, min_out: float,
              steps: int = 6) -> bool:
     """Whether the catheter's shortest (``min_out`` straight out of the exit, the hand's
     pull-back) stays a radius inside the atrium at the sheath ``setting`` and at the deflections
     the hand passes through on the way to it (it deflects last, ``ManualHand``): else the sheath
     curling with the catheter in it drives the rod's tip into the wall (a 6 mm rod on an exit
-    4.5 mm from the wall pressed it with 18 N, the issue-45 steerable runs' 6-27 N)."""
+    4.5 mm from the wall pressed it with 18 N, the issue-45 steerable runs' 6-27 N). On a
+    compliant wall the shortest may press into it by ``press_depth`` (the target contact force's
+    indentation)."""
     advance, rotation, deflection = setting
     reach = np.linspace(0.0, min_out, 4)
+    room = catheter.radius - press_depth(catheter)
     for d in np.linspace(0.0, deflection, steps + 1)[1:] if deflection else [0.0]:
         p, R, _ = sheath.exit_pose(p_S, R_S, advance, rotation, d)
-        if np.any(sdf(p + np.outer(reach, R[:, 2]), gradient=False) < catheter.radius):
+        if np.any(sdf(p + np.outer(reach, R[:, 2]), gradient=False) < room):
             return False
     return True
 
@@ -56,12 +73,18 @@ class SheathPlan:
         self.nominal = (sheath.nominal_advance, 0.0, 0.0)
         advances = sorted({sheath.nominal_advance, *PLAN_ADVANCES, sheath.max_advance})
         self.candidates = []
-        for advance in advances:
+        for advance in advances + ([None] if press_depth(catheter) > 0 and sdf is not None else []):
             for deg in PLAN_DEFLECTIONS:
                 for rotation in np.linspace(0.0, 2 * np.pi, 24, endpoint=False) if deg else [0.0]:
-                    setting = (advance, float(rotation), float(np.radians(deg)))
+                    if advance is None:  # on a compliant wall: the sheath advanced until the tip presses it
+                        to_wall = self._to_wall(p_S, R_S, float(rotation), float(np.radians(deg)), min_out)
+                        if to_wall is None:
+                            continue
+                        setting = (to_wall, float(rotation), float(np.radians(deg)))
+                    else:
+                        setting = (advance, float(rotation), float(np.radians(deg)))
                     p, R, line = sheath.exit_pose(p_S, R_S, *setting, 8)
-                    along = np.linspace(0.0, advance, len(line))
+                    along = np.linspace(0.0, setting[0], len(line))
                     if sdf is not None and np.any(sdf(line[along > 4e-3], gradient=False) < SHEATH_CLEARANCE):
                         continue
                     if sdf is not None and not self._room(p_S, R_S, setting, min_out):
@@ -79,6 +102,20 @@ class SheathPlan:
 
     def _room(self, p_S, R_S, setting, min_out: float) -> bool:
         return has_room(self.sheath, self.catheter, self.sdf, p_S, R_S, setting, min_out)
+
+    def _to_wall(self, p_S, R_S, rotation: float, deflection: float, min_out: float, tol: float = 0.25e-3):
+        """On a compliant wall, the manoeuvre of advancing the deflected sheath until the
+        catheter's shortest presses the wall (``press_depth``: the target contact force): the
+        largest advance with room (``has_room``), by bisection to ``tol``, when the sheath's
+        most advance has none and its nominal one has (None: no such wall ahead)."""
+        lo, hi = self.sheath.nominal_advance, self.sheath.max_advance
+        if not self._room(p_S, R_S, (lo, rotation, deflection), min_out) or \
+                self._room(p_S, R_S, (hi, rotation, deflection), min_out):
+            return None
+        while hi - lo > tol:
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if self._room(p_S, R_S, (mid, rotation, deflection), min_out) else (lo, mid)
+        return lo
 
     def misses(self, setting, p_T, n_T) -> np.ndarray:
         """The distance from a touch of the target (p_T, n_T) of each of the catheter's unloaded

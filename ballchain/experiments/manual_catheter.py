@@ -33,7 +33,7 @@ from ballchain.drake_models.sheath import SteerableSheath
 from ballchain.drake_models.steerable_catheter import SteerableCatheter
 from ballchain.experiments import teleop
 from ballchain.systems.catheter_station import CatheterParams, HandParams
-from ballchain.systems.chain_simulation import after_updates, replay_meshcat, run_station
+from ballchain.systems.chain_simulation import ChainMonitor, after_updates, replay_meshcat, run_station
 from ballchain.systems.simulated_operator import OperatorParams, SimulatedOperator
 from ballchain.systems.station import MakeStation, atrium_for
 
@@ -120,7 +120,11 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
         a ``teleop.TeleopResult`` (mapping "manual"); its settings add the catheter's and the
         hand's, and ``path`` {t, tip (k, 3) [m], twist (k,) handle twist [rad], exit_twist (k,)}
         sampled at the operator's looks, ``switches``, ``slips`` (the device's metrics) and
-        ``smoothness`` {sparc_median, transitions (``transitions``)}.
+        ``smoothness`` {sparc_median, transitions (``transitions``)}; on a compliant wall
+        (``SteerableCatheter.wall_stiffness`` > 0, issue 45, H10) also ``wall_stiffness_N_per_m``,
+        ``peak_wall_force_N`` and ``peak_tip_force_N`` (the largest total and tip wall force at any
+        update) and ``wall_indentations`` {recorded, max_mm} (the watchdog's nodes past the wall's
+        middle that the compliant wall holds, ``_within_compliance``: recorded, not fatal).
     """
     check_inputs(task, targets, time_limit, seed, strategy)
     if sheath not in SHEATHS:
@@ -175,7 +179,11 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
     built = time.perf_counter() - built
     op = handles["operator"]
     # The run ends when the operator has touched or given up every target.
-    outcome = run_station(station, duration=limit, html=html, meshcat=meshcat,
+    # A compliant wall (``SteerableCatheter.wall_stiffness``) is indented by design, up to its cap:
+    # the watchdog records those nodes instead of stopping the run (deeper stays fatal).
+    monitor = (ChainMonitor(station, tolerate_sinking=_within_compliance(heart, used))
+               if used.wall_stiffness > 0 else None)
+    outcome = run_station(station, duration=limit, html=html, meshcat=meshcat, monitor=monitor,
                           stop=after_updates(lambda c: op.is_done(op.GetMyContextFromRoot(c)), op.params.period))
     root = outcome.context
     rows = op.rows(op.GetMyContextFromRoot(root))
@@ -186,17 +194,40 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
     wind_log = handles["windup"].FindLog(root)
     path = {"t": tip_log.sample_times().tolist(), "tip": tip_log.data().T.tolist(),
             "twist": wind_log.data()[0].tolist(), "exit_twist": wind_log.data()[1].tolist()}
-    settings = _run_settings(used, int(seed), hand, scenario, params, limit, station.device.metrics(root), path)
+    metrics = station.device.metrics(root)
+    settings = _run_settings(used, int(seed), hand, scenario, params, limit, metrics, path)
     settings["sheath"] = ("steerable (drake_models.sheath.SteerableSheath, placed by the hand per target)"
                           if sheath == "steerable" else "fixed (the paper's)")
     if used.wall_mu > 0:  # the wall's Coulomb friction at the tip (systems.rod_wall_friction); 0: none, not listed
         settings["wall_mu"] = used.wall_mu
+    if used.wall_stiffness > 0:  # the compliant wall (systems.rod_wall_compliance); 0: rigid, not listed
+        settings["wall_stiffness_N_per_m"] = used.wall_stiffness
+        settings["peak_wall_force_N"] = round(metrics["peak_wall_force_N"], 4)
+        settings["peak_tip_force_N"] = round(metrics["peak_tip_force_N"], 4)
+        sunk = outcome.monitor.tolerated_sinkings
+        settings["wall_indentations"] = {"recorded": len(sunk),
+                                         "max_mm": round(max(e[2] for e in sunk) * 1e3, 3) if sunk else None}
     result = teleop.TeleopResult(task=task, mapping="manual", rows=rows, summary=summary, paper=teleop.PAPER[task],
                                  settings=settings, html=None if html is None else str(html))
     # The smoothness beside the time (issue 45): SPARC of each touched-to-touched movement.
     moves = transitions(result)
     settings["smoothness"] = {"sparc_median": _median([m["sparc"] for m in moves]), "transitions": moves}
     return result
+
+
+def _within_compliance(heart, catheter):
+    """The watchdog's test of a node past the wall's middle on a compliant wall: whether the
+    wall's model holds it there (its indentation r - sdf within ``INDENTATION_CAP`` and the
+    signed-distance grid's 0.1 mm against the mesh's distance the watchdog measures)."""
+    from ballchain.drake_models.atrium_sdf import atrium_sdf
+    from ballchain.systems.rod_wall_compliance import INDENTATION_CAP
+
+    sdf = atrium_sdf(heart)
+
+    def holds(p) -> bool:
+        return bool(catheter.radius - float(sdf(np.asarray(p, float)[None], gradient=False)[0])
+                    <= INDENTATION_CAP + 1e-4)
+    return holds
 
 
 def _replay_meshcat(html, scenario, duration: float, catheter):
