@@ -73,6 +73,7 @@ class _CatheterState:
     last_nodes: dict = field(default_factory=dict)  # the free nodes at the last update, by material key
     peak_wall_force: float = 0.0  # the largest total wall force on the rod at any update so far [N]
     peak_tip_force: float = 0.0  # the largest wall force on the tip sphere at any update so far [N]
+    wall_force: tuple = (0.0, 0.0)  # the last update's total wall force on the rod and on the tip sphere [N]
 
     def __deepcopy__(self, memo):
         new = copy.copy(self)
@@ -90,7 +91,8 @@ class SteerableCatheterSystem(LeafSystem):
     Output ports: body_poses (abstract list[RigidTransform]: index 0 the world, 1..n + 1 the rod's
     nodes, the tip sphere's centre last, with the tip's frame), tip_position (3: the tip's end),
     windup (3: handle twist, twist at the sheath exit [rad], slips so far), tip_wall_force (6: zero, the rod
-    statics do not report the wall's force, then the tip sphere's centre).
+    statics do not report the wall's force, then the tip sphere's centre), handle_load (2), wall_force
+    (2: the wall's normal force at the last update, its total on the rod and on the tip sphere [N]).
 
     Args:
         catheter: the SteerableCatheter.
@@ -139,6 +141,7 @@ class SteerableCatheterSystem(LeafSystem):
         self.DeclareVectorOutputPort("windup", 3, self._calc_windup, prerequisites_of_calc=ticket)
         self.DeclareVectorOutputPort("tip_wall_force", 6, self._calc_wall_force, prerequisites_of_calc=ticket)
         self.DeclareVectorOutputPort("handle_load", 2, self._calc_handle_load, prerequisites_of_calc=ticket)
+        self.DeclareVectorOutputPort("wall_force", 2, self._calc_wall_forces, prerequisites_of_calc=ticket)
         self.DeclarePeriodicUnrestrictedUpdateEvent(period, 0.0, self._update)
 
     def _start(self) -> _CatheterState:
@@ -190,6 +193,7 @@ class SteerableCatheterSystem(LeafSystem):
         if len(sol.wall_forces):
             st.peak_wall_force = max(st.peak_wall_force, float(sol.wall_forces.sum()))
             st.peak_tip_force = max(st.peak_tip_force, float(sol.wall_forces[-1]))
+            st.wall_force = (float(sol.wall_forces.sum()), float(sol.wall_forces[-1]))
         if friction:
             st.anchors, st.last_nodes = sol.anchors, sol.last_nodes
         j0 = self.rod.first_free(length)
@@ -328,6 +332,10 @@ class SteerableCatheterSystem(LeafSystem):
     def _calc_windup(self, context, output):
         st = self.state(context)
         output.SetFromVector([st.twist[0], st.twist[-1], float(st.slips)])
+
+    def _calc_wall_forces(self, context, output):
+        """The wall's normal force at the last update [N]: its total on the rod and on the tip sphere."""
+        output.SetFromVector(list(self.state(context).wall_force))
 
     def _calc_handle_load(self, context, output):
         """What the hand feels: the shaft's torque [N m] and axial force [N] at the handle (its

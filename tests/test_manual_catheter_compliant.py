@@ -32,12 +32,16 @@ def test_the_watchdog_tolerates_what_the_compliant_wall_holds_and_no_more():
 def test_a_compliant_run_reports_its_wall_and_the_default_run_does_not():
     cat = mc.comparison_catheter()
     cat.wall_stiffness = 140.0
-    soft = mc.run(task="right", targets=1, time_limit=2.0, catheter=cat)
-    assert soft.summary.failure is None
+    soft = mc.run(task="left", targets=2, catheter=cat)
+    assert soft.summary.failure is None and soft.summary.touched >= 1
     s = soft.settings
     assert s["wall_stiffness_N_per_m"] == 140.0
     assert s["peak_wall_force_N"] >= s["peak_tip_force_N"] >= 0.0
     assert set(s["wall_indentations"]) == {"recorded", "max_mm"}
+    touched = [r["target"] for r in soft.rows if r["touched"]]
+    assert sorted(s["touch_wall_force_N"]) == sorted(touched)
+    for total, tip in s["touch_wall_force_N"].values():
+        assert s["peak_wall_force_N"] + 1e-4 >= total >= tip >= 0.0
     rigid = mc.run(task="right", targets=1, time_limit=2.0)
     assert not {"wall_stiffness_N_per_m", "peak_wall_force_N", "peak_tip_force_N",
-                "wall_indentations"} & set(rigid.settings)
+                "wall_indentations", "touch_wall_force_N"} & set(rigid.settings)

@@ -123,7 +123,7 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
         ``smoothness`` {sparc_median, transitions (``transitions``)}; on a compliant wall
         (``SteerableCatheter.wall_stiffness`` > 0, issue 45, H10) also ``wall_stiffness_N_per_m``,
         ``peak_wall_force_N`` and ``peak_tip_force_N`` (the largest total and tip wall force at any
-        update) and ``wall_indentations`` {recorded, max_mm} (the watchdog's nodes past the wall's
+        update), ``touch_wall_force_N`` ({target: [total, tip]} at each touch) and ``wall_indentations`` {recorded, max_mm} (the watchdog's nodes past the wall's
         middle that the compliant wall holds, ``_within_compliance``: recorded, not fatal).
     """
     check_inputs(task, targets, time_limit, seed, strategy)
@@ -167,6 +167,8 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
             builder.Connect(device.hand.GetOutputPort("hold"), op.GetInputPort("hand_hold"))
         handles["tip"] = LogVectorOutput(device.system.GetOutputPort("tip_position"), builder, params.period)
         handles["windup"] = LogVectorOutput(device.system.GetOutputPort("windup"), builder, params.period)
+        if used.wall_stiffness > 0:  # the wall force at each touch (compliant wall only: the default diagram kept)
+            handles["wall"] = LogVectorOutput(device.system.GetOutputPort("wall_force"), builder, params.period)
         handles["operator"] = op
         return {"operator": op}
 
@@ -204,6 +206,7 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
         settings["wall_stiffness_N_per_m"] = used.wall_stiffness
         settings["peak_wall_force_N"] = round(metrics["peak_wall_force_N"], 4)
         settings["peak_tip_force_N"] = round(metrics["peak_tip_force_N"], 4)
+        settings["touch_wall_force_N"] = _touch_forces(rows, handles["wall"].FindLog(root))
         sunk = outcome.monitor.tolerated_sinkings
         settings["wall_indentations"] = {"recorded": len(sunk),
                                          "max_mm": round(max(e[2] for e in sunk) * 1e3, 3) if sunk else None}
@@ -213,6 +216,18 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
     moves = transitions(result)
     settings["smoothness"] = {"sparc_median": _median([m["sparc"] for m in moves]), "transitions": moves}
     return result
+
+
+def _touch_forces(rows, log) -> dict:
+    """{target: [total, tip] wall force [N]} at each touched target's touch (the last logged
+    update at or before its ``t_touch_s``)."""
+    times, data = log.sample_times(), log.data()
+    out = {}
+    for row in rows:
+        if row.get("touched") and row.get("t_touch_s") is not None and len(times):
+            i = max(int(np.searchsorted(times, row["t_touch_s"] + 1e-9, side="right")) - 1, 0)
+            out[row["target"]] = [round(float(data[0, i]), 4), round(float(data[1, i]), 4)]
+    return out
 
 
 def _within_compliance(heart, catheter):
