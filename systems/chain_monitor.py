@@ -112,8 +112,6 @@ class ChainMonitor:
         self._iu = np.triu_indices(len(cd.chain.body_indices), k=1)
         self._tolerate_sinking = tolerate_sinking
         self.tolerated_sinkings: list[tuple[float, int, float]] = []
-        self._passed: tuple[bytes, bool] | None = None  # (state key, with the wall) of the last check passed
-        self._tolerated = False  # the check under way tolerated a sinking
 
     def __getstate__(self) -> dict:
         """Its numbers (the metrics, the failure, the tolerated sinkings) without the station it
@@ -127,38 +125,14 @@ class ChainMonitor:
         self._next_check = 0.0
         self._since_wall = self._wall_every - 1
         self._last_wall_time = -np.inf
-        self._passed = None
 
     def check(self, plant_context, wall: bool = True) -> str | None:
         """Check a state now; returns a failure message or None, and updates the metrics.
-
-        A device whose ``state_key`` is the same as at the last check that passed (the chain did
-        not move: the quasi-static engine between its moves and through the dwells) passes
-        again without looking: every check is a function of that state, so it would find and
-        record the same (a check with the wall after one without it looks).
 
         Args:
             plant_context: the chain system's context (``Station.chain.system``'s).
             wall: also check escapes from the heart and the wall clearance.
         """
-        chain = self._chain
-        key = chain.state_key(plant_context)
-        passed = self._passed
-        if key is not None and passed is not None and passed[0] == key and (passed[1] or not wall) \
-                and not chain.failure:
-            self.checks += 1
-            if wall and self._cd.heart is not None:
-                self._last_wall_time = plant_context.get_time()
-            return None
-        self._tolerated = False
-        message = self._check(plant_context, wall)
-        if key is not None:
-            # (a tolerated sinking is recorded once per 0.1 s: such a check is made again)
-            self._passed = None if message is not None or self._tolerated else (
-                key, wall or self._cd.heart is None)
-        return message
-
-    def _check(self, plant_context, wall: bool) -> str | None:
         t = plant_context.get_time()
         chain = self._chain
         if not chain.is_finite(plant_context):
@@ -200,7 +174,6 @@ class ChainMonitor:
                 if -clearance.min() > half_wall:
                     i = int(np.flatnonzero(free)[np.argmin(clearance)])
                     if self._tolerate_sinking is not None and self._tolerate_sinking(p_H[i]):
-                        self._tolerated = True
                         last = [e for e in self.tolerated_sinkings if e[1] == i + 1]
                         if not last or t - last[-1][0] >= 0.1:
                             self.tolerated_sinkings.append((t, i + 1, float(-clearance.min())))

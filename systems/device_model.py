@@ -249,12 +249,6 @@ class DeviceModel(ABC):
         root's; None (default): the anatomy does not move."""
         return None
 
-    def state_key(self, context) -> bytes | None:
-        """The bytes of everything the watchdog's checks read of the device (its state, the
-        moving anatomy's time), so that a check of an unchanged key repeats the last one's
-        answer (``ChainMonitor.check``); None (default): every check looks again."""
-        return None
-
     @property
     def failure(self) -> str | None:
         """A failure the model found itself (a failed solve), or None."""

@@ -167,11 +167,6 @@ class StaticsChainModel(ChainModel):
         # The world's sheath and wall (``world_apply``): the wall's offset per ball (its scale).
         return monitor_offsets(world, self.p_WE, self.world_exit, self.ball_positions(context), motion)
 
-    def state_key(self, context) -> bytes:
-        # The engine's whole state: the balls, the magnets, the inserted length and the moving
-        # wall's time (its offsets are functions of them and of the run's fixed world).
-        return self.engine_system.state_vector(context).tobytes()
-
     def is_finite(self, context) -> bool:
         # Checked every step by the watchdog: the array's own ``all`` (not np.all's wrapper).
         return bool(np.isfinite(self.engine_system.state_vector(context)).all())

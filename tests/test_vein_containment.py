@@ -74,7 +74,7 @@ def _fake_station(heart, n: int):
                             non_finite_part=lambda ctx: "a ball", ball_positions=lambda ctx: state["p"],
                             body_positions=lambda ctx: state["p"],
                             neighbour_gaps=lambda p: np.linalg.norm(np.diff(p, axis=0), axis=1) - BALL,
-                            anatomy_offsets=lambda ctx: None, state_key=lambda ctx: None)
+                            anatomy_offsets=lambda ctx: None)
     cd = SimpleNamespace(chain=chain, heart=heart, scenario=SimpleNamespace(check_period=5e-3, break_gap=1e-3))
     return cd, state
 
