@@ -8,6 +8,7 @@ import numpy as np
 from ballchain.drake_models.sheath import SteerableSheath
 from ballchain.drake_models.wall_motion import CONTACT_FORCE
 from ballchain.drake_models.steerable_catheter import SteerableCatheter
+from ballchain.systems.rod_wall_compliance import INDENTATION_CAP
 from ballchain.systems.target_contact import TOUCH_TOLERANCE
 
 SHEATH_CLEARANCE = 1.5e-3  # [m] the planned sheath stays this far inside the atrium, beyond the septum's 4 mm
@@ -27,8 +28,6 @@ def press_depth(catheter: SteerableCatheter) -> float:
     curled sheath up to the wall, the catheter's tip pressed on it, as a clinician feels it)."""
     if catheter.wall_stiffness <= 0:
         return 0.0
-    from ballchain.systems.rod_wall_compliance import INDENTATION_CAP
-
     return min(CONTACT_FORCE / catheter.wall_stiffness, INDENTATION_CAP)
 
 
