@@ -263,18 +263,71 @@ def null_space(J):
 
 
 @kernel
+def pinned_step(H, g, J, c):
+    """``(ok, dq, lam, curvature)``: the step of min g'dq + dq'H dq / 2 subject to J dq + c = 0
+    (the tip target's linearisation, J (m, nq) of full row rank) from its KKT system
+    H dq - J'lam = -g, by the Schur complement of Hc = H + rho s J'J (s = max(1, max|H_ii|),
+    rho the first of ``CONVEXIFY`` whose Cholesky succeeds): on J dq = -c, Hc's step is H's and
+    its multipliers are lam - rho s J dq = lam + rho s c. A pinned chain's H is indefinite (the
+    chain pressed by the magnets would buckle without the pin); it is positive definite on J's
+    null space at a step the null-space method accepts as it is, and then some rho s J'J makes
+    Hc positive definite (Finsler's lemma). The same step as ``newton_step``'s null-space one
+    (round-off apart) for a third of its cost: two Cholesky factorisations instead of three
+    SVDs and the null-space products (docs/performance.md, section 33). ok False (nothing
+    computed): no rho worked, or J J' or the Schur complement is not positive definite: the
+    caller takes the null-space step. curvature: v'H v for v = P dq, P the projector on J's
+    null space: the null-space step's dq' Hm dq."""
+    m, nq = J.shape
+    s = 1.0
+    for i in range(nq):
+        s = max(s, abs(H[i, i]))
+    JtJ = J.T @ J
+    ok = False
+    Lc = np.zeros((nq, nq))
+    shift = 0.0
+    for rho in CONVEXIFY:
+        shift = rho * s
+        ok, Lc = cholesky(H + shift * JtJ)
+        if ok:
+            break
+    if not ok:
+        return False, g, np.zeros(m), 0.0
+    HiJt = np.empty((nq, m))
+    for k in range(m):
+        HiJt[:, k] = cho_solve(Lc, np.ascontiguousarray(J[k]))
+    Hig = cho_solve(Lc, g)
+    ok, Ls = cholesky(J @ HiJt)
+    if not ok:
+        return False, g, np.zeros(m), 0.0
+    lam = cho_solve(Ls, J @ Hig - c)
+    dq = HiJt @ lam - Hig
+    ok, Lj = cholesky(J @ J.T)
+    if not ok:
+        return False, g, np.zeros(m), 0.0
+    v = dq - J.T @ cho_solve(Lj, J @ dq)
+    return True, dq, lam + shift * c, v @ (H @ v)
+
+
+@kernel
 def newton_step(ev, H, near, pinned, lam_tip, model):
     """The Newton step at ev for the Lagrangian's Hessian H (``ChainStatics._newton_step``).
 
     Returns:
-        ``(ok, dq, Hm, lam, lam_tip, definite)``; ok False when the step's QP is infeasible;
-        definite when H itself is positive definite; raises (a LinAlgError) when a system is
-        singular.
+        ``(ok, dq, curvature, lam, lam_tip, definite)``: curvature is dq' Hm dq for the step's
+        model curvature Hm (H made positive definite where it must be: on the tangent space of
+        a pinned tip, the QP's ``qp_curvature``), the predicted decrease's quadratic term; ok
+        False when the step's QP is infeasible; definite when H itself is positive definite;
+        raises (a LinAlgError) when a system is singular.
     """
     g = ev[4]
     if pinned and near.size == 0:
-        # Equality constraints only: a null-space step, positive definite on the tangent space.
+        # Equality constraints only: the KKT step of the tip target, by the Schur complement of
+        # H + rho s J'J (``pinned_step``), or else a null-space step, positive definite on the
+        # tangent space.
         J = tip_jacobian(ev[7])
+        ok, dq, lam_tip, curvature = pinned_step(H, g, J, ev[6])
+        if ok:
+            return True, dq, curvature, np.zeros(0), lam_tip, False
         Z = null_space(J)
         dq_n = -(np.linalg.pinv(J) @ ev[6])
         ok, Hz, Lz, _ = positive_definite(Z.T @ H @ Z)
@@ -283,12 +336,13 @@ def newton_step(ev, H, near, pinned, lam_tip, model):
         dq = dq_n - Z @ cho_solve(Lz, Z.T @ (g + H @ dq_n))
         Hm = Z @ Hz @ Z.T
         lam_tip = np.linalg.lstsq(np.ascontiguousarray(J.T), g + H @ dq)[0]
-        return True, dq, Hm, np.zeros(0), lam_tip, False
+        return True, dq, dq @ (Hm @ dq), np.zeros(0), lam_tip, False
     if near.size == 0:
         ok, Hm, Lc, definite = positive_definite(H)
         if not ok:
             raise np.linalg.LinAlgError("Matrix is not positive definite.")
-        return True, -cho_solve(Lc, g), Hm, np.zeros(0), lam_tip, definite
+        dq = -cho_solve(Lc, g)
+        return True, dq, dq @ (Hm @ dq), np.zeros(0), lam_tip, definite
     n_in = near.size
     J = jacobian_rows(near, ev, model)
     gaps = ev[3]
@@ -305,9 +359,9 @@ def newton_step(ev, H, near, pinned, lam_tip, model):
         raise np.linalg.LinAlgError("Matrix is not positive definite.")
     ok, dq, y = dense_qp(Lc, g, N, c, n_in, 200)
     if not ok:
-        return False, dq, Hm, y, lam_tip, definite
+        return False, dq, 0.0, y, lam_tip, definite
     lam_tip = y[n_in:].copy() if pinned else np.zeros(3)
-    return True, dq, Hm, y[:n_in].copy(), lam_tip, definite
+    return True, dq, dq @ (Hm @ dq), y[:n_in].copy(), lam_tip, definite
 
 
 @kernel
@@ -439,7 +493,7 @@ def newton(chart, model, rows0, weights0):
         g = ev[4]
         near = np.flatnonzero(ev[3] < margin)
         H = lagrangian_hessian(ev, rows, lam_rows, pinned, lam_tip, model)
-        ok, dq, Hm, lam, lam_tip, definite = newton_step(ev, H, near, pinned, lam_tip, model)
+        ok, dq, curvature, lam, lam_tip, definite = newton_step(ev, H, near, pinned, lam_tip, model)
         if not ok:
             return _answer(R_QP, OK, iteration, np.zeros(0, np.int64), np.zeros(0), lam_tip, ev)
         rows, lam_rows = near, lam
@@ -450,7 +504,7 @@ def newton(chart, model, rows0, weights0):
         if pinned:
             stationarity -= tip_jacobian(ev[7]).T @ lam_tip
         worst = np.abs(stationarity).max()
-        decrease = -(g @ dq) - 0.5 * (dq @ (Hm @ dq))
+        decrease = -(g @ dq) - 0.5 * curvature
         first_order = worst < tol or (abs(decrease) < 1e-14 * max(1.0, abs(ev[1])) and worst < 1e-6)
         if first_order and violation < feas:
             # H positive definite with no active row: H + 1e-7 I is too (the saddle test's answer).

@@ -443,7 +443,7 @@ class ChainStatics:
                 H = H - model.constraint_hessian(q, pairs, np.array(list(lam_near.values())))
             if pinned and np.any(lam_tip):
                 H = H - model.tip_hessian(q, lam_tip)
-            dq, Hm, lam, lam_tip = self._newton_step(ev, H, g, near, pinned, lam_tip)
+            dq, curvature, lam, lam_tip = self._newton_step(ev, H, g, near, pinned, lam_tip)
             if dq is None:
                 return q, False, "QP step infeasible (rigidity or tip constraints)", iteration, {}, lam_tip
             lam_near = dict(zip(near.tolist(), lam.tolist()))
@@ -453,7 +453,7 @@ class ChainStatics:
                 stationarity = stationarity - ev.tip_jacobian.T @ lam_tip
             # Stationary: the KKT residual is below tolerance, or the Newton step's predicted
             # decrease is at round-off (flat directions, e.g. symmetry about the field axis).
-            decrease = -float(g @ dq) - 0.5 * float(dq @ Hm @ dq)
+            decrease = -float(g @ dq) - 0.5 * curvature
             first_order = np.abs(stationarity).max() < self.tolerance or (
                 abs(decrease) < 1e-14 * max(1.0, abs(ev.energy)) and np.abs(stationarity).max() < 1e-6
             )
@@ -500,14 +500,19 @@ class ChainStatics:
         """The Newton step at ``ev`` for the Lagrangian's Hessian H and gradient g.
 
         Returns:
-            ``(dq, Hm, lam, lam_tip)``: the step, the model's curvature (H made positive
-            definite), the multipliers of the rows ``near`` and of the tip target (``lam_tip``
+            ``(dq, curvature, lam, lam_tip)``: the step, dq' Hm dq for the model's curvature Hm
+            (H made positive definite where it must be), the multipliers of the rows ``near`` and of the tip target (``lam_tip``
             as given when neither is in play); dq is None when the step's QP is infeasible.
         """
         if pinned and not len(near):
-            # Equality constraints only: a null-space step. Only the curvature along the
+            # Equality constraints only: the KKT step by the Schur complement of H + rho s J'J
+            # (``_pinned_step``), else a null-space step. Only the curvature along the
             # constraints' tangent space matters, so only that part is made positive definite.
             J = ev.tip_jacobian
+            step = _pinned_step(H, g, J, ev.tip_residual)
+            if step is not None:
+                dq, lam_tip, curvature = step
+                return dq, curvature, np.zeros(0), lam_tip
             Z = _null_space(J)
             dq_n = -np.linalg.pinv(J) @ ev.tip_residual
             Hz = _positive_definite(Z.T @ H @ Z)
@@ -524,11 +529,40 @@ class ChainStatics:
         else:
             Hm = _positive_definite(H)
             dq, lam = -np.linalg.solve(Hm, g), np.zeros(0)
-        return dq, Hm, lam, lam_tip
+        return dq, (None if dq is None else float(dq @ Hm @ dq)), lam, lam_tip
 
     # --- SNOPT reference ------------------------------------------------------------------------
     def _snopt_solve(self, model: ReducedChain):
         return snopt_solve(self._snopt, self._snopt_options, model)
+
+
+def _pinned_step(H: np.ndarray, g: np.ndarray, J: np.ndarray, c: np.ndarray):
+    """``(dq, lam, curvature)`` of min g'dq + dq'H dq / 2 subject to J dq + c = 0 by the Schur
+    complement of H + rho s J'J (``compiled_newton.pinned_step``, the same rule), or None:
+    no rho of ``CONVEXIFY`` makes it positive definite, or J J' or the Schur complement is not
+    (the caller takes the null-space step)."""
+    s = max(1.0, float(np.abs(np.diag(H)).max()))
+    JtJ = J.T @ J
+    for rho in CONVEXIFY:
+        shift = rho * s
+        try:
+            L = np.linalg.cholesky(H + shift * JtJ)
+        except np.linalg.LinAlgError:
+            continue
+        break
+    else:
+        return None
+    def cho_solve(L, b):  # (L L')^-1 b
+        return np.linalg.solve(L.T, np.linalg.solve(L, b))
+
+    HiJt, Hig = cho_solve(L, J.T), cho_solve(L, g)
+    try:
+        lam = cho_solve(np.linalg.cholesky(J @ HiJt), J @ Hig - c)
+        dq = HiJt @ lam - Hig
+        v = dq - J.T @ cho_solve(np.linalg.cholesky(J @ J.T), J @ dq)
+    except np.linalg.LinAlgError:
+        return None
+    return dq, lam + shift * c, float(v @ H @ v)
 
 
 def _null_space(J: np.ndarray, rtol: float = 1e-10) -> np.ndarray:

@@ -393,3 +393,63 @@ def test_the_touching_rows_convexify_first_then_every_near_row(seed):
     Hm = qp_curvature(H, Nt, N)[1]
     Zt = _tangent_basis(Nt)
     np.testing.assert_allclose(Zt.T @ Hm @ Zt, Zt.T @ H @ Zt, rtol=0, atol=1e-12 * np.abs(H).max())
+
+
+def _null_space_step(H, g, J, c):
+    """The pinned tip's null-space step (the solver's before section 33 of docs/performance.md),
+    written out here: (dq, lam, dq' Hm dq)."""
+    Z = _tangent_basis(J)
+    dq_n = -np.linalg.pinv(J) @ c
+    Hz = Z.T @ H @ Z
+    dq = dq_n - Z @ np.linalg.solve(Hz, Z.T @ (g + H @ dq_n))
+    lam = np.linalg.lstsq(J.T, g + H @ dq, rcond=None)[0]
+    return dq, lam, float(dq @ (Z @ Hz @ Z.T) @ dq)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_pinned_step_is_the_null_space_step(seed):
+    """A pinned tip's Lagrangian's Hessian, indefinite in the whole space (a chain pressed by the
+    magnets would buckle without its pin) and definite along the pin's tangent space: the Schur
+    step of H + rho s J'J (compiled and reference) is the null-space step, its multipliers the
+    KKT system's and its curvature the null-space model's, within round-off."""
+    from ballchain.optimization.compiled_newton import pinned_step
+    from ballchain.optimization.statics import _pinned_step
+
+    rng = np.random.default_rng(seed)
+    n, m = 40, 3
+    A = rng.normal(size=(n, n))
+    J = rng.normal(size=(m, n))
+    H = A @ A.T / n + 0.1 * np.eye(n) - 5.0 * J.T @ J  # negative across the pin's rows only
+    assert np.linalg.eigvalsh(H)[0] < -1.0
+    g, c = rng.normal(size=n), 0.5 * rng.normal(size=m)
+    dq0, lam0, curv0 = _null_space_step(H, g, J, c)
+    ok, dq, lam, curv = pinned_step(H, g, J, c)
+    assert ok
+    reference = _pinned_step(H, g, J, c)
+    assert reference is not None
+    for dq1, lam1, curv1 in ((dq, lam, curv), reference):
+        np.testing.assert_allclose(dq1, dq0, rtol=0, atol=1e-10 * np.abs(dq0).max())
+        np.testing.assert_allclose(lam1, lam0, rtol=0, atol=1e-10 * np.abs(lam0).max())
+        assert abs(curv1 - curv0) <= 1e-10 * abs(curv0)
+        np.testing.assert_allclose(J @ dq1 + c, 0.0, atol=1e-12)  # the linearised pin
+        np.testing.assert_allclose(g + H @ dq1 - J.T @ lam1, 0.0, atol=1e-9 * np.abs(g).max())  # stationary
+    # The curvature is the tangent part's, not dq's own (the pin's rows carry H's negative part).
+    assert abs(curv - float(dq @ H @ dq)) > 1e-6 * abs(curv)
+
+
+def test_the_pinned_step_declines_a_tangent_space_that_is_not_definite():
+    """Negative curvature along the pin's tangent space: no rho makes H + rho s J'J definite, so
+    the Schur step declines (the solver then flips the tangent curvature, ``positive_definite``)."""
+    from ballchain.optimization.compiled_newton import pinned_step
+    from ballchain.optimization.statics import _pinned_step
+
+    rng = np.random.default_rng(7)
+    n, m = 30, 3
+    A = rng.normal(size=(n, n))
+    J = rng.normal(size=(m, n))
+    Z = _tangent_basis(J)
+    H = A @ A.T / n - 3.0 * np.outer(Z[:, 0], Z[:, 0])
+    assert np.linalg.eigvalsh(Z.T @ H @ Z)[0] < -1.0
+    g, c = rng.normal(size=n), rng.normal(size=m)
+    assert not pinned_step(H, g, J, c)[0]
+    assert _pinned_step(H, g, J, c) is None
