@@ -69,6 +69,7 @@ from ballchain.optimization.statics_steps import (  # noqa: F401 (re-exported)
     _infeasibility,
     _line_search,
     _non_finite_field,
+    _pinned_step,
     _set_tip_target_and_wall,
     rotation_path,
 )
@@ -534,35 +535,6 @@ class ChainStatics:
     # --- SNOPT reference ------------------------------------------------------------------------
     def _snopt_solve(self, model: ReducedChain):
         return snopt_solve(self._snopt, self._snopt_options, model)
-
-
-def _pinned_step(H: np.ndarray, g: np.ndarray, J: np.ndarray, c: np.ndarray):
-    """``(dq, lam, curvature)`` of min g'dq + dq'H dq / 2 subject to J dq + c = 0 by the Schur
-    complement of H + rho s J'J (``compiled_newton.pinned_step``, the same rule), or None:
-    no rho of ``CONVEXIFY`` makes it positive definite, or J J' or the Schur complement is not
-    (the caller takes the null-space step)."""
-    s = max(1.0, float(np.abs(np.diag(H)).max()))
-    JtJ = J.T @ J
-    for rho in CONVEXIFY:
-        shift = rho * s
-        try:
-            L = np.linalg.cholesky(H + shift * JtJ)
-        except np.linalg.LinAlgError:
-            continue
-        break
-    else:
-        return None
-    def cho_solve(L, b):  # (L L')^-1 b
-        return np.linalg.solve(L.T, np.linalg.solve(L, b))
-
-    HiJt, Hig = cho_solve(L, J.T), cho_solve(L, g)
-    try:
-        lam = cho_solve(np.linalg.cholesky(J @ HiJt), J @ Hig - c)
-        dq = HiJt @ lam - Hig
-        v = dq - J.T @ cho_solve(np.linalg.cholesky(J @ J.T), J @ dq)
-    except np.linalg.LinAlgError:
-        return None
-    return dq, lam + shift * c, float(v @ H @ v)
 
 
 def _null_space(J: np.ndarray, rtol: float = 1e-10) -> np.ndarray:

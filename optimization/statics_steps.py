@@ -1,5 +1,5 @@
-"""The statics' Newton SQP helpers: placing a tip target and a plane wall on the model, the rows'
-infeasibility and the l1-merit line search (``optimization.statics`` re-exports them), and the
+"""The statics' Newton SQP helpers: placing a tip target and a plane wall on the model, the held
+tip's Schur step, the rows' infeasibility and the l1-merit line search (``optimization.statics`` re-exports them), and the
 continuation's field paths and the field check (``rotation_path``, ``_non_finite_field``).
 """
 
@@ -9,6 +9,7 @@ import numpy as np
 
 from ballchain.drake_models.field_sources import UniformField
 from ballchain.infrastructure.errors import UserInputError
+from ballchain.optimization.compiled_newton import CONVEXIFY
 from ballchain.optimization.reduced_chain import ReducedChain
 
 
@@ -101,3 +102,32 @@ def rotation_path(start_deg: float, stop_deg: float, step_deg: float) -> np.ndar
                              f"{stop_deg:g} deg, more than {MAX_CONTINUATION_STEPS}: use a larger step")
     n = max(1, int(np.ceil(steps - 1e-9)))
     return np.linspace(start_deg, stop_deg, n + 1)
+
+
+def _pinned_step(H: np.ndarray, g: np.ndarray, J: np.ndarray, c: np.ndarray):
+    """``(dq, lam, curvature)`` of min g'dq + dq'H dq / 2 subject to J dq + c = 0 by the Schur
+    complement of H + rho s J'J (``compiled_newton.pinned_step``, the same rule), or None:
+    no rho of ``CONVEXIFY`` makes it positive definite, or J J' or the Schur complement is not
+    (the caller takes the null-space step)."""
+    s = max(1.0, float(np.abs(np.diag(H)).max()))
+    JtJ = J.T @ J
+    for rho in CONVEXIFY:
+        shift = rho * s
+        try:
+            L = np.linalg.cholesky(H + shift * JtJ)
+        except np.linalg.LinAlgError:
+            continue
+        break
+    else:
+        return None
+    def cho_solve(L, b):  # (L L')^-1 b
+        return np.linalg.solve(L.T, np.linalg.solve(L, b))
+
+    HiJt, Hig = cho_solve(L, J.T), cho_solve(L, g)
+    try:
+        lam = cho_solve(np.linalg.cholesky(J @ HiJt), J @ Hig - c)
+        dq = HiJt @ lam - Hig
+        v = dq - J.T @ cho_solve(np.linalg.cholesky(J @ J.T), J @ dq)
+    except np.linalg.LinAlgError:
+        return None
+    return dq, lam + shift * c, float(v @ H @ v)
