@@ -130,3 +130,25 @@ def test_quick_section_writes_its_table_and_figures(tmp_path):
                                           for r in data["runs"])
     assert any("targets reached, autonomous navigator vs simulated operator" in line
                for line in summary["headlines"])
+
+
+@pytest.mark.slow
+def test_plans_and_runs_share_one_cluster(monkeypatch):
+    """The plans' and the runs' maps run on one LocalCluster (its workers import the package and
+    load the kernels once), and the serial report (workers=1) starts none."""
+    import distributed
+
+    started = []
+
+    class Counted(distributed.LocalCluster):
+        def __init__(self, *args, **kwargs):
+            started.append(kwargs.get("n_workers"))
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(distributed, "LocalCluster", Counted)
+    report = procedure_report.run(seeds=(0,), rings=("right",), targets=1, dwell_s=1.0, workers=2)
+    assert started == [2]
+    assert [x["navigator"] for x in report.runs] == list(procedure.NAVIGATORS)
+    started.clear()
+    procedure_report.run(seeds=(0,), rings=("right",), targets=1, dwell_s=1.0, workers=1)
+    assert started == []

@@ -16,6 +16,7 @@ ring's gaps and in how many runs the lesions close into a ring (``lesion_ring``)
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import time
@@ -133,10 +134,24 @@ def default_workers() -> int:
         return max(1, min(2, os.cpu_count() or 1))
 
 
-def _map(jobs: list, out: Path, workers: int, what: str) -> list:
+def _map(jobs: list, out: Path, workers: int, what: str, client=None) -> list:
     from ballchain.sections import run_sections
 
-    return [r.value for r in run_sections(jobs, out, False, workers=workers, progress=what)]
+    return [r.value for r in run_sections(jobs, out, False, workers=workers, client=client, progress=what)]
+
+
+@contextlib.contextmanager
+def _cluster(workers: int):
+    """One LocalCluster of ``workers`` processes for the plans and the runs (its client), or None
+    (1: this process): the plans' and the runs' maps share its workers, which import the package
+    and load the compiled kernels once (issue 48: a cluster per map started two more)."""
+    if workers == 1:
+        yield None
+        return
+    from ballchain.executor import Executor
+
+    with Executor(workers=workers) as ex:
+        yield ex.client
 
 
 def run(seeds=SEEDS, *, rings=RINGS, targets: int | None = None, dwell_s: float = procedure.DWELL_S,
@@ -167,13 +182,15 @@ def run(seeds=SEEDS, *, rings=RINGS, targets: int | None = None, dwell_s: float 
         out = check_output_dir(out, "out")
         folder = out / "runs"
     base = Path(out) if out is not None else Path(".")
-    done = _map([(f"plan {r}", functools.partial(_plan_job, r, targets)) for r in rings], base, workers, "procedure plans")
-    plans = dict(zip(rings, done))
-    # Seed by seed (the costliest run first in each), so that an interrupted run has whole seeds.
-    jobs = [(f"{r} {n} {s}", functools.partial(_run_job, r, n, s, targets, dwell_s,
-                                               plans[r][0] if n == "auto" else None, folder))
-            for s in seeds for r in rings for n in procedure.NAVIGATORS]
-    runs = _map(jobs, base, workers, "procedure runs")
+    with _cluster(workers) as client:
+        done = _map([(f"plan {r}", functools.partial(_plan_job, r, targets)) for r in rings], base, workers,
+                    "procedure plans", client)
+        plans = dict(zip(rings, done))
+        # Seed by seed (the costliest run first in each), so that an interrupted run has whole seeds.
+        jobs = [(f"{r} {n} {s}", functools.partial(_run_job, r, n, s, targets, dwell_s,
+                                                   plans[r][0] if n == "auto" else None, folder))
+                for s in seeds for r in rings for n in procedure.NAVIGATORS]
+        runs = _map(jobs, base, workers, "procedure runs", client)
     runs.sort(key=lambda x: (rings.index(x["ring"]), procedure.NAVIGATORS.index(x["navigator"]), seeds.index(x["seed"])))
     table = [_aggregate([x for x in runs if x["ring"] == r and x["navigator"] == n])
              for r in rings for n in procedure.NAVIGATORS]
