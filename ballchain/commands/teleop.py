@@ -50,6 +50,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--braid", type=non_negative_int, default=None,
                         help="with --device steerable_catheter: the shaft braid's wire count, even (default 16, "
                              "the comparison's; 0: the braid neglected in torsion)")
+    parser.add_argument("--sheath", default=None,
+                        help="with --device steerable_catheter: fixed (the paper's sheath, the robotic arm's) or "
+                             "steerable (a deflectable sheath the hand places per target, issue 45) (default: fixed)")
+    parser.add_argument("--wall-stiffness", type=finite_float, default=None, metavar="K",
+                        help="with --device steerable_catheter: the atrium wall's normal stiffness per rod node in "
+                             "N/mm (a compliant wall; tissue about 0.1-0.25 N/mm, Ijima et al.) (default: 0, rigid)")
     parser.add_argument("--mapping", default=None,
                         help="world (the paper's: stick = magnet angular velocity in world) or catheter "
                              "(stick swings the tip in the tip's frame) (default: world)")
@@ -99,7 +105,9 @@ def main(args: argparse.Namespace) -> int:
 def _main_chain(args: argparse.Namespace) -> int:
     from ballchain.experiments import teleop
 
-    _refuse("without --device steerable_catheter", (("--strategy", args.strategy), ("--braid", args.braid)),
+    _refuse("without --device steerable_catheter", (("--strategy", args.strategy), ("--braid", args.braid),
+                                                    ("--sheath", args.sheath),
+                                                    ("--wall-stiffness", args.wall_stiffness)),
             "they set up the manual catheter")
     args.mapping = "world" if args.mapping is None else args.mapping
     if args.live:
@@ -156,10 +164,16 @@ def _main_manual(args: argparse.Namespace) -> int:
     strategy = "switch" if args.strategy is None else args.strategy
     manual_catheter.check_inputs("left" if args.task is None else args.task, args.targets, args.time_limit,
                                  0 if args.seed is None else args.seed, strategy)
-    catheter = manual_catheter.comparison_catheter(args.braid)
+    sheath = "fixed" if args.sheath is None else args.sheath
+    if sheath not in manual_catheter.SHEATHS:
+        from ballchain.infrastructure.errors import UserInputError, short_repr
+
+        raise UserInputError(f"--sheath must be one of {', '.join(manual_catheter.SHEATHS)} (a steerable sheath the "
+                             f"hand moves, or the paper's fixed one), got {short_repr(args.sheath)}")
+    catheter = manual_catheter.comparison_catheter(args.braid, _wall_stiffness(args.wall_stiffness))
     data = manual_catheter.run(task="left" if args.task is None else args.task, targets=args.targets,
                                seed=0 if args.seed is None else args.seed, strategy=strategy,
-                               time_limit=args.time_limit, catheter=catheter, html=args.html)
+                               time_limit=args.time_limit, catheter=catheter, html=args.html, sheath=sheath)
     if args.json:
         print_json(data)
         return 0
@@ -176,6 +190,20 @@ def _main_manual(args: argparse.Namespace) -> int:
     if data.html is not None:
         print(f"replay: {data.html}")
     return 0
+
+
+def _wall_stiffness(n_per_mm) -> float | None:
+    """``--wall-stiffness`` [N/mm] as the catheter's ``wall_stiffness`` [N/m] (None: not given, the
+    rigid wall); UserInputError naming the flag outside [0, the catheter's most]."""
+    from ballchain.drake_models.steerable_catheter import MAX_WALL_STIFFNESS
+    from ballchain.infrastructure.errors import UserInputError
+
+    if n_per_mm is None:
+        return None
+    if not 0.0 <= n_per_mm <= MAX_WALL_STIFFNESS / 1e3:
+        raise UserInputError(f"--wall-stiffness must be in [0, {MAX_WALL_STIFFNESS / 1e3:g}] N/mm (0: the rigid wall; "
+                             f"tissue about 0.1-0.25 N/mm), got {n_per_mm:g}")
+    return float(n_per_mm) * 1e3
 
 
 def _refuse(where: str, flags, why: str) -> None:

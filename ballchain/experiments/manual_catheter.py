@@ -40,14 +40,18 @@ from ballchain.systems.station import MakeStation, atrium_for
 STRATEGIES = ("switch", "keep")
 
 
-def comparison_catheter(braid_wires: int | None = None):
+def comparison_catheter(braid_wires: int | None = None, wall_stiffness: float | None = None):
     """The comparison's manual arm: the catheter with its shaft's braid in torsion
     (``SteerableCatheter.braid_GJ``: a netting calculation from the braid's construction);
     ``braid_wires`` 0 neglects the braid (the shaft's static friction then holds the tip until the
-    handle leads it by about 140 degrees, ``torsion_lead_deg``)."""
+    handle leads it by about 140 degrees, ``torsion_lead_deg``); ``wall_stiffness`` [N/m] a
+    compliant wall (``SteerableCatheter.wall_stiffness``; None: the default, rigid)."""
     from ballchain.drake_models.steerable_catheter import SteerableCatheter
 
-    return (SteerableCatheter() if braid_wires is None else SteerableCatheter(braid_wires=braid_wires)).validate()
+    kwargs = {} if braid_wires is None else {"braid_wires": braid_wires}
+    if wall_stiffness is not None:
+        kwargs["wall_stiffness"] = wall_stiffness
+    return SteerableCatheter(**kwargs).validate()
 
 
 def torsion_lead_deg(catheter) -> dict:
