@@ -75,6 +75,8 @@ class CatheterModel(DeviceModel):
         builder.Connect(hand.GetOutputPort("handle"), cat.GetInputPort("handle"))
         if plan is not None:
             builder.Connect(hand.GetOutputPort("sheath"), cat.GetInputPort("sheath"))
+            builder.Connect(cat.GetOutputPort("windup"), hand.GetInputPort("windup"))
+            builder.Connect(cat.GetOutputPort("length_out"), hand.GetInputPort("length_out"))
         builder.Connect(cat.GetOutputPort("handle_load"), hand.GetInputPort("handle_load"))
         return cls(cat, hand)
 

@@ -142,6 +142,7 @@ class SteerableCatheterSystem(LeafSystem):
         self.DeclareVectorOutputPort("tip_wall_force", 6, self._calc_wall_force, prerequisites_of_calc=ticket)
         self.DeclareVectorOutputPort("handle_load", 2, self._calc_handle_load, prerequisites_of_calc=ticket)
         self.DeclareVectorOutputPort("wall_force", 2, self._calc_wall_forces, prerequisites_of_calc=ticket)
+        self.DeclareVectorOutputPort("length_out", 1, self._calc_length_out, prerequisites_of_calc=ticket)
         self.DeclarePeriodicUnrestrictedUpdateEvent(period, 0.0, self._update)
 
     def _start(self) -> _CatheterState:
@@ -332,6 +333,11 @@ class SteerableCatheterSystem(LeafSystem):
     def _calc_windup(self, context, output):
         st = self.state(context)
         output.SetFromVector([st.twist[0], st.twist[-1], float(st.slips)])
+
+    def _calc_length_out(self, context, output):
+        """The catheter out of the sheath's exit at the last update [m] (the push chain's end: what
+        fluoroscopy shows of it beyond the sheath's tip, where the handle's readout shows its push)."""
+        output.SetAtIndex(0, self.state(context).length)
 
     def _calc_wall_forces(self, context, output):
         """The wall's normal force at the last update [N]: its total on the rod and on the tip sphere."""

@@ -10,11 +10,20 @@ import numpy as np
 from pydrake.systems.framework import EventStatus, LeafSystem
 
 from ballchain.infrastructure.errors import UserInputError, require_finite_fields
-from ballchain.systems.sheath_plan import SheathPlan
+from ballchain.systems.sheath_plan import REFINE_PUSH, REFINE_TWIST, SheathPlan
 from ballchain.systems.teleoperation import apply_dead_band
 
 
 STRATEGIES = ("keep", "switch")
+# [rad] the re-approach turns the handle until the twist at the exit is within this of the plan's
+# (with the windup input; issue 45, H12): half the plan's refined twist step (``sheath_plan.REFINE_TWIST``),
+# an assumption (the resolution the plan asks for, not a measured hand's).
+DIAL_TOLERANCE = 0.5 * REFINE_TWIST[0]
+# [m] and the catheter pushed until it is out of the exit within this of the plan's length (half
+# the refined push step, ``sheath_plan.REFINE_PUSH``; an assumption as above), the handle at most
+# ``DIAL_PUSH_LEAD`` beyond the plan's push (the push chain's friction takes up a fraction of a mm).
+DIAL_PUSH_TOLERANCE = 0.5 * REFINE_PUSH[0]
+DIAL_PUSH_LEAD = 5e-3
 
 
 def _finite(x) -> np.ndarray:
@@ -153,6 +162,8 @@ class ManualHand(LeafSystem):
             start[13:16] = np.nan  # no target planned yet
             start[18] = np.nan  # no re-approach planned yet
             self._target = self.DeclareVectorInputPort("target", 6)
+            self._windup = self.DeclareVectorInputPort("windup", 3)
+            self._length_out = self.DeclareVectorInputPort("length_out", 1)
             self.DeclareVectorOutputPort("sheath", 3, self._calc_sheath, prerequisites_of_calc={self.xd_ticket()})
             self.DeclareVectorOutputPort("hold", 2, self._calc_hold, prerequisites_of_calc={self.xd_ticket()})
         self._state = self.DeclareDiscreteState(start)
@@ -187,20 +198,43 @@ class ManualHand(LeafSystem):
         if not np.all(np.abs(target[:3] - x[13:16]) <= 1e-9):  # a new target (also the first: NaN)
             x[10:13], x[13:16] = self.plan.plan(target[:3], target[3:]), target[:3]
             out, x[19], x[20] = self.plan.approach(target[:3], target[3:])
-            x[18] = out - self.initial_length
+            x[18] = max(out, p.sheath_retract_out) - self.initial_length  # the hand's shortest at least
+            if (not x[17] and not np.any(np.abs(_sheath_delta(x[7:10], x[10:13])) > 1e-12)
+                    and self.plan.dials(target[:3], target[3:])):
+                x[16], x[17] = x[18], 1.0  # the sheath stays: the hand dials the plan's curve (H12)
         sheath, goal = x[7:10], x[10:13]
         delta = _sheath_delta(sheath, goal)
         if not np.any(np.abs(delta) > 1e-12):
             if x[17]:  # re-approach: the catheter out again, its knob and handle set for the plan's curve
-                x[0] = min(x[0] + p.push_speed * dt, x[16])
-                if not np.isnan(x[18]):
+                seen = not np.isnan(x[18]) and self._windup.HasValue(context) and self._length_out.HasValue(context)
+                if seen:  # pushed until the catheter is out of the exit as far as the plan's curve (H12)
+                    gap = x[18] + self.initial_length - float(_finite(self._length_out.Eval(context))[0])
+                    x[0] += float(np.clip(gap, -p.push_speed * dt, p.push_speed * dt))
+                    floor = p.sheath_retract_out - self.initial_length  # the hand's shortest (below)
+                    pushing = (abs(gap) > DIAL_PUSH_TOLERANCE and abs(x[0] - x[18]) < DIAL_PUSH_LEAD
+                               and not (gap < 0 and x[0] <= floor + 1e-12))
+                else:
+                    x[0] = min(x[0] + p.push_speed * dt, x[16]) if x[0] <= x[16] else max(x[0] - p.push_speed * dt, x[16])
+                    pushing = abs(x[0] - x[16]) > 1e-12
+                if seen:
+                    # The handle turned until the tip's curve points as the plan's (the twist at the
+                    # exit, as a clinician sees the curve on fluoroscopy; H12): the windup's lag taken up.
+                    turn = (x[20] - float(_finite(self._windup.Eval(context))[1]) + np.pi) % (2 * np.pi) - np.pi
+                    # the handle beyond the plan's twist the way it turns (the exit held by the shaft's
+                    # friction): the hand stops a quarter turn past it
+                    lead = np.sign(turn) * ((x[1] - x[20] + np.pi) % (2 * np.pi) - np.pi)
+                    if lead < np.pi / 2:
+                        x[1] += float(np.clip(turn, -p.twist_rate * dt, p.twist_rate * dt))
+                    x[2] += float(np.clip(x[19] - x[2], -p.knob_rate * dt, p.knob_rate * dt))
+                    turn = (abs(turn) > DIAL_TOLERANCE and lead < np.pi / 2) or abs(x[19] - x[2]) > 1e-12
+                elif not np.isnan(x[18]):
                     turn = (x[20] - x[1] + np.pi) % (2 * np.pi) - np.pi  # the handle the short way round
                     x[1] += float(np.clip(turn, -p.twist_rate * dt, p.twist_rate * dt))
                     x[2] += float(np.clip(x[19] - x[2], -p.knob_rate * dt, p.knob_rate * dt))
                     turn = abs(turn) - p.twist_rate * dt > 1e-12 or abs(x[19] - x[2]) > 1e-12
                 else:
                     turn = False
-                x[17] = float(x[0] < x[16] - 1e-12 or turn)
+                x[17] = float(pushing or turn)
                 return True
             return False
         # Pull back first (the catheter's tip into the sheath's mouth, ``sheath_retract_out`` out),
