@@ -57,9 +57,8 @@ from ballchain.drake_models.atrium_sdf import atrium_sdf
 from ballchain.drake_models.sheath import SteerableSheath
 from ballchain.experiments import manual_catheter as mc
 from ballchain.drake_models.electrode import CATHETER_ELECTRODE_LENGTH, axis_start
-from ballchain.optimization.rod_statics import RodStatics, frame_along
-from ballchain.systems.rod_wall_compliance import CompliantRodStatics
-from ballchain.systems.rod_wall_friction import FrictionalRodStatics
+from ballchain.optimization.rod_statics import frame_along
+from ballchain.systems.rod_wall_friction import rod_statics_class
 from ballchain.systems.sheath_plan import has_room
 from ballchain.systems.station import atrium_for
 from ballchain.systems.target_contact import heart_targets, targets_touched
@@ -123,8 +122,7 @@ def loaded_reach(heart, sdf, sheath: SteerableSheath, settings, targets, twists,
     axis = np.asarray(heart.sheath_axis_H, float)
     R_S = frame_along(axis)
     p_S = np.asarray(heart.p_HE, float) - sheath.nominal_advance * axis
-    rod = (FrictionalRodStatics if cat.wall_mu > 0 else
-           CompliantRodStatics if cat.wall_stiffness > 0 else RodStatics)(cat, heart.p_HE, axis, sdf)
+    rod = rod_statics_class(cat)(cat, heart.p_HE, axis, sdf)
     keys = [str(lim) for lim in limits] + ["any"]
     bounds = list(limits) + [np.inf]
     best = {t: {k: None for k in keys} for t in targets}

@@ -189,9 +189,6 @@ class SteerableCatheter:
         if not 0.0 <= self.wall_stiffness <= MAX_WALL_STIFFNESS:
             raise UserInputError(f"SteerableCatheter.wall_stiffness must be in [0, {MAX_WALL_STIFFNESS:g}] N/m (0: the "
                                  f"rigid wall; tissue about 100-140 N/m), got {self.wall_stiffness}")
-        if self.wall_stiffness > 0 and self.wall_mu > 0:
-            raise UserInputError("SteerableCatheter: wall_stiffness and wall_mu together are not built (the compliant "
-                                 f"wall is frictionless), got wall_stiffness {self.wall_stiffness}, wall_mu {self.wall_mu}")
         if int(self.braid_wires) != self.braid_wires or not 0 <= self.braid_wires <= MAX_BRAID_WIRES \
                 or self.braid_wires % 2:
             raise UserInputError(f"SteerableCatheter.braid_wires must be an even count in 0..{MAX_BRAID_WIRES} (half "

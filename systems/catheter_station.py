@@ -44,9 +44,7 @@ from ballchain.infrastructure.errors import UserInputError, require_finite_field
 from ballchain.drake_models.sheath import SteerableSheath
 from ballchain.drake_models.steerable_catheter import SteerableCatheter
 from ballchain.infrastructure.arg_checks import require_type
-from ballchain.optimization.rod_statics import RodStatics
-from ballchain.systems.rod_wall_compliance import CompliantRodStatics
-from ballchain.systems.rod_wall_friction import FrictionalRodStatics
+from ballchain.systems.rod_wall_friction import FrictionalRodStatics, rod_statics_class
 from ballchain.systems.meshcat_view import frame_scene
 from ballchain.systems.manual_hand import STRATEGIES, HandParams, ManualHand, _finite  # noqa: F401 (re-exported)
 from ballchain.systems.sheath_plan import SheathPlan  # noqa: F401 (re-exported)
@@ -110,8 +108,7 @@ class SteerableCatheterSystem(LeafSystem):
         # The wall's friction (``SteerableCatheter.wall_mu`` > 0, ``systems.rod_wall_friction``) or
         # compliance (``wall_stiffness`` > 0, ``systems.rod_wall_compliance``); 0: the frictionless
         # rigid wall's statics, as before.
-        statics = (FrictionalRodStatics if self.catheter.wall_mu > 0 else
-                   CompliantRodStatics if self.catheter.wall_stiffness > 0 else RodStatics)
+        statics = rod_statics_class(self.catheter)
         self.rod = statics(self.catheter, p_E, axis, sdf)
         # A steerable sheath (issue 45, the manual arm): its exit moves with its input (advance
         # beyond the septum [m], rotation [rad], deflection [rad]); None: the paper's fixed exit.

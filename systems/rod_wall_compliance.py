@@ -41,8 +41,8 @@ a 3-parameter Mooney-Rivlin solid whose constants the abstract does not give), s
 linear and k is swept over 0.1-0.14 N/mm and a stiffer bound (``SteerableCatheter.wall_stiffness``;
 ``docs/guide/manual_catheter.md``: the range run).
 
-The wall stays frictionless (``systems.rod_wall_friction`` is the rigid wall's friction; the two
-are not combined: ``SteerableCatheter.validate`` refuses both at once).
+The wall is frictionless here; ``systems.rod_wall_friction.CompliantFrictionalRodStatics`` adds the
+tip's Coulomb friction on it (issue 45, H12: the cone on N = k d).
 """
 
 from __future__ import annotations
@@ -141,7 +141,7 @@ class CompliantRodStatics(RodStatics):
         return value + rho * float(np.maximum(-gaps, 0.0).sum())
 
     def _step(self, q, H, g, length, phi):
-        if not self.compliant:
+        if not self.compliant or getattr(self, "_penalty_in_H", False):  # (the friction's stuck step adds it)
             return super()._step(q, H, g, length, phi)
         return super()._step(q, H + self.penalty_hessian(self.pose(q, length, phi)), g, length, phi)
 

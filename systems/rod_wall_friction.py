@@ -44,6 +44,7 @@ import numpy as np
 
 from ballchain.optimization.active_set_qp import dense_qp
 from ballchain.optimization.rod_statics import RodSolution, RodStatics
+from ballchain.systems.rod_wall_compliance import CompliantRodStatics
 
 
 FRICTION_NODES = ("tip", "all")
@@ -279,3 +280,54 @@ class FrictionalRodStatics(RodStatics):
         sol.friction, sol.anchors = friction, anchors
         sol.last_nodes = {k: p.copy() for k, p in zip(keys, sol.pose.nodes)}
         return sol
+
+
+class CompliantFrictionalRodStatics(FrictionalRodStatics, CompliantRodStatics):
+    """The tip's Coulomb friction (``FrictionalRodStatics``) on the compliant wall
+    (``CompliantRodStatics``; issue 45, H12): the friction cone on the penalty's normal force,
+    |f_t| <= mu N with N = k d (plus the hard limit's share beyond the cap). A stuck node is held
+    on the wall's normal line through its anchor (its tangential position) while it indents the
+    wall along that line; the cone, the slip's kinetic force and a node coming into contact as in
+    ``FrictionalRodStatics``, with N the node's whole normal reaction (``CompliantRodStatics.solve``'s
+    ``wall_forces``, which ``FrictionalRodStatics.solve`` reads). The SQP's Hessian carries the
+    penalty's Gauss-Newton term once, with or without stick rows (``_step``). Selected by
+    ``SteerableCatheter`` with both ``wall_mu`` and ``wall_stiffness`` > 0.
+    """
+
+    def _step(self, q, H, g, length, phi):
+        if not self.compliant or not self._stick:  # the compliant step (or the rigid wall's)
+            return CompliantRodStatics._step(self, q, H, g, length, phi)
+        H = H + self.penalty_hessian(self.pose(q, length, phi))
+        self._penalty_in_H = True  # a fallback inside the stuck step must not add it again
+        try:
+            return FrictionalRodStatics._step(self, q, H, g, length, phi)
+        finally:
+            self._penalty_in_H = False
+
+    def _merit(self, q, length, phi, kappa, force, rho: float) -> float:
+        """``FrictionalRodStatics._merit`` on the compliant energy, its Lagrangian term on the hard
+        limit's rows (sdf - r + cap, the rows the multipliers belong to)."""
+        if not self.compliant:
+            return FrictionalRodStatics._merit(self, q, length, phi, kappa, force, rho)
+        value = CompliantRodStatics._merit(self, q, length, phi, kappa, force, rho)
+        if self._applied or self._stick:
+            pose = self.pose(q, length, phi)
+            for m, f in self._applied.items():
+                value -= float(f @ pose.nodes[m])
+            if self._stick:
+                e = self._stick_rows(pose)[1]
+                value += max(rho, self._rho_eq) * float(np.abs(e).sum())
+                if self._eq is not None:
+                    value -= float(self._eq @ e)
+                    if self._lam is not None and len(self._lam) == len(pose.nodes):
+                        gaps = self.wall_at(pose)[0] - self.catheter.radius + self.cap
+                        value -= float(self._lam @ gaps)
+        return value
+
+
+def rod_statics_class(catheter):
+    """The rod's statics for the catheter's wall: frictional and compliant, frictional, compliant
+    or rigid (``SteerableCatheter.wall_mu``, ``wall_stiffness``)."""
+    if catheter.wall_mu > 0:
+        return CompliantFrictionalRodStatics if catheter.wall_stiffness > 0 else FrictionalRodStatics
+    return CompliantRodStatics if catheter.wall_stiffness > 0 else RodStatics

@@ -150,8 +150,8 @@ def test_wall_stiffness_is_validated():
     for bad in (-1.0, 2 * MAX_WALL_STIFFNESS, float("nan")):
         with pytest.raises(UserInputError, match="wall_stiffness"):
             SteerableCatheter(wall_stiffness=bad).validate()
-    with pytest.raises(UserInputError, match="wall_stiffness and wall_mu"):
-        SteerableCatheter(wall_stiffness=100.0, wall_mu=0.2).validate()
+    # Both together: the tip's friction on the compliant wall (H12, ``test_catheter_compliant_friction``).
+    assert SteerableCatheter(wall_stiffness=100.0, wall_mu=0.2).validate().wall_mu == 0.2
     assert SteerableCatheter(wall_stiffness=140.0).validate().wall_stiffness == 140.0
 
 
