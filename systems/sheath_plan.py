@@ -124,7 +124,7 @@ class SheathPlan:
         self.shapes = np.array([catheter.unloaded_shape(out, knob) for out, knob in grid])  # (S, n, 3)
         self._twists = _about_z(np.linspace(0.0, 2 * np.pi, 24, endpoint=False))
         self.min_out = float(min_out)
-        self._cache, self._refined = {}, {}
+        self._cache, self._refined, self._rod_misses = {}, {}, {}
 
     def _valid(self, p_S, R_S, setting, min_out: float):
         """(exit p, R) of a sheath ``setting`` the hand may use (its sheath ``SHEATH_CLEARANCE``
@@ -205,7 +205,7 @@ class SheathPlan:
             return self._refined[key]
         miss0, out0, knob0, twist0 = self._best_shape(setting, p_T, n_T)
         best = (miss0, tuple(setting), out0, knob0, twist0)
-        if not np.isfinite(miss0) or miss0 == 0.0:
+        if not np.isfinite(miss0):
             self._refined[key] = best
             return best
         advance, rotation, deflection = setting
@@ -316,8 +316,18 @@ class SheathPlan:
 
     def _refines(self, coarse, p_T, n_T) -> bool:
         """Whether the plan refines the coarse ``setting`` for the target (``refine``): its
-        coarse shapes miss the target (the fixed sheath's setting, kept, only its curve)."""
-        return self.miss(coarse, p_T, n_T) > 0.0
+        coarse shapes miss the target (the fixed sheath's setting, kept, only its curve), or, for a
+        moved sheath, the rod of its coarse nearest curve does (``rod_miss``: the unloaded shape
+        touches, the rod against the wall does not)."""
+        if self.miss(coarse, p_T, n_T) > 0.0:
+            return True
+        if coarse == self.nominal or self.sdf is None or self.catheter.wall_mu > 0:
+            return False
+        key = (tuple(np.round(p_T, 9)), tuple(np.round(coarse, 12)))
+        if key not in self._rod_misses:
+            _, out, knob, twist = self._best_shape(coarse, p_T, n_T)
+            self._rod_misses[key] = self.rod_miss(coarse, max(out, self.min_out), knob, twist, p_T, n_T)[0] > 0.0
+        return self._rod_misses[key]
 
     def dials(self, p_T, n_T) -> bool:
         """Whether the hand dials the plan's curve (``approach``) for the target with the sheath

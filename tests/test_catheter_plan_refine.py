@@ -150,3 +150,20 @@ def test_the_dial_stops_where_the_exit_does_not_follow_or_the_catheter_cannot_go
     assert not held[-1] and 1.0 + math.pi / 2 <= x[1] < 1.0 + math.pi / 2 + step
     held, x = _dial(5e-3, 0.0, lambda h: h, lambda push: 20e-3 + push + 0.7e-3)
     assert not held[-1] and x[0] == pytest.approx(HandParams().sheath_retract_out - 20e-3, abs=1e-12)
+
+
+def test_a_moved_sheath_whose_unloaded_curve_touches_but_whose_rod_misses_is_refined(world):
+    """At 0.1 N/mm right_15's coarse unloaded curve touches it while the rod of that curve, on the
+    wall, misses: the plan refines it (the rod's miss the trigger) and the refined curve's rod
+    touches within 40 gf."""
+    heart, sdf, sheath, p_S, R_S, names, p_WT, n_W, radius = world[:9]
+    plan = SheathPlan(sheath, mc.comparison_catheter(None, 100.0), p_S, R_S, sdf, radius, min_out=6e-3)
+    p_T, n_T = _target(world, "right_15")
+    coarse = plan._coarse(p_T, n_T)
+    assert coarse != plan.nominal and plan.miss(coarse, p_T, n_T) == 0.0
+    _, out, knob, twist = plan._best_shape(coarse, p_T, n_T)
+    assert plan.rod_miss(coarse, max(out, 6e-3), knob, twist, p_T, n_T)[0] > 0.0
+    miss, setting, out, knob, twist = plan.refine(coarse, p_T, n_T)
+    assert miss == 0.0 and plan.plan(p_T, n_T) == setting
+    rod_miss, force = plan.rod_miss(setting, out, knob, twist, p_T, n_T)
+    assert rod_miss == 0.0 and force <= LIMIT

@@ -117,8 +117,8 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
     there (frames every ``teleop.REPLAY_PERIOD``). ``sheath`` "fixed" (the paper's, as the robotic
     arm's) or "steerable" (``drake_models.sheath.SteerableSheath``, placed by the hand per target:
     ``systems.catheter_station.SheathPlan``; the operator waits while the hand moves it, its
-    input ``hand_hold``; issue 45, not yet the comparison's default: it touches 14/18 on the
-    right ring, see ``docs/guide/manual_catheter.md``).
+    input ``hand_hold``; issue 45, not the comparison's default: with a compliant wall of 0.14 N/mm
+    it touches 17/18 on the right ring, see ``docs/guide/manual_catheter.md``).
 
     Returns:
         a ``teleop.TeleopResult`` (mapping "manual"); its settings add the catheter's and the
