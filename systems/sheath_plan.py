@@ -5,11 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from ballchain.drake_models.electrode import CATHETER_ELECTRODE_LENGTH, axis_start
 from ballchain.drake_models.sheath import SteerableSheath
 from ballchain.drake_models.wall_motion import CONTACT_FORCE
 from ballchain.drake_models.steerable_catheter import SteerableCatheter
-from ballchain.systems.rod_wall_compliance import INDENTATION_CAP
-from ballchain.systems.target_contact import TOUCH_TOLERANCE
+from ballchain.optimization.rod_statics import RodStatics
+from ballchain.systems.autonomous_navigator import NavigatorParams
+from ballchain.systems.rod_wall_compliance import INDENTATION_CAP, CompliantRodStatics
+from ballchain.systems.target_contact import TOUCH_TOLERANCE, targets_touched
 
 SHEATH_CLEARANCE = 1.5e-3  # [m] the planned sheath stays this far inside the atrium, beyond the septum's 4 mm
 PLAN_DEFLECTIONS = (0.0, 45.0, 90.0, 135.0, 180.0)  # [deg] the sheath deflections a plan weighs
@@ -259,10 +262,9 @@ class SheathPlan:
     @property
     def _force_limit(self) -> float:
         """[N] the largest wall force a planned curve may take: the procedure's window's top, 40 gf
-        (``experiments.procedure.WINDOW_GF``; 0.39 N, Matsuda et al.'s excessive tip force)."""
-        from ballchain.experiments.procedure import WINDOW_GF
-
-        return WINDOW_GF[1] * 1e-3 * 9.80665
+        (``NavigatorParams.force_window``'s top, the procedure's ``WINDOW_GF``; 0.39 N, Matsuda et
+        al.'s excessive tip force)."""
+        return NavigatorParams.force_window[1]
 
     def rod_miss(self, setting, out: float, knob: float, twist: float, p_T, n_T) -> tuple[float, float]:
         """The rod's statics (the catheter's wall: rigid or compliant) at the sheath ``setting``,
@@ -270,11 +272,6 @@ class SheathPlan:
         twist at the exit: (its electrode's distance from a touch of the target [m], 0 when it
         touches (``target_contact.targets_touched``, its whole surface); the rod's total wall force
         [N]); (inf, inf) when a solve does not converge."""
-        from ballchain.drake_models.electrode import CATHETER_ELECTRODE_LENGTH, axis_start
-        from ballchain.optimization.rod_statics import RodStatics
-        from ballchain.systems.rod_wall_compliance import CompliantRodStatics
-        from ballchain.systems.target_contact import targets_touched
-
         if getattr(self, "_rod", None) is None:
             statics = CompliantRodStatics if self.catheter.wall_stiffness > 0 else RodStatics
             self._rod = statics(self.catheter, self._p_S + self.sheath.nominal_advance * self._R_S[:, 2],
