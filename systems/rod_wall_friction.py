@@ -125,7 +125,12 @@ class FrictionalRodStatics(RodStatics):
         stuck, less the last step's multipliers times the rows (the Lagrangian's merit: without
         it the rows' second-order error rejects the SQP's full steps near the solution, the
         Maratos effect, and a caught tip's solve stalled at 1e-6 rad steps)."""
-        value = super()._merit(q, length, phi, kappa, force, rho)
+        return self._with_friction(super()._merit(q, length, phi, kappa, force, rho), q, length, phi, rho, 0.0)
+
+    def _with_friction(self, value: float, q, length, phi, rho: float, row_offset: float) -> float:
+        """``value`` (a merit without friction) less the applied friction's work, plus the stick
+        rows' exact penalty and, while stuck, less the last multipliers times the stick rows and
+        the wall rows (sdf - r + ``row_offset``: the rows the multipliers belong to)."""
         if self._applied or self._stick:
             pose = self.pose(q, length, phi)
             for m, f in self._applied.items():
@@ -136,7 +141,7 @@ class FrictionalRodStatics(RodStatics):
                 if self._eq is not None:
                     value -= float(self._eq @ e)
                     if self._lam is not None and len(self._lam) == len(pose.nodes):
-                        gaps = self.wall_at(pose)[0] - self.catheter.radius
+                        gaps = self.wall_at(pose)[0] - self.catheter.radius + row_offset
                         value -= float(self._lam @ gaps)
         return value
 
@@ -309,20 +314,8 @@ class CompliantFrictionalRodStatics(FrictionalRodStatics, CompliantRodStatics):
         limit's rows (sdf - r + cap, the rows the multipliers belong to)."""
         if not self.compliant:
             return FrictionalRodStatics._merit(self, q, length, phi, kappa, force, rho)
-        value = CompliantRodStatics._merit(self, q, length, phi, kappa, force, rho)
-        if self._applied or self._stick:
-            pose = self.pose(q, length, phi)
-            for m, f in self._applied.items():
-                value -= float(f @ pose.nodes[m])
-            if self._stick:
-                e = self._stick_rows(pose)[1]
-                value += max(rho, self._rho_eq) * float(np.abs(e).sum())
-                if self._eq is not None:
-                    value -= float(self._eq @ e)
-                    if self._lam is not None and len(self._lam) == len(pose.nodes):
-                        gaps = self.wall_at(pose)[0] - self.catheter.radius + self.cap
-                        value -= float(self._lam @ gaps)
-        return value
+        return self._with_friction(CompliantRodStatics._merit(self, q, length, phi, kappa, force, rho), q, length, phi,
+                                   rho, self.cap)
 
 
 def rod_statics_class(catheter):

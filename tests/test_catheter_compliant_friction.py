@@ -19,7 +19,7 @@ from ballchain.systems.catheter_station import SteerableCatheterSystem
 from ballchain.systems.rod_wall_compliance import CompliantRodStatics
 from ballchain.systems.rod_wall_friction import (CompliantFrictionalRodStatics, FrictionalRodStatics,
                                                  rod_statics_class)
-from tests.test_catheter_wall_friction import AXIS, Plane
+from tests.test_catheter_wall_friction import AXIS, Plane, held_within_the_cone
 
 MU, K = 0.2, 140.0
 
@@ -49,13 +49,7 @@ def test_the_cone_on_the_penalty_s_normal_force(pressed, t_name):
     N0 = float(rest.wall_forces[-1])
     t = AXIS if t_name == "axial" else np.cross(n, AXIS)
     assert abs(t @ n) < 1e-12
-    for frac in (0.5, 0.98):  # within the cone: held, the wall takes the load, the rod unchanged
-        F = frac * MU * N0
-        sol = rod.solve(length, 0.0, kappa, q0=rest.q, force=F * t)
-        assert sol.converged
-        assert np.linalg.norm(sol.pose.tip_centre - rest.pose.tip_centre) < 1e-9
-        assert np.allclose(sol.friction[-1], -F * t, atol=1e-6 * N0)
-        assert sol.wall_forces[-1] == pytest.approx(N0, rel=1e-6)
+    for sol in held_within_the_cone(rod, rest, length, kappa, t, N0, MU):  # the penalty's N0 as the rigid wall's
         assert sol.indentation[-1] == pytest.approx(rest.indentation[-1], rel=1e-6)
     for frac in (1.02, 1.5):  # beyond it: slips along t, the friction mu k d against the slip
         sol = rod.solve(length, 0.0, kappa, q0=rest.q, force=frac * MU * N0 * t)

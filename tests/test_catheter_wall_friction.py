@@ -59,6 +59,22 @@ def resting():
     return cat, rod, sol, length, kappa, n
 
 
+def held_within_the_cone(rod, rest, length, kappa, t, N0, mu):
+    """The tip pushed along t with half and 0.98 of mu N0 from the resting solve ``rest``: held
+    (the rod unchanged within 1e-9 m), the friction the push's opposite and the normal force N0;
+    returns the two solves."""
+    sols = []
+    for frac in (0.5, 0.98):  # below the cone: held, the wall takes the load, the rod unchanged
+        F = frac * mu * N0
+        sol = rod.solve(length, 0.0, kappa, q0=rest.q, force=F * t)
+        assert sol.converged
+        assert np.linalg.norm(sol.pose.tip_centre - rest.pose.tip_centre) < 1e-9
+        assert np.allclose(sol.friction[-1], -F * t, atol=1e-6 * N0)
+        assert sol.wall_forces[-1] == pytest.approx(N0, rel=1e-6)
+        sols.append(sol)
+    return sols
+
+
 @pytest.mark.parametrize("t_name", ["axial", "lateral"])
 def test_tip_sticks_up_to_mu_times_the_normal_force_and_slips_beyond(resting, t_name):
     cat, rod, rest, length, kappa, n = resting
@@ -66,13 +82,7 @@ def test_tip_sticks_up_to_mu_times_the_normal_force_and_slips_beyond(resting, t_
     N0 = float(rest.wall_forces[-1])
     t = AXIS if t_name == "axial" else np.cross(n, AXIS)
     assert abs(t @ n) < 1e-12
-    for frac in (0.5, 0.98):  # below the cone: held, the wall takes the load, the rod unchanged
-        F = frac * MU * N0
-        sol = rod.solve(length, 0.0, kappa, q0=rest.q, force=F * t)
-        assert sol.converged
-        assert np.linalg.norm(sol.pose.tip_centre - rest.pose.tip_centre) < 1e-9
-        assert np.allclose(sol.friction[-1], -F * t, atol=1e-6 * N0)
-        assert sol.wall_forces[-1] == pytest.approx(N0, rel=1e-6)
+    for sol in held_within_the_cone(rod, rest, length, kappa, t, N0, MU):
         assert sol.anchors[rod.n_joints] == pytest.approx(rest.anchors[rod.n_joints], abs=1e-15)
     for frac in (1.02, 1.5):  # beyond it: slips along t, the friction mu N against the slip
         sol = rod.solve(length, 0.0, kappa, q0=rest.q, force=frac * MU * N0 * t)
