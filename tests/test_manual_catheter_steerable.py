@@ -44,19 +44,22 @@ def _shortest_rod_wall_force(setup, setting, out):
     return float(sol.wall_forces.max()) if len(sol.wall_forces) else 0.0
 
 
-def test_planned_sheath_leaves_the_shortest_catheter_off_the_wall(setup):
+@pytest.mark.parametrize("names", [pytest.param(INSIDE[:2], id="right_12-13"),
+                                   pytest.param(INSIDE, id="all", marks=pytest.mark.slow)])
+def test_planned_sheath_leaves_the_shortest_catheter_off_the_wall(setup, names):
     """For the targets the fixed sheath's curves miss the plan curls the sheath (180 degrees), and
     the catheter's shortest (the hand's pull-back, 6 mm) on the planned exit stays off the wall
     (no force). Without the room check (``min_out`` 0) a planned exit puts it on the wall with
-    more than 1 N: the cause of the steerable runs' 6-27 N."""
+    more than 1 N: the cause of the steerable runs' 6-27 N. (All seven in the full suite: since
+    the plan refines missed targets with the rod's statics, 20 s; two in the quick tier.)"""
     heart, sdf, cat, system = setup
-    names, p_WT, n_W, radius = heart_targets(heart)
+    targets, p_WT, n_W, radius = heart_targets(heart)
     hand = HandParams()
     plan = SheathPlan(SteerableSheath(), cat, *system.septum, sdf, radius, min_out=hand.sheath_retract_out)
     bare = SheathPlan(SteerableSheath(), cat, *system.septum, sdf, radius, min_out=0.0)
     worst_bare = 0.0
-    for name in INSIDE:
-        k = names.index(name)
+    for name in names:
+        k = targets.index(name)
         setting = plan.plan(p_WT[k], n_W[k])
         assert setting[2] > 0.5 * math.pi, (name, setting)  # curled back
         assert _shortest_rod_wall_force(setup, setting, hand.sheath_retract_out) == 0.0, (name, setting)
