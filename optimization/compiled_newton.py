@@ -309,6 +309,23 @@ def pinned_step(H, g, J, c):
 
 
 @kernel
+def null_space_step(H, g, J, c):
+    """``(dq, lam, curvature)`` of min g'dq + dq'H dq / 2 subject to J dq + c = 0 by the null
+    space Z of J, Z'HZ made positive definite (``positive_definite``); curvature dq'Hm dq for the
+    model's curvature Hm = Z Hz Z'. ``pinned_step``'s fallback; raises (a LinAlgError) when no
+    positive definite Hz is found."""
+    Z = null_space(J)
+    dq_n = -(np.linalg.pinv(J) @ c)
+    ok, Hz, Lz, _ = positive_definite(Z.T @ H @ Z)
+    if not ok:
+        raise np.linalg.LinAlgError("Matrix is not positive definite.")
+    dq = dq_n - Z @ cho_solve(Lz, Z.T @ (g + H @ dq_n))
+    Hm = Z @ Hz @ Z.T
+    lam = np.linalg.lstsq(np.ascontiguousarray(J.T), g + H @ dq)[0]
+    return dq, lam, dq @ (Hm @ dq)
+
+
+@kernel
 def newton_step(ev, H, near, pinned, lam_tip, model):
     """The Newton step at ev for the Lagrangian's Hessian H (``ChainStatics._newton_step``).
 
@@ -326,17 +343,9 @@ def newton_step(ev, H, near, pinned, lam_tip, model):
         # tangent space.
         J = tip_jacobian(ev[7])
         ok, dq, lam_tip, curvature = pinned_step(H, g, J, ev[6])
-        if ok:
-            return True, dq, curvature, np.zeros(0), lam_tip, False
-        Z = null_space(J)
-        dq_n = -(np.linalg.pinv(J) @ ev[6])
-        ok, Hz, Lz, _ = positive_definite(Z.T @ H @ Z)
         if not ok:
-            raise np.linalg.LinAlgError("Matrix is not positive definite.")
-        dq = dq_n - Z @ cho_solve(Lz, Z.T @ (g + H @ dq_n))
-        Hm = Z @ Hz @ Z.T
-        lam_tip = np.linalg.lstsq(np.ascontiguousarray(J.T), g + H @ dq)[0]
-        return True, dq, dq @ (Hm @ dq), np.zeros(0), lam_tip, False
+            dq, lam_tip, curvature = null_space_step(H, g, J, ev[6])
+        return True, dq, curvature, np.zeros(0), lam_tip, False
     if near.size == 0:
         ok, Hm, Lc, definite = positive_definite(H)
         if not ok:

@@ -510,16 +510,9 @@ class ChainStatics:
             # (``_pinned_step``), else a null-space step. Only the curvature along the
             # constraints' tangent space matters, so only that part is made positive definite.
             J = ev.tip_jacobian
-            step = _pinned_step(H, g, J, ev.tip_residual)
-            if step is not None:
-                dq, lam_tip, curvature = step
-                return dq, curvature, np.zeros(0), lam_tip
-            Z = _null_space(J)
-            dq_n = -np.linalg.pinv(J) @ ev.tip_residual
-            Hz = _positive_definite(Z.T @ H @ Z)
-            dq = dq_n - Z @ np.linalg.solve(Hz, Z.T @ (g + H @ dq_n))
-            Hm = Z @ Hz @ Z.T  # the model's curvature, for the predicted decrease
-            lam, lam_tip = np.zeros(0), np.linalg.lstsq(J.T, g + H @ dq, rcond=None)[0]
+            step = _pinned_step(H, g, J, ev.tip_residual) or _null_space_step(H, g, J, ev.tip_residual)
+            dq, lam_tip, curvature = step
+            return dq, curvature, np.zeros(0), lam_tip
         elif len(near) or pinned:
             tip = [ev.tip_jacobian] if pinned else []
             N = np.vstack([ev.jacobian[near]] + tip)
@@ -535,6 +528,18 @@ class ChainStatics:
     # --- SNOPT reference ------------------------------------------------------------------------
     def _snopt_solve(self, model: ReducedChain):
         return snopt_solve(self._snopt, self._snopt_options, model)
+
+
+def _null_space_step(H: np.ndarray, g: np.ndarray, J: np.ndarray, c: np.ndarray):
+    """``(dq, lam, curvature)`` of min g'dq + dq'H dq / 2 subject to J dq + c = 0 by the null
+    space Z of J, Z'HZ made positive definite (``_positive_definite``); curvature dq'Hm dq for
+    the model's curvature Hm = Z Hz Z' (the predicted decrease's). ``_pinned_step``'s fallback."""
+    Z = _null_space(J)
+    dq_n = -np.linalg.pinv(J) @ c
+    Hz = _positive_definite(Z.T @ H @ Z)
+    dq = dq_n - Z @ np.linalg.solve(Hz, Z.T @ (g + H @ dq_n))
+    Hm = Z @ Hz @ Z.T
+    return dq, np.linalg.lstsq(J.T, g + H @ dq, rcond=None)[0], float(dq @ Hm @ dq)
 
 
 def _null_space(J: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
