@@ -42,7 +42,7 @@ def capture(task: str, targets: int, limit: int) -> list:
 
     def spy(chart, model, rows, weights):
         if len(seen) < limit:
-            seen.append(([c.copy() for c in chart], model))
+            seen.append((tuple(c.copy() for c in chart), model))
         return original(chart, model, rows, weights)
 
     compiled_held_tip.newton = spy
