@@ -64,6 +64,10 @@ class CompliantRodStatics(RodStatics):
         cap: the deepest indentation before the hard limit [m] (default ``INDENTATION_CAP``).
     """
 
+    # True while a step is taken on a Hessian that already holds the penalty's (the frictional
+    # subclass's stuck step, ``rod_wall_friction.CompliantFrictionalRodStatics``): not added again.
+    _penalty_in_H = False
+
     def __init__(self, catheter, p_E, axis, sdf=None, stiffness: float | None = None,
                  cap: float | None = None) -> None:
         super().__init__(catheter, p_E, axis, sdf)
@@ -141,7 +145,7 @@ class CompliantRodStatics(RodStatics):
         return value + rho * float(np.maximum(-gaps, 0.0).sum())
 
     def _step(self, q, H, g, length, phi):
-        if not self.compliant or getattr(self, "_penalty_in_H", False):  # (the friction's stuck step adds it)
+        if not self.compliant or self._penalty_in_H:
             return super()._step(q, H, g, length, phi)
         return super()._step(q, H + self.penalty_hessian(self.pose(q, length, phi)), g, length, phi)
 

@@ -128,6 +128,7 @@ class SheathPlan:
         self._twists = _about_z(np.linspace(0.0, 2 * np.pi, 24, endpoint=False))
         self.min_out = float(min_out)
         self._cache, self._refined, self._rod_misses = {}, {}, {}
+        self._rod = None  # the rod's statics of ``rod_miss``, made at its first call
 
     def _valid(self, p_S, R_S, setting, min_out: float):
         """(exit p, R) of a sheath ``setting`` the hand may use (its sheath ``SHEATH_CLEARANCE``
@@ -170,12 +171,17 @@ class SheathPlan:
         if self.sdf is not None:
             d = self.sdf(pts[:, :, :-1].reshape(-1, 3), gradient=False).reshape(pts.shape[0], pts.shape[1], -1)
             ok = d.min(axis=2) >= 0.5 * self.catheter.radius
-        rel = pts[:, :, -1] - p_T
+        return np.where(ok, self._touch_miss(pts[:, :, -1], p_T, n_T), np.inf)
+
+    def _touch_miss(self, tips, p_T, n_T) -> np.ndarray:
+        """The distance [m] of tip sphere centres (..., 3) from a touch of the target (p_T, n_T):
+        beyond its circle laterally, and off the wall's plane by more than the touch rule allows
+        (the catheter's radius and ``TOUCH_TOLERANCE``), combined."""
+        rel = tips - p_T
         h = rel @ n_T
         lateral = np.sqrt(np.maximum((rel * rel).sum(axis=-1) - h * h, 0.0))
-        miss = np.hypot(np.maximum(lateral - self.target_radius, 0.0),
+        return np.hypot(np.maximum(lateral - self.target_radius, 0.0),
                         np.maximum(np.abs(h) - self.catheter.radius - TOUCH_TOLERANCE, 0.0))
-        return np.where(ok, miss, np.inf)
 
     def miss(self, setting, p_T, n_T) -> float:
         """The least distance from a touch of the target (p_T, n_T) over the catheter's unloaded
@@ -272,7 +278,7 @@ class SheathPlan:
         twist at the exit: (its electrode's distance from a touch of the target [m], 0 when it
         touches (``target_contact.targets_touched``, its whole surface); the rod's total wall force
         [N]); (inf, inf) when a solve does not converge."""
-        if getattr(self, "_rod", None) is None:
+        if self._rod is None:
             statics = CompliantRodStatics if self.catheter.wall_stiffness > 0 else RodStatics
             self._rod = statics(self.catheter, self._p_S + self.sheath.nominal_advance * self._R_S[:, 2],
                                 self._R_S[:, 2], self.sdf)
@@ -290,11 +296,7 @@ class SheathPlan:
         if targets_touched(c, p_T, n_T, cat.radius, self.target_radius,
                            axis_start=axis_start(c, d, cat.radius, CATHETER_ELECTRODE_LENGTH))[0]:
             return 0.0, force
-        rel = c - p_T[0]
-        h = float(rel @ n_T[0])
-        lateral = np.sqrt(max(float(rel @ rel) - h * h, 0.0))
-        return float(np.hypot(max(lateral - self.target_radius, 0.0),
-                              max(abs(h) - cat.radius - TOUCH_TOLERANCE, 0.0))), force
+        return float(self._touch_miss(c, p_T[0], n_T[0])), force
 
     def approach(self, p_T, n_T) -> tuple[float, float, float]:
         """The catheter's curve the hand sets at the planned setting before the operator steers
