@@ -21,8 +21,8 @@ import numpy as np
 from ballchain.drake_models.atrium_sdf import atrium_sdf
 from ballchain.drake_models.electrode import CATHETER_ELECTRODE_LENGTH
 from ballchain.infrastructure.errors import UserInputError
-from ballchain.systems.catheter_station import (CatheterMeshcat, CatheterParams, ManualHand, SheathPlan,
-                                                SteerableCatheterSystem)
+from ballchain.systems.catheter_station import CatheterMeshcat, CatheterParams, ManualHand, SteerableCatheterSystem
+from ballchain.systems.sheath_plan_cache import RingSheathPlans, heart_rings
 from ballchain.systems.target_contact import heart_targets
 from ballchain.systems.chain_model import subsystem_context
 from ballchain.systems.device_model import DeviceModel, Electrode, OperatorInputs
@@ -68,9 +68,10 @@ class CatheterModel(DeviceModel):
         cat = builder.AddSystem(SteerableCatheterSystem(params.catheter, heart.p_HE, heart.sheath_axis_H, sdf,
                                                         params.initial_length, scenario.statics_period,
                                                         sheath=params.sheath))
-        plan = None if params.sheath is None else SheathPlan(
+        # A steerable sheath: the hand's plans of each ring computed once, kept in the cache (issue 45, H13)
+        plan = None if params.sheath is None else RingSheathPlans(
             params.sheath, cat.catheter, cat.septum[0], cat.septum[1], sdf, heart_targets(heart)[3],
-            min_out=params.hand.sheath_retract_out)
+            heart_rings(heart), min_out=params.hand.sheath_retract_out)
         hand = builder.AddSystem(ManualHand(params.hand, plan, params.initial_length))
         builder.Connect(hand.GetOutputPort("handle"), cat.GetInputPort("handle"))
         if plan is not None:

@@ -11,6 +11,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 
 from ballchain.infrastructure.errors import UserInputError, require_finite_fields
 from ballchain.systems.sheath_plan import REFINE_PUSH, REFINE_TWIST, SheathPlan
+from ballchain.systems.sheath_plan_cache import RingSheathPlans
 from ballchain.systems.teleoperation import apply_dead_band
 
 
@@ -133,7 +134,8 @@ class ManualHand(LeafSystem):
     [rad]) and its goal, the target (3), the re-approach's push and whether a pull-back is under
     way, the plan's re-approach for the target (``SheathPlan.approach``: push, knob, handle twist).
 
-    With a ``SheathPlan`` (a steerable sheath, issue 45) it also has an input ``target`` (6: the
+    With a ``SheathPlan`` (a steerable sheath, issue 45; or ``sheath_plan_cache.RingSheathPlans``,
+    its answers for a ring's targets computed once and kept on disk, H13) it also has an input ``target`` (6: the
     operator's target centre and wall normal, what the operator sees) and an output ``sheath``
     (3: the sheath's setting): on each new target it plans the sheath's setting (``SheathPlan``:
     straight, the fixed sheath's exit, when the catheter's shapes reach the target from there)
@@ -147,7 +149,7 @@ class ManualHand(LeafSystem):
     back into the sheath beyond ``sheath_retract_out`` out (the rod's shortest).
     """
 
-    def __init__(self, params: HandParams | None = None, plan: SheathPlan | None = None,
+    def __init__(self, params: HandParams | None = None, plan: SheathPlan | RingSheathPlans | None = None,
                  initial_length: float = 20e-3) -> None:
         super().__init__()
         self.params = p = (params or HandParams()).validate()

@@ -78,6 +78,13 @@ def has_room(sheath: SteerableSheath, catheter: SteerableCatheter, sdf, p_S, R_S
     return True
 
 
+def force_limit() -> float:
+    """[N] the largest wall force a planned curve may take (``SheathPlan.refine``): the procedure's
+    window's top, 40 gf (``NavigatorParams.force_window``'s top, the procedure's ``WINDOW_GF``;
+    0.39 N, Matsuda et al.'s excessive tip force)."""
+    return NavigatorParams.force_window[1]
+
+
 def _about_z(angles) -> np.ndarray:
     """(T, 3, 3) rotations about z by ``angles`` [rad]."""
     t = np.asarray(angles, float)
@@ -267,10 +274,8 @@ class SheathPlan:
 
     @property
     def _force_limit(self) -> float:
-        """[N] the largest wall force a planned curve may take: the procedure's window's top, 40 gf
-        (``NavigatorParams.force_window``'s top, the procedure's ``WINDOW_GF``; 0.39 N, Matsuda et
-        al.'s excessive tip force)."""
-        return NavigatorParams.force_window[1]
+        """[N] the largest wall force a planned curve may take (``force_limit``)."""
+        return force_limit()
 
     def rod_miss(self, setting, out: float, knob: float, twist: float, p_T, n_T) -> tuple[float, float]:
         """The rod's statics (the catheter's wall: rigid or compliant) at the sheath ``setting``,

@@ -12,14 +12,13 @@ compute them (``PLAN_MODULES``), so that other code never reuses another code's 
 The set is signed like every cached model file (``model_files.cached_files``: an HMAC-SHA256
 with this user's key), written atomically, and read without pickles; its content is checked
 again on reading (its key, shapes, finite numbers). A damaged, foreign or unreadable entry is
-never trusted: it is recomputed and written again (one line on stderr).
+never trusted: it is recomputed and written again (one line on stderr). The key's hashing, the
+code's hash, the signed store and its checks are ``drake_models.result_cache``'s, shared with the
+manual hand's sheath plans (``systems.sheath_plan_cache``).
 """
 
 from __future__ import annotations
 
-import hashlib
-import importlib.util
-import json
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -27,10 +26,9 @@ from typing import Callable
 
 import numpy as np
 
-from ballchain.drake_models import model_files
+from ballchain.drake_models import model_files, result_cache
 from ballchain.drake_models.params import BallChain, CylinderMagnet
 from ballchain.experiments.planner import anatomy_stand
-from ballchain.infrastructure.errors import UserInputError
 from ballchain.systems.autonomous_navigator import TargetPlan
 
 FORMAT = 1  # the layout of plans.npz; part of the key
@@ -43,44 +41,20 @@ PLAN_MODULES = ("ballchain.experiments.procedure", "ballchain.experiments.planne
                 "ballchain.experiments.plan_cache", "ballchain.drake_models.field_sources",
                 "ballchain.drake_models.params", "ballchain.drake_models.chain_energy",
                 "ballchain.drake_models.dipole_inversion", "ballchain.drake_models.dipole",
-                "ballchain.drake_models.vectors")  # (TargetPlan's fields: FORMAT)
+                "ballchain.drake_models.vectors", "ballchain.drake_models.result_cache")  # (TargetPlan's fields: FORMAT)
 _FIELDS = ("p_WT", "n_W", "dipoles_W", "inserted_length", "basis_W", "J_m", "J_o", "force_N", "aim_offset")
 
 
 def code_hash() -> str:
     """A hash of the planning code's source files (``PLAN_PACKAGES``, ``PLAN_MODULES``)."""
-    digest = hashlib.sha256()
-    paths = []
-    for name in PLAN_PACKAGES:
-        (root,) = importlib.util.find_spec(name).submodule_search_locations  # found, not imported
-        paths += [(f"{name}/{p.name}", p) for p in sorted(Path(root).glob("*.py"))]
-    paths += [(name, Path(importlib.util.find_spec(name).origin)) for name in PLAN_MODULES]
-    for name, path in paths:
-        digest.update(name.encode() + b"\0" + path.read_bytes() + b"\0")
-    return digest.hexdigest()
-
-
-def _numbers(value):
-    """``value`` as JSON numbers, exactly: floats by their hex form (no rounding), arrays as nested lists."""
-    if isinstance(value, np.ndarray):
-        return [_numbers(v) for v in value.tolist()] if value.ndim else _numbers(value.item())
-    if isinstance(value, (list, tuple)):
-        return [_numbers(v) for v in value]
-    if isinstance(value, dict):
-        return {str(k): _numbers(v) for k, v in value.items()}
-    if isinstance(value, (bool, np.bool_)) or value is None or isinstance(value, str):
-        return value
-    if isinstance(value, (int, np.integer)):
-        return int(value)
-    return float(value).hex()
+    return result_cache.code_hash(PLAN_PACKAGES, PLAN_MODULES)
 
 
 def plan_key(inputs: dict) -> str:
     """The cache key of a ring's plans: a SHA-256 of ``inputs`` (the numbers the planning reads,
     ``ring_inputs``), the chain's and magnets' parameters, the file layout and ``code_hash``."""
-    text = json.dumps({"format": FORMAT, "inputs": _numbers(inputs), "chain": _numbers(asdict(BallChain())),
-                       "magnet": _numbers(asdict(CylinderMagnet())), "code": code_hash()}, sort_keys=True)
-    return hashlib.sha256(text.encode()).hexdigest()
+    return result_cache.content_key({"format": FORMAT, "inputs": inputs, "chain": asdict(BallChain()),
+                                     "magnet": asdict(CylinderMagnet()), "code": code_hash()})
 
 
 def ring_inputs(stand, p_WT, n_W, names, force_N: float, n_balls: int, inserted_length: float, magnets_W,
@@ -161,26 +135,7 @@ def cached_plans(inputs: dict, compute: Callable[[], tuple[list, list]],
     cpu0 = time.process_time()
     key = plan_key(inputs)
     directory = (model_files.cache_dir() / FOLDER if folder is None else Path(folder)) / key[:32]
-    computed: list = []
-
-    def write(tmp: dict) -> None:
-        plans, missing = compute()
-        computed.append((plans, missing))
-        with open(tmp["plans"], "wb") as f:
-            np.savez(f, **_to_arrays(key, plans, missing, time.process_time() - cpu0))
-
-    for attempt in range(2):
-        paths = model_files.cached_files(directory, {"plans": FILE}, write)
-        if computed:
-            plans, missing = computed[0]
-            return plans, missing, time.process_time() - cpu0, False
-        try:  # signed by this user: still checked, never unpickled
-            with np.load(paths["plans"], allow_pickle=False) as data:
-                plans, missing, _ = _from_arrays(data, key)
-            return plans, missing, time.process_time() - cpu0, True
-        except (OSError, ValueError, KeyError, TypeError, EOFError) as err:
-            if attempt:
-                raise UserInputError(f"the cached plans {paths['plans']} cannot be rewritten ({err})") from None
-            model_files.report_rebuilt(paths["plans"], "cached plan")
-            (directory / model_files.SIGNATURES).unlink(missing_ok=True)  # recomputed on the second pass
-    raise AssertionError("unreachable")
+    (plans, missing), reused = result_cache.cached_arrays(
+        directory, FILE, key, compute, lambda result: _to_arrays(key, *result, time.process_time() - cpu0),
+        lambda data: _from_arrays(data, key)[:2], "cached plan")
+    return plans, missing, time.process_time() - cpu0, reused
