@@ -116,7 +116,8 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
     ``run_station``; with ``html`` (a path) a Meshcat replay of the rod in the atrium is written
     there (frames every ``teleop.REPLAY_PERIOD``). ``sheath`` "fixed" (the paper's, as the robotic
     arm's) or "steerable" (``drake_models.sheath.SteerableSheath``, placed by the hand per target:
-    ``systems.catheter_station.SheathPlan``; the operator waits while the hand moves it, its
+    ``systems.catheter_station.SheathPlan``, each ring's plans computed once and kept in the cache:
+    ``systems.sheath_plan_cache``, H13; the operator waits while the hand moves it, its
     input ``hand_hold``; issue 45, not the comparison's default: with a compliant wall of 0.14 N/mm
     it touches 17/18 on the right ring, see ``docs/guide/manual_catheter.md``).
 
