@@ -41,7 +41,8 @@ PLAN_MODULES = ("ballchain.experiments.procedure", "ballchain.experiments.planne
                 "ballchain.experiments.plan_cache", "ballchain.drake_models.field_sources",
                 "ballchain.drake_models.params", "ballchain.drake_models.chain_energy",
                 "ballchain.drake_models.dipole_inversion", "ballchain.drake_models.dipole",
-                "ballchain.drake_models.vectors", "ballchain.drake_models.result_cache")  # (TargetPlan's fields: FORMAT)
+                "ballchain.drake_models.vectors",
+                "ballchain.drake_models.result_cache")  # (TargetPlan's fields: FORMAT)
 _FIELDS = ("p_WT", "n_W", "dipoles_W", "inserted_length", "basis_W", "J_m", "J_o", "force_N", "aim_offset")
 
 
