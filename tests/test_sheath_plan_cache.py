@@ -86,15 +86,33 @@ def counted(monkeypatch):
     return _Counted.calls
 
 
-def test_cold_and_warm_tables_are_the_plan_s_answers_exactly(world, tmp_path, counted):
-    direct = _answers(SheathPlan(*_args(world), min_out=6e-3), world)
+@pytest.fixture(scope="module")
+def direct(world) -> list:
+    """The plan's own answers for the ring's targets (the code before the cache), made once."""
+    return _answers(SheathPlan(*_args(world), min_out=6e-3), world)
+
+
+@pytest.fixture(scope="module")
+def stored(world, tmp_path_factory) -> tuple:
+    """A cache folder the ring's table was computed into (a cold pass, made once): (the folder,
+    the cold pass's answers, what it made and asked of the plan)."""
+    folder = tmp_path_factory.mktemp("sheath_plans")
+    with pytest.MonkeyPatch.context() as m:
+        _Counted.calls = []
+        m.setattr(spc, "SheathPlan", _Counted)
+        cold = _plans(world, folder)
+        answers = _answers(cold, world)
+        assert cold.reused == {0: False}
+        return folder, answers, list(_Counted.calls)
+
+
+def test_cold_and_warm_tables_are_the_plan_s_answers_exactly(world, stored, direct, tmp_path, counted):
     assert [a[2] for a in direct] == [True, False, False]  # right_1 dialled, right_13's sheath moved
     assert direct[2][0] != SteerableSheath().validate().nominal_advance
-    cold = _plans(world, tmp_path)
-    assert _answers(cold, world) == direct and cold.reused == {0: False}
-    assert counted.count("init") == 1 and "rod_miss" in counted  # computed here, the rod's checks too
-    counted.clear()
-    warm = _plans(world, tmp_path)
+    folder, cold, made = stored
+    assert cold == direct
+    assert made.count("init") == 1 and "rod_miss" in made  # computed there, the rod's checks too
+    warm = _plans(world, folder)
     got = _answers(warm, world)
     assert got == direct and warm.reused == {0: True}
     assert counted == []  # no plan made, none asked: read from the cache
@@ -105,10 +123,12 @@ def test_cold_and_warm_tables_are_the_plan_s_answers_exactly(world, tmp_path, co
     assert warm.plan(world["p_WT"][k], world["n_W"][k]) == SheathPlan(*_args(world), min_out=6e-3).plan(
         world["p_WT"][k], world["n_W"][k])
     assert counted.count("init") == 1
-    # Without the cache: nothing stored, the plan asked.
+    # Without the cache: nothing stored, the plan asked (the dialled target: its answers alone).
     counted.clear()
     off = _plans(world, tmp_path / "off", cache=False)
-    assert _answers(off, world) == direct and not (tmp_path / "off").exists() and counted.count("init") == 1
+    p, n = world["p_T"][0], world["n_T"][0]
+    assert (off.plan(p, n), off.approach(p, n), off.dials(p, n)) == direct[0]
+    assert not (tmp_path / "off").exists() and counted.count("init") == 1
 
 
 def _inputs(w, **change) -> dict:
@@ -240,17 +260,36 @@ def _hand_goal(plan, p_T, n_T) -> np.ndarray:
     return hand.EvalUniquePeriodicDiscreteUpdate(ctx).get_vector().CopyToVector()
 
 
-def test_the_hand_takes_its_plan_from_the_cache(world, tmp_path, counted):
+class _Answers:
+    """The plan's answers for the ring's targets, as a plan the hand can ask (the code before)."""
+
+    def __init__(self, w, answers):
+        self.nominal = (SteerableSheath().validate().nominal_advance, 0.0, 0.0)
+        self._w, self._answers = w, answers
+
+    def _k(self, p_T, n_T) -> int:
+        return next(k for k, (p, n) in enumerate(zip(self._w["p_T"], self._w["n_T"]))
+                    if np.array_equal(p, p_T) and np.array_equal(n, n_T))
+
+    def plan(self, p_T, n_T):
+        return self._answers[self._k(p_T, n_T)][0]
+
+    def approach(self, p_T, n_T):
+        return self._answers[self._k(p_T, n_T)][1]
+
+    def dials(self, p_T, n_T):
+        return self._answers[self._k(p_T, n_T)][2]
+
+
+def test_the_hand_takes_its_plan_from_the_cache(world, stored, direct, counted):
     """On a warm cache the hand's goal and re-approach for a moved sheath (right_13) and a dial
-    (right_1) are the plan's, and no plan is made or asked."""
-    _answers(_plans(world, tmp_path), world)  # the cold pass: stored
+    (right_1) are those of the plan's answers, and no plan is made or asked."""
     for k in (0, 2):
         p, n = world["p_T"][k], world["n_T"][k]
-        direct = _hand_goal(SheathPlan(*_args(world), min_out=6e-3), p, n)
-        counted.clear()
-        warm = _hand_goal(_plans(world, tmp_path), p, n)
+        expected = _hand_goal(_Answers(world, direct), p, n)
+        warm = _hand_goal(_plans(world, stored[0]), p, n)
         assert counted == []
-        np.testing.assert_array_equal(warm, direct)
+        np.testing.assert_array_equal(warm, expected)
     assert warm[12] > 0.5 * np.pi  # right_13: the sheath's goal curled (the plan's, from the cache)
 
 
