@@ -60,6 +60,8 @@ def test_free_rod_rows_have_no_force_and_the_unloaded_miss(reach):
         assert rows["any"]["miss_mm"] == pytest.approx(miss[j] * 1e3, abs=0.006)
 
 
+# (22 loaded rod solves, 3.5 CPU-s: the full suite; the free rows' check stays quick)
+@pytest.mark.slow
 def test_loaded_rows_keep_their_force_limits_and_match_the_rods_statics(reach):
     """Pushed on until the shaft bears on the wall (the fixed exit, the D curve, 69 mm: a loop):
     each limit's row has a wall force within it, a looser limit never misses by more, and the
