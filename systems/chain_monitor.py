@@ -112,9 +112,6 @@ class ChainMonitor:
         self._iu = np.triu_indices(len(cd.chain.body_indices), k=1)
         self._tolerate_sinking = tolerate_sinking
         self.tolerated_sinkings: list[tuple[float, int, float]] = []
-        # The positions the last gap and wall checks saw (``_unchanged``), None: check afresh.
-        self._gaps_seen: np.ndarray | None = None
-        self._wall_seen: np.ndarray | None = None
 
     def __getstate__(self) -> dict:
         """Its numbers (the metrics, the failure, the tolerated sinkings) without the station it
@@ -128,13 +125,6 @@ class ChainMonitor:
         self._next_check = 0.0
         self._since_wall = self._wall_every - 1
         self._last_wall_time = -np.inf
-        self._gaps_seen = self._wall_seen = None
-
-    @staticmethod
-    def _unchanged(p: np.ndarray, seen: np.ndarray | None) -> bool:
-        """Whether ``p`` is exactly the state a check already passed: every test and metric of
-        ``check`` is a function of the positions alone (at rest), so it would find the same."""
-        return seen is not None and seen.shape == p.shape and bool((seen == p).all())
 
     def check(self, plant_context, wall: bool = True) -> str | None:
         """Check a state now; returns a failure message or None, and updates the metrics.
@@ -151,13 +141,6 @@ class ChainMonitor:
             return chain.failure
         p = chain.body_positions(plant_context)
         self.checks += 1
-        heart = self._cd.heart
-        # A state the last checks passed (an engine holding its equilibrium while nothing moves:
-        # a dwell) passes again with the same metrics; a moving wall (offsets) is checked afresh.
-        if self._unchanged(p, self._gaps_seen) and (heart is None or not wall or self._unchanged(p, self._wall_seen)):
-            if heart is not None and wall:
-                self._last_wall_time = t
-            return None
         gaps = chain.neighbour_gaps(p)
         if gaps is not None:
             self.max_gap = max(self.max_gap, float(gaps.max()))
@@ -165,15 +148,15 @@ class ChainMonitor:
                 np.linalg.norm(p[self._iu[0]] - p[self._iu[1]], axis=1).min())  # (an empty min's error)
             self.max_ball_overlap = max(self.max_ball_overlap, float(self._d - closest))
             self.max_penetration = max(self.max_penetration, self.max_ball_overlap)
+        heart = self._cd.heart
         if heart is not None and not wall:
-            return self._passed(gaps, t, p, wall=False)
+            return self._check_gaps(gaps, t)
         if heart is not None:
             self._last_wall_time = t
             p_S, p_H = p, p  # the balls seen from the sheath and from the wall (the rest poses)
             offsets = chain.anatomy_offsets(plant_context)
             if offsets is not None:  # a moving wall (wall_motion): where the state's solve put them
                 p_S, p_H = p - offsets[0], p - offsets[1]
-            self._wall_seen = None  # (the positions alone decide it only at rest)
             in_sheath = chain.in_sheath(p_S)
             outside = ~heart.contains(p_H) & ~in_sheath
             if np.any(outside):
@@ -194,26 +177,14 @@ class ChainMonitor:
                         last = [e for e in self.tolerated_sinkings if e[1] == i + 1]
                         if not last or t - last[-1][0] >= 0.1:
                             self.tolerated_sinkings.append((t, i + 1, float(-clearance.min())))
-                        return self._passed(gaps, t, None, wall=True)  # (recorded again 0.1 s on)
+                        return self._check_gaps(gaps, t)
                     return (f"ball {i + 1} sank {-clearance.min() * 1e3:.2f} mm into the wall at "
                             f"t = {t:.4f} s, past its middle ({half_wall * 1e3:.2f} mm), where the "
                             "compliant wall would push it out: raise contact.wall_hydroelastic_modulus")
         elif np.any(np.linalg.norm(p, axis=1) > 10 * chain.length + 0.1):
             i = int(np.argmax(np.linalg.norm(p, axis=1)))
             return f"ball {i + 1} flew away at t = {t:.4f} s: centre at {np.round(p[i] * 1e3, 1).tolist()} mm"
-        return self._passed(gaps, t, p if heart is None or offsets is None else None, wall=heart is not None)
-
-    def _passed(self, gaps: np.ndarray | None, t: float, p: np.ndarray | None, wall: bool) -> str | None:
-        """The gap check's verdict; a state that passes it is remembered (``_unchanged``: the gap
-        check's, and the wall check's with ``wall``; ``p`` None: remembered by neither)."""
-        message = self._check_gaps(gaps, t)
-        if message is None and p is not None:
-            self._gaps_seen = p.copy()
-            if wall:
-                self._wall_seen = self._gaps_seen
-        elif message is None and wall:
-            self._gaps_seen = self._wall_seen = None
-        return message
+        return self._check_gaps(gaps, t)
 
     def _check_gaps(self, gaps: np.ndarray | None, t: float) -> str | None:
         if gaps is not None and gaps.max() > self._cd.scenario.break_gap:
