@@ -38,6 +38,7 @@ import numpy as np
 
 from ballchain.drake_models.steerable_catheter import SteerableCatheter
 from ballchain.drake_models.vectors import cross
+from ballchain.optimization.compiled_rod import rod_pose
 from ballchain.optimization.statics import dense_qp
 
 MIN_SHARE = 1e-3  # the least free share of the joint at the exit (its stiffness over g: finite)
@@ -233,6 +234,22 @@ class RodStatics:
         return pose
 
     def _pose(self, q: np.ndarray, length: float, phi: float) -> RodPose:
+        """``pose_reference``'s floats by one compiled call (``compiled_rod.rod_pose``; numpy's
+        cosines and sines), bit for bit (tests/test_compiled_rod.py)."""
+        j0 = self.first_free(length)
+        f = self.n_joints - j0
+        if not f:
+            return self.pose_reference(q, length, phi)
+        q = q.reshape(f, 3)
+        R = self.R_E @ _rz(phi)
+        p = self.p_E + R[:, 2] * (length - self.sigma[j0])
+        nodes, J, axes, R_tip = rod_pose(R, np.cos(q), np.sin(q), p, float(self.h),
+                                         float(0.5 * self.h - self.catheter.radius))
+        # (J transposed as the reference's: the same strides for the products that read it)
+        return RodPose(nodes, np.transpose(J, (0, 2, 1)), axes.T.copy(), R_tip, nodes[0].copy())
+
+    def pose_reference(self, q: np.ndarray, length: float, phi: float) -> RodPose:
+        """The pose in numpy: the reference of the compiled ``_pose``."""
         j0 = self.first_free(length)
         f = self.n_joints - j0
         q = q.reshape(f, 3)

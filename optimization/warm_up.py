@@ -13,7 +13,9 @@ from ballchain.drake_models import kernels
 from ballchain.drake_models.field_sources import UniformField
 from ballchain.drake_models.kernels import actuation
 from ballchain.drake_models.params import BallChain, Sleeve
+from ballchain.drake_models.steerable_catheter import SteerableCatheter
 from ballchain.optimization.reduced_chain import ReducedChain
+from ballchain.optimization.rod_statics import RodStatics
 from ballchain.optimization.statics import ChainStatics
 
 
@@ -36,3 +38,5 @@ def warm_up() -> None:
     model.tip_hessian(q, np.ones(3))
     ChainStatics(chain, gravity=True).solve(UniformField([0.0, 0.02, 0.0]))  # the compiled Newton solve
     actuation.warm_up()  # the actuation units' update
+    rod = RodStatics(SteerableCatheter(), np.zeros(3), np.array([0.0, 0.0, 1.0]), None)
+    rod.pose(np.zeros(3 * (rod.n_joints - rod.first_free(0.01))), 0.01, 0.0)  # the catheter rod's pose
