@@ -10,6 +10,7 @@ import numpy as np
 from pydrake.systems.framework import EventStatus, LeafSystem
 
 from ballchain.infrastructure.errors import UserInputError, require_finite_fields
+from ballchain.systems.operator_params import CONFUSED_RELEARNS
 from ballchain.systems.sheath_plan import REFINE_PUSH, REFINE_TWIST, SheathPlan
 from ballchain.systems.sheath_plan_cache import RingSheathPlans
 from ballchain.systems.teleoperation import apply_dead_band
@@ -25,6 +26,11 @@ DIAL_TOLERANCE = 0.5 * REFINE_TWIST[0]
 # ``DIAL_PUSH_LEAD`` beyond the plan's push (the push chain's friction takes up a fraction of a mm).
 DIAL_PUSH_TOLERANCE = 0.5 * REFINE_PUSH[0]
 DIAL_PUSH_LEAD = 5e-3
+# The operator's failed attempts on a target (its re-learning wiggles and bursts, ``SimulatedOperator``
+# output ``attempts``) after which the hand re-approaches it with the plan's curve, once (issue 45, H14):
+# as many as make its record call a miss "confused" (``operator_params.CONFUSED_RELEARNS``); an
+# assumption (after three tries of its own a clinician goes back to the curve they know reaches it).
+REAPPROACH_ATTEMPTS = CONFUSED_RELEARNS
 
 
 def _finite(x) -> np.ndarray:
@@ -129,10 +135,12 @@ class ManualHand(LeafSystem):
     Output ports: handle (3: push past the start [m], twist [rad], knob in [-1, 1]),
     switches (1: tendon switches so far); with a sheath plan also sheath (3) and hold (2:
     ``_calc_hold``).
-    State (discrete, 7; 19 with a sheath plan): push, twist, knob, switching (0/1), the switch's
+    State (discrete, 7; 22 with a sheath plan): push, twist, knob, switching (0/1), the switch's
     target twist and knob, switches; the sheath's setting (advance [m], rotation, deflection
     [rad]) and its goal, the target (3), the re-approach's push and whether a pull-back is under
-    way, the plan's re-approach for the target (``SheathPlan.approach``: push, knob, handle twist).
+    way, the plan's re-approach for the target (``SheathPlan.approach``: push, knob, handle twist),
+    whether the hand has re-approached the target (the sheath moved, the plan dialled, or the
+    operator lost: ``REAPPROACH_ATTEMPTS``).
 
     With a ``SheathPlan`` (a steerable sheath, issue 45; or ``sheath_plan_cache.RingSheathPlans``,
     its answers for a ring's targets computed once and kept on disk, H13) it also has an input ``target`` (6: the
@@ -147,6 +155,13 @@ class ManualHand(LeafSystem):
     had no windup: the operator corrects the rest), holding the handle's twist and knob meanwhile (the clinician's other
     hand on the sheath); the operator's commands wait. With a plan the hand never pulls the tip
     back into the sheath beyond ``sheath_retract_out`` out (the rod's shortest).
+
+    With a plan it also reads the operator's failed attempts on its target (input ``attempts``,
+    ``SimulatedOperator``'s; unconnected: none): once they reach ``REAPPROACH_ATTEMPTS`` on a target
+    the hand has not re-approached yet, it dials the plan's curve for it with the sheath where it is
+    (as ``dials``: the twist at the exit and the length out closed on what fluoroscopy shows), the
+    operator waiting (issue 45, H14: left_1 and right_7, where the operator's local map had no way
+    to the target: a straight catheter's twist, a twist inside the shaft's friction).
     """
 
     def __init__(self, params: HandParams | None = None, plan: SheathPlan | RingSheathPlans | None = None,
@@ -158,7 +173,7 @@ class ManualHand(LeafSystem):
         self._joystick = self.DeclareVectorInputPort("joystick", 3)
         self._push = self.DeclareVectorInputPort("v_insert_cmd", 1)
         self._feel = self.DeclareVectorInputPort("handle_load", 2)
-        start = np.zeros(7 if plan is None else 21)
+        start = np.zeros(7 if plan is None else 22)
         if plan is not None:
             start[7:10] = start[10:13] = plan.nominal
             start[13:16] = np.nan  # no target planned yet
@@ -166,6 +181,7 @@ class ManualHand(LeafSystem):
             self._target = self.DeclareVectorInputPort("target", 6)
             self._windup = self.DeclareVectorInputPort("windup", 3)
             self._length_out = self.DeclareVectorInputPort("length_out", 1)
+            self._attempts = self.DeclareVectorInputPort("attempts", 1)
             self.DeclareVectorOutputPort("sheath", 3, self._calc_sheath, prerequisites_of_calc={self.xd_ticket()})
             self.DeclareVectorOutputPort("hold", 2, self._calc_hold, prerequisites_of_calc={self.xd_ticket()})
         self._state = self.DeclareDiscreteState(start)
@@ -201,12 +217,15 @@ class ManualHand(LeafSystem):
             x[10:13], x[13:16] = self.plan.plan(target[:3], target[3:]), target[:3]
             out, x[19], x[20] = self.plan.approach(target[:3], target[3:])
             x[18] = max(out, p.sheath_retract_out) - self.initial_length  # the hand's shortest at least
-            if (not x[17] and not np.any(np.abs(_sheath_delta(x[7:10], x[10:13])) > 1e-12)
-                    and self.plan.dials(target[:3], target[3:])):
-                x[16], x[17] = x[18], 1.0  # the sheath stays: the hand dials the plan's curve (H12)
+            moves = bool(np.any(np.abs(_sheath_delta(x[7:10], x[10:13])) > 1e-12))
+            x[21] = float(moves)  # a moved sheath is a re-approach (below)
+            if not x[17] and not moves and self.plan.dials(target[:3], target[3:]):
+                x[16], x[17], x[21] = x[18], 1.0, 1.0  # the sheath stays: the hand dials the plan's curve (H12)
         sheath, goal = x[7:10], x[10:13]
         delta = _sheath_delta(sheath, goal)
         if not np.any(np.abs(delta) > 1e-12):
+            if not x[17] and not x[21] and self._lost(context):
+                x[16], x[17], x[21] = x[18], 1.0, 1.0  # the operator lost: the plan's curve dialled (H14)
             if x[17]:  # re-approach: the catheter out again, its knob and handle set for the plan's curve
                 seen = not np.isnan(x[18]) and self._windup.HasValue(context) and self._length_out.HasValue(context)
                 if seen:  # pushed until the catheter is out of the exit as far as the plan's curve (H12)
@@ -221,10 +240,14 @@ class ManualHand(LeafSystem):
                 if seen:
                     # The handle turned until the tip's curve points as the plan's (the twist at the
                     # exit, as a clinician sees the curve on fluoroscopy; H12): the windup's lag taken up.
-                    turn = (x[20] - float(_finite(self._windup.Eval(context))[1]) + np.pi) % (2 * np.pi) - np.pi
+                    exit_twist = float(_finite(self._windup.Eval(context))[1])
+                    turn = (x[20] - exit_twist + np.pi) % (2 * np.pi) - np.pi
                     # the handle beyond the plan's twist the way it turns (the exit held by the shaft's
-                    # friction): the hand stops a quarter turn past it
-                    lead = np.sign(turn) * ((x[1] - x[20] + np.pi) % (2 * np.pi) - np.pi)
+                    # friction): the hand stops a quarter turn past it. Measured from where the exit is
+                    # to go (the exit's twist plus the turn, the windup x[1] - exit kept unwrapped), not
+                    # the plan's twist wrapped about the handle: that read a turn and windup of more than
+                    # half a turn together as a handle already past (H14).
+                    lead = np.sign(turn) * (x[1] - exit_twist - turn)
                     if lead < np.pi / 2:
                         x[1] += float(np.clip(turn, -p.twist_rate * dt, p.twist_rate * dt))
                     x[2] += float(np.clip(x[19] - x[2], -p.knob_rate * dt, p.knob_rate * dt))
@@ -259,6 +282,12 @@ class ManualHand(LeafSystem):
         step = np.clip(delta, -rates, rates)
         x[7:10] = sheath + step
         return True
+
+    def _lost(self, context) -> bool:
+        """Whether the operator has failed ``REAPPROACH_ATTEMPTS`` times on its target (input
+        ``attempts``; unconnected: never)."""
+        return (self._attempts.HasValue(context)
+                and float(_finite(self._attempts.Eval(context))[0]) >= REAPPROACH_ATTEMPTS)
 
     def _other_tendon(self, knob: float) -> float:
         """The knob on the other tendon for the same bend (``f_over_d``: the F curve's largest bend

@@ -11,6 +11,11 @@ import numpy as np
 from ballchain.infrastructure.errors import UserInputError, require_finite_fields
 from ballchain.systems.unit_config import MagnetUnitConfig
 
+# The re-learning wiggles on one target at which its record calls a miss "confused"
+# (``TargetRecord.reason``); also the failed attempts (re-learns and bursts) after which the manual
+# arm's hand re-approaches the target with its plan's curve (``manual_hand.ManualHand``, issue 45, H14).
+CONFUSED_RELEARNS = 3
+
 
 @dataclass
 class OperatorParams:
@@ -145,7 +150,7 @@ class TargetRecord:
 
         "chain jammed": the chain jammed in more than a quarter of its looks; "out of reach": the
         target lay ahead but the feeder was at its length cap in more than half of them;
-        "confused": three or more re-learning wiggles; otherwise "timeout" (steering, sliding or
+        "confused": ``CONFUSED_RELEARNS`` (three) or more re-learning wiggles; otherwise "timeout" (steering, sliding or
         pressing beside it until the timeout). The closest approach is in the row.
         """
         if self.t_touch is not None or self.t_end is None:
@@ -155,7 +160,7 @@ class TargetRecord:
             return "chain jammed"
         if self.capped_looks > 0.5 * looks:
             return "out of reach"
-        if self.relearns >= 3:
+        if self.relearns >= CONFUSED_RELEARNS:
             return "confused"
         return "timeout"
 

@@ -146,6 +146,8 @@ class SimulatedOperator(SeededLeafSystem):
         joystick: (3,) stick axes in [-1, 1] (into a unit's TeleoperationMapper).
         v_insert_cmd: (1,) feeder speed command [m/s] (into the Feeder).
         done: (1,) 1 once every target is touched or given up.
+        target: (6,) the target it is on: centre [m] and wall normal.
+        attempts: (1,) its failed attempts on that target (``_calc_attempts``).
 
     State: abstract, its memory (what it learned, its plan, its records, its tremor's generator).
     Parameter: the tremor's seed (1; ``randomness.SeededLeafSystem``: its default is
@@ -186,6 +188,7 @@ class SimulatedOperator(SeededLeafSystem):
         self.DeclareVectorOutputPort("v_insert_cmd", 1, self._calc_feeder, prerequisites_of_calc=ticket)
         self.DeclareVectorOutputPort("done", 1, self._calc_done, prerequisites_of_calc=ticket)
         self.DeclareVectorOutputPort("target", 6, self._calc_target, prerequisites_of_calc=ticket)
+        self.DeclareVectorOutputPort("attempts", 1, self._calc_attempts, prerequisites_of_calc=ticket)
         self.DeclarePeriodicUnrestrictedUpdateEvent(p.period, 0.0, self._update)
 
     # ---------------------------------------------------------------------------- ports
@@ -218,6 +221,13 @@ class SimulatedOperator(SeededLeafSystem):
         for a hand that places a steerable sheath, issue 45)."""
         k = min(self._memory(context).k, len(self.names) - 1)
         output.SetFromVector(np.concatenate([self._p_WT[k], self._n_W[k]]))
+
+    def _calc_attempts(self, context, output):
+        """Its failed attempts on the target it is on: the re-learning wiggles and the bursts (each
+        its own verdict that the tip made no progress; ``TargetRecord.relearns + bursts``), 0
+        before the first (what it knows of its own struggle: for a hand that re-approaches, issue 45)."""
+        records = self._memory(context).records
+        output.SetAtIndex(0, float(records[-1].relearns + records[-1].bursts) if records else 0.0)
 
     # -------------------------------------------------------------------------- results
     def records(self, context) -> list[TargetRecord]:

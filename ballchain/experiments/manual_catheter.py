@@ -170,6 +170,7 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
         if device.hand.plan is not None:  # the hand places the steerable sheath for the operator's target
             builder.Connect(op.GetOutputPort("target"), device.hand.GetInputPort("target"))
             builder.Connect(device.hand.GetOutputPort("hold"), op.GetInputPort("hand_hold"))
+            builder.Connect(op.GetOutputPort("attempts"), device.hand.GetInputPort("attempts"))  # H14
         handles["tip"] = LogVectorOutput(device.system.GetOutputPort("tip_position"), builder, params.period)
         handles["windup"] = LogVectorOutput(device.system.GetOutputPort("windup"), builder, params.period)
         if used.wall_stiffness > 0:  # the wall force at each touch (compliant wall only: the default diagram kept)
