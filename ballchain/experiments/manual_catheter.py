@@ -118,8 +118,9 @@ def run(task: str = "left", targets: int | None = None, seed: int = 0, strategy:
     arm's) or "steerable" (``drake_models.sheath.SteerableSheath``, placed by the hand per target:
     ``systems.catheter_station.SheathPlan``, each ring's plans computed once and kept in the cache:
     ``systems.sheath_plan_cache``, H13; the operator waits while the hand moves it, its
-    input ``hand_hold``; issue 45, not the comparison's default: with a compliant wall of 0.14 N/mm
-    it touches 17/18 on the right ring, see ``docs/guide/manual_catheter.md``).
+    input ``hand_hold``; the hand re-approaches a target with the plan's curve once the operator has
+    failed on it three times, its output ``attempts``, H14; issue 45, not the comparison's default: with
+    a compliant wall of 0.14 N/mm it touches 17/18 on the right ring, see ``docs/guide/manual_catheter.md``).
 
     Returns:
         a ``teleop.TeleopResult`` (mapping "manual"); its settings add the catheter's and the
