@@ -41,12 +41,17 @@ def test_sheath_and_wall_stiffness_flags_reach_the_run(capsys):
     assert _untimed(data) == _untimed(json.loads(capsys.readouterr().out))
 
 
-def test_defaults_stay_the_fixed_sheath_and_the_rigid_wall(capsys):
+def test_the_defaults_are_the_comparison_s_manual_arm_and_zero_is_the_rigid_wall(capsys):
+    """No flags: the steerable sheath on the 0.14 N/mm wall (``manual_catheter.MANUAL_SHEATH``,
+    ``MANUAL_WALL_STIFFNESS``), the same run as with those flags; ``--sheath fixed --wall-stiffness
+    0``: the fixed sheath on the rigid wall (no wall figures in the JSON)."""
     data = _cli(capsys)
-    assert data["settings"]["sheath"].startswith("fixed")
-    assert "wall_stiffness_N_per_m" not in data["settings"]
-    zero = _cli(capsys, "--sheath", "fixed", "--wall-stiffness", "0")
-    assert _untimed(zero) == _untimed(data)
+    assert data["settings"]["sheath"].startswith("steerable") and mc.MANUAL_SHEATH == "steerable"
+    assert data["settings"]["wall_stiffness_N_per_m"] == mc.MANUAL_WALL_STIFFNESS == 140.0
+    flags = _cli(capsys, "--sheath", "steerable", "--wall-stiffness", "0.14")
+    assert _untimed(flags) == _untimed(data)
+    fixed = _cli(capsys, "--sheath", "fixed", "--wall-stiffness", "0")
+    assert fixed["settings"]["sheath"].startswith("fixed") and "wall_stiffness_N_per_m" not in fixed["settings"]
 
 
 @pytest.mark.parametrize("argv,flag", [

@@ -153,9 +153,9 @@ def test_sparc_is_dimensionless_and_prefers_one_smooth_movement():
 @pytest.mark.slow
 @pytest.mark.parametrize("task", ["left", "right"])
 def test_manual_task_smoke(task):
-    """The first three targets of each task with the manual catheter: the run ends, its rows and
-    path are complete, the transitions and effort are computed."""
-    r = mc.run(task=task, targets=3, seed=0, catheter=mc.comparison_catheter())
+    """The first three targets of each task with the manual catheter (the comparison's arm): the run
+    ends, its rows and path are complete, the transitions and effort are computed."""
+    r = mc.run(task=task, targets=3, seed=0)
     assert [row["target"] for row in r.rows] == [f"{task}_{k}" for k in (1, 2, 3)]
     assert all(row["time_s"] is not None for row in r.rows)
     assert len(r.settings["path"]["tip"]) == len(r.settings["path"]["t"]) > 10

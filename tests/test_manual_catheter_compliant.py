@@ -29,7 +29,7 @@ def test_the_watchdog_tolerates_what_the_compliant_wall_holds_and_no_more():
             assert holds(p) is expected, (names[k], d)
 
 
-def test_a_compliant_run_reports_its_wall_and_the_default_run_does_not():
+def test_a_compliant_run_reports_its_wall_and_a_rigid_run_does_not():
     cat = mc.comparison_catheter()
     cat.wall_stiffness = 140.0
     soft = mc.run(task="left", targets=2, catheter=cat)
@@ -42,6 +42,6 @@ def test_a_compliant_run_reports_its_wall_and_the_default_run_does_not():
     assert sorted(s["touch_wall_force_N"]) == sorted(touched)
     for total, tip in s["touch_wall_force_N"].values():
         assert s["peak_wall_force_N"] + 1e-4 >= total >= tip >= 0.0
-    rigid = mc.run(task="right", targets=1, time_limit=2.0)
+    rigid = mc.run(task="right", targets=1, time_limit=2.0, sheath="fixed", catheter=mc.comparison_catheter())
     assert not {"wall_stiffness_N_per_m", "peak_wall_force_N", "peak_tip_force_N",
                 "wall_indentations", "touch_wall_force_N"} & set(rigid.settings)

@@ -52,10 +52,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "the comparison's; 0: the braid neglected in torsion)")
     parser.add_argument("--sheath", default=None,
                         help="with --device steerable_catheter: fixed (the paper's sheath, the robotic arm's) or "
-                             "steerable (a deflectable sheath the hand places per target, issue 45) (default: fixed)")
+                             "steerable (a deflectable sheath the hand places per target, issue 45) (default: steerable, the "
+                             "comparison's manual arm)")
     parser.add_argument("--wall-stiffness", type=finite_float, default=None, metavar="K",
                         help="with --device steerable_catheter: the atrium wall's normal stiffness per rod node in "
-                             "N/mm (a compliant wall; tissue about 0.1-0.25 N/mm, Ijima et al.) (default: 0, rigid)")
+                             "N/mm (a compliant wall; tissue about 0.1-0.25 N/mm, Ijima et al.; 0: rigid) (default: 0.14, the "
+                             "comparison's manual arm)")
     parser.add_argument("--mapping", default=None,
                         help="world (the paper's: stick = magnet angular velocity in world) or catheter "
                              "(stick swings the tip in the tip's frame) (default: world)")
@@ -164,13 +166,13 @@ def _main_manual(args: argparse.Namespace) -> int:
     strategy = "switch" if args.strategy is None else args.strategy
     manual_catheter.check_inputs("left" if args.task is None else args.task, args.targets, args.time_limit,
                                  0 if args.seed is None else args.seed, strategy)
-    sheath = "fixed" if args.sheath is None else args.sheath
+    sheath = manual_catheter.MANUAL_SHEATH if args.sheath is None else args.sheath
     if sheath not in manual_catheter.SHEATHS:
         from ballchain.infrastructure.errors import UserInputError, short_repr
 
         raise UserInputError(f"--sheath must be one of {', '.join(manual_catheter.SHEATHS)} (a steerable sheath the "
                              f"hand moves, or the paper's fixed one), got {short_repr(args.sheath)}")
-    catheter = manual_catheter.comparison_catheter(args.braid, _wall_stiffness(args.wall_stiffness))
+    catheter = manual_catheter.manual_arm_catheter(args.braid, _wall_stiffness(args.wall_stiffness))
     data = manual_catheter.run(task="left" if args.task is None else args.task, targets=args.targets,
                                seed=0 if args.seed is None else args.seed, strategy=strategy,
                                time_limit=args.time_limit, catheter=catheter, html=args.html, sheath=sheath)
@@ -184,7 +186,10 @@ def _main_manual(args: argparse.Namespace) -> int:
             spent = "not reached" if r["time_s"] is None else f"missed after {r['time_s']:.2f} s"
             print(f"{r['target']:9s} {spent} ({data.summary.missed_reasons.get(r['target'])})")
     s = data.summary
-    print(f"{data.task} task, manual catheter ({strategy} at the windup): {s.touched}/{s.targets} touched in "
+    k = data.settings.get("wall_stiffness_N_per_m")
+    wall = "rigid wall" if not k else f"{k / 1e3:g} N/mm wall"
+    print(f"{data.task} task, manual catheter ({sheath} sheath, {wall}, {strategy} at the windup): "
+          f"{s.touched}/{s.targets} touched in "
           f"{s.total_time_s:.1f} s; tendon switches {data.settings['switches']}; operator in the paper: "
           f"{manual_catheter.PAPER_COMPARISON[data.task]['manual_s']:.0f} s")
     if data.html is not None:
@@ -194,7 +199,8 @@ def _main_manual(args: argparse.Namespace) -> int:
 
 def _wall_stiffness(n_per_mm) -> float | None:
     """``--wall-stiffness`` [N/mm] as the catheter's ``wall_stiffness`` [N/m] (None: not given, the
-    rigid wall); UserInputError naming the flag outside [0, the catheter's most]."""
+    manual arm's, ``manual_catheter.MANUAL_WALL_STIFFNESS``); UserInputError naming the flag outside
+    [0, the catheter's most]."""
     from ballchain.drake_models.steerable_catheter import MAX_WALL_STIFFNESS
     from ballchain.infrastructure.errors import UserInputError
 

@@ -221,7 +221,13 @@ def manual_section(out: Path, quick: bool) -> tuple[Section, dict]:
         f"with the shaft's steel braid in torsion ({cat.braid_wires} wires of {cat.braid_wire_diameter * 1e3:.3f} mm at "
         f"{math.degrees(cat.braid_angle):.0f} deg, netting analysis: GJ {cat.shaft_GJ / cat.plain_GJ:.1f} times the "
         f"plain tube's; `drake_models/steerable_catheter.py`), {plain['kinetic_deg']}-{plain['static_deg']} deg with "
-        "it neglected: there the operator touches nothing.")
+        "it neglected: there the operator touches nothing. "
+        f"The arms' sheaths and walls differ (issue 45): the manual arm has a {mc.MANUAL_SHEATH} sheath the hand places "
+        "per target (as for pulmonary-vein isolation; `systems/sheath_plan.py`, its plans cached per ring) on a "
+        f"compliant wall of {mc.MANUAL_WALL_STIFFNESS / 1e3:g} N/mm (Ijima et al.), the robotic arm the paper's fixed "
+        "sheath and the quasi-static engine's rigid wall (its statics has no compliant wall yet). A tissue-like wall "
+        "sped the robotic arm too where it could be run (the plant engine, one seed, `docs/guide/manual_catheter.md`), "
+        "so these walls favour the manual arm.")
     section.table(["task", "device", "touched", "total [s]", "paper [s]", "transition median [s]",
                    "accuracy median [mm]", "SPARC median", "reversals", "handle revolutions / stick travel"],
                   [[r["task"], r["device"], f"{r['touched_median']:g}/{r['targets']}", r["total_time_median_s"],
