@@ -6,29 +6,23 @@ import math
 import numpy as np
 import pytest
 
-from ballchain.drake_models.atrium_sdf import atrium_sdf
 from ballchain.drake_models.electrode import CATHETER_ELECTRODE_LENGTH, axis_start
-from ballchain.drake_models.sheath import SteerableSheath
 from ballchain.experiments import manual_catheter as mc
-from ballchain.optimization.rod_statics import frame_along
 from ballchain.systems.manual_hand import DIAL_PUSH_TOLERANCE, DIAL_TOLERANCE, HandParams, ManualHand
 from ballchain.systems.rod_wall_compliance import CompliantRodStatics
 from ballchain.systems.sheath_plan import REFINE_ADVANCE, REFINE_ROTATION, SheathPlan
-from ballchain.systems.station import atrium_for
-from ballchain.systems.target_contact import heart_targets, targets_touched
+from ballchain.systems.target_contact import targets_touched
+
+from sheath_world import sheath_world  # noqa: E402
 
 LIMIT = 40e-3 * 9.80665  # [N] 40 gf, the plan's force limit
 
 
 @pytest.fixture(scope="module")
 def world():
-    heart = atrium_for(mc.scenario_for())
-    sdf, sheath = atrium_sdf(heart), SteerableSheath().validate()
-    axis = np.asarray(heart.sheath_axis_H, float)
-    R_S = frame_along(axis)
-    p_S = np.asarray(heart.p_HE, float) - sheath.nominal_advance * axis
-    names, p_WT, n_W, radius = heart_targets(heart)
-    cat = mc.comparison_catheter(None, 140.0)
+    w = sheath_world()
+    heart, sdf, sheath, p_S, R_S, names, p_WT, n_W, radius, cat = (
+        w[k] for k in ("heart", "sdf", "sheath", "p_S", "R_S", "names", "p_WT", "n_W", "radius", "cat"))
     plan = SheathPlan(sheath, cat, p_S, R_S, sdf, radius, min_out=6e-3)
     return heart, sdf, sheath, p_S, R_S, names, p_WT, n_W, radius, cat, plan
 

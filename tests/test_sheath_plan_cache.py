@@ -20,15 +20,15 @@ import numpy as np
 import pytest
 
 from ballchain.drake_models import model_files, result_cache
-from ballchain.drake_models.atrium_sdf import AtriumSDF, atrium_sdf
+from ballchain.drake_models.atrium_sdf import AtriumSDF
 from ballchain.drake_models.sheath import SteerableSheath
 from ballchain.experiments import manual_catheter as mc
 from ballchain.systems import sheath_plan_cache as spc
 from ballchain.systems.catheter_station import HandParams, ManualHand
 from ballchain.systems.sheath_plan import SheathPlan
-from ballchain.systems.station import atrium_for
 from ballchain.systems.target_contact import heart_targets
-from ballchain.optimization.rod_statics import frame_along
+
+from sheath_world import sheath_world  # noqa: E402
 
 # right_1 (the fixed sheath's setting kept, its curve dialled), right_3 (kept, not dialled) and
 # right_13 (the sheath curled): 1 CPU-s of planning.
@@ -37,16 +37,9 @@ RING = ("right_1", "right_3", "right_13")
 
 @pytest.fixture(scope="module")
 def world():
-    heart = atrium_for(mc.scenario_for())
-    sdf, sheath = atrium_sdf(heart), SteerableSheath().validate()
-    axis = np.asarray(heart.sheath_axis_H, float)
-    R_S = frame_along(axis)
-    p_S = np.asarray(heart.p_HE, float) - sheath.nominal_advance * axis
-    names, p_WT, n_W, radius = heart_targets(heart)
-    ring = [names.index(n) for n in RING]
-    cat = mc.comparison_catheter(None, 140.0)
-    return {"heart": heart, "sdf": sdf, "sheath": sheath, "cat": cat, "p_S": p_S, "R_S": R_S, "radius": radius,
-            "p_T": p_WT[ring], "n_T": n_W[ring], "names": names, "p_WT": p_WT, "n_W": n_W}
+    w = sheath_world()
+    ring = [w["names"].index(n) for n in RING]
+    return {**w, "p_T": w["p_WT"][ring], "n_T": w["n_W"][ring]}
 
 
 def _args(w) -> tuple:
