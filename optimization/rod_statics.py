@@ -157,6 +157,10 @@ class RodStatics:
         self.GJ = 1.0 / (self.frac / c.tip_GJ + (1.0 - self.frac) / c.shaft_GJ)
         self.deflectable = tip
         self._stiffness_key = None
+        # The last answers of ``first_free``, ``share`` and ``rest`` with their arguments (exact keys).
+        self._free_key = (None, None)
+        self._share_key = (None, None)
+        self._rest_key = self._rest = None
         self.p_E = np.asarray(p_E, float)
         self.R_E = frame_along(axis)
         self.sdf = sdf
@@ -170,8 +174,12 @@ class RodStatics:
     def first_free(self, length: float) -> int:
         """The first joint outside the sheath for ``length`` of rod beyond the exit: the first
         whose h of rod reaches beyond the exit (sigma - h / 2 < length)."""
+        if self._free_key[0] == length:  # (the SQP asks again and again at one length)
+            return self._free_key[1]
         free = np.flatnonzero(self.sigma - 0.5 * self.h < length)
-        return int(free[0]) if len(free) else self.n_joints
+        j0 = int(free[0]) if len(free) else self.n_joints
+        self._free_key = (length, j0)
+        return j0
 
     def share(self, j0: int, length: float | None) -> tuple[float, float]:
         """The first free joint's rod out of the sheath, (free, of it deflectable) [m] (None: its
@@ -184,9 +192,12 @@ class RodStatics:
             return self.h, 0.0
         if length is None:
             return self.h, self.h * float(self.frac[j0])
+        if self._share_key[0] == (j0, length):  # the last answer, for the same arguments
+            return self._share_key[1]
         lo = self.sigma[j0] - 0.5 * self.h  # its h of rod's distal end
         free = float(np.clip(length - lo, MIN_SHARE * self.h, self.h))
         bent = float(np.clip(min(length, self.catheter.deflectable_length) - lo, 0.0, free))
+        self._share_key = ((j0, length), (free, bent))
         return free, bent
 
     def stiffness(self, j0: int, kappa: float = 0.0, length: float | None = None) -> np.ndarray:
@@ -211,11 +222,15 @@ class RodStatics:
     def rest(self, j0: int, kappa: float, length: float | None = None) -> np.ndarray:
         """The joints' rest angles: b = h kappa times each joint's share in the deflectable segment
         (3 f,), the first joint's from its rod out of the sheath (``share``)."""
+        key = (j0, kappa, length)
+        if self._rest_key == key:  # the last answer (shared, as ``stiffness``'s: read, never written)
+            return self._rest
         r = np.zeros((self.n_joints - j0, 3))
         r[:, 1] = self.h * kappa * self.frac[j0:]
         if len(r) and length is not None:
             r[0, 1] = kappa * self.share(j0, length)[1]
-        return r.ravel()
+        self._rest_key, self._rest = key, r.ravel()
+        return self._rest
 
     def energy(self, q: np.ndarray, j0: int, kappa: float, length: float | None = None) -> float:
         d = q - self.rest(j0, kappa, length)

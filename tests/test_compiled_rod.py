@@ -40,3 +40,21 @@ def test_the_jacobian_is_the_nodes_derivative(rod):
         dq[col] = 1e-7
         numeric = (rod.pose_reference(q + dq, length, phi).nodes - rod.pose_reference(q - dq, length, phi).nodes) / 2e-7
         np.testing.assert_allclose(J[:, :, col], numeric, atol=1e-9)
+
+
+def test_the_remembered_answers_are_the_computed_ones():
+    """``first_free``, ``share`` and ``rest`` remember their last answer with its arguments: over a
+    sequence of lengths and curvatures that repeats and changes, each answer equals a fresh
+    model's (which remembers nothing yet), bit for bit."""
+    cat = mc.comparison_catheter()
+    kept = RodStatics(cat, np.zeros(3), np.array([0.0, 0.0, 1.0]), None)
+    sequence = [(0.02, 0.0), (0.02, 0.0), (0.0203, 0.0), (0.02, 30.0), (0.0215, 30.0), (0.0215, 30.0), (0.02, 0.0), (0.06, 12.5),
+                (0.001, 12.5), (0.2, -8.0), (0.2, -8.0)]
+    for with_length in (True, False):  # rest() with the length, then without (the whole first joint's share)
+        for length, kappa in sequence:
+            fresh = RodStatics(cat, np.zeros(3), np.array([0.0, 0.0, 1.0]), None)
+            j0 = kept.first_free(length)
+            assert j0 == fresh.first_free(length)
+            assert kept.share(j0, length) == fresh.share(j0, length)
+            at = length if with_length else None
+            np.testing.assert_array_equal(kept.rest(j0, kappa, at), fresh.rest(j0, kappa, at))
