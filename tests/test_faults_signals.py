@@ -442,7 +442,12 @@ def test_more_signals_while_the_replay_is_saved_change_nothing(tmp_path):
     text = log.read_text()
     notes = {129: "interrupted by SIGHUP", 143: "interrupted by SIGTERM", 130: "simulate: interrupted ("}
     assert proc.returncode in notes and notes[proc.returncode] in text, text[-3000:]
-    assert text.count("received while saving what finished") == 1
+    # At most one note about the later signals (the in-process test above checks that it is
+    # printed, once). None when no later signal reached the handler during the save: the first
+    # stop taken inside a compiled kernel is delivered again a moment later and the signals
+    # meanwhile are that stop, and a save over within one of this loop's gaps (10 ms, longer on a
+    # loaded machine: 1 run in the full suite at a load of 3 on December 7th) meets none.
+    assert text.count("received while saving what finished") <= 1
     assert html.read_bytes().rstrip().endswith(b"</html>")
 
 
