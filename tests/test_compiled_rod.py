@@ -48,8 +48,8 @@ def test_the_remembered_answers_are_the_computed_ones():
     model's (which remembers nothing yet), bit for bit."""
     cat = mc.comparison_catheter()
     kept = RodStatics(cat, np.zeros(3), np.array([0.0, 0.0, 1.0]), None)
-    sequence = [(0.02, 0.0), (0.02, 0.0), (0.0203, 0.0), (0.02, 30.0), (0.0215, 30.0), (0.0215, 30.0), (0.02, 0.0), (0.06, 12.5),
-                (0.001, 12.5), (0.2, -8.0), (0.2, -8.0)]
+    sequence = [(0.02, 0.0), (0.02, 0.0), (0.0203, 0.0), (0.02, 30.0), (0.0215, 30.0), (0.0215, 30.0),
+                (0.02, 0.0), (0.06, 12.5), (0.001, 12.5), (0.2, -8.0), (0.2, -8.0)]
     for with_length in (True, False):  # rest() with the length, then without (the whole first joint's share)
         for length, kappa in sequence:
             fresh = RodStatics(cat, np.zeros(3), np.array([0.0, 0.0, 1.0]), None)

@@ -52,12 +52,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "the comparison's; 0: the braid neglected in torsion)")
     parser.add_argument("--sheath", default=None,
                         help="with --device steerable_catheter: fixed (the paper's sheath, the robotic arm's) or "
-                             "steerable (a deflectable sheath the hand places per target, issue 45) (default: steerable, the "
-                             "comparison's manual arm)")
+                             "steerable (a deflectable sheath the hand places per target, issue 45) "
+                             "(default: steerable, the comparison's manual arm)")
     parser.add_argument("--wall-stiffness", type=finite_float, default=None, metavar="K",
                         help="with --device steerable_catheter: the atrium wall's normal stiffness per rod node in "
-                             "N/mm (a compliant wall; tissue about 0.1-0.25 N/mm, Ijima et al.; 0: rigid) (default: 0.14, the "
-                             "comparison's manual arm)")
+                             "N/mm (a compliant wall; tissue about 0.1-0.25 N/mm, Ijima et al.; 0: rigid) "
+                             "(default: 0.14, the comparison's manual arm)")
     parser.add_argument("--mapping", default=None,
                         help="world (the paper's: stick = magnet angular velocity in world) or catheter "
                              "(stick swings the tip in the tip's frame) (default: world)")
