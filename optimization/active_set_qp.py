@@ -1,10 +1,15 @@
 """The Newton steps' QP, ``dense_qp`` (a dual active-set method on a dense positive definite
-Hessian), also used by ``rod_statics``. ``optimization.statics`` re-exports it.
+Hessian), the numpy reference; ``optimization.statics`` re-exports it. ``compiled_dense_qp``: the
+same law by the compiled kernels (``kernels.dense_qp``), with ``dense_qp``'s signature and
+returns, for the catheter rod's SQP (``rod_statics``, ``systems.rod_wall_friction``).
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from ballchain.drake_models.kernels.dense_qp import cholesky as _cholesky
+from ballchain.drake_models.kernels.dense_qp import dense_qp as _compiled_qp
 
 
 def dense_qp(H: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarray, E: np.ndarray | None = None,
@@ -82,6 +87,29 @@ def dense_qp(H: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarray, E: np.n
             return x, y[:n_in], y[n_in:]
         free[j] = True
     return None, None, None
+
+
+def compiled_dense_qp(H: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarray, E: np.ndarray | None = None,
+                      e: np.ndarray | None = None, max_iterations: int = 200):
+    """``dense_qp``'s problem, arguments and returns, solved by the compiled kernels: LAPACK's
+    Cholesky factor of H (``kernels.dense_qp.cholesky``) and the kernel's dual active set, whose
+    solves with the factor are triangular (the reference's ``np.linalg.solve`` factorises the
+    triangle again, by LU). The same law; the floats agree within round-off, not bit for bit
+    (``tests/test_rod_qp.py``). Raises ``numpy.linalg.LinAlgError`` when H is not positive
+    definite, as the reference's Cholesky does."""
+    ok, Lc = _cholesky(np.asarray(H, float))
+    if not ok:
+        raise np.linalg.LinAlgError("Matrix is not positive definite.")
+    b = np.asarray(b, float)
+    n_in = len(b)
+    if E is None or len(e) == 0:
+        N, c = np.ascontiguousarray(A, float).reshape(n_in, len(g)), b
+    else:
+        N, c = np.vstack([A, E]).astype(float), np.concatenate([b, np.asarray(e, float)])
+    ok, x, y = _compiled_qp(Lc, np.asarray(g, float), N, c, n_in, max_iterations)
+    if not ok:
+        return None, None, None
+    return x, y[:n_in], y[n_in:]
 
 
 def _refined(M: np.ndarray, r: np.ndarray, y: np.ndarray, free: np.ndarray, n_in: int,

@@ -27,7 +27,9 @@ the rod's radius inside the lumen, ``sdf(p) >= r`` (the atrium's signed-distance
 ``drake_models.atrium_sdf``); the wall is frictionless. Solved by sequential quadratic
 programming: the energy is quadratic in the joint angles (its Hessian, diag(EI/h, EI/h, GJ/h), is
 exact and constant), the wall rows are linearised at each iterate, and each step is the dense QP
-of the chain's statics (``optimization.statics.dense_qp``), with a cap on the step's largest angle.
+of the chain's statics (``optimization.active_set_qp``: its compiled kernels, ``RodStatics.qp``;
+the numpy reference ``dense_qp`` by ``qp = staticmethod(dense_qp)``), with a cap on the step's
+largest angle.
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ import numpy as np
 from ballchain.drake_models.steerable_catheter import SteerableCatheter
 from ballchain.drake_models.vectors import cross
 from ballchain.optimization.compiled_rod import rod_pose
-from ballchain.optimization.statics import dense_qp
+from ballchain.optimization.active_set_qp import compiled_dense_qp
 
 MIN_SHARE = 1e-3  # the least free share of the joint at the exit (its stiffness over g: finite)
 
@@ -136,7 +138,13 @@ class RodStatics:
         p_E: (3,) the sheath exit [m]; axis: (3,) the sheath's direction (into the atrium).
         sdf: the atrium's AtriumSDF (or any ``sdf(p, gradient=True) -> (values, gradients)``), or
             None: free space.
+
+    The steps' QP is ``qp``: the compiled ``active_set_qp.compiled_dense_qp`` (1.4-1.7x a manual
+    run, ``docs/performance.md`` section 37); its numpy reference ``active_set_qp.dense_qp`` has
+    the same signature (the tests' cross-check).
     """
+
+    qp = staticmethod(compiled_dense_qp)
 
     def __init__(self, catheter: SteerableCatheter, p_E, axis, sdf=None) -> None:
         self.catheter = c = catheter.validate()
@@ -371,9 +379,9 @@ class RodStatics:
         A, b, _ = self._wall_rows(self.pose(q, length, phi))
         near = b < 3e-3  # rows that can become active within a step
         near[0] = False  # the first joint, at the exit (or up to h / 2 behind it), no joint moves
-        dq, lam_near, _ = dense_qp(H, g, A[near], b[near])
+        dq, lam_near, _ = self.qp(H, g, A[near], b[near])
         if dq is None:  # the linearised rows cannot all hold with this energy: back to the wall
-            dq, lam_near, _ = dense_qp(H, np.zeros(len(g)), A[near], b[near])
+            dq, lam_near, _ = self.qp(H, np.zeros(len(g)), A[near], b[near])
         if dq is None:  # nor at all: halfway towards the straight rod
             dq, lam_near, near = -0.5 * q, np.zeros(0), np.zeros(len(b), bool)
         lam = np.zeros(len(b))

@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ballchain.optimization.active_set_qp import dense_qp
 from ballchain.optimization.rod_statics import RodSolution, RodStatics
 from ballchain.systems.rod_wall_compliance import CompliantRodStatics
 
@@ -175,7 +174,7 @@ class FrictionalRodStatics(RodStatics):
         near[list(self._stick)] = True  # a stuck node's wall row always (the QP needs an inequality row)
         near[0] = False
         E, e = self._stick_rows(pose)
-        dq, lam_near, mu = dense_qp(H, g, A[near], b[near], E, e)
+        dq, lam_near, mu = self.qp(H, g, A[near], b[near], E, e)
         if dq is None:  # the stick rows with the wall's cannot hold: released for this solve
             self._stick, self._eq = {}, None
             return super()._step(q, H, g, length, phi)
