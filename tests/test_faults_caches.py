@@ -127,6 +127,37 @@ def test_a_damaged_sdf_grid_is_rebuilt_with_one_line(user_atrium, tmp_path, caps
     np.testing.assert_array_equal(again.values, sdf.values)
 
 
+def test_a_grid_read_once_is_not_read_again_until_its_files_change(user_atrium, tmp_path, monkeypatch, capsys):
+    """The process keeps the grids it has read and checked: a second call reads no file and gives
+    a copy with the same node values; a file rewritten (a new modification time) or damaged after
+    that is read again, and a damaged one rebuilt with its one line."""
+    import os
+
+    from ballchain.drake_models.atrium_sdf import atrium_sdf
+
+    grid = dict(spacing=2e-3, band=3e-3)
+    built = atrium_sdf(user_atrium, directory=tmp_path, **grid)
+    (path,) = tmp_path.glob("atrium_sdf_*.npz")
+    reads, real_load = [], np.load
+    monkeypatch.setattr(np, "load", lambda *a, **k: (reads.append(a[0]), real_load(*a, **k))[1])
+    first = atrium_sdf(user_atrium, directory=tmp_path, **grid)
+    second = atrium_sdf(user_atrium, directory=tmp_path, **grid)
+    assert reads == [path]  # the first call read the file, the second nothing
+    assert second is not first and np.shares_memory(second.values, first.values)
+    np.testing.assert_array_equal(second.values, built.values)
+    p = first.origin + 5e-3
+    assert second(p[None])[0] == first(p[None])[0]
+    stat = path.stat()
+    os.utime(path, ns=(stat.st_atime_ns, stat.st_mtime_ns + 10**9))
+    atrium_sdf(user_atrium, directory=tmp_path, **grid)
+    assert reads == [path, path]  # rewritten: read again
+    path.write_text("not a zip file\n")
+    capsys.readouterr()
+    rebuilt = atrium_sdf(user_atrium, directory=tmp_path, **grid)
+    _one_rebuilt_line(capsys.readouterr().err, path)
+    np.testing.assert_array_equal(rebuilt.values, built.values)
+
+
 # ------------------------------------------------------------------ the cache folder itself
 
 def test_a_damaged_package_xml_is_rewritten_and_drake_reads_it(tmp_path, monkeypatch, capsys):
