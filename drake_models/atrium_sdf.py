@@ -37,6 +37,7 @@ from __future__ import annotations
 import copy
 import hashlib
 import os
+import threading
 import zipfile
 import zlib
 from dataclasses import dataclass
@@ -205,8 +206,11 @@ def build_atrium_sdf(heart, spacing: float = 0.5e-3, band: float = 5e-3, margin:
     return AtriumSDF(lo, spacing, sdf.reshape(shape).astype(np.float32), band)
 
 
-# The grids this process has read and checked, by file: (the files' stamp, the grid).
+# The grids this process has read and checked, by file: (the files' stamp, the grid); the last
+# KEEP_READ used (a sweep over perturbed anatomies reads a new grid per anatomy, 27 MB each).
 _READ: dict[str, tuple[tuple, AtriumSDF]] = {}
+_READ_LOCK = threading.Lock()  # a Dask worker's threads share the process
+KEEP_READ = 4
 
 
 def _stamp(*paths: Path) -> tuple | None:
@@ -224,9 +228,10 @@ def atrium_sdf(heart, spacing: float = 0.5e-3, band: float = 5e-3, margin: float
     The file ``atrium_sdf_<key>.npz`` goes next to the heart's generated files (``write_files``)
     or into ``directory``; the key hashes the surface's triangles, the inside test and the grid
     parameters, so a changed mesh never reads a stale grid. A grid this process has read and
-    checked is not read again while its two files are unchanged (their inode, size and
-    modification time): each call returns a shallow copy sharing the node values, which are
-    never written (about 30 ms a station build, a few CPU-s of the main job).
+    checked (one of the last ``KEEP_READ`` used) is not read again while its two files are
+    unchanged (their inode, size and modification time): each call returns a shallow copy sharing
+    the node values, which are never written (about 30 ms a station build, a few CPU-s of the
+    main job).
     """
     V, F = heart.blood_surface
     margin = _margin(heart, margin, band)
@@ -235,9 +240,11 @@ def atrium_sdf(heart, spacing: float = 0.5e-3, band: float = 5e-3, margin: float
     path = directory / f"atrium_sdf_{key}.npz"
     listing = directory / f"atrium_sdf_{key}.hmac"  # its signature (model_files.install_signed)
     stamp = _stamp(path, listing)
-    kept = _READ.get(str(path))
-    if stamp is not None and kept is not None and kept[0] == stamp:
-        return copy.copy(kept[1])  # read and checked before in this process, the files unchanged
+    with _READ_LOCK:
+        kept = _READ.pop(str(path), None)
+        if stamp is not None and kept is not None and kept[0] == stamp:
+            _READ[str(path)] = kept  # the most recently used last
+            return copy.copy(kept[1])  # read and checked before in this process, the files unchanged
     damaged = False
     if path.exists() and listing.exists():  # a grid never signed (a killed run's) is built again quietly
         damaged = True  # unless it carries this user's signature and reads back whole
@@ -250,7 +257,10 @@ def atrium_sdf(heart, spacing: float = 0.5e-3, band: float = 5e-3, margin: float
                         and stored == (float(spacing), float(band)) and np.all(np.isfinite(origin))
                         and np.all(np.isfinite(values))):
                     sdf = AtriumSDF(origin, stored[0], values.astype(float), stored[1], key)
-                    _READ[str(path)] = (stamp, sdf)
+                    with _READ_LOCK:
+                        _READ[str(path)] = (stamp, sdf)
+                        while len(_READ) > KEEP_READ:
+                            del _READ[next(iter(_READ))]  # the least recently used
                     return copy.copy(sdf)
             except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, zlib.error):
                 pass  # not an npz of the grid: rebuild it

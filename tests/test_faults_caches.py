@@ -158,6 +158,29 @@ def test_a_grid_read_once_is_not_read_again_until_its_files_change(user_atrium, 
     np.testing.assert_array_equal(rebuilt.values, built.values)
 
 
+def test_the_process_keeps_only_the_last_grids_it_used(user_atrium, tmp_path, monkeypatch):
+    """A sweep over anatomies reads a grid per anatomy: the process keeps the last ``KEEP_READ``
+    used, the least recently used dropped (and read again when asked for)."""
+    from ballchain.drake_models import atrium_sdf as module
+
+    monkeypatch.setattr(module, "_READ", {})
+    monkeypatch.setattr(module, "KEEP_READ", 2)
+    grid = dict(spacing=2e-3, band=3e-3)
+    folders = [tmp_path / name for name in "abc"]
+    for folder in folders:  # built and written
+        module.atrium_sdf(user_atrium, directory=folder, **grid)
+    reads, real_load = [], np.load
+    monkeypatch.setattr(np, "load", lambda *a, **k: (reads.append(a[0].parent.name), real_load(*a, **k))[1])
+    for name in "aba":
+        module.atrium_sdf(user_atrium, directory=tmp_path / name, **grid)
+    assert reads == ["a", "b"] and len(module._READ) == 2
+    module.atrium_sdf(user_atrium, directory=folders[2], **grid)  # c read: b, the least recently used, dropped
+    assert len(module._READ) == 2
+    module.atrium_sdf(user_atrium, directory=folders[0], **grid)
+    module.atrium_sdf(user_atrium, directory=folders[1], **grid)
+    assert reads == ["a", "b", "c", "b"]
+
+
 # ------------------------------------------------------------------ the cache folder itself
 
 def test_a_damaged_package_xml_is_rewritten_and_drake_reads_it(tmp_path, monkeypatch, capsys):
